@@ -1,0 +1,5 @@
+import sys
+
+from compd.cli import main
+
+sys.exit(main())

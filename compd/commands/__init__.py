@@ -1,0 +1,1 @@
+"""One module per `compd` subcommand (see compd.cli)."""

@@ -1,0 +1,25 @@
+"""The daemon's own refusals ("we refused"), kept apart from the controller's
+(`drivers.errors.WriteRejected`). All derive from the one root `CompdError`."""
+
+from __future__ import annotations
+
+from models.errors import CompdError, ModelError
+
+__all__ = ["CompdError", "ConfigError", "ModelError", "SafetyTrip", "EX_CONFIG"]
+
+#: sysexits.h EX_CONFIG: systemd is told not to restart on it.
+EX_CONFIG = 78
+
+
+class ConfigError(CompdError):
+    """The configuration is invalid. `key` is the dotted key path, `reason` why."""
+
+    def __init__(self, key: str, reason: str) -> None:
+        self.key = key
+        self.reason = reason
+        super().__init__(f"{key}: {reason}" if key else reason)
+
+
+class SafetyTrip(CompdError):
+    """The daemon stopped compensating on purpose (a permanent write refusal,
+    a state it cannot trust)."""

@@ -1,0 +1,178 @@
+"""Typed, validated addresses per protocol (pydantic models).
+
+Each address model is what one channel or output looks like in the daemon's
+config and in `compd sim --json`. Unknown keys are refused. `describe()`
+gives the short string used in error messages and logs.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+
+class _Address(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    def describe(self) -> str:
+        raise NotImplementedError
+
+
+def _check_scale(v: float) -> float:
+    if not math.isfinite(v) or v == 0.0:
+        raise ValueError("scale must be a finite non-zero number")
+    return v
+
+
+class OpcUaAddress(_Address):
+    """An OPC UA node, e.g. ``ns=2;s=Machine.Bearing`` or ``ns=3;i=1001``."""
+
+    node: str
+    scale: float = 1.0
+
+    @field_validator("node")
+    @classmethod
+    def _node(cls, v: str) -> str:
+        v = v.strip()
+        parts = dict(p.split("=", 1) for p in v.split(";") if "=" in p)
+        kinds = {"i", "s", "g", "b"}
+        if not v or not (kinds & parts.keys()) or any(
+                "=" not in p for p in v.split(";")):
+            raise ValueError(f"not an OPC UA NodeId string: {v!r} "
+                             "(expected e.g. 'ns=2;s=Name' or 'ns=2;i=1001')")
+        if "ns" in parts and not parts["ns"].isdigit():
+            raise ValueError(f"namespace index must be an integer in {v!r}")
+        if "i" in parts and not parts["i"].isdigit():
+            raise ValueError(f"numeric identifier must be an integer in {v!r}")
+        return v
+
+    _scale = field_validator("scale")(_check_scale)
+
+    def describe(self) -> str:
+        return self.node
+
+
+S7Type = Literal["REAL", "INT", "DINT", "WORD"]
+S7_SIZES: dict[str, int] = {"REAL": 4, "INT": 2, "DINT": 4, "WORD": 2}
+
+
+class S7Address(_Address):
+    """A value in an S7 data block (big-endian). Integers carry a scale:
+    engineering value = raw * scale."""
+
+    area: Literal["DB"] = "DB"
+    db: Annotated[int, Field(ge=1, le=65535)]
+    offset: Annotated[int, Field(ge=0, le=65535)]
+    type: S7Type = "REAL"
+    scale: float = 1.0
+
+    _scale = field_validator("scale")(_check_scale)
+
+    @property
+    def size(self) -> int:
+        return S7_SIZES[self.type]
+
+    def describe(self) -> str:
+        return f"DB{self.db}.{self.offset}:{self.type}"
+
+
+ModbusType = Literal["float32", "int32", "int16", "uint16"]
+MODBUS_WORDS: dict[str, int] = {"float32": 2, "int32": 2, "int16": 1, "uint16": 1}
+
+
+class ModbusAddress(_Address):
+    """A Modbus register value. Two-register types use `word_order`
+    ("big": high word first). Engineering value = raw * scale."""
+
+    unit: Annotated[int, Field(ge=0, le=247)] = 1
+    kind: Literal["holding", "input"] = "holding"
+    address: Annotated[int, Field(ge=0, le=65535)]
+    type: ModbusType = "float32"
+    word_order: Literal["big", "little"] = "big"
+    scale: float = 1.0
+
+    _scale = field_validator("scale")(_check_scale)
+
+    @property
+    def count(self) -> int:
+        return MODBUS_WORDS[self.type]
+
+    @model_validator(mode="after")
+    def _fits(self) -> ModbusAddress:
+        if self.address + self.count - 1 > 65535:
+            raise ValueError(f"{self.type} at {self.address} runs past register 65535")
+        return self
+
+    def describe(self) -> str:
+        return f"unit{self.unit}/{self.kind}/{self.address}:{self.type}"
+
+
+#: FOCAS PMC address types (pmc_rdpmcrng adr_type).
+PMC_AREAS: dict[str, int] = {"G": 0, "F": 1, "Y": 2, "X": 3, "A": 4, "R": 5, "T": 6,
+                             "K": 7, "C": 8, "D": 9, "M": 10, "N": 11, "E": 12, "Z": 13}
+#: FOCAS PMC data types: code and byte size.
+PMC_TYPES: dict[str, tuple[int, int]] = {"byte": (0, 1), "word": (1, 2), "long": (2, 4),
+                                         "float": (4, 4), "double": (5, 8)}
+
+
+class FocasPmcAddress(_Address):
+    """A PMC area value read/written with pmc_rdpmcrng / pmc_wrpmcrng.
+    `address` is the byte address; engineering value = raw * scale."""
+
+    kind: Literal["pmc"] = "pmc"
+    area: Literal["G", "F", "Y", "X", "A", "R", "T", "K", "C", "D", "M", "N", "E", "Z"]
+    address: Annotated[int, Field(ge=0, le=65535)]
+    type: Literal["byte", "word", "long", "float", "double"] = "long"
+    scale: float = 1.0
+
+    _scale = field_validator("scale")(_check_scale)
+
+    def describe(self) -> str:
+        return f"PMC {self.area}{self.address}:{self.type}"
+
+
+class FocasDiagAddress(_Address):
+    """A CNC diagnosis number read with cnc_diagnoss (e.g. 308 servo motor
+    temperature per axis, 403 spindle motor temperature)."""
+
+    kind: Literal["diag"]
+    number: Annotated[int, Field(ge=0, le=65535)]
+    axis: Annotated[int, Field(ge=-1, le=32)] = 0
+    scale: float = 1.0
+
+    _scale = field_validator("scale")(_check_scale)
+
+    def describe(self) -> str:
+        return f"DIAG {self.number} axis {self.axis}"
+
+
+class FocasSpindleLoadAddress(_Address):
+    """Spindle load % read with cnc_rdspload (`spindle` is 1-based; -1 = all)."""
+
+    kind: Literal["spload"]
+    spindle: Annotated[int, Field(ge=1, le=8)] = 1
+    scale: float = 1.0
+
+    _scale = field_validator("scale")(_check_scale)
+
+    def describe(self) -> str:
+        return f"SPLOAD {self.spindle}"
+
+
+FocasAddress = Annotated[
+    FocasPmcAddress | FocasDiagAddress | FocasSpindleLoadAddress,
+    Field(discriminator="kind"),
+]
+
+Address = OpcUaAddress | S7Address | ModbusAddress | FocasPmcAddress | FocasDiagAddress \
+    | FocasSpindleLoadAddress
+
+#: protocol name -> the address model(s) it accepts
+ADDRESS_TYPES: dict[str, tuple[type[_Address], ...]] = {
+    "opcua": (OpcUaAddress,),
+    "s7": (S7Address,),
+    "modbus": (ModbusAddress,),
+    "focas": (FocasPmcAddress, FocasDiagAddress, FocasSpindleLoadAddress),
+}

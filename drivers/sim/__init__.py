@@ -1,0 +1,28 @@
+"""The simulated machine and its simulated controllers.
+
+A thermal plant (`plant.py`, not one of our model structures) fronted by one
+real server per protocol on 127.0.0.1, so tests, `compd demo` and the HIL
+bench exercise the whole wire path.
+
+Standard names used by every simulated controller:
+
+channels (read by the daemon)
+    ``bearing``  spindle front bearing temperature, °C (0.1 K quantised)
+    ``motor``    spindle motor temperature, °C
+    ``column``   column temperature, °C
+    ``table``    rotary table bearing temperature, °C
+    ``ambient``  ambient (room) temperature, °C
+    ``speed_rpm`` spindle speed, rpm
+    ``power_kw`` spindle drive power, kW
+    ``growth_um`` thermal Z growth at the tool (what a probe measures), µm
+    ``error_um`` Z error at the tool = growth - offset written, µm
+
+outputs (written by the daemon, readable back)
+    ``offset``    Z offset, µm
+    ``heartbeat`` counter, advanced once per complete valid cycle
+    ``status``    status word (bit flags, see compd.output)
+"""
+
+CHANNELS: tuple[str, ...] = ("bearing", "motor", "column", "table", "ambient",
+                             "speed_rpm", "power_kw", "growth_um", "error_um")
+OUTPUTS: tuple[str, ...] = ("offset", "heartbeat", "status")

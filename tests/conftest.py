@@ -1,0 +1,35 @@
+"""Project-wide test rules: warnings are errors (pyproject), and an async test
+that leaves asyncio tasks behind fails."""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import inspect
+from collections.abc import Callable, Coroutine
+from typing import Any
+
+import pytest
+
+
+def _guard(fn: Callable[..., Coroutine[Any, Any, Any]]) -> Callable[..., Coroutine[Any, Any, Any]]:
+    @functools.wraps(fn)
+    async def wrapper(*args: Any, **kwargs: Any) -> Any:
+        before = asyncio.all_tasks()
+        result = await fn(*args, **kwargs)
+        for _ in range(20):  # let cancelled tasks finish unwinding
+            leaked = asyncio.all_tasks() - before - {asyncio.current_task()}
+            if not leaked:
+                return result
+            await asyncio.sleep(0.01)
+        names = sorted(t.get_name() + ":" + repr(t.get_coro()) for t in leaked)
+        pytest.fail(f"test left {len(leaked)} asyncio task(s) running: {names}")
+    return wrapper
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        obj = getattr(item, "obj", None)
+        if obj is not None and inspect.iscoroutinefunction(obj) and not getattr(
+                item.get_closest_marker("allow_leaked_tasks"), "name", None):
+            item.obj = _guard(obj)  # type: ignore[attr-defined]
