@@ -1,0 +1,327 @@
+"""Siemens S7 driver over python-snap7 3.3.0 (pure Python, blocking).
+
+Every snap7 call runs on one dedicated worker thread (`IoThread`). A read
+makes one `db_read` per DB covering all requested values of that DB; a write
+makes one `db_write` per run of byte-adjacent outputs (snap7 3.3.0's
+`write_multi_vars` is only a loop of single writes, so it saves nothing).
+
+Two snap7 defaults are overridden (PROTOCOLS.md):
+- `RecvTimeout` is stored but never applied; the ISO connection's socket
+  keeps a 5 s timeout. Before each request the driver sets the connected
+  socket's own timeout (``client.connection.socket``) to what is left of the
+  call's deadline.
+- `Client.connect` always waits up to 5 s for the COTP handshake. The driver
+  connects the way `Client._connect` does but passes its own timeout to
+  `ISOTCPConnection.connect` (this uses snap7 internals; the version is
+  pinned exactly for that reason).
+
+After any link failure the client is disconnected; the next call after the
+backoff delay connects a fresh ISO connection (a restarted PLC leaves the
+old client "not connected" forever otherwise). Calls on a down link inside
+the backoff delay fail fast with `ConnectionLost`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import re
+import time
+from collections.abc import Callable, Mapping, Sequence
+from typing import TypeVar
+from urllib.parse import urlsplit
+
+from snap7.client import Client
+from snap7.connection import ISOTCPConnection
+from snap7.error import S7ConnectionError, S7Error, S7ProtocolError, S7TimeoutError
+
+from drivers.addresses import S7Address
+from drivers.backoff import Backoff
+from drivers.base import Quality, Sample
+from drivers.errors import BadAddress, ConnectionLost, ControllerTimeout, DriverError, WriteRejected
+from drivers.io_thread import IoThread
+from drivers.s7_codec import Span, decode, encode, read_spans, write_runs
+
+T = TypeVar("T")
+
+#: extra time the event loop waits beyond the call's own deadline
+_GRACE_S = 0.25
+#: S7 item return codes that mean "this address does not exist here"
+_ADDRESS_CODES = {0x05, 0x06, 0x07, 0x0A}
+#: S7 header error codes the snap7 server (and some CPUs) use for the same
+_ADDRESS_HEADER_CODES = {0x8001, 0x8404, 0x8500}
+_CODE_RE = re.compile(r"\(0x([0-9a-fA-F]{2})\)|error code: 0x([0-9a-fA-F]{4})")
+
+
+def parse_endpoint(endpoint: str) -> tuple[str, int]:
+    """``s7://host[:port]`` -> (host, port); port 102 by default."""
+    parts = urlsplit(endpoint)
+    if parts.scheme != "s7" or not parts.hostname:
+        raise ValueError(f"not an S7 endpoint: {endpoint!r} (expected 's7://host[:port]')")
+    return parts.hostname, parts.port or 102
+
+
+def _s7_code(exc: S7Error) -> int | None:
+    m = _CODE_RE.search(str(exc))
+    if m is None:
+        return None
+    return int(m.group(1) or m.group(2), 16)
+
+
+class _Deadline:
+    """The time left for one worker-thread call."""
+
+    def __init__(self, timeout_s: float) -> None:
+        self.end_s = time.monotonic() + timeout_s
+
+    def left_s(self) -> float:
+        left = self.end_s - time.monotonic()
+        if left <= 0:
+            raise TimeoutError("call deadline passed")
+        return left
+
+
+class S7Driver:
+    """Async driver for one S7 CPU (DB areas only)."""
+
+    protocol = "s7"
+
+    def __init__(self, endpoint: str, channels: Mapping[str, S7Address],
+                 outputs: Mapping[str, S7Address], *, timeout_s: float = 0.5,
+                 backoff: Backoff | None = None, rack: int = 0, slot: int = 1) -> None:
+        if timeout_s <= 0:
+            raise ValueError("timeout_s must be positive")
+        self.endpoint = endpoint
+        self._host, self._port = parse_endpoint(endpoint)
+        for name, addr in {**channels, **outputs}.items():
+            if not isinstance(addr, S7Address):
+                raise TypeError(f"{name}: {type(addr).__name__} is not an S7Address")
+        self._channels = dict(channels)
+        self._outputs = dict(outputs)
+        self._all = {**self._channels, **self._outputs}
+        self._timeout_s = timeout_s
+        self._backoff = backoff or Backoff()
+        self._rack = rack
+        self._slot = slot
+        self._io = IoThread("s7-io")
+        self._client: Client | None = None  # touched only on the worker thread
+        self._up = False
+        self._closed = False
+
+    @property
+    def connected(self) -> bool:
+        return self._up
+
+    @property
+    def io_thread(self) -> IoThread:
+        return self._io
+
+    # ---- worker-thread side -------------------------------------------------
+
+    def _drop_sync(self) -> None:
+        client, self._client = self._client, None
+        self._up = False
+        if client is not None:
+            with contextlib.suppress(S7Error, OSError):
+                client.disconnect()
+
+    def _connect_sync(self, deadline: _Deadline) -> Client:
+        """Connect as `Client._connect` does, with our own handshake timeout."""
+        self._drop_sync()
+        client = Client()
+        client.remote_tsap = (client.connection_type << 8) | (self._rack << 5) | self._slot
+        client.host, client.port = self._host, self._port
+        client.rack, client.slot = self._rack, self._slot
+        conn = ISOTCPConnection(host=self._host, port=self._port,
+                                local_tsap=client.local_tsap, remote_tsap=client.remote_tsap)
+        client.connection = conn
+        try:
+            conn.connect(timeout=deadline.left_s())
+            self._arm(client, deadline)
+            client._setup_communication()
+        except BaseException:
+            client.disconnect()
+            raise
+        client.connected = True
+        self._client = client
+        self._up = True
+        return client
+
+    @staticmethod
+    def _arm(client: Client, deadline: _Deadline) -> None:
+        """Apply the call's remaining time to the connected socket."""
+        conn = client.connection
+        if conn is None or conn.socket is None:
+            raise S7ConnectionError("not connected")
+        left = deadline.left_s()
+        conn.timeout = left
+        conn.socket.settimeout(left)
+
+    def _job(self, op: Callable[[Client, _Deadline], T]) -> Callable[[], T]:
+        def run() -> T:
+            deadline = _Deadline(self._timeout_s)
+            client = self._client if self._up and self._client is not None else None
+            try:
+                if client is None:
+                    try:
+                        client = self._connect_sync(deadline)
+                    except (S7Error, OSError) as exc:
+                        raise _ConnectFailedError(exc) from exc
+                return op(client, deadline)
+            except (S7ConnectionError, S7TimeoutError, OSError):
+                self._drop_sync()
+                raise
+        return run
+
+    # ---- event-loop side ----------------------------------------------------
+
+    async def _call(self, op: Callable[[Client, _Deadline], T], what: str,
+                    channel: str | None = None, address: str | None = None) -> T:
+        if self._closed:
+            raise ConnectionLost("driver closed", channel=channel, address=address)
+        if not self._up and not self._backoff.ready():
+            raise ConnectionLost(f"{self.endpoint} down; next reconnect attempt in "
+                                 f"≤{self._backoff.delay_s:.2f} s", channel=channel,
+                                 address=address)
+        try:
+            result = await self._io.call(self._job(op), self._timeout_s + _GRACE_S)
+        except _ConnectFailedError as exc:
+            self._backoff.failed()
+            cause = exc.cause
+            if isinstance(cause, (TimeoutError, S7TimeoutError)):
+                raise ControllerTimeout(f"connect to {self.endpoint} timed out during {what}",
+                                        channel=channel, address=address) from cause
+            raise ConnectionLost(f"connect to {self.endpoint} failed during {what}: {cause}",
+                                 channel=channel, address=address) from cause
+        except (TimeoutError, S7TimeoutError) as exc:
+            self._up = False
+            raise ControllerTimeout(f"{what} on {self.endpoint} timed out after "
+                                    f"{self._timeout_s} s", channel=channel,
+                                    address=address) from exc
+        except (S7ConnectionError, OSError) as exc:
+            self._up = False
+            raise ConnectionLost(f"{what} on {self.endpoint} lost the link: {exc}",
+                                 channel=channel, address=address) from exc
+        self._backoff.succeeded()
+        return result
+
+    async def connect(self) -> None:
+        self._closed = False
+        await self._call(lambda client, deadline: None, "connect")
+
+    def _lookup(self, names: Sequence[str], table: Mapping[str, S7Address],
+                kind: str) -> dict[str, S7Address]:
+        wanted = {}
+        for name in names:
+            if name not in table:
+                raise BadAddress(f"unknown {kind} {name!r}", channel=name)
+            wanted[name] = table[name]
+        return wanted
+
+    async def read(self, names: Sequence[str]) -> dict[str, Sample]:
+        wanted = self._lookup(names, self._all, "channel")
+        if not wanted:
+            return {}
+        spans = read_spans(wanted)
+
+        def op(client: Client, deadline: _Deadline) -> list[tuple[Span, bytes | S7Error]]:
+            results: list[tuple[Span, bytes | S7Error]] = []
+            for span in spans:
+                self._arm(client, deadline)
+                try:
+                    results.append((span, bytes(client.db_read(span.db, span.start, span.size))))
+                except S7ProtocolError as exc:
+                    results.append((span, exc))
+            return results
+
+        first = next(iter(wanted))
+        results = await self._call(op, "read", channel=first if len(wanted) == 1 else None)
+        now = time.time()
+        samples: dict[str, Sample] = {}
+        for span, data in results:
+            if isinstance(data, S7Error):
+                await self._blame(span, wanted, data)
+                continue
+            for name in span.names:
+                addr = wanted[name]
+                samples[name] = Sample(decode(addr, data, addr.offset - span.start), now,
+                                       Quality.GOOD)
+        return {name: samples[name] for name in names}
+
+    async def _blame(self, span: Span, wanted: Mapping[str, S7Address], exc: S7Error) -> None:
+        """A span read was refused: find the channel whose address is bad."""
+        for name in span.names:
+            addr = wanted[name]
+
+            def probe(client: Client, deadline: _Deadline, a: S7Address = addr) -> S7Error | None:
+                self._arm(client, deadline)
+                try:
+                    client.db_read(a.db, a.offset, a.size)
+                except S7ProtocolError as refused:
+                    return refused
+                return None
+
+            err = await self._call(probe, "read", channel=name, address=addr.describe())
+            if err is not None:
+                raise BadAddress(f"controller refused the read: {err}", channel=name,
+                                 address=addr.describe()) from err
+        name = span.names[0]
+        raise BadAddress(f"controller refused the read of DB{span.db}.{span.start}+{span.size}: "
+                         f"{exc}", channel=name, address=wanted[name].describe()) from exc
+
+    async def write(self, values: Mapping[str, float]) -> None:
+        wanted = self._lookup(list(values), self._outputs, "output")
+        payload: dict[str, bytes] = {}
+        for name, addr in wanted.items():
+            try:
+                payload[name] = encode(addr, float(values[name]))
+            except (ValueError, TypeError, OverflowError) as exc:
+                raise BadAddress(f"cannot encode {values[name]!r}: {exc}", channel=name,
+                                 address=addr.describe()) from exc
+        runs = write_runs(wanted.items())
+
+        def op(client: Client, deadline: _Deadline) -> tuple[Span, S7Error] | None:
+            for run in runs:
+                data = bytearray(b"".join(payload[n] for n in run.names))
+                self._arm(client, deadline)
+                try:
+                    client.db_write(run.db, run.start, data)
+                except S7ProtocolError as exc:
+                    return run, exc
+            return None
+
+        failed = await self._call(op, "write")
+        if failed is not None:
+            run, refused = failed
+            name = run.names[0]
+            raise _write_error(refused, name, wanted[name].describe())
+
+    async def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            await self._io.call(self._drop_sync, self._timeout_s + _GRACE_S)
+        except (TimeoutError, DriverError):
+            pass
+        finally:
+            self._up = False
+            self._io.shutdown()
+
+
+class _ConnectFailedError(Exception):
+    def __init__(self, cause: BaseException) -> None:
+        super().__init__(str(cause))
+        self.cause = cause
+
+
+def _write_error(exc: S7Error, channel: str, address: str) -> DriverError:
+    code = _s7_code(exc)
+    if code in _ADDRESS_CODES or code in _ADDRESS_HEADER_CODES:
+        return BadAddress(f"controller refused the write: {exc}", channel=channel,
+                          address=address)
+    permanent = code == 0x03  # access denied
+    return WriteRejected(f"controller refused the write: {exc}", channel=channel,
+                         address=address, permanent=permanent)
+
+
+__all__ = ["S7Driver", "parse_endpoint"]
