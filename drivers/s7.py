@@ -48,8 +48,8 @@ _GRACE_S = 0.25
 #: S7 item return codes that mean "this address does not exist here"
 _ADDRESS_CODES = {0x05, 0x06, 0x07, 0x0A}
 #: S7 header error codes the snap7 server (and some CPUs) use for the same
-_ADDRESS_HEADER_CODES = {0x8001, 0x8404, 0x8500}
-_CODE_RE = re.compile(r"\(0x([0-9a-fA-F]{2})\)|error code: 0x([0-9a-fA-F]{4})")
+_ADDRESS_HEADER_CODES = {0x8001, 0x8404}
+_ITEM_CODE_RE = re.compile(r"\(0x([0-9a-fA-F]{2})\)")
 
 
 def parse_endpoint(endpoint: str) -> tuple[str, int]:
@@ -61,10 +61,11 @@ def parse_endpoint(endpoint: str) -> tuple[str, int]:
 
 
 def _s7_code(exc: S7Error) -> int | None:
-    m = _CODE_RE.search(str(exc))
-    if m is None:
-        return None
-    return int(m.group(1) or m.group(2), 16)
+    """The header error word snap7 attaches, else the item return code in its message."""
+    if exc.error_code:
+        return int(exc.error_code)
+    m = _ITEM_CODE_RE.search(str(exc))
+    return int(m.group(1), 16) if m else None
 
 
 class _Deadline:

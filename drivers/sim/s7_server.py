@@ -70,6 +70,20 @@ class _Server(Server):
         super().__init__(log=False)
         self._socks: set[socket.socket] = set()
         self._socks_lock = threading.Lock()
+        #: S7 requests served, by function code (0x04 read, 0x05 write, 0xF0 setup)
+        self.requests: dict[int, int] = {}
+        #: while set, requests are swallowed without an answer (a hung CPU)
+        self.frozen = threading.Event()
+
+    def _process_request(self, request_data: bytes, client_address: Any) -> bytes | None:
+        if self.frozen.is_set():
+            return None
+        if len(request_data) > 10 and request_data[0] == 0x32 and request_data[1] == 0x01:
+            header_len = 12 if request_data[1] in (0x02, 0x03) else 10
+            function = request_data[header_len]
+            self.requests[function] = self.requests.get(function, 0) + 1
+        response: bytes | None = super()._process_request(request_data, client_address)
+        return response
 
     def _handle_client(self, client_socket: socket.socket, address: Any) -> None:
         with self._socks_lock:
@@ -118,6 +132,18 @@ class S7SimController:
     @property
     def running(self) -> bool:
         return self._server is not None
+
+    def request_counts(self) -> dict[int, int]:
+        """S7 requests served since start, by function (0x04 read, 0x05 write)."""
+        return dict(self._server.requests) if self._server is not None else {}
+
+    def freeze(self, frozen: bool = True) -> None:
+        """Model a hung CPU: connections stay open, requests get no answer."""
+        if self._server is not None:
+            if frozen:
+                self._server.frozen.set()
+            else:
+                self._server.frozen.clear()
 
     async def start(self) -> None:
         if self._server is not None:
