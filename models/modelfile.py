@@ -1,0 +1,263 @@
+"""The model file format (TOML) and its reader/writer.
+
+::
+
+    [model]
+    name = "SP2 per-spindle"
+    period_s = 1.0
+    description = "paper 000, eq. 2"
+
+    [[terms]]
+    name = "spindle"
+    kind = "tf"                      # tf | greybox | mbotv
+    inputs = { bearing = 1.0 }       # channel -> coefficient, relative to T_ref
+    a = ["16.0005", "-15.9975"]      # strings keep every printed digit
+    b = ["1", "-0.99983"]
+    gain = 1.0                       # or gain_channel = "clamp_gain"
+
+    [provenance]                     # free: data hash, orders, fit %, date
+
+Grey-box terms take ``p = [p1, p2, p3]`` (or six with ``switch_channel``)
+and ``relative = false`` for power inputs; MBOTV terms take ``alpha``,
+``beta``, ``gamma``, ``k`` or ``tau_s``, optional ``delta``. Every key is
+checked: unknown keys and wrong types are refused with the key path.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from models.coefficients import printed_text
+from models.compensation import CompensationModel, Term
+from models.errors import ModelError
+from models.greybox import GreyBox
+from models.mbotv import Mbotv
+from models.tf import TransferFunction
+
+_MODEL_KEYS = {"name", "period_s", "description", "channels"}
+_COMMON_TERM_KEYS = {"name", "kind", "inputs", "gain", "gain_channel", "relative"}
+_KIND_KEYS = {
+    "tf": {"a", "b"},
+    "greybox": {"p", "switch_channel"},
+    "mbotv": {"alpha", "beta", "gamma", "k", "tau_s", "delta"},
+}
+
+
+def _number(doc: Mapping[str, Any], key: str, where: str, default: float | None = None) -> float:
+    if key not in doc:
+        if default is None:
+            raise ModelError(f"{where}.{key}: missing")
+        return default
+    v = doc[key]
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        raise ModelError(f"{where}.{key}: must be a finite number, got {v!r}")
+    return float(v)
+
+
+def _str(doc: Mapping[str, Any], key: str, where: str, default: str | None = None) -> str:
+    v = doc.get(key, default)
+    if not isinstance(v, str) or (default is None and not v):
+        raise ModelError(f"{where}.{key}: must be a non-empty string, got {v!r}")
+    return v
+
+
+def _check_keys(doc: Mapping[str, Any], allowed: set[str], where: str) -> None:
+    unknown = sorted(set(doc) - allowed)
+    if unknown:
+        raise ModelError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+
+
+def parse_term(doc: Any, period_s: float, where: str) -> Term:
+    if not isinstance(doc, Mapping):
+        raise ModelError(f"{where}: a term must be a table, got {doc!r}")
+    kind = doc.get("kind", "tf")
+    if kind not in _KIND_KEYS:
+        raise ModelError(f"{where}.kind: unknown kind {kind!r}; known: {sorted(_KIND_KEYS)}")
+    _check_keys(doc, _COMMON_TERM_KEYS | _KIND_KEYS[kind], where)
+    name = _str(doc, "name", where)
+    inputs = doc.get("inputs")
+    if not isinstance(inputs, Mapping) or not inputs:
+        raise ModelError(f"{where}.inputs: a table of channel = coefficient is required, "
+                         f"got {inputs!r}")
+    gain_channel = doc.get("gain_channel")
+    if gain_channel is not None and (not isinstance(gain_channel, str) or not gain_channel):
+        raise ModelError(f"{where}.gain_channel: must be a channel name, got {gain_channel!r}")
+    if gain_channel is not None and "gain" in doc:
+        raise ModelError(f"{where}: give either gain or gain_channel, not both")
+    gain = _number(doc, "gain", where, 1.0)
+    relative = doc.get("relative", kind != "greybox")
+    if not isinstance(relative, bool):
+        raise ModelError(f"{where}.relative: must be true or false, got {relative!r}")
+    dyn: TransferFunction | GreyBox | Mbotv
+    switch_channel: str | None = None
+    if kind == "tf":
+        for key in ("a", "b"):
+            if key not in doc:
+                raise ModelError(f"{where}.{key}: missing (numerator a and denominator b)")
+        dyn = TransferFunction(doc["a"], doc["b"], name=f"{where}({name})")
+    elif kind == "greybox":
+        p = doc.get("p")
+        if not isinstance(p, list) or not all(
+                isinstance(v, int | float) and not isinstance(v, bool) for v in p):
+            raise ModelError(f"{where}.p: must be a list of numbers, got {p!r}")
+        dyn = GreyBox([float(v) for v in p], period_s, name=f"{where}({name})")
+        sw = doc.get("switch_channel")
+        if sw is not None and not isinstance(sw, str):
+            raise ModelError(f"{where}.switch_channel: must be a channel name, got {sw!r}")
+        if (sw is None) == dyn.switched:
+            raise ModelError(f"{where}: six parameters p1..p6 go with a switch_channel "
+                             "(u2), three without")
+        switch_channel = sw
+    else:
+        if ("k" in doc) == ("tau_s" in doc):
+            raise ModelError(f"{where}: give exactly one of k or tau_s")
+        args = dict(alpha=_number(doc, "alpha", where), beta=_number(doc, "beta", where),
+                    gamma=_number(doc, "gamma", where), period_s=period_s,
+                    delta=_number(doc, "delta", where, 0.0), name=f"{where}({name})")
+        if "k" in doc:
+            dyn = Mbotv(k=_number(doc, "k", where), **args)  # type: ignore[arg-type]
+        else:
+            dyn = Mbotv.from_tau(tau_s=_number(doc, "tau_s", where), **args)  # type: ignore[arg-type]
+    return Term(name=name, inputs={str(k): v for k, v in inputs.items()}, dynamics=dyn,
+                gain=gain, gain_channel=gain_channel, relative=relative,
+                switch_channel=switch_channel)
+
+
+def parse_model(doc: Mapping[str, Any], where: str = "model") -> CompensationModel:
+    """Build a model from a parsed TOML document (the file, or a config's inline model)."""
+    _check_keys(doc, {"model", "terms", "provenance"}, where)
+    head = doc.get("model", {})
+    if not isinstance(head, Mapping):
+        raise ModelError(f"{where}.model: must be a table")
+    _check_keys(head, _MODEL_KEYS, f"{where}.model")
+    period_s = _number(head, "period_s", f"{where}.model", 1.0)
+    if period_s <= 0:
+        raise ModelError(f"{where}.model.period_s: must be > 0 s, got {period_s!r}")
+    terms_doc = doc.get("terms")
+    if not isinstance(terms_doc, list) or not terms_doc:
+        raise ModelError(f"{where}.terms: at least one [[terms]] table is required")
+    terms = [parse_term(t, period_s, f"terms[{i}]") for i, t in enumerate(terms_doc)]
+    provenance = doc.get("provenance", {})
+    if not isinstance(provenance, Mapping):
+        raise ModelError(f"{where}.provenance: must be a table")
+    model = CompensationModel(terms, period_s, name=_str(head, "name", f"{where}.model", "model"),
+                              description=_str(head, "description", f"{where}.model", ""),
+                              provenance=dict(provenance))
+    declared = head.get("channels")
+    if declared is not None:
+        if not isinstance(declared, list) or not all(isinstance(c, str) for c in declared):
+            raise ModelError(f"{where}.model.channels: must be a list of channel names")
+        model.check_channels(declared)
+    return model
+
+
+def load_model(path: str | Path) -> CompensationModel:
+    """Read a model file, or a bundled library model by name (e.g. ``sp2``)."""
+    p = Path(path)
+    if not p.exists() and p.suffix == "" and library_path(str(path)) is not None:
+        p = Path(str(library_path(str(path))))
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ModelError(f"{path}: cannot read the model file ({exc.strerror})") from None
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ModelError(f"{path}: not valid TOML ({exc})") from None
+    return parse_model(doc)
+
+
+def library_names() -> list[str]:
+    root = resources.files("models") / "library"
+    return sorted(p.name.removesuffix(".toml") for p in root.iterdir()
+                  if p.name.endswith(".toml"))
+
+
+def library_path(name: str) -> Path | None:
+    candidate = resources.files("models") / "library" / f"{name}.toml"
+    return Path(str(candidate)) if candidate.is_file() else None
+
+
+# -- writing ---------------------------------------------------------------------------------
+
+def term_document(term: Term) -> dict[str, Any]:
+    doc: dict[str, Any] = {"name": term.name}
+    dyn = term.dynamics
+    if isinstance(dyn, TransferFunction):
+        doc["kind"] = "tf"
+    elif isinstance(dyn, GreyBox):
+        doc["kind"] = "greybox"
+    else:
+        doc["kind"] = "mbotv"
+    doc["inputs"] = dict(term.inputs)
+    if term.gain_channel:
+        doc["gain_channel"] = term.gain_channel
+    else:
+        doc["gain"] = term.gain
+    if term.relative != (doc["kind"] != "greybox"):
+        doc["relative"] = term.relative
+    if isinstance(dyn, TransferFunction):
+        doc["a"] = [printed_text(c) for c in dyn.orig_num]
+        doc["b"] = [printed_text(c) for c in dyn.orig_den]
+    elif isinstance(dyn, GreyBox):
+        doc["p"] = list(dyn.p)
+        if term.switch_channel:
+            doc["switch_channel"] = term.switch_channel
+    else:
+        doc.update(alpha=dyn.alpha, beta=dyn.beta, delta=dyn.delta, k=dyn.k, gamma=dyn.gamma)
+    return doc
+
+
+def model_document(model: CompensationModel) -> dict[str, Any]:
+    doc: dict[str, Any] = {
+        "model": {"name": model.name, "period_s": model.period_s,
+                  "description": model.description},
+        "terms": [term_document(t) for t in model.terms],
+    }
+    if model.provenance:
+        doc["provenance"] = dict(model.provenance)
+    return doc
+
+
+def _value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise ModelError(f"cannot write a non-finite number ({v!r}) to a model file")
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, Mapping):
+        return "{ " + ", ".join(f"{_key(k)} = {_value(x)}" for k, x in v.items()) + " }"
+    raise ModelError(f"cannot write {type(v).__name__} to a model file")
+
+
+def _key(k: str) -> str:
+    return k if k.replace("_", "").replace("-", "").isalnum() else _value(k)
+
+
+def dumps_model(doc: Mapping[str, Any]) -> str:
+    """TOML text for a model document (the subset of TOML the format uses)."""
+    lines = ["[model]"]
+    lines += [f"{_key(k)} = {_value(v)}" for k, v in doc["model"].items()]
+    for term in doc["terms"]:
+        lines += ["", "[[terms]]"]
+        lines += [f"{_key(k)} = {_value(v)}" for k, v in term.items()]
+    if doc.get("provenance"):
+        lines += ["", "[provenance]"]
+        lines += [f"{_key(k)} = {_value(v)}" for k, v in doc["provenance"].items()]
+    return "\n".join(lines) + "\n"
+
+
+def save_model(model: CompensationModel, path: str | Path) -> None:
+    Path(path).write_text(dumps_model(model_document(model)), encoding="utf-8")
