@@ -1,0 +1,280 @@
+"""Modbus TCP driver (pymodbus 3.16.1 async client).
+
+Reads go out as block reads: the requested names are grouped by (unit,
+register kind) and covered by as few contiguous requests as possible
+(`drivers.modbus_codec.plan_reads`); writes of back-to-back registers go out
+as one write-multiple request.
+
+pymodbus's own defaults are replaced: no retries (a timed-out write is never
+sent again), a timeout of `timeout_s`, no automatic reconnect. The link is
+ours: on a lost link or a timeout the client is dropped, calls fail fast with
+`ConnectionLost` until `Backoff` says a new attempt is due, and the next call
+then opens a fresh client.
+
+Modbus carries no quality or source time: every sample is GOOD, stamped with
+`time.time()` when its response arrived. Sentinel values (an open Pt100) are
+passed through; the daemon validates.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+
+from drivers.addresses import Address, ModbusAddress
+from drivers.backoff import Backoff
+from drivers.base import Quality, Sample
+from drivers.errors import (
+    BadAddress,
+    ConnectionLost,
+    ControllerTimeout,
+    DriverError,
+    WriteRejected,
+)
+from drivers.modbus_codec import Span, decode, encode, plan_reads, plan_writes
+
+DEFAULT_PORT = 502
+#: exception codes after which a write cannot succeed by retrying:
+#: illegal function, illegal data address, illegal data value
+PERMANENT_WRITE_CODES = frozenset({1, 2, 3})
+#: exception codes that say "not this register" on a read
+BAD_ADDRESS_READ_CODES = frozenset({1, 2})
+
+
+def parse_endpoint(endpoint: str) -> tuple[str, int]:
+    """``modbus://host:port`` or ``host:port`` (port defaults to 502)."""
+    rest = endpoint.strip()
+    for scheme in ("modbus://", "modbus+tcp://", "tcp://"):
+        if rest.lower().startswith(scheme):
+            rest = rest[len(scheme):]
+            break
+    rest = rest.rstrip("/")
+    host, sep, port_text = rest.rpartition(":")
+    if not sep:
+        host, port_text = rest, str(DEFAULT_PORT)
+    host = host.strip("[]")
+    if not host or not port_text.isdigit() or not 0 < int(port_text) < 65536:
+        raise ValueError(f"not a Modbus TCP endpoint: {endpoint!r} "
+                         "(expected 'modbus://host:port' or 'host:port')")
+    return host, int(port_text)
+
+
+def _fail_pending(client: AsyncModbusTcpClient) -> None:
+    """On a dropped connection, fail the request in flight at once instead of
+    letting it wait out the timeout (pymodbus 3.16.1 only notices at timeout)."""
+    future = getattr(getattr(client, "ctx", None), "response_future", None)
+    if isinstance(future, asyncio.Future) and not future.done():
+        future.set_exception(ConnectionException("connection closed by the controller"))
+
+
+def _check_addresses(role: str, table: Mapping[str, Address]) -> dict[str, ModbusAddress]:
+    out: dict[str, ModbusAddress] = {}
+    for name, addr in table.items():
+        if not isinstance(addr, ModbusAddress):
+            raise BadAddress(f"{role} address is not a Modbus address: {addr!r}",
+                             channel=name)
+        out[name] = addr
+    return out
+
+
+class ModbusDriver:
+    """Async Modbus TCP access to one controller (see module docstring)."""
+
+    protocol = "modbus"
+
+    def __init__(self, endpoint: str, channels: Mapping[str, Address],
+                 outputs: Mapping[str, Address], *, timeout_s: float = 0.5,
+                 backoff: Backoff | None = None, max_gap: int = 8) -> None:
+        if not timeout_s > 0:
+            raise ValueError("timeout_s must be positive")
+        self.endpoint = endpoint
+        self.host, self.port = parse_endpoint(endpoint)
+        self.channels = _check_addresses("channel", channels)
+        self.outputs = _check_addresses("output", outputs)
+        for name, addr in self.outputs.items():
+            if addr.kind != "holding":
+                raise BadAddress("outputs must be holding registers (input registers "
+                                 "are read-only)", channel=name, address=addr.describe())
+        self.timeout_s = timeout_s
+        self.backoff = backoff if backoff is not None else Backoff()
+        self.max_gap = max_gap
+        self._client: AsyncModbusTcpClient | None = None
+        self._lock = asyncio.Lock()
+        self._plans: dict[tuple[str, ...], list[Span]] = {}
+        self._in_flight = False
+
+    # -- link -------------------------------------------------------------
+
+    @property
+    def connected(self) -> bool:
+        return self._client is not None and bool(self._client.connected)
+
+    async def connect(self) -> None:
+        async with self._lock:
+            await self._open()
+
+    async def _open(self) -> None:
+        self._drop()
+        client = AsyncModbusTcpClient(
+            self.host, port=self.port, name=f"compd-modbus-{self.host}:{self.port}",
+            timeout=self.timeout_s, retries=0, reconnect_delay=0, reconnect_delay_max=0,
+            trace_connect=lambda up: None if up or not self._in_flight else _fail_pending(client))
+        try:
+            ok = await client.connect()
+        except (OSError, ModbusException) as exc:  # defensive: connect returns False
+            ok = False
+            reason = str(exc)
+        else:
+            reason = "connect refused or timed out"
+        if not ok:
+            client.close()
+            self.backoff.failed()
+            raise ConnectionLost(f"cannot connect to {self.host}:{self.port}: {reason}; "
+                                 f"next attempt in {self.backoff.delay_s:.2f} s",
+                                 address=f"{self.host}:{self.port}")
+        self._client = client
+        self.backoff.succeeded()
+
+    def _drop(self) -> None:
+        client, self._client = self._client, None
+        if client is not None:
+            client.close()
+
+    async def _ensure(self, channel: str | None, address: str | None) -> AsyncModbusTcpClient:
+        if self._client is not None and self._client.connected:
+            return self._client
+        if self._client is not None:  # lost since the last call
+            self._drop()
+            self.backoff.failed()
+        if not self.backoff.ready():
+            raise ConnectionLost(f"link to {self.host}:{self.port} is down; reconnect "
+                                 f"backing off ({self.backoff.delay_s:.2f} s)",
+                                 channel=channel, address=address)
+        await self._open()
+        if self._client is None:  # _open raises on failure; keeps mypy honest
+            raise ConnectionLost("not connected", channel=channel, address=address)
+        return self._client
+
+    def _link_failed(self) -> None:
+        self._drop()
+        self.backoff.failed()
+
+    async def close(self) -> None:
+        self._drop()
+
+    # -- read ---------------------------------------------------------------
+
+    def _lookup(self, name: str) -> ModbusAddress:
+        if name in self.channels:
+            return self.channels[name]
+        if name in self.outputs:
+            return self.outputs[name]
+        raise BadAddress("unknown channel or output name", channel=name)
+
+    def _plan(self, names: Sequence[str]) -> list[Span]:
+        key = tuple(names)
+        plan = self._plans.get(key)
+        if plan is None:
+            items = [(name, self._lookup(name)) for name in dict.fromkeys(names)]
+            plan = plan_reads(items, max_gap=self.max_gap)
+            self._plans[key] = plan
+        return plan
+
+    async def read(self, names: Sequence[str]) -> dict[str, Sample]:
+        plan = self._plan(names)
+        out: dict[str, Sample] = {}
+        async with self._lock:
+            for span in plan:
+                await self._read_span(names, span, out)
+        return out
+
+    async def _read_span(self, names: Sequence[str], span: Span,
+                         out: dict[str, Sample]) -> None:
+        client = await self._ensure(span.names, span.describe())
+        call = (client.read_input_registers if span.kind == "input"
+                else client.read_holding_registers)
+        response = await self._call(call(span.start, count=span.count, device_id=span.unit),
+                                    span)
+        if response.isError():
+            code = int(getattr(response, "exception_code", 0))
+            if code in BAD_ADDRESS_READ_CODES and len(span.items) > 1:
+                # The merged span crossed a register the controller refuses:
+                # read item by item from now on, which also names the culprit.
+                singles = plan_reads([span.items[0]], max_gap=0)
+                for item in span.items[1:]:
+                    singles += plan_reads([item], max_gap=0)
+                plan = self._plans[tuple(names)]
+                idx = plan.index(span)
+                self._plans[tuple(names)] = plan[:idx] + singles + plan[idx + 1:]
+                for single in singles:
+                    await self._read_span(names, single, out)
+                return
+            name, addr = span.items[0]
+            if code in BAD_ADDRESS_READ_CODES:
+                raise BadAddress(f"controller refused the read (exception code {code})",
+                                 channel=name, address=addr.describe())
+            raise DriverError(f"controller answered the read with exception code {code}",
+                              channel=span.names, address=span.describe())
+        now_s = time.time()
+        registers: list[int] = response.registers
+        if len(registers) < span.count:
+            raise DriverError(f"short response: {len(registers)} of {span.count} registers",
+                              channel=span.names, address=span.describe())
+        for name, addr in span.items:
+            offset = addr.address - span.start
+            value = decode(addr, registers[offset: offset + addr.count])
+            out[name] = Sample(value, now_s, Quality.GOOD)
+
+    async def _call(self, request: Any, span: Span) -> Any:
+        """Await one pymodbus request, turning its failures into ours."""
+        self._in_flight = True
+        try:
+            return await request
+        except ConnectionException as exc:
+            self._link_failed()
+            raise ConnectionLost(f"link lost: {exc}", channel=span.names,
+                                 address=span.describe()) from exc
+        except ModbusIOException as exc:
+            # No answer within timeout_s (retries=0). Drop the link: a late
+            # answer must not be taken for the next request's.
+            self._link_failed()
+            raise ControllerTimeout(f"no answer within {self.timeout_s} s: {exc}",
+                                    channel=span.names, address=span.describe()) from exc
+        except (ModbusException, OSError) as exc:
+            self._link_failed()
+            raise ConnectionLost(f"request failed: {exc}", channel=span.names,
+                                 address=span.describe()) from exc
+        finally:
+            self._in_flight = False
+
+    # -- write --------------------------------------------------------------
+
+    async def write(self, values: Mapping[str, float]) -> None:
+        items: list[tuple[str, ModbusAddress, list[int]]] = []
+        for name, value in values.items():
+            addr = self.outputs.get(name)
+            if addr is None:
+                raise BadAddress("unknown output name (not writable)", channel=name)
+            items.append((name, addr, encode(addr, float(value), channel=name)))
+        requests = plan_writes(items)
+        async with self._lock:
+            for span, words in requests:
+                await self._write_span(span, words)
+
+    async def _write_span(self, span: Span, words: list[int]) -> None:
+        client = await self._ensure(span.names, span.describe())
+        response = await self._call(
+            client.write_registers(span.start, words, device_id=span.unit), span)
+        if response.isError():
+            code = int(getattr(response, "exception_code", 0))
+            name, addr = span.items[0]
+            channel = span.names
+            address = addr.describe() if len(span.items) == 1 else span.describe()
+            raise WriteRejected(f"controller refused the write (exception code {code})",
+                                channel=channel if len(span.items) > 1 else name,
+                                address=address, permanent=code in PERMANENT_WRITE_CODES)

@@ -1,0 +1,257 @@
+"""A simulated Modbus TCP controller: a real pymodbus 3.16.1 server on 127.0.0.1.
+
+Register map (unit 1, protocol addresses, 0-based as on the wire; a
+Modicon-style reference adds 30001 / 40001):
+
+input registers (read-only, what the plant publishes)
+    0..4   bearing, motor, column, table, ambient   int16, 0.1 °C per count
+           (like a PLC's analog card, so the Pt100 sentinels 32767 / -32768
+           are representable)
+    5      speed_rpm    uint16, 1 rpm
+    6..7   power_kw     float32, big word order
+    8..9   growth_um    float32, big word order
+    10..11 error_um     float32, big word order
+holding registers (written by the daemon)
+    0..1   offset       float32 µm, big word order
+    2      heartbeat    uint16
+    3      status       uint16
+    10..11 enc_f32_little    float32, little word order   (contract `encodings`)
+    12..13 enc_i32_milli     int32, 0.001 per count
+    14     enc_i16           int16, 1 per count
+    15     enc_i16_centi     int16, 0.01 per count
+Everything else up to input 31 / holding 63 reads as 0; beyond is an
+illegal address (exception code 2), e.g. `BAD_ADDRESS`.
+
+The server keeps pymodbus's SimDevice datastore (`SimData` addresses are the
+wire addresses: no off-by-one as with the old sequential blocks). For tests it
+counts every request it receives (`requests`), and can answer a chosen
+register range with an exception code (`inject_exception`) or stall every
+request until released (`set_hang`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from pymodbus.constants import ExcCodes
+from pymodbus.server import ModbusTcpServer
+from pymodbus.simulator import DataType, SimData, SimDevice
+from pymodbus.simulator.simcore import SimCore
+
+from drivers.addresses import Address, ModbusAddress
+from drivers.modbus_codec import decode, encode
+from drivers.sim.ports import free_tcp_port
+
+UNIT = 1
+INPUT_REGISTERS = 32
+HOLDING_REGISTERS = 64
+
+
+def _temp(address: int) -> ModbusAddress:
+    return ModbusAddress(unit=UNIT, kind="input", address=address, type="int16", scale=0.1)
+
+
+CHANNELS: dict[str, ModbusAddress] = {
+    "bearing": _temp(0),
+    "motor": _temp(1),
+    "column": _temp(2),
+    "table": _temp(3),
+    "ambient": _temp(4),
+    "speed_rpm": ModbusAddress(unit=UNIT, kind="input", address=5, type="uint16"),
+    "power_kw": ModbusAddress(unit=UNIT, kind="input", address=6, type="float32"),
+    "growth_um": ModbusAddress(unit=UNIT, kind="input", address=8, type="float32"),
+    "error_um": ModbusAddress(unit=UNIT, kind="input", address=10, type="float32"),
+}
+OUTPUTS: dict[str, ModbusAddress] = {
+    "offset": ModbusAddress(unit=UNIT, kind="holding", address=0, type="float32"),
+    "heartbeat": ModbusAddress(unit=UNIT, kind="holding", address=2, type="uint16"),
+    "status": ModbusAddress(unit=UNIT, kind="holding", address=3, type="uint16"),
+}
+ENCODINGS: dict[str, ModbusAddress] = {
+    "enc_f32_little": ModbusAddress(unit=UNIT, kind="holding", address=10, type="float32",
+                                    word_order="little"),
+    "enc_i32_milli": ModbusAddress(unit=UNIT, kind="holding", address=12, type="int32",
+                                   scale=0.001),
+    "enc_i16": ModbusAddress(unit=UNIT, kind="holding", address=14, type="int16"),
+    "enc_i16_centi": ModbusAddress(unit=UNIT, kind="holding", address=15, type="int16",
+                                   scale=0.01),
+}
+#: valid for the protocol, absent on this server
+BAD_ADDRESS = ModbusAddress(unit=UNIT, kind="holding", address=5000, type="float32")
+
+_READ_KIND = {3: "holding", 4: "input", 23: "holding"}
+_WRITE_KIND = {6: "holding", 16: "holding", 22: "holding", 23: "holding"}
+
+
+@dataclass
+class Fault:
+    """Answer requests touching [address, address + count) of `kind` with `code`."""
+
+    kind: Literal["holding", "input"]
+    address: int
+    count: int
+    code: int
+    on: Literal["read", "write", "both"]
+
+
+@dataclass(frozen=True)
+class Request:
+    """One request as the server received it."""
+
+    unit: int
+    function_code: int
+    address: int
+    count: int
+
+
+class ModbusSimController:
+    """See the module docstring. Implements `drivers.sim.base.SimController`."""
+
+    protocol = "modbus"
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, **options: Any) -> None:
+        if options:
+            raise TypeError(f"unknown options for the Modbus sim: {sorted(options)}")
+        self.host = host
+        self.port = port or free_tcp_port(host)
+        self.endpoint = f"modbus://{host}:{self.port}"
+        self.channels: dict[str, Address] = dict(CHANNELS)
+        self.outputs_map: dict[str, Address] = dict(OUTPUTS)
+        self.encodings: dict[str, ModbusAddress] = dict(ENCODINGS)
+        self.requests: list[Request] = []
+        self.faults: list[Fault] = []
+        self._input = [0] * INPUT_REGISTERS
+        self._holding = [0] * HOLDING_REGISTERS
+        self._server: ModbusTcpServer | None = None
+        self._release = asyncio.Event()
+        self._release.set()
+
+    # -- lifecycle ----------------------------------------------------------
+
+    @property
+    def running(self) -> bool:
+        return self._server is not None
+
+    async def start(self) -> None:
+        if self._server is not None:
+            return
+        bits = [SimData(0, values=[False] * 16, datatype=DataType.BITS)]
+        device = SimDevice(
+            id=UNIT,
+            simdata=(list(bits), list(bits),
+                     [SimData(0, values=list(self._holding), datatype=DataType.REGISTERS)],
+                     [SimData(0, values=list(self._input), datatype=DataType.REGISTERS)]),
+            action=self._action,
+        )
+        server = ModbusTcpServer(device, address=(self.host, self.port),
+                                 trace_pdu=self._trace_pdu)
+        await server.serve_forever(background=True)
+        # From here on the server's own register lists are the state.
+        if not isinstance(server.context, SimCore):
+            raise RuntimeError("pymodbus did not build a SimCore datastore")
+        runtime = server.context.devices[UNIT]
+        self._input = runtime.block["i"][2]
+        self._holding = runtime.block["h"][2]
+        self._server = server
+
+    async def stop(self) -> None:
+        server, self._server = self._server, None
+        if server is None:
+            return
+        self._release.set()
+        # Keep the register images (minus pymodbus's trailing guard register).
+        self._input = list(self._input[:INPUT_REGISTERS])
+        self._holding = list(self._holding[:HOLDING_REGISTERS])
+        await server.shutdown()  # type: ignore[no-untyped-call]  # untyped in pymodbus
+        await asyncio.sleep(0)  # let the closed connections' callbacks run
+
+    # -- plant side -----------------------------------------------------------
+
+    async def publish(self, values: Mapping[str, float]) -> None:
+        """Set channel (input register) values; outputs and encodings may be
+        set too (as the PLC would)."""
+        for name, value in values.items():
+            addr = self._address(name)
+            self._poke(addr, encode(addr, value, channel=name))
+
+    async def outputs(self) -> dict[str, float]:
+        return {name: decode(addr, self._peek(addr)) for name, addr in OUTPUTS.items()}
+
+    async def read_values(self, names: list[str]) -> dict[str, float]:
+        """Current engineering values of any known names (tests)."""
+        return {name: decode(a, self._peek(a)) for name in names
+                for a in [self._address(name)]}
+
+    async def forget_outputs(self) -> None:
+        for addr in OUTPUTS.values():
+            self._poke(addr, [0] * addr.count)
+
+    def set_raw(self, kind: Literal["holding", "input"], address: int,
+                registers: list[int]) -> None:
+        """Set raw register words (e.g. a sentinel 0x7FFF)."""
+        table = self._input if kind == "input" else self._holding
+        table[address: address + len(registers)] = [r & 0xFFFF for r in registers]
+
+    def raw(self, kind: Literal["holding", "input"], address: int, count: int) -> list[int]:
+        table = self._input if kind == "input" else self._holding
+        return list(table[address: address + count])
+
+    # -- fault injection --------------------------------------------------------
+
+    def inject_exception(self, kind: Literal["holding", "input"], address: int, code: int,
+                         *, count: int = 1,
+                         on: Literal["read", "write", "both"] = "both") -> None:
+        """Answer requests touching these registers with exception `code`."""
+        self.faults.append(Fault(kind, address, count, code, on))
+
+    def clear_faults(self) -> None:
+        self.faults.clear()
+        self._release.set()
+
+    def set_hang(self, hang: bool) -> None:
+        """Hold every request unanswered (a hung controller) until released;
+        `stop()` releases too."""
+        if hang:
+            self._release.clear()
+        else:
+            self._release.set()
+
+    # -- internals ----------------------------------------------------------------
+
+    def _address(self, name: str) -> ModbusAddress:
+        for table in (CHANNELS, OUTPUTS, ENCODINGS):
+            if name in table:
+                return table[name]
+        raise KeyError(f"the Modbus sim has no channel or output {name!r}")
+
+    def _poke(self, addr: ModbusAddress, words: list[int]) -> None:
+        self.set_raw(addr.kind, addr.address, words)
+
+    def _peek(self, addr: ModbusAddress) -> list[int]:
+        return self.raw(addr.kind, addr.address, addr.count)
+
+    def _trace_pdu(self, sending: bool, pdu: Any) -> Any:
+        if not sending:
+            count = getattr(pdu, "count", None) or len(getattr(pdu, "registers", []) or [1])
+            self.requests.append(Request(int(pdu.dev_id), int(pdu.function_code),
+                                         int(getattr(pdu, "address", 0)), int(count)))
+        return pdu
+
+    async def _action(self, function_code: int, _start: int, address: int, count: int,
+                      _registers: list[int], set_values: list[int] | list[bool] | None
+                      ) -> ExcCodes | None:
+        if not self._release.is_set():
+            await self._release.wait()
+            if self._server is None:
+                return ExcCodes.DEVICE_FAILURE
+        writing = set_values is not None
+        kind = (_WRITE_KIND if writing else _READ_KIND).get(function_code)
+        for fault in self.faults:
+            if fault.kind != kind or fault.on not in ("both", "write" if writing else "read"):
+                continue
+            if address < fault.address + fault.count and fault.address < address + count:
+                return ExcCodes(fault.code)
+        return None
