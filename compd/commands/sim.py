@@ -1,0 +1,154 @@
+"""`compd sim`: one simulated machine on 127.0.0.1, or an offline calibration record.
+
+Serving: ``compd sim --protocol modbus [--port N] [--speedup X] [--program P]
+[--seed N] [--json]`` starts the protocol's simulated controller, runs the
+thermal plant behind it and serves until SIGINT/SIGTERM (exit 0). With
+``--json`` the first stdout line is one JSON object
+``{"protocol", "endpoint", "channels": {name: address}, "outputs": {...}}``
+(addresses as the pydantic models of `drivers.addresses` dump them), so a
+bench script can configure the daemon from it.
+
+Offline: ``compd sim --record out.csv [--program P] [--hours H] [--period-s S]
+[--seed N]`` writes a calibration record (see `drivers.sim.csvlog`) without
+any server, faster than real time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import signal
+import sys
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from drivers.sim.base import SimController
+
+HELP = "serve one simulated machine on 127.0.0.1, or write a simulated calibration record"
+
+#: kept literal here so that building the CLI parser imports nothing heavy
+PROTOCOLS: tuple[str, ...] = ("opcua", "s7", "modbus", "focas")
+PROGRAMS: tuple[str, ...] = ("spectrum", "constant", "etve")
+EX_USAGE = 2
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not value > 0.0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive finite number: {text!r}")
+    return value
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--protocol", choices=PROTOCOLS,
+                        help="the controller to simulate (required unless --record)")
+    parser.add_argument("--port", type=int, default=0,
+                        help="TCP port on 127.0.0.1 (default: a free one)")
+    parser.add_argument("--speedup", type=_positive, default=1.0,
+                        help="machine seconds per real second (default 1)")
+    parser.add_argument("--program", choices=PROGRAMS, default="spectrum",
+                        help="spindle program (default spectrum; it repeats when served)")
+    parser.add_argument("--hours", type=_positive, default=None,
+                        help="program duration in hours (default: the program's own)")
+    parser.add_argument("--period-s", type=_positive, default=1.0,
+                        help="machine seconds per tick / per record row (default 1)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--json", action="store_true",
+                        help="print the endpoint and addresses as one JSON line first")
+    parser.add_argument("--record", metavar="CSV", default=None,
+                        help="write a calibration record offline instead of serving")
+    parser.add_argument("--probe-noise-um", type=float, default=0.5,
+                        help="probe noise added to dz_um in --record (default 0.5 µm)")
+
+
+def describe(controller: SimController) -> dict[str, object]:
+    """The JSON object `--json` prints."""
+    return {
+        "protocol": controller.protocol,
+        "endpoint": controller.endpoint,
+        "channels": {n: a.model_dump() for n, a in controller.channels.items()},
+        "outputs": {n: a.model_dump() for n, a in controller.outputs_map.items()},
+    }
+
+
+# Imports inside functions below are lazy on purpose (compd.cli: one command never
+# pays for another's libraries), hence the PLC0415 exemptions.
+
+
+def _record(args: argparse.Namespace) -> int:
+    from drivers.sim.offline import record_program  # noqa: PLC0415
+    from drivers.sim.programs import make_program  # noqa: PLC0415
+
+    if args.probe_noise_um < 0.0:
+        print("compd sim: --probe-noise-um must be >= 0", file=sys.stderr)
+        return EX_USAGE
+    program = make_program(args.program, seed=args.seed, hours=args.hours)
+    rows = record_program(args.record, program, seed=args.seed, period_s=args.period_s,
+                          probe_noise_um=args.probe_noise_um)
+    print(f"compd sim: wrote {rows} rows ({program.name}, {program.duration_s / 3600:g} h, "
+          f"period {args.period_s:g} s, seed {args.seed}) to {args.record}")
+    return 0
+
+
+async def _serve(args: argparse.Namespace) -> int:
+    from drivers.sim.machine import SimMachine  # noqa: PLC0415
+    from drivers.sim.programs import make_program  # noqa: PLC0415
+    from drivers.sim.registry import make_sim_controller  # noqa: PLC0415
+
+    program = make_program(args.program, seed=args.seed, hours=args.hours)
+    controller = make_sim_controller(args.protocol, "127.0.0.1", args.port)
+    await controller.start()
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    signals = (signal.SIGINT, signal.SIGTERM)
+    machine = SimMachine(controller, program=program, seed=args.seed,
+                         period_s=args.period_s, speedup=args.speedup)
+    try:
+        await machine.prime()
+        if args.json:
+            print(json.dumps(describe(controller)), flush=True)
+        else:
+            print(f"compd sim: {controller.protocol} controller at {controller.endpoint}")
+            print(f"  program {program.name} (repeats every {program.duration_s / 3600:g} h), "
+                  f"speedup {args.speedup:g}, period {args.period_s:g} s, seed {args.seed}")
+            for title, table in (("channels", controller.channels),
+                                 ("outputs", controller.outputs_map)):
+                print(f"  {title}:")
+                for name, addr in table.items():
+                    print(f"    {name:<10} {addr.describe()}")
+            print("  Ctrl-C to stop", flush=True)
+        for sig in signals:
+            loop.add_signal_handler(sig, stop.set)
+        task = machine.start()
+        waiter = asyncio.create_task(stop.wait(), name="sim-signal")
+        await asyncio.wait({task, waiter}, return_when=asyncio.FIRST_COMPLETED)
+        waiter.cancel()
+        await asyncio.gather(waiter, return_exceptions=True)
+    finally:
+        for sig in signals:
+            loop.remove_signal_handler(sig)
+        try:
+            await machine.stop()
+        finally:
+            await controller.stop()
+    if not args.json:
+        print(f"compd sim: stopped after {machine.time_s / 3600:.3f} h of machine time, "
+              f"{machine.overruns} overrun(s)")
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.record is not None:
+        if args.protocol is not None:
+            print("compd sim: --record runs offline; drop --protocol", file=sys.stderr)
+            return EX_USAGE
+        return _record(args)
+    if args.protocol is None:
+        print("compd sim: --protocol is required (or --record CSV for an offline record)",
+              file=sys.stderr)
+        return EX_USAGE
+    return asyncio.run(_serve(args))
