@@ -1,0 +1,136 @@
+"""`compd check MODEL_OR_CONFIG [--json]`: load, analyse, refuse what is unsafe.
+
+For a model file (or a bundled library name such as ``sp2``) it prints per
+term: poles, zeros, stability, DC gain (µm/K) and its sensitivity to the
+printed digits. A daemon config is handed to `compd.config` when present.
+Any invalid input exits 78 (EX_CONFIG) with one message naming the key.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from typing import Any
+
+HELP = "validate a model file or a daemon config and print poles, DC gains, sensitivity"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("path", metavar="MODEL_OR_CONFIG",
+                        help="model file, bundled model name (e.g. sp2) or daemon config")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--connect", action="store_true",
+                        help="(config) also connect and read each channel once")
+
+
+def _pair(z: complex) -> list[float]:
+    return [z.real, z.imag]
+
+
+def _finite(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
+def describe_model(model: Any) -> dict[str, Any]:
+    """Per-term analysis as plain data (the --json shape)."""
+    from models.greybox import GreyBox
+    from models.mbotv import Mbotv
+    from models.sensitivity import dc_gain_sensitivity
+    from models.tf import TransferFunction
+
+    terms: list[dict[str, Any]] = []
+    for t in model.terms:
+        dyn = t.dynamics
+        entry: dict[str, Any] = {"name": t.name, "inputs": dict(t.inputs),
+                                 "gain": t.gain_channel or t.gain}
+        if isinstance(dyn, TransferFunction):
+            sens = dc_gain_sensitivity(dyn)
+            entry.update(
+                kind="tf", order=dyn.order,
+                poles=[_pair(p) for p in dyn.poles], zeros=[_pair(z) for z in dyn.zeros],
+                stable=dyn.is_stable, cancelled_unit_circle=list(dyn.cancelled),
+                dc_gain=dyn.dc_gain, dc_gain_sensitivity=_finite(sens.first_order),
+                dc_gain_range=[sens.low, sens.high] if sens.bounded else None,
+                dc_gain_well_determined=sens.well_determined,
+                dc_gain_note=sens.describe())
+        elif isinstance(dyn, GreyBox):
+            poles = [1.0 + dyn.period_s * dyn.p[0]] + (
+                [1.0 + dyn.period_s * dyn.p[3]] if dyn.switched else [])
+            entry.update(kind="greybox", poles=[[p, 0.0] for p in poles], zeros=[],
+                         stable=True, dc_gain=dyn.dc_gain, dc_gain_sensitivity=None)
+        elif isinstance(dyn, Mbotv):
+            entry.update(kind="mbotv", poles=[[dyn.k, 0.0], [dyn.gamma, 0.0]], zeros=[],
+                         stable=True, dc_gain=dyn.dc_gain, dc_gain_sensitivity=None)
+        terms.append(entry)
+    return {"model": model.name, "period_s": model.period_s, "terms": terms}
+
+
+def _print_text(report: dict[str, Any]) -> None:
+    print(f"model {report['model']!r}: period {report['period_s']} s, "
+          f"{len(report['terms'])} term(s)")
+    for t in report["terms"]:
+        ins = " ".join(f"{c:+g}·{ch}" for ch, c in t["inputs"].items())
+        print(f"\nterm {t['name']!r} ({t['kind']}): input {ins}, gain {t['gain']}")
+        poles = ", ".join(_fmt(p) for p in t["poles"])
+        print(f"  poles: {poles}")
+        if t.get("zeros"):
+            print(f"  zeros: {', '.join(_fmt(z) for z in t['zeros'])}")
+        for root in t.get("cancelled_unit_circle", []):
+            print(f"  note: a pole at z = {root} is cancelled exactly by a zero at z = {root}; "
+                  "the reduced form is used (stable)")
+        print(f"  stable: {'yes' if t['stable'] else 'NO'}")
+        print(f"  DC gain: {t['dc_gain']:.6g} µm/unit")
+        if "dc_gain_note" in t:
+            print(f"  sensitivity: {t['dc_gain_note']}")
+
+
+def _fmt(p: list[float]) -> str:
+    re_, im = p
+    mag = math.hypot(re_, im)
+    tau = f", τ ≈ {-1.0 / math.log(mag):.0f} samples" if 0.0 < mag < 1.0 and mag > 0.5 else ""
+    body = f"{re_:.7g}" if abs(im) < 1e-15 else f"{re_:.6g}{im:+.6g}j"
+    return f"{body} (|p| = {mag:.7g}{tau})"
+
+
+def run(args: argparse.Namespace) -> int:
+    from compd.errors import ConfigError
+    from models.errors import ModelError
+    from models.modelfile import load_model
+
+    path: str = args.path
+    config_checker = _config_checker(path)
+    if config_checker is not None:
+        return config_checker(args)
+    try:
+        model = load_model(path)
+    except ModelError as exc:
+        raise ConfigError("", str(exc)) from None
+    report = describe_model(model)
+    if args.json:
+        print(json.dumps({"terms": report["terms"], "model": report["model"],
+                          "period_s": report["period_s"]}))
+    else:
+        _print_text(report)
+    return 0
+
+
+def _config_checker(path: str) -> Any:
+    """The daemon-config checker when `path` is a daemon config (has [controller])."""
+    import tomllib
+    from pathlib import Path
+
+    p = Path(path)
+    if not p.is_file():
+        return None
+    try:
+        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return None
+    if "controller" not in doc and "machine" not in doc:
+        return None
+    try:
+        from compd.commands import check_config
+    except ModuleNotFoundError:
+        return None
+    return check_config.run
