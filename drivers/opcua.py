@@ -1,0 +1,318 @@
+"""OPC UA driver (asyncua client).
+
+One Read service call per `read()` (every requested node in one ReadRequest,
+parameters prebuilt per name set), one Write call per `write()` with each
+output's own VariantType (read once from the node's DataType after connect:
+a Python float sent to a Float node is a BadTypeMismatch otherwise).
+
+Every call runs under `asyncio.timeout(timeout_s)` and the client's own
+request timeout is the same. asyncua's `auto_reconnect` is NOT used (it
+blocks calls for seconds): on a connection-level failure the client is torn
+down (its supervisor, watchdog and renew tasks cancelled) and the next call
+builds a new client when the backoff allows, else fails fast with
+`ConnectionLost`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Mapping, Sequence
+
+from asyncua import ua
+from asyncua.client.client import Client
+from asyncua.ua.attribute_ids import AttributeIds
+from asyncua.ua.status_codes import StatusCodes
+from asyncua.ua.uaerrors import UaError, UaStatusCodeError
+
+from drivers.addresses import OpcUaAddress
+from drivers.backoff import Backoff
+from drivers.base import Sample
+from drivers.errors import BadAddress, ConnectionLost, ControllerTimeout, DriverError, WriteRejected
+from drivers.opcua_codec import (
+    ADDRESS_CODES,
+    PERMANENT_WRITE_CODES,
+    SESSION_CODES,
+    decode,
+    encode,
+    status_name,
+    variant_type_of,
+)
+from drivers.opcua_security import OpcUaSecurity, SecurityRejected, apply_security
+
+__all__ = ["OpcUaDriver", "OpcUaSecurity", "SecurityRejected"]
+
+_log = logging.getLogger(__name__)
+_SC = StatusCodes
+#: the requested session lifetime: a dropped client's session ends soon on the server
+_SESSION_TIMEOUT_MS = 60_000
+#: asyncua's own liveness probe period (our calls detect failures themselves)
+_WATCHDOG_S = 5.0
+#: a service fault on a write that retrying cannot cure
+_PERMANENT_SERVICE_CODES = PERMANENT_WRITE_CODES | {_SC.BadNothingToDo}
+_CONNECTION_ERRORS = (OSError, ConnectionError, UaError, EOFError)
+
+
+class OpcUaDriver:
+    """Async access to one OPC UA server (see module docstring)."""
+
+    protocol = "opcua"
+
+    def __init__(self, endpoint: str, channels: dict[str, OpcUaAddress],
+                 outputs: dict[str, OpcUaAddress], *, timeout_s: float = 0.5,
+                 backoff: Backoff | None = None, security: OpcUaSecurity | None = None,
+                 connect_timeout_s: float | None = None) -> None:
+        if not endpoint.startswith("opc.tcp://"):
+            raise ValueError(f"OPC UA endpoint must be opc.tcp://host:port, got {endpoint!r}")
+        if timeout_s <= 0:
+            raise ValueError("timeout_s must be > 0")
+        self.endpoint = endpoint
+        self.timeout_s = timeout_s
+        #: a secured connect costs a discovery round trip and RSA operations
+        self.connect_timeout_s = connect_timeout_s or max(2 * timeout_s, 1.0)
+        self.backoff = backoff or Backoff()
+        self.security = security or OpcUaSecurity()
+        self._addresses: dict[str, OpcUaAddress] = {}
+        for name, addr in (*channels.items(), *outputs.items()):
+            if not isinstance(addr, OpcUaAddress):
+                raise TypeError(f"{name}: expected OpcUaAddress, got {type(addr).__name__}")
+            if self._addresses.get(name, addr) != addr:
+                raise ValueError(f"{name!r} is both a channel and an output, at different nodes")
+            self._addresses[name] = addr
+        self._outputs = dict(outputs)
+        self._nodeids = {name: ua.NodeId.from_string(addr.node)
+                         for name, addr in self._addresses.items()}
+        self._read_params: dict[tuple[str, ...], ua.ReadParameters] = {}
+        #: output name -> VariantType, or the status name why it cannot be written
+        self._types: dict[str, ua.VariantType | str] = {}
+        self._client: Client | None = None
+        self._closed = False
+
+    @property
+    def connected(self) -> bool:
+        return self._client is not None
+
+    # -- link ------------------------------------------------------------------
+
+    async def connect(self) -> None:
+        if self._client is not None:
+            return
+        self._closed = False
+        client = Client(self.endpoint, timeout=self.timeout_s, watchdog_intervall=_WATCHDOG_S)
+        client.session_timeout = _SESSION_TIMEOUT_MS
+        client.name = client.description = "compd"
+        try:
+            async with asyncio.timeout(self.connect_timeout_s):
+                await apply_security(client, self.security)
+                await client.connect()
+                await self._load_output_types(client)
+        except TimeoutError:
+            await self._dispose(client)
+            self.backoff.failed()
+            raise ControllerTimeout(f"connect did not finish within {self.connect_timeout_s} s",
+                                    address=self.endpoint) from None
+        except SecurityRejected:
+            await self._dispose(client)
+            self.backoff.failed()
+            raise
+        except UaStatusCodeError as exc:
+            await self._dispose(client)
+            self.backoff.failed()
+            raise self._refused(exc) from None
+        except (*_CONNECTION_ERRORS, ValueError) as exc:
+            await self._dispose(client)
+            self.backoff.failed()
+            raise ConnectionLost(f"cannot connect: {type(exc).__name__}: {exc}",
+                                 address=self.endpoint) from None
+        except BaseException:
+            await self._dispose(client)
+            raise
+        self._client = client
+        self.backoff.succeeded()
+
+    def _refused(self, exc: UaStatusCodeError) -> DriverError:
+        code = exc.code
+        name = status_name(code)
+        if code in {_SC.BadUserAccessDenied, _SC.BadIdentityTokenInvalid,
+                    _SC.BadIdentityTokenRejected, _SC.BadCertificateUntrusted,
+                    _SC.BadCertificateInvalid, _SC.BadSecurityChecksFailed,
+                    _SC.BadSecurityPolicyRejected, _SC.BadCertificateUriInvalid,
+                    _SC.BadCertificateTimeInvalid, _SC.BadCertificateUseNotAllowed}:
+            who = f" as user {self.security.username!r}" if self.security.username else ""
+            return SecurityRejected(f"the server refused the session{who}: {name}",
+                                    address=self.endpoint)
+        return ConnectionLost(f"cannot connect: {name}", address=self.endpoint)
+
+    async def _load_output_types(self, client: Client) -> None:
+        names = list(self._outputs)
+        if not names:
+            return
+        results = await client.uaclient.read_attributes(
+            [self._nodeids[n] for n in names], AttributeIds.DataType)
+        for name, dv in zip(names, results, strict=True):
+            status = dv.StatusCode
+            if status is not None and not status.is_good():
+                self._types[name] = status_name(status.value)
+                continue
+            vtype = variant_type_of(dv.Value.Value) if dv.Value is not None else None
+            self._types[name] = vtype if vtype is not None else \
+                f"DataType {dv.Value.Value if dv.Value is not None else None} not numeric"
+
+    async def close(self) -> None:
+        self._closed = True
+        client, self._client = self._client, None
+        if client is not None:
+            await self._dispose(client, graceful=True)
+
+    async def _dispose(self, client: Client, *, graceful: bool = False) -> None:
+        """Tear a client down quietly: its background tasks are cancelled first
+        (inside close_session), then the session/channel are closed if the link
+        still works, then the socket. Without `graceful` the socket goes first:
+        nothing waits on a hung server."""
+        if not graceful:
+            client.disconnect_socket()
+        try:
+            async with asyncio.timeout(self.timeout_s):
+                await client.close_session()
+        except Exception:  # a dead link: CloseSession cannot be sent
+            _log.debug("close_session failed during teardown", exc_info=True)
+        if graceful:
+            try:
+                async with asyncio.timeout(self.timeout_s):
+                    await client.close_secure_channel()
+            except Exception:
+                _log.debug("close_secure_channel failed during teardown", exc_info=True)
+        client.disconnect_socket()
+
+    async def _lost(self, client: Client) -> None:
+        if self._client is client:
+            self._client = None
+        await self._dispose(client)
+
+    async def _ready(self) -> Client:
+        if self._client is not None:
+            return self._client
+        if self._closed:
+            raise ConnectionLost("driver is closed", address=self.endpoint)
+        if not self.backoff.ready():
+            raise ConnectionLost(f"link down; next reconnect attempt within "
+                                 f"{self.backoff.delay_s:.2f} s", address=self.endpoint)
+        await self.connect()
+        if self._client is None:  # closed while connecting
+            raise ConnectionLost("driver is closed", address=self.endpoint)
+        return self._client
+
+    # -- read ----------------------------------------------------------------
+
+    def _params_for(self, names: tuple[str, ...]) -> ua.ReadParameters:
+        params = self._read_params.get(names)
+        if params is not None:
+            return params
+        for name in names:
+            if name not in self._addresses:
+                raise BadAddress("not a configured channel or output", channel=name)
+        params = ua.ReadParameters()
+        params.TimestampsToReturn = ua.TimestampsToReturn.Both
+        params.MaxAge = 0
+        for name in names:
+            rv = ua.ReadValueId()
+            rv.NodeId = self._nodeids[name]
+            rv.AttributeId = AttributeIds.Value
+            params.NodesToRead.append(rv)
+        self._read_params[names] = params
+        return params
+
+    async def read(self, names: Sequence[str]) -> dict[str, Sample]:
+        key = tuple(names)
+        params = self._params_for(key)
+        if not key:
+            return {}
+        client = await self._ready()
+        where = ",".join(key)
+        try:
+            async with asyncio.timeout(self.timeout_s):
+                results = await client.uaclient.read(params)
+        except TimeoutError:
+            await self._lost(client)
+            raise ControllerTimeout(f"Read did not answer within {self.timeout_s} s",
+                                    channel=where, address=self.endpoint) from None
+        except UaStatusCodeError as exc:
+            await self._service_fault(client, exc, where)
+            raise
+        except _CONNECTION_ERRORS as exc:
+            await self._lost(client)
+            raise ConnectionLost(f"Read failed: {type(exc).__name__}: {exc}",
+                                 channel=where, address=self.endpoint) from None
+        if len(results) != len(key):
+            raise DriverError(f"Read returned {len(results)} results for {len(key)} nodes",
+                              channel=where, address=self.endpoint)
+        return {name: decode(dv, self._addresses[name], name)
+                for name, dv in zip(key, results, strict=True)}
+
+    async def _service_fault(self, client: Client, exc: UaStatusCodeError,
+                             where: str) -> None:
+        """Turn a whole-request fault into a driver error (raised)."""
+        code = exc.code
+        name = status_name(code)
+        if code in SESSION_CODES:
+            await self._lost(client)
+            raise ConnectionLost(f"session lost: {name}", channel=where,
+                                 address=self.endpoint) from None
+        if code == _SC.BadTimeout:
+            raise ControllerTimeout(f"server answered {name}", channel=where,
+                                    address=self.endpoint) from None
+        raise DriverError(f"server refused the request: {name}", channel=where,
+                          address=self.endpoint) from None
+
+    # -- write ---------------------------------------------------------------
+
+    async def write(self, values: Mapping[str, float]) -> None:
+        if not values:
+            return
+        for name in values:
+            if name not in self._outputs:
+                raise BadAddress("not a configured output", channel=name)
+        client = await self._ready()
+        params = ua.WriteParameters()
+        names = list(values)
+        for name in names:
+            addr = self._outputs[name]
+            vtype = self._types.get(name)
+            if not isinstance(vtype, ua.VariantType):
+                raise BadAddress(f"cannot write this node: {vtype or 'type unknown'}",
+                                 channel=name, address=addr.node)
+            wv = ua.WriteValue()
+            wv.NodeId = self._nodeids[name]
+            wv.AttributeId = AttributeIds.Value
+            wv.Value = ua.DataValue(encode(values[name], addr, vtype, name))
+            params.NodesToWrite.append(wv)
+        where = ",".join(names)
+        try:
+            async with asyncio.timeout(self.timeout_s):
+                results = await client.uaclient.write(params)
+        except TimeoutError:
+            await self._lost(client)
+            raise ControllerTimeout(f"Write did not answer within {self.timeout_s} s "
+                                    "(it may have been applied)", channel=where,
+                                    address=self.endpoint) from None
+        except UaStatusCodeError as exc:
+            if exc.code in SESSION_CODES or exc.code == _SC.BadTimeout:
+                await self._service_fault(client, exc, where)
+            raise WriteRejected(f"server refused the Write: {status_name(exc.code)}",
+                                channel=where, address=self.endpoint,
+                                permanent=exc.code in _PERMANENT_SERVICE_CODES) from None
+        except _CONNECTION_ERRORS as exc:
+            await self._lost(client)
+            raise ConnectionLost(f"Write failed: {type(exc).__name__}: {exc}",
+                                 channel=where, address=self.endpoint) from None
+        for name, status in zip(names, results, strict=True):
+            if status.is_good():
+                continue
+            code = status.value
+            node = self._outputs[name].node
+            if code in ADDRESS_CODES:
+                raise BadAddress(f"the server answered {status_name(code)}",
+                                 channel=name, address=node)
+            raise WriteRejected(f"the server refused the value: {status_name(code)}",
+                                channel=name, address=node,
+                                permanent=code in PERMANENT_WRITE_CODES)

@@ -1,0 +1,290 @@
+"""A simulated controller speaking OPC UA: a real asyncua server on 127.0.0.1.
+
+Address space (namespace ``urn:compd:sim``, string NodeIds ``Machine.<name>``):
+
+- every standard channel (`drivers.sim.CHANNELS`), read-only for clients;
+  temperatures and most values are ``Double``, ``power_kw`` is ``Float``;
+- writable outputs ``offset`` (``Float``), ``heartbeat`` (``UInt32``),
+  ``status`` (``UInt16``);
+- writable encoding nodes (``enc_*``: Int16, Int32, Int64, Double, Float) used
+  by the contract tests.
+
+Test hooks: `publish_status` puts a channel in a Bad/Uncertain state (an open
+sensor), `set_latency` delays every client Read/Write (a hung controller),
+`read_requests` counts client Read requests touching this namespace, `restart`
+drops every connection and rebinds the same port with outputs forgotten.
+
+Starting costs about a second (asyncua builds the standard address space);
+stopping is immediate (the server clock task is disabled).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from datetime import UTC
+from pathlib import Path
+from typing import Any
+
+from asyncua import ua
+from asyncua.common.callback import CallbackType, ServerItemCallback
+from asyncua.crypto.permission_rules import User, UserRole
+from asyncua.server.internal_server import InternalServer
+from asyncua.server.server import Server
+from asyncua.server.user_managers import UserManager
+from asyncua.ua.status_codes import StatusCodes
+
+from drivers.addresses import Address, OpcUaAddress
+from drivers.sim import CHANNELS, OUTPUTS
+from drivers.sim.ports import free_tcp_port
+
+NAMESPACE = "urn:compd:sim"
+#: asyncua gives the first registered namespace index 2 (0: OPC UA, 1: the server)
+NAMESPACE_INDEX = 2
+
+_VT = ua.VariantType
+#: name -> variant type of the node on the simulated controller
+CHANNEL_TYPES: dict[str, ua.VariantType] = {name: _VT.Double for name in CHANNELS}
+CHANNEL_TYPES["power_kw"] = _VT.Float
+OUTPUT_TYPES: dict[str, ua.VariantType] = {
+    "offset": _VT.Float, "heartbeat": _VT.UInt32, "status": _VT.UInt16}
+#: extra writable nodes for encoding tests: name -> (type, scale)
+ENCODING_NODES: dict[str, tuple[ua.VariantType, float]] = {
+    "enc_int16": (_VT.Int16, 0.1),
+    "enc_int32": (_VT.Int32, 0.001),
+    "enc_int64": (_VT.Int64, 1.0),
+    "enc_double": (_VT.Double, 1.0),
+    "enc_float": (_VT.Float, 1.0),
+}
+_INTEGER_TYPES = frozenset({_VT.SByte, _VT.Byte, _VT.Int16, _VT.UInt16, _VT.Int32,
+                            _VT.UInt32, _VT.Int64, _VT.UInt64})
+
+#: name -> asyncua policy types for the sim's `policies` option
+POLICY_TYPES: dict[str, ua.SecurityPolicyType] = {
+    "None": ua.SecurityPolicyType.NoSecurity,
+    "Basic256Sha256_Sign": ua.SecurityPolicyType.Basic256Sha256_Sign,
+    "Basic256Sha256_SignAndEncrypt": ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
+    "Aes128_Sha256_RsaOaep_Sign": ua.SecurityPolicyType.Aes128Sha256RsaOaep_Sign,
+    "Aes128_Sha256_RsaOaep_SignAndEncrypt":
+        ua.SecurityPolicyType.Aes128Sha256RsaOaep_SignAndEncrypt,
+    "Aes256_Sha256_RsaPss_Sign": ua.SecurityPolicyType.Aes256Sha256RsaPss_Sign,
+    "Aes256_Sha256_RsaPss_SignAndEncrypt":
+        ua.SecurityPolicyType.Aes256Sha256RsaPss_SignAndEncrypt,
+}
+
+_log = logging.getLogger(__name__)
+
+
+def _now() -> ua.DateTime:
+    return ua.DateTime.now(UTC)
+
+
+def node_id(name: str) -> str:
+    """The NodeId string of a sim variable."""
+    return f"ns={NAMESPACE_INDEX};s=Machine.{name}"
+
+
+@dataclass(frozen=True)
+class OpcUaSimSecurity:
+    """Security of the simulated server.
+
+    `policies` are keys of `POLICY_TYPES`; `users` maps user name to password
+    (when given, only user name tokens are accepted, no anonymous clients).
+    """
+
+    certificate: Path
+    private_key: Path
+    policies: Sequence[str] = ("Basic256Sha256_SignAndEncrypt",)
+    users: Mapping[str, str] = field(default_factory=dict)
+    application_uri: str = "urn:compd:sim:server"
+
+
+class _PasswordUserManager(UserManager):
+    """Accepts exactly the configured user name / password pairs."""
+
+    def __init__(self, users: Mapping[str, str]) -> None:
+        self._users = dict(users)
+
+    def get_user(self, iserver: InternalServer, username: str | None = None,
+                 password: str | None = None, certificate: Any = None) -> User | None:
+        if username is not None and self._users.get(username) == password:
+            return User(role=UserRole.User, name=username)
+        return None
+
+
+def _coerce(value: float, vtype: ua.VariantType) -> Any:
+    if vtype in _INTEGER_TYPES:
+        return round(value)
+    if vtype is _VT.Boolean:
+        return bool(value)
+    return float(value)
+
+
+class OpcUaSimController:
+    """The simulated controller (see module docstring)."""
+
+    protocol = "opcua"
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, *,
+                 security: OpcUaSimSecurity | None = None) -> None:
+        self.host = host
+        self.port = port or free_tcp_port(host)
+        self.endpoint = f"opc.tcp://{host}:{self.port}"
+        self.security = security
+        self.channels: dict[str, Address] = {
+            name: OpcUaAddress(node=node_id(name)) for name in CHANNELS}
+        self.outputs_map: dict[str, Address] = {
+            name: OpcUaAddress(node=node_id(name)) for name in OUTPUTS}
+        self.encodings: dict[str, OpcUaAddress] = {
+            name: OpcUaAddress(node=node_id(name), scale=scale)
+            for name, (_, scale) in ENCODING_NODES.items()}
+        self.types: dict[str, ua.VariantType] = {
+            **CHANNEL_TYPES, **OUTPUT_TYPES,
+            **{name: vt for name, (vt, _) in ENCODING_NODES.items()}}
+        #: client Read requests that touched this namespace (server-side count)
+        self.read_requests = 0
+        self.write_requests = 0
+        self._latency_s = 0.0
+        self._server: Server | None = None
+        self._nodeids: dict[str, ua.NodeId] = {
+            name: ua.NodeId.from_string(node_id(name)) for name in self.types}
+
+    # -- lifecycle ---------------------------------------------------------
+
+    async def start(self) -> None:
+        if self._server is not None:
+            return
+        sec = self.security
+        user_manager = _PasswordUserManager(sec.users) if sec and sec.users else None
+        server = Server(user_manager=user_manager)
+        await server.init()
+        server.disable_clock()  # its 1 s loop would make stop() take a second
+        server.set_endpoint(self.endpoint)
+        server.set_server_name("compd simulated controller")
+        if sec is not None:
+            await server.set_application_uri(sec.application_uri)
+            await server.load_certificate(str(sec.certificate))
+            await server.load_private_key(str(sec.private_key))
+            server.set_security_policy([POLICY_TYPES[p] for p in sec.policies])
+            if sec.users:
+                server.set_identity_tokens([ua.UserNameIdentityToken])
+        else:
+            server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+        idx = await server.register_namespace(NAMESPACE)
+        if idx != NAMESPACE_INDEX:
+            raise RuntimeError(f"sim namespace got index {idx}, expected {NAMESPACE_INDEX}")
+        machine = await server.nodes.objects.add_object(
+            ua.NodeId(ua.String("Machine"), ua.Int16(idx)), ua.QualifiedName("Machine", idx))
+        for name, vtype in self.types.items():
+            var = await machine.add_variable(
+                self._nodeids[name], ua.QualifiedName(name, idx),
+                ua.Variant(_coerce(0.0, vtype), vtype))
+            if name not in CHANNEL_TYPES:
+                await var.set_writable()
+        server.subscribe_server_callback(CallbackType.PreRead, self._on_read)
+        server.subscribe_server_callback(CallbackType.PreWrite, self._on_write)
+        await server.start()
+        self._server = server
+
+    async def stop(self) -> None:
+        server, self._server = self._server, None
+        if server is not None:
+            await server.stop()
+
+    async def restart(self) -> None:
+        """Drop every connection and listen again on the same port; outputs are
+        forgotten (a controller power cycle)."""
+        server = self._require()
+        if server.bserver is None:
+            raise RuntimeError("sim server is not listening")
+        await server.bserver.stop()
+        await self.forget_outputs()
+        await server.bserver.start()
+
+    async def __aenter__(self) -> OpcUaSimController:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.stop()
+
+    # -- plant side ----------------------------------------------------------
+
+    async def publish(self, values: Mapping[str, float]) -> None:
+        now = _now()
+        for name, value in values.items():
+            await self._write(name, value, now)
+
+    async def publish_status(self, name: str, *, bad: bool = True,
+                             uncertain: bool = False) -> None:
+        """Set a node's status code (keeping its value): Bad (an open sensor),
+        Uncertain, or Good again with ``bad=False``."""
+        server = self._require()
+        nid = self._nodeid(name)
+        current = server.read_attribute_value(nid)
+        code = (StatusCodes.BadSensorFailure if bad else
+                StatusCodes.UncertainLastUsableValue if uncertain else StatusCodes.Good)
+        await server.write_attribute_value(nid, ua.DataValue(
+            current.Value, StatusCode=ua.StatusCode(ua.UInt32(code)),
+            SourceTimestamp=_now(), ServerTimestamp=_now()))
+
+    async def outputs(self) -> dict[str, float]:
+        return {name: await self.value(name) for name in OUTPUTS}
+
+    async def value(self, name: str) -> float:
+        """The current value of any sim node (engineering value: raw * scale)."""
+        server = self._require()
+        dv = server.read_attribute_value(self._nodeid(name))
+        raw = dv.Value.Value if dv.Value is not None else None
+        scale = self.encodings[name].scale if name in self.encodings else 1.0
+        return float(raw) * scale if raw is not None else float("nan")
+
+    async def forget_outputs(self) -> None:
+        now = _now()
+        for name in (*OUTPUTS, *ENCODING_NODES):
+            await self._write(name, 0.0, now)
+
+    def set_latency(self, delay_s: float) -> None:
+        """Delay every client Read and Write by `delay_s` (0 = answer at once)."""
+        self._latency_s = delay_s
+
+    # -- internals -----------------------------------------------------------
+
+    def _require(self) -> Server:
+        if self._server is None:
+            raise RuntimeError("sim server not started")
+        return self._server
+
+    def _nodeid(self, name: str) -> ua.NodeId:
+        try:
+            return self._nodeids[name]
+        except KeyError:
+            raise KeyError(f"no sim node named {name!r}") from None
+
+    async def _write(self, name: str, value: float, when: ua.DateTime) -> None:
+        server = self._require()
+        vtype = self.types[name]
+        scale = self.encodings[name].scale if name in self.encodings else 1.0
+        variant = ua.Variant(_coerce(value / scale, vtype), vtype)
+        await server.write_attribute_value(self._nodeid(name), ua.DataValue(
+            variant, SourceTimestamp=when, ServerTimestamp=when))
+
+    def _ours(self, nodeids: Sequence[ua.NodeId]) -> bool:
+        return any(n.NamespaceIndex == NAMESPACE_INDEX for n in nodeids)
+
+    async def _on_read(self, event: ServerItemCallback, _dispatcher: Any) -> None:
+        if not event.is_external:
+            return
+        if self._ours([r.NodeId for r in event.request_params.NodesToRead]):
+            self.read_requests += 1
+            if self._latency_s > 0:
+                await asyncio.sleep(self._latency_s)
+
+    async def _on_write(self, event: ServerItemCallback, _dispatcher: Any) -> None:
+        if not event.is_external:
+            return
+        self.write_requests += 1
+        if self._latency_s > 0:
+            await asyncio.sleep(self._latency_s)
