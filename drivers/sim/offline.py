@@ -2,7 +2,9 @@
 
 No server, no event loop: the plant is stepped `period_s` at a time through a
 program and sampled after each step (plus once at t = 0), so a record of
-duration D at period P has floor(D / P) + 1 rows. A day at 1 s takes well
+duration D at period P has floor(D / P) + 1 rows. Row k holds the sensors
+at t = k·P; its speed is the one held over the period ending there (row 0 is
+the machine at rest before the program starts). A day at 1 s takes well
 under a few seconds (one 6×6 update per second of machine time).
 """
 

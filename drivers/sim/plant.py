@@ -49,11 +49,12 @@ controls of the papers); `error_um = growth_um - offset_um`.
 
 Worked number (default parameters, 20 °C room without drift): 4 h at
 9,000 rpm idle gives q_bearing = 6·27 + 5·9 = 207 W, q_motor = 4·81 + 20·9 =
-504 W, power 0.71 kW. Cooler off: the bearing rises +19.6 K, the motor
-+24.5 K, the shaft +17 K (time constants ≈ 25-40 min), the column +0.8 K
-(≈ 3 h) and the growth reaches ≈ 58 µm; with the cooler (on above 31 °C) the
-bearing holds near 30 °C and the growth plateaus at ≈ 27 µm. A day of the
-default room (±1 K, walk σ 0.3 K) moves the growth by a few µm.
+504 W, power 0.71 kW. Cooler off: the bearing rises +20.7 K, the motor
++25.7 K, the shaft +18.2 K (63 % of their final rise after ≈ 50-70 min), the
+column +1.0 K (63 % after ≈ 5 h) and the growth reaches ≈ 57 µm; with the
+cooler (on above 31 °C) the bearing holds near 30 °C and the growth plateaus
+at ≈ 24 µm. A day of the default room (±1 K, walk σ 0.3 K) moves the growth
+by a few µm.
 """
 
 from __future__ import annotations
@@ -78,10 +79,10 @@ class PlantParams:
     """Every physical constant of the plant, with its unit in the name."""
 
     # heat capacities, J/K
-    c_bearing_j_k: float = 20_000.0
-    c_motor_j_k: float = 60_000.0
-    c_headstock_j_k: float = 250_000.0
-    c_shaft_j_k: float = 30_000.0
+    c_bearing_j_k: float = 12_000.0
+    c_motor_j_k: float = 40_000.0
+    c_headstock_j_k: float = 180_000.0
+    c_shaft_j_k: float = 20_000.0
     c_column_j_k: float = 900_000.0
     c_table_j_k: float = 300_000.0
     # conductances between nodes, W/K
@@ -114,7 +115,7 @@ class PlantParams:
     cooler_g_motor_w_k: float = 30.0
     coolant_offset_k: float = 0.0
     # growth at the tool, µm/K (and µm/K² for the nonlinearity)
-    k_shaft_um_k: float = 3.0
+    k_shaft_um_k: float = 2.7
     k_headstock_um_k: float = 0.8
     k_column_um_k: float = -8.0
     k_gradient_um_k: float = 1.5
