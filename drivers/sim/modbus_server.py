@@ -19,8 +19,8 @@ holding registers (written by the daemon)
     12..13 enc_i32_milli     int32, 0.001 per count
     14     enc_i16           int16, 1 per count
     15     enc_i16_centi     int16, 0.01 per count
-Everything else up to input 31 / holding 63 reads as 0; beyond is an
-illegal address (exception code 2), e.g. `BAD_ADDRESS`.
+Everything else up to input 31 / holding 63 (or the sizes given) reads as 0;
+beyond is an illegal address (exception code 2), e.g. `BAD_ADDRESS`.
 
 The server keeps pymodbus's SimDevice datastore (`SimData` addresses are the
 wire addresses: no off-by-one as with the old sequential blocks). For tests it
@@ -112,9 +112,16 @@ class ModbusSimController:
 
     protocol = "modbus"
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 0, **options: Any) -> None:
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, *,
+                 input_registers: int = INPUT_REGISTERS,
+                 holding_registers: int = HOLDING_REGISTERS, **options: Any) -> None:
         if options:
             raise TypeError(f"unknown options for the Modbus sim: {sorted(options)}")
+        if not (INPUT_REGISTERS <= input_registers <= 65536
+                and HOLDING_REGISTERS <= holding_registers <= 65536):
+            raise ValueError("register tables must hold at least the standard map")
+        self.input_registers = input_registers
+        self.holding_registers = holding_registers
         self.host = host
         self.port = port or free_tcp_port(host)
         self.endpoint = f"modbus://{host}:{self.port}"
@@ -123,8 +130,8 @@ class ModbusSimController:
         self.encodings: dict[str, ModbusAddress] = dict(ENCODINGS)
         self.requests: list[Request] = []
         self.faults: list[Fault] = []
-        self._input = [0] * INPUT_REGISTERS
-        self._holding = [0] * HOLDING_REGISTERS
+        self._input = [0] * input_registers
+        self._holding = [0] * holding_registers
         self._server: ModbusTcpServer | None = None
         self._release = asyncio.Event()
         self._release.set()
@@ -163,8 +170,8 @@ class ModbusSimController:
             return
         self._release.set()
         # Keep the register images (minus pymodbus's trailing guard register).
-        self._input = list(self._input[:INPUT_REGISTERS])
-        self._holding = list(self._holding[:HOLDING_REGISTERS])
+        self._input = list(self._input[:self.input_registers])
+        self._holding = list(self._holding[:self.holding_registers])
         await server.shutdown()  # type: ignore[no-untyped-call]  # untyped in pymodbus
         await asyncio.sleep(0)  # let the closed connections' callbacks run
 
