@@ -196,12 +196,21 @@ class OpcUaSimController:
     async def restart(self) -> None:
         """Drop every connection and listen again on the same port; outputs are
         forgotten (a controller power cycle)."""
-        server = self._require()
-        if server.bserver is None:
-            raise RuntimeError("sim server is not listening")
-        await server.bserver.stop()
+        server = self._server
+        if server is None or server.bserver is None:
+            await self.start()
+            return
+        # Rebind only the listening socket: BinaryServer.stop/start would also
+        # replace its cleanup task, which then belongs to the caller's task.
+        bserver = server.bserver
+        for transport in list(server.iserver.asyncio_transports):
+            transport.close()
+        if bserver._server is not None:
+            bserver._server.close()
+            await bserver._server.wait_closed()
         await self.forget_outputs()
-        await server.bserver.start()
+        bserver._server = await asyncio.get_running_loop().create_server(
+            bserver._make_protocol, self.host, self.port)
 
     async def __aenter__(self) -> OpcUaSimController:
         await self.start()
