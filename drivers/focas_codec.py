@@ -1,0 +1,91 @@
+"""FANUC PMC value encodings and range planning (no I/O).
+
+PMC memory is little-endian (the low byte of word D100 is D100). Reads and
+writes move raw bytes (data type 0) over byte ranges, and values are decoded
+here; engineering value = raw * scale, integers rounded and range-checked.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from drivers.addresses import PMC_TYPES, FocasPmcAddress
+
+_FORMATS: dict[str, str] = {"byte": "<b", "word": "<h", "long": "<i", "float": "<f",
+                            "double": "<d"}
+_INT_RANGES: dict[str, tuple[int, int]] = {"byte": (-128, 127), "word": (-32768, 32767),
+                                           "long": (-(2**31), 2**31 - 1)}
+#: longest byte range read in one pmc_rdpmcrng
+MAX_RANGE_BYTES = 1024
+
+
+def pmc_size(a: FocasPmcAddress) -> int:
+    return PMC_TYPES[a.type][1]
+
+
+def decode_pmc(a: FocasPmcAddress, data: bytes | bytearray, at: int = 0) -> float:
+    (raw,) = struct.unpack_from(_FORMATS[a.type], data, at)
+    return float(raw) * a.scale
+
+
+def encode_pmc(a: FocasPmcAddress, value: float, *, saturate: bool = False) -> bytes:
+    """Bytes of `value`; ValueError when not representable (`saturate`
+    clamps integers instead, as an analog card would)."""
+    if not math.isfinite(value):
+        raise ValueError(f"{value!r} is not a finite number")
+    raw = value / a.scale
+    if a.type in _INT_RANGES:
+        lo, hi = _INT_RANGES[a.type]
+        raw_int = round(raw)
+        if saturate:
+            raw_int = min(max(raw_int, lo), hi)
+        elif not lo <= raw_int <= hi:
+            raise ValueError(f"{value!r} (raw {raw_int}) outside PMC {a.type} range {lo}..{hi}")
+        return struct.pack(_FORMATS[a.type], raw_int)
+    try:
+        return struct.pack(_FORMATS[a.type], raw)
+    except OverflowError as exc:
+        raise ValueError(f"{value!r} overflows a PMC {a.type}") from exc
+
+
+@dataclass(frozen=True, slots=True)
+class PmcRange:
+    """One pmc_rdpmcrng / pmc_wrpmcrng request: bytes start..end of one area."""
+
+    area: str
+    start: int
+    end: int  # inclusive
+    names: tuple[str, ...]
+
+    @property
+    def size(self) -> int:
+        return self.end - self.start + 1
+
+
+def read_ranges(items: Iterable[tuple[str, FocasPmcAddress]]) -> list[PmcRange]:
+    """One range per area (split only past MAX_RANGE_BYTES)."""
+    ranges: list[PmcRange] = []
+    for name, a in sorted(items, key=lambda it: (it[1].area, it[1].address)):
+        end = a.address + pmc_size(a) - 1
+        last = ranges[-1] if ranges else None
+        if last is not None and last.area == a.area and end - last.start < MAX_RANGE_BYTES:
+            ranges[-1] = PmcRange(a.area, last.start, max(last.end, end), (*last.names, name))
+        else:
+            ranges.append(PmcRange(a.area, a.address, end, (name,)))
+    return ranges
+
+
+def write_runs(items: Iterable[tuple[str, FocasPmcAddress]]) -> list[PmcRange]:
+    """Runs of byte-adjacent values of one area: one write request each."""
+    runs: list[PmcRange] = []
+    for name, a in sorted(items, key=lambda it: (it[1].area, it[1].address)):
+        end = a.address + pmc_size(a) - 1
+        last = runs[-1] if runs else None
+        if last is not None and last.area == a.area and last.end + 1 == a.address:
+            runs[-1] = PmcRange(a.area, last.start, end, (*last.names, name))
+        else:
+            runs.append(PmcRange(a.area, a.address, end, (name,)))
+    return runs

@@ -1,0 +1,44 @@
+"""Contract-test harness for the FOCAS driver against the stand-in library."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator, Mapping
+from contextlib import asynccontextmanager
+from typing import Any
+
+from drivers.addresses import Address, FocasPmcAddress
+from drivers.backoff import Backoff
+from drivers.focas import FocasDriver
+from drivers.sim.focas_server import FocasSimController
+from tests.drivers.harness_types import Harness
+
+PROTOCOL = "focas"
+
+
+@asynccontextmanager
+async def harness() -> AsyncIterator[Harness]:
+    sim = FocasSimController()
+    await sim.start()
+
+    def make_driver(timeout_s: float = 0.5, channels: Mapping[str, Address] | None = None,
+                    outputs: Mapping[str, Address] | None = None,
+                    **options: Any) -> FocasDriver:
+        options.setdefault("backoff", Backoff(initial_s=0.02, cap_s=0.2))
+        options.setdefault("library_path", sim.library_path)
+        return FocasDriver(sim.endpoint,
+                           dict(sim.channels if channels is None else channels),  # type: ignore[arg-type]
+                           dict(sim.outputs_map if outputs is None else outputs),  # type: ignore[arg-type]
+                           timeout_s=timeout_s, **options)
+
+    async def restart() -> None:
+        await sim.stop()
+        await sim.forget_outputs()
+        await sim.start()
+
+    try:
+        yield Harness(sim=sim, make_driver=make_driver, stop=sim.stop, restart=restart,
+                      bad_address=FocasPmcAddress(area="D", address=60000, type="long"),
+                      tolerance=0.001, encodings=dict(sim.encodings))
+    finally:
+        await sim.stop()
+        sim.close()
