@@ -1,0 +1,158 @@
+"""Atomic checkpoints of the daemon's state (model delay lines, last written
+offset, cycle number) so that a restart resumes without a jump.
+
+File format: one JSON object, the caller's state plus three keys added here:
+``version`` (the format, 1), ``saved_wall_s`` (time.time() at save) and
+``checksum`` (sha256 hex of the canonical JSON of everything else: sorted keys,
+compact separators). A checkpoint is either the old one or the new one, never
+a mixture: it is written to a temp file in the same directory, flushed and
+fsynced, renamed over the old one with os.replace, and the directory is
+fsynced so the rename itself survives a power cut.
+
+`load_checkpoint` refuses (CheckpointError with a reason) anything it cannot
+trust: an empty or truncated file, bytes that are not UTF-8 JSON, a wrong
+version, a checksum that does not match, non-finite numbers. It never returns
+part of a file.
+
+One writer per checkpoint path: the daemon holds `compd.statelock.StateLock`
+on its state directory, so a fixed temp name is safe.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+from compd.errors import CompdError
+
+__all__ = ["FORMAT_VERSION", "RESERVED_KEYS", "CheckpointError", "load_checkpoint",
+           "save_checkpoint"]
+
+#: The checkpoint format this module writes and accepts.
+FORMAT_VERSION = 1
+#: Keys added by `save_checkpoint`; a state dict may not use them itself.
+RESERVED_KEYS = frozenset({"version", "saved_wall_s", "checksum"})
+
+
+class CheckpointError(CompdError):
+    """A checkpoint cannot be saved or trusted. `path` is the file, `reason` why."""
+
+    def __init__(self, path: Path, reason: str) -> None:
+        self.path = path
+        self.reason = reason
+        super().__init__(f"checkpoint {path}: {reason}")
+
+
+def _canonical(payload: dict[str, Any]) -> bytes:
+    """The bytes the checksum covers: sorted keys, no whitespace, finite numbers only."""
+    return json.dumps(payload, sort_keys=True, separators=(",", ":"),
+                      allow_nan=False, ensure_ascii=True).encode("ascii")
+
+
+def _checksum(payload: dict[str, Any]) -> str:
+    return hashlib.sha256(_canonical(payload)).hexdigest()
+
+
+def _fsync_dir(directory: Path) -> None:
+    fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _temp_path(path: Path) -> Path:
+    return path.with_name(f".{path.name}.tmp")
+
+
+def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
+    """Write `state` to `path` atomically (see the module docstring).
+
+    Raises CheckpointError when the state cannot be stored faithfully (a NaN or
+    infinity, a value JSON cannot hold, a reserved key) and OSError when the
+    file system refuses (the old checkpoint is then left as it was).
+    """
+    clash = RESERVED_KEYS.intersection(state)
+    if clash:
+        raise CheckpointError(path, f"state uses reserved key(s) {sorted(clash)}")
+    payload: dict[str, Any] = dict(state)
+    payload["version"] = FORMAT_VERSION
+    payload["saved_wall_s"] = time.time()
+    try:
+        checksum = _checksum(payload)
+    except ValueError as exc:  # allow_nan=False: NaN/inf; also circular references
+        raise CheckpointError(
+            path, f"state is not storable: {exc} (non-finite floats are refused)") from exc
+    except TypeError as exc:
+        raise CheckpointError(path, f"state is not storable as JSON: {exc}") from exc
+    payload["checksum"] = checksum
+    data = json.dumps(payload, sort_keys=True, indent=1, allow_nan=False).encode("utf-8")
+
+    tmp = _temp_path(path)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
+    try:
+        view = memoryview(data)
+        while view:
+            written = os.write(fd, view)
+            view = view[written:]
+        os.fsync(fd)
+    except BaseException:
+        os.close(fd)
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+    os.close(fd)
+    os.replace(tmp, path)
+    _fsync_dir(path.parent)
+
+
+def _refuse_constant(name: str) -> float:
+    raise ValueError(f"non-finite number {name}")
+
+
+def load_checkpoint(path: Path) -> dict[str, Any] | None:
+    """The checkpoint at `path` (state plus version, saved_wall_s, checksum),
+    None when there is none, CheckpointError when it cannot be trusted."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise CheckpointError(path, f"unreadable: {exc.strerror or exc}") from exc
+    if not data.strip():
+        raise CheckpointError(path, "empty file (torn write)")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise CheckpointError(path, f"not UTF-8 (garbled): {exc.reason} at byte {exc.start}") \
+            from exc
+    try:
+        obj = json.loads(text, parse_constant=_refuse_constant)
+    except json.JSONDecodeError as exc:
+        raise CheckpointError(
+            path, f"not valid JSON (torn or garbled): {exc.msg} at line {exc.lineno} "
+                  f"column {exc.colno}") from exc
+    except ValueError as exc:
+        raise CheckpointError(path, str(exc)) from exc
+    if not isinstance(obj, dict):
+        raise CheckpointError(path, f"not a JSON object but {type(obj).__name__}")
+    version = obj.get("version")
+    if version != FORMAT_VERSION:
+        raise CheckpointError(
+            path, f"wrong version {version!r} (this compd reads version {FORMAT_VERSION})")
+    stored = obj.get("checksum")
+    if not isinstance(stored, str):
+        raise CheckpointError(path, "no checksum")
+    saved = obj.get("saved_wall_s")
+    if not isinstance(saved, int | float) or isinstance(saved, bool) or not math.isfinite(saved):
+        raise CheckpointError(path, f"bad saved_wall_s {saved!r}")
+    payload = {k: v for k, v in obj.items() if k != "checksum"}
+    if _checksum(payload) != stored:
+        raise CheckpointError(path, "checksum mismatch (corrupt or edited)")
+    return obj
