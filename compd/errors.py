@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from models.errors import CompdError, ModelError
 
-__all__ = ["CompdError", "ConfigError", "ModelError", "SafetyTrip", "EX_CONFIG"]
+__all__ = ["EX_CONFIG", "CompdError", "ConfigError", "ModelError", "SafetyTrip"]
 
 #: sysexits.h EX_CONFIG: systemd is told not to restart on it.
 EX_CONFIG = 78

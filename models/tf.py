@@ -28,7 +28,12 @@ import numpy.typing as npt
 
 from models.coefficients import Printed, parse_coefficients
 from models.errors import ModelError
-from models.polynomials import cancel_unit_circle_factors, trim_trailing_zeros
+from models.polynomials import (
+    UNIT_ROOTS,
+    cancel_unit_circle_factors,
+    evaluate_at_unit_root,
+    trim_trailing_zeros,
+)
 
 Coefficient = float | int | str | Decimal
 FloatArray = npt.NDArray[np.float64]
@@ -76,7 +81,7 @@ class TransferFunction:
         self._den: tuple[float, ...] = tuple(den_f)
         self._z: list[float] = [0.0] * n
         if not allow_unstable and not self.is_stable:
-            bad = [p for p in self.poles if abs(p) >= 1.0]
+            bad = [p for p in self.poles if abs(p) >= 1.0 - 1e-9]
             raise ModelError(
                 f"{name}: unstable: pole(s) on or outside the unit circle at "
                 + ", ".join(_fmt_complex(p) for p in bad)
@@ -205,7 +210,12 @@ class TransferFunction:
 
     @property
     def is_stable(self) -> bool:
-        """All poles (after exact unit-circle cancellation) strictly inside the unit circle."""
+        """All poles (after exact unit-circle cancellation) strictly inside the unit circle.
+
+        A remaining pole exactly at z = ±1 is found from the printed digits, not
+        from floating-point roots (which may land a hair inside the circle)."""
+        if any(evaluate_at_unit_root(self.den_printed, r) == 0 for r in UNIT_ROOTS):
+            return False
         return all(abs(p) < 1.0 - STABILITY_MARGIN for p in self.poles)
 
     @property

@@ -101,7 +101,8 @@ def run(args: argparse.Namespace) -> int:
     path: str = args.path
     config_checker = _config_checker(path)
     if config_checker is not None:
-        return config_checker(args)
+        rc: int = config_checker(args)
+        return rc
     try:
         model = load_model(path)
     except ModelError as exc:
@@ -129,8 +130,10 @@ def _config_checker(path: str) -> Any:
         return None
     if "controller" not in doc and "machine" not in doc:
         return None
+    import importlib
+
     try:
-        from compd.commands import check_config
+        module = importlib.import_module("compd.commands.check_config")
     except ModuleNotFoundError:
         return None
-    return check_config.run
+    return module.run
