@@ -16,6 +16,7 @@ exception message (validation errors are built with hidden input).
 from __future__ import annotations
 
 import hashlib
+import logging
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Literal
@@ -186,9 +187,37 @@ def _application_uri(security: OpcUaSecurity) -> str | None:
     return uris[0] if uris else None
 
 
+class _RedactActivateSession(logging.Filter):
+    """asyncua logs every request at DEBUG ("Sending: %s"); an
+    ActivateSessionRequest carries the password (readable inside the
+    encrypted channel). Replace that argument before it is formatted."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        args = record.args
+        if isinstance(args, tuple) and any(
+                isinstance(a, ua.ActivateSessionRequest) for a in args):
+            record.args = tuple("<ActivateSessionRequest, redacted>"
+                                if isinstance(a, ua.ActivateSessionRequest) else a
+                                for a in args)
+        return True
+
+
+_REDACTOR = _RedactActivateSession()
+#: the asyncua logger that prints whole requests
+_REQUEST_LOGGER = "asyncua.client.ua_client.UASocketProtocol"
+
+
+def _redact_requests_in_logs() -> None:
+    logger = logging.getLogger(_REQUEST_LOGGER)
+    if _REDACTOR not in logger.filters:
+        logger.addFilter(_REDACTOR)
+
+
 async def apply_security(client: Client, security: OpcUaSecurity) -> None:
     """Configure `client` (not yet connected) for `security`; for a secured
     policy this fetches the endpoints and checks the server certificate."""
+    if security.password is not None:
+        _redact_requests_in_logs()
     if security.username:
         client.set_user(security.username)
     if security.password is not None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import datetime as dt
 import ipaddress
+import logging
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -161,6 +162,19 @@ async def test_pinned_server_and_right_password_connect_read_write(
     assert samples["bearing"].value == 33.5
     assert samples["bearing"].quality is Quality.GOOD
     assert (await sim.outputs())["offset"] == -4.5
+
+
+async def test_password_never_reaches_the_logs(sim: OpcUaSimController, pki: Pki,
+                                               caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.DEBUG)
+    driver = _driver(sim, _security(pki))
+    try:
+        await driver.read(["ambient"])
+    finally:
+        await driver.close()
+    assert "ActivateSessionRequest, redacted" in caplog.text  # asyncua did log it
+    assert PASSWORD not in caplog.text
+    assert PASSWORD.encode().hex() not in caplog.text
 
 
 async def test_trust_store_with_the_ca_connects(sim: OpcUaSimController, pki: Pki) -> None:
