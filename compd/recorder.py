@@ -1,0 +1,327 @@
+"""The sample recorder: every cycle's inputs, validity, per-term contributions,
+model output, written offset and fault state in one SQLite database (WAL).
+
+Durability: rows are buffered and committed every `commit_every` rows, in WAL
+mode with synchronous=NORMAL: a committed row survives a kill -9 of the
+daemon (it is in the OS's page cache), so a crash loses at most the rows of
+the last commit interval; the database is always readable (SQLite's WAL
+recovery). A power cut may lose the last commits as well, never consistency.
+
+The recorder never stops compensation: `record()` and `flush()` never raise.
+When a commit fails (disk full, I/O error, a locked database), its rows are
+dropped and counted, `alarm` turns True and `last_error` says why; the next
+commit that succeeds clears the alarm.
+
+Schema (table ``samples``): ``seq`` INTEGER PRIMARY KEY, numbered by the
+recorder itself (contiguous, continuing across restarts: MAX(seq)+1), ``cycle``
+(the daemon's own cycle number, `RecordRow.seq`, may repeat after a restart),
+``mono_s``, ``wall_s``, ``offset_um`` (written), ``model_um``, ``state`` (the
+fault state), ``valid`` (0/1), and three JSON objects: ``channels`` {name:
+value}, ``validity`` {name: reason or null}, ``contributions`` {term: µm}.
+Non-finite floats are stored as JSON null (read back as NaN). Table ``meta``
+(key, value) holds ``channels``: a JSON list of every channel name seen.
+
+`read_samples` turns a database into numpy columns for `compd fit` and
+`compd replay`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import sqlite3
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from compd.errors import CompdError
+
+__all__ = ["FIXED_COLUMNS", "RecordRow", "Recorder", "RecorderError", "read_samples"]
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS samples (
+    seq INTEGER PRIMARY KEY,
+    cycle INTEGER,
+    mono_s REAL NOT NULL,
+    wall_s REAL NOT NULL,
+    offset_um REAL,
+    model_um REAL,
+    state TEXT NOT NULL,
+    valid INTEGER NOT NULL,
+    channels TEXT NOT NULL,
+    validity TEXT NOT NULL,
+    contributions TEXT NOT NULL
+);
+CREATE INDEX IF NOT EXISTS samples_wall_s ON samples (wall_s);
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+"""
+
+_INSERT = ("INSERT INTO samples (seq, cycle, mono_s, wall_s, offset_um, model_um, state, valid,"
+           " channels, validity, contributions) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
+
+#: Columns `read_samples` always returns; channel names may not collide with them.
+FIXED_COLUMNS = ("seq", "cycle", "time_s", "mono_s", "wall_s", "offset_um", "model_um", "valid",
+                 "state")
+
+
+class RecorderError(CompdError):
+    """The recorder database cannot be opened or read. `path` is the file."""
+
+    def __init__(self, path: Path, reason: str) -> None:
+        self.path = path
+        self.reason = reason
+        super().__init__(f"recorder {path}: {reason}")
+
+
+@dataclass(frozen=True, slots=True)
+class RecordRow:
+    """One sample as the daemon saw it. `seq` is the daemon's cycle number
+    (stored as ``cycle``; the table's ``seq`` is the recorder's own)."""
+
+    mono_s: float
+    wall_s: float
+    offset_um: float | None
+    model_um: float | None
+    state: str
+    valid: bool
+    channels: Mapping[str, float | None] = field(default_factory=dict)
+    validity: Mapping[str, str | None] = field(default_factory=dict)
+    contributions: Mapping[str, float] = field(default_factory=dict)
+    seq: int | None = None
+
+
+def _num(value: float | None) -> float | None:
+    """A float for SQLite/JSON; non-finite and missing become NULL/null."""
+    if value is None:
+        return None
+    v = float(value)
+    return v if math.isfinite(v) else None
+
+
+def _json_numbers(values: Mapping[str, float | None]) -> str:
+    return json.dumps({str(k): _num(v) for k, v in values.items()}, allow_nan=False,
+                      separators=(",", ":"))
+
+
+def _tuple(seq: int, row: RecordRow) -> tuple[Any, ...]:
+    return (seq, row.seq, float(row.mono_s), float(row.wall_s), _num(row.offset_um),
+            _num(row.model_um), str(row.state), 1 if row.valid else 0,
+            _json_numbers(row.channels),
+            json.dumps({str(k): (None if v is None else str(v))
+                        for k, v in row.validity.items()}, separators=(",", ":")),
+            _json_numbers(row.contributions))
+
+
+class Recorder:
+    """Buffered SQLite sample recorder (see the module docstring).
+
+    Counters: `committed` rows committed by this instance, `dropped` rows lost
+    (failed commits, or recorded while not open), `last_error` the latest
+    failure, `alarm` True while writes fail.
+    """
+
+    def __init__(self, path: Path, *, commit_every: int = 10, retention_s: float | None = None,
+                 purge_every_commits: int = 100) -> None:
+        if commit_every < 1:
+            raise ValueError(f"commit_every must be >= 1, got {commit_every}")
+        if retention_s is not None and not (math.isfinite(retention_s) and retention_s > 0):
+            raise ValueError(f"retention_s must be positive and finite, got {retention_s}")
+        if purge_every_commits < 1:
+            raise ValueError(f"purge_every_commits must be >= 1, got {purge_every_commits}")
+        self.path = Path(path)
+        self.commit_every = commit_every
+        self.retention_s = retention_s
+        self.purge_every_commits = purge_every_commits
+        self.committed = 0
+        self.dropped = 0
+        self.purged = 0
+        self.last_error: str | None = None
+        self.alarm = False
+        self._conn: sqlite3.Connection | None = None
+        self._buffer: list[RecordRow] = []
+        self._next_seq = 1
+        self._channels: list[str] = []
+        self._commits_since_purge = 0
+
+    @property
+    def is_open(self) -> bool:
+        return self._conn is not None
+
+    @property
+    def pending(self) -> int:
+        """Rows recorded but not committed yet."""
+        return len(self._buffer)
+
+    def open(self) -> None:
+        """Open (or create) the database. Raises RecorderError when it cannot."""
+        if self._conn is not None:
+            return
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            conn = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
+        except (OSError, sqlite3.Error) as exc:
+            raise RecorderError(self.path, f"cannot open: {exc}") from exc
+        try:
+            mode = conn.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+            if str(mode).lower() != "wal":
+                raise RecorderError(self.path, f"WAL mode refused (journal_mode={mode})")
+            conn.execute("PRAGMA synchronous=NORMAL")
+            conn.executescript(_SCHEMA)
+            last = conn.execute("SELECT MAX(seq) FROM samples").fetchone()[0]
+            meta = conn.execute("SELECT value FROM meta WHERE key='channels'").fetchone()
+        except sqlite3.Error as exc:
+            conn.close()
+            raise RecorderError(self.path, f"cannot prepare: {exc}") from exc
+        except RecorderError:
+            conn.close()
+            raise
+        self._next_seq = (int(last) if last is not None else 0) + 1
+        self._channels = list(json.loads(meta[0])) if meta else []
+        self._conn = conn
+
+    def record(self, row: RecordRow) -> None:
+        """Buffer one row; commit when `commit_every` rows are waiting. Never raises."""
+        if self._conn is None:
+            self.dropped += 1
+            self.alarm = True
+            self.last_error = "recorder is not open"
+            return
+        self._buffer.append(row)
+        if len(self._buffer) >= self.commit_every:
+            self.flush()
+
+    def flush(self) -> None:
+        """Commit the buffered rows now. Never raises: a failure drops and counts them."""
+        rows, self._buffer = self._buffer, []
+        if not rows:
+            return
+        conn = self._conn
+        if conn is None:
+            self._fail(len(rows), "recorder is not open")
+            return
+        first = self._next_seq
+        known = set(self._channels)
+        new = list(dict.fromkeys(str(n) for r in rows for n in r.channels if n not in known))
+        names = self._channels + new
+        try:
+            conn.execute("BEGIN IMMEDIATE")
+            conn.executemany(_INSERT, [_tuple(first + i, r) for i, r in enumerate(rows)])
+            if new:
+                conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES ('channels', ?)",
+                             (json.dumps(names),))
+            conn.execute("COMMIT")
+        except (sqlite3.Error, OSError, ValueError) as exc:
+            self._rollback(conn)
+            self._fail(len(rows), f"{type(exc).__name__}: {exc}")
+            return
+        if new:
+            self._channels = names
+        self._next_seq = first + len(rows)
+        self.committed += len(rows)
+        self.alarm = False
+        self._commits_since_purge += 1
+        if self.retention_s is not None and self._commits_since_purge >= self.purge_every_commits:
+            self._commits_since_purge = 0
+            self._purge(conn, rows[-1].wall_s - self.retention_s)
+
+    def _purge(self, conn: sqlite3.Connection, cutoff_wall_s: float) -> None:
+        """Delete rows older than the cutoff (wall clock: survives restarts and reboots)."""
+        try:
+            cur = conn.execute("DELETE FROM samples WHERE wall_s < ?", (cutoff_wall_s,))
+            self.purged += max(cur.rowcount, 0)
+        except sqlite3.Error as exc:
+            self._rollback(conn)
+            self.last_error = f"retention: {type(exc).__name__}: {exc}"
+
+    @staticmethod
+    def _rollback(conn: sqlite3.Connection) -> None:
+        if conn.in_transaction:
+            with contextlib.suppress(sqlite3.Error):
+                conn.execute("ROLLBACK")
+
+    def _fail(self, n: int, reason: str) -> None:
+        self.dropped += n
+        self.alarm = True
+        self.last_error = reason
+
+    def close(self) -> None:
+        """Commit what is buffered and close. Never raises."""
+        self.flush()
+        conn, self._conn = self._conn, None
+        if conn is not None:
+            with contextlib.suppress(sqlite3.Error):
+                conn.close()
+
+    def __enter__(self) -> Recorder:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _nan_floats(values: list[float | None]) -> npt.NDArray[np.float64]:
+    return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
+
+
+def read_samples(path: Path) -> dict[str, npt.NDArray[Any]]:
+    """Every sample of a recorder database as numpy columns, in seq order.
+
+    Columns (all of equal length): ``seq`` and ``cycle`` (int64; cycle -1 when
+    the daemon gave none), ``time_s`` (float64: the daemon's sample clock,
+    the same as ``mono_s``; it restarts with the daemon's clock), ``mono_s``,
+    ``wall_s``, ``offset_um`` (written), ``model_um``, ``valid`` (bool),
+    ``state`` (str), then one float64 column per channel named as the channel
+    (NaN where missing or non-finite), ``valid.<channel>`` (bool: a finite value
+    and no invalidity reason recorded) and ``contribution.<term>`` (float64) per model term.
+    Raises RecorderError when the file is missing or not a recorder database.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise RecorderError(path, "no such file")
+    try:
+        conn = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+    except sqlite3.Error as exc:
+        raise RecorderError(path, f"cannot open: {exc}") from exc
+    try:
+        meta = conn.execute("SELECT value FROM meta WHERE key='channels'").fetchone()
+        rows = conn.execute(
+            "SELECT seq, cycle, mono_s, wall_s, offset_um, model_um, state, valid, channels,"
+            " validity, contributions FROM samples ORDER BY seq").fetchall()
+    except sqlite3.Error as exc:
+        raise RecorderError(path, f"not a recorder database: {exc}") from exc
+    finally:
+        conn.close()
+    names: list[str] = list(json.loads(meta[0])) if meta else []
+    clash = sorted(set(names).intersection(FIXED_COLUMNS))
+    if clash:
+        raise RecorderError(path, f"channel name(s) {clash} collide with fixed columns")
+    channels = [json.loads(r[8]) for r in rows]
+    validity = [json.loads(r[9]) for r in rows]
+    contributions = [json.loads(r[10]) for r in rows]
+    terms = list(dict.fromkeys(t for c in contributions for t in c))
+    mono = _nan_floats([r[2] for r in rows])
+    out: dict[str, npt.NDArray[Any]] = {
+        "seq": np.array([r[0] for r in rows], dtype=np.int64),
+        "cycle": np.array([-1 if r[1] is None else r[1] for r in rows], dtype=np.int64),
+        "time_s": mono,
+        "mono_s": mono.copy(),
+        "wall_s": _nan_floats([r[3] for r in rows]),
+        "offset_um": _nan_floats([r[4] for r in rows]),
+        "model_um": _nan_floats([r[5] for r in rows]),
+        "valid": np.array([bool(r[7]) for r in rows], dtype=bool),
+        "state": np.array([r[6] for r in rows], dtype=str),
+    }
+    for name in names:
+        out[name] = _nan_floats([c.get(name) for c in channels])
+        out[f"valid.{name}"] = np.array(
+            [c.get(name) is not None and v.get(name) is None
+             for c, v in zip(channels, validity, strict=True)], dtype=bool)
+    for term in terms:
+        out[f"contribution.{term}"] = _nan_floats([c.get(term) for c in contributions])
+    return out
