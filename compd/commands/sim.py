@@ -75,13 +75,9 @@ def describe(controller: SimController) -> dict[str, object]:
     }
 
 
-# Imports inside functions below are lazy on purpose (compd.cli: one command never
-# pays for another's libraries), hence the PLC0415 exemptions.
-
-
 def _record(args: argparse.Namespace) -> int:
-    from drivers.sim.offline import record_program  # noqa: PLC0415
-    from drivers.sim.programs import make_program  # noqa: PLC0415
+    from drivers.sim.offline import record_program
+    from drivers.sim.programs import make_program
 
     if args.probe_noise_um < 0.0:
         print("compd sim: --probe-noise-um must be >= 0", file=sys.stderr)
@@ -95,9 +91,9 @@ def _record(args: argparse.Namespace) -> int:
 
 
 async def _serve(args: argparse.Namespace) -> int:
-    from drivers.sim.machine import SimMachine  # noqa: PLC0415
-    from drivers.sim.programs import make_program  # noqa: PLC0415
-    from drivers.sim.registry import make_sim_controller  # noqa: PLC0415
+    from drivers.sim.machine import SimMachine
+    from drivers.sim.programs import make_program
+    from drivers.sim.registry import make_sim_controller
 
     program = make_program(args.program, seed=args.seed, hours=args.hours)
     controller = make_sim_controller(args.protocol, "127.0.0.1", args.port)
@@ -107,6 +103,8 @@ async def _serve(args: argparse.Namespace) -> int:
     signals = (signal.SIGINT, signal.SIGTERM)
     machine = SimMachine(controller, program=program, seed=args.seed,
                          period_s=args.period_s, speedup=args.speedup)
+    for sig in signals:  # before anything is printed: a reader may signal at once
+        loop.add_signal_handler(sig, stop.set)
     try:
         await machine.prime()
         if args.json:
@@ -121,8 +119,6 @@ async def _serve(args: argparse.Namespace) -> int:
                 for name, addr in table.items():
                     print(f"    {name:<10} {addr.describe()}")
             print("  Ctrl-C to stop", flush=True)
-        for sig in signals:
-            loop.add_signal_handler(sig, stop.set)
         task = machine.start()
         waiter = asyncio.create_task(stop.wait(), name="sim-signal")
         await asyncio.wait({task, waiter}, return_when=asyncio.FIRST_COMPLETED)

@@ -89,7 +89,7 @@ async def test_json_first_line_describes_a_live_machine(protocol: str, tmp_path:
         if _driver_exists(protocol):  # and it really serves the plant
             options: dict[str, Any] = {}
             if protocol == "focas":  # the stand-in library the sim process built (same cache)
-                from drivers.sim.fwlib_build import build_standin  # noqa: PLC0415 (only with FOCAS)
+                from drivers.sim.fwlib_build import build_standin
                 options["library_path"] = str(build_standin())
             driver = open_driver(protocol, info["endpoint"], channels, outputs, timeout_s=2.0,
                                  **options)
