@@ -1,0 +1,181 @@
+"""Logging: JSON lines off a terminal, key=value on one, secrets redacted
+(secret-named keys and registered secret strings, exception text included).
+Metrics: served on 127.0.0.1, read back over HTTP, port freed by stop()."""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import socket
+import urllib.request
+from collections.abc import Iterator
+
+import pytest
+import structlog
+
+from compd.telemetry import Metrics, clear_secrets, configure_logging, register_secret
+
+PASSWORD = "hunter2-Zq9!"
+
+
+@pytest.fixture(autouse=True)
+def _reset_logging() -> Iterator[None]:
+    yield
+    clear_secrets()
+    structlog.reset_defaults()
+    root = logging.getLogger()
+    for handler in [h for h in root.handlers if h.get_name() == "compd"]:
+        root.removeHandler(handler)
+    root.setLevel(logging.WARNING)
+
+
+class _Tty(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def _json_lines(text: str) -> list[dict[str, object]]:
+    return [json.loads(line) for line in text.splitlines() if line.strip()]
+
+
+def test_json_lines_on_stderr_when_not_a_tty(capsys: pytest.CaptureFixture[str]) -> None:
+    configure_logging()  # captured stderr is not a TTY -> JSON
+    log = structlog.get_logger()
+    log.info("controller_connected", endpoint="opc.tcp://127.0.0.1:4840", period_s=0.1)
+    log.debug("not_shown")
+    err = capsys.readouterr().err
+    lines = _json_lines(err)
+    assert len(lines) == 1
+    line = lines[0]
+    assert line["event"] == "controller_connected"
+    assert line["level"] == "info"
+    assert line["period_s"] == 0.1
+    assert "timestamp" in line
+
+
+def test_key_value_on_a_tty() -> None:
+    tty = _Tty()
+    configure_logging(stream=tty, level="debug")
+    structlog.get_logger().debug("cycle_overrun", late_s=0.25)
+    out = tty.getvalue()
+    assert "cycle_overrun" in out and "late_s=0.25" in out
+    with pytest.raises(json.JSONDecodeError):
+        json.loads(out)
+    # the parameter wins over the stream
+    plain = io.StringIO()
+    configure_logging(json=False, stream=plain)
+    structlog.get_logger().info("started", offset_um=1.5)
+    assert "offset_um=1.5" in plain.getvalue()
+    forced = _Tty()
+    configure_logging(json=True, stream=forced)
+    structlog.get_logger().info("started")
+    assert _json_lines(forced.getvalue())[0]["event"] == "started"
+
+
+def test_secret_keys_and_registered_secrets_are_redacted() -> None:
+    buf = io.StringIO()
+    configure_logging(json=True, stream=buf)
+    register_secret(PASSWORD)
+    register_secret("")  # ignored, does not redact everything
+    log = structlog.get_logger()
+    log.info("login", user="operator", password="plain-text-pw", api_token="t0k",
+             Credentials={"a": 1})
+    log.warning("connect_failed", error=f"BadUserAccessDenied for operator:{PASSWORD}@host",
+                nested={"url": f"opc.tcp://operator:{PASSWORD}@127.0.0.1", "ok": 3,
+                        "secret_file": "/etc/x"},
+                items=[PASSWORD, 2], exc=ValueError(f"bad {PASSWORD}"))
+    try:
+        raise RuntimeError(f"server said {PASSWORD}")
+    except RuntimeError:
+        log.exception("write_failed")
+    text = buf.getvalue()
+    assert PASSWORD not in text and "plain-text-pw" not in text and "t0k" not in text
+    first, second, third = _json_lines(text)
+    assert first["password"] == "***" and first["api_token"] == "***"
+    assert first["Credentials"] == "***" and first["user"] == "operator"
+    assert second["error"] == "BadUserAccessDenied for operator:***@host"
+    assert second["nested"] == {"url": "opc.tcp://operator:***@127.0.0.1", "ok": 3,
+                                "secret_file": "***"}
+    assert second["items"] == ["***", 2]
+    assert second["exc"] == "bad ***"
+    assert "server said ***" in str(third["exception"])
+
+
+def test_stdlib_records_share_format_and_redaction() -> None:
+    buf = io.StringIO()
+    configure_logging(json=True, stream=buf)
+    register_secret(PASSWORD)
+    logging.getLogger("asyncua.client").warning("auth failed with %s", PASSWORD)
+    (line,) = _json_lines(buf.getvalue())
+    assert line["event"] == "auth failed with ***"
+    assert line["logger"] == "asyncua.client" and line["level"] == "warning"
+
+
+def test_bad_level_refused() -> None:
+    with pytest.raises(ValueError, match="level"):
+        configure_logging(level="chatty", stream=io.StringIO())
+
+
+def _scrape(port: int) -> str:
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as resp:
+        body: bytes = resp.read()
+    return body.decode()
+
+
+def _value(text: str, sample: str) -> float:
+    for line in text.splitlines():
+        if line.startswith(sample + " "):
+            return float(line.split()[-1])
+    raise AssertionError(f"{sample} not in metrics:\n{text}")
+
+
+def test_metrics_over_http_and_port_freed() -> None:
+    metrics = Metrics()
+    other = Metrics()  # a second instance: own registry, no duplicate-name clash
+    metrics.cycle_seconds.observe(0.004)
+    metrics.cycle_seconds.observe(0.03)
+    metrics.overruns.inc()
+    metrics.read_errors.labels(channel="t_spindle_c").inc(2)
+    metrics.write_errors.labels(output="z_offset").inc()
+    metrics.offset_um.set(-12.5)
+    metrics.channel_value.labels(channel="t_spindle_c").set(31.25)
+    metrics.fault_state.set(1)
+    metrics.records_dropped.inc(7)
+    metrics.cert_expiry_days.set(90)
+    other.offset_um.set(99)
+    metrics.start_http(0)
+    port = metrics.port
+    assert port is not None and port > 0
+    try:
+        text = _scrape(port)
+    finally:
+        metrics.stop()
+    assert _value(text, "compd_cycle_seconds_count") == 2
+    assert _value(text, 'compd_cycle_seconds_bucket{le="0.005"}') == 1
+    assert _value(text, "compd_overruns_total") == 1
+    assert _value(text, 'compd_read_errors_total{channel="t_spindle_c"}') == 2
+    assert _value(text, 'compd_write_errors_total{output="z_offset"}') == 1
+    assert _value(text, "compd_offset_um") == -12.5
+    assert _value(text, 'compd_channel_value{channel="t_spindle_c"}') == 31.25
+    assert _value(text, "compd_fault_state") == 1
+    assert _value(text, "compd_records_dropped_total") == 7
+    assert _value(text, "compd_cert_expiry_days") == 90
+    assert metrics.port is None
+    # the port is free again: nobody answers, and we can listen on it ourselves
+    # (SO_REUSEADDR only for the scrape's TIME_WAIT; Linux still refuses a live listener)
+    with pytest.raises(ConnectionRefusedError):
+        socket.create_connection(("127.0.0.1", port), timeout=5).close()
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        s.bind(("127.0.0.1", port))
+        s.listen()
+    metrics.stop()  # idempotent
+    # and can serve again on the same port
+    other.start_http(port)
+    try:
+        assert _value(_scrape(port), "compd_offset_um") == 99
+        with pytest.raises(RuntimeError, match="already"):
+            other.start_http(0)
+    finally:
+        other.stop()
