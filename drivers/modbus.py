@@ -145,9 +145,10 @@ class ModbusDriver:
         if client is not None:
             client.close()
 
-    async def _ensure(self, channel: str | None, address: str | None) -> AsyncModbusTcpClient:
+    async def _ensure(self, span: Span) -> AsyncModbusTcpClient:
         if self._client is not None and self._client.connected:
             return self._client
+        channel, address = span.names, span.describe()
         if self._client is not None:  # lost since the last call
             self._drop()
             self.backoff.failed()
@@ -195,7 +196,7 @@ class ModbusDriver:
 
     async def _read_span(self, names: Sequence[str], span: Span,
                          out: dict[str, Sample]) -> None:
-        client = await self._ensure(span.names, span.describe())
+        client = await self._ensure(span)
         call = (client.read_input_registers if span.kind == "input"
                 else client.read_holding_registers)
         response = await self._call(call(span.start, count=span.count, device_id=span.unit),
@@ -261,13 +262,15 @@ class ModbusDriver:
             if addr is None:
                 raise BadAddress("unknown output name (not writable)", channel=name)
             items.append((name, addr, encode(addr, float(value), channel=name)))
-        requests = plan_writes(items)
+        requests = plan_writes(items) if len(items) != 1 else [
+            (Span(items[0][1].unit, "holding", items[0][1].address, items[0][1].count,
+                  ((items[0][0], items[0][1]),)), items[0][2])]
         async with self._lock:
             for span, words in requests:
                 await self._write_span(span, words)
 
     async def _write_span(self, span: Span, words: list[int]) -> None:
-        client = await self._ensure(span.names, span.describe())
+        client = await self._ensure(span)
         response = await self._call(
             client.write_registers(span.start, words, device_id=span.unit), span)
         if response.isError():
