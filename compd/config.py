@@ -1,0 +1,275 @@
+"""Load and validate the daemon config: one TOML file, every error a
+`ConfigError` naming the dotted key path and the reason (exit 78).
+
+`load_config(path)` reads the file, validates the sections
+(`compd.config_schema`), then the checks that span sections: the controller
+timeout against the period, every address against the protocol's address
+model, the model (file or inline terms: stable, its channels configured, its
+period equal to the machine's) and the shadow model. Nothing here connects
+to anything.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, TypeAdapter, ValidationError
+
+from compd.config_schema import DaemonConfig, SecuritySection
+from compd.errors import ConfigError
+from drivers.addresses import ADDRESS_TYPES, Address, FocasAddress
+from models.compensation import CompensationModel
+from models.errors import ModelError
+from models.modelfile import load_model, model_document, parse_model
+
+#: output names as the driver sees them
+OUTPUT_NAMES: tuple[str, ...] = ("offset", "heartbeat", "status")
+_INTEGER_TYPES = {"INT", "DINT", "WORD", "int16", "uint16", "int32", "byte", "word", "long"}
+
+
+@dataclass
+class LoadedConfig:
+    """A validated config with everything resolved (addresses typed, model built)."""
+
+    path: Path
+    raw: DaemonConfig
+    channels: dict[str, Address]
+    outputs: dict[str, Address]
+    model: CompensationModel
+    shadow: CompensationModel | None
+    state_dir: Path
+    recorder_path: Path | None
+    config_sha256: str
+    model_sha256: str
+    #: smallest step the offset address can hold, in µm (read-back tolerance)
+    offset_quantum_um: float
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def period_s(self) -> float:
+        return self.raw.machine.period_s
+
+    @property
+    def real_period_s(self) -> float:
+        return self.raw.machine.period_s / self.raw.machine.time_scale
+
+
+def _loc(parts: tuple[int | str, ...]) -> str:
+    out = ""
+    for p in parts:
+        if isinstance(p, int):
+            out += f"[{p}]"
+        else:
+            out += ("." if out else "") + str(p)
+    return out
+
+
+def _reason(err: Any) -> str:
+    kind = err.get("type", "")
+    msg = str(err.get("msg", "invalid"))
+    if kind == "extra_forbidden":
+        return "unknown key"
+    if kind == "missing":
+        return "required key is missing"
+    for prefix in ("Value error, ", "Assertion failed, "):
+        if msg.startswith(prefix):
+            msg = msg[len(prefix):]
+    return msg
+
+
+def config_error(exc: ValidationError, prefix: str = "") -> ConfigError:
+    """The first pydantic error as a ConfigError with its dotted key path.
+    Tagged-union branch names (model class names) are dropped from the path."""
+    err = exc.errors(include_url=False)[0]
+    loc = tuple(p for p in err["loc"] if not (isinstance(p, str) and p[:1].isupper()))
+    key = _loc(loc)
+    if prefix:
+        key = f"{prefix}.{key}" if key else prefix
+    return ConfigError(key, _reason(err))
+
+
+def _validate_address(protocol: str, doc: dict[str, Any], key: str) -> Address:
+    types = ADDRESS_TYPES[protocol]
+    try:
+        if protocol == "focas":
+            if "kind" not in doc:
+                doc = {**doc, "kind": "pmc"}
+            addr: Address = TypeAdapter(FocasAddress).validate_python(doc)
+            return addr
+        (model_cls,) = types
+        validated: BaseModel = model_cls.model_validate(doc)
+    except ValidationError as exc:
+        other = _other_protocol(doc, protocol)
+        if other:
+            raise ConfigError(key, f"this looks like a {other} address but the controller "
+                                   f"protocol is {protocol}") from None
+        raise config_error(exc, key) from None
+    return validated  # type: ignore[return-value]  # one of the Address models
+
+
+def _other_protocol(doc: dict[str, Any], protocol: str) -> str | None:
+    for name, types in ADDRESS_TYPES.items():
+        if name == protocol:
+            continue
+        for cls in types:
+            try:
+                cls.model_validate(doc)
+            except ValidationError:
+                continue
+            return name
+    return None
+
+
+def _quantum_um(addr: Address, units_per_um: float) -> float:
+    kind = getattr(addr, "type", "")
+    if kind in _INTEGER_TYPES:
+        return abs(float(getattr(addr, "scale", 1.0)) / units_per_um)
+    return 0.0
+
+
+def _load_model(ref: str, base: Path, key: str) -> CompensationModel:
+    p = Path(ref)
+    candidate = p if p.is_absolute() else base / p
+    try:
+        if candidate.exists():
+            return load_model(candidate)
+        if p.suffix == "" and "/" not in ref:
+            return load_model(ref)  # a bundled library model
+    except ModelError as exc:
+        raise ConfigError(key, str(exc)) from None
+    raise ConfigError(key, f"no model file at {candidate} (and no bundled model named {ref!r})")
+
+
+def model_sha256(model: CompensationModel) -> str:
+    doc = model_document(model)
+    text = json.dumps(doc, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _check_model(model: CompensationModel, channels: dict[str, Address], period_s: float,
+                 key: str) -> None:
+    try:
+        model.check_channels(channels)
+    except ModelError as exc:
+        raise ConfigError(key, str(exc)) from None
+    if not math.isclose(model.period_s, period_s, rel_tol=1e-9):
+        raise ConfigError(key, f"the model's period_s ({model.period_s:g} s) differs from "
+                               f"machine.period_s ({period_s:g} s); a model identified at one "
+                               "sample period is wrong at another")
+
+
+def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedConfig:
+    """Validate an already parsed TOML document (`path` anchors relative paths)."""
+    try:
+        raw = DaemonConfig.model_validate(doc)
+    except ValidationError as exc:
+        raise config_error(exc) from None
+    base = path.parent
+    machine, ctl = raw.machine, raw.controller
+    limit_s = 0.5 * machine.period_s / machine.time_scale
+    if ctl.timeout_s > limit_s:
+        raise ConfigError("controller.timeout_s",
+                          f"{ctl.timeout_s:g} s is more than half the real sample period "
+                          f"({limit_s:g} s = 0.5·period_s/time_scale)")
+    for section, proto in (("security", "opcua"), ("s7", "s7"), ("focas", "focas")):
+        if getattr(ctl, section) is not None and ctl.protocol != proto:
+            raise ConfigError(f"controller.{section}",
+                              f"[controller.{section}] is for protocol {proto}, "
+                              f"not {ctl.protocol}")
+    if ctl.protocol == "focas" and ctl.focas is None:
+        raise ConfigError("controller.focas", "protocol focas needs [controller.focas] "
+                                              "library_path")
+    if ctl.protocol == "opcua" and ctl.security is None:
+        raise ConfigError("controller.security",
+                          "protocol opcua needs [controller.security] (a policy, or "
+                          'policy = "None" with insecure = true)')
+    if ctl.security is not None and ctl.security.password_file is not None:
+        pf = ctl.security.password_file
+        ctl_pf = pf if pf.is_absolute() else base / pf
+        if not ctl_pf.is_file():
+            raise ConfigError("controller.security.password_file", f"no such file: {ctl_pf}")
+
+    channels = {name: _validate_address(ctl.protocol, ch.address, f"channels.{name}.address")
+                for name, ch in raw.channels.items()}
+    out = raw.output
+    outputs: dict[str, Address] = {"offset": _validate_address(ctl.protocol, out.offset,
+                                                               "output.offset")}
+    for name in ("heartbeat", "status"):
+        doc_addr = getattr(out, name)
+        if doc_addr is not None:
+            outputs[name] = _validate_address(ctl.protocol, doc_addr, f"output.{name}")
+    clash = sorted(set(channels) & set(OUTPUT_NAMES))
+    if clash:
+        raise ConfigError(f"channels.{clash[0]}", "this name is reserved for an output")
+
+    m = raw.model
+    if m.file is not None:
+        model = _load_model(m.file, base, "model.file")
+        model_key = "model.file"
+    else:
+        head: dict[str, Any] = {"name": m.name or "inline",
+                                "period_s": m.period_s or machine.period_s}
+        try:
+            model = parse_model({"model": head, "terms": m.terms or []}, where="model")
+        except ModelError as exc:
+            raise ConfigError("model.terms", str(exc)) from None
+        model_key = "model.terms"
+    _check_model(model, channels, machine.period_s, model_key)
+    shadow = None
+    if m.shadow is not None:
+        shadow = _load_model(m.shadow, base, "model.shadow")
+        _check_model(shadow, channels, machine.period_s, "model.shadow")
+
+    state_dir = raw.state.dir if raw.state.dir.is_absolute() else base / raw.state.dir
+    recorder_path: Path | None = None
+    if raw.recorder.enabled:
+        rp = raw.recorder.path or Path("samples.sqlite")
+        recorder_path = rp if rp.is_absolute() else (
+            base / rp if raw.recorder.path is not None else state_dir / rp)
+    return LoadedConfig(
+        path=path, raw=raw, channels=channels, outputs=outputs, model=model, shadow=shadow,
+        state_dir=state_dir, recorder_path=recorder_path,
+        config_sha256=hashlib.sha256(text).hexdigest(), model_sha256=model_sha256(model),
+        offset_quantum_um=_quantum_um(outputs["offset"], out.units_per_um))
+
+
+def load_config(path: str | Path) -> LoadedConfig:
+    """Read and validate a daemon config file; raises ConfigError."""
+    p = Path(path)
+    try:
+        text = p.read_bytes()
+    except OSError as exc:
+        raise ConfigError("", f"{p}: cannot read the config file ({exc.strerror})") from None
+    try:
+        doc = tomllib.loads(text.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise ConfigError("", f"{p}: not UTF-8 text") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError("", f"{p}: not valid TOML ({exc})") from None
+    return parse_config(doc, p.resolve(), text)
+
+
+def read_password(security: SecuritySection, base: Path) -> str | None:
+    """The OPC UA password from its file or environment variable (run time)."""
+    if security.password_file is not None:
+        pf = security.password_file if security.password_file.is_absolute() \
+            else base / security.password_file
+        try:
+            return pf.read_text(encoding="utf-8").strip("\r\n")
+        except OSError as exc:
+            raise ConfigError("controller.security.password_file",
+                              f"cannot read {pf} ({exc.strerror})") from None
+    if security.password_env is not None:
+        value = os.environ.get(security.password_env)
+        if value is None:
+            raise ConfigError("controller.security.password_env",
+                              f"environment variable {security.password_env} is not set")
+        return value
+    return None

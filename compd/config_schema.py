@@ -1,0 +1,284 @@
+"""The daemon config's sections as pydantic models (extra keys refused).
+
+Only the shape of each section and the checks that need no other section
+live here; `compd.config` loads the file, runs the cross-section checks
+(timeout vs period, addresses against the protocol, the model) and turns
+every failure into a `ConfigError` naming the dotted key path.
+
+Example (the full set of sections; `compd/examples/*.toml` are complete)::
+
+    [machine]
+    name = "mill-3"
+    period_s = 1.0
+    time_scale = 1.0          # machine seconds per real second (>1: demo/bench)
+
+    [controller]
+    protocol = "modbus"       # opcua | s7 | modbus | focas
+    endpoint = "modbus://127.0.0.1:5020"
+    timeout_s = 0.2           # <= 0.5 * period_s / time_scale
+
+    [channels.bearing]
+    address = { kind = "input", address = 0, type = "int16", scale = 0.1 }
+    unit = "degC"
+    range = [-20.0, 120.0]
+    max_rate_per_s = 0.5
+    stale_after_s = 10.0
+
+    [model]
+    file = "sp2"              # a path relative to this file, or a bundled model
+
+    [output]
+    offset = { kind = "holding", address = 0, type = "float32" }
+    limit_um = 200.0
+    slew_um_s = 2.0
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+Protocol = Literal["opcua", "s7", "modbus", "focas"]
+
+#: channel units the daemon knows (what a value in a channel means)
+UNITS: tuple[str, ...] = ("degC", "K", "rpm", "kW", "W", "um", "mm", "ratio", "percent",
+                          "A", "Nm")
+
+#: output units and their controller units per µm
+OUTPUT_UNITS: dict[str, float | None] = {"um": 1.0, "mm": 1e-3, "nm": 1e3, "inch": 1.0 / 25400.0,
+                                         "count": None}
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, hide_input_in_errors=True)
+
+
+PositiveS = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+
+
+class MachineSection(_Section):
+    name: str = "machine"
+    period_s: PositiveS = 1.0
+    #: machine seconds per real second: 1.0 in production, > 1 for the demo/bench
+    time_scale: PositiveS = 1.0
+
+
+class BackoffSection(_Section):
+    initial_s: PositiveS = 0.1
+    cap_s: PositiveS = 5.0
+
+    @model_validator(mode="after")
+    def _order(self) -> BackoffSection:
+        if self.cap_s < self.initial_s:
+            raise ValueError("cap_s must be >= initial_s")
+        return self
+
+
+class SecuritySection(_Section):
+    """OPC UA security. The password comes from a file or an environment
+    variable, never from the config itself."""
+
+    policy: Literal["None", "Basic256Sha256", "Aes128_Sha256_RsaOaep",
+                    "Aes256_Sha256_RsaPss"] = "None"
+    mode: Literal["Sign", "SignAndEncrypt"] = "SignAndEncrypt"
+    certificate: Path | None = None
+    private_key: Path | None = None
+    server_certificate: Path | None = None
+    trust_dir: Path | None = None
+    username: str | None = None
+    password_file: Path | None = None
+    password_env: str | None = None
+    #: must be true to run with policy "None" (a deliberate choice, not a default)
+    insecure: bool = False
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_inline_password(cls, data: Any) -> Any:
+        if isinstance(data, dict) and "password" in data:
+            raise ValueError("a password is never written in the config: use password_file "
+                             "(a file readable only by the daemon) or password_env "
+                             "(the name of an environment variable)")
+        return data
+
+    @model_validator(mode="after")
+    def _consistent(self) -> SecuritySection:
+        has_password = self.password_file is not None or self.password_env is not None
+        if self.password_file is not None and self.password_env is not None:
+            raise ValueError("give password_file or password_env, not both")
+        if self.policy == "None":
+            if has_password:
+                raise ValueError("a password with security policy None would cross the wire "
+                                 "readable; use Basic256Sha256 (or better) with SignAndEncrypt")
+            if not self.insecure:
+                raise ValueError("security policy None sends everything readable and "
+                                 "unauthenticated: set insecure = true to accept that")
+            return self
+        if self.certificate is None or self.private_key is None:
+            raise ValueError(f"policy {self.policy} needs certificate and private_key")
+        if self.server_certificate is None and self.trust_dir is None:
+            raise ValueError("pin the server certificate (server_certificate) or give "
+                             "trust_dir: otherwise any server is trusted")
+        if has_password and not self.username:
+            raise ValueError("a password needs a username")
+        return self
+
+
+class S7Section(_Section):
+    rack: Annotated[int, Field(ge=0, le=7)] = 0
+    slot: Annotated[int, Field(ge=0, le=31)] = 1
+
+
+class FocasSection(_Section):
+    library_path: Path
+    library_sha256: str | None = None
+
+    @field_validator("library_path")
+    @classmethod
+    def _absolute(cls, v: Path) -> Path:
+        if not v.is_absolute():
+            raise ValueError("must be an absolute path (a relative library path loads "
+                             "whatever the working directory holds)")
+        return v
+
+    @field_validator("library_sha256")
+    @classmethod
+    def _hex(cls, v: str | None) -> str | None:
+        if v is not None and (len(v) != 64 or any(c not in "0123456789abcdefABCDEF" for c in v)):
+            raise ValueError("must be 64 hex digits (sha256 of the library file)")
+        return v.lower() if v is not None else None
+
+
+class ControllerSection(_Section):
+    protocol: Protocol
+    endpoint: Annotated[str, Field(min_length=1)]
+    timeout_s: PositiveS = 0.5
+    connect_timeout_s: PositiveS = 2.0
+    backoff: BackoffSection = BackoffSection()
+    security: SecuritySection | None = None
+    s7: S7Section | None = None
+    focas: FocasSection | None = None
+
+
+class ChannelSection(_Section):
+    #: validated against the protocol's address model by `compd.config`
+    address: dict[str, Any]
+    unit: str
+    range: tuple[float, float]
+    max_rate_per_s: PositiveS | None = None
+    stale_after_s: PositiveS | None = None
+    stuck_after_s: PositiveS | None = None
+
+    @field_validator("unit")
+    @classmethod
+    def _unit(cls, v: str) -> str:
+        if v not in UNITS:
+            raise ValueError(f"unknown unit {v!r}; known: {', '.join(UNITS)}")
+        return v
+
+    @field_validator("range")
+    @classmethod
+    def _range(cls, v: tuple[float, float]) -> tuple[float, float]:
+        lo, hi = v
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            raise ValueError("bounds must be finite numbers")
+        if not lo < hi:
+            raise ValueError("lower bound must be below upper bound")
+        return v
+
+
+class ModelSection(_Section):
+    #: a model file (relative to the config file) or a bundled model name (e.g. "sp2")
+    file: str | None = None
+    #: inline terms, same format as a model file's [[terms]]
+    terms: list[dict[str, Any]] | None = None
+    name: str | None = None
+    period_s: PositiveS | None = None
+    #: a candidate model evaluated beside the live one, logged and recorded, never written
+    shadow: str | None = None
+
+    @model_validator(mode="after")
+    def _one_source(self) -> ModelSection:
+        if (self.file is None) == (self.terms is None):
+            raise ValueError("give either file = \"...\" or inline [[model.terms]], "
+                             "exactly one")
+        if self.file is not None and (self.name is not None or self.period_s is not None):
+            raise ValueError("name and period_s belong to the model file, not beside file =")
+        return self
+
+
+class OutputSection(_Section):
+    offset: dict[str, Any]
+    heartbeat: dict[str, Any] | None = None
+    status: dict[str, Any] | None = None
+    unit: Literal["um", "mm", "nm", "inch", "count"] = "um"
+    #: controller units per µm; derived from `unit` unless unit = "count"
+    scale: float | None = None
+    sign: Literal[1, -1] = 1
+    limit_um: Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+    slew_um_s: Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+    deadband_um: Annotated[float, Field(ge=0.0, allow_inf_nan=False)] = 0.0
+    readback: bool = True
+
+    @model_validator(mode="after")
+    def _scale(self) -> OutputSection:
+        derived = OUTPUT_UNITS[self.unit]
+        if self.scale is None and derived is None:
+            raise ValueError('unit = "count" needs scale (controller counts per µm)')
+        if self.scale is not None and (not math.isfinite(self.scale) or self.scale == 0.0):
+            raise ValueError("scale must be a finite non-zero number")
+        if self.deadband_um >= self.limit_um:
+            raise ValueError("deadband_um must be below limit_um")
+        return self
+
+    @property
+    def units_per_um(self) -> float:
+        if self.scale is not None:
+            return self.scale
+        derived = OUTPUT_UNITS[self.unit]
+        return 1.0 if derived is None else derived
+
+
+class FaultsSection(_Section):
+    hold_s: Annotated[float, Field(ge=0.0, allow_inf_nan=False)] = 60.0
+    shutdown: Literal["hold", "ramp_to_zero"] = "hold"
+    checkpoint_max_age_s: PositiveS = 3600.0
+
+
+class StateSection(_Section):
+    dir: Path = Path("state")
+    checkpoint_every: Annotated[int, Field(ge=1)] = 60
+
+
+class RecorderSection(_Section):
+    enabled: bool = True
+    path: Path | None = None
+    commit_every: Annotated[int, Field(ge=1)] = 10
+    retention_days: PositiveS | None = None
+
+
+class TelemetrySection(_Section):
+    metrics_port: Annotated[int, Field(ge=1, le=65535)] | None = None
+    log_format: Literal["auto", "json", "console"] = "auto"
+    log_level: Literal["debug", "info", "warning", "error"] = "info"
+
+
+class DaemonConfig(_Section):
+    machine: MachineSection = MachineSection()
+    controller: ControllerSection
+    channels: dict[str, ChannelSection]
+    model: ModelSection
+    output: OutputSection
+    faults: FaultsSection = FaultsSection()
+    state: StateSection = StateSection()
+    recorder: RecorderSection = RecorderSection()
+    telemetry: TelemetrySection = TelemetrySection()
+
+    @field_validator("channels")
+    @classmethod
+    def _some(cls, v: dict[str, ChannelSection]) -> dict[str, ChannelSection]:
+        if not v:
+            raise ValueError("at least one [channels.NAME] table is required")
+        return v

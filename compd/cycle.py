@@ -1,0 +1,399 @@
+"""The sample cycle, sans I/O: samples and the time in; writes, events and the
+record row out. No asyncio, no logging, no clock of its own, so hours of
+machine time are tested in milliseconds with a fake clock.
+
+One `Cycle.step(now_s, samples, readback_offset_um)`:
+
+1. read-back: the controller's offset (controller units) against the value it
+   last confirmed; a difference (a restarted controller that forgot it) is an
+   event, and the output ramps from the read-back value;
+2. validate every channel (`compd.validation`); the cycle is valid when every
+   channel the live model reads is valid;
+3. valid: initialise the model on the first valid sample if needed (restored
+   state, or the steady state matching today's temperatures), then step it
+   (and the shadow model) once; invalid: the filters are NOT stepped;
+4. fault policy (`compd.faults`) picks the target; the output stage
+   (`compd.output`) makes it safe;
+5. writes: the offset (in controller units; omitted once the controller
+   refused it permanently, and while read-back is configured but the read
+   failed, since then the controller's state is unknown), the heartbeat
+   (advanced only on a complete valid cycle) and the status word.
+
+The shell reports each write's outcome with `write_ok()` / `write_failed()`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from compd.faults import Event, FaultPolicy, State
+from compd.output import OutputStage, Status
+from compd.validation import ChannelLimits, Validator
+from drivers.base import Sample
+from models.compensation import CompensationModel
+from models.errors import ModelError
+
+if TYPE_CHECKING:
+    from compd.config import LoadedConfig
+
+#: the heartbeat counts modulo this (fits INT, WORD, uint16, DINT, PMC word)
+HEARTBEAT_MODULO = 32768
+
+
+@dataclass(frozen=True)
+class CycleParams:
+    period_s: float
+    hold_s: float
+    limit_um: float
+    slew_um_s: float
+    channels: dict[str, ChannelLimits]
+    deadband_um: float = 0.0
+    sign: int = 1
+    units_per_um: float = 1.0
+    readback: bool = True
+    readback_tolerance_um: float = 0.01
+    time_scale: float = 1.0
+    offset_name: str = "offset"
+    heartbeat_name: str | None = "heartbeat"
+    status_name: str | None = "status"
+
+
+def params_from_config(cfg: LoadedConfig, *, dry_run: bool = False) -> CycleParams:
+    raw = cfg.raw
+    out = raw.output
+    limits = {n: ChannelLimits(ch.range[0], ch.range[1], ch.max_rate_per_s, ch.stale_after_s,
+                               ch.stuck_after_s) for n, ch in raw.channels.items()}
+    return CycleParams(
+        period_s=raw.machine.period_s, hold_s=raw.faults.hold_s, limit_um=out.limit_um,
+        slew_um_s=out.slew_um_s, channels=limits, deadband_um=out.deadband_um, sign=out.sign,
+        units_per_um=out.units_per_um, readback=out.readback and not dry_run,
+        readback_tolerance_um=max(0.01, 1.01 * cfg.offset_quantum_um),
+        time_scale=raw.machine.time_scale,
+        heartbeat_name="heartbeat" if "heartbeat" in cfg.outputs else None,
+        status_name="status" if "status" in cfg.outputs else None)
+
+
+@dataclass
+class RecordFields:
+    """One row for the recorder (the shell adds the wall-clock time)."""
+
+    seq: int
+    mono_s: float
+    offset_um: float
+    model_um: float | None
+    state: str
+    valid: bool
+    channels: dict[str, float | None]
+    validity: dict[str, str | None]
+    contributions: dict[str, float]
+
+
+@dataclass
+class CycleResult:
+    sequence: int
+    #: output name -> value in controller units
+    writes: dict[str, float]
+    #: the output stage's value in µm (what was, or would be, written)
+    offset_um: float
+    model_um: float | None
+    shadow_um: float | None
+    state: State | str
+    status: int
+    heartbeat: int
+    #: inputs valid and the model stepped (heartbeat advanced)
+    complete: bool
+    events: list[Event] = field(default_factory=list)
+    record: RecordFields | None = None
+    #: a ramp-to-zero shutdown has reached zero (or cannot write any more)
+    shutdown_done: bool = False
+
+
+def _finite_or_none(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
+class Cycle:
+    """See the module docstring."""
+
+    def __init__(self, params: CycleParams, model: CompensationModel,
+                 shadow: CompensationModel | None = None, *,
+                 model_state: Mapping[str, Any] | None = None,
+                 shadow_state: Mapping[str, Any] | None = None,
+                 references: Mapping[str, float] | None = None,
+                 offset_um: float | None = None, sequence: int = 0,
+                 heartbeat: int = 0) -> None:
+        self.params = params
+        self.model = model
+        self.shadow = shadow
+        self.validator = Validator(params.channels, params.time_scale)
+        self.faults = FaultPolicy(params.hold_s)
+        self.output = OutputStage(
+            limit_um=params.limit_um, slew_um_s=params.slew_um_s,
+            deadband_um=params.deadband_um, sign=params.sign,
+            units_per_um=params.units_per_um, max_dt_s=2.0 * params.period_s,
+            initial_um=offset_um if offset_um is not None else 0.0)
+        if offset_um is not None and math.isfinite(offset_um):
+            self.output.confirm()
+        self.sequence = sequence
+        self.heartbeat = heartbeat % HEARTBEAT_MODULO
+        self.gate = sorted(model.channels)
+        self.write_stopped = False
+        self.stopped_outputs: set[str] = set()
+        self._references = dict(references) if references else None
+        self._model_ready = False
+        self._shadow_ready = False
+        self._init_mode = "first_start" if references is None else "steady_state"
+        self._last_now: float | None = None
+        self._offset_pending = False
+        self._invalid: dict[str, str] = {}
+        self._mismatch_noted = False
+        if model_state is not None:
+            model.import_state(model_state)  # ModelError: the caller falls back
+            self._model_ready = True
+            self._init_mode = "restored"
+            if shadow is not None and shadow_state is not None:
+                try:
+                    shadow.import_state(shadow_state)
+                    self._shadow_ready = True
+                except ModelError:
+                    self._shadow_ready = False
+
+    # -- construction from a checkpoint ---------------------------------------------
+
+    @classmethod
+    def from_state(cls, params: CycleParams, model: CompensationModel,
+                   shadow: CompensationModel | None, state: Mapping[str, Any], *,
+                   fresh: bool) -> Cycle:
+        """A cycle continuing `state` (an `export_state()` / checkpoint dict).
+        Fresh: the filters resume where they were. Too old: only the references
+        and the last written offset are kept; the filters restart at the steady
+        state matching the first valid sample."""
+        model_state = state.get("model")
+        refs: Mapping[str, float] | None = None
+        if isinstance(model_state, Mapping):
+            r = model_state.get("references")
+            refs = r if isinstance(r, Mapping) and r else None
+        elif isinstance(state.get("references"), Mapping):
+            refs = state["references"]
+        offset = state.get("offset_um")
+        offset_um = float(offset) if isinstance(offset, int | float) else None
+        usable = fresh and isinstance(model_state, Mapping) and "terms" in model_state
+        shadow_state = state.get("shadow") if usable else None
+        return cls(params, model, shadow,
+                   model_state=model_state if usable else None,
+                   shadow_state=shadow_state if isinstance(shadow_state, Mapping) else None,
+                   references=refs, offset_um=offset_um,
+                   sequence=int(state.get("sequence", 0)),
+                   heartbeat=int(state.get("heartbeat", 0)))
+
+    def export_state(self) -> dict[str, Any]:
+        """Everything a restart needs (the checkpoint's payload)."""
+        confirmed = self.output.confirmed_um
+        out: dict[str, Any] = {
+            "offset_um": confirmed if confirmed is not None else self.output.current_um,
+            "sequence": self.sequence,
+            "heartbeat": self.heartbeat,
+        }
+        if self._model_ready:
+            out["model"] = self.model.export_state()
+            if self.shadow is not None and self._shadow_ready:
+                out["shadow"] = self.shadow.export_state()
+        else:
+            out["model"] = None
+            if self._references:
+                out["references"] = dict(self._references)
+        return out
+
+    # -- the cycle ------------------------------------------------------------------
+
+    def begin_shutdown(self) -> None:
+        """Ramp-to-zero shutdown: from now on the target is 0."""
+        self.faults.shutting_down = True
+
+    def step(self, now_s: float, samples: Mapping[str, Sample] | None,
+             readback_offset_um: float | None = None, *,
+             wall_s: float | None = None) -> CycleResult:
+        """One cycle at machine time `now_s`. `samples` None: the read failed.
+        `readback_offset_um`: the controller's offset as read (controller units)."""
+        p = self.params
+        self.sequence += 1
+        events: list[Event] = []
+        status = Status(0)
+        dt = p.period_s if self._last_now is None else now_s - self._last_now
+        self._last_now = now_s
+
+        if readback_offset_um is not None and self._readback(readback_offset_um, events):
+            status |= Status.READBACK_MISMATCH
+
+        validity = self.validator.check(now_s, samples, wall_s)
+        self._note_validity(validity, events)
+        values = {n: (float(s.value) if (s := (samples or {}).get(n)) is not None else math.nan)
+                  for n in p.channels}
+        valid = all(validity.get(ch) is None for ch in self.gate)
+
+        model_um: float | None = None
+        shadow_um: float | None = None
+        if valid:
+            model_um = self._step_model(values, events)
+            if model_um is None:
+                status |= Status.MODEL_INVALID
+                valid = False
+            elif self.shadow is not None:
+                shadow_um = self._step_shadow(values, events)
+
+        decision = self.faults.decide(now_s, valid, model_um, events)
+        target = self.output.current_um if decision.target_um is None else decision.target_um
+        offset_um = self.output.step(target, dt, deadband=decision.state == "ok")
+
+        if valid:
+            self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
+        status |= self._status_bits(decision.state, decision.alarm)
+
+        writes: dict[str, float] = {}
+        self._offset_pending = False
+        if not self.write_stopped:
+            if p.readback and readback_offset_um is None:
+                # the controller still holds what it last confirmed: start from there
+                self.output.revert()
+                offset_um = self.output.current_um
+                if not self._mismatch_noted:
+                    events.append(Event("offset_write_skipped", {"reason": "no_readback"}))
+                    self._mismatch_noted = True
+            else:
+                self._mismatch_noted = False
+                writes[p.offset_name] = self.output.to_controller(offset_um)
+                self._offset_pending = True
+        if p.heartbeat_name and p.heartbeat_name not in self.stopped_outputs:
+            writes[p.heartbeat_name] = float(self.heartbeat)
+        if p.status_name and p.status_name not in self.stopped_outputs:
+            writes[p.status_name] = float(int(status))
+
+        contributions = {t.name: c for t, c in zip(self.model.terms, self.model.contributions,
+                                                    strict=True)} if valid else {}
+        if shadow_um is not None:
+            contributions["shadow_total"] = shadow_um
+        record = RecordFields(
+            seq=self.sequence, mono_s=now_s, offset_um=offset_um, model_um=model_um,
+            state=decision.state if not self.write_stopped else "stopped", valid=valid,
+            channels={n: _finite_or_none(v) for n, v in values.items()},
+            validity=validity, contributions=contributions)
+        done = self.faults.shutting_down and (offset_um == 0.0 or self.write_stopped)
+        return CycleResult(
+            sequence=self.sequence, writes=writes, offset_um=offset_um, model_um=model_um,
+            shadow_um=shadow_um, state=record.state, status=int(status),
+            heartbeat=self.heartbeat, complete=valid, events=events, record=record,
+            shutdown_done=done)
+
+    # -- write outcome ------------------------------------------------------------------
+
+    def write_ok(self) -> None:
+        """Every write of the last result reached the controller."""
+        if self._offset_pending:
+            self.output.confirm()
+        self._offset_pending = False
+
+    def write_failed(self, output: str | None, *, permanent: bool,
+                     reason: str = "") -> list[Event]:
+        """A write of the last result failed. `output` is the refused output's
+        name when known. Transient: retried next cycle from the confirmed value."""
+        events: list[Event] = []
+        if self._offset_pending:
+            self.output.revert()
+        self._offset_pending = False
+        if not permanent:
+            events.append(Event("write_failed", {"output": output, "reason": reason}))
+            return events
+        if output in (None, self.params.offset_name):
+            if not self.write_stopped:
+                self.write_stopped = True
+                events.append(Event("offset_write_stopped", {
+                    "output": output, "reason": reason,
+                    "offset_um": self.output.current_um}))
+        else:
+            self.stopped_outputs.add(output)
+            events.append(Event("output_write_stopped", {"output": output, "reason": reason}))
+        return events
+
+    # -- internals ------------------------------------------------------------------------
+
+    def _readback(self, value: float, events: list[Event]) -> bool:
+        rb_um = self.output.from_controller(value) if math.isfinite(value) else math.nan
+        confirmed = self.output.confirmed_um
+        if confirmed is None:
+            self.output.adopt(rb_um)
+            events.append(Event("readback_adopted", {"offset_um": self.output.current_um}))
+            return False
+        if math.isfinite(rb_um) and abs(rb_um - confirmed) <= self.params.readback_tolerance_um:
+            return False
+        events.append(Event("readback_mismatch", {
+            "expected_um": confirmed, "readback_um": _finite_or_none(rb_um)}))
+        self.output.adopt(rb_um)
+        return True
+
+    def _note_validity(self, validity: Mapping[str, str | None], events: list[Event]) -> None:
+        for name, reason in validity.items():
+            before = self._invalid.get(name)
+            if reason is not None and reason != before:
+                self._invalid[name] = reason
+                events.append(Event("channel_invalid", {"channel": name, "reason": reason}))
+            elif reason is None and before is not None:
+                del self._invalid[name]
+                events.append(Event("channel_valid", {"channel": name, "was": before}))
+
+    def _init_model(self, model: CompensationModel, values: Mapping[str, float]) -> float:
+        refs = dict(self._references or {})
+        for ch in model.reference_channels:
+            refs.setdefault(ch, values[ch])
+        model.set_references(refs)
+        model.reset()
+        return model.steady_state(values)
+
+    def _step_model(self, values: Mapping[str, float], events: list[Event]) -> float | None:
+        if not self._model_ready:
+            y0 = self._init_model(self.model, values)
+            self._references = dict(self.model.references)
+            self._model_ready = True
+            events.append(Event("model_initialised", {"mode": self._init_mode,
+                                                      "steady_um": _finite_or_none(y0)}))
+        y = self.model.step(values)
+        if math.isfinite(y):
+            return y
+        events.append(Event("model_non_finite", {"model": self.model.name}))
+        self._model_ready = False
+        self._init_mode = "steady_state"
+        return None
+
+    def _step_shadow(self, values: Mapping[str, float], events: list[Event]) -> float | None:
+        shadow = self.shadow
+        if shadow is None:
+            return None
+        if not self._shadow_ready:
+            self._init_model(shadow, values)
+            self._shadow_ready = True
+        y = shadow.step(values)
+        if math.isfinite(y):
+            return y
+        events.append(Event("model_non_finite", {"model": shadow.name, "shadow": True}))
+        self._shadow_ready = False
+        return None
+
+    def _status_bits(self, state: str, alarm: bool) -> Status:
+        s = Status(0)
+        if state == "ok" and not self.write_stopped:
+            s |= Status.OK
+        elif state == "hold":
+            s |= Status.HOLDING
+        elif state == "ramp":
+            s |= Status.RAMPING
+        elif state == "shutdown":
+            s |= Status.SHUTDOWN
+        if alarm or self.write_stopped:
+            s |= Status.ALARM
+        if self.write_stopped:
+            s |= Status.WRITE_STOPPED
+        if self.output.slewing:
+            s |= Status.SLEWING
+        return s

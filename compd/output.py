@@ -1,0 +1,112 @@
+"""The output stage: the one place that decides what the machine gets.
+
+Per cycle, from the target δZ in µm (the model, the held value, or 0 while
+ramping down):
+
+1. a non-finite target is ignored (the output holds);
+2. clamp to ±limit_um;
+3. deadband (tracking only): a target within deadband_um of the current
+   output leaves it unchanged;
+4. slew limit: the output moves at most slew_um_s·Δt toward the target
+   (Δt capped at `max_dt_s`, so a stalled loop never earns a big step);
+5. sign and unit conversion to controller units: value = sign·scale·µm.
+
+`current_um` is what the controller is believed to hold. After a write the
+controller refused, the shell calls `revert()` and the stage falls back to
+the last value the controller confirmed, so that the next write never moves
+faster than the slew limit from what the machine really has. A read-back
+that differs from it (a restarted controller that forgot the offset) is
+adopted with `adopt()` and the output ramps from there.
+
+Status word (written each cycle, so a PLC can drop a stale compensation):
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+
+
+class Status(enum.IntFlag):
+    """Status word bits (uint16; bit 15 unused so an INT address holds it)."""
+
+    OK = 1 << 0               #: complete valid cycle, offset tracks the model
+    HOLDING = 1 << 1          #: invalid input: last offset held
+    RAMPING = 1 << 2          #: invalid longer than hold_s: ramping to zero
+    ALARM = 1 << 3            #: an alarm: ramping on a fault, or writing stopped
+    READBACK_MISMATCH = 1 << 4  #: the controller's offset differed from our last write
+    WRITE_STOPPED = 1 << 5    #: the controller refused the offset permanently
+    MODEL_INVALID = 1 << 6    #: the model produced a non-finite value (re-initialised)
+    SLEWING = 1 << 7          #: the output is slew-limited, catching up with its target
+    SHUTDOWN = 1 << 8         #: the daemon is shutting down (ramp to zero)
+
+
+__doc__ = (__doc__ or "") + "\n".join(
+    f"    bit {int(b).bit_length() - 1:2d}  {b.name}" for b in Status) + "\n"
+
+
+def _clamp(x: float, limit: float) -> float:
+    return max(-limit, min(limit, x))
+
+
+class OutputStage:
+    """Clamp, deadband, slew limit, sign and scale (see module docstring)."""
+
+    def __init__(self, *, limit_um: float, slew_um_s: float, deadband_um: float = 0.0,
+                 sign: int = 1, units_per_um: float = 1.0, max_dt_s: float = math.inf,
+                 initial_um: float = 0.0) -> None:
+        if not (math.isfinite(limit_um) and limit_um > 0.0):
+            raise ValueError("limit_um must be > 0")
+        if not (math.isfinite(slew_um_s) and slew_um_s > 0.0):
+            raise ValueError("slew_um_s must be > 0")
+        if sign not in (1, -1) or not (math.isfinite(units_per_um) and units_per_um != 0.0):
+            raise ValueError("sign must be ±1 and units_per_um finite non-zero")
+        self.limit_um = limit_um
+        self.slew_um_s = slew_um_s
+        self.deadband_um = deadband_um
+        self.sign = sign
+        self.units_per_um = units_per_um
+        self.max_dt_s = max_dt_s
+        self.current_um = self._safe(initial_um)
+        #: the last value the controller confirmed (a successful write or a read-back)
+        self.confirmed_um: float | None = None
+        self.slewing = False
+
+    def _safe(self, x: float) -> float:
+        return _clamp(x, self.limit_um) if math.isfinite(x) else 0.0
+
+    def step(self, target_um: float, dt_s: float, *, deadband: bool = True) -> float:
+        """Move toward `target_um`; returns the new output in µm (always finite,
+        within ±limit, within slew·Δt of the previous output)."""
+        if not math.isfinite(target_um):
+            target_um = self.current_um
+        target = _clamp(target_um, self.limit_um)
+        if deadband and abs(target - self.current_um) <= self.deadband_um:
+            target = self.current_um
+        dt = min(max(dt_s, 0.0), self.max_dt_s) if math.isfinite(dt_s) else 0.0
+        max_step = self.slew_um_s * dt
+        delta = target - self.current_um
+        self.slewing = abs(delta) > max_step
+        delta = max(-max_step, min(max_step, delta))
+        self.current_um = _clamp(self.current_um + delta, self.limit_um)
+        return self.current_um
+
+    def to_controller(self, um: float) -> float:
+        return self.sign * self.units_per_um * um
+
+    def from_controller(self, value: float) -> float:
+        return value / (self.sign * self.units_per_um)
+
+    def confirm(self) -> None:
+        """The controller accepted the last output."""
+        self.confirmed_um = self.current_um
+
+    def revert(self) -> None:
+        """The write failed: the controller still holds the last confirmed value."""
+        if self.confirmed_um is not None:
+            self.current_um = self.confirmed_um
+
+    def adopt(self, um: float) -> None:
+        """The controller holds `um` (read back): ramp from there."""
+        self.current_um = self._safe(um)
+        self.confirmed_um = self.current_um

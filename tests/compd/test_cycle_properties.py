@@ -1,0 +1,84 @@
+"""Property tests: no sequence of inputs, faults, rejected writes, controller
+restarts and daemon restarts (a new Cycle from the exported state) makes the
+written offset exceed limit_um, change faster than slew_um_s·Δt against what
+the controller holds, or become non-finite."""
+
+from __future__ import annotations
+
+import math
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from compd.cycle import Cycle
+from drivers.base import Quality, Sample
+
+from .cycle_helpers import params, sp2
+
+LIMIT_UM = 25.0
+SLEW_UM_S = 0.7
+
+_temperature = st.one_of(
+    st.floats(min_value=15.0, max_value=45.0),
+    st.sampled_from([math.nan, math.inf, -math.inf, 850.0, -200.0, 1e300]),
+)
+_action = st.tuples(
+    st.sampled_from(["good", "good", "good", "good", "bad", "read_failed", "spike"]),
+    _temperature,
+    st.sampled_from(["ok", "ok", "ok", "ok", "transient", "permanent"]),
+    st.sampled_from([None, None, None, None, None, "controller_restart", "daemon_restart",
+                     "daemon_restart_stale"]),
+    st.sampled_from([1.0, 1.0, 1.0, 2.0, 3.0]),
+    st.sampled_from([1.0, 1.0, 1.0, -1.0]),
+)
+
+
+def _run(actions: list[tuple[str, float, str, str | None, float, float]],
+         readback: bool) -> None:
+    p = params(limit_um=LIMIT_UM, slew_um_s=SLEW_UM_S, hold_s=5.0, readback=readback)
+    cycle = Cycle(p, sp2())
+    controller = 0.0  # what the controller holds (controller units = µm here)
+    now = 0.0
+    bearing = 20.0
+    for kind, temp, outcome, event, dt, heat in actions:
+        now += dt
+        if event == "controller_restart" and readback:
+            controller = 0.0
+        elif event in ("daemon_restart", "daemon_restart_stale"):
+            cycle = Cycle.from_state(p, sp2(), None, cycle.export_state(),
+                                     fresh=event == "daemon_restart")
+        bearing = min(45.0, max(15.0, bearing + 0.3 * heat))
+        value = {"good": bearing, "bad": temp, "spike": bearing + 40.0 * heat}.get(kind)
+        samples = None if kind == "read_failed" else {
+            "bearing": Sample(value if value is not None else temp, now,
+                              Quality.GOOD),
+            "ambient": Sample(20.0, now), "speed_rpm": Sample(1000.0, now)}
+        rb = None if (kind == "read_failed" or not readback) else controller
+        r = cycle.step(now, samples, rb)
+        assert math.isfinite(r.offset_um) and abs(r.offset_um) <= LIMIT_UM
+        for v in r.writes.values():
+            assert math.isfinite(v)
+        if "offset" in r.writes:
+            w = r.writes["offset"]
+            assert abs(w) <= LIMIT_UM + 1e-12
+            assert abs(w - controller) <= SLEW_UM_S * dt + 1e-9, (w, controller, dt)
+        if outcome == "ok":
+            cycle.write_ok()
+            if "offset" in r.writes:
+                controller = r.writes["offset"]
+        else:
+            cycle.write_failed("offset", permanent=outcome == "permanent")
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(_action, min_size=1, max_size=120))
+def test_offset_is_bounded_slew_limited_and_finite_with_readback(
+        actions: list[tuple[str, float, str, str | None, float, float]]) -> None:
+    _run(actions, readback=True)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(_action, min_size=1, max_size=120))
+def test_offset_is_bounded_slew_limited_and_finite_without_readback(
+        actions: list[tuple[str, float, str, str | None, float, float]]) -> None:
+    _run(actions, readback=False)
