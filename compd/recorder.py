@@ -81,8 +81,11 @@ class RecorderError(CompdError):
 @dataclass(frozen=True, slots=True)
 class RecordRow:
     """One sample as the daemon saw it. `seq` is the daemon's cycle number
-    (stored as ``cycle``; the table's ``seq`` is the recorder's own)."""
+    (None when it has none), stored as ``cycle``: the table's ``seq`` is the
+    recorder's own contiguous numbering, because a restart from an older
+    checkpoint repeats cycle numbers. Field order as in the table."""
 
+    seq: int | None
     mono_s: float
     wall_s: float
     offset_um: float | None
@@ -92,7 +95,6 @@ class RecordRow:
     channels: Mapping[str, float | None] = field(default_factory=dict)
     validity: Mapping[str, str | None] = field(default_factory=dict)
     contributions: Mapping[str, float] = field(default_factory=dict)
-    seq: int | None = None
 
 
 def _num(value: float | None) -> float | None:

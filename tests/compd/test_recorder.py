@@ -47,8 +47,7 @@ def test_wal_mode_and_columns(tmp_path: Path) -> None:
     for i in range(10):
         rec.record(_row(i))
     assert rec.committed == 8 and rec.pending == 2  # buffered until commit_every
-    rec.record(RecordRow(mono_s=10.0, wall_s=1.0e9 + 10, offset_um=float("nan"), model_um=None,
-                         state="hold", valid=False,
+    rec.record(RecordRow(None, 10.0, 1.0e9 + 10, float("nan"), None, "hold", False,
                          channels={"t_spindle_c": float("inf"), "t_ambient_c": 21.5,
                                    "power_kw": 3.0},
                          validity={"t_spindle_c": "out of range", "t_ambient_c": None},
