@@ -232,9 +232,15 @@ class Recorder:
             self._purge(conn, rows[-1].wall_s - self.retention_s)
 
     def _purge(self, conn: sqlite3.Connection, cutoff_wall_s: float) -> None:
-        """Delete rows older than the cutoff (wall clock: survives restarts and reboots)."""
+        """Delete rows older than the cutoff (wall clock: survives restarts and reboots),
+        a bounded number per call, so that a large backlog (a retention shortened
+        in the config) is worked off over several commits instead of stalling one cycle."""
+        limit = max(1000, 10 * self.purge_every_commits * self.commit_every)
         try:
-            cur = conn.execute("DELETE FROM samples WHERE wall_s < ?", (cutoff_wall_s,))
+            cur = conn.execute(
+                "DELETE FROM samples WHERE seq IN"
+                " (SELECT seq FROM samples WHERE wall_s < ? ORDER BY wall_s LIMIT ?)",
+                (cutoff_wall_s, limit))
             self.purged += max(cur.rowcount, 0)
         except sqlite3.Error as exc:
             self._rollback(conn)

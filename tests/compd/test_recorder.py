@@ -100,6 +100,20 @@ def test_retention_deletes_old_rows(tmp_path: Path) -> None:
     assert cols["seq"].tolist() == list(range(int(cols["seq"][0]), 102))
 
 
+def test_retention_backlog_is_purged_in_bounded_steps(tmp_path: Path) -> None:
+    path = tmp_path / "rec.sqlite"
+    with Recorder(path, commit_every=500) as rec:
+        for i in range(2500):
+            rec.record(_row(i))
+    with Recorder(path, commit_every=1, retention_s=1.0, purge_every_commits=1) as rec:
+        rec.record(_row(5000))
+        assert rec.purged == 1000  # one bounded step per commit
+        rec.record(_row(5001))
+        rec.record(_row(5002))
+        assert rec.purged == 2500
+    assert read_samples(path)["cycle"].tolist() == [5000, 5001, 5002]
+
+
 def test_not_open_and_bad_path(tmp_path: Path) -> None:
     rec = Recorder(tmp_path / "never.sqlite")
     rec.record(_row(0))  # never raises
