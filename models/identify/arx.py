@@ -126,7 +126,7 @@ def select_arx(y: FloatArray, inputs: Sequence[FloatArray], na_range: tuple[int,
     n = y.size
     phi = regressors(y, us, na_hi, nb_hi)
     lag = max(na_hi, nb_hi - 1)
-    n_train = max(lag + 1, int(round(n * (1.0 - validation))))
+    n_train = max(lag + 1, round(n * (1.0 - validation)))
     scale = np.sqrt(np.mean(phi[lag:n_train] ** 2, axis=0))
     scale[scale == 0.0] = 1.0
     q, r = np.linalg.qr(phi[lag:n_train] / scale, mode="reduced")
@@ -179,12 +179,12 @@ def naive_select(y: FloatArray, inputs: Sequence[FloatArray], na_range: tuple[in
     for na in range(na_range[0], na_range[1] + 1):
         for nbs in itertools.product(range(nb_range[0], nb_range[1] + 1), repeat=len(inputs)):
             lag = max(na, max(nbs) - 1)
-            n_train = max(lag + 1, int(round(n * (1.0 - validation))))
+            n_train = max(lag + 1, round(n * (1.0 - validation)))
             blocks = [-lagged(y, na, start=1)] + [lagged(u, nb)
                                                    for u, nb in zip(inputs, nbs, strict=True)]
             phi = np.hstack(blocks)
             theta, *_ = np.linalg.lstsq(phi[lag:n_train], y[lag:n_train], rcond=None)
-            den, nums = _split(theta, na, nbs)
+            den, nums = _split(np.asarray(theta, dtype=np.float64), na, nbs)
             score = -math.inf
             if is_stable(den):
                 score = fit_pct(y[n_train:], simulate_common(den, nums, inputs)[n_train:])

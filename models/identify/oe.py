@@ -36,7 +36,7 @@ FloatArray = npt.NDArray[np.float64]
 KAPPA_MARGIN = 1e-12
 
 
-def step_up(kappa: Sequence[float]) -> FloatArray:
+def step_up(kappa: Sequence[float] | FloatArray) -> FloatArray:
     """Monic polynomial [1, b1, …, bm] from reflection coefficients."""
     a = np.array([1.0])
     for k in kappa:
@@ -124,7 +124,8 @@ class _Problem:
 
 
 def refine_oe(y: FloatArray, inputs: Sequence[FloatArray], nums: Sequence[Sequence[float]],
-              dens: Sequence[Sequence[float]], *, max_nfev: int = 200) -> OeEstimate:
+              dens: Sequence[Sequence[float]], *, max_nfev: int = 200,
+              tol: float = 1e-12) -> OeEstimate:
     """Output-error fit starting from (nums, dens), one pair per input."""
     y = np.asarray(y, dtype=np.float64)
     us = [np.asarray(u, dtype=np.float64) for u in inputs]
@@ -146,7 +147,7 @@ def refine_oe(y: FloatArray, inputs: Sequence[FloatArray], nums: Sequence[Sequen
     start_cost = float(np.sum(prob.residual(start) ** 2))
     res = least_squares(prob.residual, start, jac=prob.jacobian, bounds=(lo, hi),
                         method="trf", x_scale="jac", max_nfev=max_nfev,
-                        xtol=1e-12, ftol=1e-12, gtol=1e-10)
+                        xtol=tol, ftol=tol, gtol=tol)
     theta = res.x if float(np.sum(res.fun ** 2)) <= start_cost else start
     parts = prob.unpack(theta)
     out_nums = tuple(tuple(float(v) for v in num) for num, _, _ in parts)

@@ -1,0 +1,86 @@
+"""Figures like the papers': a replay (inputs above; measured, simulated and
+residual displacement below) and the step response of each term.
+
+matplotlib with the Agg backend (files only, no display); imported only by
+the commands that draw.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import matplotlib as mpl
+
+mpl.use("Agg")
+
+import matplotlib.pyplot as plt
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def _is_speed(name: str) -> bool:
+    return "speed" in name.lower() or name.lower().endswith("rpm")
+
+
+def replay_figure(path: str | Path, time_s: FloatArray, inputs: Mapping[str, FloatArray],
+                  measured: FloatArray, simulated: FloatArray, *, title: str,
+                  fit_pct: float, dpk_um: float) -> None:
+    hours = np.asarray(time_s) / 3600.0
+    fig, (top, bottom) = plt.subplots(2, 1, sharex=True, figsize=(10, 7),
+                                      gridspec_kw={"height_ratios": [2, 3]})
+    temps = {k: v for k, v in inputs.items() if not _is_speed(k)}
+    speeds = {k: v for k, v in inputs.items() if _is_speed(k)}
+    for name, values in temps.items():
+        top.plot(hours, values, lw=1.0, label=f"{name} (°C)")
+    top.set_ylabel("temperature (°C)")
+    top.grid(True, alpha=0.3)
+    handles, labels = top.get_legend_handles_labels()
+    if speeds:
+        right = top.twinx()
+        for name, values in speeds.items():
+            right.plot(hours, values, lw=0.8, color="0.55", ls="--", label=f"{name} (rpm)")
+        right.set_ylabel("spindle speed (rpm)")
+        h2, l2 = right.get_legend_handles_labels()
+        handles, labels = handles + h2, labels + l2
+    if handles:
+        top.legend(handles, labels, loc="upper right", fontsize="small", ncol=2)
+    top.set_title("inputs")
+    residue = np.asarray(measured) - np.asarray(simulated)
+    bottom.plot(hours, measured, lw=0.8, color="tab:blue", label="measured δZ")
+    bottom.plot(hours, simulated, lw=1.4, color="tab:orange", label="simulated (model)")
+    bottom.plot(hours, residue, lw=0.8, color="tab:red", label="residue (after compensation)")
+    bottom.axhline(0.0, color="0.3", lw=0.6)
+    bottom.set_xlabel("time (h)")
+    bottom.set_ylabel("Z displacement (µm)")
+    bottom.grid(True, alpha=0.3)
+    bottom.legend(loc="best", fontsize="small")
+    bottom.set_title(f"fit {fit_pct:.1f} %, Δpk {dpk_um:.2f} µm "
+                     f"(residue {residue.min():.2f} … {residue.max():.2f} µm)")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def step_figure(path: str | Path, time_s: FloatArray, responses: Mapping[str, FloatArray],
+                units: Mapping[str, str], *, title: str) -> None:
+    """One panel per term: the response to a unit step of its input."""
+    hours = np.asarray(time_s) / 3600.0
+    n = max(1, len(responses))
+    fig, axes = plt.subplots(n, 1, sharex=True, figsize=(9, 2.6 * n + 0.8), squeeze=False)
+    for ax, (name, y) in zip(axes[:, 0], responses.items(), strict=True):
+        ax.plot(hours, y, lw=1.4, color="tab:blue")
+        final = float(y[-1])
+        ax.axhline(final, color="0.5", lw=0.7, ls="--", label=f"final {final:.4g} µm")
+        ax.set_ylabel("δZ (µm)")
+        ax.set_title(f"term {name}: step of 1 {units.get(name, 'K')} at t = 0")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="best", fontsize="small")
+    axes[-1, 0].set_xlabel("time (h)")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

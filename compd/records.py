@@ -1,0 +1,259 @@
+"""Calibration records: what `compd fit` and `compd replay` read.
+
+A record is a CSV file with a header: a time column (``time_s`` in seconds,
+or ISO 8601 timestamps in a column named ``time``/``timestamp``/``datetime``
+or simply the first column), one column per channel (named as in the daemon
+config, temperatures in °C) and the measured displacement (µm), whose name
+the command line gives.
+
+The record is checked, never repaired: a gap, a duplicated or backwards
+timestamp, jittery sampling, an empty or non-numeric cell, or a column whose
+magnitude betrays a unit mistake (a temperature in mK, a displacement in mm)
+raises `RecordError` naming the row (1-based line of the file) and column.
+A model fitted on silently resampled data would be silently wrong.
+
+The daemon's own SQLite sample recorder (`compd.recorder`) is not read here
+yet: it was being written in parallel; export it to CSV until a reader for
+its schema is added next to `read_csv_record`.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from compd.errors import CompdError
+
+FloatArray = npt.NDArray[np.float64]
+
+#: sysexits.h EX_DATAERR: the input data was incorrect
+EX_DATAERR = 65
+
+#: header names accepted for an ISO 8601 time column
+_ISO_TIME_NAMES = ("time", "timestamp", "datetime", "date_time", "time_iso")
+#: a sample interval this far from the record's period (fraction) is jitter
+JITTER_TOLERANCE = 0.02
+#: an interval longer than this many periods is a gap
+GAP_FACTOR = 1.5
+#: a temperature (°C) whose median magnitude exceeds this is probably in mK
+MAX_PLAUSIBLE_TEMP_C = 1000.0
+#: a displacement record whose whole range is below this (µm) is probably in mm
+MIN_PLAUSIBLE_RANGE_UM = 0.5
+
+
+class RecordError(CompdError):
+    """A calibration record cannot be used as it is. The message names the
+    file, the row and/or the column, and what is wrong."""
+
+
+@dataclass(frozen=True)
+class Record:
+    """A checked record: uniform sampling, finite values, one array per column."""
+
+    path: str
+    sha256: str
+    time_s: FloatArray
+    period_s: float
+    columns: dict[str, FloatArray]
+
+    def __len__(self) -> int:
+        return int(self.time_s.size)
+
+    def column(self, name: str) -> FloatArray:
+        try:
+            return self.columns[name]
+        except KeyError:
+            raise RecordError(f"{self.path}: no column {name!r}; the record has "
+                              f"{sorted(self.columns)}") from None
+
+    def require(self, names: Iterable[str]) -> None:
+        missing = sorted(set(names) - set(self.columns))
+        if missing:
+            raise RecordError(f"{self.path}: missing column(s) {missing}; the record has "
+                              f"{sorted(self.columns)}")
+
+    def samples(self) -> list[dict[str, float]]:
+        """One dict per row (channel -> float), as the daemon sees a sample."""
+        names = list(self.columns)
+        cols = [self.columns[n].tolist() for n in names]
+        return [dict(zip(names, row, strict=True)) for row in zip(*cols, strict=True)]
+
+
+def file_sha256(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with Path(path).open("rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _parse_iso(text: str, where: str) -> float:
+    t = text.strip()
+    if t.endswith(("Z", "z")):
+        t = t[:-1] + "+00:00"
+    try:
+        stamp = datetime.fromisoformat(t)
+    except ValueError:
+        raise RecordError(f"{where}: {text!r} is not an ISO 8601 timestamp") from None
+    if stamp.tzinfo is None:
+        stamp = stamp.replace(tzinfo=UTC)
+    return stamp.timestamp()
+
+
+def _time_column(header: list[str], path: str) -> tuple[int, bool]:
+    """(index, is_iso) of the time column."""
+    lowered = [h.strip().lower() for h in header]
+    if "time_s" in lowered:
+        return lowered.index("time_s"), False
+    for name in _ISO_TIME_NAMES:
+        if name in lowered:
+            return lowered.index(name), True
+    raise RecordError(f"{path}: no time column: expected 'time_s' (seconds) or an ISO 8601 "
+                      f"column named one of {list(_ISO_TIME_NAMES)}; header is {header}")
+
+
+def read_csv_record(path: str | Path) -> Record:
+    """Read and check a CSV calibration record (see the module docstring)."""
+    p = Path(path)
+    where = str(p)
+    try:
+        text = p.read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise RecordError(f"{where}: cannot read the record ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise RecordError(f"{where}: not a text (UTF-8) CSV file") from None
+    reader = csv.reader(text.splitlines())
+    header = next(reader, None)
+    if not header or not any(h.strip() for h in header):
+        raise RecordError(f"{where}: empty file (a header line is required)")
+    header = [h.strip() for h in header]
+    dup = sorted({h for h in header if header.count(h) > 1})
+    if dup:
+        raise RecordError(f"{where}: duplicated column name(s) {dup} in the header")
+    t_idx, is_iso = _time_column(header, where)
+    names = [h for i, h in enumerate(header) if i != t_idx]
+    times: list[float] = []
+    rows: list[list[float]] = []
+    for line_no, row in enumerate(reader, start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) != len(header):
+            raise RecordError(f"{where}: row {line_no}: {len(row)} fields, the header has "
+                              f"{len(header)}")
+        cell = row[t_idx]
+        if is_iso:
+            times.append(_parse_iso(cell, f"{where}: row {line_no}, column {header[t_idx]!r}"))
+        else:
+            times.append(_parse_float(cell, where, line_no, header[t_idx]))
+        rows.append([_parse_float(c, where, line_no, header[i])
+                     for i, c in enumerate(row) if i != t_idx])
+    if len(rows) < 3:
+        raise RecordError(f"{where}: {len(rows)} data row(s); a record needs at least 3")
+    t = np.asarray(times, dtype=np.float64)
+    data = np.asarray(rows, dtype=np.float64)
+    period_s = check_sampling(t, where)
+    columns = {name: data[:, i].copy() for i, name in enumerate(names)}
+    return Record(path=where, sha256=file_sha256(p), time_s=t - t[0], period_s=period_s,
+                  columns=columns)
+
+
+def _parse_float(cell: str, where: str, line_no: int, column: str) -> float:
+    text = cell.strip()
+    if not text:
+        raise RecordError(f"{where}: row {line_no}, column {column!r}: empty cell "
+                          "(a missing sample is not filled in; cut the record or repair it)")
+    try:
+        v = float(text)
+    except ValueError:
+        raise RecordError(f"{where}: row {line_no}, column {column!r}: {text!r} is not a "
+                          "number") from None
+    if not math.isfinite(v):
+        raise RecordError(f"{where}: row {line_no}, column {column!r}: {text!r} is not finite "
+                          "(NaN/inf rows are not skipped silently)")
+    return v
+
+
+def check_sampling(t: FloatArray, where: str) -> float:
+    """The record's sample period (the median interval), after checking that
+    every interval is that period: no duplicate, backwards step, gap or jitter.
+    Rows are reported as file lines (header = line 1)."""
+    dt = np.diff(t)
+    bad = np.flatnonzero(dt <= 0.0)
+    if bad.size:
+        i = int(bad[0])
+        kind = "duplicated timestamp" if dt[i] == 0.0 else "timestamp goes backwards"
+        raise RecordError(f"{where}: row {i + 3}: {kind} ({t[i + 1]!r} after {t[i]!r}); "
+                          f"{bad.size} such row(s) in all")
+    period_s = float(np.median(dt))
+    gaps = np.flatnonzero(dt > GAP_FACTOR * period_s)
+    if gaps.size:
+        i = int(gaps[0])
+        raise RecordError(f"{where}: row {i + 3}: gap of {dt[i]:g} s in a record sampled every "
+                          f"{period_s:g} s ({gaps.size} gap(s) in all); split the record "
+                          "there instead of resampling")
+    jitter = np.flatnonzero(np.abs(dt - period_s) > JITTER_TOLERANCE * period_s)
+    if jitter.size:
+        i = int(jitter[0])
+        raise RecordError(f"{where}: row {i + 3}: non-uniform sampling: interval {dt[i]:g} s "
+                          f"where the record's period is {period_s:g} s ({jitter.size} "
+                          f"interval(s) off by more than {JITTER_TOLERANCE:.0%})")
+    # a period like 1.0000000002 from float timestamps is 1 s
+    return float(round(period_s, 9))
+
+
+def check_units(record: Record, temperatures: Iterable[str], displacement: str) -> None:
+    """Refuse columns whose magnitude betrays a unit mistake."""
+    for name in temperatures:
+        col = record.column(name)
+        med = float(np.median(np.abs(col)))
+        if med > MAX_PLAUSIBLE_TEMP_C:
+            i = int(np.argmax(np.abs(col)))
+            raise RecordError(
+                f"{record.path}: column {name!r}: median magnitude {med:g} (row {i + 2}: "
+                f"{col[i]:g}) is not a temperature in °C; it looks like mK (divide by 1000)")
+    dz = record.column(displacement)
+    span = float(dz.max() - dz.min())
+    if 0.0 < span < MIN_PLAUSIBLE_RANGE_UM:
+        raise RecordError(
+            f"{record.path}: column {displacement!r}: the displacement spans only {span:.3g} "
+            f"over the whole record ({dz.min():g} … {dz.max():g}); thermal growth and even "
+            "probe noise are larger than that in µm: it looks like mm (multiply by 1000)")
+    if span == 0.0:
+        raise RecordError(f"{record.path}: column {displacement!r} is constant ({dz[0]:g}); "
+                          "nothing to fit")
+
+
+def speed_warnings(record: Record) -> list[str]:
+    """Advice about the calibration design when the record has a speed column:
+    a constant-speed heat-up alone generalises poorly (MODELS.md §6)."""
+    names = [n for n in record.columns if "speed" in n.lower() or n.lower().endswith("rpm")]
+    out: list[str] = []
+    for name in names:
+        s = record.columns[name]
+        top = float(np.max(np.abs(s)))
+        if top <= 0.0:
+            continue
+        running = np.abs(s) > 0.05 * top
+        if not running.any():
+            continue
+        first_run = int(np.argmax(running))
+        after = ~running[first_run:]
+        stopped_s = float(after.sum()) * record.period_s
+        cool_down = stopped_s >= 600.0
+        levels = np.unique(np.round(s[running] / (0.02 * top)))
+        steps = levels.size >= 3
+        if not cool_down and not steps:
+            out.append(f"{record.path}: column {name!r}: the spindle runs at one speed and never "
+                       "cools down: a constant-speed heat-up alone generalises poorly; record a "
+                       "cool-down after it or speed steps")
+    return out
+
+
