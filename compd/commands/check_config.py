@@ -1,0 +1,97 @@
+"""`compd check CONFIG [--connect] [--json]` for a daemon config.
+
+Validates the whole file and the model(s) and connects to nothing; with
+``--connect`` it also reads each channel (and the outputs) once and prints
+them. Any invalid configuration raises ConfigError (exit 78, one message
+naming the key and the reason).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+from typing import Any
+
+from compd.config import LoadedConfig
+
+
+def _summary(cfg: LoadedConfig) -> dict[str, Any]:
+    from compd.commands.check import describe_model
+
+    raw = cfg.raw
+    out: dict[str, Any] = {
+        "config": str(cfg.path),
+        "machine": raw.machine.name, "period_s": raw.machine.period_s,
+        "time_scale": raw.machine.time_scale,
+        "protocol": raw.controller.protocol, "endpoint": raw.controller.endpoint,
+        "channels": {n: {"address": a.describe(), "unit": raw.channels[n].unit,
+                         "range": list(raw.channels[n].range)}
+                     for n, a in cfg.channels.items()},
+        "outputs": {n: a.describe() for n, a in cfg.outputs.items()},
+        "output": {"limit_um": raw.output.limit_um, "slew_um_s": raw.output.slew_um_s,
+                   "deadband_um": raw.output.deadband_um, "sign": raw.output.sign,
+                   "units_per_um": raw.output.units_per_um, "readback": raw.output.readback},
+        "model": describe_model(cfg.model),
+        "model_sha256": cfg.model_sha256,
+    }
+    if cfg.shadow is not None:
+        out["shadow"] = describe_model(cfg.shadow)
+    return out
+
+
+async def _read_once(cfg: LoadedConfig) -> dict[str, Any]:
+    from compd.driver_setup import build_driver
+    from drivers.errors import DriverError
+
+    driver = build_driver(cfg)
+    try:
+        await asyncio.wait_for(driver.connect(), cfg.raw.controller.connect_timeout_s)
+        got = await driver.read([*cfg.channels, *cfg.outputs])
+    except (DriverError, TimeoutError) as exc:
+        return {"error": f"{type(exc).__name__}: {exc}"}
+    finally:
+        await driver.close()
+    return {n: {"value": s.value if math.isfinite(s.value) else None,
+                "quality": s.quality.value, "timestamp_s": s.timestamp_s}
+            for n, s in got.items()}
+
+
+def run(args: argparse.Namespace) -> int:
+    from compd.config import load_config
+
+    cfg = load_config(args.path)
+    report = _summary(cfg)
+    rc = 0
+    if getattr(args, "connect", False):
+        values = asyncio.run(_read_once(cfg))
+        report["read"] = values
+        rc = 1 if "error" in values else 0
+    if args.json:
+        print(json.dumps(report))
+        return rc
+    print(f"config {report['config']}: OK")
+    print(f"  machine {report['machine']!r}, period {report['period_s']} s, "
+          f"time scale {report['time_scale']}")
+    print(f"  controller {report['protocol']} at {report['endpoint']}")
+    for name, ch in report["channels"].items():
+        print(f"  channel {name}: {ch['address']} [{ch['unit']}] range {ch['range']}")
+    for name, addr in report["outputs"].items():
+        print(f"  output {name}: {addr}")
+    o = report["output"]
+    print(f"  output stage: limit ±{o['limit_um']} µm, slew {o['slew_um_s']} µm/s, "
+          f"deadband {o['deadband_um']} µm, sign {o['sign']:+d}, "
+          f"{o['units_per_um']} units/µm, read-back {'on' if o['readback'] else 'off'}")
+    m = report["model"]
+    print(f"  model {m['model']!r}: {len(m['terms'])} term(s), all stable "
+          f"({', '.join(t['name'] + ' DC ' + format(t['dc_gain'], '.4g') for t in m['terms'])})")
+    if "shadow" in report:
+        print(f"  shadow model {report['shadow']['model']!r} (evaluated, never written)")
+    if "read" in report:
+        if "error" in report["read"]:
+            print(f"  connect: FAILED {report['read']['error']}")
+        for name, v in report["read"].items():
+            if name != "error":
+                print(f"  read {name} = {v['value']} ({v['quality']})")
+    return rc

@@ -1,0 +1,54 @@
+"""`compd run CONFIG [--dry-run] [--once]`: the compensation daemon.
+
+Exit status: 0 after SIGTERM/SIGINT (checkpoint written, shutdown policy
+applied), 78 on an invalid configuration (systemd does not restart it),
+75 (EX_TEMPFAIL) when another daemon holds the state directory, and with
+``--once`` 0 when the one cycle was complete and valid, 1 when it was not.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+
+HELP = "run the compensation daemon against the configured controller"
+EX_TEMPFAIL = 75
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("config", metavar="CONFIG", help="daemon config file (TOML)")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="compute and log, write nothing to the controller or the state")
+    parser.add_argument("--once", action="store_true",
+                        help="run one cycle, print it as JSON and exit")
+
+
+def run(args: argparse.Namespace) -> int:
+    from compd.config import load_config
+
+    cfg = load_config(args.config)  # ConfigError -> 78 in compd.cli
+    from compd.daemon import Daemon
+    from compd.statelock import StateLocked
+    from compd.telemetry import configure_logging
+
+    tel = cfg.raw.telemetry
+    configure_logging(json=None if tel.log_format == "auto" else tel.log_format == "json",
+                      level=tel.log_level)
+    daemon = Daemon(cfg, dry_run=args.dry_run, once=args.once)
+    try:
+        rc = asyncio.run(daemon.run())
+    except StateLocked as exc:
+        print(f"compd: {exc}", file=sys.stderr)
+        return EX_TEMPFAIL
+    if args.once and daemon.last_result is not None:
+        import json
+
+        r = daemon.last_result
+        print(json.dumps({"sequence": r.sequence, "state": r.state, "complete": r.complete,
+                          "offset_um": r.offset_um, "model_um": r.model_um,
+                          "shadow_um": r.shadow_um, "status": r.status,
+                          "writes": {} if args.dry_run else r.writes,
+                          "channels": r.record.channels if r.record else {},
+                          "validity": r.record.validity if r.record else {}}))
+    return rc

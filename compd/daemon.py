@@ -1,0 +1,339 @@
+"""The asyncio shell around the pure cycle: deadlines, I/O, logging, state.
+
+Per sample: read (channels, plus the offset when read-back is on) → `Cycle.step`
+(validate, step, fault policy, output stage) → write → record → checkpoint
+(every state.checkpoint_every samples and on shutdown).
+
+Scheduling: absolute deadlines on `time.monotonic`; deadline += period /
+time_scale. A cycle that ends past its next deadline is an overrun: counted,
+logged, and the schedule skips to the next deadline in the future (never a
+burst of catch-up cycles).
+
+Driver errors on read are a failed read (the cycle holds); the driver
+reconnects by itself with its backoff. Write errors go back to the cycle
+(transient: retried next cycle; permanent: offset writes stop, alarm).
+
+SIGTERM/SIGINT: the current cycle finishes, then the shutdown policy: "hold"
+leaves the offset where it is, "ramp_to_zero" keeps cycling the ramp until
+the offset is 0; a checkpoint is written and `run()` returns 0.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import signal
+import time
+from collections.abc import Callable
+from typing import Any
+
+import structlog
+
+from compd.config import LoadedConfig
+from compd.cycle import Cycle, CycleResult, params_from_config
+from compd.faults import Event
+from compd.sdnotify import Notifier
+from compd.startup import checkpoint_path, start_cycle
+from compd.telemetry import Metrics
+from drivers.base import Driver, Quality, Sample
+from drivers.errors import DriverError, WriteRejected
+
+_FAULT_GAUGE = {"ok": 0, "init": 0, "hold": 1, "ramp": 2, "stopped": 3, "shutdown": 2}
+#: STATUS= is sent on a state change or at least this often (cycles)
+_STATUS_EVERY = 10
+
+
+class Daemon:
+    """One controller, one model, one loop."""
+
+    def __init__(self, cfg: LoadedConfig, *, dry_run: bool = False, once: bool = False,
+                 driver: Driver | None = None, notifier: Notifier | None = None,
+                 metrics: Metrics | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.cfg = cfg
+        self.dry_run = dry_run
+        self.once = once
+        self.params = params_from_config(cfg, dry_run=dry_run)
+        self._driver = driver
+        self.notifier = notifier if notifier is not None else Notifier()
+        self.metrics = metrics if metrics is not None else Metrics()
+        self.clock = clock
+        self.log = structlog.get_logger("compd")
+        self.stop_requested = asyncio.Event()
+        self.cycles = 0
+        self.complete_cycles = 0
+        self.overruns = 0
+        self.last_result: CycleResult | None = None
+        self.cycle: Cycle | None = None
+        self._ready_sent = False
+        self._read_ok: bool | None = None
+        self._last_status = ""
+        self._recorder: Any = None
+        self._lock: Any = None
+
+    # -- public --------------------------------------------------------------------
+
+    def request_stop(self) -> None:
+        self.stop_requested.set()
+
+    async def run(self) -> int:
+        """Run until stopped (or one cycle with `once`); returns the exit status."""
+        loop = asyncio.get_running_loop()
+        installed = []
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            try:
+                loop.add_signal_handler(sig, self.request_stop)
+                installed.append(sig)
+            except (RuntimeError, ValueError, NotImplementedError):
+                pass  # not the main thread: the caller stops us with request_stop()
+        try:
+            return await self._run()
+        finally:
+            for sig in installed:
+                loop.remove_signal_handler(sig)
+
+    # -- the loop ------------------------------------------------------------------------
+
+    async def _run(self) -> int:
+        cfg = self.cfg
+        writing_state = not self.dry_run
+        if writing_state:
+            from compd.statelock import StateLock
+
+            self._lock = StateLock(cfg.state_dir)
+            self._lock.acquire()  # StateLocked propagates: the caller reports it
+        try:
+            startup = start_cycle(cfg, self.params)
+            self.cycle = startup.cycle
+            self._log_events(startup.events)
+            self.log.info("daemon_starting", machine=cfg.raw.machine.name,
+                          protocol=cfg.raw.controller.protocol,
+                          endpoint=cfg.raw.controller.endpoint, model=cfg.model.name,
+                          shadow=cfg.shadow.name if cfg.shadow else None,
+                          start=startup.mode, dry_run=self.dry_run,
+                          period_s=cfg.period_s, time_scale=cfg.raw.machine.time_scale)
+            self._open_recorder()
+            port = cfg.raw.telemetry.metrics_port
+            if port is not None:
+                self.metrics.start_http(port)
+            driver = self._driver
+            if driver is None:
+                from compd.driver_setup import build_driver
+
+                driver = self._driver = build_driver(cfg)
+            try:
+                await self._connect(driver)
+                rc = await self._loop(driver, self.cycle)
+            finally:
+                await driver.close()
+            return rc
+        finally:
+            self.notifier.stopping()
+            if self._recorder is not None:
+                self._recorder.close()
+            self.metrics.stop()
+            if self._lock is not None:
+                self._lock.release()
+
+    async def _connect(self, driver: Driver) -> None:
+        timeout_s = self.cfg.raw.controller.connect_timeout_s
+        try:
+            await asyncio.wait_for(driver.connect(), timeout_s)
+            self.log.info("controller_connected", endpoint=self.cfg.raw.controller.endpoint)
+        except (DriverError, TimeoutError, OSError) as exc:
+            # not fatal: the reads fail (hold) and the driver retries with backoff
+            self.log.warning("controller_connect_failed", error=str(exc))
+
+    async def _loop(self, driver: Driver, cycle: Cycle) -> int:
+        period_real_s = self.cfg.real_period_s
+        scale = self.cfg.raw.machine.time_scale
+        t0 = self.clock()
+        deadline = t0
+        shutdown_cycles_left: int | None = None
+        while True:
+            started = self.clock()
+            now_s = (started - t0) * scale
+            result = await self._one_cycle(driver, cycle, now_s)
+            self.metrics.cycle_seconds.observe(self.clock() - started)
+            if self.once:
+                self._checkpoint(cycle)
+                return 0 if result.complete else 1
+            if self._should_checkpoint(result):
+                self._checkpoint(cycle)
+            if shutdown_cycles_left is not None:
+                shutdown_cycles_left -= 1
+                if result.shutdown_done or shutdown_cycles_left <= 0:
+                    self.log.info("shutdown_ramp_finished", offset_um=result.offset_um,
+                                  reached_zero=result.shutdown_done)
+                    break
+            elif self.stop_requested.is_set():
+                if self.cfg.raw.faults.shutdown == "ramp_to_zero" and not self.dry_run:
+                    cycle.begin_shutdown()
+                    self.stop_requested = asyncio.Event()  # a second signal ends the ramp
+                    p = self.params
+                    ramp_s = p.limit_um / p.slew_um_s
+                    shutdown_cycles_left = math.ceil(ramp_s / p.period_s) + 10
+                    self.log.info("shutdown_requested", policy="ramp_to_zero",
+                                  offset_um=result.offset_um)
+                else:
+                    self.log.info("shutdown_requested", policy="hold",
+                                  offset_um=result.offset_um)
+                    break
+            deadline += period_real_s
+            now = self.clock()
+            if now > deadline:
+                missed = math.floor((now - deadline) / period_real_s) + 1
+                deadline += missed * period_real_s
+                self.overruns += 1
+                self.metrics.overruns.inc()
+                self.log.warning("cycle_overrun", sequence=result.sequence,
+                                 skipped_deadlines=missed, overruns=self.overruns)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self.stop_requested.wait(), deadline - self.clock())
+            if shutdown_cycles_left is not None and self.stop_requested.is_set():
+                self.log.warning("shutdown_ramp_interrupted", offset_um=cycle.output.current_um)
+                break
+        self._checkpoint(cycle)
+        self.log.info("daemon_stopped", cycles=self.cycles, overruns=self.overruns,
+                      offset_um=cycle.output.current_um)
+        return 0
+
+    async def _read(self, driver: Driver) -> tuple[dict[str, Sample] | None, float | None]:
+        names = list(self.cfg.channels)
+        if self.params.readback:
+            names.append(self.params.offset_name)
+        limit_s = max(self.cfg.real_period_s, 2.0 * self.cfg.raw.controller.timeout_s)
+        try:
+            got = await asyncio.wait_for(driver.read(names), limit_s)
+        except (DriverError, TimeoutError) as exc:
+            if self._read_ok is not False:
+                self.log.warning("read_failed", error=str(exc), type=type(exc).__name__)
+            self._read_ok = False
+            self.metrics.read_errors.labels(channel=getattr(exc, "channel", None) or "*").inc()
+            return None, None
+        if self._read_ok is False:
+            self.log.info("controller_reconnected")
+        self._read_ok = True
+        readback: float | None = None
+        if self.params.readback:
+            rb = got.get(self.params.offset_name)
+            if rb is not None and rb.quality is not Quality.BAD:
+                readback = float(rb.value)
+        return {n: got[n] for n in self.cfg.channels if n in got}, readback
+
+    async def _one_cycle(self, driver: Driver, cycle: Cycle, now_s: float) -> CycleResult:
+        samples, readback = await self._read(driver)
+        result = cycle.step(now_s, samples, readback, wall_s=time.time())
+        self.cycles += 1
+        self._log_events(result.events)
+        if self.dry_run:
+            cycle.write_ok()
+        elif result.writes:
+            try:
+                await driver.write(result.writes)
+            except WriteRejected as exc:
+                self.metrics.write_errors.labels(output=exc.channel or "*").inc()
+                self._log_events(cycle.write_failed(exc.channel, permanent=exc.permanent,
+                                                    reason=str(exc)))
+            except DriverError as exc:
+                self.metrics.write_errors.labels(output=exc.channel or "*").inc()
+                self._log_events(cycle.write_failed(exc.channel, permanent=False,
+                                                    reason=str(exc)))
+            else:
+                cycle.write_ok()
+        self._record(result)
+        self._telemetry(result, samples)
+        self.last_result = result
+        return result
+
+    # -- record, checkpoint, telemetry ---------------------------------------------------
+
+    def _open_recorder(self) -> None:
+        path = self.cfg.recorder_path
+        if self.dry_run or path is None:
+            return
+        from compd.recorder import Recorder
+
+        rc = self.cfg.raw.recorder
+        retention_s = rc.retention_days * 86400.0 if rc.retention_days else None
+        recorder = Recorder(path, commit_every=rc.commit_every, retention_s=retention_s)
+        try:
+            recorder.open()
+        except Exception as exc:  # compensation never stops for the recorder
+            self.log.error("recorder_unavailable", path=str(path), error=str(exc))
+            return
+        self._recorder = recorder
+
+    def _record(self, result: CycleResult) -> None:
+        if self._recorder is None or result.record is None:
+            return
+        from compd.recorder import RecordRow
+
+        r = result.record
+        dropped = self._recorder.dropped
+        self._recorder.record(RecordRow(
+            seq=r.seq, mono_s=r.mono_s, wall_s=time.time(),
+            offset_um=r.offset_um if "offset" in result.writes or self.dry_run else None,
+            model_um=r.model_um, state=r.state, valid=r.valid, channels=r.channels,
+            validity=r.validity, contributions=r.contributions))
+        if self._recorder.dropped > dropped:
+            self.metrics.records_dropped.inc(self._recorder.dropped - dropped)
+
+    def _should_checkpoint(self, result: CycleResult) -> bool:
+        every = self.cfg.raw.state.checkpoint_every
+        return result.sequence % every == 0
+
+    def _checkpoint(self, cycle: Cycle) -> None:
+        if self.dry_run:
+            return
+        from compd.checkpoint import save_checkpoint
+
+        state = cycle.export_state()
+        state.update(saved_mono_s=self.clock(), model_sha256=self.cfg.model_sha256,
+                     config_sha256=self.cfg.config_sha256)
+        try:
+            save_checkpoint(checkpoint_path(self.cfg), state)
+        except Exception as exc:  # a failed checkpoint must not stop the loop
+            self.log.error("checkpoint_failed", error=str(exc))
+
+    def _telemetry(self, result: CycleResult, samples: dict[str, Sample] | None) -> None:
+        m = self.metrics
+        m.offset_um.set(result.offset_um)
+        m.fault_state.set(_FAULT_GAUGE.get(str(result.state), 3))
+        if samples:
+            for name, s in samples.items():
+                if math.isfinite(s.value):
+                    m.channel_value.labels(channel=name).set(s.value)
+        if result.record is not None:
+            for name, reason in result.record.validity.items():
+                if reason is not None and reason != "read_failed":
+                    m.read_errors.labels(channel=name).inc()
+        self.log.debug("cycle", sequence=result.sequence, state=result.state,
+                       offset_um=round(result.offset_um, 4), model_um=result.model_um,
+                       shadow_um=result.shadow_um, status=result.status)
+        if result.complete:
+            self.complete_cycles += 1
+            if not self._ready_sent:
+                self.notifier.ready()
+                self._ready_sent = True
+                self.log.info("ready", sequence=result.sequence,
+                              offset_um=round(result.offset_um, 4))
+            self.notifier.watchdog()
+        state = str(result.state)
+        if state != self._last_status or result.sequence % _STATUS_EVERY == 0:
+            self.notifier.status(f"offset {result.offset_um:.2f} um, state {state}")
+            self._last_status = state
+
+    def _log_events(self, events: list[Event]) -> None:
+        for ev in events:
+            level = "warning" if ev.name in _WARNINGS else "info"
+            if ev.name in _ERRORS:
+                level = "error"
+            getattr(self.log, level)(ev.name, **ev.fields)
+
+
+_WARNINGS = frozenset({"channel_invalid", "fault_hold", "readback_mismatch", "write_failed",
+                       "offset_write_skipped", "checkpoint_unusable", "checkpoint_state_refused",
+                       "model_non_finite"})
+_ERRORS = frozenset({"fault_ramp_to_zero", "offset_write_stopped", "output_write_stopped"})

@@ -1,0 +1,78 @@
+"""How the cycle starts: from a fresh checkpoint, an old one, or nothing.
+
+- fresh (saved less than checkpoint_max_age_s machine seconds ago, same
+  model): the filters resume exactly where they were;
+- too old, another model, or unusable state: the references are kept (they
+  describe the machine's reference state) and every term starts at the steady
+  state matching the first valid sample: never from zero on a warm machine;
+- none at all (first-ever start): the references are the current temperatures.
+
+In every case the output starts from the last written offset (the
+checkpoint's) and, with read-back, from what the controller really holds.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from compd.checkpoint import CheckpointError, load_checkpoint
+from compd.config import LoadedConfig
+from compd.cycle import Cycle, CycleParams
+from compd.faults import Event
+from models.errors import ModelError
+
+CHECKPOINT_NAME = "checkpoint.json"
+
+
+@dataclass
+class Startup:
+    cycle: Cycle
+    mode: str  # restored | steady_state | first_start
+    events: list[Event] = field(default_factory=list)
+
+
+def checkpoint_path(cfg: LoadedConfig) -> Path:
+    return cfg.state_dir / CHECKPOINT_NAME
+
+
+def start_cycle(cfg: LoadedConfig, params: CycleParams, *,
+                wall_s: float | None = None) -> Startup:
+    """The cycle to run, and events saying how it was started."""
+    events: list[Event] = []
+    path = checkpoint_path(cfg)
+    state: dict[str, Any] | None
+    try:
+        state = load_checkpoint(path)
+    except CheckpointError as exc:
+        events.append(Event("checkpoint_unusable", {"path": str(path), "reason": str(exc)}))
+        state = None
+    if state is None:
+        return Startup(Cycle(params, cfg.model, cfg.shadow), "first_start", events)
+    now = time.time() if wall_s is None else wall_s
+    saved = state.get("saved_wall_s")
+    age_s = (now - float(saved)) * cfg.raw.machine.time_scale \
+        if isinstance(saved, int | float) else float("inf")
+    same_model = state.get("model_sha256") == cfg.model_sha256
+    fresh = 0.0 <= age_s <= cfg.raw.faults.checkpoint_max_age_s and same_model
+    info = {"age_machine_s": round(age_s, 3) if age_s != float("inf") else None,
+            "same_model": same_model, "offset_um": state.get("offset_um"),
+            "sequence": state.get("sequence")}
+    if fresh:
+        try:
+            cycle = Cycle.from_state(params, cfg.model, cfg.shadow, state, fresh=True)
+        except (ModelError, TypeError, ValueError, KeyError) as exc:
+            events.append(Event("checkpoint_state_refused", {"reason": str(exc)}))
+        else:
+            events.append(Event("checkpoint_restored", info))
+            return Startup(cycle, "restored", events)
+    try:
+        cycle = Cycle.from_state(params, cfg.model, cfg.shadow, state, fresh=False)
+    except (ModelError, TypeError, ValueError, KeyError) as exc:
+        events.append(Event("checkpoint_state_refused", {"reason": str(exc)}))
+        return Startup(Cycle(params, cfg.model, cfg.shadow), "first_start", events)
+    events.append(Event("checkpoint_too_old", info) if same_model
+                  else Event("checkpoint_other_model", info))
+    return Startup(cycle, "steady_state", events)
