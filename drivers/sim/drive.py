@@ -1,0 +1,295 @@
+"""The plant as a client of a real controller: the HIL bench's machine side.
+
+`DriveLoop` runs the thermal plant and, through one of our protocol drivers
+(`drivers.factory.open_driver`, the real client libraries), each tick
+
+1. advances the plant by `period_s` of machine time at the program's speed;
+2. reads back what the daemon wrote (the drive map's ``read`` addresses:
+   ``offset``, and ``heartbeat`` / ``status`` when mapped) and applies the
+   offset (× `offset_um_per_unit`) to the plant, so its
+   ``error_um = growth_um - offset``;
+3. writes the plant's sensor values to the map's ``write`` addresses;
+4. records the row (with `record=True`).
+
+So the loop daemon → controller → plant → controller → daemon closes through
+the controller's own memory, exactly as on a bench with a real PLC or CNC.
+
+Offline-safe: a lost link (`ConnectionLost`, `ControllerTimeout`, a transient
+refusal) never stops the plant. The machine keeps its last offset (a
+controller that cannot be reached cannot have changed it for the plant
+either), the row is recorded with ``link_ok = 0``, and the driver reconnects
+with its own capped backoff on a later tick. A write the controller refuses
+for good (`WriteRejected(permanent=True)`, `BadAddress`) means the map is
+wrong for this controller and ends the run with that error.
+
+Scheduling as `drivers.sim.machine.SimMachine`: tick k is due at
+t0 + k·period_s/speedup on the loop's monotonic clock; a late tick counts in
+`overruns` and missed deadlines are skipped (no catch-up burst).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import os
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivers.base import Driver, Quality
+from drivers.errors import BadAddress, DriverError, WriteRejected
+from drivers.factory import open_driver
+from drivers.sim import CHANNELS
+from drivers.sim.drive_map import DriveMap
+from drivers.sim.plant import ThermalPlant
+from drivers.sim.programs import Program, make_program
+
+#: columns of a recorded row
+DRIVE_COLUMNS: tuple[str, ...] = ("time_s", *CHANNELS, "offset_um", "heartbeat", "status",
+                                  "link_ok")
+#: columns of `write_drive_record`: a calibration record (`drivers.sim.csvlog`,
+#: ``dz_um`` = the true growth) plus what the bench observed
+RECORD_FIELDS: tuple[str, ...] = ("time_s", "speed_rpm", "bearing", "motor", "column", "table",
+                                  "ambient", "power_kw", "dz_um", "offset_um", "error_um",
+                                  "heartbeat", "status", "link_ok")
+_FORMATS: dict[str, str] = {"time_s": "{:.3f}", "speed_rpm": "{:.0f}", "bearing": "{:.1f}",
+                            "motor": "{:.1f}", "column": "{:.1f}", "table": "{:.1f}",
+                            "ambient": "{:.1f}", "power_kw": "{:.3f}", "dz_um": "{:.3f}",
+                            "offset_um": "{:.3f}", "error_um": "{:.3f}", "heartbeat": "{:.0f}",
+                            "status": "{:.0f}", "link_ok": "{:.0f}"}
+
+_log = logging.getLogger(__name__)
+
+
+class DriveLoop:
+    """The plant driving a controller through `driver` (see the module docstring).
+
+    The caller constructs the driver with ``channels = drive_map.read`` and
+    ``outputs = drive_map.write`` (`open_drive_driver` does) and owns nothing
+    else: `run()`/`stop()` connect and close it.
+    """
+
+    def __init__(self, driver: Driver, drive_map: DriveMap, *, program: Program | None = None,
+                 plant: ThermalPlant | None = None, seed: int = 0, period_s: float = 1.0,
+                 speedup: float = 1.0, repeat: bool = True, record: bool = False,
+                 max_rows: int | None = None) -> None:
+        if not (period_s > 0.0 and math.isfinite(period_s)):
+            raise ValueError(f"period_s must be a positive finite number, got {period_s!r}")
+        if not (speedup > 0.0 and math.isfinite(speedup)):
+            raise ValueError(f"speedup must be a positive finite number, got {speedup!r}")
+        self.driver = driver
+        self.map = drive_map
+        self.program = program if program is not None else make_program("spectrum", seed=seed)
+        self.plant = plant if plant is not None else ThermalPlant(
+            seed=seed, params=self.program.plant_params())
+        self.period_s = float(period_s)
+        self.speedup = float(speedup)
+        self.repeat = repeat
+        self.record = record
+        self.ticks = 0
+        self.overruns = 0
+        #: exchanges (read + write) that failed on the link, and the last reason
+        self.link_errors = 0
+        self.last_error: str | None = None
+        self.heartbeat = math.nan
+        self.status = math.nan
+        #: the last row (as `DRIVE_COLUMNS`), also without `record`
+        self.latest: dict[str, float] = {}
+        self._read_names = tuple(drive_map.read)
+        self._write_names = tuple(drive_map.write)
+        self._link_ok = True
+        self._history: deque[tuple[float, ...]] = deque(maxlen=max_rows)
+        self._stop = asyncio.Event()
+        self._task: asyncio.Task[None] | None = None
+        self._primed = False
+
+    @property
+    def time_s(self) -> float:
+        """Machine time, s."""
+        return self.plant.time_s
+
+    def speed_at(self, t_s: float) -> float:
+        duration = self.program.duration_s
+        if self.repeat and duration > 0.0:
+            t_s = math.fmod(t_s, duration)
+        return self.program(t_s)
+
+    # -- one exchange ----------------------------------------------------------
+
+    def _link_failed(self, what: str, exc: DriverError) -> None:
+        self.link_errors += 1
+        self.last_error = f"{what}: {exc}"
+        if self._link_ok:
+            _log.warning("drive_link_down", extra={"what": what, "error": str(exc)})
+        self._link_ok = False
+
+    async def _read_back(self) -> bool:
+        try:
+            samples = await self.driver.read(self._read_names)
+        except BadAddress:
+            raise
+        except DriverError as exc:
+            self._link_failed("read", exc)
+            return False
+        offset = samples.get("offset")
+        if offset is not None and offset.quality is Quality.GOOD and math.isfinite(offset.value):
+            self.plant.offset_um = offset.value * self.map.offset_um_per_unit
+        hb, st = samples.get("heartbeat"), samples.get("status")
+        self.heartbeat = hb.value if hb is not None else math.nan
+        self.status = st.value if st is not None else math.nan
+        return True
+
+    async def _write_sensors(self, sensors: dict[str, float]) -> bool:
+        try:
+            await self.driver.write({name: sensors[name] for name in self._write_names})
+        except WriteRejected as exc:
+            if exc.permanent:
+                raise
+            self._link_failed("write", exc)
+            return False
+        except BadAddress:
+            raise
+        except DriverError as exc:
+            self._link_failed("write", exc)
+            return False
+        return True
+
+    async def _exchange(self) -> dict[str, float]:
+        read_ok = await self._read_back()
+        sensors = self.plant.sensors()
+        write_ok = await self._write_sensors(sensors)
+        ok = read_ok and write_ok
+        if ok and not self._link_ok:
+            _log.info("drive_link_up")
+        self._link_ok = ok
+        row = (self.plant.time_s, *(sensors[c] for c in CHANNELS), self.plant.offset_um,
+               self.heartbeat, self.status, 1.0 if ok else 0.0)
+        self.latest = dict(zip(DRIVE_COLUMNS, row, strict=True))
+        if self.record:
+            self._history.append(row)
+        return sensors
+
+    async def prime(self) -> dict[str, float]:
+        """Connect (a failure is tolerated: the driver retries later) and
+        exchange once without advancing the plant."""
+        try:
+            await self.driver.connect()
+        except DriverError as exc:
+            self._link_failed("connect", exc)
+        self._primed = True
+        return await self._exchange()
+
+    async def tick(self) -> dict[str, float]:
+        """Advance one period, read back the offset, write the sensors."""
+        self.plant.step(self.period_s, self.speed_at(self.plant.time_s), self.program.load)
+        self.ticks += 1
+        return await self._exchange()
+
+    # -- scheduling --------------------------------------------------------------
+
+    async def run(self, *, until_s: float | None = None) -> None:
+        """Tick on real-time deadlines until `stop()` or machine time
+        `until_s`; the driver is closed on the way out."""
+        loop = asyncio.get_running_loop()
+        self._stop.clear()
+        try:
+            if not self._primed:
+                await self.prime()
+            real_period_s = self.period_s / self.speedup
+            deadline = loop.time() + real_period_s
+            while until_s is None or self.plant.time_s < until_s - 1e-9:
+                delay = deadline - loop.time()
+                if delay > 0.0:
+                    try:
+                        async with asyncio.timeout(delay):
+                            await self._stop.wait()
+                        return
+                    except TimeoutError:
+                        pass
+                elif self._stop.is_set():
+                    return
+                await self.tick()
+                deadline += real_period_s
+                late_s = loop.time() - deadline
+                if late_s > 0.0:
+                    self.overruns += 1
+                    deadline += math.ceil(late_s / real_period_s) * real_period_s
+        finally:
+            await self.driver.close()
+
+    def start(self, *, until_s: float | None = None) -> asyncio.Task[None]:
+        """Run in a background task (see `stop`)."""
+        if self._task is not None and not self._task.done():
+            raise RuntimeError("the drive loop is already running")
+        self._stop.clear()
+        self._task = asyncio.create_task(self.run(until_s=until_s), name="sim-drive")
+        return self._task
+
+    async def stop(self) -> None:
+        """Stop after the current tick, close the driver; re-raise the loop's error."""
+        self._stop.set()
+        task, self._task = self._task, None
+        if task is not None:
+            await task
+
+    # -- the record ----------------------------------------------------------------
+
+    @property
+    def history(self) -> list[dict[str, float]]:
+        """Recorded rows (with `record=True`) keyed by `DRIVE_COLUMNS`."""
+        return [dict(zip(DRIVE_COLUMNS, row, strict=True)) for row in self._history]
+
+    def history_arrays(self) -> dict[str, np.ndarray]:
+        data = np.array(self._history, dtype=np.float64).reshape(-1, len(DRIVE_COLUMNS))
+        return {name: data[:, i].copy() for i, name in enumerate(DRIVE_COLUMNS)}
+
+
+def write_drive_record(path: str | os.PathLike[str], rows: dict[str, np.ndarray]) -> int:
+    """Write a drive run (`DriveLoop.history_arrays()`) as CSV with the header
+    `RECORD_FIELDS`: the calibration record columns (``dz_um`` = true growth,
+    so `compd fit` / `compd replay` read it) plus offset, residual error,
+    heartbeat, status and link state. Written to a temporary name and renamed."""
+    columns = {name: rows[name] for name in DRIVE_COLUMNS}
+    columns["dz_um"] = rows["growth_um"]
+    target = Path(path)
+    tmp = target.with_name(target.name + ".part")
+    fmt = ",".join(_FORMATS[c] for c in RECORD_FIELDS) + "\n"
+    n = 0
+    with tmp.open("w", encoding="ascii", newline="") as f:
+        f.write(",".join(RECORD_FIELDS) + "\n")
+        for row in zip(*(np.asarray(columns[c], dtype=np.float64).tolist()
+                         for c in RECORD_FIELDS), strict=True):
+            f.write(fmt.format(*row))
+            n += 1
+    os.replace(tmp, target)
+    return n
+
+
+def drive_endpoint(url: str) -> tuple[str, str]:
+    """``opcua://h:p | s7://h:p | modbus://h:p | focas://h:p`` -> (protocol,
+    the endpoint string the protocol's driver takes)."""
+    scheme, sep, rest = url.strip().partition("://")
+    scheme = scheme.lower()
+    if not sep or not rest:
+        raise ValueError(f"not an endpoint: {url!r} (expected e.g. modbus://host:502)")
+    if scheme in ("opcua", "opc.tcp"):
+        return "opcua", f"opc.tcp://{rest}"
+    if scheme in ("s7", "modbus", "focas"):
+        return scheme, f"{scheme}://{rest}"
+    raise ValueError(f"unknown protocol {scheme!r} in {url!r}; "
+                     "known: opcua://, s7://, modbus://, focas://")
+
+
+def open_drive_driver(url: str, drive_map: DriveMap, **overrides: Any) -> Driver:
+    """Construct (not connect) the driver a `DriveLoop` uses: it reads the
+    map's ``read`` addresses and writes its ``write`` addresses. `overrides`
+    replace the map's driver options (e.g. ``library_path`` on a bench)."""
+    protocol, endpoint = drive_endpoint(url)
+    if protocol != drive_map.protocol:
+        raise ValueError(f"the endpoint is {protocol} but the drive map is for "
+                         f"{drive_map.protocol}")
+    options = {**drive_map.driver.as_kwargs(), **overrides}
+    return open_driver(protocol, endpoint, drive_map.read, drive_map.write, **options)

@@ -1,0 +1,192 @@
+"""Drive maps: where a HIL bench's plant writes its sensors and reads the offset.
+
+On a hardware-in-the-loop bench the simulated plant is a *client* of the real
+controller (`drivers.sim.drive`): it writes the temperatures, speed and power
+a machine would have into controller addresses the daemon then reads, and
+reads back the offset (and heartbeat / status) the daemon wrote. A drive map
+(TOML, unknown keys refused) says which addresses those are::
+
+    protocol = "modbus"            # opcua | s7 | modbus | focas
+    offset_um_per_unit = 1.0       # µm per engineering unit read at read.offset
+
+    [driver]                       # optional; options of the protocol's driver
+    timeout_s = 0.5
+
+    [write]                        # plant channel -> controller address (client-writable)
+    bearing = { unit = 1, kind = "holding", address = 20, type = "int16", scale = 0.1 }
+
+    [read]                         # offset (required), heartbeat, status
+    offset = { unit = 1, kind = "holding", address = 0, type = "float32" }
+
+Addresses are the typed models of `drivers.addresses` (as in the daemon's
+config). Written addresses must be writable by a client (Modbus holding
+registers, S7 DBs, FOCAS PMC areas, writable OPC UA nodes) and must not
+overlap the ones read (the plant must never overwrite the daemon's offset).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
+
+from drivers.addresses import (
+    S7_SIZES,
+    Address,
+    FocasAddress,
+    FocasPmcAddress,
+    ModbusAddress,
+    OpcUaAddress,
+    S7Address,
+)
+from drivers.focas_codec import pmc_size
+from drivers.sim import CHANNELS, OUTPUTS
+
+Protocol = Literal["opcua", "s7", "modbus", "focas"]
+
+_ADAPTERS: dict[str, TypeAdapter[Any]] = {
+    "opcua": TypeAdapter(OpcUaAddress),
+    "s7": TypeAdapter(S7Address),
+    "modbus": TypeAdapter(ModbusAddress),
+    "focas": TypeAdapter(FocasAddress),
+}
+#: driver options a map may set, per protocol (besides timeout_s)
+_PROTOCOL_OPTIONS: dict[str, frozenset[str]] = {
+    "opcua": frozenset(), "modbus": frozenset(),
+    "s7": frozenset({"rack", "slot"}), "focas": frozenset({"library_path", "library_sha256"}),
+}
+
+
+class DriveMapError(ValueError):
+    """A drive map that cannot be used; the message names the file and key."""
+
+
+class DriverOptions(BaseModel):
+    """Options handed to the protocol's driver (`drivers.factory.open_driver`)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    timeout_s: Annotated[float, Field(gt=0.0, allow_inf_nan=False)] = 0.5
+    rack: Annotated[int, Field(ge=0, le=7)] | None = None
+    slot: Annotated[int, Field(ge=0, le=31)] | None = None
+    library_path: str | None = None
+    library_sha256: str | None = None
+
+    def as_kwargs(self) -> dict[str, Any]:
+        return self.model_dump(exclude_none=True)
+
+
+def _span(addr: Address) -> tuple[tuple[object, ...], int, int] | None:
+    """(memory key, first, last) of what an address occupies, for overlap checks."""
+    if isinstance(addr, ModbusAddress):
+        return ("modbus", addr.unit, addr.kind), addr.address, addr.address + addr.count - 1
+    if isinstance(addr, S7Address):
+        return ("s7", addr.db), addr.offset, addr.offset + S7_SIZES[addr.type] - 1
+    if isinstance(addr, FocasPmcAddress):
+        return ("pmc", addr.area), addr.address, addr.address + pmc_size(addr) - 1
+    if isinstance(addr, OpcUaAddress):
+        return ("node", addr.node), 0, 0
+    return None
+
+
+class DriveMap(BaseModel):
+    """One validated drive map (see the module docstring)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    protocol: Protocol
+    offset_um_per_unit: Annotated[float, Field(allow_inf_nan=False)] = 1.0
+    driver: DriverOptions = DriverOptions()
+    write: dict[str, Address]
+    read: dict[str, Address]
+
+    @model_validator(mode="before")
+    @classmethod
+    def _typed_addresses(cls, data: Any) -> Any:
+        """Validate every address with its protocol's model (clear errors,
+        no guessing between protocols)."""
+        if not isinstance(data, Mapping) or data.get("protocol") not in _ADAPTERS:
+            return data
+        adapter = _ADAPTERS[data["protocol"]]
+        out = dict(data)
+        for section in ("write", "read"):
+            table = data.get(section)
+            if not isinstance(table, Mapping):
+                continue
+            typed: dict[str, Any] = {}
+            for name, raw in table.items():
+                if data["protocol"] == "focas" and isinstance(raw, Mapping) \
+                        and "kind" not in raw:
+                    raw = {**raw, "kind": "pmc"}  # as the daemon's config: PMC by default
+                try:
+                    typed[name] = adapter.validate_python(raw)
+                except ValidationError as exc:
+                    reasons = "; ".join(
+                        f"{'.'.join(str(p) for p in e['loc']) or 'address'}: {e['msg']}"
+                        for e in exc.errors())
+                    raise ValueError(f"{section}.{name}: not a {data['protocol']} address "
+                                     f"({reasons})") from None
+            out[section] = typed
+        return out
+
+    @model_validator(mode="after")
+    def _consistent(self) -> DriveMap:
+        if self.offset_um_per_unit == 0.0 or not math.isfinite(self.offset_um_per_unit):
+            raise ValueError("offset_um_per_unit must be a finite non-zero number")
+        unknown = sorted(set(self.write) - set(CHANNELS))
+        if unknown:
+            raise ValueError(f"write: unknown plant channel(s) {unknown}; known: {list(CHANNELS)}")
+        if not self.write:
+            raise ValueError("write: give at least one plant channel")
+        unknown = sorted(set(self.read) - set(OUTPUTS))
+        if unknown:
+            raise ValueError(f"read: unknown name(s) {unknown}; known: {list(OUTPUTS)}")
+        if "offset" not in self.read:
+            raise ValueError("read.offset is required (the address the daemon writes)")
+        for name, addr in self.write.items():
+            if isinstance(addr, ModbusAddress) and addr.kind != "holding":
+                raise ValueError(f"write.{name}: Modbus input registers are read-only for "
+                                 "a client; use holding registers")
+            if self.protocol == "focas" and not isinstance(addr, FocasPmcAddress):
+                raise ValueError(f"write.{name}: only PMC addresses are writable over FOCAS")
+        writes = [(f"write.{n}", _span(a)) for n, a in self.write.items()]
+        items = writes + [(f"read.{n}", _span(a)) for n, a in self.read.items()]
+        for i, (w_name, w) in enumerate(writes):
+            for r_name, r in items[i + 1:]:
+                if w is not None and r is not None and w[0] == r[0] and w[1] <= r[2] \
+                        and r[1] <= w[2]:
+                    raise ValueError(f"{w_name} and {r_name} overlap in controller memory")
+        extra = {k for k in self.driver.as_kwargs() if k != "timeout_s"}
+        refused = sorted(extra - _PROTOCOL_OPTIONS[self.protocol])
+        if refused:
+            raise ValueError(f"driver: option(s) {refused} do not apply to {self.protocol}")
+        return self
+
+
+def parse_drive_map(doc: Mapping[str, Any], source: str = "<map>") -> DriveMap:
+    """Validate a parsed TOML document; `DriveMapError` names the key."""
+    try:
+        return DriveMap.model_validate(dict(doc))
+    except ValidationError as exc:
+        lines = []
+        for e in exc.errors():
+            loc = ".".join(str(p) for p in e["loc"])
+            msg = str(e["msg"]).removeprefix("Value error, ")
+            lines.append(f"{loc}: {msg}" if loc else msg)
+        raise DriveMapError(f"{source}: " + "; ".join(lines)) from None
+
+
+def load_drive_map(path: str | Path) -> DriveMap:
+    """Read and validate a drive map file."""
+    p = Path(path)
+    try:
+        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise DriveMapError(f"{p}: cannot read: {exc.strerror or exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise DriveMapError(f"{p}: not valid TOML: {exc}") from None
+    return parse_drive_map(doc, str(p))
