@@ -2,7 +2,8 @@
 
 Address space (namespace ``urn:compd:sim``, string NodeIds ``Machine.<name>``):
 
-- every standard channel (`drivers.sim.CHANNELS`), read-only for clients;
+- every standard channel (`drivers.sim.CHANNELS`), read-only for clients (writable
+  with `writable_channels=True`, for a HIL bench whose plant writes them);
   temperatures and most values are ``Double``, ``power_kw`` is ``Float``;
 - writable outputs ``offset`` (``Float``), ``heartbeat`` (``UInt32``),
   ``status`` (``UInt16``);
@@ -128,8 +129,11 @@ class OpcUaSimController:
     protocol = "opcua"
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0, *,
-                 security: OpcUaSimSecurity | None = None) -> None:
+                 security: OpcUaSimSecurity | None = None,
+                 writable_channels: bool = False) -> None:
         self.host = host
+        #: channel nodes writable by clients too (a HIL bench's plant writes them)
+        self.writable_channels = writable_channels
         self.port = port or free_tcp_port(host)
         self.endpoint = f"opc.tcp://{host}:{self.port}"
         self.security = security
@@ -181,7 +185,7 @@ class OpcUaSimController:
             var = await machine.add_variable(
                 self._nodeids[name], ua.QualifiedName(name, idx),
                 ua.Variant(_coerce(0.0, vtype), vtype))
-            if name not in CHANNEL_TYPES:
+            if name not in CHANNEL_TYPES or self.writable_channels:
                 await var.set_writable()
         server.subscribe_server_callback(CallbackType.PreRead, self._on_read)
         server.subscribe_server_callback(CallbackType.PreWrite, self._on_write)
