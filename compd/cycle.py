@@ -297,8 +297,10 @@ class Cycle:
 
     def write_failed(self, output: str | None, *, permanent: bool,
                      reason: str = "") -> list[Event]:
-        """A write of the last result failed. `output` is the refused output's
-        name when known. Transient: retried next cycle from the confirmed value."""
+        """A write of the last result failed. `output` names the refused
+        output(s) when known (comma-separated for a combined write; any write
+        that carried the offset stops the offset). Transient: retried next
+        cycle from the confirmed value."""
         events: list[Event] = []
         if self._offset_pending:
             self.output.revert()
@@ -306,15 +308,18 @@ class Cycle:
         if not permanent:
             events.append(Event("write_failed", {"output": output, "reason": reason}))
             return events
-        if output in (None, self.params.offset_name):
+        # a driver names every output of a refused combined write ("offset,heartbeat")
+        names = {n.strip() for n in output.split(",")} if output else set()
+        if not names or self.params.offset_name in names:
             if not self.write_stopped:
                 self.write_stopped = True
                 events.append(Event("offset_write_stopped", {
                     "output": output, "reason": reason,
                     "offset_um": self.output.current_um}))
-        else:
-            self.stopped_outputs.add(output)
-            events.append(Event("output_write_stopped", {"output": output, "reason": reason}))
+            return events
+        for name in sorted(names - self.stopped_outputs):
+            self.stopped_outputs.add(name)
+            events.append(Event("output_write_stopped", {"output": name, "reason": reason}))
         return events
 
     # -- internals ------------------------------------------------------------------------
