@@ -1,0 +1,68 @@
+"""Calibration records are checked, never repaired."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from compd.records import RecordError, check_units, read_csv_record, speed_warnings
+
+
+def _write(path: Path, rows: list[str], header: str = "time_s,bearing,dz_um") -> Path:
+    path.write_text(header + "\n" + "\n".join(rows) + "\n", encoding="utf-8")
+    return path
+
+
+def test_a_good_record_gives_its_period_and_columns(tmp_path: Path) -> None:
+    rec = read_csv_record(_write(tmp_path / "r.csv", [f"{10 * k},{20 + k / 10},{k}.5"
+                                                     for k in range(5)]))
+    assert rec.period_s == 10.0
+    assert list(rec.columns) == ["bearing", "dz_um"]
+    assert len(rec) == 5
+    assert len(rec.sha256) == 64
+
+
+def test_iso_8601_timestamps(tmp_path: Path) -> None:
+    rows = [f"2026-03-01T10:00:{15 * k:02d}Z,20.{k},1.{k}" for k in range(4)]
+    rec = read_csv_record(_write(tmp_path / "r.csv", rows, "timestamp,bearing,dz_um"))
+    assert rec.period_s == 15.0
+    assert rec.time_s.tolist() == [0.0, 15.0, 30.0, 45.0]
+
+
+@pytest.mark.parametrize(("rows", "needle"), [
+    (["0,20,1", "1,20,1", "1,20,1", "2,20,1"], "row 4: duplicated timestamp"),
+    (["0,20,1", "1,20,1", "2,20,1", "5,20,1", "6,20,1"], "row 5: gap of 3 s"),
+    (["0,20,1", "1,20,1", "2,20,1", "3.3,20,1", "4,20,1"], "non-uniform sampling"),
+    (["0,20,1", "1,nan,1", "2,20,1"], "row 3, column 'bearing'"),
+    (["0,20,1", "1,,1", "2,20,1"], "empty cell"),
+    (["0,20,1", "1,20", "2,20,1"], "row 3: 2 fields"),
+])
+def test_broken_records_name_the_row(tmp_path: Path, rows: list[str], needle: str) -> None:
+    with pytest.raises(RecordError, match=needle):
+        read_csv_record(_write(tmp_path / "r.csv", rows))
+
+
+def test_unit_mistakes_are_refused(tmp_path: Path) -> None:
+    mk = read_csv_record(_write(tmp_path / "mk.csv", [f"{k},{20000 + k},{k * 3}"
+                                                      for k in range(5)]))
+    with pytest.raises(RecordError, match="looks like mK"):
+        check_units(mk, ["bearing"], "dz_um")
+    mm = read_csv_record(_write(tmp_path / "mm.csv", [f"{k},20,{0.001 * k}"
+                                                      for k in range(50)]))
+    with pytest.raises(RecordError, match="looks like mm"):
+        check_units(mm, ["bearing"], "dz_um")
+
+
+def test_no_time_column_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(RecordError, match="no time column"):
+        read_csv_record(_write(tmp_path / "r.csv", ["1,2", "3,4", "5,6"], "a,b"))
+
+
+def test_constant_speed_heat_up_alone_is_warned_about(tmp_path: Path) -> None:
+    rows = [f"{10 * k},9000,{20 + k / 100},{k}" for k in range(200)]
+    rec = read_csv_record(_write(tmp_path / "r.csv", rows, "time_s,speed_rpm,bearing,dz_um"))
+    assert any("constant-speed heat-up" in w for w in speed_warnings(rec))
+    rows += [f"{10 * k},0,{22 - k / 1000},{k}" for k in range(200, 300)]
+    rec = read_csv_record(_write(tmp_path / "r2.csv", rows, "time_s,speed_rpm,bearing,dz_um"))
+    assert speed_warnings(rec) == []
