@@ -8,6 +8,12 @@ thermal plant behind it and serves until SIGINT/SIGTERM (exit 0). With
 (addresses as the pydantic models of `drivers.addresses` dump them), so a
 bench script can configure the daemon from it.
 
+With ``--no-plant`` only the controller is served (no plant publishes into
+it; OPC UA channel nodes are then client-writable): a stand-in PLC for trying
+the HIL bench, where ``compd sim --drive URL`` (`compd.commands.sim_drive`)
+plays the machine as a client of a controller and the daemon runs against the
+same controller.
+
 Offline: ``compd sim --record out.csv [--program P] [--hours H] [--period-s S]
 [--seed N]`` writes a calibration record (see `drivers.sim.csvlog`) without
 any server, faster than real time.
@@ -21,6 +27,8 @@ import json
 import signal
 import sys
 from typing import TYPE_CHECKING
+
+from compd.commands import sim_drive
 
 if TYPE_CHECKING:
     from drivers.sim.base import SimController
@@ -63,6 +71,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="write a calibration record offline instead of serving")
     parser.add_argument("--probe-noise-um", type=float, default=0.5,
                         help="probe noise added to dz_um in --record (default 0.5 µm)")
+    parser.add_argument("--no-plant", action="store_true",
+                        help="serve the controller's memory only, no plant behind it (a "
+                             "stand-in PLC for trying the HIL bench: --drive writes it)")
+    sim_drive.add_arguments(parser)
 
 
 def describe(controller: SimController) -> dict[str, object]:
@@ -96,7 +108,8 @@ async def _serve(args: argparse.Namespace) -> int:
     from drivers.sim.registry import make_sim_controller
 
     program = make_program(args.program, seed=args.seed, hours=args.hours)
-    controller = make_sim_controller(args.protocol, "127.0.0.1", args.port)
+    options = {"writable_channels": True} if args.no_plant and args.protocol == "opcua" else {}
+    controller = make_sim_controller(args.protocol, "127.0.0.1", args.port, **options)
     await controller.start()
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
@@ -106,22 +119,27 @@ async def _serve(args: argparse.Namespace) -> int:
     for sig in signals:  # before anything is printed: a reader may signal at once
         loop.add_signal_handler(sig, stop.set)
     try:
-        await machine.prime()
+        if not args.no_plant:
+            await machine.prime()
         if args.json:
             print(json.dumps(describe(controller)), flush=True)
         else:
             print(f"compd sim: {controller.protocol} controller at {controller.endpoint}")
-            print(f"  program {program.name} (repeats every {program.duration_s / 3600:g} h), "
-                  f"speedup {args.speedup:g}, period {args.period_s:g} s, seed {args.seed}")
+            if args.no_plant:
+                print("  no plant: the controller's memory only (for compd sim --drive)")
+            else:
+                print(f"  program {program.name} (repeats every "
+                      f"{program.duration_s / 3600:g} h), speedup {args.speedup:g}, "
+                      f"period {args.period_s:g} s, seed {args.seed}")
             for title, table in (("channels", controller.channels),
                                  ("outputs", controller.outputs_map)):
                 print(f"  {title}:")
                 for name, addr in table.items():
                     print(f"    {name:<10} {addr.describe()}")
             print("  Ctrl-C to stop", flush=True)
-        task = machine.start()
         waiter = asyncio.create_task(stop.wait(), name="sim-signal")
-        await asyncio.wait({task, waiter}, return_when=asyncio.FIRST_COMPLETED)
+        running = {waiter} if args.no_plant else {machine.start(), waiter}
+        await asyncio.wait(running, return_when=asyncio.FIRST_COMPLETED)
         waiter.cancel()
         await asyncio.gather(waiter, return_exceptions=True)
     finally:
@@ -138,6 +156,12 @@ async def _serve(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.drive is not None:
+        return sim_drive.run_drive(args)
+    if args.map is not None or args.duration_h is not None or args.focas_library is not None:
+        print("compd sim: --map, --duration-h and --focas-library apply to --drive only",
+              file=sys.stderr)
+        return EX_USAGE
     if args.record is not None:
         if args.protocol is not None:
             print("compd sim: --record runs offline; drop --protocol", file=sys.stderr)
