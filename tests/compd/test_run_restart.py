@@ -1,0 +1,157 @@
+"""`compd run` as a subprocess against the simulated Modbus controller:
+kill -9 and restart without a jump, SIGTERM with a checkpoint, ramp-to-zero
+shutdown, and a bad config refused with 78 before any connection."""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import os
+import signal
+import socket
+import sys
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from compd.checkpoint import load_checkpoint
+from drivers.modbus_codec import decode
+from drivers.sim.modbus_server import OUTPUTS, ModbusSimController
+
+from .daemon_helpers import write_config
+
+SLEW_UM_S = 1.0
+PERIOD_S = 1.0
+ROOT = Path(__file__).resolve().parents[2]
+
+
+class _Recorded:
+    def __init__(self) -> None:
+        self.sim = ModbusSimController()
+        #: every offset value the daemon wrote, in order
+        self.offsets: list[float] = []
+        original = self.sim._action
+
+        async def action(function_code: int, start: int, address: int, count: int,
+                         registers: list[int], set_values: Any) -> Any:
+            if set_values is not None and address == 0 and count >= 2:
+                self.offsets.append(decode(OUTPUTS["offset"], list(set_values[:2])))
+            return await original(function_code, start, address, count, registers,
+                                  set_values)
+
+        self.sim._action = action  # type: ignore[method-assign]  # watch the writes
+
+
+@pytest.fixture
+async def rec() -> AsyncIterator[_Recorded]:
+    r = _Recorded()
+    await r.sim.start()
+    await r.sim.publish({"bearing": 20.0, "ambient": 20.0})
+    try:
+        yield r
+    finally:
+        await r.sim.stop()
+
+
+async def _start(config: Path, log: Path) -> asyncio.subprocess.Process:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env.pop("NOTIFY_SOCKET", None)
+    with log.open("ab") as f:
+        return await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "compd", "run", str(config),
+            stdout=asyncio.subprocess.DEVNULL, stderr=f, env=env, cwd=str(ROOT))
+
+
+async def _until(sim: ModbusSimController, key: str, predicate: Any,
+                 proc: asyncio.subprocess.Process, log: Path, limit_s: float = 30.0) -> None:
+    for _ in range(int(limit_s / 0.01)):
+        if predicate((await sim.outputs())[key]):
+            return
+        if proc.returncode is not None:
+            break
+        await asyncio.sleep(0.01)
+    text = await asyncio.to_thread(log.read_text)
+    raise AssertionError(f"{key} never satisfied the condition; log:\n{text}")
+
+
+def _assert_slew_limited(offsets: list[float]) -> None:
+    steps = [abs(b - a) for a, b in itertools.pairwise(offsets)]
+    # per cycle the output moves at most slew·Δt, Δt capped at two periods
+    assert max(steps) <= 2 * SLEW_UM_S * PERIOD_S + 1e-3, max(steps)
+
+
+async def test_kill_9_and_restart_resume_without_a_jump(rec: _Recorded, tmp_path: Path) -> None:
+    config = write_config(tmp_path, rec.sim.endpoint, checkpoint_every=5)
+    log = tmp_path / "daemon.log"
+    proc = await _start(config, log)
+    try:
+        await _until(rec.sim, "heartbeat", lambda v: v >= 5, proc, log)
+        await rec.sim.publish({"bearing": 22.5})  # the model wants ≈ +40 µm
+        await _until(rec.sim, "offset", lambda v: v >= 15.0, proc, log)
+        proc.send_signal(signal.SIGKILL)
+        assert await proc.wait() == -signal.SIGKILL
+        killed_at = rec.offsets[-1]
+        await asyncio.sleep(0.2)  # the controller keeps the offset meanwhile
+
+        proc = await _start(config, log)
+        await _until(rec.sim, "offset", lambda v: v >= killed_at + 10.0, proc, log)
+        proc.send_signal(signal.SIGTERM)
+        assert await asyncio.wait_for(proc.wait(), 20.0) == 0
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+    text = log.read_text()
+    assert "checkpoint_restored" in text
+    _assert_slew_limited(rec.offsets)
+    state = load_checkpoint(tmp_path / "state" / "checkpoint.json")
+    assert state is not None
+    assert state["offset_um"] == pytest.approx((await rec.sim.outputs())["offset"], abs=1e-3)
+
+
+async def test_sigterm_ramp_to_zero_then_exit_0(rec: _Recorded, tmp_path: Path) -> None:
+    config = write_config(tmp_path, rec.sim.endpoint, shutdown="ramp_to_zero")
+    log = tmp_path / "daemon.log"
+    proc = await _start(config, log)
+    try:
+        await _until(rec.sim, "heartbeat", lambda v: v >= 5, proc, log)
+        await rec.sim.publish({"bearing": 21.0})
+        await _until(rec.sim, "offset", lambda v: v >= 8.0, proc, log)
+        proc.send_signal(signal.SIGTERM)
+        assert await asyncio.wait_for(proc.wait(), 20.0) == 0
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+    assert (await rec.sim.outputs())["offset"] == 0.0
+    _assert_slew_limited(rec.offsets)
+    peak = rec.offsets.index(max(rec.offsets))
+    tail = rec.offsets[peak:]
+    assert all(b <= a for a, b in itertools.pairwise(tail))
+    state = load_checkpoint(tmp_path / "state" / "checkpoint.json")
+    assert state is not None and state["offset_um"] == 0.0
+    assert "shutdown_ramp_finished" in log.read_text()
+
+
+async def test_bad_config_exits_78_naming_the_key_without_connecting(tmp_path: Path) -> None:
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(4)
+    listener.setblocking(False)
+    try:
+        port = listener.getsockname()[1]
+        config = write_config(tmp_path, f"modbus://127.0.0.1:{port}")
+        config.write_text(config.read_text().replace("limit_um = 100.0", "limit_um = 0"))
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "compd", "run", str(config),
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+            env={**os.environ, "PYTHONPATH": str(ROOT)}, cwd=str(ROOT))
+        _, err = await proc.communicate()
+        assert proc.returncode == 78
+        assert "output.limit_um" in err.decode()
+        with pytest.raises(BlockingIOError):
+            listener.accept()  # nobody connected
+    finally:
+        listener.close()
