@@ -118,10 +118,11 @@ class DriveMap(BaseModel):
             if not isinstance(table, Mapping):
                 continue
             typed: dict[str, Any] = {}
-            for name, raw in table.items():
-                if data["protocol"] == "focas" and isinstance(raw, Mapping) \
-                        and "kind" not in raw:
-                    raw = {**raw, "kind": "pmc"}  # as the daemon's config: PMC by default
+            for name, given in table.items():
+                raw = given
+                if data["protocol"] == "focas" and isinstance(given, Mapping) \
+                        and "kind" not in given:
+                    raw = {**given, "kind": "pmc"}  # as the daemon's config: PMC by default
                 try:
                     typed[name] = adapter.validate_python(raw)
                 except ValidationError as exc:

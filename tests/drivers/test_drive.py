@@ -40,7 +40,7 @@ TEMPERATURES = ("bearing", "motor", "column", "table", "ambient")
 async def bench(protocol: str) -> AsyncIterator[tuple[Any, DriveMap, dict[str, Any]]]:
     """A simulated controller in the bench layout, the shipped map, and the
     driver options a client of it needs."""
-    options = {"writable_channels": True} if protocol == "opcua" else {}
+    options: dict[str, Any] = {"writable_channels": True} if protocol == "opcua" else {}
     sim: Any = make_sim_controller(protocol, **options)
     await sim.start()
     extra: dict[str, Any] = {"backoff": Backoff(initial_s=0.02, cap_s=0.1)}
@@ -238,7 +238,7 @@ def test_unreadable_or_invalid_toml_names_the_file(tmp_path: Path) -> None:
         load_drive_map(tmp_path / "missing.toml")
     bad = tmp_path / "bad.toml"
     bad.write_text("protocol = ")
-    with pytest.raises(DriveMapError, match="bad.toml: not valid TOML"):
+    with pytest.raises(DriveMapError, match=r"bad\.toml: not valid TOML"):
         load_drive_map(bad)
 
 
