@@ -1,0 +1,64 @@
+"""The output stage: clamp, slew, deadband, sign, scale; never NaN."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from compd.output import OutputStage, Status
+
+
+def test_clamp_slew_and_conversion() -> None:
+    out = OutputStage(limit_um=50.0, slew_um_s=2.0, sign=-1, units_per_um=1e-3)
+    assert out.step(1000.0, 1.0) == 2.0
+    assert out.step(1000.0, 0.5) == 3.0
+    assert out.to_controller(3.0) == pytest.approx(-0.003)
+    assert out.from_controller(-0.003) == pytest.approx(3.0)
+    for _ in range(100):
+        out.step(1000.0, 1.0)
+    assert out.current_um == 50.0
+
+
+def test_non_finite_target_holds() -> None:
+    out = OutputStage(limit_um=50.0, slew_um_s=2.0, initial_um=10.0)
+    assert out.step(math.nan, 1.0) == 10.0
+    assert out.step(math.inf, 1.0) == 10.0
+
+
+def test_deadband_only_when_asked() -> None:
+    out = OutputStage(limit_um=50.0, slew_um_s=100.0, deadband_um=0.5)
+    assert out.step(0.4, 1.0) == 0.0
+    assert out.step(0.4, 1.0, deadband=False) == 0.4
+
+
+def test_dt_cap_and_revert_adopt() -> None:
+    out = OutputStage(limit_um=50.0, slew_um_s=1.0, max_dt_s=2.0)
+    assert out.step(40.0, 100.0) == 2.0  # a stalled loop earns no big step
+    out.confirm()
+    out.step(40.0, 1.0)
+    out.revert()
+    assert out.current_um == 2.0
+    out.adopt(math.nan)
+    assert out.current_um == 0.0 and out.confirmed_um == 0.0
+    out.adopt(500.0)
+    assert out.current_um == 50.0
+
+
+def test_status_bits_fit_a_signed_16_bit_word() -> None:
+    assert all(int(b) < 1 << 15 for b in Status)
+    assert len({int(b) for b in Status}) == len(list(Status))
+
+
+@given(st.lists(st.tuples(st.floats(allow_nan=True, allow_infinity=True),
+                          st.floats(min_value=0.0, max_value=10.0)), max_size=200))
+def test_never_beyond_limit_or_slew(steps: list[tuple[float, float]]) -> None:
+    out = OutputStage(limit_um=20.0, slew_um_s=0.5, deadband_um=0.1, max_dt_s=2.0)
+    prev = out.current_um
+    for target, dt in steps:
+        y = out.step(target, dt)
+        assert math.isfinite(y) and abs(y) <= 20.0
+        assert abs(y - prev) <= 0.5 * min(dt, 2.0) + 1e-12
+        prev = y
