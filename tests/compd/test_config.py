@@ -227,3 +227,13 @@ def test_examples_check(name: str, capsys: pytest.CaptureFixture[str]) -> None:
         pytest.skip(f"no example for {name}")
     assert main(["check", str(path)]) == 0, capsys.readouterr().err
     assert "OK" in capsys.readouterr().out
+
+
+def test_check_json_reports_model_and_addresses(capsys: pytest.CaptureFixture[str]) -> None:
+    import json
+
+    assert main(["check", str(EXAMPLES / "modbus.toml"), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["protocol"] == "modbus"
+    assert report["outputs"]["offset"] == "unit1/holding/0:float32"
+    assert all(t["stable"] for t in report["model"]["terms"])

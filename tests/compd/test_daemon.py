@@ -149,3 +149,48 @@ async def test_unreachable_controller_holds_and_never_signals_ready(tmp_path: Pa
     assert await task == 0
     assert daemon.complete_cycles == 0
     assert daemon.last_result is not None and daemon.last_result.state == "init"
+
+
+async def test_second_daemon_on_the_same_state_dir_is_refused(
+        sim: ModbusSimController, tmp_path: Path) -> None:
+    from compd.statelock import StateLocked
+
+    cfg = load_config(write_config(tmp_path, sim.endpoint))
+    first = Daemon(cfg, notifier=Notifier(None))
+    task = asyncio.create_task(first.run())
+    await _until(lambda: first.complete_cycles >= 2)
+    second = Daemon(load_config(cfg.path), notifier=Notifier(None))
+    with pytest.raises(StateLocked):
+        await second.run()
+    first.request_stop()
+    assert await task == 0
+
+
+def _shadow_config(tmp_path: Path, endpoint: str) -> Path:
+    src = Path(__file__).resolve().parents[2] / "models" / "library" / "sp2.toml"
+    (tmp_path / "candidate.toml").write_text(
+        src.read_text().replace('name = "SP2 per-spindle"', 'name = "candidate"').replace(
+            'a = ["16.0005", "-15.9975", "0"]', 'a = ["32.001", "-31.995", "0"]'))
+    path = write_config(tmp_path, endpoint, slew_um_s=1000.0)
+    path.write_text(path.read_text().replace('file = "sp2"',
+                                             'file = "sp2"\nshadow = "candidate.toml"'))
+    return path
+
+
+async def test_shadow_model_is_recorded_never_written(sim: ModbusSimController,
+                                                      tmp_path: Path) -> None:
+    cfg = load_config(_shadow_config(tmp_path, sim.endpoint))
+    assert cfg.shadow is not None and cfg.shadow.name == "candidate"
+    daemon = Daemon(cfg, notifier=Notifier(None))
+    task = asyncio.create_task(daemon.run())
+    await _until(lambda: daemon.complete_cycles >= 3)
+    await sim.publish({"bearing": 21.0})
+    await _until(lambda: daemon.last_result is not None
+                 and (daemon.last_result.model_um or 0.0) > 10.0)
+    daemon.request_stop()
+    assert await task == 0
+    r = daemon.last_result
+    assert r is not None and r.shadow_um is not None and r.model_um is not None
+    assert r.shadow_um == pytest.approx(2 * r.model_um, rel=0.01)
+    assert (await sim.outputs())["offset"] == pytest.approx(r.offset_um, abs=1e-3)
+    assert r.offset_um == pytest.approx(r.model_um, abs=1e-3)
