@@ -46,5 +46,16 @@ def driver_options(cfg: LoadedConfig) -> dict[str, Any]:
 
 
 def build_driver(cfg: LoadedConfig) -> Driver:
-    return open_driver(cfg.raw.controller.protocol, cfg.raw.controller.endpoint,
-                       cfg.channels, cfg.outputs, **driver_options(cfg))
+    """Construct (not connect) the driver; a refusal by the driver's own checks
+    (an endpoint it cannot parse, a library file that is not there) is a
+    configuration error naming [controller]."""
+    from compd.errors import ConfigError
+    from drivers.errors import DriverError
+
+    ctl = cfg.raw.controller
+    try:
+        return open_driver(ctl.protocol, ctl.endpoint, cfg.channels, cfg.outputs,
+                           **driver_options(cfg))
+    except (ValueError, DriverError) as exc:
+        key = "controller.endpoint" if "endpoint" in str(exc) else "controller"
+        raise ConfigError(key, str(exc)) from None

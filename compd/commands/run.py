@@ -35,7 +35,10 @@ def run(args: argparse.Namespace) -> int:
     tel = cfg.raw.telemetry
     configure_logging(json=None if tel.log_format == "auto" else tel.log_format == "json",
                       level=tel.log_level)
-    daemon = Daemon(cfg, dry_run=args.dry_run, once=args.once)
+    from compd.driver_setup import build_driver
+
+    # constructed (not connected) before anything else: a refusal is a config error (78)
+    daemon = Daemon(cfg, dry_run=args.dry_run, once=args.once, driver=build_driver(cfg))
     try:
         rc = asyncio.run(daemon.run())
     except StateLocked as exc:
