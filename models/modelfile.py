@@ -32,6 +32,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from models import tomltext
 from models.coefficients import printed_text
 from models.compensation import CompensationModel, Term
 from models.errors import ModelError
@@ -224,39 +225,9 @@ def model_document(model: CompensationModel) -> dict[str, Any]:
     return doc
 
 
-def _value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if not math.isfinite(v):
-            raise ModelError(f"cannot write a non-finite number ({v!r}) to a model file")
-        return repr(v)
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(_value(x) for x in v) + "]"
-    if isinstance(v, Mapping):
-        return "{ " + ", ".join(f"{_key(k)} = {_value(x)}" for k, x in v.items()) + " }"
-    raise ModelError(f"cannot write {type(v).__name__} to a model file")
-
-
-def _key(k: str) -> str:
-    return k if k.replace("_", "").replace("-", "").isalnum() else _value(k)
-
-
 def dumps_model(doc: Mapping[str, Any]) -> str:
-    """TOML text for a model document (the subset of TOML the format uses)."""
-    lines = ["[model]"]
-    lines += [f"{_key(k)} = {_value(v)}" for k, v in doc["model"].items()]
-    for term in doc["terms"]:
-        lines += ["", "[[terms]]"]
-        lines += [f"{_key(k)} = {_value(v)}" for k, v in term.items()]
-    if doc.get("provenance"):
-        lines += ["", "[provenance]"]
-        lines += [f"{_key(k)} = {_value(v)}" for k, v in doc["provenance"].items()]
-    return "\n".join(lines) + "\n"
+    """TOML text for a model document."""
+    return tomltext.dumps(doc, header_depth=1)
 
 
 def save_model(model: CompensationModel, path: str | Path) -> None:
