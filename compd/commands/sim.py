@@ -149,7 +149,11 @@ async def _serve(args: argparse.Namespace) -> int:
             await machine.stop()
         finally:
             await controller.stop()
-    if not args.json:
+    if args.json:
+        pass
+    elif args.no_plant:
+        print("compd sim: stopped")
+    else:
         print(f"compd sim: stopped after {machine.time_s / 3600:.3f} h of machine time, "
               f"{machine.overruns} overrun(s)")
     return 0

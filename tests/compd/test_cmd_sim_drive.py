@@ -7,6 +7,7 @@ configs agree with the drive maps."""
 from __future__ import annotations
 
 import asyncio
+import json
 import re
 import signal
 import sys
@@ -168,3 +169,37 @@ def test_unreachable_controller_keeps_the_plant_running(capsys: pytest.CaptureFi
     assert rc == 0
     assert "stopped after 0.005 h" in out and "link=DOWN" in out
     assert not re.search(r" 0 link error", out)
+
+
+async def test_no_plant_serves_a_stand_in_plc_for_the_drive(tmp_path: Path) -> None:
+    """`compd sim --protocol modbus --no-plant --json`: nothing publishes into
+    the controller; `--drive` (here in-process) fills it."""
+    from drivers.factory import open_driver
+    from drivers.sim.drive import DriveLoop, open_drive_driver
+
+    proc = await _compd(tmp_path, "sim", "--protocol", "modbus", "--no-plant", "--json",
+                        name="plc")
+    try:
+        assert proc.stdout is not None
+        line = await asyncio.wait_for(proc.stdout.readline(), 30.0)
+        assert line, (tmp_path / "plc.stderr").read_text()
+        endpoint = json.loads(line)["endpoint"]
+        drive_map = load_drive_map(HIL / "maps" / "modbus.toml")
+        probe = open_driver("modbus", endpoint, drive_map.write, {})
+        try:
+            idle = await probe.read(["bearing", "speed_rpm"])
+            assert idle["bearing"].value == 0.0 and idle["speed_rpm"].value == 0.0  # no plant
+            drive = DriveLoop(open_drive_driver(endpoint, drive_map), drive_map,
+                              speedup=10_000.0)
+            await drive.run(until_s=20.0)
+            assert drive.link_errors == 0
+            got = await probe.read(["bearing", "speed_rpm"])
+            assert got["bearing"].value == pytest.approx(drive.latest["bearing"], abs=0.051)
+            assert got["speed_rpm"].value == drive.latest["speed_rpm"] > 0.0
+        finally:
+            await probe.close()
+    finally:
+        if proc.returncode is None:
+            proc.send_signal(signal.SIGTERM)
+        await asyncio.wait_for(proc.wait(), 20.0)
+    assert proc.returncode == 0
