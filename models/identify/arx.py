@@ -16,6 +16,11 @@ Orders are chosen by the *simulation* fit % on a held-out validation tail
 model estimated on the first 70 % is simulated over the whole record and
 scored on the last 30 %. A larger structure must beat the best fit by more
 than `tolerance_pct` percentage points to be chosen over a smaller one.
+
+Several records (`segments`, see `models.identify.segments`) are separate
+experiments: their regressors are zero before each record's start, the
+simulations restart from rest per record, and each record's own first 70 %
+trains while its last 30 % validates.
 """
 
 from __future__ import annotations
@@ -27,7 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.signal import lfilter
+
+from models.identify.segments import Segments
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -65,19 +71,25 @@ def lagged(x: FloatArray, lags: int, start: int = 0) -> FloatArray:
 
 
 def regressors(y: FloatArray, inputs: Sequence[FloatArray], na_max: int,
-               nb_max: int) -> FloatArray:
+               nb_max: int, segments: Segments | None = None) -> FloatArray:
     """[-y(k-1) … -y(k-na_max) | u_1(k) … u_1(k-nb_max+1) | u_2 … ] (n rows)."""
-    blocks = [-lagged(y, na_max, start=1)] + [lagged(u, nb_max) for u in inputs]
+    if segments is None or len(segments.bounds) == 1:
+        blocks = [-lagged(y, na_max, start=1)] + [lagged(u, nb_max) for u in inputs]
+    else:
+        blocks = [-segments.lagged(y, na_max, start=1)] + [segments.lagged(u, nb_max)
+                                                           for u in inputs]
     return np.hstack(blocks)
 
 
 def simulate_common(den: Sequence[float], nums: Sequence[Sequence[float]],
-                    inputs: Sequence[FloatArray]) -> FloatArray:
-    """y = (Σ_t A_t(q) u_t) / B(q) from rest."""
+                    inputs: Sequence[FloatArray], segments: Segments | None = None
+                    ) -> FloatArray:
+    """y = (Σ_t A_t(q) u_t) / B(q) from rest (per segment)."""
+    seg = segments if segments is not None else Segments.single(inputs[0].size)
     v = np.zeros_like(inputs[0])
     for a, u in zip(nums, inputs, strict=True):
-        v += lfilter(np.asarray(a), [1.0], u)
-    return np.asarray(lfilter([1.0], np.asarray(den), v), dtype=np.float64)
+        v += seg.filter(np.asarray(a), [1.0], u)
+    return seg.filter([1.0], np.asarray(den), v)
 
 
 def fit_pct(measured: FloatArray, simulated: FloatArray) -> float:
@@ -87,10 +99,11 @@ def fit_pct(measured: FloatArray, simulated: FloatArray) -> float:
     return (1.0 - float(np.linalg.norm(measured - simulated)) / spread) * 100.0
 
 
-def is_stable(den: Sequence[float]) -> bool:
+def is_stable(den: Sequence[float], radius: float = 1.0) -> bool:
+    """Every pole strictly inside |p| < radius."""
     if len(den) < 2:
         return True
-    return bool(np.all(np.abs(np.roots(np.asarray(den))) < 1.0))
+    return bool(np.all(np.abs(np.roots(np.asarray(den))) < radius))
 
 
 def _columns(na: int, nbs: Sequence[int], na_max: int, nb_max: int) -> list[int]:
@@ -114,24 +127,26 @@ def _split(theta: FloatArray, na: int, nbs: Sequence[int]) -> tuple[tuple[float,
 
 def select_arx(y: FloatArray, inputs: Sequence[FloatArray], na_range: tuple[int, int],
                nb_range: tuple[int, int], *, validation: float = 0.3,
-               tolerance_pct: float = 0.1) -> tuple[ArxEstimate, list[ArxEstimate]]:
+               tolerance_pct: float = 0.1, segments: Segments | None = None,
+               radius: float = 1.0) -> tuple[ArxEstimate, list[ArxEstimate]]:
     """Try every (na, nb_1, …, nb_T) in the ranges; return the chosen structure
-    re-estimated on the whole record, and every candidate scored on validation."""
+    re-estimated on the whole record, and every candidate scored on validation
+    (a candidate with a pole at or beyond `radius` scores -inf)."""
     y = np.asarray(y, dtype=np.float64)
     us = [np.asarray(u, dtype=np.float64) for u in inputs]
     na_lo, na_hi = na_range
     nb_lo, nb_hi = nb_range
     if not (1 <= na_lo <= na_hi and 1 <= nb_lo <= nb_hi):
         raise ValueError(f"orders must satisfy 1 <= lo <= hi, got {na_range} and {nb_range}")
-    n = y.size
-    phi = regressors(y, us, na_hi, nb_hi)
+    seg = segments if segments is not None else Segments.single(y.size)
+    phi = regressors(y, us, na_hi, nb_hi, seg)
     lag = max(na_hi, nb_hi - 1)
-    n_train = max(lag + 1, round(n * (1.0 - validation)))
-    scale = np.sqrt(np.mean(phi[lag:n_train] ** 2, axis=0))
+    train, val = seg.head_mask(lag, validation)
+    scale = np.sqrt(np.mean(phi[train] ** 2, axis=0))
     scale[scale == 0.0] = 1.0
-    q, r = np.linalg.qr(phi[lag:n_train] / scale, mode="reduced")
-    qty = q.T @ y[lag:n_train]
-    y_val = y[n_train:]
+    q, r = np.linalg.qr(phi[train] / scale, mode="reduced")
+    qty = q.T @ y[train]
+    y_val = y[val]
     candidates: list[ArxEstimate] = []
     for na in range(na_lo, na_hi + 1):
         for nbs in itertools.product(range(nb_lo, nb_hi + 1), repeat=len(us)):
@@ -140,10 +155,10 @@ def select_arx(y: FloatArray, inputs: Sequence[FloatArray], na_range: tuple[int,
             theta = theta / scale[cols]
             den, nums = _split(theta, na, nbs)
             score = -math.inf
-            if is_stable(den):
+            if is_stable(den, radius):
                 v = phi[:, cols[na:]] @ theta[na:]
-                sim = lfilter([1.0], np.asarray(den), v)
-                score = fit_pct(y_val, sim[n_train:])
+                sim = seg.filter([1.0], np.asarray(den), v)
+                score = fit_pct(y_val, sim[val])
             candidates.append(ArxEstimate(den, nums, score))
     finite = [c for c in candidates if math.isfinite(c.validation_fit_pct)]
     if not finite:
@@ -152,20 +167,23 @@ def select_arx(y: FloatArray, inputs: Sequence[FloatArray], na_range: tuple[int,
     best = max(c.validation_fit_pct for c in finite)
     good = [c for c in finite if c.validation_fit_pct >= best - tolerance_pct]
     chosen = min(good, key=lambda c: (c.n_params, -c.validation_fit_pct))
-    return refit(y, us, chosen.na, chosen.nbs, chosen.validation_fit_pct), candidates
+    return refit(y, us, chosen.na, chosen.nbs, chosen.validation_fit_pct, seg), candidates
 
 
 def refit(y: FloatArray, inputs: Sequence[FloatArray], na: int, nbs: Sequence[int],
-          validation_fit_pct: float = math.nan) -> ArxEstimate:
-    """ARX least squares of one structure on the whole record."""
+          validation_fit_pct: float = math.nan, segments: Segments | None = None
+          ) -> ArxEstimate:
+    """ARX least squares of one structure on the whole record (every segment)."""
+    seg = segments if segments is not None else Segments.single(y.size)
     nb_max = max(nbs)
-    phi = regressors(y, inputs, na, nb_max)
+    phi = regressors(y, inputs, na, nb_max, seg)
     cols = _columns(na, nbs, na, nb_max)
     lag = max(na, nb_max - 1)
-    a = phi[lag:, cols]
+    rows, _ = seg.head_mask(lag, 0.0)
+    a = phi[rows][:, cols]
     scale = np.sqrt(np.mean(a ** 2, axis=0))
     scale[scale == 0.0] = 1.0
-    theta, *_ = np.linalg.lstsq(a / scale, y[lag:], rcond=None)
+    theta, *_ = np.linalg.lstsq(a / scale, y[rows], rcond=None)
     den, nums = _split(theta / scale, na, nbs)
     return ArxEstimate(den, nums, validation_fit_pct)
 

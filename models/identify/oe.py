@@ -16,6 +16,13 @@ every |κ_i| < 1, a box constraint that `scipy.optimize.least_squares` keeps.
 The Jacobian is exact: ∂ŷ/∂a_j = q^-j·u/B and ∂ŷ/∂b_i = -q^-i·ŷ_t/B (two
 filter runs per term), chained through the step-up polynomial, which is
 multilinear in κ (so central differences of it are exact).
+
+A slowest allowed pole (`radius` < 1, from a longest time constant, see
+`models.identify.segments.pole_radius`) is kept the same way: the
+denominator is the step-up polynomial with its i-th coefficient scaled by
+radius^i, whose poles are radius × (poles with |κ| < 1), so every pole stays
+within |p| < radius. Several records (`segments`) are simulated each from
+rest and their residuals stacked.
 """
 
 from __future__ import annotations
@@ -26,9 +33,9 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 from scipy.optimize import least_squares
-from scipy.signal import lfilter
 
 from models.identify.arx import fit_pct
+from models.identify.segments import Segments
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -58,12 +65,15 @@ def step_down(den: Sequence[float]) -> FloatArray:
     return out
 
 
-def _shift(x: FloatArray, d: int) -> FloatArray:
-    if d == 0:
-        return x
-    out = np.zeros_like(x)
-    out[d:] = x[:-d]
-    return out
+def scaled(poly: FloatArray, radius: float) -> FloatArray:
+    """[p0, p1·r, p2·r², …]: the roots scaled by r."""
+    return poly * radius ** np.arange(poly.size)
+
+
+def to_kappa(den: Sequence[float], radius: float = 1.0) -> FloatArray:
+    """Reflection coefficients of `den` within the radius parametrisation."""
+    d = np.asarray(den, dtype=np.float64)
+    return step_down(scaled(d / d[0], 1.0 / radius))
 
 
 @dataclass(frozen=True)
@@ -78,11 +88,13 @@ class OeEstimate:
 
 class _Problem:
     def __init__(self, y: FloatArray, inputs: Sequence[FloatArray], nbs: Sequence[int],
-                 nas: Sequence[int]) -> None:
+                 nas: Sequence[int], segments: Segments, radius: float) -> None:
         self.y = y
         self.inputs = list(inputs)
         self.nbs = list(nbs)
         self.nas = list(nas)
+        self.seg = segments
+        self.radius = radius
 
     def unpack(self, theta: FloatArray) -> list[tuple[FloatArray, FloatArray, FloatArray]]:
         out = []
@@ -90,14 +102,14 @@ class _Problem:
         for nb, na in zip(self.nbs, self.nas, strict=True):
             num = theta[i:i + nb]
             kappa = theta[i + nb:i + nb + na]
-            out.append((num, kappa, step_up(kappa)))
+            out.append((num, kappa, scaled(step_up(kappa), self.radius)))
             i += nb + na
         return out
 
     def simulate(self, theta: FloatArray) -> FloatArray:
         total = np.zeros_like(self.y)
         for (num, _, den), u in zip(self.unpack(theta), self.inputs, strict=True):
-            total += lfilter(num, den, u)
+            total += self.seg.filter(num, den, u)
         return total
 
     def residual(self, theta: FloatArray) -> FloatArray:
@@ -106,32 +118,40 @@ class _Problem:
     def jacobian(self, theta: FloatArray) -> FloatArray:
         cols: list[FloatArray] = []
         for (num, kappa, den), u in zip(self.unpack(theta), self.inputs, strict=True):
-            w = lfilter([1.0], den, u)
-            yt = lfilter(num, den, u)
-            v = lfilter([1.0], den, yt)
-            cols += [-_shift(w, j) for j in range(num.size)]
+            seg = self.seg
+            w = seg.filter([1.0], den, u)
+            yt = seg.filter(num, den, u)
+            v = seg.filter([1.0], den, yt)
+            cols += [-seg.shift(w, j) for j in range(num.size)]
             # ∂ŷ/∂b_i = -q^-i ŷ_t / B ; residual derivative is the negative
-            d_den = np.stack([_shift(v, i) for i in range(1, den.size)], axis=1) \
+            d_den = np.stack([seg.shift(v, i) for i in range(1, den.size)], axis=1) \
                 if den.size > 1 else np.zeros((u.size, 0))
             h = 0.5
             for m in range(kappa.size):
                 kp, km = kappa.copy(), kappa.copy()
                 kp[m] += h
                 km[m] -= h
-                dpoly = (step_up(kp) - step_up(km))[1:] / (2 * h)
+                dpoly = scaled(step_up(kp) - step_up(km), self.radius)[1:] / (2 * h)
                 cols.append(d_den @ dpoly)
         return np.stack(cols, axis=1)
 
 
 def refine_oe(y: FloatArray, inputs: Sequence[FloatArray], nums: Sequence[Sequence[float]],
               dens: Sequence[Sequence[float]], *, max_nfev: int = 200,
-              tol: float = 1e-12) -> OeEstimate:
-    """Output-error fit starting from (nums, dens), one pair per input."""
+              tol: float = 1e-12, segments: Segments | None = None,
+              radius: float = 1.0) -> OeEstimate:
+    """Output-error fit starting from (nums, dens), one pair per input; every
+    pole kept within |p| < `radius` (≤ 1); `segments`: several records."""
     y = np.asarray(y, dtype=np.float64)
     us = [np.asarray(u, dtype=np.float64) for u in inputs]
     nbs = [len(a) for a in nums]
     nas = [len(b) - 1 for b in dens]
-    prob = _Problem(y, us, nbs, nas)
+    if not 0.0 < radius <= 1.0:
+        raise ValueError(f"pole radius must be within (0, 1], got {radius!r}")
+    seg = segments if segments is not None else Segments.single(y.size)
+    if seg.total != y.size:
+        raise ValueError(f"segments cover {seg.total} samples, the record has {y.size}")
+    prob = _Problem(y, us, nbs, nas, seg, radius)
     x0: list[float] = []
     lo: list[float] = []
     hi: list[float] = []
@@ -140,7 +160,7 @@ def refine_oe(y: FloatArray, inputs: Sequence[FloatArray], nums: Sequence[Sequen
         x0 += [float(v) for v in a]
         lo += [-np.inf] * len(a)
         hi += [np.inf] * len(a)
-        x0 += [float(np.clip(k, -lim + 1e-9, lim - 1e-9)) for k in step_down(b)]
+        x0 += [float(np.clip(k, -lim + 1e-9, lim - 1e-9)) for k in to_kappa(b, radius)]
         lo += [-lim] * (len(b) - 1)
         hi += [lim] * (len(b) - 1)
     start = np.asarray(x0)

@@ -11,6 +11,13 @@ search, output-error fit on the whole record.
    training part better); a step is taken only when the validation fit gains
    more than `tolerance_pct` points: a higher order must earn its place.
 3. OE on the whole record from the chosen estimate.
+
+Several records (`segments`) are fitted jointly as separate experiments:
+each restarts from rest; the structure search trains on the first 70 % of
+every record and scores the last 30 % of each, or, given a held-out
+validation set (`holdout`), trains on every calibration record whole and
+scores the simulation of the held-out records. Every pole is kept within
+|p| < `radius` (a longest time constant, `segments.pole_radius`).
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ import numpy.typing as npt
 
 from models.identify.arx import ArxEstimate, fit_pct, refit, select_arx, simulate_common
 from models.identify.oe import OeEstimate, refine_oe, step_down, step_up
+from models.identify.segments import Segments
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -40,17 +48,33 @@ class TfFit:
     orders: tuple[tuple[int, int], ...]
 
 
-def _simulate(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]],
-              inputs: Sequence[FloatArray]) -> FloatArray:
-    from scipy.signal import lfilter
+@dataclass(frozen=True)
+class Holdout:
+    """Records kept out of the fit, used only to choose the structure."""
 
+    y: FloatArray
+    inputs: tuple[FloatArray, ...]
+    segments: Segments
+
+
+def _simulate(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]],
+              inputs: Sequence[FloatArray], segments: Segments | None = None) -> FloatArray:
+    seg = segments if segments is not None else Segments.single(inputs[0].size)
     total = np.zeros_like(inputs[0])
     for a, b, u in zip(nums, dens, inputs, strict=True):
-        total += lfilter(np.asarray(a), np.asarray(b), u)
+        total += seg.filter(np.asarray(a), np.asarray(b), u)
     return total
 
 
+def simulate_terms(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]],
+                   inputs: Sequence[FloatArray], segments: Segments | None = None
+                   ) -> FloatArray:
+    """Σ_t A_t/B_t · u_t from rest (per segment)."""
+    return _simulate(nums, dens, inputs, segments)
+
+
 def _grow_den(den: Sequence[float]) -> tuple[float, ...]:
+    """One more denominator coefficient, the same poles plus one at 0."""
     kappa = np.append(step_down(den), 0.0)
     return tuple(float(v) for v in step_up(kappa))
 
@@ -84,19 +108,31 @@ def _greedy(score: Callable[[Sequence[Sequence[float]], Sequence[Sequence[float]
 
 def fit_tf_terms(y: FloatArray, inputs: Sequence[FloatArray], na_range: tuple[int, int],
                  nb_range: tuple[int, int], *, validation: float = 0.3,
-                 tolerance_pct: float = 0.1, max_rounds: int = 6) -> TfFit:
+                 tolerance_pct: float = 0.1, max_rounds: int = 6,
+                 segments: Segments | None = None, radius: float = 1.0,
+                 holdout: Holdout | None = None) -> TfFit:
     y = np.asarray(y, dtype=np.float64)
     us = [np.asarray(u, dtype=np.float64) for u in inputs]
+    seg = segments if segments is not None else Segments.single(y.size)
     arx, _ = select_arx(y, us, na_range, nb_range, validation=validation,
-                        tolerance_pct=tolerance_pct)
-    arx_fit = fit_pct(y, simulate_common(arx.den, arx.nums, us))
-    n_train = round(y.size * (1.0 - validation))
-    y_tr, us_tr = y[:n_train], [u[:n_train] for u in us]
+                        tolerance_pct=tolerance_pct, segments=seg, radius=radius)
+    arx_fit = fit_pct(y, simulate_common(arx.den, arx.nums, us, seg))
+    if holdout is None:
+        seg_tr = seg.heads(validation)
+        y_tr, us_tr = seg.take_heads(y, validation), [seg.take_heads(u, validation) for u in us]
+        _, val_mask = seg.head_mask(0, validation)
+        y_val, us_val, seg_val = y, us, seg
+    else:
+        seg_tr, y_tr, us_tr = seg, y, us
+        y_val, us_val, seg_val = holdout.y, list(holdout.inputs), holdout.segments
+        val_mask = np.ones(y_val.size, dtype=bool)
 
     def score(nums: Sequence[Sequence[float]],
               dens: Sequence[Sequence[float]]) -> tuple[OeEstimate, float]:
-        est = refine_oe(y_tr, us_tr, nums, dens, max_nfev=25, tol=1e-8)
-        val = fit_pct(y[n_train:], _simulate(est.nums, est.dens, us)[n_train:])
+        est = refine_oe(y_tr, us_tr, nums, dens, max_nfev=25, tol=1e-8, segments=seg_tr,
+                        radius=radius)
+        sim = _simulate(est.nums, est.dens, us_val, seg_val)
+        val = fit_pct(y_val[val_mask], sim[val_mask])
         return est, val
 
     starts = [(arx.nums, [arx.den] * len(us))]
@@ -104,7 +140,7 @@ def fit_tf_terms(y: FloatArray, inputs: Sequence[FloatArray], na_range: tuple[in
     # 1 + b1·q⁻¹ per term: a biased ARX choice can be a poor OE basin
     nb_small = min(nb_range[0] + 1, nb_range[1])
     if (arx.na, arx.nbs) != (na_range[0], (nb_small,) * len(us)):
-        small = refit(y, us, na_range[0], [nb_small] * len(us))
+        small = refit(y, us, na_range[0], [nb_small] * len(us), segments=seg)
         starts.append((small.nums, [small.den] * len(us)))
     results = [_greedy(score, nums, dens, len(us), na_range, nb_range, tolerance_pct,
                        max_rounds) for nums, dens in starts]
@@ -112,7 +148,8 @@ def fit_tf_terms(y: FloatArray, inputs: Sequence[FloatArray], na_range: tuple[in
     best, best_val = min((r for r in results if r[1] >= top - tolerance_pct),
                          key=lambda r: (sum(len(a) + len(b) for a, b in
                                             zip(r[0].nums, r[0].dens, strict=True)), -r[1]))
-    final = refine_oe(y, us, best.nums, best.dens, max_nfev=60, tol=1e-10)
+    final = refine_oe(y, us, best.nums, best.dens, max_nfev=60, tol=1e-10, segments=seg,
+                      radius=radius)
     orders = tuple((len(a), len(b) - 1) for a, b in zip(final.nums, final.dens, strict=True))
     return TfFit(arx=arx, arx_fit_pct=arx_fit, oe=final, oe_validation_fit_pct=best_val,
                  orders=orders)
