@@ -37,7 +37,7 @@ class RecordingSim:
             return await original(function_code, start, address, count, registers,
                                   set_values)
 
-        self.sim._action = action  # type: ignore[method-assign]  # watch the writes
+        self.sim._action = action  # type: ignore[method-assign,assignment]  # watch writes
 
     @property
     def offsets(self) -> list[float]:
