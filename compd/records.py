@@ -165,6 +165,11 @@ def read_csv_record(path: str | Path) -> Record:
                   columns=columns)
 
 
+def read_record(path: str | Path) -> Record:
+    """A calibration record from a CSV file (see `read_csv_record`)."""
+    return read_csv_record(path)
+
+
 def _parse_float(cell: str, where: str, line_no: int, column: str) -> float:
     text = cell.strip()
     if not text:

@@ -1,7 +1,14 @@
-"""`compd fit DATA --output dz_um --term bearing --term ambient [...]`
+"""`compd fit DATA [DATA…] --output dz_um --term bearing --term ambient [...]`
 
-Identifies a compensation model from a calibration record and writes a model
-file (MODELS.md §1, §4, §5):
+Identifies a compensation model from calibration records and writes a model
+file (MODELS.md §1, §4, §5). Several records (e.g. a heat-up/cool-down and an
+environmental run) are fitted jointly as separate experiments: each starts at
+rest with its own first sample as the reference, and the simulation restarts
+per record. Orders are chosen on the last ``--validation`` fraction of every
+record, or on held-out records (``--validation-record``). Every pole is kept
+within the slowest allowed time constant (``--max-time-constant-days``,
+default 3) in the output-error fit and checked again before writing; a DC
+gain absurd for the data is refused (`models.identify.checks`).
 
 - ``--kind tf`` (default): ARX least squares over every order combination
   (``--orders 1-4``: numerator lengths and denominator orders), then an
@@ -71,8 +78,24 @@ def parse_term(text: str) -> tuple[str, dict[str, float]]:
     return name.strip(), inputs
 
 
+#: default slowest allowed time constant of a fitted pole, days
+DEFAULT_MAX_TIME_CONSTANT_DAYS = 3.0
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not v > 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return v
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("data", metavar="DATA", help="calibration record (CSV)")
+    parser.add_argument("data", metavar="DATA", nargs="+",
+                        help="calibration record(s) (CSV); several are fitted jointly as "
+                             "separate experiments")
     parser.add_argument("--output", required=True, metavar="COLUMN",
                         help="the measured displacement column (µm)")
     parser.add_argument("--term", action="append", required=True, metavar="[NAME=]EXPR",
@@ -85,15 +108,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fixed", action="append", default=[], metavar="MODEL:TERM",
                         help="keep an already-calibrated term, subtracted before fitting")
     parser.add_argument("--validation", type=float, default=0.3,
-                        help="fraction of the record held out to choose orders (default 0.3)")
+                        help="fraction of each record held out to choose orders (default 0.3)")
+    parser.add_argument("--validation-record", action="append", default=[], metavar="DATA",
+                        help="a record used only to choose the orders (repeatable); the fit "
+                             "then uses every DATA record whole")
+    parser.add_argument("--max-time-constant-days", type=_positive_float,
+                        default=DEFAULT_MAX_TIME_CONSTANT_DAYS, metavar="DAYS",
+                        help="slowest allowed pole, as a time constant in days (default "
+                             f"{DEFAULT_MAX_TIME_CONSTANT_DAYS:g})")
     parser.add_argument("-o", dest="model_file", metavar="MODEL.toml", default=None,
-                        help="model file to write (default: DATA with .model.toml)")
+                        help="model file to write (default: the first DATA with .model.toml)")
     parser.add_argument("--name", default=None, help="model name (default: from DATA)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON line")
 
 
-def _fixed_terms(specs: list[str], record: Record) -> tuple[list[Term], Any]:
-    """The fixed terms and their summed prediction over the record."""
+def _fixed_terms(specs: list[str], records: list[Record]) -> tuple[list[Term], list[Any]]:
+    """The fixed terms and their summed prediction over each record."""
     import numpy as np
 
     from compd.commands.replay import replay_model
@@ -102,7 +132,7 @@ def _fixed_terms(specs: list[str], record: Record) -> tuple[list[Term], Any]:
     from models.modelfile import load_model
 
     terms: list[Term] = []
-    total = np.zeros(len(record))
+    totals = [np.zeros(len(r)) for r in records]
     for spec in specs:
         path, sep, term_name = spec.rpartition(":")
         if not sep or not path or not term_name:
@@ -113,10 +143,11 @@ def _fixed_terms(specs: list[str], record: Record) -> tuple[list[Term], Any]:
             raise ModelError(f"--fixed {spec!r}: {path} has no term {term_name!r}; it has "
                              f"{[t.name for t in source.terms]}")
         one = CompensationModel(found, source.period_s, name=f"{path}:{term_name}")
-        total += replay_model(one, record)
+        for i, record in enumerate(records):
+            totals[i] = totals[i] + replay_model(one, record)
         one.reset()
         terms.append(found[0])
-    return terms, total
+    return terms, totals
 
 
 def _relative_input(record: Record, inputs: dict[str, float], relative: bool) -> Any:
@@ -129,40 +160,75 @@ def _relative_input(record: Record, inputs: dict[str, float], relative: bool) ->
     return u
 
 
-def _fit_terms(args: argparse.Namespace, record: Record, y: Any,
-               specs: list[tuple[str, dict[str, float]]],
+def _inputs_per_record(records: list[Record], inputs: dict[str, float]) -> list[Any]:
+    return [_relative_input(r, inputs, True) for r in records]
+
+
+def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
+            specs: list[tuple[str, dict[str, float]]], holdout_records: list[Record],
+            ) -> tuple[list[Term], list[dict[str, Any]]]:
+    import numpy as np
+
+    from models.compensation import Term
+    from models.errors import ModelError
+    from models.identify.checks import build_checked_tf
+    from models.identify.segments import Segments, pole_radius
+    from models.identify.tf_fit import Holdout, fit_tf_terms
+
+    period = records[0].period_s
+    radius = pole_radius(period, args.max_time_constant_days * 86400.0)
+    seg = Segments.from_lengths([len(r) for r in records])
+    y = np.concatenate(ys)
+    us = [np.concatenate(_inputs_per_record(records, inputs)) for _, inputs in specs]
+    holdout = None
+    if holdout_records:
+        h_y = np.concatenate([r.column(args.output) for r in holdout_records])
+        h_us = tuple(np.concatenate(_inputs_per_record(holdout_records, inputs))
+                     for _, inputs in specs)
+        holdout = Holdout(h_y, h_us, Segments.from_lengths([len(r) for r in holdout_records]))
+    try:
+        fit = fit_tf_terms(y, us, args.orders, args.orders, validation=args.validation,
+                           segments=seg, radius=radius, holdout=holdout)
+    except ValueError as exc:
+        raise ModelError(f"identification failed: {exc}") from None
+    y_span = float(np.ptp(y))
+    terms: list[Term] = []
+    info: list[dict[str, Any]] = []
+    for (name, inputs), u, num, den, (nb, na) in zip(specs, us, fit.oe.nums, fit.oe.dens,
+                                                     fit.orders, strict=True):
+        check = build_checked_tf(num, den, name, max_pole=radius, period_s=period,
+                                 input_span=float(np.ptp(u)), output_span=y_span)
+        terms.append(Term(name=name, inputs=inputs, dynamics=check.tf))
+        info.append({"name": name, "kind": "tf", "inputs": inputs,
+                     "orders": {"numerator_length": nb, "denominator_order": na},
+                     "dc_gain_um_per_k": check.dc_gain,
+                     "poles": [abs(p) for p in check.poles],
+                     "sensitivity": check.sensitivity,
+                     "arx_fit_percent": fit.arx_fit_pct,
+                     "oe_fit_percent": fit.oe.fit_pct,
+                     "oe_validation_fit_percent": fit.oe_validation_fit_pct})
+    return terms, info
+
+
+def _fit_terms(args: argparse.Namespace, records: list[Record], ys: list[Any],
+               specs: list[tuple[str, dict[str, float]]], holdout_records: list[Record],
                ) -> tuple[list[Term], list[dict[str, Any]]]:
     from models.compensation import Term
     from models.errors import ModelError
     from models.greybox import GreyBox
-    from models.identify.checks import build_checked_tf
     from models.identify.greybox_fit import fit_greybox
     from models.identify.mbotv_fit import fit_mbotv
-    from models.identify.tf_fit import fit_tf_terms
     from models.mbotv import Mbotv
 
+    if args.kind == "tf":
+        return _fit_tf(args, records, ys, specs, holdout_records)
+    if len(records) != 1 or holdout_records:
+        raise ModelError(f"--kind {args.kind} fits one record; got {len(records)} (and "
+                         f"{len(holdout_records)} validation record(s)); use --kind tf")
+    record, y = records[0], ys[0]
     period = record.period_s
     terms: list[Term] = []
     info: list[dict[str, Any]] = []
-    if args.kind == "tf":
-        us = [_relative_input(record, inputs, True) for _, inputs in specs]
-        try:
-            fit = fit_tf_terms(y, us, args.orders, args.orders, validation=args.validation)
-        except ValueError as exc:
-            raise ModelError(f"identification failed: {exc}") from None
-        for (name, inputs), num, den, (nb, na) in zip(specs, fit.oe.nums, fit.oe.dens,
-                                                      fit.orders, strict=True):
-            check = build_checked_tf(num, den, name)
-            terms.append(Term(name=name, inputs=inputs, dynamics=check.tf))
-            info.append({"name": name, "kind": "tf", "inputs": inputs,
-                         "orders": {"numerator_length": nb, "denominator_order": na},
-                         "dc_gain_um_per_k": check.dc_gain,
-                         "poles": [abs(p) for p in check.poles],
-                         "sensitivity": check.sensitivity,
-                         "arx_fit_percent": fit.arx_fit_pct,
-                         "oe_fit_percent": fit.oe.fit_pct,
-                         "oe_validation_fit_percent": fit.oe_validation_fit_pct})
-        return terms, info
     if len(specs) != 1:
         raise ModelError(f"--kind {args.kind} fits one term; got {len(specs)}")
     name, inputs = specs[0]
@@ -187,20 +253,27 @@ def _fit_terms(args: argparse.Namespace, record: Record, y: Any,
     return terms, info
 
 
-def _provenance(args: argparse.Namespace, record: Record,
+def _provenance(args: argparse.Namespace, records: list[Record],
                 info: list[dict[str, Any]]) -> dict[str, Any]:
     prov: dict[str, Any] = {
         "tool": "compd fit",
         "command_line": shlex.join(["compd", *sys.argv[1:]]) if sys.argv[1:2] == ["fit"]
-        else "compd fit " + shlex.join([args.data, "--output", args.output]),
+        else "compd fit " + shlex.join([*args.data, "--output", args.output]),
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
-        "data_file": str(args.data),
-        "data_sha256": record.sha256,
-        "samples": len(record),
-        "period_s": record.period_s,
+        "data_file": str(args.data[0]),
+        "data_sha256": records[0].sha256,
+        "samples": sum(len(r) for r in records),
+        "period_s": records[0].period_s,
         "kind": args.kind,
         "fixed_terms": list(args.fixed),
+        "max_time_constant_days": args.max_time_constant_days,
     }
+    if len(records) > 1:
+        prov["data_files"] = [str(p) for p in args.data]
+        prov["data_sha256s"] = [r.sha256 for r in records]
+        prov["samples_per_record"] = [len(r) for r in records]
+    if args.validation_record:
+        prov["validation_records"] = [str(p) for p in args.validation_record]
     for t in info:
         key = t["name"]
         if t["kind"] == "tf":
@@ -214,10 +287,29 @@ def _provenance(args: argparse.Namespace, record: Record,
     return prov
 
 
+def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str],
+                  first: Record | None = None) -> list[Record]:
+    """Read and check records; all must share `first`'s (or the first one's) period."""
+    import math
+
+    from compd.records import RecordError, check_units, read_record
+
+    records = [read_record(p) for p in paths]
+    for r in records:
+        r.require([args.output, *sorted(channels), *([args.switch] if args.switch else [])])
+        check_units(r, sorted(channels) if args.kind != "greybox" else [], args.output)
+        ref = first if first is not None else records[0]
+        if not math.isclose(r.period_s, ref.period_s, rel_tol=1e-6):
+            raise RecordError(f"{r.path}: sampled every {r.period_s:g} s but {ref.path} "
+                              f"every {ref.period_s:g} s; records fitted together "
+                              "need one sample period")
+    return records
+
+
 def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[str, Any]], Path,
-                                                  Record]:
+                                                  list[Record]]:
     """Everything but the printing (the tests call `run`)."""
-    from compd.records import check_units, read_csv_record, speed_warnings
+    from compd.records import speed_warnings
     from models.compensation import CompensationModel
     from models.errors import ModelError
     from models.modelfile import load_model, save_model
@@ -226,43 +318,54 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
         specs = [parse_term(t) for t in args.term]
     except ValueError as exc:
         raise ModelError(str(exc)) from None
-    record = read_csv_record(args.data)
+    data = [str(p) for p in args.data]
     channels = {ch for _, inputs in specs for ch in inputs}
-    record.require([args.output, *sorted(channels), *([args.switch] if args.switch else [])])
-    check_units(record, sorted(channels) if args.kind != "greybox" else [], args.output)
-    for w in speed_warnings(record):
+    records = _read_records(data, args, channels)
+    holdout = _read_records([str(p) for p in args.validation_record], args, channels,
+                            records[0])
+    for w in [w for r in records for w in speed_warnings(r)] if len(records) == 1 else []:
         print(f"compd fit: warning: {w}", file=sys.stderr)
-    y = record.column(args.output)
-    fixed, fixed_pred = _fixed_terms(list(args.fixed), record)
-    terms, info = _fit_terms(args, record, y - fixed_pred, specs)
-    out = Path(args.model_file) if args.model_file else Path(args.data).with_suffix(".model.toml")
-    name = args.name or f"fitted from {Path(args.data).name}"
-    model = CompensationModel(fixed + terms, record.period_s, name=name,
-                              description=f"compd fit --kind {args.kind} on {Path(args.data).name}",
-                              provenance=_provenance(args, record, info))
+    fixed, fixed_preds = _fixed_terms(list(args.fixed), records)
+    ys = [r.column(args.output) - f for r, f in zip(records, fixed_preds, strict=True)]
+    terms, info = _fit_terms(args, records, ys, specs, holdout)
+    first = Path(data[0])
+    out = Path(args.model_file) if args.model_file else first.with_suffix(".model.toml")
+    names = ", ".join(Path(p).name for p in data)
+    name = args.name or f"fitted from {names}"
+    model = CompensationModel(fixed + terms, records[0].period_s, name=name,
+                              description=f"compd fit --kind {args.kind} on {names}",
+                              provenance=_provenance(args, records, info))
     save_model(model, out)
     written = load_model(out)  # what the daemon will load
-    return written, info, out, record
+    return written, info, out, records
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from compd.commands.replay import replay_model
     from compd.records import RecordError
     from models.errors import ModelError
     from models.quality import quality
 
     try:
-        model, info, out, record = fit_model(args)
-        simulated = replay_model(model, record)
+        model, info, out, records = fit_model(args)
+        simulated = [replay_model(model, r) for r in records]
     except (RecordError, ModelError) as exc:
         print(f"compd fit: {exc}", file=sys.stderr)
         return EX_DATAERR
-    q = quality(record.column(args.output), simulated)
+    measured = [r.column(args.output) for r in records]
+    per = [quality(m, s) for m, s in zip(measured, simulated, strict=True)]
+    q = per[0] if len(records) == 1 else quality(np.concatenate(measured),
+                                                 np.concatenate(simulated))
     if args.json:
         print(json.dumps({"terms": info, "fit_percent": q.fit_percent, "dpk_um": q.dpk_um,
-                          "model_file": str(out)}))
+                          "model_file": str(out),
+                          "records": [{"path": r.path, **pq.as_dict()}
+                                      for r, pq in zip(records, per, strict=True)]}))
         return 0
-    print(f"compd fit: {len(record)} samples every {record.period_s:g} s from {args.data}")
+    for r in records:
+        print(f"compd fit: {len(r)} samples every {r.period_s:g} s from {r.path}")
     for t in info:
         if t["kind"] == "tf":
             print(f"  term {t['name']} {t['inputs']}: numerator length "
@@ -277,6 +380,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"  ARX fit {head['arx_fit_percent']:.2f} %, output-error fit "
               f"{head['oe_fit_percent']:.2f} % (validation "
               f"{head['oe_validation_fit_percent']:.2f} %)")
+    for r, pq in zip(records, per, strict=True) if len(records) > 1 else ():
+        print(f"  on {r.path}: fit {pq.fit_percent:.2f} %, Δpk {pq.dpk_um:.3f} µm, range "
+              f"reduction {pq.range_reduction:.2f}-fold")
     print(f"  model (replayed as the daemon steps it): fit {q.fit_percent:.2f} %, "
           f"Δpk {q.dpk_um:.3f} µm, range reduction {q.range_reduction:.2f}-fold")
     print(f"  wrote {out}")

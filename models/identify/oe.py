@@ -52,7 +52,7 @@ def step_up(kappa: Sequence[float] | FloatArray) -> FloatArray:
     return a
 
 
-def step_down(den: Sequence[float]) -> FloatArray:
+def step_down(den: Sequence[float] | FloatArray) -> FloatArray:
     """Reflection coefficients of a monic polynomial (|κ| < 1 iff stable);
     a coefficient reaching ±1 is clipped just inside (an unstable start)."""
     a = np.asarray(den, dtype=np.float64) / float(den[0])

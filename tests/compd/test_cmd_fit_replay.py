@@ -76,7 +76,8 @@ def test_fit_json_and_a_fixed_term(sp3_records: tuple[Path, Path], tmp_path: Pat
     assert main(["fit", str(sp3_records[0]), "--output", "dz_um", "--term", "spindle=bearing",
                  "--fixed", "sp3:ambient", "--orders", "1-2", "-o", str(out), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
-    assert set(doc) == {"terms", "fit_percent", "dpk_um", "model_file"}
+    assert set(doc) == {"terms", "fit_percent", "dpk_um", "model_file", "records"}
+    assert [r["path"] for r in doc["records"]] == [str(sp3_records[0])]
     assert doc["model_file"] == str(out) and doc["fit_percent"] > 95.0
     model = load_model(out)
     assert [t.name for t in model.terms] == ["ambient", "spindle"]
@@ -104,23 +105,24 @@ def test_step_json_and_plot(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert png.stat().st_size > 10_000
 
 
-@pytest.mark.skip(reason="simulated machine target (verification fit >= 85 %, 6x Δpk) not "
-                         "reached yet: ambient from etve + spindle from a 9,000 rpm heat-up/"
-                         "cool-down gave 58 % / 2.3-fold on the spectrum run (see report)")
 def test_simulated_machine_calibration_generalises(tmp_path: Path,
                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """The papers' calibration design on the simulated machine: a 9,000 rpm
+    heat-up + cool-down and an environmental run fitted jointly (one term per
+    sensor, third-order OE), verified on a spindle-speed spectrum run. At 60 s
+    sampling; the ceiling set by the 0.5 µm probe noise alone is ~91 % / ~7x."""
     for prog, seed in (("etve", 1), ("constant", 2), ("spectrum", 3)):
         assert main(["sim", "--record", str(tmp_path / f"{prog}.csv"), "--program", prog,
-                     "--period-s", "10", "--seed", str(seed)]) == 0
-    amb, full = tmp_path / "amb.toml", tmp_path / "plant.toml"
-    assert main(["fit", str(tmp_path / "etve.csv"), "--output", "dz_um", "--term",
-                 "ambient=column-ambient", "--orders", "1-3", "-o", str(amb)]) == 0
-    assert main(["fit", str(tmp_path / "constant.csv"), "--output", "dz_um", "--term",
-                 "spindle=bearing-ambient", "--fixed", f"{amb}:ambient", "--orders", "1-3",
-                 "-o", str(full)]) == 0
+                     "--period-s", "60", "--seed", str(seed)]) == 0
+    full = tmp_path / "plant.toml"
+    assert main(["fit", str(tmp_path / "constant.csv"), str(tmp_path / "etve.csv"),
+                 "--output", "dz_um", "--term", "bearing", "--term", "motor", "--term",
+                 "column", "--term", "ambient", "--orders", "3-3", "-o", str(full)]) == 0
     capsys.readouterr()
     assert main(["replay", str(full), str(tmp_path / "spectrum.csv"), "--output", "dz_um",
                  "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["fit_percent"] >= 85.0 and out["range_reduction"] >= 6.0
     assert math.isfinite(out["dpk_um"])
+    prov = load_model(full).provenance
+    assert prov["samples_per_record"] == [481, 1441] and prov["max_time_constant_days"] == 3.0
