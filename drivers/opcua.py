@@ -185,8 +185,12 @@ class OpcUaDriver:
         client.disconnect_socket()
 
     async def _lost(self, client: Client) -> None:
+        """The link failed under a call: drop the client and start the backoff
+        delay, so the next calls fail fast instead of each spending a connect
+        attempt on a controller that just stopped answering."""
         if self._client is client:
             self._client = None
+            self.backoff.failed()
         await self._dispose(client)
 
     async def _ready(self) -> Client:

@@ -195,11 +195,13 @@ class S7Driver:
                                  channel=channel, address=address) from cause
         except (TimeoutError, S7TimeoutError) as exc:
             self._up = False
+            self._backoff.failed()  # the next calls fail fast until the delay passed
             raise ControllerTimeout(f"{what} on {self.endpoint} timed out after "
                                     f"{self._timeout_s} s", channel=channel,
                                     address=address) from exc
         except (S7ConnectionError, OSError) as exc:
             self._up = False
+            self._backoff.failed()
             raise ConnectionLost(f"{what} on {self.endpoint} lost the link: {exc}",
                                  channel=channel, address=address) from exc
         self._backoff.succeeded()
