@@ -162,8 +162,10 @@ def select_arx(y: FloatArray, inputs: Sequence[FloatArray], na_range: tuple[int,
             candidates.append(ArxEstimate(den, nums, score))
     finite = [c for c in candidates if math.isfinite(c.validation_fit_pct)]
     if not finite:
-        raise ValueError("every ARX candidate was unstable: the record does not determine a "
-                         "model (too short, or no input variation)")
+        bound = (f" or had a pole beyond |p| < {radius:.9f} (the slowest allowed time "
+                 "constant)" if radius < 1.0 else "")
+        raise ValueError(f"every ARX candidate was unstable{bound}: the record does not "
+                         "determine a model (too short, or no input variation)")
     best = max(c.validation_fit_pct for c in finite)
     good = [c for c in finite if c.validation_fit_pct >= best - tolerance_pct]
     chosen = min(good, key=lambda c: (c.n_params, -c.validation_fit_pct))

@@ -126,3 +126,19 @@ def test_simulated_machine_calibration_generalises(tmp_path: Path,
     assert math.isfinite(out["dpk_um"])
     prov = load_model(full).provenance
     assert prov["samples_per_record"] == [481, 1441] and prov["max_time_constant_days"] == 3.0
+
+
+def test_fit_refuses_records_with_different_periods_and_a_too_slow_pole(
+        tmp_path: Path, sp3_records: tuple[Path, Path],
+        capsys: pytest.CaptureFixture[str]) -> None:
+    ten = tmp_path / "ten.csv"
+    ten.write_text("time_s,bearing,ambient,dz_um\n" + "".join(
+        f"{10 * k},{20 + k / 10:.1f},20.0,{k * 1.5}\n" for k in range(20)))
+    assert main(["fit", str(sp3_records[0]), str(ten), "--output", "dz_um",
+                 "--term", "bearing"]) == 65
+    assert "need one sample period" in capsys.readouterr().err
+    # SP3's spindle pole (0.9984 at 1 s, τ ≈ 10 min) is slower than a 1-minute bound
+    assert main(["fit", str(sp3_records[0]), "--output", "dz_um", "--term", "spindle=bearing",
+                 "--fixed", "sp3:ambient", "--orders", "1-2", "--max-time-constant-days",
+                 str(60 / 86400), "-o", str(tmp_path / "x.toml")]) == 65
+    assert "time constant" in capsys.readouterr().err

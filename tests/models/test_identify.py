@@ -89,3 +89,47 @@ def test_mbotv_fit_recovers_parameters_and_simulates_like_the_daemon() -> None:
     fit = fit_mbotv(y, T, period)
     assert fit.alpha == pytest.approx(3.0, rel=0.02)
     assert fit.fit_pct > 99.0
+
+
+def test_segments_restart_every_record_from_rest() -> None:
+    from models.identify.arx import refit
+    from models.identify.segments import Segments
+
+    seg = Segments.from_lengths([3, 2])
+    assert seg.bounds == ((0, 3), (3, 5))
+    np.testing.assert_array_equal(seg.shift(np.arange(1.0, 6.0), 1), [0, 1, 2, 0, 4])
+    # two records fitted jointly == the same model simulated on each alone
+    u1, u2 = _steps(3000, 11), _steps(2000, 12, hold=300)
+    tf = TransferFunction([0.5, -0.3], [1, -0.95])
+    y = np.concatenate([tf.simulate(u1), tf.simulate(u2)])
+    joint = refit(y, [np.concatenate([u1, u2])], 1, [2],
+                  segments=Segments.from_lengths([3000, 2000]))
+    np.testing.assert_allclose(joint.den, [1, -0.95], atol=1e-9)
+    np.testing.assert_allclose(joint.nums[0], [0.5, -0.3], atol=1e-9)
+
+
+def test_output_error_keeps_every_pole_within_the_radius() -> None:
+    from models.identify.segments import Segments, pole_radius
+
+    assert pole_radius(10.0, 3 * 86400.0) == pytest.approx(0.9999614, abs=1e-7)
+    n = 4000
+    u = _steps(n, 13, hold=500)
+    y = TransferFunction([0.01], [1, -0.999]).simulate(u)  # τ ≈ 1000 samples
+    radius = 0.99
+    est = refine_oe(y, [u], [[0.01]], [[1.0, -0.999]], radius=radius,
+                    segments=Segments.single(n))
+    assert np.max(np.abs(np.roots(est.dens[0]))) < radius
+
+
+def test_checks_refuse_a_slow_pole_and_an_absurd_dc_gain() -> None:
+    from models.errors import ModelError
+    from models.identify.checks import build_checked_tf
+
+    with pytest.raises(ModelError, match="time constant"):
+        build_checked_tf([1e-6], [1.0, -(1.0 - 1e-12)], "ambient", max_pole=0.9999,
+                         period_s=10.0)
+    with pytest.raises(ModelError, match="implausible steady state"):
+        build_checked_tf([1e-2], [1.0, -0.99999], "ambient", input_span=6.0, output_span=20.0)
+    ok = build_checked_tf([0.5, -0.3], [1.0, -0.95], "spindle", max_pole=0.99,
+                          input_span=10.0, output_span=40.0)
+    assert ok.dc_gain == pytest.approx(4.0)
