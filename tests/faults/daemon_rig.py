@@ -1,0 +1,123 @@
+"""The in-process daemon against a simulated controller, for the fault tests.
+
+`DaemonRig` builds a daemon config for the sim (`compd.demo.daemon_config`,
+then the test's overrides), wraps the real driver in `InvariantDriver` (every
+write checked) and runs `Daemon.run()` as a task at a fast time scale. The
+test's plant callback runs before every read with the read's index and the
+machine time of that sample (estimated from the daemon's last cycle), and
+writes the controller's memory the way the machine would.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+from typing import Any
+
+from compd.config import LoadedConfig, parse_config
+from compd.daemon import Daemon
+from compd.demo import daemon_config
+from compd.driver_setup import build_driver
+from compd.sdnotify import Notifier
+from drivers.sim.base import SimController
+from tests.faults.invariants import InvariantDriver, Invariants
+
+Plant = Callable[[int, float], Awaitable[None]]
+
+
+class EventLog:
+    """Stands in for the daemon's structlog logger: keeps (level, event, fields)."""
+
+    def __init__(self) -> None:
+        self.events: list[tuple[str, str, dict[str, Any]]] = []
+
+    def _at(self, level: str) -> Callable[..., None]:
+        def log(event: str, **fields: Any) -> None:
+            if level != "debug":
+                self.events.append((level, event, fields))
+        return log
+
+    def __getattr__(self, level: str) -> Callable[..., None]:
+        return self._at(level)
+
+    def names(self) -> list[str]:
+        return [e for _, e, _ in self.events]
+
+
+def merge(doc: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    for key, value in overrides.items():
+        if isinstance(value, dict) and isinstance(doc.get(key), dict):
+            merge(doc[key], value)
+        else:
+            doc[key] = value
+    return doc
+
+
+def make_config(sim: SimController, tmp_path: Path, *, time_scale: float,
+                overrides: dict[str, Any] | None = None, model: str = "sp2",
+                slew_um_s: float = 1.0, limit_um: float = 100.0) -> LoadedConfig:
+    doc = daemon_config(sim, model=model, period_s=1.0, time_scale=time_scale,
+                        state_dir=tmp_path / "state", limit_um=limit_um,
+                        slew_um_s=slew_um_s, extra_channels=())
+    doc["recorder"] = {"enabled": False}
+    merge(doc, overrides or {})
+    return parse_config(doc, tmp_path / "compd.toml")
+
+
+class DaemonRig:
+    def __init__(self, sim: SimController, cfg: LoadedConfig, inv: Invariants,
+                 plant: Plant | None = None) -> None:
+        self.sim = sim
+        self.cfg = cfg
+        self.inv = inv
+        self.plant = plant
+        self.driver = InvariantDriver(build_driver(cfg), inv, self._before_read)
+        self.daemon = Daemon(cfg, driver=self.driver, notifier=Notifier(None))
+        self.log = EventLog()
+        self.daemon.log = self.log
+        self._task: asyncio.Task[int] | None = None
+
+    @property
+    def machine_s(self) -> float:
+        """Machine time of the next sample (the last cycle's + one period)."""
+        r = self.daemon.last_result
+        if r is None or r.record is None:
+            return 0.0
+        return r.record.mono_s + self.cfg.period_s
+
+    async def _before_read(self, index: int) -> None:
+        if self.plant is not None:
+            await self.plant(index, self.machine_s)
+
+    async def start(self) -> None:
+        self._task = asyncio.create_task(self.daemon.run())
+
+    async def until(self, predicate: Callable[[], bool], limit_s: float = 30.0) -> None:
+        """Wait (real time) for `predicate`; fail if the daemon ended or time ran out."""
+        loop = asyncio.get_running_loop()
+        end = loop.time() + limit_s
+        while not predicate():
+            if self._task is not None and self._task.done():
+                self._task.result()  # raises what the daemon raised
+                raise AssertionError("the daemon stopped before the condition")
+            if loop.time() > end:
+                raise AssertionError(f"condition not reached in {limit_s} s "
+                                     f"({self.daemon.cycles} cycles)")
+            await asyncio.sleep(0.002)
+
+    async def stop(self) -> int:
+        if self._task is None:
+            return 0
+        self.daemon.request_stop()
+        rc = await asyncio.wait_for(self._task, 30.0)
+        self._task = None
+        return rc
+
+    async def run_until(self, predicate: Callable[[], bool], limit_s: float = 30.0) -> int:
+        await self.start()
+        try:
+            await self.until(predicate, limit_s)
+        finally:
+            rc = await self.stop()
+        return rc
