@@ -39,7 +39,7 @@ import math
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, Strict, field_validator, model_validator
 
 Protocol = Literal["opcua", "s7", "modbus", "focas"]
 
@@ -53,9 +53,15 @@ OUTPUT_UNITS: dict[str, float | None] = {"um": 1.0, "mm": 1e-3, "nm": 1e3, "inch
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, hide_input_in_errors=True)
+    # strict: a TOML string is never silently read as a number or a boolean
+    # ("100" for limit_um, "yes" for readback): wrong types are refused
+    model_config = ConfigDict(extra="forbid", frozen=True, hide_input_in_errors=True,
+                              strict=True)
 
 
+#: a path given as a TOML string (strict mode alone would want a Path object)
+LaxPath = Annotated[Path, Field(strict=False)]
+StrictFloat = Annotated[float, Strict()]
 PositiveS = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 
 
@@ -84,12 +90,12 @@ class SecuritySection(_Section):
     policy: Literal["None", "Basic256Sha256", "Aes128_Sha256_RsaOaep",
                     "Aes256_Sha256_RsaPss"] = "None"
     mode: Literal["Sign", "SignAndEncrypt"] = "SignAndEncrypt"
-    certificate: Path | None = None
-    private_key: Path | None = None
-    server_certificate: Path | None = None
-    trust_dir: Path | None = None
+    certificate: LaxPath | None = None
+    private_key: LaxPath | None = None
+    server_certificate: LaxPath | None = None
+    trust_dir: LaxPath | None = None
     username: str | None = None
-    password_file: Path | None = None
+    password_file: LaxPath | None = None
     password_env: str | None = None
     #: must be true to run with policy "None" (a deliberate choice, not a default)
     insecure: bool = False
@@ -132,7 +138,7 @@ class S7Section(_Section):
 
 
 class FocasSection(_Section):
-    library_path: Path
+    library_path: LaxPath
     library_sha256: str | None = None
 
     @field_validator("library_path")
@@ -166,7 +172,7 @@ class ChannelSection(_Section):
     #: validated against the protocol's address model by `compd.config`
     address: dict[str, Any]
     unit: str
-    range: tuple[float, float]
+    range: Annotated[tuple[StrictFloat, StrictFloat], Field(strict=False)]
     max_rate_per_s: PositiveS | None = None
     stale_after_s: PositiveS | None = None
     stuck_after_s: PositiveS | None = None
@@ -248,13 +254,13 @@ class FaultsSection(_Section):
 
 
 class StateSection(_Section):
-    dir: Path = Path("state")
+    dir: LaxPath = Path("state")
     checkpoint_every: Annotated[int, Field(ge=1)] = 60
 
 
 class RecorderSection(_Section):
     enabled: bool = True
-    path: Path | None = None
+    path: LaxPath | None = None
     commit_every: Annotated[int, Field(ge=1)] = 10
     retention_days: PositiveS | None = None
 
