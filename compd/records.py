@@ -12,9 +12,13 @@ magnitude betrays a unit mistake (a temperature in mK, a displacement in mm)
 raises `RecordError` naming the row (1-based line of the file) and column.
 A model fitted on silently resampled data would be silently wrong.
 
-The daemon's own SQLite sample recorder (`compd.recorder`) is not read here
-yet: it was being written in parallel; export it to CSV until a reader for
-its schema is added next to `read_csv_record`.
+The daemon's own SQLite sample recorder (`compd.recorder`, a ``.db``,
+``.sqlite`` or ``.sqlite3`` file) is read by `read_recorder_record`: one
+column per recorded channel, plus ``offset_um`` / ``model_um`` when every
+sample has them, on the daemon's sample clock. A missing channel value is
+refused like an empty CSV cell, a daemon restart (the clock starts again)
+like a backwards timestamp; rows are numbered as in a CSV export (line 2 is
+the first sample). `read_record` picks the reader by the file's suffix.
 """
 
 from __future__ import annotations
@@ -165,9 +169,50 @@ def read_csv_record(path: str | Path) -> Record:
                   columns=columns)
 
 
+#: file suffixes read as the daemon's SQLite recorder
+RECORDER_SUFFIXES = (".db", ".sqlite", ".sqlite3")
+
+
 def read_record(path: str | Path) -> Record:
-    """A calibration record from a CSV file (see `read_csv_record`)."""
+    """A calibration record from a CSV file or a recorder database (by suffix)."""
+    if Path(path).suffix.lower() in RECORDER_SUFFIXES:
+        return read_recorder_record(path)
     return read_csv_record(path)
+
+
+def read_recorder_record(path: str | Path) -> Record:
+    """Read and check the daemon's SQLite sample recorder as a record."""
+    from compd.recorder import FIXED_COLUMNS, RecorderError, read_samples
+
+    p = Path(path)
+    where = str(p)
+    try:
+        cols = read_samples(p)
+    except RecorderError as exc:
+        raise RecordError(f"{where}: {exc.reason}") from None
+    t = np.asarray(cols["time_s"], dtype=np.float64)
+    if t.size < 3:
+        raise RecordError(f"{where}: {t.size} sample(s); a record needs at least 3")
+    if not np.all(np.isfinite(t)):
+        raise RecordError(f"{where}: row {int(np.argmin(np.isfinite(t))) + 2}: no sample time")
+    columns: dict[str, FloatArray] = {}
+    for name in ("offset_um", "model_um"):
+        col = np.asarray(cols[name], dtype=np.float64)
+        if np.all(np.isfinite(col)):
+            columns[name] = col
+    for name, values in cols.items():
+        if name in FIXED_COLUMNS or "." in name:
+            continue
+        col = np.asarray(values, dtype=np.float64)
+        bad = np.flatnonzero(~np.isfinite(col))
+        if bad.size:
+            raise RecordError(f"{where}: row {int(bad[0]) + 2}, column {name!r}: no valid value "
+                              f"recorded ({bad.size} such sample(s); a missing sample is not "
+                              "filled in; cut the record or repair it)")
+        columns[name] = col
+    period_s = check_sampling(t, where)
+    return Record(path=where, sha256=file_sha256(p), time_s=t - t[0], period_s=period_s,
+                  columns=columns)
 
 
 def _parse_float(cell: str, where: str, line_no: int, column: str) -> float:

@@ -94,8 +94,8 @@ def _positive_float(text: str) -> float:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data", metavar="DATA", nargs="+",
-                        help="calibration record(s) (CSV); several are fitted jointly as "
-                             "separate experiments")
+                        help="calibration record(s) (CSV, or a compd recorder .db); several "
+                             "are fitted jointly as separate experiments")
     parser.add_argument("--output", required=True, metavar="COLUMN",
                         help="the measured displacement column (µm)")
     parser.add_argument("--term", action="append", required=True, metavar="[NAME=]EXPR",

@@ -29,7 +29,8 @@ EX_DATAERR = 65
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("model", metavar="MODEL", help="model file, or a library name (sp2)")
-    parser.add_argument("data", metavar="DATA", help="calibration/verification record (CSV)")
+    parser.add_argument("data", metavar="DATA",
+                        help="calibration/verification record (CSV, or a compd recorder .db)")
     parser.add_argument("--output", required=True, metavar="COLUMN",
                         help="the measured displacement column (µm)")
     parser.add_argument("--plot", metavar="PNG", default=None,
@@ -63,14 +64,14 @@ def plot_inputs(model: CompensationModel, record: Record) -> dict[str, npt.NDArr
 
 
 def run(args: argparse.Namespace) -> int:
-    from compd.records import RecordError, check_units, read_csv_record
+    from compd.records import RecordError, check_units, read_record
     from models.errors import ModelError
     from models.modelfile import load_model
     from models.quality import quality
 
     try:
         model = load_model(args.model)
-        record = read_csv_record(args.data)
+        record = read_record(args.data)
         record.require([args.output])
         check_units(record, sorted(model.reference_channels), args.output)
         simulated = replay_model(model, record)

@@ -66,3 +66,42 @@ def test_constant_speed_heat_up_alone_is_warned_about(tmp_path: Path) -> None:
     rows += [f"{10 * k},0,{22 - k / 1000},{k}" for k in range(200, 300)]
     rec = read_csv_record(_write(tmp_path / "r2.csv", rows, "time_s,speed_rpm,bearing,dz_um"))
     assert speed_warnings(rec) == []
+
+
+def _recorder_db(path: Path, n: int, *, missing_at: int | None = None,
+                 restart_at: int | None = None) -> Path:
+    from compd.recorder import Recorder, RecordRow
+
+    with Recorder(path, commit_every=50) as rec:
+        for k in range(n):
+            t = 10.0 * (k if restart_at is None or k < restart_at else k - restart_at)
+            bearing: float | None = 20.0 + 0.01 * k
+            if k == missing_at:
+                bearing = None
+            rec.record(RecordRow(seq=k, mono_s=t, wall_s=1e9 + 10.0 * k, offset_um=None,
+                                 model_um=0.5 * k, state="running", valid=True,
+                                 channels={"bearing": bearing, "dz_um": 0.03 * k}))
+    return path
+
+
+def test_a_recorder_database_reads_as_a_record(tmp_path: Path) -> None:
+    from compd.records import read_record
+
+    rec = read_record(_recorder_db(tmp_path / "run.db", 30))
+    assert rec.period_s == 10.0 and len(rec) == 30
+    assert set(rec.columns) == {"bearing", "dz_um", "model_um"}  # offset_um was never written
+    assert rec.column("bearing")[3] == pytest.approx(20.03)
+    assert len(rec.sha256) == 64
+
+
+def test_a_recorder_database_with_a_gap_in_a_channel_or_a_restart_is_refused(
+        tmp_path: Path) -> None:
+    from compd.records import read_record
+
+    with pytest.raises(RecordError, match=r"row 7, column 'bearing': no valid value"):
+        read_record(_recorder_db(tmp_path / "gap.db", 20, missing_at=5))
+    with pytest.raises(RecordError, match="backwards"):
+        read_record(_recorder_db(tmp_path / "restart.sqlite", 20, restart_at=12))
+    (tmp_path / "junk.db").write_text("not sqlite")
+    with pytest.raises(RecordError, match=r"junk\.db"):
+        read_record(tmp_path / "junk.db")

@@ -33,3 +33,27 @@ def test_replay_on_a_fresh_spectrum_run(seed: int, tmp_path: Path,
     out = json.loads(capsys.readouterr().out)
     assert out["fit_percent"] >= 85.0
     assert out["range_reduction"] >= 6.0
+
+
+def test_replay_reads_the_daemons_recorder_database(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    from compd.recorder import Recorder, RecordRow
+    from compd.records import read_csv_record
+
+    csv_path, db_path = tmp_path / "spectrum.csv", tmp_path / "spectrum.db"
+    assert main(["sim", "--record", str(csv_path), "--program", "spectrum", "--period-s", "60",
+                 "--seed", "7"]) == 0
+    record = read_csv_record(csv_path)
+    with Recorder(db_path, commit_every=100) as rec:
+        for k, sample in enumerate(record.samples()):
+            rec.record(RecordRow(seq=k, mono_s=float(record.time_s[k]), wall_s=1e9 + k,
+                                 offset_um=0.0, model_um=0.0, state="running", valid=True,
+                                 channels=sample))
+    capsys.readouterr()
+    figures = []
+    for path in (csv_path, db_path):
+        assert main(["replay", "sim_machine", str(path), "--output", "dz_um", "--json"]) == 0
+        figures.append(json.loads(capsys.readouterr().out))
+    assert figures[1] == pytest.approx(figures[0])
+    assert main(["fit", str(db_path), "--output", "dz_um", "--term", "bearing", "--term",
+                 "column", "--orders", "1-2", "-o", str(tmp_path / "from_db.toml")]) == 0
