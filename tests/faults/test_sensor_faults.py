@@ -264,3 +264,78 @@ async def test_bad_status_opcua(tmp_path: Path, invariants: Invariants) -> None:
 
     _check(await _open_sensor_run("opcua", inject, tmp_path, invariants, 25.0,
                                   hold_s=10.0), hold_s=10.0)
+
+
+async def _modbus_run(tmp_path: Path, inv: Invariants, plant_values: object,
+                      stop: object, overrides: dict[str, object]) -> DaemonRig:
+    sim = ModbusSimController()
+    await sim.start()
+    try:
+        cfg = make_config(sim, tmp_path, time_scale=50.0, slew_um_s=SLEW,
+                          overrides=overrides)
+
+        async def plant(index: int, t: float) -> None:
+            for name, value in plant_values(index, t).items():  # type: ignore[operator]
+                if isinstance(value, int):
+                    sim.set_raw("input", 0 if name == "bearing" else 4, [value])
+                else:
+                    await sim.publish({name: value})
+
+        rig = DaemonRig(sim, cfg, inv, plant)
+        assert await rig.run_until(lambda: bool(stop(rig))) == 0  # type: ignore[operator]
+        return rig
+    finally:
+        await sim.stop()
+
+
+async def test_stuck_sensor_modbus(tmp_path: Path, invariants: Invariants) -> None:
+    """Through the wire, at a short stuck_after_s (60 s) so it fits in a second:
+    the bearing's register never changes; the machine rests 90 s, then warms
+    up (ambient +0.1 K every 10 s). The bearing is flagged stuck within 10 min
+    of the warm-up start (in fact at the first change of another channel)."""
+    warm_s = 90.0
+
+    def values(_i: int, t: float) -> dict[str, float]:
+        return {"bearing": 20.0,
+                "ambient": round(20.0 + max(0.0, t - warm_s) * 0.01, 1)}
+
+    def stuck(rig: DaemonRig) -> bool:
+        r = rig.daemon.last_result
+        return r is not None and r.record is not None \
+            and r.record.validity["bearing"] == "stuck"
+
+    rig = await _modbus_run(tmp_path, invariants, values, stuck, {
+        "channels": {"bearing": {"stuck_after_s": 60.0},
+                     "ambient": {"stuck_after_s": 60.0}}})
+    log = invariants.log()
+    first = next(c for c in log if c.result.record is not None
+                 and c.result.record.validity["bearing"] == "stuck")
+    after = first.now_s - warm_s
+    print(f"wire: stuck flagged {after:.1f} s after warm-up start")
+    assert 0.0 <= after <= 600.0
+    assert all(c.result.record is not None and c.result.record.validity["bearing"] is None
+               for c in log if c.now_s < warm_s)  # no false alarm while at rest
+    assert rig.daemon.last_result is not None and rig.daemon.last_result.state == "hold"
+
+
+@pytest.mark.parametrize("spike_k", [50.0, -50.0])
+async def test_spike_modbus(spike_k: float, tmp_path: Path, invariants: Invariants) -> None:
+    """Through the wire: the bearing steps +2 K, the offset settles; one sample
+    of ±50 K (raw register); the offset matches the spike-free steady value
+    (a spike-free run's offset here) within 0.1 µm on every cycle."""
+    spike_read = 40
+
+    def values(i: int, _t: float) -> dict[str, float]:
+        b = (22.0 if i >= 3 else 20.0) + (spike_k if i == spike_read else 0.0)
+        return {"bearing": int(round(b * 10)), "ambient": 20.0}  # type: ignore[dict-item]
+
+    await _modbus_run(tmp_path, invariants, values,
+                      lambda rig: rig.daemon.cycles >= spike_read + 10, {})
+    log = invariants.log()
+    rec = log[spike_read].result.record
+    assert rec is not None and rec.validity["bearing"] is not None
+    before = log[spike_read - 1].result.offset_um
+    dev = max(abs(c.result.offset_um - before) for c in log[spike_read:])
+    print(f"wire: spike {spike_k:+.0f} K: max |offset - spike-free| = {dev:.4f} µm "
+          f"(offset {before:.3f} µm)")
+    assert abs(before) > 10.0 and dev <= TOL_UM
