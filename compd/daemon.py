@@ -70,6 +70,7 @@ class Daemon:
         self._read_ok: bool | None = None
         self._last_status = ""
         self._recorder: Any = None
+        self._recorder_alarm = False
         self._lock: Any = None
 
     # -- public --------------------------------------------------------------------
@@ -279,6 +280,16 @@ class Daemon:
             validity=r.validity, contributions=r.contributions))
         if self._recorder.dropped > dropped:
             self.metrics.records_dropped.inc(self._recorder.dropped - dropped)
+        alarm = bool(self._recorder.alarm)
+        if alarm != self._recorder_alarm:
+            # compensation goes on either way; the alarm tells that samples are lost
+            self._recorder_alarm = alarm
+            self.metrics.recorder_alarm.set(1 if alarm else 0)
+            if alarm:
+                self.log.error("recorder_failing", error=self._recorder.last_error,
+                               dropped=self._recorder.dropped)
+            else:
+                self.log.info("recorder_recovered", dropped=self._recorder.dropped)
 
     def _should_checkpoint(self, result: CycleResult) -> bool:
         every = self.cfg.raw.state.checkpoint_every

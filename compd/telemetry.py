@@ -21,7 +21,7 @@ import re
 import sys
 import threading
 from collections.abc import Mapping
-from typing import Any, TextIO
+from typing import Any, TextIO, cast
 from wsgiref.simple_server import WSGIServer
 
 import structlog
@@ -29,7 +29,7 @@ from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 from prometheus_client.exposition import start_http_server
 from structlog.typing import EventDict, Processor, WrappedLogger
 
-__all__ = ["REDACTED", "Metrics", "clear_secrets", "configure_logging", "redact",
+__all__ = ["REDACTED", "LogStream", "Metrics", "clear_secrets", "configure_logging", "redact",
            "register_secret"]
 
 REDACTED = "***"
@@ -92,6 +92,35 @@ def redact(_logger: WrappedLogger, _name: str, event_dict: EventDict) -> EventDi
     return event_dict
 
 
+class LogStream:
+    """The stream log lines go to, made safe for the daemon: a line that cannot
+    be written (a full disk under a log file, a closed pipe) is dropped and
+    counted in `dropped_lines`, never raised into the compensation loop."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self.stream = stream
+        self.dropped_lines = 0
+
+    def write(self, text: str) -> int:
+        try:
+            return self.stream.write(text)
+        except (OSError, ValueError):  # ENOSPC, EIO, EPIPE; ValueError: closed
+            self.dropped_lines += 1
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self.stream.flush()
+        except (OSError, ValueError):
+            self.dropped_lines += 1
+
+    def isatty(self) -> bool:
+        try:
+            return self.stream.isatty()
+        except (OSError, ValueError):
+            return False
+
+
 def configure_logging(json: bool | None = None, level: str = "info", *,
                       stream: TextIO | None = None) -> None:
     """Set up structlog (and the stdlib root logger) for the daemon.
@@ -100,7 +129,7 @@ def configure_logging(json: bool | None = None, level: str = "info", *,
     `level`: debug, info, warning, error or critical. `stream`: where lines go,
     sys.stderr (looked up at call time) by default.
     """
-    out = stream if stream is not None else sys.stderr
+    out = LogStream(stream if stream is not None else sys.stderr)
     levelno = logging.getLevelNamesMapping().get(level.upper())
     if levelno is None:
         raise ValueError(f"unknown log level {level!r}")
@@ -121,7 +150,7 @@ def configure_logging(json: bool | None = None, level: str = "info", *,
     structlog.configure(
         processors=[*shared, renderer],
         wrapper_class=structlog.make_filtering_bound_logger(levelno),
-        logger_factory=structlog.PrintLoggerFactory(file=out),
+        logger_factory=structlog.PrintLoggerFactory(file=cast(TextIO, out)),
         cache_logger_on_first_use=False,
     )
     # the protocol libraries log through `logging`: same format, same redaction
@@ -161,6 +190,9 @@ class Metrics:
                                  "Fault state: 0 ok, 1 hold, 2 ramp, 3 alarm/stopped", registry=r)
         self.records_dropped = Counter("compd_records_dropped",
                                        "Samples the recorder could not store", registry=r)
+        self.recorder_alarm = Gauge("compd_recorder_alarm",
+                                    "1 while the recorder cannot store samples (disk full, "
+                                    "I/O error)", registry=r)
         self.cert_expiry_days = Gauge("compd_cert_expiry_days",
                                       "Days until the client certificate expires", registry=r)
         self._server: WSGIServer | None = None
