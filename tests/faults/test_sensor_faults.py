@@ -327,7 +327,7 @@ async def test_spike_modbus(spike_k: float, tmp_path: Path, invariants: Invarian
 
     def values(i: int, _t: float) -> dict[str, float]:
         b = (22.0 if i >= 3 else 20.0) + (spike_k if i == spike_read else 0.0)
-        return {"bearing": int(round(b * 10)), "ambient": 20.0}  # type: ignore[dict-item]
+        return {"bearing": round(b * 10), "ambient": 20.0}  # an int: a raw register
 
     await _modbus_run(tmp_path, invariants, values,
                       lambda rig: rig.daemon.cycles >= spike_read + 10, {})
