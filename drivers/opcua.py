@@ -125,6 +125,9 @@ class OpcUaDriver:
             raise ConnectionLost(f"cannot connect: {type(exc).__name__}: {exc}",
                                  address=self.endpoint) from None
         except BaseException:
+            # cancelled, e.g. by the caller's own deadline: a failed attempt
+            # too, or every next call would start another handshake
+            self.backoff.failed()
             await self._dispose(client)
             raise
         self._client = client
