@@ -134,6 +134,15 @@ def _quantum_um(addr: Address, units_per_um: float) -> float:
     return 0.0
 
 
+#: what numpy raises on coefficients that overflow once normalised (1e308 over
+#: 0.5): refused as a config error, like any other model the daemon cannot run
+_NUMERIC_ERRORS = (ArithmeticError, ValueError)
+
+
+def _numeric_reason(exc: Exception) -> str:
+    return f"the model's coefficients cannot be evaluated ({type(exc).__name__}: {exc})"
+
+
 def _load_model(ref: str, base: Path, key: str) -> CompensationModel:
     p = Path(ref)
     candidate = p if p.is_absolute() else base / p
@@ -144,6 +153,8 @@ def _load_model(ref: str, base: Path, key: str) -> CompensationModel:
             return load_model(ref)  # a bundled library model
     except ModelError as exc:
         raise ConfigError(key, str(exc)) from None
+    except _NUMERIC_ERRORS as exc:
+        raise ConfigError(key, _numeric_reason(exc)) from None
     raise ConfigError(key, f"no model file at {candidate} (and no bundled model named {ref!r})")
 
 
@@ -220,6 +231,8 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
             model = parse_model({"model": head, "terms": m.terms or []}, where="model")
         except ModelError as exc:
             raise ConfigError("model.terms", str(exc)) from None
+        except _NUMERIC_ERRORS as exc:
+            raise ConfigError("model.terms", _numeric_reason(exc)) from None
         model_key = "model.terms"
     _check_model(model, channels, machine.period_s, model_key)
     shadow = None
