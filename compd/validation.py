@@ -19,6 +19,20 @@ A value is refused when it is:
 
 Times are machine seconds (monotonic) except the wall-clock age check, which
 converts real seconds to machine seconds with ``time_scale``.
+
+Clock steps are not staleness. The wall clock (the caller's) and a source
+clock (the controller's, or for protocols without source timestamps the
+daemon's own wall clock at the read) are stepped in the field by NTP, an
+operator or a daylight-saving change; an hour's step must not hold and then
+ramp the compensation away. So:
+
+- the wall clock is followed against the monotonic clock: a step between
+  two checks larger than half the smallest ``stale_after_s`` (in real
+  seconds) is taken out (slow NTP slewing is followed as it is);
+- a source timestamp that goes back by more than that is a clock set back:
+  it is taken out of that channel's timestamps, not flagged (a smaller step
+  back is an older value: ``stale``); one that jumps forward only makes the
+  age smaller. A frozen timestamp is still caught on the monotonic clock.
 """
 
 from __future__ import annotations
@@ -45,7 +59,10 @@ class ChannelLimits:
 class _Track:
     last_raw: float | None = None
     last_change_s: float | None = None
+    #: last source timestamp, with the clock steps taken out
     last_ts: float | None = None
+    last_raw_ts: float | None = None
+    ts_step_s: float = 0.0
     last_ts_change_s: float | None = None
     good_value: float | None = None
     good_s: float | None = None
@@ -58,10 +75,18 @@ class Validator:
         self.limits = dict(limits)
         self.time_scale = time_scale
         self._tracks = {name: _Track() for name in self.limits}
+        stale = [lim.stale_after_s for lim in self.limits.values()
+                 if lim.stale_after_s is not None]
+        #: a clock step larger than this (real seconds) is a step, not an age
+        self._step_real_s = 0.5 * min(stale) / time_scale if stale else math.inf
+        self._wall_step_s = 0.0
+        self._last_wall: tuple[float, float] | None = None  # (now_s, wall without steps)
 
     def check(self, now_s: float, samples: Mapping[str, Sample] | None,
               wall_s: float | None = None) -> dict[str, str | None]:
         """Reason per channel (None = valid). `samples` None: the read failed."""
+        if wall_s is not None:
+            wall_s = self._steady_wall(now_s, wall_s)
         if samples is None:
             return dict.fromkeys(self.limits, "read_failed")
         out: dict[str, str | None] = {}
@@ -83,6 +108,18 @@ class Validator:
 
     # -- internals ------------------------------------------------------------
 
+    def _steady_wall(self, now_s: float, wall_s: float) -> float:
+        """The caller's wall clock with its steps taken out (see module doc)."""
+        wall = wall_s - self._wall_step_s
+        if self._last_wall is not None:
+            last_now, last_wall = self._last_wall
+            expected = last_wall + (now_s - last_now) / self.time_scale
+            if abs(wall - expected) > self._step_real_s:
+                self._wall_step_s += wall - expected
+                wall = expected
+        self._last_wall = (now_s, wall)
+        return wall
+
     @staticmethod
     def _note_raw(tr: _Track, v: float, now_s: float) -> None:
         same = tr.last_raw is not None and (v == tr.last_raw or (
@@ -96,8 +133,15 @@ class Validator:
         if lim.stale_after_s is None:
             tr.last_ts = ts
             return False
+        changed = tr.last_raw_ts is None or ts != tr.last_raw_ts
+        tr.last_raw_ts = ts
+        ts += tr.ts_step_s
+        if tr.last_ts is not None and tr.last_ts - ts > self._step_real_s:
+            # the source clock was set back: not an old value
+            tr.ts_step_s += tr.last_ts - ts
+            ts = tr.last_ts
         backwards = tr.last_ts is not None and ts < tr.last_ts
-        if tr.last_ts is None or ts != tr.last_ts:
+        if changed:
             tr.last_ts_change_s = now_s
         tr.last_ts = ts
         frozen = (tr.last_ts_change_s is not None
