@@ -143,6 +143,15 @@ class FaultProxy:
     def open_connections(self) -> int:
         return len(self._conns)
 
+    async def wait_idle(self, timeout_s: float) -> bool:
+        """Wait until no connection is open (held data delivered, sockets
+        closed, tasks ended); False if that did not happen within `timeout_s`."""
+        for _ in range(max(1, round(timeout_s / 0.01))):
+            if not self._handlers:
+                return True
+            await asyncio.sleep(0.01)
+        return not self._handlers
+
     # -- modes -----------------------------------------------------------------
 
     def pass_through(self) -> None:
@@ -214,6 +223,10 @@ class FaultProxy:
             if self._cut is not None:
                 conn.budget, conn.budget_direction = self._cut
             await self._run(conn, c_reader, s_reader)
+        except asyncio.CancelledError:
+            # stop() cancels handlers; asyncio's stream callback would log a
+            # cancelled handler as an error, and nothing awaits this task
+            pass
         finally:
             if task is not None:
                 self._handlers.discard(task)
