@@ -114,6 +114,12 @@ class Daemon:
                           shadow=cfg.shadow.name if cfg.shadow else None,
                           start=startup.mode, dry_run=self.dry_run,
                           period_s=cfg.period_s, time_scale=cfg.raw.machine.time_scale)
+            # what this daemon may write, and which config says so (an audit line)
+            self.log.info("outputs_configured",
+                          outputs={n: a.describe() for n, a in cfg.outputs.items()},
+                          config_sha256=cfg.config_sha256, model_sha256=cfg.model_sha256,
+                          dry_run=self.dry_run)
+            self._check_certificates()
             self._open_recorder()
             port = cfg.raw.telemetry.metrics_port
             if port is not None:
@@ -247,6 +253,29 @@ class Daemon:
         self._telemetry(result, samples)
         self.last_result = result
         return result
+
+    def _check_certificates(self) -> None:
+        sec = self.cfg.raw.controller.security
+        if sec is None:
+            return
+        from compd.certcheck import WARN_DAYS, expiry_days
+
+        base = self.cfg.path.parent
+        for role, path in (("client", sec.certificate), ("server", sec.server_certificate)):
+            if path is None:
+                continue
+            full = path if path.is_absolute() else base / path
+            try:
+                days = expiry_days(full)
+            except (OSError, ValueError) as exc:
+                self.log.warning("certificate_unreadable", role=role, path=str(full),
+                                 error=str(exc))
+                continue
+            if role == "client":
+                self.metrics.cert_expiry_days.set(days)
+            if days <= WARN_DAYS:
+                self.log.warning("certificate_expiring", role=role, path=str(full),
+                                 days_left=round(days, 2), warn_days=WARN_DAYS)
 
     # -- record, checkpoint, telemetry ---------------------------------------------------
 
