@@ -15,6 +15,7 @@ daemon's own (jumping) clock. Both must stay valid on every cycle.
 
 from __future__ import annotations
 
+import itertools
 import time
 from pathlib import Path
 
@@ -48,13 +49,17 @@ class JumpingWallClock:
 async def test_wall_clock_jump(protocol: str, jump_s: float, tmp_path: Path,
                                invariants: Invariants,
                                monkeypatch: pytest.MonkeyPatch) -> None:
-    scale = 50.0 if protocol == "modbus" else 25.0
+    scale = 25.0
     clock = JumpingWallClock()
     sim = make_sim_controller(protocol)
     await sim.start()
     try:
         await sim.publish({"bearing": 20.0, "ambient": 20.0})
-        cfg = make_config(sim, tmp_path, time_scale=scale, slew_um_s=4.0)
+        # stale_after_s 60 s (2.4 s real): a loaded test machine's stalls are not
+        # what is measured here; a 1 h step is far beyond it either way
+        stale = {"stale_after_s": 60.0}
+        cfg = make_config(sim, tmp_path, time_scale=scale, slew_um_s=4.0, overrides={
+            "channels": {"bearing": stale, "ambient": stale}})
         jumped_at: list[float] = []
 
         async def plant(index: int, t: float) -> None:
@@ -75,12 +80,22 @@ async def test_wall_clock_jump(protocol: str, jump_s: float, tmp_path: Path,
     t_jump = next(c.now_s for c in log if c.now_s >= jumped_at[0] - 1.0)
     lo, hi = t_jump - WINDOW_S / 2, t_jump + WINDOW_S / 2
     n = sum(1 for c in log if lo <= c.now_s < hi)
+    # on a loaded machine a late cycle skips deadlines (counted, never queued):
+    # the schedule is cycles + skipped deadlines
+    by_seq = {c.result.sequence: c.now_s for c in log}
+    skipped = sum(1 for _, e, f in rig.log.events if e == "cycle_overrun"
+                  for j in range(1, int(f["skipped_deadlines"]) + 1)
+                  if lo <= by_seq[int(f["sequence"])] + j * cfg.period_s < hi)
+    # a wall-clock scheduler would burst (catch up an hour) or stall after the jump
+    gaps = [b.now_s - a.now_s for a, b in itertools.pairwise(log)
+            if lo <= a.now_s and b.now_s < hi]  # (the stop request ends a wait early)
     invalid = [(round(c.now_s, 2), c.result.record.validity) for c in log
                if c.result.record is not None and c.now_s > 10.0  # after the +2 K step's rate holds
                and any(v is not None for v in c.result.record.validity.values())]
-    print(f"{protocol} jump {jump_s:+.0f} s: {n} cycles in the 60 s around the jump; "
-          f"{len(invalid)} cycles with an invalid channel; overruns {rig.daemon.overruns}")
-    assert 59 <= n <= 61
+    print(f"{protocol} jump {jump_s:+.0f} s: {n} cycles + {skipped} skipped deadlines "
+          f"in the 60 s around the jump; {len(invalid)} cycles with an invalid channel")
+    assert 59 <= n + skipped <= 61
+    assert min(gaps) >= 0.5 * cfg.period_s, min(gaps)  # no burst
     assert not invalid, invalid[:3]
     assert log[-1].result.state == "ok"
 
