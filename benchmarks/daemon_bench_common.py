@@ -90,7 +90,8 @@ def start_sim(protocol: str, *, speedup: float = 1.0, seed: int = 0) -> SimProce
 
 def config_doc(desc: Mapping[str, Any], *, state_dir: Path, period_s: float = 1.0,
                time_scale: float = 1.0, model: str = "sp2",
-               sensors: Sequence[str] = SENSORS, log_level: str = "info") -> dict[str, Any]:
+               sensors: Sequence[str] = SENSORS, log_level: str = "info",
+               checkpoint_every: int = 60) -> dict[str, Any]:
     """A daemon config for the simulated controller `desc` (`compd sim --json`)."""
     channels: dict[str, Any] = {}
     for name in sensors:
@@ -117,7 +118,7 @@ def config_doc(desc: Mapping[str, Any], *, state_dir: Path, period_s: float = 1.
                    "status": outputs["status"], "unit": "um", "sign": 1,
                    "limit_um": 200.0, "slew_um_s": 1.0, "readback": True},
         "faults": {"hold_s": 60.0, "shutdown": "hold"},
-        "state": {"dir": str(state_dir), "checkpoint_every": 60},
+        "state": {"dir": str(state_dir), "checkpoint_every": checkpoint_every},
         "recorder": {"enabled": True, "commit_every": 10, "retention_days": 30},
         "telemetry": {"log_format": "json", "log_level": log_level},
     }

@@ -1,0 +1,324 @@
+"""How many simulated machines one 2-core PC keeps at 1 Hz with p99 lateness < 10 ms.
+
+Layout per step of N machines (everything on this PC, so the simulated
+controllers compete with the daemons for the same cores):
+
+- W "sim farm" processes (this script with --sim-farm) serve N simulated
+  machines between them: N simulated controllers of the protocol on
+  127.0.0.1, each with its own thermal plant ticking at 1 Hz;
+- W daemon worker processes (this script with --worker; W = the CPUs, 2 by
+  default) each run N/W real `compd.daemon.Daemon`s on one event loop (recorder
+  on, checkpoint every 20 (see --checkpoint-every), JSON logs at info to a
+  file). The daemons' start
+  times are spread over the period (as N independently started services
+  would be); --aligned starts them all at once (worst case).
+
+Lateness = cycle start - its deadline, from a timing hook around the unchanged
+daemon (`daemon_bench_common.TimedDaemon`), over all machines' cycles after a
+3-cycle warm-up. A step holds when p99 lateness < 10 ms, no overrun and under
+1 % of cycles incomplete. N grows (doubling from --start) until a step fails,
+then one bisection step between the last pass and the fail; the largest N that
+held is printed per protocol. The peer for the ratios is the single machine
+(N = 1) measured the same way in the same run.
+
+Run:  .venv/bin/python benchmarks/bench_daemon_fleet.py [--protocols modbus opcua]
+      [--seconds 20] [--start 16] [--max 1024] [--workers 2] [--aligned]
+(about 2-3 minutes per protocol with the defaults; --seconds 60 for a longer run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from daemon_bench_common import (
+    TimedDaemon,
+    TimedDriver,
+    config_doc,
+    cpu_s,
+    mean,
+    percentile,
+    rss_mb,
+    write_config,
+)
+
+WARMUP_CYCLES = 3
+LIMIT_MS = 10.0
+HERE = Path(__file__).resolve()
+
+
+# -- the sim farm process ----------------------------------------------------------------
+
+async def _sim_farm(protocol: str, count: int) -> None:
+    from compd.commands.sim import describe
+    from drivers.sim.machine import SimMachine
+    from drivers.sim.programs import make_program
+    from drivers.sim.registry import make_sim_controller
+
+    sims = [make_sim_controller(protocol) for _ in range(count)]
+    await asyncio.gather(*(s.start() for s in sims))
+    machines = [SimMachine(s, program=make_program("spectrum", seed=i), seed=i)
+                for i, s in enumerate(sims)]
+    try:
+        for m in machines:
+            await m.prime()
+        for m in machines:
+            m.start()
+        print(json.dumps([describe(s) for s in sims]), flush=True)
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.add_signal_handler(sig, stop.set)
+        await stop.wait()
+    finally:
+        for m in machines:
+            await m.stop()
+        await asyncio.gather(*(s.stop() for s in sims), return_exceptions=True)
+
+
+# -- a daemon worker process -------------------------------------------------------------
+
+async def _worker(configs: list[str], offsets_s: list[float], cycles: int) -> dict[str, Any]:
+    from compd.config import load_config
+    from compd.driver_setup import build_driver
+
+    daemons: list[TimedDaemon] = []
+    drivers: list[TimedDriver] = []
+    for path in configs:
+        cfg = load_config(path)
+        drv = TimedDriver(build_driver(cfg))
+        d = TimedDaemon(cfg, driver=drv)
+        d.stop_after = cycles + WARMUP_CYCLES
+        daemons.append(d)
+        drivers.append(drv)
+
+    async def one(d: TimedDaemon, delay_s: float) -> int:
+        await asyncio.sleep(delay_s)
+        return await d.run()
+
+    rcs = await asyncio.gather(*(one(d, o) for d, o in zip(daemons, offsets_s, strict=True)),
+                               return_exceptions=True)
+    late: list[float] = []
+    for d in daemons:
+        late.extend(d.times.lateness(d.cfg.real_period_s)[WARMUP_CYCLES:])
+    return {
+        "late_s": late,
+        "overruns": sum(d.overruns for d in daemons),
+        "cycles": sum(d.cycles for d in daemons),
+        "incomplete": sum(d.cycles - d.complete_cycles for d in daemons),
+        "leaked": sum(drv.leaked for drv in drivers),
+        "own_s": mean([a - b for d in daemons
+                       for a, b in zip(d.times.total, d.times.io, strict=True)]),
+        "failed": [repr(r) for r in rcs if r != 0],
+    }
+
+
+def _worker_main(args: argparse.Namespace) -> None:
+    from compd.telemetry import configure_logging
+
+    spec = json.loads(Path(args.worker).read_text())
+    with Path(spec["log"]).open("w") as log:
+        configure_logging(json=True, level="info", stream=log)
+        out = asyncio.run(_worker(spec["configs"], spec["offsets_s"], spec["cycles"]))
+    print(json.dumps(out), flush=True)
+
+
+# -- the parent: one step of N machines --------------------------------------------------
+
+@dataclass
+class Step:
+    n: int
+    cycles: int
+    late_p50_ms: float
+    late_p99_ms: float
+    late_max_ms: float
+    overruns: int
+    incomplete: int
+    leaked: int
+    own_ms: float
+    cpu_daemons: float  # CPU seconds per second, all workers
+    cpu_sims: float
+    rss_worker_mb: float
+    failed: list[str]
+
+    @property
+    def holds(self) -> bool:
+        return (self.late_p99_ms < LIMIT_MS and self.overruns == 0 and not self.failed
+                and self.incomplete <= 0.01 * max(1, self.cycles))
+
+
+def run_step(protocol: str, n: int, *, seconds: int, workers: int, aligned: bool,
+             checkpoint_every: int, work: Path) -> Step:
+    step_dir = work / f"{protocol}-{n}"
+    step_dir.mkdir(parents=True)
+    w = min(workers, n)
+    farms = [subprocess.Popen(
+        [sys.executable, str(HERE), "--sim-farm", protocol,
+         "--count", str(n // w + (k < n % w))],
+        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+        text=True) for k in range(w)]
+    procs: list[subprocess.Popen[str]] = []
+    try:
+        descs: list[dict[str, Any]] = []
+        for farm in farms:
+            line = farm.stdout.readline() if farm.stdout else ""
+            if not line:
+                raise RuntimeError(f"a sim farm for {protocol} exited {farm.wait()}")
+            descs.extend(json.loads(line))
+        specs: list[dict[str, Any]] = [
+            {"configs": [], "offsets_s": [], "cycles": seconds,
+             "log": str(step_dir / f"worker{k}.log")} for k in range(w)]
+        for i, desc in enumerate(descs):
+            doc = config_doc(desc, state_dir=step_dir / f"state{i}",
+                             checkpoint_every=checkpoint_every)
+            path = write_config(doc, step_dir / f"machine{i}.toml")
+            spec = specs[i % w]
+            spec["configs"].append(str(path))
+            spec["offsets_s"].append(0.0 if aligned else i / n)  # phases spread over 1 s
+        for k, spec in enumerate(specs):
+            spec_path = step_dir / f"worker{k}.json"
+            spec_path.write_text(json.dumps(spec))
+            procs.append(subprocess.Popen(
+                [sys.executable, str(HERE), "--worker", str(spec_path)],
+                stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, text=True))
+        # CPU over the measured window: after start-up and warm-up, before the end
+        time.sleep(WARMUP_CYCLES + 3.0)
+        c0 = [cpu_s(p.pid) for p in procs]
+        f0 = sum(cpu_s(f.pid) for f in farms)
+        t0 = time.monotonic()
+        time.sleep(max(1.0, seconds - 5.0))
+        dt = time.monotonic() - t0
+        cpu_d = sum(cpu_s(p.pid) - c for p, c in zip(procs, c0, strict=True)) / dt
+        cpu_f = (sum(cpu_s(f.pid) for f in farms) - f0) / dt
+        rss = max(rss_mb(p.pid) for p in procs)
+        results = []
+        for p in procs:
+            out, _ = p.communicate(timeout=seconds + 120)
+            if p.returncode != 0 or not out.strip():
+                raise RuntimeError(f"worker exited {p.returncode}")
+            results.append(json.loads(out.strip().splitlines()[-1]))
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+        for farm in farms:
+            farm.terminate()
+        for farm in farms:
+            try:
+                farm.wait(60)
+            except subprocess.TimeoutExpired:
+                farm.kill()
+                farm.wait()
+    late = [x for r in results for x in r["late_s"]]
+    return Step(
+        n=n, cycles=sum(r["cycles"] for r in results),
+        late_p50_ms=percentile(late, 0.5) * 1e3, late_p99_ms=percentile(late, 0.99) * 1e3,
+        late_max_ms=max(late, default=math.nan) * 1e3,
+        overruns=sum(r["overruns"] for r in results),
+        incomplete=sum(r["incomplete"] for r in results),
+        leaked=sum(r["leaked"] for r in results),
+        own_ms=mean([r["own_s"] for r in results]) * 1e3,
+        cpu_daemons=cpu_d, cpu_sims=cpu_f, rss_worker_mb=rss,
+        failed=[f for r in results for f in r["failed"]])
+
+
+def print_step(protocol: str, s: Step) -> None:
+    print(f"{protocol:7s}{s.n:6d}{s.cycles:8d}{s.late_p50_ms:9.2f}{s.late_p99_ms:9.2f}"
+          f"{s.late_max_ms:9.2f}{s.overruns:8d}{s.incomplete:7d}{s.own_ms:8.3f}"
+          f"{s.cpu_daemons:8.2f}{s.cpu_sims:8.2f}{s.rss_worker_mb:8.0f}"
+          f"  {'holds' if s.holds else 'FAILS'}"
+          f"{'  leaked=' + str(s.leaked) if s.leaked else ''}"
+          f"{'  ' + '; '.join(s.failed)[:120] if s.failed else ''}", flush=True)
+
+
+def search(protocol: str, args: argparse.Namespace, work: Path) -> tuple[Step, int, Step | None]:
+    def step(n: int) -> Step:
+        s = run_step(protocol, n, seconds=args.seconds, workers=args.workers,
+                     aligned=args.aligned, checkpoint_every=args.checkpoint_every,
+                     work=work)
+        print_step(protocol, s)
+        return s
+
+    single = step(1)
+    best = 0
+    best_step: Step | None = None
+    n = args.start
+    fail: int | None = None
+    while n <= args.max:
+        s = step(n)
+        if not s.holds:
+            fail = n
+            break
+        best, best_step = n, s
+        n *= 2
+    if fail is not None and fail - best > 1:
+        mid = (best + fail) // 2 if best else max(1, fail // 2)
+        s = step(mid)
+        if s.holds and mid > best:
+            best, best_step = mid, s
+    return single, best, best_step
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--protocols", nargs="+", default=["modbus", "opcua"],
+                        choices=["modbus", "opcua", "s7"])
+    parser.add_argument("--seconds", type=int, default=20,
+                        help="measured cycles (1 Hz) per machine per step")
+    parser.add_argument("--start", type=int, default=16, help="first N after N = 1")
+    parser.add_argument("--max", type=int, default=1024)
+    parser.add_argument("--workers", type=int, default=len(os.sched_getaffinity(0)),
+                        help="daemon worker processes (default: the CPUs)")
+    parser.add_argument("--checkpoint-every", type=int, default=20,
+                        help="state.checkpoint_every (default 20, so that each daemon "
+                             "checkpoints (fsync) once in a 20 s step: 3x the production "
+                             "rate of 60; use 60 with --seconds 65 for the production rate)")
+    parser.add_argument("--aligned", action="store_true",
+                        help="start all daemons at the same instant (worst case)")
+    parser.add_argument("--sim-farm", metavar="PROTOCOL", help=argparse.SUPPRESS)
+    parser.add_argument("--count", type=int, default=1, help=argparse.SUPPRESS)
+    parser.add_argument("--worker", metavar="SPEC", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.sim_farm:
+        asyncio.run(_sim_farm(args.sim_farm, args.count))
+        return
+    if args.worker:
+        _worker_main(args)
+        return
+    print(f"fleet at 1 Hz on {os.cpu_count()} CPUs, {args.workers} daemon workers, "
+          f"{args.seconds} cycles per machine per step, checkpoint every "
+          f"{args.checkpoint_every}, phases "
+          f"{'aligned' if args.aligned else 'spread over the period'}")
+    print(f"{'proto':7s}{'N':>6s}{'cycles':>8s}{'late50':>9s}{'late99':>9s}{'max':>9s}"
+          f"{'overrun':>8s}{'incmpl':>7s}{'own ms':>8s}{'cpu dmn':>8s}{'cpu sim':>8s}"
+          f"{'RSS MB':>8s}   (lateness ms; cpu = CPU s per s; RSS of the largest worker)")
+    summary = []
+    with tempfile.TemporaryDirectory(prefix="bench-daemon-fleet-") as tmp:
+        for protocol in args.protocols:
+            summary.append((protocol, *search(protocol, args, Path(tmp))))
+    print("\nlargest N at 1 Hz with p99 lateness < 10 ms (peer: N = 1, same run)")
+    for protocol, single, best, best_step in summary:
+        if best_step is None:
+            print(f"  {protocol:7s} none held (N = 1: p99 {single.late_p99_ms:.2f} ms)")
+            continue
+        print(f"  {protocol:7s} N = {best:4d}: p99 {best_step.late_p99_ms:.2f} ms vs "
+              f"{single.late_p99_ms:.2f} ms for one machine "
+              f"({best_step.late_p99_ms / single.late_p99_ms:.1f}x); daemons "
+              f"{best_step.cpu_daemons * 100:.0f} % CPU + sims {best_step.cpu_sims * 100:.0f} %"
+              f"; daemon CPU per machine {best_step.cpu_daemons / best * 1e3:.2f} ms/s")
+
+
+if __name__ == "__main__":
+    main()
