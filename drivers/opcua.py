@@ -16,8 +16,9 @@ builds a new client when the backoff allows, else fails fast with
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import AsyncIterator, Mapping, Sequence
 
 from asyncua import ua
 from asyncua.client.client import Client
@@ -52,6 +53,26 @@ _WATCHDOG_S = 5.0
 _PERMANENT_SERVICE_CODES = PERMANENT_WRITE_CODES | {_SC.BadNothingToDo}
 _CONNECTION_ERRORS = (OSError, ConnectionError, UaError, EOFError)
 
+
+
+@contextlib.asynccontextmanager
+async def _deadline(seconds: float) -> AsyncIterator[None]:
+    """`asyncio.timeout` that also turns asyncua's own cancellation into TimeoutError.
+
+    asyncua waits with `wait_for2`, which, when our deadline cancels a request
+    whose answer arrived at the same instant, raises `CancelledWithResultError`,
+    a *subclass* of CancelledError. `asyncio.timeout` converts only the exact
+    CancelledError, so without this the subclass escapes as a cancellation of
+    the caller's task (it killed the daemon's loop under load)."""
+    cm = asyncio.timeout(seconds)
+    try:
+        async with cm:
+            yield
+    except asyncio.CancelledError:
+        task = asyncio.current_task()
+        if cm.expired() and (task is None or task.cancelling() == 0):
+            raise TimeoutError from None
+        raise
 
 class OpcUaDriver:
     """Async access to one OPC UA server (see module docstring)."""
@@ -102,7 +123,7 @@ class OpcUaDriver:
         client.session_timeout = _SESSION_TIMEOUT_MS
         client.name = client.description = "compd"
         try:
-            async with asyncio.timeout(self.connect_timeout_s):
+            async with _deadline(self.connect_timeout_s):
                 await apply_security(client, self.security)
                 await client.connect()
                 await self._load_output_types(client)
@@ -175,13 +196,13 @@ class OpcUaDriver:
         if not graceful:
             client.disconnect_socket()
         try:
-            async with asyncio.timeout(self.timeout_s):
+            async with _deadline(self.timeout_s):
                 await client.close_session()
         except Exception:  # a dead link: CloseSession cannot be sent
             _log.debug("close_session failed during teardown", exc_info=True)
         if graceful:
             try:
-                async with asyncio.timeout(self.timeout_s):
+                async with _deadline(self.timeout_s):
                     await client.close_secure_channel()
             except Exception:
                 _log.debug("close_secure_channel failed during teardown", exc_info=True)
@@ -237,7 +258,7 @@ class OpcUaDriver:
         client = await self._ready()
         where = ",".join(key)
         try:
-            async with asyncio.timeout(self.timeout_s):
+            async with _deadline(self.timeout_s):
                 results = await client.uaclient.read(params)
         except TimeoutError:
             await self._lost(client)
@@ -295,7 +316,7 @@ class OpcUaDriver:
             params.NodesToWrite.append(wv)
         where = ",".join(names)
         try:
-            async with asyncio.timeout(self.timeout_s):
+            async with _deadline(self.timeout_s):
                 results = await client.uaclient.write(params)
         except TimeoutError:
             await self._lost(client)
