@@ -27,7 +27,9 @@ def _is_speed(name: str) -> bool:
 
 def replay_figure(path: str | Path, time_s: FloatArray, inputs: Mapping[str, FloatArray],
                   measured: FloatArray, simulated: FloatArray, *, title: str,
-                  fit_pct: float, dpk_um: float) -> None:
+                  fit_pct: float, dpk_um: float,
+                  labels: tuple[str, str, str] = ("measured δZ", "simulated (model)",
+                                                  "residue (after compensation)")) -> None:
     hours = np.asarray(time_s) / 3600.0
     fig, (top, bottom) = plt.subplots(2, 1, sharex=True, figsize=(10, 7),
                                       gridspec_kw={"height_ratios": [2, 3]})
@@ -49,9 +51,9 @@ def replay_figure(path: str | Path, time_s: FloatArray, inputs: Mapping[str, Flo
         top.legend(handles, labels, loc="upper right", fontsize="small", ncol=2)
     top.set_title("inputs")
     residue = np.asarray(measured) - np.asarray(simulated)
-    bottom.plot(hours, measured, lw=0.8, color="tab:blue", label="measured δZ")
-    bottom.plot(hours, simulated, lw=1.4, color="tab:orange", label="simulated (model)")
-    bottom.plot(hours, residue, lw=0.8, color="tab:red", label="residue (after compensation)")
+    bottom.plot(hours, measured, lw=0.8, color="tab:blue", label=labels[0])
+    bottom.plot(hours, simulated, lw=1.4, color="tab:orange", label=labels[1])
+    bottom.plot(hours, residue, lw=0.8, color="tab:red", label=labels[2])
     bottom.axhline(0.0, color="0.3", lw=0.6)
     bottom.set_xlabel("time (h)")
     bottom.set_ylabel("Z displacement (µm)")
