@@ -135,7 +135,11 @@ class Cycle:
             deadband_um=params.deadband_um, sign=params.sign,
             units_per_um=params.units_per_um, max_dt_s=2.0 * params.period_s,
             initial_um=offset_um if offset_um is not None else 0.0)
-        if offset_um is not None and math.isfinite(offset_um):
+        # what the controller is known to hold at start: the checkpoint's last
+        # confirmed offset; without one and without read-back, 0 (a first start
+        # can assume nothing else, and a refused first write must fall back to
+        # it, not to a value never written); with read-back, unknown until read
+        if (offset_um is not None and math.isfinite(offset_um)) or not params.readback:
             self.output.confirm()
         self.sequence = sequence
         self.heartbeat = heartbeat % HEARTBEAT_MODULO
@@ -191,9 +195,11 @@ class Cycle:
 
     def export_state(self) -> dict[str, Any]:
         """Everything a restart needs (the checkpoint's payload)."""
-        confirmed = self.output.confirmed_um
         out: dict[str, Any] = {
-            "offset_um": confirmed if confirmed is not None else self.output.current_um,
+            # the last value the controller is known to hold (None: unknown, read-back
+            # will tell), never an output it has not confirmed: a restart takes it as
+            # confirmed and slews from it
+            "offset_um": self.output.confirmed_um,
             "sequence": self.sequence,
             "heartbeat": self.heartbeat,
         }

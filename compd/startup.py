@@ -7,8 +7,10 @@
   state matching the first valid sample: never from zero on a warm machine;
 - none at all (first-ever start): the references are the current temperatures.
 
-In every case the output starts from the last written offset (the
-checkpoint's) and, with read-back, from what the controller really holds.
+In every case the output starts from the last offset the controller
+confirmed (the checkpoint's `offset_um`; a write it refused, or one never
+acknowledged, is not in it) and, with read-back, from what the controller
+really holds.
 """
 
 from __future__ import annotations
