@@ -14,15 +14,18 @@ controllers compete with the daemons for the same cores):
   would be); --aligned starts them all at once (worst case).
 
 Lateness = cycle start - its deadline, from a timing hook around the unchanged
-daemon (`daemon_bench_common.TimedDaemon`), over all machines' cycles after a
-3-cycle warm-up. A step holds when p99 lateness < 10 ms, no overrun and under
-1 % of cycles incomplete. N grows (doubling from --start) until a step fails,
-then one bisection step between the last pass and the fail; the largest N that
-held is printed per protocol. The peer for the ratios is the single machine
-(N = 1) measured the same way in the same run.
+daemon (`daemon_bench_common.TimedDaemon`), over all machines' cycles in a
+window that opens 3 s after every daemon of the worker has started cycling
+(so that connecting daemons do not count against the others) and lasts
+--seconds. A step holds when p99 lateness < 10 ms, no overrun and under 1 % of
+cycles incomplete. N grows (doubling from --start) until a step fails, then one
+bisection step between the last pass and the fail; the largest N that held is
+printed per protocol. The peer for the ratios is the single machine (N = 1)
+measured the same way in the same run. The 1-minute load average is printed
+per step: other work on the same cores moves the figures.
 
 Run:  .venv/bin/python benchmarks/bench_daemon_fleet.py [--protocols modbus opcua]
-      [--seconds 20] [--start 16] [--max 1024] [--workers 2] [--aligned]
+      [--seconds 20] [--start 32] [--max 1024] [--workers 2] [--aligned]
 (about 2-3 minutes per protocol with the defaults; --seconds 60 for a longer run).
 """
 
@@ -62,12 +65,25 @@ HERE = Path(__file__).resolve()
 
 async def _sim_farm(protocol: str, count: int) -> None:
     from compd.commands.sim import describe
+    from drivers.sim.base import SimController
     from drivers.sim.machine import SimMachine
     from drivers.sim.programs import make_program
     from drivers.sim.registry import make_sim_controller
 
-    sims = [make_sim_controller(protocol) for _ in range(count)]
-    await asyncio.gather(*(s.start() for s in sims))
+    async def started() -> SimController:
+        # the free port is chosen before the bind: another farm may take it first
+        for attempt in range(5):
+            sim = make_sim_controller(protocol)
+            try:
+                await sim.start()
+            except OSError:
+                if attempt == 4:
+                    raise
+                continue
+            return sim
+        raise RuntimeError("unreachable")
+
+    sims = list(await asyncio.gather(*(started() for _ in range(count))))
     machines = [SimMachine(s, program=make_program("spectrum", seed=i), seed=i)
                 for i, s in enumerate(sims)]
     try:
@@ -89,7 +105,7 @@ async def _sim_farm(protocol: str, count: int) -> None:
 
 # -- a daemon worker process -------------------------------------------------------------
 
-async def _worker(configs: list[str], offsets_s: list[float], cycles: int) -> dict[str, Any]:
+async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> dict[str, Any]:
     from compd.config import load_config
     from compd.driver_setup import build_driver
 
@@ -99,7 +115,6 @@ async def _worker(configs: list[str], offsets_s: list[float], cycles: int) -> di
         cfg = load_config(path)
         drv = TimedDriver(build_driver(cfg))
         d = TimedDaemon(cfg, driver=drv)
-        d.stop_after = cycles + WARMUP_CYCLES
         daemons.append(d)
         drivers.append(drv)
 
@@ -107,20 +122,41 @@ async def _worker(configs: list[str], offsets_s: list[float], cycles: int) -> di
         await asyncio.sleep(delay_s)
         return await d.run()
 
-    rcs = await asyncio.gather(*(one(d, o) for d, o in zip(daemons, offsets_s, strict=True)),
-                               return_exceptions=True)
+    window: list[float] = []
+
+    async def conductor() -> None:
+        # the window opens WARMUP s after every daemon has run its first cycle (so
+        # that connecting daemons do not count against the others) and lasts `seconds`
+        await asyncio.gather(*(d.first_cycle.wait() for d in daemons))
+        await asyncio.sleep(WARMUP_CYCLES)
+        window.extend([time.monotonic(), time.process_time()])
+        print("window", flush=True)
+        await asyncio.sleep(seconds)
+        window.extend([time.monotonic(), time.process_time()])
+        for d in daemons:
+            d.request_stop()
+
+    tasks = [one(d, o) for d, o in zip(daemons, offsets_s, strict=True)]
+    rcs = await asyncio.gather(conductor(), *tasks, return_exceptions=True)
     late: list[float] = []
     for d in daemons:
-        late.extend(d.times.lateness(d.cfg.real_period_s)[WARMUP_CYCLES:])
+        late.extend(d.times.lateness(d.cfg.real_period_s, since=window[0], until=window[2]))
+    cycles = sum(1 for d in daemons for s in d.times.start if window[0] <= s < window[2])
     return {
         "late_s": late,
         "overruns": sum(d.overruns for d in daemons),
-        "cycles": sum(d.cycles for d in daemons),
+        "cycles": cycles,
+        "cpu": (window[3] - window[1]) / (window[2] - window[0]),
         "incomplete": sum(d.cycles - d.complete_cycles for d in daemons),
         "leaked": sum(drv.leaked for drv in drivers),
         "own_s": mean([a - b for d in daemons
                        for a, b in zip(d.times.total, d.times.io, strict=True)]),
-        "failed": [repr(r) for r in rcs if r != 0],
+        "own_p99_s": percentile([a - b for d in daemons for a, b in
+                                 zip(d.times.total, d.times.io, strict=True)], 0.99),
+        "record_s": mean([x for d in daemons for x in d.times.record]),
+        "telemetry_s": mean([x for d in daemons for x in d.times.telemetry]),
+        "failed": [repr(r) for r in rcs[1:] if r != 0] + (
+            [repr(rcs[0])] if rcs[0] is not None else []),
     }
 
 
@@ -130,8 +166,10 @@ def _worker_main(args: argparse.Namespace) -> None:
     spec = json.loads(Path(args.worker).read_text())
     with Path(spec["log"]).open("w") as log:
         configure_logging(json=True, level="info", stream=log)
-        out = asyncio.run(_worker(spec["configs"], spec["offsets_s"], spec["cycles"]))
+        out = asyncio.run(_worker(spec["configs"], spec["offsets_s"], spec["seconds"]))
     print(json.dumps(out), flush=True)
+    if os.environ.get("FLEET_DEBUG"):
+        print({k: v for k, v in out.items() if k != "late_s"}, file=sys.stderr)
 
 
 # -- the parent: one step of N machines --------------------------------------------------
@@ -151,6 +189,7 @@ class Step:
     cpu_sims: float
     rss_worker_mb: float
     failed: list[str]
+    loadavg: float
 
     @property
     def holds(self) -> bool:
@@ -166,18 +205,20 @@ def run_step(protocol: str, n: int, *, seconds: int, workers: int, aligned: bool
     farms = [subprocess.Popen(
         [sys.executable, str(HERE), "--sim-farm", protocol,
          "--count", str(n // w + (k < n % w))],
-        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
-        text=True) for k in range(w)]
+        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+        stderr=(step_dir / f"farm{k}.err").open("w"), text=True) for k in range(w)]
     procs: list[subprocess.Popen[str]] = []
     try:
         descs: list[dict[str, Any]] = []
-        for farm in farms:
+        for k, farm in enumerate(farms):
             line = farm.stdout.readline() if farm.stdout else ""
             if not line:
-                raise RuntimeError(f"a sim farm for {protocol} exited {farm.wait()}")
+                rc = farm.wait()
+                tail = "".join((step_dir / f"farm{k}.err").read_text().splitlines(True)[-5:])
+                raise RuntimeError(f"a sim farm for {protocol} exited {rc}:\n{tail}")
             descs.extend(json.loads(line))
         specs: list[dict[str, Any]] = [
-            {"configs": [], "offsets_s": [], "cycles": seconds,
+            {"configs": [], "offsets_s": [], "seconds": seconds,
              "log": str(step_dir / f"worker{k}.log")} for k in range(w)]
         for i, desc in enumerate(descs):
             doc = config_doc(desc, state_dir=step_dir / f"state{i}",
@@ -192,22 +233,23 @@ def run_step(protocol: str, n: int, *, seconds: int, workers: int, aligned: bool
             procs.append(subprocess.Popen(
                 [sys.executable, str(HERE), "--worker", str(spec_path)],
                 stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, text=True))
-        # CPU over the measured window: after start-up and warm-up, before the end
-        time.sleep(WARMUP_CYCLES + 3.0)
-        c0 = [cpu_s(p.pid) for p in procs]
+        # the farms' CPU over (about) the workers' measured window
+        for p in procs:
+            if p.stdout is None or p.stdout.readline().strip() != "window":
+                raise RuntimeError(f"a worker exited {p.wait()} before its window")
         f0 = sum(cpu_s(f.pid) for f in farms)
         t0 = time.monotonic()
-        time.sleep(max(1.0, seconds - 5.0))
-        dt = time.monotonic() - t0
-        cpu_d = sum(cpu_s(p.pid) - c for p, c in zip(procs, c0, strict=True)) / dt
-        cpu_f = (sum(cpu_s(f.pid) for f in farms) - f0) / dt
+        time.sleep(max(1.0, seconds - 1.0))
+        cpu_f = (sum(cpu_s(f.pid) for f in farms) - f0) / (time.monotonic() - t0)
         rss = max(rss_mb(p.pid) for p in procs)
+        load = Path("/proc/loadavg").read_text().split()[0]
         results = []
         for p in procs:
             out, _ = p.communicate(timeout=seconds + 120)
             if p.returncode != 0 or not out.strip():
                 raise RuntimeError(f"worker exited {p.returncode}")
             results.append(json.loads(out.strip().splitlines()[-1]))
+        cpu_d = sum(r["cpu"] for r in results)
     finally:
         for p in procs:
             if p.poll() is None:
@@ -231,13 +273,13 @@ def run_step(protocol: str, n: int, *, seconds: int, workers: int, aligned: bool
         leaked=sum(r["leaked"] for r in results),
         own_ms=mean([r["own_s"] for r in results]) * 1e3,
         cpu_daemons=cpu_d, cpu_sims=cpu_f, rss_worker_mb=rss,
-        failed=[f for r in results for f in r["failed"]])
+        failed=[f for r in results for f in r["failed"]], loadavg=float(load))
 
 
 def print_step(protocol: str, s: Step) -> None:
     print(f"{protocol:7s}{s.n:6d}{s.cycles:8d}{s.late_p50_ms:9.2f}{s.late_p99_ms:9.2f}"
           f"{s.late_max_ms:9.2f}{s.overruns:8d}{s.incomplete:7d}{s.own_ms:8.3f}"
-          f"{s.cpu_daemons:8.2f}{s.cpu_sims:8.2f}{s.rss_worker_mb:8.0f}"
+          f"{s.cpu_daemons:8.2f}{s.cpu_sims:8.2f}{s.rss_worker_mb:8.0f}{s.loadavg:6.1f}"
           f"  {'holds' if s.holds else 'FAILS'}"
           f"{'  leaked=' + str(s.leaked) if s.leaked else ''}"
           f"{'  ' + '; '.join(s.failed)[:120] if s.failed else ''}", flush=True)
@@ -277,7 +319,7 @@ def main() -> None:
                         choices=["modbus", "opcua", "s7"])
     parser.add_argument("--seconds", type=int, default=20,
                         help="measured cycles (1 Hz) per machine per step")
-    parser.add_argument("--start", type=int, default=16, help="first N after N = 1")
+    parser.add_argument("--start", type=int, default=32, help="first N after N = 1")
     parser.add_argument("--max", type=int, default=1024)
     parser.add_argument("--workers", type=int, default=len(os.sched_getaffinity(0)),
                         help="daemon worker processes (default: the CPUs)")
@@ -298,12 +340,13 @@ def main() -> None:
         _worker_main(args)
         return
     print(f"fleet at 1 Hz on {os.cpu_count()} CPUs, {args.workers} daemon workers, "
-          f"{args.seconds} cycles per machine per step, checkpoint every "
+          f"{args.seconds} s window per step, checkpoint every "
           f"{args.checkpoint_every}, phases "
           f"{'aligned' if args.aligned else 'spread over the period'}")
     print(f"{'proto':7s}{'N':>6s}{'cycles':>8s}{'late50':>9s}{'late99':>9s}{'max':>9s}"
           f"{'overrun':>8s}{'incmpl':>7s}{'own ms':>8s}{'cpu dmn':>8s}{'cpu sim':>8s}"
-          f"{'RSS MB':>8s}   (lateness ms; cpu = CPU s per s; RSS of the largest worker)")
+          f"{'RSS MB':>8s}{'load':>6s}\n(lateness ms over the window; cpu = CPU s per s; "
+          "RSS of the largest worker; load = 1-min load average at the end of the window)")
     summary = []
     with tempfile.TemporaryDirectory(prefix="bench-daemon-fleet-") as tmp:
         for protocol in args.protocols:

@@ -204,16 +204,20 @@ class CycleTimes:
     checkpoint_s: float = 0.0
     checkpoints: int = 0
 
-    def lateness(self, period_s: float) -> list[float]:
+    def lateness(self, period_s: float, since: float = -math.inf,
+                 until: float = math.inf) -> list[float]:
         """Cycle start - its deadline. The daemon's deadlines are the first
         cycle's start + k·period (skipped by whole periods after an overrun),
         so each start is compared with the nearest such instant. The last cycle
-        is left out: it follows the stop request, not a deadline."""
+        is left out: it follows the stop request, not a deadline. `since`/`until`:
+        only starts in that window (monotonic seconds)."""
         if len(self.start) < 3:
             return []
         t0 = self.start[0]
         out = []
         for s in self.start[1:-1]:
+            if not since <= s < until:
+                continue
             x = s - t0
             out.append(x - period_s * math.floor(x / period_s + 0.5))
         return out
@@ -225,6 +229,8 @@ class TimedDaemon(Daemon):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.times = CycleTimes()
+        #: set when the first cycle has started
+        self.first_cycle = asyncio.Event()
         #: request a stop after this many cycles (None: run until stopped)
         self.stop_after: int | None = None
 
@@ -232,6 +238,7 @@ class TimedDaemon(Daemon):
         io0 = driver.io_s if isinstance(driver, TimedDriver) else 0.0
         t0 = time.monotonic()
         self.times.start.append(t0)
+        self.first_cycle.set()
         tp = time.perf_counter()
         result = await super()._one_cycle(driver, cycle, now_s)
         self.times.total.append(time.perf_counter() - tp)
