@@ -14,7 +14,9 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 
 class _Address(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # strict: a register number written as "5" or a scale as "0.1" is a config
+    # mistake to report, not to guess at (ints are still accepted for floats)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
 
     def describe(self) -> str:
         raise NotImplementedError

@@ -77,6 +77,9 @@ class TransferFunction:
             num_f = [float(c.value / b0) for c in num] + [0.0] * (n + 1 - len(num))
             den_f = [float(c.value / b0) for c in den] + [0.0] * (n + 1 - len(den))
         den_f[0] = 1.0
+        if not all(math.isfinite(c) for c in (*num_f, *den_f)):
+            raise ModelError(f"{name}: a coefficient divided by b0 = {den[0].value} does not fit "
+                             "in a float64 (overflow); rescale the model")
         self._num: tuple[float, ...] = tuple(num_f)
         self._den: tuple[float, ...] = tuple(den_f)
         self._z: list[float] = [0.0] * n

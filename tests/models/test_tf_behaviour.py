@@ -71,6 +71,8 @@ def test_reset_returns_to_rest() -> None:
         (["0", "0"], ["1", "-0.5"], "all zeros"),
         (["abc"], ["1"], "is not a number"),
         ([True], ["1"], "must be a number"),
+        (["1"], ["0.5", "1e308"], "does not fit"),
+        (["1e308"], ["1e-300", "1e-301"], "does not fit"),
     ],
 )
 def test_bad_models_are_refused_with_a_clear_message(a: list[object], b: list[object],
