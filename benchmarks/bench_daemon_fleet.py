@@ -72,12 +72,12 @@ async def _sim_farm(protocol: str, count: int) -> None:
 
     async def started() -> SimController:
         # the free port is chosen before the bind: another farm may take it first
-        for attempt in range(5):
+        for attempt in range(10):
             sim = make_sim_controller(protocol)
             try:
                 await sim.start()
-            except OSError:
-                if attempt == 4:
+            except (OSError, RuntimeError):  # pymodbus: RuntimeError "Could not start listen"
+                if attempt == 9:
                     raise
                 continue
             return sim
