@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from drivers.sim.base import SimController
+from drivers.sim.machine import SimMachine
 from models import tomltext
 from models.modelfile import load_model
 from models.quality import fit_percent
@@ -120,7 +121,22 @@ async def _keep_publishing(sim: SimController, values: dict[str, float],
         await asyncio.sleep(real_period_s)
 
 
-async def _start_daemon(config_path: Path, log_path: Path,
+async def start_daemon_at_rest(machine: SimMachine, config_path: Path, log_path: Path,
+                               notify_path: Path) -> asyncio.subprocess.Process:
+    """`start_daemon` while the machine stands at rest: primed, its sensors
+    published again each period (a controller keeps publishing a cold machine)
+    until the daemon is ready; the program starts after."""
+    at_rest = await machine.prime()
+    refresh = asyncio.ensure_future(_keep_publishing(machine.controller, at_rest,
+                                                     machine.period_s / machine.speedup))
+    try:
+        return await start_daemon(config_path, log_path, notify_path)
+    finally:
+        refresh.cancel()
+        await asyncio.gather(refresh, return_exceptions=True)
+
+
+async def start_daemon(config_path: Path, log_path: Path,
                         notify_path: Path) -> asyncio.subprocess.Process:
     """Start `compd run` and wait for its sd_notify READY=1 (its first complete
     cycle), so the plant's program starts on a daemon that is already
@@ -163,7 +179,6 @@ async def run_demo(protocol: str = "opcua", *, hours: float = 8.0, wall_s: float
                    model: str = "sim_machine", seed: int = 7, program: str = "spectrum",
                    workdir: Path | None = None) -> DemoResult:
     """Serve the simulated machine, run `compd run` against it, return the figures."""
-    from drivers.sim.machine import SimMachine
     from drivers.sim.programs import make_program
     from drivers.sim.registry import make_sim_controller
 
@@ -178,21 +193,12 @@ async def run_demo(protocol: str = "opcua", *, hours: float = 8.0, wall_s: float
             machine = SimMachine(sim, program=make_program(program, seed=seed), seed=seed,
                                  period_s=period_s, speedup=time_scale, repeat=False,
                                  record=True)
-            at_rest = await machine.prime()
             doc = daemon_config(sim, model=model, period_s=period_s, time_scale=time_scale,
                                 state_dir=work / "state")
             config_path = work / "compd.toml"
             config_path.write_text(tomltext.dumps(doc), encoding="utf-8")
-            # until the daemon is ready the machine stands at rest, its sensors
-            # refreshed each period (a controller keeps publishing a cold machine)
-            refresh = asyncio.ensure_future(_keep_publishing(sim, at_rest,
-                                                             period_s / time_scale))
-            try:
-                daemon = await _start_daemon(config_path, work / "daemon.log",
-                                             work / "notify")
-            finally:
-                refresh.cancel()
-                await asyncio.gather(refresh, return_exceptions=True)
+            daemon = await start_daemon_at_rest(machine, config_path, work / "daemon.log",
+                                                work / "notify")
             try:
                 await machine.run(until_s=hours * 3600.0)
             finally:
