@@ -23,6 +23,8 @@ Example (the full set of sections; `compd/examples/*.toml` are complete)::
     range = [-20.0, 120.0]
     max_rate_per_s = 0.5
     stale_after_s = 10.0
+    stuck_after_s = 7200.0    # stuck: unchanged this long while others move, or
+    stuck_delta_k = 2.0       # unchanged while another temperature moved > 2 K
 
     [model]
     file = "sp2"              # a path relative to this file, or a bundled model
@@ -39,7 +41,15 @@ import math
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, Strict, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    Strict,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 Protocol = Literal["opcua", "s7", "modbus", "focas"]
 
@@ -50,6 +60,13 @@ UNITS: tuple[str, ...] = ("degC", "K", "rpm", "kW", "W", "um", "mm", "ratio", "p
 #: output units and their controller units per µm
 OUTPUT_UNITS: dict[str, float | None] = {"um": 1.0, "mm": 1e-3, "nm": 1e3, "inch": 1.0 / 25400.0,
                                          "count": None}
+
+
+#: channel units that are temperatures (their moves count for stuck_delta_k)
+TEMPERATURE_UNITS: tuple[str, ...] = ("degC", "K")
+
+#: stuck_delta_k of a temperature channel with stuck_after_s and no stuck_delta_k
+DEFAULT_STUCK_DELTA_K = 2.0
 
 
 class _Section(BaseModel):
@@ -176,6 +193,32 @@ class ChannelSection(_Section):
     max_rate_per_s: PositiveS | None = None
     stale_after_s: PositiveS | None = None
     stuck_after_s: PositiveS | None = None
+    #: stuck when unchanged while another temperature channel moved by more than
+    #: this (K) since it last changed; default DEFAULT_STUCK_DELTA_K for a
+    #: temperature channel with stuck_after_s; inf turns it off. Not for a
+    #: sensor that may rightly stay put while the machine heats (the hall's
+    #: ambient): see compd.validation
+    stuck_delta_k: Annotated[float, Field(gt=0.0)] | None = None
+
+    @field_validator("stuck_delta_k")
+    @classmethod
+    def _stuck_delta(cls, v: float | None, info: ValidationInfo) -> float | None:
+        if v is not None and info.data.get("unit", TEMPERATURE_UNITS[0]) not in TEMPERATURE_UNITS:
+            raise ValueError("applies to temperature channels only (unit degC or K): "
+                             "it compares how far other temperatures moved")
+        return v
+
+    @property
+    def temperature(self) -> bool:
+        return self.unit in TEMPERATURE_UNITS
+
+    @property
+    def effective_stuck_delta_k(self) -> float | None:
+        """The heat criterion's threshold in K, None when off."""
+        v = self.stuck_delta_k
+        if v is None and self.stuck_after_s is not None and self.temperature:
+            v = DEFAULT_STUCK_DELTA_K
+        return v if v is not None and math.isfinite(v) else None
 
     @field_validator("unit")
     @classmethod

@@ -65,7 +65,9 @@ def params_from_config(cfg: LoadedConfig, *, dry_run: bool = False) -> CyclePara
     raw = cfg.raw
     out = raw.output
     limits = {n: ChannelLimits(ch.range[0], ch.range[1], ch.max_rate_per_s, ch.stale_after_s,
-                               ch.stuck_after_s) for n, ch in raw.channels.items()}
+                               ch.stuck_after_s, stuck_delta_k=ch.effective_stuck_delta_k,
+                               temperature=ch.temperature)
+              for n, ch in raw.channels.items()}
     return CycleParams(
         period_s=raw.machine.period_s, hold_s=raw.faults.hold_s, limit_um=out.limit_um,
         slew_um_s=out.slew_um_s, channels=limits, deadband_um=out.deadband_um, sign=out.sign,

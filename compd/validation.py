@@ -10,9 +10,25 @@ A value is refused when it is:
 - ``stale``        its source timestamp has not advanced for longer than
   ``stale_after_s``, went backwards, or is older than ``stale_after_s``
   against the wall clock (when the caller gives one)
-- ``stuck``        the same raw value for longer than ``stuck_after_s`` while
-  other channels moved in that time (a quantised 0.1 K sensor heating at
-  0.5 K/h changes every 12 min: it is not stuck if ``stuck_after_s`` is longer)
+- ``stuck``        the same raw value while the machine moves around it, by
+  either of two criteria:
+
+  * time: unchanged for longer than ``stuck_after_s`` while other channels
+    move, counted from the later of its last change and the first move of
+    another channel after it (a machine at rest overnight moves nothing: when
+    the spindle starts, a sensor still has ``stuck_after_s`` to follow). A
+    quantised 0.1 K sensor heating at 0.5 K/h changes every 12 min: it is not
+    stuck if ``stuck_after_s`` is longer;
+  * heat: unchanged while another temperature channel moved by more than
+    ``stuck_delta_k`` (by its accepted values) since this one last changed.
+    A slow drift moves every sensor a quantum at a time, so this needs no
+    long ``stuck_after_s``: over 8 h heating at 0.5 K/h, out of phase, the
+    others move at most a quantum or two between two changes of this one,
+    while a bearing frozen at the start of a warm-up is flagged as soon as the
+    motor or another bearing has risen ``stuck_delta_k`` (minutes). Once
+    flagged it stays flagged until the value changes, even if the others cool
+    back. Only for sensors that must follow the machine's heat: a hall's
+    ambient sensor may rightly stay put while the spindle warms by 10 K.
 - ``rate``         it moved away from the last accepted value faster than
   ``max_rate_per_s`` (a one-sample spike); the reference is the last
   ACCEPTED value, so a spike never becomes the reference.
@@ -39,7 +55,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from drivers.base import Quality, Sample
 
@@ -53,6 +69,10 @@ class ChannelLimits:
     max_rate_per_s: float | None = None
     stale_after_s: float | None = None
     stuck_after_s: float | None = None
+    #: flagged stuck when unchanged while another temperature channel moved more
+    stuck_delta_k: float | None = None
+    #: a temperature (degC or K): its moves count for other channels' stuck_delta_k
+    temperature: bool = False
 
 
 @dataclass(slots=True)
@@ -66,6 +86,12 @@ class _Track:
     last_ts_change_s: float | None = None
     good_value: float | None = None
     good_s: float | None = None
+    #: the other temperature channels' accepted values when this one last changed
+    peer_ref: dict[str, float] = field(default_factory=dict)
+    #: one of them has since moved more than stuck_delta_k (latched until a change)
+    peer_moved: bool = False
+    #: when another channel first changed after this one last did
+    others_moved_s: float | None = None
 
 
 class Validator:
@@ -90,6 +116,7 @@ class Validator:
         if samples is None:
             return dict.fromkeys(self.limits, "read_failed")
         out: dict[str, str | None] = {}
+        accepted: dict[str, float] = {}
         for name, lim in self.limits.items():
             s = samples.get(name)
             tr = self._tracks[name]
@@ -102,8 +129,16 @@ class Validator:
             reason = self._reason(name, tr, s, v, now_s, lim, stale)
             out[name] = reason
             if reason is None:
-                tr.good_value = v
-                tr.good_s = now_s
+                accepted[name] = v
+        # the heat criterion, against the temperatures accepted in this same cycle
+        for name, lim in self.limits.items():
+            if (lim.stuck_delta_k is not None and name in accepted
+                    and self._peers_moved(name, accepted, lim.stuck_delta_k)):
+                out[name] = "stuck"
+                del accepted[name]
+        for name, v in accepted.items():
+            self._tracks[name].good_value = v
+            self._tracks[name].good_s = now_s
         return out
 
     # -- internals ------------------------------------------------------------
@@ -127,6 +162,9 @@ class Validator:
         if not same:
             tr.last_raw = v
             tr.last_change_s = now_s
+            tr.peer_ref.clear()
+            tr.peer_moved = False
+            tr.others_moved_s = None
 
     def _note_timestamp(self, tr: _Track, ts: float, now_s: float, lim: ChannelLimits,
                         wall_s: float | None) -> bool:
@@ -159,7 +197,7 @@ class Validator:
             return "out_of_range"
         if stale:
             return "stale"
-        if lim.stuck_after_s is not None and self._stuck(name, tr, now_s, lim.stuck_after_s):
+        if lim.stuck_after_s is not None and self._stuck(name, tr, lim.stuck_after_s, now_s):
             return "stuck"
         if (lim.max_rate_per_s is not None and tr.good_value is not None
                 and tr.good_s is not None):
@@ -168,13 +206,36 @@ class Validator:
                 return "rate" if v != tr.good_value else None
         return None
 
-    def _stuck(self, name: str, tr: _Track, now_s: float, stuck_after_s: float) -> bool:
+    def _stuck(self, name: str, tr: _Track, stuck_after_s: float, now_s: float) -> bool:
         since = tr.last_change_s
-        if since is None or now_s - since <= stuck_after_s:
+        if since is None:
             return False
-        # stuck only while others move: another channel changed after this one froze
-        return any(other.last_change_s is not None and other.last_change_s > since
-                   for n, other in self._tracks.items() if n != name)
+        if tr.others_moved_s is None:
+            # stuck only while others move: from another channel's first change
+            # after this one froze
+            moved = [other.last_change_s for n, other in self._tracks.items()
+                     if n != name and other.last_change_s is not None
+                     and other.last_change_s > since]
+            if not moved:
+                return False
+            tr.others_moved_s = min(moved)
+        return now_s - tr.others_moved_s > stuck_after_s
+
+    def _peers_moved(self, name: str, accepted: Mapping[str, float], delta_k: float) -> bool:
+        """Another temperature channel's accepted value (this cycle's, else its
+        last) moved more than `delta_k` since this channel last changed (each
+        peer's baseline: its first accepted value after that change)."""
+        tr = self._tracks[name]
+        if not tr.peer_moved:
+            for n, other in self._tracks.items():
+                value = accepted.get(n, other.good_value)
+                if n == name or value is None or not self.limits[n].temperature:
+                    continue
+                ref = tr.peer_ref.setdefault(n, value)
+                if abs(value - ref) > delta_k:
+                    tr.peer_moved = True
+                    break
+        return tr.peer_moved
 
     # -- state across restarts ----------------------------------------------------
 

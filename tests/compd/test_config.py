@@ -8,6 +8,8 @@ import pytest
 
 from compd.cli import main
 from compd.config import load_config
+from compd.config_schema import DEFAULT_STUCK_DELTA_K
+from compd.cycle import params_from_config
 from compd.errors import EX_CONFIG, ConfigError
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "compd" / "examples"
@@ -82,6 +84,11 @@ def test_base_config_loads(tmp_path: Path) -> None:
     (('name = "m"\nperiod_s = 1.0', 'name = "m"\nperiod_s = 2.0'), "model.file",
      "period_s"),
     (('protocol = "modbus"', 'protocol = "profibus"'), "controller.protocol", "opcua"),
+    (('unit = "degC"\nrange = [-10.0, 60.0]',
+      'unit = "rpm"\nrange = [-10.0, 60.0]\nstuck_delta_k = 2.0'),
+     "channels.ambient.stuck_delta_k", "temperature channels only"),
+    (('range = [-10.0, 60.0]', 'range = [-10.0, 60.0]\nstuck_delta_k = 0.0'),
+     "channels.ambient.stuck_delta_k", "greater than 0"),
 ])
 def test_refusals_name_the_key(tmp_path: Path, change: tuple[str, str], key: str,
                                words: str) -> None:
@@ -91,6 +98,24 @@ def test_refusals_name_the_key(tmp_path: Path, change: tuple[str, str], key: str
     err = _error(tmp_path, text)
     assert err.key == key, str(err)
     assert words.lower() in err.reason.lower(), str(err)
+
+
+def test_stuck_delta_k_default_explicit_and_off(tmp_path: Path) -> None:
+    """A temperature channel with stuck_after_s gets the heat criterion at
+    2 K unless it says otherwise (inf: off); without stuck_after_s, only when
+    given."""
+    def limits(bearing: str, ambient: str) -> tuple[float | None, float | None]:
+        text = BASE.replace('range = [-20.0, 150.0]', 'range = [-20.0, 150.0]\n' + bearing)
+        text = text.replace('range = [-10.0, 60.0]', 'range = [-10.0, 60.0]\n' + ambient)
+        ch = params_from_config(load_config(_write(tmp_path, text))).channels
+        assert ch["bearing"].temperature and ch["ambient"].temperature
+        return ch["bearing"].stuck_delta_k, ch["ambient"].stuck_delta_k
+
+    assert limits("stuck_after_s = 900.0", "") == (DEFAULT_STUCK_DELTA_K, None)
+    assert DEFAULT_STUCK_DELTA_K == 2.0
+    assert limits("stuck_after_s = 900.0\nstuck_delta_k = 3", "stuck_delta_k = 1.5") == \
+        (3.0, 1.5)
+    assert limits("stuck_after_s = 900.0\nstuck_delta_k = inf", "") == (None, None)
 
 
 def test_unstable_inline_model_is_refused_naming_the_term(tmp_path: Path) -> None:

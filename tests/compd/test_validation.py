@@ -9,7 +9,7 @@ from drivers.base import Quality, Sample
 
 
 def _v(**limits: float) -> Validator:
-    return Validator({"t": ChannelLimits(-20.0, 150.0, **limits),
+    return Validator({"t": ChannelLimits(-20.0, 150.0, **limits),  # type: ignore[arg-type]
                       "other": ChannelLimits(-1e9, 1e9)})
 
 
@@ -61,3 +61,68 @@ def test_stuck_needs_other_channels_moving() -> None:
     assert r["t"] == "stuck"
     r = v.check(421.0, {"t": Sample(20.1, 421.0), "other": Sample(1.0, 421.0)})
     assert r["t"] is None
+
+
+def _heat(**bearing: float) -> Validator:
+    return Validator({
+        "bearing": ChannelLimits(-20.0, 150.0, temperature=True, **bearing),
+        "motor": ChannelLimits(-20.0, 150.0, temperature=True),
+        "speed": ChannelLimits(0.0, 30000.0)})
+
+
+def _hs(t: float, bearing: float, motor: float, speed: float = 0.0) -> dict[str, Sample]:
+    return {"bearing": Sample(bearing, t), "motor": Sample(motor, t), "speed": Sample(speed, t)}
+
+
+def test_stuck_when_another_temperature_moved_more_than_delta() -> None:
+    v = _heat(stuck_delta_k=2.0)
+    reasons = [v.check(float(k), _hs(float(k), 20.0, 20.0 + 0.1 * k))["bearing"]
+               for k in range(40)]
+    assert reasons[:21] == [None] * 21  # the motor moved 2.0 K: not more than 2 K
+    assert reasons[21:] == ["stuck"] * 19  # 2.1 K
+    # latched: the motor cooling back does not make a frozen value good again
+    assert v.check(40.0, _hs(40.0, 20.0, 20.0))["bearing"] == "stuck"
+    # a change clears it, and the motor's baseline starts again from here
+    assert v.check(41.0, _hs(41.0, 20.1, 20.0))["bearing"] is None
+    assert v.check(42.0, _hs(42.0, 20.1, 22.0))["bearing"] is None
+    assert v.check(43.0, _hs(43.0, 20.1, 22.1))["bearing"] == "stuck"
+
+
+def test_stuck_delta_ignores_non_temperatures_and_refused_values() -> None:
+    v = _heat(stuck_delta_k=2.0)
+    v.check(0.0, _hs(0.0, 20.0, 20.0))
+    # the spindle starts (rpm is no temperature) and the motor's sensor opens (850 °C
+    # is refused, never a move): the bearing is not stuck for that
+    r = v.check(1.0, {"bearing": Sample(20.0, 1.0), "motor": Sample(850.0, 1.0),
+                      "speed": Sample(8000.0, 1.0)})
+    assert r == {"bearing": None, "motor": "out_of_range", "speed": None}
+    # without stuck_delta_k only the time criterion applies
+    v = _heat()
+    assert all(v.check(float(k), _hs(float(k), 20.0, 20.0 + 0.1 * k))["bearing"] is None
+               for k in range(100))
+
+
+def test_no_stuck_over_8h_of_slow_quantised_heating_out_of_phase() -> None:
+    """All three temperatures heat at 0.5 K/h in 0.1 K quanta (a new value every
+    12 min), out of phase; both stuck criteria on: never flagged."""
+    limits = {n: ChannelLimits(-20.0, 150.0, temperature=True, stuck_after_s=900.0,
+                               stuck_delta_k=2.0) for n in ("bearing", "motor", "ambient")}
+    v = Validator(limits)
+    phases = {"bearing": 0.0, "motor": 240.0, "ambient": 480.0}
+    for k in range(0, 8 * 3600, 5):
+        t = float(k)
+        r = v.check(t, {n: Sample(round(20.0 + 0.5 * (t + ph) / 3600.0, 1), t)
+                        for n, ph in phases.items()})
+        assert r == dict.fromkeys(phases), (t, r)
+
+
+def test_stuck_time_counts_from_when_the_others_start_moving() -> None:
+    """A night at rest (nothing moves), then the spindle starts: the bearing has
+    stuck_after_s from that start to change, not zero."""
+    v = _heat(stuck_after_s=100.0)
+    for k in range(1000):
+        assert v.check(float(k), _hs(float(k), 20.0, 20.0))["bearing"] is None
+    reasons = [v.check(float(k), _hs(float(k), 20.0, 20.0, speed=8000.0))["bearing"]
+               for k in range(1000, 1200)]
+    assert reasons[:101] == [None] * 101  # 1000 s..1100 s after the speed changed
+    assert reasons[101:] == ["stuck"] * 99

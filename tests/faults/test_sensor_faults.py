@@ -102,21 +102,39 @@ def _quantised_heating(k: int, phase_s: float) -> float:
     return round(20.0 + 0.5 * (k + phase_s) / 3600.0, 1)
 
 
+#: both stuck criteria, as a config with stuck_after_s = 900 s and the default
+#: stuck_delta_k (2 K) gives them
+STUCK: dict[str, object] = {"stuck_after_s": 900.0, "stuck_delta_k": 2.0,
+                            "temperature": True}
+
+
+def _stuck_channels(ambient_stuck: bool) -> dict[str, ChannelLimits]:
+    """The helper's channels with a motor temperature beside them; the bearing
+    and the motor with both stuck criteria, the ambient too if asked (not in a
+    real config: the hall may rightly stay put while the spindle warms up)."""
+    chans = dict(params().channels)
+    amb: dict[str, object] = STUCK if ambient_stuck else {"temperature": True}
+    chans["bearing"] = ChannelLimits(-20.0, 150.0, 0.5, 30.0, **STUCK)  # type: ignore[arg-type]
+    chans["ambient"] = ChannelLimits(-10.0, 60.0, 0.5, 30.0, **amb)  # type: ignore[arg-type]
+    chans["motor"] = ChannelLimits(-20.0, 150.0, 0.5, 30.0, **STUCK)  # type: ignore[arg-type]
+    return chans
+
+
 def test_stuck_no_false_alarm_over_8h_of_slow_quantised_heating(
         invariants: Invariants) -> None:
-    """8 h, both temperatures heating at 0.5 K/h with 0.1 K quantisation (a new
-    value every 12 min, out of phase), stuck_after_s = 900 s: never stuck,
-    never held, the heartbeat advances on every cycle."""
-    chans = dict(params().channels)
-    chans["bearing"] = ChannelLimits(-20.0, 150.0, 0.5, 30.0, stuck_after_s=900.0)
-    chans["ambient"] = ChannelLimits(-10.0, 60.0, 0.5, 30.0, stuck_after_s=900.0)
-    cycle, clock = Cycle(params(channels=chans), sp2()), FakeClock()
+    """8 h, the three temperatures heating at 0.5 K/h with 0.1 K quantisation
+    (a new value every 12 min, out of phase), stuck_after_s = 900 s and
+    stuck_delta_k = 2 K: no channel ever invalid, never held, the heartbeat
+    advances on every cycle."""
+    cycle, clock = Cycle(params(channels=_stuck_channels(True)), sp2()), FakeClock()
     for k in range(8 * 3600):
         t = clock.tick()
-        r = run_pure(invariants, cycle, t, samples(
-            t, _quantised_heating(k, 0.0), _quantised_heating(k, 360.0), speed=0.0))
-        if not r.complete:
-            raise AssertionError(f"false alarm at {t} s: {r.record and r.record.validity}")
+        s = samples(t, _quantised_heating(k, 0.0), _quantised_heating(k, 360.0), speed=0.0)
+        s["motor"] = Sample(_quantised_heating(k, 180.0), t)
+        r = run_pure(invariants, cycle, t, s)
+        assert r.record is not None
+        if not r.complete or any(v is not None for v in r.record.validity.values()):
+            raise AssertionError(f"false alarm at {t} s: {r.record.validity}")
     assert r.heartbeat == 8 * 3600
 
 
@@ -124,28 +142,32 @@ def test_stuck_no_false_alarm_over_8h_of_slow_quantised_heating(
 def test_stuck_sensor_flagged_after_warm_up_starts(frozen_before_s: float,
                                                    invariants: Invariants) -> None:
     """The bearing sensor is frozen at 20.0 °C; the machine rests (nothing
-    moves) for `frozen_before_s`, then warms up (speed on, ambient +1 K/h in
-    0.1 K steps). Figure: seconds from the warm-up start to the 'stuck' flag."""
-    chans = dict(params().channels)
-    chans["bearing"] = ChannelLimits(-20.0, 150.0, 0.5, 30.0, stuck_after_s=900.0)
-    cycle, clock = Cycle(params(channels=chans), sp2()), FakeClock()
+    moves) for `frozen_before_s`, then warms up: the spindle starts, the motor
+    temperature rises 8 K with a 15 min time constant (+2 K in about 4 min),
+    the ambient +1 K/h, all in 0.1 K steps; stuck_after_s = 900 s (long enough
+    for no false alarm at 0.5 K/h). Figure: seconds from the warm-up start to
+    the 'stuck' flag, within 10 min (by stuck_delta_k = 2 K: the time
+    criterion alone took 901 s when frozen at the warm-up start)."""
+    cycle, clock = Cycle(params(channels=_stuck_channels(False)), sp2()), FakeClock()
     rest = int(frozen_before_s)
     flagged: float | None = None
     for k in range(rest + 1800):
         t = clock.tick()
         warm = max(0, k - rest)
         amb = round(20.0 + warm / 3600.0, 1)
-        r = run_pure(invariants, cycle, t, samples(t, 20.0, amb,
-                                                   speed=8000.0 if warm > 0 else 0.0))
+        s = samples(t, 20.0, amb, speed=8000.0 if warm > 0 else 0.0)
+        s["motor"] = Sample(round(20.0 + 8.0 * (1.0 - math.exp(-warm / 900.0)), 1), t)
+        r = run_pure(invariants, cycle, t, s)
         assert r.record is not None
+        assert r.record.validity["ambient"] is None and r.record.validity["motor"] is None
         if r.record.validity["bearing"] == "stuck":
             flagged = float(warm)
             break
+        assert warm > 0 or r.record.validity["bearing"] is None  # at rest: not stuck
     assert flagged is not None
     print(f"stuck flagged {flagged:.0f} s after warm-up start "
           f"(frozen {frozen_before_s:.0f} s before)")
-    limit = 600.0 if frozen_before_s >= 900.0 else 900.0 + 1.0
-    assert flagged <= limit
+    assert 0.0 < flagged <= 600.0
 
 
 @pytest.mark.parametrize("spike_k", [50.0, -50.0])
@@ -292,7 +314,8 @@ async def test_stuck_sensor_modbus(tmp_path: Path, invariants: Invariants) -> No
     """Through the wire, at a short stuck_after_s (60 s) so it fits in a second:
     the bearing's register never changes; the machine rests 90 s, then warms
     up (ambient +0.1 K every 10 s). The bearing is flagged stuck within 10 min
-    of the warm-up start (in fact at the first change of another channel)."""
+    of the warm-up start (in fact stuck_after_s after the first change of
+    another channel; the ambient's 2 K, the heat criterion, would take 200 s)."""
     warm_s = 90.0
 
     def values(_i: int, t: float) -> dict[str, float]:
