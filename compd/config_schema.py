@@ -89,14 +89,34 @@ class MachineSection(_Section):
     time_scale: PositiveS = 1.0
 
 
+#: the longest wait between reconnect attempts (real seconds): compensation
+#: must resume within 10 s + 2·Ts after a lost link returns
+MAX_BACKOFF_CAP_S = 10.0
+
+
 class BackoffSection(_Section):
+    """Waits between reconnect attempts (real seconds), doubling from
+    `initial_s` up to `cap_s`."""
+
     initial_s: PositiveS = 0.1
     cap_s: PositiveS = 5.0
+
+    @field_validator("cap_s")
+    @classmethod
+    def _cap(cls, v: float) -> float:
+        if v > MAX_BACKOFF_CAP_S:
+            raise ValueError(
+                f"at most {MAX_BACKOFF_CAP_S:g} s (got {v:g} s): the driver retries a lost "
+                f"link only every cap_s, and compensation must resume within "
+                f"{MAX_BACKOFF_CAP_S:g} s + 2 periods after the link returns")
+        return v
 
     @model_validator(mode="after")
     def _order(self) -> BackoffSection:
         if self.cap_s < self.initial_s:
-            raise ValueError("cap_s must be >= initial_s")
+            raise ValueError(f"cap_s ({self.cap_s:g} s) must be >= initial_s "
+                             f"({self.initial_s:g} s): the first wait cannot exceed the "
+                             f"longest")
         return self
 
 

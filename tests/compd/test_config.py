@@ -89,6 +89,13 @@ def test_base_config_loads(tmp_path: Path) -> None:
      "channels.ambient.stuck_delta_k", "temperature channels only"),
     (('range = [-10.0, 60.0]', 'range = [-10.0, 60.0]\nstuck_delta_k = 0.0'),
      "channels.ambient.stuck_delta_k", "greater than 0"),
+    # a reconnect only every 30 s: compensation could not resume within 10 s + 2·Ts
+    (('timeout_s = 0.2', 'timeout_s = 0.2\nbackoff = { initial_s = 0.1, cap_s = 30.0 }'),
+     "controller.backoff.cap_s", "resume within 10 s + 2 periods"),
+    (('timeout_s = 0.2', 'timeout_s = 0.2\nbackoff = { initial_s = 10.5, cap_s = 10.5 }'),
+     "controller.backoff.cap_s", "at most 10 s"),
+    (('timeout_s = 0.2', 'timeout_s = 0.2\nbackoff = { initial_s = 5.0, cap_s = 1.0 }'),
+     "controller.backoff", "cap_s (1 s) must be >= initial_s (5 s)"),
 ])
 def test_refusals_name_the_key(tmp_path: Path, change: tuple[str, str], key: str,
                                words: str) -> None:
@@ -98,6 +105,12 @@ def test_refusals_name_the_key(tmp_path: Path, change: tuple[str, str], key: str
     err = _error(tmp_path, text)
     assert err.key == key, str(err)
     assert words.lower() in err.reason.lower(), str(err)
+
+
+def test_backoff_cap_of_10_s_is_accepted(tmp_path: Path) -> None:
+    text = BASE.replace('timeout_s = 0.2',
+                        'timeout_s = 0.2\nbackoff = { initial_s = 10.0, cap_s = 10.0 }')
+    assert load_config(_write(tmp_path, text)).raw.controller.backoff.cap_s == 10.0
 
 
 def test_stuck_delta_k_default_explicit_and_off(tmp_path: Path) -> None:
