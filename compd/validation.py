@@ -30,8 +30,9 @@ A value is refused when it is:
     back. Only for sensors that must follow the machine's heat: a hall's
     ambient sensor may rightly stay put while the spindle warms by 10 K.
 - ``rate``         it moved away from the last accepted value faster than
-  ``max_rate_per_s`` (a one-sample spike); the reference is the last
-  ACCEPTED value, so a spike never becomes the reference.
+  ``max_rate_per_s`` (a one-sample spike; with a relative tolerance of
+  ``RATE_RTOL`` for float rounding); the reference is the last ACCEPTED
+  value, so a spike never becomes the reference.
 
 Times are machine seconds (monotonic) except the wall-clock age check, which
 converts real seconds to machine seconds with ``time_scale``.
@@ -58,6 +59,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from drivers.base import Quality, Sample
+
+#: relative tolerance of the rate check: 20.1 - 20.0 is 0.10000000000000142
+#: in floats, so a limit of exactly one 0.1 K quantum per sample would refuse
+#: a genuine step
+RATE_RTOL = 1e-9
 
 
 @dataclass(frozen=True, slots=True)
@@ -202,7 +208,8 @@ class Validator:
         if (lim.max_rate_per_s is not None and tr.good_value is not None
                 and tr.good_s is not None):
             dt = now_s - tr.good_s
-            if dt <= 0.0 or abs(v - tr.good_value) > lim.max_rate_per_s * dt:
+            allowed = lim.max_rate_per_s * dt * (1.0 + RATE_RTOL)
+            if dt <= 0.0 or abs(v - tr.good_value) > allowed:
                 return "rate" if v != tr.good_value else None
         return None
 

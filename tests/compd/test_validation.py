@@ -126,3 +126,18 @@ def test_stuck_time_counts_from_when_the_others_start_moving() -> None:
                for k in range(1000, 1200)]
     assert reasons[:101] == [None] * 101  # 1000 s..1100 s after the speed changed
     assert reasons[101:] == ["stuck"] * 99
+
+
+def test_rate_limit_of_exactly_one_quantum_per_sample_accepts_one_quantum() -> None:
+    """0.1 K per 1 s and a 0.1 K sensor: every genuine one-quantum step passes
+    (20.1 - 20.0 = 0.10000000000000142 in floats), two quanta do not."""
+    assert 20.1 - 20.0 > 0.1
+    v = _v(max_rate_per_s=0.1)
+    t = 0.0
+    for k in range(-200, 1300):  # -20.0 .. 129.9 °C, up by one quantum a second
+        t += 1.0
+        assert v.check(t, _s(round(k * 0.1, 1), t))["t"] is None, round(k * 0.1, 1)
+    for k in range(1299, -201, -1):  # and down
+        t += 1.0
+        assert v.check(t, _s(round(k * 0.1, 1), t))["t"] is None, round(k * 0.1, 1)
+    assert v.check(t + 1.0, _s(-19.8, t + 1.0))["t"] == "rate"  # two quanta
