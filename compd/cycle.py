@@ -55,6 +55,8 @@ class CycleParams:
     units_per_um: float = 1.0
     readback: bool = True
     readback_tolerance_um: float = 0.01
+    #: the offset address's resolution in µm (integer types), 0 for floats
+    offset_quantum_um: float = 0.0
     time_scale: float = 1.0
     offset_name: str = "offset"
     heartbeat_name: str | None = "heartbeat"
@@ -73,6 +75,7 @@ def params_from_config(cfg: LoadedConfig, *, dry_run: bool = False) -> CyclePara
         slew_um_s=out.slew_um_s, channels=limits, deadband_um=out.deadband_um, sign=out.sign,
         units_per_um=out.units_per_um, readback=out.readback and not dry_run,
         readback_tolerance_um=max(0.01, 1.01 * cfg.offset_quantum_um),
+        offset_quantum_um=cfg.offset_quantum_um,
         time_scale=raw.machine.time_scale,
         heartbeat_name="heartbeat" if "heartbeat" in cfg.outputs else None,
         status_name="status" if "status" in cfg.outputs else None)
@@ -136,7 +139,8 @@ class Cycle:
             limit_um=params.limit_um, slew_um_s=params.slew_um_s,
             deadband_um=params.deadband_um, sign=params.sign,
             units_per_um=params.units_per_um, max_dt_s=2.0 * params.period_s,
-            initial_um=offset_um if offset_um is not None else 0.0)
+            initial_um=offset_um if offset_um is not None else 0.0,
+            quantum_um=params.offset_quantum_um)
         # what the controller is known to hold at start: the checkpoint's last
         # confirmed offset; without one and without read-back, 0 (a first start
         # can assume nothing else, and a refused first write must fall back to

@@ -9,7 +9,14 @@ ramping down):
    output leaves it unchanged;
 4. slew limit: the output moves at most slew_um_s·Δt toward the target
    (Δt capped at `max_dt_s`, so a stalled loop never earns a big step);
-5. sign and unit conversion to controller units: value = sign·scale·µm.
+5. an integer offset address (``quantum_um`` > 0, e.g. a FOCAS long of
+   0.1 µm) holds only multiples of its quantum: the slew-limited value is
+   kept exactly (so a slew below one quantum per cycle still moves) and the
+   output is the nearest grid point, back toward the previous output by
+   whole quanta when it would step past the slew limit (the controller then
+   holds exactly what the stage believes, and a step at the slew limit
+   stays within it; a single quantum is the least step when R·Δt is below);
+6. sign and unit conversion to controller units: value = sign·scale·µm.
 
 `current_um` is what the controller is believed to hold. After a write the
 controller refused, the shell calls `revert()` and the stage falls back to
@@ -54,7 +61,7 @@ class OutputStage:
 
     def __init__(self, *, limit_um: float, slew_um_s: float, deadband_um: float = 0.0,
                  sign: int = 1, units_per_um: float = 1.0, max_dt_s: float = math.inf,
-                 initial_um: float = 0.0) -> None:
+                 initial_um: float = 0.0, quantum_um: float = 0.0) -> None:
         if not (math.isfinite(limit_um) and limit_um > 0.0):
             raise ValueError("limit_um must be > 0")
         if not (math.isfinite(slew_um_s) and slew_um_s > 0.0):
@@ -67,7 +74,10 @@ class OutputStage:
         self.sign = sign
         self.units_per_um = units_per_um
         self.max_dt_s = max_dt_s
+        self.quantum_um = quantum_um if math.isfinite(quantum_um) and quantum_um > 0.0 else 0.0
         self.current_um = self._safe(initial_um)
+        #: the slew-limited value before the grid (quantised outputs only)
+        self._exact_um = self.current_um
         #: the last value the controller confirmed (a successful write or a read-back)
         self.confirmed_um: float | None = None
         self.slewing = False
@@ -85,11 +95,30 @@ class OutputStage:
             target = self.current_um
         dt = min(max(dt_s, 0.0), self.max_dt_s) if math.isfinite(dt_s) else 0.0
         max_step = self.slew_um_s * dt
-        delta = target - self.current_um
+        base = self._exact_um if self.quantum_um else self.current_um
+        delta = target - base
         self.slewing = abs(delta) > max_step
         delta = max(-max_step, min(max_step, delta))
-        self.current_um = _clamp(self.current_um + delta, self.limit_um)
+        new = _clamp(base + delta, self.limit_um)
+        self._exact_um = new
+        if self.quantum_um:
+            new = self._on_grid(new, self.current_um, max_step)
+        self.current_um = new
         return self.current_um
+
+    def _on_grid(self, x: float, prev: float, max_step: float) -> float:
+        """`x` as a multiple of the quantum, within the limit and (when one
+        quantum allows it) within `max_step` of `prev`."""
+        q = self.quantum_um
+        g = round(x / q) * q
+        if abs(g) > self.limit_um:
+            g -= math.copysign(q, g)
+        d = g - prev
+        if abs(d) > max_step and abs(d) > q:
+            # back toward prev by whole quanta, to within max(max_step, q) of it
+            m = math.ceil((abs(d) - max(max_step, q)) / q - 1e-9)
+            g -= math.copysign(m * q, d)
+        return g
 
     def to_controller(self, um: float) -> float:
         return self.sign * self.units_per_um * um
@@ -105,8 +134,10 @@ class OutputStage:
         """The write failed: the controller still holds the last confirmed value."""
         if self.confirmed_um is not None:
             self.current_um = self.confirmed_um
+            self._exact_um = self.current_um
 
     def adopt(self, um: float) -> None:
         """The controller holds `um` (read back): ramp from there."""
         self.current_um = self._safe(um)
+        self._exact_um = self.current_um
         self.confirmed_um = self.current_um

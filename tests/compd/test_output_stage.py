@@ -62,3 +62,29 @@ def test_never_beyond_limit_or_slew(steps: list[tuple[float, float]]) -> None:
         assert math.isfinite(y) and abs(y) <= 20.0
         assert abs(y - prev) <= 0.5 * min(dt, 2.0) + 1e-12
         prev = y
+
+
+@given(st.lists(st.tuples(st.floats(-80.0, 80.0), st.sampled_from([1.0, 0.9889, 0.5, 2.0])),
+                min_size=1, max_size=60),
+       st.sampled_from([0.1, 0.3, 1.0]))
+def test_quantised_output_on_the_grid_and_within_the_slew_limit(
+        steps: list[tuple[float, float]], quantum_um: float) -> None:
+    """An integer offset address (a FOCAS long of 0.1 µm): every output is a
+    multiple of the quantum (what the controller will hold) and moves at most
+    R·Δt, or a single quantum when R·Δt is below it; it never exceeds the limit."""
+    out = OutputStage(limit_um=50.05, slew_um_s=3.9556, quantum_um=quantum_um)
+    prev = out.current_um
+    for target, dt in steps:
+        x = out.step(target, dt)
+        assert abs(x) <= 50.05
+        assert abs(x / quantum_um - round(x / quantum_um)) < 1e-6
+        assert abs(x - prev) <= max(3.9556 * dt, quantum_um) + 1e-9, (prev, x, dt)
+        prev = x
+
+
+def test_quantised_slewing_follows_the_grid() -> None:
+    # was: 12.1042 confirmed, 12.1 held by the controller, 16.0598 written
+    out = OutputStage(limit_um=100.0, slew_um_s=4.0, quantum_um=0.1, initial_um=12.1)
+    assert out.step(40.0, 0.98889) == pytest.approx(16.0)  # 16.0556 rounds past R·Δt
+    slow = OutputStage(limit_um=100.0, slew_um_s=0.04, quantum_um=0.1)
+    assert [round(slow.step(1.0, 1.0), 6) for _ in range(4)] == [0.0, 0.1, 0.1, 0.2]
