@@ -5,7 +5,8 @@ There is no network here: the stand-in ``libfwlib32.so`` (compiled from
 ``$COMPD_FOCAS_SIM_DIR/<ip>-<port>.shm`` (default directory
 ``/tmp/compd-focas-sim``) that this object writes through `mmap`. `stop()`
 clears the online flag (a pulled cable: EW_SOCKET); `start()` again bumps
-the generation (a power cycle: handles opened before get EW_HANDLE).
+the generation (a power cycle: handles opened before get EW_HANDLE);
+`inject_busy_writes(n)` makes the next n pmc_wrpmcrng calls answer EW_BUSY.
 
 Addresses (PMC data little-endian, as in a FANUC PMC):
     bearing D0, column D2, table D4, ambient D6: word ×0.1 °C
@@ -43,9 +44,9 @@ from drivers.sim.ports import free_tcp_port
 
 # shared-memory layout: mirrors struct sim_shm in fwlib_standin.c
 MAGIC = 0x53434F46
-SHM_BYTES = 115128
+SHM_BYTES = 115132
 OFF_ONLINE, OFF_GENERATION, OFF_LATENCY, OFF_CALLS, OFF_NDIAG = 4, 8, 12, 16, 20
-OFF_SPLOAD, OFF_DIAG, OFF_PMC = 24, 56, 440
+OFF_SPLOAD, OFF_DIAG, OFF_PMC, OFF_BUSY_WRITES = 24, 56, 440, 115128
 PMC_AREA_BYTES = 8192
 MAX_DIAGS = 32
 
@@ -150,6 +151,15 @@ class FocasSimController:
 
     def set_latency_us(self, latency_us: int) -> None:
         self._u32(OFF_LATENCY, max(0, int(latency_us)))
+
+    def inject_busy_writes(self, n: int) -> None:
+        """The next `n` pmc_wrpmcrng calls answer EW_BUSY (0 clears)."""
+        self._u32(OFF_BUSY_WRITES, max(0, int(n)))
+
+    @property
+    def busy_writes(self) -> int:
+        """EW_BUSY answers still to give."""
+        return self._get_u32(OFF_BUSY_WRITES)
 
     async def start(self) -> None:
         if not self.online:

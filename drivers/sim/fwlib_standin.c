@@ -7,7 +7,9 @@
  *   $COMPD_FOCAS_SIM_DIR (default /tmp/compd-focas-sim) / <ip>-<port>.shm
  * A missing file or online == 0 is a pulled cable (EW_SOCKET); a generation
  * different from the one a handle was opened under is a power cycle (the
- * handle is stale: EW_HANDLE). latency_us delays every call.
+ * handle is stale: EW_HANDLE). latency_us delays every call. busy_writes > 0
+ * makes the next pmc_wrpmcrng calls answer EW_BUSY (a transient refusal: the
+ * CNC is busy), one per call, counting down.
  *
  * Build: gcc -shared -fPIC -O2 -o libfwlib32.so fwlib_standin.c
  * ABI probe: gcc -DCOMPD_ABI_PROBE -o probe fwlib_standin.c && ./probe
@@ -26,6 +28,7 @@
 typedef int32_t FLONG; /* FOCAS "long": 32 bits on every platform */
 
 #define EW_OK 0
+#define EW_BUSY (-1)
 #define EW_LENGTH 2
 #define EW_NUMBER 3
 #define EW_ATTRIB 4
@@ -100,6 +103,7 @@ typedef struct sim_shm {
     int32_t spload[MAX_SPINDLE];  /* 24 */
     sim_diag diag[SIM_DIAGS];     /* 56 */
     uint8_t pmc[SIM_PMC_AREAS][SIM_PMC_BYTES]; /* 440 */
+    uint32_t busy_writes; /* 115128: the next this many pmc_wrpmcrng get EW_BUSY */
 } sim_shm;
 
 #ifdef COMPD_ABI_PROBE
@@ -110,8 +114,8 @@ int main(void) {
            offsetof(ODBSPN, data));
     printf("ODBDGN %zu %zu %zu\n", sizeof(ODBDGN), offsetof(ODBDGN, type), offsetof(ODBDGN, u));
     printf("REALDGN %zu %zu\n", sizeof(REALDGN), offsetof(REALDGN, dec_val));
-    printf("SHM %zu %zu %zu %zu\n", sizeof(sim_shm), offsetof(sim_shm, spload),
-           offsetof(sim_shm, diag), offsetof(sim_shm, pmc));
+    printf("SHM %zu %zu %zu %zu %zu\n", sizeof(sim_shm), offsetof(sim_shm, spload),
+           offsetof(sim_shm, diag), offsetof(sim_shm, pmc), offsetof(sim_shm, busy_writes));
     return 0;
 }
 #else
@@ -232,10 +236,22 @@ short pmc_rdpmcrng(unsigned short FlibHndl, short adr_type, short data_type,
     return EW_OK;
 }
 
+/* Take one from busy_writes if it is above 0 (the simulator may set it meanwhile). */
+static int take_busy(sim_shm *shm) {
+    uint32_t n = __atomic_load_n(&shm->busy_writes, __ATOMIC_RELAXED);
+    while (n > 0) {
+        if (__atomic_compare_exchange_n(&shm->busy_writes, &n, n - 1, 0, __ATOMIC_RELAXED,
+                                        __ATOMIC_RELAXED))
+            return 1;
+    }
+    return 0;
+}
+
 short pmc_wrpmcrng(unsigned short FlibHndl, unsigned short length, IODBPMC *buf) {
     sim_shm *shm;
     short rc = enter(FlibHndl, &shm);
     if (rc != EW_OK) return rc;
+    if (take_busy(shm)) return EW_BUSY;
     rc = check_range(buf->type_a, buf->type_d, buf->datano_s, buf->datano_e, length);
     if (rc != EW_OK) return rc;
     if (buf->type_a == 1 || buf->type_a == 3) return EW_PROT; /* F, X: CNC/machine inputs */

@@ -3,10 +3,11 @@
 - a controller restart that forgets the offset (the sim zeroes its outputs):
   the daemon notices by read-back and ramps back from 0 at the slew limit,
   no jump;
-- a write rejected: transient (Modbus exception 6 "busy") → retried the next
-  cycle, compensation goes on when it clears; permanent (Modbus 2 / 1, an
-  OPC UA read-only offset node, FOCAS EW_PROT) → alarm, and the offset is
-  never written again (checked on the wire where the sim counts requests).
+- a write rejected: transient (Modbus exception 6 "busy", FOCAS EW_BUSY) →
+  retried the next cycle, compensation goes on when it clears; permanent
+  (Modbus 2 / 1, an OPC UA read-only offset node, FOCAS EW_PROT) → alarm, and
+  the offset is never written again (checked on the wire where the sim counts
+  requests).
 
 Every cycle also passes the invariants of `invariants.py`.
 """
@@ -210,3 +211,40 @@ async def test_focas_ew_prot_is_permanent(tmp_path: Path, invariants: Invariants
     assert "EW_PROT" in reason, reason
     assert status & Status.WRITE_STOPPED and status & Status.ALARM
     print(f"focas EW_PROT: stopped at cycle {stopped} ({reason})")
+
+
+async def test_focas_ew_busy_is_transient_and_retried(tmp_path: Path,
+                                                      invariants: Invariants) -> None:
+    """The CNC answers pmc_wrpmcrng with EW_BUSY (-1) three times: each of
+    those cycles fails, the next cycle writes again, and compensation goes on
+    (never stopped, no alarm)."""
+    busy_at, busy_writes = 8, 3
+
+    async def busy(sim: Any) -> None:
+        sim.inject_busy_writes(busy_writes)
+
+    sim, rig = await _rig("focas", tmp_path, invariants, {busy_at: busy})
+    try:
+        assert await rig.run_until(lambda: rig.daemon.cycles >= 30) == 0
+        left = sim.busy_writes
+        status = int((await sim.outputs())["status"])
+        written = (await sim.outputs())["offset"]
+    finally:
+        await sim.stop()
+        sim.close()
+    log = invariants.log()
+    failed = [i for i, c in enumerate(log) if c.write_ok is False]
+    # one combined pmc_wrpmcrng (offset, heartbeat, status) per cycle: one EW_BUSY each
+    assert failed == list(range(busy_at, busy_at + busy_writes)), failed
+    assert left == 0
+    assert all("offset" in log[i].written for i in range(busy_at, busy_at + busy_writes + 1))
+    assert log[busy_at + busy_writes].write_ok is True
+    reasons = [f.get("reason", "") for _, e, f in rig.log.events if e == "write_failed"]
+    assert reasons and all("EW_BUSY" in r for r in reasons), reasons
+    assert rig.daemon.cycle is not None and not rig.daemon.cycle.write_stopped
+    assert "offset_write_stopped" not in rig.log.names()
+    assert status & Status.OK and not status & Status.ALARM
+    assert log[-1].result.offset_um > 30.0
+    assert written == pytest.approx(log[-1].result.offset_um, abs=0.1)  # ×0.1 µm long
+    print(f"focas EW_BUSY: {len(failed)} cycles refused, retried each next cycle, "
+          f"offset {log[-1].result.offset_um:.3f} µm at the end")
