@@ -13,7 +13,16 @@ Address space (namespace ``urn:compd:sim``, string NodeIds ``Machine.<name>``):
 Test hooks: `publish_status` puts a channel in a Bad/Uncertain state (an open
 sensor), `set_latency` delays every client Read/Write (a hung controller),
 `read_requests` counts client Read requests touching this namespace, `restart`
-drops every connection and rebinds the same port with outputs forgotten.
+drops every connection and rebinds the same port with outputs forgotten,
+`set_write_access` takes CurrentWrite out of a node's AccessLevel (the server
+answers BadNotWritable) or UserAccessLevel (BadUserAccessDenied), `retype`
+deletes a node and adds it again with another DataType (a controller
+re-typed after the client cached the type).
+
+asyncua's server answers BadUserAccessDenied whether AccessLevel or
+UserAccessLevel lacks CurrentWrite; the spec's answer for a node that is not
+writable at all is BadNotWritable, so this sim's PostWrite hook rewrites that
+case to BadNotWritable (what a conforming controller sends).
 
 Starting costs about a second (asyncua builds the standard address space);
 stopping is immediate (the server clock task is disabled).
@@ -35,6 +44,7 @@ from asyncua.crypto.permission_rules import User, UserRole
 from asyncua.server.internal_server import InternalServer
 from asyncua.server.server import Server
 from asyncua.server.user_managers import UserManager
+from asyncua.ua.attribute_ids import AttributeIds
 from asyncua.ua.status_codes import StatusCodes
 
 from drivers.addresses import Address, OpcUaAddress
@@ -152,6 +162,7 @@ class OpcUaSimController:
         self.write_requests = 0
         self._latency_s = 0.0
         self._server: Server | None = None
+        self._machine: Any = None
         self._nodeids: dict[str, ua.NodeId] = {
             name: ua.NodeId.from_string(node_id(name)) for name in self.types}
 
@@ -181,14 +192,12 @@ class OpcUaSimController:
             raise RuntimeError(f"sim namespace got index {idx}, expected {NAMESPACE_INDEX}")
         machine = await server.nodes.objects.add_object(
             ua.NodeId(ua.String("Machine"), ua.Int16(idx)), ua.QualifiedName("Machine", idx))
-        for name, vtype in self.types.items():
-            var = await machine.add_variable(
-                self._nodeids[name], ua.QualifiedName(name, idx),
-                ua.Variant(_coerce(0.0, vtype), vtype))
-            if name not in CHANNEL_TYPES or self.writable_channels:
-                await var.set_writable()
+        self._machine = machine
+        for name in self.types:
+            await self._add_node(name)
         server.subscribe_server_callback(CallbackType.PreRead, self._on_read)
         server.subscribe_server_callback(CallbackType.PreWrite, self._on_write)
+        server.subscribe_server_callback(CallbackType.PostWrite, self._after_write)
         await server.start()
         self._server = server
 
@@ -259,6 +268,28 @@ class OpcUaSimController:
         for name in (*OUTPUTS, *ENCODING_NODES):
             await self._write(name, 0.0, now)
 
+    async def set_write_access(self, name: str, *, writable: bool = True,
+                               user_writable: bool = True) -> None:
+        """Set CurrentWrite in the node's AccessLevel (`writable`; without it
+        a client Write gets BadNotWritable) and UserAccessLevel (`user_writable`;
+        without it BadUserAccessDenied)."""
+        server = self._require()
+        node = server.get_node(self._nodeid(name))
+        for attr, on in ((AttributeIds.AccessLevel, writable),
+                         (AttributeIds.UserAccessLevel, user_writable)):
+            if on:
+                await node.set_attr_bit(attr, ua.AccessLevel.CurrentWrite)
+            else:
+                await node.unset_attr_bit(attr, ua.AccessLevel.CurrentWrite)
+
+    async def retype(self, name: str, vtype: ua.VariantType) -> None:
+        """Delete node `name` and add it again (same NodeId, value 0, writable
+        as before) with DataType `vtype`."""
+        server = self._require()
+        await server.delete_nodes([server.get_node(self._nodeid(name))])
+        self.types[name] = vtype
+        await self._add_node(name)
+
     def set_latency(self, delay_s: float) -> None:
         """Delay every client Read and Write by `delay_s` (0 = answer at once)."""
         self._latency_s = delay_s
@@ -269,6 +300,14 @@ class OpcUaSimController:
         if self._server is None:
             raise RuntimeError("sim server not started")
         return self._server
+
+    async def _add_node(self, name: str) -> None:
+        vtype = self.types[name]
+        var = await self._machine.add_variable(
+            self._nodeids[name], ua.QualifiedName(name, NAMESPACE_INDEX),
+            ua.Variant(_coerce(0.0, vtype), vtype))
+        if name not in CHANNEL_TYPES or self.writable_channels:
+            await var.set_writable()
 
     def _nodeid(self, name: str) -> ua.NodeId:
         try:
@@ -294,6 +333,24 @@ class OpcUaSimController:
             self.read_requests += 1
             if self._latency_s > 0:
                 await asyncio.sleep(self._latency_s)
+
+    async def _after_write(self, event: ServerItemCallback, _dispatcher: Any) -> None:
+        """BadUserAccessDenied for a node whose AccessLevel lacks CurrentWrite
+        becomes BadNotWritable (see module docstring): the results list is the
+        one the server sends."""
+        results = event.response_params
+        if not event.is_external or not isinstance(results, list):
+            return
+        server = self._require()
+        denied = StatusCodes.BadUserAccessDenied
+        for i, wv in enumerate(event.request_params.NodesToWrite):
+            if (i < len(results) and results[i].value == denied
+                    and wv.AttributeId == AttributeIds.Value):
+                al = server.read_attribute_value(wv.NodeId, AttributeIds.AccessLevel)
+                bits = al.Value.Value if al.Value is not None else None
+                if isinstance(bits, int) and not ua.ua_binary.test_bit(
+                        bits, ua.AccessLevel.CurrentWrite):
+                    results[i] = ua.StatusCode(ua.UInt32(StatusCodes.BadNotWritable))
 
     async def _on_write(self, event: ServerItemCallback, _dispatcher: Any) -> None:
         if not event.is_external:

@@ -3,11 +3,12 @@
 - a controller restart that forgets the offset (the sim zeroes its outputs):
   the daemon notices by read-back and ramps back from 0 at the slew limit,
   no jump;
-- a write rejected: transient (Modbus exception 6 "busy", FOCAS EW_BUSY) →
+- a write rejected: transient (Modbus exception 6 "busy", FOCAS EW_BUSY, an
+  OPC UA BadTypeMismatch after the controller re-typed the offset node) →
   retried the next cycle, compensation goes on when it clears; permanent
-  (Modbus 2 / 1, an OPC UA read-only offset node, FOCAS EW_PROT) → alarm, and
-  the offset is never written again (checked on the wire where the sim counts
-  requests).
+  (Modbus 2 / 1, an OPC UA read-only offset node: BadNotWritable or
+  BadUserAccessDenied, FOCAS EW_PROT) → alarm, and the offset is never
+  written again (checked on the wire where the sim counts requests).
 
 Every cycle also passes the invariants of `invariants.py`.
 """
@@ -248,3 +249,40 @@ async def test_focas_ew_busy_is_transient_and_retried(tmp_path: Path,
     assert written == pytest.approx(log[-1].result.offset_um, abs=0.1)  # ×0.1 µm long
     print(f"focas EW_BUSY: {len(failed)} cycles refused, retried each next cycle, "
           f"offset {log[-1].result.offset_um:.3f} µm at the end")
+
+
+@pytest.mark.parametrize(("access", "code"), [
+    ({"writable": False}, "BadNotWritable"),
+    ({"user_writable": False}, "BadUserAccessDenied")])
+async def test_opcua_offset_made_read_only_is_permanent(
+        access: dict[str, bool], code: str, tmp_path: Path, invariants: Invariants) -> None:
+    """The controller takes CurrentWrite out of the offset node's AccessLevel
+    (BadNotWritable) or UserAccessLevel (BadUserAccessDenied) while the daemon
+    runs: alarm, offset writing stopped; heartbeat and status still written."""
+    refuse_at = 10
+
+    async def refuse(sim: Any) -> None:
+        await sim.set_write_access("offset", **access)
+
+    sim, rig = await _rig("opcua", tmp_path, invariants, {refuse_at: refuse})
+    try:
+        await rig.start()
+        await rig.until(lambda: rig.daemon.cycle is not None and rig.daemon.cycle.write_stopped)
+        held = await sim.value("offset")
+        n = rig.daemon.cycles
+        await rig.until(lambda: rig.daemon.cycles >= n + 10)
+        assert await rig.stop() == 0
+        outputs = await sim.outputs()
+    finally:
+        await sim.stop()
+    log = invariants.log()
+    stopped = next(i for i, c in enumerate(log) if c.write_ok is False)
+    assert stopped == refuse_at
+    assert all("offset" not in c.written for c in log[stopped + 1:])
+    assert outputs["offset"] == held
+    assert int(outputs["heartbeat"]) == log[-1].result.heartbeat
+    status = int(outputs["status"])
+    assert status & Status.WRITE_STOPPED and status & Status.ALARM
+    reason = next(f for _, e, f in rig.log.events if e == "offset_write_stopped")["reason"]
+    assert code in reason, reason
+    print(f"opcua {code}: permanent at cycle {stopped} ({reason})")
