@@ -3,7 +3,10 @@
 One Read service call per `read()` (every requested node in one ReadRequest,
 parameters prebuilt per name set), one Write call per `write()` with each
 output's own VariantType (read once from the node's DataType after connect:
-a Python float sent to a Float node is a BadTypeMismatch otherwise).
+a Python float sent to a Float node is a BadTypeMismatch otherwise). A
+BadTypeMismatch later re-reads that DataType once: when the controller has
+re-typed the node since, the write is a transient refusal (the next one uses
+the new type); when the type is the same, a permanent one.
 
 Every call runs under `asyncio.timeout(timeout_s)` and the client's own
 request timeout is the same. asyncua's `auto_reconnect` is NOT used (it
@@ -341,6 +344,34 @@ class OpcUaDriver:
             if code in ADDRESS_CODES:
                 raise BadAddress(f"the server answered {status_name(code)}",
                                  channel=name, address=node)
+            if code == _SC.BadTypeMismatch:
+                retyped = await self._reread_type(client, name)
+                if retyped is not None:
+                    raise WriteRejected(
+                        f"the server refused the value: BadTypeMismatch ({retyped}): "
+                        "retried next cycle", channel=name, address=node, permanent=False)
             raise WriteRejected(f"the server refused the value: {status_name(code)}",
                                 channel=name, address=node,
                                 permanent=code in PERMANENT_WRITE_CODES)
+
+    async def _reread_type(self, client: Client, name: str) -> str | None:
+        """After a BadTypeMismatch: read the output node's DataType again (a
+        controller may re-type a node after our type cache was built). Returns
+        why the write is worth retrying (the type changed, or could not be
+        read just now), None when the cached type stands (then the mismatch is
+        ours: permanent)."""
+        before = self._types.get(name)
+        try:
+            async with _deadline(self.timeout_s):
+                dv = (await client.uaclient.read_attributes(
+                    [self._nodeids[name]], AttributeIds.DataType))[0]
+        except (TimeoutError, UaStatusCodeError, *_CONNECTION_ERRORS) as exc:
+            return f"DataType not re-read: {type(exc).__name__}"
+        if dv.StatusCode is not None and not dv.StatusCode.is_good():
+            return f"DataType not re-read: {status_name(dv.StatusCode.value)}"
+        vtype = variant_type_of(dv.Value.Value) if dv.Value is not None else None
+        if vtype is None or vtype == before:
+            return None
+        self._types[name] = vtype
+        old = before.name if isinstance(before, ua.VariantType) else before
+        return f"the node's type changed from {old} to {vtype.name}"

@@ -286,3 +286,36 @@ async def test_opcua_offset_made_read_only_is_permanent(
     reason = next(f for _, e, f in rig.log.events if e == "offset_write_stopped")["reason"]
     assert code in reason, reason
     print(f"opcua {code}: permanent at cycle {stopped} ({reason})")
+
+
+async def test_opcua_offset_node_retyped_is_transient(tmp_path: Path,
+                                                      invariants: Invariants) -> None:
+    """The controller deletes the offset node and adds it again as Double (our
+    type cache says Float): the Write gets BadTypeMismatch, the driver re-reads
+    the DataType, the cycle is a transient failure and the next one writes a
+    Double; the daemon ramps back from the re-created node's 0, never stops."""
+    retype_at = 10
+
+    async def retype(sim: Any) -> None:
+        from asyncua import ua
+        await sim.retype("offset", ua.VariantType.Double)
+
+    sim, rig = await _rig("opcua", tmp_path, invariants, {retype_at: retype})
+    try:
+        assert await rig.run_until(lambda: rig.daemon.cycles >= retype_at + 30) == 0
+        written = await sim.value("offset")
+    finally:
+        await sim.stop()
+    log = invariants.log()
+    failed = [i for i, c in enumerate(log) if c.write_ok is False]
+    assert failed == [retype_at], failed
+    assert log[retype_at + 1].write_ok is True and "offset" in log[retype_at + 1].written
+    reasons = [f.get("reason", "") for _, e, f in rig.log.events if e == "write_failed"]
+    assert len(reasons) == 1 and "BadTypeMismatch" in reasons[0] \
+        and "Double" in reasons[0], reasons
+    assert rig.daemon.cycle is not None and not rig.daemon.cycle.write_stopped
+    assert "offset_write_stopped" not in rig.log.names()
+    assert written == pytest.approx(log[-1].result.offset_um, abs=1e-3)
+    assert log[-1].result.offset_um > 30.0
+    print(f"opcua retyped offset node: 1 cycle refused ({reasons[0]}), "
+          f"offset {written:.3f} µm at the end")
