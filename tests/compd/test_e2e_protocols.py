@@ -33,9 +33,10 @@ from models import tomltext
 from models.modelfile import load_model
 
 PROTOCOLS = ["opcua", "s7", "modbus", "focas"]
-HOURS = 12.0
-#: real seconds for the 12 h program: 2880x, a 21 ms real cycle at Ts = 60 s
-WALL_S = 15.0
+HOURS = 8.0
+#: real seconds for 8 h of the program: 1440x, a 42 ms real cycle at Ts = 60 s
+#: (headroom for a loaded 2-core test machine; the demo runs 8 h in 60 s)
+WALL_S = 20.0
 LIMIT_UM = 200.0
 SLEW_UM_S = 0.2
 
@@ -113,35 +114,35 @@ async def _run_with_faults(protocol: str, work: Path) -> dict[str, Any]:
             def mark(what: str) -> None:
                 events.append((machine.time_s, what))
 
-            for t_h, name, value in ((1.0, "open", open_value), (2.0, "shorted", shorted_value)):
+            for t_h, name, value in ((1.0, "open", open_value), (1.5, "shorted", shorted_value)):
                 await _until(machine, t_h * 3600)
                 mark(name)
                 sim.overrides["bearing"] = value
                 await _for_ticks(machine, 10)
                 sim.overrides.clear()
-            await _until(machine, 3.0 * 3600)
+            await _until(machine, 2.0 * 3600)
             mark("spike")
             sim.overrides["bearing"] = machine.plant.sensors()["bearing"] + 50.0
             await _for_ticks(machine, 1)
             sim.overrides.clear()
-            await _until(machine, 4.0 * 3600)
+            await _until(machine, 2.5 * 3600)
             mark("stuck")
             sim.overrides["bearing"] = machine.plant.sensors()["bearing"]
             await _for_ticks(machine, 30)
             sim.overrides.clear()
-            await _until(machine, 5.5 * 3600)
+            await _until(machine, 3.5 * 3600)
             mark("controller_forgets")
             await inner.forget_outputs()
-            await _until(machine, 6.5 * 3600)
+            await _until(machine, 4.0 * 3600)
             mark("link_lost")
             sim.offline = True
             await inner.stop()
-            await asyncio.sleep(1.0)  # ~48 machine minutes
+            await asyncio.sleep(1.0)  # ~24 machine minutes
             await inner.start()
             await inner.forget_outputs()  # it comes back as after a power cycle
             sim.offline = False
             mark("link_back")
-            await _until(machine, 8.0 * 3600)
+            await _until(machine, 5.0 * 3600)
             mark("kill9")
             daemons[-1].send_signal(signal.SIGKILL)
             await daemons[-1].wait()
@@ -179,9 +180,9 @@ async def test_faults_never_break_the_limits_and_compensation_resumes(protocol: 
     allowed = 2.0 * SLEW_UM_S * ts + 1e-6
     bad = np.nonzero((step > allowed) & ~dropped_to_zero)[0]
     assert bad.size == 0, [(t[i + 1] / 3600, offset[i], offset[i + 1]) for i in bad[:5]]
-    # compensation resumed by itself: the last 2 h are compensated like a clean run
+    # compensation resumed by itself: the last 1.5 h are compensated like a clean run
     growth, error = h["growth_um"], h["error_um"]
-    tail = t >= (HOURS - 2.0) * 3600
+    tail = t >= (HOURS - 1.5) * 3600
     assert float(np.max(np.abs(error[tail]))) <= 0.2 * float(np.ptp(growth)), (
         float(np.max(np.abs(error[tail]))), float(np.ptp(growth)))
     assert events["kill9"] < events["restarted"]
