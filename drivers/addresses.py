@@ -119,14 +119,18 @@ PMC_TYPES: dict[str, tuple[int, int]] = {"byte": (0, 1), "word": (1, 2), "long":
                                          "float": (4, 4), "double": (5, 8)}
 
 
+PmcArea = Literal["G", "F", "Y", "X", "A", "R", "T", "K", "C", "D", "M", "N", "E", "Z"]
+PmcType = Literal["byte", "word", "long", "float", "double"]
+
+
 class FocasPmcAddress(_Address):
     """A PMC area value read/written with pmc_rdpmcrng / pmc_wrpmcrng.
     `address` is the byte address; engineering value = raw * scale."""
 
     kind: Literal["pmc"] = "pmc"
-    area: Literal["G", "F", "Y", "X", "A", "R", "T", "K", "C", "D", "M", "N", "E", "Z"]
+    area: PmcArea
     address: Annotated[int, Field(ge=0, le=65535)]
-    type: Literal["byte", "word", "long", "float", "double"] = "long"
+    type: PmcType = "long"
     scale: float = 1.0
 
     _scale = field_validator("scale")(_check_scale)

@@ -37,6 +37,8 @@ from drivers.addresses import (
     FocasDiagAddress,
     FocasPmcAddress,
     FocasSpindleLoadAddress,
+    PmcArea,
+    PmcType,
 )
 from drivers.focas_codec import decode_pmc, encode_pmc, pmc_size
 from drivers.sim.fwlib_build import build_standin
@@ -53,7 +55,7 @@ MAX_DIAGS = 32
 FocasAddr = FocasPmcAddress | FocasDiagAddress | FocasSpindleLoadAddress
 
 
-def _d(address: int, type_: str, scale: float = 1.0, area: str = "D") -> FocasPmcAddress:
+def _d(address: int, type_: PmcType, scale: float = 1.0, area: PmcArea = "D") -> FocasPmcAddress:
     return FocasPmcAddress(area=area, address=address, type=type_, scale=scale)
 
 
