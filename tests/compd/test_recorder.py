@@ -22,6 +22,7 @@ import pytest
 
 from compd.errors import CompdError
 from compd.recorder import Recorder, RecorderError, RecordRow, read_samples
+from tests.tmpfs import small_tmpfs
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -190,18 +191,8 @@ def test_kill9_loses_at_most_the_last_commit_interval(tmp_path: Path) -> None:
 @pytest.fixture
 def small_fs(tmp_path: Path) -> Iterator[Path]:
     """A 256 KiB tmpfs: a file system that really runs out of space (ENOSPC)."""
-    mnt = tmp_path / "small"
-    mnt.mkdir()
-    if os.geteuid() != 0:
-        pytest.skip("ENOSPC test needs root to mount a small tmpfs")
-    res = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(mnt)],
-                         capture_output=True, text=True, check=False)
-    if res.returncode != 0:
-        pytest.skip(f"mounting a tmpfs is not permitted here: {res.stderr.strip()}")
-    try:
+    with small_tmpfs(tmp_path, "256k") as mnt:
         yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
 def _fill(directory: Path) -> Path:

@@ -12,7 +12,6 @@ import asyncio
 import contextlib
 import os
 import re
-import subprocess
 import urllib.request
 from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
@@ -22,6 +21,7 @@ import pytest
 from compd.recorder import read_samples
 from drivers.sim.ports import free_tcp_port
 from tests.compd.daemon_helpers import write_config
+from tests.tmpfs import small_tmpfs
 
 from .daemon_run import RecordingSim, heartbeat, kill_and_wait, start_daemon, tail, until
 
@@ -29,18 +29,8 @@ from .daemon_run import RecordingSim, heartbeat, kill_and_wait, start_daemon, ta
 @pytest.fixture
 def small_fs(tmp_path: Path) -> Iterator[Path]:
     """A 1 MiB tmpfs: a file system that really runs out of space."""
-    mnt = tmp_path / "small"
-    mnt.mkdir()
-    if os.geteuid() != 0:
-        pytest.skip("the disk-full test needs root to mount a small tmpfs")
-    res = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mnt)],
-                         capture_output=True, text=True, check=False)
-    if res.returncode != 0:
-        pytest.skip(f"mounting a tmpfs is not permitted here: {res.stderr.strip()}")
-    try:
+    with small_tmpfs(tmp_path, "1m") as mnt:
         yield mnt
-    finally:
-        subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
 @pytest.fixture
