@@ -33,7 +33,6 @@ import asyncio
 import logging
 import math
 import os
-from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +43,7 @@ from drivers.errors import BadAddress, DriverError, WriteRejected
 from drivers.factory import open_driver
 from drivers.sim import CHANNELS
 from drivers.sim.drive_map import DriveMap
+from drivers.sim.history import History
 from drivers.sim.plant import ThermalPlant
 from drivers.sim.programs import Program, make_program
 
@@ -101,7 +101,7 @@ class DriveLoop:
         self._read_names = tuple(drive_map.read)
         self._write_names = tuple(drive_map.write)
         self._link_ok = True
-        self._history: deque[tuple[float, ...]] = deque(maxlen=max_rows)
+        self._history = History(DRIVE_COLUMNS, max_rows)
         self._stop = asyncio.Event()
         self._task: asyncio.Task[None] | None = None
         self._primed = False
@@ -240,11 +240,10 @@ class DriveLoop:
     @property
     def history(self) -> list[dict[str, float]]:
         """Recorded rows (with `record=True`) keyed by `DRIVE_COLUMNS`."""
-        return [dict(zip(DRIVE_COLUMNS, row, strict=True)) for row in self._history]
+        return self._history.rows()
 
     def history_arrays(self) -> dict[str, np.ndarray]:
-        data = np.array(self._history, dtype=np.float64).reshape(-1, len(DRIVE_COLUMNS))
-        return {name: data[:, i].copy() for i, name in enumerate(DRIVE_COLUMNS)}
+        return self._history.arrays()
 
 
 def write_drive_record(path: str | os.PathLike[str], rows: dict[str, np.ndarray]) -> int:

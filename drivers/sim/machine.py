@@ -18,12 +18,12 @@ from __future__ import annotations
 
 import asyncio
 import math
-from collections import deque
 
 import numpy as np
 
 from drivers.sim import CHANNELS
 from drivers.sim.base import SimController
+from drivers.sim.history import History
 from drivers.sim.plant import ThermalPlant
 from drivers.sim.programs import Program, make_program
 
@@ -57,7 +57,7 @@ class SimMachine:
         self.record = record
         self.ticks = 0
         self.overruns = 0
-        self._history: deque[tuple[float, ...]] = deque(maxlen=max_rows)
+        self._history = History(HISTORY_COLUMNS, max_rows)
         self._stop = asyncio.Event()
         self._task: asyncio.Task[None] | None = None
         self._primed = False
@@ -147,9 +147,8 @@ class SimMachine:
     @property
     def history(self) -> list[dict[str, float]]:
         """Recorded rows (with `record=True`): time_s, the channels, offset_um."""
-        return [dict(zip(HISTORY_COLUMNS, row, strict=True)) for row in self._history]
+        return self._history.rows()
 
     def history_arrays(self) -> dict[str, np.ndarray]:
         """Recorded rows as float64 columns keyed by `HISTORY_COLUMNS`."""
-        data = np.array(self._history, dtype=np.float64).reshape(-1, len(HISTORY_COLUMNS))
-        return {name: data[:, i].copy() for i, name in enumerate(HISTORY_COLUMNS)}
+        return self._history.arrays()
