@@ -32,6 +32,7 @@ import os
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import TypeVar
 from urllib.parse import urlsplit
 
@@ -53,6 +54,8 @@ T = TypeVar("T")
 FocasAddress = FocasPmcAddress | FocasDiagAddress | FocasSpindleLoadAddress
 _GRACE_S = 0.25
 _BYTE = PMC_TYPES["byte"][0]
+#: request plans kept per driver (the daemon uses a handful of name sets)
+_PLAN_CACHE_SIZE = 64
 
 
 class LibraryRefusedError(ValueError):
@@ -90,6 +93,16 @@ def _load(path: str, sha256: str | None) -> ctypes.CDLL:
         return lib
 
 
+@dataclass(frozen=True, slots=True)
+class _ReadPlan:
+    """How to read one set of names (computed once per set)."""
+
+    wanted: dict[str, FocasAddress]
+    ranges: tuple[PmcRange, ...]
+    diags: tuple[tuple[str, FocasDiagAddress], ...]
+    sploads: tuple[tuple[str, FocasSpindleLoadAddress], ...]
+
+
 class FocasDriver:
     """Async driver for one FANUC CNC through the FOCAS library."""
 
@@ -124,6 +137,9 @@ class FocasDriver:
         self._handle: int | None = None  # touched only on the worker thread
         self._up = False
         self._closed = False
+        self._read_plans: dict[tuple[str, ...], _ReadPlan] = {}
+        self._write_plans: dict[tuple[str, ...], tuple[
+            list[tuple[str, FocasPmcAddress]], list[PmcRange]]] = {}
 
     @property
     def connected(self) -> bool:
@@ -199,17 +215,34 @@ class FocasDriver:
                 raise BadAddress(f"unknown {kind} {name!r}", channel=name)
         return {name: table[name] for name in names}
 
+    def _read_plan(self, names: Sequence[str]) -> _ReadPlan:
+        """Ranges, spindle loads and diagnoses for this set of names, computed
+        once and cached."""
+        key = tuple(names)
+        plan = self._read_plans.get(key)
+        if plan is None:
+            wanted = self._lookup(names, self._all, "channel")
+            pmc = [(n, a) for n, a in wanted.items() if isinstance(a, FocasPmcAddress)]
+            plan = _ReadPlan(
+                wanted=wanted,
+                ranges=tuple(read_ranges(pmc)),
+                diags=tuple((n, a) for n, a in wanted.items() if isinstance(a, FocasDiagAddress)),
+                sploads=tuple((n, a) for n, a in wanted.items()
+                              if isinstance(a, FocasSpindleLoadAddress)))
+            if len(self._read_plans) >= _PLAN_CACHE_SIZE:
+                self._read_plans.clear()
+            self._read_plans[key] = plan
+        return plan
+
     async def read(self, names: Sequence[str]) -> dict[str, Sample]:
-        wanted = self._lookup(names, self._all, "channel")
-        pmc = [(n, a) for n, a in wanted.items() if isinstance(a, FocasPmcAddress)]
-        ranges = read_ranges(pmc)
-        diags = {n: a for n, a in wanted.items() if isinstance(a, FocasDiagAddress)}
-        sploads = {n: a for n, a in wanted.items() if isinstance(a, FocasSpindleLoadAddress)}
+        plan = self._read_plan(names)
+        wanted, ranges, diags, sploads = plan.wanted, plan.ranges, plan.diags, plan.sploads
+        read_range = self._read_range
 
         def op(lib: ctypes.CDLL, h: int) -> dict[str, float]:
             values: dict[str, float] = {}
             for r in ranges:
-                data = self._read_range(lib, h, r, wanted)
+                data = read_range(lib, h, r, wanted)
                 for name in r.names:
                     a = wanted[name]
                     if isinstance(a, FocasPmcAddress):
@@ -218,12 +251,11 @@ class FocasDriver:
                 spn = abi.ODBSPN()
                 rc = lib.cnc_rdspload(h, -1, ctypes.byref(spn))
                 if rc != abi.EW_OK:
-                    name = next(iter(sploads))
-                    raise abi.error_for(rc, "cnc_rdspload", channel=name,
-                                        address=sploads[name].describe())
-                for name, sa in sploads.items():
+                    name, sa = sploads[0]
+                    raise abi.error_for(rc, "cnc_rdspload", channel=name, address=sa.describe())
+                for name, sa in sploads:
                     values[name] = spn.data[sa.spindle - 1] * sa.scale
-            for name, da in diags.items():
+            for name, da in diags:
                 dgn = abi.ODBDGN()
                 rc = lib.cnc_diagnoss(h, da.number, da.axis, 4 + ctypes.sizeof(abi.FLONG),
                                       ctypes.byref(dgn))
@@ -257,9 +289,21 @@ class FocasDriver:
         name = r.names[0]
         raise abi.error_for(rc, "pmc_rdpmcrng", channel=name, address=wanted[name].describe())
 
+    def _write_plan(self, names: tuple[str, ...]) -> tuple[
+            list[tuple[str, FocasPmcAddress]], list[PmcRange]]:
+        """The outputs and their runs for this set of names, computed once."""
+        plan = self._write_plans.get(names)
+        if plan is None:
+            wanted = self._lookup(names, self._outputs, "output")
+            items = [(n, a) for n, a in wanted.items() if isinstance(a, FocasPmcAddress)]
+            plan = (items, write_runs(items))
+            if len(self._write_plans) >= _PLAN_CACHE_SIZE:
+                self._write_plans.clear()
+            self._write_plans[names] = plan
+        return plan
+
     async def write(self, values: Mapping[str, float]) -> None:
-        wanted = self._lookup(list(values), self._outputs, "output")
-        items = [(n, a) for n, a in wanted.items() if isinstance(a, FocasPmcAddress)]
+        items, runs = self._write_plan(tuple(values))
         payload: dict[str, bytes] = {}
         for name, a in items:
             try:
@@ -267,7 +311,6 @@ class FocasDriver:
             except (ValueError, TypeError) as exc:
                 raise BadAddress(f"cannot encode {values[name]!r}: {exc}", channel=name,
                                  address=a.describe()) from exc
-        runs = write_runs(items)
 
         def op(lib: ctypes.CDLL, h: int) -> None:
             for r in runs:
@@ -281,7 +324,7 @@ class FocasDriver:
                 if rc != abi.EW_OK:
                     name = r.names[0]
                     raise abi.error_for(rc, "pmc_wrpmcrng", channel=name,
-                                        address=wanted[name].describe(), writing=True)
+                                        address=dict(items)[name].describe(), writing=True)
 
         await self._call(op, "write")
 

@@ -27,6 +27,7 @@ import contextlib
 import re
 import time
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import TypeVar
 from urllib.parse import urlsplit
 
@@ -50,6 +51,8 @@ _ADDRESS_CODES = {0x05, 0x06, 0x07, 0x0A}
 #: S7 header error codes the snap7 server (and some CPUs) use for the same
 _ADDRESS_HEADER_CODES = {0x8001, 0x8404}
 _ITEM_CODE_RE = re.compile(r"\(0x([0-9a-fA-F]{2})\)")
+#: request plans kept per driver (the daemon uses a handful of name sets)
+_PLAN_CACHE_SIZE = 64
 
 
 def parse_endpoint(endpoint: str) -> tuple[str, int]:
@@ -81,6 +84,16 @@ class _Deadline:
         return left
 
 
+@dataclass(frozen=True, slots=True)
+class _ReadPlan:
+    """How to read one set of names: the spans, and per span who sits where."""
+
+    wanted: dict[str, S7Address]
+    spans: tuple[Span, ...]
+    fields: tuple[tuple[tuple[str, S7Address, int], ...], ...]
+    channel: str | None  # named in errors when the read is of one channel
+
+
 class S7Driver:
     """Async driver for one S7 CPU (DB areas only)."""
 
@@ -107,6 +120,8 @@ class S7Driver:
         self._client: Client | None = None  # touched only on the worker thread
         self._up = False
         self._closed = False
+        self._read_plans: dict[tuple[str, ...], _ReadPlan] = {}
+        self._write_plans: dict[tuple[str, ...], tuple[dict[str, S7Address], list[Span]]] = {}
 
     @property
     def connected(self) -> bool:
@@ -220,34 +235,47 @@ class S7Driver:
             wanted[name] = table[name]
         return wanted
 
-    async def read(self, names: Sequence[str]) -> dict[str, Sample]:
-        wanted = self._lookup(names, self._all, "channel")
-        if not wanted:
-            return {}
-        spans = read_spans(wanted)
+    def _read_plan(self, names: Sequence[str]) -> _ReadPlan:
+        """The spans for this set of names, computed once and cached."""
+        key = tuple(names)
+        plan = self._read_plans.get(key)
+        if plan is None:
+            wanted = self._lookup(names, self._all, "channel")
+            spans = tuple(read_spans(wanted))
+            fields = tuple(tuple((n, wanted[n], wanted[n].offset - sp.start) for n in sp.names)
+                           for sp in spans)
+            plan = _ReadPlan(wanted, spans, fields, key[0] if len(wanted) == 1 else None)
+            if len(self._read_plans) >= _PLAN_CACHE_SIZE:
+                self._read_plans.clear()
+            self._read_plans[key] = plan
+        return plan
 
-        def op(client: Client, deadline: _Deadline) -> list[tuple[Span, bytes | S7Error]]:
-            results: list[tuple[Span, bytes | S7Error]] = []
-            for span in spans:
-                self._arm(client, deadline)
+    async def read(self, names: Sequence[str]) -> dict[str, Sample]:
+        plan = self._read_plan(names)
+        if not plan.spans:
+            return {}
+        spans = plan.spans
+        arm = self._arm
+
+        def op(client: Client, deadline: _Deadline) -> list[bytes | S7Error]:
+            results: list[bytes | S7Error] = []
+            for span in spans:  # every DB of the read in this one worker job
+                arm(client, deadline)
                 try:
-                    results.append((span, bytes(client.db_read(span.db, span.start, span.size))))
+                    results.append(bytes(client.db_read(span.db, span.start, span.size)))
                 except S7ProtocolError as exc:
-                    results.append((span, exc))
+                    results.append(exc)
             return results
 
-        first = next(iter(wanted))
-        results = await self._call(op, "read", channel=first if len(wanted) == 1 else None)
+        results = await self._call(op, "read", channel=plan.channel)
         now = time.time()
         samples: dict[str, Sample] = {}
-        for span, data in results:
+        for span, fields, data in zip(spans, plan.fields, results, strict=True):
             if isinstance(data, S7Error):
-                await self._blame(span, wanted, data)
+                await self._blame(span, plan.wanted, data)
                 continue
-            for name in span.names:
-                addr = wanted[name]
-                samples[name] = Sample(decode(addr, data, addr.offset - span.start), now,
-                                       Quality.GOOD)
+            for name, addr, at in fields:
+                samples[name] = Sample(decode(addr, data, at), now, Quality.GOOD)
         return {name: samples[name] for name in names}
 
     async def _blame(self, span: Span, wanted: Mapping[str, S7Address], exc: S7Error) -> None:
@@ -271,8 +299,19 @@ class S7Driver:
         raise BadAddress(f"controller refused the read of DB{span.db}.{span.start}+{span.size}: "
                          f"{exc}", channel=name, address=wanted[name].describe()) from exc
 
+    def _write_plan(self, names: tuple[str, ...]) -> tuple[dict[str, S7Address], list[Span]]:
+        """The runs for this set of outputs, computed once and cached."""
+        plan = self._write_plans.get(names)
+        if plan is None:
+            wanted = self._lookup(names, self._outputs, "output")
+            plan = (wanted, write_runs(wanted.items()))
+            if len(self._write_plans) >= _PLAN_CACHE_SIZE:
+                self._write_plans.clear()
+            self._write_plans[names] = plan
+        return plan
+
     async def write(self, values: Mapping[str, float]) -> None:
-        wanted = self._lookup(list(values), self._outputs, "output")
+        wanted, runs = self._write_plan(tuple(values))
         payload: dict[str, bytes] = {}
         for name, addr in wanted.items():
             try:
@@ -280,12 +319,12 @@ class S7Driver:
             except (ValueError, TypeError, OverflowError) as exc:
                 raise BadAddress(f"cannot encode {values[name]!r}: {exc}", channel=name,
                                  address=addr.describe()) from exc
-        runs = write_runs(wanted.items())
+        datas = [bytearray(b"".join([payload[n] for n in run.names])) for run in runs]
+        arm = self._arm
 
         def op(client: Client, deadline: _Deadline) -> tuple[Span, S7Error] | None:
-            for run in runs:
-                data = bytearray(b"".join(payload[n] for n in run.names))
-                self._arm(client, deadline)
+            for run, data in zip(runs, datas, strict=True):  # all runs in this one job
+                arm(client, deadline)
                 try:
                     client.db_write(run.db, run.start, data)
                 except S7ProtocolError as exc:
