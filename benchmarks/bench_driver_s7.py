@@ -15,7 +15,10 @@ their own connections to the same server:
 
 The three are measured in interleaved blocks of cycles (driver, bare, hop,
 driver, ...), so that load from other processes on the machine lands on all
-of them alike.
+of them alike. Absolute figures depend on where the scheduler puts the
+client, worker and (in-process) server threads: on this 2-vCPU VM a wakeup
+across vCPUs costs tens of µs, so ``taskset -c 0`` gives lower, steadier
+figures for every peer; compare ratios, not runs.
 
     .venv/bin/python benchmarks/bench_driver_s7.py [cycles]
 """
