@@ -131,7 +131,8 @@ def baseline_rss(protocol: str) -> float:
         proc.wait()
 
 
-def measure(protocol: str, wall_s: float, samples: int, work: Path) -> Run:
+def measure(protocol: str, wall_s: float, samples: int, work: Path,
+            hours: float = 1.0) -> Run:
     scale = 3600.0 / wall_s
     sim = start_sim(protocol, speedup=scale)
     log = work / f"{protocol}.log"
@@ -148,7 +149,7 @@ def measure(protocol: str, wall_s: float, samples: int, work: Path) -> Run:
             ready = rss_mb(proc.pid)
             times, rss = [0.0], [ready]
             for k in range(1, samples + 1):
-                time.sleep(max(0.0, t0 + k * wall_s / samples - time.monotonic()))
+                time.sleep(max(0.0, t0 + k * hours * wall_s / samples - time.monotonic()))
                 times.append((time.monotonic() - t0) * scale)
                 rss.append(rss_mb(proc.pid))
             maps = mapped_packages(proc.pid)
@@ -208,11 +209,13 @@ def main() -> None:
     parser.add_argument("--wall-s", type=float, default=60.0,
                         help="real seconds for one machine hour (time_scale = 3600 / this)")
     parser.add_argument("--samples", type=int, default=60)
+    parser.add_argument("--hours", type=float, default=1.0,
+                        help="machine hours to run (a longer run shows whether RSS levels off)")
     args = parser.parse_args()
     runs = []
     with tempfile.TemporaryDirectory(prefix="bench-daemon-memory-") as tmp:
         for protocol in args.protocols:
-            run = measure(protocol, args.wall_s, args.samples, Path(tmp))
+            run = measure(protocol, args.wall_s, args.samples, Path(tmp), args.hours)
             print(f"  {protocol}: ready {run.ready_mb:.1f} MB, end {run.rss[-1]:.1f} MB",
                   flush=True)
             runs.append(run)
