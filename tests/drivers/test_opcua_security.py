@@ -7,8 +7,6 @@ time with `cryptography`, once per module."""
 
 from __future__ import annotations
 
-import datetime as dt
-import ipaddress
 import logging
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
@@ -16,10 +14,6 @@ from pathlib import Path
 
 import pytest
 import pytest_asyncio
-from cryptography import x509
-from cryptography.hazmat.primitives import hashes, serialization
-from cryptography.hazmat.primitives.asymmetric import rsa
-from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 from pydantic import ValidationError
 
 from drivers.backoff import Backoff
@@ -28,6 +22,7 @@ from drivers.errors import ConnectionLost
 from drivers.opcua import OpcUaDriver
 from drivers.opcua_security import OpcUaSecurity, SecurityRejected
 from drivers.sim.opcua_server import OpcUaSimController, OpcUaSimSecurity
+from tests.pki import make_cert, name, new_key, write_cert, write_key
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 
@@ -49,75 +44,24 @@ class Pki:
     trust_dir: Path
 
 
-def _key() -> rsa.RSAPrivateKey:
-    return rsa.generate_private_key(public_exponent=65537, key_size=2048)
-
-
-def _name(cn: str) -> x509.Name:
-    return x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, cn)])
-
-
-def _cert(subject: str, key: rsa.RSAPrivateKey, issuer: x509.Name,
-          issuer_key: rsa.RSAPrivateKey, *, ca: bool = False,
-          uri: str | None = None) -> x509.Certificate:
-    now = dt.datetime.now(dt.UTC)
-    builder = (x509.CertificateBuilder()
-               .subject_name(_name(subject)).issuer_name(issuer)
-               .public_key(key.public_key()).serial_number(x509.random_serial_number())
-               .not_valid_before(now - dt.timedelta(hours=1))
-               .not_valid_after(now + dt.timedelta(days=30))
-               .add_extension(x509.BasicConstraints(ca=ca, path_length=None), critical=True))
-    if ca:
-        builder = builder.add_extension(x509.KeyUsage(
-            digital_signature=True, content_commitment=False, key_encipherment=False,
-            data_encipherment=False, key_agreement=False, key_cert_sign=True, crl_sign=True,
-            encipher_only=False, decipher_only=False), critical=True)
-    else:
-        builder = (builder
-                   .add_extension(x509.KeyUsage(
-                       digital_signature=True, content_commitment=True, key_encipherment=True,
-                       data_encipherment=True, key_agreement=False, key_cert_sign=False,
-                       crl_sign=False, encipher_only=False, decipher_only=False), critical=True)
-                   .add_extension(x509.ExtendedKeyUsage(
-                       [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
-                       critical=False)
-                   .add_extension(x509.SubjectAlternativeName([
-                       x509.UniformResourceIdentifier(uri or f"urn:{subject}"),
-                       x509.DNSName("localhost"),
-                       x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]), critical=False))
-    return builder.sign(issuer_key, hashes.SHA256())
-
-
-def _write(path: Path, cert: x509.Certificate) -> Path:
-    path.write_bytes(cert.public_bytes(serialization.Encoding.DER))
-    return path
-
-
-def _write_key(path: Path, key: rsa.RSAPrivateKey) -> Path:
-    path.write_bytes(key.private_bytes(serialization.Encoding.PEM,
-                                       serialization.PrivateFormat.PKCS8,
-                                       serialization.NoEncryption()))
-    return path
-
-
 @pytest.fixture(scope="module")
 def pki(tmp_path_factory: pytest.TempPathFactory) -> Pki:
     d = tmp_path_factory.mktemp("pki")
-    ca_key, server_key, client_key = _key(), _key(), _key()
-    ca_cert = _cert("compd test CA", ca_key, _name("compd test CA"), ca_key, ca=True)
-    server_cert = _cert("sim server", server_key, ca_cert.subject, ca_key, uri=SERVER_URI)
-    client_cert = _cert("compd client", client_key, ca_cert.subject, ca_key, uri=CLIENT_URI)
+    ca_key, server_key, client_key = new_key(), new_key(), new_key()
+    ca_cert = make_cert("compd test CA", ca_key, name("compd test CA"), ca_key, ca=True)
+    server_cert = make_cert("sim server", server_key, ca_cert.subject, ca_key, uri=SERVER_URI)
+    client_cert = make_cert("compd client", client_key, ca_cert.subject, ca_key, uri=CLIENT_URI)
     # same subject and key, but self-signed: a different certificate (an impostor)
-    rogue_cert = _cert("sim server", server_key, _name("sim server"), server_key,
+    rogue_cert = make_cert("sim server", server_key, name("sim server"), server_key,
                        uri=SERVER_URI)
     trust_dir = d / "trusted"
     trust_dir.mkdir()
-    return Pki(ca=_write(trust_dir / "ca.der", ca_cert),
-               server_cert=_write(d / "server.der", server_cert),
-               server_key=_write_key(d / "server.pem", server_key),
-               client_cert=_write(d / "client.der", client_cert),
-               client_key=_write_key(d / "client.pem", client_key),
-               rogue_cert=_write(d / "rogue.der", rogue_cert),
+    return Pki(ca=write_cert(trust_dir / "ca.der", ca_cert),
+               server_cert=write_cert(d / "server.der", server_cert),
+               server_key=write_key(d / "server.pem", server_key),
+               client_cert=write_cert(d / "client.der", client_cert),
+               client_key=write_key(d / "client.pem", client_key),
+               rogue_cert=write_cert(d / "rogue.der", rogue_cert),
                trust_dir=trust_dir)
 
 
@@ -149,7 +93,7 @@ def _driver(sim: OpcUaSimController, security: OpcUaSecurity) -> OpcUaDriver:
                        backoff=Backoff(initial_s=0.02, cap_s=0.1), security=security)
 
 
-async def test_pinned_server_and_right_password_connect_read_write(
+async def test_pinned_server_and_right_password_connect_readwrite_cert(
         sim: OpcUaSimController, pki: Pki) -> None:
     await sim.publish({"bearing": 33.5})
     driver = _driver(sim, _security(pki))

@@ -18,9 +18,7 @@ Certificates (a CA, the server, a client valid 10 more days) are made with
 from __future__ import annotations
 
 import asyncio
-import datetime as dt
 import hashlib
-import ipaddress
 import json
 import os
 import sys
@@ -30,15 +28,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from cryptography import x509
-from cryptography.hazmat.primitives import hashes, serialization
-from cryptography.hazmat.primitives.asymmetric import rsa
-from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from drivers.sim.opcua_server import OpcUaSimController, OpcUaSimSecurity
 from drivers.sim.ports import free_tcp_port
 from models import tomltext
 from tests.compd.daemon_helpers import write_config
+from tests.pki import make_cert, name, new_key, write_cert, write_key
 
 from .daemon_run import ROOT, RecordingSim, daemon_env, heartbeat, kill_and_wait, tail, until
 from .test_disk_full import _metrics
@@ -58,63 +53,17 @@ class Pki:
     client_key: Path
 
 
-def _key() -> rsa.RSAPrivateKey:
-    return rsa.generate_private_key(public_exponent=65537, key_size=2048)
-
-
-def _name(cn: str) -> x509.Name:
-    return x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, cn)])
-
-
-def _cert(subject: str, key: rsa.RSAPrivateKey, issuer: x509.Name,
-          issuer_key: rsa.RSAPrivateKey, *, days: float, ca: bool = False,
-          uri: str = "") -> x509.Certificate:
-    now = dt.datetime.now(dt.UTC)
-    b = (x509.CertificateBuilder().subject_name(_name(subject)).issuer_name(issuer)
-         .public_key(key.public_key()).serial_number(x509.random_serial_number())
-         .not_valid_before(now - dt.timedelta(hours=1))
-         .not_valid_after(now + dt.timedelta(days=days))
-         .add_extension(x509.BasicConstraints(ca=ca, path_length=None), critical=True))
-    if ca:
-        b = b.add_extension(x509.KeyUsage(
-            digital_signature=True, content_commitment=False, key_encipherment=False,
-            data_encipherment=False, key_agreement=False, key_cert_sign=True, crl_sign=True,
-            encipher_only=False, decipher_only=False), critical=True)
-    else:
-        b = (b.add_extension(x509.KeyUsage(
-                digital_signature=True, content_commitment=True, key_encipherment=True,
-                data_encipherment=True, key_agreement=False, key_cert_sign=False,
-                crl_sign=False, encipher_only=False, decipher_only=False), critical=True)
-             .add_extension(x509.ExtendedKeyUsage(
-                 [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
-                 critical=False)
-             .add_extension(x509.SubjectAlternativeName([
-                 x509.UniformResourceIdentifier(uri), x509.DNSName("localhost"),
-                 x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]), critical=False))
-    return b.sign(issuer_key, hashes.SHA256())
-
-
 @pytest.fixture(scope="module")
 def pki(tmp_path_factory: pytest.TempPathFactory) -> Pki:
     d = tmp_path_factory.mktemp("pki")
-    ca_key, server_key, client_key = _key(), _key(), _key()
-    ca = _cert("compd test CA", ca_key, _name("compd test CA"), ca_key, days=365, ca=True)
-    server = _cert("sim server", server_key, ca.subject, ca_key, days=365, uri=SERVER_URI)
-    client = _cert("compd client", client_key, ca.subject, ca_key, days=CLIENT_DAYS,
+    ca_key, server_key, client_key = new_key(), new_key(), new_key()
+    ca = make_cert("compd test CA", ca_key, name("compd test CA"), ca_key, days=365, ca=True)
+    server = make_cert("sim server", server_key, ca.subject, ca_key, days=365, uri=SERVER_URI)
+    client = make_cert("compd client", client_key, ca.subject, ca_key, days=CLIENT_DAYS,
                    uri="urn:compd:test:client")
 
-    def der(name: str, cert: x509.Certificate) -> Path:
-        (d / name).write_bytes(cert.public_bytes(serialization.Encoding.DER))
-        return d / name
-
-    def pem(name: str, key: rsa.RSAPrivateKey) -> Path:
-        (d / name).write_bytes(key.private_bytes(serialization.Encoding.PEM,
-                                                 serialization.PrivateFormat.PKCS8,
-                                                 serialization.NoEncryption()))
-        return d / name
-
-    return Pki(der("server.der", server), pem("server.pem", server_key),
-               der("client.der", client), pem("client.pem", client_key))
+    return Pki(write_cert(d / "server.der", server), write_key(d / "server.pem", server_key),
+               write_cert(d / "client.der", client), write_key(d / "client.pem", client_key))
 
 
 @pytest.fixture
