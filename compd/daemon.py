@@ -33,6 +33,7 @@ import structlog
 from compd.config import LoadedConfig
 from compd.cycle import Cycle, CycleResult, params_from_config
 from compd.faults import Event
+from compd.heap import pin_mmap_threshold
 from compd.sdnotify import Notifier
 from compd.startup import checkpoint_path, start_cycle
 from compd.telemetry import Metrics
@@ -80,6 +81,7 @@ class Daemon:
 
     async def run(self) -> int:
         """Run until stopped (or one cycle with `once`); returns the exit status."""
+        pin_mmap_threshold()  # months of cycles must not fragment the C heap (compd.heap)
         loop = asyncio.get_running_loop()
         installed = []
         for sig in (signal.SIGTERM, signal.SIGINT):

@@ -4,17 +4,24 @@
   allocation counter (``sqlite3_memory_used``, read through ctypes from the
   library the ``sqlite3`` module is linked to) grows by far less than SQLite's
   default 2 MB cache after thousands of appended rows.
+- glibc's mmap threshold is pinned (`compd.heap`): a buffer of asyncio's
+  socket read size (256 KiB, allocated for every controller response) is a
+  mapping of its own, not carved out of the brk heap where it fragments.
 """
 
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import os
 import sqlite3
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
+from compd.heap import pin_mmap_threshold
 from compd.recorder import CACHE_KIB, Recorder, RecordRow
 
 
@@ -59,3 +66,53 @@ def test_recorder_sqlite_memory_stays_within_its_page_cache(tmp_path: Path) -> N
     assert recorder.committed == rows
     # the page cache (CACHE_KIB) plus SQLite's fixed per-connection share
     assert held < CACHE_KIB * 1024 + 512 * 1024
+
+
+_PROBE = """
+import ctypes, sys
+from compd.heap import pin_mmap_threshold
+
+class MallInfo2(ctypes.Structure):
+    _fields_ = [(n, ctypes.c_size_t) for n in ("arena", "ordblks", "smblks", "hblks", "hblkhd",
+                "usmblks", "fsmblks", "uordblks", "fordblks", "keepcost")]
+
+try:
+    info = ctypes.CDLL(None).mallinfo2
+except (OSError, AttributeError):
+    print("no-mallinfo2")
+    sys.exit(0)
+info.restype = MallInfo2
+startup = bytearray(4 * 1024 * 1024)  # a large mapped block freed, as at startup:
+del startup                           # glibc's dynamic threshold rises to 4 MiB
+pinned = sys.argv[1] == "pin" and pin_mmap_threshold()
+before = info().hblkhd
+buffer = bytes(256 * 1024)  # asyncio's socket read size, allocated per response
+print(pinned, info().hblkhd - before)
+"""
+
+
+def _mapped_growth(mode: str) -> tuple[bool, int]:
+    """In a fresh interpreter: (pinned, bytes glibc mapped for one 256 KiB buffer)."""
+    env = {k: v for k, v in os.environ.items()
+           if k != "MALLOC_MMAP_THRESHOLD_" and not k.startswith("GLIBC_TUNABLES")}
+    out = subprocess.run([sys.executable, "-c", _PROBE, mode], check=True, capture_output=True,
+                         text=True, timeout=60, env=env).stdout.split()
+    if out == ["no-mallinfo2"]:
+        pytest.skip("not glibc >= 2.33 (no mallinfo2)")
+    return out[0] == "True", int(out[1])
+
+
+def test_large_buffers_are_mappings_after_pinning() -> None:
+    pinned, mapped = _mapped_growth("pin")
+    assert pinned
+    assert mapped >= 256 * 1024
+    # the mechanism: left dynamic, the same buffer comes from the brk heap
+    assert _mapped_growth("no-pin") == (False, 0)
+
+
+def test_operator_tuning_is_left_alone(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("MALLOC_MMAP_THRESHOLD_", "65536")
+    assert not pin_mmap_threshold()
+    monkeypatch.delenv("MALLOC_MMAP_THRESHOLD_")
+    monkeypatch.setenv("GLIBC_TUNABLES", "glibc.malloc.mmap_threshold=65536")
+    assert not pin_mmap_threshold()
