@@ -177,7 +177,8 @@ def _env() -> dict[str, str]:
 
 
 def report(runs: list[Run]) -> None:
-    print("\n`compd run` resident memory over one machine hour (MB = 1e6 bytes)")
+    hours = max((r.times_s[-1] for r in runs), default=0.0) / 3600.0
+    print(f"\n`compd run` resident memory over {hours:.1f} machine hour(s) (MB = 1e6 bytes)")
     print(f"{'protocol':9s}{'ready':>8s}{'end':>8s}{'growth':>8s}{'peak':>8s}"
           f"{'slope':>8s}{'slope 2nd half':>15s}{'target':>8s}{'baseline':>9s}{'own':>7s}")
     for r in runs:
