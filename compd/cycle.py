@@ -344,6 +344,10 @@ class Cycle:
             events.append(Event("readback_adopted", {"offset_um": self.output.current_um}))
             return False
         if math.isfinite(rb_um) and abs(rb_um - confirmed) <= self.params.readback_tolerance_um:
+            if rb_um != confirmed:
+                # not a mismatch worth an event, but the next step is measured
+                # from what the machine has, so the slew limit holds against it
+                self.output.align(rb_um)
             return False
         events.append(Event("readback_mismatch", {
             "expected_um": confirmed, "readback_um": _finite_or_none(rb_um)}))

@@ -136,6 +136,15 @@ class OutputStage:
             self.current_um = self.confirmed_um
             self._exact_um = self.current_um
 
+    def align(self, um: float) -> None:
+        """The controller holds `um`, a hair from what we wrote (its encoding,
+        within the read-back tolerance): step from what it really holds,
+        keeping any sub-quantum progress of the exact value."""
+        um = self._safe(um)
+        self._exact_um += um - self.current_um
+        self.current_um = um
+        self.confirmed_um = um
+
     def adopt(self, um: float) -> None:
         """The controller holds `um` (read back): ramp from there."""
         self.current_um = self._safe(um)
