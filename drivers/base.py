@@ -23,7 +23,9 @@ from __future__ import annotations
 import enum
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Protocol, TypeVar, runtime_checkable
+
+from drivers.errors import BadAddress
 
 
 class Quality(enum.Enum):
@@ -75,3 +77,15 @@ class Driver(Protocol):
     async def close(self) -> None:
         """Release the link and any worker thread; idempotent."""
         ...
+
+
+A = TypeVar("A")
+
+
+def select_addresses(names: Sequence[str], table: Mapping[str, A], kind: str) -> dict[str, A]:
+    """The addresses of `names` from a driver's `table` (its channels or its
+    outputs); an unknown name raises `BadAddress` naming it."""
+    missing = [name for name in names if name not in table]
+    if missing:
+        raise BadAddress(f"unknown {kind} {missing[0]!r}", channel=missing[0])
+    return {name: table[name] for name in names}

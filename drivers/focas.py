@@ -45,7 +45,7 @@ from drivers.addresses import (
     FocasSpindleLoadAddress,
 )
 from drivers.backoff import Backoff
-from drivers.base import Quality, Sample
+from drivers.base import Quality, Sample, select_addresses
 from drivers.errors import BadAddress, ConnectionLost, ControllerTimeout, DriverError
 from drivers.focas_codec import PmcRange, decode_pmc, encode_pmc, read_ranges, write_runs
 from drivers.io_thread import IoThread
@@ -199,8 +199,13 @@ class FocasDriver:
             raise exc.error from exc
         except TimeoutError as exc:
             self._up = False  # the next job frees the handle and opens a new one
+            self._backoff.failed()  # the next calls fail fast until the delay passed
             raise ControllerTimeout(f"{what} on {self.endpoint} timed out after "
                                     f"{self._timeout_s} s") from exc
+        except ConnectionLost:
+            self._up = False  # EW_SOCKET / EW_HANDLE: the job already freed the handle
+            self._backoff.failed()
+            raise
         self._backoff.succeeded()
         return result
 
@@ -208,20 +213,13 @@ class FocasDriver:
         self._closed = False
         await self._call(lambda lib, h: None, "connect")
 
-    def _lookup(self, names: Sequence[str], table: Mapping[str, FocasAddress],
-                kind: str) -> dict[str, FocasAddress]:
-        for name in names:
-            if name not in table:
-                raise BadAddress(f"unknown {kind} {name!r}", channel=name)
-        return {name: table[name] for name in names}
-
     def _read_plan(self, names: Sequence[str]) -> _ReadPlan:
         """Ranges, spindle loads and diagnoses for this set of names, computed
         once and cached."""
         key = tuple(names)
         plan = self._read_plans.get(key)
         if plan is None:
-            wanted = self._lookup(names, self._all, "channel")
+            wanted = select_addresses(names, self._all, "channel")
             pmc = [(n, a) for n, a in wanted.items() if isinstance(a, FocasPmcAddress)]
             plan = _ReadPlan(
                 wanted=wanted,
@@ -294,7 +292,7 @@ class FocasDriver:
         """The outputs and their runs for this set of names, computed once."""
         plan = self._write_plans.get(names)
         if plan is None:
-            wanted = self._lookup(names, self._outputs, "output")
+            wanted = select_addresses(names, self._outputs, "output")
             items = [(n, a) for n, a in wanted.items() if isinstance(a, FocasPmcAddress)]
             plan = (items, write_runs(items))
             if len(self._write_plans) >= _PLAN_CACHE_SIZE:

@@ -37,7 +37,7 @@ from snap7.error import S7ConnectionError, S7Error, S7ProtocolError, S7TimeoutEr
 
 from drivers.addresses import S7Address
 from drivers.backoff import Backoff
-from drivers.base import Quality, Sample
+from drivers.base import Quality, Sample, select_addresses
 from drivers.errors import BadAddress, ConnectionLost, ControllerTimeout, DriverError, WriteRejected
 from drivers.io_thread import IoThread
 from drivers.s7_codec import Span, decode, encode, read_spans, write_runs
@@ -226,21 +226,12 @@ class S7Driver:
         self._closed = False
         await self._call(lambda client, deadline: None, "connect")
 
-    def _lookup(self, names: Sequence[str], table: Mapping[str, S7Address],
-                kind: str) -> dict[str, S7Address]:
-        wanted = {}
-        for name in names:
-            if name not in table:
-                raise BadAddress(f"unknown {kind} {name!r}", channel=name)
-            wanted[name] = table[name]
-        return wanted
-
     def _read_plan(self, names: Sequence[str]) -> _ReadPlan:
         """The spans for this set of names, computed once and cached."""
         key = tuple(names)
         plan = self._read_plans.get(key)
         if plan is None:
-            wanted = self._lookup(names, self._all, "channel")
+            wanted = select_addresses(names, self._all, "channel")
             spans = tuple(read_spans(wanted))
             fields = tuple(tuple((n, wanted[n], wanted[n].offset - sp.start) for n in sp.names)
                            for sp in spans)
@@ -303,7 +294,7 @@ class S7Driver:
         """The runs for this set of outputs, computed once and cached."""
         plan = self._write_plans.get(names)
         if plan is None:
-            wanted = self._lookup(names, self._outputs, "output")
+            wanted = select_addresses(names, self._outputs, "output")
             plan = (wanted, write_runs(wanted.items()))
             if len(self._write_plans) >= _PLAN_CACHE_SIZE:
                 self._write_plans.clear()

@@ -40,9 +40,10 @@ async def sim(tmp_path_factory: pytest.TempPathFactory) -> AsyncIterator[FocasSi
 
 def _driver(sim: FocasSimController, timeout_s: float = 0.5, **kw: object) -> FocasDriver:
     kw.setdefault("library_path", sim.library_path)
+    kw.setdefault("backoff", Backoff(0.01, 0.05))
     return FocasDriver(sim.endpoint, {**CHANNELS, **EXTRAS, **ENCODINGS},
                        {**OUTPUTS, **ENCODINGS}, timeout_s=timeout_s,
-                       backoff=Backoff(0.01, 0.05), **kw)  # type: ignore[arg-type]
+                       **kw)  # type: ignore[arg-type]
 
 
 def test_ctypes_layouts_match_the_c_compiler(tmp_path: Path) -> None:
@@ -117,6 +118,21 @@ async def test_pulled_cable_is_connection_lost_then_recovers(sim: FocasSimContro
         await _until_read(drv)
     finally:
         await drv.close()
+
+
+async def test_lost_link_fails_fast_while_backing_off(sim: FocasSimController) -> None:
+    drv = _driver(sim, backoff=Backoff(30.0, 30.0))
+    try:
+        await drv.read(["bearing"])
+        await sim.stop()
+        with pytest.raises(ConnectionLost, match="EW_SOCKET"):
+            await drv.read(["bearing"])
+        # within the backoff delay the next call does not touch the library
+        with pytest.raises(ConnectionLost, match="next reconnect attempt"):
+            await drv.read(["bearing"])
+    finally:
+        await drv.close()
+        await sim.start()
 
 
 async def _until_read(drv: FocasDriver) -> None:
