@@ -29,7 +29,6 @@ t0 + k·period_s/speedup on the loop's monotonic clock; a late tick counts in
 
 from __future__ import annotations
 
-import asyncio
 import logging
 import math
 import os
@@ -43,9 +42,9 @@ from drivers.errors import BadAddress, DriverError, WriteRejected
 from drivers.factory import open_driver
 from drivers.sim import CHANNELS
 from drivers.sim.drive_map import DriveMap
-from drivers.sim.history import History
 from drivers.sim.plant import ThermalPlant
-from drivers.sim.programs import Program, make_program
+from drivers.sim.programs import Program
+from drivers.sim.runner import PlantRunner
 
 #: columns of a recorded row
 DRIVE_COLUMNS: tuple[str, ...] = ("time_s", *CHANNELS, "offset_um", "heartbeat", "status",
@@ -64,7 +63,7 @@ _FORMATS: dict[str, str] = {"time_s": "{:.3f}", "speed_rpm": "{:.0f}", "bearing"
 _log = logging.getLogger(__name__)
 
 
-class DriveLoop:
+class DriveLoop(PlantRunner):
     """The plant driving a controller through `driver` (see the module docstring).
 
     The caller constructs the driver with ``channels = drive_map.read`` and
@@ -72,25 +71,17 @@ class DriveLoop:
     else: `run()`/`stop()` connect and close it.
     """
 
+    task_name = "sim-drive"
+
     def __init__(self, driver: Driver, drive_map: DriveMap, *, program: Program | None = None,
                  plant: ThermalPlant | None = None, seed: int = 0, period_s: float = 1.0,
                  speedup: float = 1.0, repeat: bool = True, record: bool = False,
                  max_rows: int | None = None) -> None:
-        if not (period_s > 0.0 and math.isfinite(period_s)):
-            raise ValueError(f"period_s must be a positive finite number, got {period_s!r}")
-        if not (speedup > 0.0 and math.isfinite(speedup)):
-            raise ValueError(f"speedup must be a positive finite number, got {speedup!r}")
+        super().__init__(DRIVE_COLUMNS, program=program, plant=plant, seed=seed,
+                         period_s=period_s, speedup=speedup, repeat=repeat, record=record,
+                         max_rows=max_rows)
         self.driver = driver
         self.map = drive_map
-        self.program = program if program is not None else make_program("spectrum", seed=seed)
-        self.plant = plant if plant is not None else ThermalPlant(
-            seed=seed, params=self.program.plant_params())
-        self.period_s = float(period_s)
-        self.speedup = float(speedup)
-        self.repeat = repeat
-        self.record = record
-        self.ticks = 0
-        self.overruns = 0
         #: exchanges (read + write) that failed on the link, and the last reason
         self.link_errors = 0
         self.last_error: str | None = None
@@ -101,21 +92,6 @@ class DriveLoop:
         self._read_names = tuple(drive_map.read)
         self._write_names = tuple(drive_map.write)
         self._link_ok = True
-        self._history = History(DRIVE_COLUMNS, max_rows)
-        self._stop = asyncio.Event()
-        self._task: asyncio.Task[None] | None = None
-        self._primed = False
-
-    @property
-    def time_s(self) -> float:
-        """Machine time, s."""
-        return self.plant.time_s
-
-    def speed_at(self, t_s: float) -> float:
-        duration = self.program.duration_s
-        if self.repeat and duration > 0.0:
-            t_s = math.fmod(t_s, duration)
-        return self.program(t_s)
 
     # -- one exchange ----------------------------------------------------------
 
@@ -184,66 +160,13 @@ class DriveLoop:
 
     async def tick(self) -> dict[str, float]:
         """Advance one period, read back the offset, write the sensors."""
-        self.plant.step(self.period_s, self.speed_at(self.plant.time_s), self.program.load)
+        self.advance()
         self.ticks += 1
         return await self._exchange()
 
-    # -- scheduling --------------------------------------------------------------
-
-    async def run(self, *, until_s: float | None = None) -> None:
-        """Tick on real-time deadlines until `stop()` or machine time
-        `until_s`; the driver is closed on the way out."""
-        loop = asyncio.get_running_loop()
-        self._stop.clear()
-        try:
-            if not self._primed:
-                await self.prime()
-            real_period_s = self.period_s / self.speedup
-            deadline = loop.time() + real_period_s
-            while until_s is None or self.plant.time_s < until_s - 1e-9:
-                delay = deadline - loop.time()
-                if delay > 0.0:
-                    try:
-                        async with asyncio.timeout(delay):
-                            await self._stop.wait()
-                        return
-                    except TimeoutError:
-                        pass
-                elif self._stop.is_set():
-                    return
-                await self.tick()
-                deadline += real_period_s
-                late_s = loop.time() - deadline
-                if late_s > 0.0:
-                    self.overruns += 1
-                    deadline += math.ceil(late_s / real_period_s) * real_period_s
-        finally:
-            await self.driver.close()
-
-    def start(self, *, until_s: float | None = None) -> asyncio.Task[None]:
-        """Run in a background task (see `stop`)."""
-        if self._task is not None and not self._task.done():
-            raise RuntimeError("the drive loop is already running")
-        self._stop.clear()
-        self._task = asyncio.create_task(self.run(until_s=until_s), name="sim-drive")
-        return self._task
-
-    async def stop(self) -> None:
-        """Stop after the current tick, close the driver; re-raise the loop's error."""
-        self._stop.set()
-        task, self._task = self._task, None
-        if task is not None:
-            await task
-
-    # -- the record ----------------------------------------------------------------
-
-    @property
-    def history(self) -> list[dict[str, float]]:
-        """Recorded rows (with `record=True`) keyed by `DRIVE_COLUMNS`."""
-        return self._history.rows()
-
-    def history_arrays(self) -> dict[str, np.ndarray]:
-        return self._history.arrays()
+    async def _finish(self) -> None:
+        """The driver is closed when the loop ends, however it ends."""
+        await self.driver.close()
 
 
 def write_drive_record(path: str | os.PathLike[str], rows: dict[str, np.ndarray]) -> int:
