@@ -22,7 +22,7 @@ import pytest
 
 from compd.errors import CompdError
 from compd.recorder import Recorder, RecorderError, RecordRow, read_samples
-from tests.tmpfs import small_tmpfs
+from tests.tmpfs import fill, small_tmpfs
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -195,18 +195,6 @@ def small_fs(tmp_path: Path) -> Iterator[Path]:
         yield mnt
 
 
-def _fill(directory: Path) -> Path:
-    filler = directory / "filler"
-    fd = os.open(filler, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
-    try:
-        with contextlib.suppress(OSError):  # until ENOSPC
-            while True:
-                os.write(fd, b"\0" * 4096)
-    finally:
-        os.close(fd)
-    return filler
-
-
 def test_disk_full_counts_drops_raises_alarm_and_recovers(small_fs: Path) -> None:
     path = small_fs / "rec.sqlite"
     rec = Recorder(path, commit_every=5)
@@ -221,7 +209,7 @@ def test_disk_full_counts_drops_raises_alarm_and_recovers(small_fs: Path) -> Non
 
     record(20)
     assert rec.committed == 20 and not rec.alarm
-    filler = _fill(small_fs)
+    filler = fill(small_fs)
     record(200)  # nothing escapes
     rec.flush()
     assert rec.alarm

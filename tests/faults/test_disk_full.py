@@ -9,8 +9,6 @@ space returns, records and logs again and clears the alarm."""
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import os
 import re
 import urllib.request
 from collections.abc import AsyncIterator, Iterator
@@ -21,7 +19,7 @@ import pytest
 from compd.recorder import read_samples
 from drivers.sim.ports import free_tcp_port
 from tests.compd.daemon_helpers import write_config
-from tests.tmpfs import small_tmpfs
+from tests.tmpfs import fill, small_tmpfs
 
 from .daemon_run import RecordingSim, heartbeat, kill_and_wait, start_daemon, tail, until
 
@@ -41,18 +39,6 @@ async def rec() -> AsyncIterator[RecordingSim]:
         yield r
     finally:
         await r.stop()
-
-
-def _fill(directory: Path) -> Path:
-    filler = directory / "filler"
-    fd = os.open(filler, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
-    try:
-        with contextlib.suppress(OSError):  # until ENOSPC
-            while True:
-                os.write(fd, b"\0" * 4096)
-    finally:
-        os.close(fd)
-    return filler
 
 
 def _metrics(port: int) -> dict[str, float]:
@@ -89,7 +75,7 @@ async def test_disk_full_for_recorder_and_logs(rec: RecordingSim, small_fs: Path
                                       accept_zero=True), proc, log, "metrics served")
         assert await _metric(port, "compd_records_dropped_total") == 0.0
 
-        filler = await asyncio.to_thread(_fill, small_fs)
+        filler = await asyncio.to_thread(fill, small_fs)
         log_size_full = log.stat().st_size
         hb = await heartbeat(rec.sim)
         writes = len(rec.writes)
