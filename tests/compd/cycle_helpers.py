@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from compd.cycle import Cycle, CycleParams
-from compd.validation import ChannelLimits
+from compd.core.cycle import Cycle, CycleParams
+from compd.core.validation import ChannelLimits
 from drivers.base import Quality, Sample
 from models.compensation import CompensationModel
 from models.modelfile import load_model

@@ -10,7 +10,7 @@ import math
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from compd.cycle import Cycle
+from compd.core.cycle import Cycle
 from drivers.base import Quality, Sample
 
 from .cycle_helpers import params, sp2

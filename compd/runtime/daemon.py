@@ -30,13 +30,13 @@ from typing import Any
 
 import structlog
 
-from compd.config import LoadedConfig
-from compd.cycle import Cycle, CycleResult, params_from_config
-from compd.faults import Event
-from compd.heap import pin_mmap_threshold
-from compd.sdnotify import Notifier
-from compd.startup import checkpoint_path, start_cycle
-from compd.telemetry import Metrics
+from compd.config.loader import LoadedConfig
+from compd.core.cycle import Cycle, CycleResult, params_from_config
+from compd.core.faults import Event
+from compd.faces.telemetry import Metrics
+from compd.runtime.heap import pin_mmap_threshold
+from compd.runtime.sdnotify import Notifier
+from compd.runtime.startup import checkpoint_path, start_cycle
 from drivers.base import Driver, Quality, Sample
 from drivers.errors import DriverError, WriteRejected
 
@@ -81,7 +81,7 @@ class Daemon:
 
     async def run(self) -> int:
         """Run until stopped (or one cycle with `once`); returns the exit status."""
-        pin_mmap_threshold()  # months of cycles must not fragment the C heap (compd.heap)
+        pin_mmap_threshold()  # months of cycles must not fragment the C heap (compd.runtime.heap)
         loop = asyncio.get_running_loop()
         installed = []
         for sig in (signal.SIGTERM, signal.SIGINT):
@@ -102,7 +102,7 @@ class Daemon:
         cfg = self.cfg
         writing_state = not self.dry_run
         if writing_state:
-            from compd.statelock import StateLock
+            from compd.runtime.statelock import StateLock
 
             self._lock = StateLock(cfg.state_dir)
             self._lock.acquire()  # StateLocked propagates: the caller reports it
@@ -128,7 +128,7 @@ class Daemon:
                 self.metrics.start_http(port)
             driver = self._driver
             if driver is None:
-                from compd.driver_setup import build_driver
+                from compd.runtime.driver_setup import build_driver
 
                 driver = self._driver = build_driver(cfg)
             try:
@@ -260,7 +260,7 @@ class Daemon:
         sec = self.cfg.raw.controller.security
         if sec is None:
             return
-        from compd.certcheck import WARN_DAYS, expiry_days
+        from compd.runtime.certcheck import WARN_DAYS, expiry_days
 
         base = self.cfg.path.parent
         for role, path in (("client", sec.certificate), ("server", sec.server_certificate)):
@@ -285,7 +285,7 @@ class Daemon:
         path = self.cfg.recorder_path
         if self.dry_run or path is None:
             return
-        from compd.recorder import Recorder
+        from compd.runtime.recorder import Recorder
 
         rc = self.cfg.raw.recorder
         retention_s = rc.retention_days * 86400.0 if rc.retention_days else None
@@ -300,7 +300,7 @@ class Daemon:
     def _record(self, result: CycleResult) -> None:
         if self._recorder is None or result.record is None:
             return
-        from compd.recorder import RecordRow
+        from compd.runtime.recorder import RecordRow
 
         r = result.record
         dropped = self._recorder.dropped
@@ -329,7 +329,7 @@ class Daemon:
     def _checkpoint(self, cycle: Cycle) -> None:
         if self.dry_run:
             return
-        from compd.checkpoint import save_checkpoint
+        from compd.runtime.checkpoint import save_checkpoint
 
         state = cycle.export_state()
         state.update(saved_mono_s=self.clock(), model_sha256=self.cfg.model_sha256,

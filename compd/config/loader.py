@@ -2,7 +2,7 @@
 `ConfigError` naming the dotted key path and the reason (exit 78).
 
 `load_config(path)` reads the file, validates the sections
-(`compd.config_schema`), then the checks that span sections: the controller
+(`compd.config.schema`), then the checks that span sections: the controller
 timeout against the period, every address against the protocol's address
 model, the model (file or inline terms: stable, its channels configured, its
 period equal to the machine's) and the shadow model. Nothing here connects
@@ -22,7 +22,7 @@ from typing import Any
 
 from pydantic import BaseModel, TypeAdapter, ValidationError
 
-from compd.config_schema import DaemonConfig, SecuritySection
+from compd.config.schema import DaemonConfig, SecuritySection
 from compd.errors import ConfigError
 from drivers.addresses import ADDRESS_TYPES, Address, FocasAddress
 from models.compensation import CompensationModel

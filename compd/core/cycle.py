@@ -7,13 +7,13 @@ One `Cycle.step(now_s, samples, readback_offset_um)`:
 1. read-back: the controller's offset (controller units) against the value it
    last confirmed; a difference (a restarted controller that forgot it) is an
    event, and the output ramps from the read-back value;
-2. validate every channel (`compd.validation`); the cycle is valid when every
+2. validate every channel (`compd.core.validation`); the cycle is valid when every
    channel the live model reads is valid;
 3. valid: initialise the model on the first valid sample if needed (restored
    state, or the steady state matching today's temperatures), then step it
    (and the shadow model) once; invalid: the filters are NOT stepped;
-4. fault policy (`compd.faults`) picks the target; the output stage
-   (`compd.output`) makes it safe;
+4. fault policy (`compd.core.faults`) picks the target; the output stage
+   (`compd.core.output`) makes it safe;
 5. writes: the offset (in controller units; omitted once the controller
    refused it permanently, and while read-back is configured but the read
    failed, since then the controller's state is unknown), the heartbeat
@@ -29,15 +29,15 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from compd.faults import Event, FaultPolicy, State
-from compd.output import OutputStage, Status
-from compd.validation import ChannelLimits, Validator
+from compd.core.faults import Event, FaultPolicy, State
+from compd.core.output import OutputStage, Status
+from compd.core.validation import ChannelLimits, Validator
 from drivers.base import Sample
 from models.compensation import CompensationModel
 from models.errors import ModelError
 
 if TYPE_CHECKING:
-    from compd.config import LoadedConfig
+    from compd.config.loader import LoadedConfig
 
 #: the heartbeat counts modulo this (fits INT, WORD, uint16, DINT, PMC word)
 HEARTBEAT_MODULO = 32768
