@@ -29,7 +29,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from compd.core.faults import Event, FaultPolicy, State
+from compd.core.faults import Event, FaultPolicy, FaultState
 from compd.core.output import OutputStage, Status
 from compd.core.validation import ChannelLimits, Validator
 from drivers.base import Sample
@@ -89,7 +89,7 @@ class RecordFields:
     mono_s: float
     offset_um: float
     model_um: float | None
-    state: str
+    state: FaultState
     valid: bool
     channels: dict[str, float | None]
     validity: dict[str, str | None]
@@ -105,7 +105,7 @@ class CycleResult:
     offset_um: float
     model_um: float | None
     shadow_um: float | None
-    state: State | str
+    state: FaultState
     status: int
     heartbeat: int
     #: inputs valid and the model stepped (heartbeat advanced)
@@ -258,7 +258,7 @@ class Cycle:
 
         decision = self.faults.decide(now_s, valid, model_um, events)
         target = self.output.current_um if decision.target_um is None else decision.target_um
-        offset_um = self.output.step(target, dt, deadband=decision.state == "ok")
+        offset_um = self.output.step(target, dt, deadband=decision.state == FaultState.OK)
 
         if valid:
             self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
@@ -289,7 +289,7 @@ class Cycle:
             contributions["shadow_total"] = shadow_um
         record = RecordFields(
             seq=self.sequence, mono_s=now_s, offset_um=offset_um, model_um=model_um,
-            state=decision.state if not self.write_stopped else "stopped", valid=valid,
+            state=FaultState.STOPPED if self.write_stopped else decision.state, valid=valid,
             channels={n: _finite_or_none(v) for n, v in values.items()},
             validity=validity, contributions=contributions)
         done = self.faults.shutting_down and (offset_um == 0.0 or self.write_stopped)
@@ -401,15 +401,15 @@ class Cycle:
         self._shadow_ready = False
         return None
 
-    def _status_bits(self, state: str, alarm: bool) -> Status:
+    def _status_bits(self, state: FaultState, alarm: bool) -> Status:
         s = Status(0)
-        if state == "ok" and not self.write_stopped:
+        if state == FaultState.OK and not self.write_stopped:
             s |= Status.OK
-        elif state == "hold":
+        elif state == FaultState.HOLD:
             s |= Status.HOLDING
-        elif state == "ramp":
+        elif state == FaultState.RAMP:
             s |= Status.RAMPING
-        elif state == "shutdown":
+        elif state == FaultState.SHUTDOWN:
             s |= Status.SHUTDOWN
         if alarm or self.write_stopped:
             s |= Status.ALARM

@@ -8,6 +8,12 @@ States:
 - ``ramp``  invalid for hold_s or longer: target = 0, reached at the slew
   limit, alarm bit set
 - ``shutdown``  a ramp-to-zero shutdown: target = 0 whatever the inputs
+- ``stopped``  not a policy decision: the cycle stopped writing the offset (a
+  permanent refusal by the controller); recorded and exported as the alarm
+
+`FaultState` holds these names once (a `StrEnum`: each member equals its
+name as a string, in the recorder's rows and the logs); `FaultState.gauge` is
+the number of the ``compd_fault_state`` metric.
 
 Recovery (valid again) goes straight back to ``ok``; the output stage's slew
 limit makes it a ramp, never a jump.
@@ -15,10 +21,29 @@ limit makes it a ramp, never a jump.
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
-State = Literal["init", "ok", "hold", "ramp", "shutdown"]
+
+class FaultState(enum.StrEnum):
+    INIT = "init"
+    OK = "ok"
+    HOLD = "hold"
+    RAMP = "ramp"
+    SHUTDOWN = "shutdown"
+    STOPPED = "stopped"
+
+    @property
+    def gauge(self) -> int:
+        """The ``compd_fault_state`` metric: 0 ok, 1 hold, 2 ramp, 3 alarm/stopped."""
+        return _GAUGE[self]
+
+
+#: ``compd_fault_state`` at or above this: the daemon no longer compensates
+GAUGE_ALARM = 3
+_GAUGE = {FaultState.INIT: 0, FaultState.OK: 0, FaultState.HOLD: 1, FaultState.RAMP: 2,
+          FaultState.SHUTDOWN: 2, FaultState.STOPPED: GAUGE_ALARM}
 
 
 @dataclass(frozen=True, slots=True)
@@ -31,7 +56,7 @@ class Event:
 
 @dataclass(frozen=True, slots=True)
 class Decision:
-    state: State
+    state: FaultState
     #: None: hold the current output
     target_um: float | None
     alarm: bool
@@ -42,37 +67,39 @@ class FaultPolicy:
 
     def __init__(self, hold_s: float) -> None:
         self.hold_s = hold_s
-        self.state: State = "init"
+        self.state: FaultState = FaultState.INIT
         self.invalid_since_s: float | None = None
         self.shutting_down = False
 
     def decide(self, now_s: float, valid: bool, model_um: float | None,
                events: list[Event]) -> Decision:
         if self.shutting_down:
-            return self._to("shutdown", Decision("shutdown", 0.0, False), events, now_s)
+            return self._to(FaultState.SHUTDOWN, Decision(FaultState.SHUTDOWN, 0.0, False),
+                            events, now_s)
         if valid and model_um is not None:
-            if self.state in ("hold", "ramp"):
+            if self.state in (FaultState.HOLD, FaultState.RAMP):
                 events.append(Event("fault_recovered", {
                     "after_s": now_s - (self.invalid_since_s or now_s)}))
             self.invalid_since_s = None
-            return self._to("ok", Decision("ok", model_um, False), events, now_s)
+            return self._to(FaultState.OK, Decision(FaultState.OK, model_um, False),
+                            events, now_s)
         if self.invalid_since_s is None:
             self.invalid_since_s = now_s
-        if self.state == "init":
-            return Decision("init", None, False)
+        if self.state == FaultState.INIT:
+            return Decision(FaultState.INIT, None, False)
         if now_s - self.invalid_since_s >= self.hold_s:
-            return self._to("ramp", Decision("ramp", 0.0, True), events, now_s)
-        return self._to("hold", Decision("hold", None, False), events, now_s)
+            return self._to(FaultState.RAMP, Decision(FaultState.RAMP, 0.0, True), events, now_s)
+        return self._to(FaultState.HOLD, Decision(FaultState.HOLD, None, False), events, now_s)
 
-    def _to(self, state: State, decision: Decision, events: list[Event],
+    def _to(self, state: FaultState, decision: Decision, events: list[Event],
             now_s: float) -> Decision:
         if state != self.state:
-            if state == "hold":
+            if state == FaultState.HOLD:
                 events.append(Event("fault_hold", {"hold_s": self.hold_s}))
-            elif state == "ramp":
+            elif state == FaultState.RAMP:
                 events.append(Event("fault_ramp_to_zero", {
                     "invalid_for_s": now_s - (self.invalid_since_s or now_s)}))
-            elif state == "shutdown":
+            elif state == FaultState.SHUTDOWN:
                 events.append(Event("shutdown_ramp_to_zero"))
             self.state = state
         return decision

@@ -40,7 +40,6 @@ from compd.runtime.startup import checkpoint_path, start_cycle
 from drivers.base import Driver, Quality, Sample
 from drivers.errors import DriverError, WriteRejected
 
-_FAULT_GAUGE = {"ok": 0, "init": 0, "hold": 1, "ramp": 2, "stopped": 3, "shutdown": 2}
 #: STATUS= is sent on a state change or at least this often (cycles)
 _STATUS_EVERY = 10
 
@@ -342,7 +341,7 @@ class Daemon:
     def _telemetry(self, result: CycleResult, samples: dict[str, Sample] | None) -> None:
         m = self.metrics
         m.offset_um.set(result.offset_um)
-        m.fault_state.set(_FAULT_GAUGE.get(str(result.state), 3))
+        m.fault_state.set(result.state.gauge)
         if samples:
             for name, s in samples.items():
                 if math.isfinite(s.value):

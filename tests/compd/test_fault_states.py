@@ -1,0 +1,20 @@
+"""The fault-state names live once, in `compd.core.faults.FaultState`."""
+
+from __future__ import annotations
+
+import json
+
+from compd.core.faults import GAUGE_ALARM, FaultState
+
+
+def test_every_state_has_a_gauge_and_only_stopped_is_the_alarm() -> None:
+    gauges = {s: s.gauge for s in FaultState}
+    assert [s for s, g in gauges.items() if g >= GAUGE_ALARM] == [FaultState.STOPPED]
+    assert gauges[FaultState.OK] == gauges[FaultState.INIT] == 0
+    assert gauges[FaultState.HOLD] < gauges[FaultState.RAMP] < GAUGE_ALARM
+
+
+def test_states_are_their_names_in_rows_logs_and_json() -> None:
+    assert FaultState.HOLD == "hold" and str(FaultState.RAMP) == "ramp"
+    assert f"state {FaultState.OK}" == "state ok"
+    assert json.dumps({"state": FaultState.STOPPED}) == '{"state": "stopped"}'
