@@ -4,10 +4,10 @@ Per sample: read (channels, plus the offset when read-back is on) → `Cycle.ste
 (validate, step, fault policy, output stage) → write → record → checkpoint
 (every state.checkpoint_every samples and on shutdown).
 
-Scheduling: absolute deadlines on `time.monotonic`; deadline += period /
-time_scale. A cycle that ends past its next deadline is an overrun: counted,
-logged, and the schedule skips to the next deadline in the future (never a
-burst of catch-up cycles).
+Scheduling (`compd.core.schedule`): absolute deadlines on `time.monotonic`,
+one every period / time_scale real seconds. A cycle that ends past its next
+deadline is an overrun: counted, logged, and the schedule skips to the next
+deadline in the future (never a burst of catch-up cycles).
 
 Driver errors on read are a failed read (the cycle holds); the driver
 reconnects by itself with its backoff. Write errors go back to the cycle
@@ -33,6 +33,7 @@ import structlog
 from compd.config.loader import LoadedConfig
 from compd.core.cycle import Cycle, CycleResult, params_from_config
 from compd.core.faults import Event
+from compd.core.schedule import Schedule, shutdown_ramp_cycles
 from compd.faces.telemetry import Metrics
 from compd.runtime.heap import pin_mmap_threshold
 from compd.runtime.sdnotify import Notifier
@@ -154,14 +155,12 @@ class Daemon:
             self.log.warning("controller_connect_failed", error=str(exc))
 
     async def _loop(self, driver: Driver, cycle: Cycle) -> int:
-        period_real_s = self.cfg.real_period_s
-        scale = self.cfg.raw.machine.time_scale
-        t0 = self.clock()
-        deadline = t0
+        schedule = Schedule(self.cfg.real_period_s, self.clock(),
+                            time_scale=self.cfg.raw.machine.time_scale)
         shutdown_cycles_left: int | None = None
         while True:
             started = self.clock()
-            now_s = (started - t0) * scale
+            now_s = schedule.machine_s(started)
             result = await self._one_cycle(driver, cycle, now_s)
             self.metrics.cycle_seconds.observe(self.clock() - started)
             if self.once:
@@ -180,25 +179,23 @@ class Daemon:
                     cycle.begin_shutdown()
                     self.stop_requested = asyncio.Event()  # a second signal ends the ramp
                     p = self.params
-                    ramp_s = p.limit_um / p.slew_um_s
-                    shutdown_cycles_left = math.ceil(ramp_s / p.period_s) + 10
+                    shutdown_cycles_left = shutdown_ramp_cycles(p.limit_um, p.slew_um_s,
+                                                                p.period_s)
                     self.log.info("shutdown_requested", policy="ramp_to_zero",
                                   offset_um=result.offset_um)
                 else:
                     self.log.info("shutdown_requested", policy="hold",
                                   offset_um=result.offset_um)
                     break
-            deadline += period_real_s
-            now = self.clock()
-            if now > deadline:
-                missed = math.floor((now - deadline) / period_real_s) + 1
-                deadline += missed * period_real_s
+            missed = schedule.advance(self.clock())
+            if missed:
                 self.overruns += 1
                 self.metrics.overruns.inc()
                 self.log.warning("cycle_overrun", sequence=result.sequence,
                                  skipped_deadlines=missed, overruns=self.overruns)
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self.stop_requested.wait(), deadline - self.clock())
+                await asyncio.wait_for(self.stop_requested.wait(),
+                                       schedule.wait_s(self.clock()))
             if shutdown_cycles_left is not None and self.stop_requested.is_set():
                 self.log.warning("shutdown_ramp_interrupted", offset_um=cycle.output.current_um)
                 break
