@@ -15,9 +15,10 @@ from compd.runtime.daemon import Daemon
 from compd.runtime.driver_setup import build_driver
 from compd.runtime.recorder import read_samples
 from compd.runtime.sdnotify import Notifier
+from compd.testing import RecordingDriver
 from drivers.sim.modbus_server import ModbusSimController
 
-from .daemon_helpers import RecordingDriver, write_config
+from .daemon_helpers import write_config
 
 
 @pytest.fixture
