@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 from compd.core.faults import Event, FaultPolicy, FaultState
 from compd.core.output import OutputStage, Status
+from compd.core.record import RecordRow
 from compd.core.validation import ChannelLimits, Validator
 from drivers.base import Sample
 from models.compensation import CompensationModel
@@ -82,38 +83,35 @@ def params_from_config(cfg: LoadedConfig, *, dry_run: bool = False) -> CyclePara
 
 
 @dataclass
-class RecordFields:
-    """One row for the recorder (the shell adds the wall-clock time)."""
-
-    seq: int
-    mono_s: float
-    offset_um: float
-    model_um: float | None
-    state: FaultState
-    valid: bool
-    channels: dict[str, float | None]
-    validity: dict[str, str | None]
-    contributions: dict[str, float]
-
-
-@dataclass
 class CycleResult:
+    """What one cycle hands the shell: its `record` row (model output, state,
+    channels, validity, contributions: read them there or through the
+    properties) and what the shell does with it (writes, events, status)."""
+
     sequence: int
     #: output name -> value in controller units
     writes: dict[str, float]
     #: the output stage's value in µm (what was, or would be, written)
     offset_um: float
-    model_um: float | None
     shadow_um: float | None
-    state: FaultState
     status: int
     heartbeat: int
     #: inputs valid and the model stepped (heartbeat advanced)
     complete: bool
+    #: the recorder's row (wall_s: as passed to `step`, NaN when none was;
+    #: the shell stamps the time of recording)
+    record: RecordRow
     events: list[Event] = field(default_factory=list)
-    record: RecordFields | None = None
     #: a ramp-to-zero shutdown has reached zero (or cannot write any more)
     shutdown_done: bool = False
+
+    @property
+    def model_um(self) -> float | None:
+        return self.record.model_um
+
+    @property
+    def state(self) -> FaultState:
+        return FaultState(self.record.state)
 
 
 def _finite_or_none(x: float) -> float | None:
@@ -287,17 +285,17 @@ class Cycle:
                                                     strict=True)} if valid else {}
         if shadow_um is not None:
             contributions["shadow_total"] = shadow_um
-        record = RecordFields(
-            seq=self.sequence, mono_s=now_s, offset_um=offset_um, model_um=model_um,
+        record = RecordRow(
+            seq=self.sequence, mono_s=now_s, wall_s=math.nan if wall_s is None else wall_s,
+            offset_um=offset_um if p.offset_name in writes else None, model_um=model_um,
             state=FaultState.STOPPED if self.write_stopped else decision.state, valid=valid,
             channels={n: _finite_or_none(v) for n, v in values.items()},
             validity=validity, contributions=contributions)
         done = self.faults.shutting_down and (offset_um == 0.0 or self.write_stopped)
         return CycleResult(
-            sequence=self.sequence, writes=writes, offset_um=offset_um, model_um=model_um,
-            shadow_um=shadow_um, state=record.state, status=int(status),
-            heartbeat=self.heartbeat, complete=valid, events=events, record=record,
-            shutdown_done=done)
+            sequence=self.sequence, writes=writes, offset_um=offset_um, shadow_um=shadow_um,
+            status=int(status), heartbeat=self.heartbeat, complete=valid, record=record,
+            events=events, shutdown_done=done)
 
     # -- write outcome ------------------------------------------------------------------
 

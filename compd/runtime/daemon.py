@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import math
 import signal
 import time
@@ -294,17 +295,10 @@ class Daemon:
         self._recorder = recorder
 
     def _record(self, result: CycleResult) -> None:
-        if self._recorder is None or result.record is None:
+        if self._recorder is None:
             return
-        from compd.runtime.recorder import RecordRow
-
-        r = result.record
         dropped = self._recorder.dropped
-        self._recorder.record(RecordRow(
-            seq=r.seq, mono_s=r.mono_s, wall_s=time.time(),
-            offset_um=r.offset_um if "offset" in result.writes or self.dry_run else None,
-            model_um=r.model_um, state=r.state, valid=r.valid, channels=r.channels,
-            validity=r.validity, contributions=r.contributions))
+        self._recorder.record(dataclasses.replace(result.record, wall_s=time.time()))
         if self._recorder.dropped > dropped:
             self.metrics.records_dropped.inc(self._recorder.dropped - dropped)
         alarm = bool(self._recorder.alarm)
@@ -343,10 +337,9 @@ class Daemon:
             for name, s in samples.items():
                 if math.isfinite(s.value):
                     m.channel_value.labels(channel=name).set(s.value)
-        if result.record is not None:
-            for name, reason in result.record.validity.items():
-                if reason is not None and reason != "read_failed":
-                    m.read_errors.labels(channel=name).inc()
+        for name, reason in result.record.validity.items():
+            if reason is not None and reason != "read_failed":
+                m.read_errors.labels(channel=name).inc()
         self.log.debug("cycle", sequence=result.sequence, state=result.state,
                        offset_um=round(result.offset_um, 4), model_um=result.model_um,
                        shadow_um=result.shadow_um, status=result.status)
