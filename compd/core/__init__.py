@@ -6,4 +6,6 @@ machine time are tested in milliseconds.
 - `validation`  per-channel input checks (missing, bad quality, range, rate, stuck)
 - `faults`      the fault policy: what the output aims at when inputs go bad
 - `output`      the output stage: clamp, deadband, slew limit, the status word
+- `record`      the row a cycle leaves for the recorder
+- `schedule`    absolute deadlines, skipped periods, the shutdown ramp's budget
 """
