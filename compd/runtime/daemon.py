@@ -285,8 +285,10 @@ class Daemon:
         from compd.runtime.recorder import Recorder
 
         rc = self.cfg.raw.recorder
-        retention_s = rc.retention_days * 86400.0 if rc.retention_days else None
-        recorder = Recorder(path, commit_every=rc.commit_every, retention_s=retention_s)
+        # retention as a row count (one row per cycle): never judged by a clock that can jump
+        keep_rows = (max(1, math.ceil(rc.retention_days * 86400.0 / self.cfg.period_s))
+                     if rc.retention_days else None)
+        recorder = Recorder(path, commit_every=rc.commit_every, keep_rows=keep_rows)
         try:
             recorder.open()
         except Exception as exc:  # compensation never stops for the recorder

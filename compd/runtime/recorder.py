@@ -18,7 +18,11 @@ recorder itself (contiguous, continuing across restarts: MAX(seq)+1), ``cycle``
 ``mono_s``, ``wall_s``, ``offset_um`` (written), ``model_um``, ``state`` (the
 fault state), ``valid`` (0/1), and three JSON objects: ``channels`` {name:
 value}, ``validity`` {name: reason or null}, ``contributions`` {term: µm}.
-Non-finite floats are stored as JSON null (read back as NaN). Table ``meta``
+Non-finite floats are stored as JSON null (read back as NaN).
+
+Retention (`keep_rows`) keeps the newest rows by ``seq``, the recorder's own
+numbering: `recorder.retention_days` becomes days × 86400 / period_s rows.
+No clock decides what is deleted. Table ``meta``
 (key, value) holds ``channels``: a JSON list of every channel name seen.
 
 `read_samples` turns a database into numpy columns for `compd fit` and
@@ -70,7 +74,7 @@ FIXED_COLUMNS = ("seq", "cycle", "time_s", "mono_s", "wall_s", "offset_um", "mod
 
 #: SQLite page cache of the recorder's connection, KiB. The recorder only appends
 #: (the rightmost pages of the table and of its wall_s index) and purges from the
-#: left, so a few dozen pages hold its working set; SQLite's default (2000 KiB)
+#: left (by seq), so a few dozen pages hold its working set; SQLite's default (2000 KiB)
 #: only makes the daemon's resident memory creep up by ~2 MB over the first
 #: machine hours as the cache fills with pages never read again.
 CACHE_KIB = 256
@@ -115,17 +119,17 @@ class Recorder:
     failure, `alarm` True while writes fail.
     """
 
-    def __init__(self, path: Path, *, commit_every: int = 10, retention_s: float | None = None,
+    def __init__(self, path: Path, *, commit_every: int = 10, keep_rows: int | None = None,
                  purge_every_commits: int = 100) -> None:
         if commit_every < 1:
             raise ValueError(f"commit_every must be >= 1, got {commit_every}")
-        if retention_s is not None and not (math.isfinite(retention_s) and retention_s > 0):
-            raise ValueError(f"retention_s must be positive and finite, got {retention_s}")
+        if keep_rows is not None and keep_rows < 1:
+            raise ValueError(f"keep_rows must be >= 1, got {keep_rows}")
         if purge_every_commits < 1:
             raise ValueError(f"purge_every_commits must be >= 1, got {purge_every_commits}")
         self.path = Path(path)
         self.commit_every = commit_every
-        self.retention_s = retention_s
+        self.keep_rows = keep_rows
         self.purge_every_commits = purge_every_commits
         self.committed = 0
         self.dropped = 0
@@ -216,20 +220,26 @@ class Recorder:
         self.committed += len(rows)
         self.alarm = False
         self._commits_since_purge += 1
-        if self.retention_s is not None and self._commits_since_purge >= self.purge_every_commits:
+        if self.keep_rows is not None and self._commits_since_purge >= self.purge_every_commits:
             self._commits_since_purge = 0
-            self._purge(conn, rows[-1].wall_s - self.retention_s)
+            self._purge(conn, self._next_seq - 1 - self.keep_rows)
 
-    def _purge(self, conn: sqlite3.Connection, cutoff_wall_s: float) -> None:
-        """Delete rows older than the cutoff (wall clock: survives restarts and reboots),
-        a bounded number per call, so that a large backlog (a retention shortened
-        in the config) is worked off over several commits instead of stalling one cycle."""
+    def _purge(self, conn: sqlite3.Connection, last_dropped_seq: int) -> None:
+        """Delete the rows numbered up to `last_dropped_seq`, the oldest first, a
+        bounded number per call, so that a large backlog (a retention shortened in
+        the config) is worked off over several commits instead of stalling one cycle.
+
+        Retention counts rows on the recorder's own sequence, never a clock: a PC
+        whose clock battery died stamps rows in 2000, and correcting the clock
+        must not make them look 26 years old (they were all deleted once)."""
+        if last_dropped_seq < 1:
+            return
         limit = max(1000, 10 * self.purge_every_commits * self.commit_every)
         try:
             cur = conn.execute(
                 "DELETE FROM samples WHERE seq IN"
-                " (SELECT seq FROM samples WHERE wall_s < ? ORDER BY wall_s LIMIT ?)",
-                (cutoff_wall_s, limit))
+                " (SELECT seq FROM samples WHERE seq <= ? ORDER BY seq LIMIT ?)",
+                (last_dropped_seq, limit))
             self.purged += max(cur.rowcount, 0)
         except sqlite3.Error as exc:
             self._rollback(conn)

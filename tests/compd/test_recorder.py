@@ -5,6 +5,7 @@ a small tmpfs) that never stops the caller and recovers by itself."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import os
 import random
@@ -89,16 +90,33 @@ def test_seq_continues_across_reopen(tmp_path: Path) -> None:
 
 def test_retention_deletes_old_rows(tmp_path: Path) -> None:
     path = tmp_path / "rec.sqlite"
-    with Recorder(path, commit_every=1, retention_s=10.0, purge_every_commits=5) as rec:
+    with Recorder(path, commit_every=1, keep_rows=10, purge_every_commits=5) as rec:
         for i in range(101):
             rec.record(_row(i))
         assert rec.purged > 0
     cols = read_samples(path)
-    newest = cols["wall_s"].max()
-    assert cols["wall_s"].min() >= newest - 10.0 - 5  # purged every 5 commits
-    assert len(cols["seq"]) < 20
+    assert 10 <= len(cols["seq"]) < 10 + 5  # purged every 5 commits
     # what is kept is contiguous
     assert cols["seq"].tolist() == list(range(int(cols["seq"][0]), 102))
+
+
+def test_retention_never_judged_by_a_jumping_wall_clock(tmp_path: Path) -> None:
+    """A PC with a dead clock battery stamps rows in 2000; when the clock is
+    corrected, rows within the retention stay (they were all deleted once)."""
+    path = tmp_path / "rec.sqlite"
+    y2000 = 946684800.0
+    with Recorder(path, commit_every=1, keep_rows=50, purge_every_commits=1) as rec:
+        for i in range(30):
+            rec.record(dataclasses.replace(_row(i), wall_s=y2000 + i))
+        for i in range(30, 40):  # the clock is set right: 26 years later
+            rec.record(dataclasses.replace(_row(i), wall_s=1.8e9 + i))
+        assert rec.purged == 0
+    assert len(read_samples(path)["seq"]) == 40
+    # and a clock stepped back does not keep more than the retention either
+    with Recorder(path, commit_every=1, keep_rows=50, purge_every_commits=1) as rec:
+        for i in range(40, 70):
+            rec.record(dataclasses.replace(_row(i), wall_s=y2000 - i))
+    assert read_samples(path)["seq"].tolist() == list(range(21, 71))
 
 
 def test_retention_backlog_is_purged_in_bounded_steps(tmp_path: Path) -> None:
@@ -106,7 +124,7 @@ def test_retention_backlog_is_purged_in_bounded_steps(tmp_path: Path) -> None:
     with Recorder(path, commit_every=500) as rec:
         for i in range(2500):
             rec.record(_row(i))
-    with Recorder(path, commit_every=1, retention_s=10.0, purge_every_commits=1) as rec:
+    with Recorder(path, commit_every=1, keep_rows=3, purge_every_commits=1) as rec:
         rec.record(_row(5000))
         assert rec.purged == 1000  # one bounded step per commit
         rec.record(_row(5001))
