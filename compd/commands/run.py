@@ -2,7 +2,9 @@
 
 Exit status: 0 after SIGTERM/SIGINT (checkpoint written, shutdown policy
 applied), 78 on an invalid configuration (systemd does not restart it),
-75 (EX_TEMPFAIL) when another daemon holds the state directory, and with
+75 (EX_TEMPFAIL) when another daemon holds the state directory, 73
+(EX_CANTCREAT) when the state directory cannot be used safely (not a
+directory, another owner's, writable by others, a link planted in it), and with
 ``--once`` 0 when the one cycle was complete and valid, 1 when it was not.
 """
 
@@ -14,6 +16,7 @@ import sys
 
 HELP = "run the compensation daemon against the configured controller"
 EX_TEMPFAIL = 75
+EX_CANTCREAT = 73
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,6 +33,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)  # ConfigError -> 78 in compd.cli
     from compd.faces.telemetry import configure_logging
     from compd.runtime.daemon import Daemon
+    from compd.runtime.statedir import StateDirError
     from compd.runtime.statelock import StateLocked
 
     tel = cfg.raw.telemetry
@@ -44,6 +48,9 @@ def run(args: argparse.Namespace) -> int:
     except StateLocked as exc:
         print(f"compd: {exc}", file=sys.stderr)
         return EX_TEMPFAIL
+    except StateDirError as exc:
+        print(f"compd: state directory refused: {exc}", file=sys.stderr)
+        return EX_CANTCREAT
     if args.once and daemon.last_result is not None:
         import json
 

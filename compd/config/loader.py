@@ -241,11 +241,15 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         _check_model(shadow, channels, machine.period_s, "model.shadow")
 
     state_dir = raw.state.dir if raw.state.dir.is_absolute() else base / raw.state.dir
+    if state_dir.exists() and not state_dir.is_dir():
+        raise ConfigError("state.dir", f"{state_dir} exists and is not a directory")
     recorder_path: Path | None = None
     if raw.recorder.enabled:
         rp = raw.recorder.path or Path("samples.sqlite")
         recorder_path = rp if rp.is_absolute() else (
             base / rp if raw.recorder.path is not None else state_dir / rp)
+        if recorder_path.is_dir():
+            raise ConfigError("recorder.path", f"{recorder_path} is a directory, not a file")
     return LoadedConfig(
         path=path, raw=raw, channels=channels, outputs=outputs, model=model, shadow=shadow,
         state_dir=state_dir, recorder_path=recorder_path,

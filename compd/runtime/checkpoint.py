@@ -15,7 +15,10 @@ version, a checksum that does not match, non-finite numbers. It never returns
 part of a file.
 
 One writer per checkpoint path: the daemon holds `compd.runtime.statelock.StateLock`
-on its state directory, so a fixed temp name is safe.
+on its state directory, so a fixed temp name is safe. Whatever stands at the
+temp name is unlinked first and the file is created with ``O_EXCL |
+O_NOFOLLOW`` (mode 0600): a link planted there is removed, never written
+through. A checkpoint that is a link is refused on load.
 """
 
 from __future__ import annotations
@@ -30,12 +33,15 @@ from pathlib import Path
 from typing import Any
 
 from compd.errors import CompdError
+from compd.runtime.statedir import StateDirError, open_private
 
 __all__ = ["FORMAT_VERSION", "RESERVED_KEYS", "CheckpointError", "load_checkpoint",
            "save_checkpoint"]
 
 #: The checkpoint format this module writes and accepts.
 FORMAT_VERSION = 1
+#: A checkpoint holds delay lines and a few numbers; anything larger is not ours.
+MAX_BYTES = 16 * 1024 * 1024
 #: Keys added by `save_checkpoint`; a state dict may not use them itself.
 RESERVED_KEYS = frozenset({"version", "saved_wall_s", "checksum"})
 
@@ -95,7 +101,12 @@ def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
     data = json.dumps(payload, sort_keys=True, indent=1, allow_nan=False).encode("utf-8")
 
     tmp = _temp_path(path)
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o644)
+    with contextlib.suppress(FileNotFoundError):
+        tmp.unlink()  # a leftover of a kill, or a planted link (the link goes, not its target)
+    try:
+        fd = open_private(tmp, os.O_WRONLY | os.O_EXCL)
+    except StateDirError as exc:
+        raise CheckpointError(path, exc.reason) from exc
     try:
         view = memoryview(data)
         while view:
@@ -120,11 +131,20 @@ def load_checkpoint(path: Path) -> dict[str, Any] | None:
     """The checkpoint at `path` (state plus version, saved_wall_s, checksum),
     None when there is none, CheckpointError when it cannot be trusted."""
     try:
-        data = path.read_bytes()
+        fd = open_private(path, os.O_RDONLY, create=False)
     except FileNotFoundError:
         return None
+    except StateDirError as exc:
+        raise CheckpointError(path, exc.reason) from exc
     except OSError as exc:
         raise CheckpointError(path, f"unreadable: {exc.strerror or exc}") from exc
+    try:
+        with os.fdopen(fd, "rb") as f:
+            data = f.read(MAX_BYTES + 1)
+    except OSError as exc:
+        raise CheckpointError(path, f"unreadable: {exc.strerror or exc}") from exc
+    if len(data) > MAX_BYTES:
+        raise CheckpointError(path, f"larger than {MAX_BYTES // (1024 * 1024)} MiB: not ours")
     if not data.strip():
         raise CheckpointError(path, "empty file (torn write)")
     try:

@@ -44,6 +44,7 @@ import numpy.typing as npt
 
 from compd.core.record import RecordRow
 from compd.errors import CompdError
+from compd.runtime.statedir import StateDirError, refuse_link
 
 __all__ = ["FIXED_COLUMNS", "RecordRow", "Recorder", "RecorderError", "read_samples"]
 
@@ -156,8 +157,13 @@ class Recorder:
         if self._conn is not None:
             return
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+            for suffix in ("", "-wal", "-shm", "-journal"):
+                # SQLite opens these by name: a planted link would be written through
+                refuse_link(self.path.with_name(self.path.name + suffix))
             conn = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
+        except StateDirError as exc:
+            raise RecorderError(self.path, f"cannot open: {exc.reason}") from exc
         except (OSError, sqlite3.Error) as exc:
             raise RecorderError(self.path, f"cannot open: {exc}") from exc
         try:

@@ -7,6 +7,10 @@ and fight over the machine's offset, so the second one is refused at once
 kill -9, so a crashed daemon never leaves a stale lock behind; the pid written
 into the file only serves the error message. The file is never deleted:
 unlinking a lock file lets two processes lock two different inodes.
+
+The directory is made by `compd.runtime.statedir.prepare_state_dir` (0700,
+ours) and the lock file opened with ``O_NOFOLLOW`` (0600): a link planted at
+``compd.lock`` is refused, never followed (it once truncated its target).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from pathlib import Path
 from types import TracebackType
 
 from compd.errors import CompdError
+from compd.runtime.statedir import open_private, prepare_state_dir
 
 __all__ = ["LOCK_NAME", "StateLock", "StateLocked"]
 
@@ -63,8 +68,8 @@ class StateLock:
         """Take the lock or raise StateLocked at once. Idempotent while held."""
         if self._fd is not None:
             return
-        self.state_dir.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        prepare_state_dir(self.state_dir)
+        fd = open_private(self.path, os.O_RDWR)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
