@@ -15,6 +15,7 @@ import math
 from typing import Any
 
 from compd.config.loader import LoadedConfig
+from compd.config.urls import redact_urls
 
 
 def _summary(cfg: LoadedConfig) -> dict[str, Any]:
@@ -25,7 +26,8 @@ def _summary(cfg: LoadedConfig) -> dict[str, Any]:
         "config": str(cfg.path),
         "machine": raw.machine.name, "period_s": raw.machine.period_s,
         "time_scale": raw.machine.time_scale,
-        "protocol": raw.controller.protocol, "endpoint": raw.controller.endpoint,
+        "protocol": raw.controller.protocol,
+        "endpoint": redact_urls(raw.controller.endpoint),  # refused by the config anyway
         "channels": {n: {"address": a.describe(), "unit": raw.channels[n].unit,
                          "range": list(raw.channels[n].range)}
                      for n, a in cfg.channels.items()},

@@ -29,6 +29,7 @@ import urllib.error
 import urllib.request
 from pathlib import Path
 
+from compd.config.urls import redact_urls
 from compd.core.faults import GAUGE_ALARM
 
 HELP = "exit 0 when the running daemon is healthy (metrics endpoint or fresh state), else 1"
@@ -175,6 +176,7 @@ def run(args: argparse.Namespace) -> int:
     if state_dir is not None:
         results.append(check_state_dir(state_dir, max_age_s, now_wall_s))
     healthy = any(ok for ok, _ in results)
-    print(("healthy: " if healthy else "unhealthy: ") + "; ".join(msg for _, msg in results))
+    text = "; ".join(msg for _, msg in results)
+    print(("healthy: " if healthy else "unhealthy: ") + redact_urls(text))
     sys.stdout.flush()
     return 0 if healthy else 1

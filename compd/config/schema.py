@@ -51,6 +51,8 @@ from pydantic import (
     model_validator,
 )
 
+from compd.config.urls import url_credentials
+
 Protocol = Literal["opcua", "s7", "modbus", "focas"]
 
 #: channel units the daemon knows (what a value in a channel means)
@@ -203,6 +205,15 @@ class ControllerSection(_Section):
     security: SecuritySection | None = None
     s7: S7Section | None = None
     focas: FocasSection | None = None
+
+    @field_validator("endpoint")
+    @classmethod
+    def _no_credentials(cls, v: str) -> str:
+        why = url_credentials(v)
+        if why is not None:  # the message must not echo the secret
+            raise ValueError(f"the endpoint {why} (set controller.security.username and "
+                             f"password_file or password_env)")
+        return v
 
 
 class ChannelSection(_Section):

@@ -29,6 +29,8 @@ from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
 from prometheus_client.exposition import start_http_server
 from structlog.typing import EventDict, Processor, WrappedLogger
 
+from compd.config.urls import redact_urls
+
 __all__ = ["REDACTED", "LogStream", "Metrics", "clear_secrets", "configure_logging", "redact",
            "register_secret"]
 
@@ -64,6 +66,7 @@ def clear_secrets() -> None:
 
 def _scrub(value: Any, pattern: re.Pattern[str] | None) -> Any:
     if isinstance(value, str):
+        value = redact_urls(value)  # user:password@ in any URL, registered or not
         return pattern.sub(REDACTED, value) if pattern is not None else value
     if value is None or isinstance(value, bool | int | float):
         return value
@@ -72,11 +75,11 @@ def _scrub(value: Any, pattern: re.Pattern[str] | None) -> Any:
                     else _scrub(v, pattern)) for k, v in value.items()}
     if isinstance(value, list | tuple | set | frozenset):
         return [_scrub(v, pattern) for v in value]
-    if pattern is not None:  # an object whose text may carry a secret (an exception, a URL)
-        text = str(value)
-        if pattern.search(text):
-            return pattern.sub(REDACTED, text)
-    return value
+    text = str(value)  # an object whose text may carry a secret (an exception, a URL)
+    scrubbed = redact_urls(text)
+    if pattern is not None:
+        scrubbed = pattern.sub(REDACTED, scrubbed)
+    return scrubbed if scrubbed != text else value
 
 
 def redact(_logger: WrappedLogger, _name: str, event_dict: EventDict) -> EventDict:

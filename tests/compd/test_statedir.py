@@ -152,7 +152,7 @@ def test_run_refuses_a_loose_state_dir_with_73(tmp_path: Path) -> None:
     state.mkdir()
     os.chmod(state, 0o777)
     proc = subprocess.run([sys.executable, "-m", "compd", "run", str(config)],
-                          capture_output=True, text=True, timeout=60, cwd=ROOT,
+                          check=False, capture_output=True, text=True, timeout=60, cwd=ROOT,
                           env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert proc.returncode == 73, proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if "state directory refused" in ln]
