@@ -1,20 +1,24 @@
 """`compd health [--url URL] [--state-dir DIR] [--max-age-s S]`: is the daemon healthy?
 
 For container health checks and monitoring scripts. Exit 0 when healthy, 1
-otherwise, with one line saying why. Healthy means either
+otherwise, with one line saying why; 64 for a bad argument. Healthy means a
+COMPLETE cycle (inputs read and valid, model stepped, offset write confirmed
+by the controller) no longer than ``--max-age-s`` ago, shown by either
 
-* the metrics endpoint (``--url http://127.0.0.1:PORT/metrics``) answers and
-  shows at least one complete cycle (``compd_cycle_seconds_count`` > 0), a
-  fault state other than 3 (alarm/stopped), and, when the daemon exports
-  ``compd_last_cycle_timestamp_seconds``, a last cycle within ``--max-age-s``; or
-* the state directory holds evidence of a recent cycle: the checkpoint's
-  ``saved_wall_s`` or the modification time of the sample recorder's files,
-  whichever is newest, within ``--max-age-s``.
+* the metrics endpoint (``--url http://127.0.0.1:PORT/metrics``): at least one
+  ``compd_cycles_complete_total``, ``compd_last_complete_cycle_age_seconds``
+  (measured by the daemon on the monotonic clock) within the age, and a fault
+  state below 3 (alarm/stopped); or
+* the state directory: the checkpoint's record of the last complete cycle
+  (`compd.runtime.liveness`: judged on the monotonic clock within one boot,
+  on the wall clock otherwise; a stamp in the future is no evidence).
 
-With both given, either one suffices (the report names both). With neither,
-the state directory is ``$STATE_DIRECTORY`` (set by systemd) or
-``/var/lib/compd``. Only the standard library is imported: a health check runs
-every few seconds and must stay cheap.
+A daemon that cycles without a controller, or whose writes fail, is not
+healthy, however busy it is: cycles that ran prove nothing, and neither do
+the recorder's files. With both sources given, either one suffices (the report
+names both). With neither, the state directory is ``$STATE_DIRECTORY`` (set
+by systemd) or ``/var/lib/compd``. Only the standard library is imported: a
+health check runs every few seconds and must stay cheap.
 """
 
 from __future__ import annotations
@@ -31,12 +35,16 @@ from pathlib import Path
 
 from compd.config.urls import redact_urls
 from compd.core.faults import GAUGE_ALARM
+from compd.runtime.liveness import last_complete_age_s
 
 HELP = "exit 0 when the running daemon is healthy (metrics endpoint or fresh state), else 1"
 
 DEFAULT_STATE_DIR = Path("/var/lib/compd")
-#: Files in the state dir that say nothing about cycles completing.
-IGNORED = frozenset({"compd.lock"})
+#: sysexits EX_USAGE: a bad argument
+EX_USAGE = 64
+#: a health check waits at most this long for the endpoint, and an age beyond a week is a typo
+MAX_TIMEOUT_S = 300.0
+MAX_AGE_LIMIT_S = 7 * 86400.0
 CHECKPOINT_NAME = "checkpoint.json"
 #: Read at most this much of a checkpoint (it holds delay lines, not records).
 MAX_CHECKPOINT_BYTES = 16 * 1024 * 1024
@@ -93,78 +101,74 @@ def check_metrics(url: str, max_age_s: float, timeout_s: float,
         reason = getattr(exc, "reason", exc)
         return False, f"metrics {url}: {reason}"
     metrics = parse_metrics(body)
-    cycles = metrics.get("compd_cycle_seconds_count")
-    if cycles is None:
-        return False, f"metrics {url}: no compd_cycle_seconds_count (not a compd endpoint?)"
-    if cycles < 1:
+    complete = metrics.get("compd_cycles_complete_total")
+    if complete is None:
+        return False, (f"metrics {url}: no compd_cycles_complete_total "
+                       "(not a compd endpoint, or an older compd)")
+    if complete < 1:
         return False, f"metrics {url}: no complete cycle yet"
     fault = metrics.get("compd_fault_state")
     if fault is not None and fault >= FAULT_STOPPED:
         return False, f"metrics {url}: fault state {fault:g} (alarm/stopped)"
-    last = metrics.get("compd_last_cycle_timestamp_seconds")
-    if last is not None:
-        age_s = max(0.0, now_wall_s - last)
-        if not age_s <= max_age_s:
-            return False, (f"metrics {url}: last complete cycle {age_s:.0f} s ago "
-                           f"(max {max_age_s:g} s)")
-        return True, f"metrics: {cycles:.0f} cycles, last {age_s:.0f} s ago"
-    return True, f"metrics: {cycles:.0f} cycles complete"
+    age_s = metrics.get("compd_last_complete_cycle_age_seconds")
+    if age_s is None:
+        last = metrics.get("compd_last_complete_cycle_timestamp_seconds")
+        if last is None:
+            return False, f"metrics {url}: no age of the last complete cycle"
+        age_s = now_wall_s - last
+    if not 0.0 <= age_s <= max_age_s:
+        return False, (f"metrics {url}: last complete cycle {age_s:.0f} s ago "
+                       f"(max {max_age_s:g} s)")
+    return True, f"metrics: {complete:.0f} complete cycles, last {age_s:.0f} s ago"
 
 
 # -- state directory ---------------------------------------------------------------------
 
 
-def _checkpoint_wall_s(path: Path) -> float | None:
-    """`saved_wall_s` of a checkpoint, None when it cannot be read or trusted."""
+def _read_checkpoint(path: Path) -> dict[str, object] | None:
+    """The checkpoint's JSON object, None when it cannot be read as one."""
     try:
-        with path.open("rb") as f:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        with os.fdopen(fd, "rb") as f:
             data = json.loads(f.read(MAX_CHECKPOINT_BYTES))
     except (OSError, ValueError):
         return None
-    saved = data.get("saved_wall_s") if isinstance(data, dict) else None
-    if isinstance(saved, int | float) and math.isfinite(saved):
-        return float(saved)
-    return None
+    return data if isinstance(data, dict) else None
 
 
-def check_state_dir(state_dir: Path, max_age_s: float, now_wall_s: float) -> tuple[bool, str]:
+def check_state_dir(state_dir: Path, max_age_s: float) -> tuple[bool, str]:
     if not state_dir.is_dir():
         return False, f"state dir {state_dir}: not a directory"
-    newest: tuple[float, str] | None = None
-    try:
-        entries = list(os.scandir(state_dir))
-    except OSError as exc:
-        return False, f"state dir {state_dir}: {exc.strerror or exc}"
-    for entry in entries:
-        if entry.name in IGNORED or entry.name.startswith(".") or not entry.is_file():
-            continue
-        if entry.name == CHECKPOINT_NAME:
-            wall_s = _checkpoint_wall_s(Path(entry.path))
-            what = "checkpoint saved"
-            if wall_s is None:
-                continue  # a torn checkpoint proves nothing
-        else:
-            try:
-                wall_s = entry.stat().st_mtime
-            except OSError:
-                continue
-            what = f"{entry.name} written"
-        if newest is None or wall_s > newest[0]:
-            newest = (wall_s, what)
-    if newest is None:
-        return False, f"state dir {state_dir}: no checkpoint or record yet"
-    age_s = max(0.0, now_wall_s - newest[0])
+    path = state_dir / CHECKPOINT_NAME
+    if not path.exists():
+        return False, f"state dir {state_dir}: no checkpoint yet"
+    state = _read_checkpoint(path)
+    if state is None:
+        return False, f"state dir {state_dir}: checkpoint unreadable (torn or not ours)"
+    age_s, how = last_complete_age_s(state)
+    if age_s is None:
+        return False, f"state dir {state_dir}: {how}"
     if not age_s <= max_age_s:
-        return False, (f"state dir {state_dir}: newest {newest[1]} {age_s:.0f} s ago "
+        return False, (f"state dir {state_dir}: last complete cycle {age_s:.0f} s ago "
                        f"(max {max_age_s:g} s)")
-    return True, f"state dir: {newest[1]} {age_s:.0f} s ago"
+    return True, f"state dir: last complete cycle {age_s:.0f} s ago ({how})"
+
+
+def _usage(message: str) -> int:
+    print(f"compd health: {message}", file=sys.stderr)
+    return EX_USAGE
 
 
 def run(args: argparse.Namespace) -> int:
     max_age_s: float = args.max_age_s
-    if not (math.isfinite(max_age_s) and max_age_s > 0):
-        print("unhealthy: --max-age-s must be a positive number")
-        return 1
+    if not (math.isfinite(max_age_s) and 0 < max_age_s <= MAX_AGE_LIMIT_S):
+        return _usage(f"--max-age-s must be a number of seconds in (0, {MAX_AGE_LIMIT_S:g}]")
+    timeout_s: float = args.timeout_s
+    if not (math.isfinite(timeout_s) and 0 < timeout_s <= MAX_TIMEOUT_S):
+        return _usage(f"--timeout-s must be a number of seconds in (0, {MAX_TIMEOUT_S:g}]")
     state_dir: Path | None = args.state_dir
     if state_dir is None and args.url is None:
         state_dir = Path(os.environ.get("STATE_DIRECTORY", "").split(":")[0]
@@ -172,9 +176,9 @@ def run(args: argparse.Namespace) -> int:
     now_wall_s = time.time()
     results: list[tuple[bool, str]] = []
     if args.url is not None:
-        results.append(check_metrics(args.url, max_age_s, args.timeout_s, now_wall_s))
+        results.append(check_metrics(args.url, max_age_s, timeout_s, now_wall_s))
     if state_dir is not None:
-        results.append(check_state_dir(state_dir, max_age_s, now_wall_s))
+        results.append(check_state_dir(state_dir, max_age_s))
     healthy = any(ok for ok, _ in results)
     text = "; ".join(msg for _, msg in results)
     print(("healthy: " if healthy else "unhealthy: ") + redact_urls(text))

@@ -403,7 +403,7 @@ class Cycle:
         s = Status(0)
         if state == FaultState.OK and not self.write_stopped:
             s |= Status.OK
-        elif state == FaultState.HOLD:
+        elif state in (FaultState.HOLD, FaultState.INIT):
             s |= Status.HOLDING
         elif state == FaultState.RAMP:
             s |= Status.RAMPING

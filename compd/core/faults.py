@@ -3,6 +3,7 @@
 States:
 
 - ``init``  no valid sample yet since start: the output holds where it is
+  (status bit HOLDING); after hold_s without one, ``ramp`` as for any fault
 - ``ok``    inputs valid: target = the model's δZ
 - ``hold``  inputs invalid for less than hold_s: target = the current output
 - ``ramp``  invalid for hold_s or longer: target = 0, reached at the slew
@@ -36,13 +37,14 @@ class FaultState(enum.StrEnum):
 
     @property
     def gauge(self) -> int:
-        """The ``compd_fault_state`` metric: 0 ok, 1 hold, 2 ramp, 3 alarm/stopped."""
+        """The ``compd_fault_state`` metric: 0 ok, 1 hold (and init: not compensating
+        yet), 2 ramp, 3 alarm/stopped."""
         return _GAUGE[self]
 
 
 #: ``compd_fault_state`` at or above this: the daemon no longer compensates
 GAUGE_ALARM = 3
-_GAUGE = {FaultState.INIT: 0, FaultState.OK: 0, FaultState.HOLD: 1, FaultState.RAMP: 2,
+_GAUGE = {FaultState.INIT: 1, FaultState.OK: 0, FaultState.HOLD: 1, FaultState.RAMP: 2,
           FaultState.SHUTDOWN: 2, FaultState.STOPPED: GAUGE_ALARM}
 
 
@@ -86,6 +88,12 @@ class FaultPolicy:
         if self.invalid_since_s is None:
             self.invalid_since_s = now_s
         if self.state == FaultState.INIT:
+            # no valid sample since start: hold what the controller has, and like any
+            # other fault ramp to zero with the alarm after hold_s (a sensor broken
+            # across a restart once held a stale offset forever with status 0)
+            if now_s - self.invalid_since_s >= self.hold_s:
+                return self._to(FaultState.RAMP, Decision(FaultState.RAMP, 0.0, True),
+                                events, now_s)
             return Decision(FaultState.INIT, None, False)
         if now_s - self.invalid_since_s >= self.hold_s:
             return self._to(FaultState.RAMP, Decision(FaultState.RAMP, 0.0, True), events, now_s)

@@ -17,9 +17,11 @@ served over HTTP by `Metrics.start_http` (127.0.0.1 by default).
 from __future__ import annotations
 
 import logging
+import math
 import re
 import sys
 import threading
+import time
 from collections.abc import Mapping
 from typing import Any, TextIO, cast
 from wsgiref.simple_server import WSGIServer
@@ -124,6 +126,11 @@ class LogStream:
             return False
 
 
+#: The least level the protocol libraries log at (whatever the daemon's level).
+LIBRARY_LOG_FLOOR = {"asyncua": logging.WARNING, "snap7": logging.WARNING,
+                     "pymodbus": logging.CRITICAL}
+
+
 def configure_logging(json: bool | None = None, level: str = "info", *,
                       stream: TextIO | None = None) -> None:
     """Set up structlog (and the stdlib root logger) for the daemon.
@@ -168,6 +175,11 @@ def configure_logging(json: bool | None = None, level: str = "info", *,
         root.removeHandler(old)
     root.addHandler(handler)
     root.setLevel(levelno)
+    # the libraries report what our drivers report again (a failed request is one
+    # read_failed/write_failed line of ours): their INFO is noise (asyncua dumps 6 KB of
+    # endpoints on every connect) and pymodbus logs each failed frame as an ERROR hex dump
+    for name, floor in LIBRARY_LOG_FLOOR.items():
+        logging.getLogger(name).setLevel(max(levelno, floor))
 
 
 class Metrics:
@@ -190,7 +202,8 @@ class Metrics:
         self.channel_value = Gauge("compd_channel_value", "Last value read per channel",
                                    ["channel"], registry=r)
         self.fault_state = Gauge("compd_fault_state",
-                                 "Fault state: 0 ok, 1 hold, 2 ramp, 3 alarm/stopped", registry=r)
+                                 "Fault state: 0 ok, 1 hold or not yet compensating, 2 ramp, "
+                                 "3 alarm/stopped", registry=r)
         self.records_dropped = Counter("compd_records_dropped",
                                        "Samples the recorder could not store", registry=r)
         self.recorder_alarm = Gauge("compd_recorder_alarm",
@@ -198,8 +211,30 @@ class Metrics:
                                     "I/O error)", registry=r)
         self.cert_expiry_days = Gauge("compd_cert_expiry_days",
                                       "Days until the client certificate expires", registry=r)
+        self.cycles_complete = Counter(
+            "compd_cycles_complete", "Complete cycles: inputs read and valid, model stepped, "
+            "offset write confirmed by the controller", registry=r)
+        self.last_complete_timestamp = Gauge(
+            "compd_last_complete_cycle_timestamp_seconds",
+            "Wall-clock time of the last complete cycle (s since the epoch)", registry=r)
+        self._last_complete_mono: float | None = None
+        self.last_complete_age = Gauge(
+            "compd_last_complete_cycle_age_seconds",
+            "Seconds since the last complete cycle, on the monotonic clock (+Inf before "
+            "the first): what `compd health --url` judges", registry=r)
+        self.last_complete_age.set_function(self._age_s)
         self._server: WSGIServer | None = None
         self._thread: threading.Thread | None = None
+
+    def _age_s(self) -> float:
+        last = self._last_complete_mono
+        return math.inf if last is None else max(0.0, time.monotonic() - last)
+
+    def cycle_complete(self) -> None:
+        """A complete cycle (valid inputs, model stepped, write confirmed) just ended."""
+        self._last_complete_mono = time.monotonic()
+        self.last_complete_timestamp.set(time.time())
+        self.cycles_complete.inc()
 
     @property
     def port(self) -> int | None:

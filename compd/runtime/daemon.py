@@ -37,6 +37,8 @@ from compd.core.faults import Event
 from compd.core.schedule import Schedule, shutdown_ramp_cycles
 from compd.faces.telemetry import Metrics
 from compd.runtime.heap import pin_mmap_threshold
+from compd.runtime.liveness import boot_id
+from compd.runtime.repeats import RepeatLimiter
 from compd.runtime.sdnotify import Notifier
 from compd.runtime.startup import checkpoint_path, start_cycle
 from drivers.base import Driver, Quality, Sample
@@ -74,6 +76,9 @@ class Daemon:
         self._recorder: Any = None
         self._recorder_alarm = False
         self._lock: Any = None
+        self._write_failures = RepeatLimiter("write_failed")
+        #: (wall, monotonic) time of the last complete cycle: the health evidence
+        self._last_complete: tuple[float, float] | None = None
 
     # -- public --------------------------------------------------------------------
 
@@ -233,6 +238,7 @@ class Daemon:
         result = cycle.step(now_s, samples, readback, wall_s=time.time())
         self.cycles += 1
         self._log_events(result.events)
+        confirmed = self.dry_run
         if self.dry_run:
             cycle.write_ok()
         elif result.writes:
@@ -248,8 +254,10 @@ class Daemon:
                                                     reason=str(exc)))
             else:
                 cycle.write_ok()
+                confirmed = True
+                self._log_repeat(self._write_failures.succeeded(self.clock()))
         self._record(result)
-        self._telemetry(result, samples)
+        self._telemetry(result, samples, confirmed)
         self.last_result = result
         return result
 
@@ -326,12 +334,17 @@ class Daemon:
         state = cycle.export_state()
         state.update(saved_mono_s=self.clock(), model_sha256=self.cfg.model_sha256,
                      config_sha256=self.cfg.config_sha256)
+        if self._last_complete is not None:  # what `compd health --state-dir` judges
+            wall_s, mono_s = self._last_complete
+            state.update(last_complete_wall_s=wall_s, last_complete_mono_s=mono_s,
+                         boot_id=boot_id())
         try:
             save_checkpoint(checkpoint_path(self.cfg), state)
         except Exception as exc:  # a failed checkpoint must not stop the loop
             self.log.error("checkpoint_failed", error=str(exc))
 
-    def _telemetry(self, result: CycleResult, samples: dict[str, Sample] | None) -> None:
+    def _telemetry(self, result: CycleResult, samples: dict[str, Sample] | None,
+                   confirmed: bool) -> None:
         m = self.metrics
         m.offset_um.set(result.offset_um)
         m.fault_state.set(result.state.gauge)
@@ -345,21 +358,38 @@ class Daemon:
         self.log.debug("cycle", sequence=result.sequence, state=result.state,
                        offset_um=round(result.offset_um, 4), model_um=result.model_um,
                        shadow_um=result.shadow_um, status=result.status)
-        if result.complete:
+        if result.complete and confirmed:
+            # complete: inputs valid, model stepped, and the controller confirmed the write
             self.complete_cycles += 1
-            if not self._ready_sent:
-                self.notifier.ready()
-                self._ready_sent = True
-                self.log.info("ready", sequence=result.sequence,
-                              offset_um=round(result.offset_um, 4))
+            m.cycle_complete()
+            self._last_complete = (time.time(), time.monotonic())
+        if not self._ready_sent and (result.complete or self._read_ok):
+            # up: the loop runs and the controller answers (a broken sensor at start is a
+            # fault the policy handles, hold then ramp with the alarm, not a start failure)
+            self.notifier.ready()
+            self._ready_sent = True
+            self.log.info("ready", sequence=result.sequence,
+                          offset_um=round(result.offset_um, 4), complete=result.complete)
+        if self._ready_sent:
+            # the loop is alive: systemd restarting us would not mend a sensor or a link,
+            # and a restart would reset the fault policy's hold timer (never ramping)
             self.notifier.watchdog()
         state = str(result.state)
         if state != self._last_status or result.sequence % _STATUS_EVERY == 0:
             self.notifier.status(f"offset {result.offset_um:.2f} um, state {state}")
             self._last_status = state
 
+    def _log_repeat(self, line: tuple[str, dict[str, Any]] | None) -> None:
+        if line is not None:
+            name, fields = line
+            level = "info" if name.endswith("_recovered") else "warning"
+            getattr(self.log, level)(name, **fields)
+
     def _log_events(self, events: list[Event]) -> None:
         for ev in events:
+            if ev.name == "write_failed":  # once, then a summary a minute (an outage)
+                self._log_repeat(self._write_failures.failed(self.clock(), dict(ev.fields)))
+                continue
             level = "warning" if ev.name in _WARNINGS else "info"
             if ev.name in _ERRORS:
                 level = "error"

@@ -8,9 +8,12 @@ socket buffer) is counted in `errors`, kept in `last_error`, and never raised:
 compensation does not stop for a missing service manager. The socket is
 non-blocking, so a stuck receiver never delays a cycle.
 
-The daemon sends READY=1 once the first cycle completed, WATCHDOG=1 only
-while cycles complete (at most every half `watchdog_interval_s()`), STATUS=
-with the current offset and state, STOPPING=1 on shutdown.
+The daemon sends READY=1 once its loop runs with the controller answering
+(or a cycle completed), WATCHDOG=1 on every cycle after that while the loop
+is alive (a broken sensor or a lost link is the fault policy's business:
+hold, then ramp with the alarm; a restart by systemd would mend neither and
+would reset the hold timer), STATUS= with the current offset and state,
+STOPPING=1 on shutdown.
 """
 
 from __future__ import annotations

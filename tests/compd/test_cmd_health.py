@@ -5,11 +5,10 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import json
-import os
 import subprocess
 import sys
 import time
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -20,6 +19,7 @@ from compd.cli import main
 from compd.commands import health
 from compd.faces.telemetry import Metrics
 from compd.runtime.checkpoint import save_checkpoint
+from compd.runtime.liveness import boot_id
 from drivers.sim.ports import free_tcp_port
 
 
@@ -52,9 +52,10 @@ def test_endpoint_with_complete_cycles_is_healthy(
         metrics: Metrics, capsys: pytest.CaptureFixture[str]) -> None:
     for _ in range(3):
         metrics.cycle_seconds.observe(0.002)
+        metrics.cycle_complete()
     rc, line = _health(capsys, "--url", _url(metrics))
     assert rc == 0
-    assert line == "healthy: metrics: 3 cycles complete"
+    assert line == "healthy: metrics: 3 complete cycles, last 0 s ago"
 
 
 def test_endpoint_before_the_first_cycle_is_unhealthy(
@@ -64,9 +65,18 @@ def test_endpoint_before_the_first_cycle_is_unhealthy(
     assert line.startswith("unhealthy: metrics ") and line.endswith("no complete cycle yet")
 
 
+def test_cycles_that_ran_without_completing_prove_nothing(
+        metrics: Metrics, capsys: pytest.CaptureFixture[str]) -> None:
+    """No controller: 57 cycles ran (and were timed), none complete."""
+    for _ in range(57):
+        metrics.cycle_seconds.observe(0.5)
+    rc, line = _health(capsys, "--url", _url(metrics))
+    assert rc == 1 and line.endswith("no complete cycle yet")
+
+
 def test_stopped_fault_state_is_unhealthy(
         metrics: Metrics, capsys: pytest.CaptureFixture[str]) -> None:
-    metrics.cycle_seconds.observe(0.002)
+    metrics.cycle_complete()
     metrics.fault_state.set(3)
     rc, line = _health(capsys, "--url", _url(metrics))
     assert rc == 1 and "fault state 3 (alarm/stopped)" in line
@@ -74,17 +84,16 @@ def test_stopped_fault_state_is_unhealthy(
     assert _health(capsys, "--url", _url(metrics))[0] == 0
 
 
-def test_last_cycle_timestamp_is_checked_when_exported(
+def test_a_stalled_loop_is_unhealthy_by_the_monotonic_age(
         metrics: Metrics, capsys: pytest.CaptureFixture[str]) -> None:
-    metrics.cycle_seconds.observe(0.002)
-    last = Gauge("compd_last_cycle_timestamp_seconds", "wall time of the last complete cycle",
-                 registry=metrics.registry)
-    last.set(time.time() - 600.0)
+    metrics.cycle_complete()
+    metrics._last_complete_mono = time.monotonic() - 600.0  # the loop stalled 10 min ago
+    metrics.last_complete_timestamp.set(time.time() + 3600.0)  # and the wall clock jumped
     rc, line = _health(capsys, "--url", _url(metrics), "--max-age-s", "60")
     assert rc == 1 and "last complete cycle 600 s ago (max 60 s)" in line
-    last.set_to_current_time()
+    metrics.cycle_complete()
     rc, line = _health(capsys, "--url", _url(metrics), "--max-age-s", "60")
-    assert rc == 0 and "1 cycles, last 0 s ago" in line
+    assert rc == 0 and "2 complete cycles, last 0 s ago" in line
 
 
 def test_nothing_listening_is_unhealthy(capsys: pytest.CaptureFixture[str]) -> None:
@@ -107,7 +116,7 @@ def test_an_endpoint_that_is_not_compd_is_unhealthy(capsys: pytest.CaptureFixtur
         server.shutdown()
         server.server_close()
         thread.join(5.0)
-    assert rc == 1 and "no compd_cycle_seconds_count" in line
+    assert rc == 1 and "no compd_cycles_complete_total" in line
 
 
 def test_parse_metrics_sums_labels_and_skips_comments() -> None:
@@ -124,40 +133,64 @@ def test_parse_metrics_sums_labels_and_skips_comments() -> None:
 # -- state directory ---------------------------------------------------------------------
 
 
-def test_fresh_checkpoint_is_healthy(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    save_checkpoint(tmp_path / "checkpoint.json", {"offset_um": 1.5, "sequence": 9})
+def _stamp(**extra: object) -> dict[str, object]:
+    """Checkpoint keys of a cycle that completed just now, on this boot."""
+    return {"last_complete_wall_s": time.time(), "last_complete_mono_s": time.monotonic(),
+            "boot_id": boot_id(), **extra}
+
+
+def test_fresh_complete_cycle_is_healthy(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    save_checkpoint(tmp_path / "checkpoint.json", {"offset_um": 1.5, "sequence": 9, **_stamp()})
     rc, line = _health(capsys, "--state-dir", str(tmp_path), "--max-age-s", "60")
     assert rc == 0
-    assert line.startswith("healthy: state dir: checkpoint saved ")
+    assert line == "healthy: state dir: last complete cycle 0 s ago (monotonic clock)"
 
 
-def test_old_checkpoint_and_old_record_are_unhealthy(
+def test_checkpoint_of_a_daemon_that_never_completed_is_unhealthy(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    old_s = time.time() - 1000.0
-    (tmp_path / "checkpoint.json").write_text(json.dumps({"saved_wall_s": old_s}))
-    record = tmp_path / "samples.sqlite-wal"
-    record.write_bytes(b"x")
-    os.utime(record, (old_s + 100.0, old_s + 100.0))
+    """Saved a second ago by a daemon with no controller: no evidence of a cycle."""
+    save_checkpoint(tmp_path / "checkpoint.json", {"offset_um": 0.0, "sequence": 57})
+    (tmp_path / "samples.sqlite-wal").write_bytes(b"x")  # the recorder wrote: proves nothing
+    rc, line = _health(capsys, "--state-dir", str(tmp_path))
+    assert rc == 1 and line.endswith("no complete cycle recorded")
+
+
+def test_old_complete_cycle_is_unhealthy_even_with_a_fresh_record(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    stamp = _stamp(last_complete_mono_s=time.monotonic() - 900.0,
+                   last_complete_wall_s=time.time() - 900.0)
+    save_checkpoint(tmp_path / "checkpoint.json", stamp)
+    (tmp_path / "samples.sqlite-wal").write_bytes(b"x")
     rc, line = _health(capsys, "--state-dir", str(tmp_path), "--max-age-s", "120")
     assert rc == 1
-    assert line == (f"unhealthy: state dir {tmp_path}: newest samples.sqlite-wal written "
-                    "900 s ago (max 120 s)")
+    assert line == (f"unhealthy: state dir {tmp_path}: last complete cycle 900 s ago "
+                    "(max 120 s)")
 
 
-def test_a_fresh_record_counts_even_beside_a_torn_checkpoint(
+def test_a_stamp_in_the_future_is_no_evidence(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    (tmp_path / "checkpoint.json").write_text('{"saved_wall_s": 17')  # torn
-    (tmp_path / "samples.sqlite").write_bytes(b"")
+    """Another boot (the monotonic clock is not comparable) and a wall stamp a day
+    ahead: a clock stepped back. It used to read healthy forever."""
+    stamp = _stamp(boot_id="another-boot", last_complete_wall_s=time.time() + 86400.0)
+    save_checkpoint(tmp_path / "checkpoint.json", stamp)
     rc, line = _health(capsys, "--state-dir", str(tmp_path))
-    assert rc == 0 and "samples.sqlite written" in line
+    assert rc == 1 and "in the future" in line
+    # the same boot judges by the monotonic clock whatever the wall clock says
+    save_checkpoint(tmp_path / "checkpoint.json",
+                    _stamp(last_complete_wall_s=time.time() + 86400.0))
+    assert _health(capsys, "--state-dir", str(tmp_path))[0] == 0
 
 
-def test_lock_and_temp_files_prove_nothing(
+def test_torn_checkpoint_lock_and_temp_files_prove_nothing(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "compd.lock").write_text("123")
     (tmp_path / ".checkpoint.json.tmp").write_text("{}")
     rc, line = _health(capsys, "--state-dir", str(tmp_path))
-    assert rc == 1 and line.endswith("no checkpoint or record yet")
+    assert rc == 1 and line.endswith("no checkpoint yet")
+    (tmp_path / "checkpoint.json").write_text('{"last_complete_wall_s": 17')  # torn
+    rc, line = _health(capsys, "--state-dir", str(tmp_path))
+    assert rc == 1 and "checkpoint unreadable" in line
 
 
 def test_missing_state_dir_is_unhealthy(
@@ -170,22 +203,28 @@ def test_default_state_dir_comes_from_systemd(
         tmp_path: Path, capsys: pytest.CaptureFixture[str],
         monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path))
-    save_checkpoint(tmp_path / "checkpoint.json", {"sequence": 1})
+    save_checkpoint(tmp_path / "checkpoint.json", {"sequence": 1, **_stamp()})
     assert _health(capsys)[0] == 0
 
 
 def test_either_source_suffices_and_both_are_named(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    save_checkpoint(tmp_path / "checkpoint.json", {"sequence": 1})
+    save_checkpoint(tmp_path / "checkpoint.json", {"sequence": 1, **_stamp()})
     url = f"http://127.0.0.1:{free_tcp_port('127.0.0.1')}/metrics"
     rc, line = _health(capsys, "--url", url, "--state-dir", str(tmp_path))
     assert rc == 0
-    assert line.startswith(f"healthy: metrics {url}: ") and "; state dir: checkpoint" in line
+    assert line.startswith(f"healthy: metrics {url}: ") and "; state dir: last complete" in line
 
 
-def test_bad_max_age_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    rc, line = _health(capsys, "--state-dir", str(tmp_path), "--max-age-s", "nan")
-    assert rc == 1 and "--max-age-s" in line
+@pytest.mark.parametrize(("option", "value"), [
+    ("--max-age-s", "nan"), ("--max-age-s", "-1"), ("--max-age-s", "1e308"),
+    ("--timeout-s", "1e308"), ("--timeout-s", "0"), ("--timeout-s", "inf")])
+def test_bad_numbers_are_a_usage_error(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                       option: str, value: str) -> None:
+    rc = main(["health", "--state-dir", str(tmp_path), option, value])
+    out = capsys.readouterr()
+    assert rc == 64 and out.out == ""
+    assert out.err.count("\n") == 1 and option in out.err
 
 
 def test_health_imports_only_the_standard_library() -> None:
@@ -236,3 +275,40 @@ async def test_running_daemon_is_healthy_by_both_sources(tmp_path: Path) -> None
         assert await asyncio.to_thread(health.run, args) == 1
     finally:
         await sim.stop()
+
+
+async def test_daemon_without_a_controller_is_unhealthy_by_both_sources(
+        tmp_path: Path) -> None:
+    """Nothing listens: cycles run, checkpoints and records are written, and yet
+    no cycle completed (it read 'healthy' and '57 cycles complete' once)."""
+    from compd.config.loader import load_config
+    from compd.runtime.daemon import Daemon
+    from compd.runtime.sdnotify import Notifier
+    from tests.compd.daemon_helpers import write_config
+
+    dead = free_tcp_port("127.0.0.1")
+    path = write_config(tmp_path, f"modbus://127.0.0.1:{dead}", checkpoint_every=2)
+    port = free_tcp_port("127.0.0.1")
+    path.write_text(path.read_text() + f"metrics_port = {port}\n")
+    cfg = load_config(path)
+    daemon = Daemon(cfg, notifier=Notifier(None))
+    task = asyncio.create_task(daemon.run())
+    url = f"http://127.0.0.1:{port}/metrics"
+    args = argparse.Namespace(url=url, state_dir=None, max_age_s=60.0, timeout_s=2.0)
+    state_args = argparse.Namespace(url=None, state_dir=cfg.state_dir, max_age_s=60.0,
+                                    timeout_s=2.0)
+    try:
+        for _ in range(1000):
+            if daemon.cycles >= 12:
+                break
+            await asyncio.sleep(0.01)
+        assert daemon.cycles >= 12 and daemon.complete_cycles == 0
+        assert (cfg.state_dir / "checkpoint.json").exists()
+        assert await asyncio.to_thread(health.run, args) == 1
+        assert await asyncio.to_thread(health.run, state_args) == 1
+        body = await asyncio.to_thread(
+            lambda: urllib.request.urlopen(url, timeout=2.0).read().decode())
+        assert health.parse_metrics(body)["compd_fault_state"] >= 1  # not "ok"
+    finally:
+        daemon.request_stop()
+        assert await task == 0

@@ -143,6 +143,30 @@ def test_read_failure_holds_then_ramps_to_zero() -> None:
     assert r.state == "ramp" and r.offset_um == 0.0 and r.writes["offset"] == 0.0
 
 
+def test_invalid_from_the_start_holds_then_ramps_with_the_alarm() -> None:
+    """A sensor broken across a restart: the restored offset is held (status
+    HOLDING, not 0), then ramped to zero with the alarm after hold_s. It used to
+    stay in init, holding a stale offset forever with no alarm."""
+    warm, clock = Cycle(params(), sp2()), FakeClock()
+    run_warm(warm, clock, 10, bearing=20.0)
+    run_warm(warm, clock, 60, bearing=22.0)
+    state = warm.export_state()
+    held = state["offset_um"]
+    assert held > 5.0
+    cycle = Cycle.from_state(params(), sp2(), None, state, fresh=True)
+    cycle._last_now = clock.now_s
+    t = clock.tick()
+    r = cycle.step(t, samples(t, 900.0))  # an open Pt100
+    assert r.state == "init" and r.offset_um == held
+    assert r.status & Status.HOLDING and not r.status & Status.ALARM
+    for _ in range(int(HOLD_S) + int(held / SLEW_UM_S) + 5):
+        t = clock.tick()
+        r = cycle.step(t, samples(t, 900.0))
+        cycle.write_ok()
+    assert r.state == "ramp" and r.offset_um == 0.0
+    assert r.status & Status.ALARM and r.status & Status.RAMPING
+
+
 def test_one_sample_spike_is_rejected_and_filters_not_stepped() -> None:
     ref, spiked, clock = Cycle(params(), sp2()), Cycle(params(), sp2()), FakeClock()
     for k in range(200):

@@ -195,3 +195,37 @@ async def test_shadow_model_is_recorded_never_written(sim: ModbusSimController,
     assert r.shadow_um == pytest.approx(2 * r.model_um, rel=0.01)
     assert (await sim.outputs())["offset"] == pytest.approx(r.offset_um, abs=1e-3)
     assert r.offset_um == pytest.approx(r.model_um, abs=1e-3)
+
+
+class _Notes(Notifier):
+    """A notifier that keeps what it would send (a datagram queue holds only 10)."""
+
+    def __init__(self) -> None:
+        super().__init__(None)
+        self.sent: list[str] = []
+
+    def notify(self, message: str) -> bool:
+        self.sent.append(message)
+        return True
+
+
+async def test_sensor_broken_from_the_start_is_up_watched_and_ramps_with_the_alarm(
+        sim: ModbusSimController, tmp_path: Path) -> None:
+    """An open bearing sensor from the first sample: the daemon is up (READY),
+    feeds the watchdog while its loop runs (systemd restarting it would reset
+    the hold timer and the offset would be held forever), and ramps to zero with
+    the alarm after hold_s (30 machine s)."""
+    await sim.publish({"bearing": 900.0})
+    cfg = load_config(write_config(tmp_path, sim.endpoint))
+    notes = _Notes()
+    daemon = Daemon(cfg, notifier=notes)
+    task = asyncio.create_task(daemon.run())
+    await _until(lambda: daemon.cycles >= 45)
+    daemon.request_stop()
+    assert await task == 0
+    assert daemon.complete_cycles == 0
+    ready = next(i for i, m in enumerate(notes.sent) if m.startswith("READY=1"))
+    assert notes.sent[ready:].count("WATCHDOG=1") >= 40
+    assert daemon.last_result is not None and daemon.last_result.state == "ramp"
+    status = int((await sim.outputs())["status"])
+    assert status & Status.ALARM and status & Status.RAMPING

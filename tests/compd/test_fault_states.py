@@ -10,7 +10,8 @@ from compd.core.faults import GAUGE_ALARM, FaultState
 def test_every_state_has_a_gauge_and_only_stopped_is_the_alarm() -> None:
     gauges = {s: s.gauge for s in FaultState}
     assert [s for s, g in gauges.items() if g >= GAUGE_ALARM] == [FaultState.STOPPED]
-    assert gauges[FaultState.OK] == gauges[FaultState.INIT] == 0
+    assert gauges[FaultState.OK] == 0
+    assert gauges[FaultState.INIT] == gauges[FaultState.HOLD] == 1  # not compensating
     assert gauges[FaultState.HOLD] < gauges[FaultState.RAMP] < GAUGE_ALARM
 
 

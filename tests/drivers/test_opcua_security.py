@@ -111,6 +111,7 @@ async def test_pinned_server_and_right_password_connect_readwrite_cert(
 async def test_password_never_reaches_the_logs(sim: OpcUaSimController, pki: Pki,
                                                caplog: pytest.LogCaptureFixture) -> None:
     caplog.set_level(logging.DEBUG)
+    caplog.set_level(logging.DEBUG, logger="asyncua")  # the daemon floors it at WARNING
     driver = _driver(sim, _security(pki))
     try:
         await driver.read(["ambient"])
