@@ -52,7 +52,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _ensure_std_streams() -> None:
+    """Started with stdout or stderr closed (``compd run 2>&-``), Python has
+    None there and the first message would end the process with status 1: give
+    the closed descriptor /dev/null so compd runs (and logs nowhere)."""
+    import os
+
+    for fd, name in ((1, "stdout"), (2, "stderr")):
+        if getattr(sys, name) is not None:
+            continue
+        null = os.open(os.devnull, os.O_WRONLY)
+        if null != fd:
+            os.dup2(null, fd)
+            os.close(null)
+        setattr(sys, name, open(fd, "w", encoding="utf-8", closefd=False))  # noqa: SIM115
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    _ensure_std_streams()
     args = build_parser().parse_args(argv)
     try:
         rc: int = args._run(args)

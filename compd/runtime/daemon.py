@@ -13,6 +13,11 @@ Driver errors on read are a failed read (the cycle holds); the driver
 reconnects by itself with its backoff. Write errors go back to the cycle
 (transient: retried next cycle; permanent: offset writes stop, alarm).
 
+SIGHUP, SIGUSR1, SIGUSR2 (whose default action ends a process at once, with
+no checkpoint and no shutdown policy) are logged (``signal_ignored``) and
+otherwise ignored. A metrics port that cannot be bound is logged
+(``metrics_unavailable``); compensation runs without the endpoint.
+
 SIGTERM/SIGINT: the current cycle finishes, then the shutdown policy: "hold"
 leaves the offset where it is, "ramp_to_zero" keeps cycling the ramp until
 the offset is 0; a checkpoint is written and `run()` returns 0.
@@ -23,6 +28,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import functools
 import math
 import signal
 import time
@@ -85,14 +91,24 @@ class Daemon:
     def request_stop(self) -> None:
         self.stop_requested.set()
 
+    def _signal_ignored(self, sig: signal.Signals) -> None:
+        self.log.warning("signal_ignored", signal=sig.name,
+                         reason="compd does not reload; SIGTERM stops it cleanly")
+
     async def run(self) -> int:
         """Run until stopped (or one cycle with `once`); returns the exit status."""
         pin_mmap_threshold()  # months of cycles must not fragment the C heap (compd.runtime.heap)
         loop = asyncio.get_running_loop()
         installed = []
-        for sig in (signal.SIGTERM, signal.SIGINT):
+        handlers: dict[signal.Signals, Callable[[], None]] = {
+            signal.SIGTERM: self.request_stop, signal.SIGINT: self.request_stop}
+        for ignored in (signal.SIGHUP, signal.SIGUSR1, signal.SIGUSR2):
+            # their default action ends the process at once: no shutdown policy, no
+            # checkpoint. Until a reload exists they are logged and otherwise ignored.
+            handlers[ignored] = functools.partial(self._signal_ignored, ignored)
+        for sig, handler in handlers.items():
             try:
-                loop.add_signal_handler(sig, self.request_stop)
+                loop.add_signal_handler(sig, handler)
                 installed.append(sig)
             except (RuntimeError, ValueError, NotImplementedError):
                 pass  # not the main thread: the caller stops us with request_stop()
@@ -129,9 +145,7 @@ class Daemon:
                           dry_run=self.dry_run)
             self._check_certificates()
             self._open_recorder()
-            port = cfg.raw.telemetry.metrics_port
-            if port is not None:
-                self.metrics.start_http(port)
+            self._start_metrics()
             driver = self._driver
             if driver is None:
                 from compd.runtime.driver_setup import build_driver
@@ -150,6 +164,17 @@ class Daemon:
             self.metrics.stop()
             if self._lock is not None:
                 self._lock.release()
+
+    def _start_metrics(self) -> None:
+        port = self.cfg.raw.telemetry.metrics_port
+        if port is None:
+            return
+        try:
+            self.metrics.start_http(port)
+        except OSError as exc:  # a port in use: compensation never stops for telemetry
+            self.log.error("metrics_unavailable", port=port, error=str(exc),
+                           hint="compd health --url will report unhealthy; free the port "
+                                "or change telemetry.metrics_port")
 
     async def _connect(self, driver: Driver) -> None:
         timeout_s = self.cfg.raw.controller.connect_timeout_s

@@ -16,6 +16,7 @@ from typing import Any
 
 import pytest
 
+from compd.core.output import Status
 from compd.runtime.checkpoint import load_checkpoint
 from drivers.modbus_codec import decode
 from drivers.sim.modbus_server import OUTPUTS, ModbusSimController
@@ -155,3 +156,56 @@ async def test_bad_config_exits_78_naming_the_key_without_connecting(tmp_path: P
             listener.accept()  # nobody connected
     finally:
         listener.close()
+
+
+async def test_hup_usr1_usr2_are_logged_not_fatal(rec: _Recorded, tmp_path: Path) -> None:
+    """SIGUSR1 and SIGHUP used to end the daemon at once (no checkpoint)."""
+    config = write_config(tmp_path, rec.sim.endpoint, checkpoint_every=5)
+    log = tmp_path / "daemon.log"
+    proc = await _start(config, log)
+    try:
+        await _until(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
+        for sig in (signal.SIGHUP, signal.SIGUSR1, signal.SIGUSR2):
+            proc.send_signal(sig)
+        beat = (await rec.sim.outputs())["heartbeat"]
+        await _until(rec.sim, "heartbeat", lambda v: v >= beat + 5, proc, log)
+        assert proc.returncode is None
+        proc.send_signal(signal.SIGTERM)
+        assert await proc.wait() == 0
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+    text = await asyncio.to_thread(log.read_text)
+    ignored = [ln for ln in text.splitlines() if '"signal_ignored"' in ln]
+    assert {s for s in ("SIGHUP", "SIGUSR1", "SIGUSR2") if any(s in ln for ln in ignored)} \
+        == {"SIGHUP", "SIGUSR1", "SIGUSR2"}
+    assert load_checkpoint(tmp_path / "state" / "checkpoint.json") is not None
+
+
+async def test_closed_stderr_and_a_taken_metrics_port_do_not_stop_compensation(
+        rec: _Recorded, tmp_path: Path) -> None:
+    """`compd run 2>&-` exited 1 silently; a metrics port in use was a traceback."""
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        config = write_config(tmp_path, rec.sim.endpoint)
+        config.write_text(config.read_text() + f"metrics_port = {port}\n")
+        env = {**os.environ, "PYTHONPATH": str(ROOT)}
+        env.pop("NOTIFY_SOCKET", None)
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-c",
+            "import os, sys; os.close(2); from compd.cli import main; sys.exit(main())",
+            "run", str(config), stdout=asyncio.subprocess.DEVNULL, env=env, cwd=str(ROOT))
+        log = tmp_path / "none.log"
+        log.write_text("(stderr closed: no log)")
+        try:
+            await _until(rec.sim, "heartbeat", lambda v: v >= 5, proc, log)
+            assert int((await rec.sim.outputs())["status"]) & Status.OK
+            proc.send_signal(signal.SIGTERM)
+            assert await proc.wait() == 0
+        finally:
+            if proc.returncode is None:
+                proc.kill()
+                await proc.wait()
