@@ -18,7 +18,8 @@ Two snap7 defaults are overridden (PROTOCOLS.md):
 After any link failure the client is disconnected; the next call after the
 backoff delay connects a fresh ISO connection (a restarted PLC leaves the
 old client "not connected" forever otherwise). Calls on a down link inside
-the backoff delay fail fast with `ConnectionLost`.
+the backoff delay fail fast with `ConnectionLost` (`drivers.link.WorkerLink`:
+the lifecycle every driver shares).
 """
 
 from __future__ import annotations
@@ -38,14 +39,13 @@ from snap7.error import S7ConnectionError, S7Error, S7ProtocolError, S7TimeoutEr
 from drivers.addresses import S7Address
 from drivers.backoff import Backoff
 from drivers.base import Quality, Sample, select_addresses
-from drivers.errors import BadAddress, ConnectionLost, ControllerTimeout, DriverError, WriteRejected
+from drivers.errors import BadAddress, DriverError, WriteRejected
 from drivers.io_thread import IoThread
+from drivers.link import WorkerLink
 from drivers.s7_codec import Span, decode, encode, read_spans, write_runs
 
 T = TypeVar("T")
 
-#: extra time the event loop waits beyond the call's own deadline
-_GRACE_S = 0.25
 #: S7 item return codes that mean "this address does not exist here"
 _ADDRESS_CODES = {0x05, 0x06, 0x07, 0x0A}
 #: S7 header error codes the snap7 server (and some CPUs) use for the same
@@ -113,29 +113,34 @@ class S7Driver:
         self._outputs = dict(outputs)
         self._all = {**self._channels, **self._outputs}
         self._timeout_s = timeout_s
-        self._backoff = backoff or Backoff()
         self._rack = rack
         self._slot = slot
-        self._io = IoThread("s7-io")
         self._client: Client | None = None  # touched only on the worker thread
-        self._up = False
-        self._closed = False
+        self._link: WorkerLink[Client] = WorkerLink(
+            endpoint, backoff or Backoff(), timeout_s, io=IoThread("s7-io"),
+            open_sync=lambda: self._connect_sync(_Deadline(self._timeout_s)),
+            drop_sync=self._drop_sync, drop_on=(S7ConnectionError, S7TimeoutError, OSError),
+            connect_errors=(S7Error, OSError), timeout_errors=(S7TimeoutError,),
+            lost_errors=(S7ConnectionError, OSError))
         self._read_plans: dict[tuple[str, ...], _ReadPlan] = {}
         self._write_plans: dict[tuple[str, ...], tuple[dict[str, S7Address], list[Span]]] = {}
 
     @property
     def connected(self) -> bool:
-        return self._up
+        return self._link.up
+
+    @property
+    def backoff(self) -> Backoff:
+        return self._link.backoff
 
     @property
     def io_thread(self) -> IoThread:
-        return self._io
+        return self._link.io
 
     # ---- worker-thread side -------------------------------------------------
 
     def _drop_sync(self) -> None:
         client, self._client = self._client, None
-        self._up = False
         if client is not None:
             with contextlib.suppress(S7Error, OSError):
                 client.disconnect()
@@ -159,7 +164,6 @@ class S7Driver:
             raise
         client.connected = True
         self._client = client
-        self._up = True
         return client
 
     @staticmethod
@@ -172,59 +176,17 @@ class S7Driver:
         conn.timeout = left
         conn.socket.settimeout(left)
 
-    def _job(self, op: Callable[[Client, _Deadline], T]) -> Callable[[], T]:
-        def run() -> T:
-            deadline = _Deadline(self._timeout_s)
-            client = self._client if self._up and self._client is not None else None
-            try:
-                if client is None:
-                    try:
-                        client = self._connect_sync(deadline)
-                    except (S7Error, OSError) as exc:
-                        raise _ConnectFailedError(exc) from exc
-                return op(client, deadline)
-            except (S7ConnectionError, S7TimeoutError, OSError):
-                self._drop_sync()
-                raise
-        return run
-
     # ---- event-loop side ----------------------------------------------------
 
     async def _call(self, op: Callable[[Client, _Deadline], T], what: str,
                     channel: str | None = None, address: str | None = None) -> T:
-        if self._closed:
-            raise ConnectionLost("driver closed", channel=channel, address=address)
-        if not self._up and not self._backoff.ready():
-            raise ConnectionLost(f"{self.endpoint} down; next reconnect attempt in "
-                                 f"≤{self._backoff.delay_s:.2f} s", channel=channel,
-                                 address=address)
-        try:
-            result = await self._io.call(self._job(op), self._timeout_s + _GRACE_S)
-        except _ConnectFailedError as exc:
-            self._backoff.failed()
-            cause = exc.cause
-            if isinstance(cause, (TimeoutError, S7TimeoutError)):
-                raise ControllerTimeout(f"connect to {self.endpoint} timed out during {what}",
-                                        channel=channel, address=address) from cause
-            raise ConnectionLost(f"connect to {self.endpoint} failed during {what}: {cause}",
-                                 channel=channel, address=address) from cause
-        except (TimeoutError, S7TimeoutError) as exc:
-            self._up = False
-            self._backoff.failed()  # the next calls fail fast until the delay passed
-            raise ControllerTimeout(f"{what} on {self.endpoint} timed out after "
-                                    f"{self._timeout_s} s", channel=channel,
-                                    address=address) from exc
-        except (S7ConnectionError, OSError) as exc:
-            self._up = False
-            self._backoff.failed()
-            raise ConnectionLost(f"{what} on {self.endpoint} lost the link: {exc}",
-                                 channel=channel, address=address) from exc
-        self._backoff.succeeded()
-        return result
+        """`op(client, deadline)` on the worker thread (`WorkerLink` rules)."""
+        timeout_s = self._timeout_s
+        return await self._link.run(lambda client: op(client, _Deadline(timeout_s)),
+                                    what, channel, address)
 
     async def connect(self) -> None:
-        self._closed = False
-        await self._call(lambda client, deadline: None, "connect")
+        await self._link.connect()
 
     def _read_plan(self, names: Sequence[str]) -> _ReadPlan:
         """The spans for this set of names, computed once and cached."""
@@ -329,22 +291,7 @@ class S7Driver:
             raise _write_error(refused, name, wanted[name].describe())
 
     async def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            await self._io.call(self._drop_sync, self._timeout_s + _GRACE_S)
-        except (TimeoutError, DriverError):
-            pass
-        finally:
-            self._up = False
-            self._io.shutdown()
-
-
-class _ConnectFailedError(Exception):
-    def __init__(self, cause: BaseException) -> None:
-        super().__init__(str(cause))
-        self.cause = cause
+        await self._link.close()
 
 
 def _write_error(exc: S7Error, channel: str, address: str) -> DriverError:
