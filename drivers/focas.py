@@ -32,7 +32,7 @@ import math
 import os
 import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import partial
 from typing import TypeVar
@@ -176,9 +176,9 @@ class FocasDriver:
 
     # ---- event-loop side ----------------------------------------------------
 
-    async def _call(self, op: Callable[[ctypes.CDLL, int], T], what: str) -> T:
+    def _call(self, op: Callable[[ctypes.CDLL, int], T], what: str) -> Awaitable[T]:
         """`op(library, handle)` on the worker thread (`WorkerLink` rules)."""
-        return await self._link.run(partial(self._with_lib, op), what)
+        return self._link.run(partial(self._with_lib, op), what)
 
     def _with_lib(self, op: Callable[[ctypes.CDLL, int], T], handle: int) -> T:
         if self._lib is None:

@@ -139,11 +139,15 @@ class Link(Generic[S]):
         await self._drop_session(session, False)
 
     async def call(self, op: Callable[[S], Awaitable[T]], what: str,
-                   channel: str | None = None, address: str | None = None) -> T:
+                   channel: str | None = None, address: str | None = None, *,
+                   where: Callable[[], tuple[str | None, str | None]] | None = None) -> T:
         """Run `op` on the session (opened first when due); see the module
-        for what a failure does to the link."""
+        for what a failure does to the link. The errors name `channel` and
+        `address`, or what `where()` gives (asked only on a failure)."""
         s = self.session
         if s is None or (self._alive is not None and not self._alive(s)):
+            if where is not None:
+                channel, address = where()
             s = await self.ready(what, channel, address)
         try:
             return await op(s)
@@ -152,11 +156,15 @@ class Link(Generic[S]):
             raise
         except self._timeout_errors as exc:
             await self.lost(s)
+            if where is not None:
+                channel, address = where()
             raise ControllerTimeout(f"{what} on {self.endpoint} timed out after "
                                     f"{self.timeout_s} s", channel=channel,
                                     address=address) from exc
         except self._lost_errors as exc:
             await self.lost(s)
+            if where is not None:
+                channel, address = where()
             raise ConnectionLost(f"{what} on {self.endpoint} lost the link: {exc}",
                                  channel=channel, address=address) from exc
 
@@ -209,10 +217,10 @@ class WorkerLink(Link[S]):
             self._drop_sync()
             raise
 
-    async def run(self, op: Callable[[S], T], what: str, channel: str | None = None,
-                  address: str | None = None) -> T:
+    def run(self, op: Callable[[S], T], what: str, channel: str | None = None,
+            address: str | None = None) -> Awaitable[T]:
         """`op(session)` on the worker thread, under `Link.call`'s rules."""
-        return await self.call(
+        return self.call(
             lambda s: self.io.call(partial(self._job, op, s), self._wait_s),
             what, channel, address)
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from functools import partial
 from typing import Any
 
@@ -217,10 +217,11 @@ class ModbusDriver:
             value = decode(addr, registers[offset: offset + addr.count])
             out[name] = Sample(value, now_s, Quality.GOOD)
 
-    async def _call(self, request: Callable[[AsyncModbusTcpClient], Any], span: Span) -> Any:
+    def _call(self, request: Callable[[AsyncModbusTcpClient], Any],
+              span: Span) -> Awaitable[Any]:
         """One pymodbus request on the link (`drivers.link.Link` rules)."""
-        return await self._link.call(partial(self._exchange, request, span), "request",
-                                     span.names, span.describe())
+        return self._link.call(partial(self._exchange, request, span), "request",
+                               where=span.where)
 
     async def _exchange(self, request: Callable[[AsyncModbusTcpClient], Any], span: Span,
                         client: AsyncModbusTcpClient) -> Any:

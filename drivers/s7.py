@@ -27,7 +27,7 @@ from __future__ import annotations
 import contextlib
 import re
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TypeVar
 from urllib.parse import urlsplit
@@ -178,12 +178,12 @@ class S7Driver:
 
     # ---- event-loop side ----------------------------------------------------
 
-    async def _call(self, op: Callable[[Client, _Deadline], T], what: str,
-                    channel: str | None = None, address: str | None = None) -> T:
+    def _call(self, op: Callable[[Client, _Deadline], T], what: str,
+              channel: str | None = None, address: str | None = None) -> Awaitable[T]:
         """`op(client, deadline)` on the worker thread (`WorkerLink` rules)."""
         timeout_s = self._timeout_s
-        return await self._link.run(lambda client: op(client, _Deadline(timeout_s)),
-                                    what, channel, address)
+        return self._link.run(lambda client: op(client, _Deadline(timeout_s)),
+                              what, channel, address)
 
     async def connect(self) -> None:
         await self._link.connect()
