@@ -38,6 +38,8 @@ class ProtocolSpec:
     """One protocol's parts (see the module docstring)."""
 
     name: str
+    #: the URL scheme of the driver's endpoint (``opc.tcp://``, ``s7://``, ...)
+    scheme: str
     #: the address models a channel or output may use ("module:Class")
     addresses: tuple[str, ...]
     #: the driver class; constructed as ``cls(endpoint, channels, outputs, **options)``
@@ -85,21 +87,22 @@ class ProtocolSpec:
 
 PROTOCOLS: dict[str, ProtocolSpec] = {spec.name: spec for spec in (
     ProtocolSpec(
-        "opcua", ("drivers.addresses:OpcUaAddress",), "drivers.opcua:OpcUaDriver",
+        "opcua", "opc.tcp", ("drivers.addresses:OpcUaAddress",), "drivers.opcua:OpcUaDriver",
         "drivers.sim.opcua_server:OpcUaSimController", section="security",
         options="drivers.opcua_policy:OpcUaSecurityRules",
         section_required='a policy, or policy = "None" with insecure = true',
         connect_timeout=True),
     ProtocolSpec(
-        "s7", ("drivers.addresses:S7Address",), "drivers.s7:S7Driver",
+        "s7", "s7", ("drivers.addresses:S7Address",), "drivers.s7:S7Driver",
         "drivers.sim.s7_server:S7SimController", section="s7",
         options="drivers.protocol_options:S7Options"),
     ProtocolSpec(
-        "modbus", ("drivers.addresses:ModbusAddress",), "drivers.modbus:ModbusDriver",
+        "modbus", "modbus", ("drivers.addresses:ModbusAddress",), "drivers.modbus:ModbusDriver",
         "drivers.sim.modbus_server:ModbusSimController"),
     ProtocolSpec(
-        "focas", ("drivers.addresses:FocasPmcAddress", "drivers.addresses:FocasDiagAddress",
-                  "drivers.addresses:FocasSpindleLoadAddress"),
+        "focas", "focas",
+        ("drivers.addresses:FocasPmcAddress", "drivers.addresses:FocasDiagAddress",
+         "drivers.addresses:FocasSpindleLoadAddress"),
         "drivers.focas:FocasDriver", "drivers.sim.focas_server:FocasSimController",
         section="focas", options="drivers.protocol_options:FocasOptions",
         section_required="library_path", default_kind="pmc"),
