@@ -51,7 +51,7 @@ from drivers.base import Quality, Sample, select_addresses
 from drivers.errors import BadAddress, ConnectionLost
 from drivers.focas_codec import PmcRange, decode_pmc, encode_pmc, read_ranges, write_runs
 from drivers.io_thread import IoThread
-from drivers.link import WorkerLink
+from drivers.link import LinkedDriver, WorkerLink
 
 T = TypeVar("T")
 FocasAddress = FocasPmcAddress | FocasDiagAddress | FocasSpindleLoadAddress
@@ -105,7 +105,7 @@ class _ReadPlan:
     sploads: tuple[tuple[str, FocasSpindleLoadAddress], ...]
 
 
-class FocasDriver:
+class FocasDriver(LinkedDriver):
     """Async driver for one FANUC CNC through the FOCAS library."""
 
     protocol = "focas"
@@ -143,14 +143,6 @@ class FocasDriver:
             list[tuple[str, FocasPmcAddress]], list[PmcRange]]] = {}
 
     @property
-    def connected(self) -> bool:
-        return self._link.up
-
-    @property
-    def backoff(self) -> Backoff:
-        return self._link.backoff
-
-    @property
     def io_thread(self) -> IoThread:
         return self._link.io
 
@@ -184,9 +176,6 @@ class FocasDriver:
         if self._lib is None:
             raise ConnectionLost("library not loaded")
         return op(self._lib, handle)
-
-    async def connect(self) -> None:
-        await self._link.connect()
 
     def _read_plan(self, names: Sequence[str]) -> _ReadPlan:
         """Ranges, spindle loads and diagnoses for this set of names, computed
@@ -301,5 +290,3 @@ class FocasDriver:
 
         await self._call(op, "write")
 
-    async def close(self) -> None:
-        await self._link.close()

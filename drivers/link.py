@@ -30,7 +30,7 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Awaitable, Callable
 from functools import partial
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
 from drivers.backoff import Backoff
 from drivers.errors import ConnectionLost, ControllerTimeout, DriverError
@@ -176,6 +176,31 @@ class Link(Generic[S]):
             await self._drop_session(s, True)
 
 
+class LinkedDriver:
+    """What a driver's lifecycle shows of its `Link` (`_link`): `connected`,
+    `backoff`, `connect()` and `close()`, the same for every protocol."""
+
+    _link: Link[Any]
+
+    @property
+    def connected(self) -> bool:
+        """True while the link is believed to be up."""
+        return self._link.up
+
+    @property
+    def backoff(self) -> Backoff:
+        """The reconnect backoff of this driver's link."""
+        return self._link.backoff
+
+    async def connect(self) -> None:
+        """Open the link now (also after `close()`)."""
+        await self._link.connect()
+
+    async def close(self) -> None:
+        """Release the link (and a worker thread); calls fail until `connect()`."""
+        await self._link.close()
+
+
 #: extra time the event loop waits for the worker beyond a call's own deadline
 WORKER_GRACE_S = 0.25
 
@@ -237,4 +262,4 @@ class WorkerLink(Link[S]):
             self.io.shutdown()
 
 
-__all__ = ["Link", "WorkerLink"]
+__all__ = ["Link", "LinkedDriver", "WorkerLink"]

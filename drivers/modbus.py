@@ -38,7 +38,7 @@ from drivers.errors import (
     DriverError,
     WriteRejected,
 )
-from drivers.link import Link
+from drivers.link import Link, LinkedDriver
 from drivers.modbus_codec import Span, decode, encode, plan_reads, plan_writes
 
 DEFAULT_PORT = 502
@@ -93,7 +93,7 @@ def _check_addresses(role: str, table: Mapping[str, Address]) -> dict[str, Modbu
     return out
 
 
-class ModbusDriver:
+class ModbusDriver(LinkedDriver):
     """Async Modbus TCP access to one controller (see module docstring)."""
 
     protocol = "modbus"
@@ -123,14 +123,6 @@ class ModbusDriver:
 
     # -- link -------------------------------------------------------------
 
-    @property
-    def connected(self) -> bool:
-        return self._link.up
-
-    @property
-    def backoff(self) -> Backoff:
-        return self._link.backoff
-
     async def connect(self) -> None:
         async with self._lock:
             await self._link.connect()
@@ -149,9 +141,6 @@ class ModbusDriver:
             client.close()
             raise ConnectionRefusedError("connect refused or timed out")
         return client
-
-    async def close(self) -> None:
-        await self._link.close()
 
     # -- read ---------------------------------------------------------------
 

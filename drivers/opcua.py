@@ -34,7 +34,7 @@ from drivers.addresses import OpcUaAddress
 from drivers.backoff import Backoff
 from drivers.base import Sample
 from drivers.errors import BadAddress, ConnectionLost, ControllerTimeout, DriverError, WriteRejected
-from drivers.link import Link
+from drivers.link import Link, LinkedDriver
 from drivers.opcua_codec import (
     ADDRESS_CODES,
     PERMANENT_WRITE_CODES,
@@ -79,7 +79,7 @@ async def _deadline(seconds: float) -> AsyncIterator[None]:
             raise TimeoutError from None
         raise
 
-class OpcUaDriver:
+class OpcUaDriver(LinkedDriver):
     """Async access to one OPC UA server (see module docstring)."""
 
     protocol = "opcua"
@@ -114,18 +114,7 @@ class OpcUaDriver:
             endpoint, backoff or Backoff(), timeout_s, open=self._open, drop=self._dispose,
             connect_errors=(*_CONNECTION_ERRORS, ValueError))
 
-    @property
-    def connected(self) -> bool:
-        return self._link.up
-
-    @property
-    def backoff(self) -> Backoff:
-        return self._link.backoff
-
     # -- link ------------------------------------------------------------------
-
-    async def connect(self) -> None:
-        await self._link.connect()
 
     async def _open(self) -> Client:
         """A connected client with the output types loaded (`Link` wraps the
@@ -174,9 +163,6 @@ class OpcUaDriver:
             vtype = variant_type_of(dv.Value.Value) if dv.Value is not None else None
             self._types[name] = vtype if vtype is not None else \
                 f"DataType {dv.Value.Value if dv.Value is not None else None} not numeric"
-
-    async def close(self) -> None:
-        await self._link.close()
 
     async def _dispose(self, client: Client, graceful: bool) -> None:
         """Tear a client down quietly: its background tasks are cancelled first

@@ -41,7 +41,7 @@ from drivers.backoff import Backoff
 from drivers.base import Quality, Sample, select_addresses
 from drivers.errors import BadAddress, DriverError, WriteRejected
 from drivers.io_thread import IoThread
-from drivers.link import WorkerLink
+from drivers.link import LinkedDriver, WorkerLink
 from drivers.s7_codec import Span, decode, encode, read_spans, write_runs
 
 T = TypeVar("T")
@@ -94,7 +94,7 @@ class _ReadPlan:
     channel: str | None  # named in errors when the read is of one channel
 
 
-class S7Driver:
+class S7Driver(LinkedDriver):
     """Async driver for one S7 CPU (DB areas only)."""
 
     protocol = "s7"
@@ -124,14 +124,6 @@ class S7Driver:
             lost_errors=(S7ConnectionError, OSError))
         self._read_plans: dict[tuple[str, ...], _ReadPlan] = {}
         self._write_plans: dict[tuple[str, ...], tuple[dict[str, S7Address], list[Span]]] = {}
-
-    @property
-    def connected(self) -> bool:
-        return self._link.up
-
-    @property
-    def backoff(self) -> Backoff:
-        return self._link.backoff
 
     @property
     def io_thread(self) -> IoThread:
@@ -184,9 +176,6 @@ class S7Driver:
         timeout_s = self._timeout_s
         return self._link.run(lambda client: op(client, _Deadline(timeout_s)),
                               what, channel, address)
-
-    async def connect(self) -> None:
-        await self._link.connect()
 
     def _read_plan(self, names: Sequence[str]) -> _ReadPlan:
         """The spans for this set of names, computed once and cached."""
@@ -289,9 +278,6 @@ class S7Driver:
             run, refused = failed
             name = run.names[0]
             raise _write_error(refused, name, wanted[name].describe())
-
-    async def close(self) -> None:
-        await self._link.close()
 
 
 def _write_error(exc: S7Error, channel: str, address: str) -> DriverError:
