@@ -52,12 +52,11 @@ from drivers.errors import BadAddress, ConnectionLost
 from drivers.focas_codec import PmcRange, decode_pmc, encode_pmc, read_ranges, write_runs
 from drivers.io_thread import IoThread
 from drivers.link import LinkedDriver, WorkerLink
+from drivers.plans import PlanCache
 
 T = TypeVar("T")
 FocasAddress = FocasPmcAddress | FocasDiagAddress | FocasSpindleLoadAddress
 _BYTE = PMC_TYPES["byte"][0]
-#: request plans kept per driver (the daemon uses a handful of name sets)
-_PLAN_CACHE_SIZE = 64
 
 
 class LibraryRefusedError(ValueError):
@@ -138,9 +137,8 @@ class FocasDriver(LinkedDriver):
         self._link: WorkerLink[int] = WorkerLink(
             endpoint, backoff or Backoff(), timeout_s, io=IoThread("focas-io"),
             open_sync=self._open_sync, drop_sync=self._free_sync, drop_on=(ConnectionLost,))
-        self._read_plans: dict[tuple[str, ...], _ReadPlan] = {}
-        self._write_plans: dict[tuple[str, ...], tuple[
-            list[tuple[str, FocasPmcAddress]], list[PmcRange]]] = {}
+        self._read_plan = PlanCache(self._build_read_plan)
+        self._write_plan = PlanCache(self._build_write_plan)
 
     @property
     def io_thread(self) -> IoThread:
@@ -177,24 +175,17 @@ class FocasDriver(LinkedDriver):
             raise ConnectionLost("library not loaded")
         return op(self._lib, handle)
 
-    def _read_plan(self, names: Sequence[str]) -> _ReadPlan:
-        """Ranges, spindle loads and diagnoses for this set of names, computed
-        once and cached."""
-        key = tuple(names)
-        plan = self._read_plans.get(key)
-        if plan is None:
-            wanted = select_addresses(names, self._all, "channel")
-            pmc = [(n, a) for n, a in wanted.items() if isinstance(a, FocasPmcAddress)]
-            plan = _ReadPlan(
-                wanted=wanted,
-                ranges=tuple(read_ranges(pmc)),
-                diags=tuple((n, a) for n, a in wanted.items() if isinstance(a, FocasDiagAddress)),
-                sploads=tuple((n, a) for n, a in wanted.items()
-                              if isinstance(a, FocasSpindleLoadAddress)))
-            if len(self._read_plans) >= _PLAN_CACHE_SIZE:
-                self._read_plans.clear()
-            self._read_plans[key] = plan
-        return plan
+    def _build_read_plan(self, names: tuple[str, ...]) -> _ReadPlan:
+        """Ranges, spindle loads and diagnoses for this set of names (kept by
+        `_read_plan`)."""
+        wanted = select_addresses(names, self._all, "channel")
+        pmc = [(n, a) for n, a in wanted.items() if isinstance(a, FocasPmcAddress)]
+        return _ReadPlan(
+            wanted=wanted,
+            ranges=tuple(read_ranges(pmc)),
+            diags=tuple((n, a) for n, a in wanted.items() if isinstance(a, FocasDiagAddress)),
+            sploads=tuple((n, a) for n, a in wanted.items()
+                          if isinstance(a, FocasSpindleLoadAddress)))
 
     async def read(self, names: Sequence[str]) -> dict[str, Sample]:
         plan = self._read_plan(names)
@@ -251,18 +242,12 @@ class FocasDriver(LinkedDriver):
         name = r.names[0]
         raise abi.error_for(rc, "pmc_rdpmcrng", channel=name, address=wanted[name].describe())
 
-    def _write_plan(self, names: tuple[str, ...]) -> tuple[
+    def _build_write_plan(self, names: tuple[str, ...]) -> tuple[
             list[tuple[str, FocasPmcAddress]], list[PmcRange]]:
-        """The outputs and their runs for this set of names, computed once."""
-        plan = self._write_plans.get(names)
-        if plan is None:
-            wanted = select_addresses(names, self._outputs, "output")
-            items = [(n, a) for n, a in wanted.items() if isinstance(a, FocasPmcAddress)]
-            plan = (items, write_runs(items))
-            if len(self._write_plans) >= _PLAN_CACHE_SIZE:
-                self._write_plans.clear()
-            self._write_plans[names] = plan
-        return plan
+        """The outputs and their runs for this set of names (kept by `_write_plan`)."""
+        wanted = select_addresses(names, self._outputs, "output")
+        items = [(n, a) for n, a in wanted.items() if isinstance(a, FocasPmcAddress)]
+        return items, write_runs(items)
 
     async def write(self, values: Mapping[str, float]) -> None:
         items, runs = self._write_plan(tuple(values))

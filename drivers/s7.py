@@ -42,6 +42,7 @@ from drivers.base import Quality, Sample, select_addresses
 from drivers.errors import BadAddress, DriverError, WriteRejected
 from drivers.io_thread import IoThread
 from drivers.link import LinkedDriver, WorkerLink
+from drivers.plans import PlanCache
 from drivers.s7_codec import Span, decode, encode, read_spans, write_runs
 
 T = TypeVar("T")
@@ -51,8 +52,6 @@ _ADDRESS_CODES = {0x05, 0x06, 0x07, 0x0A}
 #: S7 header error codes the snap7 server (and some CPUs) use for the same
 _ADDRESS_HEADER_CODES = {0x8001, 0x8404}
 _ITEM_CODE_RE = re.compile(r"\(0x([0-9a-fA-F]{2})\)")
-#: request plans kept per driver (the daemon uses a handful of name sets)
-_PLAN_CACHE_SIZE = 64
 
 
 def parse_endpoint(endpoint: str) -> tuple[str, int]:
@@ -122,8 +121,8 @@ class S7Driver(LinkedDriver):
             drop_sync=self._drop_sync, drop_on=(S7ConnectionError, S7TimeoutError, OSError),
             connect_errors=(S7Error, OSError), timeout_errors=(S7TimeoutError,),
             lost_errors=(S7ConnectionError, OSError))
-        self._read_plans: dict[tuple[str, ...], _ReadPlan] = {}
-        self._write_plans: dict[tuple[str, ...], tuple[dict[str, S7Address], list[Span]]] = {}
+        self._read_plan = PlanCache(self._build_read_plan)
+        self._write_plan = PlanCache(self._build_write_plan)
 
     @property
     def io_thread(self) -> IoThread:
@@ -177,20 +176,13 @@ class S7Driver(LinkedDriver):
         return self._link.run(lambda client: op(client, _Deadline(timeout_s)),
                               what, channel, address)
 
-    def _read_plan(self, names: Sequence[str]) -> _ReadPlan:
-        """The spans for this set of names, computed once and cached."""
-        key = tuple(names)
-        plan = self._read_plans.get(key)
-        if plan is None:
-            wanted = select_addresses(names, self._all, "channel")
-            spans = tuple(read_spans(wanted))
-            fields = tuple(tuple((n, wanted[n], wanted[n].offset - sp.start) for n in sp.names)
-                           for sp in spans)
-            plan = _ReadPlan(wanted, spans, fields, key[0] if len(wanted) == 1 else None)
-            if len(self._read_plans) >= _PLAN_CACHE_SIZE:
-                self._read_plans.clear()
-            self._read_plans[key] = plan
-        return plan
+    def _build_read_plan(self, names: tuple[str, ...]) -> _ReadPlan:
+        """The spans for this set of names (kept by `_read_plan`)."""
+        wanted = select_addresses(names, self._all, "channel")
+        spans = tuple(read_spans(wanted))
+        fields = tuple(tuple((n, wanted[n], wanted[n].offset - sp.start) for n in sp.names)
+                       for sp in spans)
+        return _ReadPlan(wanted, spans, fields, names[0] if len(wanted) == 1 else None)
 
     async def read(self, names: Sequence[str]) -> dict[str, Sample]:
         plan = self._read_plan(names)
@@ -241,16 +233,11 @@ class S7Driver(LinkedDriver):
         raise BadAddress(f"controller refused the read of DB{span.db}.{span.start}+{span.size}: "
                          f"{exc}", channel=name, address=wanted[name].describe()) from exc
 
-    def _write_plan(self, names: tuple[str, ...]) -> tuple[dict[str, S7Address], list[Span]]:
-        """The runs for this set of outputs, computed once and cached."""
-        plan = self._write_plans.get(names)
-        if plan is None:
-            wanted = select_addresses(names, self._outputs, "output")
-            plan = (wanted, write_runs(wanted.items()))
-            if len(self._write_plans) >= _PLAN_CACHE_SIZE:
-                self._write_plans.clear()
-            self._write_plans[names] = plan
-        return plan
+    def _build_write_plan(self, names: tuple[str, ...]) -> tuple[dict[str, S7Address],
+                                                                  list[Span]]:
+        """The runs for this set of outputs (kept by `_write_plan`)."""
+        wanted = select_addresses(names, self._outputs, "output")
+        return wanted, write_runs(wanted.items())
 
     async def write(self, values: Mapping[str, float]) -> None:
         wanted, runs = self._write_plan(tuple(values))
