@@ -8,7 +8,7 @@ gives the short string used in error messages and logs.
 from __future__ import annotations
 
 import math
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -175,10 +175,11 @@ FocasAddress = Annotated[
 Address = OpcUaAddress | S7Address | ModbusAddress | FocasPmcAddress | FocasDiagAddress \
     | FocasSpindleLoadAddress
 
-#: protocol name -> the address model(s) it accepts
-ADDRESS_TYPES: dict[str, tuple[type[_Address], ...]] = {
-    "opcua": (OpcUaAddress,),
-    "s7": (S7Address,),
-    "modbus": (ModbusAddress,),
-    "focas": (FocasPmcAddress, FocasDiagAddress, FocasSpindleLoadAddress),
-}
+def __getattr__(name: str) -> Any:
+    """``ADDRESS_TYPES``: protocol name -> the address model(s) it accepts,
+    read from the protocol registry (`drivers.protocols`) when first asked."""
+    if name == "ADDRESS_TYPES":
+        from drivers.protocols import PROTOCOLS
+
+        return {spec.name: spec.address_types() for spec in PROTOCOLS.values()}
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -12,8 +12,10 @@ Rules every implementation keeps:
 - every call has a timeout well under the sample period and never blocks the
   event loop (blocking libraries run in a worker thread);
 - reconnect with capped exponential backoff (`drivers.backoff.Backoff`) is the
-  driver's job: on a lost link `read`/`write` fail fast with `ConnectionLost`
-  and the next call after the backoff delay tries to reconnect;
+  driver's job, done the same way by all through `drivers.link.Link`: on a
+  lost link or a timeout `read`/`write` fail fast with `ConnectionLost` and
+  the next call after the backoff delay tries to reconnect; after `close()`
+  they fail until `connect()`;
 - writes are never retried at transport level (a write is not idempotent for
   the controller's ladder logic).
 """

@@ -24,8 +24,9 @@ class DriverError(CompdError):
         super().__init__(f"{message} ({where})" if where else message)
 
 
-class ControllerTimeout(DriverError):
-    """A request did not complete within its timeout."""
+class ControllerTimeout(DriverError, TimeoutError):
+    """A request did not complete within its timeout (also a `TimeoutError`,
+    so code that bounds a call with `asyncio.timeout` handles both alike)."""
 
 
 class ConnectionLost(DriverError):

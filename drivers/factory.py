@@ -1,22 +1,20 @@
 """Build a driver by protocol name, importing only that protocol's library
-(`compd run` must not pay the memory of a driver it does not use)."""
+(`compd run` must not pay the memory of a driver it does not use). The
+protocols are those of `drivers.protocols`."""
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Mapping
 from typing import Any
 
 from drivers.addresses import Address
 from drivers.base import Driver
+from drivers.protocols import PROTOCOLS, spec_of
 
-#: protocol -> (module, class)
+#: protocol -> (module, class) of its driver (a view of `drivers.protocols`)
 DRIVERS: dict[str, tuple[str, str]] = {
-    "opcua": ("drivers.opcua", "OpcUaDriver"),
-    "s7": ("drivers.s7", "S7Driver"),
-    "modbus": ("drivers.modbus", "ModbusDriver"),
-    "focas": ("drivers.focas", "FocasDriver"),
-}
+    name: (spec.driver.partition(":")[0], spec.driver.partition(":")[2])
+    for name, spec in PROTOCOLS.items()}
 
 
 def open_driver(protocol: str, endpoint: str, channels: Mapping[str, Address],
@@ -26,10 +24,6 @@ def open_driver(protocol: str, endpoint: str, channels: Mapping[str, Address],
     Every driver takes ``(endpoint, channels, outputs, *, timeout_s=...,
     backoff=None, **protocol_options)``.
     """
-    try:
-        module_name, class_name = DRIVERS[protocol]
-    except KeyError:
-        raise ValueError(f"unknown protocol {protocol!r}; known: {sorted(DRIVERS)}") from None
-    cls = getattr(importlib.import_module(module_name), class_name)
+    cls = spec_of(protocol).driver_class()
     driver: Driver = cls(endpoint, dict(channels), dict(outputs), **options)
     return driver

@@ -17,7 +17,8 @@
 - The offset goes out as a PMC long in µm / scale (FANUC's thermal-growth
   input takes an absolute amount; jumps are the output stage's business).
 - EW_SOCKET/EW_HANDLE free the handle; the next call after the backoff delay
-  opens a new one (a power-cycled CNC invalidates old handles).
+  opens a new one (a power-cycled CNC invalidates old handles): the
+  lifecycle every driver shares, `drivers.link.WorkerLink`.
 - Diagnoses are read as long data (length 4 + 4); a byte-typed diagnosis on
   a real CNC would need cnc_rddiaginfo first (not done).
 """
@@ -31,8 +32,9 @@ import math
 import os
 import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import TypeVar
 from urllib.parse import urlsplit
 
@@ -46,16 +48,15 @@ from drivers.addresses import (
 )
 from drivers.backoff import Backoff
 from drivers.base import Quality, Sample, select_addresses
-from drivers.errors import BadAddress, ConnectionLost, ControllerTimeout, DriverError
+from drivers.errors import BadAddress, ConnectionLost
 from drivers.focas_codec import PmcRange, decode_pmc, encode_pmc, read_ranges, write_runs
 from drivers.io_thread import IoThread
+from drivers.link import LinkedDriver, WorkerLink
+from drivers.plans import PlanCache
 
 T = TypeVar("T")
 FocasAddress = FocasPmcAddress | FocasDiagAddress | FocasSpindleLoadAddress
-_GRACE_S = 0.25
 _BYTE = PMC_TYPES["byte"][0]
-#: request plans kept per driver (the daemon uses a handful of name sets)
-_PLAN_CACHE_SIZE = 64
 
 
 class LibraryRefusedError(ValueError):
@@ -103,7 +104,7 @@ class _ReadPlan:
     sploads: tuple[tuple[str, FocasSpindleLoadAddress], ...]
 
 
-class FocasDriver:
+class FocasDriver(LinkedDriver):
     """Async driver for one FANUC CNC through the FOCAS library."""
 
     protocol = "focas"
@@ -129,35 +130,29 @@ class FocasDriver:
         self._outputs: dict[str, FocasPmcAddress] = dict(outputs)  # type: ignore[arg-type]
         self._all: dict[str, FocasAddress] = {**self._channels, **self._outputs}
         self._timeout_s = timeout_s
-        self._backoff = backoff or Backoff()
         self._library_path = library_path
         self._library_sha256 = library_sha256
-        self._io = IoThread("focas-io")
         self._lib: ctypes.CDLL | None = None
         self._handle: int | None = None  # touched only on the worker thread
-        self._up = False
-        self._closed = False
-        self._read_plans: dict[tuple[str, ...], _ReadPlan] = {}
-        self._write_plans: dict[tuple[str, ...], tuple[
-            list[tuple[str, FocasPmcAddress]], list[PmcRange]]] = {}
-
-    @property
-    def connected(self) -> bool:
-        return self._up
+        self._link: WorkerLink[int] = WorkerLink(
+            endpoint, backoff or Backoff(), timeout_s, io=IoThread("focas-io"),
+            open_sync=self._open_sync, drop_sync=self._free_sync, drop_on=(ConnectionLost,))
+        self._read_plan = PlanCache(self._build_read_plan)
+        self._write_plan = PlanCache(self._build_write_plan)
 
     @property
     def io_thread(self) -> IoThread:
-        return self._io
+        return self._link.io
 
     # ---- worker-thread side -------------------------------------------------
 
     def _free_sync(self) -> None:
         handle, self._handle = self._handle, None
-        self._up = False
         if handle is not None and self._lib is not None:
             self._lib.cnc_freelibhndl(handle)
 
     def _open_sync(self) -> int:
+        """A new handle (EW_* refusals raise the matching `DriverError`)."""
         self._free_sync()
         if self._lib is None:
             self._lib = _load(self._library_path, self._library_sha256)
@@ -165,72 +160,32 @@ class FocasDriver:
         rc = self._lib.cnc_allclibhndl3(self._ip.encode(), self._port,
                                         max(1, math.ceil(self._timeout_s)), ctypes.byref(handle))
         if rc != abi.EW_OK:
-            raise _ConnectFailedError(abi.error_for(rc, f"cnc_allclibhndl3 {self.endpoint}"))
+            raise abi.error_for(rc, f"cnc_allclibhndl3 {self.endpoint}")
         self._handle = handle.value
-        self._up = True
         return handle.value
-
-    def _job(self, op: Callable[[ctypes.CDLL, int], T]) -> Callable[[], T]:
-        def run() -> T:
-            handle = self._handle if self._up else None
-            if handle is None:
-                handle = self._open_sync()
-            if self._lib is None:
-                raise ConnectionLost("library not loaded")
-            try:
-                return op(self._lib, handle)
-            except ConnectionLost:
-                self._free_sync()
-                raise
-        return run
 
     # ---- event-loop side ----------------------------------------------------
 
-    async def _call(self, op: Callable[[ctypes.CDLL, int], T], what: str) -> T:
-        if self._closed:
-            raise ConnectionLost("driver closed")
-        if not self._up and not self._backoff.ready():
-            raise ConnectionLost(f"{self.endpoint} down; next reconnect attempt in "
-                                 f"≤{self._backoff.delay_s:.2f} s")
-        try:
-            result = await self._io.call(self._job(op), self._timeout_s + _GRACE_S)
-        except _ConnectFailedError as exc:
-            self._backoff.failed()
-            raise exc.error from exc
-        except TimeoutError as exc:
-            self._up = False  # the next job frees the handle and opens a new one
-            self._backoff.failed()  # the next calls fail fast until the delay passed
-            raise ControllerTimeout(f"{what} on {self.endpoint} timed out after "
-                                    f"{self._timeout_s} s") from exc
-        except ConnectionLost:
-            self._up = False  # EW_SOCKET / EW_HANDLE: the job already freed the handle
-            self._backoff.failed()
-            raise
-        self._backoff.succeeded()
-        return result
+    def _call(self, op: Callable[[ctypes.CDLL, int], T], what: str) -> Awaitable[T]:
+        """`op(library, handle)` on the worker thread (`WorkerLink` rules)."""
+        return self._link.run(partial(self._with_lib, op), what)
 
-    async def connect(self) -> None:
-        self._closed = False
-        await self._call(lambda lib, h: None, "connect")
+    def _with_lib(self, op: Callable[[ctypes.CDLL, int], T], handle: int) -> T:
+        if self._lib is None:
+            raise ConnectionLost("library not loaded")
+        return op(self._lib, handle)
 
-    def _read_plan(self, names: Sequence[str]) -> _ReadPlan:
-        """Ranges, spindle loads and diagnoses for this set of names, computed
-        once and cached."""
-        key = tuple(names)
-        plan = self._read_plans.get(key)
-        if plan is None:
-            wanted = select_addresses(names, self._all, "channel")
-            pmc = [(n, a) for n, a in wanted.items() if isinstance(a, FocasPmcAddress)]
-            plan = _ReadPlan(
-                wanted=wanted,
-                ranges=tuple(read_ranges(pmc)),
-                diags=tuple((n, a) for n, a in wanted.items() if isinstance(a, FocasDiagAddress)),
-                sploads=tuple((n, a) for n, a in wanted.items()
-                              if isinstance(a, FocasSpindleLoadAddress)))
-            if len(self._read_plans) >= _PLAN_CACHE_SIZE:
-                self._read_plans.clear()
-            self._read_plans[key] = plan
-        return plan
+    def _build_read_plan(self, names: tuple[str, ...]) -> _ReadPlan:
+        """Ranges, spindle loads and diagnoses for this set of names (kept by
+        `_read_plan`)."""
+        wanted = select_addresses(names, self._all, "channel")
+        pmc = [(n, a) for n, a in wanted.items() if isinstance(a, FocasPmcAddress)]
+        return _ReadPlan(
+            wanted=wanted,
+            ranges=tuple(read_ranges(pmc)),
+            diags=tuple((n, a) for n, a in wanted.items() if isinstance(a, FocasDiagAddress)),
+            sploads=tuple((n, a) for n, a in wanted.items()
+                          if isinstance(a, FocasSpindleLoadAddress)))
 
     async def read(self, names: Sequence[str]) -> dict[str, Sample]:
         plan = self._read_plan(names)
@@ -287,18 +242,12 @@ class FocasDriver:
         name = r.names[0]
         raise abi.error_for(rc, "pmc_rdpmcrng", channel=name, address=wanted[name].describe())
 
-    def _write_plan(self, names: tuple[str, ...]) -> tuple[
+    def _build_write_plan(self, names: tuple[str, ...]) -> tuple[
             list[tuple[str, FocasPmcAddress]], list[PmcRange]]:
-        """The outputs and their runs for this set of names, computed once."""
-        plan = self._write_plans.get(names)
-        if plan is None:
-            wanted = select_addresses(names, self._outputs, "output")
-            items = [(n, a) for n, a in wanted.items() if isinstance(a, FocasPmcAddress)]
-            plan = (items, write_runs(items))
-            if len(self._write_plans) >= _PLAN_CACHE_SIZE:
-                self._write_plans.clear()
-            self._write_plans[names] = plan
-        return plan
+        """The outputs and their runs for this set of names (kept by `_write_plan`)."""
+        wanted = select_addresses(names, self._outputs, "output")
+        items = [(n, a) for n, a in wanted.items() if isinstance(a, FocasPmcAddress)]
+        return items, write_runs(items)
 
     async def write(self, values: Mapping[str, float]) -> None:
         items, runs = self._write_plan(tuple(values))
@@ -326,20 +275,3 @@ class FocasDriver:
 
         await self._call(op, "write")
 
-    async def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            await self._io.call(self._free_sync, self._timeout_s + _GRACE_S)
-        except (TimeoutError, DriverError):
-            pass
-        finally:
-            self._up = False
-            self._io.shutdown()
-
-
-class _ConnectFailedError(Exception):
-    def __init__(self, error: DriverError) -> None:
-        super().__init__(str(error))
-        self.error = error

@@ -7,9 +7,10 @@ as one write-multiple request.
 
 pymodbus's own defaults are replaced: no retries (a timed-out write is never
 sent again), a timeout of `timeout_s`, no automatic reconnect. The link is
-ours: on a lost link or a timeout the client is dropped, calls fail fast with
-`ConnectionLost` until `Backoff` says a new attempt is due, and the next call
-then opens a fresh client.
+ours (`drivers.link.Link`, the lifecycle every driver shares): on a lost link
+or a timeout the client is dropped, calls fail fast with `ConnectionLost`
+until `Backoff` says a new attempt is due, and the next call then opens a
+fresh client; after `close()` calls fail until `connect()`.
 
 Modbus carries no quality or source time: every sample is GOOD, stamped with
 `time.time()` when its response arrived. Sentinel values (an open Pt100) are
@@ -20,7 +21,8 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
+from functools import partial
 from typing import Any
 
 from pymodbus.client import AsyncModbusTcpClient
@@ -36,6 +38,7 @@ from drivers.errors import (
     DriverError,
     WriteRejected,
 )
+from drivers.link import Link, LinkedDriver
 from drivers.modbus_codec import Span, decode, encode, plan_reads, plan_writes
 
 DEFAULT_PORT = 502
@@ -72,6 +75,14 @@ def _fail_pending(client: AsyncModbusTcpClient) -> None:
         future.set_exception(ConnectionException("connection closed by the controller"))
 
 
+def _alive(client: AsyncModbusTcpClient) -> bool:
+    return bool(client.connected)
+
+
+async def _drop(client: AsyncModbusTcpClient, closing: bool) -> None:
+    client.close()
+
+
 def _check_addresses(role: str, table: Mapping[str, Address]) -> dict[str, ModbusAddress]:
     out: dict[str, ModbusAddress] = {}
     for name, addr in table.items():
@@ -82,7 +93,7 @@ def _check_addresses(role: str, table: Mapping[str, Address]) -> dict[str, Modbu
     return out
 
 
-class ModbusDriver:
+class ModbusDriver(LinkedDriver):
     """Async Modbus TCP access to one controller (see module docstring)."""
 
     protocol = "modbus"
@@ -101,72 +112,35 @@ class ModbusDriver:
                 raise BadAddress("outputs must be holding registers (input registers "
                                  "are read-only)", channel=name, address=addr.describe())
         self.timeout_s = timeout_s
-        self.backoff = backoff if backoff is not None else Backoff()
         self.max_gap = max_gap
-        self._client: AsyncModbusTcpClient | None = None
+        self._link: Link[AsyncModbusTcpClient] = Link(
+            f"{self.host}:{self.port}", backoff if backoff is not None else Backoff(),
+            timeout_s, open=self._open, drop=_drop,
+            connect_errors=(OSError, ModbusException), alive=_alive)
         self._lock = asyncio.Lock()
         self._plans: dict[tuple[str, ...], list[Span]] = {}
         self._in_flight = False
 
     # -- link -------------------------------------------------------------
 
-    @property
-    def connected(self) -> bool:
-        return self._client is not None and bool(self._client.connected)
-
     async def connect(self) -> None:
         async with self._lock:
-            await self._open()
+            await self._link.connect()
 
-    async def _open(self) -> None:
-        self._drop()
+    async def _open(self) -> AsyncModbusTcpClient:
         client = AsyncModbusTcpClient(
             self.host, port=self.port, name=f"compd-modbus-{self.host}:{self.port}",
             timeout=self.timeout_s, retries=0, reconnect_delay=0, reconnect_delay_max=0,
             trace_connect=lambda up: None if up or not self._in_flight else _fail_pending(client))
         try:
             ok = await client.connect()
-        except (OSError, ModbusException) as exc:  # defensive: connect returns False
-            ok = False
-            reason = str(exc)
-        else:
-            reason = "connect refused or timed out"
+        except BaseException:
+            client.close()
+            raise
         if not ok:
             client.close()
-            self.backoff.failed()
-            raise ConnectionLost(f"cannot connect to {self.host}:{self.port}: {reason}; "
-                                 f"next attempt in {self.backoff.delay_s:.2f} s",
-                                 address=f"{self.host}:{self.port}")
-        self._client = client
-        self.backoff.succeeded()
-
-    def _drop(self) -> None:
-        client, self._client = self._client, None
-        if client is not None:
-            client.close()
-
-    async def _ensure(self, span: Span) -> AsyncModbusTcpClient:
-        if self._client is not None and self._client.connected:
-            return self._client
-        channel, address = span.names, span.describe()
-        if self._client is not None:  # lost since the last call
-            self._drop()
-            self.backoff.failed()
-        if not self.backoff.ready():
-            raise ConnectionLost(f"link to {self.host}:{self.port} is down; reconnect "
-                                 f"backing off ({self.backoff.delay_s:.2f} s)",
-                                 channel=channel, address=address)
-        await self._open()
-        if self._client is None:  # _open raises on failure; keeps mypy honest
-            raise ConnectionLost("not connected", channel=channel, address=address)
-        return self._client
-
-    def _link_failed(self) -> None:
-        self._drop()
-        self.backoff.failed()
-
-    async def close(self) -> None:
-        self._drop()
+            raise ConnectionRefusedError("connect refused or timed out")
+        return client
 
     # -- read ---------------------------------------------------------------
 
@@ -196,11 +170,12 @@ class ModbusDriver:
 
     async def _read_span(self, names: Sequence[str], span: Span,
                          out: dict[str, Sample]) -> None:
-        client = await self._ensure(span)
-        call = (client.read_input_registers if span.kind == "input"
-                else client.read_holding_registers)
-        response = await self._call(call(span.start, count=span.count, device_id=span.unit),
-                                    span)
+        def request(client: AsyncModbusTcpClient) -> Any:
+            call = (client.read_input_registers if span.kind == "input"
+                    else client.read_holding_registers)
+            return call(span.start, count=span.count, device_id=span.unit)
+
+        response = await self._call(request, span)
         if response.isError():
             code = int(getattr(response, "exception_code", 0))
             if code in BAD_ADDRESS_READ_CODES and len(span.items) > 1:
@@ -231,23 +206,27 @@ class ModbusDriver:
             value = decode(addr, registers[offset: offset + addr.count])
             out[name] = Sample(value, now_s, Quality.GOOD)
 
-    async def _call(self, request: Any, span: Span) -> Any:
+    def _call(self, request: Callable[[AsyncModbusTcpClient], Any],
+              span: Span) -> Awaitable[Any]:
+        """One pymodbus request on the link (`drivers.link.Link` rules)."""
+        return self._link.call(partial(self._exchange, request, span), "request",
+                               where=span.where)
+
+    async def _exchange(self, request: Callable[[AsyncModbusTcpClient], Any], span: Span,
+                        client: AsyncModbusTcpClient) -> Any:
         """Await one pymodbus request, turning its failures into ours."""
         self._in_flight = True
         try:
-            return await request
+            return await request(client)
         except ConnectionException as exc:
-            self._link_failed()
             raise ConnectionLost(f"link lost: {exc}", channel=span.names,
                                  address=span.describe()) from exc
         except ModbusIOException as exc:
-            # No answer within timeout_s (retries=0). Drop the link: a late
-            # answer must not be taken for the next request's.
-            self._link_failed()
+            # No answer within timeout_s (retries=0). The link drops the
+            # client: a late answer must not be taken for the next request's.
             raise ControllerTimeout(f"no answer within {self.timeout_s} s: {exc}",
                                     channel=span.names, address=span.describe()) from exc
         except (ModbusException, OSError) as exc:
-            self._link_failed()
             raise ConnectionLost(f"request failed: {exc}", channel=span.names,
                                  address=span.describe()) from exc
         finally:
@@ -270,9 +249,8 @@ class ModbusDriver:
                 await self._write_span(span, words)
 
     async def _write_span(self, span: Span, words: list[int]) -> None:
-        client = await self._ensure(span)
         response = await self._call(
-            client.write_registers(span.start, words, device_id=span.unit), span)
+            lambda client: client.write_registers(span.start, words, device_id=span.unit), span)
         if response.isError():
             code = int(getattr(response, "exception_code", 0))
             name, addr = span.items[0]

@@ -103,6 +103,10 @@ class Span:
     def names(self) -> str:
         return ",".join(name for name, _ in self.items)
 
+    def where(self) -> tuple[str, str]:
+        """(channel, address) as errors name them."""
+        return self.names, self.describe()
+
 
 def plan_reads(items: Iterable[tuple[str, ModbusAddress]], *,
                max_gap: int = DEFAULT_MAX_GAP,

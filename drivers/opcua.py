@@ -13,7 +13,7 @@ request timeout is the same. asyncua's `auto_reconnect` is NOT used (it
 blocks calls for seconds): on a connection-level failure the client is torn
 down (its supervisor, watchdog and renew tasks cancelled) and the next call
 builds a new client when the backoff allows, else fails fast with
-`ConnectionLost`.
+`ConnectionLost` (`drivers.link.Link`, the lifecycle every driver shares).
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ import asyncio
 import contextlib
 import logging
 from collections.abc import AsyncIterator, Mapping, Sequence
+from functools import partial
 
 from asyncua import ua
 from asyncua.client.client import Client
@@ -33,6 +34,7 @@ from drivers.addresses import OpcUaAddress
 from drivers.backoff import Backoff
 from drivers.base import Sample
 from drivers.errors import BadAddress, ConnectionLost, ControllerTimeout, DriverError, WriteRejected
+from drivers.link import Link, LinkedDriver
 from drivers.opcua_codec import (
     ADDRESS_CODES,
     PERMANENT_WRITE_CODES,
@@ -77,7 +79,7 @@ async def _deadline(seconds: float) -> AsyncIterator[None]:
             raise TimeoutError from None
         raise
 
-class OpcUaDriver:
+class OpcUaDriver(LinkedDriver):
     """Async access to one OPC UA server (see module docstring)."""
 
     protocol = "opcua"
@@ -94,7 +96,6 @@ class OpcUaDriver:
         self.timeout_s = timeout_s
         #: a secured connect costs a discovery round trip and RSA operations
         self.connect_timeout_s = connect_timeout_s or max(2 * timeout_s, 1.0)
-        self.backoff = backoff or Backoff()
         self.security = security or OpcUaSecurity()
         self._addresses: dict[str, OpcUaAddress] = {}
         for name, addr in (*channels.items(), *outputs.items()):
@@ -109,19 +110,15 @@ class OpcUaDriver:
         self._read_params: dict[tuple[str, ...], ua.ReadParameters] = {}
         #: output name -> VariantType, or the status name why it cannot be written
         self._types: dict[str, ua.VariantType | str] = {}
-        self._client: Client | None = None
-        self._closed = False
-
-    @property
-    def connected(self) -> bool:
-        return self._client is not None
+        self._link: Link[Client] = Link(
+            endpoint, backoff or Backoff(), timeout_s, open=self._open, drop=self._dispose,
+            connect_errors=(*_CONNECTION_ERRORS, ValueError))
 
     # -- link ------------------------------------------------------------------
 
-    async def connect(self) -> None:
-        if self._client is not None:
-            return
-        self._closed = False
+    async def _open(self) -> Client:
+        """A connected client with the output types loaded (`Link` wraps the
+        failures it does not name itself)."""
         client = Client(self.endpoint, timeout=self.timeout_s, watchdog_intervall=_WATCHDOG_S)
         client.session_timeout = _SESSION_TIMEOUT_MS
         client.name = client.description = "compd"
@@ -130,32 +127,14 @@ class OpcUaDriver:
                 await apply_security(client, self.security)
                 await client.connect()
                 await self._load_output_types(client)
-        except TimeoutError:
-            await self._dispose(client)
-            self.backoff.failed()
-            raise ControllerTimeout(f"connect did not finish within {self.connect_timeout_s} s",
-                                    address=self.endpoint) from None
-        except SecurityRejected:
-            await self._dispose(client)
-            self.backoff.failed()
-            raise
         except UaStatusCodeError as exc:
-            await self._dispose(client)
-            self.backoff.failed()
+            await self._dispose(client, False)
             raise self._refused(exc) from None
-        except (*_CONNECTION_ERRORS, ValueError) as exc:
-            await self._dispose(client)
-            self.backoff.failed()
-            raise ConnectionLost(f"cannot connect: {type(exc).__name__}: {exc}",
-                                 address=self.endpoint) from None
         except BaseException:
-            # cancelled, e.g. by the caller's own deadline: a failed attempt
-            # too, or every next call would start another handshake
-            self.backoff.failed()
-            await self._dispose(client)
+            # cancelled too, e.g. by the caller's own deadline: a failed attempt
+            await self._dispose(client, False)
             raise
-        self._client = client
-        self.backoff.succeeded()
+        return client
 
     def _refused(self, exc: UaStatusCodeError) -> DriverError:
         code = exc.code
@@ -185,13 +164,7 @@ class OpcUaDriver:
             self._types[name] = vtype if vtype is not None else \
                 f"DataType {dv.Value.Value if dv.Value is not None else None} not numeric"
 
-    async def close(self) -> None:
-        self._closed = True
-        client, self._client = self._client, None
-        if client is not None:
-            await self._dispose(client, graceful=True)
-
-    async def _dispose(self, client: Client, *, graceful: bool = False) -> None:
+    async def _dispose(self, client: Client, graceful: bool) -> None:
         """Tear a client down quietly: its background tasks are cancelled first
         (inside close_session), then the session/channel are closed if the link
         still works, then the socket. Without `graceful` the socket goes first:
@@ -210,28 +183,6 @@ class OpcUaDriver:
             except Exception:
                 _log.debug("close_secure_channel failed during teardown", exc_info=True)
         client.disconnect_socket()
-
-    async def _lost(self, client: Client) -> None:
-        """The link failed under a call: drop the client and start the backoff
-        delay, so the next calls fail fast instead of each spending a connect
-        attempt on a controller that just stopped answering."""
-        if self._client is client:
-            self._client = None
-            self.backoff.failed()
-        await self._dispose(client)
-
-    async def _ready(self) -> Client:
-        if self._client is not None:
-            return self._client
-        if self._closed:
-            raise ConnectionLost("driver is closed", address=self.endpoint)
-        if not self.backoff.ready():
-            raise ConnectionLost(f"link down; next reconnect attempt within "
-                                 f"{self.backoff.delay_s:.2f} s", address=self.endpoint)
-        await self.connect()
-        if self._client is None:  # closed while connecting
-            raise ConnectionLost("driver is closed", address=self.endpoint)
-        return self._client
 
     # -- read ----------------------------------------------------------------
 
@@ -258,42 +209,47 @@ class OpcUaDriver:
         params = self._params_for(key)
         if not key:
             return {}
-        client = await self._ready()
         where = ",".join(key)
         try:
-            async with _deadline(self.timeout_s):
-                results = await client.uaclient.read(params)
-        except TimeoutError:
-            await self._lost(client)
-            raise ControllerTimeout(f"Read did not answer within {self.timeout_s} s",
-                                    channel=where, address=self.endpoint) from None
+            results = await self._link.call(partial(self._read, params, where), "Read",
+                                            where, self.endpoint)
         except UaStatusCodeError as exc:
-            await self._service_fault(client, exc, where)
-            raise
-        except _CONNECTION_ERRORS as exc:
-            await self._lost(client)
-            raise ConnectionLost(f"Read failed: {type(exc).__name__}: {exc}",
-                                 channel=where, address=self.endpoint) from None
+            raise self._fault(exc, where) from None
         if len(results) != len(key):
             raise DriverError(f"Read returned {len(results)} results for {len(key)} nodes",
                               channel=where, address=self.endpoint)
         return {name: decode(dv, self._addresses[name], name)
                 for name, dv in zip(key, results, strict=True)}
 
-    async def _service_fault(self, client: Client, exc: UaStatusCodeError,
-                             where: str) -> None:
-        """Turn a whole-request fault into a driver error (raised)."""
-        code = exc.code
-        name = status_name(code)
-        if code in SESSION_CODES:
-            await self._lost(client)
-            raise ConnectionLost(f"session lost: {name}", channel=where,
+    async def _read(self, params: ua.ReadParameters, where: str,
+                    client: Client) -> list[ua.DataValue]:
+        try:
+            async with _deadline(self.timeout_s):
+                return await client.uaclient.read(params)
+        except TimeoutError:
+            raise ControllerTimeout(f"Read did not answer within {self.timeout_s} s",
+                                    channel=where, address=self.endpoint) from None
+        except UaStatusCodeError as exc:
+            self._session_fault(exc, where)
+            raise
+        except _CONNECTION_ERRORS as exc:
+            raise ConnectionLost(f"Read failed: {type(exc).__name__}: {exc}",
+                                 channel=where, address=self.endpoint) from None
+
+    def _session_fault(self, exc: UaStatusCodeError, where: str) -> None:
+        """A fault that ends the session is a lost link (raised)."""
+        if exc.code in SESSION_CODES:
+            raise ConnectionLost(f"session lost: {status_name(exc.code)}", channel=where,
                                  address=self.endpoint) from None
-        if code == _SC.BadTimeout:
-            raise ControllerTimeout(f"server answered {name}", channel=where,
-                                    address=self.endpoint) from None
-        raise DriverError(f"server refused the request: {name}", channel=where,
-                          address=self.endpoint) from None
+
+    def _fault(self, exc: UaStatusCodeError, where: str) -> DriverError:
+        """A whole-request fault the server answered (the link stays up)."""
+        name = status_name(exc.code)
+        if exc.code == _SC.BadTimeout:
+            return ControllerTimeout(f"server answered {name}", channel=where,
+                                     address=self.endpoint)
+        return DriverError(f"server refused the request: {name}", channel=where,
+                           address=self.endpoint)
 
     # -- write ---------------------------------------------------------------
 
@@ -303,10 +259,21 @@ class OpcUaDriver:
         for name in values:
             if name not in self._outputs:
                 raise BadAddress("not a configured output", channel=name)
-        client = await self._ready()
+        where = ",".join(values)
+        try:
+            await self._link.call(partial(self._write, values, where), "Write", where,
+                                  self.endpoint)
+        except UaStatusCodeError as exc:
+            if exc.code == _SC.BadTimeout:
+                raise self._fault(exc, where) from None
+            raise WriteRejected(f"server refused the Write: {status_name(exc.code)}",
+                                channel=where, address=self.endpoint,
+                                permanent=exc.code in _PERMANENT_SERVICE_CODES) from None
+
+    def _write_params(self, values: Mapping[str, float]) -> ua.WriteParameters:
+        """The WriteRequest, each value in its node's type (known once connected)."""
         params = ua.WriteParameters()
-        names = list(values)
-        for name in names:
+        for name, value in values.items():
             addr = self._outputs[name]
             vtype = self._types.get(name)
             if not isinstance(vtype, ua.VariantType):
@@ -315,28 +282,26 @@ class OpcUaDriver:
             wv = ua.WriteValue()
             wv.NodeId = self._nodeids[name]
             wv.AttributeId = AttributeIds.Value
-            wv.Value = ua.DataValue(encode(values[name], addr, vtype, name))
+            wv.Value = ua.DataValue(encode(value, addr, vtype, name))
             params.NodesToWrite.append(wv)
-        where = ",".join(names)
+        return params
+
+    async def _write(self, values: Mapping[str, float], where: str, client: Client) -> None:
+        params = self._write_params(values)
         try:
             async with _deadline(self.timeout_s):
                 results = await client.uaclient.write(params)
         except TimeoutError:
-            await self._lost(client)
             raise ControllerTimeout(f"Write did not answer within {self.timeout_s} s "
                                     "(it may have been applied)", channel=where,
                                     address=self.endpoint) from None
         except UaStatusCodeError as exc:
-            if exc.code in SESSION_CODES or exc.code == _SC.BadTimeout:
-                await self._service_fault(client, exc, where)
-            raise WriteRejected(f"server refused the Write: {status_name(exc.code)}",
-                                channel=where, address=self.endpoint,
-                                permanent=exc.code in _PERMANENT_SERVICE_CODES) from None
+            self._session_fault(exc, where)
+            raise
         except _CONNECTION_ERRORS as exc:
-            await self._lost(client)
             raise ConnectionLost(f"Write failed: {type(exc).__name__}: {exc}",
                                  channel=where, address=self.endpoint) from None
-        for name, status in zip(names, results, strict=True):
+        for name, status in zip(values, results, strict=True):
             if status.is_good():
                 continue
             code = status.value

@@ -1,5 +1,6 @@
-"""OPC UA security for the driver: the config model and the connect-time
-checks asyncua leaves to its caller.
+"""OPC UA security for the driver: the settings with their secrets (the
+rules are `drivers.opcua_policy`'s) and the connect-time checks asyncua
+leaves to its caller.
 
 asyncua's client trusts whatever certificate the server presents. Here the
 server certificate is checked BEFORE anything secret is sent: the endpoints
@@ -19,7 +20,6 @@ import hashlib
 import logging
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Literal
 
 from asyncua import ua
 from asyncua.client.client import Client
@@ -28,12 +28,11 @@ from cryptography import x509
 from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import NameOID
-from pydantic import BaseModel, ConfigDict, SecretStr, field_validator, model_validator
+from pydantic import AliasChoices, Field, SecretStr
 
 from drivers.errors import ConnectionLost
+from drivers.opcua_policy import OpcUaSecurityRules, SecurityPath
 
-Policy = Literal["None", "Basic256Sha256", "Aes128_Sha256_RsaOaep", "Aes256_Sha256_RsaPss"]
-_DEPRECATED = {"Basic128Rsa15", "Basic256"}
 _POLICY_CLASSES: dict[str, type[security_policies.SecurityPolicy]] = {
     "Basic256Sha256": security_policies.SecurityPolicyBasic256Sha256,
     "Aes128_Sha256_RsaOaep": security_policies.SecurityPolicyAes128Sha256RsaOaep,
@@ -47,56 +46,27 @@ class SecurityRejected(ConnectionLost):
     configuration change will not help."""
 
 
-class OpcUaSecurity(BaseModel):
-    """How the OPC UA driver secures its link.
-
-    With a policy other than "None": `certificate` and `private_key` (the
-    client's application instance certificate, PEM or DER) are required, and
-    so is a way to trust the server: `server_certificate` (pin: the exact
-    certificate expected) and/or `trust_store` (a directory of trusted server
-    or CA certificates). `username`/`password` log in as a user; a password
-    is refused with policy "None" (it would cross the wire readable).
+class OpcUaSecurity(OpcUaSecurityRules):
+    """How the OPC UA driver secures its link: the rules of
+    `drivers.opcua_policy` (the same as the daemon's ``[controller.security]``)
+    with the secrets themselves. `trust_store` is accepted for `trust_dir`.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True, hide_input_in_errors=True)
-
-    policy: Policy = "None"
-    mode: Literal["Sign", "SignAndEncrypt"] = "SignAndEncrypt"
-    certificate: Path | None = None
-    private_key: Path | None = None
     private_key_password: SecretStr | None = None
-    server_certificate: Path | None = None
-    trust_store: Path | None = None
-    username: str | None = None
+    trust_dir: SecurityPath | None = Field(
+        default=None, validation_alias=AliasChoices("trust_dir", "trust_store"))
     password: SecretStr | None = None
     #: our ApplicationUri; default: the URI in the client certificate's SAN
     application_uri: str | None = None
 
-    @field_validator("policy", mode="before")
-    @classmethod
-    def _policy(cls, v: object) -> object:
-        if isinstance(v, str) and v in _DEPRECATED:
-            raise ValueError(f"security policy {v} is deprecated (SHA-1 / weak padding) and "
-                             "refused; use Basic256Sha256, Aes128_Sha256_RsaOaep or "
-                             "Aes256_Sha256_RsaPss")
-        return v
+    @property
+    def has_password(self) -> bool:
+        return self.password is not None
 
-    @model_validator(mode="after")
-    def _consistent(self) -> OpcUaSecurity:
-        if self.policy == "None":
-            if self.password is not None:
-                raise ValueError("a password with security policy None would be sent "
-                                 "readable; use Basic256Sha256 (or better) with SignAndEncrypt")
-            return self
-        if self.certificate is None or self.private_key is None:
-            raise ValueError(f"policy {self.policy} needs the client certificate and "
-                             "private_key files")
-        if self.server_certificate is None and self.trust_store is None:
-            raise ValueError("pin the server certificate (server_certificate) or give a "
-                             "trust_store directory: otherwise any server is trusted")
-        if self.password is not None and not self.username:
-            raise ValueError("a password needs a username")
-        return self
+    @property
+    def trust_store(self) -> Path | None:
+        """The trust directory (`trust_dir`), under the driver's older name."""
+        return self.trust_dir
 
 
 def fingerprint(der: bytes) -> str:
@@ -163,14 +133,14 @@ def check_server_certificate(der: bytes, security: OpcUaSecurity) -> None:
             Encoding.DER)
         if pinned == der:
             return
-        if security.trust_store is None:
+        if security.trust_dir is None:
             raise SecurityRejected(
                 f"server certificate {who} is not the pinned certificate "
                 f"{security.server_certificate} (SHA-256 {fingerprint(pinned)})")
-    if security.trust_store is not None and _trusted_by_store(cert, security.trust_store):
+    if security.trust_dir is not None and _trusted_by_store(cert, security.trust_dir):
         return
     raise SecurityRejected(f"server certificate {who} is not trusted by "
-                           f"{security.server_certificate or security.trust_store}")
+                           f"{security.server_certificate or security.trust_dir}")
 
 
 def _application_uri(security: OpcUaSecurity) -> str | None:

@@ -18,7 +18,8 @@ Two snap7 defaults are overridden (PROTOCOLS.md):
 After any link failure the client is disconnected; the next call after the
 backoff delay connects a fresh ISO connection (a restarted PLC leaves the
 old client "not connected" forever otherwise). Calls on a down link inside
-the backoff delay fail fast with `ConnectionLost`.
+the backoff delay fail fast with `ConnectionLost` (`drivers.link.WorkerLink`:
+the lifecycle every driver shares).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from __future__ import annotations
 import contextlib
 import re
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TypeVar
 from urllib.parse import urlsplit
@@ -38,21 +39,19 @@ from snap7.error import S7ConnectionError, S7Error, S7ProtocolError, S7TimeoutEr
 from drivers.addresses import S7Address
 from drivers.backoff import Backoff
 from drivers.base import Quality, Sample, select_addresses
-from drivers.errors import BadAddress, ConnectionLost, ControllerTimeout, DriverError, WriteRejected
+from drivers.errors import BadAddress, DriverError, WriteRejected
 from drivers.io_thread import IoThread
+from drivers.link import LinkedDriver, WorkerLink
+from drivers.plans import PlanCache
 from drivers.s7_codec import Span, decode, encode, read_spans, write_runs
 
 T = TypeVar("T")
 
-#: extra time the event loop waits beyond the call's own deadline
-_GRACE_S = 0.25
 #: S7 item return codes that mean "this address does not exist here"
 _ADDRESS_CODES = {0x05, 0x06, 0x07, 0x0A}
 #: S7 header error codes the snap7 server (and some CPUs) use for the same
 _ADDRESS_HEADER_CODES = {0x8001, 0x8404}
 _ITEM_CODE_RE = re.compile(r"\(0x([0-9a-fA-F]{2})\)")
-#: request plans kept per driver (the daemon uses a handful of name sets)
-_PLAN_CACHE_SIZE = 64
 
 
 def parse_endpoint(endpoint: str) -> tuple[str, int]:
@@ -94,7 +93,7 @@ class _ReadPlan:
     channel: str | None  # named in errors when the read is of one channel
 
 
-class S7Driver:
+class S7Driver(LinkedDriver):
     """Async driver for one S7 CPU (DB areas only)."""
 
     protocol = "s7"
@@ -113,29 +112,26 @@ class S7Driver:
         self._outputs = dict(outputs)
         self._all = {**self._channels, **self._outputs}
         self._timeout_s = timeout_s
-        self._backoff = backoff or Backoff()
         self._rack = rack
         self._slot = slot
-        self._io = IoThread("s7-io")
         self._client: Client | None = None  # touched only on the worker thread
-        self._up = False
-        self._closed = False
-        self._read_plans: dict[tuple[str, ...], _ReadPlan] = {}
-        self._write_plans: dict[tuple[str, ...], tuple[dict[str, S7Address], list[Span]]] = {}
-
-    @property
-    def connected(self) -> bool:
-        return self._up
+        self._link: WorkerLink[Client] = WorkerLink(
+            endpoint, backoff or Backoff(), timeout_s, io=IoThread("s7-io"),
+            open_sync=lambda: self._connect_sync(_Deadline(self._timeout_s)),
+            drop_sync=self._drop_sync, drop_on=(S7ConnectionError, S7TimeoutError, OSError),
+            connect_errors=(S7Error, OSError), timeout_errors=(S7TimeoutError,),
+            lost_errors=(S7ConnectionError, OSError))
+        self._read_plan = PlanCache(self._build_read_plan)
+        self._write_plan = PlanCache(self._build_write_plan)
 
     @property
     def io_thread(self) -> IoThread:
-        return self._io
+        return self._link.io
 
     # ---- worker-thread side -------------------------------------------------
 
     def _drop_sync(self) -> None:
         client, self._client = self._client, None
-        self._up = False
         if client is not None:
             with contextlib.suppress(S7Error, OSError):
                 client.disconnect()
@@ -159,7 +155,6 @@ class S7Driver:
             raise
         client.connected = True
         self._client = client
-        self._up = True
         return client
 
     @staticmethod
@@ -172,74 +167,22 @@ class S7Driver:
         conn.timeout = left
         conn.socket.settimeout(left)
 
-    def _job(self, op: Callable[[Client, _Deadline], T]) -> Callable[[], T]:
-        def run() -> T:
-            deadline = _Deadline(self._timeout_s)
-            client = self._client if self._up and self._client is not None else None
-            try:
-                if client is None:
-                    try:
-                        client = self._connect_sync(deadline)
-                    except (S7Error, OSError) as exc:
-                        raise _ConnectFailedError(exc) from exc
-                return op(client, deadline)
-            except (S7ConnectionError, S7TimeoutError, OSError):
-                self._drop_sync()
-                raise
-        return run
-
     # ---- event-loop side ----------------------------------------------------
 
-    async def _call(self, op: Callable[[Client, _Deadline], T], what: str,
-                    channel: str | None = None, address: str | None = None) -> T:
-        if self._closed:
-            raise ConnectionLost("driver closed", channel=channel, address=address)
-        if not self._up and not self._backoff.ready():
-            raise ConnectionLost(f"{self.endpoint} down; next reconnect attempt in "
-                                 f"≤{self._backoff.delay_s:.2f} s", channel=channel,
-                                 address=address)
-        try:
-            result = await self._io.call(self._job(op), self._timeout_s + _GRACE_S)
-        except _ConnectFailedError as exc:
-            self._backoff.failed()
-            cause = exc.cause
-            if isinstance(cause, (TimeoutError, S7TimeoutError)):
-                raise ControllerTimeout(f"connect to {self.endpoint} timed out during {what}",
-                                        channel=channel, address=address) from cause
-            raise ConnectionLost(f"connect to {self.endpoint} failed during {what}: {cause}",
-                                 channel=channel, address=address) from cause
-        except (TimeoutError, S7TimeoutError) as exc:
-            self._up = False
-            self._backoff.failed()  # the next calls fail fast until the delay passed
-            raise ControllerTimeout(f"{what} on {self.endpoint} timed out after "
-                                    f"{self._timeout_s} s", channel=channel,
-                                    address=address) from exc
-        except (S7ConnectionError, OSError) as exc:
-            self._up = False
-            self._backoff.failed()
-            raise ConnectionLost(f"{what} on {self.endpoint} lost the link: {exc}",
-                                 channel=channel, address=address) from exc
-        self._backoff.succeeded()
-        return result
+    def _call(self, op: Callable[[Client, _Deadline], T], what: str,
+              channel: str | None = None, address: str | None = None) -> Awaitable[T]:
+        """`op(client, deadline)` on the worker thread (`WorkerLink` rules)."""
+        timeout_s = self._timeout_s
+        return self._link.run(lambda client: op(client, _Deadline(timeout_s)),
+                              what, channel, address)
 
-    async def connect(self) -> None:
-        self._closed = False
-        await self._call(lambda client, deadline: None, "connect")
-
-    def _read_plan(self, names: Sequence[str]) -> _ReadPlan:
-        """The spans for this set of names, computed once and cached."""
-        key = tuple(names)
-        plan = self._read_plans.get(key)
-        if plan is None:
-            wanted = select_addresses(names, self._all, "channel")
-            spans = tuple(read_spans(wanted))
-            fields = tuple(tuple((n, wanted[n], wanted[n].offset - sp.start) for n in sp.names)
-                           for sp in spans)
-            plan = _ReadPlan(wanted, spans, fields, key[0] if len(wanted) == 1 else None)
-            if len(self._read_plans) >= _PLAN_CACHE_SIZE:
-                self._read_plans.clear()
-            self._read_plans[key] = plan
-        return plan
+    def _build_read_plan(self, names: tuple[str, ...]) -> _ReadPlan:
+        """The spans for this set of names (kept by `_read_plan`)."""
+        wanted = select_addresses(names, self._all, "channel")
+        spans = tuple(read_spans(wanted))
+        fields = tuple(tuple((n, wanted[n], wanted[n].offset - sp.start) for n in sp.names)
+                       for sp in spans)
+        return _ReadPlan(wanted, spans, fields, names[0] if len(wanted) == 1 else None)
 
     async def read(self, names: Sequence[str]) -> dict[str, Sample]:
         plan = self._read_plan(names)
@@ -290,16 +233,11 @@ class S7Driver:
         raise BadAddress(f"controller refused the read of DB{span.db}.{span.start}+{span.size}: "
                          f"{exc}", channel=name, address=wanted[name].describe()) from exc
 
-    def _write_plan(self, names: tuple[str, ...]) -> tuple[dict[str, S7Address], list[Span]]:
-        """The runs for this set of outputs, computed once and cached."""
-        plan = self._write_plans.get(names)
-        if plan is None:
-            wanted = select_addresses(names, self._outputs, "output")
-            plan = (wanted, write_runs(wanted.items()))
-            if len(self._write_plans) >= _PLAN_CACHE_SIZE:
-                self._write_plans.clear()
-            self._write_plans[names] = plan
-        return plan
+    def _build_write_plan(self, names: tuple[str, ...]) -> tuple[dict[str, S7Address],
+                                                                  list[Span]]:
+        """The runs for this set of outputs (kept by `_write_plan`)."""
+        wanted = select_addresses(names, self._outputs, "output")
+        return wanted, write_runs(wanted.items())
 
     async def write(self, values: Mapping[str, float]) -> None:
         wanted, runs = self._write_plan(tuple(values))
@@ -327,24 +265,6 @@ class S7Driver:
             run, refused = failed
             name = run.names[0]
             raise _write_error(refused, name, wanted[name].describe())
-
-    async def close(self) -> None:
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            await self._io.call(self._drop_sync, self._timeout_s + _GRACE_S)
-        except (TimeoutError, DriverError):
-            pass
-        finally:
-            self._up = False
-            self._io.shutdown()
-
-
-class _ConnectFailedError(Exception):
-    def __init__(self, cause: BaseException) -> None:
-        super().__init__(str(cause))
-        self.cause = cause
 
 
 def _write_error(exc: S7Error, channel: str, address: str) -> DriverError:

@@ -6,12 +6,14 @@ import argparse
 import asyncio
 import json
 
+from drivers.protocols import NAMES
+
 HELP = ("serve a simulated machine on 127.0.0.1, run the daemon against it at a speed-up, "
         "and print the Z error at the tool without and with compensation")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--protocol", choices=["opcua", "s7", "modbus", "focas"],
+    parser.add_argument("--protocol", choices=NAMES,
                         default="opcua", help="simulated controller (default: opcua)")
     parser.add_argument("--hours", type=float, default=8.0,
                         help="machine hours of the spindle-speed spectrum (default 8)")

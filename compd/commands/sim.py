@@ -29,14 +29,15 @@ import sys
 from typing import TYPE_CHECKING
 
 from compd.commands import sim_drive
+from drivers.protocols import NAMES
 
 if TYPE_CHECKING:
     from drivers.sim.base import SimController
 
 HELP = "serve one simulated machine on 127.0.0.1, or write a simulated calibration record"
 
-#: kept literal here so that building the CLI parser imports nothing heavy
-PROTOCOLS: tuple[str, ...] = ("opcua", "s7", "modbus", "focas")
+#: from the protocol registry, which imports nothing heavy (the CLI parser stays light)
+PROTOCOLS: tuple[str, ...] = NAMES
 PROGRAMS: tuple[str, ...] = ("spectrum", "constant", "etve")
 EX_USAGE = 2
 

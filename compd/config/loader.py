@@ -20,11 +20,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, TypeAdapter, ValidationError
+from pydantic import ValidationError
 
-from compd.config.schema import DaemonConfig, SecuritySection
+from compd.config.schema import ControllerSection, DaemonConfig, SecuritySection
 from compd.errors import ConfigError
-from drivers.addresses import ADDRESS_TYPES, Address, FocasAddress
+from drivers.addresses import Address
+from drivers.protocols import PROTOCOLS
 from models.compensation import CompensationModel
 from models.errors import ModelError
 from models.modelfile import load_model, model_document, parse_model
@@ -96,29 +97,25 @@ def config_error(exc: ValidationError, prefix: str = "") -> ConfigError:
 
 
 def _validate_address(protocol: str, doc: dict[str, Any], key: str) -> Address:
-    types = ADDRESS_TYPES[protocol]
+    spec = PROTOCOLS[protocol]
+    if spec.default_kind is not None and "kind" not in doc:
+        doc = {**doc, "kind": spec.default_kind}
     try:
-        if protocol == "focas":
-            if "kind" not in doc:
-                doc = {**doc, "kind": "pmc"}
-            addr: Address = TypeAdapter(FocasAddress).validate_python(doc)
-            return addr
-        (model_cls,) = types
-        validated: BaseModel = model_cls.model_validate(doc)
+        addr: Address = spec.address_adapter().validate_python(doc)
     except ValidationError as exc:
         other = _other_protocol(doc, protocol)
         if other:
             raise ConfigError(key, f"this looks like a {other} address but the controller "
                                    f"protocol is {protocol}") from None
         raise config_error(exc, key) from None
-    return validated  # type: ignore[return-value]  # one of the Address models
+    return addr
 
 
 def _other_protocol(doc: dict[str, Any], protocol: str) -> str | None:
-    for name, types in ADDRESS_TYPES.items():
+    for name, spec in PROTOCOLS.items():
         if name == protocol:
             continue
-        for cls in types:
+        for cls in spec.address_types():
             try:
                 cls.model_validate(doc)
             except ValidationError:
@@ -176,6 +173,22 @@ def _check_model(model: CompensationModel, channels: dict[str, Address], period_
                                "sample period is wrong at another")
 
 
+def _check_protocol_sections(ctl: ControllerSection) -> None:
+    """Each [controller.<section>] only with its protocol; a required one given."""
+    for spec in PROTOCOLS.values():
+        if spec.section is None:
+            continue
+        given = getattr(ctl, spec.section) is not None
+        if given and ctl.protocol != spec.name:
+            raise ConfigError(f"controller.{spec.section}",
+                              f"[controller.{spec.section}] is for protocol {spec.name}, "
+                              f"not {ctl.protocol}")
+        if not given and ctl.protocol == spec.name and spec.section_required:
+            raise ConfigError(f"controller.{spec.section}",
+                              f"protocol {spec.name} needs [controller.{spec.section}] "
+                              f"({spec.section_required})")
+
+
 def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedConfig:
     """Validate an already parsed TOML document (`path` anchors relative paths)."""
     try:
@@ -189,18 +202,7 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         raise ConfigError("controller.timeout_s",
                           f"{ctl.timeout_s:g} s is more than half the real sample period "
                           f"({limit_s:g} s = 0.5·period_s/time_scale)")
-    for section, proto in (("security", "opcua"), ("s7", "s7"), ("focas", "focas")):
-        if getattr(ctl, section) is not None and ctl.protocol != proto:
-            raise ConfigError(f"controller.{section}",
-                              f"[controller.{section}] is for protocol {proto}, "
-                              f"not {ctl.protocol}")
-    if ctl.protocol == "focas" and ctl.focas is None:
-        raise ConfigError("controller.focas", "protocol focas needs [controller.focas] "
-                                              "library_path")
-    if ctl.protocol == "opcua" and ctl.security is None:
-        raise ConfigError("controller.security",
-                          "protocol opcua needs [controller.security] (a policy, or "
-                          'policy = "None" with insecure = true)')
+    _check_protocol_sections(ctl)
     if ctl.security is not None and ctl.security.password_file is not None:
         pf = ctl.security.password_file
         ctl_pf = pf if pf.is_absolute() else base / pf

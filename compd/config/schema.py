@@ -52,8 +52,12 @@ from pydantic import (
 )
 
 from compd.config.urls import url_credentials
+from drivers.opcua_policy import OpcUaSecurityRules
+from drivers.protocol_options import FocasOptions, S7Options
+from drivers.protocols import ProtocolName
 
-Protocol = Literal["opcua", "s7", "modbus", "focas"]
+#: the protocol names, from the one registry (`drivers.protocols`)
+Protocol = ProtocolName
 
 #: channel units the daemon knows (what a value in a channel means)
 UNITS: tuple[str, ...] = ("degC", "K", "rpm", "kW", "W", "um", "mm", "ratio", "percent",
@@ -122,22 +126,20 @@ class BackoffSection(_Section):
         return self
 
 
-class SecuritySection(_Section):
-    """OPC UA security. The password comes from a file or an environment
-    variable, never from the config itself."""
+class SecuritySection(OpcUaSecurityRules):
+    """OPC UA security: the rules of `drivers.opcua_policy` (the driver's own)
+    and where the password comes from: a file or an environment variable,
+    never the config itself."""
 
-    policy: Literal["None", "Basic256Sha256", "Aes128_Sha256_RsaOaep",
-                    "Aes256_Sha256_RsaPss"] = "None"
-    mode: Literal["Sign", "SignAndEncrypt"] = "SignAndEncrypt"
-    certificate: LaxPath | None = None
-    private_key: LaxPath | None = None
-    server_certificate: LaxPath | None = None
-    trust_dir: LaxPath | None = None
-    username: str | None = None
+    model_config = _Section.model_config
     password_file: LaxPath | None = None
     password_env: str | None = None
     #: must be true to run with policy "None" (a deliberate choice, not a default)
     insecure: bool = False
+
+    @property
+    def has_password(self) -> bool:
+        return self.password_file is not None or self.password_env is not None
 
     @model_validator(mode="before")
     @classmethod
@@ -149,51 +151,18 @@ class SecuritySection(_Section):
         return data
 
     @model_validator(mode="after")
-    def _consistent(self) -> SecuritySection:
-        has_password = self.password_file is not None or self.password_env is not None
+    def _one_source(self) -> SecuritySection:
         if self.password_file is not None and self.password_env is not None:
             raise ValueError("give password_file or password_env, not both")
-        if self.policy == "None":
-            if has_password:
-                raise ValueError("a password with security policy None would cross the wire "
-                                 "readable; use Basic256Sha256 (or better) with SignAndEncrypt")
-            if not self.insecure:
-                raise ValueError("security policy None sends everything readable and "
-                                 "unauthenticated: set insecure = true to accept that")
-            return self
-        if self.certificate is None or self.private_key is None:
-            raise ValueError(f"policy {self.policy} needs certificate and private_key")
-        if self.server_certificate is None and self.trust_dir is None:
-            raise ValueError("pin the server certificate (server_certificate) or give "
-                             "trust_dir: otherwise any server is trusted")
-        if has_password and not self.username:
-            raise ValueError("a password needs a username")
+        if self.policy == "None" and not self.insecure:
+            raise ValueError("security policy None sends everything readable and "
+                             "unauthenticated: set insecure = true to accept that")
         return self
 
 
-class S7Section(_Section):
-    rack: Annotated[int, Field(ge=0, le=7)] = 0
-    slot: Annotated[int, Field(ge=0, le=31)] = 1
-
-
-class FocasSection(_Section):
-    library_path: LaxPath
-    library_sha256: str | None = None
-
-    @field_validator("library_path")
-    @classmethod
-    def _absolute(cls, v: Path) -> Path:
-        if not v.is_absolute():
-            raise ValueError("must be an absolute path (a relative library path loads "
-                             "whatever the working directory holds)")
-        return v
-
-    @field_validator("library_sha256")
-    @classmethod
-    def _hex(cls, v: str | None) -> str | None:
-        if v is not None and (len(v) != 64 or any(c not in "0123456789abcdefABCDEF" for c in v)):
-            raise ValueError("must be 64 hex digits (sha256 of the library file)")
-        return v.lower() if v is not None else None
+#: [controller.s7] and [controller.focas]: the drivers' own option models
+S7Section = S7Options
+FocasSection = FocasOptions
 
 
 class ControllerSection(_Section):

@@ -1,13 +1,38 @@
-"""Build the configured driver (protocol options, credentials read at run time)."""
+"""Build the configured driver (protocol options, credentials read at run time).
+
+The protocol's spec (`drivers.protocols`) says which ``[controller.<section>]``
+table holds its options; the table turns itself into driver options, the
+OPC UA security with its password read here, at run time.
+"""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from compd.config.loader import LoadedConfig, read_password
+from compd.config.schema import SecuritySection
 from drivers.backoff import Backoff
 from drivers.base import Driver
 from drivers.factory import open_driver
+from drivers.protocols import PROTOCOLS
+
+
+def _security_options(sec: SecuritySection, base: Path) -> dict[str, Any]:
+    from drivers.opcua_security import OpcUaSecurity
+
+    def _abs(p: Path | None) -> Path | None:
+        return None if p is None else (p if p.is_absolute() else base / p)
+
+    password = read_password(sec, base)
+    if password:
+        from compd.faces.telemetry import register_secret
+
+        register_secret(password)
+    return {"security": OpcUaSecurity(
+        policy=sec.policy, mode=sec.mode, certificate=_abs(sec.certificate),
+        private_key=_abs(sec.private_key), server_certificate=_abs(sec.server_certificate),
+        trust_dir=_abs(sec.trust_dir), username=sec.username, password=password)}
 
 
 def driver_options(cfg: LoadedConfig) -> dict[str, Any]:
@@ -17,31 +42,14 @@ def driver_options(cfg: LoadedConfig) -> dict[str, Any]:
         "timeout_s": ctl.timeout_s,
         "backoff": Backoff(ctl.backoff.initial_s, ctl.backoff.cap_s),
     }
-    base = cfg.path.parent
-    if ctl.protocol == "opcua" and ctl.security is not None:
-        from drivers.opcua_security import OpcUaSecurity
-
-        sec = ctl.security
-
-        def _abs(p: Any) -> Any:
-            return None if p is None else (p if p.is_absolute() else base / p)
-
-        password = read_password(sec, base)
-        if password:
-            from compd.faces.telemetry import register_secret
-
-            register_secret(password)
-        opts["security"] = OpcUaSecurity(
-            policy=sec.policy, mode=sec.mode, certificate=_abs(sec.certificate),
-            private_key=_abs(sec.private_key), server_certificate=_abs(sec.server_certificate),
-            trust_store=_abs(sec.trust_dir), username=sec.username,
-            password=password)
+    spec = PROTOCOLS[ctl.protocol]
+    section = getattr(ctl, spec.section) if spec.section is not None else None
+    if isinstance(section, SecuritySection):
+        opts.update(_security_options(section, cfg.path.parent))
+    elif section is not None:
+        opts.update(section.driver_options())
+    if spec.connect_timeout:
         opts["connect_timeout_s"] = ctl.connect_timeout_s
-    elif ctl.protocol == "s7" and ctl.s7 is not None:
-        opts.update(rack=ctl.s7.rack, slot=ctl.s7.slot)
-    elif ctl.protocol == "focas" and ctl.focas is not None:
-        opts.update(library_path=str(ctl.focas.library_path),
-                    library_sha256=ctl.focas.library_sha256)
     return opts
 
 

@@ -1,8 +1,12 @@
-"""The simulated machine and its simulated controllers.
+"""The test machine: a simulated machine tool and its controllers, not I/O of ours.
 
-A thermal plant (`plant.py`, not one of our model structures) fronted by one
-real server per protocol on 127.0.0.1, so tests, `compd demo` and the HIL
-bench exercise the whole wire path.
+Nothing here is part of compd's own I/O path (that is `drivers/*`, one
+driver per protocol): this package plays the *other* side of the wire, the
+machine and its CNC/PLC, so that tests, `compd demo` and the HIL bench
+exercise the daemon against real servers. A thermal plant (`plant.py`, not
+one of our model structures) is fronted by one real server per protocol on
+127.0.0.1 (found by protocol name through `drivers.protocols`), or drives a
+real controller as a client on a HIL bench (`drive.py`).
 
 Standard names used by every simulated controller:
 
@@ -20,7 +24,7 @@ channels (read by the daemon)
 outputs (written by the daemon, readable back)
     ``offset``    Z offset, µm
     ``heartbeat`` counter, advanced once per complete valid cycle
-    ``status``    status word (bit flags, see compd.output)
+    ``status``    status word (bit flags, see compd.core.output)
 """
 
 CHANNELS: tuple[str, ...] = ("bearing", "motor", "column", "table", "ambient",

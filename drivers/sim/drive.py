@@ -40,6 +40,7 @@ import numpy as np
 from drivers.base import Driver, Quality
 from drivers.errors import BadAddress, DriverError, WriteRejected
 from drivers.factory import open_driver
+from drivers.protocols import PROTOCOLS
 from drivers.sim import CHANNELS
 from drivers.sim.drive_map import DriveMap
 from drivers.sim.plant import ThermalPlant
@@ -197,12 +198,11 @@ def drive_endpoint(url: str) -> tuple[str, str]:
     scheme = scheme.lower()
     if not sep or not rest:
         raise ValueError(f"not an endpoint: {url!r} (expected e.g. modbus://host:502)")
-    if scheme in ("opcua", "opc.tcp"):
-        return "opcua", f"opc.tcp://{rest}"
-    if scheme in ("s7", "modbus", "focas"):
-        return scheme, f"{scheme}://{rest}"
+    for spec in PROTOCOLS.values():
+        if scheme in (spec.name, spec.scheme):
+            return spec.name, f"{spec.scheme}://{rest}"
     raise ValueError(f"unknown protocol {scheme!r} in {url!r}; "
-                     "known: opcua://, s7://, modbus://, focas://")
+                     f"known: {', '.join(f'{name}://' for name in PROTOCOLS)}")
 
 
 def open_drive_driver(url: str, drive_map: DriveMap, **overrides: Any) -> Driver:

@@ -30,35 +30,32 @@ import math
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from drivers.addresses import (
     S7_SIZES,
     Address,
-    FocasAddress,
     FocasPmcAddress,
     ModbusAddress,
     OpcUaAddress,
     S7Address,
 )
 from drivers.focas_codec import pmc_size
+from drivers.protocols import PROTOCOLS, ProtocolName
 from drivers.sim import CHANNELS, OUTPUTS
 
-Protocol = Literal["opcua", "s7", "modbus", "focas"]
+#: the protocol names, from the one registry (`drivers.protocols`)
+Protocol = ProtocolName
 
-_ADAPTERS: dict[str, TypeAdapter[Any]] = {
-    "opcua": TypeAdapter(OpcUaAddress),
-    "s7": TypeAdapter(S7Address),
-    "modbus": TypeAdapter(ModbusAddress),
-    "focas": TypeAdapter(FocasAddress),
-}
-#: driver options a map may set, per protocol (besides timeout_s)
-_PROTOCOL_OPTIONS: dict[str, frozenset[str]] = {
-    "opcua": frozenset(), "modbus": frozenset(),
-    "s7": frozenset({"rack", "slot"}), "focas": frozenset({"library_path", "library_sha256"}),
-}
+
+def _protocol_options(protocol: str) -> frozenset[str]:
+    """Driver options a map may set for `protocol` (besides timeout_s): those
+    of its option table (`drivers.protocols`) that `DriverOptions` carries."""
+    model = PROTOCOLS[protocol].options_model()
+    fields = set(model.model_fields) if model is not None else set()
+    return frozenset(fields & set(DriverOptions.model_fields))
 
 
 class DriveMapError(ValueError):
@@ -109,9 +106,10 @@ class DriveMap(BaseModel):
     def _typed_addresses(cls, data: Any) -> Any:
         """Validate every address with its protocol's model (clear errors,
         no guessing between protocols)."""
-        if not isinstance(data, Mapping) or data.get("protocol") not in _ADAPTERS:
+        if not isinstance(data, Mapping) or data.get("protocol") not in PROTOCOLS:
             return data
-        adapter = _ADAPTERS[data["protocol"]]
+        spec = PROTOCOLS[data["protocol"]]
+        adapter = spec.address_adapter()
         out = dict(data)
         for section in ("write", "read"):
             table = data.get(section)
@@ -120,9 +118,9 @@ class DriveMap(BaseModel):
             typed: dict[str, Any] = {}
             for name, given in table.items():
                 raw = given
-                if data["protocol"] == "focas" and isinstance(given, Mapping) \
+                if spec.default_kind is not None and isinstance(given, Mapping) \
                         and "kind" not in given:
-                    raw = {**given, "kind": "pmc"}  # as the daemon's config: PMC by default
+                    raw = {**given, "kind": spec.default_kind}  # as the daemon's config
                 try:
                     typed[name] = adapter.validate_python(raw)
                 except ValidationError as exc:
@@ -162,7 +160,7 @@ class DriveMap(BaseModel):
                         and r[1] <= w[2]:
                     raise ValueError(f"{w_name} and {r_name} overlap in controller memory")
         extra = {k for k in self.driver.as_kwargs() if k != "timeout_s"}
-        refused = sorted(extra - _PROTOCOL_OPTIONS[self.protocol])
+        refused = sorted(extra - _protocol_options(self.protocol))
         if refused:
             raise ValueError(f"driver: option(s) {refused} do not apply to {self.protocol}")
         return self

@@ -1,28 +1,21 @@
-"""Build a simulated controller by protocol name (lazy imports)."""
+"""Build a simulated controller by protocol name (lazy imports; the
+protocols are those of `drivers.protocols`)."""
 
 from __future__ import annotations
 
-import importlib
 from typing import Any
 
+from drivers.protocols import PROTOCOLS, spec_of
 from drivers.sim.base import SimController
 
 #: protocol -> (module, class); each class takes (host="127.0.0.1", port=0, **options)
 SIM_CONTROLLERS: dict[str, tuple[str, str]] = {
-    "opcua": ("drivers.sim.opcua_server", "OpcUaSimController"),
-    "s7": ("drivers.sim.s7_server", "S7SimController"),
-    "modbus": ("drivers.sim.modbus_server", "ModbusSimController"),
-    "focas": ("drivers.sim.focas_server", "FocasSimController"),
-}
+    name: (spec.sim.partition(":")[0], spec.sim.partition(":")[2])
+    for name, spec in PROTOCOLS.items()}
 
 
 def make_sim_controller(protocol: str, host: str = "127.0.0.1", port: int = 0,
                         **options: Any) -> SimController:
-    try:
-        module_name, class_name = SIM_CONTROLLERS[protocol]
-    except KeyError:
-        raise ValueError(
-            f"unknown protocol {protocol!r}; known: {sorted(SIM_CONTROLLERS)}") from None
-    cls = getattr(importlib.import_module(module_name), class_name)
+    cls = spec_of(protocol).sim_class()
     controller: SimController = cls(host=host, port=port, **options)
     return controller

@@ -13,6 +13,9 @@ from drivers.sim.focas_server import FocasSimController
 from tests.drivers.harness_types import Harness
 
 PROTOCOL = "focas"
+#: a stalled stand-in library takes this long per call (longer than any
+#: contract test's timeout plus the worker grace)
+STALL_US = 1_500_000
 
 
 @asynccontextmanager
@@ -35,9 +38,15 @@ async def harness() -> AsyncIterator[Harness]:
         await sim.forget_outputs()
         await sim.start()
 
+    async def idle() -> bool:
+        return True  # no connection to wait for: the library is in-process
+
     try:
         yield Harness(sim=sim, make_driver=make_driver, stop=sim.stop, restart=restart,
                       bad_address=FocasPmcAddress(area="D", address=60000, type="long"),
+                      make_stallable_driver=make_driver,
+                      stall=lambda: sim.set_latency_us(STALL_US),
+                      unstall=lambda: sim.set_latency_us(0), idle=idle,
                       tolerance=0.05, encodings=dict(sim.encodings))  # offset long ×0.1 µm
     finally:
         await sim.stop()

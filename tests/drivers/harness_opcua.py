@@ -11,7 +11,7 @@ from drivers.addresses import Address, OpcUaAddress
 from drivers.backoff import Backoff
 from drivers.opcua import OpcUaDriver
 from drivers.sim.opcua_server import NAMESPACE_INDEX, OpcUaSimController
-from tests.drivers.harness_types import Harness
+from tests.drivers.harness_types import Harness, stall_proxy
 
 PROTOCOL = "opcua"
 
@@ -26,16 +26,18 @@ async def harness(**sim_options: Any) -> AsyncIterator[Harness]:
 
     def make_driver(timeout_s: float = 0.5, channels: Mapping[str, Address] | None = None,
                     outputs: Mapping[str, Address] | None = None,
-                    **options: Any) -> OpcUaDriver:
+                    endpoint: str | None = None, **options: Any) -> OpcUaDriver:
         options.setdefault("backoff", Backoff(initial_s=0.02, cap_s=0.2))
         return OpcUaDriver(
-            sim.endpoint,
+            endpoint or sim.endpoint,
             dict(sim.channels if channels is None else channels),  # type: ignore[arg-type]
             dict(sim.outputs_map if outputs is None else outputs),  # type: ignore[arg-type]
             timeout_s=timeout_s, **options)
 
     try:
-        yield Harness(sim=sim, make_driver=make_driver, stop=sim.stop, restart=sim.restart,
-                      bad_address=BAD_ADDRESS, tolerance=1e-4, encodings=dict(sim.encodings))
+        async with stall_proxy(sim, make_driver) as stall:
+            yield Harness(sim=sim, make_driver=make_driver, stop=sim.stop, restart=sim.restart,
+                          bad_address=BAD_ADDRESS, tolerance=1e-4, encodings=dict(sim.encodings),
+                          **stall)
     finally:
         await sim.stop()

@@ -10,7 +10,7 @@ from drivers.addresses import Address, S7Address
 from drivers.backoff import Backoff
 from drivers.s7 import S7Driver
 from drivers.sim.s7_server import S7SimController
-from tests.drivers.harness_types import Harness
+from tests.drivers.harness_types import Harness, stall_proxy
 
 PROTOCOL = "s7"
 
@@ -21,9 +21,10 @@ async def harness() -> AsyncIterator[Harness]:
     await sim.start()
 
     def make_driver(timeout_s: float = 0.5, channels: Mapping[str, Address] | None = None,
-                    outputs: Mapping[str, Address] | None = None, **options: Any) -> S7Driver:
+                    outputs: Mapping[str, Address] | None = None,
+                    endpoint: str | None = None, **options: Any) -> S7Driver:
         options.setdefault("backoff", Backoff(initial_s=0.02, cap_s=0.2))
-        return S7Driver(sim.endpoint,
+        return S7Driver(endpoint or sim.endpoint,
                         dict(sim.channels if channels is None else channels),  # type: ignore[arg-type]
                         dict(sim.outputs_map if outputs is None else outputs),  # type: ignore[arg-type]
                         timeout_s=timeout_s, **options)
@@ -34,8 +35,10 @@ async def harness() -> AsyncIterator[Harness]:
         await sim.start()
 
     try:
-        yield Harness(sim=sim, make_driver=make_driver, stop=sim.stop, restart=restart,
-                      bad_address=S7Address(db=99, offset=0, type="REAL"),
-                      tolerance=0.001, encodings=dict(sim.encodings))
+        async with stall_proxy(sim, make_driver) as stall:
+            yield Harness(sim=sim, make_driver=make_driver, stop=sim.stop, restart=restart,
+                          bad_address=S7Address(db=99, offset=0, type="REAL"),
+                          tolerance=0.001, encodings=dict(sim.encodings),
+                          **stall)
     finally:
         await sim.stop()

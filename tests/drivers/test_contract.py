@@ -18,6 +18,7 @@ from typing import Any
 
 import pytest
 
+from drivers.backoff import Backoff
 from drivers.base import Driver, Quality, Sample
 from drivers.errors import BadAddress, ConnectionLost, ControllerTimeout, DriverError
 from drivers.sim import CHANNELS, OUTPUTS
@@ -244,3 +245,147 @@ async def test_close_is_idempotent_and_leaves_no_tasks(harness: Harness) -> None
 async def test_driver_error_types_are_driver_errors() -> None:
     for cls in (BadAddress, ConnectionLost, ControllerTimeout):
         assert issubclass(cls, DriverError)
+
+
+def test_controller_timeout_is_also_a_timeout_error() -> None:
+    assert issubclass(ControllerTimeout, TimeoutError)
+
+
+# -- the link lifecycle (drivers.link): the same for every protocol --------------------
+
+class FakeClock:
+    """A monotonic clock the test moves: the backoff delay passes when told."""
+
+    def __init__(self) -> None:
+        self.now_s = 1000.0
+
+    def __call__(self) -> float:
+        return self.now_s
+
+
+async def test_after_close_calls_fail_without_reconnecting(harness: Harness) -> None:
+    """After close(): read and write raise ConnectionLost at once and do not
+    reconnect (the controller is up); connect() opens the link again."""
+    driver = harness.make_driver()
+    try:
+        await driver.read(["ambient"])
+        await driver.close()
+        for _ in range(2):
+            with pytest.raises(ConnectionLost, match="closed"):
+                await asyncio.wait_for(driver.read(["ambient"]), FAST_S)
+            with pytest.raises(ConnectionLost, match="closed"):
+                await asyncio.wait_for(driver.write({"offset": 1.0}), FAST_S)
+        assert not driver.connected
+        await driver.connect()
+        assert driver.connected
+        await harness.sim.publish({"ambient": 18.5})
+        samples = await driver.read(["ambient"])
+        assert _close_enough(samples["ambient"].value, 18.5, harness.tolerance)
+    finally:
+        await driver.close()
+    assert not driver.connected
+
+
+async def test_never_connected_driver_refuses_calls_after_close(harness: Harness) -> None:
+    driver = harness.make_driver()
+    await driver.close()
+    with pytest.raises(ConnectionLost, match="closed"):
+        await asyncio.wait_for(driver.read(["ambient"]), FAST_S)
+    assert not driver.connected
+
+
+async def test_backoff_gates_calls_until_the_delay_passed(harness: Harness) -> None:
+    """A lost link starts the backoff delay: inside it every call fails fast
+    with ConnectionLost without trying (a try on the stopped controller would
+    count a failure); once the delay passed the next call tries again."""
+    clock = FakeClock()
+    backoff = Backoff(initial_s=1.0, cap_s=4.0, clock=clock)
+    driver = harness.make_driver(backoff=backoff)
+    try:
+        await driver.read(["ambient"])
+        await harness.stop()
+        with pytest.raises((ConnectionLost, ControllerTimeout)):
+            await asyncio.wait_for(driver.read(["ambient"]), FAST_S)
+        assert not driver.connected
+        assert backoff.failures == 1
+        for _ in range(2):
+            with pytest.raises(ConnectionLost, match="backing off"):
+                await asyncio.wait_for(driver.read(["ambient"]), FAST_S)
+            with pytest.raises(ConnectionLost, match="backing off"):
+                await asyncio.wait_for(driver.write({"offset": 2.5}), FAST_S)
+        assert backoff.failures == 1, "a call inside the backoff delay tried to connect"
+        clock.now_s += backoff.delay_s
+        with pytest.raises((ConnectionLost, ControllerTimeout)):
+            await asyncio.wait_for(driver.read(["ambient"]), FAST_S)
+        assert backoff.failures == 2, "the call after the delay did not try to reconnect"
+        assert backoff.delay_s == 2.0
+        with pytest.raises(ConnectionLost, match="backing off"):
+            await asyncio.wait_for(driver.read(["ambient"]), FAST_S)
+    finally:
+        await driver.close()
+
+
+async def test_failed_connect_starts_the_backoff(harness: Harness) -> None:
+    """connect() tries whatever the backoff says; its failure is a driver
+    error and starts the delay, so the next read or write fails fast."""
+    clock = FakeClock()
+    backoff = Backoff(initial_s=1.0, cap_s=4.0, clock=clock)
+    await harness.stop()
+    driver = harness.make_driver(backoff=backoff)
+    try:
+        for expected_failures in (1, 2):  # the second inside the delay: tried all the same
+            with pytest.raises((ConnectionLost, ControllerTimeout)):
+                await asyncio.wait_for(driver.connect(), FAST_S)
+            assert backoff.failures == expected_failures
+        with pytest.raises(ConnectionLost, match="backing off"):
+            await asyncio.wait_for(driver.read(["ambient"]), FAST_S)
+        with pytest.raises(ConnectionLost, match="backing off"):
+            await asyncio.wait_for(driver.write({"offset": 1.0}), FAST_S)
+        assert backoff.failures == 2
+        assert not driver.connected
+    finally:
+        await driver.close()
+
+
+async def _read_until_back(driver: Driver, clock: FakeClock) -> dict[str, Sample]:
+    """Read until the driver has reconnected, moving the fake clock past each
+    backoff delay (a stalled worker may time out a reconnect attempt or two)."""
+    deadline = time.monotonic() + RECONNECT_WITHIN_S
+    while True:
+        try:
+            return await asyncio.wait_for(driver.read(["ambient"]), FAST_S)
+        except (ConnectionLost, ControllerTimeout):
+            if time.monotonic() > deadline:
+                raise
+            clock.now_s += 60.0
+            await asyncio.sleep(0.05)
+
+
+async def test_after_a_timeout_the_link_is_dropped_then_reopened(harness: Harness) -> None:
+    """A call the controller does not answer raises ControllerTimeout (a
+    TimeoutError too) within its timeout; the link is dropped (a late answer
+    must not be taken for the next request's) and backs off; once the
+    controller answers again the same driver reconnects."""
+    clock = FakeClock()
+    backoff = Backoff(initial_s=1.0, cap_s=4.0, clock=clock)
+    driver = harness.make_stallable_driver(timeout_s=0.3, backoff=backoff)
+    try:
+        await asyncio.wait_for(driver.read(["ambient"]), FAST_S)
+        harness.stall()
+        with pytest.raises(ControllerTimeout) as caught:
+            await asyncio.wait_for(driver.read(["ambient"]), FAST_S)
+        assert isinstance(caught.value, TimeoutError)
+        assert not driver.connected
+        assert backoff.failures == 1
+        with pytest.raises(ConnectionLost, match="backing off"):
+            await asyncio.wait_for(driver.write({"offset": 4.5}), FAST_S)
+        harness.unstall()
+        await harness.sim.publish({"ambient": 24.5})
+        samples = await _read_until_back(driver, clock)
+        assert _close_enough(samples["ambient"].value, 24.5, harness.tolerance)
+        assert driver.connected and backoff.failures == 0
+        await asyncio.wait_for(driver.write({"offset": 4.5}), FAST_S)
+    finally:
+        harness.unstall()
+        await driver.close()
+    assert await harness.idle(), "the stalled connection outlived close()"

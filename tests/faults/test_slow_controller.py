@@ -150,6 +150,8 @@ async def bounded(call: Awaitable[T], timeout_s: float = TIMEOUT_S) -> T:
     """The call, which must finish (return or raise) within timeout + margin."""
     try:
         return await asyncio.wait_for(call, timeout_s + MARGIN_S)
+    except ControllerTimeout:
+        raise  # the driver's own timeout (also a TimeoutError), not a hang
     except TimeoutError:
         pytest.fail(f"a driver call hung past {timeout_s} s + {MARGIN_S} s margin")
 
