@@ -1,6 +1,6 @@
 """ctypes view of the FOCAS library subset compd uses (libfwlib32.so).
 
-ABI facts (PROTOCOLS.md): plain cdecl; every FOCAS ``long`` is 32 bits, also
+ABI facts (docs/protocols.md §9): plain cdecl; every FOCAS ``long`` is 32 bits, also
 in the 64-bit Linux library, so it is ``c_int32`` here, never ``c_long``;
 structs are packed to 4 (``_pack_ = 4``). `tests/drivers/test_focas.py`
 compares these layouts with what a C compiler makes of the same structs.

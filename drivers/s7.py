@@ -5,7 +5,7 @@ makes one `db_read` per DB covering all requested values of that DB; a write
 makes one `db_write` per run of byte-adjacent outputs (snap7 3.3.0's
 `write_multi_vars` is only a loop of single writes, so it saves nothing).
 
-Two snap7 defaults are overridden (PROTOCOLS.md):
+Two snap7 defaults are overridden (docs/protocols.md §9):
 - `RecvTimeout` is stored but never applied; the ISO connection's socket
   keeps a 5 s timeout. Before each request the driver sets the connected
   socket's own timeout (``client.connection.socket``) to what is left of the

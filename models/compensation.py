@@ -1,4 +1,4 @@
-"""A compensation model: a sum of terms (MODELS.md §3).
+"""A compensation model: a sum of terms (docs/models.md §3).
 
 Each term takes a signed combination of named channels relative to their
 reference values (e.g. ``bearing - column``), passes it through one filter

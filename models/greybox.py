@@ -1,4 +1,4 @@
-"""Grey-box ODE model of a rotary-axis error (paper 002, MODELS.md §4).
+"""Grey-box ODE model of a rotary-axis error (paper 002, docs/models.md §5).
 
 One first-order ODE per error, input u1 = drive power (or axis speed) read
 from the NC, explicit Euler at the sample period ``Ts`` (seconds)::

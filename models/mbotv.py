@@ -1,4 +1,4 @@
-"""Model based on temperature variation, MBOTV (paper 003, MODELS.md §5).
+"""Model based on temperature variation, MBOTV (paper 003, docs/models.md §6).
 
 Input T = T_spindle_front_bearing - T_column (K, relative to the reference
 state), sample period t (s)::

@@ -1,4 +1,4 @@
-"""Quality figures of a compensation (MODELS.md §6).
+"""Quality figures of a compensation (docs/models.md §11).
 
 - residue(k) = measured(k) - simulated(k): what stays after compensation
 - fit % = (1 - ‖meas - sim‖ / ‖meas - mean(meas)‖) · 100

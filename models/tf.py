@@ -1,6 +1,6 @@
 """A stateful discrete transfer function in the papers' difference-equation form.
 
-MODELS.md §1, with numerator ``a`` and denominator ``b`` (the papers' naming,
+docs/models.md §2, with numerator ``a`` and denominator ``b`` (the papers' naming,
 the reverse of scipy's)::
 
     y(k) = ( a0·u(k) + … + an·u(k-n) - b1·y(k-1) - … - bm·y(k-m) ) / b0

@@ -1,7 +1,7 @@
 """`compd fit DATA [DATA…] --output dz_um --term bearing --term ambient [...]`
 
 Identifies a compensation model from calibration records and writes a model
-file (MODELS.md §1, §4, §5). Several records (e.g. a heat-up/cool-down and an
+file (docs/models.md §2, §5, §6). Several records (e.g. a heat-up/cool-down and an
 environmental run) are fitted jointly as separate experiments: each starts at
 rest with its own first sample as the reference, and the simulation restarts
 per record. Orders are chosen on the last ``--validation`` fraction of every

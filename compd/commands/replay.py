@@ -3,7 +3,7 @@
 Runs the model over a recorded run exactly as the daemon steps it (the same
 `CompensationModel.set_references` at the first sample, then `step(sample)`
 once per row) and reports fit %, residue min/max, Δpk and range reduction
-(MODELS.md §6). A model whose sample period differs from the record's is
+(docs/models.md §11). A model whose sample period differs from the record's is
 refused: its coefficients would mean something else.
 """
 

@@ -9,7 +9,7 @@ wrote (error = growth - offset), so the result is measured through the wire:
 
 - uncompensated range: max - min of the growth over the run
 - compensated range: max - min of the error over the run
-- range reduction: their ratio (MODELS.md §6), fit %: offset vs growth
+- range reduction: their ratio (docs/models.md §11), fit %: offset vs growth
 """
 
 from __future__ import annotations

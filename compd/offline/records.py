@@ -283,7 +283,7 @@ def check_units(record: Record, temperatures: Iterable[str], displacement: str) 
 
 def speed_warnings(record: Record) -> list[str]:
     """Advice about the calibration design when the record has a speed column:
-    a constant-speed heat-up alone generalises poorly (MODELS.md §6)."""
+    a constant-speed heat-up alone generalises poorly (docs/calibration.md §1)."""
     names = [n for n in record.columns if "speed" in n.lower() or n.lower().endswith("rpm")]
     out: list[str] = []
     for name in names:

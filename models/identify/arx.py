@@ -1,6 +1,6 @@
 """ARX identification by linear least squares, with order selection.
 
-Multi-input ARX with one denominator shared by every term (MODELS.md §1
+Multi-input ARX with one denominator shared by every term (docs/models.md §2
 naming: numerator ``a``, denominator ``b``, b0 = 1)::
 
     y(k) = -Σ_{i=1..na} b_i·y(k-i) + Σ_terms Σ_{j=0..nb_t-1} a_tj·u_t(k-j)

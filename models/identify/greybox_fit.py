@@ -1,4 +1,4 @@
-"""Grey-box ODE parameters by bounded least squares (MODELS.md §4).
+"""Grey-box ODE parameters by bounded least squares (docs/models.md §5).
 
 The Euler step y(k) = (1 + Ts·p1)·y(k-1) + Ts·p2·(u1(k) + p3) is a first-order
 filter between switchings of u2, so a whole record is simulated with a few

@@ -1,4 +1,4 @@
-"""MBOTV parameters by bounded least squares (MODELS.md §5).
+"""MBOTV parameters by bounded least squares (docs/models.md §6).
 
 zss = α·T + β·Tv + δ·Ta, then two first-order lags (k, γ): simulated with
 `lfilter`, equal to `models.mbotv.Mbotv.step` from rest.

@@ -1,4 +1,4 @@
-"""The papers' transfer functions exactly as printed (MODELS.md §2) and the
+"""The papers' transfer functions exactly as printed (docs/models.md §2) and the
 reference step-response values computed in 60-digit arithmetic."""
 
 from __future__ import annotations

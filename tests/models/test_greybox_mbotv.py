@@ -1,4 +1,4 @@
-"""Grey-box ODE (MODELS.md §4) and MBOTV (§5)."""
+"""Grey-box ODE (docs/models.md §5) and MBOTV (§6)."""
 
 from __future__ import annotations
 

@@ -111,7 +111,7 @@ def test_trailing_zero_digits_count_as_printed_precision() -> None:
 
 
 def test_rounding_eps_sp1_to_four_digits_makes_an_integrator_that_is_refused() -> None:
-    # MODELS.md: rounding the table to 4 significant digits turns ε_SP1 into an integrator
+    # docs/models.md §2: rounding the table to 4 significant digits turns ε_SP1 into an integrator
     a, b = ["-0.0337", "0.0332"], ["1", "-1.301", "-0.3263", "0.6273"]
     rounded = TransferFunction(a, b, "sp1_4digits", allow_unstable=True)
     assert math.isinf(rounded.dc_gain)
