@@ -5,8 +5,12 @@ machine time are tested in milliseconds with a fake clock.
 One `Cycle.step(now_s, samples, readback_offset_um)`:
 
 1. read-back: the controller's offset (controller units) against the value it
-   last confirmed; a difference (a restarted controller that forgot it) is an
-   event, and the output ramps from the read-back value;
+   last confirmed (`OutputStage.observe`); a value compd did not write (a
+   second writer, a restarted controller that forgot it) is an alarm
+   (READBACK_MISMATCH and ALARM until the output has ramped back to its
+   target at the slew limit); beyond ±limit_um it is an alarm and no offset
+   is written (OFFSET_HELD, state "held") until the controller's value is back
+   within the limit, and then the output ramps from there;
 2. validate every channel (`compd.validation`); the cycle is valid when every
    channel the live model reads is valid;
 3. valid: initialise the model on the first valid sample if needed (restored
@@ -30,7 +34,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from compd.faults import Event, FaultPolicy, State
-from compd.output import OutputStage, Status
+from compd.output import OutputStage, Readback, Status
 from compd.validation import ChannelLimits, Validator
 from drivers.base import Sample
 from models.compensation import CompensationModel
@@ -160,6 +164,8 @@ class Cycle:
         self._offset_pending = False
         self._invalid: dict[str, str] = {}
         self._mismatch_noted = False
+        #: a foreign read-back was seen: alarm until the output tracks again
+        self._foreign = False
         if model_state is not None:
             model.import_state(model_state)  # ModelError: the caller falls back
             self._model_ready = True
@@ -237,8 +243,8 @@ class Cycle:
         dt = p.period_s if self._last_now is None else now_s - self._last_now
         self._last_now = now_s
 
-        if readback_offset_um is not None and self._readback(readback_offset_um, events):
-            status |= Status.READBACK_MISMATCH
+        if readback_offset_um is not None:
+            status |= self._readback(readback_offset_um, events)
 
         validity = self.validator.check(now_s, samples, wall_s)
         self._note_validity(validity, events)
@@ -263,10 +269,14 @@ class Cycle:
         if valid:
             self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
         status |= self._status_bits(decision.state, decision.alarm)
+        if self._foreign:
+            status |= Status.READBACK_MISMATCH | Status.ALARM
+            # the alarm lasts until the output has ramped to its target
+            self._foreign = self.output.slewing or self.output.held
 
         writes: dict[str, float] = {}
         self._offset_pending = False
-        if not self.write_stopped:
+        if not self.write_stopped and not self.output.held:
             if p.readback and readback_offset_um is None:
                 # the controller still holds what it last confirmed: start from there
                 self.output.revert()
@@ -289,10 +299,11 @@ class Cycle:
             contributions["shadow_total"] = shadow_um
         record = RecordFields(
             seq=self.sequence, mono_s=now_s, offset_um=offset_um, model_um=model_um,
-            state=decision.state if not self.write_stopped else "stopped", valid=valid,
+            state=self._state(decision.state), valid=valid,
             channels={n: _finite_or_none(v) for n, v in values.items()},
             validity=validity, contributions=contributions)
-        done = self.faults.shutting_down and (offset_um == 0.0 or self.write_stopped)
+        done = self.faults.shutting_down and (offset_um == 0.0 or self.write_stopped
+                                              or self.output.held)
         return CycleResult(
             sequence=self.sequence, writes=writes, offset_um=offset_um, model_um=model_um,
             shadow_um=shadow_um, state=record.state, status=int(status),
@@ -336,23 +347,36 @@ class Cycle:
 
     # -- internals ------------------------------------------------------------------------
 
-    def _readback(self, value: float, events: list[Event]) -> bool:
-        rb_um = self.output.from_controller(value) if math.isfinite(value) else math.nan
-        confirmed = self.output.confirmed_um
-        if confirmed is None:
-            self.output.adopt(rb_um)
-            events.append(Event("readback_adopted", {"offset_um": self.output.current_um}))
-            return False
-        if math.isfinite(rb_um) and abs(rb_um - confirmed) <= self.params.readback_tolerance_um:
-            if rb_um != confirmed:
-                # not a mismatch worth an event, but the next step is measured
-                # from what the machine has, so the slew limit holds against it
-                self.output.align(rb_um)
-            return False
-        events.append(Event("readback_mismatch", {
-            "expected_um": confirmed, "readback_um": _finite_or_none(rb_um)}))
-        self.output.adopt(rb_um)
-        return True
+    def _readback(self, value: float, events: list[Event]) -> Status:
+        out = self.output
+        rb_um = out.from_controller(value) if math.isfinite(value) else math.nan
+        was_held, expected = out.held, out.confirmed_um
+        seen = out.observe(rb_um, self.params.readback_tolerance_um)
+        if seen is Readback.OUT_OF_RANGE:
+            if not was_held:
+                events.append(Event("readback_out_of_range", {
+                    "expected_um": expected, "readback_um": _finite_or_none(rb_um),
+                    "limit_um": out.limit_um, "action": "offset writes held"}))
+            self._foreign = True
+            return Status.READBACK_MISMATCH | Status.OFFSET_HELD | Status.ALARM
+        if was_held:
+            events.append(Event("readback_in_range", {
+                "readback_um": rb_um, "action": "ramping from it"}))
+            self._foreign = True
+        if seen is Readback.ADOPTED:
+            events.append(Event("readback_adopted", {"offset_um": out.current_um}))
+        elif seen is Readback.FOREIGN:
+            events.append(Event("readback_mismatch", {
+                "expected_um": expected, "readback_um": rb_um, "action": "ramping from it"}))
+            self._foreign = True
+        return Status(0)
+
+    def _state(self, state: str) -> str:
+        """The state recorded and reported: the fault policy's, unless no
+        offset is written at all."""
+        if self.write_stopped:
+            return "stopped"
+        return "held" if self.output.held else state
 
     def _note_validity(self, validity: Mapping[str, str | None], events: list[Event]) -> None:
         for name, reason in validity.items():
@@ -403,7 +427,7 @@ class Cycle:
 
     def _status_bits(self, state: str, alarm: bool) -> Status:
         s = Status(0)
-        if state == "ok" and not self.write_stopped:
+        if state == "ok" and not self.write_stopped and not self.output.held:
             s |= Status.OK
         elif state == "hold":
             s |= Status.HOLDING
@@ -415,6 +439,8 @@ class Cycle:
             s |= Status.ALARM
         if self.write_stopped:
             s |= Status.WRITE_STOPPED
+        if self.output.held:
+            s |= Status.OFFSET_HELD | Status.ALARM
         if self.output.slewing:
             s |= Status.SLEWING
         return s
