@@ -23,7 +23,10 @@ from typing import Any
 from pydantic import BaseModel, TypeAdapter, ValidationError
 
 from compd.config_schema import DaemonConfig, SecuritySection
+from compd.cycle import HEARTBEAT_MODULO
 from compd.errors import ConfigError
+from compd.output import Status
+from compd.output_range import check_outputs
 from drivers.addresses import ADDRESS_TYPES, Address, FocasAddress
 from models.compensation import CompensationModel
 from models.errors import ModelError
@@ -216,6 +219,9 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         doc_addr = getattr(out, name)
         if doc_addr is not None:
             outputs[name] = _validate_address(ctl.protocol, doc_addr, f"output.{name}")
+    check_outputs(ctl.protocol, outputs, limit_um=out.limit_um, units_per_um=out.units_per_um,
+                  sign=out.sign, heartbeat_max=HEARTBEAT_MODULO - 1,
+                  status_max=int(~Status(0)))
     clash = sorted(set(channels) & set(OUTPUT_NAMES))
     if clash:
         raise ConfigError(f"channels.{clash[0]}", "this name is reserved for an output")
