@@ -23,7 +23,10 @@ One `Cycle.step(now_s, samples, readback_offset_um)`:
    failed, since then the controller's state is unknown), the heartbeat
    (advanced only on a complete valid cycle) and the status word.
 
-The shell reports each write's outcome with `write_ok()` / `write_failed()`.
+The shell reports each write's outcome with `write_ok()` / `write_failed()`;
+WRITE_FAULT_AFTER offset writes failing in a row are a write fault (WRITE_FAULT
+and ALARM, state "write_fault") until one succeeds. The record row says what
+was sent (`attempted_um`) and whether the controller confirmed it.
 """
 
 from __future__ import annotations
@@ -45,6 +48,10 @@ if TYPE_CHECKING:
 
 #: the heartbeat counts modulo this (fits INT, WORD, uint16, DINT, PMC word)
 HEARTBEAT_MODULO = 32768
+
+#: this many offset writes in a row failing (transient) are a write fault:
+#: WRITE_FAULT and ALARM, state "write_fault", until a write succeeds
+WRITE_FAULT_AFTER = 5
 
 
 @dataclass(frozen=True)
@@ -98,6 +105,11 @@ class RecordFields:
     channels: dict[str, float | None]
     validity: dict[str, str | None]
     contributions: dict[str, float]
+    #: the offset sent to the controller (µm), None when none was sent
+    attempted_um: float | None = None
+    #: the controller confirmed `attempted_um` (set by write_ok / write_failed;
+    #: None: not sent, or the outcome not known yet)
+    confirmed: bool | None = None
 
 
 @dataclass
@@ -166,6 +178,11 @@ class Cycle:
         self._mismatch_noted = False
         #: a foreign read-back was seen: alarm until the output tracks again
         self._foreign = False
+        #: offset writes failed in a row; a write fault from WRITE_FAULT_AFTER on
+        self.failed_writes = 0
+        self.write_fault = False
+        self._record: RecordFields | None = None
+        self._later: list[Event] = []
         if model_state is not None:
             model.import_state(model_state)  # ModelError: the caller falls back
             self._model_ready = True
@@ -238,7 +255,7 @@ class Cycle:
         `readback_offset_um`: the controller's offset as read (controller units)."""
         p = self.params
         self.sequence += 1
-        events: list[Event] = []
+        events, self._later = self._later, []
         status = Status(0)
         dt = p.period_s if self._last_now is None else now_s - self._last_now
         self._last_now = now_s
@@ -301,7 +318,9 @@ class Cycle:
             seq=self.sequence, mono_s=now_s, offset_um=offset_um, model_um=model_um,
             state=self._state(decision.state), valid=valid,
             channels={n: _finite_or_none(v) for n, v in values.items()},
-            validity=validity, contributions=contributions)
+            validity=validity, contributions=contributions,
+            attempted_um=offset_um if self._offset_pending else None)
+        self._record = record
         done = self.faults.shutting_down and (offset_um == 0.0 or self.write_stopped
                                               or self.output.held)
         return CycleResult(
@@ -316,6 +335,12 @@ class Cycle:
         """Every write of the last result reached the controller."""
         if self._offset_pending:
             self.output.confirm()
+            self._outcome(True)
+            if self.write_fault:
+                self._later.append(Event("write_recovered", {"failed_writes":
+                                                             self.failed_writes}))
+            self.write_fault = False
+            self.failed_writes = 0
         self._offset_pending = False
 
     def write_failed(self, output: str | None, *, permanent: bool,
@@ -325,11 +350,20 @@ class Cycle:
         that carried the offset stops the offset). Transient: retried next
         cycle from the confirmed value."""
         events: list[Event] = []
-        if self._offset_pending:
+        offset_failed = self._offset_pending
+        if offset_failed:
             self.output.revert()
+            self._outcome(False)
         self._offset_pending = False
         if not permanent:
             events.append(Event("write_failed", {"output": output, "reason": reason}))
+            if offset_failed:
+                self.failed_writes += 1
+                if self.failed_writes >= WRITE_FAULT_AFTER and not self.write_fault:
+                    self.write_fault = True
+                    events.append(Event("write_fault", {
+                        "failed_writes": self.failed_writes, "reason": reason,
+                        "offset_um": self.output.current_um}))
             return events
         # a driver names every output of a refused combined write ("offset,heartbeat")
         names = {n.strip() for n in output.split(",")} if output else set()
@@ -344,6 +378,10 @@ class Cycle:
             self.stopped_outputs.add(name)
             events.append(Event("output_write_stopped", {"output": name, "reason": reason}))
         return events
+
+    def _outcome(self, confirmed: bool) -> None:
+        if self._record is not None and self._record.attempted_um is not None:
+            self._record.confirmed = confirmed
 
     # -- internals ------------------------------------------------------------------------
 
@@ -376,7 +414,9 @@ class Cycle:
         offset is written at all."""
         if self.write_stopped:
             return "stopped"
-        return "held" if self.output.held else state
+        if self.output.held:
+            return "held"
+        return "write_fault" if self.write_fault else state
 
     def _note_validity(self, validity: Mapping[str, str | None], events: list[Event]) -> None:
         for name, reason in validity.items():
@@ -427,7 +467,7 @@ class Cycle:
 
     def _status_bits(self, state: str, alarm: bool) -> Status:
         s = Status(0)
-        if state == "ok" and not self.write_stopped and not self.output.held:
+        if state == "ok" and not (self.write_stopped or self.output.held or self.write_fault):
             s |= Status.OK
         elif state == "hold":
             s |= Status.HOLDING
@@ -441,6 +481,8 @@ class Cycle:
             s |= Status.WRITE_STOPPED
         if self.output.held:
             s |= Status.OFFSET_HELD | Status.ALARM
+        if self.write_fault:
+            s |= Status.WRITE_FAULT | Status.ALARM
         if self.output.slewing:
             s |= Status.SLEWING
         return s

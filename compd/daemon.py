@@ -40,6 +40,7 @@ from compd.telemetry import Metrics
 from drivers.base import Driver, Quality, Sample
 from drivers.errors import DriverError, WriteRejected
 
+#: states not here ("held", "write_fault": no offset reaches the controller) are 3
 _FAULT_GAUGE = {"ok": 0, "init": 0, "hold": 1, "ramp": 2, "stopped": 3, "shutdown": 2}
 #: STATUS= is sent on a state change or at least this often (cycles)
 _STATUS_EVERY = 10
@@ -306,7 +307,8 @@ class Daemon:
         dropped = self._recorder.dropped
         self._recorder.record(RecordRow(
             seq=r.seq, mono_s=r.mono_s, wall_s=time.time(),
-            offset_um=r.offset_um if "offset" in result.writes or self.dry_run else None,
+            # what the controller confirmed, apart from what was sent
+            offset_um=r.offset_um if r.confirmed else None, attempted_um=r.attempted_um,
             model_um=r.model_um, state=r.state, valid=r.valid, channels=r.channels,
             validity=r.validity, contributions=r.contributions))
         if self._recorder.dropped > dropped:
@@ -379,4 +381,4 @@ _WARNINGS = frozenset({"channel_invalid", "fault_hold", "readback_mismatch", "wr
                        "offset_write_skipped", "checkpoint_unusable", "checkpoint_state_refused",
                        "model_non_finite"})
 _ERRORS = frozenset({"fault_ramp_to_zero", "offset_write_stopped", "output_write_stopped",
-                     "readback_out_of_range"})
+                     "readback_out_of_range", "write_fault"})
