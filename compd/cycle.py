@@ -15,7 +15,9 @@ One `Cycle.step(now_s, samples, readback_offset_um)`:
    channel the live model reads is valid;
 3. valid: initialise the model on the first valid sample if needed (restored
    state, or the steady state matching today's temperatures), then step it
-   (and the shadow model) once; invalid: the filters are NOT stepped;
+   (and the shadow model) once; invalid: the filters are NOT stepped; a model
+   output beyond MODEL_RANGE_FACTOR·limit_um makes the cycle invalid (a
+   fault: hold, then ramp) with MODEL_RANGE and ALARM;
 4. fault policy (`compd.faults`) picks the target; the output stage
    (`compd.output`) makes it safe;
 5. writes: the offset (in controller units; omitted once the controller
@@ -48,6 +50,14 @@ if TYPE_CHECKING:
 
 #: the heartbeat counts modulo this (fits INT, WORD, uint16, DINT, PMC word)
 HEARTBEAT_MODULO = 32768
+
+#: a model output beyond this many times limit_um is a fault (hold, then ramp,
+#: alarm: MODEL_RANGE), not a value to clamp quietly: a model that far off is
+#: broken (a thermal model near its limit may overshoot it, not by 5×)
+MODEL_RANGE_FACTOR = 5.0
+
+#: the longest ramp-to-zero shutdown, in cycles (see Cycle.shutdown_cycles)
+MAX_SHUTDOWN_CYCLES = 10**7
 
 #: this many offset writes in a row failing (transient) are a write fault:
 #: WRITE_FAULT and ALARM, state "write_fault", until a write succeeds
@@ -181,6 +191,7 @@ class Cycle:
         #: offset writes failed in a row; a write fault from WRITE_FAULT_AFTER on
         self.failed_writes = 0
         self.write_fault = False
+        self._model_range = False
         self._record: RecordFields | None = None
         self._later: list[Event] = []
         if model_state is not None:
@@ -248,6 +259,15 @@ class Cycle:
         """Ramp-to-zero shutdown: from now on the target is 0."""
         self.faults.shutting_down = True
 
+    def shutdown_cycles(self) -> int:
+        """Cycles a ramp-to-zero from the current output takes at the slew
+        limit, plus 10 (at most MAX_SHUTDOWN_CYCLES: finite whatever the
+        numbers, a 1e308 µm limit over a 1e-10 µm/s slew was an OverflowError)."""
+        p = self.params
+        per_cycle = p.slew_um_s * p.period_s
+        n = abs(self.output.current_um) / per_cycle if per_cycle > 0.0 else math.inf
+        return 10 + (math.ceil(n) if n < MAX_SHUTDOWN_CYCLES else MAX_SHUTDOWN_CYCLES)
+
     def step(self, now_s: float, samples: Mapping[str, Sample] | None,
              readback_offset_um: float | None = None, *,
              wall_s: float | None = None) -> CycleResult:
@@ -275,6 +295,9 @@ class Cycle:
             model_um = self._step_model(values, events)
             if model_um is None:
                 status |= Status.MODEL_INVALID
+                valid = False
+            elif self._model_out_of_range(model_um, events):
+                status |= Status.MODEL_RANGE | Status.ALARM
                 valid = False
             elif self.shadow is not None:
                 shadow_um = self._step_shadow(values, events)
@@ -417,6 +440,17 @@ class Cycle:
         if self.output.held:
             return "held"
         return "write_fault" if self.write_fault else state
+
+    def _model_out_of_range(self, model_um: float, events: list[Event]) -> bool:
+        """A model output beyond MODEL_RANGE_FACTOR·limit_um is a broken model,
+        not a value to clamp: a fault (hold, then ramp) with an alarm."""
+        bound = MODEL_RANGE_FACTOR * self.params.limit_um
+        out = abs(model_um) > bound
+        if out != self._model_range:
+            self._model_range = out
+            events.append(Event("model_out_of_range" if out else "model_in_range", {
+                "model_um": model_um, "bound_um": bound}))
+        return out
 
     def _note_validity(self, validity: Mapping[str, str | None], events: list[Event]) -> None:
         for name, reason in validity.items():

@@ -181,9 +181,7 @@ class Daemon:
                 if self.cfg.raw.faults.shutdown == "ramp_to_zero" and not self.dry_run:
                     cycle.begin_shutdown()
                     self.stop_requested = asyncio.Event()  # a second signal ends the ramp
-                    p = self.params
-                    ramp_s = p.limit_um / p.slew_um_s
-                    shutdown_cycles_left = math.ceil(ramp_s / p.period_s) + 10
+                    shutdown_cycles_left = cycle.shutdown_cycles()
                     self.log.info("shutdown_requested", policy="ramp_to_zero",
                                   offset_um=result.offset_um)
                 else:
@@ -381,4 +379,4 @@ _WARNINGS = frozenset({"channel_invalid", "fault_hold", "readback_mismatch", "wr
                        "offset_write_skipped", "checkpoint_unusable", "checkpoint_state_refused",
                        "model_non_finite"})
 _ERRORS = frozenset({"fault_ramp_to_zero", "offset_write_stopped", "output_write_stopped",
-                     "readback_out_of_range", "write_fault"})
+                     "readback_out_of_range", "write_fault", "model_out_of_range"})

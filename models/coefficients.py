@@ -16,6 +16,9 @@ from decimal import Decimal, InvalidOperation
 
 from models.errors import ModelError
 
+#: a printed coefficient's decimal exponent stays within float64's (1e±308)
+MAX_EXPONENT = 308
+
 
 @dataclass(frozen=True, slots=True)
 class Printed:
@@ -50,6 +53,10 @@ def parse_coefficient(raw: float | int | str | Decimal, where: str) -> Printed:
     exponent = value.as_tuple().exponent
     if not isinstance(exponent, int):  # pragma: no cover - finite checked above
         raise ModelError(f"{where}: coefficient {raw!r} is not finite")
+    if not (-MAX_EXPONENT <= exponent <= MAX_EXPONENT
+            and (value == 0 or -MAX_EXPONENT <= value.adjusted() <= MAX_EXPONENT)):
+        raise ModelError(f"{where}: coefficient {raw!r} is outside the range of a float64 "
+                         f"(exponent beyond ±{MAX_EXPONENT})")
     half_unit = Decimal(5) * Decimal(10) ** (exponent - 1)
     return Printed(value=value, half_unit=half_unit)
 
