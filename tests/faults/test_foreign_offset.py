@@ -105,3 +105,29 @@ async def _held(rec: RecordingSim) -> bool:
 
 async def _hb_past(rec: RecordingSim, n: float) -> bool:
     return await heartbeat(rec.sim) >= n
+
+
+async def test_start_up_with_a_foreign_offset_beyond_the_limit_holds(
+        rec: RecordingSim, tmp_path: Path) -> None:
+    """The controller already holds -1000.0 when `compd run` starts (no
+    checkpoint): no offset write until the register is back within the limit."""
+    await _foreign_write(int(rec.sim.endpoint.rsplit(":", 1)[1]), -1000.0)
+    config = write_config(tmp_path, rec.sim.endpoint, time_scale=TIME_SCALE,
+                          slew_um_s=SLEW_UM_S)
+    log = tmp_path / "daemon.log"
+    proc = await start_daemon(config, log)
+    try:
+        await until(lambda: _held(rec), proc, log, "status OFFSET_HELD")
+        hb = await heartbeat(rec.sim)
+        await until(lambda: _hb_past(rec, hb + 5), proc, log, "heartbeat going on")
+        assert rec.offsets == [-1000.0]  # only the foreign write
+        await _foreign_write(int(rec.sim.endpoint.rsplit(":", 1)[1]), -90.0)
+        await until(lambda: len(rec.writes) > 5, proc, log, "writing again")
+        proc.terminate()
+        assert await asyncio.wait_for(proc.wait(), 20.0) == 0
+    finally:
+        await kill_and_wait(proc)
+    ramp = rec.offsets[1:]
+    assert ramp[0] == -90.0
+    steps = [abs(b - a) for a, b in itertools.pairwise(ramp)]
+    assert max(steps) <= SLEW_UM_S * 2.0 * PERIOD_S + 1e-3, steps
