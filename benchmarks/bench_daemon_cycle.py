@@ -3,7 +3,7 @@
 For each protocol and rate (1, 10, 100 Hz), against one simulated machine
 served by a separate `compd sim --protocol P --speedup RATE` process:
 
-- daemon: the real `compd.daemon.Daemon` (recorder on, checkpoint every 60,
+- daemon: the real `compd.runtime.daemon.Daemon` (recorder on, checkpoint every 60,
   JSON logs at info to a file, metrics objects live) runs in this process with
   timing hooks *around* it (`daemon_bench_common.TimedDriver` and
   `TimedDaemon`; the daemon's code is unchanged). Its own cost per cycle =
@@ -44,9 +44,9 @@ from daemon_bench_common import (
     write_config,
 )
 
-from compd.config import LoadedConfig, load_config
-from compd.driver_setup import build_driver
-from compd.telemetry import configure_logging
+from compd.config.loader import LoadedConfig, load_config
+from compd.faces.telemetry import configure_logging
+from compd.runtime.driver_setup import build_driver
 from drivers.errors import DriverError
 
 WARMUP_CYCLES = 5

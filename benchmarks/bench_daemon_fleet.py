@@ -7,7 +7,7 @@ controllers compete with the daemons for the same cores):
   machines between them: N simulated controllers of the protocol on
   127.0.0.1, each with its own thermal plant ticking at 1 Hz;
 - W daemon worker processes (this script with --worker; W = the CPUs, 2 by
-  default) each run N/W real `compd.daemon.Daemon`s on one event loop (recorder
+  default) each run N/W real `compd.runtime.daemon.Daemon`s on one event loop (recorder
   on, checkpoint every 20 (see --checkpoint-every), JSON logs at info to a
   file). The daemons' start
   times are spread over the period (as N independently started services
@@ -106,8 +106,8 @@ async def _sim_farm(protocol: str, count: int) -> None:
 # -- a daemon worker process -------------------------------------------------------------
 
 async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> dict[str, Any]:
-    from compd.config import load_config
-    from compd.driver_setup import build_driver
+    from compd.config.loader import load_config
+    from compd.runtime.driver_setup import build_driver
 
     daemons: list[TimedDaemon] = []
     drivers: list[TimedDriver] = []
@@ -161,7 +161,7 @@ async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> d
 
 
 def _worker_main(args: argparse.Namespace) -> None:
-    from compd.telemetry import configure_logging
+    from compd.faces.telemetry import configure_logging
 
     spec = json.loads(Path(args.worker).read_text())
     with Path(spec["log"]).open("w") as log:

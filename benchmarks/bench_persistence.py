@@ -26,9 +26,9 @@ from pathlib import Path
 
 import structlog
 
-from compd.checkpoint import save_checkpoint
-from compd.recorder import _INSERT, _SCHEMA, Recorder, RecordRow, _tuple
-from compd.telemetry import clear_secrets, configure_logging, register_secret
+from compd.faces.telemetry import clear_secrets, configure_logging, register_secret
+from compd.runtime.checkpoint import save_checkpoint
+from compd.runtime.recorder import _INSERT, _SCHEMA, Recorder, RecordRow, _tuple
 
 
 def _per_call(fn: Callable[[], None], n: int, repeats: int = 5) -> float:

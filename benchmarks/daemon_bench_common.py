@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from compd.cycle import Cycle, CycleResult
-from compd.daemon import Daemon
+from compd.core.cycle import Cycle, CycleResult
+from compd.runtime.daemon import Daemon
 from drivers.base import Driver, Sample
 from drivers.errors import ControllerTimeout
 

@@ -53,7 +53,10 @@ def range_reduction(measured: npt.ArrayLike, simulated: npt.ArrayLike) -> float:
 
 
 @dataclass(frozen=True, slots=True)
-class Quality:
+class CompensationFigures:
+    """How well a simulated displacement follows the measured one (µm, %):
+    not to be confused with `drivers.base.Quality`, a sample's GOOD/BAD flag."""
+
     fit_percent: float
     residue_min_um: float
     residue_max_um: float
@@ -64,9 +67,9 @@ class Quality:
         return asdict(self)
 
 
-def quality(measured: npt.ArrayLike, simulated: npt.ArrayLike) -> Quality:
+def quality(measured: npt.ArrayLike, simulated: npt.ArrayLike) -> CompensationFigures:
     r = residue(measured, simulated)
-    return Quality(
+    return CompensationFigures(
         fit_percent=fit_percent(measured, simulated),
         residue_min_um=float(r.min()),
         residue_max_um=float(r.max()),

@@ -2,7 +2,7 @@
 
 For a model file (or a bundled library name such as ``sp2``) it prints per
 term: poles, zeros, stability, DC gain (µm/K) and its sensitivity to the
-printed digits. A daemon config is handed to `compd.config` when present.
+printed digits. A daemon config is handed to `compd.config.loader` when present.
 Any invalid input exits 78 (EX_CONFIG) with one message naming the key.
 """
 

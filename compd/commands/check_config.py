@@ -14,7 +14,7 @@ import json
 import math
 from typing import Any
 
-from compd.config import LoadedConfig
+from compd.config.loader import LoadedConfig
 
 
 def _summary(cfg: LoadedConfig) -> dict[str, Any]:
@@ -42,7 +42,7 @@ def _summary(cfg: LoadedConfig) -> dict[str, Any]:
 
 
 async def _read_once(cfg: LoadedConfig) -> dict[str, Any]:
-    from compd.driver_setup import build_driver
+    from compd.runtime.driver_setup import build_driver
     from drivers.errors import DriverError
 
     driver = build_driver(cfg)
@@ -59,7 +59,7 @@ async def _read_once(cfg: LoadedConfig) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from compd.config import load_config
+    from compd.config.loader import load_config
 
     cfg = load_config(args.path)
     report = _summary(cfg)

@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import logging
 
-    from compd.demo import run_demo
+    from compd.offline.demo import run_demo
 
     # the simulated controllers' libraries log every dropped client at ERROR level;
     # the demo reports through its figures (the daemon's own log is in its work dir)
@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         import numpy as np
 
-        from compd.plots import replay_figure
+        from compd.offline.plots import replay_figure
         from models.quality import delta_pk
 
         h = result.history

@@ -38,7 +38,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from compd.records import Record
+    from compd.offline.records import Record
     from models.compensation import CompensationModel, Term
 
 HELP = "identify a compensation model from a calibration record and write a model file"
@@ -292,7 +292,7 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
     """Read and check records; all must share `first`'s (or the first one's) period."""
     import math
 
-    from compd.records import RecordError, check_units, read_record
+    from compd.offline.records import RecordError, check_units, read_record
 
     records = [read_record(p) for p in paths]
     for r in records:
@@ -309,7 +309,7 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
 def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[str, Any]], Path,
                                                   list[Record]]:
     """Everything but the printing (the tests call `run`)."""
-    from compd.records import speed_warnings
+    from compd.offline.records import speed_warnings
     from models.compensation import CompensationModel
     from models.errors import ModelError
     from models.modelfile import load_model, save_model
@@ -344,7 +344,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from compd.commands.replay import replay_model
-    from compd.records import RecordError
+    from compd.offline.records import RecordError
     from models.errors import ModelError
     from models.quality import quality
 

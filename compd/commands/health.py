@@ -29,6 +29,8 @@ import urllib.error
 import urllib.request
 from pathlib import Path
 
+from compd.core.faults import GAUGE_ALARM
+
 HELP = "exit 0 when the running daemon is healthy (metrics endpoint or fresh state), else 1"
 
 DEFAULT_STATE_DIR = Path("/var/lib/compd")
@@ -37,7 +39,7 @@ IGNORED = frozenset({"compd.lock"})
 CHECKPOINT_NAME = "checkpoint.json"
 #: Read at most this much of a checkpoint (it holds delay lines, not records).
 MAX_CHECKPOINT_BYTES = 16 * 1024 * 1024
-FAULT_STOPPED = 3.0
+FAULT_STOPPED = float(GAUGE_ALARM)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

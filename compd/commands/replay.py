@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     import numpy as np
     import numpy.typing as npt
 
-    from compd.records import Record
+    from compd.offline.records import Record
     from models.compensation import CompensationModel
 
 HELP = "run a model over a recorded run offline: fit %, residue, Δpk, range reduction, a plot"
@@ -42,7 +42,7 @@ def replay_model(model: CompensationModel, record: Record) -> npt.NDArray[np.flo
     """δZ predicted at every row, stepping the model as the daemon does."""
     import numpy as np
 
-    from compd.records import RecordError
+    from compd.offline.records import RecordError
 
     if not math.isclose(model.period_s, record.period_s, rel_tol=1e-6):
         raise RecordError(f"{record.path}: sampled every {record.period_s:g} s but the model "
@@ -64,7 +64,7 @@ def plot_inputs(model: CompensationModel, record: Record) -> dict[str, npt.NDArr
 
 
 def run(args: argparse.Namespace) -> int:
-    from compd.records import RecordError, check_units, read_record
+    from compd.offline.records import RecordError, check_units, read_record
     from models.errors import ModelError
     from models.modelfile import load_model
     from models.quality import quality
@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     measured = record.columns[args.output]
     q = quality(measured, simulated)
     if args.plot:
-        from compd.plots import replay_figure
+        from compd.offline.plots import replay_figure
 
         replay_figure(args.plot, record.time_s, plot_inputs(model, record), measured, simulated,
                       title=f"{model.name} on {record.path}", fit_pct=q.fit_percent,

@@ -25,17 +25,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from compd.config import load_config
+    from compd.config.loader import load_config
 
     cfg = load_config(args.config)  # ConfigError -> 78 in compd.cli
-    from compd.daemon import Daemon
-    from compd.statelock import StateLocked
-    from compd.telemetry import configure_logging
+    from compd.faces.telemetry import configure_logging
+    from compd.runtime.daemon import Daemon
+    from compd.runtime.statelock import StateLocked
 
     tel = cfg.raw.telemetry
     configure_logging(json=None if tel.log_format == "auto" else tel.log_format == "json",
                       level=tel.log_level)
-    from compd.driver_setup import build_driver
+    from compd.runtime.driver_setup import build_driver
 
     # constructed (not connected) before anything else: a refusal is a config error (78)
     daemon = Daemon(cfg, dry_run=args.dry_run, once=args.once, driver=build_driver(cfg))

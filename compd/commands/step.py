@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
                 "y_end_um": float(v[-1]), "hours": float(time_s[-1] / 3600.0)}
                for k, v in responses.items()]
     if args.plot:
-        from compd.plots import step_figure
+        from compd.offline.plots import step_figure
 
         step_figure(args.plot, time_s, responses, units,
                     title=f"{model.name}: step response per term (Ts = {model.period_s:g} s)")

@@ -1,9 +1,11 @@
-"""Shared fakes for the pure-cycle tests: a fake clock and sample sets."""
+"""Shared fakes for the pure-cycle tests: sample sets (the fake clock is
+`compd.testing.FakeClock`)."""
 
 from __future__ import annotations
 
-from compd.cycle import Cycle, CycleParams
-from compd.validation import ChannelLimits
+from compd.core.cycle import Cycle, CycleParams
+from compd.core.validation import ChannelLimits
+from compd.testing import FakeClock
 from drivers.base import Quality, Sample
 from models.compensation import CompensationModel
 from models.modelfile import load_model
@@ -37,16 +39,6 @@ def samples(t_s: float, bearing: float, ambient: float = 20.0, speed: float = 10
     ts = t_s if ts_s is None else ts_s
     return {"bearing": Sample(bearing, ts, quality), "ambient": Sample(ambient, ts),
             "speed_rpm": Sample(speed, ts)}
-
-
-class FakeClock:
-    def __init__(self, period_s: float = PERIOD_S) -> None:
-        self.now_s = 0.0
-        self.period_s = period_s
-
-    def tick(self) -> float:
-        self.now_s += self.period_s
-        return self.now_s
 
 
 def run_warm(cycle: Cycle, clock: FakeClock, n: int, bearing: float = 25.0,

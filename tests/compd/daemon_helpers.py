@@ -1,11 +1,9 @@
-"""Configs and a recording driver wrapper for the daemon tests."""
+"""Configs for the daemon tests (the recording driver is
+`compd.testing.RecordingDriver`)."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
 from pathlib import Path
-
-from drivers.base import Driver, Sample
 
 CONFIG = """
 [machine]
@@ -65,35 +63,3 @@ def write_config(tmp_path: Path, endpoint: str, *, time_scale: float = 50.0,
                                slew_um_s=slew_um_s, shutdown=shutdown,
                                checkpoint_every=checkpoint_every), encoding="utf-8")
     return p
-
-
-class RecordingDriver:
-    """Forwards to a real driver and remembers every read-back and write."""
-
-    def __init__(self, inner: Driver) -> None:
-        self.inner = inner
-        self.protocol = inner.protocol
-        #: (offset read back this cycle or None, offset written or None)
-        self.cycles: list[tuple[float | None, float | None]] = []
-        self._readback: float | None = None
-
-    @property
-    def connected(self) -> bool:
-        return self.inner.connected
-
-    async def connect(self) -> None:
-        await self.inner.connect()
-
-    async def read(self, names: Sequence[str]) -> dict[str, Sample]:
-        self._readback = None
-        got = await self.inner.read(names)
-        if "offset" in got:
-            self._readback = got["offset"].value
-        return got
-
-    async def write(self, values: Mapping[str, float]) -> None:
-        self.cycles.append((self._readback, values.get("offset")))
-        await self.inner.write(values)
-
-    async def close(self) -> None:
-        await self.inner.close()

@@ -15,8 +15,8 @@ from typing import Any
 
 import pytest
 
-from compd.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from compd.errors import CompdError
+from compd.runtime.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -153,7 +153,7 @@ def test_unstorable_and_reserved_refused(tmp_path: Path) -> None:
 _SAVER = """
 import sys
 from pathlib import Path
-from compd.checkpoint import save_checkpoint
+from compd.runtime.checkpoint import save_checkpoint
 path = Path(sys.argv[1])
 n = 20000
 seq = 0

@@ -16,10 +16,10 @@ from pathlib import Path
 import pytest
 from prometheus_client import CollectorRegistry, Gauge
 
-from compd.checkpoint import save_checkpoint
 from compd.cli import main
 from compd.commands import health
-from compd.telemetry import Metrics
+from compd.faces.telemetry import Metrics
+from compd.runtime.checkpoint import save_checkpoint
 from drivers.sim.ports import free_tcp_port
 
 
@@ -202,9 +202,9 @@ def test_health_imports_only_the_standard_library() -> None:
 
 
 async def test_running_daemon_is_healthy_by_both_sources(tmp_path: Path) -> None:
-    from compd.config import load_config
-    from compd.daemon import Daemon
-    from compd.sdnotify import Notifier
+    from compd.config.loader import load_config
+    from compd.runtime.daemon import Daemon
+    from compd.runtime.sdnotify import Notifier
     from drivers.sim.modbus_server import ModbusSimController
     from tests.compd.daemon_helpers import write_config
 

@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from compd.cli import main
-from compd.config import load_config
+from compd.config.loader import load_config
 from drivers.modbus_codec import decode
 from drivers.sim.csvlog import read_record
 from drivers.sim.drive import RECORD_FIELDS

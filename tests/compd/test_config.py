@@ -7,9 +7,9 @@ from pathlib import Path
 import pytest
 
 from compd.cli import main
-from compd.config import load_config
-from compd.config_schema import DEFAULT_STUCK_DELTA_K
-from compd.cycle import params_from_config
+from compd.config.loader import load_config
+from compd.config.schema import DEFAULT_STUCK_DELTA_K
+from compd.core.cycle import params_from_config
 from compd.errors import EX_CONFIG, ConfigError
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "compd" / "examples"

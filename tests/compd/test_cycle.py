@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from compd.cycle import Cycle
-from compd.output import Status
+from compd.core.cycle import Cycle
+from compd.core.output import Status
 from drivers.base import Quality, Sample
 
 from .cycle_helpers import (

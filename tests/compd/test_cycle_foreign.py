@@ -8,8 +8,8 @@ import math
 
 import pytest
 
-from compd.cycle import Cycle, CycleResult
-from compd.output import OutputStage, Readback, Status
+from compd.core.cycle import Cycle, CycleResult
+from compd.core.output import OutputStage, Readback, Status
 
 from .cycle_helpers import LIMIT_UM, PERIOD_S, SLEW_UM_S, FakeClock, params, samples, sp2
 

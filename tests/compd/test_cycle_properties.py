@@ -11,8 +11,8 @@ import math
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from compd.cycle import Cycle
-from compd.output import LIMIT_ROUNDING, Status
+from compd.core.cycle import Cycle
+from compd.core.output import LIMIT_ROUNDING, Status
 from drivers.base import Quality, Sample
 
 from .cycle_helpers import params, sp2

@@ -8,16 +8,17 @@ from pathlib import Path
 
 import pytest
 
-from compd.checkpoint import load_checkpoint
-from compd.config import load_config
-from compd.daemon import Daemon
-from compd.driver_setup import build_driver
-from compd.output import Status
-from compd.recorder import read_samples
-from compd.sdnotify import Notifier
+from compd.config.loader import load_config
+from compd.core.output import Status
+from compd.runtime.checkpoint import load_checkpoint
+from compd.runtime.daemon import Daemon
+from compd.runtime.driver_setup import build_driver
+from compd.runtime.recorder import read_samples
+from compd.runtime.sdnotify import Notifier
+from compd.testing import RecordingDriver
 from drivers.sim.modbus_server import ModbusSimController
 
-from .daemon_helpers import RecordingDriver, write_config
+from .daemon_helpers import write_config
 
 
 @pytest.fixture
@@ -153,7 +154,7 @@ async def test_unreachable_controller_holds_and_never_signals_ready(tmp_path: Pa
 
 async def test_second_daemon_on_the_same_state_dir_is_refused(
         sim: ModbusSimController, tmp_path: Path) -> None:
-    from compd.statelock import StateLocked
+    from compd.runtime.statelock import StateLocked
 
     cfg = load_config(write_config(tmp_path, sim.endpoint))
     first = Daemon(cfg, notifier=Notifier(None))

@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from compd.demo import daemon_config, run_demo, start_daemon, start_daemon_at_rest
-from compd.recorder import read_samples
+from compd.offline.demo import daemon_config, run_demo, start_daemon, start_daemon_at_rest
+from compd.runtime.recorder import read_samples
 from drivers.sim.base import SimController
 from drivers.sim.machine import SimMachine
 from drivers.sim.programs import make_program

@@ -4,7 +4,7 @@
   allocation counter (``sqlite3_memory_used``, read through ctypes from the
   library the ``sqlite3`` module is linked to) grows by far less than SQLite's
   default 2 MB cache after thousands of appended rows.
-- glibc's mmap threshold is pinned (`compd.heap`): a buffer of asyncio's
+- glibc's mmap threshold is pinned (`compd.runtime.heap`): a buffer of asyncio's
   socket read size (256 KiB, allocated for every controller response) is a
   mapping of its own, not carved out of the brk heap where it fragments.
 """
@@ -21,8 +21,8 @@ from pathlib import Path
 
 import pytest
 
-from compd.heap import pin_mmap_threshold
-from compd.recorder import CACHE_KIB, Recorder, RecordRow
+from compd.runtime.heap import pin_mmap_threshold
+from compd.runtime.recorder import CACHE_KIB, Recorder, RecordRow
 
 
 def _sqlite_lib() -> ctypes.CDLL | None:
@@ -70,7 +70,7 @@ def test_recorder_sqlite_memory_stays_within_its_page_cache(tmp_path: Path) -> N
 
 _PROBE = """
 import ctypes, sys
-from compd.heap import pin_mmap_threshold
+from compd.runtime.heap import pin_mmap_threshold
 
 class MallInfo2(ctypes.Structure):
     _fields_ = [(n, ctypes.c_size_t) for n in ("arena", "ordblks", "smblks", "hblks", "hblkhd",

@@ -14,10 +14,11 @@ from pathlib import Path
 import pytest
 
 from compd.cli import main
-from compd.config import load_config
-from compd.cycle import MAX_SHUTDOWN_CYCLES, MODEL_RANGE_FACTOR, Cycle
+from compd.config.loader import load_config
+from compd.core.cycle import MODEL_RANGE_FACTOR, Cycle
+from compd.core.output import Status
+from compd.core.schedule import MAX_SHUTDOWN_CYCLES, SHUTDOWN_MARGIN_CYCLES, shutdown_ramp_cycles
 from compd.errors import ConfigError
-from compd.output import Status
 from models.modelfile import parse_model
 
 from .cycle_helpers import LIMIT_UM, FakeClock, params, samples
@@ -113,12 +114,8 @@ def test_absurd_period_limit_and_slew_are_refused(tmp_path: Path, kw: dict[str, 
 
 
 def test_shutdown_ramp_length_is_finite_whatever_the_numbers() -> None:
-    cycle = Cycle(params(limit_um=1e308, slew_um_s=1e-10), _model(1.0))
-    cycle.output.current_um = 1e308
-    assert cycle.shutdown_cycles() == 10 + MAX_SHUTDOWN_CYCLES
-    cycle = Cycle(params(), _model(1.0))
-    cycle.output.current_um = 30.0
-    assert cycle.shutdown_cycles() == 10 + 30
+    assert shutdown_ramp_cycles(1e308, 1e-10, 1.0) == MAX_SHUTDOWN_CYCLES + SHUTDOWN_MARGIN_CYCLES
+    assert shutdown_ramp_cycles(30.0, 1.0, 1.0) == 30 + SHUTDOWN_MARGIN_CYCLES
 
 
 def _model(dc_um_per_k: float) -> object:

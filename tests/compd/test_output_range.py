@@ -11,7 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from compd.config import load_config
+from compd.config.loader import load_config
+from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX
+from compd.core.cycle import HEARTBEAT_MODULO
+from compd.core.output import Status
 from compd.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -108,3 +111,8 @@ def test_compd_check_exits_78_naming_the_key_and_both_ranges(tmp_path: Path) -> 
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "output.offset" in lines[0]
     assert "-3.2768..3.2767 µm" in lines[0] and "-200..200 µm" in lines[0]
+
+
+def test_the_config_knows_the_heartbeat_and_status_ranges_of_the_core() -> None:
+    assert HEARTBEAT_MAX == HEARTBEAT_MODULO - 1
+    assert int(~Status(0)) == STATUS_MAX

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from compd.output import OutputStage, Status
+from compd.core.output import OutputStage, Status
 
 
 def test_clamp_slew_and_conversion() -> None:

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from compd.errors import CompdError
-from compd.recorder import Recorder, RecorderError, RecordRow, read_samples
+from compd.runtime.recorder import Recorder, RecorderError, RecordRow, read_samples
 from tests.tmpfs import fill, small_tmpfs
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -137,7 +137,7 @@ def test_not_open_and_bad_path(tmp_path: Path) -> None:
 _WRITER = """
 import sys
 from pathlib import Path
-from compd.recorder import Recorder, RecordRow
+from compd.runtime.recorder import Recorder, RecordRow
 rec = Recorder(Path(sys.argv[1]), commit_every=int(sys.argv[2]))
 rec.open()
 out = sys.stdout

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from compd.records import RecordError, check_units, read_csv_record, speed_warnings
+from compd.offline.records import RecordError, check_units, read_csv_record, speed_warnings
 
 
 def _write(path: Path, rows: list[str], header: str = "time_s,bearing,dz_um") -> Path:
@@ -70,7 +70,7 @@ def test_constant_speed_heat_up_alone_is_warned_about(tmp_path: Path) -> None:
 
 def _recorder_db(path: Path, n: int, *, missing_at: int | None = None,
                  restart_at: int | None = None) -> Path:
-    from compd.recorder import Recorder, RecordRow
+    from compd.runtime.recorder import Recorder, RecordRow
 
     with Recorder(path, commit_every=50) as rec:
         for k in range(n):
@@ -85,7 +85,7 @@ def _recorder_db(path: Path, n: int, *, missing_at: int | None = None,
 
 
 def test_a_recorder_database_reads_as_a_record(tmp_path: Path) -> None:
-    from compd.records import read_record
+    from compd.offline.records import read_record
 
     rec = read_record(_recorder_db(tmp_path / "run.db", 30))
     assert rec.period_s == 10.0 and len(rec) == 30
@@ -96,7 +96,7 @@ def test_a_recorder_database_reads_as_a_record(tmp_path: Path) -> None:
 
 def test_a_recorder_database_with_a_gap_in_a_channel_or_a_restart_is_refused(
         tmp_path: Path) -> None:
-    from compd.records import read_record
+    from compd.offline.records import read_record
 
     with pytest.raises(RecordError, match=r"row 7, column 'bearing': no valid value"):
         read_record(_recorder_db(tmp_path / "gap.db", 20, missing_at=5))

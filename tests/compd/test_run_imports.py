@@ -16,10 +16,10 @@ from pathlib import Path
 _PROBE = """
 import json, sys
 from compd.commands import run  # noqa: F401  (the command module, as the CLI loads it)
-from compd.config import load_config
-from compd.daemon import Daemon
-from compd.driver_setup import build_driver
-from compd.telemetry import configure_logging
+from compd.config.loader import load_config
+from compd.runtime.daemon import Daemon
+from compd.runtime.driver_setup import build_driver
+from compd.faces.telemetry import configure_logging
 
 cfg = load_config(sys.argv[1])
 configure_logging(json=True, level="info")
@@ -66,7 +66,7 @@ def test_modbus_run_imports_no_scipy_matplotlib_or_other_drivers(tmp_path: Path)
     assert proc.returncode == 0, proc.stderr
     modules = set(json.loads(proc.stdout.strip().splitlines()[-1]))
     tops = {name.split(".")[0] for name in modules}
-    assert "compd.daemon" in modules and "drivers.modbus" in modules
+    assert "compd.runtime.daemon" in modules and "drivers.modbus" in modules
     assert "pymodbus" in tops
     loaded = {"scipy", "matplotlib", "asyncua", "snap7"} & tops
     assert not loaded, f"compd run for Modbus imported {sorted(loaded)}"

@@ -16,7 +16,7 @@ from typing import Any
 
 import pytest
 
-from compd.checkpoint import load_checkpoint
+from compd.runtime.checkpoint import load_checkpoint
 from drivers.modbus_codec import decode
 from drivers.sim.modbus_server import OUTPUTS, ModbusSimController
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from compd.sdnotify import Notifier, watchdog_interval_s
+from compd.runtime.sdnotify import Notifier, watchdog_interval_s
 
 
 @pytest.fixture

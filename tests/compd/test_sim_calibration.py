@@ -37,8 +37,8 @@ def test_replay_on_a_fresh_spectrum_run(seed: int, tmp_path: Path,
 
 def test_replay_reads_the_daemons_recorder_database(tmp_path: Path,
                                                     capsys: pytest.CaptureFixture[str]) -> None:
-    from compd.recorder import Recorder, RecordRow
-    from compd.records import read_csv_record
+    from compd.offline.records import read_csv_record
+    from compd.runtime.recorder import Recorder, RecordRow
 
     csv_path, db_path = tmp_path / "spectrum.csv", tmp_path / "spectrum.db"
     assert main(["sim", "--record", str(csv_path), "--program", "spectrum", "--period-s", "60",

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from compd.errors import CompdError
-from compd.statelock import StateLock, StateLocked
+from compd.runtime.statelock import StateLock, StateLocked
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV = dict(os.environ, PYTHONPATH=str(ROOT))
@@ -20,7 +20,7 @@ ENV = dict(os.environ, PYTHONPATH=str(ROOT))
 _HOLDER = """
 import sys, time
 from pathlib import Path
-from compd.statelock import StateLock
+from compd.runtime.statelock import StateLock
 lock = StateLock(Path(sys.argv[1]))
 lock.acquire()
 sys.stdout.write("held\\n"); sys.stdout.flush()
@@ -30,7 +30,7 @@ time.sleep(60)
 _TRY = """
 import sys
 from pathlib import Path
-from compd.statelock import StateLock, StateLocked
+from compd.runtime.statelock import StateLock, StateLocked
 try:
     StateLock(Path(sys.argv[1])).acquire()
 except StateLocked as exc:

@@ -14,7 +14,7 @@ from collections.abc import Iterator
 import pytest
 import structlog
 
-from compd.telemetry import Metrics, clear_secrets, configure_logging, register_secret
+from compd.faces.telemetry import Metrics, clear_secrets, configure_logging, register_secret
 
 PASSWORD = "hunter2-Zq9!"
 

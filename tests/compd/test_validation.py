@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from compd.validation import ChannelLimits, Validator
+from compd.core.validation import ChannelLimits, Validator
 from drivers.base import Quality, Sample
 
 

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from compd.config import load_config
-from compd.cycle import WRITE_FAULT_AFTER, Cycle
-from compd.daemon import Daemon
-from compd.output import Status
-from compd.sdnotify import Notifier
+from compd.config.loader import load_config
+from compd.core.cycle import WRITE_FAULT_AFTER, Cycle
+from compd.core.output import Status
+from compd.runtime.daemon import Daemon
+from compd.runtime.sdnotify import Notifier
 from drivers.sim.modbus_server import ModbusSimController
 
 from .cycle_helpers import FakeClock, params, run_warm, samples, sp2
@@ -30,7 +30,8 @@ def test_repeated_write_failures_are_a_fault_until_a_write_succeeds() -> None:
         r = cycle.step(t, samples(t, 20.5))
         assert r.record is not None and r.record.attempted_um == r.offset_um
         ev = cycle.write_failed("offset", permanent=False, reason="out of range")
-        assert r.record.confirmed is False
+        # not confirmed: the row keeps it as attempted only
+        assert r.record.offset_um is None and r.record.attempted_um is not None
         faults += [i for e in ev if e.name == "write_fault"]
     assert faults == [WRITE_FAULT_AFTER - 1]  # once, at the WRITE_FAULT_AFTER-th
     assert r.status & Status.WRITE_FAULT and r.status & Status.ALARM
@@ -38,7 +39,7 @@ def test_repeated_write_failures_are_a_fault_until_a_write_succeeds() -> None:
     t = clock.tick()
     r = cycle.step(t, samples(t, 20.5))
     cycle.write_ok()
-    assert r.record is not None and r.record.confirmed is True
+    assert r.record.offset_um == r.record.attempted_um == r.offset_um
     t = clock.tick()
     r = cycle.step(t, samples(t, 20.5))
     assert "write_recovered" in [e.name for e in r.events]

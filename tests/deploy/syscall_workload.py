@@ -25,8 +25,8 @@ from pathlib import Path
 
 
 def _model_and_state(state_dir: Path) -> None:
-    from compd.checkpoint import load_checkpoint, save_checkpoint
-    from compd.statelock import StateLock
+    from compd.runtime.checkpoint import load_checkpoint, save_checkpoint
+    from compd.runtime.statelock import StateLock
     from models.modelfile import load_model
 
     model = load_model("sp2")

@@ -1,6 +1,6 @@
 """The in-process daemon against a simulated controller, for the fault tests.
 
-`DaemonRig` builds a daemon config for the sim (`compd.demo.daemon_config`,
+`DaemonRig` builds a daemon config for the sim (`compd.offline.demo.daemon_config`,
 then the test's overrides), wraps the real driver in `InvariantDriver` (every
 write checked) and runs `Daemon.run()` as a task at a fast time scale. The
 test's plant callback runs before every read with the read's index and the
@@ -15,11 +15,11 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
-from compd.config import LoadedConfig, parse_config
-from compd.daemon import Daemon
-from compd.demo import daemon_config
-from compd.driver_setup import build_driver
-from compd.sdnotify import Notifier
+from compd.config.loader import LoadedConfig, parse_config
+from compd.offline.demo import daemon_config
+from compd.runtime.daemon import Daemon
+from compd.runtime.driver_setup import build_driver
+from compd.runtime.sdnotify import Notifier
 from drivers.sim.base import SimController
 from tests.faults.invariants import InvariantDriver, Invariants
 

@@ -26,7 +26,7 @@ from typing import Any
 
 import pytest
 
-from compd.cycle import HEARTBEAT_MODULO, Cycle, CycleResult
+from compd.core.cycle import HEARTBEAT_MODULO, Cycle, CycleResult
 from drivers.base import Driver, Sample
 
 #: float32 registers and rounding: tolerance on the µm comparisons

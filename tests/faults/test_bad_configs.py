@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 
 from compd.cli import main
-from compd.config import load_config
+from compd.config.loader import load_config
 from compd.errors import EX_CONFIG, ConfigError
 
 from .daemon_run import ROOT, daemon_env, forget_daemon_logging

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from compd.validation import ChannelLimits, Validator
+from compd.core.validation import ChannelLimits, Validator
 from drivers.base import Sample
 from drivers.sim.registry import make_sim_controller
 from tests.faults.daemon_rig import DaemonRig, make_config

@@ -22,7 +22,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from compd.config import load_config, parse_config
+from compd.config.loader import load_config, parse_config
 from compd.errors import ConfigError
 
 from .test_bad_configs import BASES

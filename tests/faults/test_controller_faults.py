@@ -20,7 +20,7 @@ from typing import Any
 
 import pytest
 
-from compd.output import Status
+from compd.core.output import Status
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.opcua_server import node_id
 from drivers.sim.registry import make_sim_controller

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from compd.recorder import read_samples
+from compd.runtime.recorder import read_samples
 from drivers.sim.ports import free_tcp_port
 from tests.compd.daemon_helpers import write_config
 from tests.tmpfs import fill, small_tmpfs

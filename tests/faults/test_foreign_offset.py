@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from compd.output import Status
+from compd.core.output import Status
 from drivers.modbus_codec import encode
 from drivers.sim.modbus_server import OUTPUTS, UNIT
 from tests.compd.daemon_helpers import write_config

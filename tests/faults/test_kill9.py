@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from compd.checkpoint import load_checkpoint
-from compd.recorder import read_samples
+from compd.runtime.checkpoint import load_checkpoint
+from compd.runtime.recorder import read_samples
 from tests.compd.daemon_helpers import write_config
 
 from .daemon_run import RecordingSim, heartbeat, kill_and_wait, start_daemon, tail, until

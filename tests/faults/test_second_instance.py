@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from compd.checkpoint import load_checkpoint
 from compd.cli import main
 from compd.commands.run import EX_TEMPFAIL
+from compd.runtime.checkpoint import load_checkpoint
 from tests.compd.daemon_helpers import write_config
 
 from .daemon_run import (

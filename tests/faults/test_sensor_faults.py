@@ -19,9 +19,9 @@ from pathlib import Path
 
 import pytest
 
-from compd.cycle import Cycle
-from compd.output import Status
-from compd.validation import ChannelLimits
+from compd.core.cycle import Cycle
+from compd.core.output import Status
+from compd.core.validation import ChannelLimits
 from drivers.base import Quality, Sample
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.registry import make_sim_controller

@@ -2,7 +2,7 @@
 `ConfigError` naming the dotted key path and the reason (exit 78).
 
 `load_config(path)` reads the file, validates the sections
-(`compd.config_schema`), then the checks that span sections: the controller
+(`compd.config.schema`), then the checks that span sections: the controller
 timeout against the period, every address against the protocol's address
 model, the model (file or inline terms: stable, its channels configured, its
 period equal to the machine's) and the shadow model. Nothing here connects
@@ -22,11 +22,9 @@ from typing import Any
 
 from pydantic import BaseModel, TypeAdapter, ValidationError
 
-from compd.config_schema import DaemonConfig, SecuritySection
-from compd.cycle import HEARTBEAT_MODULO
+from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX, check_outputs
+from compd.config.schema import DaemonConfig, SecuritySection
 from compd.errors import ConfigError
-from compd.output import Status
-from compd.output_range import check_outputs
 from drivers.addresses import ADDRESS_TYPES, Address, FocasAddress
 from models.compensation import CompensationModel
 from models.errors import ModelError
@@ -223,8 +221,7 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         if doc_addr is not None:
             outputs[name] = _validate_address(ctl.protocol, doc_addr, f"output.{name}")
     check_outputs(ctl.protocol, outputs, limit_um=out.limit_um, units_per_um=out.units_per_um,
-                  sign=out.sign, heartbeat_max=HEARTBEAT_MODULO - 1,
-                  status_max=int(~Status(0)))
+                  sign=out.sign, heartbeat_max=HEARTBEAT_MAX, status_max=STATUS_MAX)
     clash = sorted(set(channels) & set(OUTPUT_NAMES))
     if clash:
         raise ConfigError(f"channels.{clash[0]}", "this name is reserved for an output")

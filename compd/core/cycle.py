@@ -11,15 +11,15 @@ One `Cycle.step(now_s, samples, readback_offset_um)`:
    target at the slew limit); beyond ±limit_um it is an alarm and no offset
    is written (OFFSET_HELD, state "held") until the controller's value is back
    within the limit, and then the output ramps from there;
-2. validate every channel (`compd.validation`); the cycle is valid when every
+2. validate every channel (`compd.core.validation`); the cycle is valid when every
    channel the live model reads is valid;
 3. valid: initialise the model on the first valid sample if needed (restored
    state, or the steady state matching today's temperatures), then step it
    (and the shadow model) once; invalid: the filters are NOT stepped; a model
    output beyond MODEL_RANGE_FACTOR·limit_um makes the cycle invalid (a
    fault: hold, then ramp) with MODEL_RANGE and ALARM;
-4. fault policy (`compd.faults`) picks the target; the output stage
-   (`compd.output`) makes it safe;
+4. fault policy (`compd.core.faults`) picks the target; the output stage
+   (`compd.core.output`) makes it safe;
 5. writes: the offset (in controller units; omitted once the controller
    refused it permanently, and while read-back is configured but the read
    failed, since then the controller's state is unknown), the heartbeat
@@ -27,26 +27,29 @@ One `Cycle.step(now_s, samples, readback_offset_um)`:
 
 The shell reports each write's outcome with `write_ok()` / `write_failed()`;
 WRITE_FAULT_AFTER offset writes failing in a row are a write fault (WRITE_FAULT
-and ALARM, state "write_fault") until one succeeds. The record row says what
-was sent (`attempted_um`) and whether the controller confirmed it.
+and ALARM, state "write_fault") until one succeeds. The record row keeps what
+was sent (`attempted_um`) apart from what the controller confirmed
+(`offset_um`: None once `write_failed()` said the offset did not arrive).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from compd.faults import Event, FaultPolicy, State
-from compd.output import OutputStage, Readback, Status
-from compd.validation import ChannelLimits, Validator
+from compd.core.faults import Event, FaultPolicy, FaultState
+from compd.core.output import OutputStage, Readback, Status
+from compd.core.record import RecordRow
+from compd.core.validation import ChannelLimits, Validator
 from drivers.base import Sample
 from models.compensation import CompensationModel
 from models.errors import ModelError
 
 if TYPE_CHECKING:
-    from compd.config import LoadedConfig
+    from compd.config.loader import LoadedConfig
 
 #: the heartbeat counts modulo this (fits INT, WORD, uint16, DINT, PMC word)
 HEARTBEAT_MODULO = 32768
@@ -55,9 +58,6 @@ HEARTBEAT_MODULO = 32768
 #: alarm: MODEL_RANGE), not a value to clamp quietly: a model that far off is
 #: broken (a thermal model near its limit may overshoot it, not by 5×)
 MODEL_RANGE_FACTOR = 5.0
-
-#: the longest ramp-to-zero shutdown, in cycles (see Cycle.shutdown_cycles)
-MAX_SHUTDOWN_CYCLES = 10**7
 
 #: this many offset writes in a row failing (transient) are a write fault:
 #: WRITE_FAULT and ALARM, state "write_fault", until a write succeeds
@@ -103,43 +103,35 @@ def params_from_config(cfg: LoadedConfig, *, dry_run: bool = False) -> CyclePara
 
 
 @dataclass
-class RecordFields:
-    """One row for the recorder (the shell adds the wall-clock time)."""
-
-    seq: int
-    mono_s: float
-    offset_um: float
-    model_um: float | None
-    state: str
-    valid: bool
-    channels: dict[str, float | None]
-    validity: dict[str, str | None]
-    contributions: dict[str, float]
-    #: the offset sent to the controller (µm), None when none was sent
-    attempted_um: float | None = None
-    #: the controller confirmed `attempted_um` (set by write_ok / write_failed;
-    #: None: not sent, or the outcome not known yet)
-    confirmed: bool | None = None
-
-
-@dataclass
 class CycleResult:
+    """What one cycle hands the shell: its `record` row (model output, state,
+    channels, validity, contributions: read them there or through the
+    properties) and what the shell does with it (writes, events, status)."""
+
     sequence: int
     #: output name -> value in controller units
     writes: dict[str, float]
     #: the output stage's value in µm (what was, or would be, written)
     offset_um: float
-    model_um: float | None
     shadow_um: float | None
-    state: State | str
     status: int
     heartbeat: int
     #: inputs valid and the model stepped (heartbeat advanced)
     complete: bool
+    #: the recorder's row (wall_s: as passed to `step`, NaN when none was;
+    #: the shell stamps the time of recording)
+    record: RecordRow
     events: list[Event] = field(default_factory=list)
-    record: RecordFields | None = None
     #: a ramp-to-zero shutdown has reached zero (or cannot write any more)
     shutdown_done: bool = False
+
+    @property
+    def model_um(self) -> float | None:
+        return self.record.model_um
+
+    @property
+    def state(self) -> FaultState:
+        return FaultState(self.record.state)
 
 
 def _finite_or_none(x: float) -> float | None:
@@ -192,7 +184,7 @@ class Cycle:
         self.failed_writes = 0
         self.write_fault = False
         self._model_range = False
-        self._record: RecordFields | None = None
+        self._result: CycleResult | None = None
         self._later: list[Event] = []
         if model_state is not None:
             model.import_state(model_state)  # ModelError: the caller falls back
@@ -259,15 +251,6 @@ class Cycle:
         """Ramp-to-zero shutdown: from now on the target is 0."""
         self.faults.shutting_down = True
 
-    def shutdown_cycles(self) -> int:
-        """Cycles a ramp-to-zero from the current output takes at the slew
-        limit, plus 10 (at most MAX_SHUTDOWN_CYCLES: finite whatever the
-        numbers, a 1e308 µm limit over a 1e-10 µm/s slew was an OverflowError)."""
-        p = self.params
-        per_cycle = p.slew_um_s * p.period_s
-        n = abs(self.output.current_um) / per_cycle if per_cycle > 0.0 else math.inf
-        return 10 + (math.ceil(n) if n < MAX_SHUTDOWN_CYCLES else MAX_SHUTDOWN_CYCLES)
-
     def step(self, now_s: float, samples: Mapping[str, Sample] | None,
              readback_offset_um: float | None = None, *,
              wall_s: float | None = None) -> CycleResult:
@@ -304,7 +287,7 @@ class Cycle:
 
         decision = self.faults.decide(now_s, valid, model_um, events)
         target = self.output.current_um if decision.target_um is None else decision.target_um
-        offset_um = self.output.step(target, dt, deadband=decision.state == "ok")
+        offset_um = self.output.step(target, dt, deadband=decision.state == FaultState.OK)
 
         if valid:
             self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
@@ -337,20 +320,20 @@ class Cycle:
                                                     strict=True)} if valid else {}
         if shadow_um is not None:
             contributions["shadow_total"] = shadow_um
-        record = RecordFields(
-            seq=self.sequence, mono_s=now_s, offset_um=offset_um, model_um=model_um,
+        record = RecordRow(
+            seq=self.sequence, mono_s=now_s, wall_s=math.nan if wall_s is None else wall_s,
+            offset_um=offset_um if p.offset_name in writes else None, model_um=model_um,
             state=self._state(decision.state), valid=valid,
             channels={n: _finite_or_none(v) for n, v in values.items()},
             validity=validity, contributions=contributions,
             attempted_um=offset_um if self._offset_pending else None)
-        self._record = record
         done = self.faults.shutting_down and (offset_um == 0.0 or self.write_stopped
                                               or self.output.held)
-        return CycleResult(
-            sequence=self.sequence, writes=writes, offset_um=offset_um, model_um=model_um,
-            shadow_um=shadow_um, state=record.state, status=int(status),
-            heartbeat=self.heartbeat, complete=valid, events=events, record=record,
-            shutdown_done=done)
+        self._result = CycleResult(
+            sequence=self.sequence, writes=writes, offset_um=offset_um, shadow_um=shadow_um,
+            status=int(status), heartbeat=self.heartbeat, complete=valid, record=record,
+            events=events, shutdown_done=done)
+        return self._result
 
     # -- write outcome ------------------------------------------------------------------
 
@@ -358,7 +341,6 @@ class Cycle:
         """Every write of the last result reached the controller."""
         if self._offset_pending:
             self.output.confirm()
-            self._outcome(True)
             if self.write_fault:
                 self._later.append(Event("write_recovered", {"failed_writes":
                                                              self.failed_writes}))
@@ -376,7 +358,7 @@ class Cycle:
         offset_failed = self._offset_pending
         if offset_failed:
             self.output.revert()
-            self._outcome(False)
+            self._unconfirmed()
         self._offset_pending = False
         if not permanent:
             events.append(Event("write_failed", {"output": output, "reason": reason}))
@@ -402,9 +384,12 @@ class Cycle:
             events.append(Event("output_write_stopped", {"output": name, "reason": reason}))
         return events
 
-    def _outcome(self, confirmed: bool) -> None:
-        if self._record is not None and self._record.attempted_um is not None:
-            self._record.confirmed = confirmed
+    def _unconfirmed(self) -> None:
+        """The last result's offset did not reach the controller: its record
+        row keeps it as attempted only (`offset_um` is what was confirmed)."""
+        r = self._result
+        if r is not None and r.record.offset_um is not None:
+            r.record = dataclasses.replace(r.record, offset_um=None)
 
     # -- internals ------------------------------------------------------------------------
 
@@ -432,14 +417,14 @@ class Cycle:
             self._foreign = True
         return Status(0)
 
-    def _state(self, state: str) -> str:
-        """The state recorded and reported: the fault policy's, unless no
-        offset is written at all."""
+    def _state(self, state: FaultState) -> FaultState:
+        """The state recorded and reported: the fault policy's, unless the
+        offset is not reaching the controller."""
         if self.write_stopped:
-            return "stopped"
+            return FaultState.STOPPED
         if self.output.held:
-            return "held"
-        return "write_fault" if self.write_fault else state
+            return FaultState.HELD
+        return FaultState.WRITE_FAULT if self.write_fault else state
 
     def _model_out_of_range(self, model_um: float, events: list[Event]) -> bool:
         """A model output beyond MODEL_RANGE_FACTOR·limit_um is a broken model,
@@ -499,15 +484,16 @@ class Cycle:
         self._shadow_ready = False
         return None
 
-    def _status_bits(self, state: str, alarm: bool) -> Status:
+    def _status_bits(self, state: FaultState, alarm: bool) -> Status:
         s = Status(0)
-        if state == "ok" and not (self.write_stopped or self.output.held or self.write_fault):
+        if state == FaultState.OK and not (self.write_stopped or self.output.held
+                                           or self.write_fault):
             s |= Status.OK
-        elif state == "hold":
+        elif state == FaultState.HOLD:
             s |= Status.HOLDING
-        elif state == "ramp":
+        elif state == FaultState.RAMP:
             s |= Status.RAMPING
-        elif state == "shutdown":
+        elif state == FaultState.SHUTDOWN:
             s |= Status.SHUTDOWN
         if alarm or self.write_stopped:
             s |= Status.ALARM

@@ -20,10 +20,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from compd.checkpoint import CheckpointError, load_checkpoint
-from compd.config import LoadedConfig
-from compd.cycle import Cycle, CycleParams
-from compd.faults import Event
+from compd.config.loader import LoadedConfig
+from compd.core.cycle import Cycle, CycleParams
+from compd.core.faults import Event
+from compd.runtime.checkpoint import CheckpointError, load_checkpoint
 from models.errors import ModelError
 
 CHECKPOINT_NAME = "checkpoint.json"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from compd.config import LoadedConfig, read_password
+from compd.config.loader import LoadedConfig, read_password
 from drivers.backoff import Backoff
 from drivers.base import Driver
 from drivers.factory import open_driver
@@ -28,7 +28,7 @@ def driver_options(cfg: LoadedConfig) -> dict[str, Any]:
 
         password = read_password(sec, base)
         if password:
-            from compd.telemetry import register_secret
+            from compd.faces.telemetry import register_secret
 
             register_secret(password)
         opts["security"] = OpcUaSecurity(

@@ -14,7 +14,7 @@ trust: an empty or truncated file, bytes that are not UTF-8 JSON, a wrong
 version, a checksum that does not match, non-finite numbers. It never returns
 part of a file.
 
-One writer per checkpoint path: the daemon holds `compd.statelock.StateLock`
+One writer per checkpoint path: the daemon holds `compd.runtime.statelock.StateLock`
 on its state directory, so a fixed temp name is safe.
 """
 

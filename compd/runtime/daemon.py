@@ -4,10 +4,10 @@ Per sample: read (channels, plus the offset when read-back is on) → `Cycle.ste
 (validate, step, fault policy, output stage) → write → record → checkpoint
 (every state.checkpoint_every samples and on shutdown).
 
-Scheduling: absolute deadlines on `time.monotonic`; deadline += period /
-time_scale. A cycle that ends past its next deadline is an overrun: counted,
-logged, and the schedule skips to the next deadline in the future (never a
-burst of catch-up cycles).
+Scheduling (`compd.core.schedule`): absolute deadlines on `time.monotonic`,
+one every period / time_scale real seconds. A cycle that ends past its next
+deadline is an overrun: counted, logged, and the schedule skips to the next
+deadline in the future (never a burst of catch-up cycles).
 
 Driver errors on read are a failed read (the cycle holds); the driver
 reconnects by itself with its backoff. Write errors go back to the cycle
@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import math
 import signal
 import time
@@ -30,18 +31,17 @@ from typing import Any
 
 import structlog
 
-from compd.config import LoadedConfig
-from compd.cycle import Cycle, CycleResult, params_from_config
-from compd.faults import Event
-from compd.heap import pin_mmap_threshold
-from compd.sdnotify import Notifier
-from compd.startup import checkpoint_path, start_cycle
-from compd.telemetry import Metrics
+from compd.config.loader import LoadedConfig
+from compd.core.cycle import Cycle, CycleResult, params_from_config
+from compd.core.faults import Event
+from compd.core.schedule import Schedule, shutdown_ramp_cycles
+from compd.faces.telemetry import Metrics
+from compd.runtime.heap import pin_mmap_threshold
+from compd.runtime.sdnotify import Notifier
+from compd.runtime.startup import checkpoint_path, start_cycle
 from drivers.base import Driver, Quality, Sample
 from drivers.errors import DriverError, WriteRejected
 
-#: states not here ("held", "write_fault": no offset reaches the controller) are 3
-_FAULT_GAUGE = {"ok": 0, "init": 0, "hold": 1, "ramp": 2, "stopped": 3, "shutdown": 2}
 #: STATUS= is sent on a state change or at least this often (cycles)
 _STATUS_EVERY = 10
 
@@ -82,7 +82,7 @@ class Daemon:
 
     async def run(self) -> int:
         """Run until stopped (or one cycle with `once`); returns the exit status."""
-        pin_mmap_threshold()  # months of cycles must not fragment the C heap (compd.heap)
+        pin_mmap_threshold()  # months of cycles must not fragment the C heap (compd.runtime.heap)
         loop = asyncio.get_running_loop()
         installed = []
         for sig in (signal.SIGTERM, signal.SIGINT):
@@ -103,7 +103,7 @@ class Daemon:
         cfg = self.cfg
         writing_state = not self.dry_run
         if writing_state:
-            from compd.statelock import StateLock
+            from compd.runtime.statelock import StateLock
 
             self._lock = StateLock(cfg.state_dir)
             self._lock.acquire()  # StateLocked propagates: the caller reports it
@@ -129,7 +129,7 @@ class Daemon:
                 self.metrics.start_http(port)
             driver = self._driver
             if driver is None:
-                from compd.driver_setup import build_driver
+                from compd.runtime.driver_setup import build_driver
 
                 driver = self._driver = build_driver(cfg)
             try:
@@ -156,14 +156,12 @@ class Daemon:
             self.log.warning("controller_connect_failed", error=str(exc))
 
     async def _loop(self, driver: Driver, cycle: Cycle) -> int:
-        period_real_s = self.cfg.real_period_s
-        scale = self.cfg.raw.machine.time_scale
-        t0 = self.clock()
-        deadline = t0
+        schedule = Schedule(self.cfg.real_period_s, self.clock(),
+                            time_scale=self.cfg.raw.machine.time_scale)
         shutdown_cycles_left: int | None = None
         while True:
             started = self.clock()
-            now_s = (started - t0) * scale
+            now_s = schedule.machine_s(started)
             result = await self._one_cycle(driver, cycle, now_s)
             self.metrics.cycle_seconds.observe(self.clock() - started)
             if self.once:
@@ -181,24 +179,24 @@ class Daemon:
                 if self.cfg.raw.faults.shutdown == "ramp_to_zero" and not self.dry_run:
                     cycle.begin_shutdown()
                     self.stop_requested = asyncio.Event()  # a second signal ends the ramp
-                    shutdown_cycles_left = cycle.shutdown_cycles()
+                    p = self.params
+                    shutdown_cycles_left = shutdown_ramp_cycles(p.limit_um, p.slew_um_s,
+                                                                p.period_s)
                     self.log.info("shutdown_requested", policy="ramp_to_zero",
                                   offset_um=result.offset_um)
                 else:
                     self.log.info("shutdown_requested", policy="hold",
                                   offset_um=result.offset_um)
                     break
-            deadline += period_real_s
-            now = self.clock()
-            if now > deadline:
-                missed = math.floor((now - deadline) / period_real_s) + 1
-                deadline += missed * period_real_s
+            missed = schedule.advance(self.clock())
+            if missed:
                 self.overruns += 1
                 self.metrics.overruns.inc()
                 self.log.warning("cycle_overrun", sequence=result.sequence,
                                  skipped_deadlines=missed, overruns=self.overruns)
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self.stop_requested.wait(), deadline - self.clock())
+                await asyncio.wait_for(self.stop_requested.wait(),
+                                       schedule.wait_s(self.clock()))
             if shutdown_cycles_left is not None and self.stop_requested.is_set():
                 self.log.warning("shutdown_ramp_interrupted", offset_um=cycle.output.current_um)
                 break
@@ -259,7 +257,7 @@ class Daemon:
         sec = self.cfg.raw.controller.security
         if sec is None:
             return
-        from compd.certcheck import WARN_DAYS, expiry_days
+        from compd.runtime.certcheck import WARN_DAYS, expiry_days
 
         base = self.cfg.path.parent
         for role, path in (("client", sec.certificate), ("server", sec.server_certificate)):
@@ -284,7 +282,7 @@ class Daemon:
         path = self.cfg.recorder_path
         if self.dry_run or path is None:
             return
-        from compd.recorder import Recorder
+        from compd.runtime.recorder import Recorder
 
         rc = self.cfg.raw.recorder
         retention_s = rc.retention_days * 86400.0 if rc.retention_days else None
@@ -297,18 +295,10 @@ class Daemon:
         self._recorder = recorder
 
     def _record(self, result: CycleResult) -> None:
-        if self._recorder is None or result.record is None:
+        if self._recorder is None:
             return
-        from compd.recorder import RecordRow
-
-        r = result.record
         dropped = self._recorder.dropped
-        self._recorder.record(RecordRow(
-            seq=r.seq, mono_s=r.mono_s, wall_s=time.time(),
-            # what the controller confirmed, apart from what was sent
-            offset_um=r.offset_um if r.confirmed else None, attempted_um=r.attempted_um,
-            model_um=r.model_um, state=r.state, valid=r.valid, channels=r.channels,
-            validity=r.validity, contributions=r.contributions))
+        self._recorder.record(dataclasses.replace(result.record, wall_s=time.time()))
         if self._recorder.dropped > dropped:
             self.metrics.records_dropped.inc(self._recorder.dropped - dropped)
         alarm = bool(self._recorder.alarm)
@@ -329,7 +319,7 @@ class Daemon:
     def _checkpoint(self, cycle: Cycle) -> None:
         if self.dry_run:
             return
-        from compd.checkpoint import save_checkpoint
+        from compd.runtime.checkpoint import save_checkpoint
 
         state = cycle.export_state()
         state.update(saved_mono_s=self.clock(), model_sha256=self.cfg.model_sha256,
@@ -342,15 +332,14 @@ class Daemon:
     def _telemetry(self, result: CycleResult, samples: dict[str, Sample] | None) -> None:
         m = self.metrics
         m.offset_um.set(result.offset_um)
-        m.fault_state.set(_FAULT_GAUGE.get(str(result.state), 3))
+        m.fault_state.set(result.state.gauge)
         if samples:
             for name, s in samples.items():
                 if math.isfinite(s.value):
                     m.channel_value.labels(channel=name).set(s.value)
-        if result.record is not None:
-            for name, reason in result.record.validity.items():
-                if reason is not None and reason != "read_failed":
-                    m.read_errors.labels(channel=name).inc()
+        for name, reason in result.record.validity.items():
+            if reason is not None and reason != "read_failed":
+                m.read_errors.labels(channel=name).inc()
         self.log.debug("cycle", sequence=result.sequence, state=result.state,
                        offset_um=round(result.offset_um, 4), model_um=result.model_um,
                        shadow_um=result.shadow_um, status=result.status)

@@ -8,7 +8,7 @@ to HEARTBEAT_MODULO - 1 and the status word carries every `Status` bit.
 Encodings per protocol (raw ranges; the float types by their largest finite
 value). OPC UA nodes are typed by the server, known only once connected: the
 driver refuses a value its node cannot hold, and repeated failures are a
-write fault (`compd.cycle`).
+write fault (`compd.core.cycle`).
 """
 
 from __future__ import annotations
@@ -19,6 +19,12 @@ from compd.errors import ConfigError
 from drivers.addresses import Address
 
 _FLOAT32_MAX = 3.4028234663852886e38
+
+#: the largest heartbeat (compd.core.cycle.HEARTBEAT_MODULO - 1) and status word
+#: (every compd.core.output.Status bit); here because the config is the room
+#: below the core (tests/compd/test_output_range.py holds them equal)
+HEARTBEAT_MAX = 32767
+STATUS_MAX = (1 << 12) - 1
 
 #: (protocol, type) -> raw range of the encoding (ints: an integer encoding)
 RAW_RANGES: dict[tuple[str, str], tuple[float, float]] = {

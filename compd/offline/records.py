@@ -12,7 +12,7 @@ magnitude betrays a unit mistake (a temperature in mK, a displacement in mm)
 raises `RecordError` naming the row (1-based line of the file) and column.
 A model fitted on silently resampled data would be silently wrong.
 
-The daemon's own SQLite sample recorder (`compd.recorder`, a ``.db``,
+The daemon's own SQLite sample recorder (`compd.runtime.recorder`, a ``.db``,
 ``.sqlite`` or ``.sqlite3`` file) is read by `read_recorder_record`: one
 column per recorded channel, plus ``offset_um`` / ``model_um`` when every
 sample has them, on the daemon's sample clock. A missing channel value is
@@ -182,7 +182,7 @@ def read_record(path: str | Path) -> Record:
 
 def read_recorder_record(path: str | Path) -> Record:
     """Read and check the daemon's SQLite sample recorder as a record."""
-    from compd.recorder import FIXED_COLUMNS, RecorderError, read_samples
+    from compd.runtime.recorder import FIXED_COLUMNS, RecorderError, read_samples
 
     p = Path(path)
     where = str(p)

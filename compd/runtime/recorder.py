@@ -34,13 +34,13 @@ import json
 import math
 import sqlite3
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from compd.core.record import RecordRow
 from compd.errors import CompdError
 
 __all__ = ["FIXED_COLUMNS", "RecordRow", "Recorder", "RecorderError", "read_samples"]
@@ -87,27 +87,6 @@ class RecorderError(CompdError):
         self.path = path
         self.reason = reason
         super().__init__(f"recorder {path}: {reason}")
-
-
-@dataclass(frozen=True, slots=True)
-class RecordRow:
-    """One sample as the daemon saw it. `seq` is the daemon's cycle number
-    (None when it has none), stored as ``cycle``: the table's ``seq`` is the
-    recorder's own contiguous numbering, because a restart from an older
-    checkpoint repeats cycle numbers. Field order as in the table."""
-
-    seq: int | None
-    mono_s: float
-    wall_s: float
-    offset_um: float | None
-    model_um: float | None
-    state: str
-    valid: bool
-    channels: Mapping[str, float | None] = field(default_factory=dict)
-    validity: Mapping[str, str | None] = field(default_factory=dict)
-    contributions: Mapping[str, float] = field(default_factory=dict)
-    #: the offset sent (`offset_um` is only what the controller confirmed)
-    attempted_um: float | None = None
 
 
 def _num(value: float | None) -> float | None:

@@ -1,7 +1,7 @@
 """The daemon config's sections as pydantic models (extra keys refused).
 
 Only the shape of each section and the checks that need no other section
-live here; `compd.config` loads the file, runs the cross-section checks
+live here; `compd.config.loader` loads the file, runs the cross-section checks
 (timeout vs period, addresses against the protocol, the model) and turns
 every failure into a `ConfigError` naming the dotted key path.
 
@@ -210,7 +210,7 @@ class ControllerSection(_Section):
 
 
 class ChannelSection(_Section):
-    #: validated against the protocol's address model by `compd.config`
+    #: validated against the protocol's address model by `compd.config.loader`
     address: dict[str, Any]
     unit: str
     range: Annotated[tuple[StrictFloat, StrictFloat], Field(strict=False)]
@@ -221,7 +221,7 @@ class ChannelSection(_Section):
     #: this (K) since it last changed; default DEFAULT_STUCK_DELTA_K for a
     #: temperature channel with stuck_after_s; inf turns it off. Not for a
     #: sensor that may rightly stay put while the machine heats (the hall's
-    #: ambient): see compd.validation
+    #: ambient): see compd.core.validation
     stuck_delta_k: Annotated[float, Field(gt=0.0)] | None = None
 
     @field_validator("stuck_delta_k")

@@ -1,0 +1,6 @@
+"""The daemon config: one TOML file, every error a `ConfigError` naming the
+dotted key path (exit 78).
+
+- `schema`  the sections as pydantic models (shape and single-section checks)
+- `loader`  reads the file and runs the checks that span sections
+"""

@@ -1,0 +1,7 @@
+"""What runs beside the daemon, not in it: calibration records, figures and the
+demo's simulated machine.
+
+- `records`  calibration records (CSV, or the recorder's database) read by fit and replay
+- `plots`    figures like the papers' (matplotlib, files only)
+- `demo`     the simulated machine on loopback and the real daemon against it
+"""
