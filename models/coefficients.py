@@ -16,6 +16,11 @@ from decimal import Decimal, InvalidOperation
 
 from models.errors import ModelError
 
+#: a printed coefficient's decimal exponents stay within float64's range (1e308;
+#: a 17-digit subnormal such as 2.7786728004711096e-295 has exponent -311)
+MAX_EXPONENT = 308
+MIN_EXPONENT = -400
+
 
 @dataclass(frozen=True, slots=True)
 class Printed:
@@ -50,6 +55,10 @@ def parse_coefficient(raw: float | int | str | Decimal, where: str) -> Printed:
     exponent = value.as_tuple().exponent
     if not isinstance(exponent, int):  # pragma: no cover - finite checked above
         raise ModelError(f"{where}: coefficient {raw!r} is not finite")
+    if not (MIN_EXPONENT <= exponent <= MAX_EXPONENT
+            and (value == 0 or MIN_EXPONENT <= value.adjusted() <= MAX_EXPONENT)):
+        raise ModelError(f"{where}: coefficient {raw!r} is outside the range of a float64 "
+                         f"(decimal exponent beyond {MIN_EXPONENT} ... {MAX_EXPONENT})")
     half_unit = Decimal(5) * Decimal(10) ** (exponent - 1)
     return Printed(value=value, half_unit=half_unit)
 

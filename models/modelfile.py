@@ -38,6 +38,7 @@ from models.compensation import CompensationModel, Term
 from models.errors import ModelError
 from models.greybox import GreyBox
 from models.mbotv import Mbotv
+from models.sanity import check_period
 from models.tf import TransferFunction
 
 _MODEL_KEYS = {"name", "period_s", "description", "channels"}
@@ -137,8 +138,7 @@ def parse_model(doc: Mapping[str, Any], where: str = "model") -> CompensationMod
         raise ModelError(f"{where}.model: must be a table")
     _check_keys(head, _MODEL_KEYS, f"{where}.model")
     period_s = _number(head, "period_s", f"{where}.model", 1.0)
-    if period_s <= 0:
-        raise ModelError(f"{where}.model.period_s: must be > 0 s, got {period_s!r}")
+    check_period(period_s, f"{where}.model.period_s")
     terms_doc = doc.get("terms")
     if not isinstance(terms_doc, list) or not terms_doc:
         raise ModelError(f"{where}.terms: at least one [[terms]] table is required")

@@ -97,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
     from compd.errors import ConfigError
     from models.errors import ModelError
     from models.modelfile import load_model
+    from models.sanity import check_model
 
     path: str = args.path
     config_checker = _config_checker(path)
@@ -105,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
         return rc
     try:
         model = load_model(path)
+        check_model(model)  # physically absurd: refused (models.sanity)
     except ModelError as exc:
         raise ConfigError("", str(exc)) from None
     report = describe_model(model)

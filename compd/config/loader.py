@@ -22,6 +22,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
+from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX, check_outputs
 from compd.config.schema import ControllerSection, DaemonConfig, SecuritySection
 from compd.errors import ConfigError
 from drivers.addresses import Address
@@ -29,6 +30,7 @@ from drivers.protocols import PROTOCOLS
 from models.compensation import CompensationModel
 from models.errors import ModelError
 from models.modelfile import load_model, model_document, parse_model
+from models.sanity import check_model
 
 #: output names as the driver sees them
 OUTPUT_NAMES: tuple[str, ...] = ("offset", "heartbeat", "status")
@@ -162,9 +164,11 @@ def model_sha256(model: CompensationModel) -> str:
 
 
 def _check_model(model: CompensationModel, channels: dict[str, Address], period_s: float,
-                 key: str) -> None:
+                 key: str, raw: DaemonConfig) -> None:
     try:
         model.check_channels(channels)
+        check_model(model, max_dc_gain_um=raw.model.max_dc_gain_um,
+                    max_time_constant_s=raw.model.max_time_constant_s)
     except ModelError as exc:
         raise ConfigError(key, str(exc)) from None
     if not math.isclose(model.period_s, period_s, rel_tol=1e-9):
@@ -218,6 +222,8 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         doc_addr = getattr(out, name)
         if doc_addr is not None:
             outputs[name] = _validate_address(ctl.protocol, doc_addr, f"output.{name}")
+    check_outputs(ctl.protocol, outputs, limit_um=out.limit_um, units_per_um=out.units_per_um,
+                  sign=out.sign, heartbeat_max=HEARTBEAT_MAX, status_max=STATUS_MAX)
     clash = sorted(set(channels) & set(OUTPUT_NAMES))
     if clash:
         raise ConfigError(f"channels.{clash[0]}", "this name is reserved for an output")
@@ -236,11 +242,11 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         except _NUMERIC_ERRORS as exc:
             raise ConfigError("model.terms", _numeric_reason(exc)) from None
         model_key = "model.terms"
-    _check_model(model, channels, machine.period_s, model_key)
+    _check_model(model, channels, machine.period_s, model_key, raw)
     shadow = None
     if m.shadow is not None:
         shadow = _load_model(m.shadow, base, "model.shadow")
-        _check_model(shadow, channels, machine.period_s, "model.shadow")
+        _check_model(shadow, channels, machine.period_s, "model.shadow", raw)
 
     state_dir = raw.state.dir if raw.state.dir.is_absolute() else base / raw.state.dir
     if state_dir.exists() and not state_dir.is_dir():

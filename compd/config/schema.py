@@ -88,9 +88,13 @@ StrictFloat = Annotated[float, Strict()]
 PositiveS = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 
 
+#: a sample period within models.sanity's MIN_PERIOD_S ... MAX_PERIOD_S (10 ms ... 1 h)
+PeriodS = Annotated[float, Field(ge=0.01, le=3600.0, allow_inf_nan=False)]
+
+
 class MachineSection(_Section):
     name: str = "machine"
-    period_s: PositiveS = 1.0
+    period_s: PeriodS = 1.0
     #: machine seconds per real second: 1.0 in production, > 1 for the demo/bench
     time_scale: PositiveS = 1.0
 
@@ -244,9 +248,13 @@ class ModelSection(_Section):
     #: inline terms, same format as a model file's [[terms]]
     terms: list[dict[str, Any]] | None = None
     name: str | None = None
-    period_s: PositiveS | None = None
+    period_s: PeriodS | None = None
     #: a candidate model evaluated beside the live one, logged and recorded, never written
     shadow: str | None = None
+    #: refuse a model whose DC gain exceeds this (µm per unit of an input; models.sanity)
+    max_dc_gain_um: PositiveS = 1000.0
+    #: refuse a model whose slowest time constant exceeds this (models.sanity)
+    max_time_constant_s: PositiveS = 7 * 86400.0
 
     @model_validator(mode="after")
     def _one_source(self) -> ModelSection:
@@ -266,8 +274,10 @@ class OutputSection(_Section):
     #: controller units per µm; derived from `unit` unless unit = "count"
     scale: float | None = None
     sign: Literal[1, -1] = 1
-    limit_um: Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
-    slew_um_s: Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+    #: at most 10 mm: a thermal offset beyond that is a broken model or machine
+    limit_um: Annotated[float, Field(gt=0.0, le=10000.0, allow_inf_nan=False)]
+    #: 0.001 µm/s (3.6 µm/h) ... 10 mm/s: the ramp-to-zero stays finite
+    slew_um_s: Annotated[float, Field(ge=0.001, le=10000.0, allow_inf_nan=False)]
     deadband_um: Annotated[float, Field(ge=0.0, allow_inf_nan=False)] = 0.0
     readback: bool = True
 

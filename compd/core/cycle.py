@@ -5,13 +5,19 @@ machine time are tested in milliseconds with a fake clock.
 One `Cycle.step(now_s, samples, readback_offset_um)`:
 
 1. read-back: the controller's offset (controller units) against the value it
-   last confirmed; a difference (a restarted controller that forgot it) is an
-   event, and the output ramps from the read-back value;
+   last confirmed (`OutputStage.observe`); a value compd did not write (a
+   second writer, a restarted controller that forgot it) is an alarm
+   (READBACK_MISMATCH and ALARM until the output has ramped back to its
+   target at the slew limit); beyond ±limit_um it is an alarm and no offset
+   is written (OFFSET_HELD, state "held") until the controller's value is back
+   within the limit, and then the output ramps from there;
 2. validate every channel (`compd.core.validation`); the cycle is valid when every
    channel the live model reads is valid;
 3. valid: initialise the model on the first valid sample if needed (restored
    state, or the steady state matching today's temperatures), then step it
-   (and the shadow model) once; invalid: the filters are NOT stepped;
+   (and the shadow model) once; invalid: the filters are NOT stepped; a model
+   output beyond MODEL_RANGE_FACTOR·limit_um makes the cycle invalid (a
+   fault: hold, then ramp) with MODEL_RANGE and ALARM;
 4. fault policy (`compd.core.faults`) picks the target; the output stage
    (`compd.core.output`) makes it safe;
 5. writes: the offset (in controller units; omitted once the controller
@@ -19,18 +25,23 @@ One `Cycle.step(now_s, samples, readback_offset_um)`:
    failed, since then the controller's state is unknown), the heartbeat
    (advanced only on a complete valid cycle) and the status word.
 
-The shell reports each write's outcome with `write_ok()` / `write_failed()`.
+The shell reports each write's outcome with `write_ok()` / `write_failed()`;
+WRITE_FAULT_AFTER offset writes failing in a row are a write fault (WRITE_FAULT
+and ALARM, state "write_fault") until one succeeds. The record row keeps what
+was sent (`attempted_um`) apart from what the controller confirmed
+(`offset_um`: None once `write_failed()` said the offset did not arrive).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from compd.core.faults import Event, FaultPolicy, FaultState
-from compd.core.output import OutputStage, Status
+from compd.core.output import OutputStage, Readback, Status
 from compd.core.record import RecordRow
 from compd.core.validation import ChannelLimits, Validator
 from drivers.base import Sample
@@ -42,6 +53,15 @@ if TYPE_CHECKING:
 
 #: the heartbeat counts modulo this (fits INT, WORD, uint16, DINT, PMC word)
 HEARTBEAT_MODULO = 32768
+
+#: a model output beyond this many times limit_um is a fault (hold, then ramp,
+#: alarm: MODEL_RANGE), not a value to clamp quietly: a model that far off is
+#: broken (a thermal model near its limit may overshoot it, not by 5×)
+MODEL_RANGE_FACTOR = 5.0
+
+#: this many offset writes in a row failing (transient) are a write fault:
+#: WRITE_FAULT and ALARM, state "write_fault", until a write succeeds
+WRITE_FAULT_AFTER = 5
 
 
 @dataclass(frozen=True)
@@ -158,6 +178,14 @@ class Cycle:
         self._offset_pending = False
         self._invalid: dict[str, str] = {}
         self._mismatch_noted = False
+        #: a foreign read-back was seen: alarm until the output tracks again
+        self._foreign = False
+        #: offset writes failed in a row; a write fault from WRITE_FAULT_AFTER on
+        self.failed_writes = 0
+        self.write_fault = False
+        self._model_range = False
+        self._result: CycleResult | None = None
+        self._later: list[Event] = []
         if model_state is not None:
             model.import_state(model_state)  # ModelError: the caller falls back
             self._model_ready = True
@@ -230,13 +258,13 @@ class Cycle:
         `readback_offset_um`: the controller's offset as read (controller units)."""
         p = self.params
         self.sequence += 1
-        events: list[Event] = []
+        events, self._later = self._later, []
         status = Status(0)
         dt = p.period_s if self._last_now is None else now_s - self._last_now
         self._last_now = now_s
 
-        if readback_offset_um is not None and self._readback(readback_offset_um, events):
-            status |= Status.READBACK_MISMATCH
+        if readback_offset_um is not None:
+            status |= self._readback(readback_offset_um, events)
 
         validity = self.validator.check(now_s, samples, wall_s)
         self._note_validity(validity, events)
@@ -251,6 +279,9 @@ class Cycle:
             if model_um is None:
                 status |= Status.MODEL_INVALID
                 valid = False
+            elif self._model_out_of_range(model_um, events):
+                status |= Status.MODEL_RANGE | Status.ALARM
+                valid = False
             elif self.shadow is not None:
                 shadow_um = self._step_shadow(values, events)
 
@@ -261,10 +292,14 @@ class Cycle:
         if valid:
             self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
         status |= self._status_bits(decision.state, decision.alarm)
+        if self._foreign:
+            status |= Status.READBACK_MISMATCH | Status.ALARM
+            # the alarm lasts until the output has ramped to its target
+            self._foreign = self.output.slewing or self.output.held
 
         writes: dict[str, float] = {}
         self._offset_pending = False
-        if not self.write_stopped:
+        if not self.write_stopped and not self.output.held:
             if p.readback and readback_offset_um is None:
                 # the controller still holds what it last confirmed: start from there
                 self.output.revert()
@@ -288,14 +323,17 @@ class Cycle:
         record = RecordRow(
             seq=self.sequence, mono_s=now_s, wall_s=math.nan if wall_s is None else wall_s,
             offset_um=offset_um if p.offset_name in writes else None, model_um=model_um,
-            state=FaultState.STOPPED if self.write_stopped else decision.state, valid=valid,
+            state=self._state(decision.state), valid=valid,
             channels={n: _finite_or_none(v) for n, v in values.items()},
-            validity=validity, contributions=contributions)
-        done = self.faults.shutting_down and (offset_um == 0.0 or self.write_stopped)
-        return CycleResult(
+            validity=validity, contributions=contributions,
+            attempted_um=offset_um if self._offset_pending else None)
+        done = self.faults.shutting_down and (offset_um == 0.0 or self.write_stopped
+                                              or self.output.held)
+        self._result = CycleResult(
             sequence=self.sequence, writes=writes, offset_um=offset_um, shadow_um=shadow_um,
             status=int(status), heartbeat=self.heartbeat, complete=valid, record=record,
             events=events, shutdown_done=done)
+        return self._result
 
     # -- write outcome ------------------------------------------------------------------
 
@@ -303,6 +341,11 @@ class Cycle:
         """Every write of the last result reached the controller."""
         if self._offset_pending:
             self.output.confirm()
+            if self.write_fault:
+                self._later.append(Event("write_recovered", {"failed_writes":
+                                                             self.failed_writes}))
+            self.write_fault = False
+            self.failed_writes = 0
         self._offset_pending = False
 
     def write_failed(self, output: str | None, *, permanent: bool,
@@ -312,11 +355,20 @@ class Cycle:
         that carried the offset stops the offset). Transient: retried next
         cycle from the confirmed value."""
         events: list[Event] = []
-        if self._offset_pending:
+        offset_failed = self._offset_pending
+        if offset_failed:
             self.output.revert()
+            self._unconfirmed()
         self._offset_pending = False
         if not permanent:
             events.append(Event("write_failed", {"output": output, "reason": reason}))
+            if offset_failed:
+                self.failed_writes += 1
+                if self.failed_writes >= WRITE_FAULT_AFTER and not self.write_fault:
+                    self.write_fault = True
+                    events.append(Event("write_fault", {
+                        "failed_writes": self.failed_writes, "reason": reason,
+                        "offset_um": self.output.current_um}))
             return events
         # a driver names every output of a refused combined write ("offset,heartbeat")
         names = {n.strip() for n in output.split(",")} if output else set()
@@ -332,25 +384,58 @@ class Cycle:
             events.append(Event("output_write_stopped", {"output": name, "reason": reason}))
         return events
 
+    def _unconfirmed(self) -> None:
+        """The last result's offset did not reach the controller: its record
+        row keeps it as attempted only (`offset_um` is what was confirmed)."""
+        r = self._result
+        if r is not None and r.record.offset_um is not None:
+            r.record = dataclasses.replace(r.record, offset_um=None)
+
     # -- internals ------------------------------------------------------------------------
 
-    def _readback(self, value: float, events: list[Event]) -> bool:
-        rb_um = self.output.from_controller(value) if math.isfinite(value) else math.nan
-        confirmed = self.output.confirmed_um
-        if confirmed is None:
-            self.output.adopt(rb_um)
-            events.append(Event("readback_adopted", {"offset_um": self.output.current_um}))
-            return False
-        if math.isfinite(rb_um) and abs(rb_um - confirmed) <= self.params.readback_tolerance_um:
-            if rb_um != confirmed:
-                # not a mismatch worth an event, but the next step is measured
-                # from what the machine has, so the slew limit holds against it
-                self.output.align(rb_um)
-            return False
-        events.append(Event("readback_mismatch", {
-            "expected_um": confirmed, "readback_um": _finite_or_none(rb_um)}))
-        self.output.adopt(rb_um)
-        return True
+    def _readback(self, value: float, events: list[Event]) -> Status:
+        out = self.output
+        rb_um = out.from_controller(value) if math.isfinite(value) else math.nan
+        was_held, expected = out.held, out.confirmed_um
+        seen = out.observe(rb_um, self.params.readback_tolerance_um)
+        if seen is Readback.OUT_OF_RANGE:
+            if not was_held:
+                events.append(Event("readback_out_of_range", {
+                    "expected_um": expected, "readback_um": _finite_or_none(rb_um),
+                    "limit_um": out.limit_um, "action": "offset writes held"}))
+            self._foreign = True
+            return Status.READBACK_MISMATCH | Status.OFFSET_HELD | Status.ALARM
+        if was_held:
+            events.append(Event("readback_in_range", {
+                "readback_um": rb_um, "action": "ramping from it"}))
+            self._foreign = True
+        if seen is Readback.ADOPTED:
+            events.append(Event("readback_adopted", {"offset_um": out.current_um}))
+        elif seen is Readback.FOREIGN:
+            events.append(Event("readback_mismatch", {
+                "expected_um": expected, "readback_um": rb_um, "action": "ramping from it"}))
+            self._foreign = True
+        return Status(0)
+
+    def _state(self, state: FaultState) -> FaultState:
+        """The state recorded and reported: the fault policy's, unless the
+        offset is not reaching the controller."""
+        if self.write_stopped:
+            return FaultState.STOPPED
+        if self.output.held:
+            return FaultState.HELD
+        return FaultState.WRITE_FAULT if self.write_fault else state
+
+    def _model_out_of_range(self, model_um: float, events: list[Event]) -> bool:
+        """A model output beyond MODEL_RANGE_FACTOR·limit_um is a broken model,
+        not a value to clamp: a fault (hold, then ramp) with an alarm."""
+        bound = MODEL_RANGE_FACTOR * self.params.limit_um
+        out = abs(model_um) > bound
+        if out != self._model_range:
+            self._model_range = out
+            events.append(Event("model_out_of_range" if out else "model_in_range", {
+                "model_um": model_um, "bound_um": bound}))
+        return out
 
     def _note_validity(self, validity: Mapping[str, str | None], events: list[Event]) -> None:
         for name, reason in validity.items():
@@ -401,7 +486,8 @@ class Cycle:
 
     def _status_bits(self, state: FaultState, alarm: bool) -> Status:
         s = Status(0)
-        if state == FaultState.OK and not self.write_stopped:
+        if state == FaultState.OK and not (self.write_stopped or self.output.held
+                                           or self.write_fault):
             s |= Status.OK
         elif state in (FaultState.HOLD, FaultState.INIT):
             s |= Status.HOLDING
@@ -413,6 +499,10 @@ class Cycle:
             s |= Status.ALARM
         if self.write_stopped:
             s |= Status.WRITE_STOPPED
+        if self.output.held:
+            s |= Status.OFFSET_HELD | Status.ALARM
+        if self.write_fault:
+            s |= Status.WRITE_FAULT | Status.ALARM
         if self.output.slewing:
             s |= Status.SLEWING
         return s

@@ -11,6 +11,11 @@ States:
 - ``shutdown``  a ramp-to-zero shutdown: target = 0 whatever the inputs
 - ``stopped``  not a policy decision: the cycle stopped writing the offset (a
   permanent refusal by the controller); recorded and exported as the alarm
+- ``held``  not a policy decision: the controller holds an offset beyond
+  ±limit_um that compd did not write; no offset is written until it is back
+  within the limit (`compd.core.output`); exported as the alarm
+- ``write_fault``  not a policy decision: offset writes keep failing
+  (`compd.core.cycle.WRITE_FAULT_AFTER` in a row); exported as the alarm
 
 `FaultState` holds these names once (a `StrEnum`: each member equals its
 name as a string, in the recorder's rows and the logs); `FaultState.gauge` is
@@ -34,6 +39,8 @@ class FaultState(enum.StrEnum):
     RAMP = "ramp"
     SHUTDOWN = "shutdown"
     STOPPED = "stopped"
+    HELD = "held"
+    WRITE_FAULT = "write_fault"
 
     @property
     def gauge(self) -> int:
@@ -45,7 +52,8 @@ class FaultState(enum.StrEnum):
 #: ``compd_fault_state`` at or above this: the daemon no longer compensates
 GAUGE_ALARM = 3
 _GAUGE = {FaultState.INIT: 1, FaultState.OK: 0, FaultState.HOLD: 1, FaultState.RAMP: 2,
-          FaultState.SHUTDOWN: 2, FaultState.STOPPED: GAUGE_ALARM}
+          FaultState.SHUTDOWN: 2, FaultState.STOPPED: GAUGE_ALARM,
+          FaultState.HELD: GAUGE_ALARM, FaultState.WRITE_FAULT: GAUGE_ALARM}
 
 
 @dataclass(frozen=True, slots=True)

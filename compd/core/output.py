@@ -21,9 +21,22 @@ ramping down):
 `current_um` is what the controller is believed to hold. After a write the
 controller refused, the shell calls `revert()` and the stage falls back to
 the last value the controller confirmed, so that the next write never moves
-faster than the slew limit from what the machine really has. A read-back
-that differs from it (a restarted controller that forgot the offset) is
-adopted with `adopt()` and the output ramps from there.
+faster than the slew limit from what the machine really has.
+
+Read-back (`observe()`): what the controller holds, against what it last
+confirmed:
+
+- within the read-back tolerance: the stage steps from what it really holds;
+- unknown before (start-up without a checkpoint): adopted, ramps from there;
+- any other value within ±limit_um is *foreign* (a second writer, a
+  restarted controller that forgot the offset and reads 0): the shell raises
+  an alarm and the output ramps from the controller's value at the slew
+  limit, never a step;
+- beyond ±limit_um (by more than float32 rounding, `LIMIT_ROUNDING`) or not
+  a number: the stage is `held`: no offset is written (one step of slew·Δt
+  from there would still be beyond the limit, and a write inside it a step),
+  until the controller's value is back within ±limit_um (an operator cleared
+  it); then it ramps from there.
 
 Status word (written each cycle, so a PLC can drop a stale compensation):
 """
@@ -46,10 +59,27 @@ class Status(enum.IntFlag):
     MODEL_INVALID = 1 << 6    #: the model produced a non-finite value (re-initialised)
     SLEWING = 1 << 7          #: the output is slew-limited, catching up with its target
     SHUTDOWN = 1 << 8         #: the daemon is shutting down (ramp to zero)
+    OFFSET_HELD = 1 << 9      #: the controller holds an offset beyond ±limit: none written
+    WRITE_FAULT = 1 << 10     #: offset writes keep failing (transient, repeated)
+    MODEL_RANGE = 1 << 11     #: the model's output is far beyond ±limit: held/ramped
 
 
 __doc__ = (__doc__ or "") + "\n".join(
     f"    bit {int(b).bit_length() - 1:2d}  {b.name}" for b in Status) + "\n"
+
+
+class Readback(enum.Enum):
+    """What a read-back of the offset told (`OutputStage.observe`)."""
+
+    MATCH = "match"              #: what the controller last confirmed (within tolerance)
+    ADOPTED = "adopted"          #: nothing confirmed yet (start-up): ramp from it
+    FOREIGN = "foreign"          #: a value compd did not write, within ±limit: ramp from it
+    OUT_OF_RANGE = "out_of_range"  #: beyond ±limit or not a number: offset writes held
+
+
+#: a read-back this far beyond ±limit_um (relative) is still "at the limit":
+#: the float32 rounding of a limit written to the controller (2^-23 ≈ 1.2e-7)
+LIMIT_ROUNDING = 1e-6
 
 
 def _clamp(x: float, limit: float) -> float:
@@ -81,13 +111,18 @@ class OutputStage:
         #: the last value the controller confirmed (a successful write or a read-back)
         self.confirmed_um: float | None = None
         self.slewing = False
+        #: the controller holds an offset beyond ±limit (or not a number): no write
+        self.held = False
 
     def _safe(self, x: float) -> float:
         return _clamp(x, self.limit_um) if math.isfinite(x) else 0.0
 
     def step(self, target_um: float, dt_s: float, *, deadband: bool = True) -> float:
         """Move toward `target_um`; returns the new output in µm (always finite,
-        within ±limit, within slew·Δt of the previous output)."""
+        within ±limit, within slew·Δt of the previous output). Held: unchanged."""
+        if self.held:
+            self.slewing = False
+            return self.current_um
         if not math.isfinite(target_um):
             target_um = self.current_um
         target = _clamp(target_um, self.limit_um)
@@ -144,6 +179,22 @@ class OutputStage:
         self._exact_um += um - self.current_um
         self.current_um = um
         self.confirmed_um = um
+
+    def observe(self, um: float, tolerance_um: float) -> Readback:
+        """The controller holds `um` (read back, µm): see the module docstring."""
+        if not math.isfinite(um) or abs(um) > self.limit_um * (1.0 + LIMIT_ROUNDING):
+            self.held = True
+            return Readback.OUT_OF_RANGE
+        self.held = False
+        confirmed = self.confirmed_um
+        if confirmed is not None and abs(um - confirmed) <= tolerance_um:
+            if um != confirmed:
+                # not a mismatch, but the next step is measured from what the
+                # machine has, so the slew limit holds against it
+                self.align(um)
+            return Readback.MATCH
+        self.adopt(um)
+        return Readback.ADOPTED if confirmed is None else Readback.FOREIGN
 
     def adopt(self, um: float) -> None:
         """The controller holds `um` (read back): ramp from there."""

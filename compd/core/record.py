@@ -19,9 +19,10 @@ class RecordRow:
     """One sample as the daemon saw it. `seq` is the daemon's cycle number
     (None when it has none), stored as ``cycle``: the table's ``seq`` is the
     recorder's own contiguous numbering, because a restart from an older
-    checkpoint repeats cycle numbers. `offset_um` is the offset written (None
-    when the cycle wrote none), `state` a `compd.core.faults.FaultState` name.
-    Field order as in the table."""
+    checkpoint repeats cycle numbers. `offset_um` is the offset the controller
+    confirmed (None when the cycle wrote none or the write failed),
+    `attempted_um` the offset sent, confirmed or not; `state` a
+    `compd.core.faults.FaultState` name. Field order as in the table."""
 
     seq: int | None
     mono_s: float
@@ -33,3 +34,4 @@ class RecordRow:
     channels: Mapping[str, float | None] = field(default_factory=dict)
     validity: Mapping[str, str | None] = field(default_factory=dict)
     contributions: Mapping[str, float] = field(default_factory=dict)
+    attempted_um: float | None = None

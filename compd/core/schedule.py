@@ -73,7 +73,17 @@ class Schedule:
         return self.deadline_s - now_s
 
 
+#: the most cycles a ramp-to-zero shutdown is granted (finite whatever the
+#: numbers: a 1e308 µm limit at 1e-10 µm/s was an OverflowError on SIGTERM,
+#: and no final checkpoint)
+MAX_SHUTDOWN_CYCLES = 10**7
+
+
 def shutdown_ramp_cycles(limit_um: float, slew_um_s: float, period_s: float) -> int:
     """Cycles granted to a ramp-to-zero shutdown: the full-scale ramp
-    (`limit_um` at `slew_um_s`, machine seconds) plus `SHUTDOWN_MARGIN_CYCLES`."""
-    return math.ceil(limit_um / slew_um_s / period_s) + SHUTDOWN_MARGIN_CYCLES
+    (`limit_um` at `slew_um_s`, machine seconds) plus `SHUTDOWN_MARGIN_CYCLES`,
+    at most MAX_SHUTDOWN_CYCLES plus the margin."""
+    per_cycle = slew_um_s * period_s
+    n = abs(limit_um) / per_cycle if per_cycle > 0.0 else math.inf
+    ramp = math.ceil(n) if n < MAX_SHUTDOWN_CYCLES else MAX_SHUTDOWN_CYCLES
+    return ramp + SHUTDOWN_MARGIN_CYCLES

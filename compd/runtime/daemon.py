@@ -424,4 +424,5 @@ class Daemon:
 _WARNINGS = frozenset({"channel_invalid", "fault_hold", "readback_mismatch", "write_failed",
                        "offset_write_skipped", "checkpoint_unusable", "checkpoint_state_refused",
                        "model_non_finite"})
-_ERRORS = frozenset({"fault_ramp_to_zero", "offset_write_stopped", "output_write_stopped"})
+_ERRORS = frozenset({"fault_ramp_to_zero", "offset_write_stopped", "output_write_stopped",
+                     "readback_out_of_range", "write_fault", "model_out_of_range"})

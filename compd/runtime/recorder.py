@@ -15,7 +15,9 @@ commit that succeeds clears the alarm.
 Schema (table ``samples``): ``seq`` INTEGER PRIMARY KEY, numbered by the
 recorder itself (contiguous, continuing across restarts: MAX(seq)+1), ``cycle``
 (the daemon's own cycle number, `RecordRow.seq`, may repeat after a restart),
-``mono_s``, ``wall_s``, ``offset_um`` (written), ``model_um``, ``state`` (the
+``mono_s``, ``wall_s``, ``offset_um`` (written and confirmed by the controller;
+NULL when no offset was sent or the write failed), ``attempted_um`` (the
+offset sent, confirmed or not), ``model_um``, ``state`` (the
 fault state), ``valid`` (0/1), and three JSON objects: ``channels`` {name:
 value}, ``validity`` {name: reason or null}, ``contributions`` {term: µm}.
 Non-finite floats are stored as JSON null (read back as NaN).
@@ -60,14 +62,16 @@ CREATE TABLE IF NOT EXISTS samples (
     valid INTEGER NOT NULL,
     channels TEXT NOT NULL,
     validity TEXT NOT NULL,
-    contributions TEXT NOT NULL
+    contributions TEXT NOT NULL,
+    attempted_um REAL
 );
 CREATE INDEX IF NOT EXISTS samples_wall_s ON samples (wall_s);
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 """
 
 _INSERT = ("INSERT INTO samples (seq, cycle, mono_s, wall_s, offset_um, model_um, state, valid,"
-           " channels, validity, contributions) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
+           " channels, validity, contributions, attempted_um)"
+           " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
 
 #: Columns `read_samples` always returns; channel names may not collide with them.
 FIXED_COLUMNS = ("seq", "cycle", "time_s", "mono_s", "wall_s", "offset_um", "model_um", "valid",
@@ -109,7 +113,7 @@ def _tuple(seq: int, row: RecordRow) -> tuple[Any, ...]:
             _json_numbers(row.channels),
             json.dumps({str(k): (None if v is None else str(v))
                         for k, v in row.validity.items()}, separators=(",", ":")),
-            _json_numbers(row.contributions))
+            _json_numbers(row.contributions), _num(row.attempted_um))
 
 
 class Recorder:
@@ -173,6 +177,9 @@ class Recorder:
             conn.execute("PRAGMA synchronous=NORMAL")
             conn.execute(f"PRAGMA cache_size=-{CACHE_KIB}")
             conn.executescript(_SCHEMA)
+            columns = {r[1] for r in conn.execute("PRAGMA table_info(samples)")}
+            if "attempted_um" not in columns:  # a database of an older compd
+                conn.execute("ALTER TABLE samples ADD COLUMN attempted_um REAL")
             last = conn.execute("SELECT MAX(seq) FROM samples").fetchone()[0]
             meta = conn.execute("SELECT value FROM meta WHERE key='channels'").fetchone()
         except sqlite3.Error as exc:

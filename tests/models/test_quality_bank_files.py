@@ -83,7 +83,7 @@ def _doc(**term: object) -> dict[str, object]:
     (_doc(b=["1", "-1.2"]), "unstable"),
     (_doc(gain="big"), r"terms\[0\].gain: must be a finite number"),
     (_doc(gain=1.0, gain_channel="g"), "either gain or gain_channel"),
-    ({"model": {"period_s": 0}, "terms": []}, r"model.model.period_s: must be > 0"),
+    ({"model": {"period_s": 0}, "terms": []}, r"model.model.period_s: 0.0 s is outside 0.01"),
     ({"model": {}, "terms": []}, "at least one"),
     ({"model": {"channels": ["y"]}, "terms": [_doc()["terms"][0]]},  # type: ignore[index]
      r"term 't': unknown channel"),
