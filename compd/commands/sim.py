@@ -114,6 +114,22 @@ def _record(args: argparse.Namespace) -> int:
     return 0
 
 
+def _port_in_use(port: int) -> str:
+    """Why 127.0.0.1:`port` cannot be served ("" when it can): asked before the
+    protocol library tries, whose own failure is a traceback in its log."""
+    import socket
+
+    if port == 0:
+        return ""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind(("127.0.0.1", port))
+        except OSError as exc:
+            return exc.strerror or str(exc)
+    return ""
+
+
 async def _serve(args: argparse.Namespace) -> int:
     from drivers.sim.machine import SimMachine
     from drivers.sim.programs import make_program
@@ -121,13 +137,12 @@ async def _serve(args: argparse.Namespace) -> int:
 
     program = make_program(args.program, seed=args.seed, hours=args.hours)
     options = {"writable_channels": True} if args.no_plant and args.protocol == "opcua" else {}
-    controller = make_sim_controller(args.protocol, "127.0.0.1", args.port, **options)
-    try:
-        await controller.start()
-    except OSError as exc:
-        print(f"compd sim: cannot serve on 127.0.0.1:{args.port} ({exc.strerror or exc})",
-              file=sys.stderr)
+    busy = _port_in_use(args.port)
+    if busy:
+        print(f"compd sim: cannot serve on 127.0.0.1:{args.port} ({busy})", file=sys.stderr)
         return EX_TEMPFAIL
+    controller = make_sim_controller(args.protocol, "127.0.0.1", args.port, **options)
+    await controller.start()
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     signals = (signal.SIGINT, signal.SIGTERM)
