@@ -76,11 +76,23 @@ def _quiet_stdout() -> None:
         pass
 
 
+def _flush_stdout() -> None:
+    """Everything printed reaches stdout now, or the command says why it did not."""
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        raise
+    except OSError as exc:  # stdout on a full disk or device
+        _quiet_stdout()
+        raise OutputError(f"cannot write to stdout ({exc.strerror or exc})", EX_IOERR
+                          ) from None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         rc: int = args._run(args)
-        sys.stdout.flush()
+        _flush_stdout()
     except ConfigError as exc:
         print(f"compd: configuration error: {exc}", file=sys.stderr)
         return EX_CONFIG
@@ -89,6 +101,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exc.code
     except BrokenPipeError:
         _quiet_stdout()
+        return EX_IOERR
+    except OSError as exc:  # an I/O error no command foresaw (stdout on a full disk, ...)
+        try:
+            sys.stdout.flush()
+        except OSError:
+            _quiet_stdout()
+        print(f"compd {args.command}: I/O error: {exc.strerror or exc}", file=sys.stderr)
         return EX_IOERR
     return rc
 

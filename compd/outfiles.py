@@ -86,6 +86,21 @@ def check_output(path: str | os.PathLike[str], what: str, *, force: bool = False
     return p
 
 
+#: figure formats the plotting library writes, by file suffix
+FIGURE_SUFFIXES = frozenset({".png", ".pdf", ".svg", ".svgz", ".eps", ".ps", ".jpg", ".jpeg",
+                             ".tif", ".tiff", ".webp"})
+
+
+def check_figure(path: str | os.PathLike[str], *, force: bool = False,
+                 inputs: Iterable[str | os.PathLike[str]] = ()) -> Path:
+    """`check_output` for a figure, whose suffix also says its format."""
+    p = check_output(path, "figure", force=force, inputs=inputs)
+    if p.suffix.lower() not in FIGURE_SUFFIXES:
+        raise OutputError(f"{p}: a figure is written as one of "
+                          f"{', '.join(sorted(FIGURE_SUFFIXES))}; name it so")
+    return p
+
+
 def _fsync(path: str | os.PathLike[str], flags: int) -> None:
     fd = os.open(path, flags | os.O_CLOEXEC)
     try:

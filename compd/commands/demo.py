@@ -41,10 +41,10 @@ def run(args: argparse.Namespace) -> int:
     for name in ("pymodbus", "asyncua", "snap7"):
         logging.getLogger(name).setLevel(logging.CRITICAL)
 
-    from compd.outfiles import check_output, write_atomically
+    from compd.outfiles import check_figure, write_atomically
 
     if args.plot is not None:
-        check_output(args.plot, "figure", force=args.force, inputs=[args.model])
+        check_figure(args.plot, force=args.force, inputs=[args.model])
     print(f"compd demo: {args.hours:g} h of the {args.program} program on a simulated "
           f"{args.protocol} controller, about {args.seconds:g} s", flush=True)
     result = asyncio.run(run_demo(args.protocol, hours=args.hours, wall_s=args.seconds,

@@ -83,16 +83,6 @@ def parse_term(text: str) -> tuple[str, dict[str, float]]:
 DEFAULT_MAX_TIME_CONSTANT_DAYS = 3.0
 
 
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not v > 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
-    return v
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data", metavar="DATA", nargs="+",
                         help="calibration record(s) (CSV, or a compd recorder .db); several "
@@ -108,13 +98,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="grey-box u2 switch channel (1 = moving, 0 = standstill)")
     parser.add_argument("--fixed", action="append", default=[], metavar="MODEL:TERM",
                         help="keep an already-calibrated term, subtracted before fitting")
-    parser.add_argument("--validation", type=number(0.0, 1.0, lo_open=True, hi_open=True),
+    parser.add_argument("--validation", type=number(0.05, 0.95),
                         default=0.3,
-                        help="fraction of each record held out to choose orders (default 0.3)")
+                        help="fraction of each record held out to choose orders, 0.05 … 0.95 "
+                             "(default 0.3)")
     parser.add_argument("--validation-record", action="append", default=[], metavar="DATA",
                         help="a record used only to choose the orders (repeatable); the fit "
                              "then uses every DATA record whole")
-    parser.add_argument("--max-time-constant-days", type=_positive_float,
+    parser.add_argument("--max-time-constant-days", type=number(0.0, 3650.0, lo_open=True),
                         default=DEFAULT_MAX_TIME_CONSTANT_DAYS, metavar="DAYS",
                         help="slowest allowed pole, as a time constant in days (default "
                              f"{DEFAULT_MAX_TIME_CONSTANT_DAYS:g})")
@@ -325,9 +316,10 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
     except ValueError as exc:
         raise ModelError(str(exc)) from None
     data = [str(p) for p in args.data]
-    out = Path(args.model_file) if args.model_file else Path(data[0]).with_suffix(".model.toml")
     sources = [*data, *args.validation_record, *(f.rpartition(":")[0] for f in args.fixed)]
-    check_output(out, "model file", force=args.force, inputs=sources)
+    out = check_output(args.model_file if args.model_file is not None else
+                       Path(data[0]).with_suffix(".model.toml"), "model file",
+                       force=args.force, inputs=sources)
     channels = {ch for _, inputs in specs for ch in inputs}
     records = _read_records(data, args, channels)
     holdout = _read_records([str(p) for p in args.validation_record], args, channels,

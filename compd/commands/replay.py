@@ -66,14 +66,14 @@ def plot_inputs(model: CompensationModel, record: Record) -> dict[str, npt.NDArr
 
 def run(args: argparse.Namespace) -> int:
     from compd.infiles import load_model
-    from compd.outfiles import check_output, write_atomically
+    from compd.outfiles import check_figure, write_atomically
     from compd.quality_check import check_quality
     from compd.records import RecordError, check_units, read_record
     from models.errors import ModelError
     from models.quality import quality
 
     if args.plot is not None:
-        check_output(args.plot, "figure", force=args.force, inputs=[args.model, args.data])
+        check_figure(args.plot, force=args.force, inputs=[args.model, args.data])
     try:
         model = load_model(args.model)
         record = read_record(args.data)

@@ -62,11 +62,11 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from compd.infiles import load_model
-    from compd.outfiles import check_output, write_atomically
+    from compd.outfiles import check_figure, write_atomically
     from models.errors import ModelError
 
     if args.plot is not None:
-        check_output(args.plot, "figure", force=args.force, inputs=[args.model])
+        check_figure(args.plot, force=args.force, inputs=[args.model])
     try:
         model = load_model(args.model)
     except ModelError as exc:
