@@ -67,10 +67,9 @@ def plot_inputs(model: CompensationModel, record: Record) -> dict[str, npt.NDArr
 def run(args: argparse.Namespace) -> int:
     from compd.infiles import load_model
     from compd.outfiles import check_figure, write_atomically
-    from compd.quality_check import check_quality
+    from compd.quality_check import checked_quality
     from compd.records import RecordError, check_units, read_record
     from models.errors import ModelError
-    from models.quality import quality
 
     if args.plot is not None:
         check_figure(args.plot, force=args.force, inputs=[args.model, args.data])
@@ -84,9 +83,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"compd replay: {exc}", file=sys.stderr)
         return EX_DATAERR
     measured = record.columns[args.output]
-    q = quality(measured, simulated)
     try:
-        check_quality(q, simulated, record.path, args.output)
+        q = checked_quality(measured, simulated, record.path, args.output)
     except RecordError as exc:
         print(f"compd replay: {exc}", file=sys.stderr)
         return EX_DATAERR

@@ -235,3 +235,62 @@ def test_a_fifo_input_does_not_hang(tmp_path: Path) -> None:
                           capture_output=True, text=True, timeout=120, check=False)  # hung
     assert proc.returncode == 66
     assert "a FIFO" in proc.stderr and proc.stderr.count("\n") == 1
+
+
+# -- the issue's bad-input list ------------------------------------------------------------
+
+
+def _model(path: Path, period_s: str, a: str, b: str) -> Path:
+    path.write_text(f'[model]\nname = "m"\nperiod_s = {period_s}\n\n[[terms]]\nname = "t"\n'
+                    f'inputs = {{ bearing = 1.0 }}\na = {a}\nb = {b}\n', encoding="utf-8")
+    return path
+
+
+def test_step_refuses_absurd_spans(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    for hours in ("nan", "inf", "1e9", "-1", "0"):
+        assert _rc(["step", "sp2", "--hours", hours]) == 64
+    fast = _model(tmp_path / "fast.toml", "1e-9", '["0.5"]', '["1", "-0.5"]')
+    rc = _rc(["step", str(fast), "--hours", "1"])
+    assert rc in (65, 78)  # refused by the step's sample cap or by the model's period bounds
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 6 and "Traceback" not in "\n".join(err)
+
+
+def test_fit_validation_and_time_constant_must_be_in_range(record: Path) -> None:
+    for v in ("1.5", "0", "-1", "nan", "1"):
+        assert _rc(_fit(record, "--validation", v)) == 64
+    for d in ("0", "-3", "inf", "nan", "1e308"):
+        assert _rc(_fit(record, "--max-time-constant-days", d)) == 64
+
+
+def test_sim_ports_and_noise(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import socket
+
+    for p in ("70000", "-1", "x"):
+        assert _rc(["sim", "--protocol", "modbus", "--port", p]) == 64
+    for noise in ("nan", "-1", "inf"):
+        assert _rc(["sim", "--record", str(tmp_path / "r.csv"), "--probe-noise-um",
+                    noise]) == 64
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = str(busy.getsockname()[1])
+        assert _rc(["sim", "--protocol", "modbus", "--port", port]) == 75
+    assert "cannot serve on 127.0.0.1:" in capsys.readouterr().err
+
+
+def test_replay_never_reports_fit_nan(tmp_path: Path, record: Path,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    huge = _model(tmp_path / "huge.toml", "1.0", '["1e308", "1e308"]', '["1", "-0.999"]')
+    rc = _rc(["replay", str(huge), str(record), "--output", "dz_um"])
+    out = capsys.readouterr()
+    assert rc in (65, 78) and "nan" not in out.out
+    assert out.err.count("\n") == 1 and "Traceback" not in out.err
+
+
+def test_check_piped_into_a_reader_that_goes_away(tmp_path: Path) -> None:
+    proc = subprocess.run(f'"{sys.executable}" -m compd check sp2 | head -c 10 >/dev/null; '
+                          'exit "${PIPESTATUS[0]}"', shell=True, executable="/bin/bash",
+                          capture_output=True, text=True, timeout=120, check=False)
+    assert "Traceback" not in proc.stderr and "BrokenPipe" not in proc.stderr
+    assert proc.returncode in (0, 74)
