@@ -34,6 +34,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import logging
 
+    from compd.outfiles import check_figure, write_atomically
+
+    if args.plot is not None:  # before anything else: the figure is the point of the run
+        check_figure(args.plot, force=args.force, inputs=[args.model])
+
     from compd.demo import run_demo
 
     # the simulated controllers' libraries log every dropped client at ERROR level;
@@ -41,10 +46,6 @@ def run(args: argparse.Namespace) -> int:
     for name in ("pymodbus", "asyncua", "snap7"):
         logging.getLogger(name).setLevel(logging.CRITICAL)
 
-    from compd.outfiles import check_figure, write_atomically
-
-    if args.plot is not None:
-        check_figure(args.plot, force=args.force, inputs=[args.model])
     print(f"compd demo: {args.hours:g} h of the {args.program} program on a simulated "
           f"{args.protocol} controller, about {args.seconds:g} s", flush=True)
     result = asyncio.run(run_demo(args.protocol, hours=args.hours, wall_s=args.seconds,
