@@ -40,8 +40,6 @@ from compd.infiles import MAX_RECORD_BYTES, MAX_RECORDER_BYTES, check_input, ope
 
 FloatArray = npt.NDArray[np.float64]
 
-#: sysexits.h EX_DATAERR: the input data was incorrect
-EX_DATAERR = 65
 
 #: header names accepted for an ISO 8601 time column
 _ISO_TIME_NAMES = ("time", "timestamp", "datetime", "date_time", "time_iso")

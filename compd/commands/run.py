@@ -12,8 +12,9 @@ import argparse
 import asyncio
 import sys
 
+from compd.sysexits import EX_TEMPFAIL
+
 HELP = "run the compensation daemon against the configured controller"
-EX_TEMPFAIL = 75
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
