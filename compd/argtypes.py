@@ -45,3 +45,14 @@ def port(text: str) -> int:
     if not 0 <= value <= 65535:
         raise argparse.ArgumentTypeError(f"a port is 0..65535 (0: a free one), got {text!r}")
     return value
+
+
+def seed(text: str) -> int:
+    """A random seed: a whole number 0 … 2**63 - 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a seed is a whole number, got {text!r}") from None
+    if not 0 <= value < 2**63:
+        raise argparse.ArgumentTypeError(f"a seed is 0 … 2**63-1, got {text!r}")
+    return value

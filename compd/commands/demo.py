@@ -6,7 +6,7 @@ import argparse
 import asyncio
 import json
 
-from compd.argtypes import number
+from compd.argtypes import number, seed
 
 HELP = ("serve a simulated machine on 127.0.0.1, run the daemon against it at a speed-up, "
         "and print the Z error at the tool without and with compensation")
@@ -24,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "on the simulated machine)")
     parser.add_argument("--program", choices=["spectrum", "constant", "etve"],
                         default="spectrum")
-    parser.add_argument("--seed", type=int, default=7)
+    parser.add_argument("--seed", type=seed, default=7)
     parser.add_argument("--plot", metavar="PNG", help="draw growth, offset and error")
     parser.add_argument("--force", action="store_true", help="replace an existing --plot file")
     parser.add_argument("--json", action="store_true",

@@ -29,7 +29,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from compd.argtypes import number, port
+from compd.argtypes import number, port, seed
 from compd.commands import sim_drive
 from compd.sysexits import EX_DATAERR, EX_TEMPFAIL, EX_USAGE
 
@@ -64,7 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="program duration in hours (default: the program's own)")
     parser.add_argument("--period-s", type=PERIOD_S, default=1.0,
                         help="machine seconds per tick / per record row (default 1)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     parser.add_argument("--json", action="store_true",
                         help="print the endpoint and addresses as one JSON line first")
     parser.add_argument("--record", metavar="CSV", default=None,

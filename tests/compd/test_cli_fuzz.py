@@ -108,6 +108,9 @@ def _cases() -> list[list[str]]:
     for bad in ("out.csv", "out", "out.png.txt"):  # not a figure format
         out += [["step", "sp2", "--plot", str(ROOT / bad)],
                 ["replay", "sp2", rec, "--output", "dz_um", "--plot", str(ROOT / bad)]]
+    for bad_seed in ("-1", "1e3", "x", "99999999999999999999999"):
+        out += [["sim", "--record", str(ROOT / "seed.csv"), "--hours", "0.01", "--seed",
+                 bad_seed], ["demo", "--seed", bad_seed, "--plot", _target("missing_dir")]]
     for port in ("70000", "-1", "65536"):
         out.append(["sim", "--protocol", "modbus", "--port", port])
     for t in TARGETS:
