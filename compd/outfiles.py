@@ -83,7 +83,19 @@ def check_output(path: str | os.PathLike[str], what: str, *, force: bool = False
     if not os.access(parent, os.W_OK | os.X_OK):
         raise OutputError(f"{p}: no permission to create files in {parent}")
     _check_target(p, what, force, inputs)
+    _probe(p)
     return p
+
+
+def _probe(p: Path) -> None:
+    """Create (and remove) a temporary file beside the target: a read-only or
+    pseudo file system says no now, not after the work (root passes `access`)."""
+    try:
+        fd, name = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".probe", dir=p.parent)
+    except OSError as exc:
+        raise OutputError(f"{p}: cannot create files in {p.parent} ({exc.strerror})") from None
+    os.close(fd)
+    os.unlink(name)
 
 
 #: figure formats the plotting library writes, by file suffix
@@ -125,7 +137,11 @@ def write_atomically(path: str | os.PathLike[str], write: Callable[[Path], objec
     same directory and suffix), then fsync and rename it over the target."""
     inputs = list(inputs)
     p = check_output(path, what, force=force, inputs=inputs)
-    fd, name = tempfile.mkstemp(prefix=f".{p.name}.", suffix=f".part{p.suffix}", dir=p.parent)
+    try:
+        fd, name = tempfile.mkstemp(prefix=f".{p.name}.", suffix=f".part{p.suffix}",
+                                    dir=p.parent)
+    except OSError as exc:
+        raise OutputError(f"{p}: cannot create files in {p.parent} ({exc.strerror})") from None
     os.close(fd)
     tmp = Path(name)
     try:

@@ -8,7 +8,8 @@ one line on stderr. Hostile files: empty, garbage bytes, non-UTF-8, NUL
 bytes, /dev/zero, a FIFO, a directory, a symbolic link loop, a 2 GiB sparse
 file, a missing file; hostile numbers: NaN, ±inf, negative, zero, huge, tiny,
 not a number; hostile targets: a directory, a missing directory, "", a FIFO,
-/dev/full, a trailing slash, the input itself. Counted in `CASES` (the module
+/dev/full, a trailing slash, the input itself, a symbolic link loop, a new or
+an existing file in /proc (not writable, even by root). Counted in `CASES` (the module
 prints the count when collected with -s).
 """
 
@@ -32,7 +33,8 @@ FILES = ("empty", "garbage", "latin1", "nul", "devzero", "fifo", "dir", "loop", 
          "missing", "bom_only", "toml_junk")
 NUMBERS = ("nan", "inf", "-inf", "-1", "0", "-0.0", "1e308", "1e-9", "1e9", "1e999", "abc",
            "", "0x10")
-TARGETS = ("dir", "missing_dir", "empty_name", "fifo", "dev_full", "slash", "loop")
+TARGETS = ("dir", "missing_dir", "empty_name", "fifo", "dev_full", "slash", "loop", "proc_new",
+           "proc_file")
 
 
 def _file(name: str) -> str:
@@ -43,7 +45,8 @@ def _target(name: str) -> str:
     return {"dir": str(ROOT / "dir"), "missing_dir": str(ROOT / "nodir" / "out.x"),
             "empty_name": "", "fifo": str(ROOT / "fifo"), "dev_full": "/dev/full",
             "slash": str(ROOT / "new") + "/", "input": str(ROOT / "rec.csv"),
-            "loop": str(ROOT / "loop")}[name]
+            "loop": str(ROOT / "loop"), "proc_new": "/proc/compd-fuzz.png",
+            "proc_file": "/proc/version"}[name]
 
 
 def _make_files(root: Path) -> None:
