@@ -10,10 +10,14 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import typing
 from collections.abc import Sequence
 from types import ModuleType
 
 from compd.errors import EX_CONFIG, ConfigError
+from compd.infiles import InputError
+from compd.outfiles import OutputError
+from compd.sysexits import EX_IOERR, EX_USAGE
 
 #: subcommand -> module under compd.commands
 COMMANDS: dict[str, str] = {
@@ -37,8 +41,15 @@ def _load(module: str) -> ModuleType | None:
         raise
 
 
+class Parser(argparse.ArgumentParser):
+    """Usage errors end with one line on stderr and exit 64 (EX_USAGE)."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        self.exit(EX_USAGE, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="compd", description="Real-time thermal error compensation for CNC machine tools.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, module_name in COMMANDS.items():
@@ -68,14 +79,53 @@ def _ensure_std_streams() -> None:
         setattr(sys, name, open(fd, "w", encoding="utf-8", closefd=False))  # noqa: SIM115
 
 
+def _quiet_stdout() -> None:
+    """stdout's reader went away (``compd check | head -1``): drop the rest
+    quietly, as other Unix tools do, instead of a BrokenPipeError at exit."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):
+        pass
+
+
+def _flush_stdout() -> None:
+    """Everything printed reaches stdout now, or the command says why it did not."""
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        raise
+    except OSError as exc:  # stdout on a full disk or device
+        _quiet_stdout()
+        raise OutputError(f"cannot write to stdout ({exc.strerror or exc})", EX_IOERR
+                          ) from None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     _ensure_std_streams()
     args = build_parser().parse_args(argv)
     try:
         rc: int = args._run(args)
+        _flush_stdout()
     except ConfigError as exc:
         print(f"compd: configuration error: {exc}", file=sys.stderr)
         return EX_CONFIG
+    except (InputError, OutputError) as exc:
+        print(f"compd {args.command}: {exc}", file=sys.stderr)
+        return exc.code
+    except BrokenPipeError:
+        _quiet_stdout()
+        return EX_IOERR
+    except OSError as exc:  # an I/O error no command foresaw (stdout on a full disk, ...)
+        try:
+            sys.stdout.flush()
+        except OSError:
+            _quiet_stdout()
+        print(f"compd {args.command}: I/O error: {exc.strerror or exc}", file=sys.stderr)
+        return EX_IOERR
     return rc
 
 

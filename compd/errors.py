@@ -3,12 +3,11 @@
 
 from __future__ import annotations
 
+from compd.sysexits import EX_CONFIG  # systemd is told not to restart on it
 from models.errors import CompdError, ModelError
 
 __all__ = ["EX_CONFIG", "CompdError", "ConfigError", "ModelError", "SafetyTrip"]
 
-#: sysexits.h EX_CONFIG: systemd is told not to restart on it.
-EX_CONFIG = 78
 
 
 class ConfigError(CompdError):

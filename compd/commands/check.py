@@ -95,8 +95,8 @@ def _fmt(p: list[float]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from compd.errors import ConfigError
+    from compd.infiles import load_model
     from models.errors import ModelError
-    from models.modelfile import load_model
     from models.sanity import check_model
 
     path: str = args.path
@@ -120,16 +120,17 @@ def run(args: argparse.Namespace) -> int:
 
 def _config_checker(path: str) -> Any:
     """The daemon-config checker when `path` is a daemon config (has [controller])."""
-    import tomllib
     from pathlib import Path
+
+    from compd.infiles import InputError, read_toml
 
     p = Path(path)
     if not p.is_file():
         return None
     try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
-        return None
+        doc = read_toml(p, "file")
+    except InputError:
+        return None  # the model reader says what is wrong with it
     if "controller" not in doc and "machine" not in doc:
         return None
     import importlib

@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import json
 
+from compd.argtypes import number, seed
 from drivers.protocols import NAMES
 
 HELP = ("serve a simulated machine on 127.0.0.1, run the daemon against it at a speed-up, "
@@ -15,23 +16,29 @@ HELP = ("serve a simulated machine on 127.0.0.1, run the daemon against it at a 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--protocol", choices=NAMES,
                         default="opcua", help="simulated controller (default: opcua)")
-    parser.add_argument("--hours", type=float, default=8.0,
+    parser.add_argument("--hours", type=number(0.0, 1000.0, lo_open=True), default=8.0,
                         help="machine hours of the spindle-speed spectrum (default 8)")
-    parser.add_argument("--seconds", type=float, default=60.0,
+    parser.add_argument("--seconds", type=number(0.0, 86400.0, lo_open=True), default=60.0,
                         help="real seconds the run should take (sets the speed-up; default 60)")
     parser.add_argument("--model", default="sim_machine",
                         help="model file or bundled name (default: sim_machine, calibrated "
                              "on the simulated machine)")
     parser.add_argument("--program", choices=["spectrum", "constant", "etve"],
                         default="spectrum")
-    parser.add_argument("--seed", type=int, default=7)
+    parser.add_argument("--seed", type=seed, default=7)
     parser.add_argument("--plot", metavar="PNG", help="draw growth, offset and error")
+    parser.add_argument("--force", action="store_true", help="replace an existing --plot file")
     parser.add_argument("--json", action="store_true",
                         help="print the figures as one JSON object (last stdout line)")
 
 
 def run(args: argparse.Namespace) -> int:
     import logging
+
+    from compd.outfiles import check_figure, write_atomically
+
+    if args.plot is not None:  # before anything else: the figure is the point of the run
+        check_figure(args.plot, force=args.force, inputs=[args.model])
 
     from compd.offline.demo import run_demo
 
@@ -40,9 +47,6 @@ def run(args: argparse.Namespace) -> int:
     for name in ("pymodbus", "asyncua", "snap7"):
         logging.getLogger(name).setLevel(logging.CRITICAL)
 
-    if not (args.hours > 0 and args.seconds > 0):
-        print("compd demo: --hours and --seconds must be > 0")
-        return 2
     print(f"compd demo: {args.hours:g} h of the {args.program} program on a simulated "
           f"{args.protocol} controller, about {args.seconds:g} s", flush=True)
     result = asyncio.run(run_demo(args.protocol, hours=args.hours, wall_s=args.seconds,
@@ -60,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
         h = result.history
         inputs: dict[str, np.ndarray] = {
             k: h[k] for k in ("bearing", "motor", "column", "ambient", "speed_rpm") if k in h}
-        replay_figure(args.plot, h["time_s"], inputs, h["growth_um"], h["offset_um"],
+        write_atomically(args.plot, lambda tmp: replay_figure(
+                      tmp, h["time_s"], inputs, h["growth_um"], h["offset_um"],
                       title=(f"compd demo ({args.protocol}): Z growth at the tool, offset "
                              f"written, error left; range {result.uncompensated_range_um:.1f}"
                              f" → {result.compensated_range_um:.1f} µm "
@@ -68,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
                       fit_pct=result.fit_percent,
                       labels=("thermal growth at the tool (uncompensated error)",
                               "offset written by compd", "error left at the tool"),
-                      dpk_um=delta_pk(h["growth_um"], h["offset_um"]))
+                      dpk_um=delta_pk(h["growth_um"], h["offset_um"])),
+                         "figure", force=args.force, inputs=[args.model])
         print(f"figure written to {args.plot}")
     if args.json:
         print(json.dumps(result.summary()))

@@ -37,14 +37,15 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from compd.argtypes import number
+from compd.sysexits import EX_DATAERR
+
 if TYPE_CHECKING:
     from compd.offline.records import Record
     from models.compensation import CompensationModel, Term
 
 HELP = "identify a compensation model from a calibration record and write a model file"
 
-EX_DATAERR = 65
-EX_USAGE = 2
 _TERM_RE = re.compile(r"\s*([+-]?)\s*([A-Za-z_][A-Za-z0-9_.]*)\s*")
 
 
@@ -82,16 +83,6 @@ def parse_term(text: str) -> tuple[str, dict[str, float]]:
 DEFAULT_MAX_TIME_CONSTANT_DAYS = 3.0
 
 
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not v > 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
-    return v
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data", metavar="DATA", nargs="+",
                         help="calibration record(s) (CSV, or a compd recorder .db); several "
@@ -107,17 +98,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="grey-box u2 switch channel (1 = moving, 0 = standstill)")
     parser.add_argument("--fixed", action="append", default=[], metavar="MODEL:TERM",
                         help="keep an already-calibrated term, subtracted before fitting")
-    parser.add_argument("--validation", type=float, default=0.3,
-                        help="fraction of each record held out to choose orders (default 0.3)")
+    parser.add_argument("--validation", type=number(0.05, 0.95),
+                        default=0.3,
+                        help="fraction of each record held out to choose orders, 0.05 … 0.95 "
+                             "(default 0.3)")
     parser.add_argument("--validation-record", action="append", default=[], metavar="DATA",
                         help="a record used only to choose the orders (repeatable); the fit "
                              "then uses every DATA record whole")
-    parser.add_argument("--max-time-constant-days", type=_positive_float,
+    parser.add_argument("--max-time-constant-days", type=number(0.0, 3650.0, lo_open=True),
                         default=DEFAULT_MAX_TIME_CONSTANT_DAYS, metavar="DAYS",
                         help="slowest allowed pole, as a time constant in days (default "
                              f"{DEFAULT_MAX_TIME_CONSTANT_DAYS:g})")
     parser.add_argument("-o", dest="model_file", metavar="MODEL.toml", default=None,
                         help="model file to write (default: the first DATA with .model.toml)")
+    parser.add_argument("--force", action="store_true",
+                        help="replace an existing model file (never one of the inputs)")
     parser.add_argument("--name", default=None, help="model name (default: from DATA)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON line")
 
@@ -127,9 +122,9 @@ def _fixed_terms(specs: list[str], records: list[Record]) -> tuple[list[Term], l
     import numpy as np
 
     from compd.commands.replay import replay_model
+    from compd.infiles import load_model
     from models.compensation import CompensationModel
     from models.errors import ModelError
-    from models.modelfile import load_model
 
     terms: list[Term] = []
     totals = [np.zeros(len(r)) for r in records]
@@ -309,16 +304,22 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
 def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[str, Any]], Path,
                                                   list[Record]]:
     """Everything but the printing (the tests call `run`)."""
+    from compd.infiles import load_model
     from compd.offline.records import speed_warnings
+    from compd.outfiles import check_output, write_atomically
     from models.compensation import CompensationModel
     from models.errors import ModelError
-    from models.modelfile import load_model, save_model
+    from models.modelfile import save_model
 
     try:
         specs = [parse_term(t) for t in args.term]
     except ValueError as exc:
         raise ModelError(str(exc)) from None
     data = [str(p) for p in args.data]
+    sources = [*data, *args.validation_record, *(f.rpartition(":")[0] for f in args.fixed)]
+    out = check_output(args.model_file if args.model_file is not None else
+                       Path(data[0]).with_suffix(".model.toml"), "model file",
+                       force=args.force, inputs=sources)
     channels = {ch for _, inputs in specs for ch in inputs}
     records = _read_records(data, args, channels)
     holdout = _read_records([str(p) for p in args.validation_record], args, channels,
@@ -328,14 +329,13 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
     fixed, fixed_preds = _fixed_terms(list(args.fixed), records)
     ys = [r.column(args.output) - f for r, f in zip(records, fixed_preds, strict=True)]
     terms, info = _fit_terms(args, records, ys, specs, holdout)
-    first = Path(data[0])
-    out = Path(args.model_file) if args.model_file else first.with_suffix(".model.toml")
     names = ", ".join(Path(p).name for p in data)
     name = args.name or f"fitted from {names}"
     model = CompensationModel(fixed + terms, records[0].period_s, name=name,
                               description=f"compd fit --kind {args.kind} on {names}",
                               provenance=_provenance(args, records, info))
-    save_model(model, out)
+    write_atomically(out, lambda tmp: save_model(model, tmp), "model file", force=args.force,
+                     inputs=sources)
     written = load_model(out)  # what the daemon will load
     return written, info, out, records
 

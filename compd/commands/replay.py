@@ -15,6 +15,8 @@ import math
 import sys
 from typing import TYPE_CHECKING
 
+from compd.sysexits import EX_DATAERR
+
 if TYPE_CHECKING:
     import numpy as np
     import numpy.typing as npt
@@ -23,8 +25,6 @@ if TYPE_CHECKING:
     from models.compensation import CompensationModel
 
 HELP = "run a model over a recorded run offline: fit %, residue, Δpk, range reduction, a plot"
-
-EX_DATAERR = 65
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,6 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the measured displacement column (µm)")
     parser.add_argument("--plot", metavar="PNG", default=None,
                         help="write a figure: inputs above, measured/simulated/residue below")
+    parser.add_argument("--force", action="store_true", help="replace an existing --plot file")
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON line")
 
 
@@ -64,11 +65,14 @@ def plot_inputs(model: CompensationModel, record: Record) -> dict[str, npt.NDArr
 
 
 def run(args: argparse.Namespace) -> int:
+    from compd.infiles import load_model
+    from compd.offline.quality_check import checked_quality
     from compd.offline.records import RecordError, check_units, read_record
+    from compd.outfiles import check_figure, write_atomically
     from models.errors import ModelError
-    from models.modelfile import load_model
-    from models.quality import quality
 
+    if args.plot is not None:
+        check_figure(args.plot, force=args.force, inputs=[args.model, args.data])
     try:
         model = load_model(args.model)
         record = read_record(args.data)
@@ -79,13 +83,19 @@ def run(args: argparse.Namespace) -> int:
         print(f"compd replay: {exc}", file=sys.stderr)
         return EX_DATAERR
     measured = record.columns[args.output]
-    q = quality(measured, simulated)
+    try:
+        q = checked_quality(measured, simulated, record.path, args.output)
+    except RecordError as exc:
+        print(f"compd replay: {exc}", file=sys.stderr)
+        return EX_DATAERR
     if args.plot:
         from compd.offline.plots import replay_figure
 
-        replay_figure(args.plot, record.time_s, plot_inputs(model, record), measured, simulated,
+        write_atomically(args.plot, lambda tmp: replay_figure(
+                      tmp, record.time_s, plot_inputs(model, record), measured, simulated,
                       title=f"{model.name} on {record.path}", fit_pct=q.fit_percent,
-                      dpk_um=q.dpk_um)
+                      dpk_um=q.dpk_um), "figure", force=args.force,
+                         inputs=[args.model, args.data])
     if args.json:
         print(json.dumps(q.as_dict()))
     else:

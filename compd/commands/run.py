@@ -14,9 +14,9 @@ import argparse
 import asyncio
 import sys
 
+from compd.sysexits import EX_CANTCREAT, EX_TEMPFAIL
+
 HELP = "run the compensation daemon against the configured controller"
-EX_TEMPFAIL = 75
-EX_CANTCREAT = 73
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

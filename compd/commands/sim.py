@@ -26,9 +26,12 @@ import asyncio
 import json
 import signal
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING
 
+from compd.argtypes import number, port, seed
 from compd.commands import sim_drive
+from compd.sysexits import EX_DATAERR, EX_TEMPFAIL, EX_USAGE
 from drivers.protocols import NAMES
 
 if TYPE_CHECKING:
@@ -39,38 +42,37 @@ HELP = "serve one simulated machine on 127.0.0.1, or write a simulated calibrati
 #: from the protocol registry, which imports nothing heavy (the CLI parser stays light)
 PROTOCOLS: tuple[str, ...] = NAMES
 PROGRAMS: tuple[str, ...] = ("spectrum", "constant", "etve")
-EX_USAGE = 2
-
-
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not value > 0.0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a positive finite number: {text!r}")
-    return value
+#: bounds of the numeric options: a tick of a millisecond to an hour, a
+#: program of at most a year, a speed-up of at most a million
+PERIOD_S = number(1e-3, 3600.0)
+HOURS = number(0.0, 8784.0, lo_open=True)
+SPEEDUP = number(0.0, 1e6, lo_open=True)
+PROBE_NOISE_UM = number(0.0, 1000.0)
+#: an offline record longer than this many rows is refused (~0.6 GB of CSV)
+MAX_RECORD_ROWS = 10_000_000
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--protocol", choices=PROTOCOLS,
                         help="the controller to simulate (required unless --record)")
-    parser.add_argument("--port", type=int, default=0,
+    parser.add_argument("--port", type=port, default=0,
                         help="TCP port on 127.0.0.1 (default: a free one)")
-    parser.add_argument("--speedup", type=_positive, default=1.0,
+    parser.add_argument("--speedup", type=SPEEDUP, default=1.0,
                         help="machine seconds per real second (default 1)")
     parser.add_argument("--program", choices=PROGRAMS, default="spectrum",
                         help="spindle program (default spectrum; it repeats when served)")
-    parser.add_argument("--hours", type=_positive, default=None,
+    parser.add_argument("--hours", type=HOURS, default=None,
                         help="program duration in hours (default: the program's own)")
-    parser.add_argument("--period-s", type=_positive, default=1.0,
+    parser.add_argument("--period-s", type=PERIOD_S, default=1.0,
                         help="machine seconds per tick / per record row (default 1)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     parser.add_argument("--json", action="store_true",
                         help="print the endpoint and addresses as one JSON line first")
     parser.add_argument("--record", metavar="CSV", default=None,
                         help="write a calibration record offline instead of serving")
-    parser.add_argument("--probe-noise-um", type=float, default=0.5,
+    parser.add_argument("--force", action="store_true",
+                        help="replace an existing --record file")
+    parser.add_argument("--probe-noise-um", type=PROBE_NOISE_UM, default=0.5,
                         help="probe noise added to dz_um in --record (default 0.5 µm)")
     parser.add_argument("--no-plant", action="store_true",
                         help="serve the controller's memory only, no plant behind it (a "
@@ -89,18 +91,44 @@ def describe(controller: SimController) -> dict[str, object]:
 
 
 def _record(args: argparse.Namespace) -> int:
+    from compd.outfiles import check_output, write_atomically
     from drivers.sim.offline import record_program
     from drivers.sim.programs import make_program
 
-    if args.probe_noise_um < 0.0:
-        print("compd sim: --probe-noise-um must be >= 0", file=sys.stderr)
-        return EX_USAGE
+    check_output(args.record, "record", force=args.force)
     program = make_program(args.program, seed=args.seed, hours=args.hours)
-    rows = record_program(args.record, program, seed=args.seed, period_s=args.period_s,
-                          probe_noise_um=args.probe_noise_um)
+    if program.duration_s / args.period_s > MAX_RECORD_ROWS:
+        print(f"compd sim: {program.duration_s / 3600:g} h every {args.period_s:g} s is "
+              f"{program.duration_s / args.period_s:.3g} rows; at most {MAX_RECORD_ROWS:,}",
+              file=sys.stderr)
+        return EX_DATAERR
+    rows = 0
+
+    def write(tmp: Path) -> None:
+        nonlocal rows
+        rows = record_program(tmp, program, seed=args.seed, period_s=args.period_s,
+                              probe_noise_um=args.probe_noise_um)
+
+    write_atomically(args.record, write, "record", force=args.force)
     print(f"compd sim: wrote {rows} rows ({program.name}, {program.duration_s / 3600:g} h, "
           f"period {args.period_s:g} s, seed {args.seed}) to {args.record}")
     return 0
+
+
+def _port_in_use(port: int) -> str:
+    """Why 127.0.0.1:`port` cannot be served ("" when it can): asked before the
+    protocol library tries, whose own failure is a traceback in its log."""
+    import socket
+
+    if port == 0:
+        return ""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind(("127.0.0.1", port))
+        except OSError as exc:
+            return exc.strerror or str(exc)
+    return ""
 
 
 async def _serve(args: argparse.Namespace) -> int:
@@ -110,6 +138,10 @@ async def _serve(args: argparse.Namespace) -> int:
 
     program = make_program(args.program, seed=args.seed, hours=args.hours)
     options = {"writable_channels": True} if args.no_plant and args.protocol == "opcua" else {}
+    busy = _port_in_use(args.port)
+    if busy:
+        print(f"compd sim: cannot serve on 127.0.0.1:{args.port} ({busy})", file=sys.stderr)
+        return EX_TEMPFAIL
     controller = make_sim_controller(args.protocol, "127.0.0.1", args.port, **options)
     await controller.start()
     loop = asyncio.get_running_loop()

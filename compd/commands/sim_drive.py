@@ -8,9 +8,10 @@ wrote there. Runs until SIGINT/SIGTERM or ``--duration-h`` of machine time
 ``--record CSV`` writes the run (a calibration record plus offset, error,
 heartbeat, status and link state) on the way out.
 
-Exit codes: 0 done, 2 usage (bad endpoint, options that do not apply), 78 a
-drive map that cannot be used, 1 the controller refused a write for good (the
-map does not fit the controller).
+Exit codes: 0 done, 64 usage (bad endpoint, options that do not apply), 66
+a drive map that cannot be read, 78 a drive map that cannot be used, 73/74 a
+--record that cannot be written (checked before the session starts), 1 the
+controller refused a write for good (the map does not fit the controller).
 """
 
 from __future__ import annotations
@@ -26,9 +27,9 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from drivers.sim.drive import DriveLoop
 
-from compd.errors import EX_CONFIG
+from compd.argtypes import number
+from compd.sysexits import EX_CONFIG, EX_USAGE
 
-EX_USAGE = 2
 #: the bench maps shipped in the repository
 MAPS_DIR = Path(__file__).resolve().parents[2] / "deploy" / "hil" / "maps"
 
@@ -41,13 +42,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--map", metavar="TOML", default=None,
                        help="drive map: which addresses the plant writes and reads "
                             "(default: deploy/hil/maps/<protocol>.toml)")
-    group.add_argument("--duration-h", type=float, default=None,
+    group.add_argument("--duration-h", type=number(0.0, 8784.0, lo_open=True), default=None,
                        help="stop after this much machine time, hours (default: run until "
                             "SIGINT/SIGTERM)")
     group.add_argument("--focas-library", metavar="PATH", default=None,
                        help="absolute path of the FOCAS library (overrides the map's "
                             "driver.library_path)")
-    group.add_argument("--print-every-s", type=float, default=5.0,
+    group.add_argument("--print-every-s", type=number(0.0, 86400.0), default=5.0,
                        help="real seconds between status lines (0: none; default 5)")
 
 
@@ -111,8 +112,10 @@ async def _drive(args: argparse.Namespace, drive: DriveLoop, until_s: float | No
 
 
 def run_drive(args: argparse.Namespace) -> int:
+    from compd.infiles import read_toml
+    from compd.outfiles import check_output, write_atomically
     from drivers.sim.drive import DriveLoop, drive_endpoint, open_drive_driver, write_drive_record
-    from drivers.sim.drive_map import DriveMapError, load_drive_map
+    from drivers.sim.drive_map import DriveMapError, parse_drive_map
     from drivers.sim.programs import make_program
 
     if args.protocol is not None:
@@ -132,8 +135,10 @@ def run_drive(args: argparse.Namespace) -> int:
     map_path = Path(args.map) if args.map else MAPS_DIR / f"{protocol}.toml"
     if args.map is None and not map_path.is_file():
         return _usage(f"no default map at {map_path}; give --map FILE.toml")
+    if args.record is not None:  # before the session: a record lost at the end is no record
+        check_output(args.record, "record", force=args.force, inputs=[map_path])
     try:
-        drive_map = load_drive_map(map_path)
+        drive_map = parse_drive_map(read_toml(map_path, "drive map"), str(map_path))
     except DriveMapError as exc:
         print(f"compd sim: bad drive map: {exc}", file=sys.stderr)
         return EX_CONFIG
@@ -157,7 +162,11 @@ def run_drive(args: argparse.Namespace) -> int:
           f"seed {args.seed}", flush=True)
     rc = asyncio.run(_drive(args, drive, until_s))
     if args.record is not None:
-        rows = write_drive_record(args.record, drive.history_arrays())
+        history, written = drive.history_arrays(), [0]
+        write_atomically(args.record,
+                         lambda tmp: written.append(write_drive_record(tmp, history)), "record",
+                         force=args.force, inputs=[map_path])
+        rows = written[-1]
         print(f"compd sim: wrote {rows} rows to {args.record}")
     print(_status_line(drive))
     print(f"compd sim: stopped after {drive.time_s / 3600:.3f} h of machine time, "

@@ -14,15 +14,23 @@ import json
 import math
 import sys
 
+from compd.argtypes import number
+from compd.sysexits import EX_DATAERR
+
 HELP = "step response of each term of a model (1 K step), as numbers and a plot"
 
-EX_DATAERR = 65
+#: a step response longer than this many samples is refused (memory, time)
+MAX_STEP_SAMPLES = 5_000_000
+#: the longest span asked with --hours: ten years
+MAX_HOURS = 87_600.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("model", metavar="MODEL", help="model file, or a library name (sp2)")
     parser.add_argument("--plot", metavar="PNG", default=None, help="write the figure here")
-    parser.add_argument("--hours", type=float, default=None, help="span (default: 5 τ)")
+    parser.add_argument("--hours", type=number(0.0, MAX_HOURS, lo_open=True), default=None,
+                        help="span (default: 5 τ)")
+    parser.add_argument("--force", action="store_true", help="replace an existing --plot file")
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON line")
 
 
@@ -53,16 +61,25 @@ def _slowest_tau_s(model: object) -> float:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from compd.infiles import load_model
+    from compd.outfiles import check_figure, write_atomically
     from models.errors import ModelError
-    from models.modelfile import load_model
 
+    if args.plot is not None:
+        check_figure(args.plot, force=args.force, inputs=[args.model])
     try:
         model = load_model(args.model)
     except ModelError as exc:
         print(f"compd step: {exc}", file=sys.stderr)
         return EX_DATAERR
     span_s = args.hours * 3600.0 if args.hours else min(5.0 * _slowest_tau_s(model), 48 * 3600.0)
-    n = max(2, int(span_s / model.period_s) + 1)
+    samples = span_s / model.period_s + 1.0
+    if not samples <= MAX_STEP_SAMPLES:
+        print(f"compd step: {span_s / 3600:g} h at the model's period {model.period_s:g} s is "
+              f"{samples:.3g} samples; at most {MAX_STEP_SAMPLES:,} (shorten --hours)",
+              file=sys.stderr)
+        return EX_DATAERR
+    n = max(2, int(samples))
     time_s = np.arange(n, dtype=np.float64) * model.period_s
     responses: dict[str, np.ndarray] = {}
     units: dict[str, str] = {}
@@ -80,8 +97,10 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         from compd.offline.plots import step_figure
 
-        step_figure(args.plot, time_s, responses, units,
-                    title=f"{model.name}: step response per term (Ts = {model.period_s:g} s)")
+        title = f"{model.name}: step response per term (Ts = {model.period_s:g} s)"
+        write_atomically(args.plot, lambda tmp: step_figure(tmp, time_s, responses, units,
+                                                            title=title),
+                         "figure", force=args.force, inputs=[args.model])
     if args.json:
         print(json.dumps({"terms": summary}))
     else:

@@ -25,11 +25,12 @@ from pydantic import ValidationError
 from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX, check_outputs
 from compd.config.schema import ControllerSection, DaemonConfig, SecuritySection
 from compd.errors import ConfigError
+from compd.infiles import MAX_CONFIG_BYTES, InputError, load_model, read_bytes
 from drivers.addresses import Address
 from drivers.protocols import PROTOCOLS
 from models.compensation import CompensationModel
 from models.errors import ModelError
-from models.modelfile import load_model, model_document, parse_model
+from models.modelfile import model_document, parse_model
 from models.sanity import check_model
 
 #: output names as the driver sees them
@@ -150,7 +151,7 @@ def _load_model(ref: str, base: Path, key: str) -> CompensationModel:
             return load_model(candidate)
         if p.suffix == "" and "/" not in ref:
             return load_model(ref)  # a bundled library model
-    except ModelError as exc:
+    except (ModelError, InputError) as exc:
         raise ConfigError(key, str(exc)) from None
     except _NUMERIC_ERRORS as exc:
         raise ConfigError(key, _numeric_reason(exc)) from None
@@ -269,9 +270,9 @@ def load_config(path: str | Path) -> LoadedConfig:
     """Read and validate a daemon config file; raises ConfigError."""
     p = Path(path)
     try:
-        text = p.read_bytes()
-    except OSError as exc:
-        raise ConfigError("", f"{p}: cannot read the config file ({exc.strerror})") from None
+        text = read_bytes(p, "config file", MAX_CONFIG_BYTES)
+    except InputError as exc:
+        raise ConfigError("", str(exc)) from None
     try:
         doc = tomllib.loads(text.decode("utf-8"))
     except UnicodeDecodeError:

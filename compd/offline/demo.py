@@ -28,10 +28,10 @@ from typing import Any
 
 import numpy as np
 
+from compd.infiles import load_model
 from drivers.sim.base import SimController
 from drivers.sim.machine import SimMachine
 from models import tomltext
-from models.modelfile import load_model
 from models.quality import fit_percent
 
 #: channel settings the demo config gives each simulated channel it reads

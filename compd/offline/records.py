@@ -23,10 +23,11 @@ the first sample). `read_record` picks the reader by the file's suffix.
 
 from __future__ import annotations
 
-import csv
 import hashlib
+import io
 import math
-from collections.abc import Iterable
+import os
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -35,11 +36,10 @@ import numpy as np
 import numpy.typing as npt
 
 from compd.errors import CompdError
+from compd.infiles import MAX_RECORD_BYTES, MAX_RECORDER_BYTES, check_input, open_input
 
 FloatArray = npt.NDArray[np.float64]
 
-#: sysexits.h EX_DATAERR: the input data was incorrect
-EX_DATAERR = 65
 
 #: header names accepted for an ISO 8601 time column
 _ISO_TIME_NAMES = ("time", "timestamp", "datetime", "date_time", "time_iso")
@@ -84,11 +84,35 @@ class Record:
             raise RecordError(f"{self.path}: missing column(s) {missing}; the record has "
                               f"{sorted(self.columns)}")
 
-    def samples(self) -> list[dict[str, float]]:
-        """One dict per row (channel -> float), as the daemon sees a sample."""
-        names = list(self.columns)
-        cols = [self.columns[n].tolist() for n in names]
-        return [dict(zip(names, row, strict=True)) for row in zip(*cols, strict=True)]
+    def samples(self) -> Samples:
+        """One dict per row (channel -> float), as the daemon sees a sample;
+        made as they are read, never all at once."""
+        return Samples(self.columns, len(self))
+
+
+class Samples(Sequence[dict[str, float]]):
+    """The rows of a record as dicts, built a block at a time on iteration."""
+
+    BLOCK = 8192
+
+    def __init__(self, columns: dict[str, FloatArray], n: int) -> None:
+        self._columns = columns
+        self._n = n
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i: int) -> dict[str, float]:  # type: ignore[override]
+        if not -self._n <= i < self._n:
+            raise IndexError(i)
+        return {k: float(v[i]) for k, v in self._columns.items()}
+
+    def __iter__(self) -> Iterator[dict[str, float]]:
+        names = list(self._columns)
+        for lo in range(0, self._n, self.BLOCK):
+            block = [self._columns[n][lo:lo + self.BLOCK].tolist() for n in names]
+            for row in zip(*block, strict=True):
+                yield dict(zip(names, row, strict=True))
 
 
 def file_sha256(path: str | Path) -> str:
@@ -125,47 +149,28 @@ def _time_column(header: list[str], path: str) -> tuple[int, bool]:
 
 
 def read_csv_record(path: str | Path) -> Record:
-    """Read and check a CSV calibration record (see the module docstring)."""
-    p = Path(path)
-    where = str(p)
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise RecordError(f"{where}: cannot read the record ({exc.strerror})") from None
-    except UnicodeDecodeError:
-        raise RecordError(f"{where}: not a text (UTF-8) CSV file") from None
-    reader = csv.reader(text.splitlines())
-    header = next(reader, None)
-    if not header or not any(h.strip() for h in header):
-        raise RecordError(f"{where}: empty file (a header line is required)")
-    header = [h.strip() for h in header]
-    dup = sorted({h for h in header if header.count(h) > 1})
-    if dup:
-        raise RecordError(f"{where}: duplicated column name(s) {dup} in the header")
-    t_idx, is_iso = _time_column(header, where)
-    names = [h for i, h in enumerate(header) if i != t_idx]
-    times: list[float] = []
-    rows: list[list[float]] = []
-    for line_no, row in enumerate(reader, start=2):
-        if not row or all(not c.strip() for c in row):
-            continue
-        if len(row) != len(header):
-            raise RecordError(f"{where}: row {line_no}: {len(row)} fields, the header has "
-                              f"{len(header)}")
-        cell = row[t_idx]
-        if is_iso:
-            times.append(_parse_iso(cell, f"{where}: row {line_no}, column {header[t_idx]!r}"))
-        else:
-            times.append(_parse_float(cell, where, line_no, header[t_idx]))
-        rows.append([_parse_float(c, where, line_no, header[i])
-                     for i, c in enumerate(row) if i != t_idx])
-    if len(rows) < 3:
-        raise RecordError(f"{where}: {len(rows)} data row(s); a record needs at least 3")
-    t = np.asarray(times, dtype=np.float64)
-    data = np.asarray(rows, dtype=np.float64)
+    """Read and check a CSV calibration record (see the module docstring),
+    streamed row by row into float64 columns (`compd.offline.csvstream`): memory is
+    the numbers' 8 bytes per cell, whatever the text's size."""
+    from compd.offline.csvstream import parse_csv
+
+    where = str(path)
+    with open_input(path, "record", MAX_RECORD_BYTES) as raw:
+        size = os.fstat(raw.fileno()).st_size
+        text = io.TextIOWrapper(raw, encoding="utf-8-sig", newline="")
+        try:
+            header, t_idx, data = parse_csv(text, where, size, _time_column)
+        except UnicodeDecodeError:
+            raise RecordError(f"{where}: not a text (UTF-8) CSV file") from None
+        except OSError as exc:
+            raise RecordError(f"{where}: cannot read the record ({exc.strerror})") from None
+    if data.shape[1] < 3:
+        raise RecordError(f"{where}: {data.shape[1]} data row(s); a record needs at least 3")
+    t = data[t_idx]
     period_s = check_sampling(t, where)
-    columns = {name: data[:, i].copy() for i, name in enumerate(names)}
-    return Record(path=where, sha256=file_sha256(p), time_s=t - t[0], period_s=period_s,
+    t -= t[0]
+    columns = {name: data[i] for i, name in enumerate(header) if i != t_idx}
+    return Record(path=where, sha256=file_sha256(path), time_s=t, period_s=period_s,
                   columns=columns)
 
 
@@ -186,10 +191,15 @@ def read_recorder_record(path: str | Path) -> Record:
 
     p = Path(path)
     where = str(p)
+    check_input(p, "recorder database", MAX_RECORDER_BYTES)
     try:
         cols = read_samples(p)
     except RecorderError as exc:
         raise RecordError(f"{where}: {exc.reason}") from None
+    except (ValueError, TypeError, AttributeError, KeyError, OverflowError) as exc:
+        # a row the daemon did not write (JSON that does not parse, a text time)
+        raise RecordError(f"{where}: corrupt recorder rows ({type(exc).__name__}: "
+                          f"{str(exc)[:120]}); not a record compd wrote") from None
     t = np.asarray(cols["time_s"], dtype=np.float64)
     if t.size < 3:
         raise RecordError(f"{where}: {t.size} sample(s); a record needs at least 3")

@@ -1,0 +1,58 @@
+"""Argument types for the command line: numbers that are finite and in range.
+
+`number(lo, hi)` is the one argparse type for every float option: NaN, inf
+and anything outside [lo, hi] (or (lo, hi] with ``lo_open``) is refused by
+the parser with one line naming the range, so no command computes with an
+absurd value. `port` is a TCP port (0 = a free one).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+
+
+def number(lo: float, hi: float, *, lo_open: bool = False,
+           hi_open: bool = False) -> Callable[[str], float]:
+    """An argparse type: a finite float in [lo, hi] (open ends as asked)."""
+    left, right = "(" if lo_open else "[", ")" if hi_open else "]"
+    span = f"{left}{lo:g}, {hi:g}{right}"
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        if not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"must be a finite number in {span}: {text!r}")
+        below = value <= lo if lo_open else value < lo
+        above = value >= hi if hi_open else value > hi
+        if below or above:
+            raise argparse.ArgumentTypeError(f"must be in {span}: {text!r}")
+        return value
+
+    parse.__name__ = "number"  # argparse names the type in its messages
+    return parse
+
+
+def port(text: str) -> int:
+    """A TCP port number 0..65535 (0: let the system pick a free one)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is 0..65535 (0: a free one), got {text!r}")
+    return value
+
+
+def seed(text: str) -> int:
+    """A random seed: a whole number 0 … 2**63 - 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a seed is a whole number, got {text!r}") from None
+    if not 0 <= value < 2**63:
+        raise argparse.ArgumentTypeError(f"a seed is 0 … 2**63-1, got {text!r}")
+    return value

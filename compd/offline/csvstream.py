@@ -1,0 +1,116 @@
+"""Streaming parse of a CSV calibration record into float64 columns.
+
+Rows are read one at a time from the text stream and stored straight into a
+preallocated (columns × rows) float64 array, sized from the file's length and
+the first row's and grown by half when the guess was short: a 200 MB record
+never becomes a list of strings. Each refusal names the file line and column
+(`compd.offline.records` explains the rules); the numbers are checked as they come.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Callable
+from typing import TextIO
+
+import numpy as np
+import numpy.typing as npt
+
+from compd.offline.records import RecordError, _parse_float, _parse_iso
+
+FloatArray = npt.NDArray[np.float64]
+
+TimeColumn = Callable[[list[str], str], tuple[int, bool]]
+
+
+class _Grower:
+    """A (columns × capacity) float64 buffer filled row by row."""
+
+    def __init__(self, ncols: int, capacity: int) -> None:
+        self.data: FloatArray = np.empty((ncols, max(16, capacity)), dtype=np.float64)
+        self.n = 0
+
+    def append(self, values: list[float]) -> None:
+        if self.n == self.data.shape[1]:
+            bigger = np.empty((self.data.shape[0], self.n + self.n // 2 + 16), np.float64)
+            bigger[:, :self.n] = self.data
+            self.data = bigger
+        self.data[:, self.n] = values
+        self.n += 1
+
+    def result(self) -> FloatArray:
+        if self.n < 0.5 * self.data.shape[1]:  # else a view: no second copy at the peak
+            return self.data[:, :self.n].copy()
+        return self.data[:, :self.n]
+
+
+def _slow_row(row: list[str], header: list[str], t_idx: int, is_iso: bool, where: str,
+              line_no: int) -> list[float] | None:
+    """The row parsed cell by cell (naming the bad one), or None when blank."""
+    if all(not c.strip() for c in row):
+        return None
+    if len(row) != len(header):
+        raise RecordError(f"{where}: row {line_no}: {len(row)} fields, the header has "
+                          f"{len(header)}")
+    out: list[float] = []
+    for i, cell in enumerate(row):
+        if i == t_idx and is_iso:
+            out.append(_parse_iso(cell, f"{where}: row {line_no}, column {header[i]!r}"))
+        else:
+            out.append(_parse_float(cell, where, line_no, header[i]))
+    return out
+
+
+def parse_csv(text: TextIO, where: str, size: int, time_column: TimeColumn,
+              ) -> tuple[list[str], int, FloatArray]:
+    """(header, index of the time column, data[column, row]) of a CSV stream
+    of `size` bytes; times as read (ISO 8601 as POSIX seconds)."""
+    reader = csv.reader(text)
+    header = next(reader, None)
+    if not header or not any(h.strip() for h in header):
+        raise RecordError(f"{where}: empty file (a header line is required)")
+    header = [h.strip() for h in header]
+    dup = sorted({h for h in header if header.count(h) > 1})
+    if dup:
+        raise RecordError(f"{where}: duplicated column name(s) {dup} in the header")
+    t_idx, is_iso = time_column(header, where)
+    ncols = len(header)
+    buf: _Grower | None = None
+    head: list[list[float]] = []  # the first rows, to size the buffer from their length
+    head_bytes = 0
+    for line_no, row in enumerate(reader, start=2):
+        values: list[float] | None
+        try:
+            if len(row) != ncols or is_iso:
+                raise ValueError
+            values = [float(c) for c in row]
+            if not math.isfinite(sum(values)):
+                raise ValueError
+        except (ValueError, OverflowError):
+            values = _slow_row(row, header, t_idx, is_iso, where, line_no)
+            if values is None:
+                continue
+        if buf is None:
+            head.append(values)
+            head_bytes += sum(len(c) for c in row) + ncols
+            if len(head) < HEAD_ROWS:
+                continue
+            buf = _start(ncols, size, head, head_bytes)
+        else:
+            buf.append(values)
+    if buf is None:
+        buf = _start(ncols, size, head, head_bytes)
+    return header, t_idx, buf.result()
+
+
+#: rows read before the buffer is sized from their mean length
+HEAD_ROWS = 256
+
+
+def _start(ncols: int, size: int, head: list[list[float]], head_bytes: int) -> _Grower:
+    mean = head_bytes / max(1, len(head))
+    buf = _Grower(ncols, int(1.05 * size / max(mean, 1.0)) + 16)
+    for values in head:
+        buf.append(values)
+    return buf

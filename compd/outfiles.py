@@ -1,0 +1,162 @@
+"""One careful writer for every file a command creates: a model (`fit -o`),
+a record (`sim --record`), a figure (`--plot`).
+
+`check_output` runs before any work: the directory must exist and be
+writable; an existing target must be a regular file (never a directory,
+device such as /dev/full, FIFO or symbolic link), must not be one of the
+command's inputs (compared by device and inode, so hard and symbolic links
+are caught too), and is replaced only with ``--force``. `write_atomically`
+writes a temporary file in the same directory, fsyncs it, renames it over the
+target and fsyncs the directory: a reader sees the old file or the new one,
+never half of one, and a failed write leaves the old file as it was. Each
+refusal is one `OutputError` with its exit code (73 cannot create, 74 I/O).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import stat
+import tempfile
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+from compd.errors import CompdError
+from compd.sysexits import EX_CANTCREAT, EX_IOERR
+
+
+class OutputError(CompdError):
+    """An output file cannot or must not be written; `code` is the exit code."""
+
+    def __init__(self, message: str, code: int = EX_CANTCREAT) -> None:
+        self.code = code
+        super().__init__(message)
+
+
+def _identity(path: str | os.PathLike[str]) -> tuple[int, int] | None:
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    return st.st_dev, st.st_ino
+
+
+def _check_target(p: Path, what: str, force: bool, inputs: Iterable[str | os.PathLike[str]],
+                  ) -> None:
+    try:
+        st = os.lstat(p)
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise OutputError(f"{p}: cannot write the {what} ({exc.strerror})") from None
+    if stat.S_ISLNK(st.st_mode):
+        raise OutputError(f"{p}: is a symbolic link; name the {what} file itself")
+    if not stat.S_ISREG(st.st_mode):
+        kind = "a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file"
+        raise OutputError(f"{p}: is {kind}; the {what} must be a regular file")
+    for source in inputs:
+        if _identity(source) == (st.st_dev, st.st_ino):
+            raise OutputError(f"{p}: is the input {os.fspath(source)}; refusing to "
+                              f"overwrite it with the {what}")
+    if not force:
+        raise OutputError(f"{p}: exists; give --force to replace it with the {what}")
+
+
+def check_output(path: str | os.PathLike[str], what: str, *, force: bool = False,
+                 inputs: Iterable[str | os.PathLike[str]] = ()) -> Path:
+    """The target as a Path, once it is known that the {what} can be written
+    there (see the module docstring); call before the work starts."""
+    text = os.fspath(path)
+    if not text:
+        raise OutputError(f"no file named for the {what} (empty path)")
+    if text.endswith(os.sep):
+        raise OutputError(f"{text}: names a directory; the {what} must be a file")
+    p = Path(text)
+    parent = p.parent
+    try:
+        if not stat.S_ISDIR(os.stat(parent).st_mode):
+            raise OutputError(f"{p}: {parent} is not a directory")
+    except FileNotFoundError:
+        raise OutputError(f"{p}: directory {parent} does not exist") from None
+    except OSError as exc:
+        raise OutputError(f"{p}: cannot use directory {parent} ({exc.strerror})") from None
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise OutputError(f"{p}: no permission to create files in {parent}")
+    _check_target(p, what, force, inputs)
+    _probe(p)
+    return p
+
+
+def _probe(p: Path) -> None:
+    """Create (and remove) a temporary file beside the target: a read-only or
+    pseudo file system says no now, not after the work (root passes `access`)."""
+    try:
+        fd, name = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".probe", dir=p.parent)
+    except OSError as exc:
+        raise OutputError(f"{p}: cannot create files in {p.parent} ({exc.strerror})") from None
+    os.close(fd)
+    os.unlink(name)
+
+
+#: figure formats the plotting library writes, by file suffix
+FIGURE_SUFFIXES = frozenset({".png", ".pdf", ".svg", ".svgz", ".eps", ".ps", ".jpg", ".jpeg",
+                             ".tif", ".tiff", ".webp"})
+
+
+def check_figure(path: str | os.PathLike[str], *, force: bool = False,
+                 inputs: Iterable[str | os.PathLike[str]] = ()) -> Path:
+    """`check_output` for a figure, whose suffix also says its format."""
+    p = check_output(path, "figure", force=force, inputs=inputs)
+    if p.suffix.lower() not in FIGURE_SUFFIXES:
+        raise OutputError(f"{p}: a figure is written as one of "
+                          f"{', '.join(sorted(FIGURE_SUFFIXES))}; name it so")
+    return p
+
+
+def _fsync(path: str | os.PathLike[str], flags: int) -> None:
+    fd = os.open(path, flags | os.O_CLOEXEC)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _mode_for(p: Path) -> int:
+    try:
+        return stat.S_IMODE(os.stat(p).st_mode)  # replacing: keep the file's mode
+    except OSError:
+        mask = os.umask(0o022)
+        os.umask(mask)
+        return 0o666 & ~mask
+
+
+def write_atomically(path: str | os.PathLike[str], write: Callable[[Path], object], what: str,
+                     *, force: bool = False,
+                     inputs: Iterable[str | os.PathLike[str]] = ()) -> Path:
+    """Check the target again, let `write` fill a temporary file (its path,
+    same directory and suffix), then fsync and rename it over the target."""
+    inputs = list(inputs)
+    p = check_output(path, what, force=force, inputs=inputs)
+    try:
+        fd, name = tempfile.mkstemp(prefix=f".{p.name}.", suffix=f".part{p.suffix}",
+                                    dir=p.parent)
+    except OSError as exc:
+        raise OutputError(f"{p}: cannot create files in {p.parent} ({exc.strerror})") from None
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        write(tmp)
+        os.chmod(tmp, _mode_for(p))
+        _fsync(tmp, os.O_RDONLY)
+        _check_target(p, what, force, inputs)  # nothing planted there meanwhile
+        os.replace(tmp, p)
+        with contextlib.suppress(OSError):
+            _fsync(p.parent, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise OutputError(f"{p}: cannot write the {what} ({exc.strerror or exc})",
+                          EX_IOERR) from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return p
