@@ -99,7 +99,8 @@ def _cases() -> list[list[str]]:
                 *([["sim", "--port", n, "--protocol", "modbus"]] if n != "0" else []),
                 ["demo", "--hours", n, "--plot", _target("missing_dir")],
                 ["demo", "--seconds", n, "--plot", _target("missing_dir")],
-                ["health", "--state-dir", str(ROOT / "dir"), "--max-age-s", n]]
+                ["health", "--state-dir", str(ROOT / "dir"), "--max-age-s", n],
+                ["health", "--state-dir", str(ROOT / "dir"), "--timeout-s", n]]
         for opt in ("--period-s", "--hours", "--probe-noise-um", "--speedup"):
             out.append(["sim", "--record", str(ROOT / "nodir" / "r.csv"), opt, n])
         for opt in ("--duration-h", "--print-every-s"):
