@@ -102,8 +102,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "are fitted jointly as separate experiments")
     parser.add_argument("--output", required=True, metavar="COLUMN",
                         help="the measured displacement column (µm)")
-    parser.add_argument("--term", action="append", required=True, metavar="[NAME=]EXPR",
+    parser.add_argument("--term", action="append", default=[], metavar="[NAME=]EXPR",
                         help="a term's input: a channel or e.g. bearing-column (repeatable)")
+    parser.add_argument("--candidates", action="append", default=[], metavar="PATTERN",
+                        help="choose the inputs by validation among the columns matching "
+                             "these shell patterns (repeatable; e.g. 't*_degC', spindle_rpm); "
+                             "speed/power columns enter absolute, temperatures relative")
+    parser.add_argument("--max-terms", type=int, default=3, metavar="N",
+                        help="at most N inputs chosen with --candidates (default 3)")
     parser.add_argument("--kind", choices=("tf", "greybox", "mbotv"), default="tf")
     parser.add_argument("--structure", choices=STRUCTURE_CHOICES, default="auto",
                         help="tf structure: auto (default: chosen by blocked cross-validation "
@@ -170,10 +176,6 @@ def _relative_input(record: Record, inputs: dict[str, float], relative: bool) ->
     return u
 
 
-def _inputs_per_record(records: list[Record], inputs: dict[str, float]) -> list[Any]:
-    return [_relative_input(r, inputs, True) for r in records]
-
-
 def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
             specs: list[tuple[str, dict[str, float]]], holdout_records: list[Record],
             ) -> tuple[list[Term], list[dict[str, Any]]]:
@@ -189,12 +191,16 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
     radius = pole_radius(period, args.max_time_constant_days * 86400.0)
     seg = Segments.from_lengths([len(r) for r in records])
     y = np.concatenate(ys)
-    us = [np.concatenate(_inputs_per_record(records, inputs)) for _, inputs in specs]
+    from compd.fit_search import is_rate_channel
+
+    rel = [not all(is_rate_channel(ch) for ch in inputs) for _, inputs in specs]
+    us = [np.concatenate([_relative_input(r, inputs, rl) for r in records])
+          for (_, inputs), rl in zip(specs, rel, strict=True)]
     holdout = None
     if holdout_records:
         h_y = np.concatenate([r.column(args.output) for r in holdout_records])
-        h_us = tuple(np.concatenate(_inputs_per_record(holdout_records, inputs))
-                     for _, inputs in specs)
+        h_us = tuple(np.concatenate([_relative_input(r, inputs, rl) for r in holdout_records])
+                     for (_, inputs), rl in zip(specs, rel, strict=True))
         holdout = Holdout(h_y, h_us, Segments.from_lengths([len(r) for r in holdout_records]))
     if args.structure == "search":
         try:
@@ -213,12 +219,12 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
     y_span = float(np.ptp(y))
     terms: list[Term] = []
     info: list[dict[str, Any]] = []
-    for (name, inputs), u, num, den, (nb, na) in zip(specs, us, nums, dens, orders,
-                                                     strict=True):
+    for (name, inputs), u, num, den, (nb, na), rl in zip(specs, us, nums, dens, orders, rel,
+                                                         strict=True):
         check = build_checked_tf(num, den, name, max_pole=radius, period_s=period,
                                  input_span=float(np.ptp(u)), output_span=y_span)
-        terms.append(Term(name=name, inputs=inputs, dynamics=check.tf))
-        info.append({"name": name, "kind": "tf", "inputs": inputs,
+        terms.append(Term(name=name, inputs=inputs, dynamics=check.tf, relative=rl))
+        info.append({"name": name, "kind": "tf", "inputs": inputs, "relative": rl,
                      "orders": {"numerator_length": nb, "denominator_order": na},
                      "dc_gain_um_per_k": check.dc_gain,
                      "poles": [abs(p) for p in check.poles],
@@ -294,6 +300,12 @@ def _provenance(args: argparse.Namespace, records: list[Record],
         prov["samples_per_record"] = [len(r) for r in records]
     if args.validation_record:
         prov["validation_records"] = [str(p) for p in args.validation_record]
+    if getattr(args, "search_table", None):
+        prov["candidates"] = list(args.candidates)
+        prov["inputs_chosen"] = list(args.search_chosen)
+        prov["subsets_tried"] = [f"{' + '.join(t['inputs'])}: validation "
+                                 f"{t['validation_fit_percent']:.2f} %"
+                                 for t in args.search_table]
     for t in info:
         key = t["name"]
         if t["kind"] == "tf":
@@ -333,6 +345,24 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
     return records
 
 
+def _search_specs(args: argparse.Namespace, records: list[Record]
+                  ) -> list[tuple[str, dict[str, float]]]:
+    """--candidates: the inputs chosen by validation, one term each."""
+    from compd.fit_search import search_inputs
+    from models.errors import ModelError
+    from models.identify.segments import pole_radius
+
+    if args.kind != "tf" or args.fixed or args.validation_record:
+        raise ModelError("--candidates goes with --kind tf, without --fixed or "
+                         "--validation-record")
+    radius = pole_radius(records[0].period_s, args.max_time_constant_days * 86400.0)
+    chosen, table = search_inputs(args, records, [r.column(args.output) for r in records],
+                                  radius)
+    args.search_table = table
+    args.search_chosen = chosen
+    return [(name, {name: 1.0}) for name in chosen]
+
+
 def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[str, Any]], Path,
                                                   list[Record]]:
     """Everything but the printing (the tests call `run`)."""
@@ -345,9 +375,16 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
         specs = [parse_term(t) for t in args.term]
     except ValueError as exc:
         raise ModelError(str(exc)) from None
+    if bool(specs) == bool(args.candidates):
+        raise ModelError("give the inputs with --term, or let --candidates choose them "
+                         "(one of the two)")
     data = [str(p) for p in args.data]
     channels = {ch for _, inputs in specs for ch in inputs}
     records = _read_records(data, args, channels)
+    if args.candidates:
+        specs = _search_specs(args, records)
+        channels = {ch for _, inputs in specs for ch in inputs}
+        records = _read_records(data, args, channels)
     holdout = _read_records([str(p) for p in args.validation_record], args, channels,
                             records[0])
     for w in [w for r in records for w in speed_warnings(r)] if len(records) == 1 else []:
@@ -392,7 +429,8 @@ def run(args: argparse.Namespace) -> int:
     q = per[0] if len(records) == 1 else quality(np.concatenate(measured),
                                                  np.concatenate(simulated))
     if args.json:
-        print(json.dumps({"terms": info, "fit_percent": q.fit_percent, "dpk_um": q.dpk_um,
+        extra = {"subsets": args.search_table} if getattr(args, "search_table", None) else {}
+        print(json.dumps({"terms": info, "fit_percent": q.fit_percent, "dpk_um": q.dpk_um, **extra,
                           "model_file": str(out),
                           "records": [{"path": r.path, **pq.as_dict()}
                                       for r, pq in zip(records, per, strict=True)]}))
@@ -408,6 +446,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"    {t['sensitivity']}")
         else:
             print(f"  term {t['name']} ({t['kind']}) {t['inputs']}: fit {t['fit_percent']:.2f} %")
+    if getattr(args, "search_table", None):
+        from compd.fit_search import table_lines
+
+        print("\n".join(table_lines(args.search_table, args.search_chosen)))
     if info and info[0]["kind"] == "tf" and "candidates" in info[0]["selection"]:
         from compd.fit_select import selection_lines
 

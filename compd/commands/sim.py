@@ -69,6 +69,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="print the endpoint and addresses as one JSON line first")
     parser.add_argument("--record", metavar="CSV", default=None,
                         help="write a calibration record offline instead of serving")
+    parser.add_argument("--machine", choices=("bench", "shop"), default="bench",
+                        help="with --record: the bench machine (default) or the shop variant "
+                             "(16 sensors, starts warm, room drift; see drivers.sim.shop)")
     parser.add_argument("--probe-noise-um", type=float, default=0.5,
                         help="probe noise added to dz_um in --record (default 0.5 µm)")
     parser.add_argument("--no-plant", action="store_true",
@@ -94,11 +97,24 @@ def _record(args: argparse.Namespace) -> int:
     if args.probe_noise_um < 0.0:
         print("compd sim: --probe-noise-um must be >= 0", file=sys.stderr)
         return EX_USAGE
+    if args.machine == "shop":
+        return _record_shop(args)
     program = make_program(args.program, seed=args.seed, hours=args.hours)
     rows = record_program(args.record, program, seed=args.seed, period_s=args.period_s,
                           probe_noise_um=args.probe_noise_um)
     print(f"compd sim: wrote {rows} rows ({program.name}, {program.duration_s / 3600:g} h, "
           f"period {args.period_s:g} s, seed {args.seed}) to {args.record}")
+    return 0
+
+
+def _record_shop(args: argparse.Namespace) -> int:
+    from drivers.sim.shop import simulate_shop, write_shop_record
+
+    hours = args.hours if args.hours is not None else 24.0
+    columns = simulate_shop(hours, period_s=args.period_s, seed=args.seed)
+    rows = write_shop_record(args.record, columns)
+    print(f"compd sim: wrote {rows} rows (shop machine, workday program, {hours:g} h, period "
+          f"{args.period_s:g} s, seed {args.seed}) to {args.record}")
     return 0
 
 

@@ -95,6 +95,8 @@ class _Data:
     folds: list[BoolArray]
     #: initial conditions estimated (a record that starts warm) or rest at the start
     initial: bool = True
+    #: the validation figure of the orders `choose_orders` found
+    best_order_fit: float = -math.inf
     #: held-out records (y, inputs, segments) scoring instead of the folds
     holdout: tuple[FloatArray, list[FloatArray], Segments] | None = None
 
@@ -244,6 +246,7 @@ def choose_orders(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int]
         best[True] = min((s for s in scored if s[0] >= top - 0.1),
                          key=lambda s: (s[1] + s[2], -s[0]))
     v, na, nb = best[d.initial]
+    d.best_order_fit = v
     if not math.isfinite(v):
         bound = (f" or had a pole beyond |p| < {d.radius:.9f} (the slowest allowed time "
                  "constant)" if d.radius < 1.0 else "")
@@ -289,9 +292,13 @@ def _ridge(d: _Data, shared: OeModel | None, train: BoolArray, lam: float) -> Oe
     scale = np.sqrt(np.mean(a ** 2, axis=0))
     scale[scale == 0.0] = 1.0
     a = a / scale
-    pen = np.zeros(a.shape[1])
-    pen[:n_num:nb] = lam * a.shape[0]
-    theta = np.linalg.solve(a.T @ a + np.diag(pen), a.T @ d.y[train]) / scale
+    gram = a.T @ a
+    pen = np.full(a.shape[1], 1e-12 * float(np.trace(gram)) / a.shape[1])
+    pen[:n_num:nb] += lam * a.shape[0]
+    try:
+        theta = np.linalg.solve(gram + np.diag(pen), a.T @ d.y[train]) / scale
+    except np.linalg.LinAlgError:
+        return None
     nums = []
     for t in range(len(d.us)):
         gain, rest = theta[t * nb], theta[t * nb + 1:(t + 1) * nb]
@@ -322,6 +329,23 @@ def _fold_models(d: _Data, na: int, nb: int, train: BoolArray, structures: Seque
         # the ARX start (a day at 1 s: 23,600 µm² instead of 270,000 at the start)
         out["per-term-oe"] = _oe(d, shared, train, True, max_iter)
     return out
+
+
+def order_search_score(y: FloatArray, inputs: Sequence[FloatArray], *,
+                       na_range: tuple[int, int], nb_range: tuple[int, int],
+                       segments: Segments | None = None, radius: float = 1.0,
+                       folds: int = 3) -> float:
+    """The cross-validated fit % of the best Steiglitz–McBride estimate over
+    the orders (`choose_orders`): the cheap score of a set of inputs (no
+    output-error refinement); -inf when no order gives a stable model."""
+    seg = segments if segments is not None else Segments.single(np.asarray(y).size)
+    d = _Data(np.asarray(y, dtype=np.float64), [np.asarray(u, dtype=np.float64) for u in inputs],
+              seg, radius, fold_masks(seg, folds))
+    try:
+        choose_orders(d, na_range, nb_range)
+    except ValueError:
+        return -math.inf
+    return d.best_order_fit
 
 
 def select_structure(y: FloatArray, inputs: Sequence[FloatArray], *,
