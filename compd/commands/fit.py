@@ -233,6 +233,11 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
                      "oe_fit_percent": summary["oe_fit_percent"],
                      "oe_validation_fit_percent": summary["validation_fit_percent"],
                      "selection": summary})
+    from models.diagnostics import cancelling_terms
+
+    for w in cancelling_terms([n for n, _ in specs], us, [t["dc_gain_um_per_k"] for t in info],
+                              y_span):
+        print(f"compd fit: warning: {w}", file=sys.stderr)
     return terms, info
 
 

@@ -137,6 +137,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"compd replay: {exc}", file=sys.stderr)
         return EX_DATAERR
     q = quality(measured[first:], simulated[first:])
+    from models.diagnostics import flat_window
+
+    flat = flat_window(measured[first:], measured[first:] - simulated[first:])
+    if flat is not None:
+        print(f"compd replay: warning: {flat}", file=sys.stderr)
     if args.plot:
         from compd.plots import replay_figure
 

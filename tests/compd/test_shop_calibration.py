@@ -1,0 +1,74 @@
+"""The whole calibration recipe on the shop variant of the simulated machine
+(issue 11): sixteen sensors and the spindle speed as candidates, calibrate
+on day 1, verify on day 2 (which starts warm), against the shared-denominator
+ARX least squares on the best pair of the same search, in the same run."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from compd.cli import main
+from models.modelfile import load_model
+
+SEED = 3
+
+
+@pytest.fixture(scope="module")
+def days(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    d = tmp_path_factory.mktemp("shop")
+    full = d / "shop.csv"
+    assert main(["sim", "--record", str(full), "--machine", "shop", "--hours", "48",
+                 "--period-s", "60", "--seed", str(SEED)]) == 0
+    lines = full.read_text().splitlines()
+    head, rows = lines[0], lines[1:]
+    half = len(rows) // 2
+    day1, day2 = d / "day1.csv", d / "day2.csv"
+    day1.write_text("\n".join([head, *rows[:half + 1]]) + "\n")
+    day2.write_text("\n".join([head, *rows[half:]]) + "\n")
+    return day1, day2
+
+
+def _json(capsys: pytest.CaptureFixture[str], argv: list[str]) -> dict[str, object]:
+    capsys.readouterr()
+    assert main(argv) == 0
+    doc: dict[str, object] = json.loads(capsys.readouterr().out)
+    return doc
+
+
+def test_inputs_chosen_by_validation_verify_on_the_next_day(
+        days: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    day1, day2 = days
+    model = tmp_path / "shop.toml"
+    fit = _json(capsys, ["fit", str(day1), "--output", "dz_um", "--candidates", "t*_degC",
+                         "--candidates", "spindle_rpm", "--max-terms", "3", "-o", str(model),
+                         "--json"])
+    subsets = fit["subsets"]
+    assert isinstance(subsets, list) and len(subsets) > 17
+    prov = load_model(model).provenance
+    assert 1 <= len(prov["inputs_chosen"]) <= 3 and len(prov["subsets_tried"]) == len(subsets)
+    assert prov["structure"] and prov["runners_up"]
+    ours = _json(capsys, ["replay", str(model), str(day2), "--output", "dz_um", "--json"])
+    assert ours["init"] == "estimate"
+    assert float(ours["fit_percent"]) >= 88.0  # type: ignore[arg-type]
+    assert float(ours["range_reduction"]) >= 7.0  # type: ignore[arg-type]
+    pairs = [s for s in subsets if len(s["inputs"]) == 2]
+    best_pair = max(pairs, key=lambda s: s["validation_fit_percent"])["inputs"]
+    base_model = tmp_path / "arx.toml"
+    terms = [a for ch in best_pair for a in ("--term", ch)]
+    _json(capsys, ["fit", str(day1), "--output", "dz_um", *terms, "--structure", "arx",
+                   "-o", str(base_model), "--json"])
+    base = _json(capsys, ["replay", str(base_model), str(day2), "--output", "dz_um", "--json"])
+    assert float(ours["fit_percent"]) > float(base["fit_percent"])  # type: ignore[arg-type]
+
+
+def test_term_or_candidates_one_of_the_two(days: tuple[Path, Path],
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    day1, _ = days
+    assert main(["fit", str(day1), "--output", "dz_um"]) == 65
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--candidates" in err
+    assert main(["fit", str(day1), "--output", "dz_um", "--candidates", "nope*"]) == 65
+    assert "matches no column" in capsys.readouterr().err
