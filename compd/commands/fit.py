@@ -336,12 +336,14 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
     """Read and check records; all must share `first`'s (or the first one's) period."""
     import math
 
+    from compd.fit_search import is_rate_channel
     from compd.records import RecordError, check_units, read_record
 
     records = [read_record(p) for p in paths]
     for r in records:
         r.require([args.output, *sorted(channels), *([args.switch] if args.switch else [])])
-        check_units(r, sorted(channels) if args.kind != "greybox" else [], args.output)
+        temps = sorted(c for c in channels if not is_rate_channel(c))
+        check_units(r, temps if args.kind != "greybox" else [], args.output)
         ref = first if first is not None else records[0]
         if not math.isclose(r.period_s, ref.period_s, rel_tol=1e-6):
             raise RecordError(f"{r.path}: sampled every {r.period_s:g} s but {ref.path} "
