@@ -115,8 +115,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="tf structure: auto (default: chosen by blocked cross-validation "
                              "among arx, shared-oe, ridge, per-term-oe), one of those, or "
                              "search (the greedy per-term output-error order search)")
-    parser.add_argument("--folds", type=int, default=3, metavar="K",
-                        help="cross-validation folds (default 3)")
+    parser.add_argument("--folds", type=int, default=4, metavar="K",
+                        help="cross-validation folds: each record in K + 1 blocks, the first "
+                             "always training (default 4)")
     parser.add_argument("--orders", type=parse_orders, default=(1, 4), metavar="LO-HI",
                         help="numerator lengths and denominator orders to try (default 1-4)")
     parser.add_argument("--switch", metavar="CHANNEL", default=None,

@@ -17,8 +17,8 @@ Orders (denominator na, numerator length nb shared by every input) are
 chosen first, by the cross-validated ARX; then each structure is trained on
 every fold and scored on the held-out block (`models.identify.validate`),
 and re-estimated on every row. The chosen structure is the simplest (fewest
-parameters, then the order above) among those within `margin` points of the
-best validated one; the ARX baseline is always among the candidates, so a
+parameters, then the better validated) among those within `margin` points
+of the best validated one; the ARX baseline is always among the candidates, so a
 structure that validates below it is never chosen silently.
 """
 
@@ -50,6 +50,10 @@ STRUCTURES: tuple[str, ...] = ("arx", "shared-oe", "ridge", "per-term-oe")
 RIDGE_GRID: tuple[float, ...] = (1e-4, 1e-3, 1e-2, 1e-1)
 #: output-error iterations stop when one gains less than this share of the cost
 OE_TOL = 1e-4
+#: cross-validation folds: each record in DEFAULT_FOLDS + 1 blocks, the first
+#: always training (shop machine, day-2 verification of the inputs chosen on
+#: day 1, seeds 2 / 1: 3 folds 89.7 / 88.0 %, 4 folds 93.7 / 93.3 %)
+DEFAULT_FOLDS = 4
 #: Steiglitz–McBride iterations of the order search
 SM_ITERATIONS = 4
 #: estimated initial conditions must validate this much better than a rest start
@@ -334,7 +338,7 @@ def _fold_models(d: _Data, na: int, nb: int, train: BoolArray, structures: Seque
 def order_search_score(y: FloatArray, inputs: Sequence[FloatArray], *,
                        na_range: tuple[int, int], nb_range: tuple[int, int],
                        segments: Segments | None = None, radius: float = 1.0,
-                       folds: int = 3) -> float:
+                       folds: int = DEFAULT_FOLDS) -> float:
     """The cross-validated fit % of the best Steiglitz–McBride estimate over
     the orders (`choose_orders`): the cheap score of a set of inputs (no
     output-error refinement); -inf when no order gives a stable model."""
@@ -350,7 +354,8 @@ def order_search_score(y: FloatArray, inputs: Sequence[FloatArray], *,
 
 def select_structure(y: FloatArray, inputs: Sequence[FloatArray], *,
                      na_range: tuple[int, int], nb_range: tuple[int, int],
-                     segments: Segments | None = None, radius: float = 1.0, folds: int = 3,
+                     segments: Segments | None = None, radius: float = 1.0,
+                     folds: int = DEFAULT_FOLDS,
                      structures: Sequence[str] = STRUCTURES, margin_pct: float = 0.5,
                      max_iter: int = 40,
                      holdout: tuple[FloatArray, Sequence[FloatArray], Segments] | None = None
@@ -406,8 +411,10 @@ def _choose(cands: list[Candidate], orders: tuple[int, int], margin_pct: float,
         raise ValueError("no structure could be validated (every fold unstable)")
     best = max(c.validation_fit_pct for c in finite)
     near = [c for c in finite if c.validation_fit_pct >= best - margin_pct]
-    rank = {s: i for i, s in enumerate(STRUCTURES)}
-    chosen = min(near, key=lambda c: (c.n_params, rank[c.structure]))
+    # fewest parameters; among as many, the better validated (the ARX
+    # baseline has as many as shared-oe, and its noise bias shows off the
+    # folds: the bench machine's spectrum run, 86.3 % against 90.6 %)
+    chosen = min(near, key=lambda c: (c.n_params, -c.validation_fit_pct))
     if chosen.validation_fit_pct < best:
         notes.append(f"{chosen.structure} chosen: within {margin_pct:g} points of the best "
                      f"validated ({best:.2f} %) and simpler")

@@ -39,7 +39,7 @@ import numpy as np
 import numpy.typing as npt
 
 from models.identify.segments import Segments
-from models.identify.structures import order_search_score
+from models.identify.structures import DEFAULT_FOLDS, order_search_score
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -83,7 +83,8 @@ class SubsetSearch:
 
 def search_subsets(y: FloatArray, candidates: Mapping[str, FloatArray], *, max_terms: int,
                    na_range: tuple[int, int], nb_range: tuple[int, int],
-                   segments: Segments | None = None, radius: float = 1.0, folds: int = 3,
+                   segments: Segments | None = None, radius: float = 1.0,
+                   folds: int = DEFAULT_FOLDS,
                    margin_pct: float = 0.5,
                    progress: Callable[[int, int], None] | None = None) -> SubsetSearch:
     """Forward selection with backward pruning (module docstring).
