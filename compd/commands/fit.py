@@ -2,20 +2,29 @@
 
 Identifies a compensation model from calibration records and writes a model
 file (MODELS.md §1, §4, §5). Several records (e.g. a heat-up/cool-down and an
-environmental run) are fitted jointly as separate experiments: each starts at
-rest with its own first sample as the reference, and the simulation restarts
-per record. Orders are chosen on the last ``--validation`` fraction of every
-record, or on held-out records (``--validation-record``). Every pole is kept
+environmental run) are fitted jointly as separate experiments: each has its
+own first sample as the reference, and the simulation restarts per record.
+Held-out records (``--validation-record``) replace the folds for the choice.
+Every pole is kept
 within the slowest allowed time constant (``--max-time-constant-days``,
 default 3) in the output-error fit and checked again before writing; a DC
 gain absurd for the data is refused (`models.identify.checks`).
 
-- ``--kind tf`` (default): ARX least squares over every order combination
-  (``--orders 1-4``: numerator lengths and denominator orders), then an
-  output-error structure search and fit (see `models.identify.tf_fit`); one
-  term per ``--term`` (SISO with one, multi-input with several); a term is a
-  channel or a signed combination (``bearing-column``), optionally named
-  (``spindle=bearing-column``).
+- ``--kind tf`` (default): the structure is chosen by blocked
+  cross-validation (``--folds``, `models.identify.structures`): each
+  candidate is trained without a held-out block, run from the record's start
+  (initial conditions estimated when the records start warm) and scored on
+  the block; candidates are the ARX least-squares baseline, one shared
+  denominator refined by output error, ridge on the gains over it, and one
+  denominator per term (the papers'); the simplest within 0.5 point of the
+  best wins, and the table is printed. ``--structure`` forces one (a forced
+  structure below the ARX baseline is said); ``--structure search`` is the
+  earlier greedy per-term order search (`models.identify.tf_fit`). Orders
+  ``--orders 1-4``: numerator lengths and denominator orders. One term per
+  ``--term`` (a channel or a signed combination, ``bearing-column``,
+  optionally named ``spindle=bearing-column``), or ``--candidates PATTERN
+  --max-terms N``: the inputs chosen by validation (`compd.fit_search`);
+  speed and power channels enter absolute, temperatures relative.
 - ``--kind greybox --term power_kw [--switch moving]`` and
   ``--kind mbotv --term bearing-column``: bounded least squares (one term).
 - ``--fixed model.toml:ambient`` keeps an already-calibrated term: its
@@ -23,7 +32,10 @@ gain absurd for the data is refused (`models.identify.checks`).
 
 Every fitted term is rebuilt exactly as the file will hold it (repr floats),
 checked for stability, its DC gain and sensitivity reported, and the written
-file is replayed through the daemon's code path for the final figures.
+file is replayed through the daemon's code path for the final figures (its
+initial state estimated as `compd replay` does). Warnings (stderr): terms
+that cancel each other on correlated inputs (`models.diagnostics`), a record
+without a cool-down or speed steps.
 """
 
 from __future__ import annotations
@@ -125,7 +137,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fixed", action="append", default=[], metavar="MODEL:TERM",
                         help="keep an already-calibrated term, subtracted before fitting")
     parser.add_argument("--validation", type=float, default=0.3,
-                        help="fraction of each record held out to choose orders (default 0.3)")
+                        help="--structure search: fraction of each record held out to choose "
+                             "orders (default 0.3)")
     parser.add_argument("--validation-record", action="append", default=[], metavar="DATA",
                         help="a record used only to choose the orders (repeatable); the fit "
                              "then uses every DATA record whole")

@@ -94,3 +94,16 @@ def test_term_or_candidates_one_of_the_two(days: tuple[Path, Path],
     assert err.count("\n") == 1 and "--candidates" in err
     assert main(["fit", str(day1), "--output", "dz_um", "--candidates", "nope*"]) == 65
     assert "matches no column" in capsys.readouterr().err
+
+
+def test_the_progress_bar_draws_on_stderr_only_when_asked(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    from compd.fit_search import progress_bar
+
+    assert progress_bar(False) is None
+    show = progress_bar(True)
+    assert show is not None
+    show(3, 10)
+    show(10, 10)
+    out = capsys.readouterr()
+    assert out.out == "" and "3/10 subsets" in out.err and "[" + "#" * 30 + "]" in out.err
