@@ -32,7 +32,7 @@ def run_selection(args: argparse.Namespace, y: FloatArray, us: list[FloatArray],
         raise ModelError(f"identification failed: {exc}") from None
 
 
-def summarise(sel: Selection, forced: str) -> dict[str, Any]:
+def summarise(sel: Selection, forced: str, how: str) -> dict[str, Any]:
     """What fit prints and writes: the chosen structure, its validation
     figure, the runners-up, and notes (a forced structure below the ARX
     baseline is said)."""
@@ -50,6 +50,7 @@ def summarise(sel: Selection, forced: str) -> dict[str, Any]:
         "structure": chosen.structure + (f" ({chosen.detail})" if chosen.detail else ""),
         "orders": {"denominator_order": sel.orders[0], "numerator_length": sel.orders[1]},
         "initial_conditions": "estimated" if sel.initial else "rest",
+        "validation": how,
         "validation_fit_percent": chosen.validation_fit_pct,
         "fold_fit_percent": list(chosen.fold_fits),
         "arx_fit_percent": base.fit_pct,
@@ -69,7 +70,9 @@ def select_for_fit(args: argparse.Namespace, y: FloatArray, us: list[FloatArray]
                               tuple[tuple[int, int], ...], dict[str, Any]]:
     """(nums, dens, orders per term, summary) of the chosen structure."""
     sel = run_selection(args, y, us, seg, radius, holdout)
-    summary = summarise(sel, args.structure)
+    how = "held-out records" if holdout is not None else \
+        f"blocked cross-validation, {args.folds} folds"
+    summary = summarise(sel, args.structure, how)
     model = summary.pop("_model")
     dens = model.term_dens()
     orders = tuple((len(a), len(b) - 1) for a, b in zip(model.nums, dens, strict=True))
@@ -79,7 +82,7 @@ def select_for_fit(args: argparse.Namespace, y: FloatArray, us: list[FloatArray]
 def selection_lines(summary: dict[str, Any]) -> list[str]:
     """The lines `compd fit` prints about the choice."""
     out = [f"  structure {summary['structure']} (validation {summary['validation_fit_percent']:.2f}"
-           f" %, blocked cross-validation; orders: denominator "
+           f" %, {summary['validation']}; orders: denominator "
            f"{summary['orders']['denominator_order']}, numerator length "
            f"{summary['orders']['numerator_length']}; start of each record: "
            f"{summary['initial_conditions']})"]
