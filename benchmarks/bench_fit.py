@@ -74,25 +74,49 @@ def bench_refinement(y: np.ndarray, us: list[np.ndarray]) -> None:
           f"{slow:.2f} s (fit {est.fit_pct:.2f} %), ratio {slow / fast:.1f}x")
 
 
+class _Counter:
+    """Counts the calls of a module-level function (monkeypatched)."""
+
+    def __init__(self, module: object, name: str) -> None:
+        self.module, self.name, self.calls = module, name, 0
+        self.original = getattr(module, name)
+
+    def __enter__(self) -> _Counter:
+        def counted(*args: object, **kwargs: object) -> object:
+            self.calls += 1
+            return self.original(*args, **kwargs)
+
+        setattr(self.module, self.name, counted)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        setattr(self.module, self.name, self.original)
+
+
 def bench_selection(y: np.ndarray, us: list[np.ndarray], quick: bool) -> None:
-    from models.identify.structures import select_structure
-    from models.identify.tf_fit import fit_tf_terms
+    from models.identify import structures, tf_fit
 
     t0 = time.perf_counter()
-    sel = select_structure(y, us, na_range=(1, 4), nb_range=(1, 4))
+    with _Counter(structures, "arx_fit") as a, _Counter(structures, "fit_output_error") as o, \
+            _Counter(structures, "_ridge") as r:
+        sel = structures.select_structure(y, us, na_range=(1, 4), nb_range=(1, 4))
     fast = time.perf_counter() - t0
-    fitted = 16 * 3 + 3 * 3 + 3 + 3 * len(("shared", "per-term")) + 3
+    fitted = a.calls + o.calls + r.calls
     print(f"structure choice, 4 terms, {y.size} samples, orders 1-4: cross-validated "
           f"{fast:.2f} s ({sel.chosen.structure}, validation "
           f"{sel.chosen.validation_fit_pct:.2f} %, fit {sel.chosen.fit_pct:.2f} %; "
-          f"about {fitted} estimates, {fitted / fast:.1f} per second)")
+          f"{fitted} structures fitted ({a.calls} least squares, {o.calls} output error, "
+          f"{r.calls} ridge), {fitted / fast:.1f} per second)")
     if quick:
         return
     t0 = time.perf_counter()
-    old = fit_tf_terms(y, us, (1, 4), (1, 4))
+    with _Counter(tf_fit, "refine_oe") as g:
+        old = tf_fit.fit_tf_terms(y, us, (1, 4), (1, 4))
     slow = time.perf_counter() - t0
     print(f"  the greedy output-error search it replaced: {slow:.2f} s (fit "
-          f"{old.oe.fit_pct:.2f} %), ratio {slow / fast:.1f}x "
+          f"{old.oe.fit_pct:.2f} %; {g.calls} output-error fits + one ARX order search, "
+          f"{g.calls / slow:.2f} per second), time ratio {slow / fast:.1f}x, structures "
+          f"per second ratio {(fitted / fast) / (g.calls / slow):.0f}x "
           f"({'under' if fast < 10.0 else 'OVER'} the 10 s target for the whole fit)")
 
 
