@@ -12,7 +12,7 @@ assumed silently (``--init``):
 
 - ``estimate`` (default): the output level and each transfer-function term's
   initial state (steady for an input level) are estimated by least squares
-  on the first quarter of the measured displacement (`models.initial_state`),
+  on the first half of the measured displacement (`models.initial_state`),
   as system-identification tools compare a model with data;
 - ``steady``: every term at steady state for the first sample (speed and
   power terms at their first value), at the displacement measured there
@@ -58,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="write a figure: inputs above, measured/simulated/residue below")
     parser.add_argument("--init", choices=INIT_MODES, default="estimate",
                         help="the model's state at the first sample: estimate (default: "
-                             "least squares on the first quarter of the record), steady, rest")
+                             "least squares on the first half of the record), steady, rest")
     parser.add_argument("--score-from", type=float, default=0.0, metavar="SECONDS",
                         help="run from the record's start, score only from this time on")
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON line")

@@ -41,6 +41,7 @@ from models.identify.validate import (
     pooled_fit,
     with_initial,
 )
+from models.initial_state import DEFAULT_WINDOW_FRACTION
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -175,7 +176,7 @@ def _simulate(d: _Data, m: OeModel, train: BoolArray, y: FloatArray, us: Sequenc
 
 
 def _score_holdout(d: _Data, m: OeModel | None) -> tuple[float, list[float]]:
-    """Held-out records: initial conditions from each one's first quarter,
+    """Held-out records: initial conditions from each one's first half,
     the rest scored."""
     assert d.holdout is not None
     if m is None:
@@ -183,7 +184,7 @@ def _score_holdout(d: _Data, m: OeModel | None) -> tuple[float, list[float]]:
     y, us, seg = d.holdout
     head = np.zeros(y.size, dtype=bool)
     for s, e in seg.bounds:
-        head[s:s + max(1, (e - s) // 4)] = True
+        head[s:s + max(1, round((e - s) * DEFAULT_WINDOW_FRACTION))] = True
     sim = _simulate(d, m, head, y, us, seg)
     return pooled_fit(y, [sim], [~head]), [fit_pct(y[~head], sim[~head])]
 
@@ -363,7 +364,7 @@ def select_structure(y: FloatArray, inputs: Sequence[FloatArray], *,
     """Cross-validate every structure at the ARX-chosen orders; re-estimate on
     every row; choose (module docstring). With `holdout` records the
     candidates train on every row and are scored on those records instead
-    (initial conditions from each one's first quarter)."""
+    (initial conditions from each one's first half, as `compd replay`)."""
     unknown = sorted(set(structures) - set(STRUCTURES))
     if unknown:
         raise ValueError(f"unknown structure(s) {unknown}; known: {list(STRUCTURES)}")
