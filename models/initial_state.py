@@ -21,10 +21,10 @@ from there while its relative input starts at 0, plus one output level c
 c and v_t are found by least squares on the first `window` samples of the
 measured displacement (default the first half); the relaxations then run
 through the whole record. On the issue's 48 h split (second half replayed
-with a model fitted on the first) this gives 85.15 % where the continuous
-run gives 85.14 % and the rest start -320 %; on a record that does start
-cold it costs 0.1 point. Grey-box and MBOTV terms keep their rest state
-(only c covers them).
+with the per-term model fitted on the first) this gives 85.15 %, as the run
+continuous from the start of the whole record, where the rest start gives
+-319 % (benchmarks/bench_calibration.py). Grey-box and MBOTV terms keep
+their rest state (only c covers them).
 
 Worked number: a first-order term 0.1/(1 - 0.9 q⁻¹) (DC gain 1) at steady
 state for v = 1 and then fed 0 gives 0.9, 0.81, 0.729, … .
