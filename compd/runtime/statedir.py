@@ -13,7 +13,8 @@ and one at the checkpoint's temporary name made the checkpoint overwrite it.
   ``/var/lib/private``); what counts is the directory it resolves to.
 - `open_private` opens a file inside it with ``O_NOFOLLOW`` (a link is
   refused, never followed), creates it 0600, and refuses anything but a
-  regular file of ours.
+  regular file of ours with one name (a planted hard link is refused too).
+  A link as the state directory itself must belong to root or to us.
 - `refuse_link` checks a path compd is about to hand to a library that opens
   it by name (SQLite): it must not be a link or a non-regular file.
 """
@@ -50,13 +51,18 @@ def prepare_state_dir(path: Path) -> None:
         raise StateDirError(path, f"cannot create the state directory: "
                                   f"{exc.strerror or exc}") from exc
     try:
+        lst = os.lstat(path)
         st = os.stat(path)
     except OSError as exc:
         raise StateDirError(path, f"cannot read the state directory: "
                                   f"{exc.strerror or exc}") from exc
+    euid = os.geteuid()
+    if stat.S_ISLNK(lst.st_mode) and lst.st_uid not in (0, euid):
+        # systemd's link is root's; one another user made could point anywhere
+        raise StateDirError(path, f"state directory is a link owned by uid {lst.st_uid}, "
+                                  "neither root nor this process")
     if not stat.S_ISDIR(st.st_mode):
         raise StateDirError(path, "state directory is not a directory")
-    euid = os.geteuid()
     if st.st_uid != euid:
         raise StateDirError(path, f"state directory is owned by uid {st.st_uid}, "
                                   f"not by this process (uid {euid})")
@@ -87,6 +93,8 @@ def open_private(path: Path, flags: int, *, create: bool = True) -> int:
             raise StateDirError(path, "is not a regular file; refused")
         if st.st_uid != os.geteuid():
             raise StateDirError(path, f"is owned by uid {st.st_uid}, not by this process")
+        if st.st_nlink != 1:  # a hard link planted to another file: truncating it hurts that
+            raise StateDirError(path, f"has {st.st_nlink} hard links; refused")
     except BaseException:
         os.close(fd)
         raise

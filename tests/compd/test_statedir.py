@@ -68,6 +68,16 @@ def test_planted_lock_link_is_refused_and_target_untouched(tmp_path: Path) -> No
     assert victim.read_text() == "precious\n"
 
 
+def test_planted_hard_link_at_the_lock_is_refused(tmp_path: Path) -> None:
+    state = tmp_path / "state"
+    state.mkdir(mode=0o700)
+    victim = _victim(tmp_path)
+    os.link(victim, state / LOCK_NAME)
+    with pytest.raises(StateDirError, match="hard links"):
+        StateLock(state).acquire()
+    assert victim.read_text() == "precious\n"
+
+
 def test_planted_checkpoint_temp_link_is_removed_not_followed(tmp_path: Path) -> None:
     state = tmp_path / "state"
     state.mkdir(mode=0o700)
@@ -133,6 +143,17 @@ def test_state_dir_reached_through_a_link_is_fine(tmp_path: Path) -> None:
     lock = StateLock(link)
     lock.acquire()
     lock.release()
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="needs root to give a link away")
+def test_state_dir_link_of_another_user_is_refused(tmp_path: Path) -> None:
+    real = tmp_path / "real"
+    real.mkdir(mode=0o700)
+    link = tmp_path / "state"
+    link.symlink_to(real)
+    os.lchown(link, 12345, 12345)
+    with pytest.raises(StateDirError, match="link owned by uid 12345"):
+        prepare_state_dir(link)
 
 
 def test_state_dir_that_is_a_file_is_a_config_error_for_check_and_run(
