@@ -24,8 +24,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="model file or bundled name (default: sim_machine, calibrated "
                              "on the simulated machine)")
     parser.add_argument("--program", choices=["spectrum", "constant", "etve"],
-                        default="spectrum")
-    parser.add_argument("--seed", type=seed, default=7)
+                        default="spectrum",
+                        help="spindle-speed program the machine runs (default spectrum)")
+    parser.add_argument("--seed", type=seed, default=7,
+                        help="random seed of the program and the sensor noise (default 7)")
     parser.add_argument("--plot", metavar="PNG", help="draw growth, offset and error")
     parser.add_argument("--force", action="store_true", help="replace an existing --plot file")
     parser.add_argument("--json", action="store_true",

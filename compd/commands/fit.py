@@ -37,6 +37,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from compd import __version__
 from compd.argtypes import number
 from compd.sysexits import EX_DATAERR
 
@@ -91,7 +92,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the measured displacement column (µm)")
     parser.add_argument("--term", action="append", required=True, metavar="[NAME=]EXPR",
                         help="a term's input: a channel or e.g. bearing-column (repeatable)")
-    parser.add_argument("--kind", choices=("tf", "greybox", "mbotv"), default="tf")
+    parser.add_argument("--kind", choices=("tf", "greybox", "mbotv"), default="tf",
+                        help="model structure: tf transfer functions (ARX + output error), "
+                             "greybox first-order ODEs, mbotv (default tf)")
     parser.add_argument("--orders", type=parse_orders, default=(1, 4), metavar="LO-HI",
                         help="numerator lengths and denominator orders to try (default 1-4)")
     parser.add_argument("--switch", metavar="CHANNEL", default=None,
@@ -252,6 +255,7 @@ def _provenance(args: argparse.Namespace, records: list[Record],
                 info: list[dict[str, Any]]) -> dict[str, Any]:
     prov: dict[str, Any] = {
         "tool": "compd fit",
+        "compd_version": __version__,
         "command_line": shlex.join(["compd", *sys.argv[1:]]) if sys.argv[1:2] == ["fit"]
         else "compd fit " + shlex.join([*args.data, "--output", args.output]),
         "date": datetime.now(UTC).isoformat(timespec="seconds"),

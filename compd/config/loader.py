@@ -15,7 +15,6 @@ import hashlib
 import json
 import math
 import os
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,7 +24,7 @@ from pydantic import ValidationError
 from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX, check_outputs
 from compd.config.schema import ControllerSection, DaemonConfig, SecuritySection
 from compd.errors import ConfigError
-from compd.infiles import MAX_CONFIG_BYTES, InputError, load_model, read_bytes
+from compd.infiles import MAX_CONFIG_BYTES, InputError, load_model, read_toml_document
 from drivers.addresses import Address
 from drivers.protocols import PROTOCOLS
 from models.compensation import CompensationModel
@@ -270,15 +269,9 @@ def load_config(path: str | Path) -> LoadedConfig:
     """Read and validate a daemon config file; raises ConfigError."""
     p = Path(path)
     try:
-        text = read_bytes(p, "config file", MAX_CONFIG_BYTES)
+        text, doc = read_toml_document(p, "config file", MAX_CONFIG_BYTES)
     except InputError as exc:
         raise ConfigError("", str(exc)) from None
-    try:
-        doc = tomllib.loads(text.decode("utf-8"))
-    except UnicodeDecodeError:
-        raise ConfigError("", f"{p}: not UTF-8 text") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError("", f"{p}: not valid TOML ({exc})") from None
     return parse_config(doc, p.resolve(), text)
 
 
