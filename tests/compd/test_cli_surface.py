@@ -139,3 +139,12 @@ async def test_the_start_log_line_names_the_version(tmp_path: Path) -> None:
         await sim.stop()
     start = next(e for e in logs if e["event"] == "daemon_starting")
     assert start["version"] == __version__
+
+
+def test_one_csv_reader_for_records() -> None:
+    """drivers/sim/csvlog.py had a second, looser reader (no sampling or cell
+    checks): records are parsed in compd/offline/csvstream.py only."""
+    parsers = re.compile(r"csv\.(reader|DictReader)\(|loadtxt\(|genfromtxt\(|def read_record")
+    found = sorted(str(p.relative_to(REPO)) for root in ("compd", "drivers", "models")
+                   for p in (REPO / root).rglob("*.py") if parsers.search(p.read_text("utf-8")))
+    assert found == ["compd/offline/csvstream.py", "compd/offline/records.py"]
