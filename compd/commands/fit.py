@@ -2,20 +2,29 @@
 
 Identifies a compensation model from calibration records and writes a model
 file (docs/models.md §2, §5, §6). Several records (e.g. a heat-up/cool-down and an
-environmental run) are fitted jointly as separate experiments: each starts at
-rest with its own first sample as the reference, and the simulation restarts
-per record. Orders are chosen on the last ``--validation`` fraction of every
-record, or on held-out records (``--validation-record``). Every pole is kept
+environmental run) are fitted jointly as separate experiments: each has its
+own first sample as the reference, and the simulation restarts per record.
+Held-out records (``--validation-record``) replace the folds for the choice.
+Every pole is kept
 within the slowest allowed time constant (``--max-time-constant-days``,
 default 3) in the output-error fit and checked again before writing; a DC
 gain absurd for the data is refused (`models.identify.checks`).
 
-- ``--kind tf`` (default): ARX least squares over every order combination
-  (``--orders 1-4``: numerator lengths and denominator orders), then an
-  output-error structure search and fit (see `models.identify.tf_fit`); one
-  term per ``--term`` (SISO with one, multi-input with several); a term is a
-  channel or a signed combination (``bearing-column``), optionally named
-  (``spindle=bearing-column``).
+- ``--kind tf`` (default): the structure is chosen by blocked
+  cross-validation (``--folds``, `models.identify.structures`): each
+  candidate is trained without a held-out block, run from the record's start
+  (initial conditions estimated when the records start warm) and scored on
+  the block; candidates are the ARX least-squares baseline, one shared
+  denominator refined by output error, ridge on the gains over it, and one
+  denominator per term (the papers'); the simplest within 0.5 point of the
+  best wins, and the table is printed. ``--structure`` forces one (a forced
+  structure below the ARX baseline is said); ``--structure search`` is the
+  earlier greedy per-term order search (`models.identify.tf_fit`). Orders
+  ``--orders 1-4``: numerator lengths and denominator orders. One term per
+  ``--term`` (a channel or a signed combination, ``bearing-column``,
+  optionally named ``spindle=bearing-column``), or ``--candidates PATTERN
+  --max-terms N``: the inputs chosen by validation (`compd.offline.fit_search`);
+  speed and power channels enter absolute, temperatures relative.
 - ``--kind greybox --term power_kw [--switch moving]`` and
   ``--kind mbotv --term bearing-column``: bounded least squares (one term).
 - ``--fixed model.toml:ambient`` keeps an already-calibrated term: its
@@ -23,7 +32,10 @@ gain absurd for the data is refused (`models.identify.checks`).
 
 Every fitted term is rebuilt exactly as the file will hold it (repr floats),
 checked for stability, its DC gain and sensitivity reported, and the written
-file is replayed through the daemon's code path for the final figures.
+file is replayed through the daemon's code path for the final figures (its
+initial state estimated as `compd replay` does). Warnings (stderr): terms
+that cancel each other on correlated inputs (`models.diagnostics`), a record
+without a cool-down or speed steps.
 """
 
 from __future__ import annotations
@@ -80,6 +92,10 @@ def parse_term(text: str) -> tuple[str, dict[str, float]]:
     return name.strip(), inputs
 
 
+#: --structure values (kept literal: building the parser imports no numerics)
+STRUCTURE_CHOICES: tuple[str, ...] = ("auto", "arx", "shared-oe", "ridge", "per-term-oe",
+                                      "search")
+
 #: default slowest allowed time constant of a fitted pole, days
 DEFAULT_MAX_TIME_CONSTANT_DAYS = 3.0
 
@@ -90,21 +106,33 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "are fitted jointly as separate experiments")
     parser.add_argument("--output", required=True, metavar="COLUMN",
                         help="the measured displacement column (µm)")
-    parser.add_argument("--term", action="append", required=True, metavar="[NAME=]EXPR",
+    parser.add_argument("--term", action="append", default=[], metavar="[NAME=]EXPR",
                         help="a term's input: a channel or e.g. bearing-column (repeatable)")
+    parser.add_argument("--candidates", action="append", default=[], metavar="PATTERN",
+                        help="choose the inputs by validation among the columns matching "
+                             "these shell patterns (repeatable; e.g. 't*_degC', spindle_rpm); "
+                             "speed/power columns enter absolute, temperatures relative")
+    parser.add_argument("--max-terms", type=int, default=3, metavar="N",
+                        help="at most N inputs chosen with --candidates (default 3)")
     parser.add_argument("--kind", choices=("tf", "greybox", "mbotv"), default="tf",
                         help="model structure: tf transfer functions (ARX + output error), "
                              "greybox first-order ODEs, mbotv (default tf)")
+    parser.add_argument("--structure", choices=STRUCTURE_CHOICES, default="auto",
+                        help="tf structure: auto (default: chosen by blocked cross-validation "
+                             "among arx, shared-oe, ridge, per-term-oe), one of those, or "
+                             "search (the greedy per-term output-error order search)")
+    parser.add_argument("--folds", type=int, default=4, metavar="K",
+                        help="cross-validation folds: each record in K + 1 blocks, the first "
+                             "always training (default 4)")
     parser.add_argument("--orders", type=parse_orders, default=(1, 4), metavar="LO-HI",
                         help="numerator lengths and denominator orders to try (default 1-4)")
     parser.add_argument("--switch", metavar="CHANNEL", default=None,
                         help="grey-box u2 switch channel (1 = moving, 0 = standstill)")
     parser.add_argument("--fixed", action="append", default=[], metavar="MODEL:TERM",
                         help="keep an already-calibrated term, subtracted before fitting")
-    parser.add_argument("--validation", type=number(0.05, 0.95),
-                        default=0.3,
-                        help="fraction of each record held out to choose orders, 0.05 … 0.95 "
-                             "(default 0.3)")
+    parser.add_argument("--validation", type=number(0.05, 0.95), default=0.3,
+                        help="--structure search: fraction of each record held out to choose "
+                             "orders, 0.05 … 0.95 (default 0.3)")
     parser.add_argument("--validation-record", action="append", default=[], metavar="DATA",
                         help="a record used only to choose the orders (repeatable); the fit "
                              "then uses every DATA record whole")
@@ -158,10 +186,6 @@ def _relative_input(record: Record, inputs: dict[str, float], relative: bool) ->
     return u
 
 
-def _inputs_per_record(records: list[Record], inputs: dict[str, float]) -> list[Any]:
-    return [_relative_input(r, inputs, True) for r in records]
-
-
 def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
             specs: list[tuple[str, dict[str, float]]], holdout_records: list[Record],
             ) -> tuple[list[Term], list[dict[str, Any]]]:
@@ -177,34 +201,53 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
     radius = pole_radius(period, args.max_time_constant_days * 86400.0)
     seg = Segments.from_lengths([len(r) for r in records])
     y = np.concatenate(ys)
-    us = [np.concatenate(_inputs_per_record(records, inputs)) for _, inputs in specs]
+    from compd.offline.fit_search import is_rate_channel
+
+    rel = [not all(is_rate_channel(ch) for ch in inputs) for _, inputs in specs]
+    us = [np.concatenate([_relative_input(r, inputs, rl) for r in records])
+          for (_, inputs), rl in zip(specs, rel, strict=True)]
     holdout = None
     if holdout_records:
         h_y = np.concatenate([r.column(args.output) for r in holdout_records])
-        h_us = tuple(np.concatenate(_inputs_per_record(holdout_records, inputs))
-                     for _, inputs in specs)
+        h_us = tuple(np.concatenate([_relative_input(r, inputs, rl) for r in holdout_records])
+                     for (_, inputs), rl in zip(specs, rel, strict=True))
         holdout = Holdout(h_y, h_us, Segments.from_lengths([len(r) for r in holdout_records]))
-    try:
-        fit = fit_tf_terms(y, us, args.orders, args.orders, validation=args.validation,
-                           segments=seg, radius=radius, holdout=holdout)
-    except ValueError as exc:
-        raise ModelError(f"identification failed: {exc}") from None
+    if args.structure == "search":
+        try:
+            fit = fit_tf_terms(y, us, args.orders, args.orders, validation=args.validation,
+                               segments=seg, radius=radius, holdout=holdout)
+        except ValueError as exc:
+            raise ModelError(f"identification failed: {exc}") from None
+        summary = {"structure": "per-term-oe (greedy search)",
+                   "validation_fit_percent": fit.oe_validation_fit_pct,
+                   "arx_fit_percent": fit.arx_fit_pct, "oe_fit_percent": fit.oe.fit_pct}
+        nums, dens, orders = fit.oe.nums, fit.oe.dens, fit.orders
+    else:
+        from compd.offline.fit_select import select_for_fit
+
+        nums, dens, orders, summary = select_for_fit(args, y, us, seg, radius, holdout)
     y_span = float(np.ptp(y))
     terms: list[Term] = []
     info: list[dict[str, Any]] = []
-    for (name, inputs), u, num, den, (nb, na) in zip(specs, us, fit.oe.nums, fit.oe.dens,
-                                                     fit.orders, strict=True):
+    for (name, inputs), u, num, den, (nb, na), rl in zip(specs, us, nums, dens, orders, rel,
+                                                         strict=True):
         check = build_checked_tf(num, den, name, max_pole=radius, period_s=period,
                                  input_span=float(np.ptp(u)), output_span=y_span)
-        terms.append(Term(name=name, inputs=inputs, dynamics=check.tf))
-        info.append({"name": name, "kind": "tf", "inputs": inputs,
+        terms.append(Term(name=name, inputs=inputs, dynamics=check.tf, relative=rl))
+        info.append({"name": name, "kind": "tf", "inputs": inputs, "relative": rl,
                      "orders": {"numerator_length": nb, "denominator_order": na},
                      "dc_gain_um_per_k": check.dc_gain,
                      "poles": [abs(p) for p in check.poles],
                      "sensitivity": check.sensitivity,
-                     "arx_fit_percent": fit.arx_fit_pct,
-                     "oe_fit_percent": fit.oe.fit_pct,
-                     "oe_validation_fit_percent": fit.oe_validation_fit_pct})
+                     "arx_fit_percent": summary["arx_fit_percent"],
+                     "oe_fit_percent": summary["oe_fit_percent"],
+                     "oe_validation_fit_percent": summary["validation_fit_percent"],
+                     "selection": summary})
+    from models.diagnostics import cancelling_terms
+
+    for w in cancelling_terms([n for n, _ in specs], us, [t["dc_gain_um_per_k"] for t in info],
+                              y_span):
+        print(f"compd fit: warning: {w}", file=sys.stderr)
     return terms, info
 
 
@@ -273,6 +316,12 @@ def _provenance(args: argparse.Namespace, records: list[Record],
         prov["samples_per_record"] = [len(r) for r in records]
     if args.validation_record:
         prov["validation_records"] = [str(p) for p in args.validation_record]
+    if getattr(args, "search_table", None):
+        prov["candidates"] = list(args.candidates)
+        prov["inputs_chosen"] = list(args.search_chosen)
+        prov["subsets_tried"] = [f"{' + '.join(t['inputs'])}: validation "
+                                 f"{t['validation_fit_percent']:.2f} %"
+                                 for t in args.search_table]
     for t in info:
         key = t["name"]
         if t["kind"] == "tf":
@@ -281,6 +330,13 @@ def _provenance(args: argparse.Namespace, records: list[Record],
             prov[f"{key}_dc_gain_um_per_k"] = t["dc_gain_um_per_k"]
             prov["arx_fit_percent"] = t["arx_fit_percent"]
             prov["oe_fit_percent"] = t["oe_fit_percent"]
+            sel = t["selection"]
+            prov["structure"] = sel["structure"]
+            prov["validation_fit_percent"] = sel["validation_fit_percent"]
+            if "candidates" in sel:
+                prov["runners_up"] = [f"{c['structure']}: validation "
+                                      f"{c['validation_fit_percent']:.2f} %"
+                                      for c in sel["candidates"]]
         else:
             prov[f"{key}_fit_percent"] = t["fit_percent"]
     return prov
@@ -291,18 +347,38 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
     """Read and check records; all must share `first`'s (or the first one's) period."""
     import math
 
+    from compd.offline.fit_search import is_rate_channel
     from compd.offline.records import RecordError, check_units, read_record
 
     records = [read_record(p) for p in paths]
     for r in records:
         r.require([args.output, *sorted(channels), *([args.switch] if args.switch else [])])
-        check_units(r, sorted(channels) if args.kind != "greybox" else [], args.output)
+        temps = sorted(c for c in channels if not is_rate_channel(c))
+        check_units(r, temps if args.kind != "greybox" else [], args.output)
         ref = first if first is not None else records[0]
         if not math.isclose(r.period_s, ref.period_s, rel_tol=1e-6):
             raise RecordError(f"{r.path}: sampled every {r.period_s:g} s but {ref.path} "
                               f"every {ref.period_s:g} s; records fitted together "
                               "need one sample period")
     return records
+
+
+def _search_specs(args: argparse.Namespace, records: list[Record]
+                  ) -> list[tuple[str, dict[str, float]]]:
+    """--candidates: the inputs chosen by validation, one term each."""
+    from compd.offline.fit_search import search_inputs
+    from models.errors import ModelError
+    from models.identify.segments import pole_radius
+
+    if args.kind != "tf" or args.fixed or args.validation_record:
+        raise ModelError("--candidates goes with --kind tf, without --fixed or "
+                         "--validation-record")
+    radius = pole_radius(records[0].period_s, args.max_time_constant_days * 86400.0)
+    chosen, table = search_inputs(args, records, [r.column(args.output) for r in records],
+                                  radius)
+    args.search_table = table
+    args.search_chosen = chosen
+    return [(name, {name: 1.0}) for name in chosen]
 
 
 def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[str, Any]], Path,
@@ -319,6 +395,9 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
         specs = [parse_term(t) for t in args.term]
     except ValueError as exc:
         raise ModelError(str(exc)) from None
+    if bool(specs) == bool(args.candidates):
+        raise ModelError("give the inputs with --term, or let --candidates choose them "
+                         "(one of the two)")
     data = [str(p) for p in args.data]
     sources = [*data, *args.validation_record, *(f.rpartition(":")[0] for f in args.fixed)]
     out = check_output(args.model_file if args.model_file is not None else
@@ -326,6 +405,10 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
                        force=args.force, inputs=sources)
     channels = {ch for _, inputs in specs for ch in inputs}
     records = _read_records(data, args, channels)
+    if args.candidates:
+        specs = _search_specs(args, records)
+        channels = {ch for _, inputs in specs for ch in inputs}
+        records = _read_records(data, args, channels)
     holdout = _read_records([str(p) for p in args.validation_record], args, channels,
                             records[0])
     for w in [w for r in records for w in speed_warnings(r)] if len(records) == 1 else []:
@@ -345,16 +428,22 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
 
 
 def run(args: argparse.Namespace) -> int:
+    import os
+
+    # the identification's matrices are small (tens of columns): BLAS threads
+    # only contend for the cores (a day at 1 s: 10.8 s threaded, 7.5 s not)
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     import numpy as np
 
-    from compd.commands.replay import replay_model
+    from compd.commands.replay import replay_with_init
     from compd.offline.records import RecordError
     from models.errors import ModelError
     from models.quality import quality
 
     try:
         model, info, out, records = fit_model(args)
-        simulated = [replay_model(model, r) for r in records]
+        simulated = [replay_with_init(model, r, r.column(args.output), "estimate")
+                     for r in records]
     except (RecordError, ModelError) as exc:
         print(f"compd fit: {exc}", file=sys.stderr)
         return EX_DATAERR
@@ -363,7 +452,8 @@ def run(args: argparse.Namespace) -> int:
     q = per[0] if len(records) == 1 else quality(np.concatenate(measured),
                                                  np.concatenate(simulated))
     if args.json:
-        print(json.dumps({"terms": info, "fit_percent": q.fit_percent, "dpk_um": q.dpk_um,
+        extra = {"subsets": args.search_table} if getattr(args, "search_table", None) else {}
+        print(json.dumps({"terms": info, "fit_percent": q.fit_percent, "dpk_um": q.dpk_um, **extra,
                           "model_file": str(out),
                           "records": [{"path": r.path, **pq.as_dict()}
                                       for r, pq in zip(records, per, strict=True)]}))
@@ -379,7 +469,15 @@ def run(args: argparse.Namespace) -> int:
             print(f"    {t['sensitivity']}")
         else:
             print(f"  term {t['name']} ({t['kind']}) {t['inputs']}: fit {t['fit_percent']:.2f} %")
-    if info and info[0]["kind"] == "tf":
+    if getattr(args, "search_table", None):
+        from compd.offline.fit_search import table_lines
+
+        print("\n".join(table_lines(args.search_table, args.search_chosen)))
+    if info and info[0]["kind"] == "tf" and "candidates" in info[0]["selection"]:
+        from compd.offline.fit_select import selection_lines
+
+        print("\n".join(selection_lines(info[0]["selection"])))
+    elif info and info[0]["kind"] == "tf":
         head = info[0]
         print(f"  ARX fit {head['arx_fit_percent']:.2f} %, output-error fit "
               f"{head['oe_fit_percent']:.2f} % (validation "
@@ -387,7 +485,8 @@ def run(args: argparse.Namespace) -> int:
     for r, pq in zip(records, per, strict=True) if len(records) > 1 else ():
         print(f"  on {r.path}: fit {pq.fit_percent:.2f} %, Δpk {pq.dpk_um:.3f} µm, range "
               f"reduction {pq.range_reduction:.2f}-fold")
-    print(f"  model (replayed as the daemon steps it): fit {q.fit_percent:.2f} %, "
-          f"Δpk {q.dpk_um:.3f} µm, range reduction {q.range_reduction:.2f}-fold")
+    print(f"  model (replayed as the daemon steps it, initial state estimated): fit "
+          f"{q.fit_percent:.2f} %, Δpk {q.dpk_um:.3f} µm, range reduction "
+          f"{q.range_reduction:.2f}-fold")
     print(f"  wrote {out}")
     return 0

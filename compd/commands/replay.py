@@ -1,10 +1,27 @@
-"""`compd replay MODEL DATA --output dz_um [--plot out.png] [--json]`
+"""`compd replay MODEL DATA --output dz_um [--init estimate|steady|rest]
+[--score-from SECONDS] [--plot out.png] [--json]`
 
 Runs the model over a recorded run exactly as the daemon steps it (the same
 `CompensationModel.set_references` at the first sample, then `step(sample)`
 once per row) and reports fit %, residue min/max, Δpk and range reduction
 (docs/models.md §11). A model whose sample period differs from the record's is
 refused: its coefficients would mean something else.
+
+A record rarely starts cold, so the model's starting state is said, never
+assumed silently (``--init``):
+
+- ``estimate`` (default): the output level and each transfer-function term's
+  initial state (steady for an input level) are estimated by least squares
+  on the first half of the measured displacement (`models.initial_state`),
+  as system-identification tools compare a model with data;
+- ``steady``: every term at steady state for the first sample (speed and
+  power terms at their first value), at the displacement measured there
+  (the mean of the first five samples);
+- ``rest``: every filter at rest at the first sample (the machine cold).
+
+``--score-from S`` runs the model from the record's start and scores only the
+samples from S seconds on (what a daemon that has been running sees). The
+daemon itself starts from its checkpoint, or at steady state (`compd.runtime.startup`).
 """
 
 from __future__ import annotations
@@ -15,6 +32,7 @@ import math
 import sys
 from typing import TYPE_CHECKING
 
+from compd.argtypes import number
 from compd.sysexits import EX_DATAERR
 
 if TYPE_CHECKING:
@@ -26,6 +44,9 @@ if TYPE_CHECKING:
 
 HELP = "run a model over a recorded run offline: fit %, residue, Δpk, range reduction, a plot"
 
+INIT_MODES: tuple[str, ...] = ("estimate", "steady", "rest")
+#: samples averaged for the displacement level of --init steady
+STEADY_LEVEL_SAMPLES = 5
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("model", metavar="MODEL", help="model file, or a library name (sp2)")
@@ -36,11 +57,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plot", metavar="PNG", default=None,
                         help="write a figure: inputs above, measured/simulated/residue below")
     parser.add_argument("--force", action="store_true", help="replace an existing --plot file")
+    parser.add_argument("--init", choices=INIT_MODES, default="estimate",
+                        help="the model's state at the first sample: estimate (default: "
+                             "least squares on the first half of the record), steady, rest")
+    parser.add_argument("--score-from", type=number(0.0, 1e9), default=0.0, metavar="SECONDS",
+                        help="run from the record's start, score only from this time on")
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON line")
 
 
-def replay_model(model: CompensationModel, record: Record) -> npt.NDArray[np.float64]:
-    """δZ predicted at every row, stepping the model as the daemon does."""
+
+def replay_model(model: CompensationModel, record: Record, *, steady: bool = False
+                 ) -> npt.NDArray[np.float64]:
+    """δZ predicted at every row, stepping the model as the daemon does
+    (from rest, or from the steady state of the first sample)."""
     import numpy as np
 
     from compd.offline.records import RecordError
@@ -53,6 +82,8 @@ def replay_model(model: CompensationModel, record: Record) -> npt.NDArray[np.flo
     samples = record.samples()
     model.reset()
     model.set_references(samples[0])
+    if steady:
+        model.steady_state(samples[0])
     step = model.step
     return np.fromiter((step(s) for s in samples), dtype=np.float64, count=len(samples))
 
@@ -64,7 +95,29 @@ def plot_inputs(model: CompensationModel, record: Record) -> dict[str, npt.NDArr
     return {c: record.columns[c] for c in names}
 
 
+def replay_with_init(model: CompensationModel, record: Record, measured: npt.NDArray[np.float64],
+                     init: str) -> npt.NDArray[np.float64]:
+    """The replay with the starting state `init` (see the module docstring)."""
+    import numpy as np
+
+    from models.initial_state import default_window, estimate_initial_state, relaxation_basis
+
+    simulated = replay_model(model, record, steady=init == "steady")
+    if init == "steady":
+        k = min(STEADY_LEVEL_SAMPLES, simulated.size)
+        return simulated + float(np.mean(measured[:k] - simulated[:k]))
+    if init == "rest":
+        return simulated
+    gains = [record.column(t.gain_channel) if t.gain_channel else t.gain for t in model.terms]
+    basis, names = relaxation_basis(model, gains, simulated.size)
+    est = estimate_initial_state(measured - simulated, basis, names,
+                                 default_window(simulated.size))
+    return simulated + est.response
+
+
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from compd.infiles import load_model
     from compd.offline.quality_check import checked_quality
     from compd.offline.records import RecordError, check_units, read_record
@@ -78,16 +131,25 @@ def run(args: argparse.Namespace) -> int:
         record = read_record(args.data)
         record.require([args.output])
         check_units(record, sorted(model.reference_channels), args.output)
-        simulated = replay_model(model, record)
+        measured = record.columns[args.output]
+        simulated = replay_with_init(model, record, measured, args.init)
+        first = int(np.searchsorted(record.time_s, args.score_from - 1e-9))
+        if not (math.isfinite(args.score_from) and 0 <= first < len(record)):
+            raise RecordError(f"--score-from {args.score_from:g} s: the record spans 0 … "
+                              f"{record.time_s[-1]:g} s")
     except (RecordError, ModelError) as exc:
         print(f"compd replay: {exc}", file=sys.stderr)
         return EX_DATAERR
-    measured = record.columns[args.output]
     try:
-        q = checked_quality(measured, simulated, record.path, args.output)
+        q = checked_quality(measured[first:], simulated[first:], record.path, args.output)
     except RecordError as exc:
         print(f"compd replay: {exc}", file=sys.stderr)
         return EX_DATAERR
+    from models.diagnostics import flat_window
+
+    flat = flat_window(measured[first:], measured[first:] - simulated[first:])
+    if flat is not None:
+        print(f"compd replay: warning: {flat}", file=sys.stderr)
     if args.plot:
         from compd.offline.plots import replay_figure
 
@@ -97,9 +159,11 @@ def run(args: argparse.Namespace) -> int:
                       dpk_um=q.dpk_um), "figure", force=args.force,
                          inputs=[args.model, args.data])
     if args.json:
-        print(json.dumps(q.as_dict()))
+        print(json.dumps({**q.as_dict(), "init": args.init,
+                          "scored_samples": len(record) - first}))
     else:
-        print(f"{model.name} on {record.path} ({len(record)} samples, {record.period_s:g} s)")
+        print(f"{model.name} on {record.path} ({len(record)} samples, {record.period_s:g} s; "
+              f"init {args.init}; scored {len(record) - first} from {record.time_s[first]:g} s)")
         print(f"  fit {q.fit_percent:.2f} %, residue {q.residue_min_um:.3f} … "
               f"{q.residue_max_um:.3f} µm, Δpk {q.dpk_um:.3f} µm, range reduction "
               f"{q.range_reduction:.2f}-fold")

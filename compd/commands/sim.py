@@ -72,6 +72,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="write a calibration record offline instead of serving")
     parser.add_argument("--force", action="store_true",
                         help="replace an existing --record file")
+    parser.add_argument("--machine", choices=("bench", "shop"), default="bench",
+                        help="with --record: the bench machine (default) or the shop variant "
+                             "(16 sensors, starts warm, room drift; see drivers.sim.shop)")
     parser.add_argument("--probe-noise-um", type=PROBE_NOISE_UM, default=0.5,
                         help="probe noise added to dz_um in --record (default 0.5 µm)")
     parser.add_argument("--no-plant", action="store_true",
@@ -96,6 +99,8 @@ def _record(args: argparse.Namespace) -> int:
     from drivers.sim.programs import make_program
 
     check_output(args.record, "record", force=args.force)
+    if args.machine == "shop":
+        return _record_shop(args)
     program = make_program(args.program, seed=args.seed, hours=args.hours)
     if program.duration_s / args.period_s > MAX_RECORD_ROWS:
         print(f"compd sim: {program.duration_s / 3600:g} h every {args.period_s:g} s is "
@@ -129,6 +134,25 @@ def _port_in_use(port: int) -> str:
         except OSError as exc:
             return exc.strerror or str(exc)
     return ""
+
+
+def _record_shop(args: argparse.Namespace) -> int:
+    from compd.outfiles import write_atomically
+    from drivers.sim.shop import simulate_shop, write_shop_record
+
+    hours = args.hours if args.hours is not None else 24.0
+    if hours * 3600.0 / args.period_s > MAX_RECORD_ROWS:
+        print(f"compd sim: {hours:g} h every {args.period_s:g} s is "
+              f"{hours * 3600.0 / args.period_s:.3g} rows; at most {MAX_RECORD_ROWS:,}",
+              file=sys.stderr)
+        return EX_DATAERR
+    columns = simulate_shop(hours, period_s=args.period_s, seed=args.seed)
+    rows = len(columns["time_s"])
+    write_atomically(args.record, lambda tmp: write_shop_record(str(tmp), columns), "record",
+                     force=args.force)
+    print(f"compd sim: wrote {rows} rows (shop machine, workday program, {hours:g} h, period "
+          f"{args.period_s:g} s, seed {args.seed}) to {args.record}")
+    return 0
 
 
 async def _serve(args: argparse.Namespace) -> int:

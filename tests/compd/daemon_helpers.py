@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import asyncio
 from pathlib import Path
 
 CONFIG = """
@@ -63,3 +64,12 @@ def write_config(tmp_path: Path, endpoint: str, *, time_scale: float = 50.0,
                                slew_um_s=slew_um_s, shutdown=shutdown,
                                checkpoint_every=checkpoint_every), encoding="utf-8")
     return p
+
+
+async def until(predicate: object, limit: int = 2000) -> None:
+    """Wait (5 ms steps, at most `limit`) until `predicate()` is true."""
+    for _ in range(limit):
+        if predicate():  # type: ignore[operator]
+            return
+        await asyncio.sleep(0.005)
+    raise AssertionError("condition not reached")

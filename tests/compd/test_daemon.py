@@ -18,26 +18,8 @@ from compd.runtime.sdnotify import Notifier
 from compd.testing import RecordingDriver
 from drivers.sim.modbus_server import ModbusSimController
 
+from .daemon_helpers import until as _until
 from .daemon_helpers import write_config
-
-
-@pytest.fixture
-async def sim() -> ModbusSimController:
-    controller = ModbusSimController()
-    await controller.start()
-    await controller.publish({"bearing": 20.0, "ambient": 20.0})
-    try:
-        yield controller  # type: ignore[misc]
-    finally:
-        await controller.stop()
-
-
-async def _until(predicate: object, limit: int = 2000) -> None:
-    for _ in range(limit):
-        if predicate():  # type: ignore[operator]
-            return
-        await asyncio.sleep(0.005)
-    raise AssertionError("condition not reached")
 
 
 async def test_daemon_compensates_for_a_few_hundred_cycles(

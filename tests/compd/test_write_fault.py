@@ -8,8 +8,6 @@ import asyncio
 import sqlite3
 from pathlib import Path
 
-import pytest
-
 from compd.config.loader import load_config
 from compd.core.cycle import WRITE_FAULT_AFTER, Cycle
 from compd.core.output import Status
@@ -18,6 +16,7 @@ from compd.runtime.sdnotify import Notifier
 from drivers.sim.modbus_server import ModbusSimController
 
 from .cycle_helpers import FakeClock, params, run_warm, samples, sp2
+from .daemon_helpers import until as _until
 from .daemon_helpers import write_config
 
 
@@ -59,25 +58,6 @@ def test_a_few_failures_are_no_fault() -> None:
         r = cycle.step(t, samples(t, 20.5))
         cycle.write_failed("offset", permanent=False, reason="busy")
     assert not cycle.write_fault and r.status & Status.OK
-
-
-@pytest.fixture
-async def sim() -> ModbusSimController:
-    controller = ModbusSimController()
-    await controller.start()
-    await controller.publish({"bearing": 20.0, "ambient": 20.0})
-    try:
-        yield controller  # type: ignore[misc]
-    finally:
-        await controller.stop()
-
-
-async def _until(predicate: object, limit: int = 2000) -> None:
-    for _ in range(limit):
-        if predicate():  # type: ignore[operator]
-            return
-        await asyncio.sleep(0.005)
-    raise AssertionError("condition not reached")
 
 
 async def test_daemon_records_only_confirmed_offsets_and_reports_the_write_fault(

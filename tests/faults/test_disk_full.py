@@ -11,7 +11,7 @@ from __future__ import annotations
 import asyncio
 import re
 import urllib.request
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -29,16 +29,6 @@ def small_fs(tmp_path: Path) -> Iterator[Path]:
     """A 1 MiB tmpfs: a file system that really runs out of space."""
     with small_tmpfs(tmp_path, "1m") as mnt:
         yield mnt
-
-
-@pytest.fixture
-async def rec() -> AsyncIterator[RecordingSim]:
-    r = RecordingSim()
-    await r.start()
-    try:
-        yield r
-    finally:
-        await r.stop()
 
 
 def _metrics(port: int) -> dict[str, float]:

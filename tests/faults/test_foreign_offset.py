@@ -12,10 +12,8 @@ from __future__ import annotations
 
 import asyncio
 import itertools
-from collections.abc import AsyncIterator
 from pathlib import Path
 
-import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
 from compd.core.output import Status
@@ -28,16 +26,6 @@ from .daemon_run import RecordingSim, heartbeat, kill_and_wait, start_daemon, ta
 SLEW_UM_S = 2.0
 PERIOD_S = 1.0
 TIME_SCALE = 50.0
-
-
-@pytest.fixture
-async def rec() -> AsyncIterator[RecordingSim]:
-    r = RecordingSim()
-    await r.start()
-    try:
-        yield r
-    finally:
-        await r.stop()
 
 
 async def _foreign_write(port: int, value: float) -> None:

@@ -25,7 +25,6 @@ import asyncio
 import itertools
 import os
 import random
-from collections.abc import AsyncIterator
 from pathlib import Path
 
 import numpy as np
@@ -42,16 +41,6 @@ PERIOD_S = 1.0
 TIME_SCALE = 50.0
 DEFAULT_COUNT = 20
 SLOW_COUNT = 1000
-
-
-@pytest.fixture
-async def rec() -> AsyncIterator[RecordingSim]:
-    r = RecordingSim()
-    await r.start()
-    try:
-        yield r
-    finally:
-        await r.stop()
 
 
 def _count(default: int) -> int:

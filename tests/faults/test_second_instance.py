@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import asyncio
 import sys
-from collections.abc import AsyncIterator
 from pathlib import Path
 
 import pytest
@@ -29,16 +28,6 @@ from .daemon_run import (
 
 #: the issue's figure: the second instance has given up within this time
 REFUSE_WITHIN_S = 1.0
-
-
-@pytest.fixture
-async def rec() -> AsyncIterator[RecordingSim]:
-    r = RecordingSim()
-    await r.start()
-    try:
-        yield r
-    finally:
-        await r.stop()
 
 
 async def test_second_instance_refused_within_1_s(rec: RecordingSim, tmp_path: Path) -> None:

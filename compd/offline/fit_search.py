@@ -1,0 +1,109 @@
+"""`compd fit --candidates PATTERN --max-terms N`: the sensors chosen by
+validation (`models.identify.subsets`), composed with the records: the
+patterns expanded over the record's columns, temperatures made relative to
+the first sample, speed and power left absolute, a progress bar on a
+terminal, and the table of subsets tried."""
+
+from __future__ import annotations
+
+import fnmatch
+import sys
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from models.errors import ModelError
+
+if TYPE_CHECKING:
+    from compd.offline.records import Record
+
+#: a channel whose name contains one of these is a rate (speed, power): it
+#: enters a model as it is, not relative to its first sample
+RATE_MARKERS: tuple[str, ...] = ("rpm", "speed", "power", "_kw")
+
+
+def is_rate_channel(name: str) -> bool:
+    low = name.lower()
+    return any(m in low for m in RATE_MARKERS)
+
+
+def expand_candidates(patterns: list[str], record: Record, output: str) -> list[str]:
+    """Columns matching any pattern (shell globs), in the record's order;
+    the output and time columns never."""
+    names = [c for c in record.columns if c != output]
+    out = [c for c in names if any(fnmatch.fnmatchcase(c, p) for p in patterns)]
+    empty = [p for p in patterns if not any(fnmatch.fnmatchcase(c, p) for c in names)]
+    if empty:
+        raise ModelError(f"--candidates {empty[0]!r} matches no column of {record.path}; it has "
+                         f"{sorted(names)}")
+    return out
+
+
+def candidate_inputs(records: list[Record], names: list[str]) -> dict[str, Any]:
+    """Each candidate over the records concatenated (relative per record,
+    rates absolute)."""
+    out: dict[str, Any] = {}
+    for n in names:
+        parts = [r.column(n) if is_rate_channel(n) else r.column(n) - r.column(n)[0]
+                 for r in records]
+        out[n] = np.concatenate(parts)
+    return out
+
+
+def progress_bar(enabled: bool) -> Callable[[int, int], None] | None:
+    """A one-line progress bar on stderr, or None (not a terminal, --json)."""
+    if not enabled:
+        return None
+
+    def show(done: int, planned: int) -> None:
+        width = 30
+        filled = min(width, width * done // max(planned, 1))
+        end = "\n" if done >= planned else ""
+        sys.stderr.write(f"\rcompd fit: searching inputs [{'#' * filled}{'.' * (width - filled)}]"
+                         f" {done}/{planned} subsets{end}")
+        sys.stderr.flush()
+
+    return show
+
+
+def search_inputs(args: Any, records: list[Record], ys: list[Any], radius: float
+                  ) -> tuple[list[str], list[dict[str, Any]]]:
+    """(chosen channels, table of subsets tried)."""
+    from models.identify.segments import Segments
+    from models.identify.subsets import search_subsets
+
+    names = expand_candidates(list(args.candidates), records[0], args.output)
+    for r in records[1:]:
+        r.require(names)
+    if args.max_terms < 1:
+        raise ModelError(f"--max-terms {args.max_terms}: must be >= 1")
+    seg = Segments.from_lengths([len(r) for r in records])
+    show = progress_bar(sys.stderr.isatty() and not args.json)
+    try:
+        found = search_subsets(np.concatenate(ys), candidate_inputs(records, names),
+                               max_terms=args.max_terms, na_range=args.orders,
+                               nb_range=args.orders, segments=seg, radius=radius,
+                               folds=args.folds, progress=show)
+    except ValueError as exc:
+        raise ModelError(f"input search failed: {exc}") from None
+    if show is not None:
+        sys.stderr.write("\n")
+    if not found.best:
+        raise ModelError("input search failed: no subset of the candidates gives a stable model")
+    table = [{"inputs": list(t.inputs), "validation_fit_percent": t.validation_fit_pct,
+              "step": t.step} for t in found.tried]
+    return list(found.best), table
+
+
+def table_lines(table: list[dict[str, Any]], chosen: list[str], limit: int = 12) -> list[str]:
+    """The subsets tried, best first (the `limit` best, then a count)."""
+    ordered = sorted(table, key=lambda t: -t["validation_fit_percent"])
+    out = [f"  inputs chosen by validation: {' '.join(chosen)} ({len(table)} subsets tried)"]
+    for t in ordered[:limit]:
+        mark = "*" if sorted(t["inputs"]) == sorted(chosen) else " "
+        out.append(f"   {mark} {t['validation_fit_percent']:8.2f} %  {t['step']:<4}  "
+                   f"{' + '.join(t['inputs'])}")
+    if len(ordered) > limit:
+        out.append(f"     … {len(ordered) - limit} more (all in the model file's provenance)")
+    return out

@@ -1,0 +1,94 @@
+"""`compd fit`'s structure choice: the cross-validated selection of
+`models.identify.structures` composed with the command's arguments, and the
+summary the command prints and writes as provenance."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from models.errors import ModelError
+from models.identify.segments import Segments
+from models.identify.structures import STRUCTURES, Selection, select_structure
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def run_selection(args: argparse.Namespace, y: FloatArray, us: list[FloatArray], seg: Segments,
+                  radius: float, holdout: Any) -> Selection:
+    """The selection for `--structure` (auto: every structure)."""
+    structures = STRUCTURES if args.structure == "auto" else ("arx", args.structure)
+    if args.folds < 2:
+        raise ModelError(f"--folds {args.folds}: cross-validation needs at least 2 folds")
+    h = None if holdout is None else (holdout.y, list(holdout.inputs), holdout.segments)
+    try:
+        return select_structure(y, us, na_range=args.orders, nb_range=args.orders,
+                                segments=seg, radius=radius, folds=args.folds,
+                                structures=structures, holdout=h)
+    except ValueError as exc:
+        raise ModelError(f"identification failed: {exc}") from None
+
+
+def summarise(sel: Selection, forced: str, how: str) -> dict[str, Any]:
+    """What fit prints and writes: the chosen structure, its validation
+    figure, the runners-up, and notes (a forced structure below the ARX
+    baseline is said)."""
+    chosen = sel.chosen
+    if forced not in ("auto", "arx"):
+        chosen = next((c for c in sel.candidates if c.structure == forced), chosen)
+    notes = list(sel.notes) if forced == "auto" else []
+    base = sel.baseline
+    if chosen.validation_fit_pct < base.validation_fit_pct:
+        notes.append(f"warning: {chosen.structure} validates at {chosen.validation_fit_pct:.2f} "
+                     f"%, below the ARX least-squares baseline ({base.validation_fit_pct:.2f} "
+                     "%)")
+    oe_fits = [c.fit_pct for c in sel.candidates if c.structure != "arx"]
+    return {
+        "structure": chosen.structure + (f" ({chosen.detail})" if chosen.detail else ""),
+        "orders": {"denominator_order": sel.orders[0], "numerator_length": sel.orders[1]},
+        "initial_conditions": "estimated" if sel.initial else "rest",
+        "validation": how,
+        "validation_fit_percent": chosen.validation_fit_pct,
+        "fold_fit_percent": list(chosen.fold_fits),
+        "arx_fit_percent": base.fit_pct,
+        "oe_fit_percent": max(oe_fits) if oe_fits else base.fit_pct,
+        "candidates": [{"structure": c.structure, "validation_fit_percent":
+                        c.validation_fit_pct, "fit_percent": c.fit_pct,
+                        "parameters": c.n_params, **({"detail": c.detail} if c.detail else {})}
+                       for c in sel.candidates],
+        "notes": notes,
+        "_model": chosen.model,
+    }
+
+
+def select_for_fit(args: argparse.Namespace, y: FloatArray, us: list[FloatArray],
+                   seg: Segments, radius: float, holdout: Any
+                   ) -> tuple[tuple[tuple[float, ...], ...], tuple[tuple[float, ...], ...],
+                              tuple[tuple[int, int], ...], dict[str, Any]]:
+    """(nums, dens, orders per term, summary) of the chosen structure."""
+    sel = run_selection(args, y, us, seg, radius, holdout)
+    how = "held-out records" if holdout is not None else \
+        f"blocked cross-validation, {args.folds} folds"
+    summary = summarise(sel, args.structure, how)
+    model = summary.pop("_model")
+    dens = model.term_dens()
+    orders = tuple((len(a), len(b) - 1) for a, b in zip(model.nums, dens, strict=True))
+    return model.nums, dens, orders, summary
+
+
+def selection_lines(summary: dict[str, Any]) -> list[str]:
+    """The lines `compd fit` prints about the choice."""
+    out = [f"  structure {summary['structure']} (validation {summary['validation_fit_percent']:.2f}"
+           f" %, {summary['validation']}; orders: denominator "
+           f"{summary['orders']['denominator_order']}, numerator length "
+           f"{summary['orders']['numerator_length']}; start of each record: "
+           f"{summary['initial_conditions']})"]
+    for c in summary["candidates"]:
+        out.append(f"    {c['structure']:<12} validation {c['validation_fit_percent']:8.2f} %  "
+                   f"fit {c['fit_percent']:6.2f} %  {c['parameters']} parameters "
+                   f"{c.get('detail', '')}".rstrip())
+    out += [f"  {n}" for n in summary["notes"]]
+    return out

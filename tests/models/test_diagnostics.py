@@ -1,0 +1,27 @@
+"""Calibration diagnostics: cancelling terms and a flat verification window."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from models.diagnostics import cancelling_terms, flat_window, input_condition
+
+
+def test_opposite_large_gains_on_correlated_inputs_are_flagged() -> None:
+    rng = np.random.default_rng(0)
+    a = np.cumsum(rng.normal(0.0, 0.05, 2000))
+    b = a + rng.normal(0.0, 0.02, 2000)
+    out = cancelling_terms(["t01", "t02"], [a, b], [-15.5, 23.6], output_span=20.0)
+    assert len(out) == 1 and "'t01' and 't02' cancel" in out[0] and "condition number" in out[0]
+    assert cancelling_terms(["t01", "t02"], [a, b], [5.0, 3.0], output_span=20.0) == []
+    independent = rng.normal(0.0, 1.0, 2000)
+    assert cancelling_terms(["t01", "x"], [a, independent], [-15.5, 23.6], 20.0) == []
+    assert input_condition([a, b]) > 10.0 > input_condition([a, independent])
+
+
+def test_a_flat_window_is_said_and_a_moving_one_is_not() -> None:
+    t = np.linspace(0.0, 1.0, 500)
+    moving = 20.0 * np.sin(6.0 * t)
+    assert flat_window(moving, 0.3 * np.sin(50.0 * t)) is None
+    warning = flat_window(0.5 * t, 0.2 * np.sin(50.0 * t))
+    assert warning is not None and "spans only 0.5 µm" in warning
