@@ -7,6 +7,7 @@ stderr is a terminal and the command was not asked for machine output
 
 from __future__ import annotations
 
+import contextlib
 import sys
 from typing import TextIO
 
@@ -58,3 +59,70 @@ def terminal_progress(label: str, *, quiet: bool = False, total: float = 1.0, un
     except (ValueError, OSError):  # closed
         tty = False
     return Progress(label, out if tty and not quiet else None, total=total, unit=unit)
+
+
+class Status:
+    """``compd fit: identifying the model … 12 s`` on a terminal: the stage
+    of work whose length is not known in advance, with the seconds it has
+    taken so far redrawn each second by a daemon thread; `done()` clears it."""
+
+    def __init__(self, label: str, stream: TextIO | None) -> None:
+        import threading
+
+        self.label = label
+        self.stream = stream
+        self.text = ""
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._started = 0.0
+        self._thread: threading.Thread | None = None
+        if stream is not None:
+            self._thread = threading.Thread(target=self._tick, daemon=True,
+                                            name="compd-progress")
+
+    def stage(self, text: str) -> None:
+        import time
+
+        if self.stream is None:
+            return
+        with self._lock:
+            self.text = text
+            self._started = time.monotonic()
+            self._draw(0)
+        if self._thread is not None and not self._thread.is_alive():
+            self._thread.start()
+
+    def _draw(self, seconds: int) -> None:
+        assert self.stream is not None
+        self.stream.write(f"\r\x1b[K{self.label}: {self.text} … {seconds} s")
+        self.stream.flush()
+
+    def _tick(self) -> None:
+        import time
+
+        while not self._stop.wait(1.0):
+            with self._lock:
+                try:
+                    self._draw(int(time.monotonic() - self._started))
+                except (OSError, ValueError):  # the terminal went away
+                    return
+
+    def done(self) -> None:
+        self._stop.set()
+        if self._thread is not None and self._thread.is_alive():
+            self._thread.join()
+        if self.stream is not None and self.text:
+            with self._lock, contextlib.suppress(OSError, ValueError):
+                self.text = ""  # cleared once
+                self.stream.write("\r\x1b[K")
+                self.stream.flush()
+
+
+def terminal_status(label: str, *, quiet: bool = False, stream: TextIO | None = None) -> Status:
+    """A Status drawing on `stream` (stderr) when it is a terminal and not `quiet`."""
+    out = sys.stderr if stream is None else stream
+    try:
+        tty = out is not None and out.isatty()
+    except (ValueError, OSError):
+        tty = False
+    return Status(label, out if tty and not quiet else None)

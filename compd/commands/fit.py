@@ -437,16 +437,23 @@ def run(args: argparse.Namespace) -> int:
 
     from compd.commands.replay import replay_with_init
     from compd.offline.records import RecordError
+    from compd.progress import terminal_status
     from models.errors import ModelError
     from models.quality import quality
 
+    status = terminal_status("compd fit", quiet=args.json)  # a terminal only
     try:
+        status.stage("reading the records and identifying the model")
         model, info, out, records = fit_model(args)
+        status.stage("replaying the model as the daemon steps it")
         simulated = [replay_with_init(model, r, r.column(args.output), "estimate")
                      for r in records]
     except (RecordError, ModelError) as exc:
+        status.done()
         print(f"compd fit: {exc}", file=sys.stderr)
         return EX_DATAERR
+    finally:
+        status.done()
     measured = [r.column(args.output) for r in records]
     per = [quality(m, s) for m, s in zip(measured, simulated, strict=True)]
     q = per[0] if len(records) == 1 else quality(np.concatenate(measured),
