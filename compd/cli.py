@@ -29,6 +29,8 @@ COMMANDS: dict[str, str] = {
     "replay": "replay",
     "step": "step",
     "health": "health",
+    "export": "export",
+    "schema": "schema",
 }
 
 
@@ -49,15 +51,22 @@ class Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from compd import __version__
+    from compd.examples_help import EXAMPLES
+
     parser = Parser(
         prog="compd", description="Real-time thermal error compensation for CNC machine tools.")
+    parser.add_argument("--version", action="version", version=f"compd {__version__}",
+                        help="print compd's version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, module_name in COMMANDS.items():
         module = _load(module_name)
         if module is None:
             continue
-        text = module.HELP.replace("%", "%%")  # argparse formats help strings with %
-        p = sub.add_parser(name, help=text, description=text)
+        # argparse %-formats help strings but prints description and epilog as they are
+        p = sub.add_parser(name, help=module.HELP.replace("%", "%%"), description=module.HELP,
+                           epilog=EXAMPLES.get(name),
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
         module.add_arguments(p)
         p.set_defaults(_run=module.run)
     return parser

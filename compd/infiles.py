@@ -116,15 +116,24 @@ def read_text(path: str | os.PathLike[str], what: str, max_bytes: int) -> str:
     return decode_text(read_bytes(path, what, max_bytes), path, what)
 
 
-def read_toml(path: str | os.PathLike[str], what: str,
-              max_bytes: int = MAX_CONFIG_BYTES) -> dict[str, object]:
-    """A TOML document; a syntax error is an InputError (65) naming the file."""
-    text = read_text(path, what, max_bytes)
+def read_toml_document(path: str | os.PathLike[str], what: str,
+                       max_bytes: int = MAX_CONFIG_BYTES) -> tuple[bytes, dict[str, object]]:
+    """The file's bytes and its TOML document: the one reading of a config or
+    model file (`compd run` and `compd check` both); not UTF-8 text or a
+    syntax error is an InputError (65) naming the file."""
+    data = read_bytes(path, what, max_bytes)
+    text = decode_text(data, path, what)
     try:
-        return tomllib.loads(text)
+        return data, tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{os.fspath(path)}: the {what} is not valid TOML ({exc})",
                          EX_DATAERR) from None
+
+
+def read_toml(path: str | os.PathLike[str], what: str,
+              max_bytes: int = MAX_CONFIG_BYTES) -> dict[str, object]:
+    """A TOML document; a syntax error is an InputError (65) naming the file."""
+    return read_toml_document(path, what, max_bytes)[1]
 
 
 def load_model(path: str | Path) -> CompensationModel:

@@ -95,48 +95,54 @@ def _fmt(p: list[float]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from compd.errors import ConfigError
-    from compd.infiles import load_model
     from models.errors import ModelError
     from models.sanity import check_model
 
-    path: str = args.path
-    config_checker = _config_checker(path)
-    if config_checker is not None:
-        rc: int = config_checker(args)
+    kind, loaded = _load(args.path)
+    if kind == "config":
+        from compd.commands.check_config import report
+
+        rc: int = report(loaded, args)
         return rc
+    if args.connect:
+        from compd.infiles import InputError
+        from compd.sysexits import EX_USAGE
+
+        raise InputError(f"--connect reads a daemon config's channels; {args.path} is a "
+                         "model", EX_USAGE)
     try:
-        model = load_model(path)
-        check_model(model)  # physically absurd: refused (models.sanity)
+        check_model(loaded)  # physically absurd: refused (models.sanity)
     except ModelError as exc:
         raise ConfigError("", str(exc)) from None
-    report = describe_model(model)
+    report_ = describe_model(loaded)
     if args.json:
-        print(json.dumps({"terms": report["terms"], "model": report["model"],
-                          "period_s": report["period_s"]}))
+        print(json.dumps({"terms": report_["terms"], "model": report_["model"],
+                          "period_s": report_["period_s"]}))
     else:
-        _print_text(report)
+        _print_text(report_)
     return 0
 
 
-def _config_checker(path: str) -> Any:
-    """The daemon-config checker when `path` is a daemon config (has [controller])."""
+def _load(path: str) -> tuple[str, Any]:
+    """("config", LoadedConfig) or ("model", CompensationModel): the file read
+    once by the reader `compd run` uses (`compd.infiles.read_toml_document`);
+    a daemon config is one with [controller] or [machine]."""
+    import os
     from pathlib import Path
 
-    from compd.infiles import InputError, read_toml
+    from compd.config.loader import parse_config
+    from compd.errors import ConfigError
+    from compd.infiles import load_model, read_toml_document
+    from models.errors import ModelError
+    from models.modelfile import library_path, parse_model
 
     p = Path(path)
-    if not p.is_file():
-        return None
     try:
-        doc = read_toml(p, "file")
-    except InputError:
-        return None  # the model reader says what is wrong with it
-    if "controller" not in doc and "machine" not in doc:
-        return None
-    import importlib
-
-    try:
-        module = importlib.import_module("compd.commands.check_config")
-    except ModuleNotFoundError:
-        return None
-    return module.run
+        if path and not os.path.lexists(p) and p.suffix == "" and library_path(path):
+            return "model", load_model(path)
+        text, doc = read_toml_document(p, "model or config file")
+        if "controller" in doc or "machine" in doc:
+            return "config", parse_config(doc, p.resolve(), text)
+        return "model", parse_model(doc)
+    except ModelError as exc:
+        raise ConfigError("", str(exc)) from None

@@ -63,7 +63,11 @@ async def _read_once(cfg: LoadedConfig) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     from compd.config.loader import load_config
 
-    cfg = load_config(args.path)
+    return report(load_config(args.path), args)
+
+
+def report(cfg: LoadedConfig, args: argparse.Namespace) -> int:
+    """Print what `compd check` says of a loaded config (and read it with --connect)."""
     report = _summary(cfg)
     rc = 0
     if getattr(args, "connect", False):

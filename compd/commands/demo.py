@@ -24,8 +24,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="model file or bundled name (default: sim_machine, calibrated "
                              "on the simulated machine)")
     parser.add_argument("--program", choices=["spectrum", "constant", "etve"],
-                        default="spectrum")
-    parser.add_argument("--seed", type=seed, default=7)
+                        default="spectrum",
+                        help="spindle-speed program the machine runs (default spectrum)")
+    parser.add_argument("--seed", type=seed, default=7,
+                        help="random seed of the program and the sensor noise (default 7)")
     parser.add_argument("--plot", metavar="PNG", help="draw growth, offset and error")
     parser.add_argument("--force", action="store_true", help="replace an existing --plot file")
     parser.add_argument("--json", action="store_true",
@@ -49,8 +51,15 @@ def run(args: argparse.Namespace) -> int:
 
     print(f"compd demo: {args.hours:g} h of the {args.program} program on a simulated "
           f"{args.protocol} controller, about {args.seconds:g} s", flush=True)
-    result = asyncio.run(run_demo(args.protocol, hours=args.hours, wall_s=args.seconds,
-                                  model=args.model, seed=args.seed, program=args.program))
+    from compd.progress import terminal_progress
+
+    bar = terminal_progress("machine time", quiet=args.json, total=args.hours, unit="h")
+    try:
+        result = asyncio.run(run_demo(args.protocol, hours=args.hours, wall_s=args.seconds,
+                                      model=args.model, seed=args.seed, program=args.program,
+                                      progress=bar.update if bar.active else None))
+    finally:
+        bar.done()
     unc, comp = result.uncompensated_range_um, result.compensated_range_um
     print(f"Z error at the tool without compensation: range {unc:7.2f} µm")
     print(f"Z error at the tool with compensation:    range {comp:7.2f} µm")

@@ -49,6 +49,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from compd import __version__
 from compd.argtypes import number
 from compd.sysexits import EX_DATAERR
 
@@ -113,7 +114,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "speed/power columns enter absolute, temperatures relative")
     parser.add_argument("--max-terms", type=int, default=3, metavar="N",
                         help="at most N inputs chosen with --candidates (default 3)")
-    parser.add_argument("--kind", choices=("tf", "greybox", "mbotv"), default="tf")
+    parser.add_argument("--kind", choices=("tf", "greybox", "mbotv"), default="tf",
+                        help="model structure: tf transfer functions (ARX + output error), "
+                             "greybox first-order ODEs, mbotv (default tf)")
     parser.add_argument("--structure", choices=STRUCTURE_CHOICES, default="auto",
                         help="tf structure: auto (default: chosen by blocked cross-validation "
                              "among arx, shared-oe, ridge, per-term-oe), one of those, or "
@@ -295,6 +298,7 @@ def _provenance(args: argparse.Namespace, records: list[Record],
                 info: list[dict[str, Any]]) -> dict[str, Any]:
     prov: dict[str, Any] = {
         "tool": "compd fit",
+        "compd_version": __version__,
         "command_line": shlex.join(["compd", *sys.argv[1:]]) if sys.argv[1:2] == ["fit"]
         else "compd fit " + shlex.join([*args.data, "--output", args.output]),
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
@@ -433,16 +437,23 @@ def run(args: argparse.Namespace) -> int:
 
     from compd.commands.replay import replay_with_init
     from compd.offline.records import RecordError
+    from compd.progress import terminal_status
     from models.errors import ModelError
     from models.quality import quality
 
+    status = terminal_status("compd fit", quiet=args.json)  # a terminal only
     try:
+        status.stage("reading the records and identifying the model")
         model, info, out, records = fit_model(args)
+        status.stage("replaying the model as the daemon steps it")
         simulated = [replay_with_init(model, r, r.column(args.output), "estimate")
                      for r in records]
     except (RecordError, ModelError) as exc:
+        status.done()
         print(f"compd fit: {exc}", file=sys.stderr)
         return EX_DATAERR
+    finally:
+        status.done()
     measured = [r.column(args.output) for r in records]
     per = [quality(m, s) for m, s in zip(measured, simulated, strict=True)]
     q = per[0] if len(records) == 1 else quality(np.concatenate(measured),

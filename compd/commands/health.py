@@ -36,12 +36,11 @@ from pathlib import Path
 from compd.config.urls import redact_urls
 from compd.core.faults import GAUGE_ALARM
 from compd.runtime.liveness import last_complete_age_s
+from compd.sysexits import EX_USAGE
 
 HELP = "exit 0 when the running daemon is healthy (metrics endpoint or fresh state), else 1"
 
 DEFAULT_STATE_DIR = Path("/var/lib/compd")
-#: sysexits EX_USAGE: a bad argument
-EX_USAGE = 64
 #: a health check waits at most this long for the endpoint, and an age beyond a week is a typo
 MAX_TIMEOUT_S = 300.0
 MAX_AGE_LIMIT_S = 7 * 86400.0

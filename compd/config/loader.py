@@ -15,17 +15,17 @@ import hashlib
 import json
 import math
 import os
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX, check_outputs
 from compd.config.schema import ControllerSection, DaemonConfig, SecuritySection
+from compd.config.suggest import errors_of
 from compd.errors import ConfigError
-from compd.infiles import MAX_CONFIG_BYTES, InputError, load_model, read_bytes
+from compd.infiles import MAX_CONFIG_BYTES, InputError, load_model, read_toml_document
 from drivers.addresses import Address
 from drivers.protocols import PROTOCOLS
 from models.compensation import CompensationModel
@@ -88,15 +88,21 @@ def _reason(err: Any) -> str:
     return msg
 
 
-def config_error(exc: ValidationError, prefix: str = "") -> ConfigError:
-    """The first pydantic error as a ConfigError with its dotted key path.
-    Tagged-union branch names (model class names) are dropped from the path."""
-    err = exc.errors(include_url=False)[0]
-    loc = tuple(p for p in err["loc"] if not (isinstance(p, str) and p[:1].isupper()))
-    key = _loc(loc)
+def config_error(exc: ValidationError, prefix: str = "",
+                 root: type[BaseModel] | None = None) -> ConfigError:
+    """Every pydantic error as one ConfigError, each with its dotted key path
+    ("did you mean" for an unknown key when `root`, the validated model, is
+    given); `key` and `reason` are the first error's. Tagged-union branch
+    names (model class names) are dropped from the paths."""
+    found = [(_loc(loc), why) for loc, why in errors_of(exc, root, _reason)]
     if prefix:
-        key = f"{prefix}.{key}" if key else prefix
-    return ConfigError(key, _reason(err))
+        found = [(f"{prefix}.{k}" if k else prefix, why) for k, why in found]
+    if len(found) == 1:
+        return ConfigError(*found[0])
+    error = ConfigError("", f"{len(found)} mistakes: " + "; ".join(
+        f"{k}: {why}" if k else why for k, why in found))
+    error.key, error.reason = found[0]
+    return error
 
 
 def _validate_address(protocol: str, doc: dict[str, Any], key: str) -> Address:
@@ -199,7 +205,7 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
     try:
         raw = DaemonConfig.model_validate(doc)
     except ValidationError as exc:
-        raise config_error(exc) from None
+        raise config_error(exc, root=DaemonConfig) from None
     base = path.parent
     machine, ctl = raw.machine, raw.controller
     limit_s = 0.5 * machine.period_s / machine.time_scale
@@ -270,15 +276,9 @@ def load_config(path: str | Path) -> LoadedConfig:
     """Read and validate a daemon config file; raises ConfigError."""
     p = Path(path)
     try:
-        text = read_bytes(p, "config file", MAX_CONFIG_BYTES)
+        text, doc = read_toml_document(p, "config file", MAX_CONFIG_BYTES)
     except InputError as exc:
         raise ConfigError("", str(exc)) from None
-    try:
-        doc = tomllib.loads(text.decode("utf-8"))
-    except UnicodeDecodeError:
-        raise ConfigError("", f"{p}: not UTF-8 text") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError("", f"{p}: not valid TOML ({exc})") from None
     return parse_config(doc, p.resolve(), text)
 
 

@@ -22,6 +22,7 @@ import signal
 import socket
 import sys
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -175,10 +176,18 @@ async def start_daemon(config_path: Path, log_path: Path,
         sock.close()
 
 
+async def _report(machine: SimMachine, progress: Callable[[float], None]) -> None:
+    while True:
+        progress(machine.plant.time_s / 3600.0)
+        await asyncio.sleep(0.5)
+
+
 async def run_demo(protocol: str = "opcua", *, hours: float = 8.0, wall_s: float = 60.0,
                    model: str = "sim_machine", seed: int = 7, program: str = "spectrum",
-                   workdir: Path | None = None) -> DemoResult:
-    """Serve the simulated machine, run `compd run` against it, return the figures."""
+                   workdir: Path | None = None,
+                   progress: Callable[[float], None] | None = None) -> DemoResult:
+    """Serve the simulated machine, run `compd run` against it, return the figures.
+    `progress`, when given, hears the machine hours done about twice a second."""
     from drivers.sim.programs import make_program
     from drivers.sim.registry import make_sim_controller
 
@@ -199,9 +208,15 @@ async def run_demo(protocol: str = "opcua", *, hours: float = 8.0, wall_s: float
             config_path.write_text(tomltext.dumps(doc), encoding="utf-8")
             daemon = await start_daemon_at_rest(machine, config_path, work / "daemon.log",
                                                 work / "notify")
+            watch = asyncio.create_task(_report(machine, progress)) if progress else None
             try:
                 await machine.run(until_s=hours * 3600.0)
+                if progress is not None:
+                    progress(machine.plant.time_s / 3600.0)
             finally:
+                if watch is not None:
+                    watch.cancel()
+                    await asyncio.gather(watch, return_exceptions=True)
                 if daemon.returncode is None:
                     daemon.send_signal(signal.SIGTERM)
                 try:

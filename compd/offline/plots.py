@@ -17,6 +17,8 @@ mpl.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 import numpy.typing as npt
+from matplotlib.axes import Axes
+from matplotlib.text import Text
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -29,7 +31,9 @@ def replay_figure(path: str | Path, time_s: FloatArray, inputs: Mapping[str, Flo
                   measured: FloatArray, simulated: FloatArray, *, title: str,
                   fit_pct: float, dpk_um: float,
                   labels: tuple[str, str, str] = ("measured δZ", "simulated (model)",
-                                                  "residue (after compensation)")) -> None:
+                                                  "residue (after compensation)")
+                  ) -> tuple[list[str], list[str]]:
+    """Draw the figure; return the legends' entries (upper, lower) as drawn."""
     hours = np.asarray(time_s) / 3600.0
     fig, (top, bottom) = plt.subplots(2, 1, sharex=True, figsize=(10, 7),
                                       gridspec_kw={"height_ratios": [2, 3]})
@@ -39,16 +43,17 @@ def replay_figure(path: str | Path, time_s: FloatArray, inputs: Mapping[str, Flo
         top.plot(hours, values, lw=1.0, label=f"{name} (°C)")
     top.set_ylabel("temperature (°C)")
     top.grid(True, alpha=0.3)
-    handles, labels = top.get_legend_handles_labels()
+    # the inputs' legend has names of its own: `labels` stays the lower panel's
+    handles, names = top.get_legend_handles_labels()
     if speeds:
         right = top.twinx()
         for name, values in speeds.items():
             right.plot(hours, values, lw=0.8, color="0.55", ls="--", label=f"{name} (rpm)")
         right.set_ylabel("spindle speed (rpm)")
         h2, l2 = right.get_legend_handles_labels()
-        handles, labels = handles + h2, labels + l2
+        handles, names = handles + h2, names + l2
     if handles:
-        top.legend(handles, labels, loc="upper right", fontsize="small", ncol=2)
+        top.legend(handles, names, loc="upper right", fontsize="small", ncol=2)
     top.set_title("inputs")
     residue = np.asarray(measured) - np.asarray(simulated)
     bottom.plot(hours, measured, lw=0.8, color="tab:blue", label=labels[0])
@@ -65,6 +70,13 @@ def replay_figure(path: str | Path, time_s: FloatArray, inputs: Mapping[str, Flo
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+    return [t.get_text() for t in legend_texts(top)], [t.get_text() for t in
+                                                       legend_texts(bottom)]
+
+
+def legend_texts(ax: Axes) -> list[Text]:
+    legend = ax.get_legend()
+    return list(legend.get_texts()) if legend is not None else []
 
 
 def step_figure(path: str | Path, time_s: FloatArray, responses: Mapping[str, FloatArray],

@@ -220,9 +220,64 @@ def read_recorder_record(path: str | Path) -> Record:
                               f"recorded ({bad.size} such sample(s); a missing sample is not "
                               "filled in; cut the record or repair it)")
         columns[name] = col
-    period_s = check_sampling(t, where)
-    return Record(path=where, sha256=file_sha256(p), time_s=t - t[0], period_s=period_s,
+    time_s, period_s = recorder_time(t, np.asarray(cols["cycle"], dtype=np.int64), where)
+    columns = {name: col[:time_s.size] for name, col in columns.items()}
+    return Record(path=where, sha256=file_sha256(p), time_s=time_s, period_s=period_s,
                   columns=columns)
+
+
+def recorder_time(mono_s: FloatArray, cycle: npt.NDArray[np.int64],
+                  where: str) -> tuple[FloatArray, float]:
+    """The recorder's sample times and period, judged on its cycle numbering.
+
+    A recorder holds one row per cycle, stamped with the machine time the
+    cycle started (`mono_s`). At a `time_scale` of 50 a millisecond's lateness
+    of the event loop is 50 ms of machine time, so the CSV rule (every
+    interval within 10 % of the period) refused the daemon's own record. Here
+    the cycle numbers must run on by one (a restart or a lost row is refused
+    like a backwards timestamp or a gap), the period is the machine time over
+    the cycles (least squares), and no row may lie half a period off its
+    cycle's time (a missed deadline). The times are then exactly cycle ×
+    period. A last row taken early is the stop request's cycle, off the grid:
+    it is left out (the other columns are cut to match by the caller)."""
+    dt = np.diff(mono_s)
+    back = np.flatnonzero(dt <= 0.0)
+    if cycle.size == 0 or np.any(cycle < 0) or back.size:  # no numbering, or a restart
+        return mono_s - mono_s[0], check_sampling(mono_s, where)
+    if dt.size > 2 and dt[-1] < 0.5 * float(np.median(dt)):
+        # a stop request runs the last cycle at once, off the sampling grid: not a sample
+        # of the record (the rows before it are)
+        mono_s, cycle = mono_s[:-1], cycle[:-1]
+    step = np.diff(cycle)
+    bad = np.flatnonzero(step != 1)
+    if bad.size:
+        i = int(bad[0])
+        kind = "cycle numbers go backwards (a restart)" if step[i] <= 0 else \
+            f"{int(step[i]) - 1} cycle(s) missing (a gap)"
+        raise RecordError(f"{where}: row {i + 3}: {kind}: cycle {int(cycle[i + 1])} after "
+                          f"{int(cycle[i])}; {bad.size} such row(s) in all; split the record "
+                          "there")
+    k = (cycle - cycle[0]).astype(np.float64)
+    y = mono_s - mono_s[0]
+    period = float(np.dot(k, y) / np.dot(k, k))  # least squares over every row
+    late = np.flatnonzero(np.abs(y - period * k) > 0.5 * period)
+    if late.size:
+        i = int(late[0])
+        raise RecordError(f"{where}: row {i + 2}: cycle {int(cycle[i])} ran at machine time "
+                          f"{mono_s[i] - mono_s[0]:g} s, not near {period * k[i]:g} s (a missed "
+                          f"deadline; {late.size} such row(s) in all); split the record there")
+    period = _nice_period(period)
+    return period * k, period
+
+
+def _nice_period(period: float) -> float:
+    """The config's period behind an estimate: 1.0000213 s over the cycles is
+    1 s (the fewest significant digits within 0.5 %), or the estimate as it is."""
+    for digits in range(1, 7):
+        nice = float(f"{period:.{digits}g}")
+        if abs(nice - period) <= 5e-3 * period:
+            return nice
+    return round(period, 9)
 
 
 def _parse_float(cell: str, where: str, line_no: int, column: str) -> float:

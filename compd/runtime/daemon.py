@@ -37,6 +37,7 @@ from typing import Any
 
 import structlog
 
+from compd import __version__
 from compd.config.loader import LoadedConfig
 from compd.core.cycle import Cycle, CycleResult, params_from_config
 from compd.core.faults import Event
@@ -132,7 +133,7 @@ class Daemon:
             startup = start_cycle(cfg, self.params)
             self.cycle = startup.cycle
             self._log_events(startup.events)
-            self.log.info("daemon_starting", machine=cfg.raw.machine.name,
+            self.log.info("daemon_starting", version=__version__, machine=cfg.raw.machine.name,
                           protocol=cfg.raw.controller.protocol,
                           endpoint=cfg.raw.controller.endpoint, model=cfg.model.name,
                           shadow=cfg.shadow.name if cfg.shadow else None,

@@ -4,12 +4,13 @@
 
 ``time_s`` machine time (s); temperatures in °C as the controller shows them
 (0.1 K); ``power_kw`` drive power; ``dz_um`` the Z growth a probe measured (µm).
-This is what `compd sim --record` writes and what `compd fit` reads.
+This is what `compd sim --record` writes and what `compd fit` reads. The
+simulator only writes records: they are read (and checked: sampling, cells,
+units) by the one reader, `compd.offline.records`.
 """
 
 from __future__ import annotations
 
-import csv
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -47,16 +48,3 @@ def write_record(path: str | os.PathLike[str], columns: Mapping[str, np.ndarray]
             n += 1
     os.replace(tmp, target)
     return n
-
-
-def read_record(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
-    """Read a calibration record back as float64 columns keyed by header name."""
-    with Path(path).open(encoding="ascii", newline="") as f:
-        reader = csv.reader(f)
-        header = next(reader, None)
-        if header is None:
-            raise ValueError(f"{path}: empty file")
-        data = np.array([[float(v) for v in row] for row in reader if row], dtype=np.float64)
-    if data.size == 0:
-        data = data.reshape(0, len(header))
-    return {name: data[:, i].copy() for i, name in enumerate(header)}

@@ -30,7 +30,7 @@ from compd.sysexits import EXIT_CODES
 #: ids stay the same in every process, as pytest-xdist needs)
 ROOT = Path("@")
 FILES = ("empty", "garbage", "latin1", "nul", "devzero", "fifo", "dir", "loop", "huge",
-         "missing", "bom_only", "toml_junk")
+         "missing", "bom_only", "toml_junk", "latin1_config")
 NUMBERS = ("nan", "inf", "-inf", "-1", "0", "-0.0", "1e308", "1e-9", "1e9", "1e999", "abc",
            "", "0x10")
 TARGETS = ("dir", "missing_dir", "empty_name", "fifo", "dev_full", "slash", "loop", "proc_new",
@@ -56,6 +56,8 @@ def _make_files(root: Path) -> None:
     (root / "latin1").write_bytes("[model]\nname = \"ré\"\ntime_s,x\n1,2\n".encode("latin-1"))
     (root / "nul").write_bytes(b"time_s,dz_um\n\x00\x00,1\n" * 3)
     (root / "bom_only").write_bytes(b"\xef\xbb\xbf")
+    (root / "latin1_config").write_bytes('[machine]\nname = "Süd"\n[controller]\n'.encode(
+        "latin-1"))
     (root / "toml_junk").write_text("[model\nperiod_s = = 1\n[[terms]]\n", encoding="utf-8")
     if not (root / "fifo").exists():
         os.mkfifo(root / "fifo")
@@ -92,7 +94,8 @@ def _cases() -> list[list[str]]:
                 ["fit", p, "--output", "dz_um", "--term", "bearing"],
                 [*fit, "--validation-record", p], [*fit, "--fixed", f"{p}:spindle"],
                 ["sim", "--drive", "modbus://127.0.0.1:1", "--map", p],
-                ["health", "--state-dir", p, "--max-age-s", "1"]]
+                ["health", "--state-dir", p, "--max-age-s", "1"],
+                ["export", p], ["export", p, "-o", str(ROOT / "x.parquet")]]
     for n in NUMBERS:
         out += [["step", "sp2", "--hours", n], [*fit, "--validation", n],
                 [*fit, "--max-time-constant-days", n],
@@ -120,6 +123,7 @@ def _cases() -> list[list[str]]:
     for t in TARGETS:
         p = _target(t)
         out += [[*fit, "-o", p], [*fit, "-o", p, "--force"], ["fit", p, "--output", "x"],
+                ["export", rec, "-o", p], ["export", rec, "-o", p, "--format", "parquet"],
                 ["sim", "--record", p, "--hours", "0.01"],
                 ["sim", "--record", p, "--hours", "0.01", "--force"],
                 ["replay", "sp2", rec, "--output", "dz_um", "--plot", p, "--force"],

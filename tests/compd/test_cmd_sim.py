@@ -18,8 +18,9 @@ from compd.cli import main
 from drivers.addresses import ADDRESS_TYPES, Address
 from drivers.factory import DRIVERS, open_driver
 from drivers.sim import CHANNELS, OUTPUTS
-from drivers.sim.csvlog import RECORD_COLUMNS, read_record
+from drivers.sim.csvlog import RECORD_COLUMNS
 from drivers.sim.registry import SIM_CONTROLLERS
+from tests.record_columns import read_columns as read_record
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -19,10 +19,10 @@ import pytest
 from compd.cli import main
 from compd.config.loader import load_config
 from drivers.modbus_codec import decode
-from drivers.sim.csvlog import read_record
 from drivers.sim.drive import RECORD_FIELDS
 from drivers.sim.drive_map import load_drive_map
 from drivers.sim.registry import make_sim_controller
+from tests.record_columns import read_columns as read_record
 
 REPO = Path(__file__).resolve().parents[2]
 HIL = REPO / "deploy" / "hil"

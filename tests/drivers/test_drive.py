@@ -17,7 +17,6 @@ from drivers.backoff import Backoff
 from drivers.base import Driver
 from drivers.errors import WriteRejected
 from drivers.factory import open_driver
-from drivers.sim.csvlog import read_record
 from drivers.sim.drive import (
     DRIVE_COLUMNS,
     RECORD_FIELDS,
@@ -29,6 +28,7 @@ from drivers.sim.drive import (
 from drivers.sim.drive_map import DriveMap, DriveMapError, load_drive_map, parse_drive_map
 from drivers.sim.programs import constant
 from drivers.sim.registry import make_sim_controller
+from tests.record_columns import read_columns as read_record
 
 REPO = Path(__file__).resolve().parents[2]
 MAPS = REPO / "deploy" / "hil" / "maps"

@@ -7,9 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.sim.csvlog import RECORD_COLUMNS, read_record, write_record
+from drivers.sim.csvlog import RECORD_COLUMNS, write_record
 from drivers.sim.offline import record_program, simulate
 from drivers.sim.programs import constant, make_program
+from tests.record_columns import read_columns as read_record
 
 HEADER = "time_s,speed_rpm,bearing,motor,column,table,ambient,power_kw,dz_um"
 

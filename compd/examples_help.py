@@ -1,0 +1,55 @@
+"""The examples section (argparse epilog) of each `compd` command's --help.
+
+Kept apart from the command modules so that each stays about what it does;
+`compd.cli` attaches one block per subcommand, and a test fails when a
+command has none.
+"""
+
+from __future__ import annotations
+
+EXAMPLES: dict[str, str] = {
+    "run": """\
+examples:
+  compd run /etc/compd/compd.toml             the daemon (systemd Type=notify)
+  compd run compd.toml --dry-run --once       read, step and log one cycle, write nothing""",
+    "check": """\
+examples:
+  compd check sp2                             a bundled model: poles, DC gain, sensitivity
+  compd check plant.toml --json               a model file as one JSON object
+  compd check /etc/compd/compd.toml --connect a config, then read each channel once""",
+    "demo": """\
+examples:
+  compd demo                                  8 h of the spectrum program over OPC UA, ~1 min
+  compd demo --protocol modbus --plot demo.png
+  compd demo --json --seconds 20              the figures as JSON, a faster run""",
+    "sim": """\
+examples:
+  compd sim --protocol opcua                  serve a simulated machine on 127.0.0.1
+  compd sim --record etve.csv --program etve --period-s 60 --seed 1
+  compd sim --drive modbus://plc:502 --map map.toml   the plant as a client (HIL)""",
+    "fit": """\
+examples:
+  compd fit constant.csv etve.csv --output dz_um --term bearing --term ambient -o plant.toml
+  compd fit day.csv --output dz_um --term bearing --kind greybox -o gb.toml""",
+    "replay": """\
+examples:
+  compd replay plant.toml spectrum.csv --output dz_um --plot replay.png
+  compd replay sp2 /var/lib/compd/samples.sqlite --output dz_um --json""",
+    "step": """\
+examples:
+  compd step sp2                              final value of each term's unit step
+  compd step plant.toml --plot step.png""",
+    "health": """\
+examples:
+  compd health                                exit 0 when the daemon on this host is healthy
+  compd health --url http://127.0.0.1:9108/metrics --timeout-s 2""",
+    "export": """\
+examples:
+  compd export /var/lib/compd/samples.sqlite -o day.csv --since 2026-11-23T06:00 \\
+      --until 2026-11-23T18:00
+  compd export samples.sqlite -o week.parquet --format parquet   (pip install 'compd[parquet]')""",
+    "schema": """\
+examples:
+  compd schema > compd.schema.json            the config's JSON Schema, for editors
+  (Even Better TOML / Taplo: put  #:schema ./compd.schema.json  on the config's first line)""",
+}
