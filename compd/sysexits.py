@@ -19,6 +19,7 @@ EX_IOERR = 74
 EX_TEMPFAIL = 75
 EX_CONFIG = 78
 
-#: every code a compd command may end with on bad input (the CLI fuzzer's list)
-EXIT_CODES = frozenset({EX_OK, EX_USAGE, EX_DATAERR, EX_NOINPUT, EX_UNAVAILABLE, EX_CANTCREAT,
-                        EX_IOERR, EX_TEMPFAIL, EX_CONFIG})
+#: every code a compd command may end with on bad input (the CLI fuzzer's list);
+#: EX_UNAVAILABLE is not among them: it answers a missing library, never an input
+EXIT_CODES = frozenset({EX_OK, EX_USAGE, EX_DATAERR, EX_NOINPUT, EX_CANTCREAT, EX_IOERR,
+                        EX_TEMPFAIL, EX_CONFIG})
