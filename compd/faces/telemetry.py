@@ -8,7 +8,14 @@ go in keys. No secret reaches a log line: values of keys that name a secret
 registered with `register_secret` (the controller password the daemon
 loaded) is replaced by ``***`` wherever it appears in any value, exception
 text included. Records of the standard `logging` module (the protocol
-libraries log there) go through the same chain.
+libraries log there) go through the same chain; those libraries log at
+WARNING and above by default (pymodbus CRITICAL), `[telemetry]
+library_log_level` otherwise.
+
+Under systemd (``$JOURNAL_STREAM`` names the device:inode of our stderr) each
+line starts with the sd-daemon priority prefix (``<4>`` warning, ``<3>``
+error, ...), so that journald files it at its level and ``journalctl -p
+warning`` shows compd's warnings.
 
 Metrics (prometheus-client): one `Metrics` per daemon with its own registry,
 served over HTTP by `Metrics.start_http` (127.0.0.1 by default).
@@ -18,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import re
 import sys
 import threading
@@ -126,20 +134,63 @@ class LogStream:
             return False
 
 
-#: The least level the protocol libraries log at (whatever the daemon's level).
+#: The least level the protocol libraries log at (whatever the daemon's level),
+#: unless `[telemetry] library_log_level` says otherwise.
 LIBRARY_LOG_FLOOR = {"asyncua": logging.WARNING, "snap7": logging.WARNING,
                      "pymodbus": logging.CRITICAL}
 
+#: sd-daemon(3) priority prefixes by structlog level name
+SD_PRIORITY = {"critical": 2, "exception": 3, "error": 3, "warning": 4, "warn": 4,
+               "notice": 5, "info": 6, "debug": 7}
+
+
+def is_journal_stream(stream: TextIO, env: Mapping[str, str] | None = None) -> bool:
+    """True when `stream` is the journal's stream socket: $JOURNAL_STREAM
+    ("device:inode", set by systemd) matches the stream's file."""
+    value = (os.environ if env is None else env).get("JOURNAL_STREAM", "")
+    dev, _, ino = value.partition(":")
+    if not (dev.isdigit() and ino.isdigit()):
+        return False
+    try:
+        st = os.fstat(stream.fileno())
+    except (OSError, ValueError, AttributeError):  # closed, or not a file (io.StringIO)
+        return False
+    return (st.st_dev, st.st_ino) == (int(dev), int(ino))
+
+
+def _with_priority(renderer: Processor) -> Processor:
+    """`renderer`, each line prefixed with its sd-daemon ``<N>`` priority."""
+    def render(logger: WrappedLogger, name: str, event_dict: EventDict) -> Any:
+        level = str(event_dict.get("level", name)).lower()
+        line = renderer(logger, name, event_dict)
+        prefix = f"<{SD_PRIORITY.get(level, 6)}>"
+        return prefix.encode() + line if isinstance(line, bytes) else prefix + str(line)
+    return render
+
+
+def library_floors(level: str = "default") -> dict[str, int]:
+    """The least level of each protocol library's logger (`library_log_level`)."""
+    if level == "default":
+        return dict(LIBRARY_LOG_FLOOR)
+    levelno = logging.getLevelNamesMapping()[level.upper()]
+    return dict.fromkeys(LIBRARY_LOG_FLOOR, levelno)
+
 
 def configure_logging(json: bool | None = None, level: str = "info", *,
-                      stream: TextIO | None = None) -> None:
+                      stream: TextIO | None = None, library_level: str = "default",
+                      journal: bool | None = None) -> None:
     """Set up structlog (and the stdlib root logger) for the daemon.
 
     `json`: True JSON lines, False key=value, None decide by ``stream.isatty()``.
     `level`: debug, info, warning, error or critical. `stream`: where lines go,
-    sys.stderr (looked up at call time) by default.
+    sys.stderr (looked up at call time) by default. `library_level`: see
+    `library_floors`. `journal`: prefix the sd-daemon priority; None: when
+    `is_journal_stream(stream)`.
     """
-    out = LogStream(stream if stream is not None else sys.stderr)
+    target = stream if stream is not None else sys.stderr
+    out = LogStream(target)
+    if journal is None:
+        journal = is_journal_stream(target)
     levelno = logging.getLevelNamesMapping().get(level.upper())
     if levelno is None:
         raise ValueError(f"unknown log level {level!r}")
@@ -157,6 +208,8 @@ def configure_logging(json: bool | None = None, level: str = "info", *,
         renderer = structlog.processors.JSONRenderer(sort_keys=False)
     else:
         renderer = structlog.dev.ConsoleRenderer(colors=False)
+    if journal:
+        renderer = _with_priority(renderer)
     structlog.configure(
         processors=[*shared, renderer],
         wrapper_class=structlog.make_filtering_bound_logger(levelno),
@@ -178,8 +231,9 @@ def configure_logging(json: bool | None = None, level: str = "info", *,
     # the libraries report what our drivers report again (a failed request is one
     # read_failed/write_failed line of ours): their INFO is noise (asyncua dumps 6 KB of
     # endpoints on every connect) and pymodbus logs each failed frame as an ERROR hex dump
-    for name, floor in LIBRARY_LOG_FLOOR.items():
-        logging.getLogger(name).setLevel(max(levelno, floor))
+    for name, floor in library_floors(library_level).items():
+        logging.getLogger(name).setLevel(max(levelno, floor) if library_level == "default"
+                                         else floor)
 
 
 class Metrics:
