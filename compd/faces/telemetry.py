@@ -18,11 +18,20 @@ error, ...), so that journald files it at its level and ``journalctl -p
 warning`` shows compd's warnings.
 
 Metrics (prometheus-client): one `Metrics` per daemon with its own registry,
-served over HTTP by `Metrics.start_http` (127.0.0.1 by default).
+served over HTTP by `Metrics.start_http` (``[telemetry] metrics_host``,
+127.0.0.1 by default). Names follow Prometheus' naming practice: base units
+(seconds, degrees Celsius), one unit per metric, ``_total`` counters, an info
+metric. The one exception, chosen and documented (docs/operation.md §10): the
+offset is in micrometres (``compd_offset_micrometres``), the unit the
+machine, the model and every log line use; 1.2e-05 metres would say less.
+Labelled counters are created at zero for every configured channel and
+output (`Metrics.configure`), so that ``rate()`` and ``increase()`` see the
+first error.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
@@ -35,7 +44,7 @@ from typing import Any, TextIO, cast
 from wsgiref.simple_server import WSGIServer
 
 import structlog
-from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, Info
 from prometheus_client.exposition import start_http_server
 from structlog.typing import EventDict, Processor, WrappedLogger
 
@@ -252,9 +261,19 @@ class Metrics:
                                    ["channel"], registry=r)
         self.write_errors = Counter("compd_write_errors", "Failed writes to the controller",
                                     ["output"], registry=r)
-        self.offset_um = Gauge("compd_offset_um", "Offset last written (µm)", registry=r)
-        self.channel_value = Gauge("compd_channel_value", "Last value read per channel",
-                                   ["channel"], registry=r)
+        self.offset_um = Gauge("compd_offset_micrometres",
+                               "Offset last written, in micrometres", registry=r)
+        self.channel_temperature = Gauge(
+            "compd_channel_temperature_celsius",
+            "Last value read per temperature channel, in degrees Celsius", ["channel"],
+            registry=r)
+        self.channel_value = Gauge(
+            "compd_channel_value", "Last value read per channel that is not a temperature, "
+            "in the channel's configured unit (the unit label)", ["channel", "unit"],
+            registry=r)
+        self._channel_units: dict[str, str] = {}
+        self.build_info = Info("compd_build", "compd's version and the sha256 of the model "
+                               "and config it runs", registry=r)
         self.fault_state = Gauge("compd_fault_state",
                                  "Fault state: 0 ok, 1 hold or not yet compensating, 2 ramp, "
                                  "3 alarm/stopped", registry=r)
@@ -263,8 +282,10 @@ class Metrics:
         self.recorder_alarm = Gauge("compd_recorder_alarm",
                                     "1 while the recorder cannot store samples (disk full, "
                                     "I/O error)", registry=r)
-        self.cert_expiry_days = Gauge("compd_cert_expiry_days",
-                                      "Days until the client certificate expires", registry=r)
+        self.certificate_expiry = Gauge(
+            "compd_certificate_expiry_timestamp_seconds",
+            "When the OPC UA certificate expires (s since the epoch); only where one is "
+            "configured", ["role"], registry=r)
         self.cycles_complete = Counter(
             "compd_cycles_complete", "Complete cycles: inputs read and valid, model stepped, "
             "offset write confirmed by the controller", registry=r)
@@ -279,6 +300,39 @@ class Metrics:
         self.last_complete_age.set_function(self._age_s)
         self._server: WSGIServer | None = None
         self._thread: threading.Thread | None = None
+
+    def configure(self, channels: Mapping[str, str], outputs: list[str], *, version: str,
+                  model_sha256: str, config_sha256: str) -> None:
+        """The configured channels (name -> unit) and outputs: their error counters
+        exist at zero from the start; the build info names what runs. Called again
+        on a reload (series of channels no longer configured are removed)."""
+        for name, unit in self._channel_units.items():
+            if name not in channels or channels[name] != unit:
+                self._remove(self.channel_temperature, name)
+                self._remove(self.channel_value, name, unit)
+        self._channel_units = dict(channels)
+        for name in channels:
+            self.read_errors.labels(channel=name)
+        self.read_errors.labels(channel="*")
+        for name in outputs:
+            self.write_errors.labels(output=name)
+        self.build_info.info({"version": version, "model_sha256": model_sha256,
+                              "config_sha256": config_sha256})
+
+    @staticmethod
+    def _remove(metric: Gauge, *labels: str) -> None:
+        with contextlib.suppress(KeyError):
+            metric.remove(*labels)
+
+    def channel(self, name: str, value: float) -> None:
+        """The last value of channel `name` (degC and K to °C; others as read)."""
+        unit = self._channel_units.get(name, "")
+        if unit == "degC":
+            self.channel_temperature.labels(channel=name).set(value)
+        elif unit == "K":
+            self.channel_temperature.labels(channel=name).set(value - 273.15)
+        else:
+            self.channel_value.labels(channel=name, unit=unit).set(value)
 
     def _age_s(self) -> float:
         last = self._last_complete_mono

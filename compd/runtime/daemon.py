@@ -167,6 +167,7 @@ class Daemon:
                           dry_run=self.dry_run)
             self._check_certificates()
             self._open_recorder()
+            self._configure_metrics()
             self._start_metrics()
             driver = self._driver
             if driver is None:
@@ -187,6 +188,14 @@ class Daemon:
             self.metrics.stop()
             if self._lock is not None:
                 self._lock.release()
+
+    def _configure_metrics(self) -> None:
+        from compd import __version__
+
+        cfg = self.cfg
+        self.metrics.configure({n: ch.unit for n, ch in cfg.raw.channels.items()},
+                               list(cfg.outputs), version=__version__,
+                               model_sha256=cfg.model_sha256, config_sha256=cfg.config_sha256)
 
     def _start_metrics(self) -> None:
         port = self.cfg.raw.telemetry.metrics_port
@@ -339,6 +348,7 @@ class Daemon:
                       outputs={n: a.describe() for n, a in new.outputs.items()},
                       config_sha256=new.config_sha256, model_sha256=new.model_sha256,
                       dry_run=self.dry_run)
+        self._configure_metrics()
         self._check_certificates()
 
     async def _read(self, driver: Driver) -> tuple[dict[str, Sample] | None, float | None]:
@@ -396,7 +406,7 @@ class Daemon:
         sec = self.cfg.raw.controller.security
         if sec is None:
             return
-        from compd.runtime.certcheck import WARN_DAYS, expiry_days
+        from compd.runtime.certcheck import WARN_DAYS, expiry_days, expiry_timestamp
 
         base = self.cfg.path.parent
         for role, path in (("client", sec.certificate), ("server", sec.server_certificate)):
@@ -405,12 +415,11 @@ class Daemon:
             full = path if path.is_absolute() else base / path
             try:
                 days = expiry_days(full)
+                self.metrics.certificate_expiry.labels(role=role).set(expiry_timestamp(full))
             except (OSError, ValueError) as exc:
                 self.log.warning("certificate_unreadable", role=role, path=str(full),
                                  error=str(exc))
                 continue
-            if role == "client":
-                self.metrics.cert_expiry_days.set(days)
             if days <= WARN_DAYS:
                 self.log.warning("certificate_expiring", role=role, path=str(full),
                                  days_left=round(days, 2), warn_days=WARN_DAYS)
@@ -482,7 +491,7 @@ class Daemon:
         if samples:
             for name, s in samples.items():
                 if math.isfinite(s.value):
-                    m.channel_value.labels(channel=name).set(s.value)
+                    m.channel(name, s.value)
         for name, reason in result.record.validity.items():
             if reason is not None and reason != "read_failed":
                 m.read_errors.labels(channel=name).inc()
