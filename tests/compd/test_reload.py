@@ -139,3 +139,34 @@ async def test_hup_storm_during_cycles_misses_no_cycle(
     print(f"cycles missed during 10 reloads: {stopped['overruns']} "
           f"(of {stopped['cycles']} cycles)")
     assert stopped["overruns"] == 0
+
+
+async def test_hup_with_another_endpoint_reconnects(
+        rec: _Recorded, tmp_path: Path) -> None:  # noqa: F811
+    """The controller's endpoint changes (a replaced PLC): the new link is made
+    before the swap, the writes go to it, and the old link is closed."""
+    from drivers.sim.modbus_server import ModbusSimController
+
+    other = ModbusSimController()
+    await other.start()
+    await other.publish({"bearing": 20.0, "ambient": 20.0})
+    config = write_config(tmp_path, rec.sim.endpoint)
+    log = tmp_path / "daemon.log"
+    proc = await _start(config, log)
+    try:
+        await _until(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
+        config.write_text(config.read_text().replace(rec.sim.endpoint, other.endpoint))
+        proc.send_signal(signal.SIGHUP)
+        await _until(other, "heartbeat", lambda v: v >= 5, proc, log)
+        beat = (await rec.sim.outputs())["heartbeat"]
+        await asyncio.sleep(0.2)  # ten real periods: the old controller hears no more
+        assert (await rec.sim.outputs())["heartbeat"] == beat
+        assert await _stop(proc) == 0
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+        await other.stop()
+    (done,) = _events(log, "reload_succeeded")
+    assert "controller" in done["changed"] and "model" not in done["changed"]
+    assert any(e["endpoint"] == other.endpoint for e in _events(log, "controller_connected"))
