@@ -4,9 +4,13 @@ metrics host."""
 
 from __future__ import annotations
 
+import asyncio
 import io
+import json
 import logging
 import os
+import signal
+import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,7 +27,9 @@ from compd.faces.telemetry import (
     is_journal_stream,
 )
 
+from .daemon_helpers import write_config
 from .test_config import BASE
+from .test_run_restart import ROOT, _Recorded, _until, rec  # noqa: F401 - the fixture
 
 
 @pytest.fixture(autouse=True)
@@ -137,3 +143,33 @@ def test_metrics_host_is_configurable(tmp_path: Path) -> None:
         assert m.port
     finally:
         m.stop()
+
+
+async def test_compd_run_under_journald_prefixes_every_line(
+        rec: _Recorded, tmp_path: Path) -> None:  # noqa: F811
+    """`compd run` with $JOURNAL_STREAM naming its stderr, as systemd starts it."""
+    config = write_config(tmp_path, rec.sim.endpoint)
+    log = tmp_path / "daemon.log"
+    log.touch()
+    st = os.stat(log)
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "JOURNAL_STREAM": f"{st.st_dev}:{st.st_ino}"}
+    env.pop("NOTIFY_SOCKET", None)
+    with log.open("ab") as f:
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "compd", "run", str(config),
+            stdout=asyncio.subprocess.DEVNULL, stderr=f, env=env, cwd=str(ROOT))
+    try:
+        await _until(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
+        proc.send_signal(signal.SIGUSR1)  # a warning line
+        beat = (await rec.sim.outputs())["heartbeat"]
+        await _until(rec.sim, "heartbeat", lambda v: v >= beat + 2, proc, log)
+        proc.send_signal(signal.SIGTERM)
+        assert await asyncio.wait_for(proc.wait(), 20.0) == 0
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+    lines = (await asyncio.to_thread(log.read_text)).splitlines()
+    assert lines and all(ln[:1] == "<" and ln[2:4] == ">{" for ln in lines), lines[:3]
+    by_event = {json.loads(ln[3:])["event"]: ln[:3] for ln in lines}
+    assert by_event["ready"] == "<6>" and by_event["signal_ignored"] == "<4>"
