@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
 
     tel = cfg.raw.telemetry
     configure_logging(json=None if tel.log_format == "auto" else tel.log_format == "json",
-                      level=tel.log_level)
+                      level=tel.log_level, library_level=tel.library_log_level)
     from compd.runtime.driver_setup import build_driver
 
     # constructed (not connected) before anything else: a refusal is a config error (78)

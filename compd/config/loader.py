@@ -215,8 +215,7 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
                           f"({limit_s:g} s = 0.5·period_s/time_scale)")
     _check_protocol_sections(ctl)
     if ctl.security is not None and ctl.security.password_file is not None:
-        pf = ctl.security.password_file
-        ctl_pf = pf if pf.is_absolute() else base / pf
+        ctl_pf = credential_path(ctl.security.password_file, base)
         if not ctl_pf.is_file():
             raise ConfigError("controller.security.password_file", f"no such file: {ctl_pf}")
 
@@ -255,7 +254,7 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         shadow = _load_model(m.shadow, base, "model.shadow")
         _check_model(shadow, channels, machine.period_s, "model.shadow", raw)
 
-    state_dir = raw.state.dir if raw.state.dir.is_absolute() else base / raw.state.dir
+    state_dir = resolve_state_dir(raw.state.dir, base)
     if state_dir.exists() and not state_dir.is_dir():
         raise ConfigError("state.dir", f"{state_dir} exists and is not a directory")
     recorder_path: Path | None = None
@@ -272,6 +271,30 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         offset_quantum_um=_quantum_um(outputs["offset"], out.units_per_um))
 
 
+def resolve_state_dir(given: Path | None, base: Path) -> Path:
+    """state.dir as given (relative: to the config's folder); not given, the first
+    of systemd's $STATE_DIRECTORY (StateDirectory=; writable under
+    ProtectSystem=strict, where <config dir>/state is not), else <config dir>/state."""
+    if given is not None:
+        return given if given.is_absolute() else base / given
+    systemd = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
+    if systemd:
+        return Path(systemd)
+    return base / "state"
+
+
+def credential_path(given: Path, base: Path) -> Path:
+    """A password file: absolute as given; relative, in systemd's
+    $CREDENTIALS_DIRECTORY (LoadCredential=) when set and the file is there,
+    else relative to the config's folder."""
+    if given.is_absolute():
+        return given
+    creds = os.environ.get("CREDENTIALS_DIRECTORY")
+    if creds and (Path(creds) / given).is_file():
+        return Path(creds) / given
+    return base / given
+
+
 def load_config(path: str | Path) -> LoadedConfig:
     """Read and validate a daemon config file; raises ConfigError."""
     p = Path(path)
@@ -285,8 +308,7 @@ def load_config(path: str | Path) -> LoadedConfig:
 def read_password(security: SecuritySection, base: Path) -> str | None:
     """The OPC UA password from its file or environment variable (run time)."""
     if security.password_file is not None:
-        pf = security.password_file if security.password_file.is_absolute() \
-            else base / security.password_file
+        pf = credential_path(security.password_file, base)
         try:
             return pf.read_text(encoding="utf-8").strip("\r\n")
         except OSError as exc:

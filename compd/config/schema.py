@@ -307,7 +307,9 @@ class FaultsSection(_Section):
 
 
 class StateSection(_Section):
-    dir: LaxPath = Path("state")
+    #: not given: $STATE_DIRECTORY when systemd sets it (StateDirectory=), else
+    #: ``<config dir>/state`` (compd.config.loader)
+    dir: LaxPath | None = None
     checkpoint_every: Annotated[int, Field(ge=1)] = 60
 
 
@@ -315,11 +317,21 @@ class RecorderSection(_Section):
     enabled: bool = True
     path: LaxPath | None = None
     commit_every: Annotated[int, Field(ge=1)] = 10
-    retention_days: PositiveS | None = None
+    #: kept as a row count (one row a cycle: retention_days·86400/period_s rows);
+    #: 0 keeps everything
+    retention_days: Annotated[float, Field(ge=0.0, allow_inf_nan=False)] = 30.0
 
 
 class TelemetrySection(_Section):
     metrics_port: Annotated[int, Field(ge=1, le=65535)] | None = None
+    #: the address /metrics listens on: loopback by default; "0.0.0.0" or "::" in a
+    #: container whose port is published, or for a Prometheus on another host
+    metrics_host: Annotated[str, Field(min_length=1)] = "127.0.0.1"
+    #: the least level of the protocol libraries' own loggers (asyncua, snap7,
+    #: pymodbus); "default": WARNING, pymodbus CRITICAL (it logs every failed
+    #: frame as an ERROR hex dump that our read_failed/write_failed already tell)
+    library_log_level: Literal["default", "debug", "info", "warning", "error",
+                               "critical"] = "default"
     log_format: Literal["auto", "json", "console"] = "auto"
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 

@@ -8,16 +8,33 @@ go in keys. No secret reaches a log line: values of keys that name a secret
 registered with `register_secret` (the controller password the daemon
 loaded) is replaced by ``***`` wherever it appears in any value, exception
 text included. Records of the standard `logging` module (the protocol
-libraries log there) go through the same chain.
+libraries log there) go through the same chain; those libraries log at
+WARNING and above by default (pymodbus CRITICAL), `[telemetry]
+library_log_level` otherwise.
+
+Under systemd (``$JOURNAL_STREAM`` names the device:inode of our stderr) each
+line starts with the sd-daemon priority prefix (``<4>`` warning, ``<3>``
+error, ...), so that journald files it at its level and ``journalctl -p
+warning`` shows compd's warnings.
 
 Metrics (prometheus-client): one `Metrics` per daemon with its own registry,
-served over HTTP by `Metrics.start_http` (127.0.0.1 by default).
+served over HTTP by `Metrics.start_http` (``[telemetry] metrics_host``,
+127.0.0.1 by default). Names follow Prometheus' naming practice: base units
+(seconds, degrees Celsius), one unit per metric, ``_total`` counters, an info
+metric. The one exception, chosen and documented (docs/operation.md §10): the
+offset is in micrometres (``compd_offset_micrometres``), the unit the
+machine, the model and every log line use; 1.2e-05 metres would say less.
+Labelled counters are created at zero for every configured channel and
+output (`Metrics.configure`), so that ``rate()`` and ``increase()`` see the
+first error.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
+import os
 import re
 import sys
 import threading
@@ -27,7 +44,7 @@ from typing import Any, TextIO, cast
 from wsgiref.simple_server import WSGIServer
 
 import structlog
-from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, Info
 from prometheus_client.exposition import start_http_server
 from structlog.typing import EventDict, Processor, WrappedLogger
 
@@ -126,20 +143,63 @@ class LogStream:
             return False
 
 
-#: The least level the protocol libraries log at (whatever the daemon's level).
+#: The least level the protocol libraries log at (whatever the daemon's level),
+#: unless `[telemetry] library_log_level` says otherwise.
 LIBRARY_LOG_FLOOR = {"asyncua": logging.WARNING, "snap7": logging.WARNING,
                      "pymodbus": logging.CRITICAL}
 
+#: sd-daemon(3) priority prefixes by structlog level name
+SD_PRIORITY = {"critical": 2, "exception": 3, "error": 3, "warning": 4, "warn": 4,
+               "notice": 5, "info": 6, "debug": 7}
+
+
+def is_journal_stream(stream: TextIO, env: Mapping[str, str] | None = None) -> bool:
+    """True when `stream` is the journal's stream socket: $JOURNAL_STREAM
+    ("device:inode", set by systemd) matches the stream's file."""
+    value = (os.environ if env is None else env).get("JOURNAL_STREAM", "")
+    dev, _, ino = value.partition(":")
+    if not (dev.isdigit() and ino.isdigit()):
+        return False
+    try:
+        st = os.fstat(stream.fileno())
+    except (OSError, ValueError, AttributeError):  # closed, or not a file (io.StringIO)
+        return False
+    return (st.st_dev, st.st_ino) == (int(dev), int(ino))
+
+
+def _with_priority(renderer: Processor) -> Processor:
+    """`renderer`, each line prefixed with its sd-daemon ``<N>`` priority."""
+    def render(logger: WrappedLogger, name: str, event_dict: EventDict) -> Any:
+        level = str(event_dict.get("level", name)).lower()
+        line = renderer(logger, name, event_dict)
+        prefix = f"<{SD_PRIORITY.get(level, 6)}>"
+        return prefix.encode() + line if isinstance(line, bytes) else prefix + str(line)
+    return render
+
+
+def library_floors(level: str = "default") -> dict[str, int]:
+    """The least level of each protocol library's logger (`library_log_level`)."""
+    if level == "default":
+        return dict(LIBRARY_LOG_FLOOR)
+    levelno = logging.getLevelNamesMapping()[level.upper()]
+    return dict.fromkeys(LIBRARY_LOG_FLOOR, levelno)
+
 
 def configure_logging(json: bool | None = None, level: str = "info", *,
-                      stream: TextIO | None = None) -> None:
+                      stream: TextIO | None = None, library_level: str = "default",
+                      journal: bool | None = None) -> None:
     """Set up structlog (and the stdlib root logger) for the daemon.
 
     `json`: True JSON lines, False key=value, None decide by ``stream.isatty()``.
     `level`: debug, info, warning, error or critical. `stream`: where lines go,
-    sys.stderr (looked up at call time) by default.
+    sys.stderr (looked up at call time) by default. `library_level`: see
+    `library_floors`. `journal`: prefix the sd-daemon priority; None: when
+    `is_journal_stream(stream)`.
     """
-    out = LogStream(stream if stream is not None else sys.stderr)
+    target = stream if stream is not None else sys.stderr
+    out = LogStream(target)
+    if journal is None:
+        journal = is_journal_stream(target)
     levelno = logging.getLevelNamesMapping().get(level.upper())
     if levelno is None:
         raise ValueError(f"unknown log level {level!r}")
@@ -157,6 +217,8 @@ def configure_logging(json: bool | None = None, level: str = "info", *,
         renderer = structlog.processors.JSONRenderer(sort_keys=False)
     else:
         renderer = structlog.dev.ConsoleRenderer(colors=False)
+    if journal:
+        renderer = _with_priority(renderer)
     structlog.configure(
         processors=[*shared, renderer],
         wrapper_class=structlog.make_filtering_bound_logger(levelno),
@@ -178,8 +240,9 @@ def configure_logging(json: bool | None = None, level: str = "info", *,
     # the libraries report what our drivers report again (a failed request is one
     # read_failed/write_failed line of ours): their INFO is noise (asyncua dumps 6 KB of
     # endpoints on every connect) and pymodbus logs each failed frame as an ERROR hex dump
-    for name, floor in LIBRARY_LOG_FLOOR.items():
-        logging.getLogger(name).setLevel(max(levelno, floor))
+    for name, floor in library_floors(library_level).items():
+        logging.getLogger(name).setLevel(max(levelno, floor) if library_level == "default"
+                                         else floor)
 
 
 class Metrics:
@@ -198,9 +261,19 @@ class Metrics:
                                    ["channel"], registry=r)
         self.write_errors = Counter("compd_write_errors", "Failed writes to the controller",
                                     ["output"], registry=r)
-        self.offset_um = Gauge("compd_offset_um", "Offset last written (µm)", registry=r)
-        self.channel_value = Gauge("compd_channel_value", "Last value read per channel",
-                                   ["channel"], registry=r)
+        self.offset_um = Gauge("compd_offset_micrometres",
+                               "Offset last written, in micrometres", registry=r)
+        self.channel_temperature = Gauge(
+            "compd_channel_temperature_celsius",
+            "Last value read per temperature channel, in degrees Celsius", ["channel"],
+            registry=r)
+        self.channel_value = Gauge(
+            "compd_channel_value", "Last value read per channel that is not a temperature, "
+            "in the channel's configured unit (the unit label)", ["channel", "unit"],
+            registry=r)
+        self._channel_units: dict[str, str] = {}
+        self.build_info = Info("compd_build", "compd's version and the sha256 of the model "
+                               "and config it runs", registry=r)
         self.fault_state = Gauge("compd_fault_state",
                                  "Fault state: 0 ok, 1 hold or not yet compensating, 2 ramp, "
                                  "3 alarm/stopped", registry=r)
@@ -209,8 +282,10 @@ class Metrics:
         self.recorder_alarm = Gauge("compd_recorder_alarm",
                                     "1 while the recorder cannot store samples (disk full, "
                                     "I/O error)", registry=r)
-        self.cert_expiry_days = Gauge("compd_cert_expiry_days",
-                                      "Days until the client certificate expires", registry=r)
+        self.certificate_expiry = Gauge(
+            "compd_certificate_expiry_timestamp_seconds",
+            "When the OPC UA certificate expires (s since the epoch); only where one is "
+            "configured", ["role"], registry=r)
         self.cycles_complete = Counter(
             "compd_cycles_complete", "Complete cycles: inputs read and valid, model stepped, "
             "offset write confirmed by the controller", registry=r)
@@ -225,6 +300,39 @@ class Metrics:
         self.last_complete_age.set_function(self._age_s)
         self._server: WSGIServer | None = None
         self._thread: threading.Thread | None = None
+
+    def configure(self, channels: Mapping[str, str], outputs: list[str], *, version: str,
+                  model_sha256: str, config_sha256: str) -> None:
+        """The configured channels (name -> unit) and outputs: their error counters
+        exist at zero from the start; the build info names what runs. Called again
+        on a reload (series of channels no longer configured are removed)."""
+        for name, unit in self._channel_units.items():
+            if name not in channels or channels[name] != unit:
+                self._remove(self.channel_temperature, name)
+                self._remove(self.channel_value, name, unit)
+        self._channel_units = dict(channels)
+        for name in channels:
+            self.read_errors.labels(channel=name)
+        self.read_errors.labels(channel="*")
+        for name in outputs:
+            self.write_errors.labels(output=name)
+        self.build_info.info({"version": version, "model_sha256": model_sha256,
+                              "config_sha256": config_sha256})
+
+    @staticmethod
+    def _remove(metric: Gauge, *labels: str) -> None:
+        with contextlib.suppress(KeyError):
+            metric.remove(*labels)
+
+    def channel(self, name: str, value: float) -> None:
+        """The last value of channel `name` (degC and K to °C; others as read)."""
+        unit = self._channel_units.get(name, "")
+        if unit == "degC":
+            self.channel_temperature.labels(channel=name).set(value)
+        elif unit == "K":
+            self.channel_temperature.labels(channel=name).set(value - 273.15)
+        else:
+            self.channel_value.labels(channel=name, unit=unit).set(value)
 
     def _age_s(self) -> float:
         last = self._last_complete_mono

@@ -13,9 +13,14 @@ Driver errors on read are a failed read (the cycle holds); the driver
 reconnects by itself with its backoff. Write errors go back to the cycle
 (transient: retried next cycle; permanent: offset writes stop, alarm).
 
-SIGHUP, SIGUSR1, SIGUSR2 (whose default action ends a process at once, with
-no checkpoint and no shutdown policy) are logged (``signal_ignored``) and
-otherwise ignored. A metrics port that cannot be bound is logged
+SIGHUP reloads (`compd.runtime.reload`): the config and model are read and
+validated in a worker thread while the loop keeps cycling, then swapped in
+between two cycles (``reload_succeeded``); a changed endpoint or address gets
+a new driver, connected before the swap; a file that does not validate, or a
+change that needs a restart, leaves the old config running (``reload_failed``
+with the key and the reason). SIGUSR1, SIGUSR2 (whose default action ends a
+process at once, with no checkpoint and no shutdown policy) are logged
+(``signal_ignored``) and otherwise ignored. A metrics port that cannot be bound is logged
 (``metrics_unavailable``); compensation runs without the endpoint.
 
 SIGTERM/SIGINT: the current cycle finishes, then the shutdown policy: "hold"
@@ -45,6 +50,7 @@ from compd.core.schedule import Schedule, shutdown_ramp_cycles
 from compd.faces.telemetry import Metrics
 from compd.runtime.heap import pin_mmap_threshold
 from compd.runtime.liveness import boot_id
+from compd.runtime.reload import Changes
 from compd.runtime.repeats import RepeatLimiter
 from compd.runtime.sdnotify import Notifier
 from compd.runtime.startup import checkpoint_path, start_cycle
@@ -86,15 +92,30 @@ class Daemon:
         self._write_failures = RepeatLimiter("write_failed")
         #: (wall, monotonic) time of the last complete cycle: the health evidence
         self._last_complete: tuple[float, float] | None = None
+        #: SIGHUP: the reload being prepared, and what it produced for the loop to swap in
+        self._reload_task: asyncio.Task[None] | None = None
+        self._reload_again = False
+        self._pending: tuple[LoadedConfig, Changes, Driver | None] | None = None
+        self.reloads = 0
 
     # -- public --------------------------------------------------------------------
 
     def request_stop(self) -> None:
         self.stop_requested.set()
 
+    def request_reload(self) -> None:
+        """SIGHUP: read and validate the config again; swap it in between two cycles."""
+        if self.once or self.stop_requested.is_set():
+            return
+        if self._reload_task is not None and not self._reload_task.done():
+            self._reload_again = True  # the file may have changed after it was read
+            return
+        self.log.info("reload_requested", config=str(self.cfg.path))
+        self._reload_task = asyncio.get_running_loop().create_task(self._prepare_reload())
+
     def _signal_ignored(self, sig: signal.Signals) -> None:
         self.log.warning("signal_ignored", signal=sig.name,
-                         reason="compd does not reload; SIGTERM stops it cleanly")
+                         reason="SIGHUP reloads, SIGTERM stops compd cleanly")
 
     async def run(self) -> int:
         """Run until stopped (or one cycle with `once`); returns the exit status."""
@@ -102,10 +123,11 @@ class Daemon:
         loop = asyncio.get_running_loop()
         installed = []
         handlers: dict[signal.Signals, Callable[[], None]] = {
-            signal.SIGTERM: self.request_stop, signal.SIGINT: self.request_stop}
-        for ignored in (signal.SIGHUP, signal.SIGUSR1, signal.SIGUSR2):
+            signal.SIGTERM: self.request_stop, signal.SIGINT: self.request_stop,
+            signal.SIGHUP: self.request_reload}
+        for ignored in (signal.SIGUSR1, signal.SIGUSR2):
             # their default action ends the process at once: no shutdown policy, no
-            # checkpoint. Until a reload exists they are logged and otherwise ignored.
+            # checkpoint. They are logged and otherwise ignored.
             handlers[ignored] = functools.partial(self._signal_ignored, ignored)
         for sig, handler in handlers.items():
             try:
@@ -146,6 +168,7 @@ class Daemon:
                           dry_run=self.dry_run)
             self._check_certificates()
             self._open_recorder()
+            self._configure_metrics()
             self._start_metrics()
             driver = self._driver
             if driver is None:
@@ -154,9 +177,10 @@ class Daemon:
                 driver = self._driver = build_driver(cfg)
             try:
                 await self._connect(driver)
-                rc = await self._loop(driver, self.cycle)
+                rc = await self._loop()
             finally:
-                await driver.close()
+                await self._cancel_reload()
+                await (self._driver or driver).close()
             return rc
         finally:
             self.notifier.stopping()
@@ -166,31 +190,44 @@ class Daemon:
             if self._lock is not None:
                 self._lock.release()
 
+    def _configure_metrics(self) -> None:
+        from compd import __version__
+
+        cfg = self.cfg
+        self.metrics.configure({n: ch.unit for n, ch in cfg.raw.channels.items()},
+                               list(cfg.outputs), version=__version__,
+                               model_sha256=cfg.model_sha256, config_sha256=cfg.config_sha256)
+
     def _start_metrics(self) -> None:
         port = self.cfg.raw.telemetry.metrics_port
+        host = self.cfg.raw.telemetry.metrics_host
         if port is None:
             return
         try:
-            self.metrics.start_http(port)
+            self.metrics.start_http(port, host)
         except OSError as exc:  # a port in use: compensation never stops for telemetry
-            self.log.error("metrics_unavailable", port=port, error=str(exc),
+            self.log.error("metrics_unavailable", host=host, port=port, error=str(exc),
                            hint="compd health --url will report unhealthy; free the port "
                                 "or change telemetry.metrics_port")
 
-    async def _connect(self, driver: Driver) -> None:
-        timeout_s = self.cfg.raw.controller.connect_timeout_s
+    async def _connect(self, driver: Driver, cfg: LoadedConfig | None = None) -> None:
+        ctl = (cfg or self.cfg).raw.controller
         try:
-            await asyncio.wait_for(driver.connect(), timeout_s)
-            self.log.info("controller_connected", endpoint=self.cfg.raw.controller.endpoint)
+            await asyncio.wait_for(driver.connect(), ctl.connect_timeout_s)
+            self.log.info("controller_connected", endpoint=ctl.endpoint)
         except (DriverError, TimeoutError, OSError) as exc:
             # not fatal: the reads fail (hold) and the driver retries with backoff
             self.log.warning("controller_connect_failed", error=str(exc))
 
-    async def _loop(self, driver: Driver, cycle: Cycle) -> int:
+    async def _loop(self) -> int:
         schedule = Schedule(self.cfg.real_period_s, self.clock(),
                             time_scale=self.cfg.raw.machine.time_scale)
         shutdown_cycles_left: int | None = None
         while True:
+            if self._pending is not None and shutdown_cycles_left is None:
+                await self._swap()  # between two cycles: the reloaded config
+            driver, cycle = self._driver, self.cycle
+            assert driver is not None and cycle is not None
             started = self.clock()
             now_s = schedule.machine_s(started)
             result = await self._one_cycle(driver, cycle, now_s)
@@ -233,8 +270,87 @@ class Daemon:
                 break
         self._checkpoint(cycle)
         self.log.info("daemon_stopped", cycles=self.cycles, overruns=self.overruns,
-                      offset_um=cycle.output.current_um)
+                      offset_um=cycle.output.current_um, reloads=self.reloads)
         return 0
+
+    # -- reload (SIGHUP) ----------------------------------------------------------------
+
+    async def _prepare_reload(self) -> None:
+        """Load and validate the config again (a worker thread: the loop keeps cycling);
+        connect a new driver when the controller side changed. The loop swaps."""
+        from compd.errors import ConfigError
+        from compd.runtime.reload import prepare
+
+        while True:
+            self._reload_again = False
+            try:
+                new, changes = await asyncio.to_thread(prepare, self.cfg)
+                driver: Driver | None = None
+                if changes.controller:
+                    from compd.runtime.driver_setup import build_driver
+
+                    driver = build_driver(new)
+                    await self._connect(driver, new)
+            except ConfigError as exc:
+                self.log.error("reload_failed", key=exc.key, reason=exc.reason,
+                               config=str(self.cfg.path), kept=self.cfg.config_sha256)
+            except Exception as exc:  # never the loop's end: the old config keeps running
+                self.log.error("reload_failed", key="", reason=f"{type(exc).__name__}: {exc}",
+                               config=str(self.cfg.path), kept=self.cfg.config_sha256)
+            else:
+                if self._pending is not None and self._pending[2] is not None:
+                    await self._pending[2].close()  # superseded before it was swapped in
+                self._pending = (new, changes, driver)
+            if not self._reload_again:
+                return
+
+    async def _cancel_reload(self) -> None:
+        task = self._reload_task
+        if task is not None and not task.done():
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        if self._pending is not None and self._pending[2] is not None:
+            await self._pending[2].close()
+        self._pending = None
+
+    async def _swap(self) -> None:
+        """Put the prepared config in place of the running one, between two cycles."""
+        from compd.runtime.reload import handover
+
+        assert self._pending is not None and self.cycle is not None
+        new, changes, driver = self._pending
+        self._pending = None
+        old_cfg, old_driver = self.cfg, self._driver
+        params = params_from_config(new, dry_run=self.dry_run)
+        self.cycle = handover(self.cycle, new, params, changes)
+        self.cfg, self.params = new, params
+        if driver is not None:
+            self._driver = driver
+            self._read_ok = None
+            if old_driver is not None:
+                await old_driver.close()
+        if changes.recorder:
+            if self._recorder is not None:
+                self._recorder.close()
+                self._recorder = None
+            self._open_recorder()
+        if changes.metrics:
+            self.metrics.stop()
+            self._start_metrics()
+        self.reloads += 1
+        self.log.info("reload_succeeded", changed=changes.names(),
+                      config_sha256=new.config_sha256, model_sha256=new.model_sha256,
+                      was_config_sha256=old_cfg.config_sha256,
+                      was_model_sha256=old_cfg.model_sha256, model=new.model.name,
+                      filters="restart_at_steady_state" if changes.model else "carried_over",
+                      offset_um=self.cycle.output.current_um)
+        self.log.info("outputs_configured",
+                      outputs={n: a.describe() for n, a in new.outputs.items()},
+                      config_sha256=new.config_sha256, model_sha256=new.model_sha256,
+                      dry_run=self.dry_run)
+        self._configure_metrics()
+        self._check_certificates()
 
     async def _read(self, driver: Driver) -> tuple[dict[str, Sample] | None, float | None]:
         names = list(self.cfg.channels)
@@ -291,7 +407,7 @@ class Daemon:
         sec = self.cfg.raw.controller.security
         if sec is None:
             return
-        from compd.runtime.certcheck import WARN_DAYS, expiry_days
+        from compd.runtime.certcheck import WARN_DAYS, expiry_days, expiry_timestamp
 
         base = self.cfg.path.parent
         for role, path in (("client", sec.certificate), ("server", sec.server_certificate)):
@@ -300,12 +416,11 @@ class Daemon:
             full = path if path.is_absolute() else base / path
             try:
                 days = expiry_days(full)
+                self.metrics.certificate_expiry.labels(role=role).set(expiry_timestamp(full))
             except (OSError, ValueError) as exc:
                 self.log.warning("certificate_unreadable", role=role, path=str(full),
                                  error=str(exc))
                 continue
-            if role == "client":
-                self.metrics.cert_expiry_days.set(days)
             if days <= WARN_DAYS:
                 self.log.warning("certificate_expiring", role=role, path=str(full),
                                  days_left=round(days, 2), warn_days=WARN_DAYS)
@@ -377,7 +492,7 @@ class Daemon:
         if samples:
             for name, s in samples.items():
                 if math.isfinite(s.value):
-                    m.channel_value.labels(channel=name).set(s.value)
+                    m.channel(name, s.value)
         for name, reason in result.record.validity.items():
             if reason is not None and reason != "read_failed":
                 m.read_errors.labels(channel=name).inc()

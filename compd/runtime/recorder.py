@@ -22,8 +22,18 @@ fault state), ``valid`` (0/1), and three JSON objects: ``channels`` {name:
 value}, ``validity`` {name: reason or null}, ``contributions`` {term: µm}.
 Non-finite floats are stored as JSON null (read back as NaN).
 
+Table ``channel_values`` holds the same channel values as numbers a SQL or
+Grafana user can query without JSON: one row per sample and channel,
+(``seq``, ``channel``, ``value`` REAL (NULL when missing or non-finite),
+``validity`` (NULL when valid, else the reason)), keyed by (seq, channel);
+``seq`` joins ``samples``. Rows of a database written by an older compd
+(before this table) keep their values in the JSON column only (SQLite's
+``json_extract(channels, '$.bearing')`` reads them); such a database opens,
+reads and is appended to as before.
+
 Retention (`keep_rows`) keeps the newest rows by ``seq``, the recorder's own
-numbering: `recorder.retention_days` becomes days × 86400 / period_s rows.
+numbering: `recorder.retention_days` (30 by default, 0 keeps everything)
+becomes days × 86400 / period_s rows; ``channel_values`` follows ``samples``.
 No clock decides what is deleted. Table ``meta``
 (key, value) holds ``channels``: a JSON list of every channel name seen.
 
@@ -67,11 +77,20 @@ CREATE TABLE IF NOT EXISTS samples (
 );
 CREATE INDEX IF NOT EXISTS samples_wall_s ON samples (wall_s);
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS channel_values (
+    seq INTEGER NOT NULL,
+    channel TEXT NOT NULL,
+    value REAL,
+    validity TEXT,
+    PRIMARY KEY (seq, channel)
+) WITHOUT ROWID;
 """
 
 _INSERT = ("INSERT INTO samples (seq, cycle, mono_s, wall_s, offset_um, model_um, state, valid,"
            " channels, validity, contributions, attempted_um)"
            " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
+
+_INSERT_VALUE = "INSERT INTO channel_values (seq, channel, value, validity) VALUES (?, ?, ?, ?)"
 
 #: Columns `read_samples` always returns; channel names may not collide with them.
 FIXED_COLUMNS = ("seq", "cycle", "time_s", "mono_s", "wall_s", "offset_um", "model_um", "valid",
@@ -114,6 +133,12 @@ def _tuple(seq: int, row: RecordRow) -> tuple[Any, ...]:
             json.dumps({str(k): (None if v is None else str(v))
                         for k, v in row.validity.items()}, separators=(",", ":")),
             _json_numbers(row.contributions), _num(row.attempted_um))
+
+
+def _value_rows(seq: int, row: RecordRow) -> list[tuple[Any, ...]]:
+    return [(seq, str(name), _num(value),
+             None if (why := row.validity.get(name)) is None else str(why))
+            for name, value in row.channels.items()]
 
 
 class Recorder:
@@ -219,6 +244,8 @@ class Recorder:
         try:
             conn.execute("BEGIN IMMEDIATE")
             conn.executemany(_INSERT, [_tuple(first + i, r) for i, r in enumerate(rows)])
+            conn.executemany(_INSERT_VALUE, [v for i, r in enumerate(rows)
+                                             for v in _value_rows(first + i, r)])
             if new:
                 conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES ('channels', ?)",
                              (json.dumps(names),))
@@ -254,6 +281,8 @@ class Recorder:
                 " (SELECT seq FROM samples WHERE seq <= ? ORDER BY seq LIMIT ?)",
                 (last_dropped_seq, limit))
             self.purged += max(cur.rowcount, 0)
+            conn.execute("DELETE FROM channel_values WHERE seq <"
+                         " (SELECT COALESCE(MIN(seq), ?) FROM samples)", (last_dropped_seq + 1,))
         except sqlite3.Error as exc:
             self._rollback(conn)
             self.last_error = f"retention: {type(exc).__name__}: {exc}"

@@ -139,10 +139,13 @@ def test_metrics_over_http_and_port_freed() -> None:
     metrics.read_errors.labels(channel="t_spindle_c").inc(2)
     metrics.write_errors.labels(output="z_offset").inc()
     metrics.offset_um.set(-12.5)
-    metrics.channel_value.labels(channel="t_spindle_c").set(31.25)
+    metrics.configure({"t_spindle_c": "degC", "speed": "rpm"}, ["z_offset"],
+                      version="0.1.0", model_sha256="ab", config_sha256="cd")
+    metrics.channel("t_spindle_c", 31.25)
+    metrics.channel("speed", 4000.0)
     metrics.fault_state.set(1)
     metrics.records_dropped.inc(7)
-    metrics.cert_expiry_days.set(90)
+    metrics.certificate_expiry.labels(role="client").set(1.9e9)
     other.offset_um.set(99)
     metrics.start_http(0)
     port = metrics.port
@@ -156,11 +159,14 @@ def test_metrics_over_http_and_port_freed() -> None:
     assert _value(text, "compd_overruns_total") == 1
     assert _value(text, 'compd_read_errors_total{channel="t_spindle_c"}') == 2
     assert _value(text, 'compd_write_errors_total{output="z_offset"}') == 1
-    assert _value(text, "compd_offset_um") == -12.5
-    assert _value(text, 'compd_channel_value{channel="t_spindle_c"}') == 31.25
+    assert _value(text, "compd_offset_micrometres") == -12.5
+    assert _value(text, 'compd_channel_temperature_celsius{channel="t_spindle_c"}') == 31.25
+    assert _value(text, 'compd_channel_value{channel="speed",unit="rpm"}') == 4000.0
     assert _value(text, "compd_fault_state") == 1
     assert _value(text, "compd_records_dropped_total") == 7
-    assert _value(text, "compd_cert_expiry_days") == 90
+    assert _value(text, 'compd_certificate_expiry_timestamp_seconds{role="client"}') == 1.9e9
+    assert _value(text, 'compd_build_info{config_sha256="cd",model_sha256="ab",'
+                        'version="0.1.0"}') == 1
     assert metrics.port is None
     # the port is free again: nobody answers, and we can listen on it ourselves
     # (SO_REUSEADDR only for the scrape's TIME_WAIT; Linux still refuses a live listener)
@@ -174,8 +180,38 @@ def test_metrics_over_http_and_port_freed() -> None:
     # and can serve again on the same port
     other.start_http(port)
     try:
-        assert _value(_scrape(port), "compd_offset_um") == 99
+        assert _value(_scrape(port), "compd_offset_micrometres") == 99
         with pytest.raises(RuntimeError, match="already"):
             other.start_http(0)
     finally:
         other.stop()
+
+
+def test_counters_exist_at_zero_and_no_certificate_series_without_one() -> None:
+    """An error counter that first appears at 1 is invisible to rate(); a
+    certificate gauge at 0 on a Modbus machine fired the expiry alert."""
+    from prometheus_client import generate_latest
+
+    m = Metrics()
+    m.configure({"bearing": "degC", "ambient": "K"}, ["offset", "heartbeat"],
+                version="0.1.0", model_sha256="a", config_sha256="b")
+    text = generate_latest(m.registry).decode()
+    for sample in ('compd_read_errors_total{channel="bearing"}',
+                   'compd_read_errors_total{channel="ambient"}',
+                   'compd_write_errors_total{output="offset"}',
+                   'compd_write_errors_total{output="heartbeat"}', "compd_overruns_total"):
+        assert _value(text, sample) == 0
+    assert "compd_certificate_expiry_timestamp_seconds{" not in text
+    m.channel("ambient", 293.15)  # kelvin shown in degrees Celsius, the metric's one unit
+    text = generate_latest(m.registry).decode()
+    assert _value(text, 'compd_channel_temperature_celsius{channel="ambient"}') \
+        == pytest.approx(20.0)
+    # a reload that drops a channel drops its value series too
+    m.configure({"bearing": "degC"}, ["offset"], version="0.1.0", model_sha256="c",
+                config_sha256="d")
+    text = generate_latest(m.registry).decode()
+    assert 'compd_channel_temperature_celsius{channel="ambient"}' not in text
+    assert 'compd_channel_temperature_celsius{channel="bearing"}' not in text  # never read
+    assert _value(text, 'compd_build_info{config_sha256="d",model_sha256="c",'
+                        'version="0.1.0"}') == 1
+    assert 'model_sha256="a"' not in text

@@ -37,8 +37,8 @@ def _metrics(port: int) -> dict[str, float]:
     out: dict[str, float] = {}
     for line in text.splitlines():
         m = re.match(r"^(compd_[a-z_]+)(\{[^}]*\})? ([-+0-9.eEinfa]+)$", line)
-        if m and m.group(2) is None:
-            out[m.group(1)] = float(m.group(3))
+        if m:  # labelled series under their full name: 'name{label="v"}'
+            out[m.group(1) + (m.group(2) or "")] = float(m.group(3))
     return out
 
 
@@ -61,7 +61,7 @@ async def test_disk_full_for_recorder_and_logs(rec: RecordingSim, small_fs: Path
     proc = await start_daemon(config, log)
     try:
         await until(lambda: _hb_past(rec, 10), proc, log, "daemon cycling")
-        await until(lambda: _positive(_metric(port, "compd_offset_um") ,
+        await until(lambda: _positive(_metric(port, "compd_offset_micrometres") ,
                                       accept_zero=True), proc, log, "metrics served")
         assert await _metric(port, "compd_records_dropped_total") == 0.0
 

@@ -9,7 +9,7 @@
   SHA-256; against the Modbus sim, every write request touches only the
   configured output registers;
 - a client certificate expiring in 10 days raises `certificate_expiring` at
-  start and sets compd_cert_expiry_days.
+  start and sets compd_certificate_expiry_timestamp_seconds{role="client"}.
 
 Certificates (a CA, the server, a client valid 10 more days) are made with
 `cryptography` at test time, as in tests/drivers/test_opcua_security.py.
@@ -22,6 +22,7 @@ import hashlib
 import json
 import os
 import sys
+import time
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -182,7 +183,9 @@ async def test_password_from_file_never_leaks_and_start_is_audited(
     assert [e["role"] for e in expiring] == ["client"]
     assert CLIENT_DAYS - 1 < expiring[0]["days_left"] <= CLIENT_DAYS
     assert expiring[0]["level"] == "warning"
-    assert CLIENT_DAYS - 1 < metrics["compd_cert_expiry_days"] <= CLIENT_DAYS
+    expiry_s = metrics['compd_certificate_expiry_timestamp_seconds{role="client"}']
+    days_left = (expiry_s - time.time()) / 86400.0
+    assert CLIENT_DAYS - 1 < days_left <= CLIENT_DAYS
 
 
 async def test_wrong_password_from_env_is_refused_and_not_echoed(

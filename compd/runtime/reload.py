@@ -1,0 +1,98 @@
+"""SIGHUP reload: the config and model read and validated again, then swapped
+in between two cycles.
+
+`prepare` (in a worker thread, while the loop keeps cycling) loads the file
+with the same loader as `compd run`; a file that does not validate raises
+ConfigError and the daemon keeps the old config (``reload_failed`` with the
+key and the reason). `handover` builds the cycle that continues the old one:
+
+- the output stage starts from what the controller is known to hold (the last
+  confirmed offset; with read-back, what it reads) and slews to the new
+  model's value at the (new) slew limit: never a jump;
+- the same model (same sha256): the filters carry over exactly;
+- another model: the references are kept and every term starts at the steady
+  state matching the first valid sample (today's temperatures), as after a
+  restart with an old checkpoint;
+- the sequence and heartbeat continue; a permanent write refusal is kept
+  while the output addresses are the same.
+
+The fault policy (its hold timer) carries over, and so do the channel
+validator's stale/stuck timers while the channels' limits are unchanged: a
+reload never resets a fault's hold time.
+
+What cannot change without a restart is refused with the key, like a
+validation error: the state directory (it holds the lock) and
+machine.period_s / machine.time_scale (the models are discretised at the
+period, and the machine clock runs on the schedule).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from compd.config.loader import LoadedConfig, load_config
+from compd.core.cycle import Cycle, CycleParams
+from compd.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Changes:
+    """What differs between the running config and the reloaded one."""
+
+    model: bool
+    #: endpoint, protocol options or channel/output addresses: a new driver
+    controller: bool
+    outputs: bool
+    recorder: bool
+    metrics: bool
+
+    def names(self) -> list[str]:
+        return [k for k, v in vars(self).items() if v]
+
+
+def prepare(old: LoadedConfig) -> tuple[LoadedConfig, Changes]:
+    """Load and validate `old.path` again; raises ConfigError (the daemon keeps
+    `old`)."""
+    new = load_config(old.path)
+    if new.state_dir != old.state_dir:
+        raise ConfigError("state.dir", f"changed from {old.state_dir} to {new.state_dir}: "
+                          "the state directory holds the lock, restart compd to move it")
+    for key in ("period_s", "time_scale"):
+        was, now = getattr(old.raw.machine, key), getattr(new.raw.machine, key)
+        if was != now:
+            raise ConfigError(f"machine.{key}", f"changed from {was:g} to {now:g}: "
+                              "restart compd to change the sample clock")
+    return new, diff(old, new)
+
+
+def diff(old: LoadedConfig, new: LoadedConfig) -> Changes:
+    o, n = old.raw, new.raw
+    shadow_old = old.shadow.name if old.shadow else None
+    shadow_new = new.shadow.name if new.shadow else None
+    return Changes(
+        model=old.model_sha256 != new.model_sha256 or shadow_old != shadow_new,
+        controller=(o.controller != n.controller or old.channels != new.channels
+                    or old.outputs != new.outputs),
+        outputs=old.outputs != new.outputs,
+        recorder=(old.recorder_path, o.recorder) != (new.recorder_path, n.recorder),
+        metrics=(o.telemetry.metrics_port, o.telemetry.metrics_host)
+        != (n.telemetry.metrics_port, n.telemetry.metrics_host))
+
+
+def handover(old: Cycle, new_cfg: LoadedConfig, params: CycleParams,
+             changes: Changes) -> Cycle:
+    """The cycle continuing `old` under the new config (see the module docstring)."""
+    state = old.export_state()
+    if state["offset_um"] is None and not params.readback:
+        # nothing confirmed and nothing to read back: start from where the stage is
+        state["offset_um"] = old.output.current_um
+    cycle = Cycle.from_state(params, new_cfg.model, new_cfg.shadow, state,
+                             fresh=not changes.model)
+    old.faults.hold_s = params.hold_s
+    cycle.faults = old.faults
+    if params.channels == old.params.channels:
+        cycle.validator = old.validator
+    if not changes.outputs:
+        cycle.write_stopped = old.write_stopped
+        cycle.stopped_outputs = set(old.stopped_outputs)
+    return cycle

@@ -1,0 +1,172 @@
+"""SIGHUP reload of `compd run` against the simulated Modbus controller: a
+valid new config (another model, another slew) is swapped in between two
+cycles and hands over under the slew limit; a broken one is refused with the
+key while the old config keeps running; a HUP in the middle of cycles never
+costs a cycle (the overruns counted by the daemon are the cycles missed)."""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import json
+import signal
+from pathlib import Path
+
+from .daemon_helpers import write_config
+from .test_run_restart import _Recorded, _start, _until, rec  # noqa: F401 - the fixture
+
+SLEW_UM_S = 1.0
+
+
+def _events(log: Path, name: str) -> list[dict[str, object]]:
+    out = []
+    for line in log.read_text().splitlines():
+        if f'"{name}"' in line:
+            out.append(json.loads(line[line.index("{"):]))
+    return out
+
+
+async def _stop(proc: asyncio.subprocess.Process) -> int:
+    proc.send_signal(signal.SIGTERM)
+    return await asyncio.wait_for(proc.wait(), 20.0)
+
+
+async def test_hup_swaps_in_another_model_under_the_slew_limit(
+        rec: _Recorded, tmp_path: Path) -> None:  # noqa: F811
+    config = write_config(tmp_path, rec.sim.endpoint, slew_um_s=SLEW_UM_S)
+    log = tmp_path / "daemon.log"
+    proc = await _start(config, log)
+    try:
+        await _until(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
+        await rec.sim.publish({"bearing": 22.5})  # sp2 wants ≈ +40 µm
+        await _until(rec.sim, "offset", lambda v: v >= 10.0, proc, log)
+        # another model: sp3 (same channels), and a slower slew limit
+        config.write_text(config.read_text().replace('file = "sp2"', 'file = "sp3"')
+                          .replace(f"slew_um_s = {SLEW_UM_S}", "slew_um_s = 0.5"))
+        at_hup = len(rec.offsets)
+        proc.send_signal(signal.SIGHUP)
+        for _ in range(2000):
+            if _events(log, "reload_succeeded"):
+                break
+            await asyncio.sleep(0.01)
+        beat = (await rec.sim.outputs())["heartbeat"]
+        await _until(rec.sim, "heartbeat", lambda v: v >= beat + 10, proc, log)
+        assert await _stop(proc) == 0
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+    (done,) = _events(log, "reload_succeeded")
+    assert "model" in done["changed"] and done["filters"] == "restart_at_steady_state"
+    assert "controller" not in done["changed"]  # same endpoint and addresses: same link
+    # never a jump: every step within the (old, then new) slew limit
+    steps = [abs(b - a) for a, b in itertools.pairwise(rec.offsets)]
+    assert max(steps) <= 2 * SLEW_UM_S * 1.0 + 1e-3
+    after = [abs(b - a) for a, b in itertools.pairwise(rec.offsets[at_hup + 3:])]
+    assert after and max(after) <= 2 * 0.5 + 1e-3
+    (stopped,) = _events(log, "daemon_stopped")
+    assert stopped["reloads"] == 1 and stopped["overruns"] == 0  # no cycle missed
+
+
+async def test_hup_with_a_broken_config_keeps_the_old_one(
+        rec: _Recorded, tmp_path: Path) -> None:  # noqa: F811
+    config = write_config(tmp_path, rec.sim.endpoint)
+    good = config.read_text()
+    log = tmp_path / "daemon.log"
+    proc = await _start(config, log)
+    try:
+        await _until(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
+        config.write_text(good.replace("limit_um = 100.0", "limit_um = 0"))
+        proc.send_signal(signal.SIGHUP)
+        for _ in range(2000):
+            if _events(log, "reload_failed"):
+                break
+            await asyncio.sleep(0.01)
+        beat = (await rec.sim.outputs())["heartbeat"]
+        await _until(rec.sim, "heartbeat", lambda v: v >= beat + 5, proc, log)
+        # a change that needs a restart is refused the same way
+        config.write_text(good.replace("time_scale = 50.0", "time_scale = 40.0"))
+        proc.send_signal(signal.SIGHUP)
+        for _ in range(2000):
+            if len(_events(log, "reload_failed")) >= 2:
+                break
+            await asyncio.sleep(0.01)
+        assert proc.returncode is None
+        assert await _stop(proc) == 0
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+    failed = _events(log, "reload_failed")
+    assert [f["key"] for f in failed] == ["output.limit_um", "machine.time_scale"]
+    assert failed[0]["level"] == "error" and failed[0]["reason"]
+    assert not _events(log, "reload_succeeded")
+    (stopped,) = _events(log, "daemon_stopped")
+    assert stopped["reloads"] == 0
+
+
+async def test_hup_storm_during_cycles_misses_no_cycle(
+        rec: _Recorded, tmp_path: Path) -> None:  # noqa: F811
+    """HUPs sent at random points of the cycle (mid-read, mid-write): every one
+    is served, the loop keeps its deadlines (0 overruns) and the unchanged
+    model carries its filters over."""
+    config = write_config(tmp_path, rec.sim.endpoint)
+    log = tmp_path / "daemon.log"
+    proc = await _start(config, log)
+    try:
+        await _until(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
+        for i in range(10):
+            # a harmless change each time (checkpoint cadence): a real swap every time
+            text = config.read_text()
+            config.write_text(text.replace(f"checkpoint_every = {20 + i}",
+                                           f"checkpoint_every = {21 + i}"))
+            proc.send_signal(signal.SIGHUP)
+            await asyncio.sleep(0.013 * (i + 1))  # fractions of the 20 ms real period
+            for _ in range(2000):
+                if len(_events(log, "reload_succeeded")) > i:
+                    break
+                await asyncio.sleep(0.01)
+        assert await _stop(proc) == 0
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+    done = _events(log, "reload_succeeded")
+    assert len(done) == 10
+    assert all(d["filters"] == "carried_over" and d["changed"] == [] for d in done)
+    (stopped,) = _events(log, "daemon_stopped")
+    assert stopped["reloads"] == 10
+    print(f"cycles missed during 10 reloads: {stopped['overruns']} "
+          f"(of {stopped['cycles']} cycles)")
+    assert stopped["overruns"] == 0
+
+
+async def test_hup_with_another_endpoint_reconnects(
+        rec: _Recorded, tmp_path: Path) -> None:  # noqa: F811
+    """The controller's endpoint changes (a replaced PLC): the new link is made
+    before the swap, the writes go to it, and the old link is closed."""
+    from drivers.sim.modbus_server import ModbusSimController
+
+    other = ModbusSimController()
+    await other.start()
+    await other.publish({"bearing": 20.0, "ambient": 20.0})
+    config = write_config(tmp_path, rec.sim.endpoint)
+    log = tmp_path / "daemon.log"
+    proc = await _start(config, log)
+    try:
+        await _until(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
+        config.write_text(config.read_text().replace(rec.sim.endpoint, other.endpoint))
+        proc.send_signal(signal.SIGHUP)
+        await _until(other, "heartbeat", lambda v: v >= 5, proc, log)
+        beat = (await rec.sim.outputs())["heartbeat"]
+        await asyncio.sleep(0.2)  # ten real periods: the old controller hears no more
+        assert (await rec.sim.outputs())["heartbeat"] == beat
+        assert await _stop(proc) == 0
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+        await other.stop()
+    (done,) = _events(log, "reload_succeeded")
+    assert "controller" in done["changed"] and "model" not in done["changed"]
+    assert any(e["endpoint"] == other.endpoint for e in _events(log, "controller_connected"))
