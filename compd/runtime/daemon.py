@@ -489,6 +489,7 @@ class Daemon:
         m = self.metrics
         m.offset_um.set(result.offset_um)
         m.fault_state.set(result.state.gauge)
+        m.model_output(result.model_um, result.record.validity)
         if samples:
             for name, s in samples.items():
                 if math.isfinite(s.value):
