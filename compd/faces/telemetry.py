@@ -302,6 +302,10 @@ class Metrics:
             "compd_model_output_micrometres", "The model's output in the last cycle, in "
             "micrometres, before limits and the fault policy (NaN when the model did not "
             "step)", registry=r)
+        self.period_seconds = Gauge(
+            "compd_period_seconds", "The sampling period in wall-clock seconds (period_s / "
+            "time_scale): what alert rules measure lateness and silence against",
+            registry=r)
         self.channel_valid = Gauge(
             "compd_channel_valid", "1 when the channel's last value was valid, 0 when it "
             "was not (read failed, out of range, stale, ...)", ["channel"], registry=r)

@@ -197,6 +197,7 @@ class Daemon:
         self.metrics.configure({n: ch.unit for n, ch in cfg.raw.channels.items()},
                                list(cfg.outputs), version=__version__,
                                model_sha256=cfg.model_sha256, config_sha256=cfg.config_sha256)
+        self.metrics.period_seconds.set(cfg.real_period_s)
 
     def _start_metrics(self) -> None:
         port = self.cfg.raw.telemetry.metrics_port

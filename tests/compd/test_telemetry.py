@@ -268,6 +268,8 @@ async def test_daemon_exports_model_output_and_channel_validity(
         assert _value(text, 'compd_channel_valid{channel="bearing"}') == 1
         assert _value(text, 'compd_channel_valid{channel="ambient"}') == 1
         assert math.isfinite(_value(text, "compd_model_output_micrometres"))
+        # period_s 1.0 at time_scale 50 (write_config's default): 20 ms of wall clock
+        assert _value(text, "compd_period_seconds") == pytest.approx(0.02)
         await sim.publish({"bearing": 200.0})  # beyond the channel's range [-20, 150]
         await until(lambda: daemon.last_result is not None
                     and daemon.last_result.record.validity.get("bearing") is not None)
