@@ -143,3 +143,10 @@ def test_promtool_unit_tests_catch_a_changed_rule(tmp_path: Path) -> None:
     proc = _promtool("test", "rules", RULE_TESTS.name, cwd=tmp_path)
     assert proc.returncode != 0
     assert "CompdCompensationNotActive" in proc.stdout + proc.stderr
+
+
+@needs_promtool
+def test_promtool_checks_the_example_prometheus_config() -> None:
+    proc = _promtool("check", "config", "prometheus.yml", cwd=MONITORING)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "SUCCESS: 8 rules found" in proc.stdout  # it loads compd.rules.yml
