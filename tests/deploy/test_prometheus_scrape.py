@@ -1,7 +1,8 @@
 """A real Prometheus (Debian's `prometheus`) on 127.0.0.1 scrapes two real
 compd metrics endpoints with the example config's relabelling and the alert
 rules: each series gets its `machine` label (given, or the target's address),
-the rules load and evaluate, and a pending alert carries the machine."""
+the rules load and evaluate, a pending alert carries the machine, and the
+dashboard's expressions are PromQL it accepts."""
 
 from __future__ import annotations
 
@@ -122,6 +123,19 @@ def test_prometheus_scrapes_compd_with_machine_labels_and_the_rules(
                                      if a["labels"]["alertname"] == "CompdNoSample"])
                       and len(b) == 2 and b, proc)
         assert {a["labels"]["machine"] for a in beats} == set(machines)
+        # every expression of the dashboard is PromQL this Prometheus accepts, and
+        # the per-machine ones find mill-1's series
+        dashboard = json.loads((MONITORING / "compd-dashboard.json").read_text("utf-8"))
+        answered = set()
+        for panel in dashboard["panels"]:
+            for target in panel.get("targets", []):
+                expr = (target["expr"].replace("$machine", "mill-1")
+                        .replace("$__rate_interval", "1m"))
+                result = _api(web, "query", query=expr)["result"]  # a parse error: 400
+                if result:
+                    answered.add(panel["title"])
+        assert {"Fault state, every machine", "Metrics endpoint up", "Fault state",
+                "Last complete cycle", "Recorder", "Build"} <= answered
     finally:
         proc.terminate()
         try:
