@@ -298,6 +298,17 @@ class Metrics:
             "Seconds since the last complete cycle, on the monotonic clock (+Inf before "
             "the first): what `compd health --url` judges", registry=r)
         self.last_complete_age.set_function(self._age_s)
+        self.model_output_um = Gauge(
+            "compd_model_output_micrometres", "The model's output in the last cycle, in "
+            "micrometres, before limits and the fault policy (NaN when the model did not "
+            "step)", registry=r)
+        self.period_seconds = Gauge(
+            "compd_period_seconds", "The sampling period in wall-clock seconds (period_s / "
+            "time_scale): what alert rules measure lateness and silence against",
+            registry=r)
+        self.channel_valid = Gauge(
+            "compd_channel_valid", "1 when the channel's last value was valid, 0 when it "
+            "was not (read failed, out of range, stale, ...)", ["channel"], registry=r)
         self._server: WSGIServer | None = None
         self._thread: threading.Thread | None = None
 
@@ -310,6 +321,8 @@ class Metrics:
             if name not in channels or channels[name] != unit:
                 self._remove(self.channel_temperature, name)
                 self._remove(self.channel_value, name, unit)
+            if name not in channels:
+                self._remove(self.channel_valid, name)
         self._channel_units = dict(channels)
         for name in channels:
             self.read_errors.labels(channel=name)
@@ -333,6 +346,14 @@ class Metrics:
             self.channel_temperature.labels(channel=name).set(value - 273.15)
         else:
             self.channel_value.labels(channel=name, unit=unit).set(value)
+
+    def model_output(self, model_um: float | None,
+                     validity: Mapping[str, str | None]) -> None:
+        """The model's output this cycle (None: it did not step) and each channel's
+        validity (name -> None when valid, else the reason)."""
+        self.model_output_um.set(math.nan if model_um is None else model_um)
+        for name, reason in validity.items():
+            self.channel_valid.labels(channel=name).set(1.0 if reason is None else 0.0)
 
     def _age_s(self) -> float:
         last = self._last_complete_mono

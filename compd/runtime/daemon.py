@@ -197,6 +197,7 @@ class Daemon:
         self.metrics.configure({n: ch.unit for n, ch in cfg.raw.channels.items()},
                                list(cfg.outputs), version=__version__,
                                model_sha256=cfg.model_sha256, config_sha256=cfg.config_sha256)
+        self.metrics.period_seconds.set(cfg.real_period_s)
 
     def _start_metrics(self) -> None:
         port = self.cfg.raw.telemetry.metrics_port
@@ -489,6 +490,7 @@ class Daemon:
         m = self.metrics
         m.offset_um.set(result.offset_um)
         m.fault_state.set(result.state.gauge)
+        m.model_output(result.model_um, result.record.validity)
         if samples:
             for name, s in samples.items():
                 if math.isfinite(s.value):

@@ -4,17 +4,21 @@ Metrics: served on 127.0.0.1, read back over HTTP, port freed by stop()."""
 
 from __future__ import annotations
 
+import asyncio
 import io
 import json
 import logging
+import math
 import socket
 import urllib.request
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 import structlog
 
 from compd.faces.telemetry import Metrics, clear_secrets, configure_logging, register_secret
+from drivers.sim.modbus_server import ModbusSimController
 
 PASSWORD = "hunter2-Zq9!"
 
@@ -215,3 +219,63 @@ def test_counters_exist_at_zero_and_no_certificate_series_without_one() -> None:
     assert _value(text, 'compd_build_info{config_sha256="d",model_sha256="c",'
                         'version="0.1.0"}') == 1
     assert 'model_sha256="a"' not in text
+
+
+def test_model_output_and_channel_validity_gauges() -> None:
+    """What the dashboard plots beside the offset: the model's own output (NaN
+    when it did not step, a gap rather than a stale value) and 1/0 per channel."""
+    from prometheus_client import generate_latest
+
+    m = Metrics()
+    m.configure({"bearing": "degC", "ambient": "degC"}, ["offset"], version="0.1.0",
+                model_sha256="a", config_sha256="b")
+    m.model_output(12.25, {"bearing": None, "ambient": "out_of_range"})
+    text = generate_latest(m.registry).decode()
+    assert _value(text, "compd_model_output_micrometres") == 12.25
+    assert _value(text, 'compd_channel_valid{channel="bearing"}') == 1
+    assert _value(text, 'compd_channel_valid{channel="ambient"}') == 0
+    m.model_output(None, {"bearing": "read_failed", "ambient": "read_failed"})
+    text = generate_latest(m.registry).decode()
+    assert _value(text, "compd_model_output_micrometres") != _value(
+        text, "compd_model_output_micrometres")  # NaN
+    assert _value(text, 'compd_channel_valid{channel="bearing"}') == 0
+    # a reload that drops a channel drops its validity series
+    m.configure({"bearing": "degC"}, ["offset"], version="0.1.0", model_sha256="a",
+                config_sha256="b")
+    text = generate_latest(m.registry).decode()
+    assert 'compd_channel_valid{channel="ambient"}' not in text
+    assert 'compd_channel_valid{channel="bearing"}' in text
+
+
+async def test_daemon_exports_model_output_and_channel_validity(
+        sim: ModbusSimController, tmp_path: Path) -> None:
+    from prometheus_client import generate_latest
+
+    from compd.config.loader import load_config
+    from compd.runtime.daemon import Daemon
+    from compd.runtime.sdnotify import Notifier
+
+    from .daemon_helpers import until, write_config
+
+    daemon = Daemon(load_config(write_config(tmp_path, sim.endpoint)),
+                    notifier=Notifier(None))
+    task = asyncio.create_task(daemon.run())
+    try:
+        await until(lambda: daemon.complete_cycles >= 3)
+        text = generate_latest(daemon.metrics.registry).decode()
+        last = daemon.last_result
+        assert last is not None and last.model_um is not None
+        assert _value(text, 'compd_channel_valid{channel="bearing"}') == 1
+        assert _value(text, 'compd_channel_valid{channel="ambient"}') == 1
+        assert math.isfinite(_value(text, "compd_model_output_micrometres"))
+        # period_s 1.0 at time_scale 50 (write_config's default): 20 ms of wall clock
+        assert _value(text, "compd_period_seconds") == pytest.approx(0.02)
+        await sim.publish({"bearing": 200.0})  # beyond the channel's range [-20, 150]
+        await until(lambda: daemon.last_result is not None
+                    and daemon.last_result.record.validity.get("bearing") is not None)
+        text = generate_latest(daemon.metrics.registry).decode()
+        assert _value(text, 'compd_channel_valid{channel="bearing"}') == 0
+        assert _value(text, 'compd_channel_valid{channel="ambient"}') == 1
+    finally:
+        daemon.request_stop()
+        assert await task == 0
