@@ -4,7 +4,8 @@ task of one event loop) against one `compd run FILE` process per machine.
 N simulated Modbus machines are served by a sim farm process (the fleet
 benchmark's, `bench_daemon_fleet.py --sim-farm`); each mode runs its daemons
 through the real command line for --settle seconds, then VmRSS is read (the
-one process; the sum over the N processes) and SIGTERM stops them; every
+one process; the sum over the N processes), counted from when every daemon has
+taken its state lock, and SIGTERM stops them; every
 machine must have written its checkpoint at the stop and exited 0, otherwise
 the step is reported failed. Per added machine = (RSS(N) - RSS(1)) / (N - 1)
 with RSS(1) the one-machine figure of the same mode in the same run.
@@ -64,6 +65,12 @@ def measure(paths: list[Path], one_process: bool, settle_s: float, logs: Path) -
         procs = [subprocess.Popen(a, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
                                   env=env) for a in argv]
         try:
+            # every daemon started (its lock taken: signal handlers in place), then settle
+            deadline = time.monotonic() + 600.0
+            while time.monotonic() < deadline and not all(
+                    (p.parent / f"state{int(p.stem[7:])}" / "compd.lock").exists()
+                    for p in paths):
+                time.sleep(0.5)
             time.sleep(settle_s)
             rss = sum(rss_mb(p.pid) for p in procs)
         finally:
