@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import gc
 import json
 import math
 import os
@@ -123,6 +124,16 @@ async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> d
         return await d.run()
 
     window: list[float] = []
+    gc_pauses: list[tuple[int, float]] = []  # (generation, seconds) in the window
+    gc_t0 = [0.0]
+
+    def on_gc(phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            gc_t0[0] = time.perf_counter()
+        elif len(window) == 2:
+            gc_pauses.append((info["generation"], time.perf_counter() - gc_t0[0]))
+
+    gc.callbacks.append(on_gc)
 
     async def conductor() -> None:
         # the window opens WARMUP s after every daemon has run its first cycle (so
@@ -155,6 +166,9 @@ async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> d
                                  zip(d.times.total, d.times.io, strict=True)], 0.99),
         "record_s": mean([x for d in daemons for x in d.times.record]),
         "telemetry_s": mean([x for d in daemons for x in d.times.telemetry]),
+        "gc_gen2": sum(1 for g, _ in gc_pauses if g == 2),
+        "gc_max_ms": max((p for _, p in gc_pauses), default=0.0) * 1e3,
+        "gc_ms": sum(p for _, p in gc_pauses) * 1e3,
         "failed": [repr(r) for r in rcs[1:] if r != 0] + (
             [repr(rcs[0])] if rcs[0] is not None else []),
     }

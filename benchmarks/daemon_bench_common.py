@@ -252,9 +252,10 @@ class TimedDaemon(Daemon):
         super()._record(result)
         self.times.record.append(time.perf_counter() - t0)
 
-    def _telemetry(self, result: CycleResult, samples: dict[str, Sample] | None) -> None:
+    def _telemetry(self, result: CycleResult, samples: dict[str, Sample] | None,
+                   confirmed: bool) -> None:
         t0 = time.perf_counter()
-        super()._telemetry(result, samples)
+        super()._telemetry(result, samples, confirmed)
         self.times.telemetry.append(time.perf_counter() - t0)
 
     def _checkpoint(self, cycle: Cycle) -> None:

@@ -1,5 +1,9 @@
 """`compd run CONFIG [--dry-run] [--once]`: the compensation daemon.
 
+`compd run DIR`: one process serving every ``*.toml`` in DIR, each machine its
+own failure domain (`compd.runtime.fleet`); 78 when any file is bad (naming it),
+0 after SIGTERM.
+
 Exit status: 0 after SIGTERM/SIGINT (checkpoint written, shutdown policy
 applied), 78 on an invalid configuration (systemd does not restart it),
 75 (EX_TEMPFAIL) when another daemon holds the state directory, 73
@@ -20,7 +24,9 @@ HELP = "run the compensation daemon against the configured controller"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("config", metavar="CONFIG", help="daemon config file (TOML)")
+    parser.add_argument("config", metavar="CONFIG",
+                        help="daemon config file (TOML), or a directory: one process "
+                             "serving every *.toml in it, one machine each")
     parser.add_argument("--dry-run", action="store_true",
                         help="compute and log, write nothing to the controller or the state")
     parser.add_argument("--once", action="store_true",
@@ -28,6 +34,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    if Path(args.config).is_dir():
+        return run_directory(args)
     from compd.config.loader import load_config
 
     cfg = load_config(args.config)  # ConfigError -> 78 in compd.cli
@@ -62,3 +72,24 @@ def run(args: argparse.Namespace) -> int:
                           "channels": r.record.channels if r.record else {},
                           "validity": r.record.validity if r.record else {}}))
     return rc
+
+
+def run_directory(args: argparse.Namespace) -> int:
+    """`compd run DIR`: every *.toml in DIR, one machine each, in this one process
+    (compd.runtime.fleet). A bad file refuses the whole start (78, naming it)."""
+    from pathlib import Path
+
+    from compd.runtime.fleet import Fleet, build_drivers, load_machines
+    from compd.sysexits import EX_USAGE
+
+    if args.once:
+        print("compd run: --once takes one config file, not a directory", file=sys.stderr)
+        return EX_USAGE
+    configs = load_machines(Path(args.config))  # ConfigError -> 78 in compd.cli
+    from compd.faces.telemetry import configure_logging
+
+    tel = configs[0].raw.telemetry
+    configure_logging(json=None if tel.log_format == "auto" else tel.log_format == "json",
+                      level=tel.log_level, library_level=tel.library_log_level)
+    fleet = Fleet(configs, dry_run=args.dry_run, drivers=build_drivers(configs))
+    return asyncio.run(fleet.run())

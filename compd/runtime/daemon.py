@@ -48,6 +48,7 @@ from compd.core.cycle import Cycle, CycleResult, params_from_config
 from compd.core.faults import Event
 from compd.core.schedule import Schedule, shutdown_ramp_cycles
 from compd.faces.telemetry import Metrics
+from compd.runtime.gcfreeze import freeze_long_lived
 from compd.runtime.heap import pin_mmap_threshold
 from compd.runtime.liveness import boot_id
 from compd.runtime.reload import Changes
@@ -511,6 +512,7 @@ class Daemon:
             # fault the policy handles, hold then ramp with the alarm, not a start failure)
             self.notifier.ready()
             self._ready_sent = True
+            freeze_long_lived()  # full GC pauses stall every machine's loop (gcfreeze.py)
             self.log.info("ready", sequence=result.sequence,
                           offset_um=round(result.offset_um, 4), complete=result.complete)
         if self._ready_sent:

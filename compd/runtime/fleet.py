@@ -1,0 +1,241 @@
+"""Several machines in one process: `compd run DIR` (every ``*.toml`` in DIR, sorted).
+
+Each machine is its own failure domain: its own `Daemon` (driver, state
+directory and lock, recorder, checkpoint, metrics registry) run as one asyncio
+task of the one event loop. A controller's fault or slow link only delays its
+own task: every driver call has its timeout, and blocking libraries run in
+their driver's own worker thread (`drivers.io_thread`).
+
+Start: every file is loaded and validated before anything runs; one bad file
+refuses the whole start (`ConfigError` naming each bad file, exit 78), so that
+nothing runs half-configured. So do two files with the same ``[machine] name``
+(the metrics label, the log key) or the same state directory (one lock, one
+checkpoint per machine), and two different metrics ports (one endpoint per
+process: the files that set ``[telemetry] metrics_port`` must agree).
+
+Running: a daemon task that ends by an exception is logged
+(``machine_crashed``) and started again, with a fresh driver, after a backoff
+(1 s doubling to 60 s, back to 1 s after a minute of running); the others are
+untouched. SIGTERM/SIGINT stop every machine (each applies its shutdown
+policy and writes its checkpoint), SIGHUP reloads each machine's own file.
+Logging follows the first file's ``[telemetry]``; each line carries
+``machine``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+import structlog
+
+from compd.config.loader import LoadedConfig, load_config
+from compd.errors import ConfigError
+from compd.faces.fleet_metrics import FleetMetrics
+from compd.faces.telemetry import Metrics
+from compd.runtime.daemon import Daemon
+from compd.runtime.heap import pin_mmap_threshold
+from compd.runtime.sdnotify import Notifier
+from drivers.base import Driver
+
+__all__ = ["Fleet", "FleetDaemon", "build_drivers", "load_machines"]
+
+BACKOFF_INITIAL_S = 1.0
+BACKOFF_CAP_S = 60.0
+#: a daemon that ran this long before crashing starts again after the initial backoff
+BACKOFF_RESET_S = 60.0
+
+
+def load_machines(directory: Path) -> list[LoadedConfig]:
+    """Every ``*.toml`` in `directory` (sorted), validated; ConfigError names each bad file."""
+    files = sorted(p for p in directory.glob("*.toml") if p.is_file())
+    if not files:
+        raise ConfigError("", f"{directory}: no *.toml machine configs in the directory")
+    loaded: list[LoadedConfig] = []
+    bad: list[str] = []
+    for path in files:
+        try:
+            loaded.append(load_config(path))
+        except ConfigError as exc:
+            bad.append(f"{path}: {exc}")
+    if bad:
+        raise ConfigError("", "; ".join(bad))
+    _refuse_shared(loaded)
+    return loaded
+
+
+def build_drivers(configs: list[LoadedConfig]) -> dict[str, Driver]:
+    """Each machine's driver, constructed (not connected): a refusal names its file."""
+    from compd.runtime.driver_setup import build_driver
+
+    drivers: dict[str, Driver] = {}
+    for cfg in configs:
+        try:
+            drivers[cfg.raw.machine.name] = build_driver(cfg)
+        except ConfigError as exc:
+            raise ConfigError("", f"{cfg.path}: {exc}") from None
+    return drivers
+
+
+def _refuse_shared(configs: list[LoadedConfig]) -> None:
+    names: dict[str, Path] = {}
+    dirs: dict[Path, Path] = {}
+    ports: dict[tuple[str, int], Path] = {}
+    for cfg in configs:
+        name = cfg.raw.machine.name
+        if name in names:
+            raise ConfigError("machine.name", f"{cfg.path} and {names[name]} both name "
+                              f"the machine {name!r}; each machine needs its own name")
+        names[name] = cfg.path
+        state = cfg.state_dir.resolve()
+        if state in dirs:
+            raise ConfigError("state.dir", f"{cfg.path} and {dirs[state]} share the state "
+                              f"directory {state}; give each machine its own state.dir")
+        dirs[state] = cfg.path
+        tel = cfg.raw.telemetry
+        if tel.metrics_port is not None:
+            ports[(tel.metrics_host, tel.metrics_port)] = cfg.path
+    if len(ports) > 1:
+        where = ", ".join(f"{p} ({h}:{n})" for (h, n), p in sorted(ports.items()))
+        raise ConfigError("telemetry.metrics_port", f"one metrics endpoint per process, "
+                          f"the files ask for several: {where}")
+
+
+def metrics_endpoint(configs: list[LoadedConfig]) -> tuple[str, int] | None:
+    for cfg in configs:
+        tel = cfg.raw.telemetry
+        if tel.metrics_port is not None:
+            return tel.metrics_host, tel.metrics_port
+    return None
+
+
+class FleetDaemon(Daemon):
+    """A `Daemon` among others: logs with its machine's name, and its metrics are
+    served by the process's one endpoint (`compd.faces.fleet_metrics`)."""
+
+    def __init__(self, cfg: LoadedConfig, **kwargs: Any) -> None:
+        super().__init__(cfg, notifier=Notifier(None), **kwargs)
+        self.log = self.log.bind(machine=cfg.raw.machine.name)
+
+    def _start_metrics(self) -> None:
+        pass  # the fleet serves every machine's registry on one port
+
+    async def run_machine(self) -> int:
+        """`Daemon.run` without the signal handlers (the fleet's) and the heap setting."""
+        return await self._run()
+
+
+class Fleet:
+    """The machines of one directory, each a supervised task of one event loop."""
+
+    def __init__(self, configs: list[LoadedConfig], *, dry_run: bool = False,
+                 notifier: Notifier | None = None,
+                 drivers: dict[str, Driver] | None = None) -> None:
+        self.configs = {c.raw.machine.name: c for c in configs}
+        #: drivers built (and so checked) before the start; a restart builds a fresh one
+        self._drivers = dict(drivers or {})
+        self.dry_run = dry_run
+        self.notifier = notifier if notifier is not None else Notifier()
+        self.daemons: dict[str, FleetDaemon] = {}
+        self.restarts: dict[str, int] = dict.fromkeys(self.configs, 0)
+        self.metrics = FleetMetrics(self._machine_metrics)
+        self.stopping = asyncio.Event()
+        self.log = structlog.get_logger("compd")
+
+    def _machine_metrics(self) -> dict[str, Metrics]:
+        return {name: d.metrics for name, d in list(self.daemons.items())}
+
+    def request_stop(self) -> None:
+        self.stopping.set()
+        for daemon in list(self.daemons.values()):
+            daemon.request_stop()
+
+    def request_reload(self) -> None:
+        for daemon in list(self.daemons.values()):
+            daemon.request_reload()
+
+    async def run(self) -> int:
+        """Run every machine until SIGTERM/SIGINT (or `request_stop`); returns 0."""
+        pin_mmap_threshold()
+        loop = asyncio.get_running_loop()
+        installed = []
+        for sig, handler in ((signal.SIGTERM, self.request_stop),
+                             (signal.SIGINT, self.request_stop),
+                             (signal.SIGHUP, self.request_reload)):
+            try:
+                loop.add_signal_handler(sig, handler)
+                installed.append(sig)
+            except (RuntimeError, ValueError, NotImplementedError):
+                pass  # not the main thread: the caller stops us with request_stop()
+        endpoint = metrics_endpoint(list(self.configs.values()))
+        if endpoint is not None:
+            try:
+                self.metrics.start_http(endpoint[1], endpoint[0])
+            except OSError as exc:
+                self.log.error("metrics_unavailable", host=endpoint[0], port=endpoint[1],
+                               error=str(exc))
+        self.log.info("fleet_starting", machines=sorted(self.configs), dry_run=self.dry_run)
+        tasks = [loop.create_task(self._supervise(name), name=f"compd:{name}")
+                 for name in sorted(self.configs)]
+        watchdog = loop.create_task(self._notify())
+        try:
+            await asyncio.gather(*tasks)
+        finally:
+            watchdog.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await watchdog
+            for task in tasks:
+                task.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+            self.notifier.stopping()
+            self.metrics.stop()
+            for sig in installed:
+                loop.remove_signal_handler(sig)
+        self.log.info("fleet_stopped", machines=len(self.configs),
+                      restarts=sum(self.restarts.values()))
+        return 0
+
+    async def _supervise(self, name: str) -> None:
+        """Run one machine's daemon; start it again after a crash, with backoff."""
+        backoff = BACKOFF_INITIAL_S
+        running = self.metrics.running.labels(machine=name)
+        self.metrics.restarts.labels(machine=name)
+        while not self.stopping.is_set():
+            daemon = FleetDaemon(self.configs[name], dry_run=self.dry_run,
+                                 driver=self._drivers.pop(name, None))
+            self.daemons[name] = daemon
+            started = time.monotonic()
+            running.set(1)
+            try:
+                await daemon.run_machine()
+                return  # stopped on request
+            except Exception as exc:  # this machine's failure, never the others'
+                running.set(0)
+                if time.monotonic() - started >= BACKOFF_RESET_S:
+                    backoff = BACKOFF_INITIAL_S
+                self.log.error("machine_crashed", machine=name, error=str(exc),
+                               type=type(exc).__name__, restart_in_s=backoff,
+                               exc_info=True)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self.stopping.wait(), backoff)
+            backoff = min(backoff * 2.0, BACKOFF_CAP_S)
+            if not self.stopping.is_set():
+                self.restarts[name] += 1
+                self.metrics.restarts.labels(machine=name).inc()
+                self.log.info("machine_restarting", machine=name, restarts=self.restarts[name])
+
+    async def _notify(self) -> None:
+        """READY once every machine's task is started; WATCHDOG while the loop runs."""
+        await asyncio.sleep(0)
+        self.notifier.ready()
+        interval = self.notifier.watchdog_interval_s()
+        every = interval / 2.0 if interval else 10.0
+        while True:
+            ready = sum(1 for d in list(self.daemons.values()) if d.complete_cycles)
+            self.notifier.watchdog()
+            self.notifier.status(f"{len(self.configs)} machines, {ready} compensating")
+            await asyncio.sleep(every)

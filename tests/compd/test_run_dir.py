@@ -1,0 +1,203 @@
+"""`compd run DIR`: several machines in one process (compd.runtime.fleet), each its
+own failure domain, against simulated Modbus controllers on 127.0.0.1."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import signal
+import sys
+import urllib.request
+from collections.abc import AsyncIterator, Mapping, Sequence
+from pathlib import Path
+
+import pytest
+
+from compd.cli import main
+from compd.config.loader import load_config
+from compd.runtime.fleet import Fleet, load_machines
+from compd.runtime.startup import checkpoint_path
+from drivers.base import Sample
+from drivers.sim.modbus_server import ModbusSimController
+from drivers.sim.ports import free_tcp_port
+from tests.compd.daemon_helpers import CONFIG, until
+
+NAMES = ("mill-a", "mill-b", "mill-c")
+
+
+def _write_machine(directory: Path, name: str, endpoint: str, *, checkpoint_every: int = 20,
+                   metrics_port: int | None = None) -> Path:
+    text = CONFIG.format(endpoint=endpoint, time_scale=50.0, timeout_s=0.008, slew_um_s=1.0,
+                         shutdown="hold", checkpoint_every=checkpoint_every)
+    text = text.replace('name = "test"', f'name = "{name}"')
+    text = text.replace('dir = "state"', f'dir = "state-{name}"')
+    if metrics_port is not None:
+        text = text.replace("[telemetry]", f"[telemetry]\nmetrics_port = {metrics_port}")
+    path = directory / f"{name}.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+@pytest.fixture
+async def sims() -> AsyncIterator[list[ModbusSimController]]:
+    controllers = [ModbusSimController() for _ in NAMES]
+    for c in controllers:
+        await c.start()
+        await c.publish({"bearing": 20.0, "ambient": 20.0})
+    try:
+        yield controllers
+    finally:
+        for c in controllers:
+            await c.stop()
+
+
+def _machines_dir(tmp_path: Path, sims: Sequence[ModbusSimController], **kw: int) -> Path:
+    d = tmp_path / "machines.d"
+    d.mkdir()
+    for name, sim in zip(NAMES, sims, strict=True):
+        _write_machine(d, name, sim.endpoint, **kw)
+    return d
+
+
+def _complete(fleet: Fleet) -> dict[str, int]:
+    return {n: (d.complete_cycles if (d := fleet.daemons.get(n)) else 0) for n in NAMES}
+
+
+async def _stop(fleet: Fleet, task: asyncio.Task[int]) -> int:
+    fleet.request_stop()
+    return await asyncio.wait_for(task, 20.0)
+
+
+async def test_a_stopped_controller_never_holds_up_the_others(
+        sims: list[ModbusSimController], tmp_path: Path) -> None:
+    port = free_tcp_port("127.0.0.1")
+    fleet = Fleet(load_machines(_machines_dir(tmp_path, sims, metrics_port=port)))
+    task = asyncio.get_running_loop().create_task(fleet.run())
+    try:
+        await until(lambda: min(_complete(fleet).values()) >= 5)
+        down = sims[1]
+        await down.stop()  # mill-b's controller goes away
+        await until(lambda: fleet.daemons["mill-b"]._read_ok is False)
+        before = _complete(fleet)
+        beats = [(await s.outputs())["heartbeat"] for s in (sims[0], sims[2])]
+        await until(lambda: min(_complete(fleet)[n] - before[n] for n in ("mill-a", "mill-c"))
+                    >= 50)
+        after = _complete(fleet)
+        assert after["mill-b"] == before["mill-b"]  # it holds, writes nothing
+        # the controllers of the others saw their heartbeats advance all along
+        for sim, beat in zip((sims[0], sims[2]), beats, strict=True):
+            assert (await sim.outputs())["heartbeat"] != beat
+        # one endpoint, every machine's series labelled with its name
+        body = await asyncio.to_thread(
+            lambda: urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics",
+                                           timeout=5).read().decode())
+        for name in NAMES:
+            assert f'compd_cycles_complete_total{{machine="{name}"}}' in body
+            assert f'compd_machine_running{{machine="{name}"}} 1.0' in body
+        await down.start()  # back on the same port: mill-b resumes
+        resumed = _complete(fleet)["mill-b"]
+        await until(lambda: _complete(fleet)["mill-b"] >= resumed + 10)
+        assert await _stop(fleet, task) == 0
+    finally:
+        if not task.done():
+            await _stop(fleet, task)
+    assert fleet.restarts == dict.fromkeys(NAMES, 0)  # a controller's fault is no crash
+
+
+class _CrashingDriver:
+    """A driver whose read fails with an error no driver should raise: a bug."""
+
+    connected = True
+
+    async def connect(self) -> None:
+        return None
+
+    async def read(self, names: Sequence[str]) -> dict[str, Sample]:
+        raise RuntimeError("a bug in a driver")
+
+    async def write(self, values: Mapping[str, float]) -> None:
+        return None
+
+    async def close(self) -> None:
+        return None
+
+
+async def test_a_crashing_daemon_is_restarted_alone(
+        sims: list[ModbusSimController], tmp_path: Path) -> None:
+    configs = load_machines(_machines_dir(tmp_path, sims))
+    fleet = Fleet(configs, drivers={"mill-c": _CrashingDriver()})  # type: ignore[dict-item]
+    task = asyncio.get_running_loop().create_task(fleet.run())
+    try:
+        # mill-c crashes at its first read, is restarted after a backoff with a real driver
+        await until(lambda: fleet.restarts["mill-c"] == 1 and _complete(fleet)["mill-c"] >= 5)
+        assert fleet.restarts == {"mill-a": 0, "mill-b": 0, "mill-c": 1}
+        assert min(_complete(fleet).values()) >= 5
+        assert await _stop(fleet, task) == 0
+    finally:
+        if not task.done():
+            await _stop(fleet, task)
+
+
+def test_a_bad_file_refuses_the_whole_start_naming_it(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    d = tmp_path / "machines.d"
+    d.mkdir()
+    for name in NAMES:
+        _write_machine(d, name, "modbus://127.0.0.1:1502")
+    bad = d / "mill-b.toml"
+    bad.write_text(bad.read_text().replace("limit_um = 100.0", "limit_um = 0.0"))
+    assert main(["run", str(d)]) == 78
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and str(bad) in err and "limit_um" in err
+    assert str(d / "mill-a.toml") not in err
+    assert not any((d / f"state-{n}").exists() for n in NAMES)  # nothing ran
+
+
+def test_two_files_sharing_a_state_dir_are_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    d = tmp_path / "machines.d"
+    d.mkdir()
+    for name in NAMES:
+        _write_machine(d, name, "modbus://127.0.0.1:1502")
+    c = d / "mill-c.toml"
+    c.write_text(c.read_text().replace('dir = "state-mill-c"', 'dir = "state-mill-a"'))
+    assert main(["run", str(d)]) == 78
+    err = capsys.readouterr().err
+    assert str(c) in err and str(d / "mill-a.toml") in err and "state" in err
+
+
+def test_an_empty_directory_is_refused(tmp_path: Path,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["run", str(tmp_path)]) == 78
+    assert "no *.toml" in capsys.readouterr().err
+
+
+async def test_sigterm_stops_every_machine_with_its_checkpoint(
+        sims: list[ModbusSimController], tmp_path: Path) -> None:
+    d = _machines_dir(tmp_path, sims, checkpoint_every=1_000_000)  # only at the stop
+    paths = [checkpoint_path(load_config(d / f"{n}.toml")) for n in NAMES]
+    env = {**os.environ, "NOTIFY_SOCKET": ""}
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "compd", "run", str(d), env=env,
+        stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE)
+    try:
+        for sim in sims:  # every machine is writing its heartbeat
+            for _ in range(2000):
+                if (await sim.outputs())["heartbeat"] > 3:
+                    break
+                await asyncio.sleep(0.01)
+        assert not any(p.exists() for p in paths)
+        proc.send_signal(signal.SIGTERM)
+        _, err = await asyncio.wait_for(proc.communicate(), 30.0)
+        assert proc.returncode == 0, err.decode()[-2000:]
+        assert all(p.exists() for p in paths)
+        log = err.decode()
+        for name in NAMES:
+            assert f'"machine": "{name}"' in log
+        assert log.count('"event": "daemon_stopped"') == 3
+    finally:
+        if proc.returncode is None:
+            with contextlib.suppress(ProcessLookupError):
+                proc.kill()
+            await proc.wait()
