@@ -56,7 +56,8 @@ def _config(tmp_path: Path, named: int, unnamed: int) -> Path:
     """The example config, pointed at the two endpoints, scraping every second."""
     cfg = yaml.safe_load((MONITORING / "prometheus.yml").read_text())
     cfg["global"] = {"scrape_interval": "1s", "evaluation_interval": "1s"}
-    (job,) = cfg["scrape_configs"]
+    job = next(j for j in cfg["scrape_configs"] if j["job_name"] == "compd")
+    cfg["scrape_configs"] = [job]  # the per-machine job (compd-fleet: a fleet endpoint)
     job["static_configs"] = [
         {"targets": [f"127.0.0.1:{named}"], "labels": {"machine": "mill-1"}},
         {"targets": [f"127.0.0.1:{unnamed}"]},
