@@ -119,13 +119,15 @@ def _late_db(path: Path) -> Path:
     return path
 
 
-async def test_replay_reads_the_daemons_recorder_written_at_time_scale_50(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+async def _recorder_at_time_scale(tmp_path: Path, time_scale: float) -> Path:
+    """A real daemon against the simulated Modbus controller at `time_scale`,
+    the bearing stepped twice; its recorder database."""
+    tmp_path.mkdir()
     sim = ModbusSimController()
     await sim.start()
     try:
         await sim.publish({"bearing": 20.0, "ambient": 20.0})
-        cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=50.0))
+        cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=time_scale))
         daemon = Daemon(cfg, notifier=Notifier(None))
         task = asyncio.create_task(daemon.run())
         for target, bearing in ((20, 23.0), (60, 21.5), (100, None)):
@@ -140,8 +142,21 @@ async def test_replay_reads_the_daemons_recorder_written_at_time_scale_50(
     finally:
         await sim.stop()
     assert cfg.recorder_path is not None
-    rc = await asyncio.to_thread(main, ["replay", "sp2", str(cfg.recorder_path), "--output",
-                                        "model_um", "--json"])
-    out, err = capsys.readouterr()
+    return cfg.recorder_path
+
+
+async def test_replay_reads_the_daemons_recorder_written_at_time_scale_50(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A recorder written at 50x is a record; on a loaded machine the daemon may
+    really miss a deadline (a 20 ms cycle), which replay rightly refuses, so a
+    run with a missed deadline is repeated (at most three runs)."""
+    for attempt in range(3):
+        db = await _recorder_at_time_scale(tmp_path / f"run{attempt}", 50.0)
+        rc = await asyncio.to_thread(main, ["replay", "sp2", str(db), "--output",
+                                            "model_um", "--json"])
+        out, err = capsys.readouterr()
+        if rc != 0 and "missed deadline" in err:
+            continue
+        break
     assert rc == 0, err
     assert json.loads(out.splitlines()[-1])["fit_percent"] > 99.0
