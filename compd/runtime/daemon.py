@@ -178,6 +178,9 @@ class Daemon:
                 driver = self._driver = build_driver(cfg)
             try:
                 await self._connect(driver)
+                # full GC pauses stall every machine's loop (gcfreeze.py); freezing walks
+                # the heap (20 ms for 3 M objects), so it is done before the first deadline
+                freeze_long_lived()
                 rc = await self._loop()
             finally:
                 await self._cancel_reload()
@@ -512,7 +515,6 @@ class Daemon:
             # fault the policy handles, hold then ramp with the alarm, not a start failure)
             self.notifier.ready()
             self._ready_sent = True
-            freeze_long_lived()  # full GC pauses stall every machine's loop (gcfreeze.py)
             self.log.info("ready", sequence=result.sequence,
                           offset_um=round(result.offset_um, 4), complete=result.complete)
         if self._ready_sent:

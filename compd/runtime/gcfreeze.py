@@ -8,8 +8,10 @@ walk stalled the event loop: measured in benchmarks/bench_daemon_fleet.py at
 ~20 s with the CPUs 90 % idle, every daemon's cycle late by as much (p99
 lateness 39 ms, the step failed). `freeze_long_lived` moves every object
 alive now into the permanent generation (`gc.freeze`), which collections
-skip: called when a daemon has started cycling (its objects made), so that
-later collections walk only what was made since. Objects frozen are still
+skip: called when a daemon has connected, before its first deadline (its
+objects made; freezing itself walks the heap, 20 ms for 3 million objects,
+which inside the cycle made a deadline late), so that later collections walk
+only what was made since. Objects frozen are still
 freed by their reference count; only cyclic garbage alive at that instant
 stays (a start's worth, once).
 """
