@@ -9,16 +9,13 @@ name. The process's own series (``compd_machine_restarts_total``,
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Callable, Iterable, Mapping
-from wsgiref.simple_server import WSGIServer
 
 from prometheus_client import CollectorRegistry, Counter, Gauge
-from prometheus_client.exposition import start_http_server
 from prometheus_client.metrics_core import Metric
 from prometheus_client.registry import Collector
 
-from compd.faces.telemetry import Metrics
+from compd.faces.telemetry import Metrics, MetricsServer
 
 __all__ = ["FleetCollector", "FleetMetrics"]
 
@@ -46,7 +43,7 @@ class FleetCollector(Collector):
         return list(families.values())
 
 
-class FleetMetrics:
+class FleetMetrics(MetricsServer):
     """The process's registry: the machines' metrics and its own per-machine series."""
 
     def __init__(self, machines: Callable[[], Mapping[str, Metrics]]) -> None:
@@ -58,23 +55,4 @@ class FleetMetrics:
         self.running = Gauge("compd_machine_running",
                              "1 while the machine's daemon task runs, 0 while it waits "
                              "to be restarted", ["machine"], registry=self.registry)
-        self._server: WSGIServer | None = None
-        self._thread: threading.Thread | None = None
-
-    @property
-    def port(self) -> int | None:
-        return None if self._server is None else int(self._server.server_address[1])
-
-    def start_http(self, port: int, host: str = "127.0.0.1") -> None:
-        """Serve /metrics on host:port from a thread (port 0: a free one, see `port`)."""
-        self._server, self._thread = start_http_server(port, addr=host,
-                                                       registry=self.registry)
-
-    def stop(self) -> None:
-        server, thread = self._server, self._thread
-        self._server = self._thread = None
-        if server is not None:
-            server.shutdown()
-            server.server_close()
-        if thread is not None:
-            thread.join(timeout=5.0)
+        self._init_server()

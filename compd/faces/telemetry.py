@@ -245,7 +245,42 @@ def configure_logging(json: bool | None = None, level: str = "info", *,
                                          else floor)
 
 
-class Metrics:
+class MetricsServer:
+    """`registry` served as /metrics from a thread: `start_http`, `port`, `stop`
+    (for one daemon's `Metrics` and for a fleet process's `FleetMetrics`)."""
+
+    registry: CollectorRegistry
+
+    def _init_server(self) -> None:
+        self._server: WSGIServer | None = None
+        self._thread: threading.Thread | None = None
+
+    @property
+    def port(self) -> int | None:
+        """The port served on (useful after `start_http(0)`), None when not serving."""
+        if self._server is None:
+            return None
+        return int(self._server.server_address[1])
+
+    def start_http(self, port: int, host: str = "127.0.0.1") -> None:
+        """Serve /metrics on host:port (port 0: a free port, see `port`) from a thread."""
+        if self._server is not None:
+            raise RuntimeError(f"metrics already served on port {self.port}")
+        server, thread = start_http_server(port, addr=host, registry=self.registry)
+        self._server, self._thread = server, thread
+
+    def stop(self) -> None:
+        """Stop serving and free the port. Idempotent."""
+        server, thread = self._server, self._thread
+        self._server = self._thread = None
+        if server is not None:
+            server.shutdown()
+            server.server_close()
+        if thread is not None:
+            thread.join(timeout=5.0)
+
+
+class Metrics(MetricsServer):
     """The daemon's Prometheus metrics, in their own registry (`registry`)."""
 
     def __init__(self, registry: CollectorRegistry | None = None) -> None:
@@ -309,8 +344,7 @@ class Metrics:
         self.channel_valid = Gauge(
             "compd_channel_valid", "1 when the channel's last value was valid, 0 when it "
             "was not (read failed, out of range, stale, ...)", ["channel"], registry=r)
-        self._server: WSGIServer | None = None
-        self._thread: threading.Thread | None = None
+        self._init_server()
 
     def configure(self, channels: Mapping[str, str], outputs: list[str], *, version: str,
                   model_sha256: str, config_sha256: str) -> None:
@@ -364,27 +398,3 @@ class Metrics:
         self._last_complete_mono = time.monotonic()
         self.last_complete_timestamp.set(time.time())
         self.cycles_complete.inc()
-
-    @property
-    def port(self) -> int | None:
-        """The port served on (useful after `start_http(0)`), None when not serving."""
-        if self._server is None:
-            return None
-        return int(self._server.server_address[1])
-
-    def start_http(self, port: int, host: str = "127.0.0.1") -> None:
-        """Serve /metrics on host:port (port 0: a free port, see `port`) from a thread."""
-        if self._server is not None:
-            raise RuntimeError(f"metrics already served on port {self.port}")
-        server, thread = start_http_server(port, addr=host, registry=self.registry)
-        self._server, self._thread = server, thread
-
-    def stop(self) -> None:
-        """Stop serving and free the port. Idempotent."""
-        server, thread = self._server, self._thread
-        self._server = self._thread = None
-        if server is not None:
-            server.shutdown()
-            server.server_close()
-        if thread is not None:
-            thread.join(timeout=5.0)
