@@ -122,7 +122,7 @@ def _late_db(path: Path) -> Path:
 async def _recorder_at_time_scale(tmp_path: Path, time_scale: float) -> Path:
     """A real daemon against the simulated Modbus controller at `time_scale`,
     the bearing stepped twice; its recorder database."""
-    tmp_path.mkdir()
+    await asyncio.to_thread(tmp_path.mkdir)
     sim = ModbusSimController()
     await sim.start()
     try:
