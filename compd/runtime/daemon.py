@@ -178,8 +178,8 @@ class Daemon:
                 driver = self._driver = build_driver(cfg)
             try:
                 await self._connect(driver)
-                # full GC pauses stall every machine's loop (gcfreeze.py); freezing walks
-                # the heap (20 ms for 3 M objects), so it is done before the first deadline
+                # full GC pauses stall every machine's loop (gcfreeze.py): the objects
+                # made so far (driver connected) are frozen before the first deadline
                 freeze_long_lived()
                 rc = await self._loop()
             finally:
