@@ -87,3 +87,32 @@ def shutdown_ramp_cycles(limit_um: float, slew_um_s: float, period_s: float) -> 
     n = abs(limit_um) / per_cycle if per_cycle > 0.0 else math.inf
     ramp = math.ceil(n) if n < MAX_SHUTDOWN_CYCLES else MAX_SHUTDOWN_CYCLES
     return ramp + SHUTDOWN_MARGIN_CYCLES
+
+
+#: machines of one process start at least this far apart (a daemon's start-up,
+#: mostly its recorder's SQLite schema, holds the loop for a few milliseconds)
+START_SPACING_S = 0.01
+
+
+def staggered_starts(n: int, period_s: float,
+                     min_spacing_s: float = START_SPACING_S) -> list[float]:
+    """Start delays (s) for `n` machines sharing one loop, at a common `period_s`
+    (the shortest of their periods).
+
+    Two things at once: the starts are at least `min_spacing_s` apart (a burst
+    of start-ups would hold the loop for seconds and time out every running
+    machine's reads), and the machines' cycles fall evenly over the period
+    (phases k/n of it: started together, every machine's deadline would be the
+    same instant, and the last of n would always be late by the others' cycles).
+    Spacing the starts by c·period/n with c the smallest integer ≥ n·spacing/period
+    coprime with n gives both: the phases k·c/n mod 1 are a permutation of k/n.
+    """
+    if n <= 0:
+        return []
+    if not (math.isfinite(period_s) and period_s > 0.0):
+        raise ValueError(f"period must be a positive number of seconds, got {period_s!r}")
+    c = max(1, math.ceil(n * min_spacing_s / period_s - 1e-9))
+    while math.gcd(c, n) != 1:
+        c += 1
+    step_s = c * period_s / n
+    return [k * step_s for k in range(n)]

@@ -13,6 +13,11 @@ nothing runs half-configured. So do two files with the same ``[machine] name``
 checkpoint per machine), and two different metrics ports (one endpoint per
 process: the files that set ``[telemetry] metrics_port`` must agree).
 
+Start: the machines start one after the other, at least 10 ms apart, and
+their cycles fall evenly over the (shortest) period (`staggered_starts`):
+500 machines at 1 Hz are all running after about 7 s, and no two share a
+deadline.
+
 Running: a daemon task that ends by an exception is logged
 (``machine_crashed``) and started again, with a fresh driver, after a backoff
 (1 s doubling to 60 s, back to 1 s after a minute of running); the others are
@@ -34,6 +39,7 @@ from typing import Any
 import structlog
 
 from compd.config.loader import LoadedConfig, load_config
+from compd.core.schedule import staggered_starts
 from compd.errors import ConfigError
 from compd.faces.fleet_metrics import FleetMetrics
 from compd.faces.telemetry import Metrics
@@ -179,8 +185,11 @@ class Fleet:
                 self.log.error("metrics_unavailable", host=endpoint[0], port=endpoint[1],
                                error=str(exc))
         self.log.info("fleet_starting", machines=sorted(self.configs), dry_run=self.dry_run)
-        tasks = [loop.create_task(self._supervise(name), name=f"compd:{name}")
-                 for name in sorted(self.configs)]
+        names = sorted(self.configs)
+        delays = staggered_starts(len(names), min(c.real_period_s
+                                                  for c in self.configs.values()))
+        tasks = [loop.create_task(self._supervise(name, delay), name=f"compd:{name}")
+                 for name, delay in zip(names, delays, strict=True)]
         watchdog = loop.create_task(self._notify())
         try:
             await asyncio.gather(*tasks)
@@ -199,11 +208,15 @@ class Fleet:
                       restarts=sum(self.restarts.values()))
         return 0
 
-    async def _supervise(self, name: str) -> None:
-        """Run one machine's daemon; start it again after a crash, with backoff."""
+    async def _supervise(self, name: str, delay_s: float = 0.0) -> None:
+        """Run one machine's daemon from `delay_s` on (`staggered_starts`); start it
+        again after a crash, with backoff."""
         backoff = BACKOFF_INITIAL_S
         running = self.metrics.running.labels(machine=name)
         self.metrics.restarts.labels(machine=name)
+        if delay_s > 0.0:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self.stopping.wait(), delay_s)
         while not self.stopping.is_set():
             daemon = FleetDaemon(self.configs[name], dry_run=self.dry_run,
                                  driver=self._drivers.pop(name, None))

@@ -14,7 +14,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from compd.core.schedule import SHUTDOWN_MARGIN_CYCLES, Schedule, shutdown_ramp_cycles
+from compd.core.schedule import (
+    SHUTDOWN_MARGIN_CYCLES,
+    Schedule,
+    shutdown_ramp_cycles,
+    staggered_starts,
+)
 
 #: a monotonic clock's reading after weeks of uptime: where rounding bites
 START_S = 2_000_000.123
@@ -117,3 +122,25 @@ def test_the_shutdown_ramp_gets_the_full_scale_ramp_plus_a_margin() -> None:
 def test_a_period_that_is_not_positive_is_refused(period: float) -> None:
     with pytest.raises(ValueError, match="period"):
         Schedule(period, START_S)
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 64, 100, 500, 1000, 1024])
+@pytest.mark.parametrize("period", [0.05, 1.0, 10.0])
+def test_staggered_starts_are_spaced_and_spread_the_phases_evenly(n: int,
+                                                                   period: float) -> None:
+    starts = staggered_starts(n, period, min_spacing_s=0.01)
+    assert len(starts) == n and starts[0] == 0.0
+    gaps = [b - a for a, b in zip(starts, starts[1:], strict=False)]
+    assert all(g >= 0.01 - 1e-12 for g in gaps)  # never a burst of start-ups
+    # every phase k/n of the period taken exactly once: no two deadlines together
+    phases = sorted(round((s / period * n) % n) % n for s in starts)
+    assert phases == list(range(n))
+    # and no slower than it must be: the spacing is the smallest such one
+    # (within the next integers coprime with n)
+    assert starts[-1] <= (n - 1) * (0.01 + period / n) * 2
+
+
+def test_staggered_starts_refuse_a_bad_period() -> None:
+    assert staggered_starts(0, 1.0) == []
+    with pytest.raises(ValueError, match="period"):
+        staggered_starts(3, 0.0)
