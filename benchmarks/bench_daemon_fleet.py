@@ -9,16 +9,18 @@ controllers compete with the daemons for the same cores):
 - W daemon worker processes (this script with --worker; W = the CPUs, 2 by
   default) each run N/W real `compd.runtime.daemon.Daemon`s on one event loop (recorder
   on, checkpoint every 20 (see --checkpoint-every), JSON logs at info to a
-  file). The daemons' start
-  times are spread over the period (as N independently started services
-  would be); --aligned starts them all at once (worst case).
+  file). Each worker starts its daemons as `compd run DIR` does
+  (`compd.core.schedule.staggered_starts`: at least 10 ms apart, cycles
+  spread evenly over the period); --aligned starts them all at once (worst
+  case).
 
 Lateness = cycle start - its deadline, from a timing hook around the unchanged
 daemon (`daemon_bench_common.TimedDaemon`), over all machines' cycles in a
 window that opens 3 s after every daemon of the worker has started cycling
 (so that connecting daemons do not count against the others) and lasts
 --seconds. A step holds when p99 lateness < 10 ms, no overrun and under 1 % of
-cycles incomplete. N grows (doubling from --start) until a step fails, then one
+cycles incomplete in the window (what happened before it, while every
+daemon connected at once, is printed apart as "start"). N grows (doubling from --start) until a step fails, then one
 bisection step between the last pass and the fail; the largest N that held is
 printed per protocol. The peer for the ratios is the single machine (N = 1)
 measured the same way in the same run. The 1-minute load average is printed
@@ -46,6 +48,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from compd.core.schedule import staggered_starts
 from daemon_bench_common import (
     TimedDaemon,
     TimedDriver,
@@ -60,6 +63,20 @@ from daemon_bench_common import (
 WARMUP_CYCLES = 3
 LIMIT_MS = 10.0
 HERE = Path(__file__).resolve()
+
+
+def _watch_gc(who: str, over_ms: float = 20.0) -> None:
+    """Log every collection longer than `over_ms` to stderr."""
+    t0 = [0.0]
+
+    def on_gc(phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            t0[0] = time.perf_counter()
+        elif (ms := (time.perf_counter() - t0[0]) * 1e3) > over_ms:
+            print(f"{who}: gc gen {info['generation']} {ms:.0f} ms "
+                  f"at {time.strftime('%H:%M:%S')}", file=sys.stderr, flush=True)
+
+    gc.callbacks.append(on_gc)
 
 
 # -- the sim farm process ----------------------------------------------------------------
@@ -92,6 +109,10 @@ async def _sim_farm(protocol: str, count: int) -> None:
             await m.prime()
         for m in machines:
             m.start()
+        # the farm is the test harness: its collections (50-100 ms with 500 simulated
+        # controllers) would stall every controller at once, which no real shop sees
+        gc.freeze()
+        _watch_gc("sim farm")
         print(json.dumps([describe(s) for s in sims]), flush=True)
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
@@ -134,6 +155,7 @@ async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> d
             gc_pauses.append((info["generation"], time.perf_counter() - gc_t0[0]))
 
     gc.callbacks.append(on_gc)
+    _watch_gc("worker")
 
     async def conductor() -> None:
         # the window opens WARMUP s after every daemon has run its first cycle (so
@@ -141,12 +163,19 @@ async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> d
         await asyncio.gather(*(d.first_cycle.wait() for d in daemons))
         await asyncio.sleep(WARMUP_CYCLES)
         window.extend([time.monotonic(), time.process_time()])
+        counts.append(troubles())
         print("window", flush=True)
         await asyncio.sleep(seconds)
         window.extend([time.monotonic(), time.process_time()])
+        counts.append(troubles())
         for d in daemons:
             d.request_stop()
 
+    def troubles() -> tuple[int, int]:
+        return (sum(d.overruns for d in daemons),
+                sum(d.cycles - d.complete_cycles for d in daemons))
+
+    counts: list[tuple[int, int]] = []  # (overruns, incomplete) at window open, close
     tasks = [one(d, o) for d, o in zip(daemons, offsets_s, strict=True)]
     rcs = await asyncio.gather(conductor(), *tasks, return_exceptions=True)
     late: list[float] = []
@@ -155,10 +184,14 @@ async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> d
     cycles = sum(1 for d in daemons for s in d.times.start if window[0] <= s < window[2])
     return {
         "late_s": late,
-        "overruns": sum(d.overruns for d in daemons),
+        # in the window (steady state); before it: the start-up burst, reported apart
+        "overruns": counts[1][0] - counts[0][0],
+        "start_overruns": counts[0][0],
         "cycles": cycles,
         "cpu": (window[3] - window[1]) / (window[2] - window[0]),
-        "incomplete": sum(d.cycles - d.complete_cycles for d in daemons),
+        # (a cycle under way at either end counts as started, not yet complete)
+        "incomplete": max(0, counts[1][1] - counts[0][1]),
+        "start_incomplete": counts[0][1],
         "leaked": sum(drv.leaked for drv in drivers),
         "own_s": mean([a - b for d in daemons
                        for a, b in zip(d.times.total, d.times.io, strict=True)]),
@@ -195,8 +228,12 @@ class Step:
     late_p50_ms: float
     late_p99_ms: float
     late_max_ms: float
+    #: in the measured window (steady state: what `holds` judges)
     overruns: int
     incomplete: int
+    #: before the window: the start-up burst of every daemon connecting at once
+    start_overruns: int
+    start_incomplete: int
     leaked: int
     own_ms: float
     cpu_daemons: float  # CPU seconds per second, all workers
@@ -240,7 +277,9 @@ def run_step(protocol: str, n: int, *, seconds: int, workers: int, aligned: bool
             path = write_config(doc, step_dir / f"machine{i}.toml")
             spec = specs[i % w]
             spec["configs"].append(str(path))
-            spec["offsets_s"].append(0.0 if aligned else i / n)  # phases spread over 1 s
+        for spec in specs:  # as `compd run DIR` starts its machines (phases spread)
+            k = len(spec["configs"])
+            spec["offsets_s"] = [0.0] * k if aligned else staggered_starts(k, 1.0)
         for k, spec in enumerate(specs):
             spec_path = step_dir / f"worker{k}.json"
             spec_path.write_text(json.dumps(spec))
@@ -284,6 +323,8 @@ def run_step(protocol: str, n: int, *, seconds: int, workers: int, aligned: bool
         late_max_ms=max(late, default=math.nan) * 1e3,
         overruns=sum(r["overruns"] for r in results),
         incomplete=sum(r["incomplete"] for r in results),
+        start_overruns=sum(r["start_overruns"] for r in results),
+        start_incomplete=sum(r["start_incomplete"] for r in results),
         leaked=sum(r["leaked"] for r in results),
         own_ms=mean([r["own_s"] for r in results]) * 1e3,
         cpu_daemons=cpu_d, cpu_sims=cpu_f, rss_worker_mb=rss,
@@ -295,6 +336,7 @@ def print_step(protocol: str, s: Step) -> None:
           f"{s.late_max_ms:9.2f}{s.overruns:8d}{s.incomplete:7d}{s.own_ms:8.3f}"
           f"{s.cpu_daemons:8.2f}{s.cpu_sims:8.2f}{s.rss_worker_mb:8.0f}{s.loadavg:6.1f}"
           f"  {'holds' if s.holds else 'FAILS'}"
+          f"  start: {s.start_overruns} overruns, {s.start_incomplete} incomplete"
           f"{'  leaked=' + str(s.leaked) if s.leaked else ''}"
           f"{'  ' + '; '.join(s.failed)[:120] if s.failed else ''}", flush=True)
 
@@ -360,7 +402,8 @@ def main() -> None:
     print(f"{'proto':7s}{'N':>6s}{'cycles':>8s}{'late50':>9s}{'late99':>9s}{'max':>9s}"
           f"{'overrun':>8s}{'incmpl':>7s}{'own ms':>8s}{'cpu dmn':>8s}{'cpu sim':>8s}"
           f"{'RSS MB':>8s}{'load':>6s}\n(lateness ms over the window; cpu = CPU s per s; "
-          "RSS of the largest worker; load = 1-min load average at the end of the window)")
+          "RSS of the largest worker; load = 1-min load average at the end of the window;\n"
+          " overrun/incmpl in the window; start: before it, every daemon connecting at once)")
     summary = []
     with tempfile.TemporaryDirectory(prefix="bench-daemon-fleet-") as tmp:
         for protocol in args.protocols:
