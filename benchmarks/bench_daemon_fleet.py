@@ -19,9 +19,9 @@ daemon (`daemon_bench_common.TimedDaemon`), over all machines' cycles in a
 window that opens 3 s after every daemon of the worker has started cycling
 (so that connecting daemons do not count against the others) and lasts
 --seconds. A step holds when p99 lateness < 10 ms, no overrun and under 1 % of
-cycles incomplete in the window (what happened before it, while every
-daemon connected at once, is printed apart as "start"). N grows (doubling from --start) until a step fails, then one
-bisection step between the last pass and the fail; the largest N that held is
+cycles incomplete in the window (what happened before it, while the
+daemons started, is printed apart as "start"). N grows (doubling from
+--start) until a step fails, then one bisection step between the last pass and the fail; the largest N that held is
 printed per protocol. The peer for the ratios is the single machine (N = 1)
 measured the same way in the same run. The 1-minute load average is printed
 per step: other work on the same cores moves the figures.
@@ -48,7 +48,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from compd.core.schedule import staggered_starts
 from daemon_bench_common import (
     TimedDaemon,
     TimedDriver,
@@ -59,6 +58,8 @@ from daemon_bench_common import (
     rss_mb,
     write_config,
 )
+
+from compd.core.schedule import staggered_starts
 
 WARMUP_CYCLES = 3
 LIMIT_MS = 10.0
@@ -403,7 +404,7 @@ def main() -> None:
           f"{'overrun':>8s}{'incmpl':>7s}{'own ms':>8s}{'cpu dmn':>8s}{'cpu sim':>8s}"
           f"{'RSS MB':>8s}{'load':>6s}\n(lateness ms over the window; cpu = CPU s per s; "
           "RSS of the largest worker; load = 1-min load average at the end of the window;\n"
-          " overrun/incmpl in the window; start: before it, every daemon connecting at once)")
+          " overrun/incmpl in the window; start: before it, while the daemons started)")
     summary = []
     with tempfile.TemporaryDirectory(prefix="bench-daemon-fleet-") as tmp:
         for protocol in args.protocols:

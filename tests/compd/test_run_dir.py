@@ -201,3 +201,40 @@ async def test_sigterm_stops_every_machine_with_its_checkpoint(
             with contextlib.suppress(ProcessLookupError):
                 proc.kill()
             await proc.wait()
+
+
+async def test_machines_start_one_after_the_other_with_their_cycles_spread(
+        sims: list[ModbusSimController], tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Started together, every machine's deadline would fall on the same instant
+    and their start-ups would hold the loop at once (`staggered_starts`)."""
+    import time
+
+    from compd.core.schedule import START_SPACING_S, staggered_starts
+    from compd.runtime.fleet import FleetDaemon
+
+    started: dict[str, float] = {}
+    run_machine = FleetDaemon.run_machine
+
+    async def timed(self: FleetDaemon) -> int:
+        started[self.cfg.raw.machine.name] = time.monotonic()
+        return await run_machine(self)
+
+    monkeypatch.setattr(FleetDaemon, "run_machine", timed)
+    configs = load_machines(_machines_dir(tmp_path, sims))
+    fleet = Fleet(configs)
+    t0 = time.monotonic()
+    task = asyncio.get_running_loop().create_task(fleet.run())
+    try:
+        await until(lambda: min(_complete(fleet).values()) >= 3)
+    finally:
+        assert await _stop(fleet, task) == 0
+    period = configs[0].real_period_s
+    delays = staggered_starts(len(NAMES), period)
+    assert delays[1] >= START_SPACING_S
+    # in name order, each never sooner than planned (a busy loop may only be later)
+    times = [started[n] - t0 for n in sorted(NAMES)]
+    assert times == sorted(times)
+    assert all(t >= d - 0.002 for t, d in zip(times, delays, strict=True))
+    # the plan itself: every phase of the period taken once
+    assert sorted(round(d / period * 3) % 3 for d in delays) == [0, 1, 2]

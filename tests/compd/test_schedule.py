@@ -8,6 +8,7 @@ the loop waits until the deadline, exactly as `Daemon._loop` does with
 from __future__ import annotations
 
 import itertools
+import itertools
 import math
 
 import pytest
@@ -130,7 +131,7 @@ def test_staggered_starts_are_spaced_and_spread_the_phases_evenly(n: int,
                                                                    period: float) -> None:
     starts = staggered_starts(n, period, min_spacing_s=0.01)
     assert len(starts) == n and starts[0] == 0.0
-    gaps = [b - a for a, b in zip(starts, starts[1:], strict=False)]
+    gaps = [b - a for a, b in itertools.pairwise(starts)]
     assert all(g >= 0.01 - 1e-12 for g in gaps)  # never a burst of start-ups
     # every phase k/n of the period taken exactly once: no two deadlines together
     phases = sorted(round((s / period * n) % n) % n for s in starts)
