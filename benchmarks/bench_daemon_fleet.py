@@ -21,10 +21,11 @@ window that opens 3 s after every daemon of the worker has started cycling
 --seconds. A step holds when p99 lateness < 10 ms, no overrun and under 1 % of
 cycles incomplete in the window (what happened before it, while the
 daemons started, is printed apart as "start"). N grows (doubling from
---start) until a step fails, then one bisection step between the last pass and the fail; the largest N that held is
-printed per protocol. The peer for the ratios is the single machine (N = 1)
-measured the same way in the same run. The 1-minute load average is printed
-per step: other work on the same cores moves the figures.
+--start) until a step fails, then one bisection step between the last pass
+and the fail; the largest N that held is printed per protocol. The peer for
+the ratios is the single machine (N = 1) measured the same way in the same
+run. The 1-minute load average is printed per step: other work on the same
+cores moves the figures.
 
 Run:  .venv/bin/python benchmarks/bench_daemon_fleet.py [--protocols modbus opcua]
       [--seconds 20] [--start 32] [--max 1024] [--workers 2] [--aligned]

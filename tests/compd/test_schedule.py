@@ -8,7 +8,6 @@ the loop waits until the deadline, exactly as `Daemon._loop` does with
 from __future__ import annotations
 
 import itertools
-import itertools
 import math
 
 import pytest
