@@ -18,6 +18,8 @@ Running: a daemon task that ends by an exception is logged
 (1 s doubling to 60 s, back to 1 s after a minute of running); the others are
 untouched. SIGTERM/SIGINT stop every machine (each applies its shutdown
 policy and writes its checkpoint), SIGHUP reloads each machine's own file.
+With ``[faces.http]`` in any file, the one endpoint also answers the operator
+page and /status.json, one section per machine (`compd.faces.status_http`).
 Logging follows the first file's ``[telemetry]``; each line carries
 ``machine``.
 """
@@ -149,6 +151,22 @@ class Fleet:
     def _machine_metrics(self) -> dict[str, Metrics]:
         return {name: d.metrics for name, d in list(self.daemons.items())}
 
+    def _status_pages(self) -> Any:
+        """The operator page for every machine, None when no file enables [faces.http]."""
+        enabled = [c.raw.faces.http for c in self.configs.values() if c.raw.faces.http.enabled]
+        if not enabled:
+            return None
+        from compd.faces.status_http import fleet_document, with_status
+
+        refresh_s = min(h.refresh_s for h in enabled)
+
+        def document(history: bool) -> dict[str, Any]:
+            boards = {name: d.status_board for name, d in list(self.daemons.items())
+                      if d.cfg.raw.faces.http.enabled}
+            return fleet_document(boards, refresh_s, history=history)
+
+        return with_status(document, lambda: refresh_s)
+
     def request_stop(self) -> None:
         self.stopping.set()
         for daemon in list(self.daemons.values()):
@@ -174,7 +192,7 @@ class Fleet:
         endpoint = metrics_endpoint(list(self.configs.values()))
         if endpoint is not None:
             try:
-                self.metrics.start_http(endpoint[1], endpoint[0])
+                self.metrics.start_http(endpoint[1], endpoint[0], self._status_pages())
             except OSError as exc:
                 self.log.error("metrics_unavailable", host=endpoint[0], port=endpoint[1],
                                error=str(exc))
