@@ -5,6 +5,7 @@ controller, hostile requests, `compd status`, and the fleet's page."""
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 import socket
 import sqlite3
@@ -64,11 +65,12 @@ def test_history_is_thinned_to_the_bound_and_keeps_the_newest_sample(tmp_path: P
     assert 90 <= len(t) <= 100
     assert t[-1] == now  # the newest sample is always shown
     assert t[0] >= now - 3600.0  # nothing older than the window
-    steps = {round(b - a, 6) for a, b in zip(t, t[1:], strict=False)}
+    steps = {round(b - a, 6) for a, b in itertools.pairwise(t)}
     assert len(steps) == 1  # evenly spaced
     assert h["offset_um"][-1] == pytest.approx(499.9)
     # model_um NULL (the model did not step) stays a gap, not a zero
-    assert None in h["model_um"] or all(round(x * 10) % 7 for x in h["offset_um"])
+    for offset, model in zip(h["offset_um"], h["model_um"], strict=True):
+        assert (model is None) == (round(offset * 10) % 7 == 0)
     # a window shorter than the recording, and a bound above it: every row
     small = read_history(path, hours=50.0 / 3600.0, max_points=1000, now_wall_s=now)
     assert len(small["wall_s"]) == 51
