@@ -60,8 +60,8 @@ function showMachine(s, m){
   q(".why").textContent = m.why;
   const out = q(".out"); out.textContent = "";
   add(out, "span", "big offset", fmt(m.offset_um, 2) + " \\u00b5m");
-  add(out, "span", "limit", "  limit \\u00b1" + fmt(m.limit_um, 1) + " \\u00b5m");
-  add(out, "span", "model_um", "  model " + fmt(m.model_um, 2) + " \\u00b5m");
+  add(out, "span", "limit", "   limit \\u00b1" + fmt(m.limit_um, 1) + " \\u00b5m \\u00b7");
+  add(out, "span", "model_um", " model output " + fmt(m.model_um, 2) + " \\u00b5m");
   const tb = q("table.channels tbody"); tb.textContent = "";
   for (const c of m.channels || []) row(tb, [[c.name, "name"],
     [fmt(c.value, 2) + " " + c.unit, "value"],
@@ -76,12 +76,12 @@ function showMachine(s, m){
     new Date(m.wall_s * 1000).toLocaleTimeString() : "";
   const cv = q("canvas.plot"), shown = m.history !== null && m.history !== undefined;
   cv.style.display = q(".plotlabel").style.display = shown ? "" : "none";
-  if (shown) plot(cv, m.history);
+  if (shown) plot(cv, m.history, m.limit_um);
 }
-function plot(cv, h){
+function plot(cv, h, limit){
   const W = cv.width = cv.clientWidth, H = cv.height = cv.clientHeight;
   const g = cv.getContext("2d"); g.clearRect(0, 0, W, H);
-  const L = 60, R = 10, T = 10, B = 25, t = h.wall_s;
+  const L = 60, R = 10, T = 24, B = 25, t = h.wall_s;
   g.font = "12px sans-serif"; g.fillStyle = "#333";
   if (!t.length) { g.fillText(h.error || "no history yet", L, H / 2); return; }
   const vals = h.offset_um.concat(h.model_um).filter(v => v !== null);
@@ -95,7 +95,7 @@ function plot(cv, h){
   for (let i = 0; i <= 4; i++) { const v = lo + (hi - lo) * i / 4;
     g.moveTo(L, Y(v)); g.lineTo(W - R, Y(v));
     g.fillText(v.toFixed(1), 5, Y(v) + 4); }
-  g.stroke(); g.fillText("\\u00b5m", 5, T + 10);
+  g.stroke(); g.fillText("\\u00b5m", 5, 12);
   for (let i = 0; i <= 4; i++) { const v = t0 + (t1 - t0) * i / 4;
     g.fillText(new Date(v * 1000).toLocaleTimeString(), Math.min(X(v) - 25, W - 70), H - 6); }
   function line(ys, color, dash){ g.strokeStyle = color; g.lineWidth = 2; g.setLineDash(dash);
@@ -104,9 +104,14 @@ function plot(cv, h){
       if (y === null) { up = false; continue; }
       if (up) g.lineTo(X(t[i]), Y(y)); else g.moveTo(X(t[i]), Y(y)); up = true; }
     g.stroke(); g.setLineDash([]); }
+  g.strokeStyle = "#b00020"; g.lineWidth = 1; g.setLineDash([2, 3]); g.beginPath();
+  for (const v of [limit, -limit])
+    if (v > lo && v < hi) { g.moveTo(L, Y(v)); g.lineTo(W - R, Y(v)); }
+  g.stroke(); g.setLineDash([]);
   line(h.model_um, "#e07000", [6, 4]); line(h.offset_um, "#0050c0", []);
-  g.fillStyle = "#0050c0"; g.fillText("\\u2014 offset written", W - 260, T + 12);
-  g.fillStyle = "#e07000"; g.fillText("- - model output", W - 140, T + 12);
+  g.fillStyle = "#0050c0"; g.fillText("\\u2014 offset written", W - 380, 12);
+  g.fillStyle = "#e07000"; g.fillText("- - model output", W - 260, 12);
+  g.fillStyle = "#b00020"; g.fillText(".... \\u00b1 limit", W - 140, 12);
 }
 function show(doc){ const list = doc.machines || [doc];
   list.forEach((m, i) => showMachine(section(i), m));
