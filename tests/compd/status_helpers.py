@@ -22,9 +22,12 @@ FACES_HTTP = "\n[faces.http]\nenabled = true\nrefresh_s = {refresh_s}\n"
 
 @contextlib.asynccontextmanager
 async def page_daemon(tmp_path: Path, sim: ModbusSimController, *, time_scale: float = 10.0,
-                      refresh_s: float = 1.0) -> AsyncIterator[tuple[Daemon, str]]:
+                      refresh_s: float = 1.0,
+                      recorder: bool = True) -> AsyncIterator[tuple[Daemon, str]]:
     """A running daemon serving the page; yields it and its base URL (``http://.../``)."""
     path = write_config(tmp_path, sim.endpoint, time_scale=time_scale)
+    if not recorder:
+        path.write_text(path.read_text().replace("[recorder]\n", "[recorder]\nenabled = false\n"))
     port = free_tcp_port("127.0.0.1")
     path.write_text(path.read_text() + f"metrics_port = {port}\n"
                     + FACES_HTTP.format(refresh_s=refresh_s), encoding="utf-8")

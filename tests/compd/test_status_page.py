@@ -175,6 +175,26 @@ async def test_hostile_requests_are_refused_and_the_cycle_runs_on(
             assert (await asyncio.to_thread(get, base + "status.json"))[0] == 200
 
 
+async def test_without_a_recorder_the_page_says_so(
+        sim: ModbusSimController, tmp_path: Path) -> None:
+    async with page_daemon(tmp_path, sim, recorder=False) as (_daemon, base):
+        doc = json.loads((await asyncio.to_thread(get, base + "status.json"))[2])
+    assert doc["state"] == "on"
+    assert doc["history"]["wall_s"] == [] and doc["history"]["error"] == "no recorder configured"
+
+
+def test_a_reload_that_changes_the_page_restarts_the_server(tmp_path: Path) -> None:
+    from compd.config.loader import load_config
+    from compd.runtime.reload import diff
+    from tests.compd.daemon_helpers import write_config
+
+    path = write_config(tmp_path, "modbus://127.0.0.1:1502")
+    old = load_config(path)
+    path.write_text(path.read_text() + "\n[faces.http]\nenabled = true\n")
+    assert diff(old, load_config(path)).metrics
+    assert not diff(old, old).metrics
+
+
 # -- compd status -----------------------------------------------------------------------
 
 
@@ -223,3 +243,50 @@ def test_one_line_per_machine() -> None:
                                 "channels": [{"valid": True}, {"valid": False}]})
     assert line == ("mill-a: holding - inputs invalid; offset 12.35 um (limit +-100 um), "
                     "model -, channels 1/2 valid")
+
+
+# -- compd run DIR: one page for every machine -------------------------------------------
+
+
+async def test_a_fleet_page_lists_every_machine(tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    from compd.runtime.fleet import Fleet, load_machines
+    from tests.compd.daemon_helpers import CONFIG
+
+    sims = [ModbusSimController() for _ in range(2)]
+    port = free_tcp_port("127.0.0.1")
+    machines = tmp_path / "machines.d"
+    machines.mkdir()
+    for name, sim in zip(("mill-a", "mill-b"), sims, strict=True):
+        await sim.start()
+        await sim.publish({"bearing": 20.0, "ambient": 20.0})
+        text = CONFIG.format(endpoint=sim.endpoint, time_scale=10.0, timeout_s=0.04,
+                             slew_um_s=1.0, shutdown="hold", checkpoint_every=20)
+        text = (text.replace('name = "test"', f'name = "{name}"')
+                .replace('dir = "state"', f'dir = "state-{name}"')
+                .replace("[telemetry]", f"[telemetry]\nmetrics_port = {port}")
+                + "\n[faces.http]\nenabled = true\n")
+        (machines / f"{name}.toml").write_text(text, encoding="utf-8")
+    fleet = Fleet(load_machines(machines))
+    task = asyncio.get_running_loop().create_task(fleet.run())
+    base = f"http://127.0.0.1:{port}/"
+    try:
+        await until(lambda: all(d.complete_cycles >= 3 for d in fleet.daemons.values())
+                    and len(fleet.daemons) == 2)
+        await sims[1].publish({"bearing": 500.0, "ambient": 20.0})
+        await until(lambda: fleet.daemons["mill-b"].status_board.snapshot["state"]
+                    == "holding")
+        doc = json.loads((await asyncio.to_thread(get, base + "status.json"))[2])
+        assert [(m["machine"], m["state"]) for m in doc["machines"]] == [
+            ("mill-a", "on"), ("mill-b", "holding")]
+        code, _, page = await asyncio.to_thread(get, base)
+        assert code == 200 and b"2 machines" in page and b"mill-b" in page
+        assert await asyncio.to_thread(status_cmd.run, _args(base)) == 1  # one is not on
+        lines = [x for x in capsys.readouterr().out.splitlines() if x.startswith("mill-")]
+        assert [x.split(":")[0] for x in lines] == ["mill-a", "mill-b"]
+        assert (await asyncio.to_thread(get, base + "metrics"))[0] == 200
+    finally:
+        fleet.request_stop()
+        await asyncio.wait_for(task, 20.0)
+        for sim in sims:
+            await sim.stop()
