@@ -4,7 +4,8 @@ Reads ``/status.json`` from the operator page (``[faces.http]``, served
 beside ``/metrics``) and prints one line per machine: the state (on /
 holding / ramping / off) and why, the offset and its limit, the model's
 output and how many channels are valid; ``--json``: the document as served.
-Exit 0 when every machine compensates (state "on"), 1 otherwise; 64 for a
+Exit 0 when every machine compensates (state "on", and a snapshot no older
+than three periods: a stalled loop is not on), 1 otherwise; 64 for a
 bad URL or argument, 75 when the page cannot be reached (no daemon, no
 ``[faces.http]``, HTTP error), 65 when what answers is not a compd status
 document. Only the standard library is imported (cheap, like `compd health`).
@@ -101,9 +102,17 @@ def describe(machine: dict[str, Any]) -> str:
     valid = sum(1 for c in channels if c.get("valid") is True)
     limit = machine.get("limit_um")
     limit_text = f" (limit +-{limit:g} um)" if isinstance(limit, int | float) else ""
+    late = f"; NO CYCLE FOR {machine['age_s']:.0f} s" if stalled(machine) else ""
     return (f"{machine.get('machine') or '?'}: {machine['state']} - {machine.get('why', '')}; "
             f"offset {_um(machine.get('offset_um'))}{limit_text}, model "
-            f"{_um(machine.get('model_um'))}, channels {valid}/{len(channels)} valid")
+            f"{_um(machine.get('model_um'))}, channels {valid}/{len(channels)} valid{late}")
+
+
+def stalled(machine: dict[str, Any]) -> bool:
+    """The snapshot is older than three periods (and 2 s): the loop has stalled."""
+    age, period = machine.get("age_s"), machine.get("period_s")
+    return (isinstance(age, int | float) and isinstance(period, int | float)
+            and age > 3.0 * period + 2.0)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -123,4 +132,5 @@ def run(args: argparse.Namespace) -> int:
         for machine in machines:
             print(describe(machine))
     sys.stdout.flush()
-    return 0 if machines and all(m["state"] == "on" for m in machines) else 1
+    return 0 if machines and all(m["state"] == "on" and not stalled(m)
+                                 for m in machines) else 1

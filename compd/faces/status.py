@@ -117,7 +117,8 @@ class StatusBoard:
                 "sequence": result.sequence, "complete": bool(result.complete),
                 "status_word": result.status, "heartbeat": result.heartbeat,
                 "model": cfg.model.name, "model_sha256": cfg.model_sha256,
-                "dry_run": dry_run, "wall_s": time.time(), "channels": channels,
+                "dry_run": dry_run, "wall_s": time.time(), "period_s": float(cfg.real_period_s),
+                "channels": channels,
                 "alarms": list(self._alarms)}
 
     def history(self) -> dict[str, Any]:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
@@ -45,8 +46,12 @@ def _finite(value: Any) -> Any:
 
 
 def daemon_document(board: StatusBoard, *, history: bool = True) -> dict[str, Any]:
-    """One machine: the last snapshot, the refresh period and the recorder's history."""
+    """One machine: the last snapshot, its age (``age_s``, real seconds since the
+    loop published it: a stalled loop shows), the refresh period and the recorder's
+    history."""
     doc = dict(board.snapshot)
+    wall_s = doc.get("wall_s")
+    doc["age_s"] = max(0.0, time.time() - wall_s) if isinstance(wall_s, float) else None
     doc["refresh_s"] = board.refresh_s
     doc["history"] = board.history() if history else None
     return _finite(doc)  # type: ignore[no-any-return]

@@ -5,7 +5,8 @@ the inline script from /status.json's history. The first document is
 inlined as JSON so that the page shows the state before its first fetch;
 the script then fetches /status.json every ``refresh_s`` and redraws. A
 fetch that fails marks the page "no answer from compd" instead of showing
-old values as live. A fleet's document (``machines``: `compd run DIR`)
+old values as live; so does a snapshot older than three periods (a stalled
+loop). A fleet's document (``machines``: `compd run DIR`)
 shows one section per machine, the same as one machine's.
 """
 
@@ -72,8 +73,12 @@ function showMachine(s, m){
   for (const a of alarms) row(al, [[new Date(a.wall_s * 1000).toLocaleString()],
     [a.event, a.level === "error" ? "bad" : ""],
     [Object.entries(a.detail || {}).map(([k, v]) => k + "=" + v).join(" ")]]);
-  q(".updated").textContent = m.wall_s ? "cycle " + m.sequence + " at " +
-    new Date(m.wall_s * 1000).toLocaleTimeString() : "";
+  const late = m.age_s !== null && m.age_s !== undefined && m.period_s &&
+    m.age_s > 3 * m.period_s + 2;
+  q(".updated").textContent = (m.wall_s ? "cycle " + m.sequence + " at " +
+    new Date(m.wall_s * 1000).toLocaleTimeString() : "") +
+    (late ? " \u2014 NO CYCLE FOR " + fmt(m.age_s, 0) + " s: the values are old" : "");
+  q(".updated").className = late ? "bad updated" : "small updated";
   const cv = q("canvas.plot"), shown = m.history !== null && m.history !== undefined;
   cv.style.display = q(".plotlabel").style.display = shown ? "" : "none";
   if (shown) plot(cv, m.history, m.limit_um);

@@ -50,7 +50,7 @@ from compd.core.cycle import Cycle, CycleResult, params_from_config
 from compd.core.faults import Event
 from compd.core.schedule import Schedule, shutdown_ramp_cycles
 from compd.faces.status import StatusBoard
-from compd.faces.telemetry import Metrics
+from compd.faces.telemetry import Metrics, WSGIApp
 from compd.runtime.gcfreeze import freeze_long_lived
 from compd.runtime.heap import pin_mmap_threshold
 from compd.runtime.liveness import boot_id
@@ -224,7 +224,7 @@ class Daemon:
                            hint="compd health --url will report unhealthy; free the port "
                                 "or change telemetry.metrics_port")
 
-    def _status_pages(self) -> Any:
+    def _status_pages(self) -> Callable[[WSGIApp], WSGIApp] | None:
         """The operator page's wrapper of the metrics app, None without [faces.http]."""
         http = self.cfg.raw.faces.http
         if not http.enabled:

@@ -30,6 +30,7 @@ import asyncio
 import contextlib
 import signal
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +39,7 @@ import structlog
 from compd.config.loader import LoadedConfig, load_config
 from compd.errors import ConfigError
 from compd.faces.fleet_metrics import FleetMetrics
-from compd.faces.telemetry import Metrics
+from compd.faces.telemetry import Metrics, WSGIApp
 from compd.runtime.daemon import Daemon
 from compd.runtime.heap import pin_mmap_threshold
 from compd.runtime.sdnotify import Notifier
@@ -151,7 +152,7 @@ class Fleet:
     def _machine_metrics(self) -> dict[str, Metrics]:
         return {name: d.metrics for name, d in list(self.daemons.items())}
 
-    def _status_pages(self) -> Any:
+    def _status_pages(self) -> Callable[[WSGIApp], WSGIApp] | None:
         """The operator page for every machine, None when no file enables [faces.http]."""
         enabled = [c.raw.faces.http for c in self.configs.values() if c.raw.faces.http.enabled]
         if not enabled:

@@ -1,6 +1,7 @@
 """The operator page in a real headless browser (Debian's chromium through
 chromedriver): it loads, shows the state and values of a running daemon against
-a simulated controller, and updates after a fault is injected. A screenshot of
+a simulated controller, updates after a fault is injected, and says so when the
+daemon no longer answers. A screenshot of
 each is kept: under $COMPD_TEST_ARTIFACTS when set, else the test's tmp path
 (the path is printed)."""
 
@@ -32,9 +33,10 @@ def _artifacts(tmp_path: Path) -> Path:
     return out
 
 
-def _browse(base: str, out: Path, fault: asyncio.AbstractEventLoop,
-            inject: object) -> dict[str, object]:
-    """In a thread: load the page, read it, inject the fault, read it again."""
+def _browse(base: str, out: Path, loop: asyncio.AbstractEventLoop, inject: object,
+            stop: object) -> dict[str, object]:
+    """In a thread: load the page, read it, inject the fault, read it again, stop
+    the daemon and see the page say so."""
     seen: dict[str, object] = {}
     with headless_chromium() as browser:
         browser.get(base)
@@ -53,7 +55,7 @@ def _browse(base: str, out: Path, fault: asyncio.AbstractEventLoop,
             '  if (d[i] < 40 && d[i + 1] > 60 && d[i + 1] < 110 && d[i + 2] > 170) blue++;'
             'return blue;')
         seen["shot_on"] = browser.screenshot(out / "status-page-on.png")
-        asyncio.run_coroutine_threadsafe(inject(), fault).result(10.0)  # type: ignore[operator]
+        asyncio.run_coroutine_threadsafe(inject(), loop).result(10.0)  # type: ignore[operator]
         browser.wait_for('return document.querySelector("#m0 .state")?.textContent '
                          '=== "holding"')
         browser.wait_for('return document.querySelector("#m0 table.alarms")'
@@ -61,6 +63,9 @@ def _browse(base: str, out: Path, fault: asyncio.AbstractEventLoop,
         seen["after"] = browser.script(_STATE), browser.script(_CHANNELS)
         seen["why"] = browser.script('return document.querySelector("#m0 .why").textContent')
         seen["shot_fault"] = browser.screenshot(out / "status-page-holding.png")
+        loop.call_soon_threadsafe(stop)  # type: ignore[arg-type]
+        seen["gone"] = browser.wait_for('return document.getElementById("stale")'
+                                        '.textContent')
     seen["png"] = [Path(str(seen[k])).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
                    for k in ("shot_on", "shot_fault")]
     return seen
@@ -78,7 +83,7 @@ async def test_the_page_shows_the_daemon_and_follows_a_fault(
             await sim.publish({"bearing": 500.0, "ambient": 21.0})
 
         seen = await asyncio.to_thread(_browse, base, out, asyncio.get_running_loop(),
-                                       bearing_out_of_range)
+                                       bearing_out_of_range, daemon.request_stop)
     print(f"\nscreenshots: {seen['shot_on']} {seen['shot_fault']}")
     state, channels = seen["before"]  # type: ignore[misc]
     assert state == "on"
@@ -89,4 +94,5 @@ async def test_the_page_shows_the_daemon_and_follows_a_fault(
     state, channels = seen["after"]  # type: ignore[misc]
     assert state == "holding" and "bearing: out_of_range" in str(seen["why"])
     assert channels[0] == ["bearing", "500.00 degC", "invalid: out_of_range"]
+    assert str(seen["gone"]).startswith("no answer from compd")  # not old values as live
     assert seen["png"] == [True, True]

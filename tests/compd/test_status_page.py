@@ -139,6 +139,7 @@ async def test_page_and_status_json_follow_the_daemon(
         assert [(c["name"], c["value"], c["valid"]) for c in doc["channels"]] == [
             ("bearing", 20.0, True), ("ambient", 20.0, True)]
         assert doc["history"]["wall_s"] and doc["refresh_s"] == 1.0
+        assert doc["period_s"] == pytest.approx(0.1) and 0.0 <= doc["age_s"] < 60.0
         assert await asyncio.to_thread(status_cmd.run, _args(base)) == 0
         # a fault: the bearing reads out of range; the page says holding, and why
         await sim.publish({"bearing": 500.0, "ambient": 20.0})
@@ -243,6 +244,10 @@ def test_one_line_per_machine() -> None:
                                 "channels": [{"valid": True}, {"valid": False}]})
     assert line == ("mill-a: holding - inputs invalid; offset 12.35 um (limit +-100 um), "
                     "model -, channels 1/2 valid")
+    stalled = status_cmd.describe({"machine": "mill-b", "state": "on", "why": "",
+                                   "age_s": 100.0, "period_s": 1.0, "channels": []})
+    assert stalled.endswith("; NO CYCLE FOR 100 s")
+    assert not status_cmd.stalled({"state": "on", "age_s": 4.0, "period_s": 1.0})
 
 
 # -- compd run DIR: one page for every machine -------------------------------------------
