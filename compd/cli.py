@@ -29,6 +29,7 @@ COMMANDS: dict[str, str] = {
     "replay": "replay",
     "step": "step",
     "health": "health",
+    "status": "status",
     "export": "export",
     "schema": "schema",
 }

@@ -43,6 +43,10 @@ examples:
 examples:
   compd health                                exit 0 when the daemon on this host is healthy
   compd health --url http://127.0.0.1:9108/metrics --timeout-s 2""",
+    "status": """\
+examples:
+  compd status                                the daemon on this host (port 9105)
+  compd status --url http://10.0.0.5:9108/ --json""",
     "export": """\
 examples:
   compd export /var/lib/compd/samples.sqlite -o day.csv --since 2026-11-23T06:00 \\

@@ -336,6 +336,23 @@ class TelemetrySection(_Section):
     log_level: Literal["debug", "info", "warning", "error"] = "info"
 
 
+class HttpFaceSection(_Section):
+    """``[faces.http]``: the operator status page (``/`` and ``/status.json``) served
+    beside ``/metrics`` (``[telemetry] metrics_port`` and ``metrics_host``)."""
+
+    enabled: bool = False
+    #: hours of offset and model output the page plots (from the recorder)
+    history_h: Annotated[float, Field(gt=0.0, le=168.0, allow_inf_nan=False)] = 4.0
+    #: how often the page fetches /status.json (real seconds)
+    refresh_s: Annotated[float, Field(ge=1.0, le=3600.0, allow_inf_nan=False)] = 5.0
+
+
+class FacesSection(_Section):
+    """``[faces]``: what compd shows the shop floor besides logs and metrics."""
+
+    http: HttpFaceSection = HttpFaceSection()
+
+
 class DaemonConfig(_Section):
     machine: MachineSection = MachineSection()
     controller: ControllerSection
@@ -346,6 +363,7 @@ class DaemonConfig(_Section):
     state: StateSection = StateSection()
     recorder: RecorderSection = RecorderSection()
     telemetry: TelemetrySection = TelemetrySection()
+    faces: FacesSection = FacesSection()
 
     @field_validator("channels")
     @classmethod

@@ -36,16 +36,17 @@ import logging
 import math
 import os
 import re
+import socket
 import sys
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any, TextIO, cast
-from wsgiref.simple_server import WSGIServer
+from wsgiref.simple_server import WSGIRequestHandler, WSGIServer, make_server
 
 import structlog
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, Info
-from prometheus_client.exposition import start_http_server
+from prometheus_client.exposition import ThreadingWSGIServer, make_wsgi_app
 from structlog.typing import EventDict, Processor, WrappedLogger
 
 from compd.config.urls import redact_urls
@@ -245,6 +246,20 @@ def configure_logging(json: bool | None = None, level: str = "info", *,
                                          else floor)
 
 
+#: a WSGI application (environ, start_response) -> body
+WSGIApp = Callable[[dict[str, Any], Callable[..., Any]], Iterable[bytes]]
+
+
+class _QuietHandler(WSGIRequestHandler):
+    """No stderr line per request (a page refreshes every few seconds); a client
+    that connects and sends nothing frees its thread after `timeout` seconds."""
+
+    timeout = 10.0
+
+    def log_message(self, format: str, *args: Any) -> None:
+        pass
+
+
 class MetricsServer:
     """`registry` served as /metrics from a thread: `start_http`, `port`, `stop`
     (for one daemon's `Metrics` and for a fleet process's `FleetMetrics`)."""
@@ -262,11 +277,22 @@ class MetricsServer:
             return None
         return int(self._server.server_address[1])
 
-    def start_http(self, port: int, host: str = "127.0.0.1") -> None:
-        """Serve /metrics on host:port (port 0: a free port, see `port`) from a thread."""
+    def start_http(self, port: int, host: str = "127.0.0.1",
+                   wrap: Callable[[WSGIApp], WSGIApp] | None = None) -> None:
+        """Serve /metrics on host:port (port 0: a free port, see `port`) from a thread.
+        `wrap`: wraps the metrics WSGI app to serve more paths on the same server
+        (the operator page, `compd.faces.status_http`)."""
         if self._server is not None:
             raise RuntimeError(f"metrics already served on port {self.port}")
-        server, thread = start_http_server(port, addr=host, registry=self.registry)
+        app: WSGIApp = make_wsgi_app(self.registry)
+        if wrap is not None:
+            app = wrap(app)
+        family = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM,
+                                    flags=socket.AI_PASSIVE)[0][0]
+        server_class = type("_Server", (ThreadingWSGIServer,), {"address_family": family})
+        server: WSGIServer = make_server(host, port, app, server_class, handler_class=_QuietHandler)
+        thread = threading.Thread(target=server.serve_forever, name="compd-http", daemon=True)
+        thread.start()
         self._server, self._thread = server, thread
 
     def stop(self) -> None:

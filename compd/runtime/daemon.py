@@ -21,7 +21,9 @@ change that needs a restart, leaves the old config running (``reload_failed``
 with the key and the reason). SIGUSR1, SIGUSR2 (whose default action ends a
 process at once, with no checkpoint and no shutdown policy) are logged
 (``signal_ignored``) and otherwise ignored. A metrics port that cannot be bound is logged
-(``metrics_unavailable``); compensation runs without the endpoint.
+(``metrics_unavailable``); compensation runs without the endpoint. With
+``[faces.http]`` the same server answers the operator page: the loop publishes
+a snapshot per cycle (`compd.faces.status`), the HTTP threads only read it.
 
 SIGTERM/SIGINT: the current cycle finishes, then the shutdown policy: "hold"
 leaves the offset where it is, "ramp_to_zero" keeps cycling the ramp until
@@ -47,7 +49,8 @@ from compd.config.loader import LoadedConfig
 from compd.core.cycle import Cycle, CycleResult, params_from_config
 from compd.core.faults import Event
 from compd.core.schedule import Schedule, shutdown_ramp_cycles
-from compd.faces.telemetry import Metrics
+from compd.faces.status import StatusBoard
+from compd.faces.telemetry import Metrics, WSGIApp
 from compd.runtime.gcfreeze import freeze_long_lived
 from compd.runtime.heap import pin_mmap_threshold
 from compd.runtime.liveness import boot_id
@@ -98,6 +101,9 @@ class Daemon:
         self._reload_again = False
         self._pending: tuple[LoadedConfig, Changes, Driver | None] | None = None
         self.reloads = 0
+        #: what the operator page shows ([faces.http]); published once per cycle
+        http = cfg.raw.faces.http
+        self.status_board = StatusBoard(history_h=http.history_h, refresh_s=http.refresh_s)
 
     # -- public --------------------------------------------------------------------
 
@@ -207,13 +213,28 @@ class Daemon:
         port = self.cfg.raw.telemetry.metrics_port
         host = self.cfg.raw.telemetry.metrics_host
         if port is None:
+            if self.cfg.raw.faces.http.enabled:
+                self.log.warning("status_page_unavailable", reason="[faces.http] is served "
+                                 "beside /metrics: it needs [telemetry] metrics_port")
             return
         try:
-            self.metrics.start_http(port, host)
+            self.metrics.start_http(port, host, self._status_pages())
         except OSError as exc:  # a port in use: compensation never stops for telemetry
             self.log.error("metrics_unavailable", host=host, port=port, error=str(exc),
                            hint="compd health --url will report unhealthy; free the port "
                                 "or change telemetry.metrics_port")
+
+    def _status_pages(self) -> Callable[[WSGIApp], WSGIApp] | None:
+        """The operator page's wrapper of the metrics app, None without [faces.http]."""
+        http = self.cfg.raw.faces.http
+        if not http.enabled:
+            return None
+        from compd.faces.status_http import daemon_document, with_status
+
+        board = self.status_board
+        board.history_h, board.refresh_s = http.history_h, http.refresh_s  # a reload
+        return with_status(lambda history: daemon_document(board, history=history),
+                           lambda: board.refresh_s)
 
     async def _connect(self, driver: Driver, cfg: LoadedConfig | None = None) -> None:
         ctl = (cfg or self.cfg).raw.controller
@@ -405,6 +426,8 @@ class Daemon:
                 self._log_repeat(self._write_failures.succeeded(self.clock()))
         self._record(result)
         self._telemetry(result, samples, confirmed)
+        if self.cfg.raw.faces.http.enabled:  # never raises: the page never stops the cycle
+            self.status_board.publish(result, self.cfg, dry_run=self.dry_run)
         self.last_result = result
         return result
 
@@ -531,6 +554,8 @@ class Daemon:
             name, fields = line
             level = "info" if name.endswith("_recovered") else "warning"
             getattr(self.log, level)(name, **fields)
+            if level == "warning":
+                self.status_board.alarm(name, level, fields)
 
     def _log_events(self, events: list[Event]) -> None:
         for ev in events:
@@ -541,6 +566,8 @@ class Daemon:
             if ev.name in _ERRORS:
                 level = "error"
             getattr(self.log, level)(ev.name, **ev.fields)
+            if level != "info":
+                self.status_board.alarm(ev.name, level, ev.fields)
 
 
 _WARNINGS = frozenset({"channel_invalid", "fault_hold", "readback_mismatch", "write_failed",

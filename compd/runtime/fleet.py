@@ -23,6 +23,8 @@ Running: a daemon task that ends by an exception is logged
 (1 s doubling to 60 s, back to 1 s after a minute of running); the others are
 untouched. SIGTERM/SIGINT stop every machine (each applies its shutdown
 policy and writes its checkpoint), SIGHUP reloads each machine's own file.
+With ``[faces.http]`` in any file, the one endpoint also answers the operator
+page and /status.json, one section per machine (`compd.faces.status_http`).
 Logging follows the first file's ``[telemetry]``; each line carries
 ``machine``.
 """
@@ -33,6 +35,7 @@ import asyncio
 import contextlib
 import signal
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +45,7 @@ from compd.config.loader import LoadedConfig, load_config
 from compd.core.schedule import staggered_starts
 from compd.errors import ConfigError
 from compd.faces.fleet_metrics import FleetMetrics
-from compd.faces.telemetry import Metrics
+from compd.faces.telemetry import Metrics, WSGIApp
 from compd.runtime.daemon import Daemon
 from compd.runtime.heap import pin_mmap_threshold
 from compd.runtime.sdnotify import Notifier
@@ -155,6 +158,22 @@ class Fleet:
     def _machine_metrics(self) -> dict[str, Metrics]:
         return {name: d.metrics for name, d in list(self.daemons.items())}
 
+    def _status_pages(self) -> Callable[[WSGIApp], WSGIApp] | None:
+        """The operator page for every machine, None when no file enables [faces.http]."""
+        enabled = [c.raw.faces.http for c in self.configs.values() if c.raw.faces.http.enabled]
+        if not enabled:
+            return None
+        from compd.faces.status_http import fleet_document, with_status
+
+        refresh_s = min(h.refresh_s for h in enabled)
+
+        def document(history: bool) -> dict[str, Any]:
+            boards = {name: d.status_board for name, d in list(self.daemons.items())
+                      if d.cfg.raw.faces.http.enabled}
+            return fleet_document(boards, refresh_s, history=history)
+
+        return with_status(document, lambda: refresh_s)
+
     def request_stop(self) -> None:
         self.stopping.set()
         for daemon in list(self.daemons.values()):
@@ -180,7 +199,7 @@ class Fleet:
         endpoint = metrics_endpoint(list(self.configs.values()))
         if endpoint is not None:
             try:
-                self.metrics.start_http(endpoint[1], endpoint[0])
+                self.metrics.start_http(endpoint[1], endpoint[0], self._status_pages())
             except OSError as exc:
                 self.log.error("metrics_unavailable", host=endpoint[0], port=endpoint[1],
                                error=str(exc))

@@ -75,8 +75,8 @@ def diff(old: LoadedConfig, new: LoadedConfig) -> Changes:
                     or old.outputs != new.outputs),
         outputs=old.outputs != new.outputs,
         recorder=(old.recorder_path, o.recorder) != (new.recorder_path, n.recorder),
-        metrics=(o.telemetry.metrics_port, o.telemetry.metrics_host)
-        != (n.telemetry.metrics_port, n.telemetry.metrics_host))
+        metrics=(o.telemetry.metrics_port, o.telemetry.metrics_host, o.faces.http)
+        != (n.telemetry.metrics_port, n.telemetry.metrics_host, n.faces.http))
 
 
 def handover(old: Cycle, new_cfg: LoadedConfig, params: CycleParams,

@@ -103,7 +103,11 @@ def _cases() -> list[list[str]]:
                 ["demo", "--hours", n, "--plot", _target("missing_dir")],
                 ["demo", "--seconds", n, "--plot", _target("missing_dir")],
                 ["health", "--state-dir", str(ROOT / "dir"), "--max-age-s", n],
-                ["health", "--state-dir", str(ROOT / "dir"), "--timeout-s", n]]
+                ["health", "--state-dir", str(ROOT / "dir"), "--timeout-s", n],
+                ["status", "--url", "http://127.0.0.1:1/", "--timeout-s", n]]
+    for url in ("", "x", "ftp://127.0.0.1/", "http://", "http://127.0.0.1:99999/",
+                "http://[::1/", "http://127.0.0.1:1/status.json", "file:///etc/passwd"):
+        out.append(["status", "--url", url])
         for opt in ("--period-s", "--hours", "--probe-noise-um", "--speedup"):
             out.append(["sim", "--record", str(ROOT / "nodir" / "r.csv"), opt, n])
         for opt in ("--duration-h", "--print-every-s"):

@@ -1,0 +1,184 @@
+"""The operator status page's data: a snapshot per cycle, the recorder's recent history.
+
+`StatusBoard.publish` runs in the loop once per cycle and builds a small dict
+from the cycle's result (the state in words and why, the offset and its
+limit, each channel's value and validity); it replaces the last snapshot in
+one assignment, so the HTTP threads (`compd.faces.status_http`) only ever
+read a complete one and never make the loop wait. The last alarms (warning
+and error events) are kept in a bounded deque. `read_history` reads the
+recorder's SQLite file read-only (WAL: it never blocks the recorder's
+writes) with a bound on the rows: the last `hours` of offset and model
+output, thinned to at most `MAX_HISTORY_POINTS` rows picked by stride on the
+recorder's contiguous ``seq`` (a bounded number of primary-key look-ups,
+however long the window). Nothing here raises into the cycle: a snapshot
+that cannot be built is logged once and the page keeps the last one.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import sqlite3
+import threading
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import structlog
+
+from compd.core.faults import FaultState
+
+__all__ = ["MAX_ALARMS", "MAX_HISTORY_POINTS", "StatusBoard", "operator_state",
+           "read_history"]
+
+#: the plot never reads more rows than this from the recorder, however long the window
+MAX_HISTORY_POINTS = 1200
+#: how many alarms the page lists
+MAX_ALARMS = 20
+#: how long a reader waits for a recorder another process has locked
+LOCK_WAIT_S = 0.5
+
+_WORDS: dict[FaultState, str] = {
+    FaultState.OK: "on", FaultState.INIT: "holding", FaultState.HOLD: "holding",
+    FaultState.RAMP: "ramping", FaultState.SHUTDOWN: "ramping",
+    FaultState.STOPPED: "off", FaultState.HELD: "off", FaultState.WRITE_FAULT: "off"}
+
+_WHY: dict[FaultState, str] = {
+    FaultState.OK: "inputs valid, the model's offset is applied",
+    FaultState.INIT: "no valid sample yet since start: the offset is held",
+    FaultState.HOLD: "inputs invalid: the offset is held",
+    FaultState.RAMP: "inputs invalid longer than hold_s: the offset ramps to 0 (alarm)",
+    FaultState.SHUTDOWN: "shutting down: the offset ramps to 0",
+    FaultState.STOPPED: "the controller refused the offset: writes stopped (alarm)",
+    FaultState.HELD: "the controller holds an offset beyond the limit that compd did not "
+                     "write: nothing written (alarm)",
+    FaultState.WRITE_FAULT: "offset writes keep failing (alarm)"}
+
+
+def operator_state(state: FaultState, validity: Mapping[str, str | None],
+                   dry_run: bool = False) -> tuple[str, str]:
+    """(on | holding | ramping | off, why) for the fault state and the channels' validity."""
+    word, why = _WORDS[state], _WHY[state]
+    bad = [f"{name}: {reason}" for name, reason in validity.items() if reason is not None]
+    if bad and state is not FaultState.OK:
+        why += " (" + "; ".join(bad) + ")"
+    if dry_run:
+        why += "; dry run: nothing is written"
+    return word, why
+
+
+def _num(x: float | None) -> float | None:
+    return float(x) if x is not None and math.isfinite(x) else None
+
+
+class StatusBoard:
+    """The last snapshot and alarms, written by the loop, read by the HTTP threads."""
+
+    def __init__(self, *, history_h: float = 4.0, refresh_s: float = 5.0) -> None:
+        self.history_h = history_h
+        self.refresh_s = refresh_s
+        self.snapshot: dict[str, Any] = {"state": "starting", "why": "no cycle yet",
+                                         "channels": [], "alarms": []}
+        self.recorder_path: Path | None = None
+        self._alarms: collections.deque[dict[str, Any]] = collections.deque(maxlen=MAX_ALARMS)
+        self._failed = False
+        self._history: tuple[float, dict[str, Any]] | None = None
+        self._history_lock = threading.Lock()
+
+    def alarm(self, name: str, level: str, fields: Mapping[str, Any]) -> None:
+        """A warning or error event of the cycle, for the page's list."""
+        self._alarms.append({"wall_s": time.time(), "event": name, "level": level,
+                             "detail": {k: str(v)[:200] for k, v in fields.items()}})
+
+    def publish(self, result: Any, cfg: Any, *, dry_run: bool = False) -> None:
+        """Build the snapshot from a `CycleResult` and the running `LoadedConfig`.
+        Never raises: a failure is logged once and the page keeps the last snapshot."""
+        try:
+            self.snapshot = self._build(result, cfg, dry_run)
+            self._failed = False
+        except Exception as exc:
+            if not self._failed:
+                structlog.get_logger("compd").error("status_snapshot_failed", error=str(exc))
+            self._failed = True
+
+    def _build(self, result: Any, cfg: Any, dry_run: bool) -> dict[str, Any]:
+        rec = result.record
+        word, why = operator_state(result.state, rec.validity, dry_run)
+        raw = cfg.raw
+        self.recorder_path = cfg.recorder_path
+        channels = [{"name": name, "value": _num(rec.channels.get(name)),
+                     "unit": ch.unit, "valid": rec.validity.get(name) is None,
+                     "reason": rec.validity.get(name)}
+                    for name, ch in raw.channels.items()]
+        return {"machine": raw.machine.name, "state": word, "fault_state": str(result.state),
+                "why": why, "offset_um": _num(result.offset_um),
+                "limit_um": float(raw.output.limit_um), "model_um": _num(rec.model_um),
+                "sequence": result.sequence, "complete": bool(result.complete),
+                "status_word": result.status, "heartbeat": result.heartbeat,
+                "model": cfg.model.name, "model_sha256": cfg.model_sha256,
+                "dry_run": dry_run, "wall_s": time.time(), "period_s": float(cfg.real_period_s),
+                "channels": channels,
+                "alarms": list(self._alarms)}
+
+    def history(self) -> dict[str, Any]:
+        """The plot's data, read at most once per refresh period (many viewers, one read)."""
+        now = time.monotonic()
+        with self._history_lock:
+            cached = self._history
+            if cached is not None and now - cached[0] < self.refresh_s:
+                return cached[1]
+            data = read_history(self.recorder_path, self.history_h)
+            self._history = (now, data)
+            return data
+
+
+def read_history(path: Path | None, hours: float, *, max_points: int = MAX_HISTORY_POINTS,
+                 now_wall_s: float | None = None) -> dict[str, Any]:
+    """The last `hours` of (wall_s, offset_um, model_um) from the recorder at `path`,
+    at most `max_points` rows evenly spaced by ``seq``, the newest always included,
+    oldest first; ``error`` says why when there are none."""
+    out: dict[str, Any] = {"hours": hours, "wall_s": [], "offset_um": [], "model_um": []}
+    if path is None:
+        out["error"] = "no recorder configured"
+        return out
+    if not path.is_file():
+        out["error"] = "no recorder file yet"
+        return out
+    cutoff = (time.time() if now_wall_s is None else now_wall_s) - hours * 3600.0
+    try:
+        rows = _thinned_rows(path, cutoff, max(1, max_points))
+    except sqlite3.Error as exc:
+        out["error"] = f"recorder unreadable: {exc}"
+        return out
+    if not rows:
+        out["error"] = "no samples recorded in the window"
+    for wall_s, offset_um, model_um in rows:
+        out["wall_s"].append(wall_s)
+        out["offset_um"].append(_num(offset_um))
+        out["model_um"].append(_num(model_um))
+    return out
+
+
+_PICK = """
+WITH RECURSIVE pick(s) AS (SELECT ? UNION ALL SELECT s - ? FROM pick WHERE s - ? >= ?)
+SELECT wall_s, offset_um, model_um FROM pick JOIN samples ON samples.seq = pick.s
+ORDER BY pick.s"""
+
+
+def _thinned_rows(path: Path, cutoff_wall_s: float,
+                  max_points: int) -> list[tuple[float, float | None, float | None]]:
+    conn = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True,
+                           timeout=LOCK_WAIT_S, check_same_thread=False)
+    try:
+        last = conn.execute("SELECT MAX(seq) FROM samples").fetchone()[0]
+        first = conn.execute("SELECT seq FROM samples WHERE wall_s >= ? ORDER BY wall_s "
+                             "LIMIT 1", (cutoff_wall_s,)).fetchone()
+        if last is None or first is None:
+            return []
+        lo = min(int(first[0]), int(last))
+        stride = max(1, math.ceil((int(last) - lo + 1) / max_points))
+        rows = conn.execute(_PICK, (int(last), stride, stride, lo)).fetchmany(max_points)
+        return [(float(w), o, m) for w, o, m in rows]
+    finally:
+        conn.close()
