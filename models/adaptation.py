@@ -69,11 +69,11 @@ class AdaptationParams:
     """The estimator's settings (the daemon's `[adaptation]` defaults live here).
 
     Defaults: a probe of 0.5 µm σ (a touch probe on a reference), a bias that
-    may wander 1 µm per √h (chosen on the shop machine's day with a change,
-    benchmarks/bench_adaptation.py; `compd fit --adaptation` estimates both
-    from a record's residual)."""
+    may wander 0.3 µm per √h (the best of 0.1 … 2 on the shop machine's days
+    with and without a change, benchmarks/bench_adaptation.py; `compd fit
+    --adaptation` estimates both from a record's residual)."""
 
-    bias_rw_um_per_sqrt_h: float = 1.0  # process noise: bias random walk, µm/√h
+    bias_rw_um_per_sqrt_h: float = 0.3  # process noise: bias random walk, µm/√h
     probe_noise_um: float = 0.5  # measurement noise σ of one probe, µm
     gate_sigma: float = 4.0  # innovation beyond gate_sigma·√S is refused
     max_step_um: float = 5.0  # |correction change| per accepted probe (bound)
