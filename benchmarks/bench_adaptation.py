@@ -1,0 +1,137 @@
+"""Issue 13's figures for adaptation offline, through the command line as a user runs it.
+
+Per seed, on the shop machine (`compd sim --record … --machine shop --hours 48`):
+
+1. the same 48 h twice, without and with the day with a change from hour 24
+   (`--change ambient+3K,heat+30% --change-at-h 24`: day 1 is identical);
+2. calibrate on day 1 as benchmarks/bench_calibration.py does (`compd fit
+   --candidates 't*_degC' --candidates spindle_rpm --max-terms 3`);
+3. verify on day 2 as a running daemon would (`compd replay MODEL all.csv
+   --score-from 86400`, the initial state estimated on day 1), a probe every 2 h
+   with 0.5 µm of added noise (`--probe-every 7200 --probe-noise-um 0.5`).
+
+Printed per seed and day: range reduction plain → adapted (ratio) and the crude
+correction (each probe's residual held until the next) in the same run, and
+fit %. The issue's targets: adapted >= 1.5x plain on the changed day, and never
+below plain (ratio >= 1) on the day without change.
+
+Then the estimator's cost per sample (`correction_um` + `advance`, no probe)
+against the model's step (`CompensationModel.step`) in the same run (target < 2x).
+
+Run: OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_adaptation.py [SEEDS…]
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from compd.cli import main as cli
+
+PROBES = ["--probe-every", "7200", "--probe-noise-um", "0.5"]
+
+
+def _run(argv: list[str]) -> dict[str, Any]:
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(io.StringIO()):
+        code = cli(argv)
+    if code != 0:
+        raise SystemExit(f"compd {' '.join(argv)} exited {code}")
+    text = out.getvalue().strip().splitlines()
+    return json.loads(text[-1]) if text and text[-1].startswith("{") else {}
+
+
+def _day1(full: Path, day1: Path) -> None:
+    lines = full.read_text().splitlines()
+    head, rows = lines[0], lines[1:]
+    day1.write_text("\n".join([head, *rows[:len(rows) // 2 + 1]]) + "\n")
+
+
+def seed_figures(d: Path, seed: int) -> dict[str, float]:
+    plain, changed = d / f"plain{seed}.csv", d / f"changed{seed}.csv"
+    common = ["--machine", "shop", "--hours", "48", "--period-s", "60", "--seed", str(seed)]
+    _run(["sim", "--record", str(plain), *common])
+    _run(["sim", "--record", str(changed), *common, "--change", "ambient+3K,heat+30%",
+          "--change-at-h", "24"])
+    day1, model = d / f"day1-{seed}.csv", d / f"shop{seed}.toml"
+    _day1(plain, day1)
+    _run(["fit", str(day1), "--output", "dz_um", "--candidates", "t*_degC", "--candidates",
+          "spindle_rpm", "--max-terms", "3", "-o", str(model), "--json"])
+    out: dict[str, float] = {}
+    for name, record in (("without change", plain), ("with change", changed)):
+        r = _run(["replay", str(model), str(record), "--output", "dz_um", "--score-from",
+                  "86400", *PROBES, "--json"])
+        a, c = r["adapted"], r["crude"]
+        ratio = a["range_reduction"] / r["range_reduction"]
+        out[name] = ratio
+        print(f"  seed {seed}, day 2 {name}: range reduction {r['range_reduction']:.2f}x → "
+              f"adapted {a['range_reduction']:.2f}x ({ratio:.2f} of plain; crude "
+              f"{c['range_reduction'] / r['range_reduction']:.2f}), fit {r['fit_percent']:.1f} "
+              f"→ {a['fit_percent']:.1f} % (crude {c['fit_percent']:.1f} %), probes "
+              f"{a['probes_used']} used / {a['probes_refused']} refused", flush=True)
+    return out
+
+
+def cost(d: Path, seed: int) -> None:
+    """µs per sample: the estimator (bias only, and with gains) against the model step."""
+    from compd.infiles import load_model
+    from compd.offline.records import read_record
+    from models.adaptation import AdaptationParams, Adapter
+
+    model = load_model(str(d / f"shop{seed}.toml"))
+    rows = list(read_record(d / f"plain{seed}.csv").samples())
+    model.set_references(rows[0])
+    terms = model.contributions
+
+    def per_sample(fn: Any) -> float:
+        best = min(_timed(fn) for _ in range(7))
+        return best / len(rows) * 1e6
+
+    def step_all() -> None:
+        for s in rows:
+            model.step(s)
+
+    def adapter_all(adapter: Adapter) -> Any:
+        def go() -> None:
+            for _ in rows:
+                adapter.correction_um(terms)
+                adapter.advance(60.0)
+        return go
+
+    n = len(model.terms)
+    t_model = per_sample(step_all)
+    t_bias = per_sample(adapter_all(Adapter(AdaptationParams(), n)))
+    t_gains = per_sample(adapter_all(Adapter(AdaptationParams(gains=True), n)))
+    print(f"cost per sample ({n}-term model, {len(rows)} samples, best of 7): model step "
+          f"{t_model:.2f} µs; estimator {t_bias:.2f} µs = {t_bias / t_model:.2f}x the step, "
+          f"with gains {t_gains:.2f} µs = {t_gains / t_model:.2f}x [target < 2x]")
+
+
+def _timed(fn: Any) -> float:
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    seeds = [int(a) for a in sys.argv[1:]] or [1, 2, 3, 4, 5]
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        ratios = [seed_figures(d, s) for s in seeds]
+        changed = [r["with change"] for r in ratios]
+        plain = [r["without change"] for r in ratios]
+        print(f"with change: adapted/plain range reduction {min(changed):.2f} … "
+              f"{max(changed):.2f} [target >= 1.5: met on {sum(x >= 1.5 for x in changed)} of "
+              f"{len(seeds)}]; without change: {min(plain):.2f} … {max(plain):.2f} [target >= "
+              f"1: met on {sum(x >= 1.0 for x in plain)} of {len(seeds)}]")
+        cost(d, seeds[0])
+
+
+if __name__ == "__main__":
+    main()
