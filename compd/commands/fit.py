@@ -462,11 +462,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         status.done()
     measured = [r.column(args.output) for r in records]
-    try:
-        adapt = _suggest_adaptation(args, measured, simulated, records[0].period_s)
-    except ValueError as exc:
-        print(f"compd fit: --adaptation: {exc}", file=sys.stderr)
-        return EX_DATAERR
+    adapt = _suggest_adaptation(args, measured, simulated, records[0].period_s)
     per = [quality(m, s) for m, s in zip(measured, simulated, strict=True)]
     q = per[0] if len(records) == 1 else quality(np.concatenate(measured),
                                                  np.concatenate(simulated))
@@ -518,11 +514,16 @@ def run(args: argparse.Namespace) -> int:
 
 def _suggest_adaptation(args: argparse.Namespace, measured: list[Any], simulated: list[Any],
                         period_s: float) -> dict[str, float]:
-    """`--adaptation`'s suggested settings ({} without it); ValueError when the records
-    are too short for the lag."""
+    """`--adaptation`'s suggested settings ({} without it, or with a warning when the
+    records are too short for the lag: the model is written all the same)."""
     if not args.adaptation:
         return {}
     from compd.offline.probes import suggest_settings
 
     residuals = [m - s for m, s in zip(measured, simulated, strict=True)]
-    return suggest_settings(residuals, period_s, args.adaptation_lag_s).as_dict()
+    try:
+        return suggest_settings(residuals, period_s, args.adaptation_lag_s).as_dict()
+    except ValueError as exc:
+        print(f"compd fit: warning: --adaptation: {exc}; no settings suggested",
+              file=sys.stderr)
+        return {}
