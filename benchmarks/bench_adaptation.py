@@ -72,7 +72,8 @@ def seed_figures(d: Path, seed: int) -> dict[str, float]:
         out[name] = ratio
         print(f"  seed {seed}, day 2 {name}: range reduction {r['range_reduction']:.2f}x → "
               f"adapted {a['range_reduction']:.2f}x ({ratio:.2f} of plain; crude "
-              f"{c['range_reduction'] / r['range_reduction']:.2f}), fit {r['fit_percent']:.1f} "
+              f"{c['range_reduction']:.2f}x = {c['range_reduction'] / r['range_reduction']:.2f}), "
+              f"fit {r['fit_percent']:.1f} "
               f"→ {a['fit_percent']:.1f} % (crude {c['fit_percent']:.1f} %), probes "
               f"{a['probes_used']} used / {a['probes_refused']} refused", flush=True)
     return out
