@@ -31,21 +31,22 @@ if TYPE_CHECKING:
 #: option -> AdaptationParams field, with the option's range
 _SETTINGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--bias-rw-um-per-sqrt-h", "bias_rw_um_per_sqrt_h", number(0.0, 1000.0),
-     "bias random walk, µm/√h"),
+     "bias random walk, µm/√h (default {:g})"),
     ("--probe-sigma-um", "probe_noise_um", number(0.0, 1000.0, lo_open=True),
-     "the estimator's probe noise σ, µm (default: --probe-noise-um when > 0)"),
+     "the estimator's probe noise σ, µm (default --probe-noise-um when that is > 0, "
+     "else {:g})"),
     ("--gate-sigma", "gate_sigma", number(0.0, 1e6, lo_open=True),
-     "refuse a probe whose innovation exceeds this many σ"),
+     "refuse a probe whose innovation exceeds this many σ (default {:g})"),
     ("--max-step-um", "max_step_um", number(0.0, 1000.0, lo_open=True),
-     "largest change of the correction per probe, µm"),
+     "largest change of the correction per probe, µm (default {:g})"),
     ("--max-total-um", "max_total_um", number(0.0, 1000.0, lo_open=True),
-     "largest |bias|, µm"),
+     "largest |bias|, µm (default {:g})"),
     ("--gain-rw-per-sqrt-h", "gain_rw_per_sqrt_h", number(0.0, 10.0),
-     "with --gains: each term's relative gain random walk, per √h"),
+     "with --gains: each term's relative gain random walk, per √h (default {:g})"),
     ("--max-gain", "max_gain", number(0.0, 10.0, lo_open=True),
-     "with --gains: largest relative gain correction"),
+     "with --gains: largest relative gain correction (default {:g})"),
     ("--initial-bias-sigma-um", "initial_bias_sigma_um", number(0.0, 1000.0),
-     "σ of the bias at the start, µm"),
+     "σ of the bias at the start, µm (default {:g})"),
 )
 
 
@@ -62,7 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     defaults = _defaults()
     for option, field, kind, text in _SETTINGS:
         group.add_argument(option, type=kind, default=None, metavar="X",
-                           help=f"{text} (default {getattr(defaults, field):g})")
+                           help=text.format(getattr(defaults, field)))
 
 
 def _dest(option: str) -> str:
