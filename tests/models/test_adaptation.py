@@ -91,7 +91,7 @@ def test_non_finite_probe_is_a_fault_refusal() -> None:
 
 def test_steps_are_bounded_per_probe_and_in_total() -> None:
     p = AdaptationParams(bias_rw_um_per_sqrt_h=50.0, initial_bias_sigma_um=100.0,
-                         gate_sigma=1e6, max_step_um=2.0, max_total_um=7.0)
+                         gate_sigma=1e6, max_step_um=2.0, max_total_um=7.0, apply_sigma=0.0)
     a = Adapter(p, 1)
     biases = _probe_run(a, [30.0] * 10, HOUR, 0.1, seed=3)
     assert biases[:3] == pytest.approx([2.0, 4.0, 6.0])
@@ -135,6 +135,8 @@ def test_state_round_trips_through_json_and_behaves_the_same() -> None:
     {"version": 99}, {"n_terms": 2}, {"gains": False}, {"x": [0.0]}, {"x": ["1", 0, 0, 0]},
     {"P": [[1.0, 2.0], [3.0, 4.0]]}, {"pending_s": -1.0}, {"accepted": -1},
     {"x": [1e9, 0.0, 0.0, 0.0]}, {"pending_s": math.nan}, {"refused": True},
+    {"applied": [1e9, 0.0, 0.0, 0.0]}, {"applied": None}, {"applied_moves": -2},
+    {"version": True},
 ])
 def test_bad_state_is_a_value_error(change: dict[str, object]) -> None:
     p = AdaptationParams(gains=True)
@@ -169,6 +171,62 @@ def test_correction_without_gains_ignores_the_terms() -> None:
     assert a.correction_um([]) == a.correction_um([5.0, 9.0]) == a.bias_um
 
 
+# -- the applied correction is earned (apply_sigma) -------------------------------------------
+
+def test_probe_noise_alone_never_moves_the_applied_correction() -> None:
+    # a right model, probes of 0.5 µm noise every 2 h for 20 days: the estimate wanders,
+    # the applied correction (what the machine gets) stays at 0
+    a = Adapter(AdaptationParams(probe_noise_um=0.5), 1)
+    estimates = []
+    for z in np.random.default_rng(7).normal(0.0, 0.5, 240):
+        a.advance(2 * HOUR)
+        o = a.update(float(z), 0.0, [])
+        assert o.accepted and not o.applied and o.bias_um == 0.0
+        estimates.append(o.estimated_bias_um)
+    assert a.correction_um([]) == 0.0 and a.applied_moves == 0
+    assert max(abs(e) for e in estimates) > 0.1  # the filter did move; the output did not
+
+
+def test_a_real_offset_is_applied_within_a_few_probes() -> None:
+    a = Adapter(AdaptationParams(probe_noise_um=0.5), 1)
+    rng = np.random.default_rng(3)
+    for _ in range(12):  # a day at the noise floor: nothing applied
+        a.advance(2 * HOUR)
+        a.update(float(rng.normal(0.0, 0.5)), 0.0, [])
+    assert a.bias_um == 0.0
+    moved_at = []
+    for k in range(12):  # then the machine is 2.5 µm off
+        a.advance(2 * HOUR)
+        if a.update(2.5 + float(rng.normal(0.0, 0.5)), 0.0, []).applied:
+            moved_at.append(k)
+    assert moved_at and moved_at[0] <= 4
+    assert a.bias_um == pytest.approx(2.5, abs=0.8)
+
+
+def test_apply_sigma_zero_applies_every_accepted_estimate() -> None:
+    a = Adapter(AdaptationParams(probe_noise_um=0.5, apply_sigma=0.0, gains=True), 2)
+    rng = np.random.default_rng(2)
+    for k in range(20):
+        a.advance(HOUR)
+        terms = [float(k % 5), 2.0]
+        o = a.update(float(rng.normal(0.3, 0.5)), 0.0, terms)
+        assert o.accepted and a.bias_um == a.estimated_bias_um == o.estimated_bias_um
+        assert a.gain_corrections == a.estimated_gains
+
+
+def test_a_version_1_state_resumes_with_the_estimate_applied() -> None:
+    p = AdaptationParams()
+    a = Adapter(p, 1)
+    for z in (3.0, 3.2, 2.9):
+        a.advance(HOUR)
+        a.update(z, 0.0, [])
+    state = a.export_state()
+    old = {k: v for k, v in state.items() if k not in ("applied", "applied_moves")}
+    b = Adapter.from_state(p, 1, {**old, "version": 1})
+    assert b.bias_um == b.estimated_bias_um == a.estimated_bias_um
+    assert b.export_state()["version"] == 2
+
+
 # -- properties -------------------------------------------------------------------------------
 
 finite = st.floats(-1e4, 1e4, allow_nan=False)
@@ -181,7 +239,7 @@ params = st.builds(
     gate_sigma=st.floats(0.5, 1e3), max_step_um=st.floats(0.01, 20),
     max_total_um=st.floats(0.1, 50), gains=st.booleans(), gain_rw_per_sqrt_h=st.floats(0, 0.5),
     max_gain=st.floats(0.01, 1), initial_bias_sigma_um=st.floats(0.01, 50),
-    initial_gain_sigma=st.floats(0.0, 1))
+    initial_gain_sigma=st.floats(0.0, 1), apply_sigma=st.floats(0.0, 8.0))
 
 
 @settings(max_examples=150, deadline=None)
