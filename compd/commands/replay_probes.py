@@ -47,6 +47,9 @@ _SETTINGS: tuple[tuple[str, str, Any, str], ...] = (
      "with --gains: largest relative gain correction (default {:g})"),
     ("--initial-bias-sigma-um", "initial_bias_sigma_um", number(0.0, 1000.0),
      "σ of the bias at the start, µm (default {:g})"),
+    ("--apply-sigma", "apply_sigma", number(0.0, 1e6),
+     "apply the estimate only when it departs from the applied correction by more than "
+     "this many σ; 0 applies every accepted probe (default {:g})"),
 )
 
 
@@ -100,15 +103,22 @@ def params_from_args(args: argparse.Namespace) -> AdaptationParams:
 
 
 def figures(run: ProbeRun, adapted: CompensationFigures, crude: CompensationFigures,
-            first: int, params: AdaptationParams) -> dict[str, Any]:
-    """The JSON keys "adapted", "crude" and "adaptation" (the settings used)."""
+            first: int, params: AdaptationParams, rms: dict[str, float]) -> dict[str, Any]:
+    """The JSON keys "adapted", "crude" and "adaptation" (the settings used); `rms`
+    the residue's RMS (µm, scored rows) of "plain", "adapted" and "crude"."""
     scored = int((run.rows >= first).sum())
     return {
         "adapted": {**adapted.as_dict(), "probes": int(run.rows.size),
                     "probes_scored": scored, "probes_used": int(run.accepted.sum()),
                     "probes_refused": int((~run.accepted).sum()),
-                    "bias_um": run.adapter.bias_um, "bias_sigma_um": run.adapter.bias_sigma_um},
-        "crude": {**crude.as_dict(), "probes": int(run.rows.size)},
+                    "applied_moves": run.adapter.applied_moves,
+                    "bias_um": run.adapter.bias_um,
+                    "estimated_bias_um": run.adapter.estimated_bias_um,
+                    "bias_sigma_um": run.adapter.bias_sigma_um,
+                    "residue_rms_um": rms["adapted"],
+                    "plain_residue_rms_um": rms["plain"]},
+        "crude": {**crude.as_dict(), "probes": int(run.rows.size),
+                  "residue_rms_um": rms["crude"]},
         "adaptation": dataclasses.asdict(params),
     }
 
@@ -123,14 +133,16 @@ def lines(plain: CompensationFigures, extra: dict[str, Any], every_s: float,
 
     return [
         f"  adapted (a probe every {every_s:g} s, +{noise_um:g} µm noise; {a['probes']} probes, "
-        f"{a['probes_used']} used, {a['probes_refused']} refused; bias now "
-        f"{a['bias_um']:.3f} ± {a['bias_sigma_um']:.3f} µm):",
+        f"{a['probes_used']} used, {a['probes_refused']} refused, applied at "
+        f"{a['applied_moves']}; bias applied {a['bias_um']:.3f} µm, estimated "
+        f"{a['estimated_bias_um']:.3f} ± {a['bias_sigma_um']:.3f} µm):",
         f"    fit {a['fit_percent']:.2f} %, residue {a['residue_min_um']:.3f} … "
-        f"{a['residue_max_um']:.3f} µm, Δpk {a['dpk_um']:.3f} µm, range reduction "
+        f"{a['residue_max_um']:.3f} µm, RMS {a['residue_rms_um']:.3f} µm (plain "
+        f"{a['plain_residue_rms_um']:.3f}), Δpk {a['dpk_um']:.3f} µm, range reduction "
         f"{a['range_reduction']:.2f}-fold ({ratio(a['range_reduction'])})",
         f"  crude (each probe's residual held until the next): fit {c['fit_percent']:.2f} %, "
-        f"Δpk {c['dpk_um']:.3f} µm, range reduction {c['range_reduction']:.2f}-fold "
-        f"({ratio(c['range_reduction'])})",
+        f"RMS {c['residue_rms_um']:.3f} µm, Δpk {c['dpk_um']:.3f} µm, range reduction "
+        f"{c['range_reduction']:.2f}-fold ({ratio(c['range_reduction'])})",
     ]
 
 
@@ -138,6 +150,8 @@ def replay(args: argparse.Namespace, model: CompensationModel, record: Record,
            measured: FloatArray, simulated: FloatArray, first: int
            ) -> tuple[ProbeRun, dict[str, Any]]:
     """Run the probes over the replay; RecordError when the figures mean nothing."""
+    import numpy as np
+
     from compd.offline.probes import run_probes, term_contributions
     from compd.offline.quality_check import checked_quality
 
@@ -149,7 +163,10 @@ def replay(args: argparse.Namespace, model: CompensationModel, record: Record,
                      noise_um=args.probe_noise_um, seed=args.probe_seed, params=params)
     adapted = checked_quality(measured[first:], run.adapted[first:], record.path, args.output)
     crude = checked_quality(measured[first:], run.crude[first:], record.path, args.output)
-    return run, figures(run, adapted, crude, first, params)
+    rms = {name: float(np.sqrt(np.mean((measured[first:] - pred[first:]) ** 2)))
+           for name, pred in (("plain", simulated), ("adapted", run.adapted),
+                              ("crude", run.crude))}
+    return run, figures(run, adapted, crude, first, params, rms)
 
 
 def plot_extras(run: ProbeRun | None, time_s: FloatArray) -> dict[str, Any]:
