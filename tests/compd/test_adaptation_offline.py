@@ -114,10 +114,12 @@ def test_on_the_changed_day_the_estimator_beats_the_plain_model_and_the_crude_ba
                 "--probe-noise-um", "0.5")
     a, c = r["adapted"], r["crude"]
     assert isinstance(a, dict) and isinstance(c, dict)
+    # the mismatch is shown by the probes and applied (seed 1: 79.9 → 86.5 %, RMS 1.90 → 1.27)
+    assert a["applied_moves"] >= 1
     assert a["fit_percent"] > float(r["fit_percent"]) + 5.0  # type: ignore[arg-type]
+    assert a["residue_rms_um"] < 0.75 * a["plain_residue_rms_um"]
     assert a["range_reduction"] > float(r["range_reduction"])  # type: ignore[arg-type]
     assert a["range_reduction"] > c["range_reduction"]
-    assert a["fit_percent"] > c["fit_percent"]
 
 
 def test_on_the_day_without_change_the_estimator_beats_the_crude_baseline(
@@ -129,6 +131,28 @@ def test_on_the_day_without_change_the_estimator_beats_the_crude_baseline(
     assert a["range_reduction"] > c["range_reduction"]
     assert a["fit_percent"] > float(r["fit_percent"]) - 1.0  # type: ignore[arg-type]
     assert abs(a["bias_um"]) < 2.0
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.parametrize("probe_seed", ["0", "1"])
+def test_never_worse_than_the_plain_model_on_a_day_without_change(
+        shop_run: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        seed: int, probe_seed: str) -> None:
+    """The issue's "never worse without change": other days of the same machine (seeds),
+    other probe noise; the always-following filter (--apply-sigma 0) is worse on these."""
+    data = shop_run["plain"]
+    if seed != 1:
+        data = tmp_path / "plain.csv"
+        assert main(["sim", "--record", str(data), "--machine", "shop", "--hours", "48",
+                     "--period-s", "60", "--seed", str(seed)]) == 0
+    probes = ["--probe-every", "7200", "--probe-noise-um", "0.5", "--probe-seed", probe_seed]
+    r = _replay(capsys, shop_run["model"], data, *probes)
+    a = r["adapted"]
+    assert isinstance(a, dict)
+    assert a["range_reduction"] >= float(r["range_reduction"]) * (1 - 1e-9)  # type: ignore[arg-type]
+    assert a["residue_rms_um"] <= a["plain_residue_rms_um"] + 0.05
+    following = _replay(capsys, shop_run["model"], data, *probes, "--apply-sigma", "0")
+    assert following["adapted"]["range_reduction"] < r["range_reduction"]  # type: ignore[index]
 
 
 def test_a_50_um_bad_probe_is_refused(shop_run: dict[str, Path], tmp_path: Path,

@@ -17,14 +17,15 @@ HOUR = 3600.0
 
 def _probe_run(adapter: Adapter, truth: list[float], every_s: float, noise_um: float,
                seed: int, terms: list[float] | None = None) -> list[float]:
-    """Probe `truth` (the model's error, model output 0) every `every_s`; bias after each."""
+    """Probe `truth` (the model's error, model output 0) every `every_s`; the filter's bias
+    estimate after each (what is applied is tested below, test_*applied*)."""
     rng = np.random.default_rng(seed)
     terms = terms or [0.0]
     out = []
     for err in truth:
         adapter.advance(every_s)
         adapter.update(err + float(rng.normal(0, noise_um)), 0.0, terms)
-        out.append(adapter.bias_um)
+        out.append(adapter.estimated_bias_um)
     return out
 
 
@@ -34,8 +35,9 @@ def test_worked_number_of_the_docstring() -> None:
     assert o.accepted and o.reason is None
     assert o.innovation_um == pytest.approx(3.0)
     assert o.innovation_sigma_um == pytest.approx(math.sqrt(25.25))
-    assert a.bias_um == pytest.approx(3.0 * 25 / 25.25)
+    assert a.estimated_bias_um == pytest.approx(3.0 * 25 / 25.25)
     assert a.bias_sigma_um == pytest.approx(0.4975, abs=1e-4)
+    assert o.applied and a.bias_um == pytest.approx(3.0 * 25 / 25.25 - 4 * a.bias_sigma_um)
     assert a.correction_um([6.0, 4.0]) == a.bias_um
     refused = a.update(60.0, 10.0, [6.0, 4.0])
     assert not refused.accepted and refused.reason == "gate"
@@ -60,7 +62,7 @@ def test_bias_tracks_a_random_walk_better_than_the_last_probe() -> None:
     for z in probes:
         a.advance(HOUR)
         a.update(z, 0.0, [0.0])
-        est.append(a.bias_um)
+        est.append(a.estimated_bias_um)
     err_kf = np.sqrt(np.mean((np.array(est) - truth) ** 2))
     err_raw = np.sqrt(np.mean((np.array(probes) - truth) ** 2))
     assert err_kf < 0.8 * err_raw  # the filter averages the probe noise away
@@ -101,7 +103,7 @@ def test_steps_are_bounded_per_probe_and_in_total() -> None:
 def test_gains_learn_a_gain_error_that_a_bias_cannot() -> None:
     # the model misses 20 % of term 1 which varies (0..10 µm); term 2 is right
     p = AdaptationParams(bias_rw_um_per_sqrt_h=0.1, gains=True, gain_rw_per_sqrt_h=0.01,
-                         initial_gain_sigma=0.2)
+                         initial_gain_sigma=0.2, apply_sigma=0.0)
     a = Adapter(p, 2)
     rng = np.random.default_rng(4)
     for k in range(60):
@@ -200,7 +202,9 @@ def test_a_real_offset_is_applied_within_a_few_probes() -> None:
         if a.update(2.5 + float(rng.normal(0.0, 0.5)), 0.0, []).applied:
             moved_at.append(k)
     assert moved_at and moved_at[0] <= 4
-    assert a.bias_um == pytest.approx(2.5, abs=0.8)
+    assert a.estimated_bias_um == pytest.approx(2.5, abs=0.6)
+    band = 4 * a.bias_sigma_um  # the applied bias lags the estimate by at most the band
+    assert 0.5 < a.bias_um <= a.estimated_bias_um and a.estimated_bias_um - a.bias_um <= band
 
 
 def test_apply_sigma_zero_applies_every_accepted_estimate() -> None:
