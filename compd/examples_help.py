@@ -26,6 +26,7 @@ examples:
 examples:
   compd sim --protocol opcua                  serve a simulated machine on 127.0.0.1
   compd sim --record etve.csv --program etve --period-s 60 --seed 1
+  compd sim --record s.csv --machine shop --period-s 60 --change ambient+3K,heat+30% --change-at-h 6
   compd sim --drive modbus://plc:502 --map map.toml   the plant as a client (HIL)""",
     "fit": """\
 examples:
@@ -34,7 +35,8 @@ examples:
     "replay": """\
 examples:
   compd replay plant.toml spectrum.csv --output dz_um --plot replay.png
-  compd replay sp2 /var/lib/compd/samples.sqlite --output dz_um --json""",
+  compd replay sp2 /var/lib/compd/samples.sqlite --output dz_um --json
+  compd replay plant.toml spectrum.csv --output dz_um --probe-every 7200 --probe-noise-um 0.5""",
     "step": """\
 examples:
   compd step sp2                              final value of each term's unit step

@@ -146,6 +146,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="replace an existing model file (never one of the inputs)")
     parser.add_argument("--name", default=None, help="model name (default: from DATA)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON line")
+    parser.add_argument("--adaptation", action="store_true",
+                        help="also suggest [adaptation] probe_noise_um and bias_rw_um_per_sqrt_h "
+                             "from the fitted model's residual (compd.offline.probes)")
+    parser.add_argument("--adaptation-lag-s", type=number(0.0, 1e7, lo_open=True),
+                        default=7200.0, metavar="SECONDS",
+                        help="with --adaptation: the probe interval the drift is measured over "
+                             "(default 7200)")
 
 
 def _fixed_terms(specs: list[str], records: list[Record]) -> tuple[list[Term], list[Any]]:
@@ -455,12 +462,14 @@ def run(args: argparse.Namespace) -> int:
     finally:
         status.done()
     measured = [r.column(args.output) for r in records]
+    adapt = _suggest_adaptation(args, measured, simulated, records[0].period_s)
     per = [quality(m, s) for m, s in zip(measured, simulated, strict=True)]
     q = per[0] if len(records) == 1 else quality(np.concatenate(measured),
                                                  np.concatenate(simulated))
     if args.json:
         extra = {"subsets": args.search_table} if getattr(args, "search_table", None) else {}
         print(json.dumps({"terms": info, "fit_percent": q.fit_percent, "dpk_um": q.dpk_um, **extra,
+                          **({"adaptation": adapt} if adapt else {}),
                           "model_file": str(out),
                           "records": [{"path": r.path, **pq.as_dict()}
                                       for r, pq in zip(records, per, strict=True)]}))
@@ -495,5 +504,26 @@ def run(args: argparse.Namespace) -> int:
     print(f"  model (replayed as the daemon steps it, initial state estimated): fit "
           f"{q.fit_percent:.2f} %, Δpk {q.dpk_um:.3f} µm, range reduction "
           f"{q.range_reduction:.2f}-fold")
+    if adapt:
+        print(f"  [adaptation] suggested from the residual (drift over {adapt['lag_s']:g} s): "
+              f"probe_noise_um = {adapt['probe_noise_um']:.3g}, bias_rw_um_per_sqrt_h = "
+              f"{adapt['bias_rw_um_per_sqrt_h']:.3g} (a floor: see docs/adaptation.md)")
     print(f"  wrote {out}")
     return 0
+
+
+def _suggest_adaptation(args: argparse.Namespace, measured: list[Any], simulated: list[Any],
+                        period_s: float) -> dict[str, float]:
+    """`--adaptation`'s suggested settings ({} without it, or with a warning when the
+    records are too short for the lag: the model is written all the same)."""
+    if not args.adaptation:
+        return {}
+    from compd.offline.probes import suggest_settings
+
+    residuals = [m - s for m, s in zip(measured, simulated, strict=True)]
+    try:
+        return suggest_settings(residuals, period_s, args.adaptation_lag_s).as_dict()
+    except ValueError as exc:
+        print(f"compd fit: warning: --adaptation: {exc}; no settings suggested",
+              file=sys.stderr)
+        return {}

@@ -30,15 +30,17 @@ import argparse
 import json
 import math
 import sys
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from compd.argtypes import number
-from compd.sysexits import EX_DATAERR
+from compd.commands import replay_probes
+from compd.sysexits import EX_DATAERR, EX_USAGE
 
 if TYPE_CHECKING:
     import numpy as np
     import numpy.typing as npt
 
+    from compd.offline.probes import ProbeRun
     from compd.offline.records import Record
     from models.compensation import CompensationModel
 
@@ -63,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--score-from", type=number(0.0, 1e9), default=0.0, metavar="SECONDS",
                         help="run from the record's start, score only from this time on")
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON line")
-
+    replay_probes.add_arguments(parser)
 
 
 def replay_model(model: CompensationModel, record: Record, *, steady: bool = False
@@ -124,6 +126,10 @@ def run(args: argparse.Namespace) -> int:
     from compd.outfiles import check_figure, write_atomically
     from models.errors import ModelError
 
+    problem = replay_probes.usage_problem(args)
+    if problem:
+        print(f"compd replay: {problem}", file=sys.stderr)
+        return EX_USAGE
     if args.plot is not None:
         check_figure(args.plot, force=args.force, inputs=[args.model, args.data])
     try:
@@ -140,8 +146,12 @@ def run(args: argparse.Namespace) -> int:
     except (RecordError, ModelError) as exc:
         print(f"compd replay: {exc}", file=sys.stderr)
         return EX_DATAERR
+    probes: ProbeRun | None = None
+    extra: dict[str, Any] = {}
     try:
         q = checked_quality(measured[first:], simulated[first:], record.path, args.output)
+        if args.probe_every is not None:
+            probes, extra = replay_probes.replay(args, model, record, measured, simulated, first)
     except RecordError as exc:
         print(f"compd replay: {exc}", file=sys.stderr)
         return EX_DATAERR
@@ -156,17 +166,21 @@ def run(args: argparse.Namespace) -> int:
         write_atomically(args.plot, lambda tmp: replay_figure(
                       tmp, record.time_s, plot_inputs(model, record), measured, simulated,
                       title=f"{model.name} on {record.path}", fit_pct=q.fit_percent,
-                      dpk_um=q.dpk_um), "figure", force=args.force,
+                      dpk_um=q.dpk_um, **replay_probes.plot_extras(probes, record.time_s)),
+                         "figure", force=args.force,
                          inputs=[args.model, args.data])
     if args.json:
         print(json.dumps({**q.as_dict(), "init": args.init,
-                          "scored_samples": len(record) - first}))
+                          "scored_samples": len(record) - first, **extra}))
     else:
         print(f"{model.name} on {record.path} ({len(record)} samples, {record.period_s:g} s; "
               f"init {args.init}; scored {len(record) - first} from {record.time_s[first]:g} s)")
         print(f"  fit {q.fit_percent:.2f} %, residue {q.residue_min_um:.3f} … "
               f"{q.residue_max_um:.3f} µm, Δpk {q.dpk_um:.3f} µm, range reduction "
               f"{q.range_reduction:.2f}-fold")
+        if extra:
+            print("\n".join(replay_probes.lines(q, extra, args.probe_every,
+                                                 args.probe_noise_um)))
         if args.plot:
             print(f"  figure: {args.plot}")
     return 0

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
 import json
 import signal
 import sys
@@ -36,6 +37,7 @@ from drivers.protocols import NAMES
 
 if TYPE_CHECKING:
     from drivers.sim.base import SimController
+    from drivers.sim.shop import ShopChange
 
 HELP = "serve one simulated machine on 127.0.0.1, or write a simulated calibration record"
 
@@ -48,6 +50,9 @@ PERIOD_S = number(1e-3, 3600.0)
 HOURS = number(0.0, 8784.0, lo_open=True)
 SPEEDUP = number(0.0, 1e6, lo_open=True)
 PROBE_NOISE_UM = number(0.0, 1000.0)
+#: the measuring cycle: every minute of machine time to once a week
+PROBE_EVERY_MIN = number(1.0, 7 * 24 * 60.0)
+CHANGE_AT_H = number(0.0, 8784.0)
 #: an offline record longer than this many rows is refused (~0.6 GB of CSV)
 MAX_RECORD_ROWS = 10_000_000
 
@@ -75,12 +80,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--machine", choices=("bench", "shop"), default="bench",
                         help="with --record: the bench machine (default) or the shop variant "
                              "(16 sensors, starts warm, room drift; see drivers.sim.shop)")
+    parser.add_argument("--change", type=_change, default=None, metavar="ambient±NK,heat±N%",
+                        help="with --machine shop: a change the model never saw, e.g. "
+                             "ambient+3K,heat+30%% (the room 3 K warmer, the spindle bearing's "
+                             "losses 30 %% higher; see drivers.sim.shop.ShopChange)")
+    parser.add_argument("--change-at-h", type=CHANGE_AT_H, default=0.0, metavar="H",
+                        help="hour of the record the --change starts (default 0: from the "
+                             "first row; 24 with --hours 48: calibrate on day 1, change on day 2)")
     parser.add_argument("--probe-noise-um", type=PROBE_NOISE_UM, default=0.5,
-                        help="probe noise added to dz_um in --record (default 0.5 µm)")
+                        help="probe noise added to dz_um in --record, and to each "
+                             "measurement of --probe-every-min (default 0.5 µm)")
+    parser.add_argument("--probe-every-min", type=PROBE_EVERY_MIN, default=None, metavar="N",
+                        help="a measuring cycle every N machine minutes: the controller's "
+                             "probe_value (growth - the offset in force + noise, µm) and "
+                             "probe_counter (+1), for a daemon's [adaptation]")
     parser.add_argument("--no-plant", action="store_true",
                         help="serve the controller's memory only, no plant behind it (a "
                              "stand-in PLC for trying the HIL bench: --drive writes it)")
     sim_drive.add_arguments(parser)
+
+
+def _change(text: str) -> ShopChange:
+    """An argparse type: `drivers.sim.shop.parse_change` with its message on one line."""
+    from drivers.sim.shop import parse_change
+
+    try:
+        return parse_change(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def describe(controller: SimController) -> dict[str, object]:
@@ -90,6 +117,7 @@ def describe(controller: SimController) -> dict[str, object]:
         "endpoint": controller.endpoint,
         "channels": {n: a.model_dump() for n, a in controller.channels.items()},
         "outputs": {n: a.model_dump() for n, a in controller.outputs_map.items()},
+        "probes": {n: a.model_dump() for n, a in controller.probes.items()},
     }
 
 
@@ -146,12 +174,17 @@ def _record_shop(args: argparse.Namespace) -> int:
               f"{hours * 3600.0 / args.period_s:.3g} rows; at most {MAX_RECORD_ROWS:,}",
               file=sys.stderr)
         return EX_DATAERR
-    columns = simulate_shop(hours, period_s=args.period_s, seed=args.seed)
+    change = None
+    if args.change is not None:
+        change = dataclasses.replace(args.change, at_h=args.change_at_h)
+    columns = simulate_shop(hours, period_s=args.period_s, seed=args.seed, change=change)
     rows = len(columns["time_s"])
     write_atomically(args.record, lambda tmp: write_shop_record(str(tmp), columns), "record",
                      force=args.force)
+    what = "" if change is None else (f", change ambient {change.ambient_k:+g} K and heat "
+                                      f"x{change.heat_factor:g} from {change.at_h:g} h")
     print(f"compd sim: wrote {rows} rows (shop machine, workday program, {hours:g} h, period "
-          f"{args.period_s:g} s, seed {args.seed}) to {args.record}")
+          f"{args.period_s:g} s, seed {args.seed}{what}) to {args.record}")
     return 0
 
 
@@ -172,7 +205,10 @@ async def _serve(args: argparse.Namespace) -> int:
     stop = asyncio.Event()
     signals = (signal.SIGINT, signal.SIGTERM)
     machine = SimMachine(controller, program=program, seed=args.seed,
-                         period_s=args.period_s, speedup=args.speedup)
+                         period_s=args.period_s, speedup=args.speedup,
+                         probe_every_s=(None if args.probe_every_min is None
+                                        else 60.0 * args.probe_every_min),
+                         probe_noise_um=args.probe_noise_um)
     for sig in signals:  # before anything is printed: a reader may signal at once
         loop.add_signal_handler(sig, stop.set)
     try:
@@ -188,8 +224,12 @@ async def _serve(args: argparse.Namespace) -> int:
                 print(f"  program {program.name} (repeats every "
                       f"{program.duration_s / 3600:g} h), speedup {args.speedup:g}, "
                       f"period {args.period_s:g} s, seed {args.seed}")
-            for title, table in (("channels", controller.channels),
-                                 ("outputs", controller.outputs_map)):
+            tables = [("channels", controller.channels), ("outputs", controller.outputs_map)]
+            if args.probe_every_min is not None:
+                print(f"  measuring cycle every {args.probe_every_min:g} machine min, "
+                      f"probe noise {args.probe_noise_um:g} µm")
+                tables.append(("probes", controller.probes))
+            for title, table in tables:
                 print(f"  {title}:")
                 for name, addr in table.items():
                     print(f"    {name:<10} {addr.describe()}")
@@ -217,11 +257,27 @@ async def _serve(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.drive is not None and args.probe_every_min is not None:
+        print("compd sim: --probe-every-min applies to a served machine, not --drive",
+              file=sys.stderr)
+        return EX_USAGE
     if args.drive is not None:
         return sim_drive.run_drive(args)
     if args.map is not None or args.duration_h is not None or args.focas_library is not None:
         print("compd sim: --map, --duration-h and --focas-library apply to --drive only",
               file=sys.stderr)
+        return EX_USAGE
+    if (args.change is not None or args.change_at_h) and (args.record is None
+                                                         or args.machine != "shop"):
+        print("compd sim: --change and --change-at-h apply to --record with --machine shop",
+              file=sys.stderr)
+        return EX_USAGE
+    if args.change is None and args.change_at_h:
+        print("compd sim: --change-at-h needs --change", file=sys.stderr)
+        return EX_USAGE
+    if args.probe_every_min is not None and (args.record is not None or args.no_plant):
+        print("compd sim: --probe-every-min needs a plant to measure: not with --record "
+              "or --no-plant", file=sys.stderr)
         return EX_USAGE
     if args.record is not None:
         if args.protocol is not None:

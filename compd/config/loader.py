@@ -21,6 +21,7 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
+from compd.config.adaptation import AdaptationSettings
 from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX, check_outputs
 from compd.config.schema import ControllerSection, DaemonConfig, SecuritySection
 from compd.config.suggest import errors_of
@@ -28,6 +29,7 @@ from compd.errors import ConfigError
 from compd.infiles import MAX_CONFIG_BYTES, InputError, load_model, read_toml_document
 from drivers.addresses import Address
 from drivers.protocols import PROTOCOLS
+from models.adaptation import AdaptationParams
 from models.compensation import CompensationModel
 from models.errors import ModelError
 from models.modelfile import model_document, parse_model
@@ -55,6 +57,10 @@ class LoadedConfig:
     #: smallest step the offset address can hold, in µm (read-back tolerance)
     offset_quantum_um: float
     extras: dict[str, Any] = field(default_factory=dict)
+    #: [adaptation] when enabled: the cycle's settings and the probe's two addresses
+    #: (read under PROBE_NAMES beside the channels)
+    adaptation: AdaptationSettings | None = None
+    probes: dict[str, Address] = field(default_factory=dict)
 
     @property
     def period_s(self) -> float:
@@ -264,11 +270,41 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
             base / rp if raw.recorder.path is not None else state_dir / rp)
         if recorder_path.is_dir():
             raise ConfigError("recorder.path", f"{recorder_path} is a directory, not a file")
+    adaptation, probes = _adaptation(raw, channels)
     return LoadedConfig(
         path=path, raw=raw, channels=channels, outputs=outputs, model=model, shadow=shadow,
         state_dir=state_dir, recorder_path=recorder_path,
         config_sha256=hashlib.sha256(text).hexdigest(), model_sha256=model_sha256(model),
-        offset_quantum_um=_quantum_um(outputs["offset"], out.units_per_um))
+        offset_quantum_um=_quantum_um(outputs["offset"], out.units_per_um),
+        adaptation=adaptation, probes=probes)
+
+
+def _adaptation(raw: DaemonConfig, channels: dict[str, Address]
+                ) -> tuple[AdaptationSettings | None, dict[str, Address]]:
+    """[adaptation] checked: both probe addresses, the estimator's settings."""
+    a = raw.adaptation
+    if not a.enabled:
+        return None, {}
+    probes: dict[str, Address] = {}
+    for key, name in zip(("probe_value", "probe_counter"), PROBE_NAMES, strict=True):
+        doc = getattr(a, key)
+        if doc is None:
+            raise ConfigError(f"adaptation.{key}", "required when adaptation is enabled: the "
+                              "controller address the measuring cycle writes")
+        if name in channels:
+            raise ConfigError(f"channels.{name}", "this name is reserved for the probe")
+        probes[name] = _validate_address(raw.controller.protocol, doc, f"adaptation.{key}")
+    try:
+        params = AdaptationParams(**a.estimator_settings())
+    except (ValueError, TypeError) as exc:  # "name: why; …" (AdaptationParams.problems)
+        first = str(exc).split("; ")[0]
+        name, _, why = first.partition(": ")
+        raise ConfigError(f"adaptation.{name}" if why else "adaptation", why or first) from None
+    return AdaptationSettings(mode=a.mode, measures=a.measures, params=params), probes
+
+
+#: the names the probe's addresses are read under (beside the channels)
+PROBE_NAMES = ("probe_value", "probe_counter")
 
 
 def resolve_state_dir(given: Path | None, base: Path) -> Path:

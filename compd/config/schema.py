@@ -351,6 +351,35 @@ class FacesSection(_Section):
     """``[faces]``: what compd shows the shop floor besides logs and metrics."""
 
     http: HttpFaceSection = HttpFaceSection()
+class AdaptationSection(_Section):
+    """``[adaptation]``: learn from the machine's probe measurements
+    (`compd.core.adaptation`; the estimator's settings default to
+    `models.adaptation.AdaptationParams`)."""
+
+    enabled: bool = False
+    #: "shadow": estimated and recorded, not applied; "apply": added to the model output
+    mode: Literal["shadow", "apply"] = "shadow"
+    #: what the measuring cycle leaves: "residual" (the probe on a compensating
+    #: machine: growth minus the offset in force) or "displacement"
+    measures: Literal["residual", "displacement"] = "residual"
+    #: controller address of the measured Z deviation (µm)
+    probe_value: dict[str, Any] | None = None
+    #: controller address of a counter (or timestamp) that changes with each measurement
+    probe_counter: dict[str, Any] | None = None
+    bias_rw_um_per_sqrt_h: float | None = None
+    probe_noise_um: float | None = None
+    gate_sigma: float | None = None
+    max_step_um: float | None = None
+    max_total_um: float | None = None
+    gains: bool | None = None
+    gain_rw_per_sqrt_h: float | None = None
+    max_gain: float | None = None
+
+    def estimator_settings(self) -> dict[str, Any]:
+        """The estimator settings given (the others keep their defaults)."""
+        names = ("bias_rw_um_per_sqrt_h", "probe_noise_um", "gate_sigma", "max_step_um",
+                 "max_total_um", "gains", "gain_rw_per_sqrt_h", "max_gain")
+        return {n: getattr(self, n) for n in names if getattr(self, n) is not None}
 
 
 class DaemonConfig(_Section):
@@ -364,6 +393,7 @@ class DaemonConfig(_Section):
     recorder: RecorderSection = RecorderSection()
     telemetry: TelemetrySection = TelemetrySection()
     faces: FacesSection = FacesSection()
+    adaptation: AdaptationSection = AdaptationSection()
 
     @field_validator("channels")
     @classmethod

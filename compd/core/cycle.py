@@ -40,6 +40,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from compd.core.adaptation import AdaptationSettings, ProbeReading, ProbeStage
 from compd.core.faults import Event, FaultPolicy, FaultState
 from compd.core.output import OutputStage, Readback, Status
 from compd.core.record import RecordRow
@@ -82,6 +83,8 @@ class CycleParams:
     offset_name: str = "offset"
     heartbeat_name: str | None = "heartbeat"
     status_name: str | None = "status"
+    #: probe-assisted adaptation (`compd.core.adaptation`), None when off
+    adaptation: AdaptationSettings | None = None
 
 
 def params_from_config(cfg: LoadedConfig, *, dry_run: bool = False) -> CycleParams:
@@ -99,7 +102,8 @@ def params_from_config(cfg: LoadedConfig, *, dry_run: bool = False) -> CyclePara
         offset_quantum_um=cfg.offset_quantum_um,
         time_scale=raw.machine.time_scale,
         heartbeat_name="heartbeat" if "heartbeat" in cfg.outputs else None,
-        status_name="status" if "status" in cfg.outputs else None)
+        status_name="status" if "status" in cfg.outputs else None,
+        adaptation=cfg.adaptation)
 
 
 @dataclass
@@ -147,7 +151,8 @@ class Cycle:
                  shadow_state: Mapping[str, Any] | None = None,
                  references: Mapping[str, float] | None = None,
                  offset_um: float | None = None, sequence: int = 0,
-                 heartbeat: int = 0) -> None:
+                 heartbeat: int = 0,
+                 adaptation_state: Mapping[str, Any] | None = None) -> None:
         self.params = params
         self.model = model
         self.shadow = shadow
@@ -186,6 +191,13 @@ class Cycle:
         self._model_range = False
         self._result: CycleResult | None = None
         self._later: list[Event] = []
+        self.probes: ProbeStage | None = None
+        if params.adaptation is not None:
+            try:
+                self.probes = ProbeStage(params.adaptation, len(model.terms), adaptation_state)
+            except (ValueError, KeyError, TypeError) as exc:
+                self.probes = ProbeStage(params.adaptation, len(model.terms))
+                self._later.append(Event("adaptation_state_refused", {"reason": str(exc)}))
         if model_state is not None:
             model.import_state(model_state)  # ModelError: the caller falls back
             self._model_ready = True
@@ -202,11 +214,13 @@ class Cycle:
     @classmethod
     def from_state(cls, params: CycleParams, model: CompensationModel,
                    shadow: CompensationModel | None, state: Mapping[str, Any], *,
-                   fresh: bool) -> Cycle:
+                   fresh: bool, same_model: bool = True) -> Cycle:
         """A cycle continuing `state` (an `export_state()` / checkpoint dict).
         Fresh: the filters resume where they were. Too old: only the references
         and the last written offset are kept; the filters restart at the steady
-        state matching the first valid sample."""
+        state matching the first valid sample. The adaptation estimator resumes
+        whenever the model is the same (`same_model`), fresh or not; another
+        model clears it."""
         model_state = state.get("model")
         refs: Mapping[str, float] | None = None
         if isinstance(model_state, Mapping):
@@ -218,12 +232,14 @@ class Cycle:
         offset_um = float(offset) if isinstance(offset, int | float) else None
         usable = fresh and isinstance(model_state, Mapping) and "terms" in model_state
         shadow_state = state.get("shadow") if usable else None
+        adapted = state.get("adaptation") if same_model else None
         return cls(params, model, shadow,
                    model_state=model_state if usable else None,
                    shadow_state=shadow_state if isinstance(shadow_state, Mapping) else None,
                    references=refs, offset_um=offset_um,
                    sequence=int(state.get("sequence", 0)),
-                   heartbeat=int(state.get("heartbeat", 0)))
+                   heartbeat=int(state.get("heartbeat", 0)),
+                   adaptation_state=adapted if isinstance(adapted, Mapping) else None)
 
     def export_state(self) -> dict[str, Any]:
         """Everything a restart needs (the checkpoint's payload)."""
@@ -243,6 +259,8 @@ class Cycle:
             out["model"] = None
             if self._references:
                 out["references"] = dict(self._references)
+        if self.probes is not None:
+            out["adaptation"] = self.probes.export_state()
         return out
 
     # -- the cycle ------------------------------------------------------------------
@@ -253,9 +271,10 @@ class Cycle:
 
     def step(self, now_s: float, samples: Mapping[str, Sample] | None,
              readback_offset_um: float | None = None, *,
-             wall_s: float | None = None) -> CycleResult:
+             wall_s: float | None = None, probe: ProbeReading | None = None) -> CycleResult:
         """One cycle at machine time `now_s`. `samples` None: the read failed.
-        `readback_offset_um`: the controller's offset as read (controller units)."""
+        `readback_offset_um`: the controller's offset as read (controller units).
+        `probe`: the measuring cycle's values as read (`compd.core.adaptation`)."""
         p = self.params
         self.sequence += 1
         events, self._later = self._later, []
@@ -285,7 +304,10 @@ class Cycle:
             elif self.shadow is not None:
                 shadow_um = self._step_shadow(values, events)
 
-        decision = self.faults.decide(now_s, valid, model_um, events)
+        in_force = self.output.confirmed_um  # before this cycle's write
+        correction = self._adapt(dt, probe, valid, model_um, in_force, events)
+        target_um = model_um + correction if model_um is not None else None
+        decision = self.faults.decide(now_s, valid, target_um, events)
         target = self.output.current_um if decision.target_um is None else decision.target_um
         offset_um = self.output.step(target, dt, deadband=decision.state == FaultState.OK)
 
@@ -320,13 +342,16 @@ class Cycle:
                                                     strict=True)} if valid else {}
         if shadow_um is not None:
             contributions["shadow_total"] = shadow_um
+        if self.probes is not None and valid:
+            contributions["adaptation"] = self.probes.correction_um
         record = RecordRow(
             seq=self.sequence, mono_s=now_s, wall_s=math.nan if wall_s is None else wall_s,
             offset_um=offset_um if p.offset_name in writes else None, model_um=model_um,
             state=self._state(decision.state), valid=valid,
             channels={n: _finite_or_none(v) for n, v in values.items()},
             validity=validity, contributions=contributions,
-            attempted_um=offset_um if self._offset_pending else None)
+            attempted_um=offset_um if self._offset_pending else None,
+            probe=self.probes.last if self.probes is not None else None)
         done = self.faults.shutting_down and (offset_um == 0.0 or self.write_stopped
                                               or self.output.held)
         self._result = CycleResult(
@@ -483,6 +508,19 @@ class Cycle:
         events.append(Event("model_non_finite", {"model": shadow.name, "shadow": True}))
         self._shadow_ready = False
         return None
+
+    def _adapt(self, dt: float, probe: ProbeReading | None, valid: bool,
+               model_um: float | None, in_force_um: float | None,
+               events: list[Event]) -> float:
+        """The adaptation's correction to add to the model output (0 when off,
+        in shadow mode, or while the cycle is not valid)."""
+        if self.probes is None:
+            return 0.0
+        terms = self.model.contributions if valid else []
+        correction = self.probes.step(dt, probe, complete=valid, model_um=model_um,
+                                      terms_um=terms, offset_in_force_um=in_force_um,
+                                      events=events)
+        return correction if valid else 0.0
 
     def _status_bits(self, state: FaultState, alarm: bool) -> Status:
         s = Status(0)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 __all__ = ["RecordRow"]
 
@@ -35,3 +36,6 @@ class RecordRow:
     validity: Mapping[str, str | None] = field(default_factory=dict)
     contributions: Mapping[str, float] = field(default_factory=dict)
     attempted_um: float | None = None
+    #: a probe that arrived this cycle (`compd.core.adaptation`): its values,
+    #: innovation, accepted or refused and why, the estimator's bias after it
+    probe: Mapping[str, Any] | None = None

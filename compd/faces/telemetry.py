@@ -370,6 +370,19 @@ class Metrics(MetricsServer):
         self.channel_valid = Gauge(
             "compd_channel_valid", "1 when the channel's last value was valid, 0 when it "
             "was not (read failed, out of range, stale, ...)", ["channel"], registry=r)
+        self.adaptation_bias_um = Gauge(
+            "compd_adaptation_bias_micrometres", "The probe-assisted adaptation's bias "
+            "estimate (what it adds to the model output in apply mode)", registry=r)
+        self.adaptation_bias_sigma_um = Gauge(
+            "compd_adaptation_bias_sigma_micrometres", "The standard deviation of the "
+            "adaptation's bias estimate", registry=r)
+        self.adaptation_correction_um = Gauge(
+            "compd_adaptation_correction_micrometres", "The correction the adaptation "
+            "proposes this cycle (applied only in apply mode)", registry=r)
+        self.probes = Counter(
+            "compd_probes", "Probe measurements seen, by outcome (accepted, refused) and "
+            "reason (gate: innovation too large; fault: cycle not complete; no_offset)",
+            ["outcome", "reason"], registry=r)
         self._init_server()
 
     def configure(self, channels: Mapping[str, str], outputs: list[str], *, version: str,
@@ -414,6 +427,16 @@ class Metrics(MetricsServer):
         self.model_output_um.set(math.nan if model_um is None else model_um)
         for name, reason in validity.items():
             self.channel_valid.labels(channel=name).set(1.0 if reason is None else 0.0)
+
+    def adaptation(self, bias_um: float, bias_sigma_um: float, correction_um: float,
+                   probe: Mapping[str, Any] | None) -> None:
+        """The estimator's state this cycle, and the probe that arrived (if one did)."""
+        self.adaptation_bias_um.set(bias_um)
+        self.adaptation_bias_sigma_um.set(bias_sigma_um)
+        self.adaptation_correction_um.set(correction_um)
+        if probe is not None:
+            outcome = "accepted" if probe.get("accepted") else "refused"
+            self.probes.labels(outcome=outcome, reason=str(probe.get("reason") or "")).inc()
 
     def _age_s(self) -> float:
         last = self._last_complete_mono

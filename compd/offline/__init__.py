@@ -4,4 +4,6 @@ demo's simulated machine.
 - `records`  calibration records (CSV, or the recorder's database) read by fit and replay
 - `plots`    figures like the papers' (matplotlib, files only)
 - `demo`     the simulated machine on loopback and the real daemon against it
+- `probes`   probes replayed from a record beside a model (`compd replay --probe-every`)
+             and the adaptation settings a residual suggests (`compd fit --adaptation`)
 """

@@ -31,9 +31,15 @@ def replay_figure(path: str | Path, time_s: FloatArray, inputs: Mapping[str, Flo
                   measured: FloatArray, simulated: FloatArray, *, title: str,
                   fit_pct: float, dpk_um: float,
                   labels: tuple[str, str, str] = ("measured δZ", "simulated (model)",
-                                                  "residue (after compensation)")
+                                                  "residue (after compensation)"),
+                  adapted: FloatArray | None = None,
+                  probes: tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]] | None = None
                   ) -> tuple[list[str], list[str]]:
-    """Draw the figure; return the legends' entries (upper, lower) as drawn."""
+    """Draw the figure; return the legends' entries (upper, lower) as drawn.
+
+    With `adapted` (`compd replay --probe-every`) the lower panel adds the model
+    with the estimator's correction and its residue, and `probes` (times, values,
+    accepted) marks each probe: a dot when used, a cross when refused."""
     hours = np.asarray(time_s) / 3600.0
     fig, (top, bottom) = plt.subplots(2, 1, sharex=True, figsize=(10, 7),
                                       gridspec_kw={"height_ratios": [2, 3]})
@@ -59,6 +65,17 @@ def replay_figure(path: str | Path, time_s: FloatArray, inputs: Mapping[str, Flo
     bottom.plot(hours, measured, lw=0.8, color="tab:blue", label=labels[0])
     bottom.plot(hours, simulated, lw=1.4, color="tab:orange", label=labels[1])
     bottom.plot(hours, residue, lw=0.8, color="tab:red", label=labels[2])
+    if adapted is not None:
+        bottom.plot(hours, adapted, lw=1.2, color="tab:green", label="adapted (model + bias)")
+        bottom.plot(hours, np.asarray(measured) - adapted, lw=0.8, color="tab:purple",
+                    label="residue with adaptation")
+    if probes is not None:
+        t_p, z_p, used = probes
+        h_p = np.asarray(t_p) / 3600.0
+        bottom.plot(h_p[used], z_p[used], "o", ms=4, color="black", label="probe (used)")
+        if not used.all():
+            bottom.plot(h_p[~used], z_p[~used], "x", ms=6, color="black",
+                        label="probe (refused)")
     bottom.axhline(0.0, color="0.3", lw=0.6)
     bottom.set_xlabel("time (h)")
     bottom.set_ylabel("Z displacement (µm)")

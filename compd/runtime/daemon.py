@@ -45,7 +45,8 @@ from typing import Any
 import structlog
 
 from compd import __version__
-from compd.config.loader import LoadedConfig
+from compd.config.loader import PROBE_NAMES, LoadedConfig
+from compd.core.adaptation import ProbeReading
 from compd.core.cycle import Cycle, CycleResult, params_from_config
 from compd.core.faults import Event
 from compd.core.schedule import Schedule, shutdown_ramp_cycles
@@ -104,6 +105,8 @@ class Daemon:
         #: what the operator page shows ([faces.http]); published once per cycle
         http = cfg.raw.faces.http
         self.status_board = StatusBoard(history_h=http.history_h, refresh_s=http.refresh_s)
+        #: the probe's values read this cycle ([adaptation]), None when not configured
+        self._probe: ProbeReading | None = None
 
     # -- public --------------------------------------------------------------------
 
@@ -382,6 +385,7 @@ class Daemon:
         names = list(self.cfg.channels)
         if self.params.readback:
             names.append(self.params.offset_name)
+        names.extend(self.cfg.probes)
         limit_s = max(self.cfg.real_period_s, 2.0 * self.cfg.raw.controller.timeout_s)
         try:
             got = await asyncio.wait_for(driver.read(names), limit_s)
@@ -399,11 +403,16 @@ class Daemon:
             rb = got.get(self.params.offset_name)
             if rb is not None and rb.quality is not Quality.BAD:
                 readback = float(rb.value)
+        self._probe = _probe_reading(got) if self.cfg.probes else None
         return {n: got[n] for n in self.cfg.channels if n in got}, readback
 
     async def _one_cycle(self, driver: Driver, cycle: Cycle, now_s: float) -> CycleResult:
+        self._probe = None
         samples, readback = await self._read(driver)
-        result = cycle.step(now_s, samples, readback, wall_s=time.time())
+        if self._probe is not None:
+            result = cycle.step(now_s, samples, readback, wall_s=time.time(), probe=self._probe)
+        else:
+            result = cycle.step(now_s, samples, readback, wall_s=time.time())
         self.cycles += 1
         self._log_events(result.events)
         confirmed = self.dry_run
@@ -428,6 +437,10 @@ class Daemon:
         self._telemetry(result, samples, confirmed)
         if self.cfg.raw.faces.http.enabled:  # never raises: the page never stops the cycle
             self.status_board.publish(result, self.cfg, dry_run=self.dry_run)
+        if (probes := cycle.probes) is not None:
+            est = probes.adapter
+            self.metrics.adaptation(est.estimated_bias_um, est.bias_sigma_um,
+                                    probes.correction_um, result.record.probe)
         self.last_result = result
         return result
 
@@ -572,6 +585,15 @@ class Daemon:
 
 _WARNINGS = frozenset({"channel_invalid", "fault_hold", "readback_mismatch", "write_failed",
                        "offset_write_skipped", "checkpoint_unusable", "checkpoint_state_refused",
-                       "model_non_finite"})
+                       "model_non_finite", "probe_refused", "adaptation_state_refused"})
+
+
+def _probe_reading(got: dict[str, Sample]) -> ProbeReading:
+    """The probe's value and counter as read (NaN where a read was bad or missing)."""
+    def value(name: str) -> float:
+        s = got.get(name)
+        return float(s.value) if s is not None and s.quality is not Quality.BAD else math.nan
+
+    return ProbeReading(value_um=value(PROBE_NAMES[0]), counter=value(PROBE_NAMES[1]))
 _ERRORS = frozenset({"fault_ramp_to_zero", "offset_write_stopped", "output_write_stopped",
                      "readback_out_of_range", "write_fault", "model_out_of_range"})

@@ -62,8 +62,9 @@ def build_driver(cfg: LoadedConfig) -> Driver:
 
     ctl = cfg.raw.controller
     try:
-        return open_driver(ctl.protocol, ctl.endpoint, cfg.channels, cfg.outputs,
-                           **driver_options(cfg))
+        # the probe's addresses ([adaptation]) are read like channels
+        return open_driver(ctl.protocol, ctl.endpoint, {**cfg.channels, **cfg.probes},
+                           cfg.outputs, **driver_options(cfg))
     except (ValueError, DriverError) as exc:
         key = "controller.endpoint" if "endpoint" in str(exc) else "controller"
         raise ConfigError(key, str(exc)) from None

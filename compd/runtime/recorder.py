@@ -84,6 +84,20 @@ CREATE TABLE IF NOT EXISTS channel_values (
     validity TEXT,
     PRIMARY KEY (seq, channel)
 ) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS probes (
+    seq INTEGER PRIMARY KEY,
+    counter REAL,
+    value_um REAL,
+    measured_um REAL,
+    model_um REAL,
+    innovation_um REAL,
+    innovation_sigma_um REAL,
+    accepted INTEGER NOT NULL,
+    reason TEXT,
+    bias_um REAL,
+    bias_sigma_um REAL,
+    mode TEXT
+);
 """
 
 _INSERT = ("INSERT INTO samples (seq, cycle, mono_s, wall_s, offset_um, model_um, state, valid,"
@@ -91,6 +105,12 @@ _INSERT = ("INSERT INTO samples (seq, cycle, mono_s, wall_s, offset_um, model_um
            " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
 
 _INSERT_VALUE = "INSERT INTO channel_values (seq, channel, value, validity) VALUES (?, ?, ?, ?)"
+
+#: a probe's columns ([adaptation]): the sample's seq, then `RecordRow.probe`'s fields
+PROBE_COLUMNS = ("counter", "value_um", "measured_um", "model_um", "innovation_um",
+                 "innovation_sigma_um", "accepted", "reason", "bias_um", "bias_sigma_um", "mode")
+_INSERT_PROBE = (f"INSERT INTO probes (seq, {', '.join(PROBE_COLUMNS)})"
+                 f" VALUES ({', '.join('?' * (len(PROBE_COLUMNS) + 1))})")
 
 #: Columns `read_samples` always returns; channel names may not collide with them.
 FIXED_COLUMNS = ("seq", "cycle", "time_s", "mono_s", "wall_s", "offset_um", "model_um", "valid",
@@ -246,6 +266,9 @@ class Recorder:
             conn.executemany(_INSERT, [_tuple(first + i, r) for i, r in enumerate(rows)])
             conn.executemany(_INSERT_VALUE, [v for i, r in enumerate(rows)
                                              for v in _value_rows(first + i, r)])
+            conn.executemany(_INSERT_PROBE, [
+                (first + i, *(r.probe.get(c) for c in PROBE_COLUMNS))
+                for i, r in enumerate(rows) if r.probe is not None])
             if new:
                 conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES ('channels', ?)",
                              (json.dumps(names),))

@@ -64,14 +64,16 @@ def start_cycle(cfg: LoadedConfig, params: CycleParams, *,
             "sequence": state.get("sequence")}
     if fresh:
         try:
-            cycle = Cycle.from_state(params, cfg.model, cfg.shadow, state, fresh=True)
+            cycle = Cycle.from_state(params, cfg.model, cfg.shadow, state, fresh=True,
+                                     same_model=same_model)
         except (ModelError, TypeError, ValueError, KeyError) as exc:
             events.append(Event("checkpoint_state_refused", {"reason": str(exc)}))
         else:
             events.append(Event("checkpoint_restored", info))
             return Startup(cycle, "restored", events)
     try:
-        cycle = Cycle.from_state(params, cfg.model, cfg.shadow, state, fresh=False)
+        cycle = Cycle.from_state(params, cfg.model, cfg.shadow, state, fresh=False,
+                                 same_model=same_model)
     except (ModelError, TypeError, ValueError, KeyError) as exc:
         events.append(Event("checkpoint_state_refused", {"reason": str(exc)}))
         return Startup(Cycle(params, cfg.model, cfg.shadow), "first_start", events)

@@ -30,3 +30,7 @@ outputs (written by the daemon, readable back)
 CHANNELS: tuple[str, ...] = ("bearing", "motor", "column", "table", "ambient",
                              "speed_rpm", "power_kw", "growth_um", "error_um")
 OUTPUTS: tuple[str, ...] = ("offset", "heartbeat", "status")
+#: the measuring cycle's values (`compd sim --probe-every-min`, a daemon's
+#: ``[adaptation]``): the probe's measured Z deviation (µm: the growth minus the
+#: offset in force, plus the probe's noise) and a counter advanced per measurement
+PROBES: tuple[str, ...] = ("probe_value", "probe_counter")

@@ -21,6 +21,8 @@ class SimController(Protocol):
     endpoint: str
     channels: dict[str, Address]
     outputs_map: dict[str, Address]
+    #: the measuring cycle's addresses (`drivers.sim.PROBES`)
+    probes: dict[str, Address]
 
     async def start(self) -> None: ...
 

@@ -70,6 +70,10 @@ CHANNELS: dict[str, FocasAddr] = {
     "growth_um": _d(16, "float"),
     "error_um": _d(20, "float"),
 }
+PROBES: dict[str, FocasAddr] = {
+    "probe_value": _d(24, "float"),
+    "probe_counter": _d(28, "long"),
+}
 EXTRAS: dict[str, FocasAddr] = {
     "servo_z_temp": FocasDiagAddress(kind="diag", number=308, axis=3, scale=0.1),
     "spindle_load_pct": FocasSpindleLoadAddress(kind="spload", spindle=1),
@@ -115,7 +119,9 @@ class FocasSimController:
         self.outputs_map: dict[str, Address] = dict(OUTPUTS)
         self.extras: dict[str, Address] = dict(EXTRAS)
         self.encodings: dict[str, Address] = dict(ENCODINGS)
-        self._table: dict[str, FocasAddr] = {**CHANNELS, **EXTRAS, **OUTPUTS, **ENCODINGS}
+        self.probes: dict[str, Address] = dict(PROBES)
+        self._table: dict[str, FocasAddr] = {**CHANNELS, **EXTRAS, **OUTPUTS, **ENCODINGS,
+                                             **PROBES}
         self.shm_path = sim_dir() / f"{host}-{self.port}.shm"
         self.shm_path.parent.mkdir(parents=True, exist_ok=True)
         with open(self.shm_path, "wb") as f:

@@ -65,6 +65,10 @@ CHANNELS: dict[str, ModbusAddress] = {
     "growth_um": ModbusAddress(unit=UNIT, kind="input", address=8, type="float32"),
     "error_um": ModbusAddress(unit=UNIT, kind="input", address=10, type="float32"),
 }
+PROBES: dict[str, ModbusAddress] = {
+    "probe_value": ModbusAddress(unit=UNIT, kind="input", address=12, type="float32"),
+    "probe_counter": ModbusAddress(unit=UNIT, kind="input", address=14, type="uint16"),
+}
 OUTPUTS: dict[str, ModbusAddress] = {
     "offset": ModbusAddress(unit=UNIT, kind="holding", address=0, type="float32"),
     "heartbeat": ModbusAddress(unit=UNIT, kind="holding", address=2, type="uint16"),
@@ -128,6 +132,7 @@ class ModbusSimController:
         self.channels: dict[str, Address] = dict(CHANNELS)
         self.outputs_map: dict[str, Address] = dict(OUTPUTS)
         self.encodings: dict[str, ModbusAddress] = dict(ENCODINGS)
+        self.probes: dict[str, Address] = dict(PROBES)
         self.requests: list[Request] = []
         self.faults: list[Fault] = []
         self._input = [0] * input_registers
@@ -229,7 +234,7 @@ class ModbusSimController:
     # -- internals ----------------------------------------------------------------
 
     def _address(self, name: str) -> ModbusAddress:
-        for table in (CHANNELS, OUTPUTS, ENCODINGS):
+        for table in (CHANNELS, OUTPUTS, ENCODINGS, PROBES):
             if name in table:
                 return table[name]
         raise KeyError(f"the Modbus sim has no channel or output {name!r}")

@@ -48,7 +48,7 @@ from asyncua.ua.attribute_ids import AttributeIds
 from asyncua.ua.status_codes import StatusCodes
 
 from drivers.addresses import Address, OpcUaAddress
-from drivers.sim import CHANNELS, OUTPUTS
+from drivers.sim import CHANNELS, OUTPUTS, PROBES
 from drivers.sim.ports import free_tcp_port
 
 NAMESPACE = "urn:compd:sim"
@@ -59,6 +59,7 @@ _VT = ua.VariantType
 #: name -> variant type of the node on the simulated controller
 CHANNEL_TYPES: dict[str, ua.VariantType] = {name: _VT.Double for name in CHANNELS}
 CHANNEL_TYPES["power_kw"] = _VT.Float
+CHANNEL_TYPES.update({"probe_value": _VT.Double, "probe_counter": _VT.UInt32})
 OUTPUT_TYPES: dict[str, ua.VariantType] = {
     "offset": _VT.Float, "heartbeat": _VT.UInt32, "status": _VT.UInt16}
 #: extra writable nodes for encoding tests: name -> (type, scale)
@@ -151,6 +152,8 @@ class OpcUaSimController:
             name: OpcUaAddress(node=node_id(name)) for name in CHANNELS}
         self.outputs_map: dict[str, Address] = {
             name: OpcUaAddress(node=node_id(name)) for name in OUTPUTS}
+        self.probes: dict[str, Address] = {
+            name: OpcUaAddress(node=node_id(name)) for name in PROBES}
         self.encodings: dict[str, OpcUaAddress] = {
             name: OpcUaAddress(node=node_id(name), scale=scale)
             for name, (_, scale) in ENCODING_NODES.items()}

@@ -37,7 +37,7 @@ from drivers.s7_codec import decode, encode
 from drivers.sim.ports import free_tcp_port
 
 INPUT_DB, OUTPUT_DB, ENCODING_DB = 1, 2, 3
-_SIZES = {INPUT_DB: 32, OUTPUT_DB: 16, ENCODING_DB: 16}
+_SIZES = {INPUT_DB: 40, OUTPUT_DB: 16, ENCODING_DB: 16}
 
 CHANNELS: dict[str, S7Address] = {
     "bearing": S7Address(db=1, offset=0, type="INT", scale=0.1),
@@ -49,6 +49,10 @@ CHANNELS: dict[str, S7Address] = {
     "power_kw": S7Address(db=1, offset=14, type="REAL"),
     "growth_um": S7Address(db=1, offset=18, type="REAL"),
     "error_um": S7Address(db=1, offset=22, type="REAL"),
+}
+PROBES: dict[str, S7Address] = {
+    "probe_value": S7Address(db=1, offset=26, type="REAL"),
+    "probe_counter": S7Address(db=1, offset=30, type="DINT"),
 }
 OUTPUTS: dict[str, S7Address] = {
     "offset": S7Address(db=2, offset=0, type="REAL"),
@@ -125,7 +129,8 @@ class S7SimController:
         self.channels: dict[str, Address] = dict(CHANNELS)
         self.outputs_map: dict[str, Address] = dict(OUTPUTS)
         self.encodings: dict[str, S7Address] = dict(ENCODINGS)
-        self._table: dict[str, S7Address] = {**CHANNELS, **OUTPUTS, **ENCODINGS}
+        self.probes: dict[str, Address] = dict(PROBES)
+        self._table: dict[str, S7Address] = {**CHANNELS, **OUTPUTS, **ENCODINGS, **PROBES}
         self._dbs = {db: bytearray(size) for db, size in _SIZES.items()}
         self._server: _Server | None = None
 

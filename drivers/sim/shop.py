@@ -21,12 +21,24 @@ workday: random speed steps (every 20-60 min, 2,000-10,000 rpm, some idle
 stops) from 6:00 to 22:00, standing at night (a cool-down every night).
 
 Columns: ``time_s, spindle_rpm, t01_degC … t16_degC, dz_um``.
+
+A day with a change the model never saw (`ShopChange`, `compd sim --record …
+--machine shop --change ambient+3K,heat+30% --change-at-h 24`): from the
+record's hour `at_h` the room moves `ambient_k` kelvin away from where it was
+heading (a ramp over `ramp_h`: an air conditioning set anew), and the spindle
+bearing's losses are `heat_factor` times what they were (a bearing preloaded
+harder after a rebuild). Both act on the plant, so every sensor that sees
+them sees them; the seed's random streams are the same with and without the
+change, so the two records differ only by it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -65,14 +77,66 @@ def workday_speeds(seed: int, hours: float, start_hour: float) -> Callable[[floa
     return speed
 
 
-class _DriftingRoom(Ambient):
-    """The plant's room plus a slow trend of `DRIFT_K_PER_DAY`."""
+@dataclass(frozen=True)
+class ShopChange:
+    """A change the model never saw, from the record's hour `at_h` on."""
 
-    def __init__(self, room: Ambient) -> None:
+    ambient_k: float = 0.0  # the room's shift, K (reached over ramp_h)
+    heat_factor: float = 1.0  # the spindle bearing's losses times this
+    at_h: float = 0.0  # hour of the record (0 = its first sample) the change starts
+    ramp_h: float = 1.0  # hours the room takes to its new level
+
+    def __post_init__(self) -> None:
+        for name in ("ambient_k", "heat_factor", "at_h", "ramp_h"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"{name} must be finite")
+        if not (abs(self.ambient_k) <= 20.0 and 0.0 < self.heat_factor <= 5.0
+                and self.at_h >= 0.0 and self.ramp_h >= 0.0):
+            raise ValueError("need |ambient_k| <= 20 K, 0 < heat_factor <= 5, at_h >= 0 "
+                             "and ramp_h >= 0")
+
+
+#: the issue's day with a change: the room 3 K warmer and a heat source 30 % stronger
+DAY_WITH_A_CHANGE = ShopChange(ambient_k=3.0, heat_factor=1.3)
+
+_CHANGE_ITEM = re.compile(r"^(ambient)([+-]\d+(?:\.\d+)?)K$|^(heat)([+-]\d+(?:\.\d+)?)%$")
+
+
+def parse_change(text: str, at_h: float = 0.0) -> ShopChange:
+    """``ambient+3K,heat+30%`` (either or both, comma-separated) as a `ShopChange`;
+    ValueError naming the bad item."""
+    ambient_k, heat_pct, seen = 0.0, 0.0, set()
+    for item in text.split(","):
+        m = _CHANGE_ITEM.match(item.strip())
+        if m is None:
+            raise ValueError(f"bad change {item.strip()!r}: expected ambient±NK and/or "
+                             "heat±N% (e.g. ambient+3K,heat+30%)")
+        name = m.group(1) or m.group(3)
+        if name in seen:
+            raise ValueError(f"change {name!r} given twice")
+        seen.add(name)
+        if name == "ambient":
+            ambient_k = float(m.group(2))
+        else:
+            heat_pct = float(m.group(4))
+    return ShopChange(ambient_k=ambient_k, heat_factor=1.0 + heat_pct / 100.0, at_h=at_h)
+
+
+class _DriftingRoom(Ambient):
+    """The plant's room plus a slow trend of `DRIFT_K_PER_DAY` (and a change's shift
+    from plant time `shift_from_s`, reached over `shift_ramp_s`)."""
+
+    def __init__(self, room: Ambient, shift_k: float = 0.0, shift_from_s: float = 0.0,
+                 shift_ramp_s: float = 0.0) -> None:
         self.__dict__.update(room.__dict__)
+        self._shift = (shift_k, shift_from_s, shift_ramp_s)
 
     def __call__(self, t_s: float) -> float:
-        return super().__call__(t_s) + DRIFT_K_PER_DAY * t_s / 86400.0
+        out = super().__call__(t_s) + DRIFT_K_PER_DAY * t_s / 86400.0
+        k, t0, ramp = self._shift
+        if k and t_s > t0:
+            out += k * (min(1.0, (t_s - t0) / ramp) if ramp > 0.0 else 1.0)
+        return out
 
 
 class _Slow:
@@ -88,15 +152,21 @@ class _Slow:
 
 
 def simulate_shop(hours: float, *, period_s: float = 60.0, seed: int = 0,
-                  warmup_h: float = WARMUP_H, probe_noise_um: float = 0.3
-                  ) -> dict[str, np.ndarray]:
+                  warmup_h: float = WARMUP_H, probe_noise_um: float = 0.3,
+                  change: ShopChange | None = None) -> dict[str, np.ndarray]:
     """Sample the shop machine; columns as in `SHOP_COLUMNS`."""
     if not (period_s > 0.0 and hours > 0.0 and warmup_h >= 0.0):
         raise ValueError("need period_s > 0, hours > 0 and warmup_h >= 0")
     params = PlantParams(start_hour=(RECORD_START_HOUR - warmup_h) % 24.0, sensor_noise_k=0.0,
                          sensor_quantum_k=0.0)
     plant = ThermalPlant(seed=seed, params=params)
-    plant.ambient = _DriftingRoom(plant.ambient)
+    change = change or ShopChange()
+    change_s = (warmup_h + change.at_h) * 3600.0  # plant time of the change
+    plant.ambient = _DriftingRoom(plant.ambient, change.ambient_k, change_s,
+                                  change.ramp_h * 3600.0)
+    hotter = dataclasses.replace(params, bearing_loss_a_w=params.bearing_loss_a_w
+                                 * change.heat_factor, bearing_loss_b_w=params.bearing_loss_b_w
+                                 * change.heat_factor)
     speed = workday_speeds(seed, hours + warmup_h, params.start_hour)
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(12,)))
     slow = [_Slow(rng, a, w, p) for a, w, p in ((0.6, 0.4, 0.3), (1.5, 0.2, 2.0),
@@ -113,6 +183,8 @@ def simulate_shop(hours: float, *, period_s: float = 60.0, seed: int = 0,
     a_cab, a_base = 1.0 - math.exp(-period_s / 5400.0), 1.0 - math.exp(-period_s / 7200.0)
     for k in range(n):
         if k:
+            if t >= change_s - 1e-6:
+                plant.params = hotter
             plant.step(period_s, speed(t))
             t += period_s
         x = plant.temperatures()

@@ -154,9 +154,9 @@ def invariants(monkeypatch: pytest.MonkeyPatch) -> Iterator[Invariants]:
 
     def step(self: Cycle, now_s: float, samples: Mapping[str, Sample] | None,
              readback_offset_um: float | None = None, *,
-             wall_s: float | None = None) -> CycleResult:
+             wall_s: float | None = None, **kw: Any) -> CycleResult:
         before = self.heartbeat
-        result = original(self, now_s, samples, readback_offset_um, wall_s=wall_s)
+        result = original(self, now_s, samples, readback_offset_um, wall_s=wall_s, **kw)
         inv.on_step(self, now_s, readback_offset_um, before, result)
         return result
 

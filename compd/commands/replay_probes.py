@@ -1,0 +1,176 @@
+"""`compd replay … --probe-every SECONDS`: the options of adaptation offline and
+its report (the estimator `models.adaptation`, the run `compd.offline.probes`).
+
+The plain figures stay as they are; beside them ``"adapted"`` (the same keys,
+plus the probes used and refused and the final bias) and ``"crude"`` (the
+residual of each probe held until the next: the textbook baseline, same run).
+The estimator's settings are `[adaptation]`'s, as options; the defaults are
+`models.adaptation.AdaptationParams`'.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from typing import TYPE_CHECKING, Any
+
+from compd.argtypes import number, seed
+
+if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
+
+    from compd.offline.probes import ProbeRun
+    from compd.offline.records import Record
+    from models.adaptation import AdaptationParams
+    from models.compensation import CompensationModel
+    from models.quality import CompensationFigures
+
+    FloatArray = npt.NDArray[np.float64]
+
+#: option -> AdaptationParams field, with the option's range
+_SETTINGS: tuple[tuple[str, str, Any, str], ...] = (
+    ("--bias-rw-um-per-sqrt-h", "bias_rw_um_per_sqrt_h", number(0.0, 1000.0),
+     "bias random walk, µm/√h (default {:g})"),
+    ("--probe-sigma-um", "probe_noise_um", number(0.0, 1000.0, lo_open=True),
+     "the estimator's probe noise σ, µm (default --probe-noise-um when that is > 0, "
+     "else {:g})"),
+    ("--gate-sigma", "gate_sigma", number(0.0, 1e6, lo_open=True),
+     "refuse a probe whose innovation exceeds this many σ (default {:g})"),
+    ("--max-step-um", "max_step_um", number(0.0, 1000.0, lo_open=True),
+     "largest change of the correction per probe, µm (default {:g})"),
+    ("--max-total-um", "max_total_um", number(0.0, 1000.0, lo_open=True),
+     "largest |bias|, µm (default {:g})"),
+    ("--gain-rw-per-sqrt-h", "gain_rw_per_sqrt_h", number(0.0, 10.0),
+     "with --gains: each term's relative gain random walk, per √h (default {:g})"),
+    ("--max-gain", "max_gain", number(0.0, 10.0, lo_open=True),
+     "with --gains: largest relative gain correction (default {:g})"),
+    ("--initial-bias-sigma-um", "initial_bias_sigma_um", number(0.0, 1000.0),
+     "σ of the bias at the start, µm (default {:g})"),
+    ("--apply-sigma", "apply_sigma", number(0.0, 1e6),
+     "apply the estimate only when it departs from the applied correction by more than "
+     "this many σ; 0 applies every accepted probe (default {:g})"),
+)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("adaptation offline (probes taken from --output)")
+    group.add_argument("--probe-every", type=number(0.0, 1e9, lo_open=True), default=None,
+                       metavar="SECONDS", help="probe the measured column this often and "
+                       "report the figures with the estimator beside the plain ones")
+    group.add_argument("--probe-noise-um", type=number(0.0, 1000.0), default=0.0,
+                       metavar="X", help="seeded noise added to each probe value (default 0)")
+    group.add_argument("--probe-seed", type=seed, default=0, help="seed of the probe noise")
+    group.add_argument("--gains", action="store_true",
+                       help="also estimate a slow gain correction of each term")
+    defaults = _defaults()
+    for option, field, kind, text in _SETTINGS:
+        group.add_argument(option, type=kind, default=None, metavar="X",
+                           help=text.format(getattr(defaults, field)))
+
+
+def _dest(option: str) -> str:
+    return option.lstrip("-").replace("-", "_")
+
+
+def _defaults() -> AdaptationParams:
+    from models.adaptation import AdaptationParams
+
+    return AdaptationParams()
+
+
+def usage_problem(args: argparse.Namespace) -> str:
+    """Why the probe options cannot be used as given ("" when they can)."""
+    if args.probe_every is not None:
+        try:
+            params_from_args(args)
+        except ValueError as exc:
+            return f"adaptation settings: {exc}"
+        return ""
+    given = [o for o, _, _, _ in _SETTINGS if getattr(args, _dest(o)) is not None]
+    given += [o for o, v in (("--probe-noise-um", args.probe_noise_um),
+                             ("--probe-seed", args.probe_seed), ("--gains", args.gains)) if v]
+    return f"{', '.join(given)} need(s) --probe-every" if given else ""
+
+
+def params_from_args(args: argparse.Namespace) -> AdaptationParams:
+    """The estimator's settings: the options given over the defaults (ValueError when bad)."""
+    changes: dict[str, Any] = {f: getattr(args, _dest(o)) for o, f, _, _ in _SETTINGS
+                               if getattr(args, _dest(o)) is not None}
+    if "probe_noise_um" not in changes and args.probe_noise_um > 0:
+        changes["probe_noise_um"] = args.probe_noise_um
+    return dataclasses.replace(_defaults(), gains=bool(args.gains), **changes)
+
+
+def figures(run: ProbeRun, adapted: CompensationFigures, crude: CompensationFigures,
+            first: int, params: AdaptationParams, rms: dict[str, float]) -> dict[str, Any]:
+    """The JSON keys "adapted", "crude" and "adaptation" (the settings used); `rms`
+    the residue's RMS (µm, scored rows) of "plain", "adapted" and "crude"."""
+    scored = int((run.rows >= first).sum())
+    return {
+        "adapted": {**adapted.as_dict(), "probes": int(run.rows.size),
+                    "probes_scored": scored, "probes_used": int(run.accepted.sum()),
+                    "probes_refused": int((~run.accepted).sum()),
+                    "applied_moves": run.adapter.applied_moves,
+                    "bias_um": run.adapter.bias_um,
+                    "estimated_bias_um": run.adapter.estimated_bias_um,
+                    "bias_sigma_um": run.adapter.bias_sigma_um,
+                    "residue_rms_um": rms["adapted"],
+                    "plain_residue_rms_um": rms["plain"]},
+        "crude": {**crude.as_dict(), "probes": int(run.rows.size),
+                  "residue_rms_um": rms["crude"]},
+        "adaptation": dataclasses.asdict(params),
+    }
+
+
+def lines(plain: CompensationFigures, extra: dict[str, Any], every_s: float,
+          noise_um: float) -> list[str]:
+    """The text report's lines after the plain figures."""
+    a, c = extra["adapted"], extra["crude"]
+
+    def ratio(x: float) -> str:
+        return f"{x / plain.range_reduction:.2f}x the plain model's"
+
+    return [
+        f"  adapted (a probe every {every_s:g} s, +{noise_um:g} µm noise; {a['probes']} probes, "
+        f"{a['probes_used']} used, {a['probes_refused']} refused, applied at "
+        f"{a['applied_moves']}; bias applied {a['bias_um']:.3f} µm, estimated "
+        f"{a['estimated_bias_um']:.3f} ± {a['bias_sigma_um']:.3f} µm):",
+        f"    fit {a['fit_percent']:.2f} %, residue {a['residue_min_um']:.3f} … "
+        f"{a['residue_max_um']:.3f} µm, RMS {a['residue_rms_um']:.3f} µm (plain "
+        f"{a['plain_residue_rms_um']:.3f}), Δpk {a['dpk_um']:.3f} µm, range reduction "
+        f"{a['range_reduction']:.2f}-fold ({ratio(a['range_reduction'])})",
+        f"  crude (each probe's residual held until the next): fit {c['fit_percent']:.2f} %, "
+        f"RMS {c['residue_rms_um']:.3f} µm, Δpk {c['dpk_um']:.3f} µm, range reduction "
+        f"{c['range_reduction']:.2f}-fold ({ratio(c['range_reduction'])})",
+    ]
+
+
+def replay(args: argparse.Namespace, model: CompensationModel, record: Record,
+           measured: FloatArray, simulated: FloatArray, first: int
+           ) -> tuple[ProbeRun, dict[str, Any]]:
+    """Run the probes over the replay; RecordError when the figures mean nothing."""
+    import numpy as np
+
+    from compd.offline.probes import run_probes, term_contributions
+    from compd.offline.quality_check import checked_quality
+
+    params = params_from_args(args)
+    terms = None
+    if params.gains:
+        terms = term_contributions(model, record, steady=args.init == "steady")
+    run = run_probes(simulated, measured, record.time_s, terms, every_s=args.probe_every,
+                     noise_um=args.probe_noise_um, seed=args.probe_seed, params=params)
+    adapted = checked_quality(measured[first:], run.adapted[first:], record.path, args.output)
+    crude = checked_quality(measured[first:], run.crude[first:], record.path, args.output)
+    rms = {name: float(np.sqrt(np.mean((measured[first:] - pred[first:]) ** 2)))
+           for name, pred in (("plain", simulated), ("adapted", run.adapted),
+                              ("crude", run.crude))}
+    return run, figures(run, adapted, crude, first, params, rms)
+
+
+def plot_extras(run: ProbeRun | None, time_s: FloatArray) -> dict[str, Any]:
+    """`replay_figure`'s keyword arguments for the adapted line and the probe points."""
+    if run is None:
+        return {}
+    return {"adapted": run.adapted, "probes": (time_s[run.rows], run.values, run.accepted)}

@@ -1,0 +1,128 @@
+"""Probe-assisted adaptation in the cycle, sans I/O (`ProbeStage`).
+
+A measuring cycle on the machine (a touch probe on a reference, a tool setter)
+leaves two values in the controller: the measured Z deviation (µm) and a
+counter that changes with every new measurement. The shell reads both every
+cycle (`ProbeReading`); a probe is an event, recognised by the counter
+changing, never by the value (the same value read twice is one measurement,
+and two measurements may well agree).
+
+Each cycle `ProbeStage.step`:
+
+1. lets the estimator's time run (`models.adaptation.Adapter.advance`);
+2. on a new probe: when the cycle is complete (inputs valid, model stepped)
+   and the controller's offset is known, the measured displacement is the
+   probe's value plus the offset in force (``measures = "residual"``: a probe
+   on a compensating machine sees what the compensation left) or the value
+   itself (``"displacement"``), and the estimator weighs it against the
+   model's output (its gate refuses an outlier: a chip under the probe, a
+   wrong tool); otherwise the probe is refused ("fault": never learnt from a
+   sample the model could not use, "no_offset": the offset in force unknown);
+3. returns the correction to add to the model output. In ``mode = "apply"``
+   the cycle adds it BEFORE the fault policy and the output stage, so clamp,
+   slew and deadband apply to it as to the model: a jump of the estimate
+   never becomes a jump at the tool. In ``"shadow"`` it is computed and
+   recorded, never applied.
+
+The first counter value seen with no counter remembered (a first start, or a
+checkpoint without one) is a baseline, not a probe: it may be hours old.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from compd.config.adaptation import AdaptationSettings
+from compd.core.faults import Event
+from models.adaptation import Adapter, ProbeOutcome
+
+__all__ = ["AdaptationSettings", "ProbeReading", "ProbeStage"]
+
+
+@dataclass(frozen=True)
+class ProbeReading:
+    """The probe's two controller values as read this cycle (NaN: not read)."""
+
+    value_um: float
+    counter: float
+
+
+class ProbeStage:
+    """The estimator, its probe counter and what it did last (see the module)."""
+
+    def __init__(self, settings: AdaptationSettings, n_terms: int,
+                 state: Mapping[str, Any] | None = None) -> None:
+        self.settings = settings
+        self.n_terms = n_terms
+        self.adapter = Adapter(settings.params, n_terms)
+        self.counter: float | None = None
+        if state is not None:  # ValueError: the caller starts afresh
+            self.adapter = Adapter.from_state(settings.params, n_terms, state["estimator"])
+            counter = state.get("counter")
+            self.counter = float(counter) if isinstance(counter, int | float) \
+                and math.isfinite(counter) else None
+        #: the correction the estimator proposes now (µm); applied only in "apply"
+        self.correction_um = 0.0
+        #: the last probe's outcome (recorded with its cycle), None when none came
+        self.last: dict[str, Any] | None = None
+
+    @property
+    def applies(self) -> bool:
+        return self.settings.mode == "apply"
+
+    def step(self, dt_s: float, reading: ProbeReading | None, *, complete: bool,
+             model_um: float | None, terms_um: Sequence[float],
+             offset_in_force_um: float | None, events: list[Event]) -> float:
+        """One cycle (see the module); returns the correction to apply (0 in shadow)."""
+        if dt_s > 0.0 and math.isfinite(dt_s):
+            self.adapter.advance(dt_s)
+        self.last = None
+        if reading is not None and math.isfinite(reading.counter) \
+                and reading.counter != self.counter:
+            first = self.counter is None
+            self.counter = reading.counter
+            if not first:
+                self._probe(reading, complete, model_um, terms_um, offset_in_force_um, events)
+        if complete and len(terms_um) == self.n_terms:
+            self.correction_um = self.adapter.correction_um(terms_um)
+        return self.correction_um if self.applies else 0.0
+
+    def _probe(self, reading: ProbeReading, complete: bool, model_um: float | None,
+               terms_um: Sequence[float], offset_um: float | None,
+               events: list[Event]) -> None:
+        value = reading.value_um
+        model = model_um if model_um is not None else math.nan
+        terms = terms_um if len(terms_um) == self.n_terms else [math.nan] * self.n_terms
+        residual = self.settings.measures == "residual"
+        measured = value + (offset_um if offset_um is not None else math.nan) \
+            if residual else value
+        if not complete or model_um is None:
+            out = self.adapter.refuse("fault", measured, model, terms)
+        elif residual and offset_um is None:
+            out = self.adapter.refuse("no_offset", measured, model, terms)
+        elif not math.isfinite(value):
+            out = self.adapter.refuse("fault", measured, model, terms)
+        else:
+            out = self.adapter.update(measured, model, terms)
+        self.last = self._describe(reading, measured, model, out)
+        fields = {k: v for k, v in self.last.items() if k != "accepted"}
+        events.append(Event("probe_accepted" if out.accepted else "probe_refused", fields))
+
+    def _describe(self, reading: ProbeReading, measured: float, model: float,
+                  out: ProbeOutcome) -> dict[str, Any]:
+        def num(x: float) -> float | None:
+            return round(x, 6) if math.isfinite(x) else None
+
+        return {"counter": reading.counter, "value_um": num(reading.value_um),
+                "measured_um": num(measured), "model_um": num(model),
+                "innovation_um": num(out.innovation_um),
+                "innovation_sigma_um": num(out.innovation_sigma_um),
+                "accepted": out.accepted, "reason": out.reason,
+                "bias_um": num(out.bias_um), "bias_sigma_um": num(out.bias_sigma_um),
+                "mode": self.settings.mode}
+
+    def export_state(self) -> dict[str, Any]:
+        return {"estimator": self.adapter.export_state(), "counter": self.counter}

@@ -1,0 +1,399 @@
+"""Probe-assisted adaptation: a bounded Kalman filter on the model's output error.
+
+A calibrated model drifts away from the machine (sensors age, the room and the
+coolant change, a heat source grows). A touch probe or tool setter measures
+the real thermal displacement now and then; this estimator learns from those
+measurements what the model misses, as a correction ADDED to the model output:
+
+    adapted(k) = model(k) + b(k) + Σ_i g_i(k) · term_i(k)
+
+State x = [b, g_1 … g_n]: an output bias b (µm) and, optionally (`gains`),
+a slow relative correction g_i of each term's gain (term_i = the term's
+contribution, `CompensationModel.contributions`). Each is a random walk:
+
+    process:      x(t + dt) = x(t) + w,  Var w = diag(q_b, q_g … q_g) · dt
+                  q_b = bias_rw_um_per_sqrt_h² / 3600 s   (µm²/s)
+                  q_g = gain_rw_per_sqrt_h² / 3600 s      (1/s)
+    measurement:  z = model + H·x + v,   H = [1, term_1 … term_n],  Var v = R = probe_noise_um²
+
+A probe z gives the innovation y = z − (model + H·x) and its variance
+S = H P Hᵀ + R. Then, in this order:
+
+1. gate: |y| > gate_sigma · √S is refused ("gate": a chip under the probe,
+   a wrong tool) and never learnt; a non-finite input is refused ("fault");
+2. the Kalman gain K = P Hᵀ / S is scaled by α ∈ (0, 1] so that the change
+   of the correction at this probe, |H·Δx|, and of the bias, |Δb|, stay within
+   `max_step_um` (a suboptimal gain, which the Joseph form below keeps exact);
+3. x += α K y, then the bias is held within ±`max_total_um` and each gain
+   within ±`max_gain` (a box; should that clipping change |H·Δx| beyond
+   the step bound, the whole step is shrunk along the segment, which stays
+   in the box). The covariance is not changed by the clipping;
+4. Joseph form: P = (I − K'H) P (I − K'H)ᵀ + K' R K'ᵀ with K' = α K, then
+   symmetrised: it stays symmetric positive semi-definite for any K'.
+
+Time update (`advance`) is lazy: it only adds dt to a pending interval (one
+float addition per sample); the interval's Q is added to P before a probe is
+weighed, when a σ is read and on export. The bias variance is capped at
+`max_total_um²` and each gain's at `max_gain²` (larger uncertainties mean
+nothing once the state is bounded; capping by a diagonal congruence keeps P
+positive). `correction_um` is one attribute read without gains and an
+n-term dot product with them: no allocation either way.
+
+The correction APPLIED is earned (`apply_sigma`, default 4): the filter's
+estimate x moves with every accepted probe, but the applied state x_a (what
+`correction_um` adds) moves to it only when the estimate departs from it
+significantly at the probe's operating point,
+
+    |H·(x − x_a)| > apply_sigma · √(H P Hᵀ)    (P after the update)
+
+and then only by the part beyond that band (a soft threshold, like the play
+of a backlash: x_a += (x − x_a)·(1 − band/|H·(x − x_a)|)), at most
+`max_step_um` (|H·Δx_a| and |Δb_a|). Moving all the way to the estimate
+overshot: the estimate that crosses the band is the noisiest one, and the
+applied correction then stayed off when the estimate came back inside the
+band (0.63 of plain on a day without change). Why the band: a constant
+correction costs no range, a varying one does. A model at its noise floor
+sees only noise and slow excursions of its own residual in the probes; a
+correction following them moves the residual's extremes (on the shop
+machine's days without change the always-following filter lost up to 18 %
+of the plain range reduction, 0.82 of plain). With the test the applied
+correction stays put until the probes show a real mismatch
+(benchmarks/bench_adaptation.py, docs/adaptation.md §5). apply_sigma = 0
+applies every accepted probe's estimate (the filter as it is).
+
+A real, sudden change larger than the gate is refused like an outlier: the
+refused counter says so, and re-calibration is the answer, not the filter.
+
+Worked number: bias only, P = 25 µm² (σ 5 µm), R = 0.25 µm² (σ 0.5 µm), a
+first probe 3 µm above the model: S = 25.25, K = 0.990, b = 2.970 µm,
+σ_b = 0.4975 µm; 2.970 > 4 · 0.4975 = 1.990, so 2.970 − 1.990 = 0.980 µm is
+applied. A probe 50 µm off (|y| = 50 > 4·√25.25 = 20.1) is refused.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+
+#: version of `Adapter.export_state`'s layout
+STATE_VERSION = 2
+#: layouts `Adapter.from_state` reads (version 1 had no applied state: it was x)
+_READABLE_VERSIONS = (1, 2)
+_SECONDS_PER_HOUR = 3600.0
+
+
+@dataclass(frozen=True)
+class AdaptationParams:
+    """The estimator's settings (the daemon's `[adaptation]` defaults live here).
+
+    Defaults: a probe of 0.5 µm σ (a touch probe on a reference), a bias that
+    may wander 0.3 µm per √h (the best of 0.1 … 2 on the shop machine's days
+    with and without a change, benchmarks/bench_adaptation.py; `compd fit
+    --adaptation` estimates both from a record's residual)."""
+
+    bias_rw_um_per_sqrt_h: float = 0.3  # process noise: bias random walk, µm/√h
+    probe_noise_um: float = 0.5  # measurement noise σ of one probe, µm
+    gate_sigma: float = 4.0  # innovation beyond gate_sigma·√S is refused
+    max_step_um: float = 5.0  # |correction change| per accepted probe (bound)
+    max_total_um: float = 20.0  # |bias| bound
+    gains: bool = False  # also estimate slow per-term gain corrections
+    gain_rw_per_sqrt_h: float = 0.01  # gain random walk (relative, per √h)
+    max_gain: float = 0.3  # |relative gain correction| bound per term
+    initial_bias_sigma_um: float = 5.0
+    initial_gain_sigma: float = 0.05  # σ of each relative gain correction at start
+    apply_sigma: float = 4.0  # apply the estimate only when it departs by more than this many σ
+
+    def __post_init__(self) -> None:
+        problems = self.problems()
+        if problems:
+            raise ValueError("; ".join(f"{k}: {why}" for k, why in problems.items()))
+
+    def problems(self) -> dict[str, str]:
+        """Each bad field and why (empty when all are good): for a config's messages."""
+        out: dict[str, str] = {}
+        positive = ("probe_noise_um", "gate_sigma", "max_step_um", "max_total_um")
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if f.name == "gains":
+                if not isinstance(v, bool):
+                    out[f.name] = f"must be true or false, got {v!r}"
+                continue
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                out[f.name] = f"must be a finite number, got {v!r}"
+            elif f.name in positive and v <= 0:
+                out[f.name] = f"must be > 0, got {v!r}"
+            elif v < 0:
+                out[f.name] = f"must be >= 0, got {v!r}"
+        if not out and self.gains and self.max_gain <= 0:
+            out["max_gain"] = "must be > 0 when gains are estimated"
+        return out
+
+
+@dataclass(frozen=True)
+class ProbeOutcome:
+    """What one probe did: accepted (learnt) or refused, and why."""
+
+    accepted: bool
+    reason: str | None  # None if accepted; "gate" (innovation too large), "fault", …
+    innovation_um: float  # measured - the filter's prediction (model + H·x, before the update)
+    innovation_sigma_um: float  # √S
+    bias_um: float  # the applied bias after the probe (what correction_um adds)
+    bias_sigma_um: float  # σ of the filter's bias estimate
+    applied: bool = False  # the applied correction moved at this probe (the apply_sigma test)
+    estimated_bias_um: float = math.nan  # the filter's bias estimate after the probe
+
+
+class Adapter:
+    """One estimator per model; see the module docstring for the equations."""
+
+    def __init__(self, params: AdaptationParams, n_terms: int) -> None:
+        if isinstance(n_terms, bool) or not isinstance(n_terms, int) or n_terms < 1:
+            raise ValueError(f"n_terms: must be an integer >= 1, got {n_terms!r}")
+        self.params = params
+        self.n_terms = n_terms
+        n = 1 + (n_terms if params.gains else 0)
+        self._x: FloatArray = np.zeros(n)
+        self._p: FloatArray = np.diag(
+            [params.initial_bias_sigma_um ** 2] + [params.initial_gain_sigma ** 2] * (n - 1))
+        self._q: FloatArray = np.array(
+            [params.bias_rw_um_per_sqrt_h ** 2 / _SECONDS_PER_HOUR]
+            + [params.gain_rw_per_sqrt_h ** 2 / _SECONDS_PER_HOUR] * (n - 1))
+        self._cap: FloatArray = np.array(
+            [params.max_total_um ** 2] + [params.max_gain ** 2] * (n - 1))
+        self._xa: FloatArray = np.zeros(n)  # the applied state (see apply_sigma)
+        self._pending_s = 0.0
+        self.accepted = 0
+        self.refused = 0
+        self.applied_moves = 0  # probes at which the applied correction moved
+        self._bias = 0.0
+        self._gains: list[float] = [0.0] * (n - 1)
+
+    # -- per sample (cheap) --------------------------------------------------------------------
+
+    def correction_um(self, terms_um: Sequence[float]) -> float:
+        """What to add to the model output: b + Σ g_i·term_i (terms ignored without gains)."""
+        c = self._bias
+        if self._gains:
+            for g, t in zip(self._gains, terms_um, strict=True):
+                c += g * t
+        return c
+
+    def advance(self, dt_s: float) -> None:
+        """Let dt_s seconds pass (lazy: Q is added to P when it is next needed)."""
+        if not 0.0 <= dt_s < math.inf:
+            raise ValueError(f"dt_s: must be a finite duration >= 0 s, got {dt_s!r}")
+        self._pending_s += dt_s
+
+    # -- reading -------------------------------------------------------------------------------
+
+    @property
+    def bias_um(self) -> float:
+        """The applied bias (what `correction_um` adds, besides the gains' part)."""
+        return self._bias
+
+    @property
+    def gain_corrections(self) -> tuple[float, ...]:
+        """Each term's applied relative gain correction g_i (empty without gains)."""
+        return tuple(self._gains)
+
+    @property
+    def estimated_bias_um(self) -> float:
+        """The filter's bias estimate (applied once it departs significantly)."""
+        return float(self._x[0])
+
+    @property
+    def estimated_gains(self) -> tuple[float, ...]:
+        """The filter's gain estimates (empty without gains)."""
+        return tuple(float(g) for g in self._x[1:])
+
+    @property
+    def bias_sigma_um(self) -> float:
+        """σ of the bias now (the pending random walk included)."""
+        return math.sqrt(float(self._covariance()[0, 0]))
+
+    def covariance(self) -> FloatArray:
+        """A copy of P now (the pending random walk included)."""
+        return self._covariance().copy()
+
+    def _covariance(self) -> FloatArray:
+        if self._pending_s == 0.0:
+            return self._p
+        p = self._p + np.diag(self._q * self._pending_s)
+        d = np.diag(p)
+        if np.any(d > self._cap):
+            s = np.sqrt(np.minimum(1.0, self._cap / d))
+            p = p * np.outer(s, s)
+        return (p + p.T) * 0.5
+
+    def _h(self, terms_um: Sequence[float]) -> FloatArray:
+        if not self._gains:
+            return np.ones(1)
+        if len(terms_um) != self.n_terms:
+            raise ValueError(f"terms_um: expected {self.n_terms} terms, got {len(terms_um)}")
+        return np.concatenate(([1.0], np.asarray(terms_um, dtype=np.float64)))
+
+    # -- probes --------------------------------------------------------------------------------
+
+    def update(self, measured_um: float, model_um: float,
+               terms_um: Sequence[float]) -> ProbeOutcome:
+        """Weigh one probe: gate, bounded step, Joseph-form covariance update."""
+        h = self._h(terms_um)
+        if not (math.isfinite(measured_um) and math.isfinite(model_um)
+                and bool(np.all(np.isfinite(h)))):
+            return self.refuse("fault", measured_um, model_um, terms_um)
+        p = self._covariance()
+        r = self.params.probe_noise_um ** 2
+        y = measured_um - (model_um + float(h @ self._x))
+        ph = p @ h
+        s = float(h @ ph) + r
+        if abs(y) > self.params.gate_sigma * math.sqrt(s):
+            return self.refuse("gate", measured_um, model_um, terms_um)
+        k = ph / s
+        dx = k * y
+        alpha = self._step_scale(h, dx)
+        k = k * alpha
+        self._x = self._bounded(self._x, self._x + k * y, h)
+        a = np.eye(len(h)) - np.outer(k, h)
+        p = a @ p @ a.T + r * np.outer(k, k)
+        self._p = (p + p.T) * 0.5
+        self._pending_s = 0.0
+        moved = self._apply_if_significant(h)
+        self.accepted += 1
+        return ProbeOutcome(True, None, y, math.sqrt(s), self._bias, self.bias_sigma_um,
+                            moved, float(self._x[0]))
+
+    def _apply_if_significant(self, h: FloatArray) -> bool:
+        """Move the applied state to the estimate when it departs by > apply_sigma σ."""
+        d = self._x - self._xa
+        if not np.any(d):
+            return False
+        change = abs(float(h @ d))
+        limit = self.params.apply_sigma * math.sqrt(max(0.0, float(h @ self._p @ h)))
+        if self.params.apply_sigma > 0:
+            if change <= limit:
+                return False
+            d = d * (1.0 - limit / change)  # only the part beyond the band (soft threshold)
+        self._set_applied(self._xa + d * self._step_scale(h, d))
+        self.applied_moves += 1
+        return True
+
+    def _step_scale(self, h: FloatArray, dx: FloatArray) -> float:
+        """α ≤ 1 so that |H·α·dx| and |α·dx_b| stay within max_step_um."""
+        lim = self.params.max_step_um
+        biggest = max(abs(float(h @ dx)), abs(float(dx[0])))
+        return 1.0 if biggest <= lim else lim / biggest
+
+    def _bounded(self, old: FloatArray, new: FloatArray, h: FloatArray) -> FloatArray:
+        """`new` held in the box (bias ±max_total_um, gains ±max_gain), the step bound kept."""
+        box = np.sqrt(self._cap)
+        new = np.clip(new, -box, box)
+        change = abs(float(h @ (new - old)))
+        lim = self.params.max_step_um
+        if change > lim:  # clipping undid a cancellation: shrink the step (the box is convex)
+            new = old + (new - old) * (lim / change)
+        return new
+
+    def _set_applied(self, xa: FloatArray) -> None:
+        self._xa = xa
+        self._bias = float(xa[0])
+        self._gains = [float(g) for g in xa[1:]]
+
+    def refuse(self, reason: str, measured_um: float, model_um: float,
+               terms_um: Sequence[float]) -> ProbeOutcome:
+        """Record a probe not used (counted; the state is unchanged)."""
+        self.refused += 1
+        y, sigma = math.nan, math.nan
+        try:
+            h = self._h(terms_um)
+        except ValueError:
+            h = np.full(len(self._x), math.nan)
+        if math.isfinite(measured_um) and math.isfinite(model_um) and np.all(np.isfinite(h)):
+            y = measured_um - (model_um + float(h @ self._x))
+            sigma = math.sqrt(float(h @ self._covariance() @ h) + self.params.probe_noise_um ** 2)
+        return ProbeOutcome(False, reason, y, sigma, self._bias, self.bias_sigma_um,
+                            False, float(self._x[0]))
+
+    # -- checkpoint ----------------------------------------------------------------------------
+
+    def export_state(self) -> dict[str, Any]:
+        """JSON-able state: floats, lists of floats and the integers n_terms and counters."""
+        return {
+            "version": STATE_VERSION,
+            "n_terms": self.n_terms,
+            "gains": bool(self._gains),
+            "x": [float(v) for v in self._x],
+            "applied": [float(v) for v in self._xa],
+            "P": [[float(v) for v in row] for row in self._p],
+            "pending_s": self._pending_s,
+            "accepted": self.accepted,
+            "refused": self.refused,
+            "applied_moves": self.applied_moves,
+        }
+
+    @classmethod
+    def from_state(cls, params: AdaptationParams, n_terms: int,
+                   state: Mapping[str, Any]) -> Adapter:
+        """An estimator resumed from `export_state`; ValueError naming what is wrong."""
+        out = cls(params, n_terms)
+        if not isinstance(state, Mapping):
+            raise ValueError("adaptation state: must be a table")
+        version = state.get("version")
+        if isinstance(version, bool) or version not in _READABLE_VERSIONS:
+            raise ValueError(f"adaptation state: version {version!r}, "
+                             f"expected one of {_READABLE_VERSIONS}")
+        if state.get("n_terms") != n_terms or state.get("gains") is not params.gains:
+            raise ValueError(f"adaptation state: made for {state.get('n_terms')!r} terms "
+                             f"(gains {state.get('gains')!r}), not {n_terms} (gains "
+                             f"{params.gains})")
+        n = len(out._x)
+        x = _floats(state.get("x"), "x", (n,))
+        xa = x if version == 1 else _floats(state.get("applied"), "applied", (n,))
+        p = _floats(state.get("P"), "P", (n, n))
+        pending = _floats(state.get("pending_s"), "pending_s", ())
+        _check_covariance(p)
+        box = np.sqrt(out._cap)
+        if (np.any(np.abs(x) > box * (1 + 1e-12)) or np.any(np.abs(xa) > box * (1 + 1e-12))
+                or float(pending) < 0):
+            raise ValueError("adaptation state: x or applied beyond its bounds or pending_s < 0")
+        counts = [state.get("accepted"), state.get("refused"), state.get("applied_moves", 0)]
+        if any(isinstance(c, bool) or not isinstance(c, int) or c < 0 for c in counts):
+            raise ValueError("adaptation state: accepted/refused/applied_moves must be "
+                             "integers >= 0")
+        out._p = p
+        out._pending_s = float(pending)
+        out._x = x
+        out._set_applied(xa)
+        out.accepted, out.refused, out.applied_moves = (int(c) for c in counts)
+        return out
+
+
+def _numbers_only(value: Any) -> bool:
+    if isinstance(value, list | tuple):
+        return all(_numbers_only(v) for v in value)
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _floats(value: Any, key: str, shape: tuple[int, ...]) -> FloatArray:
+    if not _numbers_only(value):
+        raise ValueError(f"adaptation state: {key} must be numbers")
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"adaptation state: {key} must be numbers") from None
+    if arr.shape != shape or not np.all(np.isfinite(arr)):
+        raise ValueError(f"adaptation state: {key} must be finite numbers of shape {shape}")
+    return arr
+
+
+def _check_covariance(p: FloatArray) -> None:
+    if not np.allclose(p, p.T, rtol=1e-9, atol=1e-12):
+        raise ValueError("adaptation state: P is not symmetric")
+    if float(np.min(np.linalg.eigvalsh(p))) < -1e-9 * max(1.0, float(np.max(np.abs(p)))):
+        raise ValueError("adaptation state: P is not positive semi-definite")
