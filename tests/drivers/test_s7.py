@@ -87,7 +87,7 @@ async def test_encodings_round_trip_and_range_refused(sim: S7SimController) -> N
 
 async def test_missing_db_and_out_of_range_name_the_channel(sim: S7SimController) -> None:
     bad = {"ghost": S7Address(db=42, offset=0, type="REAL"),
-           "past_end": S7Address(db=1, offset=30, type="DINT")}
+           "past_end": S7Address(db=1, offset=38, type="DINT")}  # DB1 is 40 bytes
     drv = S7Driver(sim.endpoint, {**CHANNELS, **bad}, bad, timeout_s=0.5)
     try:
         for name, addr in bad.items():
