@@ -347,10 +347,79 @@ class HttpFaceSection(_Section):
     refresh_s: Annotated[float, Field(ge=1.0, le=3600.0, allow_inf_nan=False)] = 5.0
 
 
+#: OPC UA security policies the face offers (SignAndEncrypt only), by config name
+FACE_POLICIES = ("Basic256Sha256", "Aes128_Sha256_RsaOaep", "Aes256_Sha256_RsaPss", "None")
+
+
+class OpcUaFaceSection(_Section):
+    """``[faces.opcua]``: compd's own OPC UA server (`compd.faces.opcua_face`):
+    read-only for every client; SetHold only for `operator`."""
+
+    enabled: bool = False
+    host: Annotated[str, Field(min_length=1)] = "127.0.0.1"
+    port: Annotated[int, Field(ge=1, le=65535)] = 4841
+    policy: Literal["Basic256Sha256", "Aes128_Sha256_RsaOaep", "Aes256_Sha256_RsaPss",
+                    "None"] = "Basic256Sha256"
+    #: the server's application instance certificate and key (PEM or DER)
+    certificate: LaxPath | None = None
+    private_key: LaxPath | None = None
+    #: must be true for policy "None", and only on a loopback host
+    insecure: bool = False
+    #: clients may read without a user name (with policy None: always)
+    anonymous_read: bool = False
+    #: the one user who may call SetHold (and read)
+    operator: Annotated[str, Field(min_length=1)] | None = None
+    #: the operator's password: a file (relative: $CREDENTIALS_DIRECTORY or the
+    #: config's folder), never the config itself
+    operator_password_file: LaxPath | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_inline_password(cls, data: Any) -> Any:
+        if isinstance(data, dict) and any("password" in k and not k.endswith("_file")
+                                          for k in data):
+            raise ValueError("a password is never written in the config: use "
+                             "operator_password_file")
+        return data
+
+    @model_validator(mode="after")
+    def _secure_by_default(self) -> OpcUaFaceSection:
+        if not self.enabled:
+            return self
+        if self.policy == "None":
+            if not self.insecure:
+                raise ValueError("policy None sends everything readable and unauthenticated: "
+                                 "set insecure = true to accept that (loopback only)")
+            if not _loopback(self.host):
+                raise ValueError(f"policy None is only for a loopback host, not {self.host!r}: "
+                                 "use Basic256Sha256 with a certificate")
+        elif self.certificate is None or self.private_key is None:
+            raise ValueError(f"policy {self.policy} needs certificate and private_key "
+                             "(the server's application instance certificate)")
+        if (self.operator is None) != (self.operator_password_file is None):
+            raise ValueError("operator and operator_password_file go together")
+        if self.policy == "None" and self.operator is not None:
+            raise ValueError("an operator password with policy None would cross the wire "
+                             "readable: use a secure policy for SetHold")
+        return self
+
+
+def _loopback(host: str) -> bool:
+    import ipaddress
+
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
 class FacesSection(_Section):
     """``[faces]``: what compd shows the shop floor besides logs and metrics."""
 
     http: HttpFaceSection = HttpFaceSection()
+    opcua: OpcUaFaceSection = OpcUaFaceSection()
 class AdaptationSection(_Section):
     """``[adaptation]``: learn from the machine's probe measurements
     (`compd.core.adaptation`; the estimator's settings default to

@@ -152,7 +152,8 @@ class Cycle:
                  references: Mapping[str, float] | None = None,
                  offset_um: float | None = None, sequence: int = 0,
                  heartbeat: int = 0,
-                 adaptation_state: Mapping[str, Any] | None = None) -> None:
+                 adaptation_state: Mapping[str, Any] | None = None,
+                 operator_hold: bool = False) -> None:
         self.params = params
         self.model = model
         self.shadow = shadow
@@ -192,6 +193,8 @@ class Cycle:
         self._result: CycleResult | None = None
         self._later: list[Event] = []
         self.probes: ProbeStage | None = None
+        #: an operator's hold (`set_operator_hold`): the offset stays where it is
+        self.operator_hold = operator_hold
         if params.adaptation is not None:
             try:
                 self.probes = ProbeStage(params.adaptation, len(model.terms), adaptation_state)
@@ -239,7 +242,8 @@ class Cycle:
                    references=refs, offset_um=offset_um,
                    sequence=int(state.get("sequence", 0)),
                    heartbeat=int(state.get("heartbeat", 0)),
-                   adaptation_state=adapted if isinstance(adapted, Mapping) else None)
+                   adaptation_state=adapted if isinstance(adapted, Mapping) else None,
+                   operator_hold=state.get("operator_hold") is True)
 
     def export_state(self) -> dict[str, Any]:
         """Everything a restart needs (the checkpoint's payload)."""
@@ -261,7 +265,19 @@ class Cycle:
                 out["references"] = dict(self._references)
         if self.probes is not None:
             out["adaptation"] = self.probes.export_state()
+        if self.operator_hold:
+            out["operator_hold"] = True
         return out
+
+    def set_operator_hold(self, on: bool, who: str) -> Event | None:
+        """An operator's hold (on) or its release (off). While held, a cycle
+        that would track the model keeps the offset where it is (faults still
+        hold and ramp as always); released, the output slews back to the model
+        at the slew limit. Returns the event to log, None when nothing changed."""
+        if on == self.operator_hold:
+            return None
+        self.operator_hold = on
+        return Event("operator_hold" if on else "operator_release", {"by": who})
 
     # -- the cycle ------------------------------------------------------------------
 
@@ -309,6 +325,8 @@ class Cycle:
         target_um = model_um + correction if model_um is not None else None
         decision = self.faults.decide(now_s, valid, target_um, events)
         target = self.output.current_um if decision.target_um is None else decision.target_um
+        if self.operator_hold and decision.state == FaultState.OK:
+            target = self.output.current_um
         offset_um = self.output.step(target, dt, deadband=decision.state == FaultState.OK)
 
         if valid:
@@ -541,6 +559,10 @@ class Cycle:
             s |= Status.OFFSET_HELD | Status.ALARM
         if self.write_fault:
             s |= Status.WRITE_FAULT | Status.ALARM
+        if self.operator_hold:
+            s |= Status.OPERATOR_HOLD
+            if s & Status.OK:
+                s = (s & ~Status.OK) | Status.HOLDING
         if self.output.slewing:
             s |= Status.SLEWING
         return s

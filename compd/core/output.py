@@ -62,6 +62,7 @@ class Status(enum.IntFlag):
     OFFSET_HELD = 1 << 9      #: the controller holds an offset beyond ±limit: none written
     WRITE_FAULT = 1 << 10     #: offset writes keep failing (transient, repeated)
     MODEL_RANGE = 1 << 11     #: the model's output is far beyond ±limit: held/ramped
+    OPERATOR_HOLD = 1 << 12   #: an operator switched compensation to hold (OPC UA SetHold)
 
 
 __doc__ = (__doc__ or "") + "\n".join(

@@ -40,7 +40,7 @@ import math
 import signal
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import structlog
 
@@ -61,6 +61,9 @@ from compd.runtime.sdnotify import Notifier
 from compd.runtime.startup import checkpoint_path, start_cycle
 from drivers.base import Driver, Quality, Sample
 from drivers.errors import DriverError, WriteRejected
+
+if TYPE_CHECKING:
+    from compd.faces.opcua_face import OpcUaFace
 
 #: STATUS= is sent on a state change or at least this often (cycles)
 _STATUS_EVERY = 10
@@ -102,6 +105,8 @@ class Daemon:
         self._reload_again = False
         self._pending: tuple[LoadedConfig, Changes, Driver | None] | None = None
         self.reloads = 0
+        #: [faces.opcua] once started
+        self.opcua_face: OpcUaFace | None = None
         #: what the operator page shows ([faces.http]); published once per cycle
         http = cfg.raw.faces.http
         self.status_board = StatusBoard(history_h=http.history_h, refresh_s=http.refresh_s)
@@ -185,6 +190,7 @@ class Daemon:
                 from compd.runtime.driver_setup import build_driver
 
                 driver = self._driver = build_driver(cfg)
+            await self._start_opcua_face()
             try:
                 await self._connect(driver)
                 # full GC pauses stall every machine's loop (gcfreeze.py): the objects
@@ -194,6 +200,8 @@ class Daemon:
             finally:
                 await self._cancel_reload()
                 await (self._driver or driver).close()
+                if self.opcua_face is not None:
+                    await self.opcua_face.stop()
             return rc
         finally:
             self.notifier.stopping()
@@ -202,6 +210,28 @@ class Daemon:
             self.metrics.stop()
             if self._lock is not None:
                 self._lock.release()
+
+    async def _start_opcua_face(self) -> None:
+        """[faces.opcua]: compd's own OPC UA server (never a reason not to compensate)."""
+        if not self.cfg.raw.faces.opcua.enabled:
+            return
+        from compd.faces.opcua_face import OpcUaFace
+
+        face = OpcUaFace(self.cfg, self.operator_hold)
+        if await face.start():
+            self.opcua_face = face
+
+    def operator_hold(self, on: bool, who: str) -> bool:
+        """An operator's hold (or its release) of the running cycle (OPC UA SetHold);
+        checkpointed at once so that a restart keeps it. False before the cycle exists."""
+        cycle = self.cycle
+        if cycle is None:
+            return False
+        event = cycle.set_operator_hold(on, who)
+        if event is not None:
+            self.log.warning(event.name, **event.fields)
+            self._checkpoint(cycle)
+        return True
 
     def _configure_metrics(self) -> None:
         from compd import __version__
@@ -437,6 +467,8 @@ class Daemon:
         self._telemetry(result, samples, confirmed)
         if self.cfg.raw.faces.http.enabled:  # never raises: the page never stops the cycle
             self.status_board.publish(result, self.cfg, dry_run=self.dry_run)
+        if self.opcua_face is not None:  # a snapshot; the face writes it in its own task
+            self.opcua_face.publish(result, cycle)
         if (probes := cycle.probes) is not None:
             est = probes.adapter
             self.metrics.adaptation(est.estimated_bias_um, est.bias_sigma_um,

@@ -1,0 +1,418 @@
+"""compd's own OPC UA server (``[faces.opcua]``): what it does, for the PLC and SCADA.
+
+Namespace ``urn:compd``; under Objects one object per machine, named after
+``[machine] name``:
+
+- ``Offset_um`` (what the controller holds: the last confirmed offset),
+  ``ModelOutput_um``, ``Terms/<term>_um`` (each term's contribution),
+  ``FaultState`` (an enumeration, data type ``CompdFaultState``: 0 init,
+  1 ok, 2 hold, 3 ramp, 4 shutdown, 5 stopped, 6 held, 7 write_fault) and
+  ``FaultStateName``,
+  ``StatusWord`` (the status bits written to the controller), ``Heartbeat``,
+  ``OperatorHold``, ``Channels/<name>/Value`` and ``/Valid``, ``Model/Name``
+  and ``Model/Sha256``, and with ``[adaptation]`` ``Adaptation/Bias_um``,
+  ``Adaptation/BiasSigma_um``, ``Adaptation/Correction_um``;
+- the method ``SetHold(Boolean)``: true switches compensation to hold (the
+  offset stays where it is; faults still hold and ramp as always), false
+  releases it (the offset slews back to the model at the slew limit). Only
+  the configured ``operator`` may call it; every call, allowed or refused, is
+  logged with the user, the client's address and what was asked.
+
+Everything else is read-only for every client: writes, node management and
+history updates are refused (BadUserAccessDenied) by the permission rules.
+By default the endpoint is Basic256Sha256 (SignAndEncrypt) with the
+server's certificate, and clients authenticate with a user name (the
+operator) unless ``anonymous_read``; policy None only with ``insecure =
+true`` on a loopback host (the config refuses anything else).
+
+The loop never waits for the face: `publish` stores the cycle's snapshot and
+wakes the face's own task, which writes it into the address space between
+cycles. A face that cannot start (a port in use, a bad certificate) is
+logged (``opcua_face_unavailable``) and compensation runs without it; an
+error while publishing is logged once (``opcua_face_failed``) and the face
+keeps trying. Machines of one process (`compd run DIR`) that name the same
+host and port share one server, one object each.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import structlog
+from asyncua import ua
+from asyncua.crypto.permission_rules import PermissionRuleset, User, UserRole
+from asyncua.server.server import Server
+from asyncua.server.user_managers import UserManager
+from asyncua.ua.object_ids import ObjectIds
+
+from compd.config.loader import credential_path
+from compd.core.faults import FaultState
+from compd.errors import ConfigError
+
+if TYPE_CHECKING:
+    from asyncua.common.node import Node
+    from asyncua.server.internal_server import InternalServer
+
+    from compd.config.loader import LoadedConfig
+    from compd.config.schema import OpcUaFaceSection
+    from compd.core.cycle import Cycle, CycleResult
+
+__all__ = ["NAMESPACE", "OpcUaFace", "release_all"]
+
+NAMESPACE = "urn:compd"
+#: the FaultState enumeration's values, in this order
+FAULT_STATES: tuple[FaultState, ...] = tuple(FaultState)
+
+_POLICIES = {
+    "Basic256Sha256": ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
+    "Aes128_Sha256_RsaOaep": ua.SecurityPolicyType.Aes128Sha256RsaOaep_SignAndEncrypt,
+    "Aes256_Sha256_RsaPss": ua.SecurityPolicyType.Aes256Sha256RsaPss_SignAndEncrypt,
+    "None": ua.SecurityPolicyType.NoSecurity,
+}
+#: requests any client may make once its session is up (reading, browsing, subscribing)
+_READ_REQUESTS = frozenset(ua.NodeId(ua.Int32(i)) for i in (
+    ObjectIds.CreateSessionRequest_Encoding_DefaultBinary,
+    ObjectIds.CloseSessionRequest_Encoding_DefaultBinary,
+    ObjectIds.ActivateSessionRequest_Encoding_DefaultBinary,
+    ObjectIds.ReadRequest_Encoding_DefaultBinary,
+    ObjectIds.BrowseRequest_Encoding_DefaultBinary,
+    ObjectIds.BrowseNextRequest_Encoding_DefaultBinary,
+    ObjectIds.GetEndpointsRequest_Encoding_DefaultBinary,
+    ObjectIds.FindServersRequest_Encoding_DefaultBinary,
+    ObjectIds.TranslateBrowsePathsToNodeIdsRequest_Encoding_DefaultBinary,
+    ObjectIds.RegisterNodesRequest_Encoding_DefaultBinary,
+    ObjectIds.UnregisterNodesRequest_Encoding_DefaultBinary,
+    ObjectIds.CreateSubscriptionRequest_Encoding_DefaultBinary,
+    ObjectIds.ModifySubscriptionRequest_Encoding_DefaultBinary,
+    ObjectIds.DeleteSubscriptionsRequest_Encoding_DefaultBinary,
+    ObjectIds.SetPublishingModeRequest_Encoding_DefaultBinary,
+    ObjectIds.CreateMonitoredItemsRequest_Encoding_DefaultBinary,
+    ObjectIds.ModifyMonitoredItemsRequest_Encoding_DefaultBinary,
+    ObjectIds.DeleteMonitoredItemsRequest_Encoding_DefaultBinary,
+    ObjectIds.SetMonitoringModeRequest_Encoding_DefaultBinary,
+    ObjectIds.PublishRequest_Encoding_DefaultBinary,
+    ObjectIds.RepublishRequest_Encoding_DefaultBinary,
+    ObjectIds.TransferSubscriptionsRequest_Encoding_DefaultBinary,
+))
+_CALL_REQUEST = ua.NodeId(ua.Int32(ObjectIds.CallRequest_Encoding_DefaultBinary))
+
+#: running servers of this process by (host, port): machines of one process share one
+_SERVERS: dict[tuple[str, int], _SharedServer] = {}
+
+
+class _Users(UserManager):
+    """The operator with its password; anonymous readers when allowed."""
+
+    def __init__(self, operator: str | None, password: str | None, anonymous: bool) -> None:
+        self.operator, self._password, self.anonymous = operator, password, anonymous
+
+    def get_user(self, iserver: InternalServer, username: str | None = None,
+                 password: str | None = None, certificate: Any = None) -> User | None:
+        if username is None:
+            return User(role=UserRole.Anonymous) if self.anonymous else None
+        if self.operator is not None and username == self.operator \
+                and password is not None and password == self._password:
+            return User(role=UserRole.User, name=username)
+        return None
+
+
+class _ReadOnlyRules(PermissionRuleset):
+    """Reading for every session; a Call only for the operator; nothing else."""
+
+    def __init__(self, shared: _SharedServer) -> None:
+        self.shared = shared
+
+    def check_validity(self, user: Any, action_type_id: Any, body: Any) -> bool:
+        if action_type_id in _READ_REQUESTS:
+            return True
+        if action_type_id == _CALL_REQUEST:
+            allowed = user is not None and self.shared.operator is not None \
+                and user.name == self.shared.operator
+            self.shared.note_call(user, allowed)
+            return allowed
+        return False
+
+
+@dataclass
+class _Machine:
+    """One machine's object and the nodes the face writes."""
+
+    name: str
+    obj: Node
+    nodes: dict[str, Node] = field(default_factory=dict)
+    hold: Callable[[bool, str], bool] | None = None
+
+
+class _SharedServer:
+    """One asyncua server on (host, port), with one object per machine."""
+
+    def __init__(self, section: OpcUaFaceSection, base: Path) -> None:
+        self.section = section
+        self.base = base
+        self.operator = section.operator
+        self.server: Server | None = None
+        self.idx = 0
+        self.machines: dict[str, _Machine] = {}
+        self.fault_type: ua.NodeId | None = None
+        #: who the last Call came from (set by the permission check just before it runs)
+        self.caller: tuple[str, str] = ("anonymous", "unknown")
+        self.log = structlog.get_logger("compd")
+
+    def note_call(self, user: Any, allowed: bool) -> None:
+        name = getattr(user, "name", None) or "anonymous"
+        peer = "unknown"
+        server = self.server
+        if server is not None:
+            for session in list(getattr(server.iserver, "_external_sessions", {}).values()):
+                if session.user is user:
+                    peer = str(session.name)
+        self.caller = (name, peer)
+        if not allowed:
+            self.log.warning("opcua_call_refused", user=name, peer=peer,
+                             reason="only the configured operator may call methods")
+
+    async def start(self) -> None:
+        sec = self.section
+        password = None
+        if sec.operator_password_file is not None:
+            pf = credential_path(sec.operator_password_file, self.base)
+            try:
+                password = pf.read_text(encoding="utf-8").strip("\r\n")
+            except OSError as exc:
+                raise ConfigError("faces.opcua.operator_password_file",
+                                  f"cannot read {pf} ({exc.strerror})") from None
+        anonymous = sec.anonymous_read or sec.policy == "None"
+        server = Server(user_manager=_Users(sec.operator, password, anonymous))
+        await server.init()
+        server.disable_clock()
+        server.set_endpoint(f"opc.tcp://{_url_host(sec.host)}:{sec.port}")
+        server.set_server_name("compd")
+        await server.set_application_uri("urn:compd:server")
+        if sec.policy != "None":
+            assert sec.certificate is not None and sec.private_key is not None
+            await server.load_certificate(str(self._path(sec.certificate)))
+            await server.load_private_key(str(self._path(sec.private_key)))
+        server.set_security_policy([_POLICIES[sec.policy]],
+                                   permission_ruleset=_ReadOnlyRules(self))  # type: ignore[arg-type]
+        # no user name over an unencrypted channel: policy None is anonymous only
+        tokens: list[type] = [] if sec.policy == "None" else [ua.UserNameIdentityToken]
+        if anonymous:
+            tokens.append(ua.AnonymousIdentityToken)
+        server.set_identity_tokens(tokens)
+        self.idx = await server.register_namespace(NAMESPACE)
+        self.fault_type = await _fault_state_type(server, self.idx)
+        await server.start()
+        self.server = server
+
+    def _path(self, p: Path) -> Path:
+        return p if p.is_absolute() else self.base / p
+
+    async def stop(self) -> None:
+        server, self.server = self.server, None
+        if server is not None:
+            await server.stop()
+
+
+def _url_host(host: str) -> str:
+    return f"[{host}]" if ":" in host else host
+
+
+async def _fault_state_type(server: Server, idx: int) -> ua.NodeId:
+    """The CompdFaultState enumeration data type (names for FaultState's values)."""
+    from asyncua.common.structures104 import new_enum
+
+    node = await new_enum(server, idx, "CompdFaultState", [s.value for s in FAULT_STATES])
+    await server.load_data_type_definitions()
+    return node.nodeid
+
+
+class OpcUaFace:
+    """One machine's part of the OPC UA face (see the module docstring)."""
+
+    def __init__(self, cfg: LoadedConfig, hold: Callable[[bool, str], bool]) -> None:
+        self.cfg = cfg
+        self.section = cfg.raw.faces.opcua
+        self.name = cfg.raw.machine.name
+        self._hold = hold
+        self._shared: _SharedServer | None = None
+        self._machine: _Machine | None = None
+        self._pending: dict[str, Any] | None = None
+        self._wake = asyncio.Event()
+        self._task: asyncio.Task[None] | None = None
+        self._failed = False
+        self.log = structlog.get_logger("compd").bind(face="opcua")
+
+    @property
+    def endpoint(self) -> str:
+        return f"opc.tcp://{_url_host(self.section.host)}:{self.section.port}"
+
+    async def start(self) -> bool:
+        """Start (or join) the server and add this machine's object; False (logged)
+        when it cannot: compensation runs without the face."""
+        key = (self.section.host, self.section.port)
+        try:
+            shared = _SERVERS.get(key)
+            if shared is None:
+                shared = _SharedServer(self.section, self.cfg.path.parent)
+                await shared.start()
+                _SERVERS[key] = shared
+            elif shared.section != self.section:
+                self.log.warning("opcua_face_shared", endpoint=self.endpoint,
+                                 reason="another machine's [faces.opcua] settings serve it")
+            self._machine = await self._add_machine(shared)
+        except Exception as exc:  # a port in use, a bad certificate: never the cycle's end
+            self.log.error("opcua_face_unavailable", endpoint=self.endpoint,
+                           error=str(exc) or type(exc).__name__)
+            return False
+        self._shared = shared
+        self._task = asyncio.get_running_loop().create_task(self._publisher(),
+                                                            name=f"opcua-face:{self.name}")
+        self.log.info("opcua_face_started", endpoint=self.endpoint, policy=self.section.policy,
+                      machine=self.name)
+        return True
+
+    async def _add_machine(self, shared: _SharedServer) -> _Machine:
+        server, idx = shared.server, shared.idx
+        assert server is not None
+        if self.name in shared.machines:
+            raise RuntimeError(f"a machine named {self.name!r} is already served")
+
+        def nid(path: str) -> ua.NodeId:
+            return ua.NodeId(ua.String(f"{self.name}.{path}"), ua.Int16(idx))
+
+        obj = await server.nodes.objects.add_object(nid("Machine"),
+                                                    ua.QualifiedName(self.name, idx))
+        m = _Machine(self.name, obj, hold=self._hold)
+
+        async def var(parent: Node, path: str, name: str, value: Any,
+                      vtype: ua.VariantType, datatype: ua.NodeId | None = None) -> None:
+            node = await parent.add_variable(nid(path), ua.QualifiedName(name, idx),
+                                             ua.Variant(value, vtype), datatype=datatype)
+            m.nodes[path] = node
+
+        nan = math.nan
+        await var(obj, "Offset_um", "Offset_um", nan, ua.VariantType.Double)
+        await var(obj, "ModelOutput_um", "ModelOutput_um", nan, ua.VariantType.Double)
+        await var(obj, "FaultState", "FaultState", FAULT_STATES.index(FaultState.INIT),
+                  ua.VariantType.Int32, shared.fault_type)
+        await var(obj, "FaultStateName", "FaultStateName", FaultState.INIT.value,
+                  ua.VariantType.String)
+        await var(obj, "StatusWord", "StatusWord", 0, ua.VariantType.UInt32)
+        await var(obj, "Heartbeat", "Heartbeat", 0, ua.VariantType.UInt32)
+        await var(obj, "OperatorHold", "OperatorHold", False, ua.VariantType.Boolean)
+        terms = await obj.add_folder(nid("Terms"), ua.QualifiedName("Terms", idx))
+        for term in self.cfg.model.terms:
+            await var(terms, f"Terms.{term.name}", f"{term.name}_um", nan, ua.VariantType.Double)
+        channels = await obj.add_folder(nid("Channels"), ua.QualifiedName("Channels", idx))
+        for ch in self.cfg.channels:
+            folder = await channels.add_folder(nid(f"Channels.{ch}"), ua.QualifiedName(ch, idx))
+            await var(folder, f"Channels.{ch}.Value", "Value", nan, ua.VariantType.Double)
+            await var(folder, f"Channels.{ch}.Valid", "Valid", False, ua.VariantType.Boolean)
+        model = await obj.add_folder(nid("Model"), ua.QualifiedName("Model", idx))
+        await var(model, "Model.Name", "Name", self.cfg.model.name, ua.VariantType.String)
+        await var(model, "Model.Sha256", "Sha256", self.cfg.model_sha256, ua.VariantType.String)
+        if self.cfg.adaptation is not None:
+            ad = await obj.add_folder(nid("Adaptation"), ua.QualifiedName("Adaptation", idx))
+            for name in ("Bias_um", "BiasSigma_um", "Correction_um"):
+                await var(ad, f"Adaptation.{name}", name, nan, ua.VariantType.Double)
+        await obj.add_method(nid("SetHold"), ua.QualifiedName("SetHold", idx),
+                             self._set_hold(shared), [ua.VariantType.Boolean],
+                             [ua.VariantType.Boolean])
+        shared.machines[self.name] = m
+        return m
+
+    def _set_hold(self, shared: _SharedServer) -> Callable[..., Any]:
+        async def call(parent: ua.NodeId, hold: ua.Variant | bool) -> list[ua.Variant]:
+            on = bool(hold.Value if isinstance(hold, ua.Variant) else hold)
+            user, peer = shared.caller
+            done = self._hold(on, user)
+            self.log.warning("opcua_set_hold", machine=self.name, hold=on, user=user,
+                             peer=peer, applied=done)
+            return [ua.Variant(done, ua.VariantType.Boolean)]
+        return call
+
+    def publish(self, result: CycleResult, cycle: Cycle) -> None:
+        """The cycle's snapshot for the face's task (cheap; never raises, never waits)."""
+        if self._machine is None:
+            return
+        rec = result.record
+        values: dict[str, tuple[Any, ua.VariantType]] = {
+            "Offset_um": (_num(cycle.output.confirmed_um), ua.VariantType.Double),
+            "ModelOutput_um": (_num(rec.model_um), ua.VariantType.Double),
+            "FaultState": (FAULT_STATES.index(result.state), ua.VariantType.Int32),
+            "FaultStateName": (result.state.value, ua.VariantType.String),
+            "StatusWord": (int(result.status), ua.VariantType.UInt32),
+            "Heartbeat": (int(result.heartbeat), ua.VariantType.UInt32),
+            "OperatorHold": (bool(cycle.operator_hold), ua.VariantType.Boolean),
+        }
+        for term in self.cfg.model.terms:
+            values[f"Terms.{term.name}"] = (_num(rec.contributions.get(term.name)),
+                                            ua.VariantType.Double)
+        for ch in self.cfg.channels:
+            values[f"Channels.{ch}.Value"] = (_num(rec.channels.get(ch)), ua.VariantType.Double)
+            values[f"Channels.{ch}.Valid"] = (rec.validity.get(ch) is None,
+                                              ua.VariantType.Boolean)
+        if cycle.probes is not None:
+            est = cycle.probes.adapter
+            values["Adaptation.Bias_um"] = (est.estimated_bias_um, ua.VariantType.Double)
+            values["Adaptation.BiasSigma_um"] = (est.bias_sigma_um, ua.VariantType.Double)
+            values["Adaptation.Correction_um"] = (cycle.probes.correction_um,
+                                                  ua.VariantType.Double)
+        self._pending = values
+        self._wake.set()
+
+    async def _publisher(self) -> None:
+        while True:
+            await self._wake.wait()
+            self._wake.clear()
+            values, self._pending = self._pending, None
+            if values is None or self._machine is None:
+                continue
+            try:
+                for path, (value, vtype) in values.items():
+                    node = self._machine.nodes.get(path)
+                    if node is not None:
+                        await node.write_value(ua.DataValue(ua.Variant(value, vtype)))
+                if self._failed:
+                    self._failed = False
+                    self.log.info("opcua_face_recovered")
+            except Exception as exc:  # the face's trouble, never the cycle's
+                if not self._failed:
+                    self._failed = True
+                    self.log.error("opcua_face_failed", error=str(exc) or type(exc).__name__)
+
+    async def stop(self) -> None:
+        task, self._task = self._task, None
+        if task is not None:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        shared, self._shared = self._shared, None
+        if shared is None:
+            return
+        m = self._machine
+        self._machine = None
+        if m is not None and shared.machines.pop(m.name, None) is not None \
+                and shared.server is not None:
+            with contextlib.suppress(Exception):
+                await shared.server.delete_nodes([m.obj], recursive=True)
+        if not shared.machines:
+            _SERVERS.pop((shared.section.host, shared.section.port), None)
+            await shared.stop()
+
+
+async def release_all() -> None:
+    """Stop every face server of this process (tests)."""
+    for key, shared in list(_SERVERS.items()):
+        _SERVERS.pop(key, None)
+        await shared.stop()
+
+
+def _num(x: float | None) -> float:
+    return math.nan if x is None or not isinstance(x, int | float) else float(x)

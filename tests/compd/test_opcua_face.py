@@ -1,0 +1,255 @@
+"""compd's OPC UA server face ([faces.opcua]) against a running daemon on the
+simulated Modbus controller, read with asyncua's client: the namespace, values
+per cycle, the fault state by name, writes refused, SetHold for the operator
+only (the offset holds, then slews back), a secure endpoint with a certificate
+and a user, the config's refusals, and a face that cannot start."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import socket
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+import structlog
+from asyncua import ua
+from asyncua.client.client import Client
+from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+from asyncua.ua.uaerrors import BadUserAccessDenied, UaStatusCodeError
+
+from compd.cli import main
+from compd.config.loader import load_config
+from compd.errors import EX_CONFIG
+from compd.faces.opcua_face import NAMESPACE, release_all
+from compd.runtime.daemon import Daemon
+from compd.runtime.sdnotify import Notifier
+from drivers.sim.modbus_server import ModbusSimController
+from drivers.sim.ports import free_tcp_port
+from tests.compd.daemon_helpers import until, write_config
+from tests.pki import make_cert, name, new_key, write_cert, write_key
+
+OPERATOR, PASSWORD = "setter", "h0ld-Pa55word"
+
+
+@dataclass(frozen=True)
+class Pki:
+    server_cert: Path
+    server_key: Path
+    client_cert: Path
+    client_key: Path
+
+
+@pytest.fixture(scope="module")
+def pki(tmp_path_factory: pytest.TempPathFactory) -> Pki:
+    d = tmp_path_factory.mktemp("face-pki")
+    ca_key, server_key, client_key = new_key(), new_key(), new_key()
+    ca = make_cert("face CA", ca_key, name("face CA"), ca_key, ca=True)
+    server = make_cert("compd", server_key, ca.subject, ca_key, uri="urn:compd:server")
+    client = make_cert("scada", client_key, ca.subject, ca_key, uri="urn:compd:test:scada")
+    return Pki(write_cert(d / "server.der", server), write_key(d / "server.pem", server_key),
+               write_cert(d / "client.der", client), write_key(d / "client.pem", client_key))
+
+
+def _face(port: int, *, secure: Pki | None = None, anonymous: bool = False) -> str:
+    if secure is None:
+        return (f'\n[faces.opcua]\nenabled = true\nport = {port}\npolicy = "None"\n'
+                "insecure = true\n")
+    return (f'\n[faces.opcua]\nenabled = true\nport = {port}\n'
+            f'certificate = "{secure.server_cert}"\nprivate_key = "{secure.server_key}"\n'
+            f'operator = "{OPERATOR}"\noperator_password_file = "operator.pw"\n'
+            f"anonymous_read = {'true' if anonymous else 'false'}\n")
+
+
+@contextlib.asynccontextmanager
+async def face_daemon(tmp_path: Path, sim: ModbusSimController, face: str,
+                      slew_um_s: float = 1.0) -> AsyncIterator[Daemon]:
+    path = write_config(tmp_path, sim.endpoint, time_scale=20.0, slew_um_s=slew_um_s)
+    (tmp_path / "operator.pw").write_text(PASSWORD + "\n", encoding="utf-8")
+    path.write_text(path.read_text(encoding="utf-8") + face, encoding="utf-8")
+    daemon = Daemon(load_config(path), notifier=Notifier(None))
+    task = asyncio.create_task(daemon.run())
+    try:
+        await until(lambda: daemon.complete_cycles >= 3 or task.done())
+        assert not task.done(), "the daemon ended early"
+        yield daemon
+    finally:
+        daemon.request_stop()
+        assert await asyncio.wait_for(task, 20.0) == 0
+        await release_all()
+
+
+async def _client(port: int, pki: Pki | None = None, user: str | None = None,
+                  password: str | None = None) -> Client:
+    client = Client(f"opc.tcp://127.0.0.1:{port}", timeout=5)
+    if pki is not None:
+        await client.set_security(SecurityPolicyBasic256Sha256, str(pki.client_cert),
+                                  str(pki.client_key), server_certificate=str(pki.server_cert),
+                                  mode=ua.MessageSecurityMode.SignAndEncrypt)
+        client.application_uri = "urn:compd:test:scada"
+    if user is not None:
+        client.set_user(user)
+        client.set_password(password or "")
+    return client
+
+
+async def _machine(client: Client) -> tuple[int, object]:
+    idx = await client.get_namespace_index(NAMESPACE)
+    machine = await client.nodes.objects.get_child(f"{idx}:test")
+    return idx, machine
+
+
+async def _value(machine: object, idx: int, *path: str) -> object:
+    node = await machine.get_child([f"{idx}:{p}" for p in path])  # type: ignore[attr-defined]
+    return await node.read_value()
+
+
+async def test_the_namespace_follows_the_cycle_and_is_read_only(
+        sim: ModbusSimController, tmp_path: Path) -> None:
+    port = free_tcp_port("127.0.0.1")
+    async with face_daemon(tmp_path, sim, _face(port)) as daemon:
+        client = await _client(port)
+        async with client:
+            idx, machine = await _machine(client)
+            beat = await _value(machine, idx, "Heartbeat")
+            before = daemon.complete_cycles
+            await until(lambda: daemon.complete_cycles >= before + 4)
+            await asyncio.sleep(0.1)  # the face's task writes between cycles
+            assert await _value(machine, idx, "Heartbeat") != beat  # updated per cycle
+            assert await _value(machine, idx, "FaultStateName") == "ok"
+            assert await _value(machine, idx, "Channels", "bearing", "Value") == 20.0
+            assert await _value(machine, idx, "Channels", "bearing", "Valid") is True
+            assert await _value(machine, idx, "Model", "Sha256") == daemon.cfg.model_sha256
+            terms = await (await machine.get_child(f"{idx}:Terms")).get_children()
+            assert len(terms) == len(daemon.cfg.model.terms)
+            # the FaultState variable's data type is an enumeration with names
+            state = await machine.get_child(f"{idx}:FaultState")
+            dtype = await state.read_data_type()
+            definition = await client.get_node(dtype).read_data_type_definition()
+            assert [f.Name for f in definition.Fields][:2] == ["init", "ok"]
+            assert "write_fault" in [f.Name for f in definition.Fields]
+            # everyone reads; nobody writes
+            with pytest.raises(BadUserAccessDenied):
+                await state.write_value(ua.Variant(0, ua.VariantType.Int32))
+            # and a method call without the operator is refused
+            with pytest.raises(UaStatusCodeError):
+                await machine.call_method(f"{idx}:SetHold", True)
+            # a fault shows by name
+            await sim.publish({"bearing": 500.0, "ambient": 20.0})
+            await until(lambda: daemon.last_result is not None
+                        and daemon.last_result.state.value == "hold")
+            await asyncio.sleep(0.2)
+            assert await _value(machine, idx, "FaultStateName") == "hold"
+            assert await _value(machine, idx, "Channels", "bearing", "Valid") is False
+        assert daemon.cycle is not None and daemon.cycle.operator_hold is False
+
+
+async def test_sethold_is_the_operators_and_holds_then_slews_back(
+        sim: ModbusSimController, tmp_path: Path, pki: Pki,
+        caplog: pytest.LogCaptureFixture) -> None:
+    port = free_tcp_port("127.0.0.1")
+    async with face_daemon(tmp_path, sim, _face(port, secure=pki, anonymous=True),
+                           slew_um_s=2.0) as daemon:
+        # anonymous reads, but may not hold
+        async with await _client(port, pki) as anon:
+            idx, machine = await _machine(anon)
+            assert await _value(machine, idx, "FaultStateName") == "ok"
+            with pytest.raises(UaStatusCodeError):
+                await machine.call_method(f"{idx}:SetHold", True)  # type: ignore[attr-defined]
+        # a wrong password is no session at all
+        with pytest.raises(UaStatusCodeError):
+            async with await _client(port, pki, OPERATOR, "guess"):
+                pass
+        async with await _client(port, pki, OPERATOR, PASSWORD) as op:
+            idx, machine = await _machine(op)
+            with structlog.testing.capture_logs() as logs:
+                assert await machine.call_method(f"{idx}:SetHold", True) is True  # type: ignore[attr-defined]
+            audit = [e for e in logs if e["event"] == "opcua_set_hold"]
+            assert audit and audit[0]["user"] == OPERATOR and audit[0]["hold"] is True
+            assert audit[0]["peer"].startswith("('127.0.0.1'")  # who, from where, what
+            assert daemon.cycle is not None and daemon.cycle.operator_hold
+            held = daemon.cycle.output.current_um
+            await sim.publish({"bearing": 30.0, "ambient": 20.0})  # the model moves away
+            await until(lambda: daemon.last_result is not None
+                        and daemon.last_result.model_um is not None
+                        and daemon.last_result.model_um > held + 5.0)
+            assert daemon.cycle.output.current_um == held  # held where it was
+            assert daemon.last_result is not None and daemon.last_result.status & (1 << 12)
+            await asyncio.sleep(0.2)
+            assert await _value(machine, idx, "OperatorHold") is True
+            assert await machine.call_method(f"{idx}:SetHold", False) is True  # type: ignore[attr-defined]
+            await until(lambda: daemon.cycle is not None
+                        and daemon.cycle.output.current_um > held + 1.0)
+            # released: back to the model at the slew limit (2 µm/s, 1 s machine period)
+            results: list[float] = []
+            for _ in range(5):
+                await until(lambda: daemon.last_result is not None
+                            and daemon.last_result.offset_um not in results[-1:])
+                assert daemon.last_result is not None
+                results.append(daemon.last_result.offset_um)
+            steps = [b - a for a, b in itertools.pairwise(results)]
+            assert all(0.0 <= s <= 2.0 * 2.0 + 1e-9 for s in steps)
+
+
+async def test_a_face_that_cannot_start_leaves_compensation_running(
+        sim: ModbusSimController, tmp_path: Path) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        async with face_daemon(tmp_path, sim, _face(port)) as daemon:
+            before = daemon.complete_cycles
+            await until(lambda: daemon.complete_cycles >= before + 5)
+            assert daemon.opcua_face is None
+
+
+@pytest.mark.parametrize(("face", "key_words"), [
+    ('policy = "None"\n', "insecure = true"),
+    ('policy = "None"\ninsecure = true\nhost = "0.0.0.0"\n', "loopback"),
+    ('policy = "Basic256Sha256"\n', "needs certificate and private_key"),
+    ('policy = "Basic128Rsa15"\n', "policy"),
+    ('policy = "None"\ninsecure = true\noperator_password = "x"\n', "never written"),
+])
+def test_the_config_refuses_an_unsafe_face_by_name(
+        tmp_path: Path, face: str, key_words: str, capsys: pytest.CaptureFixture[str]) -> None:
+    path = write_config(tmp_path, "modbus://127.0.0.1:5020")
+    path.write_text(path.read_text(encoding="utf-8")
+                    + "\n[faces.opcua]\nenabled = true\n" + face, encoding="utf-8")
+    assert main(["check", str(path)]) == EX_CONFIG
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "faces.opcua" in err[0] and key_words in err[0], err
+
+
+INTEROP = Path(__file__).resolve().parents[1] / "interop"
+
+
+async def test_a_second_stack_node_opcua_reads_and_holds(
+        sim: ModbusSimController, tmp_path: Path, pki: Pki) -> None:
+    """node-opcua (TypeScript, another OPC UA implementation) against the face:
+    Basic256Sha256 SignAndEncrypt with the operator's user name."""
+    import json
+    import shutil
+
+    node = shutil.which("node")
+    if node is None or not (INTEROP / "node_modules" / "node-opcua-client").is_dir():
+        pytest.skip("node or node-opcua-client absent (.ci/run installs them: "
+                    "npm install --prefix tests/interop)")
+    port = free_tcp_port("127.0.0.1")
+    async with face_daemon(tmp_path, sim, _face(port, secure=pki)) as daemon:
+        proc = await asyncio.create_subprocess_exec(
+            node, str(INTEROP / "sethold.mjs"), f"opc.tcp://127.0.0.1:{port}", "test",
+            OPERATOR, PASSWORD, str(tmp_path / "node-pki"),
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+        out, err = await asyncio.wait_for(proc.communicate(), 90.0)
+        # node-opcua logs to stdout too: the answer is the last JSON line
+        lines = [ln for ln in out.decode(errors="replace").splitlines() if ln.startswith("{")]
+        assert lines, (out + err).decode(errors="replace")[-2000:]
+        answer = json.loads(lines[-1])
+        assert proc.returncode == 0, answer
+        assert answer["state"] == "ok" and answer["heartbeat"] >= 1
+        assert answer["call"] == "Good" and answer["output"] == [True]
+        assert answer["hold"] is True
+        assert daemon.cycle is not None and daemon.cycle.operator_hold
