@@ -12,7 +12,8 @@ Per seed, on the shop machine (`compd sim --record … --machine shop --hours 48
 
 Printed per seed and day: range reduction plain → adapted (ratio) with the
 defaults (the applied correction earned: `apply_sigma` 4), the always-following
-filter (`--apply-sigma 0`) and the crude correction (each probe's residual held
+filter (`--apply-sigma 0`), the earned correction with gains (`--gains`) and the
+crude correction (each probe's residual held
 until the next), all in the same run, with fit % and the residue's RMS (range
 reduction rests on two extreme samples; fit and RMS on all of them). The issue's
 targets: adapted >= 1.5x plain on the changed day, and never below plain
@@ -73,18 +74,21 @@ def seed_figures(d: Path, seed: int, probe_seed: int) -> dict[str, dict[str, flo
                 "86400", *PROBES, "--probe-seed", str(probe_seed), "--json"]
         r = _run(argv)
         f = _run([*argv, "--apply-sigma", "0"])["adapted"]
+        g = _run([*argv, "--gains"])["adapted"]
         a, c = r["adapted"], r["crude"]
         rr = r["range_reduction"]
-        out[name] = {"earned": a["range_reduction"] / rr, "following": f["range_reduction"] / rr,
-                     "crude": c["range_reduction"] / rr}
+        out[name] = {"earned": a["range_reduction"] / rr, "gains": g["range_reduction"] / rr,
+                     "following": f["range_reduction"] / rr, "crude": c["range_reduction"] / rr}
         print(f"  seed {seed}, day 2 {name}: range reduction plain {rr:.2f}x → adapted "
-              f"{a['range_reduction']:.2f}x ({out[name]['earned']:.2f} of plain; always "
-              f"following {out[name]['following']:.2f}, crude {out[name]['crude']:.2f}); fit "
-              f"{r['fit_percent']:.1f} → {a['fit_percent']:.1f} % (following "
-              f"{f['fit_percent']:.1f}, crude {c['fit_percent']:.1f}); RMS "
-              f"{a['plain_residue_rms_um']:.2f} → {a['residue_rms_um']:.2f} µm (following "
+              f"{a['range_reduction']:.2f}x ({out[name]['earned']:.2f} of plain; --gains "
+              f"{out[name]['gains']:.2f}, always following {out[name]['following']:.2f}, crude "
+              f"{out[name]['crude']:.2f}); fit {r['fit_percent']:.1f} → {a['fit_percent']:.1f} % "
+              f"(--gains {g['fit_percent']:.1f}, following {f['fit_percent']:.1f}, crude "
+              f"{c['fit_percent']:.1f}); RMS {a['plain_residue_rms_um']:.2f} → "
+              f"{a['residue_rms_um']:.2f} µm (--gains {g['residue_rms_um']:.2f}, following "
               f"{f['residue_rms_um']:.2f}, crude {c['residue_rms_um']:.2f}); applied at "
-              f"{a['applied_moves']} of {a['probes_used']} probes", flush=True)
+              f"{a['applied_moves']} (--gains {g['applied_moves']}) of {a['probes_used']} probes",
+              flush=True)
     return out
 
 
@@ -138,7 +142,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
         ratios = [seed_figures(d, s, probe_seed) for s in seeds]
-        for kind in ("earned", "following", "crude"):
+        for kind in ("earned", "gains", "following", "crude"):
             changed = [r["with change"][kind] for r in ratios]
             plain = [r["without change"][kind] for r in ratios]
             print(f"{kind:9s} with change: adapted/plain range reduction {min(changed):.2f} … "

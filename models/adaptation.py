@@ -104,10 +104,10 @@ class AdaptationParams:
     max_step_um: float = 5.0  # |correction change| per accepted probe (bound)
     max_total_um: float = 20.0  # |bias| bound
     gains: bool = False  # also estimate slow per-term gain corrections
-    gain_rw_per_sqrt_h: float = 0.01  # gain random walk (relative, per √h)
+    gain_rw_per_sqrt_h: float = 0.05  # gain random walk (relative, per √h)
     max_gain: float = 0.3  # |relative gain correction| bound per term
     initial_bias_sigma_um: float = 5.0
-    initial_gain_sigma: float = 0.05  # σ of each relative gain correction at start
+    initial_gain_sigma: float = 0.1  # σ of each relative gain correction at start
     apply_sigma: float = 4.0  # apply the estimate only when it departs by more than this many σ
 
     def __post_init__(self) -> None:
@@ -228,7 +228,7 @@ class Adapter:
         p = self._p + np.diag(self._q * self._pending_s)
         d = np.diag(p)
         if np.any(d > self._cap):
-            s = np.sqrt(np.minimum(1.0, self._cap / d))
+            s = np.sqrt(self._cap / np.maximum(d, self._cap))  # 1 where d <= cap (d may be 0)
             p = p * np.outer(s, s)
         return (p + p.T) * 0.5
 

@@ -45,6 +45,8 @@ _SETTINGS: tuple[tuple[str, str, Any, str], ...] = (
      "with --gains: each term's relative gain random walk, per √h (default {:g})"),
     ("--max-gain", "max_gain", number(0.0, 10.0, lo_open=True),
      "with --gains: largest relative gain correction (default {:g})"),
+    ("--initial-gain-sigma", "initial_gain_sigma", number(0.0, 10.0),
+     "with --gains: σ of each relative gain correction at the start (default {:g})"),
     ("--initial-bias-sigma-um", "initial_bias_sigma_um", number(0.0, 1000.0),
      "σ of the bias at the start, µm (default {:g})"),
     ("--apply-sigma", "apply_sigma", number(0.0, 1e6),

@@ -120,6 +120,11 @@ def test_on_the_changed_day_the_estimator_beats_the_plain_model_and_the_crude_ba
     assert a["residue_rms_um"] < 0.75 * a["plain_residue_rms_um"]
     assert a["range_reduction"] > float(r["range_reduction"])  # type: ignore[arg-type]
     assert a["range_reduction"] > c["range_reduction"]
+    g = _replay(capsys, shop_run["model"], shop_run["changed"], "--probe-every", "7200",
+                "--probe-noise-um", "0.5", "--gains")["adapted"]
+    assert isinstance(g, dict)
+    assert g["range_reduction"] > float(r["range_reduction"])  # type: ignore[arg-type]
+    assert g["residue_rms_um"] < a["plain_residue_rms_um"]
 
 
 def test_on_the_day_without_change_the_estimator_beats_the_crude_baseline(
@@ -135,9 +140,10 @@ def test_on_the_day_without_change_the_estimator_beats_the_crude_baseline(
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
 @pytest.mark.parametrize("probe_seed", ["0", "1"])
+@pytest.mark.parametrize("gains", [(), ("--gains",)])
 def test_never_worse_than_the_plain_model_on_a_day_without_change(
         shop_run: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str],
-        seed: int, probe_seed: str) -> None:
+        seed: int, probe_seed: str, gains: tuple[str, ...]) -> None:
     """The issue's "never worse without change": other days of the same machine (seeds),
     other probe noise; the always-following filter (--apply-sigma 0) is worse on these."""
     data = shop_run["plain"]
@@ -145,7 +151,8 @@ def test_never_worse_than_the_plain_model_on_a_day_without_change(
         data = tmp_path / "plain.csv"
         assert main(["sim", "--record", str(data), "--machine", "shop", "--hours", "48",
                      "--period-s", "60", "--seed", str(seed)]) == 0
-    probes = ["--probe-every", "7200", "--probe-noise-um", "0.5", "--probe-seed", probe_seed]
+    probes = ["--probe-every", "7200", "--probe-noise-um", "0.5", "--probe-seed", probe_seed,
+              *gains]
     r = _replay(capsys, shop_run["model"], data, *probes)
     a = r["adapted"]
     assert isinstance(a, dict)
