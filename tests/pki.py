@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import datetime as dt
 import ipaddress
+from dataclasses import dataclass
 from pathlib import Path
 
 from cryptography import x509
@@ -63,3 +64,25 @@ def write_key(path: Path, key: rsa.RSAPrivateKey) -> Path:
                                        serialization.PrivateFormat.PKCS8,
                                        serialization.NoEncryption()))
     return path
+
+
+@dataclass(frozen=True)
+class Pki:
+    """A server's and a client's certificate and key, signed by one CA."""
+
+    server_cert: Path
+    server_key: Path
+    client_cert: Path
+    client_key: Path
+
+
+def server_and_client(d: Path, *, server_uri: str, client_uri: str, days: float = 365.0,
+                      client_days: float = 365.0) -> Pki:
+    """A CA, a server and a client certificate (DER) with their keys (PEM) in `d`."""
+    ca_key, server_key, client_key = new_key(), new_key(), new_key()
+    ca = make_cert("compd test CA", ca_key, name("compd test CA"), ca_key, days=days, ca=True)
+    server = make_cert("server", server_key, ca.subject, ca_key, days=days, uri=server_uri)
+    client = make_cert("client", client_key, ca.subject, ca_key, days=client_days,
+                       uri=client_uri)
+    return Pki(write_cert(d / "server.der", server), write_key(d / "server.pem", server_key),
+               write_cert(d / "client.der", client), write_key(d / "client.pem", client_key))

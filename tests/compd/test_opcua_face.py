@@ -11,7 +11,6 @@ import contextlib
 import itertools
 import socket
 from collections.abc import AsyncIterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -30,28 +29,15 @@ from compd.runtime.sdnotify import Notifier
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
 from tests.compd.daemon_helpers import until, write_config
-from tests.pki import make_cert, name, new_key, write_cert, write_key
+from tests.pki import Pki, server_and_client
 
 OPERATOR, PASSWORD = "setter", "h0ld-Pa55word"
 
 
-@dataclass(frozen=True)
-class Pki:
-    server_cert: Path
-    server_key: Path
-    client_cert: Path
-    client_key: Path
-
-
 @pytest.fixture(scope="module")
 def pki(tmp_path_factory: pytest.TempPathFactory) -> Pki:
-    d = tmp_path_factory.mktemp("face-pki")
-    ca_key, server_key, client_key = new_key(), new_key(), new_key()
-    ca = make_cert("face CA", ca_key, name("face CA"), ca_key, ca=True)
-    server = make_cert("compd", server_key, ca.subject, ca_key, uri="urn:compd:server")
-    client = make_cert("scada", client_key, ca.subject, ca_key, uri="urn:compd:test:scada")
-    return Pki(write_cert(d / "server.der", server), write_key(d / "server.pem", server_key),
-               write_cert(d / "client.der", client), write_key(d / "client.pem", client_key))
+    return server_and_client(tmp_path_factory.mktemp("face-pki"),
+                             server_uri="urn:compd:server", client_uri="urn:compd:test:scada")
 
 
 def _face(port: int, *, secure: Pki | None = None, anonymous: bool = False) -> str:

@@ -24,7 +24,6 @@ import os
 import sys
 import time
 from collections.abc import AsyncIterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +33,7 @@ from drivers.sim.opcua_server import OpcUaSimController, OpcUaSimSecurity
 from drivers.sim.ports import free_tcp_port
 from models import tomltext
 from tests.compd.daemon_helpers import write_config
-from tests.pki import make_cert, name, new_key, write_cert, write_key
+from tests.pki import Pki, server_and_client
 
 from .daemon_run import ROOT, RecordingSim, daemon_env, heartbeat, kill_and_wait, tail, until
 from .test_disk_full import _metrics
@@ -46,25 +45,10 @@ SERVER_URI = "urn:compd:sim:server"
 CLIENT_DAYS = 10.0
 
 
-@dataclass(frozen=True)
-class Pki:
-    server_cert: Path
-    server_key: Path
-    client_cert: Path
-    client_key: Path
-
-
 @pytest.fixture(scope="module")
 def pki(tmp_path_factory: pytest.TempPathFactory) -> Pki:
-    d = tmp_path_factory.mktemp("pki")
-    ca_key, server_key, client_key = new_key(), new_key(), new_key()
-    ca = make_cert("compd test CA", ca_key, name("compd test CA"), ca_key, days=365, ca=True)
-    server = make_cert("sim server", server_key, ca.subject, ca_key, days=365, uri=SERVER_URI)
-    client = make_cert("compd client", client_key, ca.subject, ca_key, days=CLIENT_DAYS,
-                   uri="urn:compd:test:client")
-
-    return Pki(write_cert(d / "server.der", server), write_key(d / "server.pem", server_key),
-               write_cert(d / "client.der", client), write_key(d / "client.pem", client_key))
+    return server_and_client(tmp_path_factory.mktemp("pki"), server_uri=SERVER_URI,
+                             client_uri="urn:compd:test:client", client_days=CLIENT_DAYS)
 
 
 @pytest.fixture
