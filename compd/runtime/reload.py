@@ -62,6 +62,9 @@ def prepare(old: LoadedConfig) -> tuple[LoadedConfig, Changes]:
         if was != now:
             raise ConfigError(f"machine.{key}", f"changed from {was:g} to {now:g}: "
                               "restart compd to change the sample clock")
+    if new.raw.faces.opcua != old.raw.faces.opcua:
+        raise ConfigError("faces.opcua", "changed: the OPC UA face's server and its "
+                          "security are set at start; restart compd to change them")
     return new, diff(old, new)
 
 

@@ -22,7 +22,7 @@ from asyncua.ua.uaerrors import BadUserAccessDenied, UaStatusCodeError
 
 from compd.cli import main
 from compd.config.loader import load_config
-from compd.errors import EX_CONFIG
+from compd.errors import EX_CONFIG, ConfigError
 from compd.faces.opcua_face import NAMESPACE, release_all
 from compd.runtime.daemon import Daemon
 from compd.runtime.sdnotify import Notifier
@@ -239,3 +239,17 @@ async def test_a_second_stack_node_opcua_reads_and_holds(
         assert answer["call"] == "Good" and answer["output"] == [True]
         assert answer["hold"] is True
         assert daemon.cycle is not None and daemon.cycle.operator_hold
+
+
+def test_a_reload_that_changes_the_face_is_refused_by_name(tmp_path: Path) -> None:
+    from compd.runtime.reload import prepare
+
+    port = free_tcp_port("127.0.0.1")
+    path = write_config(tmp_path, "modbus://127.0.0.1:5020")
+    text = path.read_text(encoding="utf-8")
+    path.write_text(text + _face(port), encoding="utf-8")
+    old = load_config(path)
+    path.write_text(text + _face(port + 1), encoding="utf-8")
+    with pytest.raises(ConfigError) as info:
+        prepare(old)
+    assert info.value.key == "faces.opcua" and "restart" in info.value.reason
