@@ -28,6 +28,7 @@ from typing import Any
 import structlog
 
 from compd.core.faults import FaultState
+from compd.core.output import Status
 
 __all__ = ["MAX_ALARMS", "MAX_HISTORY_POINTS", "StatusBoard", "operator_state",
            "read_history"]
@@ -57,9 +58,12 @@ _WHY: dict[FaultState, str] = {
 
 
 def operator_state(state: FaultState, validity: Mapping[str, str | None],
-                   dry_run: bool = False) -> tuple[str, str]:
-    """(on | holding | ramping | off, why) for the fault state and the channels' validity."""
+                   dry_run: bool = False, operator_hold: bool = False) -> tuple[str, str]:
+    """(on | holding | ramping | off, why) for the fault state and the channels' validity
+    (and an operator's hold, OPC UA SetHold: holding while the state is ok)."""
     word, why = _WORDS[state], _WHY[state]
+    if operator_hold and state is FaultState.OK:
+        word, why = "holding", "held by an operator (OPC UA SetHold): the offset stays put"
     bad = [f"{name}: {reason}" for name, reason in validity.items() if reason is not None]
     if bad and state is not FaultState.OK:
         why += " (" + "; ".join(bad) + ")"
@@ -104,7 +108,8 @@ class StatusBoard:
 
     def _build(self, result: Any, cfg: Any, dry_run: bool) -> dict[str, Any]:
         rec = result.record
-        word, why = operator_state(result.state, rec.validity, dry_run)
+        held = bool(result.status & Status.OPERATOR_HOLD)
+        word, why = operator_state(result.state, rec.validity, dry_run, held)
         raw = cfg.raw
         self.recorder_path = cfg.recorder_path
         channels = [{"name": name, "value": _num(rec.channels.get(name)),
