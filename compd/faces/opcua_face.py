@@ -25,11 +25,15 @@ server's certificate, and clients authenticate with a user name (the
 operator) unless ``anonymous_read``; policy None only with ``insecure =
 true`` on a loopback host (the config refuses anything else).
 
-The loop never waits for the face: `publish` stores the cycle's snapshot and
-wakes the face's own task, which writes it into the address space between
-cycles. A face that cannot start (a port in use, a bad certificate) is
-logged (``opcua_face_unavailable``) and compensation runs without it; an
-error while publishing is logged once (``opcua_face_failed``) and the face
+The loop never waits for the face: the server runs on a thread of its own,
+with its own event loop (``compd-opcua-face``), so that its start (asyncua
+builds the standard address space: seconds of CPU) and its clients never
+hold the daemon's loop; `publish` hands the cycle's snapshot over and the
+face's task writes it into the address space. SetHold runs on the face's
+thread and hands the hold to the daemon's loop, where the cycle lives. A
+face that cannot start (a port in use, a bad certificate) is logged
+(``opcua_face_unavailable``) and compensation runs without it; an error
+while publishing is logged once (``opcua_face_failed``) and the face
 keeps trying. Machines of one process (`compd run DIR`) that name the same
 host and port share one server, one object each.
 """
@@ -37,8 +41,10 @@ host and port share one server, one object each.
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import contextlib
 import math
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -157,12 +163,40 @@ class _SharedServer:
         self.base = base
         self.operator = section.operator
         self.server: Server | None = None
+        #: the face's own event loop, on its own thread (see the module docstring)
+        self.loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._run_loop, name="compd-opcua-face",
+                                        daemon=True)
+        self._closing = False
+        self._thread.start()
+        #: done when the server is up (or failed): machines starting meanwhile wait on it
+        self.started: concurrent.futures.Future[None] = self.submit(self.start())
         self.idx = 0
         self.machines: dict[str, _Machine] = {}
         self.fault_type: ua.NodeId | None = None
         #: who the last Call came from (set by the permission check just before it runs)
         self.caller: tuple[str, str] = ("anonymous", "unknown")
         self.log = structlog.get_logger("compd")
+
+    def _run_loop(self) -> None:
+        asyncio.set_event_loop(self.loop)
+        self.loop.run_forever()
+
+    def submit(self, coro: Any) -> concurrent.futures.Future[Any]:
+        """Run `coro` on the face's loop (from any thread)."""
+        return asyncio.run_coroutine_threadsafe(coro, self.loop)
+
+    def close(self) -> None:
+        """Stop the server and the face's loop and thread (from another thread); once."""
+        if self._closing:
+            return
+        self._closing = True
+        with contextlib.suppress(Exception):
+            self.submit(self.stop()).result(timeout=10.0)
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self._thread.join(timeout=10.0)
+        if not self._thread.is_alive():
+            self.loop.close()
 
     def note_call(self, user: Any, allowed: bool) -> None:
         name = getattr(user, "name", None) or "anonymous"
@@ -243,8 +277,9 @@ class OpcUaFace:
         self._shared: _SharedServer | None = None
         self._machine: _Machine | None = None
         self._pending: dict[str, Any] | None = None
-        self._wake = asyncio.Event()
+        self._wake: asyncio.Event | None = None  # on the face's loop
         self._task: asyncio.Task[None] | None = None
+        self._daemon_loop: asyncio.AbstractEventLoop | None = None
         self._failed = False
         self.log = structlog.get_logger("compd").bind(face="opcua")
 
@@ -256,23 +291,25 @@ class OpcUaFace:
         """Start (or join) the server and add this machine's object; False (logged)
         when it cannot: compensation runs without the face."""
         key = (self.section.host, self.section.port)
+        self._daemon_loop = asyncio.get_running_loop()
+        shared = _SERVERS.get(key)
+        if shared is None:
+            shared = _SERVERS[key] = _SharedServer(self.section, self.cfg.path.parent)
+        elif shared.section != self.section:
+            self.log.warning("opcua_face_shared", endpoint=self.endpoint,
+                             reason="another machine's [faces.opcua] settings serve it")
         try:
-            shared = _SERVERS.get(key)
-            if shared is None:
-                shared = _SharedServer(self.section, self.cfg.path.parent)
-                await shared.start()
-                _SERVERS[key] = shared
-            elif shared.section != self.section:
-                self.log.warning("opcua_face_shared", endpoint=self.endpoint,
-                                 reason="another machine's [faces.opcua] settings serve it")
-            self._machine = await self._add_machine(shared)
+            await asyncio.wrap_future(shared.started)
+            self._machine = await asyncio.wrap_future(shared.submit(self._add_machine(shared)))
+            self._task = await asyncio.wrap_future(shared.submit(self._start_publisher()))
         except Exception as exc:  # a port in use, a bad certificate: never the cycle's end
             self.log.error("opcua_face_unavailable", endpoint=self.endpoint,
                            error=str(exc) or type(exc).__name__)
+            if not shared.machines and _SERVERS.get(key) is shared:
+                _SERVERS.pop(key, None)
+                await asyncio.to_thread(shared.close)
             return False
         self._shared = shared
-        self._task = asyncio.get_running_loop().create_task(self._publisher(),
-                                                            name=f"opcua-face:{self.name}")
         self.log.info("opcua_face_started", endpoint=self.endpoint, policy=self.section.policy,
                       machine=self.name)
         return True
@@ -327,11 +364,23 @@ class OpcUaFace:
         shared.machines[self.name] = m
         return m
 
+    async def _start_publisher(self) -> asyncio.Task[None]:
+        self._wake = asyncio.Event()
+        return asyncio.get_running_loop().create_task(self._publisher(),
+                                                      name=f"opcua-face:{self.name}")
+
     def _set_hold(self, shared: _SharedServer) -> Callable[..., Any]:
+        async def on_daemon_loop(on: bool, user: str) -> bool:
+            return self._hold(on, user)
+
         async def call(parent: ua.NodeId, hold: ua.Variant | bool) -> list[ua.Variant]:
             on = bool(hold.Value if isinstance(hold, ua.Variant) else hold)
             user, peer = shared.caller
-            done = self._hold(on, user)
+            loop = self._daemon_loop
+            done = False
+            if loop is not None and not loop.is_closed():  # the cycle lives on that loop
+                done = await asyncio.wrap_future(asyncio.run_coroutine_threadsafe(
+                    on_daemon_loop(on, user), loop))
             self.log.warning("opcua_set_hold", machine=self.name, hold=on, user=user,
                              peer=peer, applied=done)
             return [ua.Variant(done, ua.VariantType.Boolean)]
@@ -365,12 +414,16 @@ class OpcUaFace:
             values["Adaptation.Correction_um"] = (cycle.probes.correction_um,
                                                   ua.VariantType.Double)
         self._pending = values
-        self._wake.set()
+        shared, wake = self._shared, self._wake
+        if shared is not None and wake is not None:
+            shared.loop.call_soon_threadsafe(wake.set)
 
     async def _publisher(self) -> None:
+        wake = self._wake
+        assert wake is not None
         while True:
-            await self._wake.wait()
-            self._wake.clear()
+            await wake.wait()
+            wake.clear()
             values, self._pending = self._pending, None
             if values is None or self._machine is None:
                 continue
@@ -388,30 +441,34 @@ class OpcUaFace:
                     self.log.error("opcua_face_failed", error=str(exc) or type(exc).__name__)
 
     async def stop(self) -> None:
+        shared, self._shared = self._shared, None
+        if shared is None:
+            return
+        with contextlib.suppress(Exception):
+            await asyncio.wrap_future(shared.submit(self._leave(shared)))
+        if not shared.machines:
+            _SERVERS.pop((shared.section.host, shared.section.port), None)
+            await asyncio.to_thread(shared.close)
+
+    async def _leave(self, shared: _SharedServer) -> None:
+        """On the face's loop: this machine's task and object go."""
         task, self._task = self._task, None
         if task is not None:
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await task
-        shared, self._shared = self._shared, None
-        if shared is None:
-            return
-        m = self._machine
-        self._machine = None
+        m, self._machine = self._machine, None
         if m is not None and shared.machines.pop(m.name, None) is not None \
                 and shared.server is not None:
             with contextlib.suppress(Exception):
                 await shared.server.delete_nodes([m.obj], recursive=True)
-        if not shared.machines:
-            _SERVERS.pop((shared.section.host, shared.section.port), None)
-            await shared.stop()
 
 
 async def release_all() -> None:
     """Stop every face server of this process (tests)."""
     for key, shared in list(_SERVERS.items()):
         _SERVERS.pop(key, None)
-        await shared.stop()
+        await asyncio.to_thread(shared.close)
 
 
 def _num(x: float | None) -> float:

@@ -107,6 +107,7 @@ class Daemon:
         self.reloads = 0
         #: [faces.opcua] once started
         self.opcua_face: OpcUaFace | None = None
+        self._face_start: asyncio.Task[None] | None = None
         #: what the operator page shows ([faces.http]); published once per cycle
         http = cfg.raw.faces.http
         self.status_board = StatusBoard(history_h=http.history_h, refresh_s=http.refresh_s)
@@ -200,8 +201,7 @@ class Daemon:
             finally:
                 await self._cancel_reload()
                 await (self._driver or driver).close()
-                if self.opcua_face is not None:
-                    await self.opcua_face.stop()
+                await self._stop_opcua_face()
             return rc
         finally:
             self.notifier.stopping()
@@ -212,14 +212,28 @@ class Daemon:
                 self._lock.release()
 
     async def _start_opcua_face(self) -> None:
-        """[faces.opcua]: compd's own OPC UA server (never a reason not to compensate)."""
+        """[faces.opcua]: compd's own OPC UA server, started beside the loop (it takes
+        seconds; compensation starts at once and never waits for it)."""
         if not self.cfg.raw.faces.opcua.enabled:
             return
         from compd.faces.opcua_face import OpcUaFace
 
         face = OpcUaFace(self.cfg, self.operator_hold)
-        if await face.start():
-            self.opcua_face = face
+
+        async def start() -> None:
+            if await face.start():
+                self.opcua_face = face
+
+        self._face_start = asyncio.get_running_loop().create_task(start(),
+                                                                  name="opcua-face-start")
+
+    async def _stop_opcua_face(self) -> None:
+        starting, self._face_start = self._face_start, None
+        if starting is not None:
+            await asyncio.gather(starting, return_exceptions=True)
+        face, self.opcua_face = self.opcua_face, None
+        if face is not None:
+            await face.stop()
 
     def operator_hold(self, on: bool, who: str) -> bool:
         """An operator's hold (or its release) of the running cycle (OPC UA SetHold);

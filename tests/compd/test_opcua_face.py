@@ -61,6 +61,8 @@ async def face_daemon(tmp_path: Path, sim: ModbusSimController, face: str,
     try:
         await until(lambda: daemon.complete_cycles >= 3 or task.done())
         assert not task.done(), "the daemon ended early"
+        # the face starts beside the loop (seconds): compensation did not wait for it
+        await until(lambda: daemon._face_start is None or daemon._face_start.done())
         yield daemon
     finally:
         daemon.request_stop()
@@ -186,10 +188,12 @@ async def test_a_face_that_cannot_start_leaves_compensation_running(
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        async with face_daemon(tmp_path, sim, _face(port)) as daemon:
-            before = daemon.complete_cycles
-            await until(lambda: daemon.complete_cycles >= before + 5)
-            assert daemon.opcua_face is None
+        with structlog.testing.capture_logs() as logs:
+            async with face_daemon(tmp_path, sim, _face(port)) as daemon:
+                before = daemon.complete_cycles
+                await until(lambda: daemon.complete_cycles >= before + 5)
+                assert daemon.opcua_face is None
+        assert "opcua_face_unavailable" in [e["event"] for e in logs]
 
 
 @pytest.mark.parametrize(("face", "key_words"), [
@@ -253,3 +257,35 @@ def test_a_reload_that_changes_the_face_is_refused_by_name(tmp_path: Path) -> No
     with pytest.raises(ConfigError) as info:
         prepare(old)
     assert info.value.key == "faces.opcua" and "restart" in info.value.reason
+
+
+async def test_machines_of_one_process_share_one_server(tmp_path: Path) -> None:
+    """`compd run DIR`: one endpoint, one object per machine."""
+    from compd.runtime.fleet import Fleet, load_machines
+    from tests.compd.test_run_dir import _write_machine
+
+    port = free_tcp_port("127.0.0.1")
+    sims = [ModbusSimController() for _ in range(2)]
+    d = tmp_path / "machines.d"
+    d.mkdir()
+    for name, sim in zip(("mill-a", "mill-b"), sims, strict=True):
+        await sim.start()
+        await sim.publish({"bearing": 20.0, "ambient": 20.0})
+        path = _write_machine(d, name, sim.endpoint)
+        path.write_text(path.read_text(encoding="utf-8") + _face(port), encoding="utf-8")
+    fleet = Fleet(load_machines(d))
+    task = asyncio.get_running_loop().create_task(fleet.run())
+    try:
+        await until(lambda: all(m in fleet.daemons and fleet.daemons[m].opcua_face is not None
+                                for m in ("mill-a", "mill-b")))
+        async with await _client(port) as client:
+            idx = await client.get_namespace_index(NAMESPACE)
+            for name in ("mill-a", "mill-b"):
+                machine = await client.nodes.objects.get_child(f"{idx}:{name}")
+                assert await _value(machine, idx, "FaultStateName") in ("ok", "init")
+    finally:
+        fleet.request_stop()
+        assert await asyncio.wait_for(task, 20.0) == 0
+        await release_all()
+        for sim in sims:
+            await sim.stop()
