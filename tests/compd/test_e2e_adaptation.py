@@ -125,7 +125,10 @@ async def test_adaptation_learns_refuses_a_bad_probe_and_resumes_after_kill9(
     # the counter from its checkpoint
     counters = [int(p[0]) for p in probes]
     assert counters == list(range(counters[0], counters[0] + len(counters)))
-    assert counters[-1] == run["made"] and len(counters) >= run["made"] - 1
+    # (the machine's last measurement, at its very end, may come after the daemon's
+    # last read)
+    assert run["made"] - 1 <= counters[-1] <= run["made"]
+    assert len(counters) >= run["made"] - 2
     accepted = [p for p in probes if p[1] == 1]
     refused = [p for p in probes if p[1] == 0]
     assert len(accepted) >= 8
