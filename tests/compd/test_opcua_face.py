@@ -188,7 +188,9 @@ async def test_sethold_is_the_operators_and_holds_then_slews_back(
                 assert daemon.last_result is not None
                 seen.append((daemon.last_result.sequence, daemon.last_result.offset_um))
             for (qa, a), (qb, b) in itertools.pairwise(seen):
-                assert 0.0 <= b - a <= 2.0 * (qb - qa) + 1e-9  # 2 µm/s × 1 s a cycle
+                # 2 µm/s over a cycle's machine time: at most 2 periods (the output
+                # stage's bound on a late cycle's dt), so 4 µm a cycle; a jump is ~10
+                assert 0.0 <= b - a <= 4.0 * (qb - qa) + 1e-9
 
 
 async def test_a_face_that_cannot_start_leaves_compensation_running(
