@@ -190,6 +190,9 @@ class OpcUaSimController:
                 server.set_identity_tokens([ua.UserNameIdentityToken])
         else:
             server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+            # anonymous only: offering certificate and user-name tokens on an
+            # unsecured endpoint made asyncua warn at every start
+            server.set_identity_tokens([ua.AnonymousIdentityToken])
         idx = await server.register_namespace(NAMESPACE)
         if idx != NAMESPACE_INDEX:
             raise RuntimeError(f"sim namespace got index {idx}, expected {NAMESPACE_INDEX}")

@@ -5,6 +5,7 @@ and teardown. One simulated server per module (it takes a second to build)."""
 from __future__ import annotations
 
 import asyncio
+import logging
 import math
 from collections.abc import AsyncIterator
 
@@ -241,3 +242,17 @@ async def test_config_errors_are_refused_at_construction() -> None:
                     {"a": S7Address(db=1, offset=0)}, {})  # type: ignore[dict-item]
     with pytest.raises(ValueError, match=r"opc\.tcp"):
         OpcUaDriver("http://127.0.0.1:4840", {}, {})
+
+
+async def test_the_unsecured_simulated_server_starts_without_asyncua_warnings(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """`compd sim` printed asyncua's "No signing policy available…" at every start."""
+    caplog.set_level(logging.WARNING, logger="asyncua")
+    sim = OpcUaSimController()
+    await sim.start()
+    try:
+        assert sim.endpoint.startswith("opc.tcp://127.0.0.1:")
+    finally:
+        await sim.stop()
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert warnings == []
