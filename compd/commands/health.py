@@ -24,12 +24,14 @@ health check runs every few seconds and must stay cheap.
 from __future__ import annotations
 
 import argparse
+import http.client
 import json
 import math
 import os
 import sys
 import time
 import urllib.error
+import urllib.parse
 import urllib.request
 from pathlib import Path
 
@@ -96,6 +98,8 @@ def check_metrics(url: str, max_age_s: float, timeout_s: float,
             body = resp.read(8 * 1024 * 1024).decode("utf-8", "replace")
     except urllib.error.HTTPError as exc:
         return False, f"metrics {url}: HTTP {exc.code}"
+    except http.client.HTTPException as exc:  # not HTTP at all, a reply cut short
+        return False, f"metrics {url}: {type(exc).__name__} {exc}".rstrip()
     except (urllib.error.URLError, OSError, ValueError) as exc:
         reason = getattr(exc, "reason", exc)
         return False, f"metrics {url}: {reason}"
@@ -133,7 +137,7 @@ def _read_checkpoint(path: Path) -> dict[str, object] | None:
     try:
         with os.fdopen(fd, "rb") as f:
             data = json.loads(f.read(MAX_CHECKPOINT_BYTES))
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):  # RecursionError: nested thousands deep
         return None
     return data if isinstance(data, dict) else None
 
@@ -156,6 +160,25 @@ def check_state_dir(state_dir: Path, max_age_s: float) -> tuple[bool, str]:
     return True, f"state dir: last complete cycle {age_s:.0f} s ago ({how})"
 
 
+def url_problem(url: str) -> str | None:
+    """Why `url` cannot be a metrics endpoint (None when it can): an http(s) URL
+    with a host and, if any, a port in 1..65535."""
+    try:
+        parts = urllib.parse.urlsplit(url)
+        port = parts.port  # ValueError: not a number, or out of range
+    except ValueError as exc:
+        return str(exc)
+    if parts.scheme not in ("http", "https"):
+        return f"scheme {parts.scheme!r} is not http or https"
+    if not parts.hostname:
+        return "no host"
+    if port == 0:
+        return "port 0"
+    if any(c.isspace() or ord(c) < 32 for c in url):
+        return "a space or control character in it"
+    return None
+
+
 def _usage(message: str) -> int:
     print(f"compd health: {message}", file=sys.stderr)
     return EX_USAGE
@@ -168,6 +191,8 @@ def run(args: argparse.Namespace) -> int:
     timeout_s: float = args.timeout_s
     if not (math.isfinite(timeout_s) and 0 < timeout_s <= MAX_TIMEOUT_S):
         return _usage(f"--timeout-s must be a number of seconds in (0, {MAX_TIMEOUT_S:g}]")
+    if args.url is not None and (why := url_problem(args.url)) is not None:
+        return _usage(f"--url {redact_urls(args.url)!r}: {why}")
     state_dir: Path | None = args.state_dir
     if state_dir is None and args.url is None:
         state_dir = Path(os.environ.get("STATE_DIRECTORY", "").split(":")[0]

@@ -160,6 +160,8 @@ def load_checkpoint(path: Path) -> dict[str, Any] | None:
                   f"column {exc.colno}") from exc
     except ValueError as exc:
         raise CheckpointError(path, str(exc)) from exc
+    except RecursionError:
+        raise CheckpointError(path, "nested too deeply: not ours") from None
     if not isinstance(obj, dict):
         raise CheckpointError(path, f"not a JSON object but {type(obj).__name__}")
     version = obj.get("version")
