@@ -11,7 +11,14 @@ by the controller) no longer than ``--max-age-s`` ago, shown by either
   state below 3 (alarm/stopped); or
 * the state directory: the checkpoint's record of the last complete cycle
   (`compd.runtime.liveness`: judged on the monotonic clock within one boot,
-  on the wall clock otherwise; a stamp in the future is no evidence).
+  on the wall clock otherwise; a stamp in the future is no evidence), and
+  the fault state of the cycle before it was written (``last_state``) below
+  alarm: the daemon writes a checkpoint at once when it enters or leaves
+  the alarm, so both sources turn red together.
+
+A complete cycle is one whose offset is the one compd wants, in force
+(`compd.core.cycle.offset_in_force`): a held output (a foreign offset
+beyond the limit), a write fault or stopped writes never count.
 
 A daemon that cycles without a controller, or whose writes fail, is not
 healthy, however busy it is: cycles that ran prove nothing, and neither do
@@ -36,7 +43,7 @@ import urllib.request
 from pathlib import Path
 
 from compd.config.urls import redact_urls
-from compd.core.faults import GAUGE_ALARM
+from compd.core.faults import GAUGE_ALARM, FaultState
 from compd.runtime.liveness import last_complete_age_s
 from compd.sysexits import EX_USAGE
 
@@ -50,6 +57,7 @@ CHECKPOINT_NAME = "checkpoint.json"
 #: Read at most this much of a checkpoint (it holds delay lines, not records).
 MAX_CHECKPOINT_BYTES = 16 * 1024 * 1024
 FAULT_STOPPED = float(GAUGE_ALARM)
+_STATES = frozenset(str(s) for s in FaultState)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -151,6 +159,9 @@ def check_state_dir(state_dir: Path, max_age_s: float) -> tuple[bool, str]:
     state = _read_checkpoint(path)
     if state is None:
         return False, f"state dir {state_dir}: checkpoint unreadable (torn or not ours)"
+    last = state.get("last_state")  # absent in an older compd's checkpoint
+    if last in _STATES and FaultState(last).gauge >= FAULT_STOPPED:
+        return False, f"state dir {state_dir}: fault state {last} (alarm/stopped)"
     age_s, how = last_complete_age_s(state)
     if age_s is None:
         return False, f"state dir {state_dir}: {how}"

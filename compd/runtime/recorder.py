@@ -18,7 +18,10 @@ recorder itself (contiguous, continuing across restarts: MAX(seq)+1), ``cycle``
 ``mono_s``, ``wall_s``, ``offset_um`` (written and confirmed by the controller;
 NULL when no offset was sent or the write failed), ``attempted_um`` (the
 offset sent, confirmed or not), ``model_um``, ``state`` (the
-fault state), ``valid`` (0/1), and three JSON objects: ``channels`` {name:
+fault state), ``valid`` (0/1: inputs valid, model stepped), ``complete`` (0/1:
+the cycle is complete as `compd.core.cycle.offset_in_force` defines it, the
+offset compd wants is in force; a held output's cycles are valid, never
+complete; NULL in rows of an older compd), and three JSON objects: ``channels`` {name:
 value}, ``validity`` {name: reason or null}, ``contributions`` {term: µm}.
 Non-finite floats are stored as JSON null (read back as NaN).
 
@@ -73,7 +76,8 @@ CREATE TABLE IF NOT EXISTS samples (
     channels TEXT NOT NULL,
     validity TEXT NOT NULL,
     contributions TEXT NOT NULL,
-    attempted_um REAL
+    attempted_um REAL,
+    complete INTEGER
 );
 CREATE INDEX IF NOT EXISTS samples_wall_s ON samples (wall_s);
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -101,8 +105,8 @@ CREATE TABLE IF NOT EXISTS probes (
 """
 
 _INSERT = ("INSERT INTO samples (seq, cycle, mono_s, wall_s, offset_um, model_um, state, valid,"
-           " channels, validity, contributions, attempted_um)"
-           " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
+           " channels, validity, contributions, attempted_um, complete)"
+           " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
 
 _INSERT_VALUE = "INSERT INTO channel_values (seq, channel, value, validity) VALUES (?, ?, ?, ?)"
 
@@ -152,7 +156,8 @@ def _tuple(seq: int, row: RecordRow) -> tuple[Any, ...]:
             _json_numbers(row.channels),
             json.dumps({str(k): (None if v is None else str(v))
                         for k, v in row.validity.items()}, separators=(",", ":")),
-            _json_numbers(row.contributions), _num(row.attempted_um))
+            _json_numbers(row.contributions), _num(row.attempted_um),
+            1 if row.complete else 0)
 
 
 def _value_rows(seq: int, row: RecordRow) -> list[tuple[Any, ...]]:
@@ -225,6 +230,8 @@ class Recorder:
             columns = {r[1] for r in conn.execute("PRAGMA table_info(samples)")}
             if "attempted_um" not in columns:  # a database of an older compd
                 conn.execute("ALTER TABLE samples ADD COLUMN attempted_um REAL")
+            if "complete" not in columns:  # older rows: NULL (not known)
+                conn.execute("ALTER TABLE samples ADD COLUMN complete INTEGER")
             last = conn.execute("SELECT MAX(seq) FROM samples").fetchone()[0]
             meta = conn.execute("SELECT value FROM meta WHERE key='channels'").fetchone()
         except sqlite3.Error as exc:
