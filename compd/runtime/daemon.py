@@ -170,7 +170,7 @@ class Daemon:
             self._lock = StateLock(cfg.state_dir)
             self._lock.acquire()  # StateLocked propagates: the caller reports it
         try:
-            startup = start_cycle(cfg, self.params)
+            startup = start_cycle(cfg, self.params, directory=self._state_directory())
             self.cycle = startup.cycle
             self._log_events(startup.events)
             self.log.info("daemon_starting", version=__version__, machine=cfg.raw.machine.name,
@@ -552,6 +552,10 @@ class Daemon:
             else:
                 self.log.info("recorder_recovered", dropped=self._recorder.dropped)
 
+    def _state_directory(self) -> Any:
+        """The state directory the lock holds open (None without a lock: dry run)."""
+        return None if self._lock is None else self._lock.directory
+
     def _should_checkpoint(self, result: CycleResult) -> bool:
         every = self.cfg.raw.state.checkpoint_every
         alarm = result.state.gauge >= GAUGE_ALARM
@@ -575,7 +579,8 @@ class Daemon:
         if self.last_result is not None:  # an alarm is unhealthy however recent the above
             state["last_state"] = str(self.last_result.state)
         try:
-            save_checkpoint(checkpoint_path(self.cfg), state)
+            save_checkpoint(checkpoint_path(self.cfg), state,
+                            directory=self._state_directory())
         except Exception as exc:  # a failed checkpoint must not stop the loop
             self.log.error("checkpoint_failed", error=str(exc))
 
