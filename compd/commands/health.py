@@ -11,7 +11,14 @@ by the controller) no longer than ``--max-age-s`` ago, shown by either
   state below 3 (alarm/stopped); or
 * the state directory: the checkpoint's record of the last complete cycle
   (`compd.runtime.liveness`: judged on the monotonic clock within one boot,
-  on the wall clock otherwise; a stamp in the future is no evidence).
+  on the wall clock otherwise; a stamp in the future is no evidence), and
+  the fault state of the cycle before it was written (``last_state``) below
+  alarm: the daemon writes a checkpoint at once when it enters or leaves
+  the alarm, so both sources turn red together.
+
+A complete cycle is one whose offset is the one compd wants, in force
+(`compd.core.cycle.offset_in_force`): a held output (a foreign offset
+beyond the limit), a write fault or stopped writes never count.
 
 A daemon that cycles without a controller, or whose writes fail, is not
 healthy, however busy it is: cycles that ran prove nothing, and neither do
@@ -24,17 +31,19 @@ health check runs every few seconds and must stay cheap.
 from __future__ import annotations
 
 import argparse
+import http.client
 import json
 import math
 import os
 import sys
 import time
 import urllib.error
+import urllib.parse
 import urllib.request
 from pathlib import Path
 
 from compd.config.urls import redact_urls
-from compd.core.faults import GAUGE_ALARM
+from compd.core.faults import GAUGE_ALARM, FaultState
 from compd.runtime.liveness import last_complete_age_s
 from compd.sysexits import EX_USAGE
 
@@ -48,6 +57,7 @@ CHECKPOINT_NAME = "checkpoint.json"
 #: Read at most this much of a checkpoint (it holds delay lines, not records).
 MAX_CHECKPOINT_BYTES = 16 * 1024 * 1024
 FAULT_STOPPED = float(GAUGE_ALARM)
+_STATES = frozenset(str(s) for s in FaultState)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -96,6 +106,8 @@ def check_metrics(url: str, max_age_s: float, timeout_s: float,
             body = resp.read(8 * 1024 * 1024).decode("utf-8", "replace")
     except urllib.error.HTTPError as exc:
         return False, f"metrics {url}: HTTP {exc.code}"
+    except http.client.HTTPException as exc:  # not HTTP at all, a reply cut short
+        return False, f"metrics {url}: {type(exc).__name__} {exc}".rstrip()
     except (urllib.error.URLError, OSError, ValueError) as exc:
         reason = getattr(exc, "reason", exc)
         return False, f"metrics {url}: {reason}"
@@ -133,7 +145,7 @@ def _read_checkpoint(path: Path) -> dict[str, object] | None:
     try:
         with os.fdopen(fd, "rb") as f:
             data = json.loads(f.read(MAX_CHECKPOINT_BYTES))
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):  # RecursionError: nested thousands deep
         return None
     return data if isinstance(data, dict) else None
 
@@ -147,6 +159,9 @@ def check_state_dir(state_dir: Path, max_age_s: float) -> tuple[bool, str]:
     state = _read_checkpoint(path)
     if state is None:
         return False, f"state dir {state_dir}: checkpoint unreadable (torn or not ours)"
+    last = state.get("last_state")  # absent in an older compd's checkpoint
+    if last in _STATES and FaultState(last).gauge >= FAULT_STOPPED:
+        return False, f"state dir {state_dir}: fault state {last} (alarm/stopped)"
     age_s, how = last_complete_age_s(state)
     if age_s is None:
         return False, f"state dir {state_dir}: {how}"
@@ -154,6 +169,25 @@ def check_state_dir(state_dir: Path, max_age_s: float) -> tuple[bool, str]:
         return False, (f"state dir {state_dir}: last complete cycle {age_s:.0f} s ago "
                        f"(max {max_age_s:g} s)")
     return True, f"state dir: last complete cycle {age_s:.0f} s ago ({how})"
+
+
+def url_problem(url: str) -> str | None:
+    """Why `url` cannot be a metrics endpoint (None when it can): an http(s) URL
+    with a host and, if any, a port in 1..65535."""
+    try:
+        parts = urllib.parse.urlsplit(url)
+        port = parts.port  # ValueError: not a number, or out of range
+    except ValueError as exc:
+        return str(exc)
+    if parts.scheme not in ("http", "https"):
+        return f"scheme {parts.scheme!r} is not http or https"
+    if not parts.hostname:
+        return "no host"
+    if port == 0:
+        return "port 0"
+    if any(c.isspace() or ord(c) < 32 for c in url):
+        return "a space or control character in it"
+    return None
 
 
 def _usage(message: str) -> int:
@@ -168,6 +202,8 @@ def run(args: argparse.Namespace) -> int:
     timeout_s: float = args.timeout_s
     if not (math.isfinite(timeout_s) and 0 < timeout_s <= MAX_TIMEOUT_S):
         return _usage(f"--timeout-s must be a number of seconds in (0, {MAX_TIMEOUT_S:g}]")
+    if args.url is not None and (why := url_problem(args.url)) is not None:
+        return _usage(f"--url {redact_urls(args.url)!r}: {why}")
     state_dir: Path | None = args.state_dir
     if state_dir is None and args.url is None:
         state_dir = Path(os.environ.get("STATE_DIRECTORY", "").split(":")[0]

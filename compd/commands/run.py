@@ -8,7 +8,9 @@ Exit status: 0 after SIGTERM/SIGINT (checkpoint written, shutdown policy
 applied), 78 on an invalid configuration (systemd does not restart it),
 75 (EX_TEMPFAIL) when another daemon holds the state directory, 73
 (EX_CANTCREAT) when the state directory cannot be used safely (not a
-directory, another owner's, writable by others, a link planted in it), and with
+directory, another owner's, writable by others, a link planted in it), 78 when
+a directory on its way lets another user swap it (owned by neither root nor
+this user, or writable by group or others without the sticky bit), and with
 ``--once`` 0 when the one cycle was complete and valid, 1 when it was not.
 """
 
@@ -18,7 +20,7 @@ import argparse
 import asyncio
 import sys
 
-from compd.sysexits import EX_CANTCREAT, EX_TEMPFAIL
+from compd.sysexits import EX_TEMPFAIL
 
 HELP = "run the compensation daemon against the configured controller"
 
@@ -58,9 +60,9 @@ def run(args: argparse.Namespace) -> int:
     except StateLocked as exc:
         print(f"compd: {exc}", file=sys.stderr)
         return EX_TEMPFAIL
-    except StateDirError as exc:
+    except StateDirError as exc:  # 73, or 78 for a parent another user could swap
         print(f"compd: state directory refused: {exc}", file=sys.stderr)
-        return EX_CANTCREAT
+        return exc.code
     if args.once and daemon.last_result is not None:
         import json
 

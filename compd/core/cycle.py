@@ -25,6 +25,16 @@ One `Cycle.step(now_s, samples, readback_offset_um)`:
    failed, since then the controller's state is unknown), the heartbeat
    (advanced only on a complete valid cycle) and the status word.
 
+A cycle is COMPLETE (`offset_in_force`: the one definition, used by the
+daemon's metrics, the checkpoint that `compd health --state-dir` reads, and
+the recorder's ``complete`` column) only when the offset compd wants is the
+offset in force: inputs valid and the model stepped, state "ok" (not held by
+a foreign offset, no write fault, offset writes not stopped, no fault hold,
+ramp or shutdown), and the controller confirmed this cycle's offset write
+(`write_ok()`). `CycleResult.complete` is the narrower "inputs valid, model
+stepped" that advances the heartbeat; `CycleResult.in_force` is the complete
+cycle.
+
 The shell reports each write's outcome with `write_ok()` / `write_failed()`;
 WRITE_FAULT_AFTER offset writes failing in a row are a write fault (WRITE_FAULT
 and ALARM, state "write_fault") until one succeeds. The record row keeps what
@@ -106,6 +116,17 @@ def params_from_config(cfg: LoadedConfig, *, dry_run: bool = False) -> CyclePara
         adaptation=cfg.adaptation)
 
 
+def offset_in_force(*, valid: bool, state: FaultState, confirmed: bool) -> bool:
+    """Whether a cycle is COMPLETE: the offset compd wants is the offset in force.
+
+    `valid`: inputs valid and the model stepped; `state`: the state recorded for
+    the cycle (`Cycle._state`: held, write_fault and stopped override the
+    policy's); `confirmed`: the controller acknowledged this cycle's offset
+    write. Only "ok" counts: a held, faulted, stopped, holding, ramping or
+    shutting-down output is not what the model asks for, however busy the loop."""
+    return valid and confirmed and state == FaultState.OK
+
+
 @dataclass
 class CycleResult:
     """What one cycle hands the shell: its `record` row (model output, state,
@@ -136,6 +157,11 @@ class CycleResult:
     @property
     def state(self) -> FaultState:
         return FaultState(self.record.state)
+
+    @property
+    def in_force(self) -> bool:
+        """A complete cycle (`offset_in_force`); known once `write_ok()` was called."""
+        return self.record.complete
 
 
 def _finite_or_none(x: float) -> float | None:
@@ -384,6 +410,10 @@ class Cycle:
         """Every write of the last result reached the controller."""
         if self._offset_pending:
             self.output.confirm()
+            r = self._result
+            if r is not None and offset_in_force(valid=r.record.valid, state=r.state,
+                                                 confirmed=True):
+                r.record = dataclasses.replace(r.record, complete=True)
             if self.write_fault:
                 self._later.append(Event("write_recovered", {"failed_writes":
                                                              self.failed_writes}))

@@ -23,7 +23,9 @@ class RecordRow:
     checkpoint repeats cycle numbers. `offset_um` is the offset the controller
     confirmed (None when the cycle wrote none or the write failed),
     `attempted_um` the offset sent, confirmed or not; `state` a
-    `compd.core.faults.FaultState` name. Field order as in the table."""
+    `compd.core.faults.FaultState` name; `complete` whether the cycle counts
+    as complete (valid alone does not: a held output has valid inputs).
+    Field order as in the table."""
 
     seq: int | None
     mono_s: float
@@ -39,3 +41,6 @@ class RecordRow:
     #: a probe that arrived this cycle (`compd.core.adaptation`): its values,
     #: innovation, accepted or refused and why, the estimator's bias after it
     probe: Mapping[str, Any] | None = None
+    #: a COMPLETE cycle (`compd.core.cycle.offset_in_force`): the offset compd
+    #: wants is the offset in force. False until the controller confirmed it.
+    complete: bool = False

@@ -18,7 +18,13 @@ One writer per checkpoint path: the daemon holds `compd.runtime.statelock.StateL
 on its state directory, so a fixed temp name is safe. Whatever stands at the
 temp name is unlinked first and the file is created with ``O_EXCL |
 O_NOFOLLOW`` (mode 0600): a link planted there is removed, never written
-through. A checkpoint that is a link is refused on load.
+through. A checkpoint that is a link (or has several names) is refused on load.
+
+Every step (unlink, create, rename, fsync of the directory) works relative to
+one descriptor of the directory: the daemon passes the one its lock holds
+(`directory`), so a state directory swapped for a link while the daemon runs
+gets nothing (the checkpoint lands in the directory that was opened); without
+one, the directory is opened for this one save, safely (`StateDir.open`).
 """
 
 from __future__ import annotations
@@ -33,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from compd.errors import CompdError
-from compd.runtime.statedir import StateDirError, open_private
+from compd.runtime.statedir import StateDir, StateDirError, open_private
 
 __all__ = ["FORMAT_VERSION", "RESERVED_KEYS", "CheckpointError", "load_checkpoint",
            "save_checkpoint"]
@@ -65,20 +71,14 @@ def _checksum(payload: dict[str, Any]) -> str:
     return hashlib.sha256(_canonical(payload)).hexdigest()
 
 
-def _fsync_dir(directory: Path) -> None:
-    fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def _temp_path(path: Path) -> Path:
     return path.with_name(f".{path.name}.tmp")
 
 
-def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
-    """Write `state` to `path` atomically (see the module docstring).
+def save_checkpoint(path: Path, state: dict[str, Any], *,
+                    directory: StateDir | None = None) -> None:
+    """Write `state` to `path` atomically (see the module docstring); with
+    `directory` (the open state directory), into it under `path`'s name.
 
     Raises CheckpointError when the state cannot be stored faithfully (a NaN or
     infinity, a value JSON cannot hold, a reserved key) and OSError when the
@@ -100,11 +100,23 @@ def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
     payload["checksum"] = checksum
     data = json.dumps(payload, sort_keys=True, indent=1, allow_nan=False).encode("utf-8")
 
-    tmp = _temp_path(path)
-    with contextlib.suppress(FileNotFoundError):
-        tmp.unlink()  # a leftover of a kill, or a planted link (the link goes, not its target)
+    if directory is not None:
+        _write(directory, path, data)
+        return
     try:
-        fd = open_private(tmp, os.O_WRONLY | os.O_EXCL)
+        opened = StateDir.open(path.parent, create=False)
+    except StateDirError as exc:
+        raise CheckpointError(path, f"{exc.path}: {exc.reason}") from exc
+    with opened:
+        _write(opened, path, data)
+
+
+def _write(directory: StateDir, path: Path, data: bytes) -> None:
+    name, tmp = path.name, _temp_path(path).name
+    # a leftover of a kill, or a planted link (the link goes, not its target)
+    directory.unlink(tmp)
+    try:
+        fd = directory.open_file(tmp, os.O_WRONLY | os.O_EXCL)
     except StateDirError as exc:
         raise CheckpointError(path, exc.reason) from exc
     try:
@@ -116,22 +128,26 @@ def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
     except BaseException:
         os.close(fd)
         with contextlib.suppress(OSError):
-            tmp.unlink()
+            directory.unlink(tmp)
         raise
     os.close(fd)
-    os.replace(tmp, path)
-    _fsync_dir(path.parent)
+    directory.replace(tmp, name)
+    directory.fsync()
 
 
 def _refuse_constant(name: str) -> float:
     raise ValueError(f"non-finite number {name}")
 
 
-def load_checkpoint(path: Path) -> dict[str, Any] | None:
+def load_checkpoint(path: Path, *, directory: StateDir | None = None) -> dict[str, Any] | None:
     """The checkpoint at `path` (state plus version, saved_wall_s, checksum),
-    None when there is none, CheckpointError when it cannot be trusted."""
+    None when there is none, CheckpointError when it cannot be trusted. With
+    `directory` (the open state directory), `path`'s name in it."""
     try:
-        fd = open_private(path, os.O_RDONLY, create=False)
+        if directory is not None:
+            fd = directory.open_file(path.name, os.O_RDONLY, create=False)
+        else:
+            fd = open_private(path, os.O_RDONLY, create=False)
     except FileNotFoundError:
         return None
     except StateDirError as exc:
@@ -160,6 +176,8 @@ def load_checkpoint(path: Path) -> dict[str, Any] | None:
                   f"column {exc.colno}") from exc
     except ValueError as exc:
         raise CheckpointError(path, str(exc)) from exc
+    except RecursionError:
+        raise CheckpointError(path, "nested too deeply: not ours") from None
     if not isinstance(obj, dict):
         raise CheckpointError(path, f"not a JSON object but {type(obj).__name__}")
     version = obj.get("version")

@@ -48,7 +48,7 @@ from compd import __version__
 from compd.config.loader import PROBE_NAMES, LoadedConfig
 from compd.core.adaptation import ProbeReading
 from compd.core.cycle import Cycle, CycleResult, params_from_config
-from compd.core.faults import Event
+from compd.core.faults import GAUGE_ALARM, Event
 from compd.core.schedule import Schedule, shutdown_ramp_cycles
 from compd.faces.status import StatusBoard
 from compd.faces.telemetry import Metrics, WSGIApp
@@ -100,6 +100,8 @@ class Daemon:
         self._write_failures = RepeatLimiter("write_failed")
         #: (wall, monotonic) time of the last complete cycle: the health evidence
         self._last_complete: tuple[float, float] | None = None
+        #: whether the last checkpoint said alarm (`compd health --state-dir` reads it)
+        self._alarm_checkpointed = False
         #: SIGHUP: the reload being prepared, and what it produced for the loop to swap in
         self._reload_task: asyncio.Task[None] | None = None
         self._reload_again = False
@@ -168,7 +170,7 @@ class Daemon:
             self._lock = StateLock(cfg.state_dir)
             self._lock.acquire()  # StateLocked propagates: the caller reports it
         try:
-            startup = start_cycle(cfg, self.params)
+            startup = start_cycle(cfg, self.params, directory=self._state_directory())
             self.cycle = startup.cycle
             self._log_events(startup.events)
             self.log.info("daemon_starting", version=__version__, machine=cfg.raw.machine.name,
@@ -550,8 +552,16 @@ class Daemon:
             else:
                 self.log.info("recorder_recovered", dropped=self._recorder.dropped)
 
+    def _state_directory(self) -> Any:
+        """The state directory the lock holds open (None without a lock: dry run)."""
+        return None if self._lock is None else self._lock.directory
+
     def _should_checkpoint(self, result: CycleResult) -> bool:
         every = self.cfg.raw.state.checkpoint_every
+        alarm = result.state.gauge >= GAUGE_ALARM
+        if alarm != self._alarm_checkpointed:  # health --state-dir sees it now, as --url does
+            self._alarm_checkpointed = alarm
+            return True
         return result.sequence % every == 0
 
     def _checkpoint(self, cycle: Cycle) -> None:
@@ -566,8 +576,11 @@ class Daemon:
             wall_s, mono_s = self._last_complete
             state.update(last_complete_wall_s=wall_s, last_complete_mono_s=mono_s,
                          boot_id=boot_id())
+        if self.last_result is not None:  # an alarm is unhealthy however recent the above
+            state["last_state"] = str(self.last_result.state)
         try:
-            save_checkpoint(checkpoint_path(self.cfg), state)
+            save_checkpoint(checkpoint_path(self.cfg), state,
+                            directory=self._state_directory())
         except Exception as exc:  # a failed checkpoint must not stop the loop
             self.log.error("checkpoint_failed", error=str(exc))
 
@@ -587,8 +600,8 @@ class Daemon:
         self.log.debug("cycle", sequence=result.sequence, state=result.state,
                        offset_um=round(result.offset_um, 4), model_um=result.model_um,
                        shadow_um=result.shadow_um, status=result.status)
-        if result.complete and confirmed:
-            # complete: inputs valid, model stepped, and the controller confirmed the write
+        if result.in_force:  # complete (compd.core.cycle.offset_in_force): what the
+            # model asks for is in force (never a held, faulted or unconfirmed offset)
             self.complete_cycles += 1
             m.cycle_complete()
             self._last_complete = (time.time(), time.monotonic())

@@ -18,7 +18,10 @@ recorder itself (contiguous, continuing across restarts: MAX(seq)+1), ``cycle``
 ``mono_s``, ``wall_s``, ``offset_um`` (written and confirmed by the controller;
 NULL when no offset was sent or the write failed), ``attempted_um`` (the
 offset sent, confirmed or not), ``model_um``, ``state`` (the
-fault state), ``valid`` (0/1), and three JSON objects: ``channels`` {name:
+fault state), ``valid`` (0/1: inputs valid, model stepped), ``complete`` (0/1:
+the cycle is complete as `compd.core.cycle.offset_in_force` defines it, the
+offset compd wants is in force; a held output's cycles are valid, never
+complete; NULL in rows of an older compd), and three JSON objects: ``channels`` {name:
 value}, ``validity`` {name: reason or null}, ``contributions`` {term: µm}.
 Non-finite floats are stored as JSON null (read back as NaN).
 
@@ -37,6 +40,17 @@ becomes days × 86400 / period_s rows; ``channel_values`` follows ``samples``.
 No clock decides what is deleted. Table ``meta``
 (key, value) holds ``channels``: a JSON list of every channel name seen.
 
+Files: SQLite opens the database and its ``-wal``, ``-shm`` and ``-journal``
+by name, so the recorder opens their directory first (`StateDir`: created
+0700 with parents 0755; it and its parents owned by root or us and not
+writable by group or others unless sticky) and, before
+SQLite opens them and again before every commit, checks under that
+descriptor that none of the four names is a symbolic link, a hard link
+(st_nlink > 1: SQLite would overwrite the other name's file) or not a
+regular file of ours, and that the path still names the directory it opened.
+Refused at open: RecorderError; refused later: the commit is dropped and
+counted like any failed one (alarm, `last_error` says why).
+
 `read_samples` turns a database into numpy columns for `compd fit` and
 `compd replay`.
 """
@@ -46,6 +60,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import os
 import sqlite3
 from collections.abc import Mapping
 from pathlib import Path
@@ -56,7 +71,7 @@ import numpy.typing as npt
 
 from compd.core.record import RecordRow
 from compd.errors import CompdError
-from compd.runtime.statedir import StateDirError, refuse_link
+from compd.runtime.statedir import StateDir, StateDirError
 
 __all__ = ["FIXED_COLUMNS", "RecordRow", "Recorder", "RecorderError", "read_samples"]
 
@@ -73,7 +88,8 @@ CREATE TABLE IF NOT EXISTS samples (
     channels TEXT NOT NULL,
     validity TEXT NOT NULL,
     contributions TEXT NOT NULL,
-    attempted_um REAL
+    attempted_um REAL,
+    complete INTEGER
 );
 CREATE INDEX IF NOT EXISTS samples_wall_s ON samples (wall_s);
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -101,8 +117,8 @@ CREATE TABLE IF NOT EXISTS probes (
 """
 
 _INSERT = ("INSERT INTO samples (seq, cycle, mono_s, wall_s, offset_um, model_um, state, valid,"
-           " channels, validity, contributions, attempted_um)"
-           " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
+           " channels, validity, contributions, attempted_um, complete)"
+           " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
 
 _INSERT_VALUE = "INSERT INTO channel_values (seq, channel, value, validity) VALUES (?, ?, ?, ?)"
 
@@ -152,7 +168,8 @@ def _tuple(seq: int, row: RecordRow) -> tuple[Any, ...]:
             _json_numbers(row.channels),
             json.dumps({str(k): (None if v is None else str(v))
                         for k, v in row.validity.items()}, separators=(",", ":")),
-            _json_numbers(row.contributions), _num(row.attempted_um))
+            _json_numbers(row.contributions), _num(row.attempted_um),
+            1 if row.complete else 0)
 
 
 def _value_rows(seq: int, row: RecordRow) -> list[tuple[Any, ...]]:
@@ -187,6 +204,7 @@ class Recorder:
         self.last_error: str | None = None
         self.alarm = False
         self._conn: sqlite3.Connection | None = None
+        self._dir: StateDir | None = None
         self._buffer: list[RecordRow] = []
         self._next_seq = 1
         self._channels: list[str] = []
@@ -205,15 +223,21 @@ class Recorder:
         """Open (or create) the database. Raises RecorderError when it cannot."""
         if self._conn is not None:
             return
+        directory: StateDir | None = None
         try:
-            self.path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
-            for suffix in ("", "-wal", "-shm", "-journal"):
-                # SQLite opens these by name: a planted link would be written through
-                refuse_link(self.path.with_name(self.path.name + suffix))
+            directory = StateDir.open(self.path.parent, what="recorder's directory",
+                                      private=False)
+            self._check(directory)
+            # created here 0600 (whatever the umask): SQLite gives -wal and -shm its mode
+            os.close(directory.open_file(self.path.name, os.O_RDWR))
             conn = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
         except StateDirError as exc:
-            raise RecorderError(self.path, f"cannot open: {exc.reason}") from exc
+            if directory is not None:
+                directory.close()
+            raise RecorderError(self.path, f"cannot open: {exc}") from exc
         except (OSError, sqlite3.Error) as exc:
+            if directory is not None:
+                directory.close()
             raise RecorderError(self.path, f"cannot open: {exc}") from exc
         try:
             mode = conn.execute("PRAGMA journal_mode=WAL").fetchone()[0]
@@ -225,14 +249,24 @@ class Recorder:
             columns = {r[1] for r in conn.execute("PRAGMA table_info(samples)")}
             if "attempted_um" not in columns:  # a database of an older compd
                 conn.execute("ALTER TABLE samples ADD COLUMN attempted_um REAL")
+            if "complete" not in columns:  # older rows: NULL (not known)
+                conn.execute("ALTER TABLE samples ADD COLUMN complete INTEGER")
             last = conn.execute("SELECT MAX(seq) FROM samples").fetchone()[0]
             meta = conn.execute("SELECT value FROM meta WHERE key='channels'").fetchone()
+            self._check(directory)  # SQLite has opened its files by now
         except sqlite3.Error as exc:
             conn.close()
+            directory.close()
             raise RecorderError(self.path, f"cannot prepare: {exc}") from exc
+        except StateDirError as exc:
+            conn.close()
+            directory.close()
+            raise RecorderError(self.path, f"cannot open: {exc}") from exc
         except RecorderError:
             conn.close()
+            directory.close()
             raise
+        self._dir = directory
         self._next_seq = (int(last) if last is not None else 0) + 1
         self._channels = list(json.loads(meta[0])) if meta else []
         self._conn = conn
@@ -256,6 +290,11 @@ class Recorder:
         conn = self._conn
         if conn is None:
             self._fail(len(rows), "recorder is not open")
+            return
+        try:
+            self._check(self._dir)
+        except StateDirError as exc:  # a name swapped under us: SQLite must not write
+            self._fail(len(rows), f"refused: {exc}")
             return
         first = self._next_seq
         known = set(self._channels)
@@ -310,6 +349,15 @@ class Recorder:
             self._rollback(conn)
             self.last_error = f"retention: {type(exc).__name__}: {exc}"
 
+    def _check(self, directory: StateDir | None) -> None:
+        """SQLite opens its files by name: refuse links, hard links and a moved
+        directory under those names (StateDirError)."""
+        if directory is None:
+            return
+        name = self.path.name
+        directory.check_names(name + suffix for suffix in ("", "-wal", "-shm", "-journal"))
+        directory.verify()
+
     @staticmethod
     def _rollback(conn: sqlite3.Connection) -> None:
         if conn.in_transaction:
@@ -328,6 +376,9 @@ class Recorder:
         if conn is not None:
             with contextlib.suppress(sqlite3.Error):
                 conn.close()
+        directory, self._dir = self._dir, None
+        if directory is not None:
+            directory.close()
 
     def __enter__(self) -> Recorder:
         self.open()

@@ -24,6 +24,7 @@ from compd.config.loader import LoadedConfig
 from compd.core.cycle import Cycle, CycleParams
 from compd.core.faults import Event
 from compd.runtime.checkpoint import CheckpointError, load_checkpoint
+from compd.runtime.statedir import StateDir
 from models.errors import ModelError
 
 CHECKPOINT_NAME = "checkpoint.json"
@@ -41,13 +42,14 @@ def checkpoint_path(cfg: LoadedConfig) -> Path:
 
 
 def start_cycle(cfg: LoadedConfig, params: CycleParams, *,
-                wall_s: float | None = None) -> Startup:
-    """The cycle to run, and events saying how it was started."""
+                wall_s: float | None = None, directory: StateDir | None = None) -> Startup:
+    """The cycle to run, and events saying how it was started. `directory`: the
+    state directory as the daemon's lock holds it open (the checkpoint is read there)."""
     events: list[Event] = []
     path = checkpoint_path(cfg)
     state: dict[str, Any] | None
     try:
-        state = load_checkpoint(path)
+        state = load_checkpoint(path, directory=directory)
     except CheckpointError as exc:
         events.append(Event("checkpoint_unusable", {"path": str(path), "reason": str(exc)}))
         state = None

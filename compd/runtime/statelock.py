@@ -8,8 +8,11 @@ kill -9, so a crashed daemon never leaves a stale lock behind; the pid written
 into the file only serves the error message. The file is never deleted:
 unlinking a lock file lets two processes lock two different inodes.
 
-The directory is made by `compd.runtime.statedir.prepare_state_dir` (0700,
-ours) and the lock file opened with ``O_NOFOLLOW`` (0600): a link planted at
+The lock opens the directory once (`compd.runtime.statedir.StateDir`: 0700,
+ours, its parents safe from other users) and keeps it open as `directory`:
+the lock file, the checkpoint and its temp file are opened relative to that
+descriptor, so a path swapped while the daemon runs moves nothing it writes.
+The lock file is opened with ``O_NOFOLLOW`` (0600): a link planted at
 ``compd.lock`` is refused, never followed (it once truncated its target).
 """
 
@@ -22,7 +25,7 @@ from pathlib import Path
 from types import TracebackType
 
 from compd.errors import CompdError
-from compd.runtime.statedir import open_private, prepare_state_dir
+from compd.runtime.statedir import StateDir
 
 __all__ = ["LOCK_NAME", "StateLock", "StateLocked"]
 
@@ -59,6 +62,8 @@ class StateLock:
         self.state_dir = Path(state_dir)
         self.path = self.state_dir / LOCK_NAME
         self._fd: int | None = None
+        #: the state directory, open while the lock is held
+        self.directory: StateDir | None = None
 
     @property
     def held(self) -> bool:
@@ -68,16 +73,22 @@ class StateLock:
         """Take the lock or raise StateLocked at once. Idempotent while held."""
         if self._fd is not None:
             return
-        prepare_state_dir(self.state_dir)
-        fd = open_private(self.path, os.O_RDWR)
+        directory = StateDir.open(self.state_dir)
+        try:
+            fd = directory.open_file(LOCK_NAME, os.O_RDWR)
+        except BaseException:
+            directory.close()
+            raise
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             holder = _read_pid(fd)
             os.close(fd)
+            directory.close()
             raise StateLocked(self.state_dir, holder) from None
         except BaseException:
             os.close(fd)
+            directory.close()
             raise
         try:
             os.ftruncate(fd, 0)
@@ -85,15 +96,19 @@ class StateLock:
         except OSError:
             pass  # the pid is only for messages; the flock is what counts
         self._fd = fd
+        self.directory = directory
 
     def release(self) -> None:
         """Drop the lock (closing the descriptor releases the flock). Idempotent."""
         fd, self._fd = self._fd, None
+        directory, self.directory = self.directory, None
         if fd is None:
             return
         with contextlib.suppress(OSError):
             os.ftruncate(fd, 0)
         os.close(fd)
+        if directory is not None:
+            directory.close()
 
     def __enter__(self) -> StateLock:
         self.acquire()

@@ -1,0 +1,92 @@
+"""One definition of a complete cycle (issue 24, item 3): the offset compd
+wants is the offset in force. Valid inputs are not enough: a held output (a
+foreign offset beyond the limit), a write fault, stopped writes or an
+unconfirmed write make a cycle that ran, never one that completed."""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+
+from compd.core.cycle import WRITE_FAULT_AFTER, Cycle, offset_in_force
+from compd.core.faults import FaultState
+
+from .cycle_helpers import FakeClock, params, samples, sp2
+
+
+@pytest.mark.parametrize(("valid", "state", "confirmed"),
+                         list(itertools.product([True, False], list(FaultState), [True, False])))
+def test_only_a_valid_confirmed_ok_cycle_is_complete(valid: bool, state: FaultState,
+                                                     confirmed: bool) -> None:
+    expected = valid and confirmed and state == FaultState.OK
+    assert offset_in_force(valid=valid, state=state, confirmed=confirmed) is expected
+
+
+def _warm(readback: bool = True) -> tuple[Cycle, FakeClock, float]:
+    cycle, clock = Cycle(params(readback=readback), sp2()), FakeClock()
+    controller = cycle.output.current_um
+    for bearing in [20.0] * 30:
+        t = clock.tick()
+        r = cycle.step(t, samples(t, bearing), controller if readback else None)
+        cycle.write_ok()
+        assert r.in_force and r.record.complete
+        controller = r.writes["offset"]
+    return cycle, clock, controller
+
+
+def test_a_held_output_has_valid_cycles_that_are_never_complete() -> None:
+    cycle, clock, _ = _warm()
+    for _ in range(5):
+        t = clock.tick()
+        r = cycle.step(t, samples(t, 20.0), 1000.0)  # a foreign offset beyond the limit
+        cycle.write_ok()  # heartbeat and status did arrive
+        assert r.state == "held" and r.complete  # valid: the heartbeat advances
+        assert not r.in_force and not r.record.complete
+    t = clock.tick()
+    r = cycle.step(t, samples(t, 20.0), 0.0)  # cleared: ramping from 0 again
+    cycle.write_ok()
+    assert r.in_force
+
+
+def test_a_cycle_is_complete_only_once_the_controller_confirmed_it() -> None:
+    cycle, clock, controller = _warm()
+    t = clock.tick()
+    r = cycle.step(t, samples(t, 20.0), controller)
+    assert not r.in_force  # sent, not confirmed yet
+    cycle.write_failed("offset", permanent=False, reason="timeout")
+    assert not r.in_force and not r.record.complete
+    t = clock.tick()
+    r = cycle.step(t, samples(t, 20.0), controller)
+    cycle.write_ok()
+    assert r.in_force
+
+
+def test_a_write_fault_and_stopped_writes_are_not_complete() -> None:
+    cycle, clock, _ = _warm(readback=False)
+    for _ in range(WRITE_FAULT_AFTER + 1):
+        t = clock.tick()
+        r = cycle.step(t, samples(t, 20.0))
+        cycle.write_failed("offset", permanent=False, reason="timeout")
+    t = clock.tick()
+    r = cycle.step(t, samples(t, 20.0))
+    assert r.state == "write_fault"
+    cycle.write_ok()  # the write that ends the fault: its row still says write_fault
+    assert not r.in_force
+    t = clock.tick()
+    r = cycle.step(t, samples(t, 20.0))
+    cycle.write_ok()
+    assert r.state == "ok" and r.in_force
+    cycle.write_failed("offset", permanent=True, reason="refused")
+    t = clock.tick()
+    r = cycle.step(t, samples(t, 20.0))
+    cycle.write_ok()
+    assert r.state == "stopped" and "offset" not in r.writes and not r.in_force
+
+
+def test_invalid_inputs_are_not_complete() -> None:
+    cycle, clock, _ = _warm()
+    t = clock.tick()
+    r = cycle.step(t, None, None)  # the read failed
+    cycle.write_ok()
+    assert r.state == "hold" and not r.in_force
