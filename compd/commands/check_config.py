@@ -12,6 +12,7 @@ import argparse
 import asyncio
 import json
 import math
+import sys
 from typing import Any
 
 from compd.config.loader import LoadedConfig
@@ -20,6 +21,7 @@ from compd.config.urls import redact_urls
 
 def _summary(cfg: LoadedConfig) -> dict[str, Any]:
     from compd.commands.check import describe_model
+    from compd.core.output import count_warnings
 
     raw = cfg.raw
     out: dict[str, Any] = {
@@ -34,7 +36,11 @@ def _summary(cfg: LoadedConfig) -> dict[str, Any]:
         "outputs": {n: a.describe() for n, a in cfg.outputs.items()},
         "output": {"limit_um": raw.output.limit_um, "slew_um_s": raw.output.slew_um_s,
                    "deadband_um": raw.output.deadband_um, "sign": raw.output.sign,
-                   "units_per_um": raw.output.units_per_um, "readback": raw.output.readback},
+                   "units_per_um": raw.output.units_per_um, "readback": raw.output.readback,
+                   "count_um": cfg.offset_quantum_um or None},
+        "warnings": count_warnings(quantum_um=cfg.offset_quantum_um,
+                                   slew_um_s=raw.output.slew_um_s,
+                                   period_s=raw.machine.period_s, limit_um=raw.output.limit_um),
         "model": describe_model(cfg.model),
         "model_sha256": cfg.model_sha256,
     }
@@ -69,6 +75,8 @@ def run(args: argparse.Namespace) -> int:
 def report(cfg: LoadedConfig, args: argparse.Namespace) -> int:
     """Print what `compd check` says of a loaded config (and read it with --connect)."""
     report = _summary(cfg)
+    for warning in report["warnings"]:
+        print(f"compd check: warning: {warning}", file=sys.stderr)
     rc = 0
     if getattr(args, "connect", False):
         values = asyncio.run(_read_once(cfg))
@@ -88,7 +96,8 @@ def report(cfg: LoadedConfig, args: argparse.Namespace) -> int:
     o = report["output"]
     print(f"  output stage: limit ±{o['limit_um']} µm, slew {o['slew_um_s']} µm/s, "
           f"deadband {o['deadband_um']} µm, sign {o['sign']:+d}, "
-          f"{o['units_per_um']} units/µm, read-back {'on' if o['readback'] else 'off'}")
+          f"{o['units_per_um']} units/µm, read-back {'on' if o['readback'] else 'off'}"
+          + (f", one count {o['count_um']:g} µm" if o["count_um"] else ""))
     m = report["model"]
     print(f"  model {m['model']!r}: {len(m['terms'])} term(s), all stable "
           f"({', '.join(t['name'] + ' DC ' + format(t['dc_gain'], '.4g') for t in m['terms'])})")

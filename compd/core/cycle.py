@@ -86,6 +86,7 @@ class CycleParams:
     sign: int = 1
     units_per_um: float = 1.0
     readback: bool = True
+    #: a float offset address's (an integer one: half a count, `OutputStage`)
     readback_tolerance_um: float = 0.01
     #: the offset address's resolution in µm (integer types), 0 for floats
     offset_quantum_um: float = 0.0
@@ -108,7 +109,8 @@ def params_from_config(cfg: LoadedConfig, *, dry_run: bool = False) -> CyclePara
         period_s=raw.machine.period_s, hold_s=raw.faults.hold_s, limit_um=out.limit_um,
         slew_um_s=out.slew_um_s, channels=limits, deadband_um=out.deadband_um, sign=out.sign,
         units_per_um=out.units_per_um, readback=out.readback and not dry_run,
-        readback_tolerance_um=max(0.01, 1.01 * cfg.offset_quantum_um),
+        # float32 rounding; an integer address: half a count (OutputStage.observe)
+        readback_tolerance_um=0.01,
         offset_quantum_um=cfg.offset_quantum_um,
         time_scale=raw.machine.time_scale,
         heartbeat_name="heartbeat" if "heartbeat" in cfg.outputs else None,

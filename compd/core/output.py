@@ -9,13 +9,20 @@ ramping down):
    output leaves it unchanged;
 4. slew limit: the output moves at most slew_um_s·Δt toward the target
    (Δt capped at `max_dt_s`, so a stalled loop never earns a big step);
-5. an integer offset address (``quantum_um`` > 0, e.g. a FOCAS long of
-   0.1 µm) holds only multiples of its quantum: the slew-limited value is
-   kept exactly (so a slew below one quantum per cycle still moves) and the
-   output is the nearest grid point, back toward the previous output by
-   whole quanta when it would step past the slew limit (the controller then
-   holds exactly what the stage believes, and a step at the slew limit
-   stays within it; a single quantum is the least step when R·Δt is below);
+5. an integer offset address (``quantum_um`` > 0: one count of the
+   controller, e.g. an int16 at scale 10 holds 10 µm per count, a FOCAS long
+   at scale 0.1 holds 0.1 µm) holds only whole counts, and the stage writes
+   only whole counts. The slew-limited value of step 4 is
+   kept exactly (the *wanted* value; its sub-count progress is kept, so a
+   slew below one count per cycle still moves), and the count in force
+   changes only when the wanted value is at least one count away from it
+   (hysteresis of one count): it then moves toward the wanted value by
+   whole counts, never past it, by at most ⌊R·Δt / count⌋ counts, and by
+   one count when one count is more than R·Δt (never more per cycle). So
+   a wanted value wobbling within a count (model noise across a rounding
+   threshold) never flips the register, the offset reverses only after the
+   wanted value has come back by a whole count, it stays within one count
+   of the wanted value, on average no faster than R, and within ±limit_um;
 6. sign and unit conversion to controller units: value = sign·scale·µm.
 
 `current_um` is what the controller is believed to hold. After a write the
@@ -26,7 +33,10 @@ faster than the slew limit from what the machine really has.
 Read-back (`observe()`): what the controller holds, against what it last
 confirmed:
 
-- within the read-back tolerance: the stage steps from what it really holds;
+- within the read-back tolerance (an integer offset address: half a count
+  of the count it last confirmed, so the encoding is never taken for a
+  foreign write, and a foreign count is): the stage steps from what it
+  really holds;
 - unknown before (start-up without a checkpoint): adopted, ramps from there;
 - any other value within ±limit_um is *foreign* (a second writer, a
   restarted controller that forgot the offset and reads 0): the shell raises
@@ -87,8 +97,17 @@ def _clamp(x: float, limit: float) -> float:
     return max(-limit, min(limit, x))
 
 
+#: slack on count arithmetic: k counts read back are k·count to a few ulps
+COUNT_SLACK = 1e-9
+
+#: counts either side of 0 an integer address may hold at most (int32; a
+#: quantum so fine that ±limit_um is more counts is taken as no grid at all)
+MAX_COUNTS = 2**31
+
+
 class OutputStage:
-    """Clamp, deadband, slew limit, sign and scale (see module docstring)."""
+    """Clamp, deadband, slew limit, whole counts, sign and scale (see the
+    module docstring)."""
 
     def __init__(self, *, limit_um: float, slew_um_s: float, deadband_um: float = 0.0,
                  sign: int = 1, units_per_um: float = 1.0, max_dt_s: float = math.inf,
@@ -105,9 +124,20 @@ class OutputStage:
         self.sign = sign
         self.units_per_um = units_per_um
         self.max_dt_s = max_dt_s
-        self.quantum_um = quantum_um if math.isfinite(quantum_um) and quantum_um > 0.0 else 0.0
-        self.current_um = self._safe(initial_um)
-        #: the slew-limited value before the grid (quantised outputs only)
+        fine = not (math.isfinite(quantum_um) and quantum_um > 0.0
+                    and limit_um / quantum_um <= MAX_COUNTS)
+        #: one count of an integer offset address in µm; 0: a float address
+        self.quantum_um = 0.0 if fine else quantum_um
+        #: the most counts either side of 0 within ±limit_um (quantised outputs)
+        self._max_count = 0
+        if self.quantum_um:
+            n = math.floor(limit_um / self.quantum_um)
+            while n > 0 and n * self.quantum_um > limit_um:
+                n -= 1
+            self._max_count = n
+        self.current_um = self._on_grid(self._safe(initial_um))
+        #: the slew-limited value before the grid (quantised outputs only): the
+        #: wanted value, within one count of `current_um` after each step
         self._exact_um = self.current_um
         #: the last value the controller confirmed (a successful write or a read-back)
         self.confirmed_um: float | None = None
@@ -118,9 +148,22 @@ class OutputStage:
     def _safe(self, x: float) -> float:
         return _clamp(x, self.limit_um) if math.isfinite(x) else 0.0
 
+    def _count(self, k: int) -> float:
+        """Count `k` in µm, within ±limit_um."""
+        k = max(-self._max_count, min(self._max_count, k))
+        return k * self.quantum_um
+
+    def _on_grid(self, x: float) -> float:
+        """`x` (finite, within the limit) as the nearest whole count (what an
+        integer address holds); unchanged for a float address."""
+        if not self.quantum_um:
+            return x
+        return self._count(round(x / self.quantum_um))
+
     def step(self, target_um: float, dt_s: float, *, deadband: bool = True) -> float:
         """Move toward `target_um`; returns the new output in µm (always finite,
-        within ±limit, within slew·Δt of the previous output). Held: unchanged."""
+        within ±limit, within slew·Δt of the previous output, or one count of
+        it when a count is more). Held: unchanged."""
         if self.held:
             self.slewing = False
             return self.current_um
@@ -131,36 +174,55 @@ class OutputStage:
             target = self.current_um
         dt = min(max(dt_s, 0.0), self.max_dt_s) if math.isfinite(dt_s) else 0.0
         max_step = self.slew_um_s * dt
-        base = self._exact_um if self.quantum_um else self.current_um
-        delta = target - base
+        if self.quantum_um:
+            self.current_um = self._quantise(target, max_step)
+            return self.current_um
+        delta = target - self.current_um
         self.slewing = abs(delta) > max_step
         delta = max(-max_step, min(max_step, delta))
-        new = _clamp(base + delta, self.limit_um)
-        self._exact_um = new
-        if self.quantum_um:
-            new = self._on_grid(new, self.current_um, max_step)
-        self.current_um = new
+        self.current_um = _clamp(self.current_um + delta, self.limit_um)
+        self._exact_um = self.current_um
         return self.current_um
 
-    def _on_grid(self, x: float, prev: float, max_step: float) -> float:
-        """`x` as a multiple of the quantum, within the limit and (when one
-        quantum allows it) within `max_step` of `prev`."""
+    def _quantise(self, target: float, max_step: float) -> float:
+        """The count in force after one step toward `target` (module docstring,
+        step 5): the wanted value moves at most `max_step`; the count follows it
+        with a hysteresis of one count, toward it, never past it, by at most
+        ⌊max_step / count⌋ counts, and one count when a count is more."""
         q = self.quantum_um
-        g = round(x / q) * q
-        if abs(g) > self.limit_um:
-            g -= math.copysign(q, g)
-        d = g - prev
-        if abs(d) > max_step and abs(d) > q:
-            # back toward prev by whole quanta, to within max(max_step, q) of it
-            m = math.ceil((abs(d) - max(max_step, q)) / q - 1e-9)
-            g -= math.copysign(m * q, d)
-        return g
+        held = self.current_um
+        exact = self._exact_um
+        delta = target - exact
+        behind = abs(delta) > max_step
+        exact = _clamp(exact + max(-max_step, min(max_step, delta)), self.limit_um)
+        new = held
+        if max_step > 0.0 and abs(exact - held) >= q * (1.0 - COUNT_SLACK):
+            k_held = round(held / q)
+            most = max(1, math.floor(min(max_step / q, MAX_COUNTS) + COUNT_SLACK))
+            if exact > held:
+                k = min(math.floor(exact / q + COUNT_SLACK), k_held + most)
+            else:
+                k = max(math.ceil(exact / q - COUNT_SLACK), k_held - most)
+            new = self._count(k)
+        # the count could not keep up (more than one count left): still slewing
+        self.slewing = behind or abs(exact - new) > q * (1.0 + COUNT_SLACK)
+        # the wanted value stays within one count of the count in force, so
+        # that a reversal of the target turns the count within one count
+        self._exact_um = max(new - q, min(new + q, exact))
+        return new
 
     def to_controller(self, um: float) -> float:
         return self.sign * self.units_per_um * um
 
     def from_controller(self, value: float) -> float:
         return value / (self.sign * self.units_per_um)
+
+    def readback_tolerance_um(self, float_tolerance_um: float) -> float:
+        """How far a read-back may be from the confirmed value and still be
+        it: half a count for an integer address (it holds whole counts, so
+        any other count is foreign), else `float_tolerance_um` (float32
+        rounding of what was written)."""
+        return 0.5 * self.quantum_um if self.quantum_um else float_tolerance_um
 
     def confirm(self) -> None:
         """The controller accepted the last output."""
@@ -176,19 +238,21 @@ class OutputStage:
         """The controller holds `um`, a hair from what we wrote (its encoding,
         within the read-back tolerance): step from what it really holds,
         keeping any sub-quantum progress of the exact value."""
-        um = self._safe(um)
+        um = self._on_grid(self._safe(um))
         self._exact_um += um - self.current_um
         self.current_um = um
         self.confirmed_um = um
 
     def observe(self, um: float, tolerance_um: float) -> Readback:
-        """The controller holds `um` (read back, µm): see the module docstring."""
+        """The controller holds `um` (read back, µm): see the module docstring.
+        `tolerance_um` is a float address's (`readback_tolerance_um`)."""
         if not math.isfinite(um) or abs(um) > self.limit_um * (1.0 + LIMIT_ROUNDING):
             self.held = True
             return Readback.OUT_OF_RANGE
         self.held = False
         confirmed = self.confirmed_um
-        if confirmed is not None and abs(um - confirmed) <= tolerance_um:
+        tolerance = self.readback_tolerance_um(tolerance_um)
+        if confirmed is not None and abs(um - confirmed) <= tolerance:
             if um != confirmed:
                 # not a mismatch, but the next step is measured from what the
                 # machine has, so the slew limit holds against it
@@ -199,6 +263,33 @@ class OutputStage:
 
     def adopt(self, um: float) -> None:
         """The controller holds `um` (read back): ramp from there."""
-        self.current_um = self._safe(um)
+        self.current_um = self._on_grid(self._safe(um))
         self._exact_um = self.current_um
         self.confirmed_um = self.current_um
+
+
+def count_warnings(*, quantum_um: float, slew_um_s: float, period_s: float,
+                   limit_um: float) -> list[str]:
+    """What `compd check` warns of an integer offset address whose count
+    (`quantum_um`, µm) is coarse against the output stage: more than the slew
+    limit allows per period, or more than the limit itself (none for a float
+    address, quantum 0)."""
+    if not (math.isfinite(quantum_um) and quantum_um > 0.0):
+        return []
+    q, per_cycle = quantum_um, slew_um_s * period_s
+    found: list[str] = []
+    if q > limit_um:
+        found.append(f"output.offset: one count of the offset address is {q:g} µm, more "
+                     f"than limit_um ({limit_um:g} µm): the only offset it can hold within "
+                     "the limit is 0, so compd will never compensate; use a finer encoding "
+                     "(a smaller scale, or a float type)")
+    elif q > per_cycle:
+        found.append(f"output.offset: one count of the offset address is {q:g} µm, more "
+                     f"than the slew limit allows per period ({slew_um_s:g} µm/s × "
+                     f"{period_s:g} s = {per_cycle:g} µm): the offset will move in steps of "
+                     f"one count ({q:g} µm at the tool, {q / per_cycle:.3g}× the slew step), "
+                     "at most one count per cycle and on average no faster than the slew "
+                     "limit; a new count is written only when the model is a whole count "
+                     f"from the one in force (within {q:g} µm of the model); use a finer encoding "
+                     "(a smaller scale, or a float type) for a smoother offset")
+    return found
