@@ -312,7 +312,10 @@ class Daemon:
         broken = False
         while True:
             if self._pending is not None and shutdown_cycles_left is None:
-                await self._swap()  # between two cycles: the reloaded config
+                try:
+                    await self._swap()  # between two cycles: the reloaded config
+                except Exception as exc:  # after the handover (reopening a sink): go on
+                    self._cycle_error("reload", exc)
             driver, cycle = self._driver, self.cycle
             assert driver is not None and cycle is not None
             started = self.clock()

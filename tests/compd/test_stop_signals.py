@@ -20,10 +20,12 @@ from compd.config.loader import load_config
 from compd.runtime import signals
 from compd.runtime.checkpoint import load_checkpoint
 from compd.runtime.daemon import Daemon
+from compd.runtime.fleet import Fleet, load_machines
 from compd.runtime.sdnotify import Notifier
 from drivers.sim.modbus_server import ModbusSimController
 
 from .daemon_helpers import until, write_config
+from .test_run_dir import _complete, _machines_dir, sims  # noqa: F401 - the fixture
 from .test_run_restart import _Recorded, _start, _until, rec  # noqa: F401 - the fixture
 
 #: the issue's list, and the two SIGTERM always stopped on
@@ -126,3 +128,23 @@ async def test_a_real_daemon_stops_on_it_with_its_shutdown_policy(
         assert max(steps) <= 2 * 1.0 + 1e-3
     else:
         assert held >= 8.0  # held where it was
+
+
+async def test_run_dir_stops_every_machine_on_sigxcpu(
+        sims: list[ModbusSimController], tmp_path: Path) -> None:  # noqa: F811
+    """`compd run DIR` installed only TERM, INT and HUP: XCPU ended every machine at once."""
+    fleet = Fleet(load_machines(_machines_dir(tmp_path, sims)), notifier=Notifier(None))
+    with structlog.testing.capture_logs() as logs:
+        task = asyncio.get_running_loop().create_task(fleet.run())
+        await until(lambda: min(_complete(fleet).values()) >= 3)
+        assert _installed(signal.SIGXCPU) and _installed(signal.SIGUSR1)
+        os.kill(os.getpid(), signal.SIGUSR1)  # logged, nothing else
+        os.kill(os.getpid(), signal.SIGXCPU)
+        assert await asyncio.wait_for(task, 20.0) == 0
+    assert [e["signal"] for e in logs if e["event"] == "signal_received"] == ["SIGXCPU"]
+    assert [e["signal"] for e in logs if e["event"] == "signal_ignored"] == ["SIGUSR1"]
+    stopped = [e for e in logs if e["event"] == "daemon_stopped"]
+    assert len(stopped) == len(sims) and {e["signal"] for e in stopped} == {"SIGXCPU"}
+    for name in _complete(fleet):
+        assert load_checkpoint(tmp_path / "machines.d" / f"state-{name}" /
+                               "checkpoint.json") is not None
