@@ -222,7 +222,7 @@ class Adapter:
         """Let dt_s seconds pass (lazy: Q is added to P when it is next needed)."""
         if not 0.0 <= dt_s < math.inf:
             raise ValueError(f"dt_s: must be a finite duration >= 0 s, got {dt_s!r}")
-        self._pending_s = min(self._pending_s + dt_s, _MAX_PENDING_S)
+        self._pending_s += dt_s  # capped where it is used (one addition per sample)
 
     # -- reading -------------------------------------------------------------------------------
 
@@ -258,7 +258,7 @@ class Adapter:
     def _covariance(self) -> FloatArray:
         if self._pending_s == 0.0:
             return self._p
-        p = self._p + np.diag(self._q * self._pending_s)
+        p = self._p + np.diag(self._q * min(self._pending_s, _MAX_PENDING_S))
         d = np.diag(p)
         over = d > self._cap
         if np.any(over):
@@ -368,7 +368,7 @@ class Adapter:
             "x": [float(v) for v in self._x],
             "applied": [float(v) for v in self._xa],
             "P": [[float(v) for v in row] for row in self._p],
-            "pending_s": self._pending_s,
+            "pending_s": min(self._pending_s, _MAX_PENDING_S),
             "accepted": self.accepted,
             "refused": self.refused,
             "applied_moves": self.applied_moves,
