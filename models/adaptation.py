@@ -61,6 +61,12 @@ correction stays put until the probes show a real mismatch
 (benchmarks/bench_adaptation.py, docs/adaptation.md §5). apply_sigma = 0
 applies every accepted probe's estimate (the filter as it is).
 
+Numerical domain (`DOMAIN`, `MAX_INPUT_UM`): every setting has a finite range
+(wider than a machine tool makes sensible; the daemon's config bounds them by
+their physics) and a probe value, model output or term beyond ±1 m is refused
+("fault"). Within it every product the filter forms is finite: no
+OverflowError, no NaN, for any finite input to `update` or any restored state.
+
 A real, sudden change larger than the gate is refused like an outlier: the
 refused counter says so, and re-calibration is the answer, not the filter.
 
@@ -87,6 +93,30 @@ STATE_VERSION = 2
 #: layouts `Adapter.from_state` reads (version 1 had no applied state: it was x)
 _READABLE_VERSIONS = (1, 2)
 _SECONDS_PER_HOUR = 3600.0
+
+#: The estimator's numerical domain: each setting's (low, low excluded, high). Within it
+#: every quantity the filter forms stays finite (P ≤ max_total² ≤ 1e12 µm², R ≥ 1e-12 µm²),
+#: so no OverflowError, ZeroDivisionError or NaN can come out of `update`. It is wider than
+#: what a machine tool makes sensible (the daemon's config, `compd.config.schema`, bounds
+#: each setting tighter, by its physics): 1e6 µm is a metre, 1e3 a gain of 1000×.
+DOMAIN: dict[str, tuple[float, float]] = {  # (low, high); _POSITIVE ones must be > 0 too
+    "bias_rw_um_per_sqrt_h": (0.0, 1e6),
+    "probe_noise_um": (1e-6, 1e6),
+    "gate_sigma": (0.0, 1e6),
+    "max_step_um": (1e-6, 1e6),
+    "max_total_um": (1e-6, 1e6),
+    "gain_rw_per_sqrt_h": (0.0, 1e3),
+    "max_gain": (0.0, 1e3),
+    "initial_bias_sigma_um": (0.0, 1e6),
+    "initial_gain_sigma": (0.0, 1e3),
+    "apply_sigma": (0.0, 1e6),
+}
+_POSITIVE = ("probe_noise_um", "gate_sigma", "max_step_um", "max_total_um")
+#: a probe value, model output or term beyond ±1 m is no thermal displacement: refused
+#: ("fault"), never weighed (and the products the filter forms stay finite)
+MAX_INPUT_UM = 1e6
+#: the pending random walk is counted up to ~32,000 years (the variance is capped long before)
+_MAX_PENDING_S = 1e12
 
 
 @dataclass(frozen=True)
@@ -118,19 +148,21 @@ class AdaptationParams:
     def problems(self) -> dict[str, str]:
         """Each bad field and why (empty when all are good): for a config's messages."""
         out: dict[str, str] = {}
-        positive = ("probe_noise_um", "gate_sigma", "max_step_um", "max_total_um")
         for f in fields(self):
             v = getattr(self, f.name)
             if f.name == "gains":
                 if not isinstance(v, bool):
                     out[f.name] = f"must be true or false, got {v!r}"
                 continue
+            lo, hi = DOMAIN[f.name]
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
                 out[f.name] = f"must be a finite number, got {v!r}"
-            elif f.name in positive and v <= 0:
+            elif f.name in _POSITIVE and v <= 0:
                 out[f.name] = f"must be > 0, got {v!r}"
-            elif v < 0:
-                out[f.name] = f"must be >= 0, got {v!r}"
+            elif v < lo:
+                out[f.name] = f"must be >= {lo:g}, got {v!r}"
+            elif v > hi:
+                out[f.name] = f"must be <= {hi:g}, got {v!r}"
         if not out and self.gains and self.max_gain <= 0:
             out["max_gain"] = "must be > 0 when gains are estimated"
         return out
@@ -160,13 +192,14 @@ class Adapter:
         self.n_terms = n_terms
         n = 1 + (n_terms if params.gains else 0)
         self._x: FloatArray = np.zeros(n)
-        self._p: FloatArray = np.diag(
-            [params.initial_bias_sigma_um ** 2] + [params.initial_gain_sigma ** 2] * (n - 1))
-        self._q: FloatArray = np.array(
-            [params.bias_rw_um_per_sqrt_h ** 2 / _SECONDS_PER_HOUR]
-            + [params.gain_rw_per_sqrt_h ** 2 / _SECONDS_PER_HOUR] * (n - 1))
         self._cap: FloatArray = np.array(
-            [params.max_total_um ** 2] + [params.max_gain ** 2] * (n - 1))
+            [_sq(params.max_total_um)] + [_sq(params.max_gain)] * (n - 1))
+        self._p: FloatArray = np.diag(np.minimum(
+            [_sq(params.initial_bias_sigma_um)] + [_sq(params.initial_gain_sigma)] * (n - 1),
+            self._cap))
+        self._q: FloatArray = np.array(
+            [_sq(params.bias_rw_um_per_sqrt_h) / _SECONDS_PER_HOUR]
+            + [_sq(params.gain_rw_per_sqrt_h) / _SECONDS_PER_HOUR] * (n - 1))
         self._xa: FloatArray = np.zeros(n)  # the applied state (see apply_sigma)
         self._pending_s = 0.0
         self.accepted = 0
@@ -189,7 +222,7 @@ class Adapter:
         """Let dt_s seconds pass (lazy: Q is added to P when it is next needed)."""
         if not 0.0 <= dt_s < math.inf:
             raise ValueError(f"dt_s: must be a finite duration >= 0 s, got {dt_s!r}")
-        self._pending_s += dt_s
+        self._pending_s += dt_s  # capped where it is used (one addition per sample)
 
     # -- reading -------------------------------------------------------------------------------
 
@@ -216,7 +249,7 @@ class Adapter:
     @property
     def bias_sigma_um(self) -> float:
         """σ of the bias now (the pending random walk included)."""
-        return math.sqrt(float(self._covariance()[0, 0]))
+        return math.sqrt(max(0.0, float(self._covariance()[0, 0])))
 
     def covariance(self) -> FloatArray:
         """A copy of P now (the pending random walk included)."""
@@ -225,10 +258,12 @@ class Adapter:
     def _covariance(self) -> FloatArray:
         if self._pending_s == 0.0:
             return self._p
-        p = self._p + np.diag(self._q * self._pending_s)
+        p = self._p + np.diag(self._q * min(self._pending_s, _MAX_PENDING_S))
         d = np.diag(p)
-        if np.any(d > self._cap):
-            s = np.sqrt(self._cap / np.maximum(d, self._cap))  # 1 where d <= cap (d may be 0)
+        over = d > self._cap
+        if np.any(over):
+            s = np.ones_like(d)
+            s[over] = np.sqrt(self._cap[over] / d[over])  # d > cap >= 0 there
             p = p * np.outer(s, s)
         return (p + p.T) * 0.5
 
@@ -245,11 +280,11 @@ class Adapter:
                terms_um: Sequence[float]) -> ProbeOutcome:
         """Weigh one probe: gate, bounded step, Joseph-form covariance update."""
         h = self._h(terms_um)
-        if not (math.isfinite(measured_um) and math.isfinite(model_um)
-                and bool(np.all(np.isfinite(h)))):
+        if not (_physical(measured_um) and _physical(model_um)
+                and bool(np.all(np.abs(h) <= MAX_INPUT_UM))):  # NaN compares False
             return self.refuse("fault", measured_um, model_um, terms_um)
         p = self._covariance()
-        r = self.params.probe_noise_um ** 2
+        r = _sq(self.params.probe_noise_um)
         y = measured_um - (model_um + float(h @ self._x))
         ph = p @ h
         s = float(h @ ph) + r
@@ -314,9 +349,11 @@ class Adapter:
             h = self._h(terms_um)
         except ValueError:
             h = np.full(len(self._x), math.nan)
-        if math.isfinite(measured_um) and math.isfinite(model_um) and np.all(np.isfinite(h)):
+        if _physical(measured_um) and _physical(model_um) \
+                and bool(np.all(np.abs(h) <= MAX_INPUT_UM)):
             y = measured_um - (model_um + float(h @ self._x))
-            sigma = math.sqrt(float(h @ self._covariance() @ h) + self.params.probe_noise_um ** 2)
+            sigma = math.sqrt(max(0.0, float(h @ self._covariance() @ h))
+                              + _sq(self.params.probe_noise_um))
         return ProbeOutcome(False, reason, y, sigma, self._bias, self.bias_sigma_um,
                             False, float(self._x[0]))
 
@@ -331,7 +368,7 @@ class Adapter:
             "x": [float(v) for v in self._x],
             "applied": [float(v) for v in self._xa],
             "P": [[float(v) for v in row] for row in self._p],
-            "pending_s": self._pending_s,
+            "pending_s": min(self._pending_s, _MAX_PENDING_S),
             "accepted": self.accepted,
             "refused": self.refused,
             "applied_moves": self.applied_moves,
@@ -357,11 +394,18 @@ class Adapter:
         xa = x if version == 1 else _floats(state.get("applied"), "applied", (n,))
         p = _floats(state.get("P"), "P", (n, n))
         pending = _floats(state.get("pending_s"), "pending_s", ())
+        if float(np.max(np.abs(p))) > float(np.max(out._cap)) * (1 + 1e-9):
+            raise ValueError("adaptation state: P beyond the variances the settings allow")
         _check_covariance(p)
         box = np.sqrt(out._cap)
         if (np.any(np.abs(x) > box * (1 + 1e-12)) or np.any(np.abs(xa) > box * (1 + 1e-12))
-                or float(pending) < 0):
-            raise ValueError("adaptation state: x or applied beyond its bounds or pending_s < 0")
+                or not 0.0 <= float(pending) <= _MAX_PENDING_S):
+            raise ValueError("adaptation state: x or applied beyond its bounds or pending_s "
+                             f"not within 0 ... {_MAX_PENDING_S:g} s")
+        # P within its caps (the off-diagonals by Cauchy-Schwarz): every product the
+        # filter forms from it stays finite
+        if np.any(np.abs(p) > np.sqrt(np.outer(out._cap, out._cap)) * (1 + 1e-9)):
+            raise ValueError("adaptation state: P beyond the variances the settings allow")
         counts = [state.get("accepted"), state.get("refused"), state.get("applied_moves", 0)]
         if any(isinstance(c, bool) or not isinstance(c, int) or c < 0 for c in counts):
             raise ValueError("adaptation state: accepted/refused/applied_moves must be "
@@ -372,6 +416,16 @@ class Adapter:
         out._set_applied(xa)
         out.accepted, out.refused, out.applied_moves = (int(c) for c in counts)
         return out
+
+
+def _sq(v: float) -> float:
+    """v² as a float product (inf beyond the float range, where ** raises OverflowError)."""
+    return v * v
+
+
+def _physical(v: float) -> bool:
+    """Finite and within ±MAX_INPUT_UM (NaN is not)."""
+    return -MAX_INPUT_UM <= v <= MAX_INPUT_UM
 
 
 def _numbers_only(value: Any) -> bool:
@@ -395,5 +449,6 @@ def _floats(value: Any, key: str, shape: tuple[int, ...]) -> FloatArray:
 def _check_covariance(p: FloatArray) -> None:
     if not np.allclose(p, p.T, rtol=1e-9, atol=1e-12):
         raise ValueError("adaptation state: P is not symmetric")
-    if float(np.min(np.linalg.eigvalsh(p))) < -1e-9 * max(1.0, float(np.max(np.abs(p)))):
+    top = max(1.0, float(np.max(np.abs(p))))  # scaled: eigvalsh of 1e300s overflows
+    if float(np.min(np.linalg.eigvalsh(p / top))) < -1e-9:
         raise ValueError("adaptation state: P is not positive semi-definite")

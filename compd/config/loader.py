@@ -294,6 +294,13 @@ def _adaptation(raw: DaemonConfig, channels: dict[str, Address]
         if name in channels:
             raise ConfigError(f"channels.{name}", "this name is reserved for the probe")
         probes[name] = _validate_address(raw.controller.protocol, doc, f"adaptation.{key}")
+    limit = raw.output.limit_um
+    for key in ("max_step_um", "max_total_um"):
+        value = getattr(a, key)
+        if value is not None and value > limit:
+            raise ConfigError(f"adaptation.{key}", f"{value:g} µm is beyond output.limit_um "
+                              f"({limit:g} µm): the output stage clamps there, a larger "
+                              "bound only hides a runaway estimate")
     try:
         params = AdaptationParams(**a.estimator_settings())
     except (ValueError, TypeError) as exc:  # "name: why; …" (AdaptationParams.problems)

@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import (
+    AfterValidator,
     BaseModel,
     ConfigDict,
     Field,
@@ -242,6 +243,56 @@ class ChannelSection(_Section):
         return v
 
 
+def _field(lo: float, hi: float, why: str) -> Any:
+    """A finite float's Field: its range in the JSON schema (`compd schema`), `why` as
+    the description."""
+    return Field(allow_inf_nan=False, description=why,
+                 json_schema_extra={"minimum": lo, "maximum": hi})
+
+
+def _within(lo: float, hi: float, unit: str, why: str) -> AfterValidator:
+    """Refuse a value outside [lo, hi] with the range and the reason."""
+    def check(v: float) -> float:
+        if not lo <= v <= hi:
+            raise ValueError(f"must be within {lo:g} ... {hi:g}{unit}, got {v:g} ({why})")
+        return v
+
+    return AfterValidator(check)
+
+
+#: [adaptation]'s physical bounds. The estimator (models.adaptation.DOMAIN) stays finite
+#: far beyond them; these are what a machine tool makes sensible, and a value outside is a
+#: typo or an attack, refused by name at check, run and reload alike. The reasons:
+_WHY_BIAS_RW = ("the model's error wanders some 0.1 ... 2 µm/√h on a machine; beyond "
+                "100 µm/√h is more than a machine's whole thermal growth in an hour")
+_WHY_PROBE_NOISE = ("a touch probe repeats within 1 µm, a tool setter within a few: no "
+                    "probe repeats better than 10 nm, and one scattering over 100 µm "
+                    "measures nothing a thermal correction can use")
+_WHY_GATE = ("below 1 σ the gate refuses a third of the good probes; no good probe "
+             "reaches 10 σ (p ≈ 1e-23), a wider gate only lets chips and wrong tools in")
+_WHY_CORRECTION = ("1 nm ... 10 mm and at most output.limit_um: the output stage clamps "
+                   "there, a larger bound only hides a runaway estimate")
+_WHY_GAIN_RW = ("a term's gain that may wander by its whole size within an hour is not "
+                "a slow drift but a wrong model")
+_WHY_MAX_GAIN = ("a relative gain correction of ±1 removes or doubles a term: beyond "
+                 "that the model is wrong, recalibrate")
+BiasRw = Annotated[float, _field(0.0, 100.0, _WHY_BIAS_RW),
+                   _within(0.0, 100.0, " µm/√h", _WHY_BIAS_RW)]
+ProbeNoise = Annotated[float, _field(0.01, 100.0, _WHY_PROBE_NOISE),
+                       _within(0.01, 100.0, " µm", _WHY_PROBE_NOISE)]
+GateSigma = Annotated[float, _field(1.0, 10.0, _WHY_GATE),
+                      _within(1.0, 10.0, " σ", _WHY_GATE)]
+Correction = Annotated[float, _field(0.001, 10000.0, _WHY_CORRECTION),
+                       _within(0.001, 10000.0, " µm", _WHY_CORRECTION)]
+GainRw = Annotated[float, _field(0.0, 1.0, _WHY_GAIN_RW),
+                   _within(0.0, 1.0, " per √h", _WHY_GAIN_RW)]
+MaxGain = Annotated[float, _field(0.0, 1.0, _WHY_MAX_GAIN),
+                    _within(0.0, 1.0, "", _WHY_MAX_GAIN)]
+#: µm per unit of an input: one unit never warrants more than the largest output.limit_um
+_WHY_DC_GAIN = ("one unit of an input never warrants more than the largest "
+                "output.limit_um, 10 mm")
+
+
 class ModelSection(_Section):
     #: a model file (relative to the config file) or a bundled model name (e.g. "sp2")
     file: str | None = None
@@ -251,8 +302,10 @@ class ModelSection(_Section):
     period_s: PeriodS | None = None
     #: a candidate model evaluated beside the live one, logged and recorded, never written
     shadow: str | None = None
-    #: refuse a model whose DC gain exceeds this (µm per unit of an input; models.sanity)
-    max_dc_gain_um: PositiveS = 1000.0
+    #: refuse a model whose DC gain exceeds this (µm per unit of an input; models.sanity):
+    #: at most 10 mm, the largest output.limit_um (one unit of an input never warrants more)
+    max_dc_gain_um: Annotated[float, Field(gt=0.0), _field(0.0, 10000.0, _WHY_DC_GAIN),
+                              _within(0.0, 10000.0, " µm per unit", _WHY_DC_GAIN)] = 1000.0
     #: refuse a model whose slowest time constant exceeds this (models.sanity)
     max_time_constant_s: PositiveS = 7 * 86400.0
 
@@ -423,7 +476,9 @@ class FacesSection(_Section):
 class AdaptationSection(_Section):
     """``[adaptation]``: learn from the machine's probe measurements
     (`compd.core.adaptation`; the estimator's settings default to
-    `models.adaptation.AdaptationParams`)."""
+    `models.adaptation.AdaptationParams`). Every numeric setting has a physical
+    bound (above); `max_step_um` and `max_total_um` are also at most
+    `output.limit_um` (the loader)."""
 
     enabled: bool = False
     #: "shadow": estimated and recorded, not applied; "apply": added to the model output
@@ -435,14 +490,14 @@ class AdaptationSection(_Section):
     probe_value: dict[str, Any] | None = None
     #: controller address of a counter (or timestamp) that changes with each measurement
     probe_counter: dict[str, Any] | None = None
-    bias_rw_um_per_sqrt_h: float | None = None
-    probe_noise_um: float | None = None
-    gate_sigma: float | None = None
-    max_step_um: float | None = None
-    max_total_um: float | None = None
+    bias_rw_um_per_sqrt_h: BiasRw | None = None
+    probe_noise_um: ProbeNoise | None = None
+    gate_sigma: GateSigma | None = None
+    max_step_um: Correction | None = None
+    max_total_um: Correction | None = None
     gains: bool | None = None
-    gain_rw_per_sqrt_h: float | None = None
-    max_gain: float | None = None
+    gain_rw_per_sqrt_h: GainRw | None = None
+    max_gain: MaxGain | None = None
 
     def estimator_settings(self) -> dict[str, Any]:
         """The estimator settings given (the others keep their defaults)."""

@@ -324,7 +324,6 @@ class Cycle:
         events, self._later = self._later, []
         status = Status(0)
         dt = p.period_s if self._last_now is None else now_s - self._last_now
-        self._last_now = now_s
 
         if readback_offset_um is not None:
             status |= self._readback(readback_offset_um, events)
@@ -356,6 +355,9 @@ class Cycle:
         if self.operator_hold and decision.state == FaultState.OK:
             target = self.output.current_um
         offset_um = self.output.step(target, dt, deadband=decision.state == FaultState.OK)
+        # only once the stage has moved: a step that raised before this (the shell then
+        # steps again as a failed read) leaves the interval to that step, so a hold still ramps
+        self._last_now = now_s
 
         if valid:
             self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO

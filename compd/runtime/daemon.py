@@ -18,16 +18,29 @@ validated in a worker thread while the loop keeps cycling, then swapped in
 between two cycles (``reload_succeeded``); a changed endpoint or address gets
 a new driver, connected before the swap; a file that does not validate, or a
 change that needs a restart, leaves the old config running (``reload_failed``
-with the key and the reason). SIGUSR1, SIGUSR2 (whose default action ends a
-process at once, with no checkpoint and no shutdown policy) are logged
-(``signal_ignored``) and otherwise ignored. A metrics port that cannot be bound is logged
+with the key and the reason); so does any exception while the new cycle is
+built. SIGUSR1, SIGUSR2, SIGXFSZ (whose default action ends a process at once,
+with no checkpoint and no shutdown policy) are logged (``signal_ignored``) and
+otherwise ignored (`compd.runtime.signals`). A metrics port that cannot be bound is logged
 (``metrics_unavailable``); compensation runs without the endpoint. With
 ``[faces.http]`` the same server answers the operator page: the loop publishes
 a snapshot per cycle (`compd.faces.status`), the HTTP threads only read it.
 
-SIGTERM/SIGINT: the current cycle finishes, then the shutdown policy: "hold"
-leaves the offset where it is, "ramp_to_zero" keeps cycling the ramp until
-the offset is 0; a checkpoint is written and `run()` returns 0.
+SIGTERM/SIGINT, and every other signal whose default would end the process
+(SIGALRM, SIGXCPU, SIGPWR, ...: `compd.runtime.signals`): the current cycle
+finishes, then the shutdown policy: "hold" leaves the offset where it is,
+"ramp_to_zero" keeps cycling the ramp until the offset is 0; a checkpoint is
+written and `run()` returns 0. The signal is named in the log.
+
+An exception where none is expected never ends the loop with the offset frozen:
+one in a sink (recorder, telemetry, the faces) is logged (``cycle_error``,
+rate-limited) and the cycle goes on; one from the driver's write is a failed
+write; one from the cycle itself is logged and the cycle is stepped again as
+a failed read, so the fault policy holds and then ramps. When that too raises,
+or the driver's read raises something no driver should (a bug: only a fresh
+driver mends it), the cycle is broken (``cycle_broken``): the shutdown policy
+is tried, a checkpoint written, and `run()` returns EX_SOFTWARE (70; systemd,
+or `compd run DIR`'s supervisor, restarts it).
 """
 
 from __future__ import annotations
@@ -35,7 +48,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
-import functools
 import math
 import signal
 import time
@@ -52,6 +64,7 @@ from compd.core.faults import GAUGE_ALARM, Event
 from compd.core.schedule import Schedule, shutdown_ramp_cycles
 from compd.faces.status import StatusBoard
 from compd.faces.telemetry import Metrics, WSGIApp
+from compd.runtime import signals
 from compd.runtime.gcfreeze import freeze_long_lived
 from compd.runtime.heap import pin_mmap_threshold
 from compd.runtime.liveness import boot_id
@@ -59,6 +72,7 @@ from compd.runtime.reload import Changes
 from compd.runtime.repeats import RepeatLimiter
 from compd.runtime.sdnotify import Notifier
 from compd.runtime.startup import checkpoint_path, start_cycle
+from compd.sysexits import EX_SOFTWARE
 from drivers.base import Driver, Quality, Sample
 from drivers.errors import DriverError, WriteRejected
 
@@ -98,6 +112,12 @@ class Daemon:
         self._recorder_alarm = False
         self._lock: Any = None
         self._write_failures = RepeatLimiter("write_failed")
+        #: a probe counter stepping every cycle with every probe refused: once, then summaries
+        self._probe_refusals = RepeatLimiter("probe_refused")
+        #: exceptions where none is expected, per stage of the cycle (once, then summaries)
+        self._cycle_errors: dict[str, RepeatLimiter] = {}
+        #: the signal that asked us to stop (None: request_stop() called directly)
+        self.stop_signal: str | None = None
         #: (wall, monotonic) time of the last complete cycle: the health evidence
         self._last_complete: tuple[float, float] | None = None
         #: whether the last checkpoint said alarm (`compd health --state-dir` reads it)
@@ -118,7 +138,12 @@ class Daemon:
 
     # -- public --------------------------------------------------------------------
 
-    def request_stop(self) -> None:
+    def request_stop(self, sig: signal.Signals | None = None) -> None:
+        """SIGTERM and the other stop signals (`compd.runtime.signals`); None: a caller."""
+        if sig is not None:
+            self.stop_signal = sig.name
+            level = "info" if sig in (signal.SIGTERM, signal.SIGINT) else "warning"
+            getattr(self.log, level)("signal_received", signal=sig.name, action="stop")
         self.stop_requested.set()
 
     def request_reload(self) -> None:
@@ -131,7 +156,7 @@ class Daemon:
         self.log.info("reload_requested", config=str(self.cfg.path))
         self._reload_task = asyncio.get_running_loop().create_task(self._prepare_reload())
 
-    def _signal_ignored(self, sig: signal.Signals) -> None:
+    def signal_ignored(self, sig: signal.Signals) -> None:
         self.log.warning("signal_ignored", signal=sig.name,
                          reason="SIGHUP reloads, SIGTERM stops compd cleanly")
 
@@ -139,25 +164,13 @@ class Daemon:
         """Run until stopped (or one cycle with `once`); returns the exit status."""
         pin_mmap_threshold()  # months of cycles must not fragment the C heap (compd.runtime.heap)
         loop = asyncio.get_running_loop()
-        installed = []
-        handlers: dict[signal.Signals, Callable[[], None]] = {
-            signal.SIGTERM: self.request_stop, signal.SIGINT: self.request_stop,
-            signal.SIGHUP: self.request_reload}
-        for ignored in (signal.SIGUSR1, signal.SIGUSR2):
-            # their default action ends the process at once: no shutdown policy, no
-            # checkpoint. They are logged and otherwise ignored.
-            handlers[ignored] = functools.partial(self._signal_ignored, ignored)
-        for sig, handler in handlers.items():
-            try:
-                loop.add_signal_handler(sig, handler)
-                installed.append(sig)
-            except (RuntimeError, ValueError, NotImplementedError):
-                pass  # not the main thread: the caller stops us with request_stop()
+        # not the main thread: none installed, the caller stops us with request_stop()
+        installed = signals.install(loop, stop=self.request_stop, reload=self.request_reload,
+                                    ignored=self.signal_ignored)
         try:
             return await self._run()
         finally:
-            for sig in installed:
-                loop.remove_signal_handler(sig)
+            signals.remove(loop, installed)
 
     # -- the loop ------------------------------------------------------------------------
 
@@ -298,14 +311,42 @@ class Daemon:
         schedule = Schedule(self.cfg.real_period_s, self.clock(),
                             time_scale=self.cfg.raw.machine.time_scale)
         shutdown_cycles_left: int | None = None
+        broken = False
         while True:
             if self._pending is not None and shutdown_cycles_left is None:
-                await self._swap()  # between two cycles: the reloaded config
+                try:
+                    await self._swap()  # between two cycles: the reloaded config
+                except Exception as exc:  # after the handover (reopening a sink): go on
+                    self._cycle_error("reload", exc)
             driver, cycle = self._driver, self.cycle
             assert driver is not None and cycle is not None
             started = self.clock()
             now_s = schedule.machine_s(started)
-            result = await self._one_cycle(driver, cycle, now_s)
+            try:
+                result = await self._one_cycle(driver, cycle, now_s)
+            except Exception as exc:  # the cycle raised even as a failed read: broken
+                self.log.error("cycle_broken", error=f"{type(exc).__name__}: {exc}",
+                               sequence=cycle.sequence, offset_um=cycle.output.current_um,
+                               shutdown=self.cfg.raw.faults.shutdown, exc_info=True)
+                self.status_board.alarm("cycle_broken", "error",
+                                        {"error": f"{type(exc).__name__}: {exc}"})
+                if broken or shutdown_cycles_left is not None or self.once:
+                    break  # the ramp cannot go on either: what is left is the checkpoint
+                broken = True
+                if self.cfg.raw.faults.shutdown != "ramp_to_zero" or self.dry_run:
+                    break
+                # the shutdown policy: the ramp needs no input and no model
+                cycle.begin_shutdown()
+                p = self.params
+                shutdown_cycles_left = shutdown_ramp_cycles(p.limit_um, p.slew_um_s,
+                                                            p.period_s)
+                self.log.info("shutdown_requested", policy="ramp_to_zero",
+                              offset_um=cycle.output.current_um, reason="cycle_broken")
+                schedule.advance(self.clock())
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self.stop_requested.wait(),
+                                           schedule.wait_s(self.clock()))
+                continue
             self.metrics.cycle_seconds.observe(self.clock() - started)
             if self.once:
                 self._checkpoint(cycle)
@@ -326,10 +367,10 @@ class Daemon:
                     shutdown_cycles_left = shutdown_ramp_cycles(p.limit_um, p.slew_um_s,
                                                                 p.period_s)
                     self.log.info("shutdown_requested", policy="ramp_to_zero",
-                                  offset_um=result.offset_um)
+                                  offset_um=result.offset_um, signal=self.stop_signal)
                 else:
                     self.log.info("shutdown_requested", policy="hold",
-                                  offset_um=result.offset_um)
+                                  offset_um=result.offset_um, signal=self.stop_signal)
                     break
             missed = schedule.advance(self.clock())
             if missed:
@@ -345,8 +386,9 @@ class Daemon:
                 break
         self._checkpoint(cycle)
         self.log.info("daemon_stopped", cycles=self.cycles, overruns=self.overruns,
-                      offset_um=cycle.output.current_um, reloads=self.reloads)
-        return 0
+                      offset_um=cycle.output.current_um, reloads=self.reloads,
+                      signal=self.stop_signal, broken=broken)
+        return EX_SOFTWARE if broken else 0
 
     # -- reload (SIGHUP) ----------------------------------------------------------------
 
@@ -397,8 +439,17 @@ class Daemon:
         new, changes, driver = self._pending
         self._pending = None
         old_cfg, old_driver = self.cfg, self._driver
-        params = params_from_config(new, dry_run=self.dry_run)
-        self.cycle = handover(self.cycle, new, params, changes)
+        try:
+            params = params_from_config(new, dry_run=self.dry_run)
+            cycle = handover(self.cycle, new, params, changes)
+        except Exception as exc:  # never the loop's end: the old config keeps running
+            self.log.error("reload_failed", key="", reason=f"{type(exc).__name__}: {exc}",
+                           config=str(new.path), kept=old_cfg.config_sha256, exc_info=True)
+            if driver is not None:
+                with contextlib.suppress(Exception):
+                    await driver.close()
+            return
+        self.cycle = cycle
         self.cfg, self.params = new, params
         if driver is not None:
             self._driver = driver
@@ -435,7 +486,8 @@ class Daemon:
         limit_s = max(self.cfg.real_period_s, 2.0 * self.cfg.raw.controller.timeout_s)
         try:
             got = await asyncio.wait_for(driver.read(names), limit_s)
-        except (DriverError, TimeoutError) as exc:
+        except (DriverError, TimeoutError) as exc:  # anything else is a driver's bug:
+            # the loop's cycle_broken (shutdown policy, checkpoint, a restart: a fresh driver)
             if self._read_ok is not False:
                 self.log.warning("read_failed", error=str(exc), type=type(exc).__name__)
             self._read_ok = False
@@ -455,10 +507,19 @@ class Daemon:
     async def _one_cycle(self, driver: Driver, cycle: Cycle, now_s: float) -> CycleResult:
         self._probe = None
         samples, readback = await self._read(driver)
-        if self._probe is not None:
-            result = cycle.step(now_s, samples, readback, wall_s=time.time(), probe=self._probe)
-        else:
-            result = cycle.step(now_s, samples, readback, wall_s=time.time())
+        try:
+            if self._probe is not None:
+                result = cycle.step(now_s, samples, readback, wall_s=time.time(),
+                                    probe=self._probe)
+            else:
+                result = cycle.step(now_s, samples, readback, wall_s=time.time())
+        except Exception as exc:
+            # the fault policy decides what reaches the machine: this cycle is a failed
+            # read (hold, then ramp after hold_s). Raises when the cycle cannot even do
+            # that (the loop's cycle_broken).
+            self._cycle_error("step", exc)
+            samples = None
+            result = cycle.step(now_s, None, readback, wall_s=time.time())
         self.cycles += 1
         self._log_events(result.events)
         confirmed = self.dry_run
@@ -475,22 +536,55 @@ class Daemon:
                 self.metrics.write_errors.labels(output=exc.channel or "*").inc()
                 self._log_events(cycle.write_failed(exc.channel, permanent=False,
                                                     reason=str(exc)))
+            except Exception as exc:  # a driver's bug: a transient write failure
+                self.metrics.write_errors.labels(output="*").inc()
+                self._log_events(cycle.write_failed(None, permanent=False,
+                                                    reason=f"{type(exc).__name__}: {exc}"))
             else:
                 cycle.write_ok()
                 confirmed = True
                 self._log_repeat(self._write_failures.succeeded(self.clock()))
-        self._record(result)
-        self._telemetry(result, samples, confirmed)
-        if self.cfg.raw.faces.http.enabled:  # never raises: the page never stops the cycle
-            self.status_board.publish(result, self.cfg, dry_run=self.dry_run)
+        self.last_result = result
+        # the sinks: none of them may stop the cycle (the offset is written already)
+        self._sink("record", self._record, result)
+        self._sink("telemetry", self._telemetry, result, samples, confirmed)
+        if self.cfg.raw.faces.http.enabled:
+            self._sink("status_page", self.status_board.publish, result, self.cfg,
+                       dry_run=self.dry_run)
         if self.opcua_face is not None:  # a snapshot; the face writes it in its own task
-            self.opcua_face.publish(result, cycle)
-        if (probes := cycle.probes) is not None:
+            self._sink("opcua_face", self.opcua_face.publish, result, cycle)
+        if cycle.probes is not None:
+            self._sink("adaptation_metrics", self._adaptation_metrics, cycle, result)
+        return result
+
+    def _adaptation_metrics(self, cycle: Cycle, result: CycleResult) -> None:
+        probes = cycle.probes
+        if probes is not None:
             est = probes.adapter
             self.metrics.adaptation(est.estimated_bias_um, est.bias_sigma_um,
                                     probes.correction_um, result.record.probe)
-        self.last_result = result
-        return result
+
+    def _sink(self, stage: str, fn: Callable[..., object], *args: Any, **kwargs: Any) -> None:
+        try:
+            fn(*args, **kwargs)
+        except Exception as exc:
+            self._cycle_error(stage, exc)
+        else:
+            limiter = self._cycle_errors.get(stage)
+            if limiter is not None:
+                self._log_repeat(limiter.succeeded(self.clock()))
+
+    def _cycle_error(self, stage: str, exc: Exception) -> None:
+        """An exception where none is expected: one line with it (then a summary a
+        minute while it repeats), an alarm on the status page."""
+        limiter = self._cycle_errors.setdefault(stage, RepeatLimiter("cycle_error"))
+        line = limiter.failed(self.clock(), {"stage": stage,
+                                             "error": f"{type(exc).__name__}: {exc}"})
+        if line is not None:
+            name, fields = line
+            self.log.error(name, **fields, exc_info=exc if name == "cycle_error" else None)
+            with contextlib.suppress(Exception):
+                self.status_board.alarm(name, "error", fields)
 
     def _check_certificates(self) -> None:
         sec = self.cfg.raw.controller.security
@@ -569,16 +663,16 @@ class Daemon:
             return
         from compd.runtime.checkpoint import save_checkpoint
 
-        state = cycle.export_state()
-        state.update(saved_mono_s=self.clock(), model_sha256=self.cfg.model_sha256,
-                     config_sha256=self.cfg.config_sha256)
-        if self._last_complete is not None:  # what `compd health --state-dir` judges
-            wall_s, mono_s = self._last_complete
-            state.update(last_complete_wall_s=wall_s, last_complete_mono_s=mono_s,
-                         boot_id=boot_id())
-        if self.last_result is not None:  # an alarm is unhealthy however recent the above
-            state["last_state"] = str(self.last_result.state)
         try:
+            state = cycle.export_state()
+            state.update(saved_mono_s=self.clock(), model_sha256=self.cfg.model_sha256,
+                         config_sha256=self.cfg.config_sha256)
+            if self._last_complete is not None:  # what `compd health --state-dir` judges
+                wall_s, mono_s = self._last_complete
+                state.update(last_complete_wall_s=wall_s, last_complete_mono_s=mono_s,
+                             boot_id=boot_id())
+            if self.last_result is not None:  # an alarm is unhealthy however recent the above
+                state["last_state"] = str(self.last_result.state)
             save_checkpoint(checkpoint_path(self.cfg), state,
                             directory=self._state_directory())
         except Exception as exc:  # a failed checkpoint must not stop the loop
@@ -634,6 +728,11 @@ class Daemon:
             if ev.name == "write_failed":  # once, then a summary a minute (an outage)
                 self._log_repeat(self._write_failures.failed(self.clock(), dict(ev.fields)))
                 continue
+            if ev.name == "probe_refused":  # likewise: a counter may step every cycle
+                self._log_repeat(self._probe_refusals.failed(self.clock(), dict(ev.fields)))
+                continue
+            if ev.name == "probe_accepted":  # ends a run of refusals (probe_refused_recovered)
+                self._log_repeat(self._probe_refusals.succeeded(self.clock()))
             level = "warning" if ev.name in _WARNINGS else "info"
             if ev.name in _ERRORS:
                 level = "error"

@@ -21,8 +21,11 @@ deadline.
 Running: a daemon task that ends by an exception is logged
 (``machine_crashed``) and started again, with a fresh driver, after a backoff
 (1 s doubling to 60 s, back to 1 s after a minute of running); the others are
-untouched. SIGTERM/SIGINT stop every machine (each applies its shutdown
-policy and writes its checkpoint), SIGHUP reloads each machine's own file.
+untouched; so is one whose cycle broke (its loop returned EX_SOFTWARE after
+its shutdown policy and checkpoint). SIGTERM/SIGINT, and every other signal
+whose default would end the process (`compd.runtime.signals`), stop every
+machine (each applies its shutdown policy and writes its checkpoint), SIGHUP
+reloads each machine's own file; SIGUSR1/2 and SIGXFSZ are logged and ignored.
 With ``[faces.http]`` in any file, the one endpoint also answers the operator
 page and /status.json, one section per machine (`compd.faces.status_http`).
 Logging follows the first file's ``[telemetry]``; each line carries
@@ -46,6 +49,7 @@ from compd.core.schedule import staggered_starts
 from compd.errors import ConfigError
 from compd.faces.fleet_metrics import FleetMetrics
 from compd.faces.telemetry import Metrics, WSGIApp
+from compd.runtime import signals
 from compd.runtime.daemon import Daemon
 from compd.runtime.heap import pin_mmap_threshold
 from compd.runtime.sdnotify import Notifier
@@ -174,10 +178,20 @@ class Fleet:
 
         return with_status(document, lambda: refresh_s)
 
-    def request_stop(self) -> None:
+    def request_stop(self, sig: signal.Signals | None = None) -> None:
+        """SIGTERM and the other stop signals (`compd.runtime.signals`); None: a caller."""
+        if sig is not None:
+            level = "info" if sig in (signal.SIGTERM, signal.SIGINT) else "warning"
+            getattr(self.log, level)("signal_received", signal=sig.name, action="stop")
         self.stopping.set()
         for daemon in list(self.daemons.values()):
+            if sig is not None:
+                daemon.stop_signal = sig.name
             daemon.request_stop()
+
+    def signal_ignored(self, sig: signal.Signals) -> None:
+        self.log.warning("signal_ignored", signal=sig.name,
+                         reason="SIGHUP reloads, SIGTERM stops compd cleanly")
 
     def request_reload(self) -> None:
         for daemon in list(self.daemons.values()):
@@ -187,15 +201,9 @@ class Fleet:
         """Run every machine until SIGTERM/SIGINT (or `request_stop`); returns 0."""
         pin_mmap_threshold()
         loop = asyncio.get_running_loop()
-        installed = []
-        for sig, handler in ((signal.SIGTERM, self.request_stop),
-                             (signal.SIGINT, self.request_stop),
-                             (signal.SIGHUP, self.request_reload)):
-            try:
-                loop.add_signal_handler(sig, handler)
-                installed.append(sig)
-            except (RuntimeError, ValueError, NotImplementedError):
-                pass  # not the main thread: the caller stops us with request_stop()
+        # not the main thread: none installed, the caller stops us with request_stop()
+        installed = signals.install(loop, stop=self.request_stop, reload=self.request_reload,
+                                    ignored=self.signal_ignored)
         endpoint = metrics_endpoint(list(self.configs.values()))
         if endpoint is not None:
             try:
@@ -221,8 +229,7 @@ class Fleet:
             await asyncio.gather(*tasks, return_exceptions=True)
             self.notifier.stopping()
             self.metrics.stop()
-            for sig in installed:
-                loop.remove_signal_handler(sig)
+            signals.remove(loop, installed)
         self.log.info("fleet_stopped", machines=len(self.configs),
                       restarts=sum(self.restarts.values()))
         return 0
@@ -243,8 +250,15 @@ class Fleet:
             started = time.monotonic()
             running.set(1)
             try:
-                await daemon.run_machine()
-                return  # stopped on request
+                rc = await daemon.run_machine()
+                if rc == 0 or self.stopping.is_set():
+                    return  # stopped on request
+                # its cycle broke (logged, shutdown policy applied, checkpoint written)
+                running.set(0)
+                if time.monotonic() - started >= BACKOFF_RESET_S:
+                    backoff = BACKOFF_INITIAL_S
+                self.log.error("machine_crashed", machine=name, error="cycle_broken",
+                               type="exit", rc=rc, restart_in_s=backoff)
             except Exception as exc:  # this machine's failure, never the others'
                 running.set(0)
                 if time.monotonic() - started >= BACKOFF_RESET_S:

@@ -48,8 +48,8 @@ def test_adaptation_off_reads_no_probe(tmp_path: Path) -> None:
 @pytest.mark.parametrize(("change", "key", "words"), [
     (("probe_counter = { kind = \"input\", address = 14, type = \"uint16\" }\n", ""),
      "adaptation.probe_counter", "required when adaptation is enabled"),
-    (("probe_noise_um = 0.8", "probe_noise_um = -1"), "adaptation.probe_noise_um", "> 0"),
-    (("probe_noise_um = 0.8", "gate_sigma = 0"), "adaptation.gate_sigma", "> 0"),
+    (("probe_noise_um = 0.8", "probe_noise_um = -1"), "adaptation.probe_noise_um", "within"),
+    (("probe_noise_um = 0.8", "gate_sigma = 0"), "adaptation.gate_sigma", "within 1"),
     (('mode = "apply"', 'mode = "on"'), "adaptation.mode", "shadow"),
     (("address = 12, type = \"float32\"", "address = 12, type = \"float99\""),
      "adaptation.probe_value", ""),
