@@ -281,7 +281,7 @@ class _SharedServer:
             summaries.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await summaries
-        self.guard.flush()
+        self.guard.flush(force=True)  # what the last minute did not tell yet
         server, self.server = self.server, None
         if server is not None:
             await server.stop()

@@ -143,10 +143,11 @@ class Tally:
         if "peer" in fields:
             self._peers[_host(str(fields["peer"]))] += 1
 
-    def flush(self, now: float | None = None) -> None:
-        """Log the summary of a window that has ended; start the next."""
+    def flush(self, now: float | None = None, *, force: bool = False) -> None:
+        """Log the summary of a window that has ended (`force`: of this one, at
+        the face's stop); start the next."""
         now = self.clock() if now is None else now
-        if self._start is None or now - self._start < self.window_s:
+        if self._start is None or (now - self._start < self.window_s and not force):
             return
         if self._suppressed:
             extra: dict[str, Any] = {}
@@ -272,9 +273,9 @@ class Guard:
         conn.activated = True
         self.sessions += 1
 
-    def flush(self) -> None:
+    def flush(self, *, force: bool = False) -> None:
         for tally in self.tallies.values():
-            tally.flush()
+            tally.flush(force=force)
 
     async def summarise(self) -> None:
         """On the face's loop: the summary lines, once per window."""
