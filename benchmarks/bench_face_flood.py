@@ -98,7 +98,16 @@ class Phase:
     metrics_tries: int = 0
     metrics_ms: list[float] = field(default_factory=list)
     max_fds: int = 0
+    max_threads: int = 0
     extra: dict[str, Any] = field(default_factory=dict)
+
+
+def _threads(pid: int) -> int:
+    try:
+        with open(f"/proc/{pid}/status", encoding="ascii") as f:
+            return next(int(ln.split()[1]) for ln in f if ln.startswith("Threads:"))
+    except (OSError, StopIteration, ValueError):
+        return -1
 
 
 def _fds(pid: int) -> int:
@@ -120,6 +129,7 @@ async def _watch(phase: Phase, pid: int, checkpoint: Path, metrics_url: str,
             phase.checkpoints += 1
             last = m
         phase.max_fds = max(phase.max_fds, _fds(pid))
+        phase.max_threads = max(phase.max_threads, _threads(pid))
         now = time.monotonic()
         if now >= next_scrape:
             next_scrape = now + 0.5
@@ -288,14 +298,14 @@ async def run(args: argparse.Namespace) -> int:
           f"LimitNOFILE), period {period_s * 1e3:.0f} ms, checkpoint every "
           f"{args.checkpoint_every} cycles, {args.seconds:.0f} s per phase; exit {rc}")
     print(f"{'phase':28s}{'cycles':>8s}{'late p50':>10s}{'p99':>8s}{'max':>8s}"
-          f"{'ckpts':>7s}{'/metrics ok':>13s}{'max fds':>9s}{'reconnect':>11s}")
+          f"{'ckpts':>7s}{'/metrics ok':>13s}{'max fds':>9s}{'threads':>9s}{'reconnect':>11s}")
     for phase in phases:
         late = lateness(db, args.time_scale, phase.start, phase.end)
         ok = f"{phase.metrics_ok}/{phase.metrics_tries}"
         rec = phase.extra.get("reconnect_s", math.nan)
         print(f"{phase.name:28s}{len(late):8d}{percentile(late, 0.5) * 1e3:8.2f}ms"
               f"{percentile(late, 0.99) * 1e3:6.2f}ms{max(late, default=math.nan) * 1e3:6.1f}ms"
-              f"{phase.checkpoints:7d}{ok:>13s}{phase.max_fds:9d}"
+              f"{phase.checkpoints:7d}{ok:>13s}{phase.max_fds:9d}{phase.max_threads:9d}"
               f"{rec:9.2f} s{'' if phase.extra.get('reconnected') else ' (none)'}")
     flood = phases[1]
     body = flood.extra.get("metrics", "")
@@ -304,8 +314,9 @@ async def run(args: argparse.Namespace) -> int:
     timeout_n = _metric(body, refused + '"handshake_timeout"}')
     lines_n = text.count('"opcua_connection_refused"')
     cap = _metric(body, "compd_opcua_face_connection_limit")
-    print(f"flood: {flood.extra.get('held', 0)} held open by the face at the end of the "
-          f"connect burst, {flood.extra.get('connect_failed', 0)} connects failed, "
+    print(f"flood: {flood.extra.get('held', 0)} open on this side 0.5 s after the connect "
+          f"burst (the face holds at most its limit; the rest wait in the kernel's queues), "
+          f"{flood.extra.get('connect_failed', 0)} connects failed, "
           f"{flood.extra.get('closed_by_face', 0)} closed by the face by the end; "
           f"refused (metrics): limit {limit_n:.0f}, handshake_timeout {timeout_n:.0f}; "
           f"limit {cap:.0f}; /metrics "

@@ -101,7 +101,8 @@ async def test_connections_beyond_the_cap_are_closed_at_once_and_counted(
 async def test_a_connection_without_a_session_is_closed_after_the_handshake_timeout(
         sim: ModbusSimController, tmp_path: Path) -> None:
     port = free_tcp_port("127.0.0.1")
-    face = _face(port) + _limits(handshake_timeout_s=0.2)
+    # long enough for the client's own login under load; the raw socket waits it out
+    face = _face(port) + _limits(handshake_timeout_s=2.0)
     async with face_daemon(tmp_path, sim, face) as daemon, await _client(port) as client:
         async with _sockets(port, 1) as [(reader, _)]:  # connects, says nothing
             assert await _closed_by_server(reader)
