@@ -23,6 +23,7 @@ import contextlib
 import math
 import os
 import resource
+import shutil
 import signal
 import sqlite3
 import subprocess
@@ -214,12 +215,19 @@ async def _hold(port: int, n: int) -> tuple[Held, int]:
 
 
 async def run(args: argparse.Namespace) -> int:
+    tmp = Path(tempfile.mkdtemp(prefix="compd-face-flood-"))
+    try:
+        return await _run(args, tmp)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+async def _run(args: argparse.Namespace, tmp: Path) -> int:
     _soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))  # this script holds the flood
     sim = start_sim("modbus", speedup=args.time_scale)
     relay = Relay(*_host_port(sim.desc["endpoint"]))
     relay_port = await relay.start()
-    tmp = Path(tempfile.mkdtemp(prefix="compd-face-flood-"))
     face_port = free_tcp_port("127.0.0.1")
     metrics_port = free_tcp_port("127.0.0.1")
     desc = dict(sim.desc, endpoint=f"modbus://127.0.0.1:{relay_port}")
