@@ -425,6 +425,13 @@ class OpcUaFaceSection(_Section):
     #: the operator's password: a file (relative: $CREDENTIALS_DIRECTORY or the
     #: config's folder), never the config itself
     operator_password_file: LaxPath | None = None
+    #: TCP connections served at once (fewer when RLIMIT_NOFILE leaves less); one
+    #: more is closed at once
+    max_connections: Annotated[int, Field(ge=1, le=1000)] = 32
+    #: sessions at once; one more is refused (BadTooManySessions)
+    max_sessions: Annotated[int, Field(ge=1, le=1000)] = 16
+    #: a connection without a session this long after it was accepted is closed
+    handshake_timeout_s: Annotated[float, Field(gt=0.0, le=300.0, allow_inf_nan=False)] = 10.0
 
     @model_validator(mode="before")
     @classmethod

@@ -36,6 +36,12 @@ face that cannot start (a port in use, a bad certificate) is logged
 while publishing is logged once (``opcua_face_failed``) and the face
 keeps trying. Machines of one process (`compd run DIR`) that name the same
 host and port share one server, one object each.
+
+Limits (`compd.faces.opcua_limits`): ``max_connections`` TCP connections
+(fewer when RLIMIT_NOFILE leaves less beside a reserve for the cycle), those
+over it closed at once; ``max_sessions`` sessions; a connection without a
+session after ``handshake_timeout_s`` closed; failed logins logged with the
+user and the peer, rate-limited, and counted in metrics.
 """
 
 from __future__ import annotations
@@ -60,10 +66,12 @@ from asyncua.ua.object_ids import ObjectIds
 from compd.config.loader import credential_path
 from compd.core.faults import FaultState
 from compd.errors import ConfigError
+from compd.faces.opcua_limits import FaceLoop, Guard, GuardCollector, quiet_asyncua_faults
 
 if TYPE_CHECKING:
     from asyncua.common.node import Node
     from asyncua.server.internal_server import InternalServer
+    from prometheus_client import CollectorRegistry
 
     from compd.config.loader import LoadedConfig
     from compd.config.schema import OpcUaFaceSection
@@ -113,19 +121,27 @@ _SERVERS: dict[tuple[str, int], _SharedServer] = {}
 
 
 class _Users(UserManager):
-    """The operator with its password; anonymous readers when allowed."""
+    """The operator with its password; anonymous readers when allowed. Failed
+    logins and sessions over the limit go to the guard (it knows the peer)."""
 
-    def __init__(self, operator: str | None, password: str | None, anonymous: bool) -> None:
+    def __init__(self, operator: str | None, password: str | None, anonymous: bool,
+                 guard: Guard) -> None:
         self.operator, self._password, self.anonymous = operator, password, anonymous
+        self.guard = guard
 
     def get_user(self, iserver: InternalServer, username: str | None = None,
                  password: str | None = None, certificate: Any = None) -> User | None:
+        user: User | None = None
         if username is None:
-            return User(role=UserRole.Anonymous) if self.anonymous else None
-        if self.operator is not None and username == self.operator \
+            user = User(role=UserRole.Anonymous) if self.anonymous else None
+        elif self.operator is not None and username == self.operator \
                 and password is not None and password == self._password:
-            return User(role=UserRole.User, name=username)
-        return None
+            user = User(role=UserRole.User, name=username)
+        if user is None:
+            self.guard.login_failed("anonymous" if username is None else username)
+        else:
+            self.guard.login_ok(username or "anonymous")  # BadTooManySessions over the limit
+        return user
 
 
 class _ReadOnlyRules(PermissionRuleset):
@@ -163,8 +179,13 @@ class _SharedServer:
         self.base = base
         self.operator = section.operator
         self.server: Server | None = None
-        #: the face's own event loop, on its own thread (see the module docstring)
-        self.loop = asyncio.new_event_loop()
+        self.guard = Guard(max_connections=section.max_connections,
+                           max_sessions=section.max_sessions,
+                           handshake_timeout_s=section.handshake_timeout_s)
+        self._summaries: asyncio.Task[None] | None = None
+        #: the face's own event loop, on its own thread (see the module docstring);
+        #: the servers it starts accept through the guard
+        self.loop: asyncio.AbstractEventLoop = FaceLoop(self.guard)
         self._thread = threading.Thread(target=self._run_loop, name="compd-opcua-face",
                                         daemon=True)
         self._closing = False
@@ -222,8 +243,13 @@ class _SharedServer:
                 raise ConfigError("faces.opcua.operator_password_file",
                                   f"cannot read {pf} ({exc.strerror})") from None
         anonymous = sec.anonymous_read or sec.policy == "None"
-        server = Server(user_manager=_Users(sec.operator, password, anonymous))
+        self.guard.fit_to_descriptors()  # ValueError: not one descriptor to spare
+        quiet_asyncua_faults()
+        server = Server(user_manager=_Users(sec.operator, password, anonymous, self.guard))
         await server.init()
+        # the guard refuses first; asyncua's own watchdog would log each idle connection
+        server.iserver.max_connections = self.guard.limit
+        server.iserver.max_pending_activation_seconds = 0
         server.disable_clock()
         server.set_endpoint(f"opc.tcp://{_url_host(sec.host)}:{sec.port}")
         server.set_server_name("compd")
@@ -243,11 +269,19 @@ class _SharedServer:
         self.fault_type = await _fault_state_type(server, self.idx)
         await server.start()
         self.server = server
+        self._summaries = asyncio.get_running_loop().create_task(self.guard.summarise(),
+                                                                 name="opcua-face-summaries")
 
     def _path(self, p: Path) -> Path:
         return p if p.is_absolute() else self.base / p
 
     async def stop(self) -> None:
+        summaries, self._summaries = self._summaries, None
+        if summaries is not None:
+            summaries.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await summaries
+        self.guard.flush(force=True)  # what the last minute did not tell yet
         server, self.server = self.server, None
         if server is not None:
             await server.stop()
@@ -269,8 +303,12 @@ async def _fault_state_type(server: Server, idx: int) -> ua.NodeId:
 class OpcUaFace:
     """One machine's part of the OPC UA face (see the module docstring)."""
 
-    def __init__(self, cfg: LoadedConfig, hold: Callable[[bool, str], bool]) -> None:
+    def __init__(self, cfg: LoadedConfig, hold: Callable[[bool, str], bool],
+                 registry: CollectorRegistry | None = None) -> None:
         self.cfg = cfg
+        #: where the face's counts (connections, refusals, failed logins) are served
+        self.registry = registry
+        self._collector: GuardCollector | None = None
         self.section = cfg.raw.faces.opcua
         self.name = cfg.raw.machine.name
         self._hold = hold
@@ -310,8 +348,11 @@ class OpcUaFace:
                 await asyncio.to_thread(shared.close)
             return False
         self._shared = shared
+        if self.registry is not None:
+            self._collector = GuardCollector(shared.guard)
+            self.registry.register(self._collector)
         self.log.info("opcua_face_started", endpoint=self.endpoint, policy=self.section.policy,
-                      machine=self.name)
+                      machine=self.name, max_connections=shared.guard.limit)
         return True
 
     async def _add_machine(self, shared: _SharedServer) -> _Machine:
@@ -441,6 +482,10 @@ class OpcUaFace:
                     self.log.error("opcua_face_failed", error=str(exc) or type(exc).__name__)
 
     async def stop(self) -> None:
+        collector, self._collector = self._collector, None
+        if collector is not None and self.registry is not None:
+            with contextlib.suppress(KeyError):
+                self.registry.unregister(collector)
         shared, self._shared = self._shared, None
         if shared is None:
             return

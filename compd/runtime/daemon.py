@@ -233,7 +233,7 @@ class Daemon:
             return
         from compd.faces.opcua_face import OpcUaFace
 
-        face = OpcUaFace(self.cfg, self.operator_hold)
+        face = OpcUaFace(self.cfg, self.operator_hold, self.metrics.registry)
 
         async def start() -> None:
             if await face.start():

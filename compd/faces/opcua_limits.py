@@ -1,0 +1,415 @@
+"""The OPC UA face's limits (`compd.faces.opcua_face`): connections, sessions,
+handshake time, file descriptors, and failed logins told without flooding.
+
+- **Connections**: at most ``max_connections`` TCP connections at once, fewer
+  when the process's file descriptor limit leaves less (`fd_budget`: the soft
+  RLIMIT_NOFILE minus what is open at start, `FD_RESERVE` kept for the cycle,
+  its checkpoints, the recorder, /metrics and controller reconnects, and
+  `ACCEPT_BURST`, what one wake of the listener may accept before it refuses).
+  A connection over the limit is closed at once (no OPC UA answer, no
+  traceback), counted (``compd_opcua_face_connections_refused_total{reason="limit"}``)
+  and logged rate-limited (``opcua_connection_refused``). So the face never
+  brings the process to EMFILE, and asyncio never logs "socket.accept() out of
+  system resource".
+- **Handshake**: a connection that has not activated a session
+  ``handshake_timeout_s`` after it was accepted is closed (reason
+  ``handshake_timeout``).
+- **Sessions**: at most ``max_sessions`` activated sessions; one more is
+  refused with BadTooManySessions (``opcua_session_refused``).
+- **Failed logins**: a wrong user name or password is logged with the user
+  name and the client's address (``opcua_login_failed``; never the password)
+  and counted (``compd_opcua_face_logins_failed_total``).
+
+Every refusal is logged by `Tally`: the first `BURST` of a kind in a minute
+one line each, then one summary line per minute with the count and the users
+and peers seen most (``..._summary``).
+
+How: the face's event loop is `FaceLoop`, whose ``create_server`` (what
+asyncua's server calls to listen) wraps asyncua's protocol factory in
+`Guard.factory`; each connection's protocol is asyncua's behind `_Tracked`,
+which sets `CONNECTION` for the connection's tasks, so that the user manager
+knows whose login it judges.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import contextvars
+import logging
+import os
+import resource
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import structlog
+from asyncua.common.utils import ServiceError
+from asyncua.ua.status_codes import StatusCodes
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
+from prometheus_client.registry import Collector
+
+__all__ = ["ACCEPT_BURST", "BURST", "CONNECTION", "FD_RESERVE", "FaceLoop", "Guard", "Tally",
+           "fd_budget"]
+
+#: descriptors kept for everything but the face (cycle, checkpoints, recorder,
+#: /metrics and the status page, controller reconnects, other machines of `run DIR`)
+FD_RESERVE = 256
+#: connections the listener accepts per wake (asyncio's backlog), and its listen queue
+ACCEPT_BURST = 16
+#: refusals of one kind logged one line each per window; the rest summarised
+BURST = 5
+#: the summary window (s)
+WINDOW_S = 60.0
+#: longest user name put in a log line
+_USER_CHARS = 64
+
+
+@dataclass(eq=False)  # one object per connection, kept in a set
+class Connection:
+    """One accepted connection: its peer, and whether it has a session yet."""
+
+    peer: str
+    transport: asyncio.Transport | None = None
+    activated: bool = False
+    #: the next service fault on this connection is one the face has logged itself
+    quiet_fault: bool = False
+    timer: asyncio.TimerHandle | None = None
+
+
+#: the connection whose messages are being processed (set for its tasks)
+CONNECTION: contextvars.ContextVar[Connection | None] = contextvars.ContextVar(
+    "compd_opcua_connection", default=None)
+
+
+def open_fds() -> int:
+    """Descriptors open in this process now (0 where /proc is not there)."""
+    try:
+        return len(os.listdir("/proc/self/fd"))
+    except OSError:
+        return 0
+
+
+def fd_budget(soft_limit: int, open_now: int, reserve: int = FD_RESERVE,
+              burst: int = ACCEPT_BURST) -> int:
+    """Connections the face may hold: `soft_limit` (RLIMIT_NOFILE; negative:
+    unlimited) minus what is open, the reserve and one accept burst. Example:
+    1024 - 40 - 256 - 16 = 712."""
+    if soft_limit < 0:
+        return 1 << 30
+    return soft_limit - open_now - reserve - burst
+
+
+def nofile_soft_limit() -> int:
+    soft, _hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    return -1 if soft == resource.RLIM_INFINITY else int(soft)
+
+
+@dataclass
+class Tally:
+    """Rate-limited log lines of one kind: `BURST` a window one each, then a count.
+
+    `note` logs (or counts) one event; `flush` logs the summary of a window
+    that is over (`note` calls it; the face's loop calls it once per window).
+    """
+
+    event: str
+    log: Any
+    clock: Callable[[], float] = time.monotonic
+    burst: int = BURST
+    window_s: float = WINDOW_S
+    total: int = 0
+    _start: float | None = None
+    _logged: int = 0
+    _suppressed: int = 0
+    _users: Counter[str] = field(default_factory=Counter)
+    _peers: Counter[str] = field(default_factory=Counter)
+
+    def note(self, **fields: Any) -> None:
+        now = self.clock()
+        self.flush(now)
+        self.total += 1
+        if self._start is None:
+            self._start = now
+        if self._logged < self.burst:
+            self._logged += 1
+            self.log.warning(self.event, **fields)
+            return
+        self._suppressed += 1
+        if "user" in fields:
+            self._users[str(fields["user"])] += 1
+        if "peer" in fields:
+            self._peers[_host(str(fields["peer"]))] += 1
+
+    def flush(self, now: float | None = None, *, force: bool = False) -> None:
+        """Log the summary of a window that has ended (`force`: of this one, at
+        the face's stop); start the next."""
+        now = self.clock() if now is None else now
+        if self._start is None or (now - self._start < self.window_s and not force):
+            return
+        if self._suppressed:
+            extra: dict[str, Any] = {}
+            if self._users:
+                extra["users"] = dict(self._users.most_common(5))
+            if self._peers:
+                extra["peers"] = dict(self._peers.most_common(5))
+            self.log.warning(f"{self.event}_summary", suppressed=self._suppressed,
+                             window_s=self.window_s, total=self.total, **extra)
+        self._start, self._logged, self._suppressed = None, 0, 0
+        self._users.clear()
+        self._peers.clear()
+
+
+def _host(peer: str) -> str:
+    """"('10.0.0.7', 50123)" -> "10.0.0.7" (summaries count hosts, not ports)."""
+    text = peer.strip("()")
+    return text.split(",")[0].strip("'\" ") if "," in text else text
+
+
+def safe_user(name: str) -> str:
+    """A client's user name as a log field: printable, at most 64 characters."""
+    clean = "".join(c if c.isprintable() else "?" for c in name)
+    return clean if len(clean) <= _USER_CHARS else clean[:_USER_CHARS] + "…"
+
+
+class Guard:
+    """The face's limits on one server (see the module docstring)."""
+
+    def __init__(self, *, max_connections: int, max_sessions: int, handshake_timeout_s: float,
+                 log: Any = None, clock: Callable[[], float] = time.monotonic) -> None:
+        self.max_connections = max_connections
+        self.limit = max_connections  # until `fit_to_descriptors`
+        self.max_sessions = max_sessions
+        self.handshake_timeout_s = handshake_timeout_s
+        self.log = log if log is not None else structlog.get_logger("compd").bind(face="opcua")
+        self.connections: set[Connection] = set()
+        self.sessions = 0
+        self.refused: Counter[str] = Counter({"limit": 0, "handshake_timeout": 0})
+        self.sessions_refused = 0
+        self.tallies = {name: Tally(name, self.log, clock) for name in
+                        ("opcua_connection_refused", "opcua_login_failed",
+                         "opcua_session_refused")}
+
+    def fit_to_descriptors(self, soft_limit: int | None = None,
+                           open_now: int | None = None) -> int:
+        """Lower the connection limit to the descriptors there are (at start);
+        ValueError when not even one connection fits."""
+        soft = nofile_soft_limit() if soft_limit is None else soft_limit
+        now = open_fds() if open_now is None else open_now
+        budget = fd_budget(soft, now)
+        if budget < 1:
+            raise ValueError(f"RLIMIT_NOFILE {soft} leaves no descriptor for a client "
+                             f"({now} open, {FD_RESERVE} kept for the cycle): raise "
+                             "LimitNOFILE")
+        if budget < self.max_connections:
+            self.log.warning("opcua_face_connections_capped", max_connections=budget,
+                             configured=self.max_connections, rlimit_nofile=soft,
+                             open_fds=now, reserve=FD_RESERVE)
+        self.limit = min(self.max_connections, budget)
+        return self.limit
+
+    # -- connections ---------------------------------------------------------------
+
+    def factory(self, inner: Callable[[], asyncio.Protocol]) -> Callable[[], asyncio.Protocol]:
+        """asyncua's protocol factory behind the connection limit."""
+        def make() -> asyncio.Protocol:
+            if len(self.connections) >= self.limit:
+                return _Refused(self)
+            conn = Connection(peer="unknown")
+            self.connections.add(conn)  # counted from now: the accept burst is bounded
+            return _Tracked(self, conn, inner())
+        return make
+
+    def refuse(self, reason: str, peer: str) -> None:
+        self.refused[reason] += 1
+        self.tallies["opcua_connection_refused"].note(
+            peer=peer, reason=reason, limit=self.limit,
+            **({"timeout_s": self.handshake_timeout_s} if reason == "handshake_timeout" else {}))
+
+    def _opened(self, conn: Connection) -> None:
+        if self.handshake_timeout_s > 0:
+            loop = asyncio.get_running_loop()
+            conn.timer = loop.call_later(self.handshake_timeout_s, self._handshake_over, conn)
+
+    def _handshake_over(self, conn: Connection) -> None:
+        conn.timer = None
+        transport = conn.transport
+        if conn.activated or transport is None or transport.is_closing():
+            return
+        self.refuse("handshake_timeout", conn.peer)
+        transport.abort()
+
+    def _closed(self, conn: Connection) -> None:
+        if conn.timer is not None:
+            conn.timer.cancel()
+            conn.timer = None
+        if conn in self.connections:
+            self.connections.discard(conn)
+            if conn.activated:
+                self.sessions = max(0, self.sessions - 1)
+
+    # -- logins (called by the user manager, in the connection's task) ------------
+
+    def login_failed(self, user: str) -> None:
+        conn = CONNECTION.get()
+        peer = conn.peer if conn is not None else "unknown"
+        if conn is not None:
+            conn.quiet_fault = True
+        self.tallies["opcua_login_failed"].note(user=safe_user(user), peer=peer)
+
+    def login_ok(self, user: str) -> None:
+        """A session is activated; BadTooManySessions (a ServiceError) over the limit."""
+        conn = CONNECTION.get()
+        if conn is None or conn.activated:
+            return  # asyncua's own session, or one connection activating again
+        if self.sessions >= self.max_sessions:
+            self.sessions_refused += 1
+            conn.quiet_fault = True
+            self.tallies["opcua_session_refused"].note(user=safe_user(user), peer=conn.peer,
+                                                       limit=self.max_sessions)
+            raise ServiceError(StatusCodes.BadTooManySessions)
+        conn.activated = True
+        self.sessions += 1
+
+    def flush(self, *, force: bool = False) -> None:
+        for tally in self.tallies.values():
+            tally.flush(force=force)
+
+    async def summarise(self) -> None:
+        """On the face's loop: the summary lines, once per window."""
+        while True:
+            await asyncio.sleep(WINDOW_S / 4)
+            self.flush()
+
+
+def _abort(transport: asyncio.BaseTransport) -> None:
+    """Close at once, dropping anything unsent."""
+    if isinstance(transport, asyncio.Transport):
+        transport.abort()
+    else:
+        transport.close()
+
+
+class _Refused(asyncio.Protocol):
+    """A connection over the limit: closed as soon as it is made."""
+
+    def __init__(self, guard: Guard) -> None:
+        self.guard = guard
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        peer = str(transport.get_extra_info("peername"))
+        _abort(transport)
+        self.guard.refuse("limit", peer)
+
+
+class _Tracked(asyncio.Protocol):
+    """asyncua's protocol for one connection, counted, timed and known by its peer."""
+
+    def __init__(self, guard: Guard, conn: Connection, inner: asyncio.Protocol) -> None:
+        self.guard, self.conn, self.inner = guard, conn, inner
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.conn.peer = str(transport.get_extra_info("peername"))
+        self.conn.transport = transport if isinstance(transport, asyncio.Transport) else None
+        token = CONNECTION.set(self.conn)  # the tasks asyncua starts here copy it
+        try:
+            self.inner.connection_made(transport)
+        finally:
+            CONNECTION.reset(token)
+        self.guard._opened(self.conn)
+
+    def data_received(self, data: bytes) -> None:
+        self.inner.data_received(data)
+
+    def eof_received(self) -> bool | None:
+        return self.inner.eof_received()
+
+    def pause_writing(self) -> None:
+        self.inner.pause_writing()
+
+    def resume_writing(self) -> None:
+        self.inner.resume_writing()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.guard._closed(self.conn)
+        self.inner.connection_lost(exc)
+
+
+class FaceLoop(asyncio.SelectorEventLoop):
+    """The face's own event loop: servers it starts go through `guard`."""
+
+    def __init__(self, guard: Guard) -> None:
+        super().__init__()
+        self.guard = guard
+
+    async def create_server(  # type: ignore[override]
+            self, protocol_factory: Callable[[], asyncio.Protocol], *args: Any,
+            **kwargs: Any) -> asyncio.Server:
+        kwargs["backlog"] = ACCEPT_BURST
+        return await super().create_server(self.guard.factory(protocol_factory), *args,
+                                           **kwargs)
+
+
+class QuietFaults(logging.Filter):
+    """Drops asyncua's "sending service fault response" line for a refusal the
+    face has logged itself (a failed login, a session over the limit)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        conn = CONNECTION.get()
+        if conn is None or not conn.quiet_fault:
+            return True
+        if str(record.msg).startswith("sending service fault"):
+            conn.quiet_fault = False
+            return False
+        return True
+
+
+_QUIET = QuietFaults()
+
+
+def quiet_asyncua_faults() -> None:
+    """Install `QuietFaults` on asyncua's server processor logger (once)."""
+    logger = logging.getLogger("asyncua.server.uaprocessor")
+    if _QUIET not in logger.filters:
+        logger.addFilter(_QUIET)
+
+
+class GuardCollector(Collector):
+    """The face's counts as Prometheus metrics."""
+
+    def __init__(self, guard: Guard) -> None:
+        self.guard = guard
+
+    def collect(self) -> Iterator[Metric]:
+        g = self.guard
+        yield GaugeMetricFamily("compd_opcua_face_connections",
+                                "TCP connections the OPC UA face holds now",
+                                value=len(g.connections))
+        yield GaugeMetricFamily("compd_opcua_face_connection_limit",
+                                "Connections the OPC UA face accepts at most (max_connections, "
+                                "lowered to the file descriptors there are)", value=g.limit)
+        refused = CounterMetricFamily(
+            "compd_opcua_face_connections_refused",
+            "Connections the OPC UA face closed: over the limit, or no session in time",
+            labels=["reason"])
+        for reason, n in sorted(g.refused.items()):
+            refused.add_metric([reason], n)
+        yield refused
+        yield CounterMetricFamily("compd_opcua_face_logins_failed",
+                                  "Logins refused by the OPC UA face (wrong user or password)",
+                                  value=g.tallies["opcua_login_failed"].total)
+        yield CounterMetricFamily("compd_opcua_face_sessions_refused",
+                                  "Sessions refused by the OPC UA face (max_sessions reached)",
+                                  value=g.sessions_refused)
+
+
+@contextlib.contextmanager
+def connection(conn: Connection) -> Iterator[None]:
+    """`conn` as the current connection (tests of the user manager)."""
+    token = CONNECTION.set(conn)
+    try:
+        yield
+    finally:
+        CONNECTION.reset(token)
