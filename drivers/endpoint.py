@@ -10,7 +10,7 @@ what one refuses they all refuse, with the same one-line reason:
   ``#`` or ``@`` in it is still seen as one: ``opc.tcp://u:SE/CR@host``, and
   the typo ``opc.tcp:///u:SECRET@host``). It is refused: credentials belong
   in ``password_file`` / ``password_env``. The message shows the URL with
-  the userinfo replaced by ``***`` (`redact_endpoint`), never the secret.
+  the whole userinfo replaced by ``***`` (`redact_endpoint`).
 * **port**: ASCII digits, 1..65535 (``:99999``, ``:0``, ``:abc``, ``:``
   refused); the protocol's default port when there is none.
 * **path, query, fragment**: only OPC UA has a path (``/freeopcua/server/``);
@@ -88,14 +88,12 @@ def userinfo(url: str) -> str | None:
 
 
 def redact_endpoint(url: str) -> str:
-    """`url` with its userinfo hidden: ``scheme://user:***@host`` (the user
-    name stays, when there is a ``:``), ``scheme://***@host`` otherwise."""
+    """`url` with its whole userinfo hidden: ``scheme://***@host``. The user
+    name goes too: where a raw password ends and the user name begins cannot
+    be told (``u:p:w@``, or a password typed where the user goes)."""
     _, head, rest = _split_scheme(url)
     at = rest.rfind("@")
-    if at < 0:
-        return url
-    user, colon, _ = rest[:at].partition(":")
-    return f"{head}{user + ':' if colon else ''}***{rest[at:]}"
+    return url if at < 0 else f"{head}***{rest[at:]}"
 
 
 def credentials_reason(url: str) -> str | None:

@@ -6,8 +6,9 @@ security policy None) on the wire. compd refuses such a URL in the config
 (`url_credentials` says why; the endpoint's other checks are
 `drivers.endpoint`'s, shared with the drivers and ``compd sim --drive``) and,
 as a second line of defence, every place that prints or logs text passes it
-through `redact_urls`, which replaces the password of any URL in the text
-with ``***`` (``scheme://user:***@host``, as pip and git print them).
+through `redact_urls`, which replaces the userinfo of any URL in the text
+with ``***`` (``scheme://***@host``: the user name goes too, as where a raw
+password ends and the user name begins cannot be told).
 
 Where a userinfo ends is read as RFC 3986 reads it *and* as a user who typed
 a password raw would: the **last** ``@`` before the host ends it, even when
@@ -39,8 +40,7 @@ def url_credentials(url: str) -> str | None:
 
 
 def redact_urls(text: str) -> str:
-    """`text` with the userinfo of every URL in it hidden: ``user:***@`` (or
-    ``***@`` when there is no user name apart from it)."""
+    """`text` with the userinfo of every URL in it hidden: ``scheme://***@host``."""
     if "@" not in text:
         return text
     return _URL.sub(lambda m: redact_endpoint(m.group(0)), text)
