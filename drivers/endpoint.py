@@ -70,7 +70,8 @@ class Endpoint:
 
 
 def _split_scheme(url: str) -> tuple[str, str, str]:
-    """(``"scheme:"`` + slashes, the rest) -- ``("", "", url)`` without a scheme."""
+    """(scheme, ``"scheme:"`` and every slash after it, the rest); ``("", "",
+    url)`` when `url` does not start with a scheme and a slash."""
     scheme, sep, _ = url.partition(":")
     if sep and _SCHEME.fullmatch(scheme) and url[len(scheme) + 1:].startswith("/"):
         rest = url[len(scheme) + 1:]
