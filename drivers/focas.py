@@ -36,7 +36,6 @@ from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import partial
 from typing import TypeVar
-from urllib.parse import urlsplit
 
 from drivers import focas_abi as abi
 from drivers.addresses import (
@@ -48,6 +47,7 @@ from drivers.addresses import (
 )
 from drivers.backoff import Backoff
 from drivers.base import Quality, Sample, select_addresses
+from drivers.endpoint import endpoint_of
 from drivers.errors import BadAddress, ConnectionLost
 from drivers.focas_codec import PmcRange, decode_pmc, encode_pmc, read_ranges, write_runs
 from drivers.io_thread import IoThread
@@ -64,10 +64,10 @@ class LibraryRefusedError(ValueError):
 
 
 def parse_endpoint(endpoint: str) -> tuple[str, int]:
-    parts = urlsplit(endpoint)
-    if parts.scheme != "focas" or not parts.hostname:
-        raise ValueError(f"not a FOCAS endpoint: {endpoint!r} (expected 'focas://ip[:8193]')")
-    return parts.hostname, parts.port or 8193
+    """``focas://host[:port]`` -> (host, port); port 8193 by default
+    (`drivers.endpoint`: the checks every caller shares)."""
+    ep = endpoint_of("focas", endpoint)
+    return ep.host, ep.port
 
 
 def sha256_file(path: str) -> str:

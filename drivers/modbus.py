@@ -31,6 +31,7 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 from drivers.addresses import Address, ModbusAddress
 from drivers.backoff import Backoff
 from drivers.base import Quality, Sample
+from drivers.endpoint import endpoint_of
 from drivers.errors import (
     BadAddress,
     ConnectionLost,
@@ -50,21 +51,10 @@ BAD_ADDRESS_READ_CODES = frozenset({1, 2})
 
 
 def parse_endpoint(endpoint: str) -> tuple[str, int]:
-    """``modbus://host:port`` or ``host:port`` (port defaults to 502)."""
-    rest = endpoint.strip()
-    for scheme in ("modbus://", "modbus+tcp://", "tcp://"):
-        if rest.lower().startswith(scheme):
-            rest = rest[len(scheme):]
-            break
-    rest = rest.rstrip("/")
-    host, sep, port_text = rest.rpartition(":")
-    if not sep:
-        host, port_text = rest, str(DEFAULT_PORT)
-    host = host.strip("[]")
-    if not host or not port_text.isdigit() or not 0 < int(port_text) < 65536:
-        raise ValueError(f"not a Modbus TCP endpoint: {endpoint!r} "
-                         "(expected 'modbus://host:port' or 'host:port')")
-    return host, int(port_text)
+    """``modbus://host:port`` or ``host:port`` (port defaults to 502;
+    `drivers.endpoint`: the checks every caller shares)."""
+    ep = endpoint_of("modbus", endpoint)
+    return ep.host, ep.port
 
 
 def _fail_pending(client: AsyncModbusTcpClient) -> None:

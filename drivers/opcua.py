@@ -33,6 +33,7 @@ from asyncua.ua.uaerrors import UaError, UaStatusCodeError
 from drivers.addresses import OpcUaAddress
 from drivers.backoff import Backoff
 from drivers.base import Sample
+from drivers.endpoint import endpoint_of
 from drivers.errors import BadAddress, ConnectionLost, ControllerTimeout, DriverError, WriteRejected
 from drivers.link import Link, LinkedDriver
 from drivers.opcua_codec import (
@@ -88,8 +89,7 @@ class OpcUaDriver(LinkedDriver):
                  outputs: dict[str, OpcUaAddress], *, timeout_s: float = 0.5,
                  backoff: Backoff | None = None, security: OpcUaSecurity | None = None,
                  connect_timeout_s: float | None = None) -> None:
-        if not endpoint.startswith("opc.tcp://"):
-            raise ValueError(f"OPC UA endpoint must be opc.tcp://host:port, got {endpoint!r}")
+        endpoint_of("opcua", endpoint)  # the checks every caller shares (drivers.endpoint)
         if timeout_s <= 0:
             raise ValueError("timeout_s must be > 0")
         self.endpoint = endpoint

@@ -56,6 +56,21 @@ class ProtocolSpec:
     default_kind: str | None = None
     #: the driver takes ``connect_timeout_s`` (a connect slower than a request)
     connect_timeout: bool = False
+    #: the endpoint (`drivers.endpoint`): the protocol's name in messages, its
+    #: port when the URL gives none, whether it has a path, other schemes it
+    #: answers to, and whether a bare ``host:port`` is one
+    title: str = ""
+    default_port: int = 0
+    endpoint_path: bool = False
+    scheme_aliases: tuple[str, ...] = ()
+    bare_host_port: bool = False
+
+    @property
+    def endpoint_form(self) -> str:
+        """The endpoint's shape, for messages: ``'s7://host[:102]'``."""
+        path = "[/path]" if self.endpoint_path else ""
+        bare = f" or 'host[:{self.default_port}]'" if self.bare_host_port else ""
+        return f"'{self.scheme}://host[:{self.default_port}]{path}'{bare}"
 
     def address_types(self) -> tuple[type[Any], ...]:
         return tuple(_resolve(ref) for ref in self.addresses)
@@ -91,21 +106,23 @@ PROTOCOLS: dict[str, ProtocolSpec] = {spec.name: spec for spec in (
         "drivers.sim.opcua_server:OpcUaSimController", section="security",
         options="drivers.opcua_policy:OpcUaSecurityRules",
         section_required='a policy, or policy = "None" with insecure = true',
-        connect_timeout=True),
+        connect_timeout=True, title="OPC UA", default_port=4840, endpoint_path=True),
     ProtocolSpec(
         "s7", "s7", ("drivers.addresses:S7Address",), "drivers.s7:S7Driver",
         "drivers.sim.s7_server:S7SimController", section="s7",
-        options="drivers.protocol_options:S7Options"),
+        options="drivers.protocol_options:S7Options", title="S7", default_port=102),
     ProtocolSpec(
         "modbus", "modbus", ("drivers.addresses:ModbusAddress",), "drivers.modbus:ModbusDriver",
-        "drivers.sim.modbus_server:ModbusSimController"),
+        "drivers.sim.modbus_server:ModbusSimController", title="Modbus TCP", default_port=502,
+        scheme_aliases=("modbus+tcp", "tcp"), bare_host_port=True),
     ProtocolSpec(
         "focas", "focas",
         ("drivers.addresses:FocasPmcAddress", "drivers.addresses:FocasDiagAddress",
          "drivers.addresses:FocasSpindleLoadAddress"),
         "drivers.focas:FocasDriver", "drivers.sim.focas_server:FocasSimController",
         section="focas", options="drivers.protocol_options:FocasOptions",
-        section_required="library_path", default_kind="pmc"),
+        section_required="library_path", default_kind="pmc", title="FOCAS",
+        default_port=8193),
 )}
 
 

@@ -30,7 +30,6 @@ import time
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TypeVar
-from urllib.parse import urlsplit
 
 from snap7.client import Client
 from snap7.connection import ISOTCPConnection
@@ -39,6 +38,7 @@ from snap7.error import S7ConnectionError, S7Error, S7ProtocolError, S7TimeoutEr
 from drivers.addresses import S7Address
 from drivers.backoff import Backoff
 from drivers.base import Quality, Sample, select_addresses
+from drivers.endpoint import endpoint_of
 from drivers.errors import BadAddress, DriverError, WriteRejected
 from drivers.io_thread import IoThread
 from drivers.link import LinkedDriver, WorkerLink
@@ -55,11 +55,10 @@ _ITEM_CODE_RE = re.compile(r"\(0x([0-9a-fA-F]{2})\)")
 
 
 def parse_endpoint(endpoint: str) -> tuple[str, int]:
-    """``s7://host[:port]`` -> (host, port); port 102 by default."""
-    parts = urlsplit(endpoint)
-    if parts.scheme != "s7" or not parts.hostname:
-        raise ValueError(f"not an S7 endpoint: {endpoint!r} (expected 's7://host[:port]')")
-    return parts.hostname, parts.port or 102
+    """``s7://host[:port]`` -> (host, port); port 102 by default
+    (`drivers.endpoint`: the checks every caller shares)."""
+    ep = endpoint_of("s7", endpoint)
+    return ep.host, ep.port
 
 
 def _s7_code(exc: S7Error) -> int | None:

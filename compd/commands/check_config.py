@@ -16,7 +16,7 @@ import sys
 from typing import Any
 
 from compd.config.loader import LoadedConfig
-from compd.config.urls import redact_urls
+from drivers.endpoint import redact_endpoint
 
 
 def _summary(cfg: LoadedConfig) -> dict[str, Any]:
@@ -29,7 +29,8 @@ def _summary(cfg: LoadedConfig) -> dict[str, Any]:
         "machine": raw.machine.name, "period_s": raw.machine.period_s,
         "time_scale": raw.machine.time_scale,
         "protocol": raw.controller.protocol,
-        "endpoint": redact_urls(raw.controller.endpoint),  # refused by the config anyway
+        # a user name or password is refused by the config; hidden here all the same
+        "endpoint": redact_endpoint(raw.controller.endpoint),
         "channels": {n: {"address": a.describe(), "unit": raw.channels[n].unit,
                          "range": list(raw.channels[n].range)}
                      for n, a in cfg.channels.items()},

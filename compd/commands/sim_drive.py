@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     from drivers.sim.drive import DriveLoop
 
 from compd.argtypes import number
+from compd.config.urls import redact_urls
 from compd.sysexits import EX_CONFIG, EX_USAGE
 
 #: the bench maps shipped in the repository
@@ -53,7 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _usage(message: str) -> int:
-    print(f"compd sim: {message}", file=sys.stderr)
+    print(f"compd sim: {redact_urls(message)}", file=sys.stderr)
     return EX_USAGE
 
 
@@ -66,7 +67,8 @@ def _status_line(drive: DriveLoop) -> str:
         value = row.get(name, math.nan)
         return "-" if math.isnan(value) else format(value, fmt)
 
-    link = "up" if row.get("link_ok") else f"DOWN ({drive.last_error})"
+    # the URL was checked (no user name or password); hidden here all the same
+    link = "up" if row.get("link_ok") else f"DOWN ({redact_urls(str(drive.last_error))})"
     return (f"t={row['time_s'] / 3600:.3f} h speed={num('speed_rpm', '.0f')} rpm "
             f"bearing={num('bearing', '.1f')} C growth={num('growth_um', '.2f')} um "
             f"offset={num('offset_um', '.2f')} um error={num('error_um', '.2f')} um "
@@ -102,7 +104,7 @@ async def _drive(args: argparse.Namespace, drive: DriveLoop, until_s: float | No
         try:
             await drive.stop()
         except DriverError as exc:  # a permanent refusal: the map does not fit
-            print(f"compd sim: the controller refused: {exc}", file=sys.stderr)
+            print(f"compd sim: the controller refused: {redact_urls(str(exc))}", file=sys.stderr)
             rc = 1
     finally:
         for sig in signals:
@@ -128,8 +130,8 @@ def run_drive(args: argparse.Namespace) -> int:
         return _usage("--duration-h must be a positive number")
     if not (args.print_every_s >= 0 and math.isfinite(args.print_every_s)):
         return _usage("--print-every-s must be >= 0")
-    try:
-        protocol, _ = drive_endpoint(args.drive)
+    try:  # the checks of the daemon's [controller] endpoint: no user name or password
+        protocol, endpoint = drive_endpoint(args.drive)
     except ValueError as exc:
         return _usage(str(exc))
     map_path = Path(args.map) if args.map else MAPS_DIR / f"{protocol}.toml"
@@ -150,14 +152,15 @@ def run_drive(args: argparse.Namespace) -> int:
     try:
         driver = open_drive_driver(args.drive, drive_map, **overrides)
     except (ValueError, TypeError) as exc:  # protocol mismatch, library refused, ...
-        print(f"compd sim: cannot use {args.drive} with {map_path}: {exc}", file=sys.stderr)
+        print(f"compd sim: cannot use {endpoint} with {map_path}: {redact_urls(str(exc))}",
+              file=sys.stderr)
         return EX_CONFIG
     program = make_program(args.program, seed=args.seed, hours=args.hours)
     drive = DriveLoop(driver, drive_map, program=program, seed=args.seed,
                       period_s=args.period_s, speedup=args.speedup,
                       record=args.record is not None)
     until_s = args.duration_h * 3600.0 if args.duration_h is not None else None
-    print(f"compd sim: driving {args.drive} ({protocol}) with {map_path}: program "
+    print(f"compd sim: driving {endpoint} ({protocol}) with {map_path}: program "
           f"{program.name}, speedup {args.speedup:g}, period {args.period_s:g} s, "
           f"seed {args.seed}", flush=True)
     rc = asyncio.run(_drive(args, drive, until_s))

@@ -53,6 +53,7 @@ from pydantic import (
 )
 
 from compd.config.urls import url_credentials
+from drivers.endpoint import endpoint_of
 from drivers.opcua_policy import OpcUaSecurityRules
 from drivers.protocol_options import FocasOptions, S7Options
 from drivers.protocols import ProtocolName
@@ -182,11 +183,16 @@ class ControllerSection(_Section):
 
     @field_validator("endpoint")
     @classmethod
-    def _no_credentials(cls, v: str) -> str:
+    def _endpoint(cls, v: str, info: ValidationInfo) -> str:
+        """Checked as the driver checks it (`drivers.endpoint`), so that check
+        refuses what run would; the message never echoes a user name or password."""
         why = url_credentials(v)
-        if why is not None:  # the message must not echo the secret
+        if why is not None:
             raise ValueError(f"the endpoint {why} (set controller.security.username and "
                              f"password_file or password_env)")
+        protocol = info.data.get("protocol")
+        if protocol is not None:
+            endpoint_of(protocol, v)
         return v
 
 

@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from drivers.base import Driver, Quality
+from drivers.endpoint import EndpointError, parse_endpoint, redact_endpoint
 from drivers.errors import BadAddress, DriverError, WriteRejected
 from drivers.factory import open_driver
 from drivers.protocols import PROTOCOLS
@@ -193,16 +194,21 @@ def write_drive_record(path: str | os.PathLike[str], rows: dict[str, np.ndarray]
 
 def drive_endpoint(url: str) -> tuple[str, str]:
     """``opcua://h:p | s7://h:p | modbus://h:p | focas://h:p`` -> (protocol,
-    the endpoint string the protocol's driver takes)."""
-    scheme, sep, rest = url.strip().partition("://")
+    the endpoint string the protocol's driver takes), checked as the daemon's
+    config checks its endpoint (`drivers.endpoint`); the message of a refusal
+    never holds a user name or password."""
+    scheme, sep, rest = url.partition("://")
     scheme = scheme.lower()
     if not sep or not rest:
-        raise ValueError(f"not an endpoint: {url!r} (expected e.g. modbus://host:502)")
+        raise EndpointError(f"not an endpoint: {redact_endpoint(url)!r} "
+                            "(expected e.g. modbus://host:502)")
     for spec in PROTOCOLS.values():
         if scheme in (spec.name, spec.scheme):
-            return spec.name, f"{spec.scheme}://{rest}"
-    raise ValueError(f"unknown protocol {scheme!r} in {url!r}; "
-                     f"known: {', '.join(f'{name}://' for name in PROTOCOLS)}")
+            endpoint = f"{spec.scheme}://{rest}"
+            parse_endpoint(endpoint, spec)
+            return spec.name, endpoint
+    raise EndpointError(f"unknown protocol in {redact_endpoint(url)!r}; "
+                        f"known: {', '.join(f'{name}://' for name in PROTOCOLS)}")
 
 
 def open_drive_driver(url: str, drive_map: DriveMap, **overrides: Any) -> Driver:

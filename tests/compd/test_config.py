@@ -228,6 +228,7 @@ def test_protocol_section_for_another_protocol_is_refused(tmp_path: Path) -> Non
 
 def test_focas_library_path_must_be_absolute(tmp_path: Path) -> None:
     text = BASE.replace('protocol = "modbus"', 'protocol = "focas"').replace(
+        "modbus://", "focas://").replace(
         "[channels.bearing]", '[controller.focas]\nlibrary_path = "lib/libfwlib32.so"\n\n'
                               "[channels.bearing]")
     err = _error(tmp_path, text)

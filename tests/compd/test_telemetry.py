@@ -99,7 +99,7 @@ def test_secret_keys_and_registered_secrets_are_redacted() -> None:
     assert first["password"] == "***" and first["api_token"] == "***"
     assert first["Credentials"] == "***" and first["user"] == "operator"
     assert second["error"] == "BadUserAccessDenied for operator:***@host"
-    assert second["nested"] == {"url": "opc.tcp://operator:***@127.0.0.1", "ok": 3,
+    assert second["nested"] == {"url": "opc.tcp://***@127.0.0.1", "ok": 3,
                                 "secret_file": "***"}
     assert second["items"] == ["***", 2]
     assert second["exc"] == "bad ***"
