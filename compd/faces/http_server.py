@@ -219,20 +219,28 @@ class HttpServer:
             self._wake_w.send(b"\0")
 
     def stop(self, timeout_s: float = 5.0) -> None:
-        """Close the listener and every connection; join the threads. Idempotent."""
+        """Close the listener and every connection (the I/O thread does, as it ends);
+        join the threads. A worker still inside the application ends when it
+        returns. Idempotent."""
         self._stopping.set()
         self.wake()
         for _ in range(self.limits.workers):
             self._requests.put(None)
-        for t in self._threads:
-            t.join(timeout=timeout_s)
-        if not any(t.is_alive() for t in self._threads):
+        if not self._threads:  # never started: nobody else owns the sockets
             self._close_all()
+        else:
+            io_thread, *workers = self._threads
+            io_thread.join(timeout=timeout_s)
+            give_up = time.monotonic() + 1.0
+            for t in workers:
+                t.join(timeout=max(0.0, give_up - time.monotonic()))
+        with contextlib.suppress(OSError):
+            self._wake_w.close()
 
     def _close_all(self) -> None:
         for conn in list(self._conns):
             self._close(conn)
-        for s in (self._listener, self._wake_r, self._wake_w):
+        for s in (self._listener, self._wake_r):
             with contextlib.suppress(OSError):
                 s.close()
         with contextlib.suppress(OSError, ValueError):
@@ -260,12 +268,15 @@ class HttpServer:
     # -- the I/O thread ------------------------------------------------------------------
 
     def _io_loop(self) -> None:
-        while not self._stopping.is_set():
-            try:
-                self._io_once()
-            except Exception as exc:  # never a traceback, never the loop's end
-                self._count("server_error", error=f"{type(exc).__name__}: {exc}")
-                self._stopping.wait(0.05)  # not a hot loop if it happens again at once
+        try:
+            while not self._stopping.is_set():
+                try:
+                    self._io_once()
+                except Exception as exc:  # never a traceback, never the loop's end
+                    self._count("server_error", error=f"{type(exc).__name__}: {exc}")
+                    self._stopping.wait(0.05)  # not a hot loop if it happens again at once
+        finally:
+            self._close_all()  # the port is free once this thread has ended
 
     def _io_once(self) -> None:
         now = self.clock()

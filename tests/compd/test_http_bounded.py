@@ -270,3 +270,50 @@ def test_the_limits_come_from_the_telemetry_section(tmp_path: Path) -> None:
     with pytest.raises(ConfigError) as info:
         load_config(path)
     assert info.value.key == "telemetry.metrics_max_connections"
+
+
+_LOW_NOFILE_SERVER = """
+import json, resource, sys
+from compd.faces.http_server import HttpLimits, HttpServer
+resource.setrlimit(resource.RLIMIT_NOFILE, (40, 40))
+box = {}
+def app(environ, start_response):
+    body = json.dumps(box["server"].counts).encode()
+    start_response("200 OK", [("Content-Type", "application/json")])
+    return [body]
+box["server"] = server = HttpServer(app, "127.0.0.1", 0, HttpLimits(max_connections=500))
+server.start()
+print(server.port, flush=True)
+sys.stdin.read()
+server.stop()
+"""
+
+
+def test_out_of_file_descriptors_pauses_accepting_without_a_traceback() -> None:
+    """Past the process's descriptor limit (NOFILE), accept fails with EMFILE:
+    counted, the oldest waiting connection closed, no busy loop, no traceback;
+    the server answers again once descriptors are free."""
+    import json
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-c", _LOW_NOFILE_SERVER], text=True,
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    assert proc.stdout is not None and proc.stdin is not None
+    try:
+        port = int(proc.stdout.readline())
+        with ExitStack() as stack:
+            for _ in range(60):  # more than 40 descriptors' worth
+                stack.enter_context(_partial(port))
+            # its log line (structlog's default: stdout), once and not a line per accept
+            while "accept_failed" not in (line := proc.stdout.readline()):
+                assert line, "the server ended"
+        status, body = _get(port, "/counts")
+        assert status == 200
+        assert json.loads(body)["accept_failed"] >= 1
+    finally:
+        out, err = proc.communicate("", timeout=SAFETY_S)
+    assert proc.returncode == 0
+    assert "accept_failed" not in out  # rate-limited: one line a minute
+    assert "Traceback" not in out + err
