@@ -123,8 +123,6 @@ class _Conn:
     sock: socket.socket
     peer: str
     deadline: float
-    #: when the connection began waiting for its current request (eviction order)
-    waiting_since: float
     phase: str = _HEAD
     buf: bytearray = field(default_factory=bytearray)
     out: bytes = b""
@@ -184,6 +182,8 @@ class HttpServer:
         self._wake_r.setblocking(False)
         self._wake_w.setblocking(False)
         self._conns: set[_Conn] = set()
+        #: the connections waiting for a request head, longest waiting first
+        self._waiting: dict[_Conn, None] = {}
         self._requests: queue.SimpleQueue[_Request | None] = queue.SimpleQueue()
         self._answers: deque[tuple[_Conn, bytes, bool]] = deque()
         self._stopping = threading.Event()
@@ -353,21 +353,21 @@ class HttpServer:
                 self._count("evicted", victim.peer)
                 self._close(victim)
             now = self.clock()
-            conn = _Conn(sock=sock, peer=peer, deadline=now + self.limits.header_timeout_s,
-                         waiting_since=now)
+            conn = _Conn(sock=sock, peer=peer, deadline=now + self.limits.header_timeout_s)
             try:
                 self._selector.register(sock, selectors.EVENT_READ, conn)
             except (OSError, ValueError):
                 sock.close()
                 continue
             self._conns.add(conn)
+            self._waiting[conn] = None
 
     def _oldest_waiting(self) -> _Conn | None:
-        waiting = [c for c in self._conns if c.phase == _HEAD]
-        return min(waiting, key=lambda c: c.waiting_since) if waiting else None
+        return next(iter(self._waiting), None)
 
     def _close(self, conn: _Conn) -> None:
         self._conns.discard(conn)
+        self._waiting.pop(conn, None)
         with contextlib.suppress(KeyError, ValueError, OSError):
             self._selector.unregister(conn.sock)
         with contextlib.suppress(OSError):
@@ -401,6 +401,7 @@ class HttpServer:
         if request is None:
             return
         conn.phase = _BUSY
+        self._waiting.pop(conn, None)
         with contextlib.suppress(KeyError, ValueError):
             self._selector.unregister(conn.sock)
         self._requests.put(request)
@@ -485,6 +486,7 @@ class HttpServer:
     def _answer(self, conn: _Conn, data: bytes, keep_alive: bool) -> None:
         """Start writing `data`; then keep the connection for the next request or close."""
         conn.phase, conn.out, conn.sent, conn.keep_alive = _WRITE, data, 0, keep_alive
+        self._waiting.pop(conn, None)
         conn.deadline = self.clock() + self.limits.idle_timeout_s
         try:
             self._selector.modify(conn.sock, selectors.EVENT_WRITE, conn)
@@ -516,7 +518,8 @@ class HttpServer:
             return
         now = self.clock()
         conn.phase, conn.out, conn.fresh = _HEAD, b"", True
-        conn.deadline, conn.waiting_since = now + self.limits.idle_timeout_s, now
+        conn.deadline = now + self.limits.idle_timeout_s
+        self._waiting[conn] = None  # the newest waiting
         try:
             self._selector.modify(conn.sock, selectors.EVENT_READ, conn)
         except (KeyError, OSError, ValueError):
