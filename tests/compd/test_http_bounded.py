@@ -24,6 +24,7 @@ import pytest
 from compd.faces.http_server import HttpLimits, HttpServer, limits_from
 from compd.faces.telemetry import Metrics
 from compd.testing import FakeClock
+from drivers.sim.modbus_server import ModbusSimController
 
 SAFETY_S = 30.0
 
@@ -317,3 +318,46 @@ def test_out_of_file_descriptors_pauses_accepting_without_a_traceback() -> None:
     assert proc.returncode == 0
     assert "accept_failed" not in out  # rate-limited: one line a minute
     assert "Traceback" not in out + err
+
+
+async def test_a_daemon_at_its_connection_cap_is_still_healthy_by_url(
+        sim: ModbusSimController, tmp_path: Path) -> None:
+    """`[telemetry] metrics_max_connections` reaches the daemon's server: with the
+    cap filled by sockets that never finish a head, `compd health --url` and the
+    page still answer, and the cycle goes on."""
+    import argparse
+    import asyncio
+
+    from compd.commands import health
+    from compd.config.loader import load_config
+    from compd.runtime.daemon import Daemon
+    from compd.runtime.sdnotify import Notifier
+    from drivers.sim.ports import free_tcp_port
+    from tests.compd.daemon_helpers import until, write_config
+    from tests.compd.status_helpers import get
+
+    path = write_config(tmp_path, sim.endpoint, time_scale=10.0)
+    port = free_tcp_port("127.0.0.1")
+    path.write_text(path.read_text() + f"metrics_port = {port}\nmetrics_max_connections = 3\n"
+                    "\n[faces.http]\nenabled = true\n", encoding="utf-8")
+    daemon = Daemon(load_config(path), notifier=Notifier(None))
+    task = asyncio.create_task(daemon.run())
+    try:
+        await until(lambda: daemon.complete_cycles >= 3 or task.done())
+        server = daemon.metrics.http_server
+        assert server is not None and server.limits.max_connections == 3
+        with ExitStack() as stack:
+            for _ in range(10):
+                stack.enter_context(_partial(port))
+            await until(lambda: server.counts["evicted"] >= 7)
+            assert server.open_connections == 3
+            args = argparse.Namespace(url=f"http://127.0.0.1:{port}/metrics", state_dir=None,
+                                      max_age_s=60.0, timeout_s=5.0)
+            assert await asyncio.to_thread(health.run, args) == 0
+            code, _, _ = await asyncio.to_thread(get, f"http://127.0.0.1:{port}/")
+            assert code == 200
+            before = daemon.complete_cycles
+            await until(lambda: daemon.complete_cycles >= before + 3)
+    finally:
+        daemon.request_stop()
+        assert await asyncio.wait_for(task, 20.0) == 0
