@@ -138,7 +138,8 @@ def test_an_idle_kept_alive_connection_is_closed_after_the_idle_timeout() -> Non
             conn.request("GET", path)
             resp = conn.getresponse()
             assert (resp.status, resp.read()) == (200, f"hello {path}\n".encode())
-        assert server.served == 2 and server.open_connections == 1
+        _wait_for(lambda: server.served == 2, "the second answer counted")
+        assert server.open_connections == 1
         sock = conn.sock
         assert sock is not None
         clock.advance(10.0)  # past the header timeout: an idle connection is not a slow head
