@@ -31,33 +31,30 @@ minute per reason, never as a traceback:
 - ``app_error``: the application raised; the client gets 500.
 
 Time comes from `clock` (monotonic seconds; tests pass a fake one and call
-`wake` after advancing it).
+`wake` after advancing it). The HTTP itself (parsing a head, the WSGI call,
+error answers) is `compd.faces.http_wire`, without sockets or threads.
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
-import io
 import queue
 import selectors
 import socket
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
-from urllib.parse import unquote
 
 import structlog
 
 from compd.config.schema import TelemetrySection
+from compd.faces.http_wire import BadRequest, WSGIApp, environ, error_answer, parse_request, run_app
 
 __all__ = ["REASONS", "HttpLimits", "HttpServer", "WSGIApp", "limits_from"]
-
-#: a WSGI application (environ, start_response) -> body
-WSGIApp = Callable[[dict[str, Any], Callable[..., Any]], Iterable[bytes]]
 
 #: every reason a connection is closed early or answered with an error, as counted
 REASONS = ("header_timeout", "idle_timeout", "evicted", "refused", "head_too_large",
@@ -75,9 +72,6 @@ BACKLOG = 128
 _READ_CHUNK = 4096
 _ACCEPT_OUT_OF_RESOURCES = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS,
                                       errno.ENOMEM})
-_REASON_PHRASE = {400: "Bad Request", 413: "Content Too Large", 414: "URI Too Long",
-                  431: "Request Header Fields Too Large", 500: "Internal Server Error",
-                  501: "Not Implemented", 503: "Service Unavailable"}
 
 
 @dataclass(frozen=True)
@@ -104,16 +98,6 @@ def limits_from(telemetry: TelemetrySection) -> HttpLimits:
                       idle_timeout_s=telemetry.metrics_idle_timeout_s)
 
 
-class _Sink(io.RawIOBase):
-    """wsgi.errors: what the application writes there is dropped (never stderr)."""
-
-    def writable(self) -> bool:
-        return True
-
-    def write(self, data: Any) -> int:
-        return len(data)
-
-
 # connection phases
 _HEAD, _BUSY, _WRITE = "head", "busy", "write"
 
@@ -132,17 +116,13 @@ class _Conn:
 
 
 @dataclass
-class _Request:
+class _Job:
+    """A request for a worker: the connection it came on and its WSGI environ."""
+
     conn: _Conn
     environ: dict[str, Any]
     head: bool
     keep_alive: bool
-
-
-class _BadRequest(Exception):
-    def __init__(self, code: int, reason: str, detail: str) -> None:
-        super().__init__(detail)
-        self.code, self.reason = code, reason
 
 
 class HttpServer:
@@ -184,7 +164,7 @@ class HttpServer:
         self._conns: set[_Conn] = set()
         #: the connections waiting for a request head, longest waiting first
         self._waiting: dict[_Conn, None] = {}
-        self._requests: queue.SimpleQueue[_Request | None] = queue.SimpleQueue()
+        self._requests: queue.SimpleQueue[_Job | None] = queue.SimpleQueue()
         self._answers: deque[tuple[_Conn, bytes, bool]] = deque()
         self._stopping = threading.Event()
         self._accept_paused_until: float | None = None
@@ -347,7 +327,7 @@ class HttpServer:
                 victim = self._oldest_waiting()
                 if victim is None:
                     self._count("refused", peer)
-                    _send_quietly(sock, _error_response(503, "too many connections"))
+                    _send_quietly(sock, error_answer(503, "too many connections"))
                     sock.close()
                     continue
                 self._count("evicted", victim.peer)
@@ -393,10 +373,10 @@ class HttpServer:
 
     def _try_request(self, conn: _Conn) -> None:
         try:
-            request = self._parse(conn)
-        except _BadRequest as exc:
+            request = parse_request(conn.buf, self.limits.max_head_bytes)
+        except BadRequest as exc:
             self._count(exc.reason, conn.peer, error=str(exc))
-            self._answer(conn, _error_response(exc.code, str(exc)), False)
+            self._answer(conn, error_answer(exc.code, str(exc)), False)
             return
         if request is None:
             return
@@ -404,84 +384,8 @@ class HttpServer:
         self._waiting.pop(conn, None)
         with contextlib.suppress(KeyError, ValueError):
             self._selector.unregister(conn.sock)
-        self._requests.put(request)
-
-    def _parse(self, conn: _Conn) -> _Request | None:
-        buf = conn.buf
-        end = buf.find(b"\r\n\r\n")
-        sep = 4
-        if end < 0:
-            end, sep = buf.find(b"\n\n"), 2
-        limit = self.limits.max_head_bytes
-        if end < 0 and len(buf) <= limit:
-            return None
-        if end < 0 or end > limit:
-            first = buf.find(b"\n")
-            if first < 0 or first > limit:
-                raise _BadRequest(414, "head_too_large",
-                                  f"request line longer than {limit} bytes")
-            raise _BadRequest(431, "head_too_large", f"request head larger than {limit} bytes")
-        try:
-            text = bytes(buf[:end]).decode("latin-1")
-        except UnicodeDecodeError:  # pragma: no cover - latin-1 decodes every byte
-            raise _BadRequest(400, "bad_request", "undecodable head") from None
-        lines = text.replace("\r\n", "\n").split("\n")
-        parts = lines[0].split(" ")
-        if len(parts) != 3 or not parts[0].isalpha() or not parts[1]:
-            raise _BadRequest(400, "bad_request", "malformed request line")
-        method, target, version = parts
-        if version not in ("HTTP/1.0", "HTTP/1.1"):
-            raise _BadRequest(400, "bad_request", "unsupported HTTP version")
-        headers: dict[str, str] = {}
-        for line in lines[1:]:
-            name, colon, value = line.partition(":")
-            if not colon or not name or name != name.strip() or " " in name:
-                raise _BadRequest(400, "bad_request", "malformed header line")
-            key = name.lower()
-            value = value.strip(" \t")
-            headers[key] = f"{headers[key]}, {value}" if key in headers else value
-        if "transfer-encoding" in headers:
-            raise _BadRequest(501, "not_implemented", "Transfer-Encoding not supported")
-        length_text = headers.get("content-length", "0")
-        if not length_text.isdigit():
-            raise _BadRequest(400, "bad_request", "bad Content-Length")
-        length = int(length_text)
-        if length > limit:
-            raise _BadRequest(413, "body_too_large", f"request body larger than {limit} bytes")
-        start = end + sep
-        if len(buf) < start + length:
-            return None  # the body is still coming (within the head's deadline)
-        body = bytes(buf[start:start + length])
-        del buf[:start + length]
-        connection = headers.get("connection", "").lower()
-        if version == "HTTP/1.1":
-            keep_alive = "close" not in connection
-        else:
-            keep_alive = "keep-alive" in connection
-        return _Request(conn, self._environ(method, target, version, headers, body, conn),
-                        method == "HEAD", keep_alive)
-
-    def _environ(self, method: str, target: str, version: str, headers: dict[str, str],
-                 body: bytes, conn: _Conn) -> dict[str, Any]:
-        if "://" in target:  # absolute-form: the path part
-            target = "/" + target.split("://", 1)[1].partition("/")[2]
-        path, _, query = target.partition("?")
-        environ: dict[str, Any] = {
-            "REQUEST_METHOD": method, "SCRIPT_NAME": "",
-            "PATH_INFO": unquote(path, "latin-1"), "QUERY_STRING": query,
-            "SERVER_NAME": self.host, "SERVER_PORT": str(self.port),
-            "SERVER_PROTOCOL": version, "REMOTE_ADDR": conn.peer.rpartition(":")[0],
-            "CONTENT_LENGTH": str(len(body)) if body else "",
-            "CONTENT_TYPE": headers.get("content-type", ""),
-            "wsgi.version": (1, 0), "wsgi.url_scheme": "http",
-            "wsgi.input": io.BytesIO(body), "wsgi.errors": _Sink(),
-            "wsgi.multithread": True, "wsgi.multiprocess": False, "wsgi.run_once": False,
-        }
-        for key, value in headers.items():
-            if key in ("content-type", "content-length"):
-                continue
-            environ["HTTP_" + key.upper().replace("-", "_")] = value
-        return environ
+        env = environ(request, self.host, self.port, conn.peer.rpartition(":")[0])
+        self._requests.put(_Job(conn, env, request.method == "HEAD", request.keep_alive))
 
     def _answer(self, conn: _Conn, data: bytes, keep_alive: bool) -> None:
         """Start writing `data`; then keep the connection for the next request or close."""
@@ -538,63 +442,20 @@ class HttpServer:
             if request is None or self._stopping.is_set():
                 return
             try:
-                data = self._run_app(request)
+                data = run_app(self.app, request.environ, head=request.head,
+                               keep_alive=request.keep_alive)
                 keep_alive = request.keep_alive
             except Exception as exc:  # this request fails, nothing else
                 self._count("app_error", request.conn.peer,
                             error=f"{type(exc).__name__}: {exc}")
-                data, keep_alive = _error_response(500, "internal error"), False
+                data, keep_alive = error_answer(500, "internal error"), False
             self._answers.append((request.conn, data, keep_alive))
             self.wake()
-
-    def _run_app(self, request: _Request) -> bytes:
-        started: list[Any] = []
-        chunks: list[bytes] = []
-
-        def start_response(status: str, headers: list[tuple[str, str]],
-                           exc_info: Any = None) -> Callable[[bytes], None]:
-            if exc_info is not None and started:
-                raise exc_info[1].with_traceback(exc_info[2])
-            started[:] = [status, list(headers)]
-            return chunks.append
-
-        result = self.app(request.environ, start_response)
-        try:
-            for chunk in result:
-                chunks.append(bytes(chunk))
-        finally:
-            close = getattr(result, "close", None)
-            if close is not None:
-                close()
-        if not started:
-            raise RuntimeError("the application did not call start_response")
-        status, headers = started
-        body = b"".join(chunks)
-        lines = [f"HTTP/1.1 {status}"]
-        has_length = False
-        for name, value in headers:
-            if name.lower() in ("connection", "keep-alive", "transfer-encoding"):
-                continue
-            has_length = has_length or name.lower() == "content-length"
-            lines.append(f"{name}: {value}")
-        if not has_length:
-            lines.append(f"Content-Length: {len(body)}")
-        lines.append("Connection: " + ("keep-alive" if request.keep_alive else "close"))
-        head = ("\r\n".join(lines) + "\r\n\r\n").encode("latin-1")
-        return head if request.head else head + body
-
 
 def _peer(addr: Any) -> str:
     if isinstance(addr, tuple) and len(addr) >= 2:
         return f"{addr[0]}:{addr[1]}"
     return str(addr)
-
-
-def _error_response(code: int, text: str) -> bytes:
-    body = f"{text}\n".encode("latin-1", "replace")
-    return (f"HTTP/1.1 {code} {_REASON_PHRASE.get(code, 'Error')}\r\n"
-            "Content-Type: text/plain; charset=utf-8\r\n"
-            f"Content-Length: {len(body)}\r\nConnection: close\r\n\r\n").encode() + body
 
 
 def _send_quietly(sock: socket.socket, data: bytes) -> None:

@@ -362,3 +362,27 @@ async def test_a_daemon_at_its_connection_cap_is_still_healthy_by_url(
     finally:
         daemon.request_stop()
         assert await asyncio.wait_for(task, 20.0) == 0
+
+
+def test_a_head_is_parsed_when_whole_and_taken_off_the_buffer() -> None:
+    from compd.faces.http_wire import BadRequest, environ, parse_request
+
+    buf = bytearray(b"GET /status.json?x=1 HTTP/1.1\r\nHost: a\r\nAccept: text/plain\r\n")
+    assert parse_request(buf, 1024) is None  # no blank line yet
+    buf += b"Accept: */*\r\n\r\nGET /metrics HTTP/1.0\r\n\r\n"  # and a second one behind
+    first = parse_request(buf, 1024)
+    assert first is not None and first.keep_alive  # HTTP/1.1: kept alive by default
+    env = environ(first, "127.0.0.1", 9105, "127.0.0.1")
+    assert (env["PATH_INFO"], env["QUERY_STRING"], env["HTTP_ACCEPT"]) == (
+        "/status.json", "x=1", "text/plain, */*")
+    second = parse_request(buf, 1024)
+    assert second is not None and second.target == "/metrics" and not second.keep_alive
+    assert buf == b""
+    body = bytearray(b"POST / HTTP/1.1\r\nContent-Length: 4\r\nConnection: close\r\n\r\nab")
+    assert parse_request(body, 1024) is None  # the body is still coming
+    body += b"cd"
+    request = parse_request(body, 1024)
+    assert request is not None and request.body == b"abcd" and not request.keep_alive
+    with pytest.raises(BadRequest) as info:
+        parse_request(bytearray(b"GET / HTTP/1.1\r\nX: " + b"y" * 2000), 1024)
+    assert (info.value.code, info.value.reason) == (431, "head_too_large")
