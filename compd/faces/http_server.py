@@ -66,9 +66,10 @@ LOG_EVERY_S = 60.0
 #: how long accepting pauses after the process ran out of file descriptors
 ACCEPT_PAUSE_S = 0.25
 #: connections accepted per wake-up of the loop (the rest wait in the kernel's queue)
-ACCEPT_BATCH = 32
-#: the listening socket's backlog
-BACKLOG = 128
+ACCEPT_BATCH = 64
+#: the listening socket's backlog: deep enough that a flood of connects does not make
+#: the kernel drop a scrape's SYN (a retry a second later), the kernel caps it (somaxconn)
+BACKLOG = 1024
 _READ_CHUNK = 4096
 _ACCEPT_OUT_OF_RESOURCES = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS,
                                       errno.ENOMEM})
@@ -341,6 +342,9 @@ class HttpServer:
                 continue
             self._conns.add(conn)
             self._waiting[conn] = None
+            # a real client sent its request with its connect: read it now, before newer
+            # connections can make this one the oldest waiting (and close it)
+            self._read(conn)
 
     def _oldest_waiting(self) -> _Conn | None:
         return next(iter(self._waiting), None)
