@@ -386,6 +386,14 @@ class TelemetrySection(_Section):
     #: the address /metrics listens on: loopback by default; "0.0.0.0" or "::" in a
     #: container whose port is published, or for a Prometheus on another host
     metrics_host: Annotated[str, Field(min_length=1)] = "127.0.0.1"
+    #: the HTTP server's bounds (/metrics and [faces.http]): open connections at most
+    #: (beyond: the one waiting longest for a request is closed), seconds for a whole
+    #: request head, seconds a kept-alive connection may sit idle
+    metrics_max_connections: Annotated[int, Field(ge=1, le=1000)] = 64
+    metrics_header_timeout_s: Annotated[float, Field(gt=0.0, le=300.0,
+                                                     allow_inf_nan=False)] = 5.0
+    metrics_idle_timeout_s: Annotated[float, Field(gt=0.0, le=3600.0,
+                                                   allow_inf_nan=False)] = 30.0
     #: the least level of the protocol libraries' own loggers (asyncua, snap7,
     #: pymodbus); "default": WARNING, pymodbus CRITICAL (it logs every failed
     #: frame as an ERROR hex dump that our read_failed/write_failed already tell)

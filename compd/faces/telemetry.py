@@ -19,7 +19,8 @@ warning`` shows compd's warnings.
 
 Metrics (prometheus-client): one `Metrics` per daemon with its own registry,
 served over HTTP by `Metrics.start_http` (``[telemetry] metrics_host``,
-127.0.0.1 by default). Names follow Prometheus' naming practice: base units
+127.0.0.1 by default) from a bounded server with a fixed number of threads
+(`compd.faces.http_server`). Names follow Prometheus' naming practice: base units
 (seconds, degrees Celsius), one unit per metric, ``_total`` counters, an info
 metric. The one exception, chosen and documented (docs/operation.md §10): the
 offset is in micrometres (``compd_offset_micrometres``), the unit the
@@ -36,23 +37,22 @@ import logging
 import math
 import os
 import re
-import socket
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, TextIO, cast
-from wsgiref.simple_server import WSGIRequestHandler, WSGIServer, make_server
 
 import structlog
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, Info
-from prometheus_client.exposition import ThreadingWSGIServer, make_wsgi_app
+from prometheus_client.exposition import make_wsgi_app
 from structlog.typing import EventDict, Processor, WrappedLogger
 
 from compd.config.urls import redact_urls
+from compd.faces.http_server import REASONS, HttpLimits, HttpServer, WSGIApp
 
-__all__ = ["REDACTED", "LogStream", "Metrics", "clear_secrets", "configure_logging", "redact",
-           "register_secret"]
+__all__ = ["REDACTED", "HttpLimits", "LogStream", "Metrics", "WSGIApp", "clear_secrets",
+           "configure_logging", "redact", "register_secret"]
 
 REDACTED = "***"
 _SECRET_KEY = re.compile(
@@ -246,64 +246,65 @@ def configure_logging(json: bool | None = None, level: str = "info", *,
                                          else floor)
 
 
-#: a WSGI application (environ, start_response) -> body
-WSGIApp = Callable[[dict[str, Any], Callable[..., Any]], Iterable[bytes]]
-
-
-class _QuietHandler(WSGIRequestHandler):
-    """No stderr line per request (a page refreshes every few seconds); a client
-    that connects and sends nothing frees its thread after `timeout` seconds."""
-
-    timeout = 10.0
-
-    def log_message(self, format: str, *args: Any) -> None:
-        pass
-
-
 class MetricsServer:
-    """`registry` served as /metrics from a thread: `start_http`, `port`, `stop`
-    (for one daemon's `Metrics` and for a fleet process's `FleetMetrics`)."""
+    """`registry` served as /metrics by a bounded server (`compd.faces.http_server`):
+    `start_http`, `port`, `stop` (for one daemon's `Metrics` and for a fleet
+    process's `FleetMetrics`). The server's own counters (``compd_http_*``) join
+    the registry when it first serves."""
 
     registry: CollectorRegistry
 
     def _init_server(self) -> None:
-        self._server: WSGIServer | None = None
-        self._thread: threading.Thread | None = None
+        self._server: HttpServer | None = None
+        self._http_limited: Counter | None = None
 
     @property
     def port(self) -> int | None:
         """The port served on (useful after `start_http(0)`), None when not serving."""
-        if self._server is None:
-            return None
-        return int(self._server.server_address[1])
+        return None if self._server is None else self._server.port
+
+    @property
+    def http_server(self) -> HttpServer | None:
+        """The running server (None when not serving)."""
+        return self._server
+
+    def _http_metrics(self) -> Counter:
+        if self._http_limited is None:
+            r = self.registry
+            self._http_limited = Counter(
+                "compd_http_limited", "HTTP connections closed or answered with an error "
+                "by the server's bounds, by reason (header_timeout, idle_timeout, evicted, "
+                "refused, head_too_large, ...)", ["reason"], registry=r)
+            for reason in REASONS:
+                self._http_limited.labels(reason=reason)
+            Gauge("compd_http_connections", "Open HTTP connections to /metrics and the "
+                  "status page", registry=r).set_function(
+                lambda: float(self._server.open_connections) if self._server else 0.0)
+        return self._http_limited
 
     def start_http(self, port: int, host: str = "127.0.0.1",
-                   wrap: Callable[[WSGIApp], WSGIApp] | None = None) -> None:
-        """Serve /metrics on host:port (port 0: a free port, see `port`) from a thread.
-        `wrap`: wraps the metrics WSGI app to serve more paths on the same server
-        (the operator page, `compd.faces.status_http`)."""
+                   wrap: Callable[[WSGIApp], WSGIApp] | None = None,
+                   limits: HttpLimits | None = None) -> None:
+        """Serve /metrics on host:port (port 0: a free port, see `port`) with a fixed
+        number of threads. `wrap`: wraps the metrics WSGI app to serve more paths on
+        the same server (the operator page, `compd.faces.status_http`). `limits`:
+        connections, timeouts and head size (`HttpLimits` defaults)."""
         if self._server is not None:
             raise RuntimeError(f"metrics already served on port {self.port}")
         app: WSGIApp = make_wsgi_app(self.registry)
         if wrap is not None:
             app = wrap(app)
-        family = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM,
-                                    flags=socket.AI_PASSIVE)[0][0]
-        server_class = type("_Server", (ThreadingWSGIServer,), {"address_family": family})
-        server: WSGIServer = make_server(host, port, app, server_class, handler_class=_QuietHandler)
-        thread = threading.Thread(target=server.serve_forever, name="compd-http", daemon=True)
-        thread.start()
-        self._server, self._thread = server, thread
+        limited = self._http_metrics()
+        server = HttpServer(app, host, port, limits,
+                            on_count=lambda reason: limited.labels(reason=reason).inc())
+        server.start()
+        self._server = server
 
     def stop(self) -> None:
         """Stop serving and free the port. Idempotent."""
-        server, thread = self._server, self._thread
-        self._server = self._thread = None
+        server, self._server = self._server, None
         if server is not None:
-            server.shutdown()
-            server.server_close()
-        if thread is not None:
-            thread.join(timeout=5.0)
+            server.stop()
 
 
 class Metrics(MetricsServer):

@@ -62,6 +62,7 @@ from compd.core.adaptation import ProbeReading
 from compd.core.cycle import Cycle, CycleResult, params_from_config
 from compd.core.faults import GAUGE_ALARM, Event
 from compd.core.schedule import Schedule, shutdown_ramp_cycles
+from compd.faces.http_server import limits_from
 from compd.faces.status import StatusBoard
 from compd.faces.telemetry import Metrics, WSGIApp
 from compd.runtime import signals
@@ -280,7 +281,8 @@ class Daemon:
                                  "beside /metrics: it needs [telemetry] metrics_port")
             return
         try:
-            self.metrics.start_http(port, host, self._status_pages())
+            self.metrics.start_http(port, host, self._status_pages(),
+                                    limits_from(self.cfg.raw.telemetry))
         except OSError as exc:  # a port in use: compensation never stops for telemetry
             self.log.error("metrics_unavailable", host=host, port=port, error=str(exc),
                            hint="compd health --url will report unhealthy; free the port "

@@ -48,6 +48,7 @@ from compd.config.loader import LoadedConfig, load_config
 from compd.core.schedule import staggered_starts
 from compd.errors import ConfigError
 from compd.faces.fleet_metrics import FleetMetrics
+from compd.faces.http_server import HttpLimits, limits_from
 from compd.faces.telemetry import Metrics, WSGIApp
 from compd.runtime import signals
 from compd.runtime.daemon import Daemon
@@ -124,6 +125,14 @@ def metrics_endpoint(configs: list[LoadedConfig]) -> tuple[str, int] | None:
         if tel.metrics_port is not None:
             return tel.metrics_host, tel.metrics_port
     return None
+
+
+def metrics_limits(configs: list[LoadedConfig]) -> HttpLimits:
+    """The HTTP server's bounds: those of the first file that sets the endpoint."""
+    for cfg in configs:
+        if cfg.raw.telemetry.metrics_port is not None:
+            return limits_from(cfg.raw.telemetry)
+    return HttpLimits()
 
 
 class FleetDaemon(Daemon):
@@ -207,7 +216,8 @@ class Fleet:
         endpoint = metrics_endpoint(list(self.configs.values()))
         if endpoint is not None:
             try:
-                self.metrics.start_http(endpoint[1], endpoint[0], self._status_pages())
+                self.metrics.start_http(endpoint[1], endpoint[0], self._status_pages(),
+                                        metrics_limits(list(self.configs.values())))
             except OSError as exc:
                 self.log.error("metrics_unavailable", host=endpoint[0], port=endpoint[1],
                                error=str(exc))

@@ -31,6 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from compd.config.loader import LoadedConfig, load_config
+from compd.config.schema import TelemetrySection
 from compd.core.cycle import Cycle, CycleParams
 from compd.errors import ConfigError
 
@@ -78,8 +79,13 @@ def diff(old: LoadedConfig, new: LoadedConfig) -> Changes:
                     or old.outputs != new.outputs),
         outputs=old.outputs != new.outputs,
         recorder=(old.recorder_path, o.recorder) != (new.recorder_path, n.recorder),
-        metrics=(o.telemetry.metrics_port, o.telemetry.metrics_host, o.faces.http)
-        != (n.telemetry.metrics_port, n.telemetry.metrics_host, n.faces.http))
+        metrics=(_served(o.telemetry), o.faces.http) != (_served(n.telemetry), n.faces.http))
+
+
+def _served(t: TelemetrySection) -> tuple[object, ...]:
+    """What the metrics server is started with: a change restarts it."""
+    return (t.metrics_port, t.metrics_host, t.metrics_max_connections,
+            t.metrics_header_timeout_s, t.metrics_idle_timeout_s)
 
 
 def handover(old: Cycle, new_cfg: LoadedConfig, params: CycleParams,
