@@ -38,6 +38,7 @@ from models.compensation import CompensationModel, Term
 from models.errors import ModelError
 from models.greybox import GreyBox
 from models.mbotv import Mbotv
+from models.nesting import NestingError, loads_toml
 from models.sanity import check_period
 from models.tf import TransferFunction
 
@@ -167,7 +168,9 @@ def load_model(path: str | Path) -> CompensationModel:
     except OSError as exc:
         raise ModelError(f"{path}: cannot read the model file ({exc.strerror})") from None
     try:
-        doc = tomllib.loads(text)
+        doc = loads_toml(text)
+    except NestingError as exc:
+        raise ModelError(f"{path}: the model file has {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ModelError(f"{path}: not valid TOML ({exc})") from None
     return parse_model(doc)
