@@ -72,7 +72,8 @@ def recorder_table(path: str | Path, since: float | None = None,
         cols = read_samples(Path(path))
     except RecorderError as exc:
         raise ExportError(f"{path}: {exc.reason}") from None
-    except (ValueError, TypeError, AttributeError, KeyError, OverflowError) as exc:
+    except (ValueError, TypeError, AttributeError, KeyError, OverflowError,
+            RecursionError) as exc:  # JSON nested without end, too
         raise ExportError(f"{path}: corrupt recorder rows ({type(exc).__name__}); not a "
                           "recorder compd wrote") from None
     wall = np.asarray(cols["wall_s"], dtype=np.float64)

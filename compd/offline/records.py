@@ -196,8 +196,10 @@ def read_recorder_record(path: str | Path) -> Record:
         cols = read_samples(p)
     except RecorderError as exc:
         raise RecordError(f"{where}: {exc.reason}") from None
-    except (ValueError, TypeError, AttributeError, KeyError, OverflowError) as exc:
-        # a row the daemon did not write (JSON that does not parse, a text time)
+    except (ValueError, TypeError, AttributeError, KeyError, OverflowError,
+            RecursionError) as exc:
+        # a row the daemon did not write (JSON that does not parse or nests without end,
+        # a text time)
         raise RecordError(f"{where}: corrupt recorder rows ({type(exc).__name__}: "
                           f"{str(exc)[:120]}); not a record compd wrote") from None
     t = np.asarray(cols["time_s"], dtype=np.float64)
