@@ -146,6 +146,8 @@ def load_model(path: str | Path) -> CompensationModel:
     its content is checked by `models.modelfile` (ModelError)."""
     from models.modelfile import library_path, parse_model
 
+    if not os.fspath(path):
+        raise InputError("no model file named (empty path)")
     p = Path(path)
     if not os.path.lexists(p) and p.suffix == "" and library_path(str(path)) is not None:
         p = Path(str(library_path(str(path))))
