@@ -58,9 +58,14 @@ def parse_when(text: str) -> float:
 
 
 def _iso(wall_s: float) -> str:
+    """The wall time as ISO 8601; empty when missing or no date at all (a
+    corrupt row's 1e308 s is past year 9999: no datetime holds it)."""
     if not math.isfinite(wall_s):
         return ""
-    return datetime.fromtimestamp(wall_s, UTC).isoformat(timespec="milliseconds")
+    try:
+        return datetime.fromtimestamp(wall_s, UTC).isoformat(timespec="milliseconds")
+    except (OverflowError, OSError, ValueError):
+        return ""
 
 
 def recorder_table(path: str | Path, since: float | None = None,

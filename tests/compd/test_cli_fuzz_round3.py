@@ -82,6 +82,21 @@ _add(0, [*FIT, "--folds", "20", "-o", "@/folds20.toml"],
      ["fit", "@/flat_rise.csv", "--output", "dz_um", "--term", "bearing", "--folds", "4",
       "-o", "@/folds4.toml"])
 
+# found by running every command with hostile inputs (this round's search):
+# 3,000 coefficients (12 KiB) kept `check` computing poles for minutes; 65 terms
+_add(78, ["check", "@/long_b.toml"], ["check", "@/many_terms.toml"],
+     ["demo", "--model", "@/long_b.toml"])
+_add(65, ["step", "@/long_b.toml"], ["replay", "@/long_b.toml", REC, "--output", "dz_um"])
+# a record sampled every 1e-300 s (ValueError in the identification) or 1e300 s
+_add(65, ["fit", "@/tiny_period.csv", "--output", "dz_um", "--term", "bearing"],
+     ["fit", "@/huge_period.csv", "--output", "dz_um", "--term", "bearing"],
+     ["replay", "sp2", "@/tiny_period.csv", "--output", "dz_um"])
+# a probe more often than the record's rows (numpy "Maximum allowed size exceeded")
+_add(64, ["replay", "sp2", REC, "--output", "dz_um", "--probe-every", "1e-308"],
+     ["replay", "sp2", REC, "--output", "dz_um", "--probe-every", "0.5"])
+# a recorder row whose wall time is 1e308 s (OverflowError formatting the date)
+_add(0, ["export", "@/far_future.sqlite"])
+
 print(f"\ncompd CLI fuzzer, round 3: {len(CASES)} in-process cases + 3 subprocess cases")
 
 
@@ -109,14 +124,14 @@ def _model(inputs: str, a: str, b: str) -> str:
             f"inputs = {{ {inputs} }}\na = [{a}]\nb = [{b}]\n")
 
 
-def _recorder(path: Path) -> None:
+def _recorder(path: Path, channels: str, wall_s: float = 0.0) -> None:
     conn = sqlite3.connect(path)
     conn.execute("CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT)")
-    conn.execute("INSERT INTO meta VALUES ('channels', ?)", ("[" * 100_000 + "]" * 100_000,))
+    conn.execute("INSERT INTO meta VALUES ('channels', ?)", (channels,))
     conn.execute("CREATE TABLE samples (seq, cycle, mono_s, wall_s, offset_um, model_um, state,"
                  " valid, channels, validity, contributions)")
     conn.executemany("INSERT INTO samples VALUES (?,?,?,?,?,?,?,?,?,?,?)",
-                     [(i, i, float(i), float(i), 0.0, 0.0, 0, 1, "{}", "{}", "{}")
+                     [(i, i, float(i), wall_s + i, 0.0, 0.0, 0, 1, "{}", "{}", "{}")
                       for i in range(5)])
     conn.commit()
     conn.close()
@@ -137,7 +152,19 @@ def root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (path / "bigfield.csv").write_text(
         "time_s,bearing,dz_um\n0,20,0\n1,20,0\n2," + big + ",0\n3,20,0\n", encoding="utf-8")
     (path / "bigfield_header.csv").write_text(f"time_s,{big}\n0,1\n", encoding="utf-8")
-    _recorder(path / "deep.sqlite")
+    _recorder(path / "deep.sqlite", "[" * 100_000 + "]" * 100_000)
+    _recorder(path / "far_future.sqlite", "[]", wall_s=1e308)
+    (path / "long_b.toml").write_text(
+        _model("bearing = 1.0", '"0.5"', ", ".join(['"1"', *['"0"'] * 2998, '"-0.5"'])),
+        encoding="utf-8")
+    term = ('[[terms]]\nname = "t{}"\ninputs = {{ bearing = 1.0 }}\na = ["0.01"]\n'
+            'b = ["1", "-0.5"]\n')
+    (path / "many_terms.toml").write_text(
+        '[model]\nname = "m"\nperiod_s = 1.0\n' + "".join(term.format(i) for i in range(65)),
+        encoding="utf-8")
+    for name, dt in (("tiny_period.csv", 1e-300), ("huge_period.csv", 1e300)):
+        (path / name).write_text("time_s,bearing,ambient,dz_um\n" + "".join(
+            f"{k * dt!r},{20 + k / 10},20,{k / 10}\n" for k in range(50)), encoding="utf-8")
     (path / "passwd").write_text("root:x:0:0:root:/root:/bin/bash\n", encoding="utf-8")
     (path / "nul.toml").write_bytes(b"[model]\x00\n")
     (path / "latin1.toml").write_bytes('[model]\nname = "Süd"\n'.encode("latin-1"))
