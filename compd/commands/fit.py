@@ -102,8 +102,11 @@ STRUCTURE_CHOICES: tuple[str, ...] = ("auto", "arx", "shared-oe", "ridge", "per-
 DEFAULT_FOLDS = 4
 MAX_FOLDS = 20
 MIN_FOLD_ROWS = 10
-#: at most this many inputs chosen by --candidates (each one more greedy round)
+#: at most this many inputs chosen by --candidates (each one more greedy round; the
+#: columns they may match: `compd.offline.fit_search.MAX_CANDIDATES`), and this many
+#: --term (the identification grows with each)
 MAX_TERMS = 12
+MAX_FIT_TERMS = 16
 
 #: default slowest allowed time constant of a fitted pole, days
 DEFAULT_MAX_TIME_CONSTANT_DAYS = 3.0
@@ -441,6 +444,13 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
     from models.errors import ModelError
     from models.modelfile import save_model
 
+    if len(args.term) > MAX_FIT_TERMS:
+        from compd.infiles import InputError
+        from compd.sysexits import EX_USAGE
+
+        raise InputError(f"--term given {len(args.term)} times; at most {MAX_FIT_TERMS} "
+                         "(each one more set of coefficients to identify: 60 took minutes)",
+                         EX_USAGE)
     try:
         specs = [parse_term(t) for t in args.term]
     except ValueError as exc:
@@ -455,13 +465,13 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
                        force=args.force, inputs=sources)
     channels = {ch for _, inputs in specs for ch in inputs}
     records = _read_records(data, args, channels)
+    _check_folds(args, records)
     if args.candidates:
         specs = _search_specs(args, records)
         channels = {ch for _, inputs in specs for ch in inputs}
         records = _read_records(data, args, channels)
     holdout = _read_records([str(p) for p in args.validation_record], args, channels,
                             records[0])
-    _check_folds(args, records)
     for w in [w for r in records for w in speed_warnings(r)] if len(records) == 1 else []:
         print(f"compd fit: warning: {w}", file=sys.stderr)
     fixed, fixed_preds = _fixed_terms(list(args.fixed), records)

@@ -79,6 +79,9 @@ _add(64, ["fit", "@/flat.csv", "--output", "dz_um", "--term", "bearing", "--fold
 for terms in ("0", "-1", "13", "100000", "x"):
     _add(64, [*FIT, "--candidates", "*", "--max-terms", terms])
 _add(0, [*FIT, "--folds", "20", "-o", "@/folds20.toml"],
+     ["fit", REC, "--output", "dz_um", "--candidates", "*", "-o", "@/candidates.toml"],
+     ["fit", REC, "--output", "dz_um", "--candidates", "*", "--folds", "3", "-o",
+      "@/candidates3.toml"],
      ["fit", "@/flat_rise.csv", "--output", "dz_um", "--term", "bearing", "--folds", "4",
       "-o", "@/folds4.toml"])
 
@@ -94,6 +97,11 @@ _add(65, ["fit", "@/tiny_period.csv", "--output", "dz_um", "--term", "bearing"],
 # a probe more often than the record's rows (numpy "Maximum allowed size exceeded")
 _add(64, ["replay", "sp2", REC, "--output", "dz_um", "--probe-every", "1e-308"],
      ["replay", "sp2", REC, "--output", "dz_um", "--probe-every", "0.5"])
+# counts that grow the identification without bound: 200 candidate columns or 60 terms
+# took minutes
+_add(64, ["fit", "@/wide.csv", "--output", "dz_um", "--candidates", "c*"],
+     ["fit", "@/wide.csv", "--output", "dz_um", *(a for i in range(17) for a in
+                                                 ("--term", f"c{i}"))])
 # a recorder row whose wall time is 1e308 s (OverflowError formatting the date)
 _add(0, ["export", "@/far_future.sqlite"])
 
@@ -165,6 +173,10 @@ def root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     for name, dt in (("tiny_period.csv", 1e-300), ("huge_period.csv", 1e300)):
         (path / name).write_text("time_s,bearing,ambient,dz_um\n" + "".join(
             f"{k * dt!r},{20 + k / 10},20,{k / 10}\n" for k in range(50)), encoding="utf-8")
+    (path / "wide.csv").write_text("time_s," + ",".join(f"c{i}" for i in range(40)) + ",dz_um\n"
+                                   + "".join(f"{k}," + ",".join(f"{20 + (i * k) % 7}" for i in
+                                                                range(40)) + f",{k % 5}\n"
+                                             for k in range(50)), encoding="utf-8")
     (path / "passwd").write_text("root:x:0:0:root:/root:/bin/bash\n", encoding="utf-8")
     (path / "nul.toml").write_bytes(b"[model]\x00\n")
     (path / "latin1.toml").write_bytes('[model]\nname = "Süd"\n'.encode("latin-1"))
