@@ -22,6 +22,9 @@ import re
 import sqlite3
 import subprocess
 import sys
+import threading
+from collections.abc import Iterator
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
@@ -235,3 +238,54 @@ def test_a_narrow_output_encoding_never_ends_a_command(argv: list[str], code: in
         assert b"\\xb5m" in done.stdout  # µm, escaped
     else:
         assert len(done.stderr.strip().splitlines()) == 1
+
+
+#: status pages a hostile or broken server may send (`compd status --url`)
+PAGES = {
+    "nested": b"[" * 100_000 + b"]" * 100_000,
+    "nested_object": b'{"machines": ' + b'{"a": ' * 50_000 + b"1" + b"}" * 50_000 + b"}",
+    "huge_ints": b'{"machines": [{"state": "on", "age_s": 1' + b"0" * 400 + b', "period_s": 1,'
+                 b' "offset_um": -1' + b"0" * 400 + b', "limit_um": 1' + b"0" * 400 + b"}]}",
+    "wrong_types": b'{"state": "on", "machine": {"a": 1}, "why": [1], "channels": 5, '
+                   b'"limit_um": true, "age_s": "x", "offset_um": NaN}',
+    "channels_text": b'{"state": "on", "channels": "abc"}',
+    "latin1": '{"state": "Süd"}'.encode("latin-1"),
+}
+
+
+@pytest.fixture(scope="module")
+def page_server() -> Iterator[str]:
+    class Pages(BaseHTTPRequestHandler):
+        def do_GET(self) -> None:
+            body = PAGES[self.path.strip("/").removesuffix("/status.json")]
+            self.send_response(200)
+            self.send_header("Content-Type", "application/json")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, *args: object) -> None:
+            pass
+
+    server = ThreadingHTTPServer(("127.0.0.1", 0), Pages)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}"
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join()
+
+
+@pytest.mark.parametrize("page", sorted(PAGES))
+def test_a_hostile_status_page_is_one_line(page: str, page_server: str,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    for extra in ([], ["--json"]):
+        rc = main(["status", "--url", f"{page_server}/{page}/status.json", *extra])
+        err = capsys.readouterr().err
+        assert rc in (0, 1, 65), (page, rc, err)  # on, not all on, not a status page
+        assert "Traceback" not in err
+        assert rc in (0, 1) or len(err.strip().splitlines()) == 1, err
+    if page.startswith("nested"):
+        assert rc == 65
