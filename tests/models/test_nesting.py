@@ -7,9 +7,13 @@ from __future__ import annotations
 import json
 import tomllib
 from pathlib import Path
+from typing import Any
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from models import tomltext
 from models.modelfile import load_model
 from models.nesting import (
     MAX_NESTING,
@@ -105,3 +109,39 @@ def test_a_deep_checkpoint_is_a_checkpoint_error(tmp_path: Path) -> None:
     path.chmod(0o600)
     with pytest.raises(CheckpointError, match="nested more than"):
         load_checkpoint(path)
+
+
+#: TOML's structural characters, quotes, escapes and comments, in any order
+_TOML_ALPHABET = st.sampled_from([*"[]{}\"'#\\\n =,.ab1", '"""', "'''", "a = ", "\n[t]\n"])
+
+
+@settings(max_examples=150, deadline=None, derandomize=True)
+@given(st.lists(_TOML_ALPHABET, max_size=60).map("".join))
+def test_the_scan_never_refuses_what_tomllib_reads_shallow(text: str) -> None:
+    """Whatever tomllib reads (and nests no deeper than the bound), the
+    bounded reader reads the same; whatever it refuses, the bounded reader
+    refuses too (a TOMLDecodeError or a NestingError, never anything else)."""
+    try:
+        expected = tomllib.loads(text)
+    except tomllib.TOMLDecodeError:
+        with pytest.raises((tomllib.TOMLDecodeError, NestingError)):
+            loads_toml(text)
+        return
+    if document_depth(expected) <= MAX_NESTING and text_depth(text) <= MAX_NESTING:
+        assert loads_toml(text) == expected
+    assert text_depth(text) >= 0
+
+
+_TEXT = st.text(alphabet=st.sampled_from([*"[]{}\"'#\\\n\t ab", "\u00b5"]), max_size=20)
+_KEYS = st.text(alphabet="ab_", min_size=1, max_size=4)  # the writer's bare keys
+_VALUES = st.recursive(st.one_of(_TEXT, st.integers(-5, 5), st.booleans()),
+                       lambda inner: st.one_of(st.lists(inner, max_size=3),
+                                               st.dictionaries(_KEYS, inner, max_size=3)),
+                       max_leaves=10)
+
+
+@settings(max_examples=150, deadline=None, derandomize=True)
+@given(st.dictionaries(_KEYS, _VALUES, max_size=4))
+def test_documents_with_brackets_in_their_strings_read_as_written(doc: dict[str, Any]) -> None:
+    text = tomltext.dumps(doc)
+    assert loads_toml(text) == tomllib.loads(text) == doc
