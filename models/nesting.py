@@ -14,6 +14,7 @@ Every refusal is one `NestingError` (a ValueError) saying how deep.
 from __future__ import annotations
 
 import json
+import re
 import tomllib
 from collections.abc import Callable
 from typing import Any
@@ -26,43 +27,51 @@ class NestingError(ValueError):
     """The text nests arrays and tables (objects) too deep to be read."""
 
 
+#: the next character that matters to the scan outside a string (TOML, JSON), and
+#: inside one (basic strings escape with a backslash, literal ones do not)
+_TOML_MARK = re.compile(r"""[\[\]{}"'#]""")
+_JSON_MARK = re.compile(r"""[\[\]{}"]""")
+_BASIC_END = re.compile(r"""["\\\n]""")
+_LITERAL_END = re.compile(r"""['\n]""")
+_LONG_BASIC_END = re.compile(r'''"""|\\''')
+_LONG_LITERAL_END = re.compile(r"""'''""")
 
-def _skip_string(text: str, i: int, quote: str, escapes: bool) -> int:
+
+def _skip_string(text: str, i: int, quote: str) -> int:
     """The index after the string that opens at `i` (one quote or three)."""
     n = len(text)
     if text.startswith(quote * 3, i):
+        end = _LONG_BASIC_END if quote == '"' else _LONG_LITERAL_END
         i += 3
-        while i < n:
-            if escapes and text[i] == "\\":
-                i += 2
+        while (m := end.search(text, i)) is not None:
+            if m.group() == "\\":
+                i = m.end() + 1  # past the escaped character
                 continue
-            if text.startswith(quote * 3, i):
-                i += 3
-                extra = 0
-                while i < n and text[i] == quote and extra < 2:  # """a"""" ends in a quote
-                    i += 1
-                    extra += 1
-                return i
-            i += 1
+            i = m.end()
+            extra = 0
+            while i < n and text[i] == quote and extra < 2:  # """a"""" ends in a quote
+                i += 1
+                extra += 1
+            return i
         return n
+    end = _BASIC_END if quote == '"' else _LITERAL_END
     i += 1
-    while i < n:
-        c = text[i]
-        if escapes and c == "\\":
-            i += 2
+    while (m := end.search(text, i)) is not None:
+        if m.group() == "\\":
+            i = m.end() + 1
             continue
-        if c in (quote, "\n"):
-            return i + 1
-        i += 1
+        return m.end()  # the closing quote, or the line's end (an unclosed string)
     return n
 
 
 def text_depth(text: str, *, toml: bool = True, stop_at: int | None = None) -> int:
     """The deepest nesting of brackets and braces outside strings (and, in
     TOML, comments); scanning stops once it passes `stop_at`."""
+    mark = _TOML_MARK if toml else _JSON_MARK
     depth = deepest = 0
     i, n = 0, len(text)
-    while i < n:
+    while (m := mark.search(text, i)) is not None:
+        i = m.start()
         c = text[i]
         if c in "[{":
             depth += 1
@@ -72,13 +81,10 @@ def text_depth(text: str, *, toml: bool = True, stop_at: int | None = None) -> i
                     return deepest
         elif c in "]}":
             depth = max(depth - 1, 0)
-        elif c == '"':
-            i = _skip_string(text, i, '"', escapes=True)
+        elif c in "\"'":
+            i = _skip_string(text, i, c)
             continue
-        elif toml and c == "'":
-            i = _skip_string(text, i, "'", escapes=False)
-            continue
-        elif toml and c == "#":
+        else:  # a TOML comment, to the line's end
             end = text.find("\n", i)
             i = n if end < 0 else end
             continue
