@@ -3,7 +3,9 @@
 `number(lo, hi)` is the one argparse type for every float option: NaN, inf
 and anything outside [lo, hi] (or (lo, hi] with ``lo_open``) is refused by
 the parser with one line naming the range, so no command computes with an
-absurd value. `port` is a TCP port (0 = a free one).
+absurd value. `count(lo, hi)` is the same for a whole number (a count of
+folds, terms...: a huge one would make a command run for hours). `port` is a
+TCP port (0 = a free one).
 """
 
 from __future__ import annotations
@@ -33,6 +35,22 @@ def number(lo: float, hi: float, *, lo_open: bool = False,
         return value
 
     parse.__name__ = "number"  # argparse names the type in its messages
+    return parse
+
+
+def count(lo: int, hi: int) -> Callable[[str], int]:
+    """An argparse type: a whole number in lo … hi."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be {lo} … {hi}: {text!r}")
+        return value
+
+    parse.__name__ = "count"
     return parse
 
 

@@ -8,6 +8,7 @@ happen inside ``run`` so that one command never pays for another's.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import sys
 import typing
@@ -89,6 +90,20 @@ def _ensure_std_streams() -> None:
         setattr(sys, name, open(fd, "w", encoding="utf-8", closefd=False))  # noqa: SIM115
 
 
+def _tolerant_std_streams() -> None:
+    """A narrow output encoding (``PYTHONIOENCODING=ascii``, a C locale of
+    another Python) must not end a command that prints µ, ° or ±, or a file
+    name of raw bytes: what the encoding cannot say is written
+    backslash-escaped (``\\xb5m``) instead of raising UnicodeEncodeError."""
+    for name in ("stdout", "stderr"):
+        stream = getattr(sys, name)
+        reconfigure = getattr(stream, "reconfigure", None)
+        if reconfigure is None or getattr(stream, "errors", None) == "backslashreplace":
+            continue
+        with contextlib.suppress(OSError, ValueError):  # else left as it is
+            reconfigure(errors="backslashreplace")
+
+
 def _quiet_stdout() -> None:
     """stdout's reader went away (``compd check | head -1``): drop the rest
     quietly, as other Unix tools do, instead of a BrokenPipeError at exit."""
@@ -116,6 +131,7 @@ def _flush_stdout() -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     _ensure_std_streams()
+    _tolerant_std_streams()
     args = build_parser().parse_args(argv)
     try:
         rc: int = args._run(args)

@@ -22,6 +22,7 @@ from typing import IO, TYPE_CHECKING
 
 from compd.errors import CompdError
 from compd.sysexits import EX_DATAERR, EX_NOINPUT
+from models.nesting import NestingError, loads_toml
 
 if TYPE_CHECKING:
     from models.compensation import CompensationModel
@@ -119,12 +120,15 @@ def read_text(path: str | os.PathLike[str], what: str, max_bytes: int) -> str:
 def read_toml_document(path: str | os.PathLike[str], what: str,
                        max_bytes: int = MAX_CONFIG_BYTES) -> tuple[bytes, dict[str, object]]:
     """The file's bytes and its TOML document: the one reading of a config or
-    model file (`compd run` and `compd check` both); not UTF-8 text or a
-    syntax error is an InputError (65) naming the file."""
+    model file (`compd run` and `compd check` both); not UTF-8 text, a
+    syntax error or arrays and tables nested deeper than
+    `models.nesting.MAX_NESTING` is an InputError (65) naming the file."""
     data = read_bytes(path, what, max_bytes)
     text = decode_text(data, path, what)
     try:
-        return data, tomllib.loads(text)
+        return data, loads_toml(text)
+    except NestingError as exc:
+        raise InputError(f"{os.fspath(path)}: the {what} has {exc}", EX_DATAERR) from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{os.fspath(path)}: the {what} is not valid TOML ({exc})",
                          EX_DATAERR) from None
@@ -138,16 +142,21 @@ def read_toml(path: str | os.PathLike[str], what: str,
 
 def load_model(path: str | Path) -> CompensationModel:
     """A model file, or a bundled library model by name (``sp2``), read with
-    the limits above; its content is checked by `models.modelfile`."""
-    from models.errors import ModelError
+    the limits above (not TOML is an InputError, 65, as `compd check` says);
+    its content is checked by `models.modelfile` (ModelError)."""
     from models.modelfile import library_path, parse_model
 
+    if not os.fspath(path):
+        raise InputError("no model file named (empty path)")
     p = Path(path)
     if not os.path.lexists(p) and p.suffix == "" and library_path(str(path)) is not None:
         p = Path(str(library_path(str(path))))
     text = read_text(p, "model file", MAX_MODEL_BYTES)
     try:
-        doc = tomllib.loads(text)
+        doc = loads_toml(text)
+    except NestingError as exc:
+        raise InputError(f"{path}: the model file has {exc}", EX_DATAERR) from None
     except tomllib.TOMLDecodeError as exc:
-        raise ModelError(f"{path}: not valid TOML ({exc})") from None
+        raise InputError(f"{path}: the model file is not valid TOML ({exc})",
+                         EX_DATAERR) from None
     return parse_model(doc)

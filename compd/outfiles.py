@@ -9,7 +9,8 @@ are caught too), and is replaced only with ``--force``. `write_atomically`
 writes a temporary file in the same directory, fsyncs it, renames it over the
 target and fsyncs the directory: a reader sees the old file or the new one,
 never half of one, and a failed write leaves the old file as it was. Each
-refusal is one `OutputError` with its exit code (73 cannot create, 74 I/O).
+refusal is one `OutputError` with its exit code (73 cannot create, 74 I/O,
+64 a name that is not text in the file system's encoding).
 """
 
 from __future__ import annotations
@@ -17,12 +18,13 @@ from __future__ import annotations
 import contextlib
 import os
 import stat
+import sys
 import tempfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from compd.errors import CompdError
-from compd.sysexits import EX_CANTCREAT, EX_IOERR
+from compd.sysexits import EX_CANTCREAT, EX_IOERR, EX_USAGE
 
 
 class OutputError(CompdError):
@@ -62,6 +64,20 @@ def _check_target(p: Path, what: str, force: bool, inputs: Iterable[str | os.Pat
         raise OutputError(f"{p}: exists; give --force to replace it with the {what}")
 
 
+def _check_name(text: str, what: str) -> None:
+    """A name the file system encoding cannot represent as text (bytes that
+    are not UTF-8, which Python carries as lone surrogates) is refused: the
+    file could be created, but not named again in a config, a model's
+    provenance or a message. The name is shown with its bytes escaped."""
+    encoding = sys.getfilesystemencoding()
+    try:
+        text.encode(encoding)
+    except UnicodeEncodeError:
+        shown = ascii(os.fsencode(text))[1:]  # b'\xfe.toml' -> '\xfe.toml'
+        raise OutputError(f"{shown}: the {what}'s name is not {encoding} text; give it a "
+                          "name of characters, not raw bytes", EX_USAGE) from None
+
+
 def check_output(path: str | os.PathLike[str], what: str, *, force: bool = False,
                  inputs: Iterable[str | os.PathLike[str]] = ()) -> Path:
     """The target as a Path, once it is known that the {what} can be written
@@ -69,6 +85,7 @@ def check_output(path: str | os.PathLike[str], what: str, *, force: bool = False
     text = os.fspath(path)
     if not text:
         raise OutputError(f"no file named for the {what} (empty path)")
+    _check_name(text, what)
     if text.endswith(os.sep):
         raise OutputError(f"{text}: names a directory; the {what} must be a file")
     p = Path(text)

@@ -38,8 +38,15 @@ from models.compensation import CompensationModel, Term
 from models.errors import ModelError
 from models.greybox import GreyBox
 from models.mbotv import Mbotv
+from models.nesting import NestingError, loads_toml
 from models.sanity import check_period
 from models.tf import TransferFunction
+
+#: a transfer function's a or b holds a few coefficients (`compd fit` tries orders up to
+#: 8); 3,000 of them made the poles' eigenvalue problem run for minutes in `check`
+MAX_COEFFICIENTS = 32
+#: terms of one model (a machine has a handful of heat sources)
+MAX_TERMS = 64
 
 _MODEL_KEYS = {"name", "period_s", "description", "channels"}
 _COMMON_TERM_KEYS = {"name", "kind", "inputs", "gain", "gain_channel", "relative"}
@@ -101,6 +108,9 @@ def parse_term(doc: Any, period_s: float, where: str) -> Term:
         for key in ("a", "b"):
             if key not in doc:
                 raise ModelError(f"{where}.{key}: missing (numerator a and denominator b)")
+            if isinstance(doc[key], list) and len(doc[key]) > MAX_COEFFICIENTS:
+                raise ModelError(f"{where}.{key}: {len(doc[key])} coefficients; at most "
+                                 f"{MAX_COEFFICIENTS} (a thermal filter has a few)")
         dyn = TransferFunction(doc["a"], doc["b"], name=f"{where}({name})")
     elif kind == "greybox":
         p = doc.get("p")
@@ -142,6 +152,8 @@ def parse_model(doc: Mapping[str, Any], where: str = "model") -> CompensationMod
     terms_doc = doc.get("terms")
     if not isinstance(terms_doc, list) or not terms_doc:
         raise ModelError(f"{where}.terms: at least one [[terms]] table is required")
+    if len(terms_doc) > MAX_TERMS:
+        raise ModelError(f"{where}.terms: {len(terms_doc)} terms; at most {MAX_TERMS}")
     terms = [parse_term(t, period_s, f"terms[{i}]") for i, t in enumerate(terms_doc)]
     provenance = doc.get("provenance", {})
     if not isinstance(provenance, Mapping):
@@ -167,7 +179,9 @@ def load_model(path: str | Path) -> CompensationModel:
     except OSError as exc:
         raise ModelError(f"{path}: cannot read the model file ({exc.strerror})") from None
     try:
-        doc = tomllib.loads(text)
+        doc = loads_toml(text)
+    except NestingError as exc:
+        raise ModelError(f"{path}: the model file has {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ModelError(f"{path}: not valid TOML ({exc})") from None
     return parse_model(doc)

@@ -34,7 +34,10 @@ def value(v: Any) -> str:
 
 
 def key(k: str) -> str:
-    return k if k and k.replace("_", "").replace("-", "").isalnum() else value(k)
+    """A bare key when TOML allows one (A-Z a-z 0-9 _ -: ASCII only; ``bearing_µ`` is
+    quoted, or the file written could not be read back), else a quoted one."""
+    bare = k.replace("_", "").replace("-", "")
+    return k if k and (not bare or (bare.isascii() and bare.isalnum())) else value(k)
 
 
 def _is_table_list(v: Any) -> bool:

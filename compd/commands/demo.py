@@ -5,9 +5,17 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+from typing import TYPE_CHECKING
 
 from compd.argtypes import number, seed
 from drivers.protocols import NAMES
+
+if TYPE_CHECKING:
+    from models.compensation import CompensationModel
+
+#: the real time between two of the daemon's cycles must be at least this (a faster demo
+#: only counts overruns: --hours 1000 in --seconds 0.5 asked for one every 8 µs)
+MIN_REAL_PERIOD_S = 0.01
 
 HELP = ("serve a simulated machine on 127.0.0.1, run the daemon against it at a speed-up, "
         "and print the Z error at the tool without and with compensation")
@@ -34,6 +42,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="print the figures as one JSON object (last stdout line)")
 
 
+def _check_model(path: str) -> CompensationModel:
+    """The --model read and judged as `compd check` does before the demo
+    starts anything: not a file or not TOML is an InputError (66, 65), not
+    a model or a physically absurd one a ConfigError (78)."""
+    from compd.errors import ConfigError
+    from compd.infiles import load_model
+    from models.errors import ModelError
+    from models.sanity import check_model
+
+    try:
+        model = load_model(path)
+        check_model(model)
+    except ModelError as exc:
+        raise ConfigError("", f"--model {path}: {exc}") from None
+    return model
+
+
 def run(args: argparse.Namespace) -> int:
     import logging
 
@@ -41,6 +66,18 @@ def run(args: argparse.Namespace) -> int:
 
     if args.plot is not None:  # before anything else: the figure is the point of the run
         check_figure(args.plot, force=args.force, inputs=[args.model])
+    period_s = _check_model(args.model).period_s
+    real_period_s = period_s * args.seconds / (args.hours * 3600.0)
+    if not real_period_s >= MIN_REAL_PERIOD_S:  # the daemon's cycle cannot keep up
+        from compd.infiles import InputError
+        from compd.sysexits import EX_USAGE
+
+        fewest = MIN_REAL_PERIOD_S * args.hours * 3600.0 / period_s
+        raise InputError(f"--seconds {args.seconds:g} for --hours {args.hours:g}: the "
+                         f"model's {period_s:g} s period would pass every "
+                         f"{real_period_s * 1e3:.3g} ms of real time, at least "
+                         f"{MIN_REAL_PERIOD_S * 1e3:g} ms is needed; give --seconds "
+                         f"{fewest:.3g} or more", EX_USAGE)
 
     from compd.offline.demo import run_demo
 

@@ -50,7 +50,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from compd import __version__
-from compd.argtypes import number
+from compd.argtypes import count, number
 from compd.sysexits import EX_DATAERR
 
 if TYPE_CHECKING:
@@ -96,6 +96,18 @@ def parse_term(text: str) -> tuple[str, dict[str, float]]:
 STRUCTURE_CHOICES: tuple[str, ...] = ("auto", "arx", "shared-oe", "ridge", "per-term-oe",
                                       "search")
 
+#: cross-validation folds: the default (`models.identify.structures.DEFAULT_FOLDS`), the
+#: most that makes sense (each fold is one more identification: --folds 100000 ran for
+#: minutes), and the fewest rows of the shortest record each of the K + 1 blocks needs
+DEFAULT_FOLDS = 4
+MAX_FOLDS = 20
+MIN_FOLD_ROWS = 10
+#: at most this many inputs chosen by --candidates (each one more greedy round; the
+#: columns they may match: `compd.offline.fit_search.MAX_CANDIDATES`), and this many
+#: --term (the identification grows with each)
+MAX_TERMS = 12
+MAX_FIT_TERMS = 16
+
 #: default slowest allowed time constant of a fitted pole, days
 DEFAULT_MAX_TIME_CONSTANT_DAYS = 3.0
 
@@ -112,8 +124,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="choose the inputs by validation among the columns matching "
                              "these shell patterns (repeatable; e.g. 't*_degC', spindle_rpm); "
                              "speed/power columns enter absolute, temperatures relative")
-    parser.add_argument("--max-terms", type=int, default=3, metavar="N",
-                        help="at most N inputs chosen with --candidates (default 3)")
+    parser.add_argument("--max-terms", type=count(1, MAX_TERMS), default=3, metavar="N",
+                        help=f"at most N inputs chosen with --candidates, 1 … {MAX_TERMS} "
+                             "(default 3)")
     parser.add_argument("--kind", choices=("tf", "greybox", "mbotv"), default="tf",
                         help="model structure: tf transfer functions (ARX + output error), "
                              "greybox first-order ODEs, mbotv (default tf)")
@@ -121,9 +134,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="tf structure: auto (default: chosen by blocked cross-validation "
                              "among arx, shared-oe, ridge, per-term-oe), one of those, or "
                              "search (the greedy per-term output-error order search)")
-    parser.add_argument("--folds", type=int, default=4, metavar="K",
+    parser.add_argument("--folds", type=count(2, MAX_FOLDS), default=None, metavar="K",
                         help="cross-validation folds: each record in K + 1 blocks, the first "
-                             "always training (default 4)")
+                             f"always training, 2 … {MAX_FOLDS} and at most a block of "
+                             f"{MIN_FOLD_ROWS} rows (default {DEFAULT_FOLDS})")
     parser.add_argument("--orders", type=parse_orders, default=(1, 4), metavar="LO-HI",
                         help="numerator lengths and denominator orders to try (default 1-4)")
     parser.add_argument("--switch", metavar="CHANNEL", default=None,
@@ -301,6 +315,38 @@ def _fit_terms(args: argparse.Namespace, records: list[Record], ys: list[Any],
     return terms, info
 
 
+def _check_folds(args: argparse.Namespace, records: list[Record]) -> None:
+    """--folds as given, if each of its K + 1 blocks of the shortest record
+    holds MIN_FOLD_ROWS rows (else a usage error, 64, naming the flag); the
+    default when not given."""
+    from compd.infiles import InputError
+    from compd.sysexits import EX_USAGE
+
+    if args.folds is None:
+        args.folds = DEFAULT_FOLDS
+        return
+    shortest = min(len(r) for r in records)
+    most = shortest // MIN_FOLD_ROWS - 1
+    if args.folds > most:
+        hint = f"give --folds {most} or fewer" if most >= 2 else "the record is too short"
+        raise InputError(f"--folds {args.folds}: the shortest record has {shortest} rows, too "
+                         f"few for {args.folds + 1} blocks of {MIN_FOLD_ROWS} rows; {hint}",
+                         EX_USAGE)
+
+
+def _text(value: Any) -> Any:
+    """`value` with every string made writable as UTF-8: a file name or
+    argument of raw bytes (lone surrogates in Python) is kept with those
+    bytes backslash-escaped, so the model file is written and read again."""
+    if isinstance(value, str):
+        return value.encode("utf-8", "backslashreplace").decode("utf-8")
+    if isinstance(value, dict):
+        return {_text(k): _text(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_text(v) for v in value]
+    return value
+
+
 def _provenance(args: argparse.Namespace, records: list[Record],
                 info: list[dict[str, Any]]) -> dict[str, Any]:
     prov: dict[str, Any] = {
@@ -398,6 +444,13 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
     from models.errors import ModelError
     from models.modelfile import save_model
 
+    if len(args.term) > MAX_FIT_TERMS:
+        from compd.infiles import InputError
+        from compd.sysexits import EX_USAGE
+
+        raise InputError(f"--term given {len(args.term)} times; at most {MAX_FIT_TERMS} "
+                         "(each one more set of coefficients to identify: 60 took minutes)",
+                         EX_USAGE)
     try:
         specs = [parse_term(t) for t in args.term]
     except ValueError as exc:
@@ -412,6 +465,7 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
                        force=args.force, inputs=sources)
     channels = {ch for _, inputs in specs for ch in inputs}
     records = _read_records(data, args, channels)
+    _check_folds(args, records)
     if args.candidates:
         specs = _search_specs(args, records)
         channels = {ch for _, inputs in specs for ch in inputs}
@@ -425,9 +479,9 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
     terms, info = _fit_terms(args, records, ys, specs, holdout)
     names = ", ".join(Path(p).name for p in data)
     name = args.name or f"fitted from {names}"
-    model = CompensationModel(fixed + terms, records[0].period_s, name=name,
-                              description=f"compd fit --kind {args.kind} on {names}",
-                              provenance=_provenance(args, records, info))
+    model = CompensationModel(fixed + terms, records[0].period_s, name=_text(name),
+                              description=_text(f"compd fit --kind {args.kind} on {names}"),
+                              provenance=_text(_provenance(args, records, info)))
     write_atomically(out, lambda tmp: save_model(model, tmp), "model file", force=args.force,
                      inputs=sources)
     written = load_model(out)  # what the daemon will load

@@ -157,6 +157,13 @@ def replay(args: argparse.Namespace, model: CompensationModel, record: Record,
     from compd.offline.probes import run_probes, term_contributions
     from compd.offline.quality_check import checked_quality
 
+    if args.probe_every < record.period_s:  # a probe at every row is the most there can be
+        from compd.infiles import InputError
+        from compd.sysexits import EX_USAGE
+
+        raise InputError(f"--probe-every {args.probe_every:g} s: shorter than the record's "
+                         f"period of {record.period_s:g} s (at most one probe per row)",
+                         EX_USAGE)
     params = params_from_args(args)
     terms = None
     if params.gains:

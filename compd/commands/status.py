@@ -24,6 +24,7 @@ from typing import Any
 
 from compd.config.urls import redact_urls
 from compd.sysexits import EX_DATAERR, EX_TEMPFAIL, EX_USAGE
+from models.nesting import loads_json
 
 HELP = "print what the running daemon's status page says (state, offset, channels)"
 
@@ -78,8 +79,9 @@ def fetch(url: str, timeout_s: float) -> dict[str, Any]:
         raise StatusError(f"{url}: {getattr(exc, 'reason', exc)}", EX_TEMPFAIL) from None
     if len(body) > MAX_BYTES:
         raise StatusError(f"{url}: answer larger than {MAX_BYTES} bytes", EX_DATAERR)
-    try:
-        doc = json.loads(body)
+    try:  # a hostile page: nested without end (RecursionError), integers beyond a float
+        doc = loads_json(body.decode("utf-8"), parse=lambda text: json.loads(
+            text, parse_int=_number))
     except (ValueError, UnicodeDecodeError):
         raise StatusError(f"{url}: not JSON (not a compd status page)", EX_DATAERR) from None
     machines = doc.get("machines", [doc]) if isinstance(doc, dict) else None
@@ -90,6 +92,13 @@ def fetch(url: str, timeout_s: float) -> dict[str, Any]:
     return dict(doc)
 
 
+def _number(text: str) -> int | float:
+    """A JSON integer; one too large for a float (10**400 ends `:.0f` and
+    math.isfinite in OverflowError) is inf, as the page never sends it."""
+    value = int(text)
+    return value if abs(value) < 2**63 else (math.inf if value > 0 else -math.inf)
+
+
 def _um(value: Any) -> str:
     if isinstance(value, int | float) and math.isfinite(value):
         return f"{value:.2f} um"
@@ -98,7 +107,8 @@ def _um(value: Any) -> str:
 
 def describe(machine: dict[str, Any]) -> str:
     """One machine's line."""
-    channels = [c for c in machine.get("channels") or [] if isinstance(c, dict)]
+    listed = machine.get("channels")
+    channels = [c for c in listed if isinstance(c, dict)] if isinstance(listed, list) else []
     valid = sum(1 for c in channels if c.get("valid") is True)
     limit = machine.get("limit_um")
     limit_text = f" (limit +-{limit:g} um)" if isinstance(limit, int | float) else ""

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import TextIO
 
 import numpy as np
@@ -65,8 +65,22 @@ def _slow_row(row: list[str], header: list[str], t_idx: int, is_iso: bool, where
 def parse_csv(text: TextIO, where: str, size: int, time_column: TimeColumn,
               ) -> tuple[list[str], int, FloatArray]:
     """(header, index of the time column, data[column, row]) of a CSV stream
-    of `size` bytes; times as read (ISO 8601 as POSIX seconds)."""
+    of `size` bytes; times as read (ISO 8601 as POSIX seconds). What the csv
+    module cannot split (a field over its limit of 128 KiB) is a RecordError
+    naming the line."""
     reader = csv.reader(text)
+    try:
+        return _parse(reader, where, size, time_column)
+    except csv.Error as exc:
+        reason = str(exc)
+        if "field larger than field limit" in reason:
+            reason = (f"a field is longer than {csv.field_size_limit() // 1024} KiB "
+                      "(no number is that long); not a calibration record")
+        raise RecordError(f"{where}: line {reader.line_num}: {reason}") from None
+
+
+def _parse(reader: Iterator[list[str]], where: str, size: int, time_column: TimeColumn,
+           ) -> tuple[list[str], int, FloatArray]:
     header = next(reader, None)
     if not header or not any(h.strip() for h in header):
         raise RecordError(f"{where}: empty file (a header line is required)")

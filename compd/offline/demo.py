@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from compd.errors import ConfigError
 from compd.infiles import load_model
 from drivers.sim.base import SimController
 from drivers.sim.machine import SimMachine
@@ -76,7 +77,8 @@ def daemon_config(sim: SimController, *, model: str, period_s: float, time_scale
     channels: dict[str, Any] = {}
     for name in sorted(needed | set(extra_channels)):
         if name not in sim.channels:
-            raise ValueError(f"the simulated controller has no channel {name!r}")
+            raise ConfigError("", f"--model {model}: the simulated machine has no channel "
+                                  f"{name!r}; it has {sorted(sim.channels)}")
         settings = dict(_CHANNEL_SETTINGS.get(name, {"unit": "ratio",
                                                      "range": [-1e6, 1e6]}))
         settings["stale_after_s"] = 10.0 * period_s

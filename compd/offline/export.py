@@ -58,9 +58,14 @@ def parse_when(text: str) -> float:
 
 
 def _iso(wall_s: float) -> str:
+    """The wall time as ISO 8601; empty when missing or no date at all (a
+    corrupt row's 1e308 s is past year 9999: no datetime holds it)."""
     if not math.isfinite(wall_s):
         return ""
-    return datetime.fromtimestamp(wall_s, UTC).isoformat(timespec="milliseconds")
+    try:
+        return datetime.fromtimestamp(wall_s, UTC).isoformat(timespec="milliseconds")
+    except (OverflowError, OSError, ValueError):
+        return ""
 
 
 def recorder_table(path: str | Path, since: float | None = None,
@@ -72,7 +77,8 @@ def recorder_table(path: str | Path, since: float | None = None,
         cols = read_samples(Path(path))
     except RecorderError as exc:
         raise ExportError(f"{path}: {exc.reason}") from None
-    except (ValueError, TypeError, AttributeError, KeyError, OverflowError) as exc:
+    except (ValueError, TypeError, AttributeError, KeyError, OverflowError,
+            RecursionError) as exc:  # JSON nested without end, too
         raise ExportError(f"{path}: corrupt recorder rows ({type(exc).__name__}); not a "
                           "recorder compd wrote") from None
     wall = np.asarray(cols["wall_s"], dtype=np.float64)

@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from compd.infiles import InputError
+from compd.sysexits import EX_USAGE
 from models.errors import ModelError
 
 if TYPE_CHECKING:
@@ -26,6 +28,11 @@ RATE_MARKERS: tuple[str, ...] = ("rpm", "speed", "power", "_kw")
 def is_rate_channel(name: str) -> bool:
     low = name.lower()
     return any(m in low for m in RATE_MARKERS)
+
+
+#: columns the --candidates patterns may match: each greedy round fits the model once per
+#: column left (200 columns of 2,000 rows took minutes; a shop machine has some 20 sensors)
+MAX_CANDIDATES = 32
 
 
 def expand_candidates(patterns: list[str], record: Record, output: str) -> list[str]:
@@ -74,6 +81,10 @@ def search_inputs(args: Any, records: list[Record], ys: list[Any], radius: float
     from models.identify.subsets import search_subsets
 
     names = expand_candidates(list(args.candidates), records[0], args.output)
+    if len(names) > MAX_CANDIDATES:
+        raise InputError(f"--candidates {' '.join(args.candidates)}: matches {len(names)} "
+                         f"columns; at most {MAX_CANDIDATES} (the search tries each in every "
+                         "round: narrow the patterns)", EX_USAGE)
     for r in records[1:]:
         r.require(names)
     if args.max_terms < 1:

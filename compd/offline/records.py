@@ -37,6 +37,7 @@ import numpy.typing as npt
 
 from compd.errors import CompdError
 from compd.infiles import MAX_RECORD_BYTES, MAX_RECORDER_BYTES, check_input, open_input
+from models.sanity import MAX_PERIOD_S, MIN_PERIOD_S
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -196,8 +197,10 @@ def read_recorder_record(path: str | Path) -> Record:
         cols = read_samples(p)
     except RecorderError as exc:
         raise RecordError(f"{where}: {exc.reason}") from None
-    except (ValueError, TypeError, AttributeError, KeyError, OverflowError) as exc:
-        # a row the daemon did not write (JSON that does not parse, a text time)
+    except (ValueError, TypeError, AttributeError, KeyError, OverflowError,
+            RecursionError) as exc:
+        # a row the daemon did not write (JSON that does not parse or nests without end,
+        # a text time)
         raise RecordError(f"{where}: corrupt recorder rows ({type(exc).__name__}: "
                           f"{str(exc)[:120]}); not a record compd wrote") from None
     t = np.asarray(cols["time_s"], dtype=np.float64)
@@ -308,6 +311,10 @@ def check_sampling(t: FloatArray, where: str) -> float:
         raise RecordError(f"{where}: row {i + 3}: {kind} ({t[i + 1]!r} after {t[i]!r}); "
                           f"{bad.size} such row(s) in all")
     period_s = float(np.median(dt))
+    if not MIN_PERIOD_S <= period_s <= MAX_PERIOD_S:
+        raise RecordError(f"{where}: sampled every {period_s:g} s; a calibration record is "
+                          f"sampled every {MIN_PERIOD_S:g} … {MAX_PERIOD_S:g} s, as a "
+                          "model's period is")
     gaps = np.flatnonzero(dt > GAP_FACTOR * period_s)
     if gaps.size:
         i = int(gaps[0])

@@ -40,6 +40,7 @@ from typing import Any
 
 from compd.errors import CompdError
 from compd.runtime.statedir import StateDir, StateDirError, open_private
+from models.nesting import loads_json
 
 __all__ = ["FORMAT_VERSION", "RESERVED_KEYS", "CheckpointError", "load_checkpoint",
            "save_checkpoint"]
@@ -169,7 +170,7 @@ def load_checkpoint(path: Path, *, directory: StateDir | None = None) -> dict[st
         raise CheckpointError(path, f"not UTF-8 (garbled): {exc.reason} at byte {exc.start}") \
             from exc
     try:
-        obj = json.loads(text, parse_constant=_refuse_constant)
+        obj = loads_json(text, parse=lambda t: json.loads(t, parse_constant=_refuse_constant))
     except json.JSONDecodeError as exc:
         raise CheckpointError(
             path, f"not valid JSON (torn or garbled): {exc.msg} at line {exc.lineno} "

@@ -45,6 +45,7 @@ from drivers.addresses import (
 from drivers.focas_codec import pmc_size
 from drivers.protocols import PROTOCOLS, ProtocolName
 from drivers.sim import CHANNELS, OUTPUTS
+from models.nesting import NestingError, loads_toml
 
 #: the protocol names, from the one registry (`drivers.protocols`)
 Protocol = ProtocolName
@@ -183,9 +184,9 @@ def load_drive_map(path: str | Path) -> DriveMap:
     """Read and validate a drive map file."""
     p = Path(path)
     try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+        doc = loads_toml(p.read_text(encoding="utf-8"))
     except OSError as exc:
         raise DriveMapError(f"{p}: cannot read: {exc.strerror or exc}") from None
-    except tomllib.TOMLDecodeError as exc:
+    except (tomllib.TOMLDecodeError, NestingError) as exc:
         raise DriveMapError(f"{p}: not valid TOML: {exc}") from None
     return parse_drive_map(doc, str(p))
