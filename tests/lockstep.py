@@ -13,6 +13,10 @@ Each machine period, in this order:
 Nothing waits on wall time, so a loaded machine makes a run slower, never
 different: the daemon never falls behind the plant and never misses a probe.
 
+A lost link (the test stops the server) fails the daemon's reads at once;
+when the test starts the server again, `reconnect()` makes the driver's
+reconnect attempt before the next cycle, as its backoff would in real time.
+
 A "kill -9" (`kill9`) drops the daemon without its shutdown: no final
 checkpoint, no shutdown policy, the recorder's uncommitted rows lost; its
 sockets and state lock are released as the kernel would. `start()` then makes
@@ -161,6 +165,16 @@ class Lockstep:
         if self.running:
             raise RuntimeError("idle() is for the time no daemon runs")
         await self.step(periods)
+
+    async def reconnect(self) -> None:
+        """The controller is back: the driver's reconnect attempt, made now, between
+        two cycles (its backoff delay runs on real time, which lockstep never waits
+        on: without this the number of cycles until it reconnects would depend on
+        how fast the machine is)."""
+        daemon = self.daemon
+        if daemon is None or daemon._driver is None or not self.running:
+            raise RuntimeError("no daemon runs")
+        await daemon._driver.connect()
 
     async def kill9(self) -> None:
         """Drop the daemon as SIGKILL would: between two cycles, no shutdown

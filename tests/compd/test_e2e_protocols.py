@@ -216,6 +216,102 @@ async def _run_with_faults(protocol: str, work: Path) -> dict[str, Any]:
             "final_rc": daemons[-1].returncode, "work": work}
 
 
+async def _lockstep_with_faults(protocol: str, work: Path) -> dict[str, Any]:
+    """The faults of `_run_with_faults`, in lockstep: each lasts an exact number
+    of machine periods, the outage included (24 periods, the link back at the
+    driver's next attempt)."""
+    period_s = load_model("sim_machine").period_s
+    inner = make_sim_controller(protocol)
+    await inner.start()
+    sim = FaultyController(inner)
+    int_coded = protocol != "opcua"
+    open_value = 3276.7 if int_coded else math.nan      # raw 32767 / NaN
+    shorted_value = -3276.8 if int_coded else -250.0     # raw -32768 / below a Pt100's range
+    machine = SimMachine(sim, program=make_program("spectrum", seed=7), seed=7,  # type: ignore[arg-type]
+                         period_s=period_s, repeat=False, record=True)
+    doc = lockstep_config(inner, work, model="sim_machine", period_s=period_s,
+                          limit_um=LIMIT_UM, slew_um_s=SLEW_UM_S)
+    rig = Lockstep(machine, write_config(doc, work / "compd.toml"))
+    events: dict[str, float] = {}
+    try:
+        await rig.start()
+        for t_h, name, value in ((1.0, "open", open_value), (1.5, "shorted", shorted_value)):
+            await rig.run_until(t_h * 3600)
+            events[name] = machine.time_s
+            sim.overrides["bearing"] = value
+            await rig.step(10)
+            sim.overrides.clear()
+        await rig.run_until(2.0 * 3600)
+        events["spike"] = machine.time_s
+        sim.overrides["bearing"] = machine.plant.sensors()["bearing"] + 50.0
+        await rig.step(1)
+        sim.overrides.clear()
+        await rig.run_until(2.5 * 3600)
+        events["stuck"] = machine.time_s
+        sim.overrides["bearing"] = machine.plant.sensors()["bearing"]
+        await rig.step(30)
+        sim.overrides.clear()
+        await rig.run_until(3.5 * 3600)
+        events["controller_forgets"] = machine.time_s
+        await inner.forget_outputs()
+        await rig.run_until(4.0 * 3600)
+        events["link_lost"] = machine.time_s
+        sim.offline = True
+        await inner.stop()
+        await rig.step(24)
+        await inner.start()
+        await inner.forget_outputs()  # it comes back as after a power cycle
+        sim.offline = False
+        await rig.reconnect()
+        events["link_back"] = machine.time_s
+        await rig.run_until(5.0 * 3600)
+        events["kill9"] = machine.time_s
+        await rig.kill9()
+        await rig.start()
+        events["restarted"] = machine.time_s
+        await rig.run_until(HOURS * 3600.0)
+        rc = await rig.stop()
+    finally:
+        await rig.close()
+        await inner.stop()
+    return {"history": machine.history_arrays(), "events": events, "period_s": period_s,
+            "final_rc": rc, "work": work, "logs": [log.names() for log in rig.logs]}
+
+
+@pytest.mark.parametrize("protocol", PROTOCOLS)
+async def test_faults_never_break_the_limits_and_compensation_resumes_in_lockstep(
+        protocol: str, tmp_path: Path) -> None:
+    run = await _lockstep_with_faults(protocol, tmp_path)
+    h, events, ts = run["history"], run["events"], run["period_s"]
+    assert run["final_rc"] == 0
+    offset, t = h["offset_um"], h["time_s"]
+    assert t.size == 1 + int(HOURS * 3600.0 / ts)  # the primed row at 0, one per period
+    assert np.all(np.isfinite(offset))
+    assert np.max(np.abs(offset)) <= LIMIT_UM
+    # slew: one daemon write per plant period, so one slew step at most; the
+    # controller's own forgetting (restart, power cycle) is not the daemon's step
+    step = np.abs(np.diff(offset))
+    dropped_to_zero = offset[1:] == 0.0
+    bad = np.nonzero((step > SLEW_UM_S * ts + 1e-6) & ~dropped_to_zero)[0]
+    assert bad.size == 0, [(t[i + 1] / 3600, offset[i], offset[i + 1]) for i in bad[:5]]
+    # every fault was seen for what it is, and the daemon said so
+    first, second = run["logs"]
+    assert {"channel_invalid", "fault_hold", "read_failed",
+            "controller_reconnected"} <= set(first), sorted(set(first))
+    assert "checkpoint_restored" in second
+    # compensation resumed by itself: the last 1.5 h are compensated like a clean run
+    growth, error = h["growth_um"], h["error_um"]
+    tail = t >= (HOURS - 1.5) * 3600
+    assert float(np.max(np.abs(error[tail]))) <= 0.2 * float(np.ptp(growth)), (
+        float(np.max(np.abs(error[tail]))), float(np.ptp(growth)))
+    assert events["kill9"] == events["restarted"]  # the machine stood still meanwhile
+    # the recorder lost no committed sample across the kill -9
+    samples = read_samples(run["work"] / "state" / "samples.sqlite")
+    seq = samples["seq"]
+    assert seq.size > 100
+    assert np.array_equal(seq, np.arange(seq[0], seq[0] + seq.size))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("protocol", PROTOCOLS)
 async def test_faults_never_break_the_limits_and_compensation_resumes(protocol: str,
