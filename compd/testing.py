@@ -1,6 +1,7 @@
 """Test doubles for code built on compd, shipped with it (as structlog ships
-`structlog.testing`): a fake clock, an in-memory controller and a recording
-wrapper for any driver. No pytest, no sockets, no event-loop tricks.
+`structlog.testing`): a fake clock (and one asyncio code can sleep on), an
+in-memory controller and a recording wrapper for any driver. No pytest, no
+sockets, no patching of the event loop.
 
 - `FakeClock`: machine or monotonic time that moves only when told. Call it
   for the current reading (so it can stand in for `time.monotonic`, e.g.
