@@ -1,6 +1,7 @@
 """Test doubles for code built on compd, shipped with it (as structlog ships
-`structlog.testing`): a fake clock, an in-memory controller and a recording
-wrapper for any driver. No pytest, no sockets, no event-loop tricks.
+`structlog.testing`): a fake clock (and one asyncio code can sleep on), an
+in-memory controller and a recording wrapper for any driver. No pytest, no
+sockets, no patching of the event loop.
 
 - `FakeClock`: machine or monotonic time that moves only when told. Call it
   for the current reading (so it can stand in for `time.monotonic`, e.g.
@@ -12,6 +13,22 @@ wrapper for any driver. No pytest, no sockets, no event-loop tricks.
           t = clock.tick()
           cycle.step(t, {"bearing": Sample(25.0, t), "ambient": Sample(20.0, t)})
           cycle.write_ok()
+
+- `SteppedClock`: a `FakeClock` that asyncio code can sleep on. Give the
+  daemon its reading and its sleep (``Daemon(cfg, clock=clock,
+  sleep=clock.sleep)``): the daemon runs a cycle, then waits until the test
+  moves the clock to its next deadline. `cycle_done(n)` waits (on an event,
+  never on wall time) until the daemon is asleep again, so a test steps it
+  one cycle at a time, in lockstep with whatever else it steps, and a slow
+  machine only makes the test slower::
+
+      clock = SteppedClock(period_s=60.0)
+      task = asyncio.create_task(Daemon(cfg, clock=clock, sleep=clock.sleep).run())
+      await clock.cycle_done(1)             # the first cycle ran
+      for _ in range(60):
+          await machine.tick()              # the plant: one period on
+          clock.tick()                      # the daemon's deadline: one cycle
+          await clock.cycle_done(clock.sleeps + 1)
 
 - `MemoryDriver`: a `drivers.base.Driver` whose controller is a dict. The test
   sets channel values (`set`), reads what the daemon wrote (`outputs`,
@@ -31,13 +48,14 @@ simulated controllers of `drivers.sim` on 127.0.0.1, never against these.
 
 from __future__ import annotations
 
+import asyncio
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 
 from drivers.base import Driver, Quality, Sample
 from drivers.errors import BadAddress, ConnectionLost, DriverError
 
-__all__ = ["FakeClock", "MemoryDriver", "RecordingDriver"]
+__all__ = ["FakeClock", "MemoryDriver", "RecordingDriver", "SteppedClock"]
 
 
 class FakeClock:
@@ -59,6 +77,81 @@ class FakeClock:
         """Move `seconds` on (a stall, a jump); returns the new reading."""
         self.now_s += seconds
         return self.now_s
+
+
+class SteppedClock(FakeClock):
+    """A `FakeClock` with an asyncio `sleep` that ends only when the clock is
+    moved past its deadline (by `tick`, `advance` or `set`).
+
+    `tick()` lands exactly on ``start_s + k * period_s`` (k ticks so far), so a
+    schedule of absolute deadlines on the same grid never sees rounding as
+    lateness. `sleeps` counts the sleeps begun; `cycle_done(n)` returns once
+    the n-th has begun (the sleeper finished what it did before sleeping).
+    """
+
+    def __init__(self, period_s: float = 1.0, start_s: float = 0.0) -> None:
+        super().__init__(period_s, start_s)
+        self.start_s = start_s
+        self.ticks = 0
+        #: sleeps begun so far (a sleep of 0 s or less is not counted: it returns at once)
+        self.sleeps = 0
+        self._sleepers: list[tuple[float, asyncio.Future[None]]] = []
+        self._waiters: list[tuple[int, asyncio.Future[None]]] = []
+
+    def tick(self) -> float:
+        self.ticks += 1
+        return self.set(self.start_s + self.ticks * self.period_s)
+
+    def advance(self, seconds: float) -> float:
+        return self.set(self.now_s + seconds)
+
+    def set(self, now_s: float) -> float:
+        """Move the clock to `now_s` (never back) and wake the sleepers now due."""
+        if now_s < self.now_s:
+            raise ValueError(f"a monotonic clock does not go back ({now_s} < {self.now_s})")
+        self.now_s = now_s
+        for due, fut in list(self._sleepers):
+            if due <= now_s + _SLACK_S and not fut.done():
+                fut.set_result(None)
+        return now_s
+
+    @property
+    def sleeping(self) -> int:
+        """Sleeps begun and not yet ended."""
+        return sum(1 for _, fut in self._sleepers if not fut.done())
+
+    async def sleep(self, seconds: float) -> None:
+        """Return when the clock reads at least now + `seconds` (at once if <= 0)."""
+        if seconds <= _SLACK_S:
+            await asyncio.sleep(0)
+            return
+        fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        entry = (self.now_s + seconds, fut)
+        self._sleepers.append(entry)
+        self.sleeps += 1
+        for waiter in self._waiters:
+            if waiter[0] <= self.sleeps and not waiter[1].done():
+                waiter[1].set_result(None)
+        try:
+            await fut
+        finally:
+            self._sleepers.remove(entry)
+
+    async def cycle_done(self, n: int) -> None:
+        """Wait until `n` sleeps have begun (`sleeps` >= n)."""
+        if self.sleeps >= n:
+            return
+        fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        entry = (n, fut)
+        self._waiters.append(entry)
+        try:
+            await fut
+        finally:
+            self._waiters.remove(entry)
+
+
+#: a deadline this close to the clock's reading is reached (float rounding)
+_SLACK_S = 1e-9
 
 
 class MemoryDriver:

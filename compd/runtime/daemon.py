@@ -51,7 +51,7 @@ import dataclasses
 import math
 import signal
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from typing import TYPE_CHECKING, Any
 
 import structlog
@@ -90,7 +90,9 @@ class Daemon:
     def __init__(self, cfg: LoadedConfig, *, dry_run: bool = False, once: bool = False,
                  driver: Driver | None = None, notifier: Notifier | None = None,
                  metrics: Metrics | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic,
+                 wall: Callable[[], float] = time.time,
+                 sleep: Callable[[float], Awaitable[object]] | None = None) -> None:
         self.cfg = cfg
         self.dry_run = dry_run
         self.once = once
@@ -98,7 +100,12 @@ class Daemon:
         self._driver = driver
         self.notifier = notifier if notifier is not None else Notifier()
         self.metrics = metrics if metrics is not None else Metrics()
+        #: monotonic seconds (deadlines, machine time), wall seconds (sample ages,
+        #: records, checkpoint age) and the wait until the next deadline: all
+        #: injectable (`compd.testing.SteppedClock` drives the loop in lockstep)
         self.clock = clock
+        self.wall = wall
+        self._sleep = sleep
         self.log = structlog.get_logger("compd")
         self.stop_requested = asyncio.Event()
         self.cycles = 0
@@ -184,7 +191,8 @@ class Daemon:
             self._lock = StateLock(cfg.state_dir)
             self._lock.acquire()  # StateLocked propagates: the caller reports it
         try:
-            startup = start_cycle(cfg, self.params, directory=self._state_directory())
+            startup = start_cycle(cfg, self.params, directory=self._state_directory(),
+                                  wall_s=self.wall())
             self.cycle = startup.cycle
             self._log_events(startup.events)
             self.log.info("daemon_starting", version=__version__, machine=cfg.raw.machine.name,
@@ -380,9 +388,7 @@ class Daemon:
                 self.metrics.overruns.inc()
                 self.log.warning("cycle_overrun", sequence=result.sequence,
                                  skipped_deadlines=missed, overruns=self.overruns)
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self.stop_requested.wait(),
-                                       schedule.wait_s(self.clock()))
+            await self._pause(schedule.wait_s(self.clock()))
             if shutdown_cycles_left is not None and self.stop_requested.is_set():
                 self.log.warning("shutdown_ramp_interrupted", offset_um=cycle.output.current_um)
                 break
@@ -391,6 +397,21 @@ class Daemon:
                       offset_um=cycle.output.current_um, reloads=self.reloads,
                       signal=self.stop_signal, broken=broken)
         return EX_SOFTWARE if broken else 0
+
+    async def _pause(self, delay_s: float) -> None:
+        """Until the next deadline (`delay_s` on the injected clock) or a stop request."""
+        if self._sleep is None:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self.stop_requested.wait(), delay_s)
+            return
+        stop = asyncio.ensure_future(self.stop_requested.wait())
+        nap = asyncio.ensure_future(self._sleep(max(0.0, delay_s)))
+        try:
+            await asyncio.wait({stop, nap}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            stop.cancel()
+            nap.cancel()
+            await asyncio.gather(stop, nap, return_exceptions=True)
 
     # -- reload (SIGHUP) ----------------------------------------------------------------
 
@@ -511,17 +532,17 @@ class Daemon:
         samples, readback = await self._read(driver)
         try:
             if self._probe is not None:
-                result = cycle.step(now_s, samples, readback, wall_s=time.time(),
+                result = cycle.step(now_s, samples, readback, wall_s=self.wall(),
                                     probe=self._probe)
             else:
-                result = cycle.step(now_s, samples, readback, wall_s=time.time())
+                result = cycle.step(now_s, samples, readback, wall_s=self.wall())
         except Exception as exc:
             # the fault policy decides what reaches the machine: this cycle is a failed
             # read (hold, then ramp after hold_s). Raises when the cycle cannot even do
             # that (the loop's cycle_broken).
             self._cycle_error("step", exc)
             samples = None
-            result = cycle.step(now_s, None, readback, wall_s=time.time())
+            result = cycle.step(now_s, None, readback, wall_s=self.wall())
         self.cycles += 1
         self._log_events(result.events)
         confirmed = self.dry_run
@@ -634,7 +655,7 @@ class Daemon:
         if self._recorder is None:
             return
         dropped = self._recorder.dropped
-        self._recorder.record(dataclasses.replace(result.record, wall_s=time.time()))
+        self._recorder.record(dataclasses.replace(result.record, wall_s=self.wall()))
         if self._recorder.dropped > dropped:
             self.metrics.records_dropped.inc(self._recorder.dropped - dropped)
         alarm = bool(self._recorder.alarm)
@@ -700,7 +721,7 @@ class Daemon:
             # model asks for is in force (never a held, faulted or unconfirmed offset)
             self.complete_cycles += 1
             m.cycle_complete()
-            self._last_complete = (time.time(), time.monotonic())
+            self._last_complete = (self.wall(), self.clock())
         if not self._ready_sent and (result.complete or self._read_ok):
             # up: the loop runs and the controller answers (a broken sensor at start is a
             # fault the policy handles, hold then ramp with the alarm, not a start failure)

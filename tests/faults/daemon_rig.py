@@ -6,6 +6,11 @@ write checked) and runs `Daemon.run()` as a task at a fast time scale. The
 test's plant callback runs before every read with the read's index and the
 machine time of that sample (estimated from the daemon's last cycle), and
 writes the controller's memory the way the machine would.
+
+With ``stepped=True`` the daemon's clock is a `compd.testing.SteppedClock`
+moved to each next deadline as soon as the daemon sleeps: cycles follow each
+other as fast as the machine allows, never late (no overrun, no skipped
+deadline, exactly one machine period between two samples), whatever the load.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ from compd.offline.demo import daemon_config
 from compd.runtime.daemon import Daemon
 from compd.runtime.driver_setup import build_driver
 from compd.runtime.sdnotify import Notifier
+from compd.testing import SteppedClock
 from drivers.sim.base import SimController
 from tests.faults.invariants import InvariantDriver, Invariants
 
@@ -67,13 +73,20 @@ def make_config(sim: SimController, tmp_path: Path, *, time_scale: float,
 
 class DaemonRig:
     def __init__(self, sim: SimController, cfg: LoadedConfig, inv: Invariants,
-                 plant: Plant | None = None) -> None:
+                 plant: Plant | None = None, *, stepped: bool = False) -> None:
         self.sim = sim
         self.cfg = cfg
         self.inv = inv
         self.plant = plant
         self.driver = InvariantDriver(build_driver(cfg), inv, self._before_read)
-        self.daemon = Daemon(cfg, driver=self.driver, notifier=Notifier(None))
+        self.clock: SteppedClock | None = None
+        if stepped:
+            self.clock = SteppedClock(period_s=cfg.real_period_s)
+            self.daemon = Daemon(cfg, driver=self.driver, notifier=Notifier(None),
+                                 clock=self.clock, sleep=self.clock.sleep)
+        else:
+            self.daemon = Daemon(cfg, driver=self.driver, notifier=Notifier(None))
+        self._pacer: asyncio.Task[None] | None = None
         self.log = EventLog()
         self.daemon.log = self.log
         self._task: asyncio.Task[int] | None = None
@@ -90,8 +103,16 @@ class DaemonRig:
         if self.plant is not None:
             await self.plant(index, self.machine_s)
 
+    async def _pace(self, clock: SteppedClock) -> None:
+        """Each time the daemon sleeps, move the clock to its next deadline."""
+        while True:
+            await clock.cycle_done(clock.ticks + 1)
+            clock.tick()
+
     async def start(self) -> None:
         self._task = asyncio.create_task(self.daemon.run())
+        if self.clock is not None:
+            self._pacer = asyncio.create_task(self._pace(self.clock))
 
     async def until(self, predicate: Callable[[], bool], limit_s: float = 30.0) -> None:
         """Wait (real time) for `predicate`; fail if the daemon ended or time ran out."""
@@ -110,7 +131,13 @@ class DaemonRig:
         if self._task is None:
             return 0
         self.daemon.request_stop()
-        rc = await asyncio.wait_for(self._task, 30.0)
+        try:
+            rc = await asyncio.wait_for(self._task, 30.0)
+        finally:
+            pacer, self._pacer = self._pacer, None
+            if pacer is not None:
+                pacer.cancel()
+                await asyncio.gather(pacer, return_exceptions=True)
         self._task = None
         return rc
 

@@ -1,7 +1,8 @@
 """Sensor faults (issue 7): open / shorted Pt100, a Bad OPC UA status, a
 stuck sensor, a one-sample spike. Each figure is measured on the pure cycle
 with a fake clock (exact) and through the wire: the in-process daemon against
-a simulated controller whose memory holds the fault (Modbus, S7, OPC UA).
+a simulated controller whose memory holds the fault (Modbus, S7, OPC UA), on
+a stepped clock (`DaemonRig(stepped=True)`: no cycle late, whatever the load).
 
 The "hold-last-value reference" for an invalid channel: from the first
 invalid sample the offset stays at the last value written before it, until
@@ -223,7 +224,7 @@ async def _open_sensor_run(protocol: str, inject: object, tmp_path: Path,
                 await inject(sim)  # type: ignore[operator]
                 faulted = True
 
-        rig = DaemonRig(sim, cfg, inv, plant)  # type: ignore[arg-type]
+        rig = DaemonRig(sim, cfg, inv, plant, stepped=True)  # type: ignore[arg-type]
         ramp_cycles = 0
 
         def done() -> bool:
@@ -254,9 +255,8 @@ def _check(f: dict[str, float], hold_s: float = HOLD_S) -> None:
     print({k: round(v, 4) for k, v in f.items()})
     assert abs(f["held_um"]) > 10.0
     assert f["max_dev_um"] <= TOL_UM, f
-    # hold_s ± Ts; the daemon's machine clock is real time × scale, so one
-    # cycle may be late by scheduling jitter: allowed up to half a period more
-    assert hold_s - 1.0 <= f["ramp_after_s"] <= hold_s + 1.5, f
+    # hold_s ± Ts (the daemon's clock is stepped: no cycle is ever late)
+    assert hold_s - 1.0 <= f["ramp_after_s"] <= hold_s + 1.0, f
     assert f["alarm_after_s"] == f["ramp_after_s"], f
     assert f["written_offset_um"] == 0.0
 
@@ -267,7 +267,7 @@ async def test_open_pt100_modbus(raw: int, tmp_path: Path, invariants: Invariant
     async def inject(sim: ModbusSimController) -> None:
         sim.set_raw("input", 0, [raw])  # the bearing's int16 register, ×0.1 °C
 
-    _check(await _open_sensor_run("modbus", inject, tmp_path, invariants, 50.0))
+    _check(await _open_sensor_run("modbus", inject, tmp_path, invariants, 1.0))
 
 
 @pytest.mark.parametrize("value", [3276.7, -3276.8], ids=["open_32767", "short_-32768"])
@@ -277,14 +277,14 @@ async def test_open_pt100_s7(value: float, tmp_path: Path, invariants: Invariant
         raw = await sim.read_back("bearing")  # type: ignore[attr-defined]
         assert round(raw * 10) in (32767, -32768)  # the INT sentinel in DB1
 
-    _check(await _open_sensor_run("s7", inject, tmp_path, invariants, 50.0))
+    _check(await _open_sensor_run("s7", inject, tmp_path, invariants, 1.0))
 
 
 async def test_bad_status_opcua(tmp_path: Path, invariants: Invariants) -> None:
     async def inject(sim: object) -> None:
         await sim.publish_status("bearing", bad=True)  # type: ignore[attr-defined]
 
-    _check(await _open_sensor_run("opcua", inject, tmp_path, invariants, 25.0,
+    _check(await _open_sensor_run("opcua", inject, tmp_path, invariants, 1.0,
                                   hold_s=10.0), hold_s=10.0)
 
 
@@ -293,7 +293,7 @@ async def _modbus_run(tmp_path: Path, inv: Invariants, plant_values: object,
     sim = ModbusSimController()
     await sim.start()
     try:
-        cfg = make_config(sim, tmp_path, time_scale=50.0, slew_um_s=SLEW,
+        cfg = make_config(sim, tmp_path, time_scale=1.0, slew_um_s=SLEW,
                           overrides=overrides)
 
         async def plant(index: int, t: float) -> None:
@@ -303,7 +303,7 @@ async def _modbus_run(tmp_path: Path, inv: Invariants, plant_values: object,
                 else:
                     await sim.publish({name: value})
 
-        rig = DaemonRig(sim, cfg, inv, plant)
+        rig = DaemonRig(sim, cfg, inv, plant, stepped=True)
         assert await rig.run_until(lambda: bool(stop(rig))) == 0  # type: ignore[operator]
         return rig
     finally:
