@@ -353,9 +353,7 @@ class Daemon:
                 self.log.info("shutdown_requested", policy="ramp_to_zero",
                               offset_um=cycle.output.current_um, reason="cycle_broken")
                 schedule.advance(self.clock())
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(self.stop_requested.wait(),
-                                           schedule.wait_s(self.clock()))
+                await self._pause(schedule.wait_s(self.clock()))
                 continue
             self.metrics.cycle_seconds.observe(self.clock() - started)
             if self.once:
