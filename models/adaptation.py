@@ -67,6 +67,24 @@ their physics) and a probe value, model output or term beyond ±1 m is refused
 ("fault"). Within it every product the filter forms is finite: no
 OverflowError, no NaN, for any finite input to `update` or any restored state.
 
+The estimator keeps score of itself (`score_window`, default 3): at each
+accepted probe, the squared error of the plain model (z − model) and of the
+adapted prediction the machine had (z − model − the applied correction before
+the probe), over the last `score_window` accepted probes. While the adapted
+sum is larger than the plain one, adapting does not pay and the estimator
+STANDS DOWN: `correction_um` returns 0 (the plain model), the filter keeps
+learning, and the score goes on counting what the adapted prediction would
+have been, so that it takes over again as soon as that pays. `stand_downs`
+counts the times it stood down; `score_window = 0` never stands down.
+Standing down and taking over again move the whole correction at once:
+`max_step_um` does not bound them (the daemon's output stage, its slew, does).
+The score may start from a prior (`score_prior_plain_um`,
+`score_prior_adapted_um`: the RMS error of the plain model and of a correction
+held over one probe spacing, on the calibration record: `compd fit
+--adaptation` learns them), weighted as a full window of probes; a prior that
+says adapting does not pay at this probe spacing starts the estimator stood
+down, until the probes show otherwise.
+
 A real, sudden change larger than the gate is refused like an outlier: the
 refused counter says so, and re-calibration is the answer, not the filter.
 
@@ -89,9 +107,10 @@ import numpy.typing as npt
 FloatArray = npt.NDArray[np.float64]
 
 #: version of `Adapter.export_state`'s layout
-STATE_VERSION = 2
-#: layouts `Adapter.from_state` reads (version 1 had no applied state: it was x)
-_READABLE_VERSIONS = (1, 2)
+STATE_VERSION = 3
+#: layouts `Adapter.from_state` reads (version 1 had no applied state: it was x; versions 1
+#: and 2 had no score: they start with an empty one)
+_READABLE_VERSIONS = (1, 2, 3)
 _SECONDS_PER_HOUR = 3600.0
 
 #: The estimator's numerical domain: each setting's (low, low excluded, high). Within it
@@ -110,6 +129,9 @@ DOMAIN: dict[str, tuple[float, float]] = {  # (low, high); _POSITIVE ones must b
     "initial_bias_sigma_um": (0.0, 1e6),
     "initial_gain_sigma": (0.0, 1e3),
     "apply_sigma": (0.0, 1e6),
+    "score_window": (0.0, 1e4),
+    "score_prior_plain_um": (0.0, 1e6),
+    "score_prior_adapted_um": (0.0, 1e6),
 }
 _POSITIVE = ("probe_noise_um", "gate_sigma", "max_step_um", "max_total_um")
 #: a probe value, model output or term beyond ±1 m is no thermal displacement: refused
@@ -139,6 +161,9 @@ class AdaptationParams:
     initial_bias_sigma_um: float = 5.0
     initial_gain_sigma: float = 0.1  # σ of each relative gain correction at start
     apply_sigma: float = 4.0  # apply the estimate only when it departs by more than this many σ
+    score_window: float = 3  # accepted probes the self-score spans, whole (0: never stand down)
+    score_prior_plain_um: float = 0.0  # the score's prior: the plain model's RMS error and
+    score_prior_adapted_um: float = 0.0  # the held correction's, weighted as a full window
 
     def __post_init__(self) -> None:
         problems = self.problems()
@@ -180,6 +205,7 @@ class ProbeOutcome:
     bias_sigma_um: float  # σ of the filter's bias estimate
     applied: bool = False  # the applied correction moved at this probe (the apply_sigma test)
     estimated_bias_um: float = math.nan  # the filter's bias estimate after the probe
+    standing_down: bool = False  # after the probe, the score says adapting does not pay
 
 
 class Adapter:
@@ -207,11 +233,20 @@ class Adapter:
         self.applied_moves = 0  # probes at which the applied correction moved
         self._bias = 0.0
         self._gains: list[float] = [0.0] * (n - 1)
+        #: (plain², adapted²) at each of the last score_window accepted probes
+        self._score: list[tuple[float, float]] = []
+        #: a prior that says adapting does not pay starts stood down (until probes say it does)
+        self._standing_down = params.score_window >= 1 \
+            and params.score_prior_adapted_um > params.score_prior_plain_um
+        self.stand_downs = 0  # times the score made the estimator stand down
 
     # -- per sample (cheap) --------------------------------------------------------------------
 
     def correction_um(self, terms_um: Sequence[float]) -> float:
-        """What to add to the model output: b + Σ g_i·term_i (terms ignored without gains)."""
+        """What to add to the model output: b + Σ g_i·term_i (terms ignored without gains);
+        0 while the estimator stands down (its score says adapting does not pay)."""
+        if self._standing_down:
+            return 0.0
         c = self._bias
         if self._gains:
             for g, t in zip(self._gains, terms_um, strict=True):
@@ -230,6 +265,21 @@ class Adapter:
     def bias_um(self) -> float:
         """The applied bias (what `correction_um` adds, besides the gains' part)."""
         return self._bias
+
+    @property
+    def standing_down(self) -> bool:
+        """The score says adapting does not pay: the correction is 0 (see the module)."""
+        return self._standing_down
+
+    @property
+    def score_um(self) -> tuple[float, float]:
+        """RMS of the plain model's and of the adapted prediction's error over the score's
+        window of accepted probes (µm; NaN before the first)."""
+        if not self._score:
+            return math.nan, math.nan
+        n = len(self._score)
+        return (math.sqrt(sum(p for p, _ in self._score) / n),
+                math.sqrt(sum(a for _, a in self._score) / n))
 
     @property
     def gain_corrections(self) -> tuple[float, ...]:
@@ -290,6 +340,8 @@ class Adapter:
         s = float(h @ ph) + r
         if abs(y) > self.params.gate_sigma * math.sqrt(s):
             return self.refuse("gate", measured_um, model_um, terms_um)
+        self._keep_score(measured_um - model_um, measured_um - model_um
+                         - float(h @ self._xa))
         k = ph / s
         dx = k * y
         alpha = self._step_scale(h, dx)
@@ -302,7 +354,21 @@ class Adapter:
         moved = self._apply_if_significant(h)
         self.accepted += 1
         return ProbeOutcome(True, None, y, math.sqrt(s), self._bias, self.bias_sigma_um,
-                            moved, float(self._x[0]))
+                            moved, float(self._x[0]), self._standing_down)
+
+    def _keep_score(self, plain_um: float, adapted_um: float) -> None:
+        """Score one accepted probe; stand down while adapting loses over the window."""
+        window = int(self.params.score_window)
+        if window <= 0:
+            return
+        self._score.append((_sq(plain_um), _sq(adapted_um)))
+        del self._score[:-window]
+        prior = window * (_sq(self.params.score_prior_adapted_um)
+                          - _sq(self.params.score_prior_plain_um))
+        down = sum(a for _, a in self._score) + prior > sum(p for p, _ in self._score)
+        if down and not self._standing_down:
+            self.stand_downs += 1
+        self._standing_down = down
 
     def _apply_if_significant(self, h: FloatArray) -> bool:
         """Move the applied state to the estimate when it departs by > apply_sigma σ."""
@@ -355,7 +421,7 @@ class Adapter:
             sigma = math.sqrt(max(0.0, float(h @ self._covariance() @ h))
                               + _sq(self.params.probe_noise_um))
         return ProbeOutcome(False, reason, y, sigma, self._bias, self.bias_sigma_um,
-                            False, float(self._x[0]))
+                            False, float(self._x[0]), self._standing_down)
 
     # -- checkpoint ----------------------------------------------------------------------------
 
@@ -372,6 +438,9 @@ class Adapter:
             "accepted": self.accepted,
             "refused": self.refused,
             "applied_moves": self.applied_moves,
+            "score": [[p, a] for p, a in self._score],
+            "standing_down": self._standing_down,
+            "stand_downs": self.stand_downs,
         }
 
     @classmethod
@@ -406,15 +475,29 @@ class Adapter:
         # filter forms from it stays finite
         if np.any(np.abs(p) > np.sqrt(np.outer(out._cap, out._cap)) * (1 + 1e-9)):
             raise ValueError("adaptation state: P beyond the variances the settings allow")
-        counts = [state.get("accepted"), state.get("refused"), state.get("applied_moves", 0)]
+        counts = [state.get("accepted"), state.get("refused"), state.get("applied_moves", 0),
+                  state.get("stand_downs", 0)]
         if any(isinstance(c, bool) or not isinstance(c, int) or c < 0 for c in counts):
-            raise ValueError("adaptation state: accepted/refused/applied_moves must be "
-                             "integers >= 0")
+            raise ValueError("adaptation state: accepted/refused/applied_moves/stand_downs "
+                             "must be integers >= 0")
+        raw_score = state.get("score", []) if version >= 3 else []
+        if not isinstance(raw_score, list):
+            raise ValueError("adaptation state: score must be a list of [plain², adapted²]")
+        score = _floats(raw_score, "score", (len(raw_score), 2)) if raw_score \
+            else np.zeros((0, 2))
+        down = state.get("standing_down", False) if version >= 3 else False
+        if not isinstance(down, bool) or np.any(score < 0) \
+                or np.any(score > _sq(2 * MAX_INPUT_UM)):
+            raise ValueError("adaptation state: score must be squared errors within the "
+                             "domain, standing_down true or false")
         out._p = p
         out._pending_s = float(pending)
         out._x = x
         out._set_applied(xa)
-        out.accepted, out.refused, out.applied_moves = (int(c) for c in counts)
+        out.accepted, out.refused, out.applied_moves, out.stand_downs = (int(c) for c in counts)
+        window = int(params.score_window)
+        out._score = [(float(p), float(a)) for p, a in score][-window:] if window else []
+        out._standing_down = down and window > 0
         return out
 
 

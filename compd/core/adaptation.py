@@ -18,7 +18,11 @@ Each cycle `ProbeStage.step`:
    model's output (its gate refuses an outlier: a chip under the probe, a
    wrong tool); otherwise the probe is refused ("fault": never learnt from a
    sample the model could not use, "no_offset": the offset in force unknown);
-3. returns the correction to add to the model output. In ``mode = "apply"``
+3. when the estimator's score (`models.adaptation`: plain against adapted
+   over the last `score_window` accepted probes) makes it stand down or take
+   over again, says so ("adaptation_stood_down" with the two RMS errors,
+   "adaptation_resumed");
+4. returns the correction to add to the model output. In ``mode = "apply"``
    the cycle adds it BEFORE the fault policy and the output stage, so clamp,
    slew and deadband apply to it as to the model: a jump of the estimate
    never becomes a jump at the tool. In ``"shadow"`` it is computed and
@@ -106,7 +110,15 @@ class ProbeStage:
         elif not math.isfinite(value):
             out = self.adapter.refuse("fault", measured, model, terms)
         else:
+            was_down = self.adapter.standing_down
             out = self.adapter.update(measured, model, terms)
+            if out.standing_down != was_down:
+                plain, adapted = self.adapter.score_um
+                events.append(Event(
+                    "adaptation_stood_down" if out.standing_down else "adaptation_resumed",
+                    {"plain_rms_um": round(plain, 6), "adapted_rms_um": round(adapted, 6),
+                     "probes": int(self.settings.params.score_window),
+                     "stand_downs": self.adapter.stand_downs}))
         self.last = self._describe(reading, measured, model, out)
         fields = {k: v for k, v in self.last.items() if k != "accepted"}
         events.append(Event("probe_accepted" if out.accepted else "probe_refused", fields))
@@ -122,6 +134,7 @@ class ProbeStage:
                 "innovation_sigma_um": num(out.innovation_sigma_um),
                 "accepted": out.accepted, "reason": out.reason,
                 "bias_um": num(out.bias_um), "bias_sigma_um": num(out.bias_sigma_um),
+                "standing_down": out.standing_down,
                 "mode": self.settings.mode}
 
     def export_state(self) -> dict[str, Any]:

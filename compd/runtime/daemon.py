@@ -562,7 +562,8 @@ class Daemon:
         if probes is not None:
             est = probes.adapter
             self.metrics.adaptation(est.estimated_bias_um, est.bias_sigma_um,
-                                    probes.correction_um, result.record.probe)
+                                    probes.correction_um, result.record.probe,
+                                    est.standing_down)
 
     def _sink(self, stage: str, fn: Callable[..., object], *args: Any, **kwargs: Any) -> None:
         try:
@@ -743,7 +744,8 @@ class Daemon:
 
 _WARNINGS = frozenset({"channel_invalid", "fault_hold", "readback_mismatch", "write_failed",
                        "offset_write_skipped", "checkpoint_unusable", "checkpoint_state_refused",
-                       "model_non_finite", "probe_refused", "adaptation_state_refused"})
+                       "model_non_finite", "probe_refused", "adaptation_state_refused",
+                       "adaptation_stood_down"})
 
 
 def _probe_reading(got: dict[str, Sample]) -> ProbeReading:
