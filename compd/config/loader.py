@@ -316,7 +316,8 @@ def _adaptation(raw: DaemonConfig, channels: dict[str, Address],
         first = str(exc).split("; ")[0]
         name, _, why = first.partition(": ")
         raise ConfigError(f"adaptation.{name}" if why else "adaptation", why or first) from None
-    return AdaptationSettings(mode=a.mode, measures=a.measures, params=params), probes
+    return AdaptationSettings(mode=a.mode, measures=a.measures, params=params,
+                              guard_window=a.guard_window), probes
 
 
 def _learnt_settings(table: dict[str, Any], limit_um: float) -> dict[str, Any]:

@@ -518,6 +518,11 @@ class AdaptationSection(_Section):
     #: accepted probes the estimator keeps score over; it stands down (applies nothing)
     #: while adapting loses to the plain model over them (models.adaptation)
     score_window: ScoreWindow | None = None
+    #: the guard "no model worse than none" (compd.core.adaptation): this many probes
+    #: in a row each showing the compensation making the error larger than none would
+    #: (by more than twice probe_noise_um) are an alarm and a fault (hold, then ramp
+    #: to zero per [faults]) until another model is loaded; 0: no guard
+    guard_window: ScoreWindow = 3
 
     def estimator_settings(self) -> dict[str, Any]:
         """The estimator settings given (the others keep their defaults)."""
