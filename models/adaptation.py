@@ -85,8 +85,19 @@ held over one probe spacing, on the calibration record: `compd fit
 says adapting does not pay at this probe spacing starts the estimator stood
 down, until the probes show otherwise.
 
-A real, sudden change larger than the gate is refused like an outlier: the
-refused counter says so, and re-calibration is the answer, not the filter.
+A real, sudden change larger than the gate is refused like an outlier at
+first. But `reacquire_after` (default 3) gate refusals in a row that agree in
+direction are evidence, not noise (a chip under the probe does not repeat the
+same way): at the last of them the estimator RE-ACQUIRES. The bias variance
+is inflated to that probe's innovation² (at most max_total_um²), and the
+probe is weighed without the gate and without the step bound on the estimate
+(re-baselined: the estimate jumps most of the way), the box held; the applied
+correction then follows it by at most `max_step_um` per probe (and in the
+daemon through the output stage's clamp and slew). Only a change the
+correction may hold is re-acquired: when the bias it asks for is beyond
+±max_total_um (a probe 500 µm off is no thermal drift), the refusals go on
+and recalibration is the answer. `reacquisitions` counts them; 0 never
+re-acquires.
 
 Worked number: bias only, P = 25 µm² (σ 5 µm), R = 0.25 µm² (σ 0.5 µm), a
 first probe 3 µm above the model: S = 25.25, K = 0.990, b = 2.970 µm,
@@ -132,6 +143,7 @@ DOMAIN: dict[str, tuple[float, float]] = {  # (low, high); _POSITIVE ones must b
     "score_window": (0.0, 1e4),
     "score_prior_plain_um": (0.0, 1e6),
     "score_prior_adapted_um": (0.0, 1e6),
+    "reacquire_after": (0.0, 1e4),
 }
 _POSITIVE = ("probe_noise_um", "gate_sigma", "max_step_um", "max_total_um")
 #: a probe value, model output or term beyond ±1 m is no thermal displacement: refused
@@ -164,6 +176,7 @@ class AdaptationParams:
     score_window: float = 3  # accepted probes the self-score spans, whole (0: never stand down)
     score_prior_plain_um: float = 0.0  # the score's prior: the plain model's RMS error and
     score_prior_adapted_um: float = 0.0  # the held correction's, weighted as a full window
+    reacquire_after: float = 3  # gate refusals in a row agreeing in direction: re-acquire
 
     def __post_init__(self) -> None:
         problems = self.problems()
@@ -206,6 +219,7 @@ class ProbeOutcome:
     applied: bool = False  # the applied correction moved at this probe (the apply_sigma test)
     estimated_bias_um: float = math.nan  # the filter's bias estimate after the probe
     standing_down: bool = False  # after the probe, the score says adapting does not pay
+    reacquired: bool = False  # this probe re-acquired after refusals agreeing in direction
 
 
 class Adapter:
@@ -239,6 +253,9 @@ class Adapter:
         self._standing_down = params.score_window >= 1 \
             and params.score_prior_adapted_um > params.score_prior_plain_um
         self.stand_downs = 0  # times the score made the estimator stand down
+        #: gate refusals in a row agreeing in direction (signed: + above, - below)
+        self._streak = 0
+        self.reacquisitions = 0
 
     # -- per sample (cheap) --------------------------------------------------------------------
 
@@ -339,7 +356,8 @@ class Adapter:
         ph = p @ h
         s = float(h @ ph) + r
         if abs(y) > self.params.gate_sigma * math.sqrt(s):
-            return self.refuse("gate", measured_um, model_um, terms_um)
+            return self._refuse_or_reacquire(measured_um, model_um, terms_um, h, y, p, r)
+        self._streak = 0
         self._keep_score(measured_um - model_um, measured_um - model_um
                          - float(h @ self._xa))
         k = ph / s
@@ -355,6 +373,37 @@ class Adapter:
         self.accepted += 1
         return ProbeOutcome(True, None, y, math.sqrt(s), self._bias, self.bias_sigma_um,
                             moved, float(self._x[0]), self._standing_down)
+
+    def _refuse_or_reacquire(self, measured_um: float, model_um: float,
+                             terms_um: Sequence[float], h: FloatArray, y: float,
+                             p: FloatArray, r: float) -> ProbeOutcome:
+        """A gate refusal, or at the reacquire_after-th agreeing one a re-acquisition."""
+        sign = 1 if y > 0 else -1
+        self._streak = self._streak + sign if self._streak * sign > 0 else sign
+        n = int(self.params.reacquire_after)
+        holdable = abs(float(self._x[0]) + y) <= self.params.max_total_um
+        if n < 1 or abs(self._streak) < n or not holdable:
+            return self.refuse("gate", measured_um, model_um, terms_um)
+        # re-acquire: inflate the bias variance, weigh the probe ungated and unbounded
+        self._streak = 0
+        p = p.copy()
+        p[0, 0] = min(float(self._cap[0]), max(float(p[0, 0]), _sq(y)))
+        self._keep_score(measured_um - model_um, measured_um - model_um
+                         - float(h @ self._xa))
+        ph = p @ h
+        s = float(h @ ph) + r
+        k = ph / s
+        box = np.sqrt(self._cap)
+        self._x = np.clip(self._x + k * y, -box, box)
+        a = np.eye(len(h)) - np.outer(k, h)
+        p = a @ p @ a.T + r * np.outer(k, k)
+        self._p = (p + p.T) * 0.5
+        self._pending_s = 0.0
+        moved = self._apply_if_significant(h)
+        self.accepted += 1
+        self.reacquisitions += 1
+        return ProbeOutcome(True, None, y, math.sqrt(s), self._bias, self.bias_sigma_um,
+                            moved, float(self._x[0]), self._standing_down, True)
 
     def _keep_score(self, plain_um: float, adapted_um: float) -> None:
         """Score one accepted probe; stand down while adapting loses over the window."""
@@ -441,6 +490,8 @@ class Adapter:
             "score": [[p, a] for p, a in self._score],
             "standing_down": self._standing_down,
             "stand_downs": self.stand_downs,
+            "streak": self._streak,
+            "reacquisitions": self.reacquisitions,
         }
 
     @classmethod
@@ -476,10 +527,13 @@ class Adapter:
         if np.any(np.abs(p) > np.sqrt(np.outer(out._cap, out._cap)) * (1 + 1e-9)):
             raise ValueError("adaptation state: P beyond the variances the settings allow")
         counts = [state.get("accepted"), state.get("refused"), state.get("applied_moves", 0),
-                  state.get("stand_downs", 0)]
+                  state.get("stand_downs", 0), state.get("reacquisitions", 0)]
         if any(isinstance(c, bool) or not isinstance(c, int) or c < 0 for c in counts):
-            raise ValueError("adaptation state: accepted/refused/applied_moves/stand_downs "
-                             "must be integers >= 0")
+            raise ValueError("adaptation state: accepted/refused/applied_moves/stand_downs/"
+                             "reacquisitions must be integers >= 0")
+        streak = state.get("streak", 0)
+        if isinstance(streak, bool) or not isinstance(streak, int) or abs(streak) > 1e4:
+            raise ValueError("adaptation state: streak must be an integer within ±10000")
         raw_score = state.get("score", []) if version >= 3 else []
         if not isinstance(raw_score, list):
             raise ValueError("adaptation state: score must be a list of [plain², adapted²]")
@@ -494,7 +548,9 @@ class Adapter:
         out._pending_s = float(pending)
         out._x = x
         out._set_applied(xa)
-        out.accepted, out.refused, out.applied_moves, out.stand_downs = (int(c) for c in counts)
+        (out.accepted, out.refused, out.applied_moves, out.stand_downs,
+         out.reacquisitions) = (int(c) for c in counts)
+        out._streak = int(streak)
         window = int(params.score_window)
         out._score = [(float(p), float(a)) for p, a in score][-window:] if window else []
         out._standing_down = down and window > 0

@@ -60,6 +60,9 @@ _SETTINGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--score-window", "score_window", number(0.0, 1e4),
      "accepted probes the estimator's self-score spans; it stands down while adapting "
      "loses over them; 0 never stands down (default {:g})"),
+    ("--reacquire-after", "reacquire_after", number(0.0, 1e4),
+     "gate refusals in a row agreeing in direction after which the estimator re-acquires; "
+     "0 never (default {:g})"),
 )
 
 

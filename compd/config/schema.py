@@ -518,6 +518,9 @@ class AdaptationSection(_Section):
     #: accepted probes the estimator keeps score over; it stands down (applies nothing)
     #: while adapting loses to the plain model over them (models.adaptation)
     score_window: ScoreWindow | None = None
+    #: gate refusals in a row agreeing in direction after which the estimator
+    #: re-acquires (a real change, within max_total_um); 0: never
+    reacquire_after: ScoreWindow | None = None
     #: the guard "no model worse than none" (compd.core.adaptation): this many probes
     #: in a row each showing the compensation making the error larger than none would
     #: (by more than twice probe_noise_um) are an alarm and a fault (hold, then ramp
@@ -527,7 +530,8 @@ class AdaptationSection(_Section):
     def estimator_settings(self) -> dict[str, Any]:
         """The estimator settings given (the others keep their defaults)."""
         names = ("bias_rw_um_per_sqrt_h", "probe_noise_um", "gate_sigma", "max_step_um",
-                 "max_total_um", "gains", "gain_rw_per_sqrt_h", "max_gain", "score_window")
+                 "max_total_um", "gains", "gain_rw_per_sqrt_h", "max_gain", "score_window",
+                 "reacquire_after")
         return {n: getattr(self, n) for n in names if getattr(self, n) is not None}
 
 

@@ -18,7 +18,9 @@ Each cycle `ProbeStage.step`:
    model's output (its gate refuses an outlier: a chip under the probe, a
    wrong tool); otherwise the probe is refused ("fault": never learnt from a
    sample the model could not use, "no_offset": the offset in force unknown);
-3. when the estimator's score (`models.adaptation`: plain against adapted
+3. when `reacquire_after` gate refusals in a row agreed in direction and the
+   estimator re-acquired (a real change: `models.adaptation`), says so
+   ("adaptation_reacquired"); when the estimator's score (`models.adaptation`: plain against adapted
    over the last `score_window` accepted probes) makes it stand down or take
    over again, says so ("adaptation_stood_down" with the two RMS errors,
    "adaptation_resumed");
@@ -135,6 +137,13 @@ class ProbeStage:
         else:
             was_down = self.adapter.standing_down
             out = self.adapter.update(measured, model, terms)
+            if out.reacquired:
+                events.append(Event("adaptation_reacquired", {
+                    "innovation_um": round(out.innovation_um, 6),
+                    "refusals": int(self.settings.params.reacquire_after),
+                    "estimated_bias_um": round(out.estimated_bias_um, 6),
+                    "bias_um": round(out.bias_um, 6),
+                    "reacquisitions": self.adapter.reacquisitions}))
             if out.standing_down != was_down:
                 plain, adapted = self.adapter.score_um
                 events.append(Event(

@@ -221,3 +221,21 @@ def test_a_model_table_beyond_the_configs_bounds_is_refused_by_name(tmp_path: Pa
     assert exc.value.key == "model [adaptation].gate_sigma"
     assert main(["check", str(cfg_path)]) == EX_CONFIG
     assert "gate_sigma" in capsys.readouterr().err
+
+
+def test_a_reacquisition_in_the_cycle_is_an_event() -> None:
+    from compd.config.adaptation import AdaptationSettings
+    from compd.core.adaptation import ProbeReading
+
+    stage = ProbeStage(AdaptationSettings("apply", "displacement",
+                                          AdaptationParams(score_window=0)), 1)
+    events: list[Event] = []
+    values = [0.0] * 25 + [15.0] * 3  # a day right, then a real 15 µm change
+    for k, z in enumerate(values):
+        stage.step(3600.0, ProbeReading(z, float(k)), complete=True, model_um=0.0,
+                   terms_um=[0.0], offset_in_force_um=0.0, events=events)
+    names = [e.name for e in events]
+    assert names.count("probe_refused") == 2
+    (ev,) = [e for e in events if e.name == "adaptation_reacquired"]
+    assert ev.fields["refusals"] == 3 and ev.fields["innovation_um"] > 10.0
+    assert stage.correction_um == pytest.approx(5.0)  # the first step, max_step_um
