@@ -81,7 +81,8 @@ Standing down and taking over again move the whole correction at once:
 The score may start from a prior (`score_prior_plain_um`,
 `score_prior_adapted_um`: the RMS error of the plain model and of a correction
 held over one probe spacing, on the calibration record: `compd fit
---adaptation` learns them), weighted as a full window of probes; a prior that
+--adaptation` learns them), weighted as `score_prior_probes` probes (the
+probe spacings the calibration record spans; 0: a full window); a prior that
 says adapting does not pay at this probe spacing starts the estimator stood
 down, until the probes show otherwise.
 
@@ -144,6 +145,7 @@ DOMAIN: dict[str, tuple[float, float]] = {  # (low, high); _POSITIVE ones must b
     "score_prior_plain_um": (0.0, 1e6),
     "score_prior_adapted_um": (0.0, 1e6),
     "reacquire_after": (0.0, 1e4),
+    "score_prior_probes": (0.0, 1e4),
 }
 _POSITIVE = ("probe_noise_um", "gate_sigma", "max_step_um", "max_total_um")
 #: a probe value, model output or term beyond ±1 m is no thermal displacement: refused
@@ -175,7 +177,8 @@ class AdaptationParams:
     apply_sigma: float = 4.0  # apply the estimate only when it departs by more than this many σ
     score_window: float = 3  # accepted probes the self-score spans, whole (0: never stand down)
     score_prior_plain_um: float = 0.0  # the score's prior: the plain model's RMS error and
-    score_prior_adapted_um: float = 0.0  # the held correction's, weighted as a full window
+    score_prior_adapted_um: float = 0.0  # the held correction's, weighted as
+    score_prior_probes: float = 0.0  # this many probes (0: a full score window)
     reacquire_after: float = 3  # gate refusals in a row agreeing in direction: re-acquire
 
     def __post_init__(self) -> None:
@@ -412,7 +415,8 @@ class Adapter:
             return
         self._score.append((_sq(plain_um), _sq(adapted_um)))
         del self._score[:-window]
-        prior = window * (_sq(self.params.score_prior_adapted_um)
+        weight = self.params.score_prior_probes or window
+        prior = weight * (_sq(self.params.score_prior_adapted_um)
                           - _sq(self.params.score_prior_plain_um))
         down = sum(a for _, a in self._score) + prior > sum(p for p, _ in self._score)
         if down and not self._standing_down:

@@ -32,9 +32,11 @@ model over a record sampled every T seconds:
 - the score's prior (`score_prior_plain_um`, `score_prior_adapted_um`): the
   RMS of the residual, and of the residual less its value τ before (τ over
   one probe spacing): what the plain model and a correction held since the
-  last probe would have done on the calibration record. On the real machine
-  holding pays at 1 h and 2 h (ch3: 1.6 and 2.5 µm against 3.0) and loses at
-  4 h and 8 h (3.6 and 4.0): the estimator there starts stood down;
+  last probe would have done on the calibration record (`score_prior_probes`),
+  weighted as the number of probe spacings the records span (the evidence
+  it rests on, at most 100). On the real machine holding pays at 1 h and
+  2 h (ch3: 1.6 and 2.5 µm against 3.0) and loses at 4 h and 8 h (3.6 and
+  4.0): the estimator there starts stood down;
 - the step bound (`max_step_um`): 4 σ of the residual's change over the lag,
   √E[(r(k+L) − r(k))²], at least the default (5 µm): a bound the residual's
   own moves between probes stay within, a wrong probe's not.
@@ -126,6 +128,8 @@ def run_probes(simulated: FloatArray, measured: FloatArray, time_s: FloatArray,
 #: the smallest probe noise the daemon's config accepts (compd.config.schema): a suggestion
 #: below it (a very smooth residual) is written as this
 MIN_PROBE_NOISE_UM = 0.01
+#: the prior's weight is the probe spacings the calibration spans, at most this many
+MAX_PRIOR_PROBES = 100.0
 #: the largest step bound suggested (the config bounds it by output.limit_um anyway)
 MAX_STEP_SUGGESTED_UM = 1000.0
 
@@ -139,12 +143,14 @@ class Suggestion:
     max_step_um: float = AdaptationParams.max_step_um
     plain_rms_um: float = 0.0
     held_rms_um: float = 0.0
+    prior_probes: float = 0.0
 
     def as_dict(self) -> dict[str, float]:
         return {"probe_noise_um": self.probe_noise_um,
                 "bias_rw_um_per_sqrt_h": self.bias_rw_um_per_sqrt_h, "lag_s": self.lag_s,
                 "apply_sigma": self.apply_sigma, "max_step_um": self.max_step_um,
-                "plain_rms_um": self.plain_rms_um, "held_rms_um": self.held_rms_um}
+                "plain_rms_um": self.plain_rms_um, "held_rms_um": self.held_rms_um,
+                "prior_probes": self.prior_probes}
 
     def settings(self) -> dict[str, float]:
         """The model file's [adaptation] table (`AdaptationParams` fields, rounded to
@@ -155,7 +161,8 @@ class Suggestion:
                 "apply_sigma": _round(self.apply_sigma),
                 "max_step_um": _round(self.max_step_um),
                 "score_prior_plain_um": _round(self.plain_rms_um),
-                "score_prior_adapted_um": _round(self.held_rms_um)}
+                "score_prior_adapted_um": _round(self.held_rms_um),
+                "score_prior_probes": _round(self.prior_probes)}
 
 
 def _round(v: float) -> float:
@@ -183,8 +190,9 @@ def suggest_settings(residuals: list[FloatArray], period_s: float,
     apply_sigma = 0.0 if drift > default.apply_sigma * sigma_v else default.apply_sigma
     max_step = min(max(default.max_step_um, 4.0 * math.sqrt(moved)), MAX_STEP_SUGGESTED_UM)
     plain, held = _held_rms(residuals, lag)
+    spacings = min(sum(r.size for r in residuals) / lag, MAX_PRIOR_PROBES)
     return Suggestion(sigma_v, math.sqrt(q * 3600.0), lag * period_s, apply_sigma, max_step,
-                      plain, held)
+                      plain, held, spacings)
 
 
 def _held_rms(residuals: list[FloatArray], lag: int) -> tuple[float, float]:
