@@ -239,3 +239,26 @@ def test_a_reacquisition_in_the_cycle_is_an_event() -> None:
     (ev,) = [e for e in events if e.name == "adaptation_reacquired"]
     assert ev.fields["refusals"] == 3 and ev.fields["innovation_um"] > 10.0
     assert stage.correction_um == pytest.approx(5.0)  # the first step, max_step_um
+
+
+@pytest.mark.parametrize(("line", "key"), [
+    ("guard_window = 101", "adaptation.guard_window"),
+    ("guard_window = -1", "adaptation.guard_window"),
+    ("reacquire_after = 1.5", "adaptation.reacquire_after"),
+    ("score_window = 1000", "adaptation.score_window"),
+])
+def test_the_new_adaptation_keys_are_bounded_by_name(tmp_path: Path, line: str,
+                                                     key: str) -> None:
+    cfg_path = tmp_path / "compd.toml"
+    cfg_path.write_text(BASE + ADAPTATION + line + "\n", encoding="utf-8")
+    with pytest.raises(ConfigError) as exc:
+        load_config(cfg_path)
+    assert exc.value.key == key
+
+
+def test_the_guard_and_reacquire_keys_reach_the_cycle(tmp_path: Path) -> None:
+    cfg_path = tmp_path / "compd.toml"
+    cfg_path.write_text(BASE + ADAPTATION + "guard_window = 5\nreacquire_after = 4\n",
+                        encoding="utf-8")
+    p = params_from_config(load_config(cfg_path)).adaptation
+    assert p is not None and p.guard_window == 5 and p.params.reacquire_after == 4
