@@ -82,7 +82,8 @@ The score may start from a prior (`score_prior_plain_um`,
 `score_prior_adapted_um`: the RMS error of the plain model and of a correction
 held over one probe spacing, on the calibration record: `compd fit
 --adaptation` learns them), weighted as `score_prior_probes` probes (the
-probe spacings the calibration record spans; 0: a full window); a prior that
+probe spacings the calibration record spans; 0: a full window; the window
+then spans at least as many probes); a prior that
 says adapting does not pay at this probe spacing starts the estimator stood
 down, until the probes show otherwise.
 
@@ -410,7 +411,7 @@ class Adapter:
 
     def _keep_score(self, plain_um: float, adapted_um: float) -> None:
         """Score one accepted probe; stand down while adapting loses over the window."""
-        window = int(self.params.score_window)
+        window = _score_window(self.params)
         if window <= 0:
             return
         self._score.append((_sq(plain_um), _sq(adapted_um)))
@@ -555,10 +556,17 @@ class Adapter:
         (out.accepted, out.refused, out.applied_moves, out.stand_downs,
          out.reacquisitions) = (int(c) for c in counts)
         out._streak = int(streak)
-        window = int(params.score_window)
+        window = _score_window(params)
         out._score = [(float(p), float(a)) for p, a in score][-window:] if window else []
         out._standing_down = down and window > 0
         return out
+
+
+def _score_window(params: AdaptationParams) -> int:
+    """The probes the score spans: score_window, and with a prior at least as many as the
+    prior weighs (its evidence and the probes' weigh alike); 0 when score_window is 0."""
+    window = int(params.score_window)
+    return max(window, int(params.score_prior_probes)) if window > 0 else 0
 
 
 def _sq(v: float) -> float:
