@@ -67,8 +67,39 @@ their physics) and a probe value, model output or term beyond ±1 m is refused
 ("fault"). Within it every product the filter forms is finite: no
 OverflowError, no NaN, for any finite input to `update` or any restored state.
 
-A real, sudden change larger than the gate is refused like an outlier: the
-refused counter says so, and re-calibration is the answer, not the filter.
+The estimator keeps score of itself (`score_window`, default 3): at each
+accepted probe, the squared error of the plain model (z − model) and of the
+adapted prediction the machine had (z − model − the applied correction before
+the probe), over the last `score_window` accepted probes. While the adapted
+sum is larger than the plain one, adapting does not pay and the estimator
+STANDS DOWN: `correction_um` returns 0 (the plain model), the filter keeps
+learning, and the score goes on counting what the adapted prediction would
+have been, so that it takes over again as soon as that pays. `stand_downs`
+counts the times it stood down; `score_window = 0` never stands down.
+Standing down and taking over again move the whole correction at once:
+`max_step_um` does not bound them (the daemon's output stage, its slew, does).
+The score may start from a prior (`score_prior_plain_um`,
+`score_prior_adapted_um`: the RMS error of the plain model and of a correction
+held over one probe spacing, on the calibration record: `compd fit
+--adaptation` learns them), weighted as `score_prior_probes` probes (the
+probe spacings the calibration record spans; 0: a full window; the window
+then spans at least as many probes); a prior that
+says adapting does not pay at this probe spacing starts the estimator stood
+down, until the probes show otherwise.
+
+A real, sudden change larger than the gate is refused like an outlier at
+first. But `reacquire_after` (default 3) gate refusals in a row that agree in
+direction are evidence, not noise (a chip under the probe does not repeat the
+same way): at the last of them the estimator RE-ACQUIRES. The bias variance
+is inflated to that probe's innovation² (at most max_total_um²), and the
+probe is weighed without the gate and without the step bound on the estimate
+(re-baselined: the estimate jumps most of the way), the box held; the applied
+correction then follows it by at most `max_step_um` per probe (and in the
+daemon through the output stage's clamp and slew). Only a change the
+correction may hold is re-acquired: when the bias it asks for is beyond
+±max_total_um (a probe 500 µm off is no thermal drift), the refusals go on
+and recalibration is the answer. `reacquisitions` counts them; 0 never
+re-acquires.
 
 Worked number: bias only, P = 25 µm² (σ 5 µm), R = 0.25 µm² (σ 0.5 µm), a
 first probe 3 µm above the model: S = 25.25, K = 0.990, b = 2.970 µm,
@@ -89,9 +120,10 @@ import numpy.typing as npt
 FloatArray = npt.NDArray[np.float64]
 
 #: version of `Adapter.export_state`'s layout
-STATE_VERSION = 2
-#: layouts `Adapter.from_state` reads (version 1 had no applied state: it was x)
-_READABLE_VERSIONS = (1, 2)
+STATE_VERSION = 3
+#: layouts `Adapter.from_state` reads (version 1 had no applied state: it was x; versions 1
+#: and 2 had no score: they start with an empty one)
+_READABLE_VERSIONS = (1, 2, 3)
 _SECONDS_PER_HOUR = 3600.0
 
 #: The estimator's numerical domain: each setting's (low, low excluded, high). Within it
@@ -110,6 +142,11 @@ DOMAIN: dict[str, tuple[float, float]] = {  # (low, high); _POSITIVE ones must b
     "initial_bias_sigma_um": (0.0, 1e6),
     "initial_gain_sigma": (0.0, 1e3),
     "apply_sigma": (0.0, 1e6),
+    "score_window": (0.0, 1e4),
+    "score_prior_plain_um": (0.0, 1e6),
+    "score_prior_adapted_um": (0.0, 1e6),
+    "reacquire_after": (0.0, 1e4),
+    "score_prior_probes": (0.0, 1e4),
 }
 _POSITIVE = ("probe_noise_um", "gate_sigma", "max_step_um", "max_total_um")
 #: a probe value, model output or term beyond ±1 m is no thermal displacement: refused
@@ -139,6 +176,11 @@ class AdaptationParams:
     initial_bias_sigma_um: float = 5.0
     initial_gain_sigma: float = 0.1  # σ of each relative gain correction at start
     apply_sigma: float = 4.0  # apply the estimate only when it departs by more than this many σ
+    score_window: float = 3  # accepted probes the self-score spans, whole (0: never stand down)
+    score_prior_plain_um: float = 0.0  # the score's prior: the plain model's RMS error and
+    score_prior_adapted_um: float = 0.0  # the held correction's, weighted as
+    score_prior_probes: float = 0.0  # this many probes (0: a full score window)
+    reacquire_after: float = 3  # gate refusals in a row agreeing in direction: re-acquire
 
     def __post_init__(self) -> None:
         problems = self.problems()
@@ -180,6 +222,8 @@ class ProbeOutcome:
     bias_sigma_um: float  # σ of the filter's bias estimate
     applied: bool = False  # the applied correction moved at this probe (the apply_sigma test)
     estimated_bias_um: float = math.nan  # the filter's bias estimate after the probe
+    standing_down: bool = False  # after the probe, the score says adapting does not pay
+    reacquired: bool = False  # this probe re-acquired after refusals agreeing in direction
 
 
 class Adapter:
@@ -207,11 +251,23 @@ class Adapter:
         self.applied_moves = 0  # probes at which the applied correction moved
         self._bias = 0.0
         self._gains: list[float] = [0.0] * (n - 1)
+        #: (plain², adapted²) at each of the last score_window accepted probes
+        self._score: list[tuple[float, float]] = []
+        #: a prior that says adapting does not pay starts stood down (until probes say it does)
+        self._standing_down = params.score_window >= 1 \
+            and params.score_prior_adapted_um > params.score_prior_plain_um
+        self.stand_downs = 0  # times the score made the estimator stand down
+        #: gate refusals in a row agreeing in direction (signed: + above, - below)
+        self._streak = 0
+        self.reacquisitions = 0
 
     # -- per sample (cheap) --------------------------------------------------------------------
 
     def correction_um(self, terms_um: Sequence[float]) -> float:
-        """What to add to the model output: b + Σ g_i·term_i (terms ignored without gains)."""
+        """What to add to the model output: b + Σ g_i·term_i (terms ignored without gains);
+        0 while the estimator stands down (its score says adapting does not pay)."""
+        if self._standing_down:
+            return 0.0
         c = self._bias
         if self._gains:
             for g, t in zip(self._gains, terms_um, strict=True):
@@ -230,6 +286,21 @@ class Adapter:
     def bias_um(self) -> float:
         """The applied bias (what `correction_um` adds, besides the gains' part)."""
         return self._bias
+
+    @property
+    def standing_down(self) -> bool:
+        """The score says adapting does not pay: the correction is 0 (see the module)."""
+        return self._standing_down
+
+    @property
+    def score_um(self) -> tuple[float, float]:
+        """RMS of the plain model's and of the adapted prediction's error over the score's
+        window of accepted probes (µm; NaN before the first)."""
+        if not self._score:
+            return math.nan, math.nan
+        n = len(self._score)
+        return (math.sqrt(sum(p for p, _ in self._score) / n),
+                math.sqrt(sum(a for _, a in self._score) / n))
 
     @property
     def gain_corrections(self) -> tuple[float, ...]:
@@ -289,7 +360,10 @@ class Adapter:
         ph = p @ h
         s = float(h @ ph) + r
         if abs(y) > self.params.gate_sigma * math.sqrt(s):
-            return self.refuse("gate", measured_um, model_um, terms_um)
+            return self._refuse_or_reacquire(measured_um, model_um, terms_um, h, y, p, r)
+        self._streak = 0
+        self._keep_score(measured_um - model_um, measured_um - model_um
+                         - float(h @ self._xa))
         k = ph / s
         dx = k * y
         alpha = self._step_scale(h, dx)
@@ -302,7 +376,53 @@ class Adapter:
         moved = self._apply_if_significant(h)
         self.accepted += 1
         return ProbeOutcome(True, None, y, math.sqrt(s), self._bias, self.bias_sigma_um,
-                            moved, float(self._x[0]))
+                            moved, float(self._x[0]), self._standing_down)
+
+    def _refuse_or_reacquire(self, measured_um: float, model_um: float,
+                             terms_um: Sequence[float], h: FloatArray, y: float,
+                             p: FloatArray, r: float) -> ProbeOutcome:
+        """A gate refusal, or at the reacquire_after-th agreeing one a re-acquisition."""
+        sign = 1 if y > 0 else -1
+        self._streak = self._streak + sign if self._streak * sign > 0 else sign
+        n = int(self.params.reacquire_after)
+        holdable = abs(float(self._x[0]) + y) <= self.params.max_total_um
+        if n < 1 or abs(self._streak) < n or not holdable:
+            return self.refuse("gate", measured_um, model_um, terms_um)
+        # re-acquire: inflate the bias variance, weigh the probe ungated and unbounded
+        self._streak = 0
+        p = p.copy()
+        p[0, 0] = min(float(self._cap[0]), max(float(p[0, 0]), _sq(y)))
+        self._keep_score(measured_um - model_um, measured_um - model_um
+                         - float(h @ self._xa))
+        ph = p @ h
+        s = float(h @ ph) + r
+        k = ph / s
+        box = np.sqrt(self._cap)
+        self._x = np.clip(self._x + k * y, -box, box)
+        a = np.eye(len(h)) - np.outer(k, h)
+        p = a @ p @ a.T + r * np.outer(k, k)
+        self._p = (p + p.T) * 0.5
+        self._pending_s = 0.0
+        moved = self._apply_if_significant(h)
+        self.accepted += 1
+        self.reacquisitions += 1
+        return ProbeOutcome(True, None, y, math.sqrt(s), self._bias, self.bias_sigma_um,
+                            moved, float(self._x[0]), self._standing_down, True)
+
+    def _keep_score(self, plain_um: float, adapted_um: float) -> None:
+        """Score one accepted probe; stand down while adapting loses over the window."""
+        window = _score_window(self.params)
+        if window <= 0:
+            return
+        self._score.append((_sq(plain_um), _sq(adapted_um)))
+        del self._score[:-window]
+        weight = self.params.score_prior_probes or window
+        prior = weight * (_sq(self.params.score_prior_adapted_um)
+                          - _sq(self.params.score_prior_plain_um))
+        down = sum(a for _, a in self._score) + prior > sum(p for p, _ in self._score)
+        if down and not self._standing_down:
+            self.stand_downs += 1
+        self._standing_down = down
 
     def _apply_if_significant(self, h: FloatArray) -> bool:
         """Move the applied state to the estimate when it departs by > apply_sigma σ."""
@@ -355,7 +475,7 @@ class Adapter:
             sigma = math.sqrt(max(0.0, float(h @ self._covariance() @ h))
                               + _sq(self.params.probe_noise_um))
         return ProbeOutcome(False, reason, y, sigma, self._bias, self.bias_sigma_um,
-                            False, float(self._x[0]))
+                            False, float(self._x[0]), self._standing_down)
 
     # -- checkpoint ----------------------------------------------------------------------------
 
@@ -372,6 +492,11 @@ class Adapter:
             "accepted": self.accepted,
             "refused": self.refused,
             "applied_moves": self.applied_moves,
+            "score": [[p, a] for p, a in self._score],
+            "standing_down": self._standing_down,
+            "stand_downs": self.stand_downs,
+            "streak": self._streak,
+            "reacquisitions": self.reacquisitions,
         }
 
     @classmethod
@@ -406,16 +531,42 @@ class Adapter:
         # filter forms from it stays finite
         if np.any(np.abs(p) > np.sqrt(np.outer(out._cap, out._cap)) * (1 + 1e-9)):
             raise ValueError("adaptation state: P beyond the variances the settings allow")
-        counts = [state.get("accepted"), state.get("refused"), state.get("applied_moves", 0)]
+        counts = [state.get("accepted"), state.get("refused"), state.get("applied_moves", 0),
+                  state.get("stand_downs", 0), state.get("reacquisitions", 0)]
         if any(isinstance(c, bool) or not isinstance(c, int) or c < 0 for c in counts):
-            raise ValueError("adaptation state: accepted/refused/applied_moves must be "
-                             "integers >= 0")
+            raise ValueError("adaptation state: accepted/refused/applied_moves/stand_downs/"
+                             "reacquisitions must be integers >= 0")
+        streak = state.get("streak", 0)
+        if isinstance(streak, bool) or not isinstance(streak, int) or abs(streak) > 1e4:
+            raise ValueError("adaptation state: streak must be an integer within ±10000")
+        raw_score = state.get("score", []) if version >= 3 else []
+        if not isinstance(raw_score, list):
+            raise ValueError("adaptation state: score must be a list of [plain², adapted²]")
+        score = _floats(raw_score, "score", (len(raw_score), 2)) if raw_score \
+            else np.zeros((0, 2))
+        down = state.get("standing_down", False) if version >= 3 else False
+        if not isinstance(down, bool) or np.any(score < 0) \
+                or np.any(score > _sq(2 * MAX_INPUT_UM)):
+            raise ValueError("adaptation state: score must be squared errors within the "
+                             "domain, standing_down true or false")
         out._p = p
         out._pending_s = float(pending)
         out._x = x
         out._set_applied(xa)
-        out.accepted, out.refused, out.applied_moves = (int(c) for c in counts)
+        (out.accepted, out.refused, out.applied_moves, out.stand_downs,
+         out.reacquisitions) = (int(c) for c in counts)
+        out._streak = int(streak)
+        window = _score_window(params)
+        out._score = [(float(p), float(a)) for p, a in score][-window:] if window else []
+        out._standing_down = down and window > 0
         return out
+
+
+def _score_window(params: AdaptationParams) -> int:
+    """The probes the score spans: score_window, and with a prior at least as many as the
+    prior weighs (its evidence and the probes' weigh alike); 0 when score_window is 0."""
+    window = int(params.score_window)
+    return max(window, int(params.score_prior_probes)) if window > 0 else 0
 
 
 def _sq(v: float) -> float:

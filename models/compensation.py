@@ -121,6 +121,9 @@ class CompensationModel:
         self.name = name
         self.description = description
         self.provenance: dict[str, Any] = dict(provenance or {})
+        #: the probe estimator's settings the model file carries ([adaptation], learnt by
+        #: `compd fit --adaptation`): `models.adaptation.AdaptationParams` fields
+        self.adaptation: dict[str, Any] = {}
         self.contributions: list[float] = [0.0] * len(terms)
         self.references: dict[str, float] = {}
 

@@ -15,6 +15,10 @@
     b = ["1", "-0.99983"]
     gain = 1.0                       # or gain_channel = "clamp_gain"
 
+    [adaptation]                     # optional: the probe estimator's settings learnt
+    bias_rw_um_per_sqrt_h = 2.7      # from the calibration residual (compd fit
+    probe_noise_um = 0.07            # --adaptation); any field of
+                                     # models.adaptation.AdaptationParams
     [provenance]                     # free: data hash, orders, fit %, date
 
 Grey-box terms take ``p = [p1, p2, p3]`` (or six with ``switch_channel``)
@@ -142,7 +146,7 @@ def parse_term(doc: Any, period_s: float, where: str) -> Term:
 
 def parse_model(doc: Mapping[str, Any], where: str = "model") -> CompensationModel:
     """Build a model from a parsed TOML document (the file, or a config's inline model)."""
-    _check_keys(doc, {"model", "terms", "provenance"}, where)
+    _check_keys(doc, {"model", "terms", "provenance", "adaptation"}, where)
     head = doc.get("model", {})
     if not isinstance(head, Mapping):
         raise ModelError(f"{where}.model: must be a table")
@@ -161,12 +165,32 @@ def parse_model(doc: Mapping[str, Any], where: str = "model") -> CompensationMod
     model = CompensationModel(terms, period_s, name=_str(head, "name", f"{where}.model", "model"),
                               description=_str(head, "description", f"{where}.model", ""),
                               provenance=dict(provenance))
+    model.adaptation = parse_adaptation(doc.get("adaptation", {}), f"{where}.adaptation")
     declared = head.get("channels")
     if declared is not None:
         if not isinstance(declared, list) or not all(isinstance(c, str) for c in declared):
             raise ModelError(f"{where}.model.channels: must be a list of channel names")
         model.check_channels(declared)
     return model
+
+
+def parse_adaptation(doc: Any, where: str) -> dict[str, Any]:
+    """A model's [adaptation] table: settings of `models.adaptation.AdaptationParams`,
+    each checked there (ModelError naming the key)."""
+    from dataclasses import fields
+
+    from models.adaptation import AdaptationParams
+
+    if not isinstance(doc, Mapping):
+        raise ModelError(f"{where}: must be a table")
+    _check_keys(doc, {f.name for f in fields(AdaptationParams)}, where)
+    table = dict(doc)
+    try:
+        AdaptationParams(**table)
+    except (TypeError, ValueError) as exc:
+        first = str(exc).split("; ")[0]
+        raise ModelError(f"{where}.{first}") from None
+    return table
 
 
 def load_model(path: str | Path) -> CompensationModel:
@@ -234,6 +258,8 @@ def model_document(model: CompensationModel) -> dict[str, Any]:
                   "description": model.description},
         "terms": [term_document(t) for t in model.terms],
     }
+    if model.adaptation:
+        doc["adaptation"] = dict(model.adaptation)
     if model.provenance:
         doc["provenance"] = dict(model.provenance)
     return doc

@@ -161,8 +161,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", default=None, help="model name (default: from DATA)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON line")
     parser.add_argument("--adaptation", action="store_true",
-                        help="also suggest [adaptation] probe_noise_um and bias_rw_um_per_sqrt_h "
-                             "from the fitted model's residual (compd.offline.probes)")
+                        help="also learn the probe estimator's settings from the fitted model's "
+                             "residual (compd.offline.probes) and write them into the model "
+                             "file's [adaptation] table")
     parser.add_argument("--adaptation-lag-s", type=number(0.0, 1e7, lo_open=True),
                         default=7200.0, metavar="SECONDS",
                         help="with --adaptation: the probe interval the drift is measured over "
@@ -517,6 +518,14 @@ def run(args: argparse.Namespace) -> int:
         status.done()
     measured = [r.column(args.output) for r in records]
     adapt = _suggest_adaptation(args, measured, simulated, records[0].period_s)
+    if adapt:  # the suggestion travels with the model: its [adaptation] table
+        from compd.offline.probes import Suggestion
+        from compd.outfiles import write_atomically
+        from models.modelfile import save_model
+
+        model.adaptation = Suggestion(**adapt).settings()
+        write_atomically(out, lambda tmp: save_model(model, tmp), "model file", force=True,
+                         inputs=[r.path for r in records])
     per = [quality(m, s) for m, s in zip(measured, simulated, strict=True)]
     q = per[0] if len(records) == 1 else quality(np.concatenate(measured),
                                                  np.concatenate(simulated))
@@ -561,7 +570,9 @@ def run(args: argparse.Namespace) -> int:
     if adapt:
         print(f"  [adaptation] suggested from the residual (drift over {adapt['lag_s']:g} s): "
               f"probe_noise_um = {adapt['probe_noise_um']:.3g}, bias_rw_um_per_sqrt_h = "
-              f"{adapt['bias_rw_um_per_sqrt_h']:.3g} (a floor: see docs/adaptation.md)")
+              f"{adapt['bias_rw_um_per_sqrt_h']:.3g}, apply_sigma = {adapt['apply_sigma']:g}, "
+              f"max_step_um = {adapt['max_step_um']:.3g}; written as the model's [adaptation] "
+              "(a floor: see docs/adaptation.md)")
     print(f"  wrote {out}")
     return 0
 

@@ -5,13 +5,18 @@ The plain figures stay as they are; beside them ``"adapted"`` (the same keys,
 plus the probes used and refused and the final bias) and ``"crude"`` (the
 residual of each probe held until the next: the textbook baseline, same run).
 The estimator's settings are `[adaptation]`'s, as options; the defaults are
-`models.adaptation.AdaptationParams`'.
+the model file's `[adaptation]` table (learnt by `compd fit --adaptation`)
+over `models.adaptation.AdaptationParams`' (`--adaptation-defaults`: the
+latter alone). The report counts the probes at which the estimator's score
+made it stand down.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 from compd.argtypes import number, seed
@@ -33,8 +38,8 @@ _SETTINGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--bias-rw-um-per-sqrt-h", "bias_rw_um_per_sqrt_h", number(0.0, 1000.0),
      "bias random walk, µm/√h (default {:g})"),
     ("--probe-sigma-um", "probe_noise_um", number(0.0, 1000.0, lo_open=True),
-     "the estimator's probe noise σ, µm (default --probe-noise-um when that is > 0, "
-     "else {:g})"),
+     "the estimator's probe noise σ, µm (default: the model's [adaptation] value or {:g}; "
+     "with --probe-noise-um > 0, that combined with the model's value, or alone)"),
     ("--gate-sigma", "gate_sigma", number(0.0, 1e6, lo_open=True),
      "refuse a probe whose innovation exceeds this many σ (default {:g})"),
     ("--max-step-um", "max_step_um", number(0.0, 1000.0, lo_open=True),
@@ -52,6 +57,12 @@ _SETTINGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--apply-sigma", "apply_sigma", number(0.0, 1e6),
      "apply the estimate only when it departs from the applied correction by more than "
      "this many σ; 0 applies every accepted probe (default {:g})"),
+    ("--score-window", "score_window", number(0.0, 1e4),
+     "accepted probes the estimator's self-score spans; it stands down while adapting "
+     "loses over them; 0 never stands down (default {:g})"),
+    ("--reacquire-after", "reacquire_after", number(0.0, 1e4),
+     "gate refusals in a row agreeing in direction after which the estimator re-acquires; "
+     "0 never (default {:g})"),
 )
 
 
@@ -65,6 +76,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--probe-seed", type=seed, default=0, help="seed of the probe noise")
     group.add_argument("--gains", action="store_true",
                        help="also estimate a slow gain correction of each term")
+    group.add_argument("--adaptation-defaults", action="store_true",
+                       help="ignore the model file's [adaptation] table (the settings "
+                       "compd fit --adaptation learnt): the library's defaults")
     defaults = _defaults()
     for option, field, kind, text in _SETTINGS:
         group.add_argument(option, type=kind, default=None, metavar="X",
@@ -91,21 +105,29 @@ def usage_problem(args: argparse.Namespace) -> str:
         return ""
     given = [o for o, _, _, _ in _SETTINGS if getattr(args, _dest(o)) is not None]
     given += [o for o, v in (("--probe-noise-um", args.probe_noise_um),
-                             ("--probe-seed", args.probe_seed), ("--gains", args.gains)) if v]
+                             ("--probe-seed", args.probe_seed), ("--gains", args.gains),
+                             ("--adaptation-defaults", args.adaptation_defaults)) if v]
     return f"{', '.join(given)} need(s) --probe-every" if given else ""
 
 
-def params_from_args(args: argparse.Namespace) -> AdaptationParams:
-    """The estimator's settings: the options given over the defaults (ValueError when bad)."""
+def params_from_args(args: argparse.Namespace,
+                     learnt: Mapping[str, Any] | None = None) -> AdaptationParams:
+    """The estimator's settings: the options given over the model's learnt table (unless
+    --adaptation-defaults) over the defaults (ValueError when bad)."""
+    table = {} if args.adaptation_defaults or learnt is None else dict(learnt)
     changes: dict[str, Any] = {f: getattr(args, _dest(o)) for o, f, _, _ in _SETTINGS
                                if getattr(args, _dest(o)) is not None}
     if "probe_noise_um" not in changes and args.probe_noise_um > 0:
-        changes["probe_noise_um"] = args.probe_noise_um
-    return dataclasses.replace(_defaults(), gains=bool(args.gains), **changes)
+        # the probe's added noise, on top of what the model's own residual does fast
+        changes["probe_noise_um"] = math.hypot(float(table.get("probe_noise_um", 0.0)),
+                                               args.probe_noise_um)
+    gains = {"gains": True} if args.gains else {}
+    return dataclasses.replace(_defaults(), **{**table, **gains, **changes})
 
 
 def figures(run: ProbeRun, adapted: CompensationFigures, crude: CompensationFigures,
-            first: int, params: AdaptationParams, rms: dict[str, float]) -> dict[str, Any]:
+            first: int, params: AdaptationParams, rms: dict[str, float],
+            args_defaults: bool = True) -> dict[str, Any]:
     """The JSON keys "adapted", "crude" and "adaptation" (the settings used); `rms`
     the residue's RMS (µm, scored rows) of "plain", "adapted" and "crude"."""
     scored = int((run.rows >= first).sum())
@@ -114,6 +136,8 @@ def figures(run: ProbeRun, adapted: CompensationFigures, crude: CompensationFigu
                     "probes_scored": scored, "probes_used": int(run.accepted.sum()),
                     "probes_refused": int((~run.accepted).sum()),
                     "applied_moves": run.adapter.applied_moves,
+                    "stand_downs": run.adapter.stand_downs,
+                    "standing_down": run.adapter.standing_down,
                     "bias_um": run.adapter.bias_um,
                     "estimated_bias_um": run.adapter.estimated_bias_um,
                     "bias_sigma_um": run.adapter.bias_sigma_um,
@@ -122,6 +146,7 @@ def figures(run: ProbeRun, adapted: CompensationFigures, crude: CompensationFigu
         "crude": {**crude.as_dict(), "probes": int(run.rows.size),
                   "residue_rms_um": rms["crude"]},
         "adaptation": dataclasses.asdict(params),
+        "adaptation_from": "defaults" if args_defaults else "model",
     }
 
 
@@ -136,7 +161,8 @@ def lines(plain: CompensationFigures, extra: dict[str, Any], every_s: float,
     return [
         f"  adapted (a probe every {every_s:g} s, +{noise_um:g} µm noise; {a['probes']} probes, "
         f"{a['probes_used']} used, {a['probes_refused']} refused, applied at "
-        f"{a['applied_moves']}; bias applied {a['bias_um']:.3f} µm, estimated "
+        f"{a['applied_moves']}, stood down {a['stand_downs']} time(s); settings from the "
+        f"{extra['adaptation_from']}; bias applied {a['bias_um']:.3f} µm, estimated "
         f"{a['estimated_bias_um']:.3f} ± {a['bias_sigma_um']:.3f} µm):",
         f"    fit {a['fit_percent']:.2f} %, residue {a['residue_min_um']:.3f} … "
         f"{a['residue_max_um']:.3f} µm, RMS {a['residue_rms_um']:.3f} µm (plain "
@@ -164,7 +190,7 @@ def replay(args: argparse.Namespace, model: CompensationModel, record: Record,
         raise InputError(f"--probe-every {args.probe_every:g} s: shorter than the record's "
                          f"period of {record.period_s:g} s (at most one probe per row)",
                          EX_USAGE)
-    params = params_from_args(args)
+    params = params_from_args(args, model.adaptation)
     terms = None
     if params.gains:
         terms = term_contributions(model, record, steady=args.init == "steady")
@@ -175,7 +201,8 @@ def replay(args: argparse.Namespace, model: CompensationModel, record: Record,
     rms = {name: float(np.sqrt(np.mean((measured[first:] - pred[first:]) ** 2)))
            for name, pred in (("plain", simulated), ("adapted", run.adapted),
                               ("crude", run.crude))}
-    return run, figures(run, adapted, crude, first, params, rms)
+    return run, figures(run, adapted, crude, first, params, rms,
+                        args.adaptation_defaults or not model.adaptation)
 
 
 def plot_extras(run: ProbeRun | None, time_s: FloatArray) -> dict[str, Any]:

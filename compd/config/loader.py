@@ -23,7 +23,12 @@ from pydantic import BaseModel, ValidationError
 
 from compd.config.adaptation import AdaptationSettings
 from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX, check_outputs
-from compd.config.schema import ControllerSection, DaemonConfig, SecuritySection
+from compd.config.schema import (
+    AdaptationSection,
+    ControllerSection,
+    DaemonConfig,
+    SecuritySection,
+)
 from compd.config.suggest import errors_of
 from compd.errors import ConfigError
 from compd.infiles import MAX_CONFIG_BYTES, InputError, load_model, read_toml_document
@@ -270,7 +275,7 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
             base / rp if raw.recorder.path is not None else state_dir / rp)
         if recorder_path.is_dir():
             raise ConfigError("recorder.path", f"{recorder_path} is a directory, not a file")
-    adaptation, probes = _adaptation(raw, channels)
+    adaptation, probes = _adaptation(raw, channels, model.adaptation)
     return LoadedConfig(
         path=path, raw=raw, channels=channels, outputs=outputs, model=model, shadow=shadow,
         state_dir=state_dir, recorder_path=recorder_path,
@@ -279,9 +284,12 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         adaptation=adaptation, probes=probes)
 
 
-def _adaptation(raw: DaemonConfig, channels: dict[str, Address]
+def _adaptation(raw: DaemonConfig, channels: dict[str, Address],
+                learnt: dict[str, Any] | None = None
                 ) -> tuple[AdaptationSettings | None, dict[str, Address]]:
-    """[adaptation] checked: both probe addresses, the estimator's settings."""
+    """[adaptation] checked: both probe addresses, the estimator's settings: the
+    config's over the model file's [adaptation] table (`learnt`: what `compd fit
+    --adaptation` learnt), each within the config's bounds."""
     a = raw.adaptation
     if not a.enabled:
         return None, {}
@@ -295,6 +303,7 @@ def _adaptation(raw: DaemonConfig, channels: dict[str, Address]
             raise ConfigError(f"channels.{name}", "this name is reserved for the probe")
         probes[name] = _validate_address(raw.controller.protocol, doc, f"adaptation.{key}")
     limit = raw.output.limit_um
+    table = _learnt_settings(learnt or {}, limit)
     for key in ("max_step_um", "max_total_um"):
         value = getattr(a, key)
         if value is not None and value > limit:
@@ -302,12 +311,27 @@ def _adaptation(raw: DaemonConfig, channels: dict[str, Address]
                               f"({limit:g} µm): the output stage clamps there, a larger "
                               "bound only hides a runaway estimate")
     try:
-        params = AdaptationParams(**a.estimator_settings())
+        params = AdaptationParams(**{**table, **a.estimator_settings()})
     except (ValueError, TypeError) as exc:  # "name: why; …" (AdaptationParams.problems)
         first = str(exc).split("; ")[0]
         name, _, why = first.partition(": ")
         raise ConfigError(f"adaptation.{name}" if why else "adaptation", why or first) from None
-    return AdaptationSettings(mode=a.mode, measures=a.measures, params=params), probes
+    return AdaptationSettings(mode=a.mode, measures=a.measures, params=params,
+                              guard_window=a.guard_window), probes
+
+
+def _learnt_settings(table: dict[str, Any], limit_um: float) -> dict[str, Any]:
+    """The model file's [adaptation] table held to the config's bounds: a key the config
+    has is validated as the config would (ConfigError naming it), and the step and total
+    bounds are at most output.limit_um (the output stage clamps there)."""
+    table = {k: min(v, limit_um) if k in ("max_step_um", "max_total_um") else v
+             for k, v in table.items()}  # numbers: models.modelfile checked them
+    keys = set(AdaptationSection.model_fields) & set(table)
+    try:
+        AdaptationSection.model_validate({k: table[k] for k in keys})
+    except ValidationError as exc:
+        raise config_error(exc, prefix="model [adaptation]") from None
+    return table
 
 
 #: the names the probe's addresses are read under (beside the channels)

@@ -24,7 +24,7 @@ _FLOAT32_MAX = 3.4028234663852886e38
 #: (every compd.core.output.Status bit); here because the config is the room
 #: below the core (tests/compd/test_output_range.py holds them equal)
 HEARTBEAT_MAX = 32767
-STATUS_MAX = (1 << 13) - 1
+STATUS_MAX = (1 << 14) - 1
 
 #: (protocol, type) -> raw range of the encoding (ints: an integer encoding)
 RAW_RANGES: dict[tuple[str, str], tuple[float, float]] = {

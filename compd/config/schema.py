@@ -294,6 +294,10 @@ GainRw = Annotated[float, _field(0.0, 1.0, _WHY_GAIN_RW),
                    _within(0.0, 1.0, " per √h", _WHY_GAIN_RW)]
 MaxGain = Annotated[float, _field(0.0, 1.0, _WHY_MAX_GAIN),
                     _within(0.0, 1.0, "", _WHY_MAX_GAIN)]
+_WHY_SCORE_WINDOW = ("probes the estimator scores itself over: 0 never stands down; beyond "
+                     "100 probes a machine's error has long changed, the score only lags")
+ScoreWindow = Annotated[int, _field(0, 100, _WHY_SCORE_WINDOW),
+                        _within(0, 100, " probes", _WHY_SCORE_WINDOW)]
 #: µm per unit of an input: one unit never warrants more than the largest output.limit_um
 _WHY_DC_GAIN = ("one unit of an input never warrants more than the largest "
                 "output.limit_um, 10 mm")
@@ -519,11 +523,23 @@ class AdaptationSection(_Section):
     gains: bool | None = None
     gain_rw_per_sqrt_h: GainRw | None = None
     max_gain: MaxGain | None = None
+    #: accepted probes the estimator keeps score over; it stands down (applies nothing)
+    #: while adapting loses to the plain model over them (models.adaptation)
+    score_window: ScoreWindow | None = None
+    #: gate refusals in a row agreeing in direction after which the estimator
+    #: re-acquires (a real change, within max_total_um); 0: never
+    reacquire_after: ScoreWindow | None = None
+    #: the guard "no model worse than none" (compd.core.adaptation): this many probes
+    #: in a row each showing the compensation making the error larger than none would
+    #: (by more than twice probe_noise_um) are an alarm and a fault (hold, then ramp
+    #: to zero per [faults]) until another model is loaded; 0: no guard
+    guard_window: ScoreWindow = 3
 
     def estimator_settings(self) -> dict[str, Any]:
         """The estimator settings given (the others keep their defaults)."""
         names = ("bias_rw_um_per_sqrt_h", "probe_noise_um", "gate_sigma", "max_step_um",
-                 "max_total_um", "gains", "gain_rw_per_sqrt_h", "max_gain")
+                 "max_total_um", "gains", "gain_rw_per_sqrt_h", "max_gain", "score_window",
+                 "reacquire_after")
         return {n: getattr(self, n) for n in names if getattr(self, n) is not None}
 
 

@@ -18,7 +18,24 @@ Each cycle `ProbeStage.step`:
    model's output (its gate refuses an outlier: a chip under the probe, a
    wrong tool); otherwise the probe is refused ("fault": never learnt from a
    sample the model could not use, "no_offset": the offset in force unknown);
-3. returns the correction to add to the model output. In ``mode = "apply"``
+3. when `reacquire_after` gate refusals in a row agreed in direction and the
+   estimator re-acquired (a real change: `models.adaptation`), says so
+   ("adaptation_reacquired"); when the estimator's score (`models.adaptation`: plain against adapted
+   over the last `score_window` accepted probes) makes it stand down or take
+   over again, says so ("adaptation_stood_down" with the two RMS errors,
+   "adaptation_resumed");
+4. guards against a model worse than none: a probe taken on a complete cycle
+   with the offset in force known tells what the error at the tool is with
+   the compensation, d − o (d the measured displacement, o the offset in
+   force), and what it would be without, d. When `guard_window` probes in a
+   row each show |d − o| > |d| + 2·probe_noise_um, the compensation makes
+   the machine worse than none: "model_worse_than_none" is raised once and
+   latched (`model_worse`; the cycle sets MODEL_WORSE and ALARM and treats
+   it as a fault: hold, then ramp to zero per [faults]), kept in the
+   checkpoint, until another model is loaded (a restart or reload with a
+   recalibrated model starts the estimator and the guard afresh). A single wrong probe (a chip)
+   cannot trip it: every probe of the window must agree;
+5. returns the correction to add to the model output. In ``mode = "apply"``
    the cycle adds it BEFORE the fault policy and the output stage, so clamp,
    slew and deadband apply to it as to the model: a jump of the estimate
    never becomes a jump at the tool. In ``"shadow"`` it is computed and
@@ -68,6 +85,15 @@ class ProbeStage:
         self.correction_um = 0.0
         #: the last probe's outcome (recorded with its cycle), None when none came
         self.last: dict[str, Any] | None = None
+        #: per judged probe (the last guard_window): did the compensation make it worse?
+        self.guard: list[bool] = []
+        #: the guard tripped (latched): the compensation made the machine worse than none
+        self.model_worse = False
+        if state is not None:
+            guard = state.get("guard")
+            if isinstance(guard, list) and all(isinstance(g, bool) for g in guard):
+                self.guard = guard[-max(1, settings.guard_window):]
+            self.model_worse = state.get("model_worse") is True
 
     @property
     def applies(self) -> bool:
@@ -99,6 +125,9 @@ class ProbeStage:
         residual = self.settings.measures == "residual"
         measured = value + (offset_um if offset_um is not None else math.nan) \
             if residual else value
+        if complete and model_um is not None and offset_um is not None \
+                and math.isfinite(measured):
+            self._guard(measured, offset_um, events)
         if not complete or model_um is None:
             out = self.adapter.refuse("fault", measured, model, terms)
         elif residual and offset_um is None:
@@ -106,10 +135,41 @@ class ProbeStage:
         elif not math.isfinite(value):
             out = self.adapter.refuse("fault", measured, model, terms)
         else:
+            was_down = self.adapter.standing_down
             out = self.adapter.update(measured, model, terms)
+            if out.reacquired:
+                events.append(Event("adaptation_reacquired", {
+                    "innovation_um": round(out.innovation_um, 6),
+                    "refusals": int(self.settings.params.reacquire_after),
+                    "estimated_bias_um": round(out.estimated_bias_um, 6),
+                    "bias_um": round(out.bias_um, 6),
+                    "reacquisitions": self.adapter.reacquisitions}))
+            if out.standing_down != was_down:
+                plain, adapted = self.adapter.score_um
+                events.append(Event(
+                    "adaptation_stood_down" if out.standing_down else "adaptation_resumed",
+                    {"plain_rms_um": round(plain, 6), "adapted_rms_um": round(adapted, 6),
+                     "probes": int(self.settings.params.score_window),
+                     "stand_downs": self.adapter.stand_downs}))
         self.last = self._describe(reading, measured, model, out)
         fields = {k: v for k, v in self.last.items() if k != "accepted"}
         events.append(Event("probe_accepted" if out.accepted else "probe_refused", fields))
+
+    def _guard(self, displacement_um: float, offset_um: float, events: list[Event]) -> None:
+        """Judge one probe: the error with the compensation against without (see 4.)."""
+        window = self.settings.guard_window
+        if window <= 0 or self.model_worse:
+            return
+        with_um, without_um = displacement_um - offset_um, displacement_um
+        margin = 2.0 * self.settings.params.probe_noise_um
+        self.guard.append(abs(with_um) > abs(without_um) + margin)
+        del self.guard[:-window]
+        if len(self.guard) == window and all(self.guard):
+            self.model_worse = True
+            events.append(Event("model_worse_than_none", {
+                "probes": window, "error_with_um": round(with_um, 6),
+                "error_without_um": round(without_um, 6), "margin_um": round(margin, 6),
+                "action": "fault: hold, then ramp to zero; recalibrate"}))
 
     def _describe(self, reading: ProbeReading, measured: float, model: float,
                   out: ProbeOutcome) -> dict[str, Any]:
@@ -122,7 +182,9 @@ class ProbeStage:
                 "innovation_sigma_um": num(out.innovation_sigma_um),
                 "accepted": out.accepted, "reason": out.reason,
                 "bias_um": num(out.bias_um), "bias_sigma_um": num(out.bias_sigma_um),
+                "standing_down": out.standing_down,
                 "mode": self.settings.mode}
 
     def export_state(self) -> dict[str, Any]:
-        return {"estimator": self.adapter.export_state(), "counter": self.counter}
+        return {"estimator": self.adapter.export_state(), "counter": self.counter,
+                "guard": list(self.guard), "model_worse": self.model_worse}

@@ -349,6 +349,11 @@ class Cycle:
 
         in_force = self.output.confirmed_um  # before this cycle's write
         correction = self._adapt(dt, probe, valid, model_um, in_force, events)
+        if self.probes is not None and self.probes.model_worse:
+            # the probes showed the compensation worse than none: a fault, like a model
+            # out of range (hold, then ramp to zero per [faults]), latched
+            status |= Status.MODEL_WORSE | Status.ALARM
+            valid = False
         target_um = model_um + correction if model_um is not None else None
         decision = self.faults.decide(now_s, valid, target_um, events)
         target = self.output.current_um if decision.target_um is None else decision.target_um

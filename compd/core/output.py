@@ -73,6 +73,7 @@ class Status(enum.IntFlag):
     WRITE_FAULT = 1 << 10     #: offset writes keep failing (transient, repeated)
     MODEL_RANGE = 1 << 11     #: the model's output is far beyond ±limit: held/ramped
     OPERATOR_HOLD = 1 << 12   #: an operator switched compensation to hold (OPC UA SetHold)
+    MODEL_WORSE = 1 << 13     #: probes show the compensation worse than none: held/ramped
 
 
 __doc__ = (__doc__ or "") + "\n".join(

@@ -380,6 +380,14 @@ class Metrics(MetricsServer):
         self.adaptation_correction_um = Gauge(
             "compd_adaptation_correction_micrometres", "The correction the adaptation "
             "proposes this cycle (applied only in apply mode)", registry=r)
+        self.adaptation_standing_down = Gauge(
+            "compd_adaptation_standing_down", "1 while the adaptation stands down: its "
+            "score over the last probes says adapting does not beat the plain model, so it "
+            "applies nothing", registry=r)
+        self.model_worse_than_none = Gauge(
+            "compd_model_worse_than_none", "1 once the probes showed the compensation "
+            "making the error larger than none would (status bit MODEL_WORSE; held, then "
+            "ramped to zero per [faults]) until a restart or reload", registry=r)
         self.probes = Counter(
             "compd_probes", "Probe measurements seen, by outcome (accepted, refused) and "
             "reason (gate: innovation too large; fault: cycle not complete; no_offset)",
@@ -430,8 +438,11 @@ class Metrics(MetricsServer):
             self.channel_valid.labels(channel=name).set(1.0 if reason is None else 0.0)
 
     def adaptation(self, bias_um: float, bias_sigma_um: float, correction_um: float,
-                   probe: Mapping[str, Any] | None) -> None:
+                   probe: Mapping[str, Any] | None, standing_down: bool = False,
+                   model_worse: bool = False) -> None:
         """The estimator's state this cycle, and the probe that arrived (if one did)."""
+        self.adaptation_standing_down.set(1.0 if standing_down else 0.0)
+        self.model_worse_than_none.set(1.0 if model_worse else 0.0)
         self.adaptation_bias_um.set(bias_um)
         self.adaptation_bias_sigma_um.set(bias_sigma_um)
         self.adaptation_correction_um.set(correction_um)

@@ -21,8 +21,29 @@ model over a record sampled every T seconds:
 - bias random walk q (µm²/s): the drift variance at the lag L = the probe
   interval: Var(r(k+L) - r(k)) ≈ 2σ_v² + q·L·T, so q = (that - 2σ_v²)/(L·T),
   floored at 0, reported as √(q·3600) µm/√h.
+- the apply band (`apply_sigma`): the band holds the applied correction still
+  until the estimate departs by more than 4 σ, which pays on a model at its
+  noise floor (the shop machine: a residual drifting less than its noise) and
+  costs on one whose error moves by more than the noise between two probes
+  (the real machine of tests/data/fl_thermal: 2.7 µm per 2 h against 0.07 µm
+  of noise, residue RMS 6.1 µm with the band, 4.0 without, crude 4.0). So
+  0 (follow every probe) when the drift over the lag, √(q·L·T), exceeds 4 σ_v,
+  else the default;
+- the score's prior (`score_prior_plain_um`, `score_prior_adapted_um`): the
+  RMS of the residual, and of the residual less its value τ before (τ over
+  one probe spacing): what the plain model and a correction held since the
+  last probe would have done on the calibration record (`score_prior_probes`),
+  weighted as the number of probe spacings the records span (the evidence
+  it rests on, at most 100). On the real machine holding pays at 1 h and
+  2 h (ch3: 1.6 and 2.5 µm against 3.0) and loses at 4 h and 8 h (3.6 and
+  4.0): the estimator there starts stood down;
+- the step bound (`max_step_um`): 4 σ of the residual's change over the lag,
+  √E[(r(k+L) − r(k))²], at least the default (5 µm): a bound the residual's
+  own moves between probes stay within, a wrong probe's not.
 A residual on the calibration records themselves understates the drift a
-changed machine will show: read the suggestion as a floor.
+changed machine will show: read the suggestion as a floor. `compd fit
+--adaptation` writes it into the model file as its `[adaptation]` table, and
+the daemon and `compd replay --probe-every` use it unless told otherwise.
 """
 
 from __future__ import annotations
@@ -104,15 +125,48 @@ def run_probes(simulated: FloatArray, measured: FloatArray, time_s: FloatArray,
     return ProbeRun(adapted, crude, rows, values, accepted, adapter)
 
 
+#: the smallest probe noise the daemon's config accepts (compd.config.schema): a suggestion
+#: below it (a very smooth residual) is written as this
+MIN_PROBE_NOISE_UM = 0.01
+#: the prior's weight is the probe spacings the calibration spans, at most this many
+MAX_PRIOR_PROBES = 100.0
+#: the largest step bound suggested (the config bounds it by output.limit_um anyway)
+MAX_STEP_SUGGESTED_UM = 1000.0
+
+
 @dataclass(frozen=True)
 class Suggestion:
     probe_noise_um: float
     bias_rw_um_per_sqrt_h: float
     lag_s: float
+    apply_sigma: float = AdaptationParams.apply_sigma
+    max_step_um: float = AdaptationParams.max_step_um
+    plain_rms_um: float = 0.0
+    held_rms_um: float = 0.0
+    prior_probes: float = 0.0
 
     def as_dict(self) -> dict[str, float]:
         return {"probe_noise_um": self.probe_noise_um,
-                "bias_rw_um_per_sqrt_h": self.bias_rw_um_per_sqrt_h, "lag_s": self.lag_s}
+                "bias_rw_um_per_sqrt_h": self.bias_rw_um_per_sqrt_h, "lag_s": self.lag_s,
+                "apply_sigma": self.apply_sigma, "max_step_um": self.max_step_um,
+                "plain_rms_um": self.plain_rms_um, "held_rms_um": self.held_rms_um,
+                "prior_probes": self.prior_probes}
+
+    def settings(self) -> dict[str, float]:
+        """The model file's [adaptation] table (`AdaptationParams` fields, rounded to
+        four significant digits, within the daemon config's bounds)."""
+        return {"bias_rw_um_per_sqrt_h": _round(min(self.bias_rw_um_per_sqrt_h, 100.0)),
+                "probe_noise_um": _round(min(max(self.probe_noise_um, MIN_PROBE_NOISE_UM),
+                                             100.0)),
+                "apply_sigma": _round(self.apply_sigma),
+                "max_step_um": _round(self.max_step_um),
+                "score_prior_plain_um": _round(self.plain_rms_um),
+                "score_prior_adapted_um": _round(self.held_rms_um),
+                "score_prior_probes": _round(self.prior_probes)}
+
+
+def _round(v: float) -> float:
+    return float(f"{v:.4g}")
 
 
 def suggest_settings(residuals: list[FloatArray], period_s: float,
@@ -129,5 +183,24 @@ def suggest_settings(residuals: list[FloatArray], period_s: float,
     if not far:
         raise ValueError(f"the records are shorter than the lag of {lag * period_s:g} s")
     dl = np.concatenate(far)
-    q = max(0.0, (float(np.mean(dl ** 2)) - 2.0 * sigma_v ** 2) / (lag * period_s))
-    return Suggestion(sigma_v, math.sqrt(q * 3600.0), lag * period_s)
+    moved = float(np.mean(dl ** 2))
+    q = max(0.0, (moved - 2.0 * sigma_v ** 2) / (lag * period_s))
+    default = AdaptationParams()
+    drift = math.sqrt(q * lag * period_s)
+    apply_sigma = 0.0 if drift > default.apply_sigma * sigma_v else default.apply_sigma
+    max_step = min(max(default.max_step_um, 4.0 * math.sqrt(moved)), MAX_STEP_SUGGESTED_UM)
+    plain, held = _held_rms(residuals, lag)
+    spacings = min(sum(r.size for r in residuals) / lag, MAX_PRIOR_PROBES)
+    return Suggestion(sigma_v, math.sqrt(q * 3600.0), lag * period_s, apply_sigma, max_step,
+                      plain, held, spacings)
+
+
+def _held_rms(residuals: list[FloatArray], lag: int) -> tuple[float, float]:
+    """RMS of the residual (the plain model's error) and of the residual less its value
+    τ rows before, τ over 1 … lag (a correction held since the last probe, probes every
+    lag rows at any phase), over the rows at least `lag` in."""
+    taus = range(1, lag + 1, max(1, lag // 64))
+    plain = [float(np.mean(r[lag:] ** 2)) for r in residuals if r.size > lag]
+    held = [float(np.mean((r[lag:] - r[lag - t:r.size - t]) ** 2))
+            for r in residuals if r.size > lag for t in taus]
+    return math.sqrt(float(np.mean(plain))), math.sqrt(float(np.mean(held)))

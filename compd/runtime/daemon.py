@@ -583,7 +583,8 @@ class Daemon:
         if probes is not None:
             est = probes.adapter
             self.metrics.adaptation(est.estimated_bias_um, est.bias_sigma_um,
-                                    probes.correction_um, result.record.probe)
+                                    probes.correction_um, result.record.probe,
+                                    est.standing_down, probes.model_worse)
 
     def _sink(self, stage: str, fn: Callable[..., object], *args: Any, **kwargs: Any) -> None:
         try:
@@ -764,7 +765,8 @@ class Daemon:
 
 _WARNINGS = frozenset({"channel_invalid", "fault_hold", "readback_mismatch", "write_failed",
                        "offset_write_skipped", "checkpoint_unusable", "checkpoint_state_refused",
-                       "model_non_finite", "probe_refused", "adaptation_state_refused"})
+                       "model_non_finite", "probe_refused", "adaptation_state_refused",
+                       "adaptation_stood_down"})
 
 
 def _probe_reading(got: dict[str, Sample]) -> ProbeReading:
@@ -775,4 +777,5 @@ def _probe_reading(got: dict[str, Sample]) -> ProbeReading:
 
     return ProbeReading(value_um=value(PROBE_NAMES[0]), counter=value(PROBE_NAMES[1]))
 _ERRORS = frozenset({"fault_ramp_to_zero", "offset_write_stopped", "output_write_stopped",
-                     "readback_out_of_range", "write_fault", "model_out_of_range"})
+                     "readback_out_of_range", "write_fault", "model_out_of_range",
+                     "model_worse_than_none"})
