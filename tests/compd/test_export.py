@@ -148,14 +148,15 @@ async def _recorder_at_time_scale(tmp_path: Path, time_scale: float) -> Path:
 async def test_replay_reads_the_daemons_recorder_written_at_time_scale_50(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A recorder written at 50x is a record; on a loaded machine the daemon may
-    really miss a deadline (a 20 ms cycle), which replay rightly refuses, so a
-    run with a missed deadline is repeated (at most three runs)."""
-    for attempt in range(3):
+    really miss a deadline (a 20 ms cycle) or a read (its 8 ms timeout), which
+    replay rightly refuses (a missed deadline; a sample with no valid value), so
+    such a run is repeated (at most five runs)."""
+    for attempt in range(5):
         db = await _recorder_at_time_scale(tmp_path / f"run{attempt}", 50.0)
         rc = await asyncio.to_thread(main, ["replay", "sp2", str(db), "--output",
                                             "model_um", "--json"])
         out, err = capsys.readouterr()
-        if rc != 0 and "missed deadline" in err:
+        if rc != 0 and ("missed deadline" in err or "no valid value recorded" in err):
             continue
         break
     assert rc == 0, err
