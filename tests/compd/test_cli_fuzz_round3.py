@@ -127,7 +127,7 @@ def _deep_files(root: Path) -> None:
     (root / "deep_config.toml").write_text(
         config.replace("[machine]\n", f"[machine]\nnote = {arr}\n", 1), encoding="utf-8")
     (root / "config_deep_model.toml").write_text(
-        config.replace('file = "sp2"', 'file = "deep_array.toml"', 1), encoding="utf-8")
+        re.sub(r'(?m)^file = ".*$', 'file = "deep_array.toml"', config, count=1), encoding="utf-8")
     sp2 = (ROOT / "models" / "library" / "sp2.toml").read_text(encoding="utf-8")
     (root / "deep_strings_ok.toml").write_text(
         f"# {arr}\n" + re.sub(r'(?m)^description = .*$', f'description = "{arr}"', sp2, count=1)
