@@ -75,6 +75,9 @@ def run(args: argparse.Namespace) -> int:
 
 def report(cfg: LoadedConfig, args: argparse.Namespace) -> int:
     """Print what `compd check` says of a loaded config (and read it with --connect)."""
+    from compd.runtime.driver_setup import check_driver
+
+    check_driver(cfg)  # run's own pre-connect refusals (a missing FOCAS library…): 78
     report = _summary(cfg)
     for warning in report["warnings"]:
         print(f"compd check: warning: {warning}", file=sys.stderr)
