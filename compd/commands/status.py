@@ -2,7 +2,7 @@
 
 Reads ``/status.json`` from the operator page (``[faces.http]``, served
 beside ``/metrics``) and prints one line per machine: the state (on /
-holding / ramping / off) and why, the offset and its limit, the model's
+dry-run / holding / ramping / off) and why, the offset and its limit, the model's
 output and how many channels are valid; ``--json``: the document as served.
 Exit 0 when every machine compensates (state "on", and a snapshot no older
 than three periods: a stalled loop is not on), 1 otherwise; 64 for a

@@ -59,15 +59,20 @@ _WHY: dict[FaultState, str] = {
 
 def operator_state(state: FaultState, validity: Mapping[str, str | None],
                    dry_run: bool = False, operator_hold: bool = False) -> tuple[str, str]:
-    """(on | holding | ramping | off, why) for the fault state and the channels' validity
-    (and an operator's hold, OPC UA SetHold: holding while the state is ok)."""
+    """(on | dry-run | holding | ramping | off, why) for the fault state and the
+    channels' validity (and an operator's hold, OPC UA SetHold: holding while the
+    state is ok). A dry run that would compensate is "dry-run", not "on": nothing
+    it computes reaches the machine."""
     word, why = _WORDS[state], _WHY[state]
     if operator_hold and state is FaultState.OK:
         word, why = "holding", "held by an operator (OPC UA SetHold): the offset stays put"
     bad = [f"{name}: {reason}" for name, reason in validity.items() if reason is not None]
     if bad and state is not FaultState.OK:
         why += " (" + "; ".join(bad) + ")"
-    if dry_run:
+    if dry_run and word == "on":
+        word, why = "dry-run", ("dry run: inputs valid, the model runs, nothing is written "
+                                "to the controller (the offset shown is what would be written)")
+    elif dry_run:
         why += "; dry run: nothing is written"
     return word, why
 
@@ -88,6 +93,7 @@ class StatusBoard:
         self._alarms: collections.deque[dict[str, Any]] = collections.deque(maxlen=MAX_ALARMS)
         self._failed = False
         self._history: tuple[float, dict[str, Any]] | None = None
+        self._dry_run = False
         self._history_lock = threading.Lock()
 
     def alarm(self, name: str, level: str, fields: Mapping[str, Any]) -> None:
@@ -111,7 +117,8 @@ class StatusBoard:
         held = bool(result.status & Status.OPERATOR_HOLD)
         word, why = operator_state(result.state, rec.validity, dry_run, held)
         raw = cfg.raw
-        self.recorder_path = cfg.recorder_path
+        self._dry_run = dry_run
+        self.recorder_path = None if dry_run else cfg.recorder_path
         channels = [{"name": name, "value": _num(rec.channels.get(name)),
                      "unit": ch.unit, "valid": rec.validity.get(name) is None,
                      "reason": rec.validity.get(name)}
@@ -128,6 +135,9 @@ class StatusBoard:
 
     def history(self) -> dict[str, Any]:
         """The plot's data, read at most once per refresh period (many viewers, one read)."""
+        if self._dry_run:  # a dry run records nothing: no plot, and says why
+            return {"hours": self.history_h, "wall_s": [], "offset_um": [], "model_um": [],
+                    "error": "dry run: nothing is recorded, so nothing is plotted"}
         now = time.monotonic()
         with self._history_lock:
             cached = self._history

@@ -26,6 +26,7 @@ section{border-bottom:2px solid #ccc;padding-bottom:1em;margin-bottom:1em}
  display:inline-block;color:#fff;background:#777}
 .state.on{background:#1b7a2e}.state.holding{background:#b8860b}
 .state.ramping{background:#c05a00}.state.off{background:#b00020}
+.state.dry-run{background:#fff;color:#2a4d8f;border:.08em dashed #2a4d8f}
 .why{font-size:1.5em;margin:.4em 0 .8em 0}
 .big{font-size:2.2em}
 table{border-collapse:collapse;font-size:1.3em;margin:.5em 0}
