@@ -62,7 +62,7 @@ def test_check_step_replay_refuse_with_one_line(tmp_path: Path, case: str) -> No
     data.write_text("time_s,bearing,dz_um\n" + "".join(f"{k},{20 + k / 100},0\n"
                                                         for k in range(50)))
     for args, codes in ((["check", str(path)], {78}), (["step", str(path)], {65, 78}),
-                        (["replay", str(path), str(data), "--output", "dz_um"], {65, 78})):
+                        (["replay", str(path), str(data), "--column", "dz_um"], {65, 78})):
         if case in ("huge_dc", "slow_pole", "slow_tau") and args[0] != "check":
             continue  # step and replay show what a model does, absurd or not
         r = _cli(*args)
