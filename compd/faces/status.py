@@ -67,6 +67,14 @@ def operator_state(state: FaultState, validity: Mapping[str, str | None],
     if operator_hold and state is FaultState.OK:
         word, why = "holding", "held by an operator (OPC UA SetHold): the offset stays put"
     bad = [f"{name}: {reason}" for name, reason in validity.items() if reason is not None]
+    unreachable = bool(validity) and all(r == "read_failed" for r in validity.values())
+    if unreachable and state in (FaultState.INIT, FaultState.HOLD, FaultState.RAMP):
+        # nothing can be written either: no ramp reaches the machine
+        why = ("the controller does not answer: nothing can be read or written; the "
+               "controller keeps the offset it last got"
+               + (" (alarm: longer than hold_s)" if state is FaultState.RAMP else "")
+               + "; compd resumes when it answers")
+        bad = []
     if bad and state is not FaultState.OK:
         why += " (" + "; ".join(bad) + ")"
     if dry_run and word == "on":
@@ -75,6 +83,14 @@ def operator_state(state: FaultState, validity: Mapping[str, str | None],
     elif dry_run:
         why += "; dry run: nothing is written"
     return word, why
+
+
+def _detail(value: Any) -> str:
+    """An alarm's field as the page lists it: a float rounded to what a reader
+    uses (``60.997285639999745`` → ``61``, ``0.012345678`` → ``0.01235``)."""
+    if isinstance(value, float) and math.isfinite(value):
+        return format(value, ".4g")
+    return str(value)[:200]
 
 
 def _num(x: float | None) -> float | None:
@@ -99,7 +115,7 @@ class StatusBoard:
     def alarm(self, name: str, level: str, fields: Mapping[str, Any]) -> None:
         """A warning or error event of the cycle, for the page's list."""
         self._alarms.append({"wall_s": time.time(), "event": name, "level": level,
-                             "detail": {k: str(v)[:200] for k, v in fields.items()}})
+                             "detail": {k: _detail(v) for k, v in fields.items()}})
 
     def publish(self, result: Any, cfg: Any, *, dry_run: bool = False) -> None:
         """Build the snapshot from a `CycleResult` and the running `LoadedConfig`.
