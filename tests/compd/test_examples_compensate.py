@@ -71,10 +71,11 @@ async def test_the_shipped_example_reduces_the_error_in_lockstep(
     h = machine.history_arrays()
     growth, error = h["growth_um"], h["error_um"]
     assert float(np.ptp(growth)) > 10.0  # the machine did grow
-    # sp2 (the examples' model before) made the error larger than the growth
-    # here; sim_machine leaves a small fraction of it
+    # sp2 (the examples' model before) over-compensated this machine; with
+    # sim_machine 4 h of the spectrum (seed 3) shrink 24.8 µm of growth to an
+    # error range of 1.6 µm, 15.4x (15.8x through FOCAS), in lockstep
     reduction = float(np.ptp(growth)) / float(np.ptp(error))
-    assert reduction > 4.0, reduction
+    assert reduction > 10.0, reduction
     assert float(np.sqrt(np.mean(error ** 2))) < 0.25 * float(np.sqrt(np.mean(growth ** 2)))
 
 
