@@ -66,11 +66,11 @@ def seed_figures(d: Path, seed: int, probe_seed: int) -> dict[str, dict[str, flo
           "--change-at-h", "24"])
     day1, model = d / f"day1-{seed}.csv", d / f"shop{seed}.toml"
     _day1(plain, day1)
-    _run(["fit", str(day1), "--output", "dz_um", "--candidates", "t*_degC", "--candidates",
+    _run(["fit", str(day1), "--column", "dz_um", "--candidates", "t*_degC", "--candidates",
           "spindle_rpm", "--max-terms", "3", "-o", str(model), "--json"])
     out: dict[str, dict[str, float]] = {}
     for name, record in (("without change", plain), ("with change", changed)):
-        argv = ["replay", str(model), str(record), "--output", "dz_um", "--score-from",
+        argv = ["replay", str(model), str(record), "--column", "dz_um", "--score-from",
                 "86400", *PROBES, "--probe-seed", str(probe_seed), "--json"]
         r = _run(argv)
         f = _run([*argv, "--apply-sigma", "0"])["adapted"]

@@ -52,12 +52,12 @@ def seed_limits(d: Path, seed: int) -> None:
           "--change-at-h", "24"])
     day1, model = d / f"day1-{seed}.csv", d / f"shop{seed}.toml"
     _day1(plain, day1)
-    _run(["fit", str(day1), "--output", "dz_um", "--candidates", "t*_degC", "--candidates",
+    _run(["fit", str(day1), "--column", "dz_um", "--candidates", "t*_degC", "--candidates",
           "spindle_rpm", "--max-terms", "3", "-o", str(model), "--json"])
     for name, record in (("without change", plain), ("with change", changed)):
         ratios = []
         for every in INTERVALS:
-            r = _run(["replay", str(model), str(record), "--output", "dz_um", "--score-from",
+            r = _run(["replay", str(model), str(record), "--column", "dz_um", "--score-from",
                       "86400", "--probe-every", str(every), "--probe-noise-um", "0.5",
                       "--gains", "--json"])
             ratios.append(r["adapted"]["range_reduction"] / r["range_reduction"])

@@ -52,12 +52,12 @@ def split_48h(d: Path) -> None:
     _halves(full, h1, h2)
     for structure in ("auto", "per-term-oe"):
         model = d / f"h1-{structure}.toml"
-        _run(["fit", str(h1), "--output", "dz_um", "--term", "bearing", "--term", "motor",
+        _run(["fit", str(h1), "--column", "dz_um", "--term", "bearing", "--term", "motor",
               "--term", "column", "--term", "ambient", "--orders", "3-3", "--structure",
               structure, "-o", str(model), "--json"])
-        cont = _run(["replay", str(model), str(full), "--output", "dz_um", "--init", "rest",
+        cont = _run(["replay", str(model), str(full), "--column", "dz_um", "--init", "rest",
                      "--score-from", "86400", "--json"])
-        figs = {i: _run(["replay", str(model), str(h2), "--output", "dz_um", "--init", i,
+        figs = {i: _run(["replay", str(model), str(h2), "--column", "dz_um", "--init", i,
                          "--json"]) for i in ("estimate", "steady", "rest")}
         print(f"48 h split, fit --structure {structure}: second half replayed "
               + ", ".join(f"{i} {f['fit_percent']:.2f} %" for i, f in figs.items())
@@ -71,19 +71,19 @@ def shop(d: Path, seed: int) -> None:
     _halves(full, day1, day2)
     model = d / f"shop{seed}.toml"
     t0 = time.perf_counter()
-    fit = _run(["fit", str(day1), "--output", "dz_um", "--candidates", "t*_degC",
+    fit = _run(["fit", str(day1), "--column", "dz_um", "--candidates", "t*_degC",
                 "--candidates", "spindle_rpm", "--max-terms", "3", "-o", str(model), "--json"])
     took = time.perf_counter() - t0
-    ours = _run(["replay", str(model), str(day2), "--output", "dz_um", "--json"])
+    ours = _run(["replay", str(model), str(day2), "--column", "dz_um", "--json"])
     subsets = fit["subsets"]
     assert isinstance(subsets, list)
     pair = max((s for s in subsets if len(s["inputs"]) == 2),
                key=lambda s: s["validation_fit_percent"])["inputs"]
     base_model = d / f"arx{seed}.toml"
     terms = [a for ch in pair for a in ("--term", ch)]
-    _run(["fit", str(day1), "--output", "dz_um", *terms, "--structure", "arx", "-o",
+    _run(["fit", str(day1), "--column", "dz_um", *terms, "--structure", "arx", "-o",
           str(base_model), "--json"])
-    base = _run(["replay", str(base_model), str(day2), "--output", "dz_um", "--json"])
+    base = _run(["replay", str(base_model), str(day2), "--column", "dz_um", "--json"])
     terms_info = fit["terms"]
     assert isinstance(terms_info, list)
     chosen = " + ".join(t["name"] for t in terms_info)

@@ -74,3 +74,21 @@ def seed(text: str) -> int:
     if not 0 <= value < 2**63:
         raise argparse.ArgumentTypeError(f"a seed is 0 … 2**63-1, got {text!r}")
     return value
+
+
+class RenamedOption(argparse.Action):
+    """An option with a new name and an old spelling that still works: the old
+    one stores the same value and says, in one line on stderr, to use the new
+    one (e.g. ``--column`` for the CSV column that ``--output`` used to name,
+    while ``--output`` names a file in `compd export`). The new name is the
+    first option string."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: object, option_string: str | None = None) -> None:
+        new = self.option_strings[0]
+        if option_string is not None and option_string != new:
+            import sys
+
+            print(f"{parser.prog}: {option_string} is deprecated, use {new} (same meaning)",
+                  file=sys.stderr)
+        setattr(namespace, self.dest, values)

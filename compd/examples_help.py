@@ -30,13 +30,13 @@ examples:
   compd sim --drive modbus://plc:502 --map map.toml   the plant as a client (HIL)""",
     "fit": """\
 examples:
-  compd fit constant.csv etve.csv --output dz_um --term bearing --term ambient -o plant.toml
-  compd fit day.csv --output dz_um --term bearing --kind greybox -o gb.toml""",
+  compd fit constant.csv etve.csv --column dz_um --term bearing --term ambient -o plant.toml
+  compd fit day.csv --column dz_um --term bearing --kind greybox -o gb.toml""",
     "replay": """\
 examples:
-  compd replay plant.toml spectrum.csv --output dz_um --plot replay.png
-  compd replay sp2 /var/lib/compd/samples.sqlite --output dz_um --json
-  compd replay plant.toml spectrum.csv --output dz_um --probe-every 7200 --probe-noise-um 0.5""",
+  compd replay plant.toml spectrum.csv --column dz_um --plot replay.png
+  compd replay sp2 /var/lib/compd/samples.sqlite --column dz_um --json
+  compd replay plant.toml spectrum.csv --column dz_um --probe-every 7200 --probe-noise-um 0.5""",
     "step": """\
 examples:
   compd step sp2                              final value of each term's unit step

@@ -18,7 +18,8 @@ HELP = "validate a model file or a daemon config and print poles, DC gains, sens
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("path", metavar="MODEL_OR_CONFIG",
-                        help="model file, bundled model name (e.g. sp2) or daemon config")
+                        help="model file, bundled model name (e.g. sp2), daemon config, or "
+                             "a directory of daemon configs (as compd run DIR)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--connect", action="store_true",
                         help="(config) also connect and read each channel once")
@@ -94,10 +95,16 @@ def _fmt(p: list[float]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from compd.errors import ConfigError
     from models.errors import ModelError
     from models.sanity import check_model
 
+    if Path(args.path).is_dir():  # as `compd run DIR`: every *.toml in it, one machine each
+        from compd.commands.check_config import report_directory
+
+        return report_directory(Path(args.path), args)
     kind, loaded = _load(args.path)
     if kind == "config":
         from compd.commands.check_config import report
@@ -134,12 +141,17 @@ def _load(path: str) -> tuple[str, Any]:
     from compd.errors import ConfigError
     from compd.infiles import load_model, read_toml_document
     from models.errors import ModelError
-    from models.modelfile import library_path, parse_model
+    from models.modelfile import library_names, library_path, parse_model
 
     p = Path(path)
     try:
         if path and not os.path.lexists(p) and p.suffix == "" and library_path(path):
             return "model", load_model(path)
+        if path and not os.path.lexists(p) and p.suffix == "" and "/" not in path:
+            from compd.infiles import InputError
+
+            raise InputError(f"{path}: no such file, nor a bundled model (bundled: "
+                             f"{', '.join(library_names())})")
         text, doc = read_toml_document(p, "model or config file")
         if "controller" in doc or "machine" in doc:
             return "config", parse_config(doc, p.resolve(), text)

@@ -13,6 +13,7 @@ import asyncio
 import json
 import math
 import sys
+from pathlib import Path
 from typing import Any
 
 from compd.config.loader import LoadedConfig
@@ -73,8 +74,38 @@ def run(args: argparse.Namespace) -> int:
     return report(load_config(args.path), args)
 
 
+def report_directory(directory: Path, args: argparse.Namespace) -> int:
+    """`compd check DIR`: what `compd run DIR` validates before it connects (every
+    *.toml, one machine each, no two sharing a name or state directory, each
+    driver constructed), then each machine's report; --json: one object with a
+    ``machines`` list. The status is the worst of the machines'."""
+    from compd.runtime.fleet import build_drivers, load_machines
+
+    configs = load_machines(directory)  # ConfigError (naming each bad file) -> 78
+    for driver in build_drivers(configs).values():
+        asyncio.run(driver.close())
+    if not args.json:
+        print(f"directory {directory}: {len(configs)} machine(s)")
+        return max(report(cfg, args) for cfg in configs)
+    machines: list[dict[str, Any]] = []
+    rc = 0
+    for cfg in configs:
+        doc = _summary(cfg)
+        for warning in doc["warnings"]:
+            print(f"compd check: {cfg.path}: warning: {warning}", file=sys.stderr)
+        if getattr(args, "connect", False):
+            doc["read"] = asyncio.run(_read_once(cfg))
+            rc = max(rc, 1 if "error" in doc["read"] else 0)
+        machines.append(doc)
+    print(json.dumps({"directory": str(directory), "machines": machines}))
+    return rc
+
+
 def report(cfg: LoadedConfig, args: argparse.Namespace) -> int:
     """Print what `compd check` says of a loaded config (and read it with --connect)."""
+    from compd.runtime.driver_setup import check_driver
+
+    check_driver(cfg)  # run's own pre-connect refusals (a missing FOCAS library…): 78
     report = _summary(cfg)
     for warning in report["warnings"]:
         print(f"compd check: warning: {warning}", file=sys.stderr)

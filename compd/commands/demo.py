@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import sys
 from typing import TYPE_CHECKING
 
 from compd.argtypes import number, seed
@@ -39,7 +40,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plot", metavar="PNG", help="draw growth, offset and error")
     parser.add_argument("--force", action="store_true", help="replace an existing --plot file")
     parser.add_argument("--json", action="store_true",
-                        help="print the figures as one JSON object (last stdout line)")
+                        help="print the figures as one JSON object, the only thing on "
+                             "stdout (the human lines go to stderr)")
 
 
 def _check_model(path: str) -> CompensationModel:
@@ -86,8 +88,10 @@ def run(args: argparse.Namespace) -> int:
     for name in ("pymodbus", "asyncua", "snap7"):
         logging.getLogger(name).setLevel(logging.CRITICAL)
 
+    # with --json stdout holds the JSON object only: the human lines go to stderr
+    human = sys.stderr if args.json else sys.stdout
     print(f"compd demo: {args.hours:g} h of the {args.program} program on a simulated "
-          f"{args.protocol} controller, about {args.seconds:g} s", flush=True)
+          f"{args.protocol} controller, about {args.seconds:g} s", file=human, flush=True)
     from compd.progress import terminal_progress
 
     bar = terminal_progress("machine time", quiet=args.json, total=args.hours, unit="h")
@@ -98,9 +102,10 @@ def run(args: argparse.Namespace) -> int:
     finally:
         bar.done()
     unc, comp = result.uncompensated_range_um, result.compensated_range_um
-    print(f"Z error at the tool without compensation: range {unc:7.2f} µm")
-    print(f"Z error at the tool with compensation:    range {comp:7.2f} µm")
-    print(f"range reduction {result.range_reduction:.1f}x, fit {result.fit_percent:.1f} %")
+    print(f"Z error at the tool without compensation: range {unc:7.2f} µm", file=human)
+    print(f"Z error at the tool with compensation:    range {comp:7.2f} µm", file=human)
+    print(f"range reduction {result.range_reduction:.1f}x, fit {result.fit_percent:.1f} %",
+          file=human)
     if args.plot:
         import numpy as np
 
@@ -121,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
                               "offset written by compd", "error left at the tool"),
                       dpk_um=delta_pk(h["growth_um"], h["offset_um"])),
                          "figure", force=args.force, inputs=[args.model])
-        print(f"figure written to {args.plot}")
+        print(f"figure written to {args.plot}", file=human)
     if args.json:
         print(json.dumps(result.summary()))
     return 0

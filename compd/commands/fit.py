@@ -50,7 +50,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from compd import __version__
-from compd.argtypes import count, number
+from compd.argtypes import RenamedOption, count, number
 from compd.sysexits import EX_DATAERR
 
 if TYPE_CHECKING:
@@ -116,8 +116,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data", metavar="DATA", nargs="+",
                         help="calibration record(s) (CSV, or a compd recorder .db); several "
                              "are fitted jointly as separate experiments")
-    parser.add_argument("--output", required=True, metavar="COLUMN",
-                        help="the measured displacement column (µm)")
+    parser.add_argument("--column", "--output", dest="output", required=True,
+                        metavar="COLUMN", action=RenamedOption,
+                        help="the measured displacement column (µm); --output is its "
+                             "deprecated spelling")
     parser.add_argument("--term", action="append", default=[], metavar="[NAME=]EXPR",
                         help="a term's input: a channel or e.g. bearing-column (repeatable)")
     parser.add_argument("--candidates", action="append", default=[], metavar="PATTERN",

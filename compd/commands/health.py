@@ -62,7 +62,9 @@ _STATES = frozenset(str(s) for s in FaultState)
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--url", metavar="URL",
-                        help="the daemon's metrics endpoint, e.g. http://127.0.0.1:9105/metrics")
+                        help="the daemon's metrics endpoint, e.g. http://127.0.0.1:9105/metrics, "
+                             "or its base URL (http://127.0.0.1:9105/, as compd status "
+                             "takes): /metrics is added")
     parser.add_argument("--state-dir", metavar="DIR", type=Path,
                         help="the daemon's state directory ([state] dir); default "
                              "$STATE_DIRECTORY or /var/lib/compd when --url is not given")
@@ -190,6 +192,19 @@ def url_problem(url: str) -> str | None:
     return None
 
 
+#: the daemon's other paths on the same port: the metrics are asked for instead
+_PAGE_PATHS = frozenset({"", "/", "/status.json", "/index.html"})
+
+
+def metrics_url(url: str) -> str:
+    """`url` as the metrics endpoint: the daemon's base URL (the one `compd status
+    --url` takes) or its page's paths become ``/metrics``; any other path is kept."""
+    parts = urllib.parse.urlsplit(url)
+    if parts.path in _PAGE_PATHS:
+        parts = parts._replace(path="/metrics")
+    return urllib.parse.urlunsplit(parts)
+
+
 def _usage(message: str) -> int:
     print(f"compd health: {message}", file=sys.stderr)
     return EX_USAGE
@@ -211,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
     now_wall_s = time.time()
     results: list[tuple[bool, str]] = []
     if args.url is not None:
-        results.append(check_metrics(args.url, max_age_s, timeout_s, now_wall_s))
+        results.append(check_metrics(metrics_url(args.url), max_age_s, timeout_s, now_wall_s))
     if state_dir is not None:
         results.append(check_state_dir(state_dir, max_age_s))
     healthy = any(ok for ok, _ in results)

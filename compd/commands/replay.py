@@ -32,7 +32,7 @@ import math
 import sys
 from typing import TYPE_CHECKING, Any
 
-from compd.argtypes import number
+from compd.argtypes import RenamedOption, number
 from compd.commands import replay_probes
 from compd.sysexits import EX_DATAERR, EX_USAGE
 
@@ -54,8 +54,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("model", metavar="MODEL", help="model file, or a library name (sp2)")
     parser.add_argument("data", metavar="DATA",
                         help="calibration/verification record (CSV, or a compd recorder .db)")
-    parser.add_argument("--output", required=True, metavar="COLUMN",
-                        help="the measured displacement column (µm)")
+    parser.add_argument("--column", "--output", dest="output", required=True,
+                        metavar="COLUMN", action=RenamedOption,
+                        help="the measured displacement column (µm); --output is its "
+                             "deprecated spelling")
     parser.add_argument("--plot", metavar="PNG", default=None,
                         help="write a figure: inputs above, measured/simulated/residue below")
     parser.add_argument("--force", action="store_true", help="replace an existing --plot file")

@@ -112,13 +112,23 @@ def _change(text: str) -> ShopChange:
 
 def describe(controller: SimController) -> dict[str, object]:
     """The JSON object `--json` prints."""
-    return {
+    doc: dict[str, object] = {
         "protocol": controller.protocol,
         "endpoint": controller.endpoint,
         "channels": {n: a.model_dump() for n, a in controller.channels.items()},
         "outputs": {n: a.model_dump() for n, a in controller.outputs_map.items()},
         "probes": {n: a.model_dump() for n, a in controller.probes.items()},
     }
+    library = _library_path(controller)
+    if library is not None:  # what a daemon config's [controller.focas] needs
+        doc["focas"] = {"library_path": library}
+    return doc
+
+
+def _library_path(controller: SimController) -> str | None:
+    """The FOCAS stand-in library the simulated CNC built (None for the others)."""
+    path = getattr(controller, "library_path", None)
+    return str(path) if path is not None else None
 
 
 def _record(args: argparse.Namespace) -> int:
@@ -218,6 +228,9 @@ async def _serve(args: argparse.Namespace) -> int:
             print(json.dumps(describe(controller)), flush=True)
         else:
             print(f"compd sim: {controller.protocol} controller at {controller.endpoint}")
+            library = _library_path(controller)
+            if library is not None:
+                print(f"  library_path {library}  (for [controller.focas] and --focas-library)")
             if args.no_plant:
                 print("  no plant: the controller's memory only (for compd sim --drive)")
             else:

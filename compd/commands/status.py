@@ -2,7 +2,7 @@
 
 Reads ``/status.json`` from the operator page (``[faces.http]``, served
 beside ``/metrics``) and prints one line per machine: the state (on /
-holding / ramping / off) and why, the offset and its limit, the model's
+dry-run / holding / ramping / off) and why, the offset and its limit, the model's
 output and how many channels are valid; ``--json``: the document as served.
 Exit 0 when every machine compensates (state "on", and a snapshot no older
 than three periods: a stalled loop is not on), 1 otherwise; 64 for a
@@ -37,7 +37,8 @@ MAX_BYTES = 16 * 1024 * 1024
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--url", metavar="URL", default=DEFAULT_URL,
                         help="the daemon's page or its status.json (default "
-                             f"{DEFAULT_URL}; a URL ending in / gets status.json added)")
+                             f"{DEFAULT_URL}; the daemon's base URL http://HOST:PORT/, or "
+                             "the /metrics URL compd health takes, gets status.json)")
     parser.add_argument("--json", action="store_true",
                         help="print the status document as JSON instead of one line per machine")
     parser.add_argument("--timeout-s", metavar="S", type=float, default=5.0,
@@ -62,7 +63,7 @@ def status_url(url: str) -> str:
     if parts.scheme not in ("http", "https") or not parts.hostname:
         raise StatusError("bad --url: give http://HOST:PORT/ or http://HOST:PORT/status.json",
                           EX_USAGE)
-    if parts.path in ("", "/"):
+    if parts.path in ("", "/", "/metrics"):  # the base URL, or compd health's
         parts = parts._replace(path="/status.json")
     return urllib.parse.urlunsplit(parts)
 

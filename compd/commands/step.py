@@ -4,7 +4,9 @@ The response of each term to a unit step of its input (1 K for temperature
 terms, 1 unit of the channel for a grey-box power/speed input) from rest,
 stepped with the model's own filters at its sample period, like the papers'
 LTI step-response figures. Without --hours the span covers five times the
-slowest time constant (at most two days).
+slowest time constant (at most two days: then it says the span was capped).
+Each term prints the value at the span's end, labelled with its time, and
+the DC gain (the steady state), with the share of it reached.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ HELP = "step response of each term of a model (1 K step), as numbers and a plot"
 
 #: a step response longer than this many samples is refused (memory, time)
 MAX_STEP_SAMPLES = 5_000_000
+#: the longest span chosen without --hours (five time constants, at most this)
+MAX_AUTO_SPAN_S = 48 * 3600.0
 #: the longest span asked with --hours: ten years
 MAX_HOURS = 87_600.0
 
@@ -58,6 +62,10 @@ def _slowest_tau_s(model: object) -> float:
     return tau
 
 
+def _g(x: object) -> str:
+    return f"{x:.5g}" if isinstance(x, float) else "-"
+
+
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -72,7 +80,9 @@ def run(args: argparse.Namespace) -> int:
     except ModelError as exc:
         print(f"compd step: {exc}", file=sys.stderr)
         return EX_DATAERR
-    span_s = args.hours * 3600.0 if args.hours else min(5.0 * _slowest_tau_s(model), 48 * 3600.0)
+    settle_s = 5.0 * _slowest_tau_s(model)
+    capped = not args.hours and settle_s > MAX_AUTO_SPAN_S
+    span_s = args.hours * 3600.0 if args.hours else min(settle_s, MAX_AUTO_SPAN_S)
     samples = span_s / model.period_s + 1.0
     if not samples <= MAX_STEP_SAMPLES:
         print(f"compd step: {span_s / 3600:g} h at the model's period {model.period_s:g} s is "
@@ -83,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
     time_s = np.arange(n, dtype=np.float64) * model.period_s
     responses: dict[str, np.ndarray] = {}
     units: dict[str, str] = {}
+    gains: dict[str, float] = {}
     for term in model.terms:
         dyn = term.dynamics
         dyn.reset()
@@ -91,22 +102,34 @@ def run(args: argparse.Namespace) -> int:
                                                        dtype=np.float64, count=n)
         dyn.reset()
         units[term.name] = "K" if term.relative else "unit of " + "+".join(term.inputs)
+        gains[term.name] = float(term.gain * dyn.dc_gain)
     summary = [{"name": k, "input_step": f"1 {units[k]}", "y0_um": float(v[0]),
-                "y_end_um": float(v[-1]), "hours": float(time_s[-1] / 3600.0)}
+                "y_end_um": float(v[-1]), "hours": float(time_s[-1] / 3600.0),
+                "dc_gain_um": gains[k] if math.isfinite(gains[k]) else None,
+                "span_capped": capped}
                for k, v in responses.items()]
     if args.plot:
         from compd.offline.plots import step_figure
 
         title = f"{model.name}: step response per term (Ts = {model.period_s:g} s)"
         write_atomically(args.plot, lambda tmp: step_figure(tmp, time_s, responses, units,
-                                                            title=title),
+                                                            title=title, dc_gains=gains),
                          "figure", force=args.force, inputs=[args.model])
     if args.json:
         print(json.dumps({"terms": summary}))
     else:
+        if capped:
+            print(f"span capped at {MAX_AUTO_SPAN_S / 3600:g} h (five time constants would be "
+                  f"{settle_s / 3600:.3g} h; give --hours): the value at the span's end is "
+                  "short of the DC gain")
         for s in summary:
+            gain, end = s["dc_gain_um"], s["y_end_um"]
+            share = (f" ({100.0 * end / gain:.1f} % of it)"
+                     if isinstance(gain, float) and isinstance(end, float) and gain != 0.0
+                     else "")
             print(f"{s['name']}: step of {s['input_step']}: y(0) = {s['y0_um']:.5g} µm, "
-                  f"y({s['hours']:.3g} h) = {s['y_end_um']:.5g} µm")
+                  f"y({s['hours']:.3g} h, the span's end) = {s['y_end_um']:.5g} µm; "
+                  f"DC gain {_g(gain)} µm{share}")
         if args.plot:
             print(f"figure: {args.plot}")
     return 0

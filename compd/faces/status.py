@@ -59,17 +59,38 @@ _WHY: dict[FaultState, str] = {
 
 def operator_state(state: FaultState, validity: Mapping[str, str | None],
                    dry_run: bool = False, operator_hold: bool = False) -> tuple[str, str]:
-    """(on | holding | ramping | off, why) for the fault state and the channels' validity
-    (and an operator's hold, OPC UA SetHold: holding while the state is ok)."""
+    """(on | dry-run | holding | ramping | off, why) for the fault state and the
+    channels' validity (and an operator's hold, OPC UA SetHold: holding while the
+    state is ok). A dry run that would compensate is "dry-run", not "on": nothing
+    it computes reaches the machine."""
     word, why = _WORDS[state], _WHY[state]
     if operator_hold and state is FaultState.OK:
         word, why = "holding", "held by an operator (OPC UA SetHold): the offset stays put"
     bad = [f"{name}: {reason}" for name, reason in validity.items() if reason is not None]
+    unreachable = bool(validity) and all(r == "read_failed" for r in validity.values())
+    if unreachable and state in (FaultState.INIT, FaultState.HOLD, FaultState.RAMP):
+        # nothing can be written either: no ramp reaches the machine
+        why = ("the controller does not answer: nothing can be read or written; the "
+               "controller keeps the offset it last got"
+               + (" (alarm: longer than hold_s)" if state is FaultState.RAMP else "")
+               + "; compd resumes when it answers")
+        bad = []
     if bad and state is not FaultState.OK:
         why += " (" + "; ".join(bad) + ")"
-    if dry_run:
+    if dry_run and word == "on":
+        word, why = "dry-run", ("dry run: inputs valid, the model runs, nothing is written "
+                                "to the controller (the offset shown is what would be written)")
+    elif dry_run:
         why += "; dry run: nothing is written"
     return word, why
+
+
+def _detail(value: Any) -> str:
+    """An alarm's field as the page lists it: a float rounded to what a reader
+    uses (``60.997285639999745`` → ``61``, ``0.012345678`` → ``0.01235``)."""
+    if isinstance(value, float) and math.isfinite(value):
+        return format(value, ".4g")
+    return str(value)[:200]
 
 
 def _num(x: float | None) -> float | None:
@@ -88,12 +109,13 @@ class StatusBoard:
         self._alarms: collections.deque[dict[str, Any]] = collections.deque(maxlen=MAX_ALARMS)
         self._failed = False
         self._history: tuple[float, dict[str, Any]] | None = None
+        self._dry_run = False
         self._history_lock = threading.Lock()
 
     def alarm(self, name: str, level: str, fields: Mapping[str, Any]) -> None:
         """A warning or error event of the cycle, for the page's list."""
         self._alarms.append({"wall_s": time.time(), "event": name, "level": level,
-                             "detail": {k: str(v)[:200] for k, v in fields.items()}})
+                             "detail": {k: _detail(v) for k, v in fields.items()}})
 
     def publish(self, result: Any, cfg: Any, *, dry_run: bool = False) -> None:
         """Build the snapshot from a `CycleResult` and the running `LoadedConfig`.
@@ -111,7 +133,8 @@ class StatusBoard:
         held = bool(result.status & Status.OPERATOR_HOLD)
         word, why = operator_state(result.state, rec.validity, dry_run, held)
         raw = cfg.raw
-        self.recorder_path = cfg.recorder_path
+        self._dry_run = dry_run
+        self.recorder_path = None if dry_run else cfg.recorder_path
         channels = [{"name": name, "value": _num(rec.channels.get(name)),
                      "unit": ch.unit, "valid": rec.validity.get(name) is None,
                      "reason": rec.validity.get(name)}
@@ -128,6 +151,9 @@ class StatusBoard:
 
     def history(self) -> dict[str, Any]:
         """The plot's data, read at most once per refresh period (many viewers, one read)."""
+        if self._dry_run:  # a dry run records nothing: no plot, and says why
+            return {"hours": self.history_h, "wall_s": [], "offset_um": [], "model_um": [],
+                    "error": "dry run: nothing is recorded, so nothing is plotted"}
         now = time.monotonic()
         with self._history_lock:
             cached = self._history

@@ -26,6 +26,7 @@ section{border-bottom:2px solid #ccc;padding-bottom:1em;margin-bottom:1em}
  display:inline-block;color:#fff;background:#777}
 .state.on{background:#1b7a2e}.state.holding{background:#b8860b}
 .state.ramping{background:#c05a00}.state.off{background:#b00020}
+.state.dry-run{background:#fff;color:#2a4d8f;border:.08em dashed #2a4d8f}
 .why{font-size:1.5em;margin:.4em 0 .8em 0}
 .big{font-size:2.2em}
 table{border-collapse:collapse;font-size:1.3em;margin:.5em 0}
@@ -39,6 +40,15 @@ canvas{background:#fff;border:1px solid #ccc;width:100%;max-width:1000px;height:
 _SCRIPT = """
 const REFRESH_MS = Math.max(1000, REFRESH_S * 1000);
 function fmt(x, d){ return (x === null || x === undefined) ? "\\u2014" : Number(x).toFixed(d); }
+const UNITS = {degC: "\\u00b0C", um: "\\u00b5m", K: "K"};
+function unit(u){ return UNITS[u] || u; }
+function digits(u){ return u === "rpm" ? 0 : 2; }
+function niceStep(span, n){ const raw = span / n, p = Math.pow(10, Math.floor(Math.log10(raw)));
+  for (const m of [1, 2, 2.5, 5, 10]) if (m * p >= raw) return m * p; return 10 * p; }
+function ticks(lo, hi, n){ const s = niceStep(hi - lo, n), out = [];
+  for (let v = Math.ceil(lo / s) * s; v <= hi + s * 1e-9; v += s)
+    out.push(Math.abs(v) < s * 1e-9 ? 0 : v);
+  return {step: s, values: out}; }
 function add(parent, tag, cls, text){ const e = document.createElement(tag);
   if (cls) e.className = cls; if (text !== undefined) e.textContent = text;
   parent.appendChild(e); return e; }
@@ -65,7 +75,7 @@ function showMachine(s, m){
   add(out, "span", "model_um", " model output " + fmt(m.model_um, 2) + " \\u00b5m");
   const tb = q("table.channels tbody"); tb.textContent = "";
   for (const c of m.channels || []) row(tb, [[c.name, "name"],
-    [fmt(c.value, 2) + " " + c.unit, "value"],
+    [fmt(c.value, digits(c.unit)) + " " + unit(c.unit), "value"],
     [c.valid ? "valid" : ("invalid: " + c.reason), c.valid ? "good valid" : "bad valid"]]);
   const al = q("table.alarms tbody"); al.textContent = "";
   const alarms = (m.alarms || []).slice().reverse();
@@ -97,12 +107,14 @@ function plot(cv, h, limit){
   const X = v => L + (v - t0) / (t1 - t0) * (W - L - R);
   const Y = v => T + (hi - v) / (hi - lo) * (H - T - B);
   g.strokeStyle = "#ddd"; g.beginPath();
-  for (let i = 0; i <= 4; i++) { const v = lo + (hi - lo) * i / 4;
-    g.moveTo(L, Y(v)); g.lineTo(W - R, Y(v));
-    g.fillText(v.toFixed(1), 5, Y(v) + 4); }
+  const yt = ticks(lo, hi, 5), yd = Math.max(0, -Math.floor(Math.log10(yt.step) + 1e-9));
+  for (const v of yt.values) { g.moveTo(L, Y(v)); g.lineTo(W - R, Y(v));
+    g.fillText(v.toFixed(yd), 5, Y(v) + 4); }
   g.stroke(); g.fillText("\\u00b5m", 5, 12);
   for (let i = 0; i <= 4; i++) { const v = t0 + (t1 - t0) * i / 4;
-    g.fillText(new Date(v * 1000).toLocaleTimeString(), Math.min(X(v) - 25, W - 70), H - 6); }
+    g.textAlign = i === 0 ? "left" : (i === 4 ? "right" : "center");
+    g.fillText(new Date(v * 1000).toLocaleTimeString(), i === 4 ? W - R : X(v), H - 6); }
+  g.textAlign = "left";
   function line(ys, color, dash){ g.strokeStyle = color; g.lineWidth = 2; g.setLineDash(dash);
     g.beginPath(); let up = false;
     for (let i = 0; i < t.length; i++) { const y = ys[i];

@@ -7,6 +7,7 @@ the commands that draw.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -97,15 +98,23 @@ def legend_texts(ax: Axes) -> list[Text]:
 
 
 def step_figure(path: str | Path, time_s: FloatArray, responses: Mapping[str, FloatArray],
-                units: Mapping[str, str], *, title: str) -> None:
-    """One panel per term: the response to a unit step of its input."""
+                units: Mapping[str, str], *, title: str,
+                dc_gains: Mapping[str, float] | None = None) -> None:
+    """One panel per term: the response to a unit step of its input, the value
+    at the span's end (labelled with its time: not the steady state when the
+    span is shorter than the settling) and the DC gain, the steady state."""
     hours = np.asarray(time_s) / 3600.0
     n = max(1, len(responses))
     fig, axes = plt.subplots(n, 1, sharex=True, figsize=(9, 2.6 * n + 0.8), squeeze=False)
     for ax, (name, y) in zip(axes[:, 0], responses.items(), strict=True):
         ax.plot(hours, y, lw=1.4, color="tab:blue")
-        final = float(y[-1])
-        ax.axhline(final, color="0.5", lw=0.7, ls="--", label=f"final {final:.4g} µm")
+        end = float(y[-1])
+        ax.axhline(end, color="0.5", lw=0.7, ls="--",
+                   label=f"at {float(hours[-1]):.3g} h (span end): {end:.4g} µm")
+        gain = (dc_gains or {}).get(name)
+        if gain is not None and math.isfinite(gain):
+            ax.axhline(gain, color="tab:green", lw=0.8, ls=":",
+                       label=f"DC gain (steady state): {gain:.4g} µm")
         ax.set_ylabel("δZ (µm)")
         ax.set_title(f"term {name}: step of 1 {units.get(name, 'K')} at t = 0")
         ax.grid(True, alpha=0.3)

@@ -66,5 +66,16 @@ def build_driver(cfg: LoadedConfig) -> Driver:
         return open_driver(ctl.protocol, ctl.endpoint, {**cfg.channels, **cfg.probes},
                            cfg.outputs, **driver_options(cfg))
     except (ValueError, DriverError) as exc:
-        key = "controller.endpoint" if "endpoint" in str(exc) else "controller"
+        key = ("controller.endpoint" if "endpoint" in str(exc) else
+               "controller.focas.library_path" if "library_path" in str(exc) else "controller")
         raise ConfigError(key, str(exc)) from None
+
+
+def check_driver(cfg: LoadedConfig) -> None:
+    """What `compd run` refuses before it connects, for `compd check`: the driver
+    constructed exactly as run constructs it (`build_driver`), then closed
+    unconnected. One validation path: check says OK only where run starts."""
+    import asyncio
+
+    driver = build_driver(cfg)
+    asyncio.run(driver.close())

@@ -73,7 +73,7 @@ def shop_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
                  "ambient+3K,heat+30%", "--change-at-h", "24"]) == 0
     lines = (d / "plain.csv").read_text().splitlines()
     (d / "day1.csv").write_text("\n".join(lines[:len(lines) // 2 + 1]) + "\n")
-    assert main(["fit", str(d / "day1.csv"), "--output", "dz_um", "--term", "t03_degC",
+    assert main(["fit", str(d / "day1.csv"), "--column", "dz_um", "--term", "t03_degC",
                  "--term", "t05_degC", "--term", "t11_degC", "-o", str(d / "m.toml")]) == 0
     return {"plain": d / "plain.csv", "changed": d / "changed.csv", "model": d / "m.toml",
             "day1": d / "day1.csv"}
@@ -82,7 +82,7 @@ def shop_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 def _replay(capsys: pytest.CaptureFixture[str], model: Path, data: Path, *extra: str
             ) -> dict[str, object]:
     capsys.readouterr()
-    assert main(["replay", str(model), str(data), "--output", "dz_um", "--score-from", "86400",
+    assert main(["replay", str(model), str(data), "--column", "dz_um", "--score-from", "86400",
                  "--json", *extra]) == 0
     return dict(json.loads(capsys.readouterr().out.strip().splitlines()[-1]))
 
@@ -180,7 +180,7 @@ def test_replay_with_gains_and_a_plot_of_the_probes(
         shop_run: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     png = tmp_path / "r.png"
     capsys.readouterr()
-    assert main(["replay", str(shop_run["model"]), str(shop_run["changed"]), "--output", "dz_um",
+    assert main(["replay", str(shop_run["model"]), str(shop_run["changed"]), "--column", "dz_um",
                  "--probe-every", "7200", "--gains", "--plot", str(png)]) == 0
     out = capsys.readouterr().out
     assert "adapted (a probe every 7200 s" in out and "crude" in out
@@ -208,7 +208,7 @@ def test_replay_probe_options_bad_values_are_one_line_and_64(
     capsys.readouterr()
     with pytest.raises(SystemExit) as exc_info:
         raise SystemExit(main(["replay", str(shop_run["model"]), str(shop_run["day1"]),
-                               "--output", "dz_um", *argv]))
+                               "--column", "dz_um", *argv]))
     err = capsys.readouterr().err
     assert exc_info.value.code == 64 and says in err and len(err.strip().splitlines()) == 1
 
@@ -240,14 +240,14 @@ def test_suggested_settings_recover_a_known_noise_and_random_walk() -> None:
 def test_fit_adaptation_suggests_the_probe_noise_of_the_record(
         shop_run: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     capsys.readouterr()
-    assert main(["fit", str(shop_run["day1"]), "--output", "dz_um", "--term", "t01_degC",
+    assert main(["fit", str(shop_run["day1"]), "--column", "dz_um", "--term", "t01_degC",
                  "--term", "t11_degC", "--orders", "2-2", "-o", str(tmp_path / "m.toml"),
                  "--adaptation", "--json"]) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     adapt = out["adaptation"]
     assert adapt["probe_noise_um"] == pytest.approx(0.3, rel=0.2)  # the shop probe's 0.3 µm
     assert 0.0 <= adapt["bias_rw_um_per_sqrt_h"] < 5.0 and adapt["lag_s"] == 7200.0
-    assert main(["fit", str(shop_run["day1"]), "--output", "dz_um", "--term", "t01_degC",
+    assert main(["fit", str(shop_run["day1"]), "--column", "dz_um", "--term", "t01_degC",
                  "-o", str(tmp_path / "m2.toml"), "--adaptation", "--adaptation-lag-s",
                  "1e6", "--json"]) == 0
     captured = capsys.readouterr()

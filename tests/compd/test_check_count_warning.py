@@ -23,6 +23,7 @@ def _config(tmp_path: Path, offset: str, limit_um: float = 200.0) -> Path:
     text = (EXAMPLES / "modbus.toml").read_text(encoding="utf-8")
     text = re.sub(r"(?m)^offset = .*$", f"offset = {offset}", text, count=1)
     text = re.sub(r"(?m)^limit_um = .*$", f"limit_um = {limit_um}", text, count=1)
+    text = re.sub(r"(?m)^slew_um_s = .*$", "slew_um_s = 0.1", text, count=1)
     p = tmp_path / "modbus.toml"
     p.write_text(text, encoding="utf-8")
     return p
@@ -38,7 +39,7 @@ def test_a_count_coarser_than_the_slew_step_is_warned_of(tmp_path: Path) -> None
     assert r.returncode == 0, r.stderr
     [line] = r.stderr.strip().splitlines()
     assert line.startswith("compd check: warning: output.offset: one count")
-    assert "10 µm" in line and "1 µm/s × 1 s = 1 µm" in line
+    assert "10 µm" in line and "0.1 µm/s × 60 s = 6 µm" in line
     assert "at most one count per cycle" in line and "whole count" in line
     assert "one count 10 µm" in r.stdout  # the output stage line
 

@@ -76,22 +76,22 @@ def _make_files(root: Path) -> None:
 
 def _cases() -> list[list[str]]:
     rec = str(ROOT / "rec.csv")
-    fit = ["fit", rec, "--output", "dz_um", "--term", "bearing"]
+    fit = ["fit", rec, "--column", "dz_um", "--term", "bearing"]
     out: list[list[str]] = [[], ["bogus"], ["check"], ["fit"], ["replay", "sp2"],
                             ["sim", "--record"], ["step", "--plot"], ["check", "sp2", "--nope"],
-                            ["replay", "sp2", str(ROOT / "flat.csv"), "--output", "dz_um"],
-                            ["replay", "sp2", rec, "--output", "no_such_column"],
-                            ["fit", rec, "--output", "dz_um", "--term", "+-"],
-                            ["fit", rec, "--output", "dz_um", "--term", "x", "--orders", "9-1"],
-                            ["fit", rec, "--output", "dz_um", "--term", "bearing", "--fixed",
+                            ["replay", "sp2", str(ROOT / "flat.csv"), "--column", "dz_um"],
+                            ["replay", "sp2", rec, "--column", "no_such_column"],
+                            ["fit", rec, "--column", "dz_um", "--term", "+-"],
+                            ["fit", rec, "--column", "dz_um", "--term", "x", "--orders", "9-1"],
+                            ["fit", rec, "--column", "dz_um", "--term", "bearing", "--fixed",
                              _file("garbage") + ":t"],
                             ["sim", "--protocol", "modbus", "--record", str(ROOT / "r.csv")],
                             ["sim", "--drive", "nothing://x", "--map", rec]]
     for f in FILES:
         p = _file(f)
         out += [["check", p], ["check", p, "--json"], ["step", p], ["run", p],
-                ["replay", "sp2", p, "--output", "dz_um"], ["replay", p, rec, "--output", "dz_um"],
-                ["fit", p, "--output", "dz_um", "--term", "bearing"],
+                ["replay", "sp2", p, "--column", "dz_um"], ["replay", p, rec, "--column", "dz_um"],
+                ["fit", p, "--column", "dz_um", "--term", "bearing"],
                 [*fit, "--validation-record", p], [*fit, "--fixed", f"{p}:spindle"],
                 ["sim", "--drive", "modbus://127.0.0.1:1", "--map", p],
                 ["health", "--state-dir", p, "--max-age-s", "1"],
@@ -115,10 +115,10 @@ def _cases() -> list[list[str]]:
                         opt, n])
     for t in ("input", "fifo", "dir"):  # a model or figure over the command's own input
         out += [[*fit, "-o", _target(t), "--force"], [*fit, "--fixed", "sp2:spindle", "-o", rec],
-                ["replay", "sp2", rec, "--output", "dz_um", "--plot", rec, "--force"]]
+                ["replay", "sp2", rec, "--column", "dz_um", "--plot", rec, "--force"]]
     for bad in ("out.csv", "out", "out.png.txt"):  # not a figure format
         out += [["step", "sp2", "--plot", str(ROOT / bad)],
-                ["replay", "sp2", rec, "--output", "dz_um", "--plot", str(ROOT / bad)]]
+                ["replay", "sp2", rec, "--column", "dz_um", "--plot", str(ROOT / bad)]]
     for bad_seed in ("-1", "1e3", "x", "99999999999999999999999"):
         out += [["sim", "--record", str(ROOT / "seed.csv"), "--hours", "0.01", "--seed",
                  bad_seed], ["demo", "--seed", bad_seed, "--plot", _target("missing_dir")]]
@@ -126,11 +126,11 @@ def _cases() -> list[list[str]]:
         out.append(["sim", "--protocol", "modbus", "--port", port])
     for t in TARGETS:
         p = _target(t)
-        out += [[*fit, "-o", p], [*fit, "-o", p, "--force"], ["fit", p, "--output", "x"],
+        out += [[*fit, "-o", p], [*fit, "-o", p, "--force"], ["fit", p, "--column", "x"],
                 ["export", rec, "-o", p], ["export", rec, "-o", p, "--format", "parquet"],
                 ["sim", "--record", p, "--hours", "0.01"],
                 ["sim", "--record", p, "--hours", "0.01", "--force"],
-                ["replay", "sp2", rec, "--output", "dz_um", "--plot", p, "--force"],
+                ["replay", "sp2", rec, "--column", "dz_um", "--plot", p, "--force"],
                 ["step", "sp2", "--plot", p, "--force"], ["demo", "--plot", p, "--force"],
                 ["sim", "--drive", "modbus://127.0.0.1:1", "--record", p, "--force"]]
     return out

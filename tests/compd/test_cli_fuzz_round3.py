@@ -48,21 +48,21 @@ def _add(code: int, *argvs: list[str]) -> None:
 
 
 REC = "@/rec.csv"
-FIT = ["fit", REC, "--output", "dz_um", "--term", "bearing"]
+FIT = ["fit", REC, "--column", "dz_um", "--term", "bearing"]
 for deep in ("@/deep_array.toml", "@/deep_table.toml", "@/deep_dotted.toml",
              "@/deep_header.toml", "@/deep_config.toml"):
     _add(65, ["check", deep], ["check", deep, "--json"], ["step", deep],
-         ["replay", deep, REC, "--output", "dz_um"], [*FIT, "--fixed", f"{deep}:spindle"],
+         ["replay", deep, REC, "--column", "dz_um"], [*FIT, "--fixed", f"{deep}:spindle"],
          ["demo", "--model", deep], ["sim", "--drive", "modbus://127.0.0.1:1", "--map", deep])
     _add(78, ["run", deep, "--once", "--dry-run"])
 # brackets 900 deep, but only inside strings and comments: the bundled model, read
 _add(0, ["check", "@/deep_strings_ok.toml"], ["step", "@/deep_strings_ok.toml"])
 _add(78, ["check", "@/config_deep_model.toml"], ["run", "@/config_deep_model.toml", "--once"])
 for field in ("@/bigfield.csv", "@/bigfield_header.csv"):
-    _add(65, ["fit", field, "--output", "dz_um", "--term", "bearing"],
-         [*FIT, "--validation-record", field], ["replay", "sp2", field, "--output", "dz_um"])
-_add(65, ["fit", "@/deep.sqlite", "--output", "dz_um", "--term", "bearing"],
-     ["export", "@/deep.sqlite"], ["replay", "sp2", "@/deep.sqlite", "--output", "dz_um"])
+    _add(65, ["fit", field, "--column", "dz_um", "--term", "bearing"],
+         [*FIT, "--validation-record", field], ["replay", "sp2", field, "--column", "dz_um"])
+_add(65, ["fit", "@/deep.sqlite", "--column", "dz_um", "--term", "bearing"],
+     ["export", "@/deep.sqlite"], ["replay", "sp2", "@/deep.sqlite", "--column", "dz_um"])
 _add(65, ["demo", "--model", "@/passwd"], ["demo", "--model", "@/nul.toml"],
      ["demo", "--model", "@/latin1.toml"])
 _add(78, ["demo", "--model", "@/absurd.toml"], ["demo", "--model", "@/not_a_model.toml"],
@@ -78,36 +78,36 @@ _add(64, [*FIT, "-o", f"@/{RAW_NAME}"], [*FIT, "-o", f"@/{RAW_NAME}", "--force"]
      ["export", "@/deep.sqlite", "-o", f"@/{RAW_NAME}"])
 for folds in ("100000", "0", "1", "-1", "21", "x", "1e3", "nan", ""):
     _add(64, [*FIT, "--folds", folds])
-_add(64, ["fit", "@/flat.csv", "--output", "dz_um", "--term", "bearing", "--folds", "5"])
+_add(64, ["fit", "@/flat.csv", "--column", "dz_um", "--term", "bearing", "--folds", "5"])
 for terms in ("0", "-1", "13", "100000", "x"):
     _add(64, [*FIT, "--candidates", "*", "--max-terms", terms])
 _add(0, [*FIT, "--folds", "20", "-o", "@/folds20.toml"],
-     ["fit", REC, "--output", "dz_um", "--candidates", "*", "-o", "@/candidates.toml"],
-     ["fit", REC, "--output", "dz_um", "--candidates", "*", "--folds", "3", "-o",
+     ["fit", REC, "--column", "dz_um", "--candidates", "*", "-o", "@/candidates.toml"],
+     ["fit", REC, "--column", "dz_um", "--candidates", "*", "--folds", "3", "-o",
       "@/candidates3.toml"],
-     ["fit", "@/flat_rise.csv", "--output", "dz_um", "--term", "bearing", "--folds", "4",
+     ["fit", "@/flat_rise.csv", "--column", "dz_um", "--term", "bearing", "--folds", "4",
       "-o", "@/folds4.toml"])
 
 # found by running every command with hostile inputs (this round's search):
 # 3,000 coefficients (12 KiB) kept `check` computing poles for minutes; 65 terms
 _add(78, ["check", "@/long_b.toml"], ["check", "@/many_terms.toml"],
      ["demo", "--model", "@/long_b.toml"])
-_add(65, ["step", "@/long_b.toml"], ["replay", "@/long_b.toml", REC, "--output", "dz_um"])
+_add(65, ["step", "@/long_b.toml"], ["replay", "@/long_b.toml", REC, "--column", "dz_um"])
 # a record sampled every 1e-300 s (ValueError in the identification) or 1e300 s
-_add(65, ["fit", "@/tiny_period.csv", "--output", "dz_um", "--term", "bearing"],
-     ["fit", "@/huge_period.csv", "--output", "dz_um", "--term", "bearing"],
-     ["replay", "sp2", "@/tiny_period.csv", "--output", "dz_um"])
+_add(65, ["fit", "@/tiny_period.csv", "--column", "dz_um", "--term", "bearing"],
+     ["fit", "@/huge_period.csv", "--column", "dz_um", "--term", "bearing"],
+     ["replay", "sp2", "@/tiny_period.csv", "--column", "dz_um"])
 # a probe more often than the record's rows (numpy "Maximum allowed size exceeded")
-_add(64, ["replay", "sp2", REC, "--output", "dz_um", "--probe-every", "1e-308"],
-     ["replay", "sp2", REC, "--output", "dz_um", "--probe-every", "0.5"])
+_add(64, ["replay", "sp2", REC, "--column", "dz_um", "--probe-every", "1e-308"],
+     ["replay", "sp2", REC, "--column", "dz_um", "--probe-every", "0.5"])
 # counts that grow the identification without bound: 200 candidate columns or 60 terms
 # took minutes
-_add(64, ["fit", "@/wide.csv", "--output", "dz_um", "--candidates", "c*"],
-     ["fit", "@/wide.csv", "--output", "dz_um", *(a for i in range(17) for a in
+_add(64, ["fit", "@/wide.csv", "--column", "dz_um", "--candidates", "c*"],
+     ["fit", "@/wide.csv", "--column", "dz_um", *(a for i in range(17) for a in
                                                  ("--term", f"c{i}"))])
 # a column named bearing_µ chosen by --candidates: the model was written with a bare
 # key TOML does not allow, and fit failed reading back its own file (65)
-_add(0, ["fit", "@/micro.csv", "--output", "dz_um", "--candidates", "b*", "-o",
+_add(0, ["fit", "@/micro.csv", "--column", "dz_um", "--candidates", "b*", "-o",
          "@/micro.toml"])
 # a recorder row whose wall time is 1e308 s (OverflowError formatting the date)
 _add(0, ["export", "@/far_future.sqlite"])
@@ -127,7 +127,7 @@ def _deep_files(root: Path) -> None:
     (root / "deep_config.toml").write_text(
         config.replace("[machine]\n", f"[machine]\nnote = {arr}\n", 1), encoding="utf-8")
     (root / "config_deep_model.toml").write_text(
-        config.replace('file = "sp2"', 'file = "deep_array.toml"', 1), encoding="utf-8")
+        re.sub(r'(?m)^file = ".*$', 'file = "deep_array.toml"', config, count=1), encoding="utf-8")
     sp2 = (ROOT / "models" / "library" / "sp2.toml").read_text(encoding="utf-8")
     (root / "deep_strings_ok.toml").write_text(
         f"# {arr}\n" + re.sub(r'(?m)^description = .*$', f'description = "{arr}"', sp2, count=1)

@@ -115,7 +115,7 @@ def test_a_fitted_model_names_the_compd_version(tmp_path: Path) -> None:
     rec = tmp_path / "rec.csv"
     rec.write_text("time_s,bearing,dz_um\n" + "\n".join(lines) + "\n", encoding="utf-8")
     out = tmp_path / "m.toml"
-    assert main(["fit", str(rec), "--output", "dz_um", "--term", "bearing", "--orders", "1-1",
+    assert main(["fit", str(rec), "--column", "dz_um", "--term", "bearing", "--orders", "1-1",
                  "-o", str(out)]) == 0
     assert load_model(out).provenance["compd_version"] == __version__
 

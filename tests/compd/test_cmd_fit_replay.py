@@ -29,7 +29,7 @@ def sp3_records(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
 def sp3_model(sp3_records: tuple[Path, Path]) -> Path:
     out = sp3_records[0].with_name("fitted.toml")
     assert main([
-        "fit", str(sp3_records[0]), "--output", "dz_um", "--term", "spindle=bearing",
+        "fit", str(sp3_records[0]), "--column", "dz_um", "--term", "spindle=bearing",
         "--term", "ambient", "--orders", "1-3", "-o", str(out)]) == 0
     return out
 
@@ -60,7 +60,7 @@ def test_replay_verification_fit_at_least_95_percent(sp3_model: Path,
                                                       capsys: pytest.CaptureFixture[str],
                                                       tmp_path: Path) -> None:
     png = tmp_path / "replay.png"
-    assert main(["replay", str(sp3_model), str(sp3_records[1]), "--output", "dz_um",
+    assert main(["replay", str(sp3_model), str(sp3_records[1]), "--column", "dz_um",
                  "--plot", str(png), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert set(out) == {"fit_percent", "residue_min_um", "residue_max_um", "dpk_um",
@@ -74,7 +74,7 @@ def test_replay_verification_fit_at_least_95_percent(sp3_model: Path,
 def test_fit_json_and_a_fixed_term(sp3_records: tuple[Path, Path], tmp_path: Path,
                                    capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "spindle_only.toml"
-    assert main(["fit", str(sp3_records[0]), "--output", "dz_um", "--term", "spindle=bearing",
+    assert main(["fit", str(sp3_records[0]), "--column", "dz_um", "--term", "spindle=bearing",
                  "--fixed", "sp3:ambient", "--orders", "1-2", "-o", str(out), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert set(doc) == {"terms", "fit_percent", "dpk_um", "model_file", "records"}
@@ -90,10 +90,10 @@ def test_replay_refuses_another_period_and_bad_data(tmp_path: Path,
     rec = tmp_path / "ten.csv"
     rec.write_text("time_s,bearing,ambient,dz_um\n" + "".join(
         f"{10 * k},{20 + k / 10:.1f},20.0,{k * 1.5}\n" for k in range(20)))
-    assert main(["replay", "sp3", str(rec), "--output", "dz_um"]) == 65
+    assert main(["replay", "sp3", str(rec), "--column", "dz_um"]) == 65
     assert "sampled every 10 s" in capsys.readouterr().err
     rec.write_text("time_s,bearing,ambient,dz_um\n0,20,20,1\n1,20,20,2\n1,20,20,3\n2,20,20,4\n")
-    assert main(["fit", str(rec), "--output", "dz_um", "--term", "bearing"]) == 65
+    assert main(["fit", str(rec), "--column", "dz_um", "--term", "bearing"]) == 65
     assert "duplicated timestamp" in capsys.readouterr().err
 
 
@@ -117,10 +117,10 @@ def test_simulated_machine_calibration_generalises(tmp_path: Path,
                      "--period-s", "60", "--seed", str(seed)]) == 0
     full = tmp_path / "plant.toml"
     assert main(["fit", str(tmp_path / "constant.csv"), str(tmp_path / "etve.csv"),
-                 "--output", "dz_um", "--term", "bearing", "--term", "motor", "--term",
+                 "--column", "dz_um", "--term", "bearing", "--term", "motor", "--term",
                  "column", "--term", "ambient", "--orders", "3-3", "-o", str(full)]) == 0
     capsys.readouterr()
-    assert main(["replay", str(full), str(tmp_path / "spectrum.csv"), "--output", "dz_um",
+    assert main(["replay", str(full), str(tmp_path / "spectrum.csv"), "--column", "dz_um",
                  "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["fit_percent"] >= 85.0 and out["range_reduction"] >= 6.0
@@ -135,11 +135,11 @@ def test_fit_refuses_records_with_different_periods_and_a_too_slow_pole(
     ten = tmp_path / "ten.csv"
     ten.write_text("time_s,bearing,ambient,dz_um\n" + "".join(
         f"{10 * k},{20 + k / 10:.1f},20.0,{k * 1.5}\n" for k in range(20)))
-    assert main(["fit", str(sp3_records[0]), str(ten), "--output", "dz_um",
+    assert main(["fit", str(sp3_records[0]), str(ten), "--column", "dz_um",
                  "--term", "bearing"]) == 65
     assert "need one sample period" in capsys.readouterr().err
     # SP3's spindle pole (0.9984 at 1 s, τ ≈ 10 min) is slower than a 1-minute bound
-    assert main(["fit", str(sp3_records[0]), "--output", "dz_um", "--term", "spindle=bearing",
+    assert main(["fit", str(sp3_records[0]), "--column", "dz_um", "--term", "spindle=bearing",
                  "--fixed", "sp3:ambient", "--orders", "1-2", "--max-time-constant-days",
                  str(60 / 86400), "-o", str(tmp_path / "x.toml")]) == 65
     assert "time constant" in capsys.readouterr().err

@@ -153,7 +153,7 @@ async def test_replay_reads_the_daemons_recorder_written_at_time_scale_50(
     such a run is repeated (at most five runs)."""
     for attempt in range(5):
         db = await _recorder_at_time_scale(tmp_path / f"run{attempt}", 50.0)
-        rc = await asyncio.to_thread(main, ["replay", "sp2", str(db), "--output",
+        rc = await asyncio.to_thread(main, ["replay", "sp2", str(db), "--column",
                                             "model_um", "--json"])
         out, err = capsys.readouterr()
         if rc != 0 and ("missed deadline" in err or "no valid value recorded" in err):

@@ -24,7 +24,7 @@ def sp3(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
 def test_the_choice_is_printed_with_its_runners_up(sp3: tuple[Path, Path], tmp_path: Path,
                                                    capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "auto.toml"
-    assert main(["fit", str(sp3[0]), "--output", "dz_um", "--term", "spindle=bearing",
+    assert main(["fit", str(sp3[0]), "--column", "dz_um", "--term", "spindle=bearing",
                  "--term", "ambient", "--orders", "1-2", "-o", str(out)]) == 0
     text = capsys.readouterr().out
     assert "blocked cross-validation, 4 folds" in text
@@ -37,7 +37,7 @@ def test_the_choice_is_printed_with_its_runners_up(sp3: tuple[Path, Path], tmp_p
 def test_a_forced_structure_and_held_out_records(sp3: tuple[Path, Path], tmp_path: Path,
                                                  capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "per_term.toml"
-    assert main(["fit", str(sp3[0]), "--output", "dz_um", "--term", "spindle=bearing",
+    assert main(["fit", str(sp3[0]), "--column", "dz_um", "--term", "spindle=bearing",
                  "--term", "ambient", "--orders", "1-2", "--structure", "per-term-oe",
                  "--validation-record", str(sp3[1]), "-o", str(out), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
@@ -49,6 +49,6 @@ def test_a_forced_structure_and_held_out_records(sp3: tuple[Path, Path], tmp_pat
     dens = [t.dynamics.den for t in model.terms]  # type: ignore[union-attr]
     assert dens[0] != dens[1]  # one denominator per term
     with pytest.raises(SystemExit) as refused:  # bounded by the parser (issue 24)
-        main(["fit", str(sp3[0]), "--output", "dz_um", "--term", "bearing", "--folds", "1"])
+        main(["fit", str(sp3[0]), "--column", "dz_um", "--term", "bearing", "--folds", "1"])
     assert refused.value.code == 64
     assert "--folds: must be 2" in capsys.readouterr().err

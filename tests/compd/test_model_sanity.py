@@ -62,7 +62,7 @@ def test_check_step_replay_refuse_with_one_line(tmp_path: Path, case: str) -> No
     data.write_text("time_s,bearing,dz_um\n" + "".join(f"{k},{20 + k / 100},0\n"
                                                         for k in range(50)))
     for args, codes in ((["check", str(path)], {78}), (["step", str(path)], {65, 78}),
-                        (["replay", str(path), str(data), "--output", "dz_um"], {65, 78})):
+                        (["replay", str(path), str(data), "--column", "dz_um"], {65, 78})):
         if case in ("huge_dc", "slow_pole", "slow_tau") and args[0] != "check":
             continue  # step and replay show what a model does, absurd or not
         r = _cli(*args)
@@ -74,8 +74,9 @@ def test_check_step_replay_refuse_with_one_line(tmp_path: Path, case: str) -> No
 def _config(tmp_path: Path, *, model: str = 'file = "sp2"', period: str = "1.0",
             limit: str = "200.0", slew: str = "1.0", extra: str = "") -> Path:
     text = (ROOT / "compd" / "examples" / "modbus.toml").read_text(encoding="utf-8")
-    text = re.sub(r'(?m)^file = "sp2".*$', model, text, count=1)
+    text = re.sub(r'(?m)^file = ".*$', model, text, count=1)
     text = re.sub(r"(?m)^period_s = .*$", f"period_s = {period}", text, count=1)
+    text = re.sub(r"(?m)^time_scale = .*$", "time_scale = 1.0", text, count=1)
     text = re.sub(r"(?m)^limit_um = .*$", f"limit_um = {limit}", text, count=1)
     text = re.sub(r"(?m)^slew_um_s = .*$", f"slew_um_s = {slew}", text, count=1)
     text = text.replace("[model]\n", f"[model]\n{extra}", 1)

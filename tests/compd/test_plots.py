@@ -37,7 +37,7 @@ def test_replay_plots_a_one_channel_model_without_a_speed_column(
     rec.write_text("time_s,bearing,dz_um\n" + "".join(
         f"{k},{25 + k / 100:.2f},{k / 100:.3f}\n" for k in range(300)), encoding="utf-8")
     figure = tmp_path / "one.png"
-    assert main(["replay", str(model), str(rec), "--output", "dz_um", "--plot",
+    assert main(["replay", str(model), str(rec), "--column", "dz_um", "--plot",
                  str(figure)]) == 0
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "figure:" in capsys.readouterr().out

@@ -57,7 +57,7 @@ def test_fit_draws_no_status_into_a_pipe(tmp_path: Path,
     rec.write_text("time_s,bearing,dz_um\n" + "".join(
         f"{k},{25 + k / 100:.2f},{k / 10 + (k % 5) / 50:.3f}\n" for k in range(300)),
         encoding="utf-8")
-    assert main(["fit", str(rec), "--output", "dz_um", "--term", "bearing", "--orders", "1-1",
+    assert main(["fit", str(rec), "--column", "dz_um", "--term", "bearing", "--orders", "1-1",
                  "-o", str(tmp_path / "m.toml")]) == 0
     captured = capsys.readouterr()
     assert "\r" not in captured.err + captured.out

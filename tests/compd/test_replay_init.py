@@ -31,7 +31,7 @@ def halves(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path, 
     first.write_text("\n".join([head, *rows[:half]]) + "\n")
     second.write_text("\n".join([head, *rows[half:]]) + "\n")
     model = d / "h1.toml"
-    assert main(["fit", str(first), "--output", "dz_um", "--term", "bearing", "--term", "motor",
+    assert main(["fit", str(first), "--column", "dz_um", "--term", "bearing", "--term", "motor",
                  "--term", "column", "--term", "ambient", "--orders", "3-3",
                  "--structure", "per-term-oe", "-o", str(model)]) == 0
     return full, first, second, model
@@ -39,7 +39,7 @@ def halves(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Path, 
 
 def _replay(capsys: pytest.CaptureFixture[str], *args: str) -> dict[str, float | str]:
     capsys.readouterr()
-    assert main(["replay", *args, "--output", "dz_um", "--json"]) == 0
+    assert main(["replay", *args, "--column", "dz_um", "--json"]) == 0
     doc: dict[str, float | str] = json.loads(capsys.readouterr().out)
     return doc
 
@@ -63,7 +63,7 @@ def test_estimated_start_matches_the_continuous_run(halves: tuple[Path, Path, Pa
 def test_score_from_outside_the_record_is_one_clear_line(
         halves: tuple[Path, Path, Path, Path], capsys: pytest.CaptureFixture[str]) -> None:
     _, _, second, model = halves
-    assert main(["replay", str(model), str(second), "--output", "dz_um",
+    assert main(["replay", str(model), str(second), "--column", "dz_um",
                  "--score-from", "1e9"]) == 65
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--score-from" in err

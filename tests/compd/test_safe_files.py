@@ -36,7 +36,7 @@ def record(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def _fit(record: Path, *extra: str) -> list[str]:
-    return ["fit", str(record), "--output", "dz_um", "--term", "spindle=bearing",
+    return ["fit", str(record), "--column", "dz_um", "--term", "spindle=bearing",
             "--orders", "1-1", *extra]
 
 
@@ -114,7 +114,7 @@ def test_sim_drive_record_is_checked_before_the_session(tmp_path: Path,
 def test_plot_to_a_missing_directory_is_refused_before_the_work(
         tmp_path: Path, record: Path, capsys: pytest.CaptureFixture[str]) -> None:
     png = str(tmp_path / "missing" / "f.png")
-    assert _rc(["replay", "sp2", str(record), "--output", "dz_um", "--plot", png]) == 73
+    assert _rc(["replay", "sp2", str(record), "--column", "dz_um", "--plot", png]) == 73
     assert _rc(["step", "sp2", "--plot", png]) == 73
     out = capsys.readouterr()
     assert out.out == "" and out.err.count("\n") == 2
@@ -159,7 +159,7 @@ def test_hostile_model_files_end_in_one_line(tmp_path: Path, kind: str,
     else:
         path.write_bytes('[model]\nname = "caf\xe9"\n'.encode("latin-1"))
     for argv in (["check", str(path)], ["step", str(path)],
-                 ["replay", str(path), str(path), "--output", "dz_um"]):
+                 ["replay", str(path), str(path), "--column", "dz_um"]):
         assert _rc(argv) in (65, 66, 78)
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "Traceback" not in err
@@ -177,8 +177,8 @@ def test_hostile_records_end_in_one_line(tmp_path: Path,
     bad_db = tmp_path / "bad.db"
     _corrupt_recorder(bad_db)
     for data, code in ((fifo, 66), (huge, 65), (Path("/dev/zero"), 66), (bad_db, 65)):
-        assert _rc(["replay", "sp2", str(data), "--output", "dz_um"]) == code
-        assert _rc(["fit", str(data), "--output", "dz_um", "--term", "bearing"]) == code
+        assert _rc(["replay", "sp2", str(data), "--column", "dz_um"]) == code
+        assert _rc(["fit", str(data), "--column", "dz_um", "--term", "bearing"]) == code
         err = capsys.readouterr().err
         assert err.count("\n") == 2 and "Traceback" not in err, err
 
@@ -221,7 +221,7 @@ def test_a_large_record_is_streamed_not_held_as_text(tmp_path: Path) -> None:
              "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)\nsys.exit(rc)\n")
     base = subprocess.run([sys.executable, "-c", probe, "step", "sp2", "--hours", "1"],
                           capture_output=True, text=True, check=True)
-    res = subprocess.run([sys.executable, "-c", probe, "replay", "sp2", str(path), "--output",
+    res = subprocess.run([sys.executable, "-c", probe, "replay", "sp2", str(path), "--column",
                           "dz_um"], capture_output=True, text=True, check=True)
     grown_kib = int(res.stdout.split()[-1]) - int(base.stdout.split()[-1])
     numbers_kib = rows * 4 * 8 / 1024
@@ -282,7 +282,7 @@ def test_sim_ports_and_noise(tmp_path: Path, capsys: pytest.CaptureFixture[str])
 def test_replay_never_reports_fit_nan(tmp_path: Path, record: Path,
                                       capsys: pytest.CaptureFixture[str]) -> None:
     huge = _model(tmp_path / "huge.toml", "1.0", '["1e308", "1e308"]', '["1", "-0.999"]')
-    rc = _rc(["replay", str(huge), str(record), "--output", "dz_um"])
+    rc = _rc(["replay", str(huge), str(record), "--column", "dz_um"])
     out = capsys.readouterr()
     assert rc in (65, 78) and "nan" not in out.out
     assert out.err.count("\n") == 1 and "Traceback" not in out.err

@@ -42,7 +42,7 @@ def test_inputs_chosen_by_validation_verify_on_the_next_day(
         days: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     day1, day2 = days
     model = tmp_path / "shop.toml"
-    fit = _json(capsys, ["fit", str(day1), "--output", "dz_um", "--candidates", "t*_degC",
+    fit = _json(capsys, ["fit", str(day1), "--column", "dz_um", "--candidates", "t*_degC",
                          "--candidates", "spindle_rpm", "--max-terms", "3", "-o", str(model),
                          "--json"])
     subsets = fit["subsets"]
@@ -50,7 +50,7 @@ def test_inputs_chosen_by_validation_verify_on_the_next_day(
     prov = load_model(model).provenance
     assert 1 <= len(prov["inputs_chosen"]) <= 3 and len(prov["subsets_tried"]) == len(subsets)
     assert prov["structure"] and prov["runners_up"]
-    ours = _json(capsys, ["replay", str(model), str(day2), "--output", "dz_um", "--json"])
+    ours = _json(capsys, ["replay", str(model), str(day2), "--column", "dz_um", "--json"])
     assert ours["init"] == "estimate"
     assert float(ours["fit_percent"]) >= 88.0  # type: ignore[arg-type]
     assert float(ours["range_reduction"]) >= 7.0  # type: ignore[arg-type]
@@ -58,9 +58,9 @@ def test_inputs_chosen_by_validation_verify_on_the_next_day(
     best_pair = max(pairs, key=lambda s: s["validation_fit_percent"])["inputs"]
     base_model = tmp_path / "arx.toml"
     terms = [a for ch in best_pair for a in ("--term", ch)]
-    _json(capsys, ["fit", str(day1), "--output", "dz_um", *terms, "--structure", "arx",
+    _json(capsys, ["fit", str(day1), "--column", "dz_um", *terms, "--structure", "arx",
                    "-o", str(base_model), "--json"])
-    base = _json(capsys, ["replay", str(base_model), str(day2), "--output", "dz_um", "--json"])
+    base = _json(capsys, ["replay", str(base_model), str(day2), "--column", "dz_um", "--json"])
     assert float(ours["fit_percent"]) > float(base["fit_percent"])  # type: ignore[arg-type]
 
 
@@ -70,7 +70,7 @@ def test_a_searched_model_with_a_speed_term_is_one_the_daemon_steps(
     starts at steady state and round-trips its state like any other."""
     day1, _ = days
     model_path = tmp_path / "speed.toml"
-    assert main(["fit", str(day1), "--output", "dz_um", "--term", "t01_degC", "--term",
+    assert main(["fit", str(day1), "--column", "dz_um", "--term", "t01_degC", "--term",
                  "spindle_rpm", "--orders", "1-2", "-o", str(model_path)]) == 0
     model = load_model(model_path)
     speed = next(t for t in model.terms if t.name == "spindle_rpm")
@@ -89,10 +89,10 @@ def test_a_searched_model_with_a_speed_term_is_one_the_daemon_steps(
 def test_term_or_candidates_one_of_the_two(days: tuple[Path, Path],
                                            capsys: pytest.CaptureFixture[str]) -> None:
     day1, _ = days
-    assert main(["fit", str(day1), "--output", "dz_um"]) == 65
+    assert main(["fit", str(day1), "--column", "dz_um"]) == 65
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--candidates" in err
-    assert main(["fit", str(day1), "--output", "dz_um", "--candidates", "nope*"]) == 65
+    assert main(["fit", str(day1), "--column", "dz_um", "--candidates", "nope*"]) == 65
     assert "matches no column" in capsys.readouterr().err
 
 

@@ -29,7 +29,7 @@ def test_replay_on_a_fresh_spectrum_run(seed: int, tmp_path: Path,
     assert main(["sim", "--record", str(rec), "--program", "spectrum", "--period-s", "60",
                  "--seed", str(seed)]) == 0
     capsys.readouterr()
-    assert main(["replay", "sim_machine", str(rec), "--output", "dz_um", "--json"]) == 0
+    assert main(["replay", "sim_machine", str(rec), "--column", "dz_um", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["fit_percent"] >= 85.0
     assert out["range_reduction"] >= 6.0
@@ -52,8 +52,8 @@ def test_replay_reads_the_daemons_recorder_database(tmp_path: Path,
     capsys.readouterr()
     figures = []
     for path in (csv_path, db_path):
-        assert main(["replay", "sim_machine", str(path), "--output", "dz_um", "--json"]) == 0
+        assert main(["replay", "sim_machine", str(path), "--column", "dz_um", "--json"]) == 0
         figures.append(json.loads(capsys.readouterr().out))
     assert figures[1] == pytest.approx(figures[0])
-    assert main(["fit", str(db_path), "--output", "dz_um", "--term", "bearing", "--term",
+    assert main(["fit", str(db_path), "--column", "dz_um", "--term", "bearing", "--term",
                  "column", "--orders", "1-2", "-o", str(tmp_path / "from_db.toml")]) == 0

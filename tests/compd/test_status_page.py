@@ -43,7 +43,7 @@ def test_every_fault_state_has_a_word_and_a_reason() -> None:
     assert operator_state(FaultState.OK, {}, operator_hold=True)[0] == "holding"
     assert operator_state(FaultState.HOLD, {}, operator_hold=True)[0] == "holding"
     assert operator_state(FaultState.RAMP, {}, operator_hold=True)[0] == "ramping"
-    assert operator_state(FaultState.OK, {}, dry_run=True)[1].endswith(
+    assert operator_state(FaultState.HOLD, {}, dry_run=True)[1].endswith(
         "dry run: nothing is written")
 
 

@@ -1,0 +1,102 @@
+"""What the status page shows (issue 21): °C rather than degC, rpm without
+decimals, y-axis ticks at nice numbers, the last time label inside the
+canvas, rounded numbers in the alarm list, and while the controller does not
+answer, what really happens (nothing can be written) rather than "the offset
+ramps to 0". The page's script runs in node (the browser test needs
+chromium, often absent) with a recording stand-in for the canvas."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import shutil
+import subprocess
+
+import pytest
+
+from compd.core.faults import FaultState
+from compd.faces.status import StatusBoard, operator_state
+from compd.faces.status_page import _SCRIPT
+
+NODE = shutil.which("node")
+needs_node = pytest.mark.skipif(NODE is None, reason="node absent: apt-get install nodejs")
+
+
+def _node(test_code: str) -> object:
+    """Run the page's functions (everything but the start-up line) and `test_code`,
+    which prints one JSON value."""
+    assert NODE is not None
+    script = "const REFRESH_S = 5;\n" + _SCRIPT.rsplit("show(FIRST);", 1)[0] + test_code
+    r = subprocess.run([NODE, "-e", script], capture_output=True, text=True, timeout=60,
+                       check=False)
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout)
+
+
+@needs_node
+def test_units_are_shown_as_an_operator_reads_them() -> None:
+    got = _node('console.log(JSON.stringify([unit("degC"), unit("rpm"), unit("um"), '
+                'fmt(6600, digits("rpm")), fmt(23.456, digits("degC"))]));')
+    assert got == ["°C", "rpm", "µm", "6600", "23.46"]
+
+
+_CANVAS = """
+const calls = [];
+const g = {font: "", fillStyle: "", strokeStyle: "", lineWidth: 1, textAlign: "left",
+  clearRect(){}, beginPath(){}, moveTo(){}, lineTo(){}, stroke(){}, setLineDash(){},
+  fillText(text, x, y){ calls.push({text: String(text), x: x, y: y, align: this.textAlign}); }};
+const cv = {clientWidth: 800, clientHeight: 260, getContext: () => g};
+"""
+
+
+@needs_node
+@pytest.mark.parametrize("span", [(-2.0, 15.0), (0.0, 0.3), (-120.0, 180.0), (3.0, 3.2)])
+def test_the_y_axis_ticks_are_nice_numbers(span: tuple[float, float]) -> None:
+    lo, hi = span
+    h = {"wall_s": [1000.0 + 60 * i for i in range(11)],
+         "offset_um": [lo + (hi - lo) * i / 10 for i in range(11)],
+         "model_um": [lo + (hi - lo) * i / 10 for i in range(11)]}
+    calls = _node(_CANVAS + f"plot(cv, {json.dumps(h)}, 200);"
+                  "console.log(JSON.stringify(calls.filter(c => c.x === 5 && c.text !== "
+                  '"\\u00b5m").map(c => c.text)));')
+    assert isinstance(calls, list) and len(calls) >= 3
+    values = [float(t) for t in calls]
+    steps = {round(b - a, 9) for a, b in itertools.pairwise(values)}
+    assert len(steps) == 1  # evenly spaced
+    [step] = steps
+    mantissa = step / 10 ** math.floor(math.log10(step))
+    assert round(mantissa, 6) in (1.0, 2.0, 2.5, 5.0), calls
+    for v in values:  # each tick a multiple of the step
+        assert abs(v / step - round(v / step)) < 1e-6, calls
+
+
+@needs_node
+def test_the_last_time_label_ends_inside_the_canvas() -> None:
+    h = {"wall_s": [1000.0 + 60 * i for i in range(11)], "offset_um": [1.0] * 11,
+         "model_um": [1.0] * 11}
+    calls = _node(_CANVAS + f"plot(cv, {json.dumps(h)}, 200);"
+                  "console.log(JSON.stringify(calls.filter(c => c.y === 260 - 6)));")
+    assert isinstance(calls, list) and len(calls) == 5
+    last = calls[-1]
+    assert last["align"] == "right" and last["x"] <= 800  # right-aligned at the edge
+    assert calls[0]["align"] == "left"
+
+
+def test_alarm_details_are_rounded() -> None:
+    board = StatusBoard()
+    board.alarm("channel_invalid", "warning", {"invalid_for_s": 60.997285639999745,
+                                               "channel": "bearing", "count": 3})
+    [alarm] = board._alarms
+    assert alarm["detail"] == {"invalid_for_s": "61", "channel": "bearing", "count": "3"}
+
+
+@pytest.mark.parametrize("state", [FaultState.HOLD, FaultState.RAMP])
+def test_an_unreachable_controller_is_said_as_it_is(state: FaultState) -> None:
+    word, why = operator_state(state, {"bearing": "read_failed", "ambient": "read_failed"})
+    assert word == ("ramping" if state is FaultState.RAMP else "holding")
+    assert "ramps to 0" not in why
+    assert "does not answer" in why and "nothing can be read or written" in why
+    # an invalid reading with the controller answering: still the ramp
+    _, why = operator_state(FaultState.RAMP, {"bearing": "out_of_range", "ambient": None})
+    assert "ramps to 0" in why
