@@ -4,7 +4,7 @@ The record is the vendored FL_THERMAL calibration part (tests/data/fl_thermal/,
 27.8 h, 15 s). Per channel (ch3_um, ch4_um: the Z growth) it runs a forward
 split through the command line as a user would:
 
-1. calibrate on the first 20.1 h only (`compd fit FIRST.csv --output CH --term
+1. calibrate on the first 20.1 h only (`compd fit FIRST.csv --column CH --term
    t4_degC --term t6_degC --adaptation --adaptation-lag-s EVERY`: the same code
    `compd fit` runs, the drift suggestion measured at the probe spacing);
 2. replay the whole record from rest (`compd replay MODEL calibration.csv
@@ -73,10 +73,10 @@ def channel_rows(d: Path, first: Path, channel: str, seed: int) -> list[dict[str
     out = []
     for every_h in EVERY_H:
         model = d / f"{channel}-{every_h}h.toml"
-        fit = _run(["fit", str(first), "--output", channel, *TERMS, "--adaptation",
+        fit = _run(["fit", str(first), "--column", channel, *TERMS, "--adaptation",
                     "--adaptation-lag-s", str(every_h * 3600), "-o", str(model), "--json"])
         for noise in NOISE_UM:
-            argv = ["replay", str(model), str(RECORD), "--output", channel, "--init", "rest",
+            argv = ["replay", str(model), str(RECORD), "--column", channel, "--init", "rest",
                     "--score-from", f"{SPLIT_S:g}", "--probe-every", str(every_h * 3600),
                     "--probe-noise-um", str(noise), "--probe-seed", str(seed), "--json"]
             learnt = _run(argv)

@@ -53,14 +53,14 @@ def first_part(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _fit(first: Path, lag_s: int, capsys: pytest.CaptureFixture[str]) -> Path:
     model = first.parent / f"ch3-{lag_s}.toml"
     if not model.exists():
-        _cli(["fit", str(first), "--output", "ch3_um", *TERMS, "--adaptation",
+        _cli(["fit", str(first), "--column", "ch3_um", *TERMS, "--adaptation",
               "--adaptation-lag-s", str(lag_s), "-o", str(model), "--json"], capsys)
     return model
 
 
 def _replay(model: Path, every_s: int, capsys: pytest.CaptureFixture[str],
             *extra: str) -> dict[str, Any]:
-    return _cli(["replay", str(model), str(RECORD), "--output", "ch3_um", "--init", "rest",
+    return _cli(["replay", str(model), str(RECORD), "--column", "ch3_um", "--init", "rest",
                  "--score-from", f"{SPLIT_S:g}", "--probe-every", str(every_s), "--json",
                  *extra], capsys)
 

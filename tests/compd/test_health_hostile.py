@@ -66,5 +66,5 @@ def test_a_deeply_nested_checkpoint_is_unhealthy_not_a_traceback(tmp_path: Path)
 def test_a_deeply_nested_checkpoint_is_refused_on_load(tmp_path: Path) -> None:
     path = tmp_path / "checkpoint.json"
     _deep(path)
-    with pytest.raises(CheckpointError, match="nested .* deep"):
+    with pytest.raises(CheckpointError, match=r"nested .* deep"):
         load_checkpoint(path)
