@@ -232,7 +232,8 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
     else:
         from compd.offline.fit_select import select_for_fit
 
-        nums, dens, orders, summary = select_for_fit(args, y, us, seg, radius, holdout)
+        nums, dens, orders, summary = select_for_fit(args, y, us, seg, radius, holdout,
+                                                     [n for n, _ in specs])
     y_span = float(np.ptp(y))
     terms: list[Term] = []
     info: list[dict[str, Any]] = []
