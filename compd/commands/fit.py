@@ -143,7 +143,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", dest="model_file", metavar="MODEL.toml", default=None,
                         help="model file to write (default: the first DATA with .model.toml)")
     parser.add_argument("--force", action="store_true",
-                        help="replace an existing model file (never one of the inputs)")
+                        help="replace an existing model file (never one of the inputs), and "
+                             "write a model whose error on held-out rows exceeds the "
+                             "displacement")
     parser.add_argument("--name", default=None, help="model name (default: from DATA)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON line")
     parser.add_argument("--adaptation", action="store_true",
@@ -230,10 +232,16 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
                    "arx_fit_percent": fit.arx_fit_pct, "oe_fit_percent": fit.oe.fit_pct}
         nums, dens, orders = fit.oe.nums, fit.oe.dens, fit.orders
     else:
-        from compd.offline.fit_select import select_for_fit
+        from compd.offline.fit_select import select_for_fit, worse_than_none
 
         nums, dens, orders, summary = select_for_fit(args, y, us, seg, radius, holdout,
                                                      [n for n, _ in specs])
+        worse = worse_than_none(summary)
+        if worse is not None and not args.force:
+            raise ModelError(f"{worse}; not written (--force writes it anyway)")
+        if worse is not None:
+            print(f"compd fit: warning: {worse}; written all the same (--force)",
+                  file=sys.stderr)
     y_span = float(np.ptp(y))
     terms: list[Term] = []
     info: list[dict[str, Any]] = []
@@ -245,6 +253,7 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
         info.append({"name": name, "kind": "tf", "inputs": inputs, "relative": rl,
                      "orders": {"numerator_length": nb, "denominator_order": na},
                      "dc_gain_um_per_k": check.dc_gain,
+                     "input_span": float(np.ptp(u)), "output_span_um": y_span,
                      "poles": [abs(p) for p in check.poles],
                      "sensitivity": check.sensitivity,
                      "arx_fit_percent": summary["arx_fit_percent"],
@@ -336,6 +345,8 @@ def _provenance(args: argparse.Namespace, records: list[Record],
             prov[f"{key}_orders"] = (f"numerator {t['orders']['numerator_length']}, "
                                      f"denominator {t['orders']['denominator_order']}")
             prov[f"{key}_dc_gain_um_per_k"] = t["dc_gain_um_per_k"]
+            prov[f"{key}_input_span"] = t["input_span"]
+            prov["output_span_um"] = t["output_span_um"]
             prov["arx_fit_percent"] = t["arx_fit_percent"]
             prov["oe_fit_percent"] = t["oe_fit_percent"]
             sel = t["selection"]

@@ -5,6 +5,7 @@ summary the command prints and writes as provenance."""
 from __future__ import annotations
 
 import argparse
+import math
 from typing import Any
 
 import numpy as np
@@ -53,7 +54,8 @@ def summarise(sel: Selection, forced: str, how: str) -> dict[str, Any]:
     if chosen.rejected and forced != "auto":
         notes.append(f"warning: {chosen.structure} is implausible: {chosen.rejected}")
     base = sel.baseline
-    if base is not None and chosen.validation_fit_pct < base.validation_fit_pct:
+    if base is not None and not base.rejected and \
+            chosen.validation_fit_pct < base.validation_fit_pct:
         notes.append(f"warning: {chosen.structure} validates at {chosen.validation_fit_pct:.2f} "
                      f"%, below the ARX least-squares baseline ({base.validation_fit_pct:.2f} "
                      "%)")
@@ -65,6 +67,8 @@ def summarise(sel: Selection, forced: str, how: str) -> dict[str, Any]:
         "validation": how,
         "validation_fit_percent": chosen.validation_fit_pct,
         "fold_fit_percent": list(chosen.fold_fits),
+        "heldout_rms_um": chosen.heldout_rms,
+        "displacement_rms_um": chosen.displacement_rms,
         "arx_fit_percent": base.fit_pct if base is not None else float("nan"),
         "oe_fit_percent": max(oe_fits) if oe_fits else chosen.fit_pct,
         "candidates": [{"structure": c.structure, "validation_fit_percent":
@@ -75,6 +79,18 @@ def summarise(sel: Selection, forced: str, how: str) -> dict[str, Any]:
         "notes": notes,
         "_model": chosen.model,
     }
+
+
+def worse_than_none(summary: dict[str, Any]) -> str | None:
+    """Why the chosen model must not reach a machine (its residue on rows it
+    was not calibrated on exceeds the displacement itself there), or None."""
+    err, disp = summary.get("heldout_rms_um", math.nan), summary.get("displacement_rms_um",
+                                                                     math.nan)
+    if not (math.isfinite(err) and math.isfinite(disp)) or err <= disp:
+        return None
+    return (f"the model's error on rows it was not calibrated on (RMS {err:.3g} µm, "
+            f"{summary['validation']}) exceeds the displacement itself there (RMS {disp:.3g} "
+            "µm): compensation would make the machine worse")
 
 
 def select_for_fit(args: argparse.Namespace, y: FloatArray, us: list[FloatArray],
@@ -104,5 +120,10 @@ def selection_lines(summary: dict[str, Any]) -> list[str]:
                    f"fit {c['fit_percent']:6.2f} %  {c['parameters']} parameters "
                    f"{c.get('detail', '')}".rstrip()
                    + (f"  (rejected: {c['rejected']})" if c.get("rejected") else ""))
+    err, disp = summary.get("heldout_rms_um", math.nan), summary.get("displacement_rms_um",
+                                                                     math.nan)
+    if math.isfinite(err) and math.isfinite(disp):
+        out.append(f"  on rows it was not calibrated on: residue RMS {err:.3f} µm against the "
+                   f"displacement's {disp:.3f} µm without compensation")
     out += [f"  {n}" for n in summary["notes"]]
     return out
