@@ -10,9 +10,9 @@ within the slowest allowed time constant (``--max-time-constant-days``,
 default 3) in the output-error fit and checked again before writing; a DC
 gain absurd for the data is refused (`models.identify.checks`).
 
-- ``--kind tf`` (default): the structure is chosen by blocked
-  cross-validation (``--folds``, `models.identify.structures`): each
-  candidate is trained without a held-out block, run from the record's start
+- ``--kind tf`` (default): the structure is chosen by forward validation
+  (``--folds``, `models.identify.structures`): each candidate is trained on
+  the rows before a held-out block, run from the record's start
   (initial conditions estimated when the records start warm) and scored on
   the block; candidates are the ARX least-squares baseline, one shared
   denominator refined by output error, ridge on the gains over it, and one
@@ -118,7 +118,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="model structure: tf transfer functions (ARX + output error), "
                              "greybox first-order ODEs, mbotv (default tf)")
     parser.add_argument("--structure", choices=STRUCTURE_CHOICES, default="auto",
-                        help="tf structure: auto (default: chosen by blocked cross-validation "
+                        help="tf structure: auto (default: chosen by forward validation "
                              "among arx, shared-oe, ridge, per-term-oe), one of those, or "
                              "search (the greedy per-term output-error order search)")
     parser.add_argument("--folds", type=int, default=4, metavar="K",

@@ -1,4 +1,4 @@
-"""Model structures for a set of inputs, chosen by blocked cross-validation.
+"""Model structures for a set of inputs, chosen by forward validation.
 
 Candidates (every one a sum of transfer functions the daemon steps as terms):
 
@@ -20,6 +20,15 @@ and re-estimated on every row. The chosen structure is the simplest (fewest
 parameters, then the better validated) among those within `margin` points
 of the best validated one; the ARX baseline is always among the candidates, so a
 structure that validates below it is never chosen silently.
+
+Validation is forward by default (`models.identify.validate.forward_masks`:
+each held-out block predicted by a model trained on the rows before it),
+as the model will be used. Every final estimate is checked
+(`models.identify.checks.implausible`: cancelling gains, a DC gain out of
+proportion, a pole slower than the records); a rejected one stays in the
+table with its reason and is never chosen. When the orders asked for give
+nothing plausible, first order and then a static model (a gain per input,
+a level per record) are tried, and the failures are kept as notes.
 """
 
 from __future__ import annotations

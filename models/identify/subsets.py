@@ -5,8 +5,11 @@ A shop's machine has sensors wherever its builder put them, several nearly
 collinear, some irrelevant. Choosing them by hand over every triple is what
 an engineer does with time to spare; a naive hold-out inside the
 calibration window picks worse ones. Here every subset tried is scored by
-the blocked cross-validation of `models.identify.structures` (run from each
-record's start, held-out blocks scored):
+the forward validation of `models.identify.structures` (run from each
+record's start, each held-out block predicted from the rows before it), and
+a subset whose estimate its own diagnostics reject
+(`models.identify.checks.implausible`) ranks below every plausible one and
+is never chosen:
 
 1. forward: add the candidate whose subset validates best, while that gains
    more than `margin_pct` points and the subset has fewer than `max_terms`;
