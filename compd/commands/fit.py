@@ -347,7 +347,8 @@ def _provenance(args: argparse.Namespace, records: list[Record],
             prov[f"{key}_dc_gain_um_per_k"] = t["dc_gain_um_per_k"]
             prov[f"{key}_input_span"] = t["input_span"]
             prov["output_span_um"] = t["output_span_um"]
-            prov["arx_fit_percent"] = t["arx_fit_percent"]
+            if t["arx_fit_percent"] is not None:  # None: no stable ARX at the orders chosen
+                prov["arx_fit_percent"] = t["arx_fit_percent"]
             prov["oe_fit_percent"] = t["oe_fit_percent"]
             sel = t["selection"]
             prov["structure"] = sel["structure"]

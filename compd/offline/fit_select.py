@@ -43,6 +43,11 @@ def run_selection(args: argparse.Namespace, y: FloatArray, us: list[FloatArray],
         raise ModelError(f"identification failed: {exc}") from None
 
 
+def _finite(x: float) -> float | None:
+    """x, or None where JSON and TOML have no value (nan, inf)."""
+    return x if math.isfinite(x) else None
+
+
 def summarise(sel: Selection, forced: str, how: str) -> dict[str, Any]:
     """What fit prints and writes: the chosen structure, its validation
     figure, the runners-up, and notes (a forced structure below the ARX
@@ -67,9 +72,9 @@ def summarise(sel: Selection, forced: str, how: str) -> dict[str, Any]:
         "validation": how,
         "validation_fit_percent": chosen.validation_fit_pct,
         "fold_fit_percent": list(chosen.fold_fits),
-        "heldout_rms_um": chosen.heldout_rms,
-        "displacement_rms_um": chosen.displacement_rms,
-        "arx_fit_percent": base.fit_pct if base is not None else float("nan"),
+        "heldout_rms_um": _finite(chosen.heldout_rms),
+        "displacement_rms_um": _finite(chosen.displacement_rms),
+        "arx_fit_percent": base.fit_pct if base is not None else None,
         "oe_fit_percent": max(oe_fits) if oe_fits else chosen.fit_pct,
         "candidates": [{"structure": c.structure, "validation_fit_percent":
                         c.validation_fit_pct, "fit_percent": c.fit_pct,
@@ -84,9 +89,8 @@ def summarise(sel: Selection, forced: str, how: str) -> dict[str, Any]:
 def worse_than_none(summary: dict[str, Any]) -> str | None:
     """Why the chosen model must not reach a machine (its residue on rows it
     was not calibrated on exceeds the displacement itself there), or None."""
-    err, disp = summary.get("heldout_rms_um", math.nan), summary.get("displacement_rms_um",
-                                                                     math.nan)
-    if not (math.isfinite(err) and math.isfinite(disp)) or err <= disp:
+    err, disp = summary.get("heldout_rms_um"), summary.get("displacement_rms_um")
+    if err is None or disp is None or err <= disp:
         return None
     return (f"the model's error on rows it was not calibrated on (RMS {err:.3g} µm, "
             f"{summary['validation']}) exceeds the displacement itself there (RMS {disp:.3g} "
@@ -120,9 +124,8 @@ def selection_lines(summary: dict[str, Any]) -> list[str]:
                    f"fit {c['fit_percent']:6.2f} %  {c['parameters']} parameters "
                    f"{c.get('detail', '')}".rstrip()
                    + (f"  (rejected: {c['rejected']})" if c.get("rejected") else ""))
-    err, disp = summary.get("heldout_rms_um", math.nan), summary.get("displacement_rms_um",
-                                                                     math.nan)
-    if math.isfinite(err) and math.isfinite(disp):
+    err, disp = summary.get("heldout_rms_um"), summary.get("displacement_rms_um")
+    if err is not None and disp is not None:
         out.append(f"  on rows it was not calibrated on: residue RMS {err:.3f} µm against the "
                    f"displacement's {disp:.3f} µm without compensation")
     out += [f"  {n}" for n in summary["notes"]]

@@ -102,3 +102,30 @@ def test_check_flags_cancelling_gains_out_of_proportion_and_negative_poles(
 def test_check_leaves_a_plausible_model_alone(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["check", "sp2"]) == 0
     assert "warning" not in capsys.readouterr().err
+
+
+def test_a_static_fallback_is_written_and_its_json_is_strict(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Poles bounded to a 1-minute time constant on a record whose lag is
+    longer: the dynamic orders fail (said), the static model is written, and
+    the JSON holds no NaN (what no figure exists for is null)."""
+    rng = np.random.default_rng(6)
+    t1 = 20.0 + np.repeat(rng.uniform(0.0, 3.0, 20), 50)
+    from scipy.signal import lfilter
+
+    y = lfilter([0.1], [1.0, -0.95], t1 - t1[0]) + 0.05 * rng.standard_normal(t1.size)
+    data = tmp_path / "lag.csv"
+    data.write_text("time_s,t1_degC,dz_um\n" + "".join(
+        f"{60 * i},{a:.4f},{b:.4f}\n" for i, (a, b) in enumerate(zip(t1, y, strict=True))))
+    assert main(["fit", str(data), "--output", "dz_um", "--term", "t1_degC", "--orders", "1-2",
+                 "--max-time-constant-days", str(60 / 86400), "-o", str(tmp_path / "s.toml"),
+                 "--json"]) == 0
+
+    def no_nan(text: str) -> float:
+        raise AssertionError(f"{text} in the JSON")
+
+    fit = json.loads(capsys.readouterr().out, parse_constant=no_nan)
+    sel = fit["terms"][0]["selection"]
+    assert sel["structure"] == "static"
+    assert any(n.startswith("failed: denominator orders 1-2") for n in sel["notes"])
+    assert main(["check", str(tmp_path / "s.toml")]) == 0
