@@ -11,9 +11,14 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from typing import Any
 
 HELP = "validate a model file or a daemon config and print poles, DC gains, sensitivity"
+
+#: without a recorded range, a temperature term's DC gain above this (µm/K) is
+#: out of proportion for a machine tool (steel grows 11.5 µm per metre and kelvin)
+MAX_PLAUSIBLE_UM_PER_K = 50.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -65,6 +70,56 @@ def describe_model(model: Any) -> dict[str, Any]:
                          stable=True, dc_gain=dyn.dc_gain, dc_gain_sensitivity=None)
         terms.append(entry)
     return {"model": model.name, "period_s": model.period_s, "terms": terms}
+
+
+def plausibility(model: Any) -> list[str]:
+    """Warnings about a model that is stable yet implausible: DC gains that
+    cancel, a DC gain out of proportion to the recorded range (the spans
+    `compd fit` writes into the provenance; else a fixed bound per kelvin),
+    negative real poles (a mode that alternates sign every sample)."""
+    from models.identify.checks import PLAUSIBLE_DC_SPAN_RATIO
+    from models.tf import TransferFunction
+
+    prov = dict(getattr(model, "provenance", {}) or {})
+    out_span = prov.get("output_span_um")
+    gains: list[tuple[str, float, float | None]] = []
+    warnings: list[str] = []
+    for t in model.terms:
+        dyn = t.dynamics
+        if not isinstance(dyn, TransferFunction):
+            continue
+        for p in dyn.poles:
+            if abs(p.imag) < 1e-12 and p.real < -1e-9:
+                warnings.append(f"term {t.name!r}: a negative real pole {p.real:.6g}: a mode "
+                                "that alternates sign every sample (not a thermal behaviour)")
+        if t.gain_channel or not t.relative:
+            continue
+        k = float(t.gain) * dyn.dc_gain
+        span = prov.get(f"{t.name}_input_span")
+        gains.append((t.name, k, float(span) if isinstance(span, (int, float)) else None))
+        if isinstance(span, (int, float)) and isinstance(out_span, (int, float)) \
+                and out_span > 0.0:
+            if abs(k) * span > PLAUSIBLE_DC_SPAN_RATIO * out_span:
+                warnings.append(f"term {t.name!r}: DC gain {k:.4g} µm/K over its recorded "
+                                f"span {span:.3g} K is {abs(k) * span:.3g} µm, out of "
+                                f"proportion to the recorded displacement span "
+                                f"{out_span:.3g} µm")
+        elif abs(k) > MAX_PLAUSIBLE_UM_PER_K:
+            warnings.append(f"term {t.name!r}: DC gain {k:.4g} µm/K is out of proportion for "
+                            f"a machine tool (more than {MAX_PLAUSIBLE_UM_PER_K:g} µm/K)")
+    for i, (n1, k1, s1) in enumerate(gains):
+        for n2, k2, s2 in gains[i + 1:]:
+            if k1 * k2 >= 0.0:
+                continue
+            if s1 is not None and s2 is not None and isinstance(out_span, (int, float)):
+                big = abs(k1) * s1 > out_span and abs(k2) * s2 > out_span
+            else:
+                big = min(abs(k1), abs(k2)) > MAX_PLAUSIBLE_UM_PER_K / 2.0
+            if big and abs(k1 + k2) < 0.25 * max(abs(k1), abs(k2)):
+                warnings.append(f"terms {n1!r} and {n2!r} cancel: DC gains {k1:+.4g} and "
+                                f"{k2:+.4g} µm/K predict the small difference of two large "
+                                "terms (a sensor's fault becomes a large offset)")
+    return warnings
 
 
 def _print_text(report: dict[str, Any]) -> None:
@@ -122,11 +177,14 @@ def run(args: argparse.Namespace) -> int:
     except ModelError as exc:
         raise ConfigError("", str(exc)) from None
     report_ = describe_model(loaded)
+    flags = plausibility(loaded)
     if args.json:
         print(json.dumps({"terms": report_["terms"], "model": report_["model"],
-                          "period_s": report_["period_s"]}))
+                          "period_s": report_["period_s"], "implausible": flags}))
     else:
         _print_text(report_)
+    for w in flags:
+        print(f"compd check: warning: {w}", file=sys.stderr)
     return 0
 
 

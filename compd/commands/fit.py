@@ -10,9 +10,9 @@ within the slowest allowed time constant (``--max-time-constant-days``,
 default 3) in the output-error fit and checked again before writing; a DC
 gain absurd for the data is refused (`models.identify.checks`).
 
-- ``--kind tf`` (default): the structure is chosen by blocked
-  cross-validation (``--folds``, `models.identify.structures`): each
-  candidate is trained without a held-out block, run from the record's start
+- ``--kind tf`` (default): the structure is chosen by forward validation
+  (``--folds``, `models.identify.structures`): each candidate is trained on
+  the rows before a held-out block, run from the record's start
   (initial conditions estimated when the records start warm) and scored on
   the block; candidates are the ARX least-squares baseline, one shared
   denominator refined by output error, ridge on the gains over it, and one
@@ -133,7 +133,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="model structure: tf transfer functions (ARX + output error), "
                              "greybox first-order ODEs, mbotv (default tf)")
     parser.add_argument("--structure", choices=STRUCTURE_CHOICES, default="auto",
-                        help="tf structure: auto (default: chosen by blocked cross-validation "
+                        help="tf structure: auto (default: chosen by forward validation "
                              "among arx, shared-oe, ridge, per-term-oe), one of those, or "
                              "search (the greedy per-term output-error order search)")
     parser.add_argument("--folds", type=count(2, MAX_FOLDS), default=None, metavar="K",
@@ -159,7 +159,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", dest="model_file", metavar="MODEL.toml", default=None,
                         help="model file to write (default: the first DATA with .model.toml)")
     parser.add_argument("--force", action="store_true",
-                        help="replace an existing model file (never one of the inputs)")
+                        help="replace an existing model file (never one of the inputs), and "
+                             "write a model whose error on held-out rows exceeds the "
+                             "displacement")
     parser.add_argument("--name", default=None, help="model name (default: from DATA)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON line")
     parser.add_argument("--adaptation", action="store_true",
@@ -247,9 +249,16 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
                    "arx_fit_percent": fit.arx_fit_pct, "oe_fit_percent": fit.oe.fit_pct}
         nums, dens, orders = fit.oe.nums, fit.oe.dens, fit.orders
     else:
-        from compd.offline.fit_select import select_for_fit
+        from compd.offline.fit_select import select_for_fit, worse_than_none
 
-        nums, dens, orders, summary = select_for_fit(args, y, us, seg, radius, holdout)
+        nums, dens, orders, summary = select_for_fit(args, y, us, seg, radius, holdout,
+                                                     [n for n, _ in specs])
+        worse = worse_than_none(summary)
+        if worse is not None and not args.force:
+            raise ModelError(f"{worse}; not written (--force writes it anyway)")
+        if worse is not None:
+            print(f"compd fit: warning: {worse}; written all the same (--force)",
+                  file=sys.stderr)
     y_span = float(np.ptp(y))
     terms: list[Term] = []
     info: list[dict[str, Any]] = []
@@ -261,6 +270,7 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
         info.append({"name": name, "kind": "tf", "inputs": inputs, "relative": rl,
                      "orders": {"numerator_length": nb, "denominator_order": na},
                      "dc_gain_um_per_k": check.dc_gain,
+                     "input_span": float(np.ptp(u)), "output_span_um": y_span,
                      "poles": [abs(p) for p in check.poles],
                      "sensitivity": check.sensitivity,
                      "arx_fit_percent": summary["arx_fit_percent"],
@@ -384,7 +394,10 @@ def _provenance(args: argparse.Namespace, records: list[Record],
             prov[f"{key}_orders"] = (f"numerator {t['orders']['numerator_length']}, "
                                      f"denominator {t['orders']['denominator_order']}")
             prov[f"{key}_dc_gain_um_per_k"] = t["dc_gain_um_per_k"]
-            prov["arx_fit_percent"] = t["arx_fit_percent"]
+            prov[f"{key}_input_span"] = t["input_span"]
+            prov["output_span_um"] = t["output_span_um"]
+            if t["arx_fit_percent"] is not None:  # None: no stable ARX at the orders chosen
+                prov["arx_fit_percent"] = t["arx_fit_percent"]
             prov["oe_fit_percent"] = t["oe_fit_percent"]
             sel = t["selection"]
             prov["structure"] = sel["structure"]

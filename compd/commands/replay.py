@@ -1,11 +1,12 @@
 """`compd replay MODEL DATA --output dz_um [--init estimate|steady|rest]
-[--score-from SECONDS] [--plot out.png] [--json]`
+[--score-from SECONDS] [--score-until SECONDS] [--plot out.png] [--json]`
 
 Runs the model over a recorded run exactly as the daemon steps it (the same
 `CompensationModel.set_references` at the first sample, then `step(sample)`
-once per row) and reports fit %, residue min/max, Δpk and range reduction
-(docs/models.md §11). A model whose sample period differs from the record's is
-refused: its coefficients would mean something else.
+once per row) and reports fit %, the mean absolute and RMS residue (µm), residue
+min/max, Δpk and range reduction (docs/models.md §11). A model whose sample
+period differs from the record's is refused: its coefficients would mean
+something else.
 
 A record rarely starts cold, so the model's starting state is said, never
 assumed silently (``--init``):
@@ -20,7 +21,8 @@ assumed silently (``--init``):
 - ``rest``: every filter at rest at the first sample (the machine cold).
 
 ``--score-from S`` runs the model from the record's start and scores only the
-samples from S seconds on (what a daemon that has been running sees). The
+samples from S seconds on (what a daemon that has been running sees);
+``--score-until U`` stops the scoring at U seconds (a block inside a record). The
 daemon itself starts from its checkpoint, or at steady state (`compd.runtime.startup`).
 """
 
@@ -66,6 +68,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "least squares on the first half of the record), steady, rest")
     parser.add_argument("--score-from", type=number(0.0, 1e9), default=0.0, metavar="SECONDS",
                         help="run from the record's start, score only from this time on")
+    parser.add_argument("--score-until", type=number(0.0, 1e9), default=None,
+                        metavar="SECONDS",
+                        help="score only up to this time (inclusive; with --score-from: a "
+                             "block inside the record)")
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON line")
     replay_probes.add_arguments(parser)
 
@@ -129,6 +135,11 @@ def run(args: argparse.Namespace) -> int:
     from models.errors import ModelError
 
     problem = replay_probes.usage_problem(args)
+    if not problem and args.score_until is not None and args.probe_every is not None:
+        problem = "--score-until goes without --probe-every (the probes score to the end)"
+    if not problem and args.score_until is not None and args.score_until < args.score_from:
+        problem = (f"--score-until {args.score_until:g} s is before --score-from "
+                   f"{args.score_from:g} s")
     if problem:
         print(f"compd replay: {problem}", file=sys.stderr)
         return EX_USAGE
@@ -145,13 +156,22 @@ def run(args: argparse.Namespace) -> int:
         if not (math.isfinite(args.score_from) and 0 <= first < len(record)):
             raise RecordError(f"--score-from {args.score_from:g} s: the record spans 0 … "
                               f"{record.time_s[-1]:g} s")
+        last = len(record) if args.score_until is None else \
+            int(np.searchsorted(record.time_s, args.score_until + 1e-9, side="right"))
+        if last <= first:
+            raise RecordError(f"--score-until {args.score_until:g} s: no sample from "
+                              f"--score-from {args.score_from:g} s up to it (the record spans "
+                              f"0 … {record.time_s[-1]:g} s)")
     except (RecordError, ModelError) as exc:
         print(f"compd replay: {exc}", file=sys.stderr)
         return EX_DATAERR
     probes: ProbeRun | None = None
     extra: dict[str, Any] = {}
     try:
-        q = checked_quality(measured[first:], simulated[first:], record.path, args.output)
+        q = checked_quality(measured[first:last], simulated[first:last], record.path,
+                            args.output)
+        res = measured[first:last] - simulated[first:last]
+        mae, rms = float(np.mean(np.abs(res))), float(np.sqrt(np.mean(res ** 2)))
         if args.probe_every is not None:
             probes, extra = replay_probes.replay(args, model, record, measured, simulated, first)
     except RecordError as exc:
@@ -159,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
         return EX_DATAERR
     from models.diagnostics import flat_window
 
-    flat = flat_window(measured[first:], measured[first:] - simulated[first:])
+    flat = flat_window(measured[first:last], res)
     if flat is not None:
         print(f"compd replay: warning: {flat}", file=sys.stderr)
     if args.plot:
@@ -172,14 +192,16 @@ def run(args: argparse.Namespace) -> int:
                          "figure", force=args.force,
                          inputs=[args.model, args.data])
     if args.json:
-        print(json.dumps({**q.as_dict(), "init": args.init,
-                          "scored_samples": len(record) - first, **extra}))
+        print(json.dumps({**q.as_dict(), "mae_um": mae, "rms_um": rms, "init": args.init,
+                          "scored_samples": last - first, **extra}))
     else:
+        until = f" to {record.time_s[last - 1]:g} s" if args.score_until is not None else ""
         print(f"{model.name} on {record.path} ({len(record)} samples, {record.period_s:g} s; "
-              f"init {args.init}; scored {len(record) - first} from {record.time_s[first]:g} s)")
-        print(f"  fit {q.fit_percent:.2f} %, residue {q.residue_min_um:.3f} … "
-              f"{q.residue_max_um:.3f} µm, Δpk {q.dpk_um:.3f} µm, range reduction "
-              f"{q.range_reduction:.2f}-fold")
+              f"init {args.init}; scored {last - first} from {record.time_s[first]:g} s"
+              f"{until})")
+        print(f"  fit {q.fit_percent:.2f} %, MAE {mae:.3f} µm, RMS {rms:.3f} µm, residue "
+              f"{q.residue_min_um:.3f} … {q.residue_max_um:.3f} µm, Δpk {q.dpk_um:.3f} µm, "
+              f"range reduction {q.range_reduction:.2f}-fold")
         if extra:
             print("\n".join(replay_probes.lines(q, extra, args.probe_every,
                                                  args.probe_noise_um)))

@@ -102,8 +102,13 @@ def search_inputs(args: Any, records: list[Record], ys: list[Any], radius: float
         sys.stderr.write("\n")
     if not found.best:
         raise ModelError("input search failed: no subset of the candidates gives a stable model")
+    if found.rejected:
+        print(f"compd fit: warning: no subset of the candidates gives a plausible model; the "
+              f"best validated is kept for the structure search: {found.rejected}",
+              file=sys.stderr)
     table = [{"inputs": list(t.inputs), "validation_fit_percent": t.validation_fit_pct,
-              "step": t.step} for t in found.tried]
+              "step": t.step, **({"rejected": t.rejected} if t.rejected else {})}
+             for t in found.tried]
     return list(found.best), table
 
 
@@ -114,7 +119,8 @@ def table_lines(table: list[dict[str, Any]], chosen: list[str], limit: int = 12)
     for t in ordered[:limit]:
         mark = "*" if sorted(t["inputs"]) == sorted(chosen) else " "
         out.append(f"   {mark} {t['validation_fit_percent']:8.2f} %  {t['step']:<4}  "
-                   f"{' + '.join(t['inputs'])}")
+                   f"{' + '.join(t['inputs'])}"
+                   + (f"  (rejected: {t['rejected']})" if t.get("rejected") else ""))
     if len(ordered) > limit:
         out.append(f"     … {len(ordered) - limit} more (all in the model file's provenance)")
     return out

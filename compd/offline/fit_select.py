@@ -5,6 +5,7 @@ summary the command prints and writes as provenance."""
 from __future__ import annotations
 
 import argparse
+import math
 from typing import Any
 
 import numpy as np
@@ -12,13 +13,23 @@ import numpy.typing as npt
 
 from models.errors import ModelError
 from models.identify.segments import Segments
-from models.identify.structures import STRUCTURES, Selection, select_structure
+from models.identify.structures import (
+    DEFAULT_VALIDATION,
+    STRUCTURES,
+    Selection,
+    select_structure,
+)
 
 FloatArray = npt.NDArray[np.float64]
 
+#: how `compd fit` names each validation scheme
+VALIDATION_WORDS = {"blocked": "blocked cross-validation",
+                    "forward": "forward validation (each block predicted from the rows before it)",
+                    "both": "blocked and forward validation pooled"}
+
 
 def run_selection(args: argparse.Namespace, y: FloatArray, us: list[FloatArray], seg: Segments,
-                  radius: float, holdout: Any) -> Selection:
+                  radius: float, holdout: Any, names: list[str] | None = None) -> Selection:
     """The selection for `--structure` (auto: every structure)."""
     structures = STRUCTURES if args.structure == "auto" else ("arx", args.structure)
     if args.folds < 2:
@@ -27,9 +38,14 @@ def run_selection(args: argparse.Namespace, y: FloatArray, us: list[FloatArray],
     try:
         return select_structure(y, us, na_range=args.orders, nb_range=args.orders,
                                 segments=seg, radius=radius, folds=args.folds,
-                                structures=structures, holdout=h)
+                                structures=structures, holdout=h, names=names)
     except ValueError as exc:
         raise ModelError(f"identification failed: {exc}") from None
+
+
+def _finite(x: float) -> float | None:
+    """x, or None where JSON and TOML have no value (nan, inf)."""
+    return x if math.isfinite(x) else None
 
 
 def summarise(sel: Selection, forced: str, how: str) -> dict[str, Any]:
@@ -40,8 +56,11 @@ def summarise(sel: Selection, forced: str, how: str) -> dict[str, Any]:
     if forced not in ("auto", "arx"):
         chosen = next((c for c in sel.candidates if c.structure == forced), chosen)
     notes = list(sel.notes) if forced == "auto" else []
+    if chosen.rejected and forced != "auto":
+        notes.append(f"warning: {chosen.structure} is implausible: {chosen.rejected}")
     base = sel.baseline
-    if chosen.validation_fit_pct < base.validation_fit_pct:
+    if base is not None and not base.rejected and \
+            chosen.validation_fit_pct < base.validation_fit_pct:
         notes.append(f"warning: {chosen.structure} validates at {chosen.validation_fit_pct:.2f} "
                      f"%, below the ARX least-squares baseline ({base.validation_fit_pct:.2f} "
                      "%)")
@@ -53,25 +72,39 @@ def summarise(sel: Selection, forced: str, how: str) -> dict[str, Any]:
         "validation": how,
         "validation_fit_percent": chosen.validation_fit_pct,
         "fold_fit_percent": list(chosen.fold_fits),
-        "arx_fit_percent": base.fit_pct,
-        "oe_fit_percent": max(oe_fits) if oe_fits else base.fit_pct,
+        "heldout_rms_um": _finite(chosen.heldout_rms),
+        "displacement_rms_um": _finite(chosen.displacement_rms),
+        "arx_fit_percent": base.fit_pct if base is not None else None,
+        "oe_fit_percent": max(oe_fits) if oe_fits else chosen.fit_pct,
         "candidates": [{"structure": c.structure, "validation_fit_percent":
                         c.validation_fit_pct, "fit_percent": c.fit_pct,
-                        "parameters": c.n_params, **({"detail": c.detail} if c.detail else {})}
+                        "parameters": c.n_params, **({"detail": c.detail} if c.detail else {}),
+                        **({"rejected": c.rejected} if c.rejected else {})}
                        for c in sel.candidates],
         "notes": notes,
         "_model": chosen.model,
     }
 
 
+def worse_than_none(summary: dict[str, Any]) -> str | None:
+    """Why the chosen model must not reach a machine (its residue on rows it
+    was not calibrated on exceeds the displacement itself there), or None."""
+    err, disp = summary.get("heldout_rms_um"), summary.get("displacement_rms_um")
+    if err is None or disp is None or err <= disp:
+        return None
+    return (f"the model's error on rows it was not calibrated on (RMS {err:.3g} µm, "
+            f"{summary['validation']}) exceeds the displacement itself there (RMS {disp:.3g} "
+            "µm): compensation would make the machine worse")
+
+
 def select_for_fit(args: argparse.Namespace, y: FloatArray, us: list[FloatArray],
-                   seg: Segments, radius: float, holdout: Any
+                   seg: Segments, radius: float, holdout: Any, names: list[str] | None = None
                    ) -> tuple[tuple[tuple[float, ...], ...], tuple[tuple[float, ...], ...],
                               tuple[tuple[int, int], ...], dict[str, Any]]:
     """(nums, dens, orders per term, summary) of the chosen structure."""
-    sel = run_selection(args, y, us, seg, radius, holdout)
+    sel = run_selection(args, y, us, seg, radius, holdout, names)
     how = "held-out records" if holdout is not None else \
-        f"blocked cross-validation, {args.folds} folds"
+        f"{VALIDATION_WORDS[DEFAULT_VALIDATION]}, {args.folds} folds"
     summary = summarise(sel, args.structure, how)
     model = summary.pop("_model")
     dens = model.term_dens()
@@ -89,6 +122,11 @@ def selection_lines(summary: dict[str, Any]) -> list[str]:
     for c in summary["candidates"]:
         out.append(f"    {c['structure']:<12} validation {c['validation_fit_percent']:8.2f} %  "
                    f"fit {c['fit_percent']:6.2f} %  {c['parameters']} parameters "
-                   f"{c.get('detail', '')}".rstrip())
+                   f"{c.get('detail', '')}".rstrip()
+                   + (f"  (rejected: {c['rejected']})" if c.get("rejected") else ""))
+    err, disp = summary.get("heldout_rms_um"), summary.get("displacement_rms_um")
+    if err is not None and disp is not None:
+        out.append(f"  on rows it was not calibrated on: residue RMS {err:.3f} µm against the "
+                   f"displacement's {disp:.3f} µm without compensation")
     out += [f"  {n}" for n in summary["notes"]]
     return out

@@ -19,6 +19,9 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
+import numpy.typing as npt
+
 from models.errors import ModelError
 from models.sensitivity import dc_gain_sensitivity
 from models.tf import TransferFunction
@@ -81,3 +84,61 @@ def build_checked_tf(num: Sequence[float], den: Sequence[float], name: str, *,
                 "channel that explains the drift")
     return TfCheck(tf=tf, dc_gain=dc, sensitivity=dc_gain_sensitivity(tf).describe(),
                    poles=poles)
+
+
+#: in selection, a term's steady response to its input's calibration span may
+#: exceed the displacement's span by at most this factor ("out of proportion")
+PLAUSIBLE_DC_SPAN_RATIO = 4.0
+#: inputs correlated at least this much whose terms have opposite-sign,
+#: each larger-than-the-output steady responses cancel each other
+CANCEL_R = 0.99
+
+
+def implausible(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]],
+                inputs: Sequence[npt.NDArray[np.float64]], names: Sequence[str],
+                output_span: float, samples: int) -> str | None:
+    """Why a fitted model is one its own diagnostics reject, or None.
+
+    `dens` holds each input's denominator (a shared one repeated). Rejected:
+
+    - a DC gain out of proportion: |K_i| times input i's span is more than
+      `PLAUSIBLE_DC_SPAN_RATIO` times the displacement's span (ch4 of the
+      real record: +213 µm/K over a 3.1 K span, 660 µm, on a 58 µm output);
+    - cancelling terms: two inputs correlated at |r| >= `CANCEL_R` whose
+      steady responses have opposite signs and each exceed the output span
+      (the model predicts the small difference of two large numbers);
+    - a pole near the unit circle: a time constant longer than the records
+      (|p| > exp(-1 / samples)), which the data cannot determine.
+    """
+    if output_span <= 0.0:
+        return None
+    slow = math.exp(-1.0 / max(samples, 1))
+    responses: list[float] = []
+    for num, den, u, name in zip(nums, dens, inputs, names, strict=True):
+        a = float(np.sum(den))
+        if a == 0.0:
+            return f"{name}: a pole at z = 1 (an integrator)"
+        pole = max((abs(p) for p in np.roots(np.asarray(den, dtype=np.float64))), default=0.0)
+        if pole > slow:
+            return (f"{name}: a pole |p| = {pole:.6f} near the unit circle (time constant "
+                    f"longer than the {samples} samples calibrated on)")
+        k = float(np.sum(num)) / a
+        span = float(np.ptp(np.asarray(u, dtype=np.float64)))
+        if not math.isfinite(k) or abs(k) * span > PLAUSIBLE_DC_SPAN_RATIO * output_span:
+            return (f"{name}: DC gain {k:.4g} per unit over an input span {span:.3g} is "
+                    f"{abs(k) * span:.3g} µm, out of proportion to the displacement's span "
+                    f"{output_span:.3g} µm")
+        responses.append(k)
+    arrays = [np.asarray(u, dtype=np.float64) for u in inputs]
+    for i in range(len(arrays)):
+        for j in range(i + 1, len(arrays)):
+            a_i, a_j = arrays[i], arrays[j]
+            if np.std(a_i) == 0.0 or np.std(a_j) == 0.0:
+                continue
+            r = float(np.corrcoef(a_i, a_j)[0, 1])
+            big = (abs(responses[i]) * float(np.ptp(a_i)) > output_span
+                   and abs(responses[j]) * float(np.ptp(a_j)) > output_span)
+            if abs(r) >= CANCEL_R and responses[i] * responses[j] * r < 0.0 and big:
+                return (f"{names[i]} and {names[j]} cancel: DC gains {responses[i]:+.4g} and "
+                        f"{responses[j]:+.4g} on inputs correlated at r = {r:.3f}")
+    return None

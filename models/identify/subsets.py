@@ -5,8 +5,11 @@ A shop's machine has sensors wherever its builder put them, several nearly
 collinear, some irrelevant. Choosing them by hand over every triple is what
 an engineer does with time to spare; a naive hold-out inside the
 calibration window picks worse ones. Here every subset tried is scored by
-the blocked cross-validation of `models.identify.structures` (run from each
-record's start, held-out blocks scored):
+the forward validation of `models.identify.structures` (run from each
+record's start, each held-out block predicted from the rows before it), and
+a subset whose estimate its own diagnostics reject
+(`models.identify.checks.implausible`) ranks below every plausible one and
+is never chosen:
 
 1. forward: add the candidate whose subset validates best, while that gains
    more than `margin_pct` points and the subset has fewer than `max_terms`;
@@ -43,7 +46,7 @@ import numpy as np
 import numpy.typing as npt
 
 from models.identify.segments import Segments
-from models.identify.structures import DEFAULT_FOLDS, order_search_score
+from models.identify.structures import DEFAULT_FOLDS, DEFAULT_VALIDATION, order_search_result
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -78,6 +81,13 @@ class Tried:
     inputs: tuple[str, ...]
     validation_fit_pct: float
     step: str
+    #: why the subset's model is implausible (never chosen), or ""
+    rejected: str = ""
+
+    @property
+    def rank(self) -> float:
+        """The figure the search compares: -inf for a rejected subset."""
+        return -np.inf if self.rejected else self.validation_fit_pct
 
 
 @dataclass(frozen=True)
@@ -85,12 +95,14 @@ class SubsetSearch:
     best: tuple[str, ...]
     best_fit_pct: float
     tried: tuple[Tried, ...]
+    #: why even the best subset is implausible (no plausible one found), or ""
+    rejected: str = ""
 
 
 def search_subsets(y: FloatArray, candidates: Mapping[str, FloatArray], *, max_terms: int,
                    na_range: tuple[int, int], nb_range: tuple[int, int],
                    segments: Segments | None = None, radius: float = 1.0,
-                   folds: int = DEFAULT_FOLDS,
+                   folds: int = DEFAULT_FOLDS, validation: str = DEFAULT_VALIDATION,
                    margin_pct: float = 0.5,
                    progress: Callable[[int, int], None] | None = None) -> SubsetSearch:
     """Forward selection with backward pruning (module docstring).
@@ -116,10 +128,11 @@ def search_subsets(y: FloatArray, candidates: Mapping[str, FloatArray], *, max_t
         key = frozenset(subset)
         if key not in cache:
             order = tuple(n for n in names if n in key)
-            val = order_search_score(y, [candidates[n] for n in order], na_range=na_range,
-                                     nb_range=nb_range, segments=seg, radius=radius,
-                                     folds=folds)
-            cache[key] = Tried(order, float(val), step)
+            val, why = order_search_result(y, [candidates[n] for n in order],
+                                           na_range=na_range, nb_range=nb_range, segments=seg,
+                                           radius=radius, folds=folds, validation=validation,
+                                           names=order)
+            cache[key] = Tried(order, float(val), step, why or "")
             tried.append(cache[key])
             if progress is not None:
                 progress(len(tried), max(planned, len(tried)))
@@ -129,27 +142,33 @@ def search_subsets(y: FloatArray, candidates: Mapping[str, FloatArray], *, max_t
     best = Tried((), -np.inf, "")
     while len(current) < min(max_terms, len(names)):
         trials = [score([*current, n], "add") for n in names if n not in current]
-        top = max(trials, key=lambda t: t.validation_fit_pct)
-        if current and not top.validation_fit_pct > best.validation_fit_pct + margin_pct:
+        top = max(trials, key=lambda t: (t.rank, t.validation_fit_pct))
+        if current and not top.rank > best.rank + margin_pct:
             break
         added = next(n for n in top.inputs if n not in current)
         current, best = list(top.inputs), top
         while len(current) >= 3:
             drops = [score([n for n in current if n != m], "drop")
                      for m in current if m != added]
-            fewer = max(drops, key=lambda t: t.validation_fit_pct)
-            if fewer.validation_fit_pct < best.validation_fit_pct - margin_pct:
+            fewer = max(drops, key=lambda t: t.rank)
+            if not fewer.rank >= best.rank - margin_pct:
                 break
             current, best = list(fewer.inputs), fewer
     for _ in range(MAX_SWAP_ROUNDS):
         swaps = [score([n for n in current if n != m] + [o], "swap")
                  for m in current for o in names if o not in current]
-        top = max(swaps, key=lambda t: t.validation_fit_pct, default=best)
-        if not top.validation_fit_pct > best.validation_fit_pct + SWAP_GAIN_PCT:
+        top = max(swaps, key=lambda t: t.rank, default=best)
+        if not top.rank > best.rank + SWAP_GAIN_PCT:
             break
         current, best = list(top.inputs), top
-    # the simplest within the margin of the best: fewest inputs, then the best
-    near = [t for t in tried if t.validation_fit_pct >= best.validation_fit_pct - margin_pct]
-    best = min(near, key=lambda t: (len(t.inputs), -t.validation_fit_pct), default=best)
+    # the simplest within the margin of the best plausible: fewest inputs,
+    # then the best; a subset its own diagnostics reject is never chosen
+    plausible = [t for t in tried if not t.rejected and np.isfinite(t.rank)]
+    if plausible:
+        top_rank = max(t.rank for t in plausible)
+        near = [t for t in plausible if t.rank >= top_rank - margin_pct]
+        best = min(near, key=lambda t: (len(t.inputs), -t.rank))
+    else:  # nothing plausible: the best validated, its rejection said by the caller
+        best = max(tried, key=lambda t: t.validation_fit_pct, default=best)
     return SubsetSearch(best=best.inputs, best_fit_pct=best.validation_fit_pct,
-                        tried=tuple(tried))
+                        tried=tuple(tried), rejected=best.rejected)

@@ -46,6 +46,39 @@ def fold_masks(seg: Segments, k: int) -> list[BoolArray]:
     return out
 
 
+def forward_masks(seg: Segments, k: int) -> list[tuple[BoolArray, BoolArray]]:
+    """(training rows, held-out rows) of `k` forward folds: the held-out
+    blocks of `fold_masks`, each trained only on the rows of its record that
+    come *before* it (rolling origin). A model is used on what follows its
+    calibration, under speeds and rooms it has not seen; training on the rows
+    after a block lets a candidate interpolate a regime it will have to
+    extrapolate (the real record's ch4: 91.8 % on blocked folds, 70.8 % on the
+    day that followed)."""
+    held = fold_masks(seg, k)
+    out: list[tuple[BoolArray, BoolArray]] = []
+    for val in held:
+        train = np.zeros(seg.total, dtype=bool)
+        for s, e in seg.bounds:
+            hit = np.flatnonzero(val[s:e])
+            if hit.size:
+                train[s:s + int(hit[0])] = True
+        out.append((train, val))
+    return out
+
+
+def split_masks(seg: Segments, k: int, scheme: str) -> list[tuple[BoolArray, BoolArray]]:
+    """(training, held-out) rows per fold of a validation `scheme`: ``blocked``
+    (train on every other block), ``forward`` (`forward_masks`) or ``both``
+    (the two sets of folds pooled)."""
+    if scheme == "blocked":
+        return [(~v, v) for v in fold_masks(seg, k)]
+    if scheme == "forward":
+        return forward_masks(seg, k)
+    if scheme == "both":
+        return [(~v, v) for v in fold_masks(seg, k)] + forward_masks(seg, k)
+    raise ValueError(f"unknown validation scheme {scheme!r}; known: blocked, forward, both")
+
+
 def forced_response(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]],
                     groups: Sequence[Sequence[int]], inputs: Sequence[FloatArray],
                     seg: Segments) -> FloatArray:

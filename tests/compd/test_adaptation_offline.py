@@ -73,8 +73,12 @@ def shop_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
                  "ambient+3K,heat+30%", "--change-at-h", "24"]) == 0
     lines = (d / "plain.csv").read_text().splitlines()
     (d / "day1.csv").write_text("\n".join(lines[:len(lines) // 2 + 1]) + "\n")
+    # shared-oe pinned: the model these figures were measured with (t03 and t05
+    # cancel in it, so the changed day shows a mismatch to learn); since issue 19
+    # the fit rejects that one and chooses ridge, 88.5 % on the changed day unadapted
     assert main(["fit", str(d / "day1.csv"), "--column", "dz_um", "--term", "t03_degC",
-                 "--term", "t05_degC", "--term", "t11_degC", "-o", str(d / "m.toml")]) == 0
+                 "--term", "t05_degC", "--term", "t11_degC", "--structure", "shared-oe",
+                 "-o", str(d / "m.toml")]) == 0
     return {"plain": d / "plain.csv", "changed": d / "changed.csv", "model": d / "m.toml",
             "day1": d / "day1.csv"}
 
@@ -92,7 +96,7 @@ def test_replay_reports_adapted_and_crude_beside_the_plain_figures(
     plain = _replay(capsys, shop_run["model"], shop_run["changed"])
     both = _replay(capsys, shop_run["model"], shop_run["changed"], "--probe-every", "7200",
                    "--probe-noise-um", "0.5")
-    keys = set(plain) - {"init", "scored_samples"}
+    keys = set(plain) - {"init", "scored_samples", "mae_um", "rms_um"}
     assert {k: both[k] for k in plain} == plain  # the plain figures are unchanged
     adapted, crude = both["adapted"], both["crude"]
     assert isinstance(adapted, dict) and isinstance(crude, dict)

@@ -27,7 +27,7 @@ def test_the_choice_is_printed_with_its_runners_up(sp3: tuple[Path, Path], tmp_p
     assert main(["fit", str(sp3[0]), "--column", "dz_um", "--term", "spindle=bearing",
                  "--term", "ambient", "--orders", "1-2", "-o", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "blocked cross-validation, 4 folds" in text
+    assert "forward validation (each block predicted from the rows before it), 4 folds" in text
     for name in ("arx", "shared-oe", "ridge", "per-term-oe"):
         assert f"    {name}" in text
     prov = load_model(out).provenance

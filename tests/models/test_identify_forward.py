@@ -1,0 +1,113 @@
+"""Issue 19 (b): selection by what comes next, never a model its own
+diagnostics reject, and a model for every channel (a first-order or static
+fallback, the failures said). On the real record (tests/data/fl_thermal),
+short: one channel, a few inputs, low orders."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.signal import lfilter
+
+from models.identify.checks import implausible
+from models.identify.segments import Segments, pole_radius
+from models.identify.structures import select_structure
+from models.identify.subsets import decimate, search_subsets
+from models.identify.validate import forward_masks, split_masks
+
+RECORD = Path(__file__).resolve().parent.parent / "data" / "fl_thermal" / "calibration.csv"
+#: the forward split's calibration rows (20.1 h at 15 s)
+N_CAL = 4824
+
+
+@pytest.fixture(scope="module")
+def record() -> dict[str, np.ndarray]:
+    with RECORD.open() as f:
+        head = f.readline().strip().split(",")
+    data = np.loadtxt(RECORD, delimiter=",", skiprows=1, max_rows=N_CAL)
+    return {n: data[:, i] for i, n in enumerate(head)}
+
+
+def _rel(d: dict[str, np.ndarray], name: str) -> np.ndarray:
+    return d[name] - d[name][0]
+
+
+def test_forward_folds_train_only_on_rows_before_the_held_out_block() -> None:
+    seg = Segments.from_lengths([9, 6])
+    folds = forward_masks(seg, 2)
+    assert [np.flatnonzero(v).tolist() for _, v in folds] == [[3, 4, 5, 11, 12],
+                                                            [6, 7, 8, 13, 14]]
+    assert [np.flatnonzero(t).tolist() for t, _ in folds] == [[0, 1, 2, 9, 10],
+                                                            [0, 1, 2, 3, 4, 5, 9, 10, 11, 12]]
+    assert len(split_masks(seg, 2, "both")) == 4
+    with pytest.raises(ValueError, match="unknown validation scheme 'sideways'"):
+        split_masks(seg, 2, "sideways")
+
+
+def test_cancelling_and_disproportionate_gains_are_named() -> None:
+    t = np.linspace(0.0, 3.0, 200)
+    twin = t + 0.001 * np.sin(np.arange(200))
+    den = (1.0, -0.5)
+    # +23.6 and -15.5 µm/K on inputs correlated at r ≈ 1 over 3 K, a 20 µm output
+    why = implausible([(11.8,), (-7.75,)], [den, den], [t, twin], ["a", "b"], 20.0, 200)
+    assert why is not None and "a and b cancel" in why
+    why = implausible([(100.0,)], [den], [t], ["a"], 20.0, 200)
+    assert why is not None and "a: DC gain 200" in why and "out of proportion" in why
+    why = implausible([(0.001,)], [(1.0, -0.9999)], [t], ["a"], 20.0, 200)
+    assert why is not None and "near the unit circle" in why
+    assert implausible([(5.0,)], [den], [t], ["a"], 20.0, 200) is None
+
+
+def test_the_issues_cancelling_triple_is_never_chosen(record: dict[str, np.ndarray]) -> None:
+    """ch4 on t2, t4, t15 (the inputs that gave -36 and +213 µm/K): whatever
+    structure is chosen, its steady responses are in proportion to the output."""
+    names = ["t2_degC", "t4_degC", "t15_degC"]
+    seg = Segments.single(N_CAL)
+    q = 4
+    y = decimate(record["ch4_um"], seg, q)
+    us = [decimate(_rel(record, n), seg, q) for n in names]
+    radius = pole_radius(15.0 * q, 3 * 86400.0)
+    sel = select_structure(y, us, na_range=(1, 2), nb_range=(1, 2), radius=radius, names=names)
+    m = sel.chosen.model
+    assert not sel.chosen.rejected
+    assert implausible(m.nums, m.term_dens(), us, names, float(np.ptp(y)), y.size) is None
+    dens = m.term_dens()
+    for num, den, u in zip(m.nums, dens, us, strict=True):
+        assert abs(sum(num) / sum(den)) * float(np.ptp(u)) <= 4.0 * float(np.ptp(y))
+
+
+def test_the_subset_search_never_chooses_what_it_rejects(record: dict[str, np.ndarray]
+                                                         ) -> None:
+    names = ["t2_degC", "t4_degC", "t15_degC", "t1_degC"]
+    found = search_subsets(record["ch4_um"], {n: _rel(record, n) for n in names}, max_terms=3,
+                           na_range=(1, 2), nb_range=(1, 2),
+                           radius=pole_radius(15.0, 3 * 86400.0))
+    chosen = next(t for t in found.tried if set(t.inputs) == set(found.best))
+    assert not chosen.rejected and not found.rejected
+    assert any(t.rejected for t in found.tried)  # there was something to reject
+
+
+def test_every_channel_fits_a_static_model_when_no_dynamic_order_can() -> None:
+    """Poles limited to a time constant far below the data's: every ARX order
+    and the first-order fallback fail, the static model fits, the failures
+    are said."""
+    rng = np.random.default_rng(3)
+    u = np.repeat(rng.uniform(0.0, 3.0, 40), 50)
+    y = lfilter([0.02], [1.0, -0.99], u) * 50.0 + 0.05 * rng.standard_normal(u.size)
+    sel = select_structure(y, [u], na_range=(1, 3), nb_range=(1, 3), radius=1e-3,
+                           names=["t1"])
+    assert sel.chosen.structure == "static" and sel.fallback
+    assert any("failed: denominator orders 1-3" in n for n in sel.notes)
+    assert any(n.startswith("failed: first order") for n in sel.notes)
+    assert sel.chosen.model.dens == ((1.0,),)
+
+
+def test_nothing_fits_says_why() -> None:
+    """Three rows for three static parameters: no fold can be trained."""
+    u = np.array([0.0, 1.0, 2.0])
+    with pytest.raises(ValueError, match=r"nothing could be fitted: denominator orders 1-2.*"
+                                         r"static: static not validated"):
+        select_structure(np.array([0.0, 1.0, 3.0]), [u, u ** 2], na_range=(1, 2),
+                         nb_range=(1, 2), radius=1e-3, folds=2)
