@@ -1,4 +1,4 @@
-"""`compd fit DATA [DATA…] --output dz_um --term bearing --term ambient [...]`
+"""`compd fit DATA [DATA…] --column dz_um --term bearing --term ambient [...]`
 
 Identifies a compensation model from calibration records and writes a model
 file (docs/models.md §2, §5, §6). Several records (e.g. a heat-up/cool-down and an
@@ -366,7 +366,7 @@ def _provenance(args: argparse.Namespace, records: list[Record],
         "tool": "compd fit",
         "compd_version": __version__,
         "command_line": shlex.join(["compd", *sys.argv[1:]]) if sys.argv[1:2] == ["fit"]
-        else "compd fit " + shlex.join([*args.data, "--output", args.output]),
+        else "compd fit " + shlex.join([*args.data, "--column", args.output]),
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
         "data_file": str(args.data[0]),
         "data_sha256": records[0].sha256,
