@@ -120,6 +120,15 @@ class SteppedClock(FakeClock):
         """Sleeps begun and not yet ended."""
         return sum(1 for _, fut in self._sleepers if not fut.done())
 
+    def due(self, at_s: float | None = None) -> int:
+        """How many of the sleeps not yet ended a move to `at_s` would end
+        (default: the next `tick`): with several sleepers on one clock (the
+        machines of `compd run DIR`), how many cycles that move starts."""
+        if at_s is None:
+            at_s = self.start_s + (self.ticks + 1) * self.period_s
+        return sum(1 for due, fut in self._sleepers
+                   if due <= at_s + _SLACK_S and not fut.done())
+
     async def sleep(self, seconds: float) -> None:
         """Return when the clock reads at least now + `seconds` (at once if <= 0)."""
         if seconds <= _SLACK_S:
