@@ -70,7 +70,7 @@ async def test_foreign_offset_is_held_then_ramped_from(rec: RecordingSim,
         await _foreign_write(port, 0.0)  # an operator clears the register
         await until(lambda: len(rec.writes) > cleared_at + 10, proc, log, "writing again")
         proc.terminate()
-        assert await asyncio.wait_for(proc.wait(), 20.0) == 0, await asyncio.to_thread(
+        assert await asyncio.wait_for(proc.wait(), 120.0) == 0, await asyncio.to_thread(
             tail, log)
     finally:
         await kill_and_wait(proc)
@@ -112,7 +112,7 @@ async def test_start_up_with_a_foreign_offset_beyond_the_limit_holds(
         await _foreign_write(int(rec.sim.endpoint.rsplit(":", 1)[1]), -90.0)
         await until(lambda: len(rec.writes) > 5, proc, log, "writing again")
         proc.terminate()
-        assert await asyncio.wait_for(proc.wait(), 20.0) == 0
+        assert await asyncio.wait_for(proc.wait(), 120.0) == 0
     finally:
         await kill_and_wait(proc)
     ramp = rec.offsets[1:]
