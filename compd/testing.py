@@ -20,7 +20,8 @@ sockets, no patching of the event loop.
   moves the clock to its next deadline. `cycle_done(n)` waits (on an event,
   never on wall time) until the daemon is asleep again, so a test steps it
   one cycle at a time, in lockstep with whatever else it steps, and a slow
-  machine only makes the test slower::
+  machine only makes the test slower (several daemons may share one clock:
+  `due()` says how many sleepers the next tick wakes)::
 
       clock = SteppedClock(period_s=60.0)
       task = asyncio.create_task(Daemon(cfg, clock=clock, sleep=clock.sleep).run())
