@@ -98,14 +98,14 @@ async def test_kill_9_and_restart_resume_without_a_jump(rec: _Recorded, tmp_path
     try:
         await _until(rec.sim, "heartbeat", lambda v: v >= 5, proc, log)
         await rec.sim.publish({"bearing": 22.5})  # the model wants ≈ +40 µm
-        await _until(rec.sim, "offset", lambda v: v >= 15.0, proc, log)
+        await _until(rec.sim, "offset", lambda v: v >= 6.0, proc, log)
         proc.send_signal(signal.SIGKILL)
         assert await proc.wait() == -signal.SIGKILL
         killed_at = rec.offsets[-1]
         await asyncio.sleep(0.2)  # the controller keeps the offset meanwhile
 
         proc = await _start(config, log)
-        await _until(rec.sim, "offset", lambda v: v >= killed_at + 10.0, proc, log)
+        await _until(rec.sim, "offset", lambda v: v >= killed_at + 4.0, proc, log)
         proc.send_signal(signal.SIGTERM)
         assert await asyncio.wait_for(proc.wait(), 120.0) == 0
     finally:
