@@ -20,7 +20,8 @@ sockets, no patching of the event loop.
   moves the clock to its next deadline. `cycle_done(n)` waits (on an event,
   never on wall time) until the daemon is asleep again, so a test steps it
   one cycle at a time, in lockstep with whatever else it steps, and a slow
-  machine only makes the test slower::
+  machine only makes the test slower (several daemons may share one clock:
+  `due()` says how many sleepers the next tick wakes)::
 
       clock = SteppedClock(period_s=60.0)
       task = asyncio.create_task(Daemon(cfg, clock=clock, sleep=clock.sleep).run())
@@ -119,6 +120,15 @@ class SteppedClock(FakeClock):
     def sleeping(self) -> int:
         """Sleeps begun and not yet ended."""
         return sum(1 for _, fut in self._sleepers if not fut.done())
+
+    def due(self, at_s: float | None = None) -> int:
+        """How many of the sleeps not yet ended a move to `at_s` would end
+        (default: the next `tick`): with several sleepers on one clock (the
+        machines of `compd run DIR`), how many cycles that move starts."""
+        if at_s is None:
+            at_s = self.start_s + (self.ticks + 1) * self.period_s
+        return sum(1 for due, fut in self._sleepers
+                   if due <= at_s + _SLACK_S and not fut.done())
 
     async def sleep(self, seconds: float) -> None:
         """Return when the clock reads at least now + `seconds` (at once if <= 0)."""

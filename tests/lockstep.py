@@ -48,7 +48,7 @@ from drivers.sim.machine import SimMachine
 from models import tomltext
 from tests.faults.daemon_rig import EventLog
 
-__all__ = ["Lockstep", "lockstep_config"]
+__all__ = ["Fleetstep", "Lockstep", "lockstep_config"]
 
 #: real seconds the driver may wait for one request and for the connection: a
 #: loaded test machine answers late, never "not at all" (a lockstep run does not
@@ -217,3 +217,33 @@ class Lockstep:
         """After a failure: drop a daemon still running (as `kill9`)."""
         if self.running:
             await self.kill9()
+
+
+class Fleetstep:
+    """Several daemons on one `SteppedClock` (the machines of `compd run DIR`,
+    `compd.runtime.fleet.Fleet(..., clock=clock, sleep=clock.sleep)`), stepped
+    together: each `step` moves the clock one period and returns once every
+    daemon that move woke has run its cycle and sleeps again (an event, never
+    a timeout). Servers between them are the test's (it stops, starts them)."""
+
+    def __init__(self, clock: SteppedClock, task: asyncio.Future[Any]) -> None:
+        self.clock = clock
+        #: the fleet's `run()`: its end (or error) ends any wait
+        self.task = task
+
+    async def until_asleep(self, n: int) -> None:
+        """Until `n` sleeps have begun on the clock (since it was made)."""
+        waiter = asyncio.ensure_future(self.clock.cycle_done(n))
+        done, _ = await asyncio.wait({waiter, self.task}, return_when=asyncio.FIRST_COMPLETED)
+        if waiter in done:
+            return
+        waiter.cancel()
+        await asyncio.gather(waiter, return_exceptions=True)
+        rc = self.task.result()  # raises what the fleet raised
+        raise DaemonEnded(f"the fleet ended (status {rc}) during a cycle")
+
+    async def step(self, periods: int = 1) -> None:
+        for _ in range(periods):
+            n = self.clock.sleeps + self.clock.due()
+            self.clock.tick()
+            await self.until_asleep(n)

@@ -38,7 +38,7 @@ import asyncio
 import contextlib
 import signal
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
@@ -156,8 +156,14 @@ class Fleet:
 
     def __init__(self, configs: list[LoadedConfig], *, dry_run: bool = False,
                  notifier: Notifier | None = None,
-                 drivers: dict[str, Driver] | None = None) -> None:
+                 drivers: dict[str, Driver] | None = None,
+                 clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], Awaitable[object]] | None = None) -> None:
         self.configs = {c.raw.machine.name: c for c in configs}
+        #: every machine's clock and sleep (`Daemon`'s; a test steps them all in
+        #: lockstep with one `compd.testing.SteppedClock`)
+        self.clock = clock
+        self.sleep = sleep
         #: drivers built (and so checked) before the start; a restart builds a fresh one
         self._drivers = dict(drivers or {})
         self.dry_run = dry_run
@@ -255,7 +261,8 @@ class Fleet:
                 await asyncio.wait_for(self.stopping.wait(), delay_s)
         while not self.stopping.is_set():
             daemon = FleetDaemon(self.configs[name], dry_run=self.dry_run,
-                                 driver=self._drivers.pop(name, None))
+                                 driver=self._drivers.pop(name, None), clock=self.clock,
+                                 sleep=self.sleep)
             self.daemons[name] = daemon
             started = time.monotonic()
             running.set(1)

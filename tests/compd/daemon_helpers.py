@@ -66,8 +66,9 @@ def write_config(tmp_path: Path, endpoint: str, *, time_scale: float = 50.0,
     return p
 
 
-async def until(predicate: object, limit: int = 2000) -> None:
-    """Wait (5 ms steps, at most `limit`) until `predicate()` is true."""
+async def until(predicate: object, limit: int = 24_000) -> None:
+    """Wait (5 ms steps, at most `limit`: 2 min) until `predicate()` is true; the
+    bound is generous so that a loaded machine makes a test slower, never red."""
     for _ in range(limit):
         if predicate():  # type: ignore[operator]
             return

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 import re
 import signal
 import sys
@@ -89,6 +90,28 @@ def test_in_process_drives_an_s7_cpu(tmp_path: Path, capsys: pytest.CaptureFixtu
         asyncio.run(sim.stop())
 
 
+async def _loop_closed(drive: Any, daemon: asyncio.subprocess.Process, beats: int,
+                       limit_s: float = 120.0) -> None:
+    """Until the daemon's heartbeat, read back by the drive loop, has advanced
+    `beats` times and the last row shows the loop closed (status OK, a positive
+    offset); polled, bounded only by a generous limit: a loaded machine (the
+    daemon's process slow to start) makes this slower, never red."""
+    seen: list[float] = []
+    for _ in range(int(limit_s / 0.01)):
+        row = drive.latest
+        beat = row.get("heartbeat", math.nan)
+        if math.isfinite(beat) and beat > 0 and (not seen or beat != seen[-1]):
+            seen.append(beat)
+        if (len(seen) > beats and int(row["status"]) & 1  # Status.OK
+                and row["offset_um"] > 0.0):
+            return
+        if daemon.returncode is not None:
+            raise AssertionError(f"compd run ended ({daemon.returncode}) early")
+        await asyncio.sleep(0.01)
+    raise AssertionError(f"the loop never closed: heartbeats seen {seen[-5:]}, "
+                         f"last row {drive.latest}")
+
+
 async def test_the_daemon_closes_the_loop_through_the_controller(tmp_path: Path) -> None:
     """`compd sim --no-plant` (the stand-in PLC), `compd run` on the bench
     config, and the drive loop: the daemon's offset reaches the plant and its
@@ -101,26 +124,25 @@ async def test_the_daemon_closes_the_loop_through_the_controller(tmp_path: Path)
     text = (HIL / "modbus.toml").read_text()
     text = text.replace("modbus://127.0.0.1:15020", sim.endpoint)
     text = text.replace('dir = "/tmp/compd-hil-modbus"', f'dir = "{tmp_path / "state"}"')
-    text = re.sub(r"time_scale = 10\.0", "time_scale = 20.0", text)
-    text = text.replace("timeout_s = 0.04", "timeout_s = 0.02")
+    # the bench config as shipped (10x, a 40 ms request timeout): a late answer
+    # on a loaded machine holds a cycle, it does not break the loop
     config = tmp_path / "modbus.toml"
     config.write_text(text)
     drive_map = load_drive_map(HIL / "maps" / "modbus.toml")
     drive = DriveLoop(open_drive_driver(sim.endpoint, drive_map), drive_map,
-                      program=constant(9_000.0, 1.0, 1.0), speedup=20.0, record=True)
+                      program=constant(9_000.0, 1.0, 1.0), speedup=10.0, record=True)
     daemon = await _compd(tmp_path, "run", str(config), name="run")
     try:
-        await drive.run(until_s=60.0)  # 3 s of real time
+        drive.start()
+        await _loop_closed(drive, daemon, beats=10)
     finally:
+        await drive.stop()
         if daemon.returncode is None:
             daemon.send_signal(signal.SIGTERM)
-        rc = await asyncio.wait_for(daemon.wait(), 20.0)
+        rc = await asyncio.wait_for(daemon.wait(), 60.0)
         await sim.stop()
     assert rc == 0, (tmp_path / "run.stderr").read_text()
     rows = drive.history
-    beats = [r["heartbeat"] for r in rows[-20:]]
-    assert beats[-1] > beats[0] > 0  # the daemon's heartbeat advances
-    assert int(rows[-1]["status"]) & 1  # Status.OK
     assert rows[-1]["offset_um"] > 0.0  # the spindle heats: the model asks for a positive offset
     assert all(r["error_um"] == pytest.approx(r["growth_um"] - r["offset_um"]) for r in rows)
     assert drive.link_errors == 0

@@ -67,7 +67,7 @@ async def face_daemon(tmp_path: Path, sim: ModbusSimController, face: str,
         yield daemon
     finally:
         daemon.request_stop()
-        assert await asyncio.wait_for(task, 20.0) == 0
+        assert await asyncio.wait_for(task, 120.0) == 0
         await release_all()
 
 
@@ -97,8 +97,9 @@ async def _value(machine: object, idx: int, *path: str) -> object:
 
 
 async def _becomes(machine: object, idx: int, path: tuple[str, ...], expected: object,
-                   tries: int = 400) -> None:
-    """The face writes between cycles on its own thread: poll until it shows `expected`."""
+                   tries: int = 12_000) -> None:
+    """The face writes between cycles on its own thread: poll until it shows
+    `expected` (at most 2 min: a loaded machine is slower, never red)."""
     for _ in range(tries):
         if await _value(machine, idx, *path) == expected:
             return
@@ -117,7 +118,7 @@ async def test_the_namespace_follows_the_cycle_and_is_read_only(
             await _becomes(machine, idx, ("Channels", "bearing", "Value"), 20.0)
             await _becomes(machine, idx, ("Channels", "bearing", "Valid"), True)
             beat = await _value(machine, idx, "Heartbeat")
-            for _ in range(400):  # updated per cycle
+            for _ in range(12_000):  # updated per cycle
                 if await _value(machine, idx, "Heartbeat") != beat:
                     break
                 await asyncio.sleep(0.01)
@@ -301,7 +302,7 @@ async def test_machines_of_one_process_share_one_server(tmp_path: Path) -> None:
                     == fleet.daemons[name].cfg.model_sha256
     finally:
         fleet.request_stop()
-        assert await asyncio.wait_for(task, 20.0) == 0
+        assert await asyncio.wait_for(task, 120.0) == 0
         await release_all()
         for sim in sims:
             await sim.stop()

@@ -1,8 +1,13 @@
-"""SIGHUP reload of `compd run` against the simulated Modbus controller: a
-valid new config (another model, another slew) is swapped in between two
-cycles and hands over under the slew limit; a broken one is refused with the
-key while the old config keeps running; a HUP in the middle of cycles never
-costs a cycle (the overruns counted by the daemon are the cycles missed)."""
+"""SIGHUP reload of `compd run` (a real process, real signals, real time) against
+the simulated Modbus controller: a valid new config (another model, another
+slew) is swapped in and hands over under the slew limit; a broken one is
+refused with the key while the old config keeps running; a storm of HUPs is
+served, every one.
+
+These assert only what a loaded machine cannot change (the swap, the slew
+bound, the exit status), never a count of missed deadlines: that a reload
+never costs a cycle is tested deterministically, in lockstep, in
+test_reload_lockstep.py."""
 
 from __future__ import annotations
 
@@ -26,6 +31,20 @@ def _events(log: Path, name: str) -> list[dict[str, object]]:
     return out
 
 
+async def _until_logged(log: Path, name: str, proc: asyncio.subprocess.Process,
+                        count: int = 1, limit_s: float = 120.0) -> None:
+    """Until the daemon logged `name` `count` times: polled on a condition, bounded
+    only by a generous limit (a loaded machine makes this slower, never red)."""
+    for _ in range(int(limit_s / 0.01)):
+        if len(await asyncio.to_thread(_events, log, name)) >= count:
+            return
+        if proc.returncode is not None:
+            break
+        await asyncio.sleep(0.01)
+    text = await asyncio.to_thread(log.read_text)
+    raise AssertionError(f"{name} not logged {count} time(s); log:\n{text}")
+
+
 async def _stop(proc: asyncio.subprocess.Process) -> int:
     proc.send_signal(signal.SIGTERM)
     return await asyncio.wait_for(proc.wait(), 20.0)
@@ -33,24 +52,24 @@ async def _stop(proc: asyncio.subprocess.Process) -> int:
 
 async def test_hup_swaps_in_another_model_under_the_slew_limit(
         rec: _Recorded, tmp_path: Path) -> None:  # noqa: F811
-    config = write_config(tmp_path, rec.sim.endpoint, slew_um_s=SLEW_UM_S)
+    # a 100 ms real period and a 50 ms request timeout: a loaded machine's late
+    # answers are not read failures (which would hold the offset)
+    config = write_config(tmp_path, rec.sim.endpoint, slew_um_s=SLEW_UM_S, time_scale=10.0,
+                          timeout_s=0.05)
     log = tmp_path / "daemon.log"
     proc = await _start(config, log)
     try:
         await _until(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
         await rec.sim.publish({"bearing": 22.5})  # sp2 wants ≈ +40 µm
-        await _until(rec.sim, "offset", lambda v: v >= 10.0, proc, log)
+        await _until(rec.sim, "offset", lambda v: v >= 4.0, proc, log)
         # another model: sp3 (same channels), and a slower slew limit
         config.write_text(config.read_text().replace('file = "sp2"', 'file = "sp3"')
                           .replace(f"slew_um_s = {SLEW_UM_S}", "slew_um_s = 0.5"))
-        at_hup = len(rec.offsets)
         proc.send_signal(signal.SIGHUP)
-        for _ in range(2000):
-            if _events(log, "reload_succeeded"):
-                break
-            await asyncio.sleep(0.01)
+        await _until_logged(log, "reload_succeeded", proc)
+        swapped = len(rec.offsets)  # every write from here on is the new config's
         beat = (await rec.sim.outputs())["heartbeat"]
-        await _until(rec.sim, "heartbeat", lambda v: v >= beat + 10, proc, log)
+        await _until(rec.sim, "heartbeat", lambda v: v >= beat + 6, proc, log)
         assert await _stop(proc) == 0
     finally:
         if proc.returncode is None:
@@ -62,10 +81,10 @@ async def test_hup_swaps_in_another_model_under_the_slew_limit(
     # never a jump: every step within the (old, then new) slew limit
     steps = [abs(b - a) for a, b in itertools.pairwise(rec.offsets)]
     assert max(steps) <= 2 * SLEW_UM_S * 1.0 + 1e-3
-    after = [abs(b - a) for a, b in itertools.pairwise(rec.offsets[at_hup + 3:])]
+    after = [abs(b - a) for a, b in itertools.pairwise(rec.offsets[swapped + 1:])]
     assert after and max(after) <= 2 * 0.5 + 1e-3
     (stopped,) = _events(log, "daemon_stopped")
-    assert stopped["reloads"] == 1 and stopped["overruns"] == 0  # no cycle missed
+    assert stopped["reloads"] == 1
 
 
 async def test_hup_with_a_broken_config_keeps_the_old_one(
@@ -78,19 +97,13 @@ async def test_hup_with_a_broken_config_keeps_the_old_one(
         await _until(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
         config.write_text(good.replace("limit_um = 100.0", "limit_um = 0"))
         proc.send_signal(signal.SIGHUP)
-        for _ in range(2000):
-            if _events(log, "reload_failed"):
-                break
-            await asyncio.sleep(0.01)
+        await _until_logged(log, "reload_failed", proc)
         beat = (await rec.sim.outputs())["heartbeat"]
         await _until(rec.sim, "heartbeat", lambda v: v >= beat + 5, proc, log)
         # a change that needs a restart is refused the same way
         config.write_text(good.replace("time_scale = 50.0", "time_scale = 40.0"))
         proc.send_signal(signal.SIGHUP)
-        for _ in range(2000):
-            if len(_events(log, "reload_failed")) >= 2:
-                break
-            await asyncio.sleep(0.01)
+        await _until_logged(log, "reload_failed", proc, count=2)
         assert proc.returncode is None
         assert await _stop(proc) == 0
     finally:
@@ -108,8 +121,8 @@ async def test_hup_with_a_broken_config_keeps_the_old_one(
 async def test_hup_storm_during_cycles_misses_no_cycle(
         rec: _Recorded, tmp_path: Path) -> None:  # noqa: F811
     """HUPs sent at random points of the cycle (mid-read, mid-write): every one
-    is served, the loop keeps its deadlines (0 overruns) and the unchanged
-    model carries its filters over."""
+    is served and the unchanged model carries its filters over (the cycles
+    kept are checked in lockstep: test_reload_lockstep.py)."""
     config = write_config(tmp_path, rec.sim.endpoint)
     log = tmp_path / "daemon.log"
     proc = await _start(config, log)
@@ -122,10 +135,7 @@ async def test_hup_storm_during_cycles_misses_no_cycle(
                                            f"checkpoint_every = {21 + i}"))
             proc.send_signal(signal.SIGHUP)
             await asyncio.sleep(0.013 * (i + 1))  # fractions of the 20 ms real period
-            for _ in range(2000):
-                if len(_events(log, "reload_succeeded")) > i:
-                    break
-                await asyncio.sleep(0.01)
+            await _until_logged(log, "reload_succeeded", proc, count=i + 1)
         assert await _stop(proc) == 0
     finally:
         if proc.returncode is None:
@@ -136,9 +146,6 @@ async def test_hup_storm_during_cycles_misses_no_cycle(
     assert all(d["filters"] == "carried_over" and d["changed"] == [] for d in done)
     (stopped,) = _events(log, "daemon_stopped")
     assert stopped["reloads"] == 10
-    print(f"cycles missed during 10 reloads: {stopped['overruns']} "
-          f"(of {stopped['cycles']} cycles)")
-    assert stopped["overruns"] == 0
 
 
 async def test_hup_with_another_endpoint_reconnects(

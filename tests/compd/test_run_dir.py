@@ -1,5 +1,12 @@
 """`compd run DIR`: several machines in one process (compd.runtime.fleet), each its
-own failure domain, against simulated Modbus controllers on 127.0.0.1."""
+own failure domain, against simulated Modbus controllers on 127.0.0.1.
+
+The behaviour (a stopped controller, a crash and its restart, the staggered
+start) runs in-process in lockstep: every machine's daemon on one
+`compd.testing.SteppedClock` (`tests.lockstep.Fleetstep`), the real drivers
+and servers between, so counts of cycles are exact and a loaded machine only
+makes the tests slower. One real-process smoke test (SIGTERM) stays, asserting
+nothing a slow machine could change."""
 
 from __future__ import annotations
 
@@ -11,6 +18,7 @@ import sys
 import urllib.request
 from collections.abc import AsyncIterator, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -18,18 +26,23 @@ from compd.cli import main
 from compd.config.loader import load_config
 from compd.runtime.fleet import Fleet, load_machines
 from compd.runtime.startup import checkpoint_path
+from compd.testing import SteppedClock
 from drivers.base import Sample
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
-from tests.compd.daemon_helpers import CONFIG, until
+from tests.compd.daemon_helpers import CONFIG
+from tests.lockstep import Fleetstep
 
 NAMES = ("mill-a", "mill-b", "mill-c")
 
 
 def _write_machine(directory: Path, name: str, endpoint: str, *, checkpoint_every: int = 20,
-                   metrics_port: int | None = None) -> Path:
-    text = CONFIG.format(endpoint=endpoint, time_scale=50.0, timeout_s=0.008, slew_um_s=1.0,
-                         shutdown="hold", checkpoint_every=checkpoint_every)
+                   metrics_port: int | None = None, time_scale: float = 1.0,
+                   timeout_s: float = 0.5) -> Path:
+    """One machine's file; by default for lockstep (the stepped clock counts
+    machine seconds, a request may take half a period of real time)."""
+    text = CONFIG.format(endpoint=endpoint, time_scale=time_scale, timeout_s=timeout_s,
+                         slew_um_s=1.0, shutdown="hold", checkpoint_every=checkpoint_every)
     text = text.replace('name = "test"', f'name = "{name}"')
     text = text.replace('dir = "state"', f'dir = "state-{name}"')
     if metrics_port is not None:
@@ -52,7 +65,7 @@ async def sims() -> AsyncIterator[list[ModbusSimController]]:
             await c.stop()
 
 
-def _machines_dir(tmp_path: Path, sims: Sequence[ModbusSimController], **kw: int) -> Path:
+def _machines_dir(tmp_path: Path, sims: Sequence[ModbusSimController], **kw: Any) -> Path:
     d = tmp_path / "machines.d"
     d.mkdir()
     for name, sim in zip(NAMES, sims, strict=True):
@@ -65,39 +78,58 @@ def _complete(fleet: Fleet) -> dict[str, int]:
 
 
 async def _stop(fleet: Fleet, task: asyncio.Task[int]) -> int:
+    """Stop every machine (hold: each ends after the cycle the request wakes,
+    no step needed) and return the fleet's status."""
     fleet.request_stop()
-    return await asyncio.wait_for(task, 20.0)
+    return await asyncio.wait_for(task, 120.0)
+
+
+def _lockstep(configs: list[Any], **kwargs: Any) -> tuple[Fleet, asyncio.Task[int], Fleetstep]:
+    clock = SteppedClock(period_s=1.0)
+    fleet = Fleet(configs, clock=clock, sleep=clock.sleep, **kwargs)
+    task = asyncio.get_running_loop().create_task(fleet.run())
+    return fleet, task, Fleetstep(clock, task)
 
 
 async def test_a_stopped_controller_never_holds_up_the_others(
         sims: list[ModbusSimController], tmp_path: Path) -> None:
     port = free_tcp_port("127.0.0.1")
-    fleet = Fleet(load_machines(_machines_dir(tmp_path, sims, metrics_port=port)))
-    task = asyncio.get_running_loop().create_task(fleet.run())
+    fleet, task, fs = _lockstep(load_machines(_machines_dir(tmp_path, sims, metrics_port=port)))
     try:
-        await until(lambda: min(_complete(fleet).values()) >= 5)
+        await fs.until_asleep(len(NAMES))  # every machine ran its first cycle
+        await fs.step(4)
+        assert _complete(fleet) == dict.fromkeys(NAMES, 5)
         down = sims[1]
         await down.stop()  # mill-b's controller goes away
-        await until(lambda: fleet.daemons["mill-b"]._read_ok is False)
+        await fs.step()
+        assert fleet.daemons["mill-b"]._read_ok is False
         before = _complete(fleet)
         beats = [(await s.outputs())["heartbeat"] for s in (sims[0], sims[2])]
-        await until(lambda: min(_complete(fleet)[n] - before[n] for n in ("mill-a", "mill-c"))
-                    >= 50)
+        await fs.step(50)
         after = _complete(fleet)
         assert after["mill-b"] == before["mill-b"]  # it holds, writes nothing
+        # every period stepped was a cycle of each of the others
+        assert {n: after[n] - before[n] for n in ("mill-a", "mill-c")} == {
+            "mill-a": 50, "mill-c": 50}
         # the controllers of the others saw their heartbeats advance all along
         for sim, beat in zip((sims[0], sims[2]), beats, strict=True):
             assert (await sim.outputs())["heartbeat"] != beat
         # one endpoint, every machine's series labelled with its name
         body = await asyncio.to_thread(
             lambda: urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics",
-                                           timeout=5).read().decode())
+                                           timeout=30).read().decode())
         for name in NAMES:
             assert f'compd_cycles_complete_total{{machine="{name}"}}' in body
             assert f'compd_machine_running{{machine="{name}"}} 1.0' in body
         await down.start()  # back on the same port: mill-b resumes
+        # the driver's reconnect attempt, made now (its backoff runs on real time,
+        # which lockstep never waits on)
+        driver = fleet.daemons["mill-b"]._driver
+        assert driver is not None
+        await driver.connect()
         resumed = _complete(fleet)["mill-b"]
-        await until(lambda: _complete(fleet)["mill-b"] >= resumed + 10)
+        await fs.step(10)
+        assert _complete(fleet)["mill-b"] == resumed + 10
         assert await _stop(fleet, task) == 0
     finally:
         if not task.done():
@@ -126,13 +158,16 @@ class _CrashingDriver:
 async def test_a_crashing_daemon_is_restarted_alone(
         sims: list[ModbusSimController], tmp_path: Path) -> None:
     configs = load_machines(_machines_dir(tmp_path, sims))
-    fleet = Fleet(configs, drivers={"mill-c": _CrashingDriver()})  # type: ignore[dict-item]
-    task = asyncio.get_running_loop().create_task(fleet.run())
+    fleet, task, fs = _lockstep(configs, drivers={"mill-c": _CrashingDriver()})  # type: ignore[dict-item]
     try:
-        # mill-c crashes at its first read, is restarted after a backoff with a real driver
-        await until(lambda: fleet.restarts["mill-c"] == 1 and _complete(fleet)["mill-c"] >= 5)
+        # mill-c crashes at its first read (before its first sleep) and is started
+        # again after its backoff (1 s of real time) with a real driver: three
+        # sleeps are mill-a's, mill-b's and the new mill-c's first
+        await fs.until_asleep(len(NAMES))
         assert fleet.restarts == {"mill-a": 0, "mill-b": 0, "mill-c": 1}
-        assert min(_complete(fleet).values()) >= 5
+        await fs.step(5)
+        assert _complete(fleet) == {"mill-a": 6, "mill-b": 6, "mill-c": 6}
+        assert fleet.restarts == {"mill-a": 0, "mill-b": 0, "mill-c": 1}
         assert await _stop(fleet, task) == 0
     finally:
         if not task.done():
@@ -175,21 +210,24 @@ def test_an_empty_directory_is_refused(tmp_path: Path,
 
 async def test_sigterm_stops_every_machine_with_its_checkpoint(
         sims: list[ModbusSimController], tmp_path: Path) -> None:
-    d = _machines_dir(tmp_path, sims, checkpoint_every=1_000_000)  # only at the stop
+    # a real process in real time: a 200 ms period, a 100 ms request timeout
+    d = _machines_dir(tmp_path, sims, checkpoint_every=1_000_000,  # only at the stop
+                      time_scale=5.0, timeout_s=0.1)
     paths = [checkpoint_path(load_config(d / f"{n}.toml")) for n in NAMES]
     env = {**os.environ, "NOTIFY_SOCKET": ""}
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "compd", "run", str(d), env=env,
         stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE)
     try:
-        for sim in sims:  # every machine is writing its heartbeat
-            for _ in range(2000):
-                if (await sim.outputs())["heartbeat"] > 3:
+        for sim in sims:  # every machine is writing its heartbeat (a generous bound)
+            for _ in range(12_000):
+                if (await sim.outputs())["heartbeat"] > 3 or proc.returncode is not None:
                     break
                 await asyncio.sleep(0.01)
+            assert (await sim.outputs())["heartbeat"] > 3
         assert not any(p.exists() for p in paths)
         proc.send_signal(signal.SIGTERM)
-        _, err = await asyncio.wait_for(proc.communicate(), 30.0)
+        _, err = await asyncio.wait_for(proc.communicate(), 120.0)
         assert proc.returncode == 0, err.decode()[-2000:]
         assert all(p.exists() for p in paths)
         log = err.decode()
@@ -221,12 +259,13 @@ async def test_machines_start_one_after_the_other_with_their_cycles_spread(
         return await run_machine(self)
 
     monkeypatch.setattr(FleetDaemon, "run_machine", timed)
-    configs = load_machines(_machines_dir(tmp_path, sims))
-    fleet = Fleet(configs)
+    # the real period the plan spreads over is 20 ms; the start delays run on real
+    # time, the machines' cycles on the stepped clock (nothing else waits)
+    configs = load_machines(_machines_dir(tmp_path, sims, time_scale=50.0, timeout_s=0.01))
     t0 = time.monotonic()
-    task = asyncio.get_running_loop().create_task(fleet.run())
+    fleet, task, fs = _lockstep(configs)
     try:
-        await until(lambda: min(_complete(fleet).values()) >= 3)
+        await fs.until_asleep(len(NAMES))  # every machine started and ran a cycle
     finally:
         assert await _stop(fleet, task) == 0
     period = configs[0].real_period_s

@@ -25,8 +25,7 @@ from compd.runtime.recorder import Recorder
 from compd.sysexits import EX_DATAERR, EX_TEMPFAIL, EX_USAGE
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
-from tests.compd.daemon_helpers import until
-from tests.compd.status_helpers import get, page_daemon
+from tests.compd.status_helpers import get, page_daemon, step
 
 # -- the data ------------------------------------------------------------------------------
 
@@ -130,8 +129,9 @@ def test_the_page_has_no_external_asset_and_cannot_be_broken_out_of() -> None:
 
 async def test_page_and_status_json_follow_the_daemon(
         sim: ModbusSimController, tmp_path: Path) -> None:
-    async with page_daemon(tmp_path, sim) as (daemon, base):
-        await until(lambda: daemon.complete_cycles >= 12)  # the recorder commits every 10
+    async with page_daemon(tmp_path, sim, stepped=True) as (daemon, base):
+        await step(daemon, 10)  # the recorder commits every 10
+        assert daemon.complete_cycles == 13
         code, ctype, body = await asyncio.to_thread(get, base)
         assert code == 200 and ctype.startswith("text/html")
         assert b'"state": "on"' in body and b'getContext("2d")' in body  # inline plot
@@ -142,11 +142,11 @@ async def test_page_and_status_json_follow_the_daemon(
         assert [(c["name"], c["value"], c["valid"]) for c in doc["channels"]] == [
             ("bearing", 20.0, True), ("ambient", 20.0, True)]
         assert doc["history"]["wall_s"] and doc["refresh_s"] == 1.0
-        assert doc["period_s"] == pytest.approx(0.1) and 0.0 <= doc["age_s"] < 60.0
+        assert doc["period_s"] == pytest.approx(1.0) and 0.0 <= doc["age_s"] < 60.0
         assert await asyncio.to_thread(status_cmd.run, _args(base)) == 0
         # a fault: the bearing reads out of range; the page says holding, and why
         await sim.publish({"bearing": 500.0, "ambient": 20.0})
-        await until(lambda: daemon.status_board.snapshot["state"] == "holding")
+        await step(daemon)
         doc = json.loads((await asyncio.to_thread(get, base + "status.json"))[2])
         assert doc["state"] == "holding" and "bearing: out_of_range" in doc["why"]
         assert doc["channels"][0]["valid"] is False
@@ -158,7 +158,7 @@ async def test_page_and_status_json_follow_the_daemon(
 
 async def test_hostile_requests_are_refused_and_the_cycle_runs_on(
         sim: ModbusSimController, tmp_path: Path) -> None:
-    async with page_daemon(tmp_path, sim) as (daemon, base):
+    async with page_daemon(tmp_path, sim, stepped=True) as (daemon, base):
         assert (await asyncio.to_thread(get, base + "nope"))[0] == 404
         assert (await asyncio.to_thread(get, base + "favicon.ico"))[0] == 404
         for path in ("", "status.json", "metrics"):
@@ -175,13 +175,14 @@ async def test_hostile_requests_are_refused_and_the_cycle_runs_on(
         with socket.create_connection(("127.0.0.1", port), timeout=5.0) as silent:
             silent.sendall(b"GET /status.json HTTP/1.1\r\n")
             before = daemon.complete_cycles
-            await until(lambda: daemon.complete_cycles >= before + 5)
+            await step(daemon, 5)  # the loop is not held up: every cycle runs
+            assert daemon.complete_cycles == before + 5
             assert (await asyncio.to_thread(get, base + "status.json"))[0] == 200
 
 
 async def test_without_a_recorder_the_page_says_so(
         sim: ModbusSimController, tmp_path: Path) -> None:
-    async with page_daemon(tmp_path, sim, recorder=False) as (_daemon, base):
+    async with page_daemon(tmp_path, sim, recorder=False, stepped=True) as (_daemon, base):
         doc = json.loads((await asyncio.to_thread(get, base + "status.json"))[2])
     assert doc["state"] == "on"
     assert doc["history"]["wall_s"] == [] and doc["history"]["error"] == "no recorder configured"
@@ -205,7 +206,7 @@ def test_a_reload_that_changes_the_page_restarts_the_server(tmp_path: Path) -> N
 def _args(url: str, *, as_json: bool = False) -> object:
     import argparse
 
-    return argparse.Namespace(url=url, json=as_json, timeout_s=2.0)
+    return argparse.Namespace(url=url, json=as_json, timeout_s=30.0)  # a loaded machine
 
 
 def test_status_says_one_line_for_a_bad_url_or_an_unreachable_page(
@@ -259,7 +260,9 @@ def test_one_line_per_machine() -> None:
 async def test_a_fleet_page_lists_every_machine(tmp_path: Path,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
     from compd.runtime.fleet import Fleet, load_machines
+    from compd.testing import SteppedClock
     from tests.compd.daemon_helpers import CONFIG
+    from tests.lockstep import Fleetstep
 
     sims = [ModbusSimController() for _ in range(2)]
     port = free_tcp_port("127.0.0.1")
@@ -268,22 +271,27 @@ async def test_a_fleet_page_lists_every_machine(tmp_path: Path,
     for name, sim in zip(("mill-a", "mill-b"), sims, strict=True):
         await sim.start()
         await sim.publish({"bearing": 20.0, "ambient": 20.0})
-        text = CONFIG.format(endpoint=sim.endpoint, time_scale=10.0, timeout_s=0.04,
+        # in lockstep (one stepped clock for both machines): machine seconds, and a
+        # request may take half a period of real time
+        text = CONFIG.format(endpoint=sim.endpoint, time_scale=1.0, timeout_s=0.5,
                              slew_um_s=1.0, shutdown="hold", checkpoint_every=20)
         text = (text.replace('name = "test"', f'name = "{name}"')
                 .replace('dir = "state"', f'dir = "state-{name}"')
                 .replace("[telemetry]", f"[telemetry]\nmetrics_port = {port}")
                 + "\n[faces.http]\nenabled = true\n")
         (machines / f"{name}.toml").write_text(text, encoding="utf-8")
-    fleet = Fleet(load_machines(machines))
+    clock = SteppedClock(period_s=1.0)
+    fleet = Fleet(load_machines(machines), clock=clock, sleep=clock.sleep)
     task = asyncio.get_running_loop().create_task(fleet.run())
+    fs = Fleetstep(clock, task)
     base = f"http://127.0.0.1:{port}/"
     try:
-        await until(lambda: all(d.complete_cycles >= 3 for d in fleet.daemons.values())
-                    and len(fleet.daemons) == 2)
+        await fs.until_asleep(2)  # both machines ran their first cycle
+        await fs.step(2)
+        assert [d.complete_cycles for d in fleet.daemons.values()] == [3, 3]
         await sims[1].publish({"bearing": 500.0, "ambient": 20.0})
-        await until(lambda: fleet.daemons["mill-b"].status_board.snapshot["state"]
-                    == "holding")
+        await fs.step()
+        assert fleet.daemons["mill-b"].status_board.snapshot["state"] == "holding"
         doc = json.loads((await asyncio.to_thread(get, base + "status.json"))[2])
         assert [(m["machine"], m["state"]) for m in doc["machines"]] == [
             ("mill-a", "on"), ("mill-b", "holding")]
@@ -295,6 +303,6 @@ async def test_a_fleet_page_lists_every_machine(tmp_path: Path,
         assert (await asyncio.to_thread(get, base + "metrics"))[0] == 200
     finally:
         fleet.request_stop()
-        await asyncio.wait_for(task, 20.0)
+        await asyncio.wait_for(task, 120.0)
         for sim in sims:
             await sim.stop()

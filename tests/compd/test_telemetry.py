@@ -254,28 +254,44 @@ async def test_daemon_exports_model_output_and_channel_validity(
     from compd.config.loader import load_config
     from compd.runtime.daemon import Daemon
     from compd.runtime.sdnotify import Notifier
+    from compd.testing import SteppedClock
 
-    from .daemon_helpers import until, write_config
+    from .daemon_helpers import write_config
 
-    daemon = Daemon(load_config(write_config(tmp_path, sim.endpoint)),
-                    notifier=Notifier(None))
+    # in lockstep: the daemon cycles only when the clock is stepped (machine
+    # seconds, time_scale 1, a request may take half a second of real time), so
+    # the metrics read between two steps are those of the cycle just run
+    clock = SteppedClock(period_s=1.0)
+    daemon = Daemon(load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0,
+                                             timeout_s=0.5)),
+                    notifier=Notifier(None), clock=clock, sleep=clock.sleep)
     task = asyncio.create_task(daemon.run())
+
+    async def step(periods: int) -> None:
+        for _ in range(periods):
+            n = clock.sleeps + 1
+            clock.tick()
+            await clock.cycle_done(n)
+
     try:
-        await until(lambda: daemon.complete_cycles >= 3)
+        await clock.cycle_done(1)
+        await step(2)
+        assert daemon.complete_cycles == 3
         text = generate_latest(daemon.metrics.registry).decode()
         last = daemon.last_result
         assert last is not None and last.model_um is not None
         assert _value(text, 'compd_channel_valid{channel="bearing"}') == 1
         assert _value(text, 'compd_channel_valid{channel="ambient"}') == 1
         assert math.isfinite(_value(text, "compd_model_output_micrometres"))
-        # period_s 1.0 at time_scale 50 (write_config's default): 20 ms of wall clock
-        assert _value(text, "compd_period_seconds") == pytest.approx(0.02)
+        # period_s 1.0 at time_scale 1: one second of wall clock
+        assert _value(text, "compd_period_seconds") == pytest.approx(1.0)
         await sim.publish({"bearing": 200.0})  # beyond the channel's range [-20, 150]
-        await until(lambda: daemon.last_result is not None
-                    and daemon.last_result.record.validity.get("bearing") is not None)
+        await step(1)
+        last = daemon.last_result
+        assert last is not None and last.record.validity.get("bearing") is not None
         text = generate_latest(daemon.metrics.registry).decode()
         assert _value(text, 'compd_channel_valid{channel="bearing"}') == 0
         assert _value(text, 'compd_channel_valid{channel="ambient"}') == 1
     finally:
         daemon.request_stop()
-        assert await task == 0
+        assert await asyncio.wait_for(task, 120.0) == 0

@@ -114,7 +114,7 @@ class DaemonRig:
         if self.clock is not None:
             self._pacer = asyncio.create_task(self._pace(self.clock))
 
-    async def until(self, predicate: Callable[[], bool], limit_s: float = 30.0) -> None:
+    async def until(self, predicate: Callable[[], bool], limit_s: float = 120.0) -> None:
         """Wait (real time) for `predicate`; fail if the daemon ended or time ran out."""
         loop = asyncio.get_running_loop()
         end = loop.time() + limit_s
@@ -132,7 +132,7 @@ class DaemonRig:
             return 0
         self.daemon.request_stop()
         try:
-            rc = await asyncio.wait_for(self._task, 30.0)
+            rc = await asyncio.wait_for(self._task, 120.0)
         finally:
             pacer, self._pacer = self._pacer, None
             if pacer is not None:
@@ -141,7 +141,7 @@ class DaemonRig:
         self._task = None
         return rc
 
-    async def run_until(self, predicate: Callable[[], bool], limit_s: float = 30.0) -> int:
+    async def run_until(self, predicate: Callable[[], bool], limit_s: float = 120.0) -> int:
         await self.start()
         try:
             await self.until(predicate, limit_s)

@@ -67,7 +67,7 @@ async def start_daemon(config: Path, stderr_path: Path) -> asyncio.subprocess.Pr
 
 
 async def until(predicate: Callable[[], Any], proc: asyncio.subprocess.Process, log: Path,
-                what: str, limit_s: float = 30.0) -> None:
+                what: str, limit_s: float = 120.0) -> None:
     """Poll `predicate` (sync or async) until true; fail with the log when the
     daemon exits or the limit passes."""
     deadline = time.monotonic() + limit_s

@@ -71,7 +71,7 @@ async def test_wall_clock_jump(protocol: str, jump_s: float, tmp_path: Path,
         rig = DaemonRig(sim, cfg, invariants, plant)
         end_s = JUMP_AT_S + WINDOW_S / 2 + 2.0
         assert await rig.run_until(
-            lambda: rig.machine_s > end_s, limit_s=30.0) == 0
+            lambda: rig.machine_s > end_s, limit_s=120.0) == 0
     finally:
         await sim.stop()
     log = invariants.log()

@@ -90,7 +90,7 @@ async def test_disk_full_for_recorder_and_logs(rec: RecordingSim, small_fs: Path
         assert await _metric(port, "compd_records_dropped_total") == dropped_after
         assert dropped_after >= dropped_full > 0
         proc.terminate()
-        assert await asyncio.wait_for(proc.wait(), 20.0) == 0, await asyncio.to_thread(
+        assert await asyncio.wait_for(proc.wait(), 120.0) == 0, await asyncio.to_thread(
             tail, log)
     finally:
         await kill_and_wait(proc)

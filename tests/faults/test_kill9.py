@@ -85,7 +85,7 @@ async def _kill9_runs(rec: RecordingSim, tmp_path: Path, count: int, seed: int) 
         hb = await heartbeat(rec.sim)
         await until(lambda: _hb_past(rec, hb + 5), proc, log, "final run cycling")
         proc.terminate()
-        assert await asyncio.wait_for(proc.wait(), 20.0) == 0, await asyncio.to_thread(
+        assert await asyncio.wait_for(proc.wait(), 120.0) == 0, await asyncio.to_thread(
             tail, log)
     finally:
         await kill_and_wait(proc)
