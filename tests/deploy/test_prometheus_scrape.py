@@ -111,13 +111,14 @@ def test_prometheus_scrapes_compd_with_machine_labels_and_the_rules(
         assert machines == {"mill-1": 2.0, f"127.0.0.1:{unnamed.port}": 0.0}
         groups = _wait(lambda: _api(web, "rules")["groups"], proc)
         rules = {r["name"]: r for g in groups for r in g["rules"]}
-        assert len(rules) == 9 and {r["health"] for r in rules.values()} <= {"ok", "unknown"}
+        assert len(rules) == 10 and {r["health"] for r in rules.values()} <= {"ok", "unknown"}
         # mill-1 ramps (fault state 2): CompdCompensationNotActive is pending for its
-        # minute, labelled with the machine
+        # minute (firing after it, on a machine slow enough), labelled with the machine
         alerts = _wait(lambda: [a for a in _api(web, "alerts")["alerts"]
                                 if a["labels"]["alertname"] == "CompdCompensationNotActive"],
                        proc)
-        assert [(a["labels"]["machine"], a["state"]) for a in alerts] == [("mill-1", "pending")]
+        assert [a["labels"]["machine"] for a in alerts] == ["mill-1"]
+        assert alerts[0]["state"] in {"pending", "firing"}
         # neither has completed a cycle (age +Inf > 3 periods): CompdNoSample pends for
         # both, the one without a machine label named by its address
         beats = _wait(lambda: (b := [a for a in _api(web, "alerts")["alerts"]
