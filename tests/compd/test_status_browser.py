@@ -87,12 +87,12 @@ async def test_the_page_shows_the_daemon_and_follows_a_fault(
     print(f"\nscreenshots: {seen['shot_on']} {seen['shot_fault']}")
     state, channels = seen["before"]  # type: ignore[misc]
     assert state == "on"
-    assert channels == [["bearing", "24.00 degC", "valid"], ["ambient", "21.00 degC", "valid"]]
+    assert channels == [["bearing", "24.00 °C", "valid"], ["ambient", "21.00 °C", "valid"]]
     assert str(seen["offset"]).endswith(" \u00b5m")
     assert seen["external"] == []  # nothing fetched from anywhere but compd
     assert int(seen["plotted"]) > 50  # type: ignore[call-overload]  # the offset line drawn
     state, channels = seen["after"]  # type: ignore[misc]
     assert state == "holding" and "bearing: out_of_range" in str(seen["why"])
-    assert channels[0] == ["bearing", "500.00 degC", "invalid: out_of_range"]
+    assert channels[0] == ["bearing", "500.00 °C", "invalid: out_of_range"]
     assert str(seen["gone"]).startswith("no answer from compd")  # not old values as live
     assert seen["png"] == [True, True]
