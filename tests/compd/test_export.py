@@ -21,6 +21,7 @@ from compd.runtime.daemon import Daemon
 from compd.runtime.recorder import Recorder, RecordRow
 from compd.runtime.sdnotify import Notifier
 from compd.sysexits import EX_DATAERR, EX_USAGE
+from compd.testing import SteppedClock
 from drivers.sim.modbus_server import ModbusSimController
 
 from .daemon_helpers import write_config
@@ -121,23 +122,37 @@ def _late_db(path: Path) -> Path:
 
 async def _recorder_at_time_scale(tmp_path: Path, time_scale: float) -> Path:
     """A real daemon against the simulated Modbus controller at `time_scale`,
-    the bearing stepped twice; its recorder database."""
+    the bearing stepped twice; its recorder database. The daemon runs on a
+    stepped clock (one period per tick, given once it sleeps), so its deadlines
+    and the recorded intervals are exact however busy the machine is."""
     await asyncio.to_thread(tmp_path.mkdir)
     sim = ModbusSimController()
     await sim.start()
     try:
         await sim.publish({"bearing": 20.0, "ambient": 20.0})
-        cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=time_scale))
-        daemon = Daemon(cfg, notifier=Notifier(None))
+        cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=time_scale,
+                                       timeout_s=0.5 / time_scale))
+        clock = SteppedClock(period_s=1.0 / time_scale, start_s=1000.0)
+        daemon = Daemon(cfg, notifier=Notifier(None), clock=clock, sleep=clock.sleep)
         task = asyncio.create_task(daemon.run())
+        await clock.cycle_done(1)  # connected, the first cycle done, asleep
         for target, bearing in ((20, 23.0), (60, 21.5), (100, None)):
-            for _ in range(4000):
-                if daemon.cycles >= target:
-                    break
-                await asyncio.sleep(0.005)
+            while daemon.cycles < target:
+                begun = clock.sleeps
+                clock.tick()
+                await clock.cycle_done(begun + 1)
             if bearing is not None:
                 await sim.publish({"bearing": bearing})
-        daemon.request_stop()
+        # the stop with the next period's tick (a stop alone would wake it early, to a
+        # last cycle at the same clock reading), then periods until it has stopped
+        while not task.done():
+            begun = clock.sleeps
+            daemon.request_stop()
+            clock.tick()
+            slept = asyncio.ensure_future(clock.cycle_done(begun + 1))
+            await asyncio.wait([task, slept], return_when=asyncio.FIRST_COMPLETED)
+            slept.cancel()
+            await asyncio.gather(slept, return_exceptions=True)
         assert await task == 0
     finally:
         await sim.stop()
@@ -147,9 +162,9 @@ async def _recorder_at_time_scale(tmp_path: Path, time_scale: float) -> Path:
 
 async def test_replay_reads_the_daemons_recorder_written_at_time_scale_50(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """A recorder written at 50x is a record; on a loaded machine the daemon may
-    really miss a deadline (a 20 ms cycle) or a read (its 8 ms timeout), which
-    replay rightly refuses (a missed deadline; a sample with no valid value), so
+    """A recorder written at 50x is a record. The deadlines are the stepped
+    clock's (exact), but a read still has its real 10 ms timeout, which a loaded
+    machine may miss: replay rightly refuses a sample with no valid value, so
     such a run is repeated (at most five runs)."""
     for attempt in range(5):
         db = await _recorder_at_time_scale(tmp_path / f"run{attempt}", 50.0)
