@@ -16,7 +16,7 @@ import math
 import random
 from pathlib import Path
 
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from compd.config.loader import parse_config
@@ -129,6 +129,7 @@ def test_a_target_wobbling_within_one_count_never_turns_the_output(
 @settings(max_examples=200, deadline=None)
 @given(quanta, st.floats(0.05, 100.0), st.floats(0.5, 400.0), st.floats(-400.0, 400.0),
        st.floats(-500.0, 500.0), st.booleans())
+@example(q=0.001, slew=1.0, limit=273.15, initial=0.0, target=274.0, on_grid=True)
 def test_a_steady_target_is_reached_within_one_count(
         q: float, slew: float, limit: float, initial: float, target: float,
         on_grid: bool) -> None:
@@ -138,6 +139,8 @@ def test_a_steady_target_is_reached_within_one_count(
     goal = max(-limit, min(limit, target))
     if on_grid:
         goal = math.trunc(goal / q) * q
+        if abs(goal) > limit:  # a whole count past the limit by rounding (273150 × 0.001)
+            goal -= math.copysign(q, goal)  # the clamp wins: the count just inside it
     # R·Δt a cycle, or at least half of it in whole counts (one when a count is more)
     cycles = math.ceil(2.0 * (abs(goal - out.current_um) + q) / slew) + 10
     y = out.current_um
