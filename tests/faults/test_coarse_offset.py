@@ -17,15 +17,17 @@ import asyncio
 import itertools
 import math
 import random
-from collections.abc import Awaitable, Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable
 from pathlib import Path
+from typing import Any
 
 from compd.runtime.daemon import Daemon
 from compd.runtime.driver_setup import build_driver
 from compd.runtime.sdnotify import Notifier
 from compd.testing import FakeClock
-from drivers.base import Driver, Sample
+from drivers.base import Driver
 from drivers.sim.modbus_server import UNIT, ModbusSimController
+from tests.faults.clocked_driver import ClockedDriver
 from tests.faults.daemon_rig import EventLog, make_config
 
 COUNT_UM = 10.0
@@ -36,7 +38,7 @@ SLEW_UM_S = 1.0
 CYCLES = 1600
 
 
-class Watch:
+class Watch(ClockedDriver):
     """The real Modbus driver; before each read the fake clock moves one
     (real) period, the offset register (what the last cycle left in force,
     straight from the simulated controller's memory) is noted beside the
@@ -44,40 +46,16 @@ class Watch:
 
     def __init__(self, inner: Driver, sim: ModbusSimController, clock: FakeClock,
                  plant: Callable[[int], Awaitable[None]]) -> None:
-        self.inner = inner
-        self.protocol = inner.protocol
+        super().__init__(inner, clock, plant)
         self.sim = sim
-        self.clock = clock
-        self.plant = plant
-        self.daemon: Daemon | None = None
-        self.reads = 0
         #: per cycle: the register after it (counts) and its model output (µm)
         self.counts: list[int] = []
         self.models: list[float] = []
 
-    @property
-    def connected(self) -> bool:
-        return self.inner.connected
-
-    async def connect(self) -> None:
-        await self.inner.connect()
-
-    async def read(self, names: Sequence[str]) -> dict[str, Sample]:
-        self.clock.tick()
-        r = self.daemon.last_result if self.daemon is not None else None
-        if r is not None:
-            [raw] = self.sim.raw("holding", ADDRESS, 1)
-            self.counts.append(raw - 65536 if raw >= 32768 else raw)
-            self.models.append(math.nan if r.model_um is None else r.model_um)
-        await self.plant(self.reads)
-        self.reads += 1
-        return await self.inner.read(names)
-
-    async def write(self, values: Mapping[str, float]) -> None:
-        await self.inner.write(values)
-
-    async def close(self) -> None:
-        await self.inner.close()
+    def note(self, result: Any) -> None:
+        [raw] = self.sim.raw("holding", ADDRESS, 1)
+        self.counts.append(raw - 65536 if raw >= 32768 else raw)
+        self.models.append(math.nan if result.model_um is None else result.model_um)
 
 
 def bearing_c(k: int, rng: random.Random) -> float:

@@ -16,8 +16,9 @@ from __future__ import annotations
 
 import asyncio
 import random
-from collections.abc import Awaitable, Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable
 from pathlib import Path
+from typing import Any
 
 from compd.config.adaptation import AdaptationSettings
 from compd.core.adaptation import ProbeReading, ProbeStage
@@ -27,10 +28,11 @@ from compd.runtime.daemon import Daemon
 from compd.runtime.driver_setup import build_driver
 from compd.runtime.sdnotify import Notifier
 from compd.testing import FakeClock
-from drivers.base import Driver, Sample
+from drivers.base import Driver
 from drivers.sim.modbus_server import ModbusSimController
 from models.adaptation import AdaptationParams
 from models.modelfile import load_model
+from tests.faults.clocked_driver import ClockedDriver
 from tests.faults.daemon_rig import EventLog, make_config
 
 SLEW_UM_S = 1.0
@@ -49,44 +51,20 @@ def _miscalibrated(tmp_path: Path) -> Path:
     return p
 
 
-class Watch:
+class Watch(ClockedDriver):
     """The real Modbus driver; before each read the fake clock moves one period and
     the plant publishes the next temperatures (and, every PROBE_EVERY reads, a probe);
     after each cycle the offset in force and the status word are noted."""
 
     def __init__(self, inner: Driver, clock: FakeClock,
                  plant: Callable[[int], Awaitable[None]]) -> None:
-        self.inner = inner
-        self.protocol = inner.protocol
-        self.clock = clock
-        self.plant = plant
-        self.daemon: Daemon | None = None
-        self.reads = 0
+        super().__init__(inner, clock, plant)
         self.offsets: list[float] = []
         self.statuses: list[int] = []
 
-    @property
-    def connected(self) -> bool:
-        return self.inner.connected
-
-    async def connect(self) -> None:
-        await self.inner.connect()
-
-    async def read(self, names: Sequence[str]) -> dict[str, Sample]:
-        self.clock.tick()
-        r = self.daemon.last_result if self.daemon is not None else None
-        if r is not None:
-            self.offsets.append(r.offset_um)
-            self.statuses.append(r.status)
-        await self.plant(self.reads)
-        self.reads += 1
-        return await self.inner.read(names)
-
-    async def write(self, values: Mapping[str, float]) -> None:
-        await self.inner.write(values)
-
-    async def close(self) -> None:
-        await self.inner.close()
+    def note(self, result: Any) -> None:
+        self.offsets.append(result.offset_um)
+        self.statuses.append(result.status)
 
 
 async def test_a_model_worse_than_none_is_caught_within_three_probes_and_ramped_to_zero(
