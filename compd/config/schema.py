@@ -298,6 +298,14 @@ _WHY_SCORE_WINDOW = ("probes the estimator scores itself over: 0 never stands do
                      "100 probes a machine's error has long changed, the score only lags")
 ScoreWindow = Annotated[int, _field(0, 100, _WHY_SCORE_WINDOW),
                         _within(0, 100, " probes", _WHY_SCORE_WINDOW)]
+_WHY_REACQUIRE = ("refusals in a row, agreeing in direction, after which the estimator "
+                  "re-acquires: 0 never; beyond 100 probes a real change has long been "
+                  "missed")
+ReacquireAfter = Annotated[int, _field(0, 100, _WHY_REACQUIRE),
+                           _within(0, 100, " probes", _WHY_REACQUIRE)]
+_WHY_GUARD = ("probes in a row showing the model worse than none before the alarm: 0 no "
+              "guard; beyond 100 probes a wrong model would run for days")
+GuardWindow = Annotated[int, _field(0, 100, _WHY_GUARD), _within(0, 100, " probes", _WHY_GUARD)]
 #: µm per unit of an input: one unit never warrants more than the largest output.limit_um
 _WHY_DC_GAIN = ("one unit of an input never warrants more than the largest "
                 "output.limit_um, 10 mm")
@@ -528,12 +536,12 @@ class AdaptationSection(_Section):
     score_window: ScoreWindow | None = None
     #: gate refusals in a row agreeing in direction after which the estimator
     #: re-acquires (a real change, within max_total_um); 0: never
-    reacquire_after: ScoreWindow | None = None
+    reacquire_after: ReacquireAfter | None = None
     #: the guard "no model worse than none" (compd.core.adaptation): this many probes
     #: in a row each showing the compensation making the error larger than none would
     #: (by more than twice probe_noise_um) are an alarm and a fault (hold, then ramp
     #: to zero per [faults]) until another model is loaded; 0: no guard
-    guard_window: ScoreWindow = 3
+    guard_window: GuardWindow = 3
 
     def estimator_settings(self) -> dict[str, Any]:
         """The estimator settings given (the others keep their defaults)."""
