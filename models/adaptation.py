@@ -416,10 +416,7 @@ class Adapter:
             return
         self._score.append((_sq(plain_um), _sq(adapted_um)))
         del self._score[:-window]
-        weight = self.params.score_prior_probes or window
-        prior = weight * (_sq(self.params.score_prior_adapted_um)
-                          - _sq(self.params.score_prior_plain_um))
-        down = sum(a for _, a in self._score) + prior > sum(p for p, _ in self._score)
+        down = _score_verdict(self._score, self.params, self._standing_down)
         if down and not self._standing_down:
             self.stand_downs += 1
         self._standing_down = down
@@ -560,6 +557,29 @@ class Adapter:
         out._score = [(float(p), float(a)) for p, a in score][-window:] if window else []
         out._standing_down = down and window > 0
         return out
+
+
+def _score_verdict(score: Sequence[tuple[float, float]], params: AdaptationParams,
+                   down: bool) -> bool:
+    """Stand down? The paired difference adapted² − plain² per scored probe, with the prior
+    as `score_prior_probes` probes of its own difference, decides: its mean beyond one
+    standard error of that mean (the window's scatter) moves the estimator to the side it
+    favours; within it, the estimator stays where it is. A few probes that scatter about
+    a tie do not switch adaptation off and on; a window that agrees does (a difference
+    without scatter is evidence at any size)."""
+    d = [a - p for p, a in score]
+    weight = params.score_prior_probes or len(score)
+    prior = _sq(params.score_prior_adapted_um) - _sq(params.score_prior_plain_um)
+    mean = (sum(d) + weight * prior) / (len(d) + weight)
+    if len(d) < 2:  # no scatter to weigh it by yet: the sign decides
+        return mean > 0.0
+    centre = sum(d) / len(d)
+    spread = math.sqrt(sum((x - centre) ** 2 for x in d) / (len(d) - 1) / len(d))
+    if mean > spread:
+        return True
+    if mean < -spread:
+        return False
+    return down
 
 
 def _score_window(params: AdaptationParams) -> int:

@@ -97,6 +97,19 @@ def test_replay_with_the_learnt_settings_matches_the_crude_baseline_at_1_h(
         "bias_rw_um_per_sqrt_h"]
 
 
+def test_at_2_h_a_warm_up_that_scatters_does_not_stand_it_down(
+        first_part: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """ch3 every 2 h: two warm-up probes 8 µm apart once made the score stand down for
+    the rest of the record (6.12 µm, plain, where crude is 5.21); the score's evidence is
+    now weighed against its scatter."""
+    model = _fit(first_part, 7200, capsys)
+    r = _replay(model, 7200, capsys)
+    a, crude = r["adapted"], r["crude"]
+    assert a["stand_downs"] == 0
+    assert a["residue_rms_um"] <= crude["residue_rms_um"] + 0.01
+    assert a["residue_rms_um"] < 0.9 * a["plain_residue_rms_um"]
+
+
 @pytest.mark.parametrize("every_s", [7200, 14400, 28800])
 def test_at_any_probe_spacing_the_learnt_estimator_is_never_worse_than_plain(
         first_part: Path, capsys: pytest.CaptureFixture[str], every_s: int) -> None:
@@ -146,6 +159,24 @@ def test_the_estimator_stands_down_when_adapting_does_not_pay_and_takes_over_whe
     assert a.stand_downs == 1
     b = Adapter.from_state(a.params, 1, json.loads(json.dumps(a.export_state())))
     assert b.export_state() == a.export_state() and b.score_um == a.score_um
+
+
+def test_probes_that_scatter_about_a_tie_do_not_switch_it() -> None:
+    """The paired difference adapted² − plain² must be beyond one standard error of its
+    mean to move the estimator; a window that scatters about zero leaves it where it is."""
+    from models.adaptation import _score_verdict
+
+    p = AdaptationParams(score_window=5)
+    tie = [(10.0, 60.0), (60.0, 10.0), (1.0, 20.0), (20.0, 1.0), (5.0, 6.0)]
+    assert _score_verdict(tie, p, False) is False
+    assert _score_verdict(tie, p, True) is True
+    losing = [(1.0, 9.0), (2.0, 11.0), (1.0, 8.0)]
+    assert _score_verdict(losing, p, False) is True
+    assert _score_verdict([(a, p_) for p_, a in losing], p, True) is False
+    # the prior counts as probes of its own difference
+    prior = AdaptationParams(score_window=3, score_prior_plain_um=1.0,
+                             score_prior_adapted_um=3.0, score_prior_probes=10)
+    assert _score_verdict([(4.0, 3.0), (5.0, 4.0), (4.0, 3.5)], prior, False) is True
 
 
 def test_score_window_0_never_stands_down() -> None:
