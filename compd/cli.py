@@ -28,6 +28,7 @@ COMMANDS: dict[str, str] = {
     "sim": "sim",
     "fit": "fit",
     "replay": "replay",
+    "refine": "refine",
     "step": "step",
     "health": "health",
     "status": "status",

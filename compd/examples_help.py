@@ -37,6 +37,10 @@ examples:
   compd replay plant.toml spectrum.csv --column dz_um --plot replay.png
   compd replay sp2 /var/lib/compd/samples.sqlite --column dz_um --json
   compd replay plant.toml spectrum.csv --column dz_um --probe-every 7200 --probe-noise-um 0.5""",
+    "refine": """\
+examples:
+  compd refine plant.toml /var/lib/compd/samples.sqlite -o plant-refined.toml
+  compd refine plant.toml probes.csv -o out.toml --json   (time_s, measured_um, model_um)""",
     "step": """\
 examples:
   compd step sp2                              final value of each term's unit step

@@ -387,6 +387,17 @@ class Adapter:
         n = int(self.params.reacquire_after)
         holdable = abs(float(self._x[0]) + y) <= self.params.max_total_um
         if n < 1 or abs(self._streak) < n or not holdable:
+            # the filter does not trust it, but the probe measured what the applied
+            # correction did: the score weighs it (one outlier is within the window's
+            # scatter; refusals that agree are not, and a correction they leave stale
+            # in the wrong direction stands down)
+            self._keep_score(measured_um - model_um, measured_um - model_um
+                             - float(h @ self._xa))
+            if n >= 1 and abs(self._streak) >= n and not self._standing_down:
+                # a change beyond what the correction may hold: the applied correction
+                # is stale, whatever the score says yet; the plain model until it is not
+                self._standing_down = True
+                self.stand_downs += 1
             return self.refuse("gate", measured_um, model_um, terms_um)
         # re-acquire: inflate the bias variance, weigh the probe ungated and unbounded
         self._streak = 0

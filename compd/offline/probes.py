@@ -185,14 +185,93 @@ def suggest_settings(residuals: list[FloatArray], period_s: float,
     dl = np.concatenate(far)
     moved = float(np.mean(dl ** 2))
     q = max(0.0, (moved - 2.0 * sigma_v ** 2) / (lag * period_s))
-    default = AdaptationParams()
-    drift = math.sqrt(q * lag * period_s)
-    apply_sigma = 0.0 if drift > default.apply_sigma * sigma_v else default.apply_sigma
-    max_step = min(max(default.max_step_um, 4.0 * math.sqrt(moved)), MAX_STEP_SUGGESTED_UM)
     plain, held = _held_rms(residuals, lag)
     spacings = min(sum(r.size for r in residuals) / lag, MAX_PRIOR_PROBES)
-    return Suggestion(sigma_v, math.sqrt(q * 3600.0), lag * period_s, apply_sigma, max_step,
+    return _suggestion(sigma_v, q, lag * period_s, moved, plain, held, spacings)
+
+
+def _suggestion(sigma_v: float, q: float, lag_s: float, moved: float, plain: float,
+                held: float, spacings: float) -> Suggestion:
+    """The settings from the noise σ_v, the drift q (µm²/s) at the lag, the mean square
+    move over the lag and the score's prior (see the module docstring)."""
+    default = AdaptationParams()
+    drift = math.sqrt(q * lag_s)
+    apply_sigma = 0.0 if drift > default.apply_sigma * sigma_v else default.apply_sigma
+    max_step = min(max(default.max_step_um, 4.0 * math.sqrt(moved)), MAX_STEP_SUGGESTED_UM)
+    return Suggestion(sigma_v, math.sqrt(q * 3600.0), lag_s, apply_sigma, max_step,
                       plain, held, spacings)
+
+
+#: fewest usable probes (consecutive pairs + 1) a probe record must give to refine settings
+MIN_REFINE_PROBES = 6
+#: pairs of probes further apart than this many median spacings are not one spacing (a
+#: shift's break, a restart): they are left out of the drift
+MAX_SPACING_RATIO = 3.0
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """Settings refined from the probes of a running machine (`refine_from_probes`)."""
+
+    suggestion: Suggestion
+    probes: int  # probes used
+    pairs: int  # consecutive pairs the drift was measured over
+    spacing_s: float  # their median spacing
+    noise_from: str  # "probes" (spacings varied enough to separate it) or "model file"
+
+
+def refine_from_probes(time_s: FloatArray, residual_um: FloatArray,
+                       probe_noise_um: float) -> Refinement:
+    """Settings from probe residuals r = measured − plain model at times t (seconds,
+    increasing within a run; a step back starts a new run).
+
+    Between consecutive probes τ apart, E[(r' − r)²] = 2σ_v² + q·τ. Where the spacings
+    vary by a factor 2 or more over at least 8 pairs, both are fitted (least squares,
+    neither below 0); else σ_v is the model file's `probe_noise_um` and q the rest. The
+    score's prior is the RMS of r (the plain model at the probes) and of r' − r (a
+    correction held from one probe to the next), weighted as the pairs (at most 100):
+    what this machine's probes, at this spacing, say adapting is worth. ValueError when
+    there are too few probes to say anything."""
+    t = np.asarray(time_s, dtype=np.float64)
+    r = np.asarray(residual_um, dtype=np.float64)
+    keep = np.isfinite(t) & np.isfinite(r)
+    t, r = t[keep], r[keep]
+    if t.size < MIN_REFINE_PROBES:
+        raise ValueError(f"{t.size} usable probe(s); refining needs at least "
+                         f"{MIN_REFINE_PROBES}")
+    tau, dr = np.diff(t), np.diff(r)
+    forward = tau > 0.0
+    spacing = float(np.median(tau[forward])) if np.any(forward) else 0.0
+    pair = forward & (tau <= MAX_SPACING_RATIO * spacing)
+    tau, dr = tau[pair], dr[pair]
+    if tau.size < MIN_REFINE_PROBES - 1:
+        raise ValueError(f"{tau.size} pair(s) of consecutive probes about one spacing apart; "
+                         f"refining needs at least {MIN_REFINE_PROBES - 1}")
+    d2 = dr ** 2
+    sigma_v, q, noise_from = probe_noise_um, 0.0, "model file"
+    if tau.size >= 8 and float(tau.max()) >= 2.0 * float(tau.min()):
+        a, q = _line_through(tau, d2)
+        sigma_v, noise_from = math.sqrt(a / 2.0), "probes"
+    else:
+        q = max(0.0, (float(np.mean(d2)) - 2.0 * sigma_v ** 2) / float(np.mean(tau)))
+    suggestion = _suggestion(sigma_v, q, spacing, float(np.mean(d2)),
+                             math.sqrt(float(np.mean(r ** 2))), math.sqrt(float(np.mean(d2))),
+                             min(float(tau.size), MAX_PRIOR_PROBES))
+    return Refinement(suggestion, int(t.size), int(tau.size), spacing, noise_from)
+
+
+def _line_through(x: FloatArray, y: FloatArray) -> tuple[float, float]:
+    """y ≈ a + q·x by least squares with a, q ≥ 0 (the better of the two one-sided fits
+    where the free fit leaves the quadrant)."""
+    design = np.column_stack([np.ones_like(x), x])
+    (a, q), *_ = np.linalg.lstsq(design, y, rcond=None)
+    if a >= 0.0 and q >= 0.0:
+        return float(a), float(q)
+    only_q = max(0.0, float(x @ y) / float(x @ x))
+    only_a = max(0.0, float(np.mean(y)))
+    if float(np.sum((y - only_q * x) ** 2)) <= float(np.sum((y - only_a) ** 2)):
+        return 0.0, only_q
+    return only_a, 0.0
 
 
 def _held_rms(residuals: list[FloatArray], lag: int) -> tuple[float, float]:

@@ -448,3 +448,36 @@ def read_samples(path: Path) -> dict[str, npt.NDArray[Any]]:
     for term in terms:
         out[f"contribution.{term}"] = _nan_floats([c.get(term) for c in contributions])
     return out
+
+
+def read_probes(path: Path) -> dict[str, npt.NDArray[Any]]:
+    """Every probe of a recorder database, in seq order, with its sample's clock.
+
+    Columns (equal length): ``seq`` (int64), ``mono_s`` (float64: the daemon's sample
+    clock at the probe's cycle; it restarts with the daemon), ``measured_um`` and
+    ``model_um`` (float64, NaN where none was recorded), ``reason`` (str: "" for an
+    accepted probe, else why it was refused). Raises RecorderError when the file is not
+    a recorder database (a database from before probes were recorded has none: empty).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise RecorderError(path, "no such file")
+    try:
+        conn = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+    except sqlite3.Error as exc:
+        raise RecorderError(path, f"cannot open: {exc}") from exc
+    try:
+        rows = conn.execute(
+            "SELECT p.seq, s.mono_s, p.measured_um, p.model_um, p.accepted, p.reason"
+            " FROM probes p JOIN samples s ON s.seq = p.seq ORDER BY p.seq").fetchall()
+    except sqlite3.Error as exc:
+        raise RecorderError(path, f"not a recorder database with probes: {exc}") from exc
+    finally:
+        conn.close()
+    return {
+        "seq": np.array([r[0] for r in rows], dtype=np.int64),
+        "mono_s": _nan_floats([r[1] for r in rows]),
+        "measured_um": _nan_floats([r[2] for r in rows]),
+        "model_um": _nan_floats([r[3] for r in rows]),
+        "reason": np.array(["" if r[4] else str(r[5] or "refused") for r in rows], dtype=str),
+    }
