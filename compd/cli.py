@@ -33,6 +33,7 @@ COMMANDS: dict[str, str] = {
     "status": "status",
     "export": "export",
     "schema": "schema",
+    "plan": "plan",
 }
 
 
