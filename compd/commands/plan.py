@@ -168,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
                                recorder_name=side.name)
     except PlanError as exc:
         return _usage(str(exc))
-    check_output(out, "program", force=args.force)
+    check_output(args.output, "program", force=args.force)  # the text: "dir/" is refused
     if side == out:
         return _usage(f"{out}: the program and its recorder settings would share a name")
     check_output(side, "recorder settings", force=args.force)

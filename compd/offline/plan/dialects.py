@@ -151,6 +151,8 @@ class LinuxCNC(Dialect):
 #: FANUC comment characters (ISO code): upper case, digits and a few signs; never
 #: parentheses (the comment's own), % (end of record) or ; (end of block on screen)
 _FANUC_COMMENT = re.compile(r"[^A-Z0-9 .,+\-/*=:#\[\]'?&]")
+#: addresses whose value is a whole number (codes, speed, program number, dwell in ms)
+_FANUC_INTEGER = frozenset("GMSPNOTHDL")
 _FANUC_CALL = re.compile(r"[A-Z][+-]?(?:\d+\.?\d*|\.\d+)(?: *[A-Z][+-]?(?:\d+\.?\d*|\.\d+))*")
 
 
@@ -188,6 +190,12 @@ class Fanuc(Dialect):
         if not _FANUC_CALL.fullmatch(call):
             raise PlanError(f"--probe-call {call!r}: a FANUC block of words, an upper-case "
                             f"address and a number each (e.g. 'G65 P9810 Z-10. F500.')")
+        for address, value in re.findall(r"([A-Z])([+-]?[\d.]+)", call):
+            if address not in _FANUC_INTEGER and "." not in value:
+                raise PlanError(f"--probe-call {call!r}: {address}{value} without a decimal "
+                                f"point is read in least increments ({address}{value} "
+                                f"could be a thousandth of what you mean): write "
+                                f"{address}{value}.")
         return call
 
 
