@@ -7,7 +7,7 @@ Both files are checked before anything is written (`compd.outfiles`: never
 over an existing file without ``--force``, never a directory or a symbolic
 link) and written atomically. A bad argument is one line on stderr and exit 64;
 warnings about the design (steps too short to heat through, a measuring cycle
-sparser than the steps) go to stderr and the program is written.
+sparser than the steps) go to stderr once the files are written.
 """
 
 from __future__ import annotations
@@ -173,8 +173,6 @@ def run(args: argparse.Namespace) -> int:
         return _usage(f"{out}: the program and its recorder settings would share a name")
     check_output(side, "recorder settings", force=args.force)
     fragment = recorder_fragment(out, exp, args.dialect)
-    for warning in exp.warnings:
-        print(f"compd plan: warning: {warning}", file=sys.stderr)
     write_atomically(out, lambda tmp: tmp.write_text(program.text, encoding="ascii"),
                      "program", force=args.force)
     write_atomically(side, lambda tmp: tmp.write_text(fragment, encoding="utf-8"),
@@ -183,4 +181,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"compd plan: wrote {out} ({args.dialect}, {exp.duration_ms / 3_600_000:g} h of "
           f"schedule, {program.dwell_total_ms / 1000:.3f} s of dwell in all, "
           f"{exp.measurements} measuring cycles, axes moved: {axes}) and {side}")
+    for warning in exp.warnings:  # after the files: a failure stays one line
+        print(f"compd plan: warning: {warning}", file=sys.stderr)
     return 0
