@@ -129,3 +129,14 @@ def test_named_axes_only_and_odd_hours_sum_exactly(tmp_path: Path) -> None:
     assert {m[0] for m in moves} <= {0.0, 10.0, -45.5}
     assert all(m[1] == 0.0 for m in moves)  # Y never named, never moved
     assert "Axes moved: X, Z only" in canon.header()
+
+
+def test_the_largest_program_runs_through(tmp_path: Path) -> None:
+    """A week with a measuring cycle every minute: 10,081 cycles, each one probed."""
+    canon = _interpret(tmp_path, [
+        "--hours", "168", "--speeds", "1000,2000,3000,4000", "--probe-every-min", "1",
+        "--safe-position", "Z=100", "--probe-at", "Z=10"])
+    assert len(canon.args("STRAIGHT_PROBE")) == 168 * 60 + 1
+    header = canon.header()
+    assert sum(a[0] for a in canon.args("DWELL")) == pytest.approx(
+        _seconds(header, r"Dwell in all: ([\d.]+) s"), abs=1e-2)

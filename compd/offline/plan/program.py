@@ -122,6 +122,7 @@ def make_program(exp: Experiment, dialect: Dialect, probing: Probing | None, *,
     if probing is not None:
         body += dialect.moves(probing.safe)
     dwell_total = 0
+    count = exp.measurements  # a sum over the actions: once, not per cycle
     for action in exp.actions:
         if isinstance(action, Spin):
             body += dialect.spindle(action.speed_rpm)
@@ -129,8 +130,8 @@ def make_program(exp: Experiment, dialect: Dialect, probing: Probing | None, *,
             body += dialect.dwell(action.ms)
             dwell_total += action.ms
         elif isinstance(action, Measure) and probing is not None:  # checked above
-            body.append(dialect.comment(f"measuring cycle {action.index + 1} of "
-                                        f"{exp.measurements} at {_h(action.at_ms)}"))
+            body.append(dialect.comment(f"measuring cycle {action.index + 1} of {count} "
+                                        f"at {_h(action.at_ms)}"))
             if action.stops_rpm:
                 stop_ms = round(probing.spindle_stop_s * 1000)
                 body.append(dialect.stop())

@@ -100,11 +100,6 @@ class Experiment:
     def measurements(self) -> int:
         return sum(isinstance(a, Measure) for a in self.actions)
 
-    @property
-    def stops(self) -> int:
-        """Measuring cycles that stop a turning spindle (each adds a run-down dwell)."""
-        return sum(isinstance(a, Measure) and a.stops_rpm > 0 for a in self.actions)
-
 
 def _steps(speeds: list[int], hold_ms: int, rest_ms: int, total_ms: int) -> list[Step]:
     up = sorted(speeds)
