@@ -127,13 +127,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="fanuc: the O number (default 1000)")
 
 
+def _position_text(position: dict[str, float]) -> str:
+    return ",".join(f"{axis}={mm:g}" for axis, mm in position.items())
+
+
 def _summary(args: argparse.Namespace) -> str:
+    """The options that shaped the program, as the command line would say them."""
     parts = [f"--hours {args.hours:g}", f"--speeds {','.join(map(str, args.speeds))}"]
     if args.rest_h is not None:
         parts.append(f"--rest-h {args.rest_h:g}")
+    parts.append(f"--dialect {args.dialect}")
+    if args.safe_position is not None:
+        parts.append(f"--safe-position {_position_text(args.safe_position)}")
     if args.probe_every_min is not None:
-        parts.append(f"--probe-every-min {args.probe_every_min:g}")
-    return f"Written by: compd plan {' '.join(parts)} --dialect {args.dialect}."
+        parts += [f"--probe-every-min {args.probe_every_min:g}",
+                  f"--spindle-stop-s {args.spindle_stop_s:g}"]
+        if args.probe_at is not None:
+            parts.append(f"--probe-at {_position_text(args.probe_at)}")
+        if args.dialect == "linuxcnc":
+            parts += [f"--probe-depth-mm {args.probe_depth_mm:g}",
+                      f"--probe-feed {args.probe_feed:g}"]
+        else:
+            parts.append(f"--probe-call '{args.probe_call}'")
+    return f"Written by: compd plan {' '.join(parts)}."
 
 
 def _usage(message: str) -> int:
@@ -152,6 +168,9 @@ def run(args: argparse.Namespace) -> int:
     if any(not c.isprintable() for c in args.output):
         return _usage(f"{args.output!r}: a program's name is printable characters")
     side = out.with_name(f"{out.stem}.recorder.toml") if out.name else out
+    if args.probe_every_min is None and (args.probe_at or args.probe_call):
+        return _usage("--probe-at and --probe-call say how to measure: they go with "
+                      "--probe-every-min")
     try:
         words = dialect(args.dialect, program_number=args.program_number)
         call = None if args.probe_call is None else words.check_call(args.probe_call)

@@ -54,6 +54,15 @@ def test_sinumerik_programs_pass_the_grammar(tmp_path: Path, argv: list[str]) ->
     assert "G71" in text and "G21" not in text  # metric in the native language
 
 
+@pytest.mark.parametrize(("dialect", "check"), [("fanuc", check_fanuc),
+                                               ("sinumerik", check_sinumerik)])
+def test_a_file_name_of_any_letters_keeps_the_program_valid(tmp_path: Path, dialect: str,
+                                                            check: object) -> None:
+    text = _plan(tmp_path, dialect, CASES[1], "Wärmegang (Halle 3); 50%.nc")
+    assert check(text) == []  # type: ignore[operator]
+    assert text.isascii()
+
+
 @pytest.fixture
 def fanuc(tmp_path: Path) -> str:
     return _plan(tmp_path, "fanuc", CASES[1], "O1000.nc")
