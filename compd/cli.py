@@ -34,6 +34,7 @@ COMMANDS: dict[str, str] = {
     "status": "status",
     "export": "export",
     "schema": "schema",
+    "plan": "plan",
 }
 
 

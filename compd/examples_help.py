@@ -58,6 +58,16 @@ examples:
   compd export /var/lib/compd/samples.sqlite -o day.csv --since 2026-11-23T06:00 \\
       --until 2026-11-23T18:00
   compd export samples.sqlite -o week.parquet --format parquet   (pip install 'compd[parquet]')""",
+    "plan": """\
+examples:
+  compd plan --hours 24 --speeds 1250,2500,5000 --dialect linuxcnc -o warmup.ngc
+      (spindle only: no axis moves; writes warmup.ngc and warmup.recorder.toml)
+  compd plan --hours 24 --speeds 1250,2500,5000 --dialect linuxcnc -o warmup.ngc \\
+      --probe-every-min 10 --safe-position Z=100 --probe-at X=250,Y=40,Z=20
+  compd plan --hours 24 --speeds 2000,4000,8000 --rest-h 3 --dialect fanuc -o O1000.nc \\
+      --probe-every-min 15 --safe-position Z=150 --probe-call 'G65 P9810 Z-10. F500.'
+  compd plan --hours 24 --speeds 2000,4000,8000 --dialect sinumerik -o WARMUP.MPF \\
+      --probe-every-min 15 --safe-position Z=150 --probe-call 'CYCLE978(0,1,,1,-10,100,,3,1)'""",
     "schema": """\
 examples:
   compd schema > compd.schema.json            the config's JSON Schema, for editors

@@ -113,6 +113,16 @@ def _cases() -> list[list[str]]:
         for opt in ("--duration-h", "--print-every-s"):
             out.append(["sim", "--drive", "modbus://127.0.0.1:1", "--map", _file("missing"),
                         opt, n])
+    plan = ["plan", "--hours", "8", "--speeds", "1000,2000", "--dialect", "linuxcnc"]
+    for n in NUMBERS:
+        out += [["plan", "--hours", n, "--speeds", "1000", "--dialect", "fanuc", "-o",
+                 _target("missing_dir")],
+                [*plan, "--rest-h", n, "-o", _target("missing_dir")],
+                [*plan, "--probe-every-min", n, "--safe-position", "Z=100", "--probe-at",
+                 "Z=10", "-o", _target("missing_dir")],
+                [*plan, "--safe-position", f"Z={n}", "-o", _target("missing_dir")],
+                ["plan", "--hours", "8", "--speeds", f"1000,{n}", "--dialect", "sinumerik",
+                 "-o", _target("missing_dir")]]
     for t in ("input", "fifo", "dir"):  # a model or figure over the command's own input
         out += [[*fit, "-o", _target(t), "--force"], [*fit, "--fixed", "sp2:spindle", "-o", rec],
                 ["replay", "sp2", rec, "--column", "dz_um", "--plot", rec, "--force"]]
@@ -132,7 +142,8 @@ def _cases() -> list[list[str]]:
                 ["sim", "--record", p, "--hours", "0.01", "--force"],
                 ["replay", "sp2", rec, "--column", "dz_um", "--plot", p, "--force"],
                 ["step", "sp2", "--plot", p, "--force"], ["demo", "--plot", p, "--force"],
-                ["sim", "--drive", "modbus://127.0.0.1:1", "--record", p, "--force"]]
+                ["sim", "--drive", "modbus://127.0.0.1:1", "--record", p, "--force"],
+                [*plan, "-o", p], [*plan, "-o", p, "--force"]]
     return out
 
 
