@@ -347,7 +347,7 @@ def test_deadband_keeps_small_changes_out() -> None:
 
 
 def test_shadow_model_is_evaluated_but_never_written() -> None:
-    from models.modelfile import load_model
+    from compd.infiles import load_model
     shadow = load_model("sp2")
     shadow.terms[0].gain = 2.0
     cycle, clock = Cycle(params(slew_um_s=1000.0), sp2(), shadow), FakeClock()

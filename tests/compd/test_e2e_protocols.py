@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from compd.infiles import load_model
 from compd.offline.demo import daemon_config, run_demo, start_daemon, start_daemon_at_rest
 from compd.runtime.recorder import read_samples
 from drivers.sim.base import SimController
@@ -36,7 +37,6 @@ from drivers.sim.machine import SimMachine
 from drivers.sim.programs import make_program
 from drivers.sim.registry import make_sim_controller
 from models import tomltext
-from models.modelfile import load_model
 from models.quality import fit_percent
 from tests.lockstep import Lockstep, lockstep_config, write_config
 

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from compd.cli import main
+from compd.infiles import load_model
 from models.initial_state import estimate_initial_state, relaxation_basis
-from models.modelfile import load_model
 
 
 @pytest.fixture(scope="module")

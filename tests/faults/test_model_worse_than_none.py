@@ -24,6 +24,7 @@ from compd.config.adaptation import AdaptationSettings
 from compd.core.adaptation import ProbeReading, ProbeStage
 from compd.core.faults import Event
 from compd.core.output import Status
+from compd.infiles import load_model
 from compd.runtime.daemon import Daemon
 from compd.runtime.driver_setup import build_driver
 from compd.runtime.sdnotify import Notifier
@@ -31,7 +32,6 @@ from compd.testing import FakeClock
 from drivers.base import Driver
 from drivers.sim.modbus_server import ModbusSimController
 from models.adaptation import AdaptationParams
-from models.modelfile import load_model
 from tests.faults.clocked_driver import ClockedDriver
 from tests.faults.daemon_rig import EventLog, make_config
 
