@@ -61,7 +61,6 @@ class LoadedConfig:
     model_sha256: str
     #: smallest step the offset address can hold, in µm (read-back tolerance)
     offset_quantum_um: float
-    extras: dict[str, Any] = field(default_factory=dict)
     #: [adaptation] when enabled: the cycle's settings and the probe's two addresses
     #: (read under PROBE_NAMES beside the channels)
     adaptation: AdaptationSettings | None = None
