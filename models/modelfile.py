@@ -134,13 +134,14 @@ def parse_term(doc: Any, period_s: float, where: str) -> Term:
     else:
         if ("k" in doc) == ("tau_s" in doc):
             raise ModelError(f"{where}: give exactly one of k or tau_s")
-        args = dict(alpha=_number(doc, "alpha", where), beta=_number(doc, "beta", where),
-                    gamma=_number(doc, "gamma", where), period_s=period_s,
-                    delta=_number(doc, "delta", where, 0.0), name=f"{where}({name})")
+        alpha, beta = _number(doc, "alpha", where), _number(doc, "beta", where)
+        gamma, delta = _number(doc, "gamma", where), _number(doc, "delta", where, 0.0)
+        label = f"{where}({name})"
         if "k" in doc:
-            dyn = Mbotv(k=_number(doc, "k", where), **args)  # type: ignore[arg-type]
+            dyn = Mbotv(alpha, beta, _number(doc, "k", where), gamma, period_s, delta, label)
         else:
-            dyn = Mbotv.from_tau(tau_s=_number(doc, "tau_s", where), **args)  # type: ignore[arg-type]
+            dyn = Mbotv.from_tau(alpha, beta, _number(doc, "tau_s", where), gamma, period_s,
+                                 delta, label)
     return Term(name=name, inputs={str(k): v for k, v in inputs.items()}, dynamics=dyn,
                 gain=gain, gain_channel=gain_channel, relative=relative,
                 switch_channel=switch_channel)

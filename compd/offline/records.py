@@ -104,6 +104,8 @@ class Samples(Sequence[dict[str, float]]):
     def __len__(self) -> int:
         return self._n
 
+    # rows by index only: a slice would build the dicts it exists to avoid building (Sequence
+    # declares the slice overload too, so mypy calls the narrower signature an override)
     def __getitem__(self, i: int) -> dict[str, float]:  # type: ignore[override]
         if not -self._n <= i < self._n:
             raise IndexError(i)
