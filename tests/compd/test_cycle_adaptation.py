@@ -7,8 +7,7 @@ import math
 
 import pytest
 
-from compd.config.adaptation import AdaptationSettings
-from compd.core.adaptation import ProbeReading
+from compd.core.adaptation import AdaptationSettings, ProbeReading
 from compd.core.cycle import Cycle, CycleResult
 from compd.testing import FakeClock
 from models.adaptation import AdaptationParams

@@ -20,8 +20,7 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
-from compd.config.adaptation import AdaptationSettings
-from compd.core.adaptation import ProbeReading, ProbeStage
+from compd.core.adaptation import AdaptationSettings, ProbeReading, ProbeStage
 from compd.core.faults import Event
 from compd.core.output import Status
 from compd.infiles import load_model
