@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from typing import Any
 
 import pytest
 
@@ -56,7 +57,7 @@ class Machine:
         return out
 
 
-def _probes(results: list[CycleResult]) -> list[dict[str, object]]:
+def _probes(results: list[CycleResult]) -> list[dict[str, Any]]:  # as RecordRow.probe
     return [dict(r.record.probe) for r in results if r.record.probe is not None]
 
 

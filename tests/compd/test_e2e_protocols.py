@@ -150,7 +150,7 @@ async def _run_with_faults(protocol: str, work: Path) -> dict[str, Any]:
     int_coded = protocol != "opcua"
     open_value = 3276.7 if int_coded else math.nan      # raw 32767 / NaN
     shorted_value = -3276.8 if int_coded else -250.0     # raw -32768 / below a Pt100's range
-    machine = SimMachine(sim, program=make_program("spectrum", seed=7), seed=7,  # type: ignore[arg-type]
+    machine = SimMachine(sim, program=make_program("spectrum", seed=7), seed=7,
                          period_s=period_s, speedup=time_scale, repeat=False, record=True)
     events: list[tuple[float, str]] = []
     daemons: list[asyncio.subprocess.Process] = []
@@ -227,7 +227,7 @@ async def _lockstep_with_faults(protocol: str, work: Path) -> dict[str, Any]:
     int_coded = protocol != "opcua"
     open_value = 3276.7 if int_coded else math.nan      # raw 32767 / NaN
     shorted_value = -3276.8 if int_coded else -250.0     # raw -32768 / below a Pt100's range
-    machine = SimMachine(sim, program=make_program("spectrum", seed=7), seed=7,  # type: ignore[arg-type]
+    machine = SimMachine(sim, program=make_program("spectrum", seed=7), seed=7,
                          period_s=period_s, repeat=False, record=True)
     doc = lockstep_config(inner, work, model="sim_machine", period_s=period_s,
                           limit_um=LIMIT_UM, slew_um_s=SLEW_UM_S)
