@@ -18,8 +18,8 @@ import time
 import numpy as np
 from scipy.signal import lfilter
 
+from compd.infiles import load_model
 from models.bank import TfBank
-from models.modelfile import load_model
 from models.tf import TransferFunction
 
 

@@ -1,13 +1,22 @@
-"""The daemon's own refusals ("we refused"), kept apart from the controller's
-(`drivers.errors.WriteRejected`). All derive from the one root `CompdError`."""
+"""The daemon's own refusals ("we refused"): the root `CompdError` and the
+configuration's `ConfigError`.
+
+The root lives here, in the package that composes the others. The layers
+below keep bases of their own, since they may not import compd: the numeric
+core's `models.errors.ModelError` (a model malformed or unsafe) and the
+drivers' `drivers.errors.DriverError` ("the controller refused", a lost
+link), which stay apart from compd's refusals as the design asks.
+"""
 
 from __future__ import annotations
 
 from compd.sysexits import EX_CONFIG  # systemd is told not to restart on it
-from models.errors import CompdError, ModelError
 
-__all__ = ["EX_CONFIG", "CompdError", "ConfigError", "ModelError", "SafetyTrip"]
+__all__ = ["EX_CONFIG", "CompdError", "ConfigError"]
 
+
+class CompdError(Exception):
+    """Root of every error the daemon and its commands raise on purpose."""
 
 
 class ConfigError(CompdError):
@@ -17,8 +26,3 @@ class ConfigError(CompdError):
         self.key = key
         self.reason = reason
         super().__init__(f"{key}: {reason}" if key else reason)
-
-
-class SafetyTrip(CompdError):
-    """The daemon stopped compensating on purpose (a permanent write refusal,
-    a state it cannot trust)."""

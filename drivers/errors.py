@@ -2,15 +2,15 @@
 of these, carrying the channel and the address it concerns.
 
 "The controller refused" (`WriteRejected`) is kept apart from the daemon's own
-refusals (config errors, safety trips), which live in `compd.errors`.
+refusals (config errors, unusable checkpoints), which derive from
+`compd.errors.CompdError`: `DriverError` is the drivers' own base (drivers
+never import compd).
 """
 
 from __future__ import annotations
 
-from models.errors import CompdError
 
-
-class DriverError(CompdError):
+class DriverError(Exception):
     """An I/O failure talking to a controller."""
 
     def __init__(self, message: str, *, channel: str | None = None,

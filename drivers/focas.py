@@ -121,13 +121,14 @@ class FocasDriver(LinkedDriver):
             raise LibraryRefusedError(f"library_path {library_path!r} is not a file")
         if library_sha256 is not None and sha256_file(library_path) != library_sha256.lower():
             raise LibraryRefusedError(f"{library_path}: sha256 does not match the pinned value")
+        self._outputs: dict[str, FocasPmcAddress] = {}
         for name, a in outputs.items():
             if not isinstance(a, FocasPmcAddress):
                 raise TypeError(f"output {name}: only PMC addresses are writable")
+            self._outputs[name] = a
         self.endpoint = endpoint
         self._ip, self._port = parse_endpoint(endpoint)
         self._channels = dict(channels)
-        self._outputs: dict[str, FocasPmcAddress] = dict(outputs)  # type: ignore[arg-type]
         self._all: dict[str, FocasAddress] = {**self._channels, **self._outputs}
         self._timeout_s = timeout_s
         self._library_path = library_path

@@ -1,16 +1,14 @@
-"""The project's root error and the errors of the numeric core.
+"""The errors of the numeric core.
 
-`CompdError` lives here, in the lowest layer, so that `drivers` and `compd`
-can derive from it without `models` importing anything above itself.
+`ModelError` is the base of what `models` raises on purpose. It knows nothing
+of the daemon above it: compd's own root error is `compd.errors.CompdError`,
+and compd catches `ModelError` where it reads a model (`compd check`, the
+config loader, the commands).
 """
 
 from __future__ import annotations
 
 
-class CompdError(Exception):
-    """Root of every error compd raises on purpose."""
-
-
-class ModelError(CompdError, ValueError):
+class ModelError(ValueError):
     """A model is malformed or unsafe: bad coefficients, an unstable pole,
     an unknown channel. The message names the term and the reason."""

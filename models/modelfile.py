@@ -1,4 +1,8 @@
-"""The model file format (TOML) and its reader/writer.
+"""The model file format (TOML): the document's parser and writer.
+
+Files are read by `compd.infiles.load_model` (the one loader: regular files
+only, at most 1 MiB, nesting bounded), which hands the document to
+`parse_model` here; bundled models are found by `library_path`.
 
 ::
 
@@ -30,7 +34,6 @@ checked: unknown keys and wrong types are refused with the key path.
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
@@ -42,7 +45,6 @@ from models.compensation import CompensationModel, Term
 from models.errors import ModelError
 from models.greybox import GreyBox
 from models.mbotv import Mbotv
-from models.nesting import NestingError, loads_toml
 from models.sanity import check_period
 from models.tf import TransferFunction
 
@@ -132,13 +134,14 @@ def parse_term(doc: Any, period_s: float, where: str) -> Term:
     else:
         if ("k" in doc) == ("tau_s" in doc):
             raise ModelError(f"{where}: give exactly one of k or tau_s")
-        args = dict(alpha=_number(doc, "alpha", where), beta=_number(doc, "beta", where),
-                    gamma=_number(doc, "gamma", where), period_s=period_s,
-                    delta=_number(doc, "delta", where, 0.0), name=f"{where}({name})")
+        alpha, beta = _number(doc, "alpha", where), _number(doc, "beta", where)
+        gamma, delta = _number(doc, "gamma", where), _number(doc, "delta", where, 0.0)
+        label = f"{where}({name})"
         if "k" in doc:
-            dyn = Mbotv(k=_number(doc, "k", where), **args)  # type: ignore[arg-type]
+            dyn = Mbotv(alpha, beta, _number(doc, "k", where), gamma, period_s, delta, label)
         else:
-            dyn = Mbotv.from_tau(tau_s=_number(doc, "tau_s", where), **args)  # type: ignore[arg-type]
+            dyn = Mbotv.from_tau(alpha, beta, _number(doc, "tau_s", where), gamma, period_s,
+                                 delta, label)
     return Term(name=name, inputs={str(k): v for k, v in inputs.items()}, dynamics=dyn,
                 gain=gain, gain_channel=gain_channel, relative=relative,
                 switch_channel=switch_channel)
@@ -191,24 +194,6 @@ def parse_adaptation(doc: Any, where: str) -> dict[str, Any]:
         first = str(exc).split("; ")[0]
         raise ModelError(f"{where}.{first}") from None
     return table
-
-
-def load_model(path: str | Path) -> CompensationModel:
-    """Read a model file, or a bundled library model by name (e.g. ``sp2``)."""
-    p = Path(path)
-    if not p.exists() and p.suffix == "" and library_path(str(path)) is not None:
-        p = Path(str(library_path(str(path))))
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ModelError(f"{path}: cannot read the model file ({exc.strerror})") from None
-    try:
-        doc = loads_toml(text)
-    except NestingError as exc:
-        raise ModelError(f"{path}: the model file has {exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ModelError(f"{path}: not valid TOML ({exc})") from None
-    return parse_model(doc)
 
 
 def library_names() -> list[str]:

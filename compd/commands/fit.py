@@ -227,7 +227,7 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
     radius = pole_radius(period, args.max_time_constant_days * 86400.0)
     seg = Segments.from_lengths([len(r) for r in records])
     y = np.concatenate(ys)
-    from compd.offline.fit_search import is_rate_channel
+    from compd.offline.channel_kind import is_rate_channel
 
     rel = [not all(is_rate_channel(ch) for ch in inputs) for _, inputs in specs]
     us = [np.concatenate([_relative_input(r, inputs, rl) for r in records])
@@ -416,7 +416,7 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
     """Read and check records; all must share `first`'s (or the first one's) period."""
     import math
 
-    from compd.offline.fit_search import is_rate_channel
+    from compd.offline.channel_kind import is_rate_channel
     from compd.offline.records import RecordError, check_units, read_record
 
     records = [read_record(p) for p in paths]

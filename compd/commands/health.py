@@ -9,7 +9,10 @@ by the controller) no longer than ``--max-age-s`` ago, shown by either
   ``compd_cycles_complete_total``, ``compd_last_complete_cycle_age_seconds``
   (measured by the daemon on the monotonic clock) within the age, and a fault
   state below 3 (alarm/stopped); or
-* the state directory: the checkpoint's record of the last complete cycle
+* the state directory: the checkpoint's record of the last complete cycle,
+  read by the daemon's own reader (`compd.runtime.checkpoint.load_checkpoint`:
+  a torn, edited or corrupted checkpoint, one of another owner than the state
+  directory's, or a link, proves nothing, as the daemon would not restore it)
   (`compd.runtime.liveness`: judged on the monotonic clock within one boot,
   on the wall clock otherwise; a stamp in the future is no evidence), and
   the fault state of the cycle before it was written (``last_state``) below
@@ -24,17 +27,18 @@ A daemon that cycles without a controller, or whose writes fail, is not
 healthy, however busy it is: cycles that ran prove nothing, and neither do
 the recorder's files. With both sources given, either one suffices (the report
 names both). With neither, the state directory is ``$STATE_DIRECTORY`` (set
-by systemd) or ``/var/lib/compd``. Only the standard library is imported: a
-health check runs every few seconds and must stay cheap.
+by systemd) or ``/var/lib/compd``. Only the standard library (and compd's
+stdlib-only checkpoint reader) is imported: a health check runs every few
+seconds and must stay cheap.
 """
 
 from __future__ import annotations
 
 import argparse
 import http.client
-import json
 import math
 import os
+import stat
 import sys
 import time
 import urllib.error
@@ -44,6 +48,7 @@ from pathlib import Path
 
 from compd.config.urls import redact_urls
 from compd.core.faults import GAUGE_ALARM, FaultState
+from compd.runtime.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from compd.runtime.liveness import last_complete_age_s
 from compd.sysexits import EX_USAGE
 
@@ -53,9 +58,6 @@ DEFAULT_STATE_DIR = Path("/var/lib/compd")
 #: a health check waits at most this long for the endpoint, and an age beyond a week is a typo
 MAX_TIMEOUT_S = 300.0
 MAX_AGE_LIMIT_S = 7 * 86400.0
-CHECKPOINT_NAME = "checkpoint.json"
-#: Read at most this much of a checkpoint (it holds delay lines, not records).
-MAX_CHECKPOINT_BYTES = 16 * 1024 * 1024
 FAULT_STOPPED = float(GAUGE_ALARM)
 _STATES = frozenset(str(s) for s in FaultState)
 
@@ -138,29 +140,19 @@ def check_metrics(url: str, max_age_s: float, timeout_s: float,
 # -- state directory ---------------------------------------------------------------------
 
 
-def _read_checkpoint(path: Path) -> dict[str, object] | None:
-    """The checkpoint's JSON object, None when it cannot be read as one."""
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
-    except OSError:
-        return None
-    try:
-        with os.fdopen(fd, "rb") as f:
-            data = json.loads(f.read(MAX_CHECKPOINT_BYTES))
-    except (OSError, ValueError, RecursionError):  # RecursionError: nested thousands deep
-        return None
-    return data if isinstance(data, dict) else None
-
-
 def check_state_dir(state_dir: Path, max_age_s: float) -> tuple[bool, str]:
-    if not state_dir.is_dir():
+    try:
+        st = state_dir.stat()
+    except OSError:
+        st = None
+    if st is None or not stat.S_ISDIR(st.st_mode):
         return False, f"state dir {state_dir}: not a directory"
-    path = state_dir / CHECKPOINT_NAME
-    if not path.exists():
-        return False, f"state dir {state_dir}: no checkpoint yet"
-    state = _read_checkpoint(path)
+    try:  # the daemon's reader; the file is the state directory owner's, whoever asks
+        state = load_checkpoint(state_dir / CHECKPOINT_NAME, owner=st.st_uid)
+    except CheckpointError as exc:
+        return False, f"state dir {state_dir}: checkpoint unreadable ({exc.reason})"
     if state is None:
-        return False, f"state dir {state_dir}: checkpoint unreadable (torn or not ours)"
+        return False, f"state dir {state_dir}: no checkpoint yet"
     last = state.get("last_state")  # absent in an older compd's checkpoint
     if last in _STATES and FaultState(last).gauge >= FAULT_STOPPED:
         return False, f"state dir {state_dir}: fault state {last} (alarm/stopped)"

@@ -101,7 +101,10 @@ def replay_model(model: CompensationModel, record: Record, *, steady: bool = Fal
 def plot_inputs(model: CompensationModel, record: Record) -> dict[str, npt.NDArray[np.float64]]:
     """The channels a replay figure shows above the displacement."""
     names = [c for c in record.columns if c in model.channels]
-    names += [c for c in record.columns if "speed" in c.lower() and c not in names]
+    from compd.offline.channel_kind import ChannelKind, channel_kind
+
+    names += [c for c in record.columns
+              if channel_kind(c) is ChannelKind.SPEED and c not in names]
     return {c: record.columns[c] for c in names}
 
 

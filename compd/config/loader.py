@@ -21,7 +21,6 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
-from compd.config.adaptation import AdaptationSettings
 from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX, check_outputs
 from compd.config.schema import (
     AdaptationSection,
@@ -30,6 +29,7 @@ from compd.config.schema import (
     SecuritySection,
 )
 from compd.config.suggest import errors_of
+from compd.core.adaptation import AdaptationSettings
 from compd.errors import ConfigError
 from compd.infiles import MAX_CONFIG_BYTES, InputError, load_model, read_toml_document
 from drivers.addresses import Address
@@ -61,7 +61,6 @@ class LoadedConfig:
     model_sha256: str
     #: smallest step the offset address can hold, in µm (read-back tolerance)
     offset_quantum_um: float
-    extras: dict[str, Any] = field(default_factory=dict)
     #: [adaptation] when enabled: the cycle's settings and the probe's two addresses
     #: (read under PROBE_NAMES beside the channels)
     adaptation: AdaptationSettings | None = None

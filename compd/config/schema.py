@@ -426,10 +426,6 @@ class HttpFaceSection(_Section):
     refresh_s: Annotated[float, Field(ge=1.0, le=3600.0, allow_inf_nan=False)] = 5.0
 
 
-#: OPC UA security policies the face offers (SignAndEncrypt only), by config name
-FACE_POLICIES = ("Basic256Sha256", "Aes128_Sha256_RsaOaep", "Aes256_Sha256_RsaPss", "None")
-
-
 class OpcUaFaceSection(_Section):
     """``[faces.opcua]``: compd's own OPC UA server (`compd.faces.opcua_face`):
     read-only for every client; SetHold only for `operator`."""

@@ -50,13 +50,25 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
-from compd.config.adaptation import AdaptationSettings
 from compd.core.faults import Event
-from models.adaptation import Adapter, ProbeOutcome
+from models.adaptation import AdaptationParams, Adapter, ProbeOutcome
 
 __all__ = ["AdaptationSettings", "ProbeReading", "ProbeStage"]
+
+
+@dataclass(frozen=True)
+class AdaptationSettings:
+    """What `ProbeStage` does (``[adaptation]``, built by the config loader): the
+    mode ("shadow": estimated and recorded; "apply": added to the model output),
+    what the probe measures, the estimator's settings, and the probes over which
+    the guard "no model worse than none" judges the compensation (0: off)."""
+
+    mode: Literal["shadow", "apply"]
+    measures: Literal["residual", "displacement"]
+    params: AdaptationParams
+    guard_window: int = 3
 
 
 @dataclass(frozen=True)

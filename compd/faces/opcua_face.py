@@ -258,6 +258,8 @@ class _SharedServer:
             assert sec.certificate is not None and sec.private_key is not None
             await server.load_certificate(str(self._path(sec.certificate)))
             await server.load_private_key(str(self._path(sec.private_key)))
+        # asyncua annotates the ruleset as its SimpleRoleRuleset class, though it only calls
+        # check_validity (the PermissionRuleset interface) that _ReadOnlyRules implements
         server.set_security_policy([_POLICIES[sec.policy]],
                                    permission_ruleset=_ReadOnlyRules(self))  # type: ignore[arg-type]
         # no user name over an unencrypted channel: policy None is anonymous only

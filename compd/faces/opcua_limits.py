@@ -344,6 +344,8 @@ class FaceLoop(asyncio.SelectorEventLoop):
         super().__init__()
         self.guard = guard
 
+    # typeshed spells out every keyword of create_server; this passes them through
+    # (*args/**kwargs) after wrapping the factory, which mypy takes for a narrower signature
     async def create_server(  # type: ignore[override]
             self, protocol_factory: Callable[[], asyncio.Protocol], *args: Any,
             **kwargs: Any) -> asyncio.Server:

@@ -54,7 +54,8 @@ def daemon_document(board: StatusBoard, *, history: bool = True) -> dict[str, An
     doc["age_s"] = max(0.0, time.time() - wall_s) if isinstance(wall_s, float) else None
     doc["refresh_s"] = board.refresh_s
     doc["history"] = board.history() if history else None
-    return _finite(doc)  # type: ignore[no-any-return]
+    finite: dict[str, Any] = _finite(doc)  # a dict in, a dict out
+    return finite
 
 
 def fleet_document(boards: Mapping[str, StatusBoard], refresh_s: float,

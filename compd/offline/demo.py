@@ -32,6 +32,7 @@ import numpy as np
 from compd.errors import ConfigError
 from compd.infiles import load_model
 from drivers.sim.base import SimController
+from drivers.sim.focas_server import FocasSimController
 from drivers.sim.machine import SimMachine
 from models import tomltext
 from models.quality import fit_percent
@@ -92,8 +93,8 @@ def daemon_config(sim: SimController, *, model: str, period_s: float, time_scale
     }
     if sim.protocol == "opcua":
         controller["security"] = {"policy": "None", "insecure": True}
-    if sim.protocol == "focas":
-        controller["focas"] = {"library_path": str(sim.library_path)}  # type: ignore[attr-defined]
+    if isinstance(sim, FocasSimController):  # its library is the twin's own, not the protocol's
+        controller["focas"] = {"library_path": str(sim.library_path)}
     outputs = sim.outputs_map
     return {
         "machine": {"name": f"demo-{sim.protocol}", "period_s": period_s,

@@ -14,21 +14,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from compd.infiles import InputError
+from compd.offline.channel_kind import is_rate_channel
 from compd.sysexits import EX_USAGE
 from models.errors import ModelError
 
 if TYPE_CHECKING:
     from compd.offline.records import Record
-
-#: a channel whose name contains one of these is a rate (speed, power): it
-#: enters a model as it is, not relative to its first sample
-RATE_MARKERS: tuple[str, ...] = ("rpm", "speed", "power", "_kw")
-
-
-def is_rate_channel(name: str) -> bool:
-    low = name.lower()
-    return any(m in low for m in RATE_MARKERS)
-
 
 #: columns the --candidates patterns may match: each greedy round fits the model once per
 #: column left (200 columns of 2,000 rows took minutes; a shop machine has some 20 sensors)

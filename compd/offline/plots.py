@@ -21,11 +21,17 @@ import numpy.typing as npt
 from matplotlib.axes import Axes
 from matplotlib.text import Text
 
+from compd.offline.channel_kind import ChannelKind, channel_kind
+
 FloatArray = npt.NDArray[np.float64]
 
 
-def _is_speed(name: str) -> bool:
-    return "speed" in name.lower() or name.lower().endswith("rpm")
+def _rate_axis_label(kinds: set[ChannelKind]) -> str:
+    if kinds == {ChannelKind.SPEED}:
+        return "spindle speed (rpm)"
+    if kinds == {ChannelKind.POWER}:
+        return "power"
+    return "speed (rpm) / power"
 
 
 def replay_figure(path: str | Path, time_s: FloatArray, inputs: Mapping[str, FloatArray],
@@ -44,19 +50,21 @@ def replay_figure(path: str | Path, time_s: FloatArray, inputs: Mapping[str, Flo
     hours = np.asarray(time_s) / 3600.0
     fig, (top, bottom) = plt.subplots(2, 1, sharex=True, figsize=(10, 7),
                                       gridspec_kw={"height_ratios": [2, 3]})
-    temps = {k: v for k, v in inputs.items() if not _is_speed(k)}
-    speeds = {k: v for k, v in inputs.items() if _is_speed(k)}
+    kinds = {k: channel_kind(k) for k in inputs}
+    temps = {k: v for k, v in inputs.items() if kinds[k] is ChannelKind.TEMPERATURE}
+    rates = {k: v for k, v in inputs.items() if kinds[k] is not ChannelKind.TEMPERATURE}
     for name, values in temps.items():
         top.plot(hours, values, lw=1.0, label=f"{name} (°C)")
     top.set_ylabel("temperature (°C)")
     top.grid(True, alpha=0.3)
     # the inputs' legend has names of its own: `labels` stays the lower panel's
     handles, names = top.get_legend_handles_labels()
-    if speeds:
+    if rates:
         right = top.twinx()
-        for name, values in speeds.items():
-            right.plot(hours, values, lw=0.8, color="0.55", ls="--", label=f"{name} (rpm)")
-        right.set_ylabel("spindle speed (rpm)")
+        for name, values in rates.items():
+            unit = " (rpm)" if kinds[name] is ChannelKind.SPEED else ""
+            right.plot(hours, values, lw=0.8, color="0.55", ls="--", label=f"{name}{unit}")
+        right.set_ylabel(_rate_axis_label({kinds[k] for k in rates}))
         h2, l2 = right.get_legend_handles_labels()
         handles, names = handles + h2, names + l2
     if handles:

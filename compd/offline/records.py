@@ -37,6 +37,7 @@ import numpy.typing as npt
 
 from compd.errors import CompdError
 from compd.infiles import MAX_RECORD_BYTES, MAX_RECORDER_BYTES, check_input, open_input
+from compd.offline.channel_kind import ChannelKind, channel_kind
 from models.sanity import MAX_PERIOD_S, MIN_PERIOD_S
 
 FloatArray = npt.NDArray[np.float64]
@@ -103,6 +104,8 @@ class Samples(Sequence[dict[str, float]]):
     def __len__(self) -> int:
         return self._n
 
+    # rows by index only: a slice would build the dicts it exists to avoid building (Sequence
+    # declares the slice overload too, so mypy calls the narrower signature an override)
     def __getitem__(self, i: int) -> dict[str, float]:  # type: ignore[override]
         if not -self._n <= i < self._n:
             raise IndexError(i)
@@ -356,7 +359,7 @@ def check_units(record: Record, temperatures: Iterable[str], displacement: str) 
 def speed_warnings(record: Record) -> list[str]:
     """Advice about the calibration design when the record has a speed column:
     a constant-speed heat-up alone generalises poorly (docs/calibration.md §1)."""
-    names = [n for n in record.columns if "speed" in n.lower() or n.lower().endswith("rpm")]
+    names = [n for n in record.columns if channel_kind(n) is ChannelKind.SPEED]
     out: list[str] = []
     for name in names:
         s = record.columns[name]

@@ -42,8 +42,11 @@ from compd.errors import CompdError
 from compd.runtime.statedir import StateDir, StateDirError, open_private
 from models.nesting import loads_json
 
-__all__ = ["FORMAT_VERSION", "RESERVED_KEYS", "CheckpointError", "load_checkpoint",
-           "save_checkpoint"]
+__all__ = ["CHECKPOINT_NAME", "FORMAT_VERSION", "RESERVED_KEYS", "CheckpointError",
+           "load_checkpoint", "save_checkpoint"]
+
+#: The checkpoint's name in the state directory (the daemon writes it, `compd health` reads it).
+CHECKPOINT_NAME = "checkpoint.json"
 
 #: The checkpoint format this module writes and accepts.
 FORMAT_VERSION = 1
@@ -140,15 +143,18 @@ def _refuse_constant(name: str) -> float:
     raise ValueError(f"non-finite number {name}")
 
 
-def load_checkpoint(path: Path, *, directory: StateDir | None = None) -> dict[str, Any] | None:
+def load_checkpoint(path: Path, *, directory: StateDir | None = None,
+                    owner: int | None = None) -> dict[str, Any] | None:
     """The checkpoint at `path` (state plus version, saved_wall_s, checksum),
     None when there is none, CheckpointError when it cannot be trusted. With
-    `directory` (the open state directory), `path`'s name in it."""
+    `directory` (the open state directory), `path`'s name in it. The file must
+    be this process's own, or `owner`'s when given (a reader that is not the
+    daemon, as `compd health`: the owner of the state directory)."""
     try:
         if directory is not None:
             fd = directory.open_file(path.name, os.O_RDONLY, create=False)
         else:
-            fd = open_private(path, os.O_RDONLY, create=False)
+            fd = open_private(path, os.O_RDONLY, create=False, owner=owner)
     except FileNotFoundError:
         return None
     except StateDirError as exc:

@@ -23,11 +23,9 @@ from typing import Any
 from compd.config.loader import LoadedConfig
 from compd.core.cycle import Cycle, CycleParams
 from compd.core.faults import Event
-from compd.runtime.checkpoint import CheckpointError, load_checkpoint
+from compd.runtime.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from compd.runtime.statedir import StateDir
 from models.errors import ModelError
-
-CHECKPOINT_NAME = "checkpoint.json"
 
 
 @dataclass

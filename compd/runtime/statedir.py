@@ -289,9 +289,11 @@ def _check_regular(path: Path, st: os.stat_result, euid: int) -> None:
 
 
 def open_private(path: Path, flags: int, *, create: bool = True,
-                 dir_fd: int | None = None) -> int:
+                 dir_fd: int | None = None, owner: int | None = None) -> int:
     """A descriptor of the regular file `path` (ours, never through a link);
-    with `dir_fd`, `path`'s name is opened in that directory.
+    with `dir_fd`, `path`'s name is opened in that directory. "Ours" is owned
+    by this process's effective uid, or by `owner` when given (a reader that
+    is not the writer, such as `compd health` run as root).
 
     `flags` are the access flags (os.O_RDONLY, os.O_RDWR, …); ``O_NOFOLLOW``
     and ``O_CLOEXEC`` are added, and ``O_CREAT`` (mode 0600) with `create`.
@@ -313,7 +315,7 @@ def open_private(path: Path, flags: int, *, create: bool = True,
             raise StateDirError(path, "is a symbolic link; refused (not followed)") from None
         raise
     try:
-        _check_regular(path, os.fstat(fd), os.geteuid())
+        _check_regular(path, os.fstat(fd), os.geteuid() if owner is None else owner)
         if all_flags & os.O_NONBLOCK and not flags & os.O_NONBLOCK:
             os.set_blocking(fd, True)
     except BaseException:

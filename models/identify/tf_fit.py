@@ -66,13 +66,6 @@ def _simulate(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]],
     return total
 
 
-def simulate_terms(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]],
-                   inputs: Sequence[FloatArray], segments: Segments | None = None
-                   ) -> FloatArray:
-    """Σ_t A_t/B_t · u_t from rest (per segment)."""
-    return _simulate(nums, dens, inputs, segments)
-
-
 def _grow_den(den: Sequence[float]) -> tuple[float, ...]:
     """One more denominator coefficient, the same poles plus one at 0."""
     kappa = np.append(step_down(den), 0.0)

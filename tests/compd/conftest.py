@@ -3,17 +3,19 @@
 
 from __future__ import annotations
 
+from collections.abc import AsyncIterator
+
 import pytest
 
 from drivers.sim.modbus_server import ModbusSimController
 
 
 @pytest.fixture
-async def sim() -> ModbusSimController:
+async def sim() -> AsyncIterator[ModbusSimController]:
     controller = ModbusSimController()
     await controller.start()
     await controller.publish({"bearing": 20.0, "ambient": 20.0})
     try:
-        yield controller  # type: ignore[misc]
+        yield controller
     finally:
         await controller.stop()

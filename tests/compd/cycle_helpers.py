@@ -5,10 +5,10 @@ from __future__ import annotations
 
 from compd.core.cycle import Cycle, CycleParams
 from compd.core.validation import ChannelLimits
+from compd.infiles import load_model
 from compd.testing import FakeClock
 from drivers.base import Quality, Sample
 from models.compensation import CompensationModel
-from models.modelfile import load_model
 
 PERIOD_S = 1.0
 HOLD_S = 60.0

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.modelfile import load_model
+from compd.infiles import load_model
 
 LEVELS = (1.0, 0.0, 0.6, 0.3, 1.0, 0.0, 0.8, 0.45, 0.0, 0.9, 0.2, 0.7)
 

@@ -192,7 +192,7 @@ def test_replay_with_gains_and_a_plot_of_the_probes(
     out = capsys.readouterr().out
     assert "adapted (a probe every 7200 s" in out and "crude" in out
     assert png.stat().st_size > 10_000
-    t = np.arange(10) * 3600.0
+    t = np.arange(10, dtype=np.float64) * 3600.0
     m = np.sin(t / 3e4)
     _, lower = replay_figure(tmp_path / "p.png", t, {}, m, m * 0.9, title="t", fit_pct=1.0,
                              dpk_um=1.0, adapted=m * 0.95,

@@ -218,8 +218,7 @@ def test_a_prior_saying_adapting_does_not_pay_starts_stood_down() -> None:
 
 
 def test_a_stand_down_in_the_cycle_is_an_event_with_the_score() -> None:
-    from compd.config.adaptation import AdaptationSettings
-    from compd.core.adaptation import ProbeReading
+    from compd.core.adaptation import AdaptationSettings, ProbeReading
 
     stage = ProbeStage(AdaptationSettings("apply", "displacement", _chasing().params), 1)
     events: list[Event] = []
@@ -289,8 +288,7 @@ def test_a_model_table_beyond_the_configs_bounds_is_refused_by_name(tmp_path: Pa
 
 
 def test_a_reacquisition_in_the_cycle_is_an_event() -> None:
-    from compd.config.adaptation import AdaptationSettings
-    from compd.core.adaptation import ProbeReading
+    from compd.core.adaptation import AdaptationSettings, ProbeReading
 
     stage = ProbeStage(AdaptationSettings("apply", "displacement",
                                           AdaptationParams(score_window=0)), 1)

@@ -20,6 +20,7 @@ import random
 import subprocess
 import sys
 from pathlib import Path
+from typing import IO
 
 import pytest
 
@@ -183,9 +184,9 @@ def test_hostile_command_line(argv: list[str], root: Path,
     assert (root / "rec.csv").read_text(encoding="utf-8").startswith("time_s,")  # never hit
 
 
-def _compd(*argv: str, **kw: object) -> subprocess.Popen[str]:
+def _compd(*argv: str, stdout: int | IO[str]) -> subprocess.Popen[str]:
     return subprocess.Popen([sys.executable, "-m", "compd", *argv], text=True,
-                            stderr=kw.pop("stderr", subprocess.PIPE), **kw)  # type: ignore
+                            stdout=stdout, stderr=subprocess.PIPE)
 
 
 def test_a_reader_that_goes_away_ends_quietly() -> None:

@@ -15,11 +15,11 @@ import structlog
 from compd import __version__
 from compd.cli import COMMANDS, build_parser, main
 from compd.config.loader import load_config
+from compd.infiles import load_model
 from compd.runtime.daemon import Daemon
 from compd.runtime.sdnotify import Notifier
 from compd.sysexits import EX_CONFIG, EX_DATAERR, EX_NOINPUT, EX_USAGE
 from drivers.sim.modbus_server import ModbusSimController
-from models.modelfile import load_model
 
 from .daemon_helpers import write_config
 

@@ -37,11 +37,11 @@ def _address(protocol: str, dumped: dict[str, Any]) -> Address:
     """The one address model of `protocol` that round-trips `dumped`."""
     for model in ADDRESS_TYPES[protocol]:
         try:
-            addr = model.model_validate(dumped)
+            addr: Address = model.model_validate(dumped)
         except ValueError:
             continue
         if addr.model_dump() == dumped:
-            return addr  # type: ignore[return-value]
+            return addr
     raise AssertionError(f"{dumped} is not a {protocol} address")
 
 

@@ -11,8 +11,9 @@ import pytest
 
 from compd.core.cycle import WRITE_FAULT_AFTER, Cycle, offset_in_force
 from compd.core.faults import FaultState
+from compd.testing import FakeClock
 
-from .cycle_helpers import FakeClock, params, samples, sp2
+from .cycle_helpers import params, samples, sp2
 
 
 @pytest.mark.parametrize(("valid", "state", "confirmed"),

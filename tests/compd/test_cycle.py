@@ -8,19 +8,10 @@ import pytest
 
 from compd.core.cycle import Cycle
 from compd.core.output import Status
+from compd.testing import FakeClock
 from drivers.base import Quality, Sample
 
-from .cycle_helpers import (
-    HOLD_S,
-    LIMIT_UM,
-    PERIOD_S,
-    SLEW_UM_S,
-    FakeClock,
-    params,
-    run_warm,
-    samples,
-    sp2,
-)
+from .cycle_helpers import HOLD_S, LIMIT_UM, PERIOD_S, SLEW_UM_S, params, run_warm, samples, sp2
 
 
 def _events(result: object) -> list[str]:
@@ -135,7 +126,7 @@ def test_read_failure_holds_then_ramps_to_zero() -> None:
     start = clock.tick()
     r = cycle.step(start, None)
     assert r.state == "hold" and r.offset_um == held
-    assert set(r.record.validity.values()) == {"read_failed"}  # type: ignore[union-attr]
+    assert set(r.record.validity.values()) == {"read_failed"}
     for _ in range(int(HOLD_S + held / SLEW_UM_S) + 5):
         t = clock.tick()
         r = cycle.step(t, None)
@@ -185,7 +176,7 @@ def test_one_sample_spike_is_rejected_and_filters_not_stepped() -> None:
     assert ref_state is not None
     # the spiked run skipped two samples but never saw the spike: same model output
     # as a run that skipped nothing, to the effect of two missing samples only
-    assert rb.model_um == pytest.approx(ra.model_um, abs=0.05)  # type: ignore[arg-type]
+    assert rb.model_um == pytest.approx(ra.model_um, abs=0.05)
 
 
 def test_stuck_value_is_flagged_only_while_others_move() -> None:
@@ -195,7 +186,7 @@ def test_stuck_value_is_flagged_only_while_others_move() -> None:
     for k in range(500):
         t = clock.tick()
         r = cycle.step(t, samples(t, 25.0, 20.0 + 0.01 * (k % 2)))
-        reasons.append(r.record.validity["bearing"])  # type: ignore[union-attr]
+        reasons.append(r.record.validity["bearing"])
     assert reasons[300] is None  # 3000 s < stuck_after_s = 3600 s
     assert reasons[-1] == "stuck"
 
@@ -219,7 +210,7 @@ def test_frozen_source_timestamp_is_stale() -> None:
     for _ in range(40):
         t = clock.tick()
         r = cycle.step(t, samples(t, 25.0, ts_s=frozen_ts))
-        reasons.append(r.record.validity["bearing"])  # type: ignore[union-attr]
+        reasons.append(r.record.validity["bearing"])
     assert reasons[0] is None and reasons[-1] == "stale"
     # an old timestamp against the wall clock is stale at once
     t = clock.tick()
@@ -347,7 +338,7 @@ def test_deadband_keeps_small_changes_out() -> None:
 
 
 def test_shadow_model_is_evaluated_but_never_written() -> None:
-    from models.modelfile import load_model
+    from compd.infiles import load_model
     shadow = load_model("sp2")
     shadow.terms[0].gain = 2.0
     cycle, clock = Cycle(params(slew_um_s=1000.0), sp2(), shadow), FakeClock()

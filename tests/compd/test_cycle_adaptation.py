@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import itertools
 import math
+from typing import Any
 
 import pytest
 
-from compd.config.adaptation import AdaptationSettings
-from compd.core.adaptation import ProbeReading
+from compd.core.adaptation import AdaptationSettings, ProbeReading
 from compd.core.cycle import Cycle, CycleResult
 from compd.testing import FakeClock
 from models.adaptation import AdaptationParams
@@ -57,7 +57,7 @@ class Machine:
         return out
 
 
-def _probes(results: list[CycleResult]) -> list[dict[str, object]]:
+def _probes(results: list[CycleResult]) -> list[dict[str, Any]]:  # as RecordRow.probe
     return [dict(r.record.probe) for r in results if r.record.probe is not None]
 
 

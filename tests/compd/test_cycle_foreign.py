@@ -10,8 +10,9 @@ import pytest
 
 from compd.core.cycle import Cycle, CycleResult
 from compd.core.output import OutputStage, Readback, Status
+from compd.testing import FakeClock
 
-from .cycle_helpers import LIMIT_UM, PERIOD_S, SLEW_UM_S, FakeClock, params, samples, sp2
+from .cycle_helpers import LIMIT_UM, PERIOD_S, SLEW_UM_S, params, samples, sp2
 
 
 def _names(r: CycleResult) -> list[str]:

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from compd.infiles import load_model
 from compd.offline.demo import daemon_config, run_demo, start_daemon, start_daemon_at_rest
 from compd.runtime.recorder import read_samples
 from drivers.sim.base import SimController
@@ -36,7 +37,6 @@ from drivers.sim.machine import SimMachine
 from drivers.sim.programs import make_program
 from drivers.sim.registry import make_sim_controller
 from models import tomltext
-from models.modelfile import load_model
 from models.quality import fit_percent
 from tests.lockstep import Lockstep, lockstep_config, write_config
 
@@ -150,7 +150,7 @@ async def _run_with_faults(protocol: str, work: Path) -> dict[str, Any]:
     int_coded = protocol != "opcua"
     open_value = 3276.7 if int_coded else math.nan      # raw 32767 / NaN
     shorted_value = -3276.8 if int_coded else -250.0     # raw -32768 / below a Pt100's range
-    machine = SimMachine(sim, program=make_program("spectrum", seed=7), seed=7,  # type: ignore[arg-type]
+    machine = SimMachine(sim, program=make_program("spectrum", seed=7), seed=7,
                          period_s=period_s, speedup=time_scale, repeat=False, record=True)
     events: list[tuple[float, str]] = []
     daemons: list[asyncio.subprocess.Process] = []
@@ -227,7 +227,7 @@ async def _lockstep_with_faults(protocol: str, work: Path) -> dict[str, Any]:
     int_coded = protocol != "opcua"
     open_value = 3276.7 if int_coded else math.nan      # raw 32767 / NaN
     shorted_value = -3276.8 if int_coded else -250.0     # raw -32768 / below a Pt100's range
-    machine = SimMachine(sim, program=make_program("spectrum", seed=7), seed=7,  # type: ignore[arg-type]
+    machine = SimMachine(sim, program=make_program("spectrum", seed=7), seed=7,
                          period_s=period_s, repeat=False, record=True)
     doc = lockstep_config(inner, work, model="sim_machine", period_s=period_s,
                           limit_um=LIMIT_UM, slew_um_s=SLEW_UM_S)

@@ -19,6 +19,7 @@ def test_every_state_has_a_gauge_and_the_alarm_is_no_offset_reaching_the_machine
 
 
 def test_states_are_their_names_in_rows_logs_and_json() -> None:
-    assert FaultState.HOLD == "hold" and str(FaultState.RAMP) == "ramp"
+    held: str = FaultState.HOLD  # a str itself, equal to its name
+    assert held == "hold" and str(FaultState.RAMP) == "ramp"
     assert f"state {FaultState.OK}" == "state ok"
     assert json.dumps({"state": FaultState.STOPPED}) == '{"state": "stopped"}'

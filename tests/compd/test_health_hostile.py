@@ -60,7 +60,8 @@ def test_a_deeply_nested_checkpoint_is_unhealthy_not_a_traceback(tmp_path: Path)
     assert proc.returncode == 1, proc.stderr
     assert "Traceback" not in proc.stderr
     assert proc.stdout == f"unhealthy: state dir {state}: checkpoint unreadable " \
-                          "(torn or not ours)\n"
+                          "(arrays and tables nested more than 320 levels deep; at most 32 " \
+                          "are accepted)\n"
 
 
 def test_a_deeply_nested_checkpoint_is_refused_on_load(tmp_path: Path) -> None:

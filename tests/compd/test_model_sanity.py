@@ -19,9 +19,11 @@ from compd.core.cycle import MODEL_RANGE_FACTOR, Cycle
 from compd.core.output import Status
 from compd.core.schedule import MAX_SHUTDOWN_CYCLES, SHUTDOWN_MARGIN_CYCLES, shutdown_ramp_cycles
 from compd.errors import ConfigError
+from compd.testing import FakeClock
+from models.compensation import CompensationModel
 from models.modelfile import parse_model
 
-from .cycle_helpers import LIMIT_UM, FakeClock, params, samples
+from .cycle_helpers import LIMIT_UM, params, samples
 
 ROOT = Path(__file__).resolve().parents[2]
 MODEL = """[model]
@@ -119,7 +121,7 @@ def test_shutdown_ramp_length_is_finite_whatever_the_numbers() -> None:
     assert shutdown_ramp_cycles(30.0, 1.0, 1.0) == 30 + SHUTDOWN_MARGIN_CYCLES
 
 
-def _model(dc_um_per_k: float) -> object:
+def _model(dc_um_per_k: float) -> CompensationModel:
     return parse_model({"model": {"period_s": 1.0}, "terms": [
         {"name": "spindle", "inputs": {"bearing": 1.0},
          "a": [str(dc_um_per_k * 0.1)], "b": ["1", "-0.9"]}]})

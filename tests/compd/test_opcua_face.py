@@ -17,6 +17,7 @@ import pytest
 import structlog
 from asyncua import ua
 from asyncua.client.client import Client
+from asyncua.common.node import Node
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from asyncua.ua.uaerrors import BadUserAccessDenied, UaStatusCodeError
 
@@ -85,18 +86,18 @@ async def _client(port: int, pki: Pki | None = None, user: str | None = None,
     return client
 
 
-async def _machine(client: Client) -> tuple[int, object]:
+async def _machine(client: Client) -> tuple[int, Node]:
     idx = await client.get_namespace_index(NAMESPACE)
     machine = await client.nodes.objects.get_child(f"{idx}:test")
     return idx, machine
 
 
-async def _value(machine: object, idx: int, *path: str) -> object:
-    node = await machine.get_child([f"{idx}:{p}" for p in path])  # type: ignore[attr-defined]
+async def _value(machine: Node, idx: int, *path: str) -> object:
+    node = await machine.get_child([f"{idx}:{p}" for p in path])
     return await node.read_value()
 
 
-async def _becomes(machine: object, idx: int, path: tuple[str, ...], expected: object,
+async def _becomes(machine: Node, idx: int, path: tuple[str, ...], expected: object,
                    tries: int = 12_000) -> None:
     """The face writes between cycles on its own thread: poll until it shows
     `expected` (at most 2 min: a loaded machine is slower, never red)."""
@@ -130,6 +131,7 @@ async def test_the_namespace_follows_the_cycle_and_is_read_only(
             state = await machine.get_child(f"{idx}:FaultState")
             dtype = await state.read_data_type()
             definition = await client.get_node(dtype).read_data_type_definition()
+            assert isinstance(definition, ua.EnumDefinition)
             assert [f.Name for f in definition.Fields][:2] == ["init", "ok"]
             assert "write_fault" in [f.Name for f in definition.Fields]
             # everyone reads; nobody writes
@@ -158,7 +160,7 @@ async def test_sethold_is_the_operators_and_holds_then_slews_back(
             idx, machine = await _machine(anon)
             await _becomes(machine, idx, ("FaultStateName",), "ok")
             with pytest.raises(UaStatusCodeError):
-                await machine.call_method(f"{idx}:SetHold", True)  # type: ignore[attr-defined]
+                await machine.call_method(f"{idx}:SetHold", True)
         # a wrong password is no session at all
         with pytest.raises(UaStatusCodeError):
             async with await _client(port, pki, OPERATOR, "guess"):
@@ -166,7 +168,7 @@ async def test_sethold_is_the_operators_and_holds_then_slews_back(
         async with await _client(port, pki, OPERATOR, PASSWORD) as op:
             idx, machine = await _machine(op)
             with structlog.testing.capture_logs() as logs:
-                assert await machine.call_method(f"{idx}:SetHold", True) is True  # type: ignore[attr-defined]
+                assert await machine.call_method(f"{idx}:SetHold", True) is True
             audit = [e for e in logs if e["event"] == "opcua_set_hold"]
             assert audit and audit[0]["user"] == OPERATOR and audit[0]["hold"] is True
             assert audit[0]["peer"].startswith("('127.0.0.1'")  # who, from where, what
@@ -179,7 +181,7 @@ async def test_sethold_is_the_operators_and_holds_then_slews_back(
             assert daemon.cycle.output.current_um == held  # held where it was
             assert daemon.last_result is not None and daemon.last_result.status & (1 << 12)
             await _becomes(machine, idx, ("OperatorHold",), True)
-            assert await machine.call_method(f"{idx}:SetHold", False) is True  # type: ignore[attr-defined]
+            assert await machine.call_method(f"{idx}:SetHold", False) is True
             await until(lambda: daemon.cycle is not None
                         and daemon.cycle.output.current_um > held + 1.0)
             # released: back to the model at the slew limit (2 µm/s, 1 s machine period)

@@ -22,8 +22,9 @@ from hypothesis import strategies as st
 from compd.config.loader import parse_config
 from compd.core.cycle import Cycle, params_from_config
 from compd.core.output import OutputStage, Readback, count_warnings
+from compd.testing import FakeClock
 from drivers.base import Sample
-from tests.compd.cycle_helpers import FakeClock, params, samples, sp2
+from tests.compd.cycle_helpers import params, samples, sp2
 
 #: relative slack of the float comparisons (k counts are k·q to a few ulps)
 SLACK = 1e-9

@@ -9,6 +9,7 @@ import json
 import math
 import sqlite3
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -19,7 +20,7 @@ from .test_config import BASE
 from .test_recorder import _row
 
 
-def _rows(path: Path, sql: str, *args: object) -> list[tuple[object, ...]]:
+def _rows(path: Path, sql: str, *args: object) -> list[tuple[Any, ...]]:  # SQLite's values
     with contextlib.closing(sqlite3.connect(path)) as conn:
         return list(conn.execute(sql, args))
 

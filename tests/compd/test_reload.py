@@ -16,6 +16,7 @@ import itertools
 import json
 import signal
 from pathlib import Path
+from typing import Any
 
 from .daemon_helpers import write_config
 from .test_run_restart import _Recorded, _start, _until, rec  # noqa: F401 - the fixture
@@ -23,7 +24,7 @@ from .test_run_restart import _Recorded, _start, _until, rec  # noqa: F401 - the
 SLEW_UM_S = 1.0
 
 
-def _events(log: Path, name: str) -> list[dict[str, object]]:
+def _events(log: Path, name: str) -> list[dict[str, Any]]:  # the log's JSON lines
     out = []
     for line in log.read_text().splitlines():
         if f'"{name}"' in line:

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from compd.cli import main
+from compd.infiles import load_model
 from models.initial_state import estimate_initial_state, relaxation_basis
-from models.modelfile import load_model
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +78,7 @@ def test_the_initial_state_of_a_known_model_is_recovered() -> None:
         {"name": "t", "inputs": {"x": 1.0}, "a": ["0.1"], "b": ["1", "-0.9"]}]})
     n = 200
     basis, names = relaxation_basis(model, [1.0], n)
-    truth = 3.0 + 2.0 * 0.9 ** np.arange(1, n + 1)
+    truth = 3.0 + 2.0 * 0.9 ** np.arange(1, n + 1, dtype=np.float64)
     est = estimate_initial_state(truth, basis, names, 50)
     assert est.offset_um == pytest.approx(3.0) and est.levels == {"t": pytest.approx(2.0)}
     assert est.response == pytest.approx(truth)

@@ -158,7 +158,7 @@ class _CrashingDriver:
 async def test_a_crashing_daemon_is_restarted_alone(
         sims: list[ModbusSimController], tmp_path: Path) -> None:
     configs = load_machines(_machines_dir(tmp_path, sims))
-    fleet, task, fs = _lockstep(configs, drivers={"mill-c": _CrashingDriver()})  # type: ignore[dict-item]
+    fleet, task, fs = _lockstep(configs, drivers={"mill-c": _CrashingDriver()})
     try:
         # mill-c crashes at its first read (before its first sleep) and is started
         # again after its backoff (1 s of real time) with a real driver: three

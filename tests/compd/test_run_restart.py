@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from pymodbus.constants import ExcCodes
 
 from compd.core.output import Status
 from compd.runtime.checkpoint import load_checkpoint
@@ -40,11 +41,12 @@ class _Recorded:
         self.offsets: list[float] = []
         original = self.sim._action
 
-        async def action(function_code: int, start: int, address: int, count: int,
-                         registers: list[int], set_values: Any) -> Any:
+        async def action(function_code: int, _start: int, address: int, count: int,
+                         _registers: list[int], set_values: list[int] | list[bool] | None
+                         ) -> ExcCodes | None:
             if set_values is not None and address == 0 and count >= 2:
-                self.offsets.append(decode(OUTPUTS["offset"], list(set_values[:2])))
-            return await original(function_code, start, address, count, registers,
+                self.offsets.append(decode(OUTPUTS["offset"], [int(v) for v in set_values[:2]]))
+            return await original(function_code, _start, address, count, _registers,
                                   set_values)
 
         self.sim._action = action  # type: ignore[method-assign]  # watch the writes

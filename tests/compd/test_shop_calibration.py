@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from compd.cli import main
-from models.modelfile import load_model
+from compd.infiles import load_model
 
 SEED = 3
 

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from compd.cli import main
+from compd.infiles import load_model
 from drivers.sim.csvlog import RECORD_COLUMNS
-from models.modelfile import load_model
 
 
 def test_the_bundled_model_uses_the_plants_channels() -> None:

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import asyncio
 import os
+from collections.abc import Callable, Coroutine
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -33,11 +35,12 @@ def _artifacts(tmp_path: Path) -> Path:
     return out
 
 
-def _browse(base: str, out: Path, loop: asyncio.AbstractEventLoop, inject: object,
-            stop: object) -> dict[str, object]:
+def _browse(base: str, out: Path, loop: asyncio.AbstractEventLoop,
+            inject: Callable[[], Coroutine[Any, Any, None]],
+            stop: Callable[[], None]) -> dict[str, Any]:
     """In a thread: load the page, read it, inject the fault, read it again, stop
     the daemon and see the page say so."""
-    seen: dict[str, object] = {}
+    seen: dict[str, Any] = {}  # what the page's scripts return: JSON values
     with headless_chromium() as browser:
         browser.get(base)
         browser.wait_for('return document.querySelector("#m0 .state")?.textContent === "on"')
@@ -55,7 +58,7 @@ def _browse(base: str, out: Path, loop: asyncio.AbstractEventLoop, inject: objec
             '  if (d[i] < 40 && d[i + 1] > 60 && d[i + 1] < 110 && d[i + 2] > 170) blue++;'
             'return blue;')
         seen["shot_on"] = browser.screenshot(out / "status-page-on.png")
-        asyncio.run_coroutine_threadsafe(inject(), loop).result(10.0)  # type: ignore[operator]
+        asyncio.run_coroutine_threadsafe(inject(), loop).result(10.0)
         browser.wait_for('return document.querySelector("#m0 .state")?.textContent '
                          '=== "holding"')
         browser.wait_for('return document.querySelector("#m0 table.alarms")'
@@ -63,7 +66,7 @@ def _browse(base: str, out: Path, loop: asyncio.AbstractEventLoop, inject: objec
         seen["after"] = browser.script(_STATE), browser.script(_CHANNELS)
         seen["why"] = browser.script('return document.querySelector("#m0 .why").textContent')
         seen["shot_fault"] = browser.screenshot(out / "status-page-holding.png")
-        loop.call_soon_threadsafe(stop)  # type: ignore[arg-type]
+        loop.call_soon_threadsafe(stop)
         seen["gone"] = browser.wait_for('return document.getElementById("stale")'
                                         '.textContent')
     seen["png"] = [Path(str(seen[k])).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -85,13 +88,13 @@ async def test_the_page_shows_the_daemon_and_follows_a_fault(
         seen = await asyncio.to_thread(_browse, base, out, asyncio.get_running_loop(),
                                        bearing_out_of_range, daemon.request_stop)
     print(f"\nscreenshots: {seen['shot_on']} {seen['shot_fault']}")
-    state, channels = seen["before"]  # type: ignore[misc]
+    state, channels = seen["before"]
     assert state == "on"
     assert channels == [["bearing", "24.00 °C", "valid"], ["ambient", "21.00 °C", "valid"]]
     assert str(seen["offset"]).endswith(" \u00b5m")
     assert seen["external"] == []  # nothing fetched from anywhere but compd
-    assert int(seen["plotted"]) > 50  # type: ignore[call-overload]  # the offset line drawn
-    state, channels = seen["after"]  # type: ignore[misc]
+    assert int(seen["plotted"]) > 50  # the offset line drawn
+    state, channels = seen["after"]
     assert state == "holding" and "bearing: out_of_range" in str(seen["why"])
     assert channels[0] == ["bearing", "500.00 °C", "invalid: out_of_range"]
     assert str(seen["gone"]).startswith("no answer from compd")  # not old values as live

@@ -4,6 +4,7 @@ controller, hostile requests, `compd status`, and the fleet's page."""
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import itertools
 import json
@@ -203,9 +204,7 @@ def test_a_reload_that_changes_the_page_restarts_the_server(tmp_path: Path) -> N
 # -- compd status -----------------------------------------------------------------------
 
 
-def _args(url: str, *, as_json: bool = False) -> object:
-    import argparse
-
+def _args(url: str, *, as_json: bool = False) -> argparse.Namespace:
     return argparse.Namespace(url=url, json=as_json, timeout_s=30.0)  # a loaded machine
 
 

@@ -13,9 +13,10 @@ from compd.core.cycle import WRITE_FAULT_AFTER, Cycle
 from compd.core.output import Status
 from compd.runtime.daemon import Daemon
 from compd.runtime.sdnotify import Notifier
+from compd.testing import FakeClock
 from drivers.sim.modbus_server import ModbusSimController
 
-from .cycle_helpers import FakeClock, params, run_warm, samples, sp2
+from .cycle_helpers import params, run_warm, samples, sp2
 from .daemon_helpers import until as _until
 from .daemon_helpers import write_config
 

@@ -25,9 +25,9 @@ from pathlib import Path
 
 
 def _model_and_state(state_dir: Path) -> None:
+    from compd.infiles import load_model
     from compd.runtime.checkpoint import load_checkpoint, save_checkpoint
     from compd.runtime.statelock import StateLock
-    from models.modelfile import load_model
 
     model = load_model("sp2")
     offset_um = 0.0

@@ -35,6 +35,7 @@ class MemoryController:
             n: ModbusAddress(address=2 * i) for i, n in enumerate(CHANNELS)}
         self.outputs_map: dict[str, Address] = {
             n: ModbusAddress(address=100 + 2 * i) for i, n in enumerate(OUTPUTS)}
+        self.probes: dict[str, Address] = {}  # no measuring cycle
         self.values: dict[str, float] = {}
         self.written: dict[str, float] = dict.fromkeys(OUTPUTS, 0.0)
         self.published = 0

@@ -20,10 +20,10 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
-from compd.config.adaptation import AdaptationSettings
-from compd.core.adaptation import ProbeReading, ProbeStage
+from compd.core.adaptation import AdaptationSettings, ProbeReading, ProbeStage
 from compd.core.faults import Event
 from compd.core.output import Status
+from compd.infiles import load_model
 from compd.runtime.daemon import Daemon
 from compd.runtime.driver_setup import build_driver
 from compd.runtime.sdnotify import Notifier
@@ -31,7 +31,6 @@ from compd.testing import FakeClock
 from drivers.base import Driver
 from drivers.sim.modbus_server import ModbusSimController
 from models.adaptation import AdaptationParams
-from models.modelfile import load_model
 from tests.faults.clocked_driver import ClockedDriver
 from tests.faults.daemon_rig import EventLog, make_config
 
@@ -154,7 +153,8 @@ def _probe(stage: ProbeStage, counter: float, value_um: float, offset_um: float,
 
 def test_a_right_model_with_noisy_probes_and_a_chip_never_trips_the_guard() -> None:
     rng = random.Random(3)
-    stage, events = _stage(), []
+    stage = _stage()
+    events: list[Event] = []
     for k in range(200):  # growth 30 µm, compensated to within the probe's noise
         value = rng.gauss(0.0, 0.5) + (50.0 if k in (40, 41) else 0.0)  # two chips
         _probe(stage, float(k), value, 30.0, events)
@@ -163,7 +163,8 @@ def test_a_right_model_with_noisy_probes_and_a_chip_never_trips_the_guard() -> N
 
 
 def test_three_probes_in_a_row_worse_than_none_trip_it_and_it_stays_tripped() -> None:
-    stage, events = _stage(), []
+    stage = _stage()
+    events: list[Event] = []
     _probe(stage, 0.0, 0.0, 0.0, events)  # the baseline
     # growth +10 µm, the offset -20: the tool is 30 µm off instead of 10
     for k in range(1, 3):
@@ -179,7 +180,8 @@ def test_three_probes_in_a_row_worse_than_none_trip_it_and_it_stays_tripped() ->
 
 
 def test_guard_window_0_is_no_guard() -> None:
-    stage, events = _stage(0), []
+    stage = _stage(0)
+    events: list[Event] = []
     for k in range(10):
         _probe(stage, float(k), 30.0, -20.0, events)
     assert not stage.model_worse

@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 
 from compd.cli import main
-from compd.commands.run import EX_TEMPFAIL
 from compd.runtime.checkpoint import load_checkpoint
+from compd.sysexits import EX_TEMPFAIL
 from tests.compd.daemon_helpers import write_config
 
 from .daemon_run import (

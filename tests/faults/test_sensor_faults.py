@@ -23,10 +23,11 @@ import pytest
 from compd.core.cycle import Cycle
 from compd.core.output import Status
 from compd.core.validation import ChannelLimits
+from compd.testing import FakeClock
 from drivers.base import Quality, Sample
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.registry import make_sim_controller
-from tests.compd.cycle_helpers import FakeClock, params, samples, sp2
+from tests.compd.cycle_helpers import params, samples, sp2
 from tests.faults.daemon_rig import DaemonRig, make_config
 from tests.faults.invariants import CycleLog, Invariants, invariants, run_pure
 

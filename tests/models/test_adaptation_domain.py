@@ -112,16 +112,18 @@ def test_a_restore_from_any_finite_state_is_an_estimator_or_a_named_refusal(
 def test_a_setting_beyond_the_domain_is_refused_by_name(name: str, value: float) -> None:
     """On main these passed and the estimator raised OverflowError (at its start, or at
     the first probe)."""
+    settings: dict[str, Any] = {name: value, "gains": True}
     with pytest.raises(ValueError, match=f"^{name}: must be"):
-        AdaptationParams(**{name: value, "gains": True})
+        AdaptationParams(**settings)
 
 
 @settings(max_examples=200, deadline=None)
 @given(st.sampled_from(sorted(DOMAIN)), any_finite)
 def test_any_finite_setting_is_either_an_estimator_or_a_value_error(name: str,
                                                                     value: float) -> None:
+    settings: dict[str, Any] = {name: value, "gains": True}
     try:
-        p = AdaptationParams(**{name: value, "gains": True})
+        p = AdaptationParams(**settings)
     except ValueError as exc:
         assert str(exc).startswith(f"{name}: ") or "max_gain" in str(exc)
         return

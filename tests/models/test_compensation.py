@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from compd.infiles import load_model
 from models.compensation import CompensationModel, Term
 from models.errors import ModelError
-from models.modelfile import load_model
 from models.tf import TransferFunction
 from tests.models.paper_tfs import PAPER_TFS
 

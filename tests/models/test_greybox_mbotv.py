@@ -81,4 +81,4 @@ def test_mbotv_tau_and_state_round_trip() -> None:
 def test_mbotv_refuses_bad_parameters(kw: dict[str, float]) -> None:
     args = {"alpha": 1.0, "beta": 0.0, "k": 0.5, "gamma": 0.5, "period_s": 1.0} | kw
     with pytest.raises(ModelError):
-        Mbotv(**args)
+        Mbotv(args["alpha"], args["beta"], args["k"], args["gamma"], args["period_s"])

@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 import pytest
 from scipy.signal import lfilter
 
@@ -30,8 +31,9 @@ def record() -> dict[str, np.ndarray]:
     return {n: data[:, i] for i, n in enumerate(head)}
 
 
-def _rel(d: dict[str, np.ndarray], name: str) -> np.ndarray:
-    return d[name] - d[name][0]
+def _rel(d: dict[str, np.ndarray], name: str) -> npt.NDArray[np.float64]:
+    rel: npt.NDArray[np.float64] = d[name] - d[name][0]
+    return rel
 
 
 def test_forward_folds_train_only_on_rows_before_the_held_out_block() -> None:

@@ -67,10 +67,12 @@ def test_the_structure_choice_reports_candidates_and_prefers_the_simplest() -> N
     names = {c.structure for c in sel.candidates}
     assert names == {"arx", "shared-oe", "ridge", "per-term-oe"}
     best = max(c.validation_fit_pct for c in sel.candidates)
+    assert sel.chosen is not None
     assert sel.chosen.validation_fit_pct >= best - 0.5
     simpler = [c for c in sel.candidates if c.validation_fit_pct >= best - 0.5
                and c.n_params < sel.chosen.n_params]
     assert simpler == []
+    assert sel.baseline is not None
     assert sel.chosen.validation_fit_pct >= sel.baseline.validation_fit_pct - 0.5
     assert sel.orders == (1, 1) and not sel.initial
 

@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from compd.infiles import load_model
 from models import tomltext
-from models.modelfile import load_model
 from models.nesting import (
     MAX_NESTING,
     NestingError,
@@ -92,12 +92,12 @@ def test_document_depth_counts_containers_below_the_root() -> None:
     assert document_depth({"a": [1, {"b": [2]}]}) == 3
 
 
-def test_a_deep_model_file_is_a_model_error(tmp_path: Path) -> None:
-    from models.errors import ModelError
+def test_a_deep_model_file_is_an_input_error(tmp_path: Path) -> None:
+    from compd.infiles import InputError
 
     path = tmp_path / "deep.toml"
     path.write_text("a = " + "[" * DEEP + "]" * DEEP, encoding="utf-8")
-    with pytest.raises(ModelError, match=r"deep\.toml: the model file has arrays and tables"):
+    with pytest.raises(InputError, match=r"deep\.toml: the model file has arrays and tables"):
         load_model(path)
 
 

@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from compd.infiles import InputError, load_model
 from models.bank import TfBank
 from models.errors import ModelError
 from models.modelfile import (
     dumps_model,
     library_names,
-    load_model,
     model_document,
     parse_model,
 )
@@ -100,9 +100,17 @@ def test_model_documents_are_checked_key_by_key(doc: dict[str, object], message:
 
 
 def test_unreadable_and_invalid_files(tmp_path: Path) -> None:
-    with pytest.raises(ModelError, match="cannot read"):
+    """The one model loader (compd.infiles) says which file and why, with the exit
+    code: 66 for a file that is not there, 65 for one that is not a model."""
+    with pytest.raises(InputError, match="cannot read the model file") as missing:
         load_model(tmp_path / "missing.toml")
+    assert missing.value.code == 66
     bad = tmp_path / "bad.toml"
     bad.write_text("[model\nname=")
-    with pytest.raises(ModelError, match="not valid TOML"):
+    with pytest.raises(InputError, match="not valid TOML") as invalid:
         load_model(bad)
+    assert invalid.value.code == 65
+    big = tmp_path / "big.toml"
+    big.write_bytes(b"#" * ((1 << 20) + 1))
+    with pytest.raises(InputError, match=r"at most 1\.0 MiB"):
+        load_model(big)

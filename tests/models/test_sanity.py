@@ -7,8 +7,9 @@ import math
 
 import pytest
 
+from compd.infiles import load_model
 from models.errors import ModelError
-from models.modelfile import library_names, load_model, parse_model
+from models.modelfile import library_names, parse_model
 from models.sanity import (
     DEFAULT_MAX_DC_GAIN_UM,
     DEFAULT_MAX_TIME_CONSTANT_S,
