@@ -220,7 +220,7 @@ class Refinement:
     noise_from: str  # "probes" (spacings varied enough to separate it) or "model file"
 
 
-def refine_from_probes(time_s: FloatArray, residual_um: FloatArray,
+def refine_from_probes(time_s: npt.ArrayLike, residual_um: npt.ArrayLike,
                        probe_noise_um: float) -> Refinement:
     """Settings from probe residuals r = measured − plain model at times t (seconds,
     increasing within a run; a step back starts a new run).
