@@ -12,22 +12,18 @@ import struct
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from drivers.addresses import PMC_TYPES, FocasPmcAddress
+from drivers.addresses import FocasPmcAddress
 
-_FORMATS: dict[str, str] = {"byte": "<b", "word": "<h", "long": "<i", "float": "<f",
-                            "double": "<d"}
-_INT_RANGES: dict[str, tuple[int, int]] = {"byte": (-128, 127), "word": (-32768, 32767),
-                                           "long": (-(2**31), 2**31 - 1)}
 #: longest byte range read in one pmc_rdpmcrng
 MAX_RANGE_BYTES = 1024
 
 
 def pmc_size(a: FocasPmcAddress) -> int:
-    return PMC_TYPES[a.type][1]
+    return a.size
 
 
 def decode_pmc(a: FocasPmcAddress, data: bytes | bytearray, at: int = 0) -> float:
-    (raw,) = struct.unpack_from(_FORMATS[a.type], data, at)
+    (raw,) = struct.unpack_from("<" + a.encoding.code, data, at)
     return float(raw) * a.scale
 
 
@@ -37,16 +33,18 @@ def encode_pmc(a: FocasPmcAddress, value: float, *, saturate: bool = False) -> b
     if not math.isfinite(value):
         raise ValueError(f"{value!r} is not a finite number")
     raw = value / a.scale
-    if a.type in _INT_RANGES:
-        lo, hi = _INT_RANGES[a.type]
+    enc = a.encoding
+    fmt = "<" + enc.code
+    if enc.integer:
+        lo, hi = int(enc.lo), int(enc.hi)
         raw_int = round(raw)
         if saturate:
             raw_int = min(max(raw_int, lo), hi)
         elif not lo <= raw_int <= hi:
             raise ValueError(f"{value!r} (raw {raw_int}) outside PMC {a.type} range {lo}..{hi}")
-        return struct.pack(_FORMATS[a.type], raw_int)
+        return struct.pack(fmt, raw_int)
     try:
-        return struct.pack(_FORMATS[a.type], raw)
+        return struct.pack(fmt, raw)
     except OverflowError as exc:
         raise ValueError(f"{value!r} overflows a PMC {a.type}") from exc
 

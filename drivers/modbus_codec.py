@@ -30,12 +30,6 @@ MAX_WRITE_REGISTERS = 123
 #: Largest gap of unrequested registers a block read may span to merge two reads.
 DEFAULT_MAX_GAP = 8
 
-_INT_RANGES: dict[str, tuple[int, int]] = {
-    "int16": (-0x8000, 0x7FFF),
-    "uint16": (0, 0xFFFF),
-    "int32": (-0x8000_0000, 0x7FFF_FFFF),
-}
-
 
 class ValueOutOfRangeError(BadAddress, ValueError):
     """A value cannot be encoded in its address's type and scale."""
@@ -62,9 +56,10 @@ def decode(address: ModbusAddress, registers: Sequence[int]) -> float:
 def encode(address: ModbusAddress, value: float, *, channel: str | None = None) -> list[int]:
     """Registers holding `value` at `address`; `ValueOutOfRangeError` when it does not fit."""
     where = {"channel": channel, "address": address.describe()}
-    if address.type == "float32":
+    enc = address.encoding
+    if not enc.integer:
         raw_f = value / address.scale
-        if math.isfinite(raw_f) and abs(raw_f) > 3.4028234663852886e38:
+        if math.isfinite(raw_f) and not enc.fits(raw_f):
             raise ValueOutOfRangeError(f"{value!r} does not fit a float32", **where)
         words = list(struct.unpack(">HH", struct.pack(">f", raw_f)))
     else:
@@ -72,11 +67,10 @@ def encode(address: ModbusAddress, value: float, *, channel: str | None = None) 
             raise ValueOutOfRangeError(f"{value!r} cannot be stored in an integer register",
                                   **where)
         raw = round(value / address.scale)
-        low, high = _INT_RANGES[address.type]
-        if not low <= raw <= high:
+        if not enc.fits(raw):
             raise ValueOutOfRangeError(
                 f"{value!r} at scale {address.scale} needs raw {raw}, outside "
-                f"{address.type} range {low}..{high}", **where)
+                f"{address.type} range {enc.lo}..{enc.hi}", **where)
         if address.type != "int32":
             return [raw & 0xFFFF]
         words = list(struct.unpack(">HH", struct.pack(">i", raw)))

@@ -14,16 +14,10 @@ from dataclasses import dataclass
 
 from drivers.addresses import S7Address
 
-_FORMATS: dict[str, str] = {"REAL": ">f", "INT": ">h", "DINT": ">i", "WORD": ">H"}
-_RANGES: dict[str, tuple[int, int]] = {"INT": (-(2**15), 2**15 - 1),
-                                       "DINT": (-(2**31), 2**31 - 1),
-                                       "WORD": (0, 2**16 - 1)}
-_REAL_MAX = 3.4028234663852886e38
-
 
 def decode(address: S7Address, data: bytes | bytearray, at: int = 0) -> float:
     """The engineering value of `address` found at byte `at` of `data`."""
-    (raw,) = struct.unpack_from(_FORMATS[address.type], data, at)
+    (raw,) = struct.unpack_from(">" + address.encoding.code, data, at)
     return float(raw) * address.scale
 
 
@@ -32,15 +26,16 @@ def encode(address: S7Address, value: float) -> bytes:
     if not math.isfinite(value):
         raise ValueError(f"{value!r} is not a finite number")
     raw = value / address.scale
-    if address.type == "REAL":
-        if abs(raw) > _REAL_MAX:
-            raise ValueError(f"{value!r} overflows a REAL")
-        return struct.pack(">f", raw)
-    lo, hi = _RANGES[address.type]
+    enc = address.encoding
+    if not enc.integer:
+        if not enc.fits(raw):
+            raise ValueError(f"{value!r} overflows a {address.type}")
+        return struct.pack(">" + enc.code, raw)
     raw_int = round(raw)
-    if not lo <= raw_int <= hi:
-        raise ValueError(f"{value!r} (raw {raw_int}) outside {address.type} range {lo}..{hi}")
-    return struct.pack(_FORMATS[address.type], raw_int)
+    if not enc.fits(raw_int):
+        raise ValueError(f"{value!r} (raw {raw_int}) outside {address.type} range "
+                         f"{enc.lo}..{enc.hi}")
+    return struct.pack(">" + enc.code, raw_int)
 
 
 @dataclass(frozen=True, slots=True)
