@@ -1,4 +1,5 @@
-"""FANUC PMC value encodings and range planning (no I/O).
+"""FANUC PMC value encodings and range planning (no I/O; the planner is
+`drivers.plans.cover`).
 
 PMC memory is little-endian (the low byte of word D100 is D100). Reads and
 writes move raw bytes (data type 0) over byte ranges, and values are decoded
@@ -13,6 +14,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 from drivers.addresses import FocasPmcAddress
+from drivers.plans import Run, cover
 
 #: longest byte range read in one pmc_rdpmcrng
 MAX_RANGE_BYTES = 1024
@@ -65,25 +67,13 @@ class PmcRange:
 
 def read_ranges(items: Iterable[tuple[str, FocasPmcAddress]]) -> list[PmcRange]:
     """One range per area (split only past MAX_RANGE_BYTES)."""
-    ranges: list[PmcRange] = []
-    for name, a in sorted(items, key=lambda it: (it[1].area, it[1].address)):
-        end = a.address + pmc_size(a) - 1
-        last = ranges[-1] if ranges else None
-        if last is not None and last.area == a.area and end - last.start < MAX_RANGE_BYTES:
-            ranges[-1] = PmcRange(a.area, last.start, max(last.end, end), (*last.names, name))
-        else:
-            ranges.append(PmcRange(a.area, a.address, end, (name,)))
-    return ranges
+    return [_range(run) for run in cover(items, max_cells=MAX_RANGE_BYTES)]
 
 
 def write_runs(items: Iterable[tuple[str, FocasPmcAddress]]) -> list[PmcRange]:
     """Runs of byte-adjacent values of one area: one write request each."""
-    runs: list[PmcRange] = []
-    for name, a in sorted(items, key=lambda it: (it[1].area, it[1].address)):
-        end = a.address + pmc_size(a) - 1
-        last = runs[-1] if runs else None
-        if last is not None and last.area == a.area and last.end + 1 == a.address:
-            runs[-1] = PmcRange(a.area, last.start, end, (*last.names, name))
-        else:
-            runs.append(PmcRange(a.area, a.address, end, (name,)))
-    return runs
+    return [_range(run) for run in cover(items, max_gap=0, join_overlaps=False)]
+
+
+def _range(run: Run[FocasPmcAddress]) -> PmcRange:
+    return PmcRange(str(run.space[1]), run.start, run.stop - 1, run.names)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 from drivers.addresses import ModbusAddress
 from drivers.errors import BadAddress
+from drivers.plans import Run, cover
 
 #: Modbus limit for one read request (function codes 3 and 4).
 MAX_READ_REGISTERS = 125
@@ -108,27 +109,7 @@ def plan_reads(items: Iterable[tuple[str, ModbusAddress]], *,
     """Group items by (unit, kind) and cover them with as few contiguous
     reads as possible: neighbours merge while the gap of unrequested
     registers is at most `max_gap` and the span stays within `max_count`."""
-    groups: dict[tuple[int, str], list[tuple[str, ModbusAddress]]] = {}
-    for name, addr in items:
-        groups.setdefault((addr.unit, addr.kind), []).append((name, addr))
-    spans: list[Span] = []
-    for (unit, kind), members in sorted(groups.items()):
-        members.sort(key=lambda m: (m[1].address, m[1].count))
-        current: list[tuple[str, ModbusAddress]] = []
-        start = end = 0  # end is exclusive
-        for name, addr in members:
-            a_end = addr.address + addr.count
-            if current and addr.address - end <= max_gap and \
-                    max(end, a_end) - start <= max_count:
-                current.append((name, addr))
-                end = max(end, a_end)
-                continue
-            if current:
-                spans.append(Span(unit, kind, start, end - start, tuple(current)))
-            current, start, end = [(name, addr)], addr.address, a_end
-        if current:
-            spans.append(Span(unit, kind, start, end - start, tuple(current)))
-    return spans
+    return [_span(run) for run in cover(items, max_gap=max_gap, max_cells=max_count)]
 
 
 def plan_writes(items: Iterable[tuple[str, ModbusAddress, list[int]]]
@@ -136,20 +117,13 @@ def plan_writes(items: Iterable[tuple[str, ModbusAddress, list[int]]]
     """Merge writes of back-to-back registers of one unit into one
     write-multiple request (no gaps: a write must not touch registers it was
     not given), so a record like {offset, heartbeat, status} lands at once."""
-    ordered = sorted(items, key=lambda it: (it[1].unit, it[1].address))
-    out: list[tuple[Span, list[int]]] = []
-    current: list[tuple[str, ModbusAddress]] = []
-    words: list[int] = []
-    unit = start = 0
-    for name, addr, regs in ordered:
-        if current and addr.unit == unit and addr.address == start + len(words) and \
-                len(words) + len(regs) <= MAX_WRITE_REGISTERS:
-            current.append((name, addr))
-            words.extend(regs)
-            continue
-        if current:
-            out.append((Span(unit, "holding", start, len(words), tuple(current)), words))
-        current, words, unit, start = [(name, addr)], list(regs), addr.unit, addr.address
-    if current:
-        out.append((Span(unit, "holding", start, len(words), tuple(current)), words))
-    return out
+    given = list(items)
+    words = {name: regs for name, _, regs in given}
+    runs = cover([(name, addr) for name, addr, _ in given], max_gap=0,
+                 max_cells=MAX_WRITE_REGISTERS, join_overlaps=False)
+    return [(_span(run), [w for name in run.names for w in words[name]]) for run in runs]
+
+
+def _span(run: Run[ModbusAddress]) -> Span:
+    _, unit, kind = run.space
+    return Span(int(unit), str(kind), run.start, run.stop - run.start, run.items)

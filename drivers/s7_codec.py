@@ -1,4 +1,5 @@
-"""Big-endian S7 value encodings and request planning (no I/O).
+"""Big-endian S7 value encodings and request planning (no I/O; the planner
+is `drivers.plans.cover`).
 
 Engineering value = raw * scale. INT/DINT/WORD are rounded to the nearest
 raw integer on write and refused when out of range (a wrapped offset on a
@@ -13,6 +14,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 from drivers.addresses import S7Address
+from drivers.plans import Run, cover
 
 
 def decode(address: S7Address, data: bytes | bytearray, at: int = 0) -> float:
@@ -50,26 +52,14 @@ class Span:
 
 def read_spans(addresses: Mapping[str, S7Address]) -> list[Span]:
     """One span per DB covering every requested value of that DB."""
-    by_db: dict[int, list[str]] = {}
-    for name, addr in addresses.items():
-        by_db.setdefault(addr.db, []).append(name)
-    spans = []
-    for db, names in sorted(by_db.items()):
-        start = min(addresses[n].offset for n in names)
-        end = max(addresses[n].offset + addresses[n].size for n in names)
-        spans.append(Span(db, start, end - start, tuple(names)))
-    return spans
+    return [_span(run) for run in cover(addresses.items())]
 
 
 def write_runs(items: Iterable[tuple[str, S7Address]]) -> list[Span]:
     """Group writes into runs of byte-adjacent values of one DB, so a run
     goes out as one db_write without touching bytes between values."""
-    ordered = sorted(items, key=lambda it: (it[1].db, it[1].offset))
-    runs: list[Span] = []
-    for name, addr in ordered:
-        last = runs[-1] if runs else None
-        if last is not None and last.db == addr.db and last.start + last.size == addr.offset:
-            runs[-1] = Span(last.db, last.start, last.size + addr.size, (*last.names, name))
-        else:
-            runs.append(Span(addr.db, addr.offset, addr.size, (name,)))
-    return runs
+    return [_span(run) for run in cover(items, max_gap=0, join_overlaps=False)]
+
+
+def _span(run: Run[S7Address]) -> Span:
+    return Span(int(run.space[1]), run.start, run.stop - run.start, run.names)
