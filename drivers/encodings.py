@@ -13,7 +13,8 @@ scale 0.1 therefore holds -3276.8 .. 3276.7 in engineering units.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import struct
+from dataclasses import dataclass, field
 
 #: the largest finite IEEE 754 binary32 value
 FLOAT32_MAX = 3.4028234663852886e38
@@ -32,11 +33,16 @@ class Encoding:
     code: str
     lo: int | float
     hi: int | float
+    #: raw values are integers (a write rounds to the nearest one)
+    integer: bool = field(init=False, compare=False)
+    #: the compiled big- and little-endian formats (codecs pack and unpack with them)
+    big: struct.Struct = field(init=False, repr=False, compare=False)
+    little: struct.Struct = field(init=False, repr=False, compare=False)
 
-    @property
-    def integer(self) -> bool:
-        """Raw values are integers (a write rounds to the nearest one)."""
-        return isinstance(self.lo, int)
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "integer", isinstance(self.lo, int))
+        object.__setattr__(self, "big", struct.Struct(">" + self.code))
+        object.__setattr__(self, "little", struct.Struct("<" + self.code))
 
     @property
     def range(self) -> tuple[int | float, int | float]:

@@ -9,7 +9,6 @@ here; engineering value = raw * scale, integers rounded and range-checked.
 from __future__ import annotations
 
 import math
-import struct
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -25,7 +24,7 @@ def pmc_size(a: FocasPmcAddress) -> int:
 
 
 def decode_pmc(a: FocasPmcAddress, data: bytes | bytearray, at: int = 0) -> float:
-    (raw,) = struct.unpack_from("<" + a.encoding.code, data, at)
+    (raw,) = a.encoding.little.unpack_from(data, at)
     return float(raw) * a.scale
 
 
@@ -36,7 +35,7 @@ def encode_pmc(a: FocasPmcAddress, value: float, *, saturate: bool = False) -> b
         raise ValueError(f"{value!r} is not a finite number")
     raw = value / a.scale
     enc = a.encoding
-    fmt = "<" + enc.code
+    fmt = enc.little
     if enc.integer:
         lo, hi = int(enc.lo), int(enc.hi)
         raw_int = round(raw)
@@ -44,9 +43,9 @@ def encode_pmc(a: FocasPmcAddress, value: float, *, saturate: bool = False) -> b
             raw_int = min(max(raw_int, lo), hi)
         elif not lo <= raw_int <= hi:
             raise ValueError(f"{value!r} (raw {raw_int}) outside PMC {a.type} range {lo}..{hi}")
-        return struct.pack(fmt, raw_int)
+        return fmt.pack(raw_int)
     try:
-        return struct.pack(fmt, raw)
+        return fmt.pack(raw)
     except OverflowError as exc:
         raise ValueError(f"{value!r} overflows a PMC {a.type}") from exc
 

@@ -19,15 +19,15 @@ from __future__ import annotations
 
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 #: a memory space: ("modbus", unit, kind), ("s7", db), ("pmc", area), ("opcua", node)
 Space = tuple[str | int, ...]
 
 
-@dataclass(frozen=True, slots=True)
-class Footprint:
+class Footprint(NamedTuple):
     """Cells ``[start, stop)`` of `space`, counted in `unit` ("register",
-    "byte" or "node")."""
+    "byte" or "node"). A named tuple: the planners make one per address."""
 
     space: Space
     start: int

@@ -40,7 +40,8 @@ from drivers.errors import (
     WriteRejected,
 )
 from drivers.link import Link, LinkedDriver
-from drivers.modbus_codec import Span, decode, encode, plan_reads, plan_writes
+from drivers.modbus_codec import Span, decode, encode, plan_reads, write_spans
+from drivers.plans import PlanCache
 
 DEFAULT_PORT = 502
 #: exception codes after which a write cannot succeed by retrying:
@@ -109,6 +110,8 @@ class ModbusDriver(LinkedDriver):
             connect_errors=(OSError, ModbusException), alive=_alive)
         self._lock = asyncio.Lock()
         self._plans: dict[tuple[str, ...], list[Span]] = {}
+        self._write_plan = PlanCache(
+            lambda names: write_spans([(n, self.outputs[n]) for n in names]))
         self._in_flight = False
 
     # -- link -------------------------------------------------------------
@@ -225,15 +228,14 @@ class ModbusDriver(LinkedDriver):
     # -- write --------------------------------------------------------------
 
     async def write(self, values: Mapping[str, float]) -> None:
-        items: list[tuple[str, ModbusAddress, list[int]]] = []
+        encoded: dict[str, list[int]] = {}
         for name, value in values.items():
             addr = self.outputs.get(name)
             if addr is None:
                 raise BadAddress("unknown output name (not writable)", channel=name)
-            items.append((name, addr, encode(addr, float(value), channel=name)))
-        requests = plan_writes(items) if len(items) != 1 else [
-            (Span(items[0][1].unit, "holding", items[0][1].address, items[0][1].count,
-                  ((items[0][0], items[0][1]),)), items[0][2])]
+            encoded[name] = encode(addr, float(value), channel=name)
+        requests = [(span, [w for n, _ in span.items for w in encoded[n]])
+                    for span in self._write_plan(tuple(values))]
         async with self._lock:
             for span, words in requests:
                 await self._write_span(span, words)

@@ -56,28 +56,34 @@ def decode(address: ModbusAddress, registers: Sequence[int]) -> float:
 
 def encode(address: ModbusAddress, value: float, *, channel: str | None = None) -> list[int]:
     """Registers holding `value` at `address`; `ValueOutOfRangeError` when it does not fit."""
-    where = {"channel": channel, "address": address.describe()}
     enc = address.encoding
     if not enc.integer:
         raw_f = value / address.scale
-        if math.isfinite(raw_f) and not enc.fits(raw_f):
-            raise ValueOutOfRangeError(f"{value!r} does not fit a float32", **where)
-        words = list(struct.unpack(">HH", struct.pack(">f", raw_f)))
+        if math.isfinite(raw_f) and not enc.lo <= raw_f <= enc.hi:
+            raise _refused(f"{value!r} does not fit a float32", address, channel)
+        words = list(_WORDS.unpack(enc.big.pack(raw_f)))
     else:
         if not math.isfinite(value):
-            raise ValueOutOfRangeError(f"{value!r} cannot be stored in an integer register",
-                                  **where)
+            raise _refused(f"{value!r} cannot be stored in an integer register", address,
+                           channel)
         raw = round(value / address.scale)
-        if not enc.fits(raw):
-            raise ValueOutOfRangeError(
-                f"{value!r} at scale {address.scale} needs raw {raw}, outside "
-                f"{address.type} range {enc.lo}..{enc.hi}", **where)
-        if address.type != "int32":
+        if not enc.lo <= raw <= enc.hi:
+            raise _refused(f"{value!r} at scale {address.scale} needs raw {raw}, outside "
+                           f"{address.type} range {enc.lo}..{enc.hi}", address, channel)
+        if enc.size == 2:
             return [raw & 0xFFFF]
-        words = list(struct.unpack(">HH", struct.pack(">i", raw)))
+        words = list(_WORDS.unpack(enc.big.pack(raw)))
     if address.word_order == "little":
         words.reverse()
     return words
+
+
+#: two registers as sent: big-endian 16-bit words
+_WORDS = struct.Struct(">HH")
+
+
+def _refused(why: str, address: ModbusAddress, channel: str | None) -> ValueOutOfRangeError:
+    return ValueOutOfRangeError(why, channel=channel, address=address.describe())
 
 
 @dataclass(frozen=True, slots=True)
@@ -119,9 +125,15 @@ def plan_writes(items: Iterable[tuple[str, ModbusAddress, list[int]]]
     not given), so a record like {offset, heartbeat, status} lands at once."""
     given = list(items)
     words = {name: regs for name, _, regs in given}
-    runs = cover([(name, addr) for name, addr, _ in given], max_gap=0,
-                 max_cells=MAX_WRITE_REGISTERS, join_overlaps=False)
-    return [(_span(run), [w for name in run.names for w in words[name]]) for run in runs]
+    spans = write_spans([(name, addr) for name, addr, _ in given])
+    return [(span, [w for name, _ in span.items for w in words[name]]) for span in spans]
+
+
+def write_spans(items: Iterable[tuple[str, ModbusAddress]]) -> list[Span]:
+    """The requests of `plan_writes`, without the words (a driver keeps them
+    per set of names)."""
+    return [_span(run) for run in cover(items, max_gap=0, max_cells=MAX_WRITE_REGISTERS,
+                                        join_overlaps=False)]
 
 
 def _span(run: Run[ModbusAddress]) -> Span:

@@ -21,11 +21,12 @@ cannot grow it without bound.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Generic, TypeVar
 
-from drivers.footprint import Footprint, Space
+from drivers.footprint import Space
 
 if TYPE_CHECKING:
     from drivers.addresses import Address
@@ -52,33 +53,34 @@ class Run(Generic[A]):
 def cover(items: Iterable[tuple[str, A]], *, max_gap: int | None = None,
           max_cells: int | None = None, join_overlaps: bool = True) -> list[Run[A]]:
     """Runs covering `items` by the rules of the module docstring, ordered by
-    space, then address. An address without a footprint is left out."""
-    placed: list[tuple[Footprint, int, str, A]] = []
-    for i, (name, addr) in enumerate(items):
-        fp = addr.footprint()
+    space, then address (ties in the order given). An address without a
+    footprint is left out."""
+    placed: list[tuple[Space, int, int, int, tuple[str, A]]] = []
+    for i, item in enumerate(items):
+        fp = item[1].footprint()
         if fp is not None:
-            placed.append((fp, i, name, addr))
-    placed.sort(key=lambda p: (p[0].space, p[0].start, p[1]))  # ties: in the order given
+            placed.append((fp.space, fp.start, i, fp.stop, item))
+    placed.sort(key=lambda p: p[:3])
+    gap_max = math.inf if max_gap is None else max_gap
+    cells_max = math.inf if max_cells is None else max_cells
+    gap_min = -math.inf if join_overlaps else 0
     runs: list[Run[A]] = []
-    for fp, _, name, addr in placed:
-        last = runs[-1] if runs else None
-        if last is not None and last.space == fp.space and _joins(
-                last, fp, max_gap, max_cells, join_overlaps):
-            runs[-1] = Run(last.space, last.start, max(last.stop, fp.stop),
-                           (*last.items, (name, addr)))
-        else:
-            runs.append(Run(fp.space, fp.start, fp.stop, ((name, addr),)))
+    space: Space = ()
+    start = stop = 0
+    members: list[tuple[str, A]] = []
+    for p_space, p_start, _, p_stop, item in placed:
+        if members and p_space == space and gap_min <= p_start - stop <= gap_max \
+                and max(stop, p_stop) - start <= cells_max:
+            members.append(item)
+            stop = max(stop, p_stop)
+            continue
+        if members:
+            runs.append(Run(space, start, stop, tuple(members)))
+        space, start, stop, members = p_space, p_start, p_stop, [item]
+    if members:
+        runs.append(Run(space, start, stop, tuple(members)))
     return runs
 
-
-def _joins(run: Run[A], fp: Footprint, max_gap: int | None, max_cells: int | None,
-           join_overlaps: bool) -> bool:
-    gap = fp.start - run.stop
-    if gap < 0 and not join_overlaps:
-        return False
-    if max_gap is not None and gap > max_gap:
-        return False
-    return max_cells is None or max(run.stop, fp.stop) - run.start <= max_cells
 
 #: plans kept per cache (the daemon uses a handful of name sets)
 PLAN_CACHE_SIZE = 64

@@ -9,7 +9,6 @@ machine tool is worse than no offset).
 from __future__ import annotations
 
 import math
-import struct
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
@@ -19,7 +18,7 @@ from drivers.plans import Run, cover
 
 def decode(address: S7Address, data: bytes | bytearray, at: int = 0) -> float:
     """The engineering value of `address` found at byte `at` of `data`."""
-    (raw,) = struct.unpack_from(">" + address.encoding.code, data, at)
+    (raw,) = address.encoding.big.unpack_from(data, at)
     return float(raw) * address.scale
 
 
@@ -32,12 +31,12 @@ def encode(address: S7Address, value: float) -> bytes:
     if not enc.integer:
         if not enc.fits(raw):
             raise ValueError(f"{value!r} overflows a {address.type}")
-        return struct.pack(">" + enc.code, raw)
+        return enc.big.pack(raw)
     raw_int = round(raw)
     if not enc.fits(raw_int):
         raise ValueError(f"{value!r} (raw {raw_int}) outside {address.type} range "
                          f"{enc.lo}..{enc.hi}")
-    return struct.pack(">" + enc.code, raw_int)
+    return enc.big.pack(raw_int)
 
 
 @dataclass(frozen=True, slots=True)
