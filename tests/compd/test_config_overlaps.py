@@ -60,6 +60,8 @@ def test_compd_check_refuses_the_issue_case_naming_both_keys_and_the_register(
     assert "output.heartbeat" in lines[0] and "output.offset" in lines[0]
     assert "holding register 1 of unit 1" in lines[0]
     assert "Traceback" not in r.stderr
+    # docs/operation.md quotes this very line
+    assert lines[0] in (ROOT / "docs" / "operation.md").read_text(encoding="utf-8")
 
 
 REFUSED = [
