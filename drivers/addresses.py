@@ -122,7 +122,8 @@ class S7Address(_Address):
         return S7_TYPES[self.type]
 
     def footprint(self) -> Footprint:
-        return Footprint(("s7", self.db), self.offset, self.offset + self.size, "byte")
+        return Footprint(("s7", self.area, self.db), self.offset, self.offset + self.size,
+                         "byte")
 
     def describe(self) -> str:
         return f"DB{self.db}.{self.offset}:{self.type}"

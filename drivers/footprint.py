@@ -13,6 +13,10 @@ address; addresses that are only **read** may share cells only when they
 read the same value (the same cells in the same encoding, e.g. one sensor
 under two channel names): a read that covers part of another value, or the
 same cells as another type, decodes bytes that belong to something else.
+
+Cells are whole registers and bytes: no address type addresses a single bit
+today. One that does (an S7 BOOL, a PMC bit) must count its footprint in
+bits; counted in bytes, two bits of one byte would be taken for a clash.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
-#: a memory space: ("modbus", unit, kind), ("s7", db), ("pmc", area), ("opcua", node)
+#: a memory space: ("modbus", unit, kind), ("s7", "DB", db), ("pmc", area), ("opcua", node)
 Space = tuple[str | int, ...]
 
 
@@ -53,7 +57,7 @@ class Footprint(NamedTuple):
         if kind == "modbus":
             return f"{self.space[2]} {cells} {span} of unit {self.space[1]}"
         if kind == "s7":
-            return f"DB{self.space[1]} {cells} {span}"
+            return f"{self.space[1]}{self.space[2]} {cells} {span}"
         if kind == "pmc":
             return f"PMC {self.space[1]}{span}"
         if kind == "opcua":

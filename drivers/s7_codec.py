@@ -61,4 +61,4 @@ def write_runs(items: Iterable[tuple[str, S7Address]]) -> list[Span]:
 
 
 def _span(run: Run[S7Address]) -> Span:
-    return Span(int(run.space[1]), run.start, run.stop - run.start, run.names)
+    return Span(int(run.space[2]), run.start, run.stop - run.start, run.names)

@@ -80,7 +80,7 @@ def test_overlap_per_protocol(a: Address, b: Address, expected: bool) -> None:
 
 def test_footprints_name_their_cells() -> None:
     assert mb(10).footprint() == Footprint(("modbus", 1, "holding"), 10, 12, "register")
-    assert s7(4, "DINT", db=3).footprint() == Footprint(("s7", 3), 4, 8, "byte")
+    assert s7(4, "DINT", db=3).footprint() == Footprint(("s7", "DB", 3), 4, 8, "byte")
     assert pmc(100, "word").footprint() == Footprint(("pmc", "D"), 100, 102, "byte")
     assert mb(1, "uint16").footprint().describe() == "holding register 1 of unit 1"
     assert s7(0).footprint().describe() == "DB1 bytes 0..3"
@@ -182,7 +182,7 @@ def _touched(addr: Address, value: float) -> set[tuple[object, ...]]:
         data = s7_codec.encode(addr, value)
         [run] = s7_codec.write_runs([("x", addr)])
         assert len(data) == run.size
-        return {("s7", run.db, run.start + i) for i in range(run.size)}
+        return {("s7", "DB", run.db, run.start + i) for i in range(run.size)}
     if isinstance(addr, FocasPmcAddress):
         data = focas_codec.encode_pmc(addr, value)
         [r] = focas_codec.write_runs([("x", addr)])
