@@ -11,8 +11,10 @@ from pathlib import Path
 
 import pytest
 
+from compd.cli import main
 from compd.config.loader import load_config
 from compd.errors import ConfigError
+from compd.sysexits import EX_CONFIG
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "compd" / "examples"
@@ -136,3 +138,49 @@ def test_the_probe_addresses_are_checked_too(tmp_path: Path) -> None:
         probe_counter='{ kind = "input", address = 14, type = "uint16" }')
     assert set(load_config(_config(tmp_path, "modbus", extra=fine)).probes) == {
         "probe_value", "probe_counter"}
+
+
+# -- compd run DIR: machines that name one controller ----------------------------
+
+def _twin(tmp_path: Path, endpoint_b: str, *changes_b: tuple[str, str]) -> Path:
+    """Two Modbus machines in one directory: the shipped example, and a second
+    one with its own name and state at `endpoint_b`."""
+    d = tmp_path / "machines"
+    d.mkdir()
+    text = (EXAMPLES / "modbus.toml").read_text(encoding="utf-8")
+    (d / "a.toml").write_text(text, encoding="utf-8")
+    b = (text.replace('name = "sim-modbus"', 'name = "twin"')
+         .replace('dir = "/tmp/compd-example-modbus"', 'dir = "/tmp/compd-example-twin"')
+         .replace('endpoint = "modbus://127.0.0.1:5020"', f'endpoint = "{endpoint_b}"'))
+    for old, new in changes_b:
+        assert b.count(old) == 1, old
+        b = b.replace(old, new)
+    (d / "b.toml").write_text(b, encoding="utf-8")
+    return d
+
+
+def test_two_machines_writing_one_controllers_registers_are_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # the same controller, spelt differently (the default port, no scheme)
+    d = _twin(tmp_path, "127.0.0.1:5020")
+    for command in ("check", "run"):
+        assert main([command, str(d)]) == EX_CONFIG
+        [line] = capsys.readouterr().err.strip().splitlines()
+        assert f"{d / 'b.toml'}: output.offset overlaps {d / 'a.toml'}: output.offset" in line
+        assert "holding registers 0..1 of unit 1" in line and "127.0.0.1:5020" in line
+
+
+@pytest.mark.parametrize(("endpoint_b", "changes_b"), [
+    ("modbus://127.0.0.1:5021", []),  # another controller: the same addresses are fine
+    ("modbus://127.0.0.1:5020", [     # one controller, the twin's outputs further on
+        ('offset = { unit = 1, kind = "holding", address = 0, type = "float32" }',
+         'offset = { unit = 1, kind = "holding", address = 10, type = "float32" }'),
+        (MB_HEARTBEAT, MB_HEARTBEAT.replace("= 2,", "= 12,")),
+        (MB_STATUS, MB_STATUS.replace("= 3,", "= 13,"))]),
+])
+def test_machines_apart_or_on_separate_registers_are_accepted(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], endpoint_b: str,
+        changes_b: list[tuple[str, str]]) -> None:
+    # both read the same sensors (input registers 0..5): reads of one value may coincide
+    assert main(["check", str(_twin(tmp_path, endpoint_b, *changes_b))]) == 0, \
+        capsys.readouterr().err
