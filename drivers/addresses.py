@@ -50,6 +50,11 @@ class _Address(BaseModel):
         return Use(key, self.footprint(), written, tuple(sorted(fields.items())))
 
 
+def _digits(text: str) -> bool:
+    """ASCII digits only (``str.isdigit`` also takes "²", which `int` refuses)."""
+    return text.isascii() and text.isdigit()
+
+
 def _check_scale(v: float) -> float:
     if not math.isfinite(v) or v == 0.0:
         raise ValueError("scale must be a finite non-zero number")
@@ -72,9 +77,9 @@ class OpcUaAddress(_Address):
                 "=" not in p for p in v.split(";")):
             raise ValueError(f"not an OPC UA NodeId string: {v!r} "
                              "(expected e.g. 'ns=2;s=Name' or 'ns=2;i=1001')")
-        if "ns" in parts and not parts["ns"].isdigit():
+        if "ns" in parts and not _digits(parts["ns"]):
             raise ValueError(f"namespace index must be an integer in {v!r}")
-        if "i" in parts and not parts["i"].isdigit():
+        if "i" in parts and not _digits(parts["i"]):
             raise ValueError(f"numeric identifier must be an integer in {v!r}")
         return v
 

@@ -94,6 +94,22 @@ def test_focas_calls_that_are_not_pmc_memory_have_no_footprint() -> None:
     assert diag.raw_range is None
 
 
+@pytest.mark.parametrize("node", ["ns=2;i=\u00b2", "ns=\u00b9;s=X"])
+def test_a_node_id_with_digits_int_cannot_read_is_refused(node: str) -> None:
+    # str.isdigit takes superscripts; the footprint's int() would not
+    with pytest.raises(ValueError, match="must be an integer"):
+        OpcUaAddress(node=node)
+
+
+@given(st.text(alphabet="nsuigb=;0129\u00b2x: ", max_size=16))
+def test_every_node_id_the_model_accepts_has_a_footprint(node: str) -> None:
+    try:
+        address = OpcUaAddress(node=node)
+    except ValueError:
+        return  # refused as a config mistake, with its reason
+    assert address.footprint().space[0] == "opcua"
+
+
 def test_raw_ranges_come_from_the_one_table() -> None:
     assert mb(0, "int16").raw_range == (-32768, 32767)
     assert s7(0, "WORD").raw_range == (0, 65535)
