@@ -19,9 +19,10 @@ import math
 from compd.errors import ConfigError
 from drivers.addresses import Address
 
-#: the heartbeat counts 0 .. HEARTBEAT_MODULO - 1 and wraps (`compd.core.cycle`
-#: counts with it; defined here, in the room below the core, so the config
-#: check and the cycle read one number)
+#: the heartbeat counts 0 .. HEARTBEAT_MODULO - 1 and wraps, so it fits an INT,
+#: WORD, int16/uint16 or PMC word (`compd.core.cycle` counts with it; defined
+#: here, in the room below the core, so the config check and the cycle read
+#: one number)
 HEARTBEAT_MODULO = 32768
 HEARTBEAT_MAX = HEARTBEAT_MODULO - 1
 #: the largest status word (every compd.core.output.Status bit; the config is
