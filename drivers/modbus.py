@@ -109,7 +109,7 @@ class ModbusDriver(LinkedDriver):
             timeout_s, open=self._open, drop=_drop,
             connect_errors=(OSError, ModbusException), alive=_alive)
         self._lock = asyncio.Lock()
-        self._plans: dict[tuple[str, ...], list[Span]] = {}
+        self._plans = PlanCache(self._build_read_plan)
         self._write_plan = PlanCache(
             lambda names: write_spans([(n, self.outputs[n]) for n in names]))
         self._in_flight = False
@@ -144,17 +144,13 @@ class ModbusDriver(LinkedDriver):
             return self.outputs[name]
         raise BadAddress("unknown channel or output name", channel=name)
 
-    def _plan(self, names: Sequence[str]) -> list[Span]:
-        key = tuple(names)
-        plan = self._plans.get(key)
-        if plan is None:
-            items = [(name, self._lookup(name)) for name in dict.fromkeys(names)]
-            plan = plan_reads(items, max_gap=self.max_gap)
-            self._plans[key] = plan
-        return plan
+    def _build_read_plan(self, names: tuple[str, ...]) -> list[Span]:
+        """The spans for this set of names (kept by `_plans`)."""
+        items = [(name, self._lookup(name)) for name in dict.fromkeys(names)]
+        return plan_reads(items, max_gap=self.max_gap)
 
     async def read(self, names: Sequence[str]) -> dict[str, Sample]:
-        plan = self._plan(names)
+        plan = self._plans(names)
         out: dict[str, Sample] = {}
         async with self._lock:
             for span in plan:
@@ -177,9 +173,10 @@ class ModbusDriver(LinkedDriver):
                 singles = plan_reads([span.items[0]], max_gap=0)
                 for item in span.items[1:]:
                     singles += plan_reads([item], max_gap=0)
-                plan = self._plans[tuple(names)]
-                idx = plan.index(span)
-                self._plans[tuple(names)] = plan[:idx] + singles + plan[idx + 1:]
+                plan = self._plans(names)
+                if span in plan:
+                    idx = plan.index(span)
+                    self._plans.put(names, plan[:idx] + singles + plan[idx + 1:])
                 for single in singles:
                     await self._read_span(names, single, out)
                 return

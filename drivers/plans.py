@@ -100,10 +100,14 @@ class PlanCache(Generic[P]):
         plan = self._plans.get(key)
         if plan is None:
             plan = self._build(key)
-            if len(self._plans) >= self._size:
-                self._plans.clear()
-            self._plans[key] = plan
+            self.put(key, plan)
         return plan
+
+    def put(self, names: Sequence[str], plan: P) -> None:
+        """Keep `plan` for `names` from now on (a driver that learnt a better one)."""
+        if len(self._plans) >= self._size:
+            self._plans.clear()
+        self._plans[tuple(names)] = plan
 
 
 __all__ = ["PLAN_CACHE_SIZE", "PlanCache", "Run", "cover"]
