@@ -2,7 +2,11 @@
 
 Each address model is what one channel or output looks like in the daemon's
 config and in `compd sim --json`. Unknown keys are refused. `describe()`
-gives the short string used in error messages and logs.
+gives the short string used in error messages and logs; `encoding` and
+`raw_range` the raw encoding (`drivers.encodings`; None for an OPC UA node,
+typed by its server, and for FOCAS calls that are not PMC memory);
+`footprint()` the controller memory it occupies (`drivers.footprint`), which
+the codecs write and the config check keeps apart.
 """
 
 from __future__ import annotations
@@ -12,6 +16,9 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from drivers.encodings import MODBUS_TYPES, PMC_ENCODINGS, S7_TYPES, Encoding
+from drivers.footprint import Footprint, Use
+
 
 class _Address(BaseModel):
     # strict: a register number written as "5" or a scale as "0.1" is a config
@@ -20,6 +27,32 @@ class _Address(BaseModel):
 
     def describe(self) -> str:
         raise NotImplementedError
+
+    @property
+    def encoding(self) -> Encoding | None:
+        """The raw encoding of the value (None: not known from the address)."""
+        return None
+
+    @property
+    def raw_range(self) -> tuple[int | float, int | float] | None:
+        """The raw values the encoding holds (engineering value = raw * scale)."""
+        enc = self.encoding
+        return None if enc is None else enc.range
+
+    def footprint(self) -> Footprint | None:
+        """The controller memory this address occupies (None: none a client writes)."""
+        return None
+
+    def use(self, key: str, *, written: bool) -> Use:
+        """This address as `key` uses it, for `drivers.footprint.first_clash`: two
+        reads of it that differ only in their scale read the same value."""
+        fields = self.model_dump(exclude={"scale", "node"})
+        return Use(key, self.footprint(), written, tuple(sorted(fields.items())))
+
+
+def _digits(text: str) -> bool:
+    """ASCII digits only (``str.isdigit`` also takes "²", which `int` refuses)."""
+    return text.isascii() and text.isdigit()
 
 
 def _check_scale(v: float) -> float:
@@ -44,9 +77,9 @@ class OpcUaAddress(_Address):
                 "=" not in p for p in v.split(";")):
             raise ValueError(f"not an OPC UA NodeId string: {v!r} "
                              "(expected e.g. 'ns=2;s=Name' or 'ns=2;i=1001')")
-        if "ns" in parts and not parts["ns"].isdigit():
+        if "ns" in parts and not _digits(parts["ns"]):
             raise ValueError(f"namespace index must be an integer in {v!r}")
-        if "i" in parts and not parts["i"].isdigit():
+        if "i" in parts and not _digits(parts["i"]):
             raise ValueError(f"numeric identifier must be an integer in {v!r}")
         return v
 
@@ -55,9 +88,22 @@ class OpcUaAddress(_Address):
     def describe(self) -> str:
         return self.node
 
+    def footprint(self) -> Footprint:
+        return Footprint(("opcua", _canonical_node(self.node)), 0, 1, "node")
+
+
+def _canonical_node(node: str) -> str:
+    """One spelling per node: namespace 0 when none is given, numeric
+    identifiers without leading zeros (``i=0042`` and ``ns=0;i=42`` are one node)."""
+    parts = dict(p.split("=", 1) for p in node.split(";"))
+    ns = f"nsu={parts.pop('nsu')}" if "nsu" in parts else f"ns={int(parts.pop('ns', '0'))}"
+    if "i" in parts:
+        parts["i"] = str(int(parts["i"]))
+    return ";".join([ns, *(f"{k}={v}" for k, v in sorted(parts.items()))])
+
 
 S7Type = Literal["REAL", "INT", "DINT", "WORD"]
-S7_SIZES: dict[str, int] = {"REAL": 4, "INT": 2, "DINT": 4, "WORD": 2}
+S7_SIZES: dict[str, int] = {name: enc.size for name, enc in S7_TYPES.items()}
 
 
 class S7Address(_Address):
@@ -76,12 +122,20 @@ class S7Address(_Address):
     def size(self) -> int:
         return S7_SIZES[self.type]
 
+    @property
+    def encoding(self) -> Encoding:
+        return S7_TYPES[self.type]
+
+    def footprint(self) -> Footprint:
+        return Footprint(("s7", self.area, self.db), self.offset, self.offset + self.size,
+                         "byte")
+
     def describe(self) -> str:
         return f"DB{self.db}.{self.offset}:{self.type}"
 
 
 ModbusType = Literal["float32", "int32", "int16", "uint16"]
-MODBUS_WORDS: dict[str, int] = {"float32": 2, "int32": 2, "int16": 1, "uint16": 1}
+MODBUS_WORDS: dict[str, int] = {name: enc.size // 2 for name, enc in MODBUS_TYPES.items()}
 
 
 class ModbusAddress(_Address):
@@ -101,6 +155,14 @@ class ModbusAddress(_Address):
     def count(self) -> int:
         return MODBUS_WORDS[self.type]
 
+    @property
+    def encoding(self) -> Encoding:
+        return MODBUS_TYPES[self.type]
+
+    def footprint(self) -> Footprint:
+        return Footprint(("modbus", self.unit, self.kind), self.address,
+                         self.address + self.count, "register")
+
     @model_validator(mode="after")
     def _fits(self) -> ModbusAddress:
         if self.address + self.count - 1 > 65535:
@@ -115,8 +177,9 @@ class ModbusAddress(_Address):
 PMC_AREAS: dict[str, int] = {"G": 0, "F": 1, "Y": 2, "X": 3, "A": 4, "R": 5, "T": 6,
                              "K": 7, "C": 8, "D": 9, "M": 10, "N": 11, "E": 12, "Z": 13}
 #: FOCAS PMC data types: code and byte size.
-PMC_TYPES: dict[str, tuple[int, int]] = {"byte": (0, 1), "word": (1, 2), "long": (2, 4),
-                                         "float": (4, 4), "double": (5, 8)}
+PMC_TYPES: dict[str, tuple[int, int]] = {
+    name: (code, PMC_ENCODINGS[name].size)
+    for name, code in {"byte": 0, "word": 1, "long": 2, "float": 4, "double": 5}.items()}
 
 
 PmcArea = Literal["G", "F", "Y", "X", "A", "R", "T", "K", "C", "D", "M", "N", "E", "Z"]
@@ -134,6 +197,17 @@ class FocasPmcAddress(_Address):
     scale: float = 1.0
 
     _scale = field_validator("scale")(_check_scale)
+
+    @property
+    def size(self) -> int:
+        return PMC_ENCODINGS[self.type].size
+
+    @property
+    def encoding(self) -> Encoding:
+        return PMC_ENCODINGS[self.type]
+
+    def footprint(self) -> Footprint:
+        return Footprint(("pmc", self.area), self.address, self.address + self.size, "byte")
 
     def describe(self) -> str:
         return f"PMC {self.area}{self.address}:{self.type}"

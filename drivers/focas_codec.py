@@ -1,4 +1,5 @@
-"""FANUC PMC value encodings and range planning (no I/O).
+"""FANUC PMC value encodings and range planning (no I/O; the planner is
+`drivers.plans.cover`).
 
 PMC memory is little-endian (the low byte of word D100 is D100). Reads and
 writes move raw bytes (data type 0) over byte ranges, and values are decoded
@@ -8,26 +9,22 @@ here; engineering value = raw * scale, integers rounded and range-checked.
 from __future__ import annotations
 
 import math
-import struct
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from drivers.addresses import PMC_TYPES, FocasPmcAddress
+from drivers.addresses import FocasPmcAddress
+from drivers.plans import Run, cover
 
-_FORMATS: dict[str, str] = {"byte": "<b", "word": "<h", "long": "<i", "float": "<f",
-                            "double": "<d"}
-_INT_RANGES: dict[str, tuple[int, int]] = {"byte": (-128, 127), "word": (-32768, 32767),
-                                           "long": (-(2**31), 2**31 - 1)}
 #: longest byte range read in one pmc_rdpmcrng
 MAX_RANGE_BYTES = 1024
 
 
 def pmc_size(a: FocasPmcAddress) -> int:
-    return PMC_TYPES[a.type][1]
+    return a.size
 
 
 def decode_pmc(a: FocasPmcAddress, data: bytes | bytearray, at: int = 0) -> float:
-    (raw,) = struct.unpack_from(_FORMATS[a.type], data, at)
+    (raw,) = a.encoding.little.unpack_from(data, at)
     return float(raw) * a.scale
 
 
@@ -37,16 +34,18 @@ def encode_pmc(a: FocasPmcAddress, value: float, *, saturate: bool = False) -> b
     if not math.isfinite(value):
         raise ValueError(f"{value!r} is not a finite number")
     raw = value / a.scale
-    if a.type in _INT_RANGES:
-        lo, hi = _INT_RANGES[a.type]
+    enc = a.encoding
+    fmt = enc.little
+    if enc.integer:
+        lo, hi = int(enc.lo), int(enc.hi)
         raw_int = round(raw)
         if saturate:
             raw_int = min(max(raw_int, lo), hi)
         elif not lo <= raw_int <= hi:
             raise ValueError(f"{value!r} (raw {raw_int}) outside PMC {a.type} range {lo}..{hi}")
-        return struct.pack(_FORMATS[a.type], raw_int)
+        return fmt.pack(raw_int)
     try:
-        return struct.pack(_FORMATS[a.type], raw)
+        return fmt.pack(raw)
     except OverflowError as exc:
         raise ValueError(f"{value!r} overflows a PMC {a.type}") from exc
 
@@ -67,25 +66,13 @@ class PmcRange:
 
 def read_ranges(items: Iterable[tuple[str, FocasPmcAddress]]) -> list[PmcRange]:
     """One range per area (split only past MAX_RANGE_BYTES)."""
-    ranges: list[PmcRange] = []
-    for name, a in sorted(items, key=lambda it: (it[1].area, it[1].address)):
-        end = a.address + pmc_size(a) - 1
-        last = ranges[-1] if ranges else None
-        if last is not None and last.area == a.area and end - last.start < MAX_RANGE_BYTES:
-            ranges[-1] = PmcRange(a.area, last.start, max(last.end, end), (*last.names, name))
-        else:
-            ranges.append(PmcRange(a.area, a.address, end, (name,)))
-    return ranges
+    return [_range(run) for run in cover(items, max_cells=MAX_RANGE_BYTES)]
 
 
 def write_runs(items: Iterable[tuple[str, FocasPmcAddress]]) -> list[PmcRange]:
     """Runs of byte-adjacent values of one area: one write request each."""
-    runs: list[PmcRange] = []
-    for name, a in sorted(items, key=lambda it: (it[1].area, it[1].address)):
-        end = a.address + pmc_size(a) - 1
-        last = runs[-1] if runs else None
-        if last is not None and last.area == a.area and last.end + 1 == a.address:
-            runs[-1] = PmcRange(a.area, last.start, end, (*last.names, name))
-        else:
-            runs.append(PmcRange(a.area, a.address, end, (name,)))
-    return runs
+    return [_range(run) for run in cover(items, max_gap=0, join_overlaps=False)]
+
+
+def _range(run: Run[FocasPmcAddress]) -> PmcRange:
+    return PmcRange(str(run.space[1]), run.start, run.stop - 1, run.names)

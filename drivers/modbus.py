@@ -40,7 +40,8 @@ from drivers.errors import (
     WriteRejected,
 )
 from drivers.link import Link, LinkedDriver
-from drivers.modbus_codec import Span, decode, encode, plan_reads, plan_writes
+from drivers.modbus_codec import Span, decode, encode, plan_reads, write_spans
+from drivers.plans import PlanCache
 
 DEFAULT_PORT = 502
 #: exception codes after which a write cannot succeed by retrying:
@@ -108,7 +109,9 @@ class ModbusDriver(LinkedDriver):
             timeout_s, open=self._open, drop=_drop,
             connect_errors=(OSError, ModbusException), alive=_alive)
         self._lock = asyncio.Lock()
-        self._plans: dict[tuple[str, ...], list[Span]] = {}
+        self._plans = PlanCache(self._build_read_plan)
+        self._write_plan = PlanCache(
+            lambda names: write_spans([(n, self.outputs[n]) for n in names]))
         self._in_flight = False
 
     # -- link -------------------------------------------------------------
@@ -141,17 +144,13 @@ class ModbusDriver(LinkedDriver):
             return self.outputs[name]
         raise BadAddress("unknown channel or output name", channel=name)
 
-    def _plan(self, names: Sequence[str]) -> list[Span]:
-        key = tuple(names)
-        plan = self._plans.get(key)
-        if plan is None:
-            items = [(name, self._lookup(name)) for name in dict.fromkeys(names)]
-            plan = plan_reads(items, max_gap=self.max_gap)
-            self._plans[key] = plan
-        return plan
+    def _build_read_plan(self, names: tuple[str, ...]) -> list[Span]:
+        """The spans for this set of names (kept by `_plans`)."""
+        items = [(name, self._lookup(name)) for name in dict.fromkeys(names)]
+        return plan_reads(items, max_gap=self.max_gap)
 
     async def read(self, names: Sequence[str]) -> dict[str, Sample]:
-        plan = self._plan(names)
+        plan = self._plans(names)
         out: dict[str, Sample] = {}
         async with self._lock:
             for span in plan:
@@ -174,9 +173,10 @@ class ModbusDriver(LinkedDriver):
                 singles = plan_reads([span.items[0]], max_gap=0)
                 for item in span.items[1:]:
                     singles += plan_reads([item], max_gap=0)
-                plan = self._plans[tuple(names)]
-                idx = plan.index(span)
-                self._plans[tuple(names)] = plan[:idx] + singles + plan[idx + 1:]
+                plan = self._plans(names)
+                if span in plan:
+                    idx = plan.index(span)
+                    self._plans.put(names, plan[:idx] + singles + plan[idx + 1:])
                 for single in singles:
                     await self._read_span(names, single, out)
                 return
@@ -225,15 +225,14 @@ class ModbusDriver(LinkedDriver):
     # -- write --------------------------------------------------------------
 
     async def write(self, values: Mapping[str, float]) -> None:
-        items: list[tuple[str, ModbusAddress, list[int]]] = []
+        encoded: dict[str, list[int]] = {}
         for name, value in values.items():
             addr = self.outputs.get(name)
             if addr is None:
                 raise BadAddress("unknown output name (not writable)", channel=name)
-            items.append((name, addr, encode(addr, float(value), channel=name)))
-        requests = plan_writes(items) if len(items) != 1 else [
-            (Span(items[0][1].unit, "holding", items[0][1].address, items[0][1].count,
-                  ((items[0][0], items[0][1]),)), items[0][2])]
+            encoded[name] = encode(addr, float(value), channel=name)
+        requests = [(span, [w for n, _ in span.items for w in encoded[n]])
+                    for span in self._write_plan(tuple(values))]
         async with self._lock:
             for span, words in requests:
                 await self._write_span(span, words)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 from drivers.addresses import ModbusAddress
 from drivers.errors import BadAddress
+from drivers.plans import Run, cover
 
 #: Modbus limit for one read request (function codes 3 and 4).
 MAX_READ_REGISTERS = 125
@@ -29,12 +30,6 @@ MAX_READ_REGISTERS = 125
 MAX_WRITE_REGISTERS = 123
 #: Largest gap of unrequested registers a block read may span to merge two reads.
 DEFAULT_MAX_GAP = 8
-
-_INT_RANGES: dict[str, tuple[int, int]] = {
-    "int16": (-0x8000, 0x7FFF),
-    "uint16": (0, 0xFFFF),
-    "int32": (-0x8000_0000, 0x7FFF_FFFF),
-}
 
 
 class ValueOutOfRangeError(BadAddress, ValueError):
@@ -61,28 +56,34 @@ def decode(address: ModbusAddress, registers: Sequence[int]) -> float:
 
 def encode(address: ModbusAddress, value: float, *, channel: str | None = None) -> list[int]:
     """Registers holding `value` at `address`; `ValueOutOfRangeError` when it does not fit."""
-    where = {"channel": channel, "address": address.describe()}
-    if address.type == "float32":
+    enc = address.encoding
+    if not enc.integer:
         raw_f = value / address.scale
-        if math.isfinite(raw_f) and abs(raw_f) > 3.4028234663852886e38:
-            raise ValueOutOfRangeError(f"{value!r} does not fit a float32", **where)
-        words = list(struct.unpack(">HH", struct.pack(">f", raw_f)))
+        if math.isfinite(raw_f) and not enc.lo <= raw_f <= enc.hi:
+            raise _refused(f"{value!r} does not fit a float32", address, channel)
+        words = list(_WORDS.unpack(enc.big.pack(raw_f)))
     else:
         if not math.isfinite(value):
-            raise ValueOutOfRangeError(f"{value!r} cannot be stored in an integer register",
-                                  **where)
+            raise _refused(f"{value!r} cannot be stored in an integer register", address,
+                           channel)
         raw = round(value / address.scale)
-        low, high = _INT_RANGES[address.type]
-        if not low <= raw <= high:
-            raise ValueOutOfRangeError(
-                f"{value!r} at scale {address.scale} needs raw {raw}, outside "
-                f"{address.type} range {low}..{high}", **where)
-        if address.type != "int32":
+        if not enc.lo <= raw <= enc.hi:
+            raise _refused(f"{value!r} at scale {address.scale} needs raw {raw}, outside "
+                           f"{address.type} range {enc.lo}..{enc.hi}", address, channel)
+        if enc.size == 2:
             return [raw & 0xFFFF]
-        words = list(struct.unpack(">HH", struct.pack(">i", raw)))
+        words = list(_WORDS.unpack(enc.big.pack(raw)))
     if address.word_order == "little":
         words.reverse()
     return words
+
+
+#: two registers as sent: big-endian 16-bit words
+_WORDS = struct.Struct(">HH")
+
+
+def _refused(why: str, address: ModbusAddress, channel: str | None) -> ValueOutOfRangeError:
+    return ValueOutOfRangeError(why, channel=channel, address=address.describe())
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,27 +115,7 @@ def plan_reads(items: Iterable[tuple[str, ModbusAddress]], *,
     """Group items by (unit, kind) and cover them with as few contiguous
     reads as possible: neighbours merge while the gap of unrequested
     registers is at most `max_gap` and the span stays within `max_count`."""
-    groups: dict[tuple[int, str], list[tuple[str, ModbusAddress]]] = {}
-    for name, addr in items:
-        groups.setdefault((addr.unit, addr.kind), []).append((name, addr))
-    spans: list[Span] = []
-    for (unit, kind), members in sorted(groups.items()):
-        members.sort(key=lambda m: (m[1].address, m[1].count))
-        current: list[tuple[str, ModbusAddress]] = []
-        start = end = 0  # end is exclusive
-        for name, addr in members:
-            a_end = addr.address + addr.count
-            if current and addr.address - end <= max_gap and \
-                    max(end, a_end) - start <= max_count:
-                current.append((name, addr))
-                end = max(end, a_end)
-                continue
-            if current:
-                spans.append(Span(unit, kind, start, end - start, tuple(current)))
-            current, start, end = [(name, addr)], addr.address, a_end
-        if current:
-            spans.append(Span(unit, kind, start, end - start, tuple(current)))
-    return spans
+    return [_span(run) for run in cover(items, max_gap=max_gap, max_cells=max_count)]
 
 
 def plan_writes(items: Iterable[tuple[str, ModbusAddress, list[int]]]
@@ -142,20 +123,19 @@ def plan_writes(items: Iterable[tuple[str, ModbusAddress, list[int]]]
     """Merge writes of back-to-back registers of one unit into one
     write-multiple request (no gaps: a write must not touch registers it was
     not given), so a record like {offset, heartbeat, status} lands at once."""
-    ordered = sorted(items, key=lambda it: (it[1].unit, it[1].address))
-    out: list[tuple[Span, list[int]]] = []
-    current: list[tuple[str, ModbusAddress]] = []
-    words: list[int] = []
-    unit = start = 0
-    for name, addr, regs in ordered:
-        if current and addr.unit == unit and addr.address == start + len(words) and \
-                len(words) + len(regs) <= MAX_WRITE_REGISTERS:
-            current.append((name, addr))
-            words.extend(regs)
-            continue
-        if current:
-            out.append((Span(unit, "holding", start, len(words), tuple(current)), words))
-        current, words, unit, start = [(name, addr)], list(regs), addr.unit, addr.address
-    if current:
-        out.append((Span(unit, "holding", start, len(words), tuple(current)), words))
-    return out
+    given = list(items)
+    words = {name: regs for name, _, regs in given}
+    spans = write_spans([(name, addr) for name, addr, _ in given])
+    return [(span, [w for name, _ in span.items for w in words[name]]) for span in spans]
+
+
+def write_spans(items: Iterable[tuple[str, ModbusAddress]]) -> list[Span]:
+    """The requests of `plan_writes`, without the words (a driver keeps them
+    per set of names)."""
+    return [_span(run) for run in cover(items, max_gap=0, max_cells=MAX_WRITE_REGISTERS,
+                                        join_overlaps=False)]
+
+
+def _span(run: Run[ModbusAddress]) -> Span:
+    _, unit, kind = run.space
+    return Span(int(unit), str(kind), run.start, run.stop - run.start, run.items)

@@ -17,19 +17,23 @@ from asyncua.ua.status_codes import StatusCodes
 
 from drivers.addresses import OpcUaAddress
 from drivers.base import Quality, Sample
+from drivers.encodings import ENCODINGS, FLOAT32_MAX, Encoding
 from drivers.errors import BadAddress
 
 _VT = ua.VariantType
 _SC = StatusCodes
 
+#: numeric variant types and their encodings (`drivers.encodings`)
+VARIANT_ENCODINGS: dict[ua.VariantType, Encoding] = {
+    vt: ENCODINGS[name] for vt, name in (
+        (_VT.SByte, "int8"), (_VT.Byte, "uint8"), (_VT.Int16, "int16"),
+        (_VT.UInt16, "uint16"), (_VT.Int32, "int32"), (_VT.UInt32, "uint32"),
+        (_VT.Int64, "int64"), (_VT.UInt64, "uint64"), (_VT.Float, "float32"),
+        (_VT.Double, "float64"))}
 #: integer variant types and their inclusive ranges
 INT_RANGES: dict[ua.VariantType, tuple[int, int]] = {
-    _VT.SByte: (-(2**7), 2**7 - 1), _VT.Byte: (0, 2**8 - 1),
-    _VT.Int16: (-(2**15), 2**15 - 1), _VT.UInt16: (0, 2**16 - 1),
-    _VT.Int32: (-(2**31), 2**31 - 1), _VT.UInt32: (0, 2**32 - 1),
-    _VT.Int64: (-(2**63), 2**63 - 1), _VT.UInt64: (0, 2**64 - 1),
-}
-FLOAT_TYPES = frozenset({_VT.Float, _VT.Double})
+    vt: (int(enc.lo), int(enc.hi)) for vt, enc in VARIANT_ENCODINGS.items() if enc.integer}
+FLOAT_TYPES = frozenset(vt for vt, enc in VARIANT_ENCODINGS.items() if not enc.integer)
 WRITABLE_TYPES = frozenset({*INT_RANGES, *FLOAT_TYPES, _VT.Boolean})
 
 #: ns=0 data types derived from a numeric builtin (Part 5/6): id -> variant type
@@ -39,7 +43,6 @@ _DERIVED_TYPES: dict[int, ua.VariantType] = {
     289: _VT.UInt32,   # Counter
     29: _VT.Int32,     # Enumeration (and its subtypes are sent as Int32)
 }
-_FLOAT32_MAX = 3.4028234663852886e38
 
 #: a Read or Write result meaning "no such node / attribute here"
 ADDRESS_CODES = frozenset({_SC.BadNodeIdUnknown, _SC.BadNodeIdInvalid,
@@ -87,7 +90,7 @@ def encode(value: float, address: OpcUaAddress, vtype: ua.VariantType,
                          channel=channel, address=address.node)
     raw = value / address.scale
     if vtype in FLOAT_TYPES:
-        if vtype is _VT.Float and abs(raw) > _FLOAT32_MAX:
+        if vtype is _VT.Float and abs(raw) > FLOAT32_MAX:
             raise BadAddress(f"{raw!r} does not fit a Float",
                              channel=channel, address=address.node)
         return ua.Variant(float(raw), vtype)

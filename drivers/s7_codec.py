@@ -1,4 +1,5 @@
-"""Big-endian S7 value encodings and request planning (no I/O).
+"""Big-endian S7 value encodings and request planning (no I/O; the planner
+is `drivers.plans.cover`).
 
 Engineering value = raw * scale. INT/DINT/WORD are rounded to the nearest
 raw integer on write and refused when out of range (a wrapped offset on a
@@ -8,22 +9,16 @@ machine tool is worse than no offset).
 from __future__ import annotations
 
 import math
-import struct
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 from drivers.addresses import S7Address
-
-_FORMATS: dict[str, str] = {"REAL": ">f", "INT": ">h", "DINT": ">i", "WORD": ">H"}
-_RANGES: dict[str, tuple[int, int]] = {"INT": (-(2**15), 2**15 - 1),
-                                       "DINT": (-(2**31), 2**31 - 1),
-                                       "WORD": (0, 2**16 - 1)}
-_REAL_MAX = 3.4028234663852886e38
+from drivers.plans import Run, cover
 
 
 def decode(address: S7Address, data: bytes | bytearray, at: int = 0) -> float:
     """The engineering value of `address` found at byte `at` of `data`."""
-    (raw,) = struct.unpack_from(_FORMATS[address.type], data, at)
+    (raw,) = address.encoding.big.unpack_from(data, at)
     return float(raw) * address.scale
 
 
@@ -32,15 +27,16 @@ def encode(address: S7Address, value: float) -> bytes:
     if not math.isfinite(value):
         raise ValueError(f"{value!r} is not a finite number")
     raw = value / address.scale
-    if address.type == "REAL":
-        if abs(raw) > _REAL_MAX:
-            raise ValueError(f"{value!r} overflows a REAL")
-        return struct.pack(">f", raw)
-    lo, hi = _RANGES[address.type]
+    enc = address.encoding
+    if not enc.integer:
+        if not enc.fits(raw):
+            raise ValueError(f"{value!r} overflows a {address.type}")
+        return enc.big.pack(raw)
     raw_int = round(raw)
-    if not lo <= raw_int <= hi:
-        raise ValueError(f"{value!r} (raw {raw_int}) outside {address.type} range {lo}..{hi}")
-    return struct.pack(_FORMATS[address.type], raw_int)
+    if not enc.fits(raw_int):
+        raise ValueError(f"{value!r} (raw {raw_int}) outside {address.type} range "
+                         f"{enc.lo}..{enc.hi}")
+    return enc.big.pack(raw_int)
 
 
 @dataclass(frozen=True, slots=True)
@@ -55,26 +51,14 @@ class Span:
 
 def read_spans(addresses: Mapping[str, S7Address]) -> list[Span]:
     """One span per DB covering every requested value of that DB."""
-    by_db: dict[int, list[str]] = {}
-    for name, addr in addresses.items():
-        by_db.setdefault(addr.db, []).append(name)
-    spans = []
-    for db, names in sorted(by_db.items()):
-        start = min(addresses[n].offset for n in names)
-        end = max(addresses[n].offset + addresses[n].size for n in names)
-        spans.append(Span(db, start, end - start, tuple(names)))
-    return spans
+    return [_span(run) for run in cover(addresses.items())]
 
 
 def write_runs(items: Iterable[tuple[str, S7Address]]) -> list[Span]:
     """Group writes into runs of byte-adjacent values of one DB, so a run
     goes out as one db_write without touching bytes between values."""
-    ordered = sorted(items, key=lambda it: (it[1].db, it[1].offset))
-    runs: list[Span] = []
-    for name, addr in ordered:
-        last = runs[-1] if runs else None
-        if last is not None and last.db == addr.db and last.start + last.size == addr.offset:
-            runs[-1] = Span(last.db, last.start, last.size + addr.size, (*last.names, name))
-        else:
-            runs.append(Span(addr.db, addr.offset, addr.size, (name,)))
-    return runs
+    return [_span(run) for run in cover(items, max_gap=0, join_overlaps=False)]
+
+
+def _span(run: Run[S7Address]) -> Span:
+    return Span(int(run.space[2]), run.start, run.stop - run.start, run.names)

@@ -4,9 +4,10 @@
 `load_config(path)` reads the file, validates the sections
 (`compd.config.schema`), then the checks that span sections: the controller
 timeout against the period, every address against the protocol's address
-model, the model (file or inline terms: stable, its channels configured, its
-period equal to the machine's) and the shadow model. Nothing here connects
-to anything.
+model and against the others (`compd.config.overlaps`: no written address
+overlaps another), the model (file or inline terms: stable, its channels
+configured, its period equal to the machine's) and the shadow model. Nothing
+here connects to anything.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from typing import Any
 from pydantic import BaseModel, ValidationError
 
 from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX, check_outputs
+from compd.config.overlaps import check_overlaps
 from compd.config.schema import (
     AdaptationSection,
     ControllerSection,
@@ -42,7 +44,6 @@ from models.sanity import check_model
 
 #: output names as the driver sees them
 OUTPUT_NAMES: tuple[str, ...] = ("offset", "heartbeat", "status")
-_INTEGER_TYPES = {"INT", "DINT", "WORD", "int16", "uint16", "int32", "byte", "word", "long"}
 
 
 @dataclass
@@ -144,8 +145,8 @@ def _other_protocol(doc: dict[str, Any], protocol: str) -> str | None:
 
 
 def _quantum_um(addr: Address, units_per_um: float) -> float:
-    kind = getattr(addr, "type", "")
-    if kind in _INTEGER_TYPES:
+    enc = addr.encoding
+    if enc is not None and enc.integer:
         return abs(float(getattr(addr, "scale", 1.0)) / units_per_um)
     return 0.0
 
@@ -238,7 +239,7 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         doc_addr = getattr(out, name)
         if doc_addr is not None:
             outputs[name] = _validate_address(ctl.protocol, doc_addr, f"output.{name}")
-    check_outputs(ctl.protocol, outputs, limit_um=out.limit_um, units_per_um=out.units_per_um,
+    check_outputs(outputs, limit_um=out.limit_um, units_per_um=out.units_per_um,
                   sign=out.sign, heartbeat_max=HEARTBEAT_MAX, status_max=STATUS_MAX)
     clash = sorted(set(channels) & set(OUTPUT_NAMES))
     if clash:
@@ -275,6 +276,7 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         if recorder_path.is_dir():
             raise ConfigError("recorder.path", f"{recorder_path} is a directory, not a file")
     adaptation, probes = _adaptation(raw, channels, model.adaptation)
+    check_overlaps(outputs, channels, probes)
     return LoadedConfig(
         path=path, raw=raw, channels=channels, outputs=outputs, model=model, shadow=shadow,
         state_dir=state_dir, recorder_path=recorder_path,

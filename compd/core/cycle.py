@@ -50,6 +50,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from compd.config.output_range import HEARTBEAT_MODULO  # the heartbeat wraps there
 from compd.core.adaptation import AdaptationSettings, ProbeReading, ProbeStage
 from compd.core.faults import Event, FaultPolicy, FaultState
 from compd.core.output import OutputStage, Readback, Status
@@ -61,9 +62,6 @@ from models.errors import ModelError
 
 if TYPE_CHECKING:
     from compd.config.loader import LoadedConfig
-
-#: the heartbeat counts modulo this (fits INT, WORD, uint16, DINT, PMC word)
-HEARTBEAT_MODULO = 32768
 
 #: a model output beyond this many times limit_um is a fault (hold, then ramp,
 #: alarm: MODEL_RANGE), not a value to clamp quietly: a model that far off is

@@ -45,6 +45,7 @@ from typing import Any
 import structlog
 
 from compd.config.loader import LoadedConfig, load_config
+from compd.config.overlaps import check_shared_controllers
 from compd.core.schedule import staggered_starts
 from compd.errors import ConfigError
 from compd.faces.fleet_metrics import FleetMetrics
@@ -79,6 +80,7 @@ def load_machines(directory: Path) -> list[LoadedConfig]:
     if bad:
         raise ConfigError("", "; ".join(bad))
     _refuse_shared(loaded)
+    check_shared_controllers(loaded)
     return loaded
 
 

@@ -21,7 +21,8 @@ reads back the offset (and heartbeat / status) the daemon wrote. A drive map
 Addresses are the typed models of `drivers.addresses` (as in the daemon's
 config). Written addresses must be writable by a client (Modbus holding
 registers, S7 DBs, FOCAS PMC areas, writable OPC UA nodes) and must not
-overlap the ones read (the plant must never overwrite the daemon's offset).
+overlap any other (the plant must never overwrite the daemon's offset); the
+rule is the daemon config's, `drivers.footprint.first_clash`.
 """
 
 from __future__ import annotations
@@ -34,15 +35,8 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from drivers.addresses import (
-    S7_SIZES,
-    Address,
-    FocasPmcAddress,
-    ModbusAddress,
-    OpcUaAddress,
-    S7Address,
-)
-from drivers.focas_codec import pmc_size
+from drivers.addresses import Address, FocasPmcAddress, ModbusAddress
+from drivers.footprint import first_clash
 from drivers.protocols import PROTOCOLS, ProtocolName
 from drivers.sim import CHANNELS, OUTPUTS
 from models.nesting import NestingError, loads_toml
@@ -76,19 +70,6 @@ class DriverOptions(BaseModel):
 
     def as_kwargs(self) -> dict[str, Any]:
         return self.model_dump(exclude_none=True)
-
-
-def _span(addr: Address) -> tuple[tuple[object, ...], int, int] | None:
-    """(memory key, first, last) of what an address occupies, for overlap checks."""
-    if isinstance(addr, ModbusAddress):
-        return ("modbus", addr.unit, addr.kind), addr.address, addr.address + addr.count - 1
-    if isinstance(addr, S7Address):
-        return ("s7", addr.db), addr.offset, addr.offset + S7_SIZES[addr.type] - 1
-    if isinstance(addr, FocasPmcAddress):
-        return ("pmc", addr.area), addr.address, addr.address + pmc_size(addr) - 1
-    if isinstance(addr, OpcUaAddress):
-        return ("node", addr.node), 0, 0
-    return None
 
 
 class DriveMap(BaseModel):
@@ -153,13 +134,10 @@ class DriveMap(BaseModel):
                                  "a client; use holding registers")
             if self.protocol == "focas" and not isinstance(addr, FocasPmcAddress):
                 raise ValueError(f"write.{name}: only PMC addresses are writable over FOCAS")
-        writes = [(f"write.{n}", _span(a)) for n, a in self.write.items()]
-        items = writes + [(f"read.{n}", _span(a)) for n, a in self.read.items()]
-        for i, (w_name, w) in enumerate(writes):
-            for r_name, r in items[i + 1:]:
-                if w is not None and r is not None and w[0] == r[0] and w[1] <= r[2] \
-                        and r[1] <= w[2]:
-                    raise ValueError(f"{w_name} and {r_name} overlap in controller memory")
+        clash = first_clash([*(a.use(f"write.{n}", written=True) for n, a in self.write.items()),
+                             *(a.use(f"read.{n}", written=False) for n, a in self.read.items())])
+        if clash is not None:
+            raise ValueError(f"{clash.second.key} {clash.reason()}")
         extra = {k for k in self.driver.as_kwargs() if k != "timeout_s"}
         refused = sorted(extra - _protocol_options(self.protocol))
         if refused:

@@ -31,6 +31,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from drivers import encodings
 from drivers.addresses import (
     PMC_AREAS,
     Address,
@@ -91,6 +92,11 @@ ENCODINGS: dict[str, FocasPmcAddress] = {
     "enc_double": _d(212, "double"),
     "enc_r_long": _d(100, "long", area="R"),
 }
+
+
+def _saturate(raw: float, enc: encodings.Encoding) -> int:
+    """The nearest raw integer `enc` holds (an analog card saturates, never wraps)."""
+    return min(max(round(raw), int(enc.lo)), int(enc.hi))
 
 
 def sim_dir() -> Path:
@@ -190,11 +196,11 @@ class FocasSimController:
             off = self._pmc_off(a)
             self._mm[off:off + pmc_size(a)] = encode_pmc(a, value, saturate=True)
         elif isinstance(a, FocasDiagAddress):
-            raw = max(-(2**31), min(2**31 - 1, round(value / a.scale)))
+            raw = _saturate(value / a.scale, encodings.ENCODINGS["int32"])  # read as long data
             struct.pack_into("<i", self._mm, OFF_DIAG + 12 * self._diag_index[
                 (a.number, a.axis)] + 8, raw)
         else:
-            raw = max(-32768, min(32767, round(value / a.scale)))
+            raw = _saturate(value / a.scale, encodings.ENCODINGS["int16"])
             struct.pack_into("<i", self._mm, OFF_SPLOAD + 4 * (a.spindle - 1), raw)
 
     async def publish(self, values: Mapping[str, float]) -> None:

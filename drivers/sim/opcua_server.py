@@ -48,6 +48,7 @@ from asyncua.ua.attribute_ids import AttributeIds
 from asyncua.ua.status_codes import StatusCodes
 
 from drivers.addresses import Address, OpcUaAddress
+from drivers.opcua_codec import INT_RANGES
 from drivers.sim import CHANNELS, OUTPUTS, PROBES
 from drivers.sim.ports import free_tcp_port
 
@@ -70,8 +71,6 @@ ENCODING_NODES: dict[str, tuple[ua.VariantType, float]] = {
     "enc_double": (_VT.Double, 1.0),
     "enc_float": (_VT.Float, 1.0),
 }
-_INTEGER_TYPES = frozenset({_VT.SByte, _VT.Byte, _VT.Int16, _VT.UInt16, _VT.Int32,
-                            _VT.UInt32, _VT.Int64, _VT.UInt64})
 
 #: name -> asyncua policy types for the sim's `policies` option
 POLICY_TYPES: dict[str, ua.SecurityPolicyType] = {
@@ -127,7 +126,7 @@ class _PasswordUserManager(UserManager):
 
 
 def _coerce(value: float, vtype: ua.VariantType) -> Any:
-    if vtype in _INTEGER_TYPES:
+    if vtype in INT_RANGES:
         return round(value)
     if vtype is _VT.Boolean:
         return bool(value)

@@ -108,10 +108,10 @@ class _Server(Server):
 
 def _clamp(addr: S7Address, value: float) -> float:
     """A plant value saturates like an analog card instead of wrapping."""
-    if addr.type == "REAL":
+    enc = addr.encoding
+    if not enc.integer:
         return value
-    lo, hi = {"INT": (-32768, 32767), "DINT": (-(2**31), 2**31 - 1), "WORD": (0, 65535)}[addr.type]
-    raw = min(max(round(value / addr.scale), lo), hi)
+    raw = min(max(round(value / addr.scale), int(enc.lo)), int(enc.hi))
     return raw * addr.scale
 
 

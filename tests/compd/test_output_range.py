@@ -74,7 +74,8 @@ def test_offset_encoding_that_cannot_hold_the_limit_is_refused(
     ("s7", '{ db = 2, offset = 0, type = "INT", scale = 0.01 }', 200.0),
     ("focas", '{ kind = "pmc", area = "D", address = 100, type = "word", scale = 0.01 }',
      300.0),
-    ("focas", '{ kind = "pmc", area = "D", address = 100, type = "double", scale = 1e-300 }',
+    # a double is 8 bytes: at D100 it would run into the heartbeat at D104
+    ("focas", '{ kind = "pmc", area = "D", address = 200, type = "double", scale = 1e-300 }',
      200.0),
 ])
 def test_offset_encoding_that_holds_the_limit_is_accepted(
