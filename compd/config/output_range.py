@@ -14,20 +14,20 @@ write fault (`compd.core.cycle`).
 
 from __future__ import annotations
 
+import functools
 import math
+import operator
 
+from compd.core.cycle import HEARTBEAT_MODULO
+from compd.core.output import Status
 from compd.errors import ConfigError
 from drivers.addresses import Address
 
-#: the heartbeat counts 0 .. HEARTBEAT_MODULO - 1 and wraps, so it fits an INT,
-#: WORD, int16/uint16 or PMC word (`compd.core.cycle` counts with it; defined
-#: here, in the room below the core, so the config check and the cycle read
-#: one number)
-HEARTBEAT_MODULO = 32768
+#: the heartbeat counts 0 .. HEARTBEAT_MODULO - 1 and wraps (`compd.core.cycle`, which
+#: counts with it), so it fits an INT, WORD, int16/uint16 or PMC word
 HEARTBEAT_MAX = HEARTBEAT_MODULO - 1
-#: the largest status word (every compd.core.output.Status bit; the config is
-#: the room below the core: tests/compd/test_output_range.py holds them equal)
-STATUS_MAX = (1 << 14) - 1
+#: the largest status word: every `compd.core.output.Status` bit
+STATUS_MAX = int(functools.reduce(operator.or_, Status))
 
 
 def _fmt(x: float) -> str:

@@ -50,7 +50,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from compd.config.output_range import HEARTBEAT_MODULO  # the heartbeat wraps there
 from compd.core.adaptation import AdaptationSettings, ProbeReading, ProbeStage
 from compd.core.faults import Event, FaultPolicy, FaultState
 from compd.core.output import OutputStage, Readback, Status
@@ -59,6 +58,10 @@ from compd.core.validation import ChannelLimits, Validator
 from drivers.base import Sample
 from models.compensation import CompensationModel
 from models.errors import ModelError
+
+#: the heartbeat counts 0 .. HEARTBEAT_MODULO - 1 and wraps, so it fits an INT, WORD,
+#: int16/uint16 or PMC word (the config checks each heartbeat address holds it)
+HEARTBEAT_MODULO = 32768
 
 if TYPE_CHECKING:
     from compd.config.loader import LoadedConfig
