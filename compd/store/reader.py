@@ -113,12 +113,14 @@ class RecorderReader:
         except sqlite3.Error as exc:
             raise RecorderError(self.path, f"cannot open: {exc}") from None
         try:
+            kind = conn.execute("SELECT type FROM sqlite_schema WHERE name = 'samples'"
+                                ).fetchone()
+            if kind is None or kind[0] != "table":
+                raise RecorderError(self.path, "not a recorder database (no table samples)")
             columns = {str(r[1]) for r in conn.execute("PRAGMA table_info(samples)")}
             missing = [c for c in SAMPLE_COLUMNS if c not in columns]
             if missing:
-                raise RecorderError(self.path, "not a recorder database (no table samples)"
-                                    if not columns else
-                                    f"not a recorder database (samples lacks {missing})")
+                raise RecorderError(self.path, f"not a recorder database (samples lacks {missing})")
             self.channels = tuple(self._meta_names(conn, CHANNELS_KEY) or ())
             clash = sorted(set(self.channels).intersection(FIXED_COLUMNS))
             if clash:

@@ -18,6 +18,7 @@ import json
 import math
 import sqlite3
 from pathlib import Path
+from typing import Any
 
 from compd.core.record import RecordRow
 
@@ -60,8 +61,8 @@ def _num(value: float | None) -> float | None:
     return None if value is None or not math.isfinite(value) else float(value)
 
 
-def previous_rows(seq: int, row: RecordRow) -> tuple[tuple[object, ...],
-                                                     list[tuple[object, ...]]]:
+def previous_rows(seq: int, row: RecordRow) -> tuple[tuple[Any, ...],
+                                                     list[tuple[Any, ...]]]:
     """One cycle as the previous recorder encoded it: the samples row, and its
     channel_values rows."""
     sample = (seq, row.seq, row.mono_s, row.wall_s, _num(row.offset_um), _num(row.model_um),

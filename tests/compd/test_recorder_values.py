@@ -116,7 +116,7 @@ def test_a_database_of_the_previous_layout_reads_as_before_and_is_upgraded(
     assert _rows(path, "SELECT seq, channel, value, validity FROM channel_values"
                        " WHERE seq <= 6 ORDER BY seq, channel") == values
     assert _rows(path, "SELECT validity FROM samples WHERE seq = 7") == [("{}",)]
-    assert json.loads(_rows(path, "SELECT value FROM meta WHERE key = 'terms'")[0][0]) \
+    assert json.loads(str(_rows(path, "SELECT value FROM meta WHERE key = 'terms'")[0][0])) \
         == ["spindle", "ambient"]
 
 
