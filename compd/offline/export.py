@@ -70,8 +70,8 @@ def _iso(wall_s: float) -> str:
         return ""
 
 
-#: rows per batch of an export (one Parquet row group): a few MB of columns
-EXPORT_BATCH_ROWS = 65536
+#: rows per batch of an export (one Parquet row group): ~10 MB of parsed rows
+EXPORT_BATCH_ROWS = 8192
 
 
 class Export:
