@@ -13,7 +13,7 @@ child's own, as `/usr/bin/time -f %M` reports it. With `--also REV` the same com
 revision REV run too (its packages unpacked by `git archive`), e.g. the
 reader before this one, which refused a file over 512 MiB (exit 65).
 
-Run: .venv/bin/python benchmarks/bench_recorder_read.py [--mib 600] [--also REV]
+Run: .venv/bin/python benchmarks/bench_recorder_read.py [--mib 600] [--also REV] [--dir DIR]
 """
 
 from __future__ import annotations
@@ -73,6 +73,13 @@ def write_rows(path: Path, n: int, seed: int = 1) -> int:
     return settled_size(path)
 
 
+def rows_in(path: Path) -> int | None:
+    if not path.is_file():
+        return None
+    with contextlib.closing(sqlite3.connect(path)) as conn:
+        return int(conn.execute("SELECT COUNT(*) FROM samples").fetchone()[0])
+
+
 def bytes_per_row(tmp: Path, n: int = 50_000) -> tuple[float, float]:
     """(today's layout, the previous layout) bytes per row, same rows."""
     rng = random.Random(1)
@@ -95,8 +102,9 @@ def run_child(argv: list[str], pythonpath: Path | None = None) -> tuple[int, flo
         rss_file, err_file = Path(d) / "rss", Path(d) / "err"
         t0 = time.perf_counter()
         with err_file.open("wb") as err:
+            # cwd: not the checkout, whose compd/ python -m would import before PYTHONPATH's
             rc = subprocess.run(["/usr/bin/time", "-f", "%M", "-o", str(rss_file),
-                                 sys.executable, "-m", "compd", *argv], env=env, cwd=ROOT,
+                                 sys.executable, "-m", "compd", *argv], env=env, cwd=d,
                                 stdout=subprocess.DEVNULL, stderr=err, check=False).returncode
         secs = time.perf_counter() - t0
         rss_kib = float(rss_file.read_text().split()[-1])
@@ -122,20 +130,30 @@ def main() -> None:
     parser.add_argument("--mib", type=float, default=600.0, help="size of the large database")
     parser.add_argument("--also", metavar="REV", default=None,
                         help="also run the commands of this git revision")
+    parser.add_argument("--dir", type=Path, default=None,
+                        help="write the databases here and keep them; a later run with the "
+                             "same --dir and --mib reuses them (default: a temporary directory)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(dir=os.environ.get("TMPDIR")) as d:
         tmp = Path(d)
+        keep = args.dir or tmp
+        keep.mkdir(parents=True, exist_ok=True)
         now_b, prev_b = bytes_per_row(tmp)
         print(f"bytes per row (5 channels, 4 terms): {now_b:.0f} now, {prev_b:.0f} previous "
               f"layout (values twice): {prev_b / now_b:.2f}x, {1 - now_b / prev_b:.0%} less")
         rows = int(args.mib * (1 << 20) / now_b)
         dbs = {}
         for name, n in (("large", rows), ("eighth", rows // 8)):
+            db = keep / f"{name}.db"
             t0 = time.perf_counter()
-            size = write_rows(tmp / f"{name}.db", n)
-            dbs[name] = (tmp / f"{name}.db", n, size)
-            print(f"{name}: {n:,} rows, {size / (1 << 20):.0f} MiB, written in "
-                  f"{time.perf_counter() - t0:.0f} s")
+            if rows_in(db) != n:
+                db.unlink(missing_ok=True)
+                size = write_rows(db, n)
+                how = f"written in {time.perf_counter() - t0:.0f} s"
+            else:
+                size, how = settled_size(db), "kept from an earlier run"
+            dbs[name] = (db, n, size)
+            print(f"{name}: {n:,} rows, {size / (1 << 20):.0f} MiB, {how}")
         revs: list[tuple[str, Path | None]] = [("this tree", None)]
         if args.also:
             revs.append((args.also, unpack(args.also, tmp / "rev")))

@@ -111,20 +111,21 @@ class Export:
             raise ExportError(f"{self.reader.path}: {exc.reason}") from None
 
 
-def _cell(value: Any) -> str:
-    if isinstance(value, (bool, np.bool_)):
-        return "1" if value else "0"
-    if isinstance(value, (float, np.floating)):
-        return repr(float(value)) if math.isfinite(value) else ""
-    return str(value)
+def _cells(col: npt.NDArray[Any]) -> list[str]:
+    """One column as CSV cells: floats as repr (shortest round trip), empty when
+    missing or not finite; booleans 1/0."""
+    if col.dtype.kind == "b":
+        return ["1" if v else "0" for v in col.tolist()]
+    if col.dtype.kind == "f":
+        return [repr(v) if math.isfinite(v) else "" for v in col.tolist()]
+    return [str(v) for v in col.tolist()]
 
 
 def write_csv(export: Export, out: IO[str]) -> None:
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(export.names)
     for table in export.batches():
-        cols = list(table.columns.values())
-        writer.writerows([_cell(c[i]) for c in cols] for i in range(len(table)))
+        writer.writerows(zip(*(_cells(c) for c in table.columns.values()), strict=True))
 
 
 def write_csv_file(export: Export, path: Path) -> None:
