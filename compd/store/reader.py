@@ -25,8 +25,11 @@ the same as ``mono_s``), ``mono_s``, ``wall_s``, ``offset_um`` (written),
 channel named as the channel (NaN where missing or not finite),
 ``valid.<channel>`` (bool: a finite value and no reason recorded against it)
 and ``contribution.<term>`` (float64) per model term. With ``detail=False``
-(what a calibration record needs) only ``seq``, ``cycle``, ``mono_s``,
-``wall_s``, ``offset_um``, ``model_um``, ``valid`` and the channels.
+(what a calibration record needs) only ``cycle``, ``mono_s``, ``offset_um``,
+``model_um`` and the channels.
+
+`read(since, until)` is the same rows as whole columns, counted first and
+filled a batch at a time: memory is the numbers' 8 bytes each and one batch.
 
 `history(since, max_points)` is the status page's plot: at most `max_points`
 rows of (wall_s, offset_um, model_um) picked by stride on ``seq``.
@@ -73,6 +76,20 @@ _PICK = """
 WITH RECURSIVE pick(s) AS (SELECT ? UNION ALL SELECT s - ? FROM pick WHERE s - ? >= ?)
 SELECT wall_s, offset_um, model_um FROM pick JOIN samples ON samples.seq = pick.s
 ORDER BY pick.s"""
+
+
+class _Window:
+    """[since, until) on ``wall_s`` as SQL: `sql` (" AND ..." terms) and its `bounds`."""
+
+    def __init__(self, since: float | None, until: float | None) -> None:
+        self.sql = ""
+        self.bounds: list[float] = []
+        if since is not None:
+            self.sql += " AND wall_s >= ?"
+            self.bounds.append(since)
+        if until is not None:
+            self.sql += " AND wall_s < ?"
+            self.bounds.append(until)
 
 
 class RecorderReader:
@@ -155,36 +172,10 @@ class RecorderReader:
                 detail: bool = True) -> Iterator[Columns]:
         """The rows stamped in [since, until), a batch of columns at a time."""
         terms = self.terms if detail else ()  # the column list, before the first batch
-        conn = self._connection()
-        wall = ""
-        bounds: list[float] = []
-        if since is not None:
-            wall += " AND wall_s >= ?"
-            bounds.append(since)
-        if until is not None:
-            wall += " AND wall_s < ?"
-            bounds.append(until)
-        fields = ", validity, contributions" if detail else ""
-        select = (f"SELECT rowid, seq, cycle, mono_s, wall_s, offset_um, model_um, valid,"
-                  f" state, channels{fields} FROM samples"
-                  f" WHERE rowid > ? AND rowid <= ?{wall.replace('wall_s', '+wall_s')}"
-                  " ORDER BY rowid LIMIT ?")
-        span = ("SELECT MIN(rowid), MAX(rowid) FROM samples"
-                + (f" WHERE {wall[5:]}" if wall else ""))
-        try:
-            first, last = conn.execute(span, bounds).fetchone()
-            if first is None:
-                return
-            after = int(first) - 1
-            while True:
-                rows = conn.execute(select, (after, int(last), *bounds, self.batch_rows)
-                                    ).fetchall()
-                if not rows:
-                    return
-                after = int(rows[-1][0])
-                yield self._columns(rows, terms, detail)
-        except sqlite3.Error as exc:
-            raise RecorderError(self.path, f"cannot read: {exc}") from None
+        window = _Window(since, until)
+        span = self._span(window)
+        if span is not None:
+            yield from self._batches(window, span, terms, detail)
 
     def names(self, *, detail: bool = True) -> list[str]:
         """The columns a batch has, in their order."""
@@ -192,9 +183,68 @@ class RecorderReader:
 
     def read(self, since: float | None = None, until: float | None = None, *,
              detail: bool = True) -> Columns:
-        """Every row in the window as whole columns (memory: the numbers' 8 bytes each)."""
-        empty = self._columns([], self.terms if detail else (), detail)
-        return concat(self.batches(since, until, detail=detail), empty)
+        """Every row in the window as whole columns, counted first and filled a batch
+        at a time (memory: the columns, 8 bytes per number, and one batch)."""
+        terms = self.terms if detail else ()
+        empty = self._columns([], terms, detail)
+        window = _Window(since, until)
+        span = self._span(window)
+        if span is None:
+            return empty
+        n = self._count(window, span)
+        whole = {k: np.empty(n, dtype=v.dtype) for k, v in empty.items() if v.dtype.kind != "U"}
+        parts = {k: [v] for k, v in empty.items() if k not in whole}  # text: width unknown
+        filled = 0
+        for batch in self._batches(window, span, terms, detail):
+            m = len(batch["mono_s"])
+            if filled + m > n:  # rows inside the span committed since the count
+                n = filled + m
+                whole = {name: np.resize(col, n) for name, col in whole.items()}
+            for name, col in whole.items():
+                col[filled:filled + m] = batch[name]
+            for name, texts in parts.items():
+                texts.append(batch[name])
+            filled += m
+        return {k: whole[k][:filled] if k in whole else np.concatenate(parts[k]) for k in empty}
+
+    def _span(self, window: _Window) -> tuple[int, int] | None:
+        """The first and last rowid stamped inside the window (its index), or None."""
+        sql = "SELECT MIN(rowid), MAX(rowid) FROM samples"
+        try:
+            first, last = self._connection().execute(
+                sql + (f" WHERE {window.sql[5:]}" if window.sql else ""), window.bounds
+            ).fetchone()
+        except sqlite3.Error as exc:
+            raise RecorderError(self.path, f"cannot read: {exc}") from None
+        return None if first is None else (int(first), int(last))
+
+    def _count(self, window: _Window, span: tuple[int, int]) -> int:
+        try:
+            return int(self._connection().execute(
+                f"SELECT COUNT(*) FROM samples WHERE rowid BETWEEN ? AND ?{window.sql}",
+                (*span, *window.bounds)).fetchone()[0])
+        except sqlite3.Error as exc:
+            raise RecorderError(self.path, f"cannot read: {exc}") from None
+
+    def _batches(self, window: _Window, span: tuple[int, int], terms: tuple[str, ...],
+                 detail: bool) -> Iterator[Columns]:
+        fields = ", validity, contributions" if detail else ""
+        select = (f"SELECT rowid, seq, cycle, mono_s, wall_s, offset_um, model_um, valid,"
+                  f" state, channels{fields} FROM samples"
+                  f" WHERE rowid > ? AND rowid <= ?{window.sql.replace('wall_s', '+wall_s')}"
+                  " ORDER BY rowid LIMIT ?")
+        conn = self._connection()
+        after, last = span[0] - 1, span[1]
+        try:
+            while True:
+                rows = conn.execute(select, (after, last, *window.bounds, self.batch_rows)
+                                    ).fetchall()
+                if not rows:
+                    return
+                after = int(rows[-1][0])
+                yield self._columns(rows, terms, detail)
+        except sqlite3.Error as exc:
+            raise RecorderError(self.path, f"cannot read: {exc}") from None
 
     def history(self, since_wall_s: float,
                 max_points: int) -> list[tuple[float, float | None, float | None]]:
@@ -233,9 +283,15 @@ class RecorderReader:
         try:
             return _build(rows, self.channels, terms, detail)
         except _CORRUPT as exc:
-            raise RecorderError(self.path, f"corrupt row at seq {rows[0][1]!r} "
-                                f"({type(exc).__name__}: {str(exc)[:80]}); not a recorder "
-                                "compd wrote") from None
+            error, bad = exc, rows[0]
+        for row in rows:  # which one: the batch again, a row at a time
+            try:
+                _build([row], self.channels, terms, detail)
+            except _CORRUPT as exc:
+                error, bad = exc, row
+                break
+        raise RecorderError(self.path, f"corrupt row, seq {bad[1]!r} ({type(error).__name__}: "
+                            f"{str(error)[:80]}); not a recorder compd wrote")
 
 
 def _floats(values: Iterable[Any]) -> npt.NDArray[np.float64]:
@@ -254,17 +310,19 @@ def _build(rows: list[Any], channels: tuple[str, ...], terms: tuple[str, ...],
     """One batch's columns from its rows (rowid, seq, cycle, mono_s, wall_s,
     offset_um, model_um, valid, state, channels[, validity, contributions])."""
     mono = _floats(r[3] for r in rows)
-    out: Columns = {
-        "seq": np.array([r[1] for r in rows], dtype=np.int64),
-        "cycle": np.array([-1 if r[2] is None else r[2] for r in rows], dtype=np.int64)}
+    out: Columns = {}
+    if detail:
+        out["seq"] = np.array([r[1] for r in rows], dtype=np.int64)
+    out["cycle"] = np.array([-1 if r[2] is None else r[2] for r in rows], dtype=np.int64)
     if detail:
         out["time_s"] = mono.copy()
     out["mono_s"] = mono
-    out["wall_s"] = _floats(r[4] for r in rows)
+    if detail:
+        out["wall_s"] = _floats(r[4] for r in rows)
     out["offset_um"] = _floats(r[5] for r in rows)
     out["model_um"] = _floats(r[6] for r in rows)
-    out["valid"] = np.array([bool(r[7]) for r in rows], dtype=bool)
     if detail:
+        out["valid"] = np.array([bool(r[7]) for r in rows], dtype=bool)
         out["state"] = np.array([str(r[8]) for r in rows], dtype=str)
     values = [_object(r[9]) for r in rows]
     for name in channels:
@@ -280,16 +338,6 @@ def _build(rows: list[Any], channels: tuple[str, ...], terms: tuple[str, ...],
     for term in terms:
         out[f"contribution.{term}"] = _floats(c.get(term) for c in contributions)
     return out
-
-
-def concat(batches: Iterable[Columns], empty: Columns) -> Columns:
-    """Batches joined into whole columns, one column at a time (memory: the
-    batches and one joined column, never two copies of everything)."""
-    parts: dict[str, list[npt.NDArray[Any]]] = {name: [col] for name, col in empty.items()}
-    for batch in batches:
-        for name, col in batch.items():
-            parts[name].append(col)
-    return {name: np.concatenate(parts.pop(name)) for name in list(parts)}
 
 
 def read_samples(path: str | Path, since: float | None = None,

@@ -206,3 +206,29 @@ def test_what_is_not_a_recorder_ends_in_one_line(kind: str, error: type[Exceptio
         assert main(argv) == code, argv
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("miscount", [-5, 0, 5])
+def test_read_fills_whole_columns_whatever_changed_since_the_count(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, miscount: int) -> None:
+    """`read` sizes its columns by a count, then fills them: rows retention deletes
+    after the count (fewer) or rows committed inside the span after it (more)
+    still give exactly the rows read, in order."""
+    db = _db(tmp_path / "rec.sqlite", 40)
+    count = RecorderReader._count
+    monkeypatch.setattr(RecorderReader, "_count",
+                        lambda self, *a: count(self, *a) + miscount)
+    with RecorderReader(db, batch_rows=6) as reader:
+        cols = reader.read()
+        record = reader.read(detail=False)
+    assert cols["seq"].tolist() == list(range(1, 41))
+    assert cols["state"].tolist() == ["ok"] * 40
+    assert record["bearing"].tolist() == cols["bearing"].tolist()
+    assert sorted(record) == ["bearing", "cycle", "dz_um", "model_um", "mono_s", "offset_um"]
+
+
+def test_a_corrupt_row_is_named_by_its_seq(tmp_path: Path) -> None:
+    path = tmp_path / "samples.db"
+    _not_a_recorder(path, "bad_row")
+    with pytest.raises(RecorderError, match=r"corrupt row, seq 4 \(TypeError"):
+        read_samples(path)
