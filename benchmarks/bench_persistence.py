@@ -28,7 +28,8 @@ import structlog
 
 from compd.faces.telemetry import clear_secrets, configure_logging, register_secret
 from compd.runtime.checkpoint import save_checkpoint
-from compd.runtime.recorder import _INSERT, _SCHEMA, Recorder, RecordRow, _tuple
+from compd.runtime.recorder import Recorder, RecordRow, _tuple
+from compd.store.schema import INSERT_SAMPLE, SCHEMA
 
 
 def _per_call(fn: Callable[[], None], n: int, repeats: int = 5) -> float:
@@ -58,7 +59,7 @@ def bench_recorder(tmp: Path, n: int = 20_000) -> tuple[float, float]:
     conn = sqlite3.connect(tmp / "peer.sqlite", isolation_level=None)
     conn.execute("PRAGMA journal_mode=WAL")
     conn.execute("PRAGMA synchronous=NORMAL")
-    conn.executescript(_SCHEMA)
+    conn.executescript(SCHEMA)
     tuples = [_tuple(i + 1, r) for i, r in enumerate(rows)]
     batches = [tuples[i:i + 10] for i in range(0, n, 10)]
 
@@ -66,7 +67,7 @@ def bench_recorder(tmp: Path, n: int = 20_000) -> tuple[float, float]:
         conn.execute("DELETE FROM samples")
         for batch in batches:
             conn.execute("BEGIN")
-            conn.executemany(_INSERT, batch)
+            conn.executemany(INSERT_SAMPLE, batch)
             conn.execute("COMMIT")
 
     peer_s = _per_call(peer, 1, repeats=3) / n

@@ -33,8 +33,6 @@ MAX_MODEL_BYTES = 1 << 20
 MAX_CONFIG_BYTES = 1 << 20
 #: a calibration record (CSV): 1 GiB is ~20 million rows, years at 1 s
 MAX_RECORD_BYTES = 1 << 30
-#: the daemon's recorder database read as a record (it is loaded whole)
-MAX_RECORDER_BYTES = 512 << 20
 
 
 class InputError(CompdError):

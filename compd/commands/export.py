@@ -43,7 +43,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from compd.offline.export import ExportError, recorder_table, write_csv, write_parquet
+    from compd.offline.export import (
+        Export,
+        ExportError,
+        write_csv,
+        write_csv_file,
+        write_parquet,
+    )
     from compd.outfiles import check_output, write_atomically
 
     fmt = args.format or ("parquet" if (args.output or "").lower().endswith(".parquet")
@@ -64,20 +70,16 @@ def run(args: argparse.Namespace) -> int:
     if args.output is not None:
         check_output(args.output, "export", force=args.force, inputs=[args.recorder])
     try:
-        table = recorder_table(args.recorder, args.since, args.until)
+        with Export(args.recorder, args.since, args.until) as export:
+            if args.output is None:
+                write_csv(export, sys.stdout)
+            else:
+                write = write_csv_file if fmt == "csv" else write_parquet
+                write_atomically(args.output, lambda tmp: write(export, tmp), "export",
+                                 force=args.force, inputs=[args.recorder])
     except ExportError as exc:
         print(f"compd export: {exc}", file=sys.stderr)
         return EX_DATAERR
-    if args.output is None:
-        write_csv(table, sys.stdout)
-    elif fmt == "csv":
-        def _csv(tmp: object) -> None:
-            with open(str(tmp), "w", encoding="utf-8", newline="") as f:
-                write_csv(table, f)
-        write_atomically(args.output, _csv, "export", force=args.force, inputs=[args.recorder])
-    else:
-        write_atomically(args.output, lambda tmp: write_parquet(table, tmp), "export",
-                         force=args.force, inputs=[args.recorder])
     if args.output is not None:
-        print(f"compd export: {len(table)} rows written to {args.output}")
+        print(f"compd export: {export.rows} rows written to {args.output}")
     return 0

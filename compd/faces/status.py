@@ -6,11 +6,11 @@ limit, each channel's value and validity); it replaces the last snapshot in
 one assignment, so the HTTP threads (`compd.faces.status_http`) only ever
 read a complete one and never make the loop wait. The last alarms (warning
 and error events) are kept in a bounded deque. `read_history` reads the
-recorder's SQLite file read-only (WAL: it never blocks the recorder's
-writes) with a bound on the rows: the last `hours` of offset and model
-output, thinned to at most `MAX_HISTORY_POINTS` rows picked by stride on the
-recorder's contiguous ``seq`` (a bounded number of primary-key look-ups,
-however long the window). Nothing here raises into the cycle: a snapshot
+recorder through its one reader (`compd.store.reader`, read-only; WAL: it
+never blocks the recorder's writes) with a bound on the rows: the last
+`hours` of offset and model output, thinned to at most `MAX_HISTORY_POINTS`
+rows picked by stride on the recorder's contiguous ``seq`` (a bounded number
+of primary-key look-ups, however long the window). Nothing here raises into the cycle: a snapshot
 that cannot be built is logged once and the page keeps the last one.
 """
 
@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import collections
 import math
-import sqlite3
 import threading
 import time
 from collections.abc import Mapping
@@ -29,6 +28,9 @@ import structlog
 
 from compd.core.faults import FaultState
 from compd.core.output import Status
+from compd.infiles import InputError
+from compd.store.reader import RecorderReader
+from compd.store.schema import RecorderError
 
 __all__ = ["MAX_ALARMS", "MAX_HISTORY_POINTS", "StatusBoard", "operator_state",
            "read_history"]
@@ -178,8 +180,12 @@ def read_history(path: Path | None, hours: float, *, max_points: int = MAX_HISTO
         return out
     cutoff = (time.time() if now_wall_s is None else now_wall_s) - hours * 3600.0
     try:
-        rows = _thinned_rows(path, cutoff, max(1, max_points))
-    except sqlite3.Error as exc:
+        with RecorderReader(path, timeout_s=LOCK_WAIT_S) as reader:
+            rows = reader.history(cutoff, max(1, max_points))
+    except RecorderError as exc:
+        out["error"] = f"recorder unreadable: {exc.reason}"
+        return out
+    except InputError as exc:
         out["error"] = f"recorder unreadable: {exc}"
         return out
     if not rows:
@@ -189,27 +195,3 @@ def read_history(path: Path | None, hours: float, *, max_points: int = MAX_HISTO
         out["offset_um"].append(_num(offset_um))
         out["model_um"].append(_num(model_um))
     return out
-
-
-_PICK = """
-WITH RECURSIVE pick(s) AS (SELECT ? UNION ALL SELECT s - ? FROM pick WHERE s - ? >= ?)
-SELECT wall_s, offset_um, model_um FROM pick JOIN samples ON samples.seq = pick.s
-ORDER BY pick.s"""
-
-
-def _thinned_rows(path: Path, cutoff_wall_s: float,
-                  max_points: int) -> list[tuple[float, float | None, float | None]]:
-    conn = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True,
-                           timeout=LOCK_WAIT_S, check_same_thread=False)
-    try:
-        last = conn.execute("SELECT MAX(seq) FROM samples").fetchone()[0]
-        first = conn.execute("SELECT seq FROM samples WHERE wall_s >= ? ORDER BY wall_s "
-                             "LIMIT 1", (cutoff_wall_s,)).fetchone()
-        if last is None or first is None:
-            return []
-        lo = min(int(first[0]), int(last))
-        stride = max(1, math.ceil((int(last) - lo + 1) / max_points))
-        rows = conn.execute(_PICK, (int(last), stride, stride, lo)).fetchmany(max_points)
-        return [(float(w), o, m) for w, o, m in rows]
-    finally:
-        conn.close()

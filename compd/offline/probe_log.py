@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from compd.infiles import MAX_RECORD_BYTES, MAX_RECORDER_BYTES, check_input, open_input
+from compd.infiles import MAX_RECORD_BYTES, open_input
 from compd.offline.records import RECORDER_SUFFIXES, RecordError, _parse_float, file_sha256
 
 FloatArray = npt.NDArray[np.float64]
@@ -53,17 +53,15 @@ def read_probe_log(path: str | Path) -> ProbeLog:
 
 
 def _read_recorder(p: Path) -> ProbeLog:
-    from compd.runtime.recorder import RecorderError, read_probes
+    from compd.store.reader import RecorderReader
+    from compd.store.schema import RecorderError
 
     where = str(p)
-    check_input(p, "recorder database", MAX_RECORDER_BYTES)
     try:
-        cols = read_probes(p)
+        with RecorderReader(p) as reader:
+            cols = reader.probes()
     except RecorderError as exc:
         raise RecordError(f"{where}: {exc.reason}") from None
-    except (ValueError, TypeError, OverflowError) as exc:
-        raise RecordError(f"{where}: corrupt probe rows ({type(exc).__name__}: "
-                          f"{str(exc)[:120]}); not a record compd wrote") from None
     use = np.isin(cols["reason"], MEASURED_REASONS) & np.isfinite(cols["measured_um"]) \
         & np.isfinite(cols["model_um"]) & np.isfinite(cols["mono_s"])
     return ProbeLog(where, file_sha256(p), cols["mono_s"][use],

@@ -36,7 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from compd.errors import CompdError
-from compd.infiles import MAX_RECORD_BYTES, MAX_RECORDER_BYTES, check_input, open_input
+from compd.infiles import MAX_RECORD_BYTES, open_input
 from compd.offline.channel_kind import ChannelKind, channel_kind
 from models.sanity import MAX_PERIOD_S, MIN_PERIOD_S
 
@@ -190,23 +190,19 @@ def read_record(path: str | Path) -> Record:
 
 
 def read_recorder_record(path: str | Path) -> Record:
-    """Read and check the daemon's SQLite sample recorder as a record."""
-    from compd.runtime.recorder import FIXED_COLUMNS, RecorderError, read_samples
+    """Read and check the daemon's SQLite sample recorder as a record, streamed
+    (`compd.store.reader`): memory is the record's numbers, whatever the file's size."""
+    from compd.store.reader import RecorderReader
+    from compd.store.schema import FIXED_COLUMNS, RecorderError
 
     p = Path(path)
     where = str(p)
-    check_input(p, "recorder database", MAX_RECORDER_BYTES)
     try:
-        cols = read_samples(p)
+        with RecorderReader(p) as reader:
+            cols = reader.read(detail=False)
     except RecorderError as exc:
         raise RecordError(f"{where}: {exc.reason}") from None
-    except (ValueError, TypeError, AttributeError, KeyError, OverflowError,
-            RecursionError) as exc:
-        # a row the daemon did not write (JSON that does not parse or nests without end,
-        # a text time)
-        raise RecordError(f"{where}: corrupt recorder rows ({type(exc).__name__}: "
-                          f"{str(exc)[:120]}); not a record compd wrote") from None
-    t = np.asarray(cols["time_s"], dtype=np.float64)
+    t = np.asarray(cols["mono_s"], dtype=np.float64)
     if t.size < 3:
         raise RecordError(f"{where}: {t.size} sample(s); a record needs at least 3")
     if not np.all(np.isfinite(t)):
@@ -217,7 +213,7 @@ def read_recorder_record(path: str | Path) -> Record:
         if np.all(np.isfinite(col)):
             columns[name] = col
     for name, values in cols.items():
-        if name in FIXED_COLUMNS or "." in name:
+        if name in FIXED_COLUMNS:
             continue
         col = np.asarray(values, dtype=np.float64)
         bad = np.flatnonzero(~np.isfinite(col))

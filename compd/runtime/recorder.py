@@ -12,33 +12,21 @@ When a commit fails (disk full, I/O error, a locked database), its rows are
 dropped and counted, `alarm` turns True and `last_error` says why; the next
 commit that succeeds clears the alarm.
 
-Schema (table ``samples``): ``seq`` INTEGER PRIMARY KEY, numbered by the
-recorder itself (contiguous, continuing across restarts: MAX(seq)+1), ``cycle``
-(the daemon's own cycle number, `RecordRow.seq`, may repeat after a restart),
-``mono_s``, ``wall_s``, ``offset_um`` (written and confirmed by the controller;
-NULL when no offset was sent or the write failed), ``attempted_um`` (the
-offset sent, confirmed or not), ``model_um``, ``state`` (the
-fault state), ``valid`` (0/1: inputs valid, model stepped), ``complete`` (0/1:
-the cycle is complete as `compd.core.cycle.offset_in_force` defines it, the
-offset compd wants is in force; a held output's cycles are valid, never
-complete; NULL in rows of an older compd), and three JSON objects: ``channels`` {name:
-value}, ``validity`` {name: reason or null}, ``contributions`` {term: µm}.
-Non-finite floats are stored as JSON null (read back as NaN).
-
-Table ``channel_values`` holds the same channel values as numbers a SQL or
-Grafana user can query without JSON: one row per sample and channel,
-(``seq``, ``channel``, ``value`` REAL (NULL when missing or non-finite),
-``validity`` (NULL when valid, else the reason)), keyed by (seq, channel);
-``seq`` joins ``samples``. Rows of a database written by an older compd
-(before this table) keep their values in the JSON column only (SQLite's
-``json_extract(channels, '$.bearing')`` reads them); such a database opens,
-reads and is appended to as before.
+The file's layout is `compd.store.schema`'s (one row per cycle in table
+``samples``: the recorder's own contiguous ``seq``, continuing across restarts
+as MAX(seq)+1, the daemon's ``cycle``, the times, ``offset_um`` as confirmed by
+the controller and ``attempted_um`` as sent, ``model_um``, ``state``,
+``valid``, ``complete``, and the JSON objects ``channels``, ``validity`` and
+``contributions``; non-finite floats stored as null). Each channel value is
+stored once, in the JSON column; the ``channel_values`` view shows them as
+numbers. Opening a file an older compd wrote upgrades it
+(`compd.store.schema.upgrade`); it then reads and is appended to as before.
 
 Retention (`keep_rows`) keeps the newest rows by ``seq``, the recorder's own
 numbering: `recorder.retention_days` (30 by default, 0 keeps everything)
-becomes days × 86400 / period_s rows; ``channel_values`` follows ``samples``.
-No clock decides what is deleted. Table ``meta``
-(key, value) holds ``channels``: a JSON list of every channel name seen.
+becomes days × 86400 / period_s rows. No clock decides what is deleted. Table
+``meta`` (key, value) holds ``channels`` and ``terms``: JSON lists of every
+channel and model term seen.
 
 Files: SQLite opens the database and its ``-wal``, ``-shm`` and ``-journal``
 by name, so the recorder opens their directory first (`StateDir`: created
@@ -51,8 +39,8 @@ regular file of ours, and that the path still names the directory it opened.
 Refused at open: RecorderError; refused later: the commit is dropped and
 counted like any failed one (alarm, `last_error` says why).
 
-`read_samples` turns a database into numpy columns for `compd fit` and
-`compd replay`.
+Reading is `compd.store.reader`'s (`RecorderReader`, `read_samples`), which
+this module re-exports for its older callers.
 """
 
 from __future__ import annotations
@@ -62,75 +50,26 @@ import json
 import math
 import os
 import sqlite3
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-import numpy.typing as npt
-
 from compd.core.record import RecordRow
-from compd.errors import CompdError
 from compd.runtime.statedir import StateDir, StateDirError
+from compd.store.reader import read_samples
+from compd.store.schema import (
+    CHANNELS_KEY,
+    FIXED_COLUMNS,
+    INSERT_PROBE,
+    INSERT_SAMPLE,
+    PROBE_COLUMNS,
+    TERMS_KEY,
+    RecorderError,
+    meta_names,
+    upgrade,
+)
 
 __all__ = ["FIXED_COLUMNS", "RecordRow", "Recorder", "RecorderError", "read_samples"]
-
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS samples (
-    seq INTEGER PRIMARY KEY,
-    cycle INTEGER,
-    mono_s REAL NOT NULL,
-    wall_s REAL NOT NULL,
-    offset_um REAL,
-    model_um REAL,
-    state TEXT NOT NULL,
-    valid INTEGER NOT NULL,
-    channels TEXT NOT NULL,
-    validity TEXT NOT NULL,
-    contributions TEXT NOT NULL,
-    attempted_um REAL,
-    complete INTEGER
-);
-CREATE INDEX IF NOT EXISTS samples_wall_s ON samples (wall_s);
-CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS channel_values (
-    seq INTEGER NOT NULL,
-    channel TEXT NOT NULL,
-    value REAL,
-    validity TEXT,
-    PRIMARY KEY (seq, channel)
-) WITHOUT ROWID;
-CREATE TABLE IF NOT EXISTS probes (
-    seq INTEGER PRIMARY KEY,
-    counter REAL,
-    value_um REAL,
-    measured_um REAL,
-    model_um REAL,
-    innovation_um REAL,
-    innovation_sigma_um REAL,
-    accepted INTEGER NOT NULL,
-    reason TEXT,
-    bias_um REAL,
-    bias_sigma_um REAL,
-    mode TEXT
-);
-"""
-
-_INSERT = ("INSERT INTO samples (seq, cycle, mono_s, wall_s, offset_um, model_um, state, valid,"
-           " channels, validity, contributions, attempted_um, complete)"
-           " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
-
-_INSERT_VALUE = "INSERT INTO channel_values (seq, channel, value, validity) VALUES (?, ?, ?, ?)"
-
-#: a probe's columns ([adaptation]): the sample's seq, then `RecordRow.probe`'s fields
-PROBE_COLUMNS = ("counter", "value_um", "measured_um", "model_um", "innovation_um",
-                 "innovation_sigma_um", "accepted", "reason", "bias_um", "bias_sigma_um", "mode")
-_INSERT_PROBE = (f"INSERT INTO probes (seq, {', '.join(PROBE_COLUMNS)})"
-                 f" VALUES ({', '.join('?' * (len(PROBE_COLUMNS) + 1))})")
-
-#: Columns `read_samples` always returns; channel names may not collide with them.
-FIXED_COLUMNS = ("seq", "cycle", "time_s", "mono_s", "wall_s", "offset_um", "model_um", "valid",
-                 "state")
 
 #: SQLite page cache of the recorder's connection, KiB. The recorder only appends
 #: (the rightmost pages of the table and of its wall_s index) and purges from the
@@ -138,15 +77,6 @@ FIXED_COLUMNS = ("seq", "cycle", "time_s", "mono_s", "wall_s", "offset_um", "mod
 #: only makes the daemon's resident memory creep up by ~2 MB over the first
 #: machine hours as the cache fills with pages never read again.
 CACHE_KIB = 256
-
-
-class RecorderError(CompdError):
-    """The recorder database cannot be opened or read. `path` is the file."""
-
-    def __init__(self, path: Path, reason: str) -> None:
-        self.path = path
-        self.reason = reason
-        super().__init__(f"recorder {path}: {reason}")
 
 
 def _num(value: float | None) -> float | None:
@@ -166,16 +96,16 @@ def _tuple(seq: int, row: RecordRow) -> tuple[Any, ...]:
     return (seq, row.seq, float(row.mono_s), float(row.wall_s), _num(row.offset_um),
             _num(row.model_um), str(row.state), 1 if row.valid else 0,
             _json_numbers(row.channels),
-            json.dumps({str(k): (None if v is None else str(v))
-                        for k, v in row.validity.items()}, separators=(",", ":")),
+            json.dumps({str(k): str(v) for k, v in row.validity.items() if v is not None},
+                       separators=(",", ":")),
             _json_numbers(row.contributions), _num(row.attempted_um),
             1 if row.complete else 0)
 
 
-def _value_rows(seq: int, row: RecordRow) -> list[tuple[Any, ...]]:
-    return [(seq, str(name), _num(value),
-             None if (why := row.validity.get(name)) is None else str(why))
-            for name, value in row.channels.items()]
+def _new_names(known: list[str], groups: Iterable[Mapping[str, Any]]) -> list[str]:
+    """The names in `groups` not in `known`, in the order first seen."""
+    seen = set(known)
+    return list(dict.fromkeys(str(n) for g in groups for n in g if n not in seen))
 
 
 class Recorder:
@@ -208,6 +138,7 @@ class Recorder:
         self._buffer: list[RecordRow] = []
         self._next_seq = 1
         self._channels: list[str] = []
+        self._terms: list[str] = []
         self._commits_since_purge = 0
 
     @property
@@ -245,14 +176,10 @@ class Recorder:
                 raise RecorderError(self.path, f"WAL mode refused (journal_mode={mode})")
             conn.execute("PRAGMA synchronous=NORMAL")
             conn.execute(f"PRAGMA cache_size=-{CACHE_KIB}")
-            conn.executescript(_SCHEMA)
-            columns = {r[1] for r in conn.execute("PRAGMA table_info(samples)")}
-            if "attempted_um" not in columns:  # a database of an older compd
-                conn.execute("ALTER TABLE samples ADD COLUMN attempted_um REAL")
-            if "complete" not in columns:  # older rows: NULL (not known)
-                conn.execute("ALTER TABLE samples ADD COLUMN complete INTEGER")
+            upgrade(conn)  # a file of an older compd: its layout brought to this one
             last = conn.execute("SELECT MAX(seq) FROM samples").fetchone()[0]
-            meta = conn.execute("SELECT value FROM meta WHERE key='channels'").fetchone()
+            channels = self._meta_names(conn, CHANNELS_KEY)
+            terms = self._meta_names(conn, TERMS_KEY)
             self._check(directory)  # SQLite has opened its files by now
         except sqlite3.Error as exc:
             conn.close()
@@ -268,8 +195,15 @@ class Recorder:
             raise
         self._dir = directory
         self._next_seq = (int(last) if last is not None else 0) + 1
-        self._channels = list(json.loads(meta[0])) if meta else []
+        self._channels = channels
+        self._terms = terms
         self._conn = conn
+
+    def _meta_names(self, conn: sqlite3.Connection, key: str) -> list[str]:
+        try:
+            return meta_names(conn, key) or []
+        except ValueError as exc:
+            raise RecorderError(self.path, f"cannot prepare: {exc}") from None
 
     def record(self, row: RecordRow) -> None:
         """Buffer one row; commit when `commit_every` rows are waiting. Never raises."""
@@ -297,27 +231,25 @@ class Recorder:
             self._fail(len(rows), f"refused: {exc}")
             return
         first = self._next_seq
-        known = set(self._channels)
-        new = list(dict.fromkeys(str(n) for r in rows for n in r.channels if n not in known))
-        names = self._channels + new
+        channels = self._channels + _new_names(self._channels, (r.channels for r in rows))
+        terms = self._terms + _new_names(self._terms, (r.contributions for r in rows))
         try:
             conn.execute("BEGIN IMMEDIATE")
-            conn.executemany(_INSERT, [_tuple(first + i, r) for i, r in enumerate(rows)])
-            conn.executemany(_INSERT_VALUE, [v for i, r in enumerate(rows)
-                                             for v in _value_rows(first + i, r)])
-            conn.executemany(_INSERT_PROBE, [
+            conn.executemany(INSERT_SAMPLE, [_tuple(first + i, r) for i, r in enumerate(rows)])
+            conn.executemany(INSERT_PROBE, [
                 (first + i, *(r.probe.get(c) for c in PROBE_COLUMNS))
                 for i, r in enumerate(rows) if r.probe is not None])
-            if new:
-                conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES ('channels', ?)",
-                             (json.dumps(names),))
+            for key, names, known in ((CHANNELS_KEY, channels, self._channels),
+                                      (TERMS_KEY, terms, self._terms)):
+                if len(names) > len(known):
+                    conn.execute("INSERT OR REPLACE INTO meta (key, value) VALUES (?, ?)",
+                                 (key, json.dumps(names)))
             conn.execute("COMMIT")
         except (sqlite3.Error, OSError, ValueError) as exc:
             self._rollback(conn)
             self._fail(len(rows), f"{type(exc).__name__}: {exc}")
             return
-        if new:
-            self._channels = names
+        self._channels, self._terms = channels, terms
         self._next_seq = first + len(rows)
         self.committed += len(rows)
         self.alarm = False
@@ -343,8 +275,6 @@ class Recorder:
                 " (SELECT seq FROM samples WHERE seq <= ? ORDER BY seq LIMIT ?)",
                 (last_dropped_seq, limit))
             self.purged += max(cur.rowcount, 0)
-            conn.execute("DELETE FROM channel_values WHERE seq <"
-                         " (SELECT COALESCE(MIN(seq), ?) FROM samples)", (last_dropped_seq + 1,))
         except sqlite3.Error as exc:
             self._rollback(conn)
             self.last_error = f"retention: {type(exc).__name__}: {exc}"
@@ -386,98 +316,3 @@ class Recorder:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def _nan_floats(values: list[float | None]) -> npt.NDArray[np.float64]:
-    return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
-
-
-def read_samples(path: Path) -> dict[str, npt.NDArray[Any]]:
-    """Every sample of a recorder database as numpy columns, in seq order.
-
-    Columns (all of equal length): ``seq`` and ``cycle`` (int64; cycle -1 when
-    the daemon gave none), ``time_s`` (float64: the daemon's sample clock,
-    the same as ``mono_s``; it restarts with the daemon's clock), ``mono_s``,
-    ``wall_s``, ``offset_um`` (written), ``model_um``, ``valid`` (bool),
-    ``state`` (str), then one float64 column per channel named as the channel
-    (NaN where missing or non-finite), ``valid.<channel>`` (bool: a finite value
-    and no invalidity reason recorded) and ``contribution.<term>`` (float64) per model term.
-    Raises RecorderError when the file is missing or not a recorder database.
-    """
-    path = Path(path)
-    if not path.exists():
-        raise RecorderError(path, "no such file")
-    try:
-        conn = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
-    except sqlite3.Error as exc:
-        raise RecorderError(path, f"cannot open: {exc}") from exc
-    try:
-        meta = conn.execute("SELECT value FROM meta WHERE key='channels'").fetchone()
-        rows = conn.execute(
-            "SELECT seq, cycle, mono_s, wall_s, offset_um, model_um, state, valid, channels,"
-            " validity, contributions FROM samples ORDER BY seq").fetchall()
-    except sqlite3.Error as exc:
-        raise RecorderError(path, f"not a recorder database: {exc}") from exc
-    finally:
-        conn.close()
-    names: list[str] = list(json.loads(meta[0])) if meta else []
-    clash = sorted(set(names).intersection(FIXED_COLUMNS))
-    if clash:
-        raise RecorderError(path, f"channel name(s) {clash} collide with fixed columns")
-    channels = [json.loads(r[8]) for r in rows]
-    validity = [json.loads(r[9]) for r in rows]
-    contributions = [json.loads(r[10]) for r in rows]
-    terms = list(dict.fromkeys(t for c in contributions for t in c))
-    mono = _nan_floats([r[2] for r in rows])
-    out: dict[str, npt.NDArray[Any]] = {
-        "seq": np.array([r[0] for r in rows], dtype=np.int64),
-        "cycle": np.array([-1 if r[1] is None else r[1] for r in rows], dtype=np.int64),
-        "time_s": mono,
-        "mono_s": mono.copy(),
-        "wall_s": _nan_floats([r[3] for r in rows]),
-        "offset_um": _nan_floats([r[4] for r in rows]),
-        "model_um": _nan_floats([r[5] for r in rows]),
-        "valid": np.array([bool(r[7]) for r in rows], dtype=bool),
-        "state": np.array([r[6] for r in rows], dtype=str),
-    }
-    for name in names:
-        out[name] = _nan_floats([c.get(name) for c in channels])
-        out[f"valid.{name}"] = np.array(
-            [c.get(name) is not None and v.get(name) is None
-             for c, v in zip(channels, validity, strict=True)], dtype=bool)
-    for term in terms:
-        out[f"contribution.{term}"] = _nan_floats([c.get(term) for c in contributions])
-    return out
-
-
-def read_probes(path: Path) -> dict[str, npt.NDArray[Any]]:
-    """Every probe of a recorder database, in seq order, with its sample's clock.
-
-    Columns (equal length): ``seq`` (int64), ``mono_s`` (float64: the daemon's sample
-    clock at the probe's cycle; it restarts with the daemon), ``measured_um`` and
-    ``model_um`` (float64, NaN where none was recorded), ``reason`` (str: "" for an
-    accepted probe, else why it was refused). Raises RecorderError when the file is not
-    a recorder database (a database from before probes were recorded has none: empty).
-    """
-    path = Path(path)
-    if not path.exists():
-        raise RecorderError(path, "no such file")
-    try:
-        conn = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
-    except sqlite3.Error as exc:
-        raise RecorderError(path, f"cannot open: {exc}") from exc
-    try:
-        rows = conn.execute(
-            "SELECT p.seq, s.mono_s, p.measured_um, p.model_um, p.accepted, p.reason"
-            " FROM probes p JOIN samples s ON s.seq = p.seq ORDER BY p.seq").fetchall()
-    except sqlite3.Error as exc:
-        raise RecorderError(path, f"not a recorder database with probes: {exc}") from exc
-    finally:
-        conn.close()
-    return {
-        "seq": np.array([r[0] for r in rows], dtype=np.int64),
-        "mono_s": _nan_floats([r[1] for r in rows]),
-        "measured_um": _nan_floats([r[2] for r in rows]),
-        "model_um": _nan_floats([r[3] for r in rows]),
-        "reason": np.array(["" if r[4] else str(r[5] or "refused") for r in rows], dtype=str),
-    }

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from compd.errors import CompdError
+from compd.infiles import InputError
 from compd.runtime.recorder import Recorder, RecorderError, RecordRow, read_samples
 from tests.tmpfs import fill, small_tmpfs
 
@@ -142,7 +143,7 @@ def test_not_open_and_bad_path(tmp_path: Path) -> None:
     with pytest.raises(RecorderError) as info:
         Recorder(blocker / "rec.sqlite").open()
     assert isinstance(info.value, CompdError) and str(blocker) in str(info.value)
-    with pytest.raises(RecorderError, match="no such file"):
+    with pytest.raises(InputError, match="No such file"):  # exit 66, as any missing input
         read_samples(tmp_path / "missing.sqlite")
     junk = tmp_path / "junk.sqlite"
     junk.write_bytes(b"not a database at all" * 100)

@@ -1,0 +1,11 @@
+"""The recorder's database file: its layout and the one reader of it.
+
+Below the faces and the shell, so that everything that reads the recorder reads it
+the same way: the writer (`compd.runtime.recorder`) takes the layout from here, the
+status page (`compd.faces.status`), `compd export`, `fit` and `replay`
+(`compd.offline`) read through `reader.RecorderReader`.
+
+- `schema`  the tables, the statements the writer uses, the upgrade of an older file
+- `reader`  the file checked (regular, SQLite, the recorder's tables), then its rows
+            streamed a bounded batch at a time, cut to a wall-clock window
+"""

@@ -1,0 +1,377 @@
+"""The one reader of a recorder database: `compd export`, `fit`, `replay` and the
+status page read the daemon's recorder through `RecorderReader`.
+
+Opening checks the file before SQLite sees it, and ends each refusal in one
+exception: not a readable regular file (a FIFO, a device, a directory, missing:
+`compd.infiles.InputError`, exit 66), not an SQLite file (its first 16 bytes),
+not the recorder's tables, a corrupt ``meta`` (`RecorderError`, exit 65 in the
+commands). There is no size cap: the rows are streamed.
+
+`batches(since, until)` yields the rows whose wall-clock stamp lies in
+[since, until), oldest first (by the table's rowid, which is the recorder's
+``seq``), as numpy columns of at most `batch_rows` rows each: memory is one
+batch, whatever the file's size. The window is found on the ``wall_s`` index
+(the first and last rowid inside it), the rows up to the newest committed when
+the iteration starts; each batch is its own short read (WAL: the daemon goes on
+writing and checkpointing meanwhile), and a row retention deletes between two
+batches is simply not read. A row the daemon cannot have written (JSON that is
+not an object or nests without end, a text where a number belongs) raises
+`RecorderError` naming its ``seq``.
+
+Columns of a batch (all of equal length): ``seq`` and ``cycle`` (int64; cycle
+-1 when the daemon gave none), ``time_s`` (float64: the daemon's sample clock,
+the same as ``mono_s``), ``mono_s``, ``wall_s``, ``offset_um`` (written),
+``model_um``, ``valid`` (bool), ``state`` (str), then one float64 column per
+channel named as the channel (NaN where missing or not finite),
+``valid.<channel>`` (bool: a finite value and no reason recorded against it)
+and ``contribution.<term>`` (float64) per model term. With ``detail=False``
+(what a calibration record needs) only ``cycle``, ``mono_s``, ``offset_um``,
+``model_um`` and the channels.
+
+`read(since, until)` is the same rows as whole columns, counted first and
+filled a batch at a time: memory is the numbers' 8 bytes each and one batch.
+
+`history(since, max_points)` is the status page's plot: at most `max_points`
+rows of (wall_s, offset_um, model_um) picked by stride on ``seq``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sqlite3
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from compd.infiles import open_input
+from compd.store.schema import (
+    CHANNELS_KEY,
+    FIXED_COLUMNS,
+    SAMPLE_COLUMNS,
+    TERMS_KEY,
+    RecorderError,
+    meta_names,
+    scan_terms,
+)
+
+__all__ = ["BATCH_ROWS", "Columns", "RecorderReader", "read_samples"]
+
+Columns = dict[str, npt.NDArray[Any]]
+
+#: rows per batch: a few hundred kB of numbers, one short read of SQLite
+BATCH_ROWS = 4096
+#: how long a read waits for a database another process holds locked
+LOCK_WAIT_S = 5.0
+_MAGIC = b"SQLite format 3\x00"
+#: the file is streamed: any size is read in the same memory
+_ANY_SIZE = 1 << 62
+#: what a corrupt row raises while its columns are built
+_CORRUPT = (ValueError, TypeError, AttributeError, KeyError, OverflowError, RecursionError)
+
+_PICK = """
+WITH RECURSIVE pick(s) AS (SELECT ? UNION ALL SELECT s - ? FROM pick WHERE s - ? >= ?)
+SELECT wall_s, offset_um, model_um FROM pick JOIN samples ON samples.seq = pick.s
+ORDER BY pick.s"""
+
+
+class _Window:
+    """[since, until) on ``wall_s`` as SQL: `sql` (" AND ..." terms) and its `bounds`."""
+
+    def __init__(self, since: float | None, until: float | None) -> None:
+        self.sql = ""
+        self.bounds: list[float] = []
+        if since is not None:
+            self.sql += " AND wall_s >= ?"
+            self.bounds.append(since)
+        if until is not None:
+            self.sql += " AND wall_s < ?"
+            self.bounds.append(until)
+
+
+class RecorderReader:
+    """A recorder database opened read-only (see the module docstring).
+
+    Use as a context manager, or `open()` and `close()`. `channels` and `terms`
+    name every channel and model term the file holds, in the order first seen.
+    """
+
+    def __init__(self, path: str | Path, *, batch_rows: int = BATCH_ROWS,
+                 timeout_s: float = LOCK_WAIT_S) -> None:
+        if batch_rows < 1:
+            raise ValueError(f"batch_rows must be >= 1, got {batch_rows}")
+        self.path = Path(path)
+        self.batch_rows = batch_rows
+        self.timeout_s = timeout_s
+        self.channels: tuple[str, ...] = ()
+        self._terms: tuple[str, ...] | None = None
+        self._conn: sqlite3.Connection | None = None
+
+    def __enter__(self) -> RecorderReader:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def open(self) -> None:
+        """Check the file and open it. Raises InputError or RecorderError."""
+        with open_input(self.path, "recorder database", _ANY_SIZE) as f:
+            head = f.read(len(_MAGIC))
+        if head != _MAGIC:
+            raise RecorderError(self.path, "not an SQLite database, so not a recorder "
+                                "compd wrote")
+        try:
+            conn = sqlite3.connect(f"{self.path.resolve().as_uri()}?mode=ro", uri=True,
+                                   timeout=self.timeout_s, check_same_thread=False)
+        except sqlite3.Error as exc:
+            raise RecorderError(self.path, f"cannot open: {exc}") from None
+        try:
+            kind = conn.execute("SELECT type FROM sqlite_schema WHERE name = 'samples'"
+                                ).fetchone()
+            if kind is None or kind[0] != "table":
+                raise RecorderError(self.path, "not a recorder database (no table samples)")
+            columns = {str(r[1]) for r in conn.execute("PRAGMA table_info(samples)")}
+            missing = [c for c in SAMPLE_COLUMNS if c not in columns]
+            if missing:
+                raise RecorderError(self.path, f"not a recorder database (samples lacks {missing})")
+            self.channels = tuple(self._meta_names(conn, CHANNELS_KEY) or ())
+            clash = sorted(set(self.channels).intersection(FIXED_COLUMNS))
+            if clash:
+                raise RecorderError(self.path,
+                                    f"channel name(s) {clash} collide with fixed columns")
+            terms = self._meta_names(conn, TERMS_KEY)
+            self._terms = None if terms is None else tuple(terms)
+        except sqlite3.Error as exc:
+            conn.close()
+            raise RecorderError(self.path, f"not a recorder database: {exc}") from None
+        except RecorderError:
+            conn.close()
+            raise
+        self._conn = conn
+
+    def close(self) -> None:
+        conn, self._conn = self._conn, None
+        if conn is not None:
+            conn.close()
+
+    @property
+    def terms(self) -> tuple[str, ...]:
+        """The model terms; found in the rows when the file does not list them."""
+        if self._terms is None:
+            try:
+                self._terms = tuple(scan_terms(self._connection()))
+            except sqlite3.Error as exc:
+                raise RecorderError(self.path, f"corrupt contributions: {exc}") from None
+        return self._terms
+
+    def batches(self, since: float | None = None, until: float | None = None, *,
+                detail: bool = True) -> Iterator[Columns]:
+        """The rows stamped in [since, until), a batch of columns at a time."""
+        terms = self.terms if detail else ()  # the column list, before the first batch
+        window = _Window(since, until)
+        span = self._span(window)
+        if span is not None:
+            yield from self._batches(window, span, terms, detail)
+
+    def names(self, *, detail: bool = True) -> list[str]:
+        """The columns a batch has, in their order."""
+        return list(self._columns([], self.terms if detail else (), detail))
+
+    def read(self, since: float | None = None, until: float | None = None, *,
+             detail: bool = True) -> Columns:
+        """Every row in the window as whole columns, counted first and filled a batch
+        at a time (memory: the columns, 8 bytes per number, and one batch)."""
+        terms = self.terms if detail else ()
+        empty = self._columns([], terms, detail)
+        window = _Window(since, until)
+        span = self._span(window)
+        if span is None:
+            return empty
+        n = self._count(window, span)
+        whole = {k: np.empty(n, dtype=v.dtype) for k, v in empty.items() if v.dtype.kind != "U"}
+        parts = {k: [v] for k, v in empty.items() if k not in whole}  # text: width unknown
+        filled = 0
+        for batch in self._batches(window, span, terms, detail):
+            m = len(batch["mono_s"])
+            if filled + m > n:  # rows inside the span committed since the count
+                n = filled + m
+                whole = {name: np.resize(col, n) for name, col in whole.items()}
+            for name, col in whole.items():
+                col[filled:filled + m] = batch[name]
+            for name, texts in parts.items():
+                texts.append(batch[name])
+            filled += m
+        return {k: whole[k][:filled] if k in whole else np.concatenate(parts[k]) for k in empty}
+
+    def _span(self, window: _Window) -> tuple[int, int] | None:
+        """The first and last rowid stamped inside the window (its index), or None."""
+        sql = "SELECT MIN(rowid), MAX(rowid) FROM samples"
+        try:
+            first, last = self._connection().execute(
+                sql + (f" WHERE {window.sql[5:]}" if window.sql else ""), window.bounds
+            ).fetchone()
+        except sqlite3.Error as exc:
+            raise RecorderError(self.path, f"cannot read: {exc}") from None
+        return None if first is None else (int(first), int(last))
+
+    def _count(self, window: _Window, span: tuple[int, int]) -> int:
+        try:
+            return int(self._connection().execute(
+                f"SELECT COUNT(*) FROM samples WHERE rowid BETWEEN ? AND ?{window.sql}",
+                (*span, *window.bounds)).fetchone()[0])
+        except sqlite3.Error as exc:
+            raise RecorderError(self.path, f"cannot read: {exc}") from None
+
+    def _batches(self, window: _Window, span: tuple[int, int], terms: tuple[str, ...],
+                 detail: bool) -> Iterator[Columns]:
+        fields = ", validity, contributions" if detail else ""
+        select = (f"SELECT rowid, seq, cycle, mono_s, wall_s, offset_um, model_um, valid,"
+                  f" state, channels{fields} FROM samples"
+                  f" WHERE rowid > ? AND rowid <= ?{window.sql.replace('wall_s', '+wall_s')}"
+                  " ORDER BY rowid LIMIT ?")
+        conn = self._connection()
+        after, last = span[0] - 1, span[1]
+        try:
+            while True:
+                rows = conn.execute(select, (after, last, *window.bounds, self.batch_rows)
+                                    ).fetchall()
+                if not rows:
+                    return
+                after = int(rows[-1][0])
+                yield self._columns(rows, terms, detail)
+        except sqlite3.Error as exc:
+            raise RecorderError(self.path, f"cannot read: {exc}") from None
+
+    def history(self, since_wall_s: float,
+                max_points: int) -> list[tuple[float, float | None, float | None]]:
+        """(wall_s, offset_um, model_um) of at most `max_points` rows from the first
+        stamped at or after `since_wall_s` to the newest, evenly spaced by ``seq``, the
+        newest always included, oldest first: a bounded number of key look-ups."""
+        conn = self._connection()
+        try:
+            last = conn.execute("SELECT MAX(seq) FROM samples").fetchone()[0]
+            first = conn.execute("SELECT seq FROM samples WHERE wall_s >= ? ORDER BY wall_s "
+                                 "LIMIT 1", (since_wall_s,)).fetchone()
+            if last is None or first is None:
+                return []
+            lo = min(int(first[0]), int(last))
+            stride = max(1, math.ceil((int(last) - lo + 1) / max(1, max_points)))
+            rows = conn.execute(_PICK, (int(last), stride, stride, lo)).fetchmany(max_points)
+            return [(float(w), o, m) for w, o, m in rows]
+        except sqlite3.Error as exc:
+            raise RecorderError(self.path, f"cannot read: {exc}") from None
+        except _CORRUPT as exc:
+            raise RecorderError(self.path, f"corrupt rows ({type(exc).__name__})") from None
+
+    def probes(self) -> Columns:
+        """Every probe (the ``probes`` table), oldest first, with its sample's clock:
+        ``seq`` (int64), ``mono_s``, ``measured_um``, ``model_um`` (float64, NaN where none
+        was recorded), ``reason`` (str: "" for an accepted probe, else why it was
+        refused). A file from before probes were recorded has none: empty columns."""
+        conn = self._connection()
+        try:
+            if conn.execute("SELECT 1 FROM sqlite_schema WHERE name = 'probes'"
+                            ).fetchone() is None:
+                rows: list[Any] = []
+            else:
+                rows = conn.execute(
+                    "SELECT p.seq, s.mono_s, p.measured_um, p.model_um, p.accepted, p.reason"
+                    " FROM probes p JOIN samples s ON s.seq = p.seq ORDER BY p.seq"
+                ).fetchall()
+            return {
+                "seq": np.array([r[0] for r in rows], dtype=np.int64),
+                "mono_s": _floats(r[1] for r in rows),
+                "measured_um": _floats(r[2] for r in rows),
+                "model_um": _floats(r[3] for r in rows),
+                "reason": np.array(["" if r[4] else str(r[5] or "refused") for r in rows],
+                                   dtype=str),
+            }
+        except sqlite3.Error as exc:
+            raise RecorderError(self.path, f"cannot read its probes: {exc}") from None
+        except _CORRUPT as exc:
+            raise RecorderError(self.path, f"corrupt probe rows ({type(exc).__name__}); "
+                                "not a recorder compd wrote") from None
+
+    def _connection(self) -> sqlite3.Connection:
+        if self._conn is None:
+            raise RecorderError(self.path, "not open")
+        return self._conn
+
+    def _meta_names(self, conn: sqlite3.Connection, key: str) -> list[str] | None:
+        try:
+            return meta_names(conn, key)
+        except ValueError as exc:
+            raise RecorderError(self.path, f"corrupt: {exc}; not a recorder compd wrote"
+                                ) from None
+
+    def _columns(self, rows: list[Any], terms: tuple[str, ...], detail: bool) -> Columns:
+        try:
+            return _build(rows, self.channels, terms, detail)
+        except _CORRUPT as exc:
+            error, bad = exc, rows[0]
+        for row in rows:  # which one: the batch again, a row at a time
+            try:
+                _build([row], self.channels, terms, detail)
+            except _CORRUPT as exc:
+                error, bad = exc, row
+                break
+        raise RecorderError(self.path, f"corrupt row, seq {bad[1]!r} ({type(error).__name__}: "
+                            f"{str(error)[:80]}); not a recorder compd wrote")
+
+
+def _floats(values: Iterable[Any]) -> npt.NDArray[np.float64]:
+    return np.array([math.nan if v is None else v for v in values], dtype=np.float64)
+
+
+def _object(text: Any) -> dict[str, Any]:
+    value = json.loads(text)
+    if not isinstance(value, dict):
+        raise TypeError(f"{type(value).__name__}, not a JSON object")
+    return value
+
+
+def _build(rows: list[Any], channels: tuple[str, ...], terms: tuple[str, ...],
+           detail: bool) -> Columns:
+    """One batch's columns from its rows (rowid, seq, cycle, mono_s, wall_s,
+    offset_um, model_um, valid, state, channels[, validity, contributions])."""
+    mono = _floats(r[3] for r in rows)
+    out: Columns = {}
+    if detail:
+        out["seq"] = np.array([r[1] for r in rows], dtype=np.int64)
+    out["cycle"] = np.array([-1 if r[2] is None else r[2] for r in rows], dtype=np.int64)
+    if detail:
+        out["time_s"] = mono.copy()
+    out["mono_s"] = mono
+    if detail:
+        out["wall_s"] = _floats(r[4] for r in rows)
+    out["offset_um"] = _floats(r[5] for r in rows)
+    out["model_um"] = _floats(r[6] for r in rows)
+    if detail:
+        out["valid"] = np.array([bool(r[7]) for r in rows], dtype=bool)
+        out["state"] = np.array([str(r[8]) for r in rows], dtype=str)
+    values = [_object(r[9]) for r in rows]
+    for name in channels:
+        out[name] = _floats(v.get(name) for v in values)
+    if not detail:
+        return out
+    validity = [_object(r[10]) for r in rows]
+    for name in channels:
+        out[f"valid.{name}"] = np.array(
+            [v.get(name) is not None and w.get(name) is None
+             for v, w in zip(values, validity, strict=True)], dtype=bool)
+    contributions = [_object(r[11]) for r in rows]
+    for term in terms:
+        out[f"contribution.{term}"] = _floats(c.get(term) for c in contributions)
+    return out
+
+
+def read_samples(path: str | Path, since: float | None = None,
+                 until: float | None = None) -> Columns:
+    """Every sample of a recorder database (in [since, until) when given) as whole
+    columns (see the module docstring). Raises InputError or RecorderError."""
+    with RecorderReader(path) as reader:
+        return reader.read(since, until)

@@ -1,0 +1,161 @@
+"""The recorder database's layout: its tables, the writer's statements, and the
+upgrade of a file an older compd wrote.
+
+Table ``samples``, one row per cycle: ``seq`` INTEGER PRIMARY KEY (the
+recorder's own contiguous numbering), ``cycle``, ``mono_s``, ``wall_s``,
+``offset_um``, ``model_um``, ``state``, ``valid``, ``channels`` (JSON
+{name: value}, null when missing or not finite), ``validity`` (JSON {name:
+reason} of the channels refused this cycle; a valid channel is absent: rows of
+an older compd list every channel, null when valid), ``contributions`` (JSON
+{term: µm}), ``attempted_um``, ``complete``. Table ``meta`` (key, value):
+``channels`` and ``terms``, JSON lists of every channel and term name seen, in
+the order first seen. Table ``probes``: one row per probe ([adaptation]).
+
+Channel values are stored once, in the JSON column. ``channel_values`` (seq,
+channel, value, validity) is a view over it for a SQL client or Grafana (one
+row per sample and channel, value REAL). A compd before this layout kept a
+table of that name beside the JSON, the same values twice (+40 % bytes per
+row): `upgrade` drops it (its values are all in the JSON) and creates the
+view, whose INSTEAD OF triggers let such an older compd, run again on the
+upgraded file, go on writing its rows (into the JSON, as before).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+
+from compd.errors import CompdError
+
+__all__ = ["CHANNELS_KEY", "FIXED_COLUMNS", "INSERT_PROBE", "INSERT_SAMPLE", "PROBE_COLUMNS",
+           "SAMPLE_COLUMNS", "SCHEMA", "TERMS_KEY", "RecorderError", "meta_names", "scan_terms",
+           "upgrade"]
+
+
+class RecorderError(CompdError):
+    """The recorder database cannot be opened or read. `path` is the file."""
+
+    def __init__(self, path: object, reason: str) -> None:
+        self.path = path
+        self.reason = reason
+        super().__init__(f"recorder {path}: {reason}")
+
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS samples (
+    seq INTEGER PRIMARY KEY,
+    cycle INTEGER,
+    mono_s REAL NOT NULL,
+    wall_s REAL NOT NULL,
+    offset_um REAL,
+    model_um REAL,
+    state TEXT NOT NULL,
+    valid INTEGER NOT NULL,
+    channels TEXT NOT NULL,
+    validity TEXT NOT NULL,
+    contributions TEXT NOT NULL,
+    attempted_um REAL,
+    complete INTEGER
+);
+CREATE INDEX IF NOT EXISTS samples_wall_s ON samples (wall_s);
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS probes (
+    seq INTEGER PRIMARY KEY,
+    counter REAL,
+    value_um REAL,
+    measured_um REAL,
+    model_um REAL,
+    innovation_um REAL,
+    innovation_sigma_um REAL,
+    accepted INTEGER NOT NULL,
+    reason TEXT,
+    bias_um REAL,
+    bias_sigma_um REAL,
+    mode TEXT
+);
+"""
+
+_VIEW = (
+    """CREATE VIEW IF NOT EXISTS channel_values (seq, channel, value, validity) AS
+       SELECT s.seq, c.key, c.value, w.value
+         FROM samples AS s JOIN json_each(s.channels) AS c
+         LEFT JOIN json_each(s.validity) AS w ON w.key = c.key""",
+    """CREATE TRIGGER IF NOT EXISTS channel_values_insert INSTEAD OF INSERT ON channel_values
+       BEGIN SELECT 1; END""",
+    """CREATE TRIGGER IF NOT EXISTS channel_values_delete INSTEAD OF DELETE ON channel_values
+       BEGIN SELECT 1; END""",
+)
+
+#: the columns of ``samples`` every reader needs (a file without one is not a recorder)
+SAMPLE_COLUMNS = ("seq", "cycle", "mono_s", "wall_s", "offset_um", "model_um", "state", "valid",
+                  "channels", "validity", "contributions")
+
+INSERT_SAMPLE = (f"INSERT INTO samples ({', '.join(SAMPLE_COLUMNS)}, attempted_um, complete)"
+                 f" VALUES ({', '.join('?' * (len(SAMPLE_COLUMNS) + 2))})")
+
+#: a probe's columns ([adaptation]): the sample's seq, then `RecordRow.probe`'s fields
+PROBE_COLUMNS = ("counter", "value_um", "measured_um", "model_um", "innovation_um",
+                 "innovation_sigma_um", "accepted", "reason", "bias_um", "bias_sigma_um", "mode")
+INSERT_PROBE = (f"INSERT INTO probes (seq, {', '.join(PROBE_COLUMNS)})"
+                f" VALUES ({', '.join('?' * (len(PROBE_COLUMNS) + 1))})")
+
+#: columns the reader always returns; channel names may not collide with them
+FIXED_COLUMNS = ("seq", "cycle", "time_s", "mono_s", "wall_s", "offset_um", "model_um", "valid",
+                 "state")
+
+#: keys of table ``meta``
+CHANNELS_KEY = "channels"
+TERMS_KEY = "terms"
+
+
+def scan_terms(conn: sqlite3.Connection) -> list[str]:
+    """Every term named in the rows' contributions, in the order first seen: for a
+    file whose ``meta`` has no ``terms`` (an older compd's). One pass over the table
+    inside SQLite (bounded memory). Raises sqlite3.Error on a row that is not JSON."""
+    rows = conn.execute(
+        "SELECT c.key FROM samples AS s JOIN json_each(s.contributions) AS c"
+        " GROUP BY c.key ORDER BY MIN(s.rowid), MIN(c.id)").fetchall()
+    return [str(r[0]) for r in rows]
+
+
+def meta_names(conn: sqlite3.Connection, key: str) -> list[str] | None:
+    """The JSON list of names under `key` in table ``meta``; None when there is none.
+    Raises ValueError when it is not a list of names (a file compd did not write)."""
+    row = conn.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
+    if row is None:
+        return None
+    try:
+        names = json.loads(row[0])
+    except (ValueError, TypeError, RecursionError):
+        names = None
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise ValueError(f"meta {key!r} is not a JSON list of names")
+    return names
+
+
+def upgrade(conn: sqlite3.Connection) -> None:
+    """Bring a file of any earlier layout to this one, inside one transaction (the
+    writer's connection, in autocommit mode): the tables created, columns added
+    since, the old ``channel_values`` table replaced by the view, ``terms`` listed."""
+    conn.executescript(SCHEMA)
+    conn.execute("BEGIN IMMEDIATE")
+    try:
+        columns = {r[1] for r in conn.execute("PRAGMA table_info(samples)")}
+        if "attempted_um" not in columns:  # a database of an older compd
+            conn.execute("ALTER TABLE samples ADD COLUMN attempted_um REAL")
+        if "complete" not in columns:  # older rows: NULL (not known)
+            conn.execute("ALTER TABLE samples ADD COLUMN complete INTEGER")
+        kind = conn.execute("SELECT type FROM sqlite_schema WHERE name = 'channel_values'"
+                            ).fetchone()
+        if kind is not None and kind[0] == "table":  # the values twice: the JSON has them
+            conn.execute("DROP TABLE channel_values")
+        for statement in _VIEW:
+            conn.execute(statement)
+        if conn.execute("SELECT 1 FROM meta WHERE key = ?", (TERMS_KEY,)).fetchone() is None:
+            conn.execute("INSERT INTO meta (key, value) VALUES (?, ?)",
+                         (TERMS_KEY, json.dumps(scan_terms(conn))))
+        conn.execute("COMMIT")
+    except BaseException:
+        if conn.in_transaction:
+            conn.execute("ROLLBACK")
+        raise
