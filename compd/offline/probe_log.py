@@ -6,9 +6,10 @@ Two kinds, by the file's suffix:
   table, each probe on its sample's clock; the probes the estimator accepted and those
   its gate refused (a real move it was not yet told to follow is evidence too), not
   those refused as faults (no complete cycle, no offset to add);
-- a CSV probe log, one row per probe: ``time_s`` (seconds, increasing), ``measured_um``
-  (the displacement the probe measured) and ``model_um`` (the plain model's prediction
-  at that moment), the recorder's own names; other columns are ignored.
+- a CSV probe log, one row per probe: ``time_s`` (seconds, increasing; or an ISO 8601
+  ``time`` column, as a record's), ``measured_um`` (the displacement the probe measured)
+  and ``model_um`` (the plain model's prediction at that moment), the recorder's own
+  names; every cell a number, read by the records' one CSV reader.
 
 The residual each probe gives is measured − model. A bad file ends in a
 `RecordError` naming the file (and the row and column where there is one).
@@ -16,9 +17,9 @@ The residual each probe gives is measured − model. A bad file ends in a
 
 from __future__ import annotations
 
-import csv
 import io
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,7 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from compd.infiles import MAX_RECORD_BYTES, open_input
-from compd.offline.records import RECORDER_SUFFIXES, RecordError, _parse_float, file_sha256
+from compd.offline.records import RECORDER_SUFFIXES, RecordError, file_sha256
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -70,40 +71,35 @@ def _read_recorder(p: Path) -> ProbeLog:
 
 
 def _read_csv(p: Path) -> ProbeLog:
+    """The CSV probe log, parsed by the records' one CSV reader (every cell a number,
+    the same refusals), then checked for what a probe log needs."""
+    from compd.offline.csvstream import parse_csv
+    from compd.offline.records import _time_column
+
     where = str(p)
-    rows: list[tuple[float, float]] = []
     with open_input(p, "probe log", MAX_RECORD_BYTES) as raw:
+        size = os.fstat(raw.fileno()).st_size
         text = io.TextIOWrapper(raw, encoding="utf-8-sig", newline="")
         try:
-            reader = csv.reader(text)
-            header = [h.strip() for h in next(reader, [])]
-            missing = [c for c in LOG_COLUMNS if c not in header]
-            if missing:
-                raise RecordError(f"{where}: no column(s) {missing} (a probe log has "
-                                  f"{', '.join(LOG_COLUMNS)}; header {header[:8]})")
-            idx = [header.index(c) for c in LOG_COLUMNS]
-            for line_no, row in enumerate(reader, start=2):
-                if not row:
-                    continue
-                if len(row) != len(header):
-                    raise RecordError(f"{where}: row {line_no}: {len(row)} cells where the "
-                                      f"header has {len(header)}")
-                t, m, y = (_parse_float(row[i], where, line_no, c)
-                           for i, c in zip(idx, LOG_COLUMNS, strict=True))
-                if rows and not t > rows[-1][0]:
-                    raise RecordError(f"{where}: row {line_no}: time_s {t!r} does not follow "
-                                      f"{rows[-1][0]!r} (probes in time order)")
-                rows.append((t, m - y))
+            header, t_idx, data = parse_csv(text, where, size, _time_column)
         except UnicodeDecodeError:
             raise RecordError(f"{where}: not a text (UTF-8) CSV file") from None
-        except csv.Error as exc:
-            raise RecordError(f"{where}: not a CSV probe log ({exc})") from None
         except OSError as exc:
             raise RecordError(f"{where}: cannot read the probe log ({exc.strerror})") from None
-    data = np.array(rows, dtype=np.float64).reshape(-1, 2)
-    if not np.all(np.isfinite(data[:, 1])):  # finite inputs, an overflowing difference
+    missing = [c for c in LOG_COLUMNS[1:] if c not in header]
+    if missing:
+        raise RecordError(f"{where}: no column(s) {missing} (a probe log has "
+                          f"{', '.join(LOG_COLUMNS)}; header {header[:8]})")
+    t = data[t_idx]
+    back = np.flatnonzero(np.diff(t) <= 0.0)
+    if back.size:
+        k = int(back[0])
+        raise RecordError(f"{where}: row {k + 3}: time {float(t[k + 1])!r} does not follow "
+                          f"{float(t[k])!r} (probes in time order)")
+    residual = data[header.index("measured_um")] - data[header.index("model_um")]
+    if not np.all(np.isfinite(residual)):  # finite cells, an overflowing difference
         raise RecordError(f"{where}: a residual measured − model beyond the float range")
-    return ProbeLog(where, file_sha256(p), data[:, 0], data[:, 1], 0)
+    return ProbeLog(where, file_sha256(p), t - t[0] if t.size else t, residual, 0)
 
 
 def describe(log: ProbeLog) -> str:

@@ -79,9 +79,9 @@ def test_too_few_probes_say_so(n: int) -> None:
 def _log(path: Path, t: np.ndarray, residual: np.ndarray) -> Path:
     with path.open("w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["time_s", "measured_um", "model_um", "note"])
-        for ti, ri in zip(t, residual, strict=True):
-            w.writerow([f"{ti:g}", f"{10.0 + ri:.6f}", "10.0", "x"])
+        w.writerow(["time_s", "measured_um", "model_um", "counter"])
+        for k, (ti, ri) in enumerate(zip(t, residual, strict=True)):
+            w.writerow([f"{ti:g}", f"{10.0 + ri:.6f}", "10.0", k])
     return path
 
 
@@ -141,10 +141,11 @@ def test_refine_reads_the_recorders_probes(tmp_path: Path,
 
 @pytest.mark.parametrize(("content", "words"), [
     ("time_s,measured_um\n0,1\n", "no column(s) ['model_um']"),
+    ("t,measured_um,model_um\n0,1,1\n", "no time column"),
     ("time_s,measured_um,model_um\n0,1,x\n", "row 2, column 'model_um': 'x' is not a number"),
-    ("time_s,measured_um,model_um\n5,1,1\n5,1,1\n", "row 3: time_s 5.0 does not follow"),
+    ("time_s,measured_um,model_um\n5,1,1\n5,1,1\n", "row 3: time 5.0 does not follow"),
     ("time_s,measured_um,model_um\n0,1,1\n1,nan,1\n", "not finite"),
-    ("time_s,measured_um,model_um\n0,1,1\n1,1\n", "row 3: 2 cells"),
+    ("time_s,measured_um,model_um\n0,1,1\n1,1\n", "row 3: 2 fields"),
     ("time_s,measured_um,model_um\n0,1,1\n3600,2,1\n", "2 usable probe(s)"),
 ])
 def test_a_bad_probe_log_is_one_line_and_65(tmp_path: Path, capsys: pytest.CaptureFixture[str],
