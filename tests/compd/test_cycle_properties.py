@@ -11,7 +11,7 @@ import math
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from compd.core.cycle import Cycle
+from compd.core.cycle import Cycle, Outcome
 from compd.core.output import LIMIT_ROUNDING, Status
 from drivers.base import Quality, Sample
 
@@ -65,7 +65,7 @@ def _run(actions: list[Action], readback: bool) -> None:
                               Quality.GOOD),
             "ambient": Sample(20.0, now), "speed_rpm": Sample(1000.0, now)}
         rb = None if (kind == "read_failed" or not readback) else controller
-        r = cycle.step(now, samples, rb)
+        r = cycle.plan(now, samples, rb)
         assert math.isfinite(r.offset_um) and abs(r.offset_um) <= LIMIT_UM
         for v in r.writes.values():
             assert math.isfinite(v)
@@ -80,11 +80,11 @@ def _run(actions: list[Action], readback: bool) -> None:
         elif rb is not None and not abs(rb) <= LIMIT_UM * (1.0 + LIMIT_ROUNDING):
             assert r.status & Status.ALARM and r.status & Status.OFFSET_HELD
         if outcome == "ok":
-            cycle.write_ok()
+            r = cycle.commit()
             if "offset" in r.writes:
                 controller = r.writes["offset"]
         else:
-            cycle.write_failed("offset", permanent=outcome == "permanent")
+            cycle.commit(Outcome.failed("offset", permanent=outcome == "permanent"))
 
 
 @settings(max_examples=150, deadline=None)

@@ -31,18 +31,18 @@ def _warm(tmp_path: Path) -> tuple[Cycle, FakeClock, Path]:
     for i in range(120):  # first start at 20 °C (the references), then the spindle warms
         t = clock.tick()
         bearing = 20.0 if i < 3 else min(24.0, 20.0 + 0.4 * (i - 3))
-        cycle.step(t, {k: v for k, v in samples(t, bearing, 20.0).items()
+        cycle.plan(t, {k: v for k, v in samples(t, bearing, 20.0).items()
                        if k in cfg.channels})
-        cycle.write_ok()
+        cycle.commit()
     assert cycle.output.current_um > 5.0
     return cycle, clock, path
 
 
 def _step(cycle: Cycle, clock: FakeClock, bearing: float = 24.0):  # type: ignore[no-untyped-def]
     t = clock.tick()
-    r = cycle.step(t, {k: v for k, v in samples(t, bearing, 20.0).items()
+    r = cycle.plan(t, {k: v for k, v in samples(t, bearing, 20.0).items()
                        if k in ("bearing", "ambient")})
-    cycle.write_ok()
+    r = cycle.commit()
     return r
 
 
@@ -83,10 +83,10 @@ def test_another_model_restarts_at_steady_state_and_slews(tmp_path: Path) -> Non
 def test_a_reload_keeps_the_fault_hold_timer(tmp_path: Path) -> None:
     old, clock, path = _warm(tmp_path)
     for _ in range(40):  # the read fails: hold (hold_s 60 by default)
-        old.step(clock.tick(), None)
-    assert old.faults.state == FaultState.HOLD
+        old.plan(clock.tick(), None)
+    assert old.health.policy == FaultState.HOLD
     new_cfg = load_config(path)
     new = handover(old, new_cfg, params_from_config(new_cfg), diff(load_config(path), new_cfg))
-    states = [new.step(clock.tick(), None).state for _ in range(25)]
+    states = [new.plan(clock.tick(), None).state for _ in range(25)]
     # 40 s held before the reload + 25 after: the ramp begins at 60 s, not 60 s after it
     assert FaultState.RAMP in states
