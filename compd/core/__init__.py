@@ -4,6 +4,7 @@ machine time are tested in milliseconds.
 
 - `cycle`       one cycle as plan (read-back, validation, model, health, output)
                 and commit (the write's outcome, the final row)
+- `params`      what a cycle is built with, and how the config gives it
 - `plan`        what a cycle hands the shell: Plan, Outcome, Row, Snapshot
 - `health`      the output's one state machine (fault policy, write fault,
                 stopped, held...) and the status word as a pure function of it
