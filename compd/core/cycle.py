@@ -49,7 +49,6 @@ failure.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -314,13 +313,13 @@ class Cycle:
         if self.health.foreign:  # its alarm lasts until the output has ramped to its target
             self.health.foreign = self.output.slewing or self.output.held
         writes, offset_um = self._writes(readback_offset_um, offset_um, status, events)
-        record = self._draft(now_s, wall_s, inputs, stepped, valid, view, offset_um,
-                            offset_written=self.params.offset_name in writes)
+        row = self._row_fields(now_s, wall_s, inputs, stepped, valid, view, offset_um,
+                               offset_written=self.params.offset_name in writes)
         self._planned = Plan(
             sequence=self.sequence, writes=writes, offset_um=offset_um,
-            shadow_um=stepped.shadow_um, status=status,
-            heartbeat=self.heartbeat, complete=valid, record=record, events=tuple(events),
-            shutdown_done=self._shutdown_done(offset_um))
+            model_um=stepped.model_um, shadow_um=stepped.shadow_um, state=row["state"],
+            status=status, heartbeat=self.heartbeat, complete=valid, row_fields=row,
+            events=tuple(events), shutdown_done=self._shutdown_done(offset_um))
         return self._planned
 
     def _inputs(self, now_s: float, samples: Mapping[str, Sample] | None,
@@ -382,21 +381,24 @@ class Cycle:
             writes[p.status_name] = float(status)
         return writes, offset_um
 
-    def _draft(self, now_s: float, wall_s: float | None, inputs: _Inputs, stepped: _Stepped,
-               valid: bool, view: HealthView, offset_um: float, *,
-               offset_written: bool) -> RecordRow:
+    def _row_fields(self, now_s: float, wall_s: float | None, inputs: _Inputs,
+                    stepped: _Stepped, valid: bool, view: HealthView, offset_um: float, *,
+                    offset_written: bool) -> dict[str, Any]:
+        """The record row's fields as planned (`RecordRow`; built once, at commit)."""
         contributions = self.models.contributions() if valid else {}
         if stepped.shadow_um is not None:
             contributions["shadow_total"] = stepped.shadow_um
         if self.probes is not None and valid:
             contributions["adaptation"] = self.probes.correction_um
         written = offset_um if offset_written else None
-        return RecordRow(
-            seq=self.sequence, mono_s=now_s, wall_s=math.nan if wall_s is None else wall_s,
-            offset_um=written, model_um=stepped.model_um, state=recorded_state(view),
-            valid=valid, channels={n: finite_or_none(v) for n, v in inputs.values.items()},
-            validity=inputs.validity, contributions=contributions, attempted_um=written,
-            probe=self.probes.last if self.probes is not None else None)
+        return {"seq": self.sequence, "mono_s": now_s,
+                "wall_s": math.nan if wall_s is None else wall_s, "offset_um": written,
+                "model_um": stepped.model_um, "state": recorded_state(view), "valid": valid,
+                "channels": {n: finite_or_none(v) for n, v in inputs.values.items()},
+                "validity": inputs.validity, "contributions": contributions,
+                "attempted_um": written,
+                "probe": self.probes.last if self.probes is not None else None,
+                "complete": False}
 
     def _shutdown_done(self, offset_um: float) -> bool:
         return self.health.shutting_down and (offset_um == 0.0 or self.health.write_stopped
@@ -410,26 +412,24 @@ class Cycle:
         if plan is None:
             raise RuntimeError("commit() without a plan(): one commit per plan")
         offset_sent = self.params.offset_name in plan.writes
-        record, events = plan.record, list[Event]()
+        changes: dict[str, Any] = {}
+        events: list[Event] = []
         if outcome.ok:
             if offset_sent:
                 self.output.confirm()
-                record = dataclasses.replace(record, complete=offset_in_force(
-                    valid=record.valid, state=plan.state, confirmed=True))
+                changes["complete"] = offset_in_force(
+                    valid=plan.complete, state=plan.state, confirmed=True)
                 self.health.write_succeeded(self._later)
         else:
             if offset_sent:  # retried next cycle from the confirmed value
                 self.output.revert()
-                record = dataclasses.replace(record, offset_um=None)
+                changes["offset_um"] = None
             events = self.health.write_failed(
                 outcome.output, permanent=outcome.permanent, reason=outcome.reason,
                 offset_failed=offset_sent, offset_name=self.params.offset_name,
                 offset_um=self.output.current_um)
-        return Row(sequence=plan.sequence, writes=plan.writes, offset_um=plan.offset_um,
-                   shadow_um=plan.shadow_um, status=plan.status, heartbeat=plan.heartbeat,
-                   complete=plan.complete, record=record, snapshot=self._snapshot(),
-                   events=plan.events, shutdown_done=plan.shutdown_done,
-                   write_events=tuple(events))
+        record = RecordRow(**{**plan.row_fields, **changes})
+        return Row(plan, record, self._snapshot(), tuple(events))
 
     def _snapshot(self) -> Snapshot:
         adaptation = None

@@ -74,41 +74,47 @@ def recorded_state(v: HealthView) -> FaultState:
     return FaultState.WRITE_FAULT if v.write_fault else v.policy
 
 
-def _state_bits(v: HealthView) -> Status:
+def _state_bits(v: HealthView) -> int:
     """OK, HOLDING, RAMPING or SHUTDOWN: what the output does."""
     if v.policy == FaultState.OK and not (v.write_stopped or v.held or v.write_fault):
-        return Status.HOLDING if v.operator_hold else Status.OK
+        return _HOLDING_BIT if v.operator_hold else _OK_BIT
     if v.policy in _HOLDING:
-        return Status.HOLDING
+        return _HOLDING_BIT
     if v.policy == FaultState.RAMP:
-        return Status.RAMPING
+        return int(Status.RAMPING)
     if v.policy == FaultState.SHUTDOWN:
-        return Status.SHUTDOWN
-    return Status(0)
+        return int(Status.SHUTDOWN)
+    return 0
 
 
-#: (flag of `HealthView`, the bits it sets)
-_FLAG_BITS = (
-    ("model_invalid", Status.MODEL_INVALID),
-    ("model_range", Status.MODEL_RANGE | Status.ALARM),
-    ("model_worse", Status.MODEL_WORSE | Status.ALARM),
-    ("foreign", Status.READBACK_MISMATCH | Status.ALARM),
-    ("alarm", Status.ALARM),
-    ("write_stopped", Status.WRITE_STOPPED | Status.ALARM),
-    ("held", Status.OFFSET_HELD | Status.ALARM),
-    ("write_fault", Status.WRITE_FAULT | Status.ALARM),
-    ("operator_hold", Status.OPERATOR_HOLD),
-    ("slewing", Status.SLEWING),
-)
+_OK_BIT, _HOLDING_BIT, _ALARM = int(Status.OK), int(Status.HOLDING), int(Status.ALARM)
 
 
 def status_word(v: HealthView) -> Status:
-    """The status word a cycle writes (bits in `compd.core.output.Status`)."""
+    """The status word a cycle writes (bits in `compd.core.output.Status`);
+    plain int arithmetic, one `Status` at the end (it runs every cycle)."""
     s = _state_bits(v)
-    for flag, bits in _FLAG_BITS:
-        if getattr(v, flag):
-            s |= bits
-    return s
+    if v.model_invalid:
+        s |= Status.MODEL_INVALID.value
+    if v.model_range:
+        s |= Status.MODEL_RANGE.value | _ALARM
+    if v.model_worse:
+        s |= Status.MODEL_WORSE.value | _ALARM
+    if v.foreign:
+        s |= Status.READBACK_MISMATCH.value | _ALARM
+    if v.alarm:
+        s |= _ALARM
+    if v.write_stopped:
+        s |= Status.WRITE_STOPPED.value | _ALARM
+    if v.held:
+        s |= Status.OFFSET_HELD.value | _ALARM
+    if v.write_fault:
+        s |= Status.WRITE_FAULT.value | _ALARM
+    if v.operator_hold:
+        s |= Status.OPERATOR_HOLD.value
+    if v.slewing:
+        s |= Status.SLEWING.value
+    return Status(s)
 
 
 class OutputHealth:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from compd.core.faults import Event, FaultState
 from compd.core.record import RecordRow
@@ -29,26 +30,27 @@ class Plan:
     writes: Mapping[str, float]
     #: the output stage's value in µm (what is, or would be, written)
     offset_um: float
+    model_um: float | None
     shadow_um: float | None
+    #: the state the cycle records (`compd.core.health.recorded_state`)
+    state: FaultState
     status: int
     heartbeat: int
     #: inputs valid and the model stepped (heartbeat advanced)
     complete: bool
-    #: the row as planned, before the write (`offset_um`: sent, not yet
-    #: confirmed; `complete` False): `commit` makes the final `Row.record`
-    #: (wall_s: as passed to `plan`, NaN when none was)
-    record: RecordRow
+    #: the `RecordRow`'s fields as planned (read them as `record`); never changed
+    row_fields: Mapping[str, Any]
     events: tuple[Event, ...] = ()
     #: a ramp-to-zero shutdown has reached zero (or cannot write any more)
     shutdown_done: bool = False
 
     @property
-    def model_um(self) -> float | None:
-        return self.record.model_um
-
-    @property
-    def state(self) -> FaultState:
-        return FaultState(self.record.state)
+    def record(self) -> RecordRow:
+        """The row as planned, before the write (`offset_um`: sent, not yet
+        confirmed; `complete` False; wall_s: as passed to `plan`, NaN when none
+        was): `commit` makes the final `Row.record`. Built when asked for: the
+        daemon reads only the committed row."""
+        return RecordRow(**self.row_fields)
 
 
 @dataclass(frozen=True, slots=True)
@@ -96,35 +98,65 @@ class Snapshot:
 
 @dataclass(frozen=True, slots=True)
 class Row:
-    """A committed cycle: its plan's figures and events, the final `record`,
-    and the events of its write's outcome (`write_events`, after `events`)."""
+    """A committed cycle: its plan, the final `record`, what the faces show
+    (`snapshot`) and the events of its write's outcome (`write_events`, after
+    the plan's `events`). The plan's figures read through."""
 
-    sequence: int
-    writes: Mapping[str, float]
-    offset_um: float
-    shadow_um: float | None
-    status: int
-    heartbeat: int
-    #: inputs valid and the model stepped (heartbeat advanced)
-    complete: bool
+    plan: Plan
     #: the recorder's row: `offset_um` what the controller confirmed,
     #: `complete` a COMPLETE cycle (`compd.core.cycle.offset_in_force`)
     record: RecordRow
     snapshot: Snapshot
-    events: tuple[Event, ...] = ()
-    shutdown_done: bool = False
     #: what the write's outcome caused (write_failed, write_fault, ..._stopped)
     write_events: tuple[Event, ...] = ()
-
-    @property
-    def model_um(self) -> float | None:
-        return self.record.model_um
-
-    @property
-    def state(self) -> FaultState:
-        return FaultState(self.record.state)
 
     @property
     def in_force(self) -> bool:
         """A complete cycle (`compd.core.cycle.offset_in_force`)."""
         return self.record.complete
+
+    @property
+    def sequence(self) -> int:
+        return self.plan.sequence
+
+    @property
+    def writes(self) -> Mapping[str, float]:
+        return self.plan.writes
+
+    @property
+    def offset_um(self) -> float:
+        """The output stage's value (what was written, or would have been)."""
+        return self.plan.offset_um
+
+    @property
+    def model_um(self) -> float | None:
+        return self.plan.model_um
+
+    @property
+    def shadow_um(self) -> float | None:
+        return self.plan.shadow_um
+
+    @property
+    def state(self) -> FaultState:
+        return self.plan.state
+
+    @property
+    def status(self) -> int:
+        return self.plan.status
+
+    @property
+    def heartbeat(self) -> int:
+        return self.plan.heartbeat
+
+    @property
+    def complete(self) -> bool:
+        """Inputs valid and the model stepped (heartbeat advanced)."""
+        return self.plan.complete
+
+    @property
+    def events(self) -> tuple[Event, ...]:
+        return self.plan.events
+
+    @property
+    def shutdown_done(self) -> bool:
+        return self.plan.shutdown_done

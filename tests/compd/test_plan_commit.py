@@ -29,12 +29,12 @@ def test_a_failed_write_is_in_the_row_and_leaves_the_plan_as_it_was() -> None:
     plan = cycle.plan(t, samples(t, 20.5))
     before = plan.record
     row = cycle.commit(Outcome.failed("offset", reason="timeout"))
-    assert plan.record is before and plan.record.offset_um == plan.offset_um
+    assert plan.record == before and plan.record.offset_um == plan.offset_um
     assert row.record.offset_um is None and row.record.attempted_um == plan.offset_um
     assert [e.name for e in row.write_events] == ["write_failed"]
     assert row.events == plan.events
     with pytest.raises(dataclasses.FrozenInstanceError):
-        row.offset_um = 0.0  # type: ignore[misc]
+        row.record = plan.record  # type: ignore[misc]
 
 
 def test_a_confirmed_write_completes_the_row_and_the_snapshot_says_what_is_in_force() -> None:
