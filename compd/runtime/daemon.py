@@ -543,9 +543,10 @@ class Daemon:
             samples = None
             plan = cycle.plan(now_s, None, readback, wall_s=self.wall())
         self.cycles += 1
+        self._log_events(list(plan.events))
         outcome = await self._write(driver, plan)
         result = cycle.commit(outcome)
-        self._log_events([*result.events, *result.write_events])
+        self._log_events(list(result.write_events))
         confirmed = self.dry_run or (bool(plan.writes) and outcome.ok)
         if confirmed and not self.dry_run:
             self._log_repeat(self._write_failures.succeeded(self.clock()))
