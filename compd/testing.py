@@ -11,8 +11,8 @@ sockets, no patching of the event loop.
       clock = FakeClock(period_s=1.0)
       for _ in range(3600):
           t = clock.tick()
-          cycle.step(t, {"bearing": Sample(25.0, t), "ambient": Sample(20.0, t)})
-          cycle.write_ok()
+          plan = cycle.plan(t, {"bearing": Sample(25.0, t), "ambient": Sample(20.0, t)})
+          row = cycle.commit(WRITTEN)       # plan.writes reached the controller
 
 - `SteppedClock`: a `FakeClock` that asyncio code can sleep on. Give the
   daemon its reading and its sleep (``Daemon(cfg, clock=clock,

@@ -2,10 +2,16 @@
 the record row out. No asyncio, no clock, no logging, no I/O, so hours of
 machine time are tested in milliseconds.
 
-- `cycle`       one step: read-back check, validation, model, fault policy, output
+- `cycle`       one cycle as plan (read-back, validation, model, health, output)
+                and commit (the write's outcome, the final row)
+- `params`      what a cycle is built with, and how the config gives it
+- `plan`        what a cycle hands the shell: Plan, Outcome, Row, Snapshot
+- `health`      the output's one state machine (fault policy, write fault,
+                stopped, held...) and the status word as a pure function of it
+- `modelstep`   the live and shadow models as the cycle steps them
 - `validation`  per-channel input checks (missing, bad quality, range, rate, stuck)
-- `faults`      the fault policy: what the output aims at when inputs go bad
-- `output`      the output stage: clamp, deadband, slew limit, the status word
+- `faults`      the output's states and the events a cycle reports
+- `output`      the output stage: clamp, deadband, slew limit, the status bits
 - `record`      the row a cycle leaves for the recorder
 - `schedule`    absolute deadlines, skipped periods, the shutdown ramp's budget
 """

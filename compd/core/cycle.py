@@ -2,7 +2,11 @@
 record row out. No asyncio, no logging, no clock of its own, so hours of
 machine time are tested in milliseconds with a fake clock.
 
-One `Cycle.step(now_s, samples, readback_offset_um)`:
+Two calls per cycle (the shape of h11: the core decides, the shell does the
+I/O): `Cycle.plan(now_s, samples, readback_offset_um) -> Plan` decides what
+to write; the shell writes `plan.writes` and reports how that went with
+`Cycle.commit(outcome) -> Row`, the cycle's final record (frozen; whether the
+controller confirmed the offset is in it). `plan`:
 
 1. read-back: the controller's offset (controller units) against the value it
    last confirmed (`OutputStage.observe`); a value compd did not write (a
@@ -18,8 +22,9 @@ One `Cycle.step(now_s, samples, readback_offset_um)`:
    (and the shadow model) once; invalid: the filters are NOT stepped; a model
    output beyond MODEL_RANGE_FACTOR·limit_um makes the cycle invalid (a
    fault: hold, then ramp) with MODEL_RANGE and ALARM;
-4. fault policy (`compd.core.faults`) picks the target; the output stage
-   (`compd.core.output`) makes it safe;
+4. the output's health (`compd.core.health`: the fault policy and every
+   other state) picks the target; the output stage (`compd.core.output`)
+   makes it safe; the status word is a pure function of the health;
 5. writes: the offset (in controller units; omitted once the controller
    refused it permanently, and while read-back is configured but the read
    failed, since then the controller's state is unknown), the heartbeat
@@ -31,144 +36,108 @@ the recorder's ``complete`` column) only when the offset compd wants is the
 offset in force: inputs valid and the model stepped, state "ok" (not held by
 a foreign offset, no write fault, offset writes not stopped, no fault hold,
 ramp or shutdown), and the controller confirmed this cycle's offset write
-(`write_ok()`). `CycleResult.complete` is the narrower "inputs valid, model
-stepped" that advances the heartbeat; `CycleResult.in_force` is the complete
-cycle.
+(`commit(WRITTEN)`). `Row.complete` is the narrower "inputs valid, model
+stepped" that advances the heartbeat; `Row.in_force` is the complete cycle.
 
-The shell reports each write's outcome with `write_ok()` / `write_failed()`;
 WRITE_FAULT_AFTER offset writes failing in a row are a write fault (WRITE_FAULT
-and ALARM, state "write_fault") until one succeeds. The record row keeps what
-was sent (`attempted_um`) apart from what the controller confirmed
-(`offset_um`: None once `write_failed()` said the offset did not arrive).
+and ALARM, state "write_fault") until one succeeds. The row keeps what was
+sent (`attempted_um`) apart from what the controller confirmed (`offset_um`:
+None when the outcome said the offset did not arrive). A plan that is never
+committed (a test stepping without writes) confirms nothing and counts no
+failure.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass
+from typing import Any
 
-from compd.core.adaptation import AdaptationSettings, ProbeReading, ProbeStage
-from compd.core.faults import Event, FaultPolicy, FaultState
-from compd.core.output import OutputStage, Readback, Status
+from compd.core.adaptation import ProbeReading, ProbeStage
+from compd.core.faults import Event, FaultState
+from compd.core.health import (
+    WRITE_FAULT_AFTER,
+    Decision,
+    HealthView,
+    OutputHealth,
+    recorded_state,
+    status_word,
+)
+from compd.core.modelstep import ModelStepper, finite_or_none
+from compd.core.output import OutputStage, Readback
+from compd.core.params import CycleParams, params_from_config
+from compd.core.plan import WRITTEN, AdaptationView, Outcome, Plan, Row, Snapshot
 from compd.core.record import RecordRow
-from compd.core.validation import ChannelLimits, Validator
+from compd.core.validation import Validator
 from drivers.base import Sample
 from models.compensation import CompensationModel
-from models.errors import ModelError
 
 #: the heartbeat counts 0 .. HEARTBEAT_MODULO - 1 and wraps, so it fits an INT, WORD,
 #: int16/uint16 or PMC word (the config checks each heartbeat address holds it)
 HEARTBEAT_MODULO = 32768
-
-if TYPE_CHECKING:
-    from compd.config.loader import LoadedConfig
 
 #: a model output beyond this many times limit_um is a fault (hold, then ramp,
 #: alarm: MODEL_RANGE), not a value to clamp quietly: a model that far off is
 #: broken (a thermal model near its limit may overshoot it, not by 5×)
 MODEL_RANGE_FACTOR = 5.0
 
-#: this many offset writes in a row failing (transient) are a write fault:
-#: WRITE_FAULT and ALARM, state "write_fault", until a write succeeds
-WRITE_FAULT_AFTER = 5
+__all__ = ["HEARTBEAT_MODULO", "MODEL_RANGE_FACTOR", "WRITE_FAULT_AFTER", "WRITTEN", "Cycle",
+           "CycleParams", "CycleResult", "Outcome", "Plan", "Row", "offset_in_force",
+           "params_from_config"]
 
-
-@dataclass(frozen=True)
-class CycleParams:
-    period_s: float
-    hold_s: float
-    limit_um: float
-    slew_um_s: float
-    channels: dict[str, ChannelLimits]
-    deadband_um: float = 0.0
-    sign: int = 1
-    units_per_um: float = 1.0
-    readback: bool = True
-    #: a float offset address's (an integer one: half a count, `OutputStage`)
-    readback_tolerance_um: float = 0.01
-    #: the offset address's resolution in µm (integer types), 0 for floats
-    offset_quantum_um: float = 0.0
-    time_scale: float = 1.0
-    offset_name: str = "offset"
-    heartbeat_name: str | None = "heartbeat"
-    status_name: str | None = "status"
-    #: probe-assisted adaptation (`compd.core.adaptation`), None when off
-    adaptation: AdaptationSettings | None = None
-
-
-def params_from_config(cfg: LoadedConfig, *, dry_run: bool = False) -> CycleParams:
-    raw = cfg.raw
-    out = raw.output
-    limits = {n: ChannelLimits(ch.range[0], ch.range[1], ch.max_rate_per_s, ch.stale_after_s,
-                               ch.stuck_after_s, stuck_delta_k=ch.effective_stuck_delta_k,
-                               temperature=ch.temperature)
-              for n, ch in raw.channels.items()}
-    return CycleParams(
-        period_s=raw.machine.period_s, hold_s=raw.faults.hold_s, limit_um=out.limit_um,
-        slew_um_s=out.slew_um_s, channels=limits, deadband_um=out.deadband_um, sign=out.sign,
-        units_per_um=out.units_per_um, readback=out.readback and not dry_run,
-        # float32 rounding; an integer address: half a count (OutputStage.observe)
-        readback_tolerance_um=0.01,
-        offset_quantum_um=cfg.offset_quantum_um,
-        time_scale=raw.machine.time_scale,
-        heartbeat_name="heartbeat" if "heartbeat" in cfg.outputs else None,
-        status_name="status" if "status" in cfg.outputs else None,
-        adaptation=cfg.adaptation)
+#: the name the shell used for a committed cycle before plan/commit
+CycleResult = Row
 
 
 def offset_in_force(*, valid: bool, state: FaultState, confirmed: bool) -> bool:
     """Whether a cycle is COMPLETE: the offset compd wants is the offset in force.
 
     `valid`: inputs valid and the model stepped; `state`: the state recorded for
-    the cycle (`Cycle._state`: held, write_fault and stopped override the
-    policy's); `confirmed`: the controller acknowledged this cycle's offset
+    the cycle (`compd.core.health.recorded_state`: held, write_fault and
+    stopped override the policy's); `confirmed`: the controller acknowledged this cycle's offset
     write. Only "ok" counts: a held, faulted, stopped, holding, ramping or
     shutting-down output is not what the model asks for, however busy the loop."""
     return valid and confirmed and state == FaultState.OK
 
 
-@dataclass
-class CycleResult:
-    """What one cycle hands the shell: its `record` row (model output, state,
-    channels, validity, contributions: read them there or through the
-    properties) and what the shell does with it (writes, events, status)."""
+@dataclass(frozen=True, slots=True)
+class _Inputs:
+    """This cycle's channels: values (NaN when missing), why each is invalid."""
 
-    sequence: int
-    #: output name -> value in controller units
-    writes: dict[str, float]
-    #: the output stage's value in µm (what was, or would be, written)
-    offset_um: float
-    shadow_um: float | None
-    status: int
-    heartbeat: int
-    #: inputs valid and the model stepped (heartbeat advanced)
-    complete: bool
-    #: the recorder's row (wall_s: as passed to `step`, NaN when none was;
-    #: the shell stamps the time of recording)
-    record: RecordRow
-    events: list[Event] = field(default_factory=list)
-    #: a ramp-to-zero shutdown has reached zero (or cannot write any more)
-    shutdown_done: bool = False
-
-    @property
-    def model_um(self) -> float | None:
-        return self.record.model_um
-
-    @property
-    def state(self) -> FaultState:
-        return FaultState(self.record.state)
-
-    @property
-    def in_force(self) -> bool:
-        """A complete cycle (`offset_in_force`); known once `write_ok()` was called."""
-        return self.record.complete
+    values: dict[str, float]
+    validity: dict[str, str | None]
+    #: every channel the live model reads is valid
+    valid: bool
 
 
-def _finite_or_none(x: float) -> float | None:
-    return x if math.isfinite(x) else None
+@dataclass(frozen=True, slots=True)
+class _Stepped:
+    """What the model made of the inputs."""
+
+    model_um: float | None = None
+    shadow_um: float | None = None
+    #: inputs valid, the model stepped to a finite value within its range
+    valid: bool = False
+    model_invalid: bool = False
+    model_range: bool = False
+
+
+def _output_stage(params: CycleParams, offset_um: float | None) -> OutputStage:
+    """The output stage, believed to hold `offset_um` (the checkpoint's)."""
+    stage = OutputStage(
+        limit_um=params.limit_um, slew_um_s=params.slew_um_s,
+        deadband_um=params.deadband_um, sign=params.sign,
+        units_per_um=params.units_per_um, max_dt_s=2.0 * params.period_s,
+        initial_um=offset_um if offset_um is not None else 0.0,
+        quantum_um=params.offset_quantum_um)
+    # what the controller is known to hold at start: the checkpoint's last
+    # confirmed offset; without one and without read-back, 0 (a first start
+    # can assume nothing else, and a refused first write must fall back to
+    # it, not to a value never written); with read-back, unknown until read
+    if (offset_um is not None and math.isfinite(offset_um)) or not params.readback:
+        stage.confirm()
+    return stage
 
 
 class Cycle:
@@ -184,64 +153,59 @@ class Cycle:
                  adaptation_state: Mapping[str, Any] | None = None,
                  operator_hold: bool = False) -> None:
         self.params = params
-        self.model = model
-        self.shadow = shadow
         self.validator = Validator(params.channels, params.time_scale)
-        self.faults = FaultPolicy(params.hold_s)
-        self.output = OutputStage(
-            limit_um=params.limit_um, slew_um_s=params.slew_um_s,
-            deadband_um=params.deadband_um, sign=params.sign,
-            units_per_um=params.units_per_um, max_dt_s=2.0 * params.period_s,
-            initial_um=offset_um if offset_um is not None else 0.0,
-            quantum_um=params.offset_quantum_um)
-        # what the controller is known to hold at start: the checkpoint's last
-        # confirmed offset; without one and without read-back, 0 (a first start
-        # can assume nothing else, and a refused first write must fall back to
-        # it, not to a value never written); with read-back, unknown until read
-        if (offset_um is not None and math.isfinite(offset_um)) or not params.readback:
-            self.output.confirm()
+        self.health = OutputHealth(params.hold_s, operator_hold=operator_hold)
+        self.output = _output_stage(params, offset_um)
         self.sequence = sequence
         self.heartbeat = heartbeat % HEARTBEAT_MODULO
         self.gate = sorted(model.channels)
-        self.write_stopped = False
-        self.stopped_outputs: set[str] = set()
-        self._references = dict(references) if references else None
-        self._model_ready = False
-        self._shadow_ready = False
-        self._init_mode = "first_start" if references is None else "steady_state"
         self._last_now: float | None = None
-        self._offset_pending = False
         self._invalid: dict[str, str] = {}
         self._mismatch_noted = False
-        #: a foreign read-back was seen: alarm until the output tracks again
-        self._foreign = False
-        #: offset writes failed in a row; a write fault from WRITE_FAULT_AFTER on
-        self.failed_writes = 0
-        self.write_fault = False
-        self._model_range = False
-        self._result: CycleResult | None = None
+        #: the plan the shell has not committed yet
+        self._planned: Plan | None = None
+        #: events for the next plan (a write fault that ended)
         self._later: list[Event] = []
-        self.probes: ProbeStage | None = None
-        #: an operator's hold (`set_operator_hold`): the offset stays where it is
-        self.operator_hold = operator_hold
-        if params.adaptation is not None:
-            try:
-                self.probes = ProbeStage(params.adaptation, len(model.terms), adaptation_state)
-            except (ValueError, KeyError, TypeError) as exc:
-                self.probes = ProbeStage(params.adaptation, len(model.terms))
-                self._later.append(Event("adaptation_state_refused", {"reason": str(exc)}))
-        if model_state is not None:
-            model.import_state(model_state)  # ModelError: the caller falls back
-            self._model_ready = True
-            self._init_mode = "restored"
-            if shadow is not None and shadow_state is not None:
-                try:
-                    shadow.import_state(shadow_state)
-                    self._shadow_ready = True
-                except ModelError:
-                    self._shadow_ready = False
+        self.probes = self._probe_stage(len(model.terms), adaptation_state)
+        self.models = ModelStepper(model, shadow, model_state=model_state,
+                                   shadow_state=shadow_state, references=references)
 
-    # -- construction from a checkpoint ---------------------------------------------
+    def _probe_stage(self, n_terms: int,
+                     state: Mapping[str, Any] | None) -> ProbeStage | None:
+        settings = self.params.adaptation
+        if settings is None:
+            return None
+        try:
+            return ProbeStage(settings, n_terms, state)
+        except (ValueError, KeyError, TypeError) as exc:
+            self._later.append(Event("adaptation_state_refused", {"reason": str(exc)}))
+            return ProbeStage(settings, n_terms)
+
+    @property
+    def model(self) -> CompensationModel:
+        return self.models.model
+
+    @property
+    def shadow(self) -> CompensationModel | None:
+        return self.models.shadow
+
+    @property
+    def operator_hold(self) -> bool:
+        return self.health.operator_hold
+
+    @property
+    def write_stopped(self) -> bool:
+        return self.health.write_stopped
+
+    @property
+    def write_fault(self) -> bool:
+        return self.health.write_fault
+
+    @property
+    def stopped_outputs(self) -> frozenset[str]:
+        return frozenset(self.health.stopped_outputs)
+
+    # -- construction from a checkpoint, and across a reload ------------------------------
 
     @classmethod
     def from_state(cls, params: CycleParams, model: CompensationModel,
@@ -274,6 +238,16 @@ class Cycle:
                    adaptation_state=adapted if isinstance(adapted, Mapping) else None,
                    operator_hold=state.get("operator_hold") is True)
 
+    def carry_over(self, old: Cycle, *, same_outputs: bool) -> None:
+        """Continue `old` across a reload (this cycle built by `from_state` from
+        `old.export_state()`): the fault policy's timer and state go on (a hold
+        still ramps on time), so does the validator's history while the
+        channels are the same, and the stopped outputs while the outputs
+        (`same_outputs`: their addresses too) are."""
+        self.health.carry_over(old.health, outputs_same=same_outputs)
+        if self.params.channels == old.params.channels:
+            self.validator = old.validator
+
     def export_state(self) -> dict[str, Any]:
         """Everything a restart needs (the checkpoint's payload)."""
         out: dict[str, Any] = {
@@ -284,98 +258,113 @@ class Cycle:
             "sequence": self.sequence,
             "heartbeat": self.heartbeat,
         }
-        if self._model_ready:
-            out["model"] = self.model.export_state()
-            if self.shadow is not None and self._shadow_ready:
-                out["shadow"] = self.shadow.export_state()
-        else:
-            out["model"] = None
-            if self._references:
-                out["references"] = dict(self._references)
+        out.update(self.models.export_state())
         if self.probes is not None:
             out["adaptation"] = self.probes.export_state()
-        if self.operator_hold:
+        if self.health.operator_hold:
             out["operator_hold"] = True
         return out
+
+    # -- commands -------------------------------------------------------------------------
 
     def set_operator_hold(self, on: bool, who: str) -> Event | None:
         """An operator's hold (on) or its release (off). While held, a cycle
         that would track the model keeps the offset where it is (faults still
         hold and ramp as always); released, the output slews back to the model
         at the slew limit. Returns the event to log, None when nothing changed."""
-        if on == self.operator_hold:
+        if on == self.health.operator_hold:
             return None
-        self.operator_hold = on
+        self.health.operator_hold = on
         return Event("operator_hold" if on else "operator_release", {"by": who})
-
-    # -- the cycle ------------------------------------------------------------------
 
     def begin_shutdown(self) -> None:
         """Ramp-to-zero shutdown: from now on the target is 0."""
-        self.faults.shutting_down = True
+        self.health.shutting_down = True
 
-    def step(self, now_s: float, samples: Mapping[str, Sample] | None,
+    # -- the cycle: plan ------------------------------------------------------------------
+
+    def plan(self, now_s: float, samples: Mapping[str, Sample] | None,
              readback_offset_um: float | None = None, *,
-             wall_s: float | None = None, probe: ProbeReading | None = None) -> CycleResult:
-        """One cycle at machine time `now_s`. `samples` None: the read failed.
+             wall_s: float | None = None, probe: ProbeReading | None = None) -> Plan:
+        """Decide one cycle at machine time `now_s`. `samples` None: the read failed.
         `readback_offset_um`: the controller's offset as read (controller units).
         `probe`: the measuring cycle's values as read (`compd.core.adaptation`)."""
-        p = self.params
         self.sequence += 1
         events, self._later = self._later, []
-        status = Status(0)
-        dt = p.period_s if self._last_now is None else now_s - self._last_now
-
+        dt = self.params.period_s if self._last_now is None else now_s - self._last_now
         if readback_offset_um is not None:
-            status |= self._readback(readback_offset_um, events)
-
-        validity = self.validator.check(now_s, samples, wall_s)
-        self._note_validity(validity, events)
-        values = {n: (float(s.value) if (s := (samples or {}).get(n)) is not None else math.nan)
-                  for n in p.channels}
-        valid = all(validity.get(ch) is None for ch in self.gate)
-
-        model_um: float | None = None
-        shadow_um: float | None = None
-        if valid:
-            model_um = self._step_model(values, events)
-            if model_um is None:
-                status |= Status.MODEL_INVALID
-                valid = False
-            elif self._model_out_of_range(model_um, events):
-                status |= Status.MODEL_RANGE | Status.ALARM
-                valid = False
-            elif self.shadow is not None:
-                shadow_um = self._step_shadow(values, events)
-
-        in_force = self.output.confirmed_um  # before this cycle's write
-        correction = self._adapt(dt, probe, valid, model_um, in_force, events)
-        if self.probes is not None and self.probes.model_worse:
-            # the probes showed the compensation worse than none: a fault, like a model
-            # out of range (hold, then ramp to zero per [faults]), latched
-            status |= Status.MODEL_WORSE | Status.ALARM
-            valid = False
-        target_um = model_um + correction if model_um is not None else None
-        decision = self.faults.decide(now_s, valid, target_um, events)
-        target = self.output.current_um if decision.target_um is None else decision.target_um
-        if self.operator_hold and decision.state == FaultState.OK:
-            target = self.output.current_um
-        offset_um = self.output.step(target, dt, deadband=decision.state == FaultState.OK)
-        # only once the stage has moved: a step that raised before this (the shell then
-        # steps again as a failed read) leaves the interval to that step, so a hold still ramps
+            self._readback(readback_offset_um, events)
+        inputs = self._inputs(now_s, samples, wall_s, events)
+        stepped = self._step_models(inputs, events)
+        correction = self._adapt(dt, probe, stepped, events)
+        worse = self.probes is not None and self.probes.model_worse
+        # the probes showed the compensation worse than none: a fault, like a model
+        # out of range (hold, then ramp to zero per [faults]), latched
+        valid = stepped.valid and not worse
+        target_um = stepped.model_um + correction if stepped.model_um is not None else None
+        decision = self.health.decide(now_s, valid, target_um, events)
+        offset_um = self._move_output(decision, dt)
+        # only once the stage has moved: a plan that raised before this (the shell then
+        # plans again as a failed read) leaves the interval to that one, so a hold still ramps
         self._last_now = now_s
-
         if valid:
             self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
-        status |= self._status_bits(decision.state, decision.alarm)
-        if self._foreign:
-            status |= Status.READBACK_MISMATCH | Status.ALARM
-            # the alarm lasts until the output has ramped to its target
-            self._foreign = self.output.slewing or self.output.held
+        view = self._view(decision, stepped, worse)
+        status = int(status_word(view))
+        if self.health.foreign:  # its alarm lasts until the output has ramped to its target
+            self.health.foreign = self.output.slewing or self.output.held
+        writes, offset_um = self._writes(readback_offset_um, offset_um, status, events)
+        row = self._row_fields(now_s, wall_s, inputs, stepped, valid, view, offset_um,
+                               offset_written=self.params.offset_name in writes)
+        self._planned = Plan(
+            sequence=self.sequence, writes=writes, offset_um=offset_um,
+            model_um=stepped.model_um, shadow_um=stepped.shadow_um, state=row["state"],
+            status=status, heartbeat=self.heartbeat, complete=valid, row_fields=row,
+            events=tuple(events), shutdown_done=self._shutdown_done(offset_um))
+        return self._planned
 
+    def _inputs(self, now_s: float, samples: Mapping[str, Sample] | None,
+                wall_s: float | None, events: list[Event]) -> _Inputs:
+        validity = self.validator.check(now_s, samples, wall_s)
+        self._note_validity(validity, events)
+        got = samples or {}
+        values = {n: (float(s.value) if (s := got.get(n)) is not None else math.nan)
+                  for n in self.params.channels}
+        return _Inputs(values, validity, all(validity.get(ch) is None for ch in self.gate))
+
+    def _step_models(self, inputs: _Inputs, events: list[Event]) -> _Stepped:
+        if not inputs.valid:
+            return _Stepped()
+        model_um = self.models.step(inputs.values, events)
+        if model_um is None:
+            return _Stepped(model_invalid=True)
+        if self._model_out_of_range(model_um, events):
+            return _Stepped(model_um=model_um, model_range=True)
+        shadow_um = self.models.step_shadow(inputs.values, events)
+        return _Stepped(model_um=model_um, shadow_um=shadow_um, valid=True)
+
+    def _move_output(self, decision: Decision, dt: float) -> float:
+        target = self.output.current_um if decision.target_um is None else decision.target_um
+        tracking = decision.state == FaultState.OK
+        if self.health.operator_hold and tracking:
+            target = self.output.current_um
+        return self.output.step(target, dt, deadband=tracking)
+
+    def _view(self, decision: Decision, stepped: _Stepped, worse: bool) -> HealthView:
+        h, out = self.health, self.output
+        return HealthView(
+            policy=decision.state, alarm=decision.alarm, write_stopped=h.write_stopped,
+            write_fault=h.write_fault, held=out.held, foreign=h.foreign,
+            operator_hold=h.operator_hold, slewing=out.slewing,
+            model_invalid=stepped.model_invalid, model_range=stepped.model_range,
+            model_worse=worse)
+
+    def _writes(self, readback_offset_um: float | None, offset_um: float, status: int,
+                events: list[Event]) -> tuple[dict[str, float], float]:
+        """The writes of this cycle, and the offset they leave in force (µm)."""
+        p = self.params
         writes: dict[str, float] = {}
-        self._offset_pending = False
-        if not self.write_stopped and not self.output.held:
+        if not self.health.write_stopped and not self.output.held:
             if p.readback and readback_offset_um is None:
                 # the controller still holds what it last confirmed: start from there
                 self.output.revert()
@@ -386,97 +375,75 @@ class Cycle:
             else:
                 self._mismatch_noted = False
                 writes[p.offset_name] = self.output.to_controller(offset_um)
-                self._offset_pending = True
-        if p.heartbeat_name and p.heartbeat_name not in self.stopped_outputs:
+        stopped = self.health.stopped_outputs
+        if p.heartbeat_name and p.heartbeat_name not in stopped:
             writes[p.heartbeat_name] = float(self.heartbeat)
-        if p.status_name and p.status_name not in self.stopped_outputs:
-            writes[p.status_name] = float(int(status))
+        if p.status_name and p.status_name not in stopped:
+            writes[p.status_name] = float(status)
+        return writes, offset_um
 
-        contributions = {t.name: c for t, c in zip(self.model.terms, self.model.contributions,
-                                                    strict=True)} if valid else {}
-        if shadow_um is not None:
-            contributions["shadow_total"] = shadow_um
+    def _row_fields(self, now_s: float, wall_s: float | None, inputs: _Inputs,
+                    stepped: _Stepped, valid: bool, view: HealthView, offset_um: float, *,
+                    offset_written: bool) -> dict[str, Any]:
+        """The record row's fields as planned (`RecordRow`; built once, at commit)."""
+        contributions = self.models.contributions() if valid else {}
+        if stepped.shadow_um is not None:
+            contributions["shadow_total"] = stepped.shadow_um
         if self.probes is not None and valid:
             contributions["adaptation"] = self.probes.correction_um
-        record = RecordRow(
-            seq=self.sequence, mono_s=now_s, wall_s=math.nan if wall_s is None else wall_s,
-            offset_um=offset_um if p.offset_name in writes else None, model_um=model_um,
-            state=self._state(decision.state), valid=valid,
-            channels={n: _finite_or_none(v) for n, v in values.items()},
-            validity=validity, contributions=contributions,
-            attempted_um=offset_um if self._offset_pending else None,
-            probe=self.probes.last if self.probes is not None else None)
-        done = self.faults.shutting_down and (offset_um == 0.0 or self.write_stopped
+        written = offset_um if offset_written else None
+        return {"seq": self.sequence, "mono_s": now_s,
+                "wall_s": math.nan if wall_s is None else wall_s, "offset_um": written,
+                "model_um": stepped.model_um, "state": recorded_state(view), "valid": valid,
+                "channels": {n: finite_or_none(v) for n, v in inputs.values.items()},
+                "validity": inputs.validity, "contributions": contributions,
+                "attempted_um": written,
+                "probe": self.probes.last if self.probes is not None else None,
+                "complete": False}
+
+    def _shutdown_done(self, offset_um: float) -> bool:
+        return self.health.shutting_down and (offset_um == 0.0 or self.health.write_stopped
                                               or self.output.held)
-        self._result = CycleResult(
-            sequence=self.sequence, writes=writes, offset_um=offset_um, shadow_um=shadow_um,
-            status=int(status), heartbeat=self.heartbeat, complete=valid, record=record,
-            events=events, shutdown_done=done)
-        return self._result
 
-    # -- write outcome ------------------------------------------------------------------
+    # -- the cycle: commit ----------------------------------------------------------------
 
-    def write_ok(self) -> None:
-        """Every write of the last result reached the controller."""
-        if self._offset_pending:
-            self.output.confirm()
-            r = self._result
-            if r is not None and offset_in_force(valid=r.record.valid, state=r.state,
-                                                 confirmed=True):
-                r.record = dataclasses.replace(r.record, complete=True)
-            if self.write_fault:
-                self._later.append(Event("write_recovered", {"failed_writes":
-                                                             self.failed_writes}))
-            self.write_fault = False
-            self.failed_writes = 0
-        self._offset_pending = False
-
-    def write_failed(self, output: str | None, *, permanent: bool,
-                     reason: str = "") -> list[Event]:
-        """A write of the last result failed. `output` names the refused
-        output(s) when known (comma-separated for a combined write; any write
-        that carried the offset stops the offset). Transient: retried next
-        cycle from the confirmed value."""
+    def commit(self, outcome: Outcome = WRITTEN) -> Row:
+        """Close the planned cycle with how its writes went; its final row."""
+        plan, self._planned = self._planned, None
+        if plan is None:
+            raise RuntimeError("commit() without a plan(): one commit per plan")
+        offset_sent = self.params.offset_name in plan.writes
+        changes: dict[str, Any] = {}
         events: list[Event] = []
-        offset_failed = self._offset_pending
-        if offset_failed:
-            self.output.revert()
-            self._unconfirmed()
-        self._offset_pending = False
-        if not permanent:
-            events.append(Event("write_failed", {"output": output, "reason": reason}))
-            if offset_failed:
-                self.failed_writes += 1
-                if self.failed_writes >= WRITE_FAULT_AFTER and not self.write_fault:
-                    self.write_fault = True
-                    events.append(Event("write_fault", {
-                        "failed_writes": self.failed_writes, "reason": reason,
-                        "offset_um": self.output.current_um}))
-            return events
-        # a driver names every output of a refused combined write ("offset,heartbeat")
-        names = {n.strip() for n in output.split(",")} if output else set()
-        if not names or self.params.offset_name in names:
-            if not self.write_stopped:
-                self.write_stopped = True
-                events.append(Event("offset_write_stopped", {
-                    "output": output, "reason": reason,
-                    "offset_um": self.output.current_um}))
-            return events
-        for name in sorted(names - self.stopped_outputs):
-            self.stopped_outputs.add(name)
-            events.append(Event("output_write_stopped", {"output": name, "reason": reason}))
-        return events
+        if outcome.ok:
+            if offset_sent:
+                self.output.confirm()
+                changes["complete"] = offset_in_force(
+                    valid=plan.complete, state=plan.state, confirmed=True)
+                self.health.write_succeeded(self._later)
+        else:
+            if offset_sent:  # retried next cycle from the confirmed value
+                self.output.revert()
+                changes["offset_um"] = None
+            events = self.health.write_failed(
+                outcome.output, permanent=outcome.permanent, reason=outcome.reason,
+                offset_failed=offset_sent, offset_name=self.params.offset_name,
+                offset_um=self.output.current_um)
+        record = RecordRow(**{**plan.row_fields, **changes})
+        return Row(plan, record, self._snapshot(), tuple(events))
 
-    def _unconfirmed(self) -> None:
-        """The last result's offset did not reach the controller: its record
-        row keeps it as attempted only (`offset_um` is what was confirmed)."""
-        r = self._result
-        if r is not None and r.record.offset_um is not None:
-            r.record = dataclasses.replace(r.record, offset_um=None)
+    def _snapshot(self) -> Snapshot:
+        adaptation = None
+        if self.probes is not None:
+            est = self.probes.adapter
+            adaptation = AdaptationView(est.estimated_bias_um, est.bias_sigma_um,
+                                        self.probes.correction_um, est.standing_down,
+                                        self.probes.model_worse)
+        return Snapshot(self.output.confirmed_um, self.health.operator_hold, adaptation)
 
     # -- internals ------------------------------------------------------------------------
 
-    def _readback(self, value: float, events: list[Event]) -> Status:
+    def _readback(self, value: float, events: list[Event]) -> None:
         out = self.output
         rb_um = out.from_controller(value) if math.isfinite(value) else math.nan
         was_held, expected = out.held, out.confirmed_um
@@ -484,38 +451,28 @@ class Cycle:
         if seen is Readback.OUT_OF_RANGE:
             if not was_held:
                 events.append(Event("readback_out_of_range", {
-                    "expected_um": expected, "readback_um": _finite_or_none(rb_um),
+                    "expected_um": expected, "readback_um": finite_or_none(rb_um),
                     "limit_um": out.limit_um, "action": "offset writes held"}))
-            self._foreign = True
-            return Status.READBACK_MISMATCH | Status.OFFSET_HELD | Status.ALARM
+            self.health.foreign = True
+            return
         if was_held:
             events.append(Event("readback_in_range", {
                 "readback_um": rb_um, "action": "ramping from it"}))
-            self._foreign = True
+            self.health.foreign = True
         if seen is Readback.ADOPTED:
             events.append(Event("readback_adopted", {"offset_um": out.current_um}))
         elif seen is Readback.FOREIGN:
             events.append(Event("readback_mismatch", {
                 "expected_um": expected, "readback_um": rb_um, "action": "ramping from it"}))
-            self._foreign = True
-        return Status(0)
-
-    def _state(self, state: FaultState) -> FaultState:
-        """The state recorded and reported: the fault policy's, unless the
-        offset is not reaching the controller."""
-        if self.write_stopped:
-            return FaultState.STOPPED
-        if self.output.held:
-            return FaultState.HELD
-        return FaultState.WRITE_FAULT if self.write_fault else state
+            self.health.foreign = True
 
     def _model_out_of_range(self, model_um: float, events: list[Event]) -> bool:
         """A model output beyond MODEL_RANGE_FACTOR·limit_um is a broken model,
         not a value to clamp: a fault (hold, then ramp) with an alarm."""
         bound = MODEL_RANGE_FACTOR * self.params.limit_um
         out = abs(model_um) > bound
-        if out != self._model_range:
-            self._model_range = out
+        if out != self.health.model_range:
+            self.health.model_range = out
             events.append(Event("model_out_of_range" if out else "model_in_range", {
                 "model_um": model_um, "bound_um": bound}))
         return out
@@ -530,79 +487,15 @@ class Cycle:
                 del self._invalid[name]
                 events.append(Event("channel_valid", {"channel": name, "was": before}))
 
-    def _init_model(self, model: CompensationModel, values: Mapping[str, float]) -> float:
-        refs = dict(self._references or {})
-        for ch in model.reference_channels:
-            refs.setdefault(ch, values[ch])
-        model.set_references(refs)
-        model.reset()
-        return model.steady_state(values)
-
-    def _step_model(self, values: Mapping[str, float], events: list[Event]) -> float | None:
-        if not self._model_ready:
-            y0 = self._init_model(self.model, values)
-            self._references = dict(self.model.references)
-            self._model_ready = True
-            events.append(Event("model_initialised", {"mode": self._init_mode,
-                                                      "steady_um": _finite_or_none(y0)}))
-        y = self.model.step(values)
-        if math.isfinite(y):
-            return y
-        events.append(Event("model_non_finite", {"model": self.model.name}))
-        self._model_ready = False
-        self._init_mode = "steady_state"
-        return None
-
-    def _step_shadow(self, values: Mapping[str, float], events: list[Event]) -> float | None:
-        shadow = self.shadow
-        if shadow is None:
-            return None
-        if not self._shadow_ready:
-            self._init_model(shadow, values)
-            self._shadow_ready = True
-        y = shadow.step(values)
-        if math.isfinite(y):
-            return y
-        events.append(Event("model_non_finite", {"model": shadow.name, "shadow": True}))
-        self._shadow_ready = False
-        return None
-
-    def _adapt(self, dt: float, probe: ProbeReading | None, valid: bool,
-               model_um: float | None, in_force_um: float | None,
+    def _adapt(self, dt: float, probe: ProbeReading | None, stepped: _Stepped,
                events: list[Event]) -> float:
         """The adaptation's correction to add to the model output (0 when off,
         in shadow mode, or while the cycle is not valid)."""
         if self.probes is None:
             return 0.0
+        valid = stepped.valid
         terms = self.model.contributions if valid else []
-        correction = self.probes.step(dt, probe, complete=valid, model_um=model_um,
-                                      terms_um=terms, offset_in_force_um=in_force_um,
+        correction = self.probes.step(dt, probe, complete=valid, model_um=stepped.model_um,
+                                      terms_um=terms, offset_in_force_um=self.output.confirmed_um,
                                       events=events)
         return correction if valid else 0.0
-
-    def _status_bits(self, state: FaultState, alarm: bool) -> Status:
-        s = Status(0)
-        if state == FaultState.OK and not (self.write_stopped or self.output.held
-                                           or self.write_fault):
-            s |= Status.OK
-        elif state in (FaultState.HOLD, FaultState.INIT):
-            s |= Status.HOLDING
-        elif state == FaultState.RAMP:
-            s |= Status.RAMPING
-        elif state == FaultState.SHUTDOWN:
-            s |= Status.SHUTDOWN
-        if alarm or self.write_stopped:
-            s |= Status.ALARM
-        if self.write_stopped:
-            s |= Status.WRITE_STOPPED
-        if self.output.held:
-            s |= Status.OFFSET_HELD | Status.ALARM
-        if self.write_fault:
-            s |= Status.WRITE_FAULT | Status.ALARM
-        if self.operator_hold:
-            s |= Status.OPERATOR_HOLD
-            if s & Status.OK:
-                s = (s & ~Status.OK) | Status.HOLDING
-        if self.output.slewing:
-            s |= Status.SLEWING
-        return s

@@ -1,4 +1,6 @@
-"""The fault policy: what the output aims at when inputs go bad (pure).
+"""The output's states and the cycle's events (pure data). One state machine
+(`compd.core.health.OutputHealth`) owns every state; the fault policy, its
+part, decides what the output aims at when inputs go bad.
 
 States:
 
@@ -9,13 +11,13 @@ States:
 - ``ramp``  invalid for hold_s or longer: target = 0, reached at the slew
   limit, alarm bit set
 - ``shutdown``  a ramp-to-zero shutdown: target = 0 whatever the inputs
-- ``stopped``  not a policy decision: the cycle stopped writing the offset (a
+- ``stopped``  not the policy's: the cycle stopped writing the offset (a
   permanent refusal by the controller); recorded and exported as the alarm
-- ``held``  not a policy decision: the controller holds an offset beyond
+- ``held``  not the policy's: the controller holds an offset beyond
   ±limit_um that compd did not write; no offset is written until it is back
   within the limit (`compd.core.output`); exported as the alarm
-- ``write_fault``  not a policy decision: offset writes keep failing
-  (`compd.core.cycle.WRITE_FAULT_AFTER` in a row); exported as the alarm
+- ``write_fault``  not the policy's: offset writes keep failing
+  (`compd.core.health.WRITE_FAULT_AFTER` in a row); exported as the alarm
 
 `FaultState` holds these names once (a `StrEnum`: each member equals its
 name as a string, in the recorder's rows and the logs); `FaultState.gauge` is
@@ -62,60 +64,3 @@ class Event:
 
     name: str
     fields: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass(frozen=True, slots=True)
-class Decision:
-    state: FaultState
-    #: None: hold the current output
-    target_um: float | None
-    alarm: bool
-
-
-class FaultPolicy:
-    """Decides the output's target from validity and time (machine seconds)."""
-
-    def __init__(self, hold_s: float) -> None:
-        self.hold_s = hold_s
-        self.state: FaultState = FaultState.INIT
-        self.invalid_since_s: float | None = None
-        self.shutting_down = False
-
-    def decide(self, now_s: float, valid: bool, model_um: float | None,
-               events: list[Event]) -> Decision:
-        if self.shutting_down:
-            return self._to(FaultState.SHUTDOWN, Decision(FaultState.SHUTDOWN, 0.0, False),
-                            events, now_s)
-        if valid and model_um is not None:
-            if self.state in (FaultState.HOLD, FaultState.RAMP):
-                events.append(Event("fault_recovered", {
-                    "after_s": now_s - (self.invalid_since_s or now_s)}))
-            self.invalid_since_s = None
-            return self._to(FaultState.OK, Decision(FaultState.OK, model_um, False),
-                            events, now_s)
-        if self.invalid_since_s is None:
-            self.invalid_since_s = now_s
-        if self.state == FaultState.INIT:
-            # no valid sample since start: hold what the controller has, and like any
-            # other fault ramp to zero with the alarm after hold_s (a sensor broken
-            # across a restart once held a stale offset forever with status 0)
-            if now_s - self.invalid_since_s >= self.hold_s:
-                return self._to(FaultState.RAMP, Decision(FaultState.RAMP, 0.0, True),
-                                events, now_s)
-            return Decision(FaultState.INIT, None, False)
-        if now_s - self.invalid_since_s >= self.hold_s:
-            return self._to(FaultState.RAMP, Decision(FaultState.RAMP, 0.0, True), events, now_s)
-        return self._to(FaultState.HOLD, Decision(FaultState.HOLD, None, False), events, now_s)
-
-    def _to(self, state: FaultState, decision: Decision, events: list[Event],
-            now_s: float) -> Decision:
-        if state != self.state:
-            if state == FaultState.HOLD:
-                events.append(Event("fault_hold", {"hold_s": self.hold_s}))
-            elif state == FaultState.RAMP:
-                events.append(Event("fault_ramp_to_zero", {
-                    "invalid_for_s": now_s - (self.invalid_since_s or now_s)}))
-            elif state == FaultState.SHUTDOWN:
-                events.append(Event("shutdown_ramp_to_zero"))
-            self.state = state
-        return decision

@@ -1,6 +1,6 @@
 """One cycle's row, as the recorder stores it (pure data).
 
-The cycle builds it (`compd.core.cycle.Cycle.step`, inside its `CycleResult`),
+The cycle builds it (`compd.core.cycle.Cycle.commit`, inside its `Row`),
 the shell stamps the wall-clock time of recording (`dataclasses.replace`), and
 `compd.runtime.recorder` stores it unchanged: one type from the cycle to the
 database, no field copied by hand on the way.

@@ -75,7 +75,7 @@ if TYPE_CHECKING:
 
     from compd.config.loader import LoadedConfig
     from compd.config.schema import OpcUaFaceSection
-    from compd.core.cycle import Cycle, CycleResult
+    from compd.core.plan import Row
 
 __all__ = ["NAMESPACE", "OpcUaFace", "release_all"]
 
@@ -429,19 +429,19 @@ class OpcUaFace:
             return [ua.Variant(done, ua.VariantType.Boolean)]
         return call
 
-    def publish(self, result: CycleResult, cycle: Cycle) -> None:
-        """The cycle's snapshot for the face's task (cheap; never raises, never waits)."""
+    def publish(self, result: Row) -> None:
+        """The committed row for the face's task (cheap; never raises, never waits)."""
         if self._machine is None:
             return
-        rec = result.record
+        rec, snap = result.record, result.snapshot
         values: dict[str, tuple[Any, ua.VariantType]] = {
-            "Offset_um": (_num(cycle.output.confirmed_um), ua.VariantType.Double),
+            "Offset_um": (_num(snap.confirmed_um), ua.VariantType.Double),
             "ModelOutput_um": (_num(rec.model_um), ua.VariantType.Double),
             "FaultState": (FAULT_STATES.index(result.state), ua.VariantType.Int32),
             "FaultStateName": (result.state.value, ua.VariantType.String),
             "StatusWord": (int(result.status), ua.VariantType.UInt32),
             "Heartbeat": (int(result.heartbeat), ua.VariantType.UInt32),
-            "OperatorHold": (bool(cycle.operator_hold), ua.VariantType.Boolean),
+            "OperatorHold": (bool(snap.operator_hold), ua.VariantType.Boolean),
         }
         for term in self.cfg.model.terms:
             values[f"Terms.{term.name}"] = (_num(rec.contributions.get(term.name)),
@@ -450,12 +450,11 @@ class OpcUaFace:
             values[f"Channels.{ch}.Value"] = (_num(rec.channels.get(ch)), ua.VariantType.Double)
             values[f"Channels.{ch}.Valid"] = (rec.validity.get(ch) is None,
                                               ua.VariantType.Boolean)
-        if cycle.probes is not None:
-            est = cycle.probes.adapter
-            values["Adaptation.Bias_um"] = (est.estimated_bias_um, ua.VariantType.Double)
+        if snap.adaptation is not None:
+            est = snap.adaptation
+            values["Adaptation.Bias_um"] = (est.bias_um, ua.VariantType.Double)
             values["Adaptation.BiasSigma_um"] = (est.bias_sigma_um, ua.VariantType.Double)
-            values["Adaptation.Correction_um"] = (cycle.probes.correction_um,
-                                                  ua.VariantType.Double)
+            values["Adaptation.Correction_um"] = (est.correction_um, ua.VariantType.Double)
         self._pending = values
         shared, wake = self._shared, self._wake
         if shared is not None and wake is not None:

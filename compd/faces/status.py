@@ -120,7 +120,7 @@ class StatusBoard:
                              "detail": {k: _detail(v) for k, v in fields.items()}})
 
     def publish(self, result: Any, cfg: Any, *, dry_run: bool = False) -> None:
-        """Build the snapshot from a `CycleResult` and the running `LoadedConfig`.
+        """Build the snapshot from a committed `Row` and the running `LoadedConfig`.
         Never raises: a failure is logged once and the page keeps the last snapshot."""
         try:
             self.snapshot = self._build(result, cfg, dry_run)

@@ -1,7 +1,7 @@
 """The asyncio shell around the pure core: deadlines, controller I/O, state on
 disk and the service manager.
 
-- `daemon`        the sample loop: read, `Cycle.step`, write, record, checkpoint
+- `daemon`        the sample loop: read, `Cycle.plan`, write, `Cycle.commit`, record, checkpoint
 - `startup`       how the cycle starts: from a fresh checkpoint, an old one, or nothing
 - `checkpoint`    atomic checkpoints of the cycle's state
 - `recorder`      every cycle's row in one SQLite database (WAL)

@@ -1,7 +1,8 @@
 """The asyncio shell around the pure cycle: deadlines, I/O, logging, state.
 
-Per sample: read (channels, plus the offset when read-back is on) → `Cycle.step`
-(validate, step, fault policy, output stage) → write → record → checkpoint
+Per sample: read (channels, plus the offset when read-back is on) → `Cycle.plan`
+(validate, step, fault policy, output stage) → write → `Cycle.commit` (the
+write's outcome: the final row) → record → checkpoint
 (every state.checkpoint_every samples and on shutdown).
 
 Scheduling (`compd.core.schedule`): absolute deadlines on `time.monotonic`,
@@ -59,7 +60,7 @@ import structlog
 from compd import __version__
 from compd.config.loader import PROBE_NAMES, LoadedConfig
 from compd.core.adaptation import ProbeReading
-from compd.core.cycle import Cycle, CycleResult, params_from_config
+from compd.core.cycle import WRITTEN, Cycle, CycleResult, Outcome, Plan, params_from_config
 from compd.core.faults import GAUGE_ALARM, Event
 from compd.core.schedule import Schedule, shutdown_ramp_cycles
 from compd.faces.http_server import limits_from
@@ -530,41 +531,25 @@ class Daemon:
         samples, readback = await self._read(driver)
         try:
             if self._probe is not None:
-                result = cycle.step(now_s, samples, readback, wall_s=self.wall(),
-                                    probe=self._probe)
+                plan = cycle.plan(now_s, samples, readback, wall_s=self.wall(),
+                                  probe=self._probe)
             else:
-                result = cycle.step(now_s, samples, readback, wall_s=self.wall())
+                plan = cycle.plan(now_s, samples, readback, wall_s=self.wall())
         except Exception as exc:
             # the fault policy decides what reaches the machine: this cycle is a failed
             # read (hold, then ramp after hold_s). Raises when the cycle cannot even do
             # that (the loop's cycle_broken).
             self._cycle_error("step", exc)
             samples = None
-            result = cycle.step(now_s, None, readback, wall_s=self.wall())
+            plan = cycle.plan(now_s, None, readback, wall_s=self.wall())
         self.cycles += 1
-        self._log_events(result.events)
-        confirmed = self.dry_run
-        if self.dry_run:
-            cycle.write_ok()
-        elif result.writes:
-            try:
-                await driver.write(result.writes)
-            except WriteRejected as exc:
-                self.metrics.write_errors.labels(output=exc.channel or "*").inc()
-                self._log_events(cycle.write_failed(exc.channel, permanent=exc.permanent,
-                                                    reason=str(exc)))
-            except DriverError as exc:
-                self.metrics.write_errors.labels(output=exc.channel or "*").inc()
-                self._log_events(cycle.write_failed(exc.channel, permanent=False,
-                                                    reason=str(exc)))
-            except Exception as exc:  # a driver's bug: a transient write failure
-                self.metrics.write_errors.labels(output="*").inc()
-                self._log_events(cycle.write_failed(None, permanent=False,
-                                                    reason=f"{type(exc).__name__}: {exc}"))
-            else:
-                cycle.write_ok()
-                confirmed = True
-                self._log_repeat(self._write_failures.succeeded(self.clock()))
+        self._log_events(list(plan.events))
+        outcome = await self._write(driver, plan)
+        result = cycle.commit(outcome)
+        self._log_events(list(result.write_events))
+        confirmed = self.dry_run or (bool(plan.writes) and outcome.ok)
+        if confirmed and not self.dry_run:
+            self._log_repeat(self._write_failures.succeeded(self.clock()))
         self.last_result = result
         # the sinks: none of them may stop the cycle (the offset is written already)
         self._sink("record", self._record, result)
@@ -573,18 +558,33 @@ class Daemon:
             self._sink("status_page", self.status_board.publish, result, self.cfg,
                        dry_run=self.dry_run)
         if self.opcua_face is not None:  # a snapshot; the face writes it in its own task
-            self._sink("opcua_face", self.opcua_face.publish, result, cycle)
-        if cycle.probes is not None:
-            self._sink("adaptation_metrics", self._adaptation_metrics, cycle, result)
+            self._sink("opcua_face", self.opcua_face.publish, result)
+        if result.snapshot.adaptation is not None:
+            self._sink("adaptation_metrics", self._adaptation_metrics, result)
         return result
 
-    def _adaptation_metrics(self, cycle: Cycle, result: CycleResult) -> None:
-        probes = cycle.probes
-        if probes is not None:
-            est = probes.adapter
-            self.metrics.adaptation(est.estimated_bias_um, est.bias_sigma_um,
-                                    probes.correction_um, result.record.probe,
-                                    est.standing_down, probes.model_worse)
+    async def _write(self, driver: Driver, plan: Plan) -> Outcome:
+        """The plan's writes (none in a dry run), and how they went."""
+        if self.dry_run or not plan.writes:
+            return WRITTEN
+        try:
+            await driver.write(plan.writes)
+        except WriteRejected as exc:
+            self.metrics.write_errors.labels(output=exc.channel or "*").inc()
+            return Outcome.failed(exc.channel, permanent=exc.permanent, reason=str(exc))
+        except DriverError as exc:
+            self.metrics.write_errors.labels(output=exc.channel or "*").inc()
+            return Outcome.failed(exc.channel, reason=str(exc))
+        except Exception as exc:  # a driver's bug: a transient write failure
+            self.metrics.write_errors.labels(output="*").inc()
+            return Outcome.failed(None, reason=f"{type(exc).__name__}: {exc}")
+        return WRITTEN
+
+    def _adaptation_metrics(self, result: CycleResult) -> None:
+        view = result.snapshot.adaptation
+        if view is not None:
+            self.metrics.adaptation(view.bias_um, view.bias_sigma_um, view.correction_um,
+                                    result.record.probe, view.standing_down, view.model_worse)
 
     def _sink(self, stage: str, fn: Callable[..., object], *args: Any, **kwargs: Any) -> None:
         try:

@@ -18,7 +18,7 @@ key and the reason). `handover` builds the cycle that continues the old one:
 
 The fault policy (its hold timer) carries over, and so do the channel
 validator's stale/stuck timers while the channels' limits are unchanged: a
-reload never resets a fault's hold time.
+reload never resets a fault's hold time (`Cycle.carry_over`).
 
 What cannot change without a restart is refused with the key, like a
 validation error: the state directory (it holds the lock) and
@@ -97,11 +97,5 @@ def handover(old: Cycle, new_cfg: LoadedConfig, params: CycleParams,
         state["offset_um"] = old.output.current_um
     cycle = Cycle.from_state(params, new_cfg.model, new_cfg.shadow, state,
                              fresh=not changes.model)
-    old.faults.hold_s = params.hold_s
-    cycle.faults = old.faults
-    if params.channels == old.params.channels:
-        cycle.validator = old.validator
-    if not changes.outputs:
-        cycle.write_stopped = old.write_stopped
-        cycle.stopped_outputs = set(old.stopped_outputs)
+    cycle.carry_over(old, same_outputs=not changes.outputs)
     return cycle

@@ -45,5 +45,5 @@ def run_warm(cycle: Cycle, clock: FakeClock, n: int, bearing: float = 25.0,
              ambient: float = 20.0) -> None:
     for _ in range(n):
         t = clock.tick()
-        cycle.step(t, samples(t, bearing, ambient))
-        cycle.write_ok()
+        cycle.plan(t, samples(t, bearing, ambient))
+        cycle.commit()

@@ -9,7 +9,7 @@ import itertools
 
 import pytest
 
-from compd.core.cycle import WRITE_FAULT_AFTER, Cycle, offset_in_force
+from compd.core.cycle import WRITE_FAULT_AFTER, Cycle, Outcome, offset_in_force
 from compd.core.faults import FaultState
 from compd.testing import FakeClock
 
@@ -29,8 +29,8 @@ def _warm(readback: bool = True) -> tuple[Cycle, FakeClock, float]:
     controller = cycle.output.current_um
     for bearing in [20.0] * 30:
         t = clock.tick()
-        r = cycle.step(t, samples(t, bearing), controller if readback else None)
-        cycle.write_ok()
+        cycle.plan(t, samples(t, bearing), controller if readback else None)
+        r = cycle.commit()
         assert r.in_force and r.record.complete
         controller = r.writes["offset"]
     return cycle, clock, controller
@@ -40,26 +40,26 @@ def test_a_held_output_has_valid_cycles_that_are_never_complete() -> None:
     cycle, clock, _ = _warm()
     for _ in range(5):
         t = clock.tick()
-        r = cycle.step(t, samples(t, 20.0), 1000.0)  # a foreign offset beyond the limit
-        cycle.write_ok()  # heartbeat and status did arrive
+        cycle.plan(t, samples(t, 20.0), 1000.0)  # a foreign offset beyond the limit
+        r = cycle.commit()  # heartbeat and status did arrive
         assert r.state == "held" and r.complete  # valid: the heartbeat advances
         assert not r.in_force and not r.record.complete
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.0), 0.0)  # cleared: ramping from 0 again
-    cycle.write_ok()
+    cycle.plan(t, samples(t, 20.0), 0.0)  # cleared: ramping from 0 again
+    r = cycle.commit()
     assert r.in_force
 
 
 def test_a_cycle_is_complete_only_once_the_controller_confirmed_it() -> None:
     cycle, clock, controller = _warm()
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.0), controller)
-    assert not r.in_force  # sent, not confirmed yet
-    cycle.write_failed("offset", permanent=False, reason="timeout")
+    plan = cycle.plan(t, samples(t, 20.0), controller)
+    assert not plan.record.complete  # sent, not confirmed yet
+    r = cycle.commit(Outcome.failed("offset", permanent=False, reason="timeout"))
     assert not r.in_force and not r.record.complete
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.0), controller)
-    cycle.write_ok()
+    cycle.plan(t, samples(t, 20.0), controller)
+    r = cycle.commit()
     assert r.in_force
 
 
@@ -67,27 +67,29 @@ def test_a_write_fault_and_stopped_writes_are_not_complete() -> None:
     cycle, clock, _ = _warm(readback=False)
     for _ in range(WRITE_FAULT_AFTER + 1):
         t = clock.tick()
-        r = cycle.step(t, samples(t, 20.0))
-        cycle.write_failed("offset", permanent=False, reason="timeout")
+        cycle.plan(t, samples(t, 20.0))
+        cycle.commit(Outcome.failed("offset", permanent=False, reason="timeout"))
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.0))
-    assert r.state == "write_fault"
-    cycle.write_ok()  # the write that ends the fault: its row still says write_fault
+    plan = cycle.plan(t, samples(t, 20.0))
+    assert plan.state == "write_fault"
+    r = cycle.commit()  # the write that ends the fault: its row still says write_fault
     assert not r.in_force
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.0))
-    cycle.write_ok()
+    cycle.plan(t, samples(t, 20.0))
+    r = cycle.commit()
     assert r.state == "ok" and r.in_force
-    cycle.write_failed("offset", permanent=True, reason="refused")
+    t = clock.tick()  # the next offset write is refused for good
+    cycle.plan(t, samples(t, 20.0))
+    cycle.commit(Outcome.failed("offset", permanent=True, reason="refused"))
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.0))
-    cycle.write_ok()
+    cycle.plan(t, samples(t, 20.0))
+    r = cycle.commit()
     assert r.state == "stopped" and "offset" not in r.writes and not r.in_force
 
 
 def test_invalid_inputs_are_not_complete() -> None:
     cycle, clock, _ = _warm()
     t = clock.tick()
-    r = cycle.step(t, None, None)  # the read failed
-    cycle.write_ok()
+    cycle.plan(t, None, None)  # the read failed
+    r = cycle.commit()
     assert r.state == "hold" and not r.in_force

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from compd.core.cycle import Cycle
+from compd.core.cycle import Cycle, Outcome
 from compd.core.output import Status
 from compd.testing import FakeClock
 from drivers.base import Quality, Sample
@@ -21,7 +21,7 @@ def _events(result: object) -> list[str]:
 def test_first_start_takes_current_temperatures_as_reference() -> None:
     cycle, clock = Cycle(params(), sp2()), FakeClock()
     t = clock.tick()
-    r = cycle.step(t, samples(t, 30.0, 21.0))
+    r = cycle.plan(t, samples(t, 30.0, 21.0))
     assert "model_initialised" in _events(r)
     assert r.complete and r.model_um == pytest.approx(0.0, abs=1e-9)
     assert cycle.model.references == {"bearing": 30.0, "ambient": 21.0}
@@ -37,8 +37,8 @@ def test_heating_is_followed_within_the_slew_limit() -> None:
     for _ in range(3 * 3600):  # 3 h of machine time, bearing +1 K/h
         t = clock.tick()
         bearing += 1.0 / 3600.0
-        r = cycle.step(t, samples(t, round(bearing, 1)))
-        cycle.write_ok()
+        cycle.plan(t, samples(t, round(bearing, 1)))
+        r = cycle.commit()
         assert abs(r.offset_um - previous) <= SLEW_UM_S * PERIOD_S + 1e-9
         previous = r.offset_um
     assert r.model_um is not None and r.model_um > 10.0
@@ -51,7 +51,7 @@ def test_warm_restart_with_an_old_checkpoint_starts_at_the_steady_state() -> Non
              "offset_um": 40.0, "sequence": 7}
     cycle = Cycle.from_state(params(), sp2(), None, state, fresh=False)
     t = 1.0
-    r = cycle.step(t, samples(t, 24.0, 20.0))
+    r = cycle.plan(t, samples(t, 24.0, 20.0))
     steady = sp2()
     steady.set_references({"bearing": 20.0, "ambient": 20.0})
     expected = steady.steady_state({"bearing": 24.0, "ambient": 20.0})
@@ -70,10 +70,10 @@ def test_fresh_checkpoint_resumes_the_filters_exactly() -> None:
     b._last_now = clock.now_s
     for _ in range(20):
         t = clock.tick()
-        ra = a.step(t, samples(t, 22.5))
-        rb = b.step(t, samples(t, 22.5))
-        a.write_ok()
-        b.write_ok()
+        a.plan(t, samples(t, 22.5))
+        b.plan(t, samples(t, 22.5))
+        ra = a.commit()
+        rb = b.commit()
         assert rb.model_um == ra.model_um
         assert rb.offset_um == ra.offset_um
 
@@ -89,16 +89,16 @@ def test_bad_value_holds_then_ramps_at_hold_s_and_recovers_without_jump(
     held = cycle.output.current_um
     model_state = cycle.model.export_state()
     fault_start = clock.tick()
-    r = cycle.step(fault_start, samples(fault_start, bearing))
-    assert r.record is not None and r.record.validity["bearing"] == reason
-    assert r.state == "hold" and r.offset_um == held and not r.complete
-    assert r.status & Status.HOLDING and "fault_hold" in _events(r)
-    heartbeat = r.heartbeat
+    plan = cycle.plan(fault_start, samples(fault_start, bearing))
+    assert plan.record is not None and plan.record.validity["bearing"] == reason
+    assert plan.state == "hold" and plan.offset_um == held and not plan.complete
+    assert plan.status & Status.HOLDING and "fault_hold" in _events(plan)
+    heartbeat = plan.heartbeat
     ramp_started: float | None = None
     while clock.now_s < fault_start + HOLD_S + 40 * PERIOD_S:
         t = clock.tick()
-        r = cycle.step(t, samples(t, bearing))
-        cycle.write_ok()
+        cycle.plan(t, samples(t, bearing))
+        r = cycle.commit()
         assert r.heartbeat == heartbeat  # the heartbeat stops on invalid cycles
         if r.state == "ramp" and ramp_started is None:
             ramp_started = t
@@ -112,10 +112,10 @@ def test_bad_value_holds_then_ramps_at_hold_s_and_recovers_without_jump(
     # recovery: valid again, the offset moves toward the model without a jump
     before = r.offset_um
     t = clock.tick()
-    r = cycle.step(t, samples(t, 22.0))
-    assert r.complete and r.state == "ok" and "fault_recovered" in _events(r)
-    assert abs(r.offset_um - before) <= SLEW_UM_S * PERIOD_S + 1e-9
-    assert not r.status & Status.ALARM
+    plan = cycle.plan(t, samples(t, 22.0))
+    assert plan.complete and plan.state == "ok" and "fault_recovered" in _events(plan)
+    assert abs(plan.offset_um - before) <= SLEW_UM_S * PERIOD_S + 1e-9
+    assert not plan.status & Status.ALARM
 
 
 def test_read_failure_holds_then_ramps_to_zero() -> None:
@@ -124,13 +124,13 @@ def test_read_failure_holds_then_ramps_to_zero() -> None:
     run_warm(cycle, clock, 40, bearing=21.0)
     held = cycle.output.current_um
     start = clock.tick()
-    r = cycle.step(start, None)
-    assert r.state == "hold" and r.offset_um == held
-    assert set(r.record.validity.values()) == {"read_failed"}
+    plan = cycle.plan(start, None)
+    assert plan.state == "hold" and plan.offset_um == held
+    assert set(plan.record.validity.values()) == {"read_failed"}
     for _ in range(int(HOLD_S + held / SLEW_UM_S) + 5):
         t = clock.tick()
-        r = cycle.step(t, None)
-        cycle.write_ok()
+        cycle.plan(t, None)
+        r = cycle.commit()
     assert r.state == "ramp" and r.offset_um == 0.0 and r.writes["offset"] == 0.0
 
 
@@ -147,13 +147,13 @@ def test_invalid_from_the_start_holds_then_ramps_with_the_alarm() -> None:
     cycle = Cycle.from_state(params(), sp2(), None, state, fresh=True)
     cycle._last_now = clock.now_s
     t = clock.tick()
-    r = cycle.step(t, samples(t, 900.0))  # an open Pt100
-    assert r.state == "init" and r.offset_um == held
-    assert r.status & Status.HOLDING and not r.status & Status.ALARM
+    plan = cycle.plan(t, samples(t, 900.0))  # an open Pt100
+    assert plan.state == "init" and plan.offset_um == held
+    assert plan.status & Status.HOLDING and not plan.status & Status.ALARM
     for _ in range(int(HOLD_S) + int(held / SLEW_UM_S) + 5):
         t = clock.tick()
-        r = cycle.step(t, samples(t, 900.0))
-        cycle.write_ok()
+        cycle.plan(t, samples(t, 900.0))
+        r = cycle.commit()
     assert r.state == "ramp" and r.offset_um == 0.0
     assert r.status & Status.ALARM and r.status & Status.RAMPING
 
@@ -163,16 +163,16 @@ def test_one_sample_spike_is_rejected_and_filters_not_stepped() -> None:
     for k in range(200):
         t = clock.tick()
         b = 40.0 + 0.001 * k
-        ra = ref.step(t, samples(t, b))
+        ref.plan(t, samples(t, b))
         if k in (100, 150):
-            rb = spiked.step(t, samples(t, b + (50.0 if k == 100 else -50.0)))
-            assert rb.record is not None and rb.record.validity["bearing"] == "rate"
-            assert rb.state == "hold"
+            plan = spiked.plan(t, samples(t, b + (50.0 if k == 100 else -50.0)))
+            assert plan.record is not None and plan.record.validity["bearing"] == "rate"
+            assert plan.state == "hold"
             ref_state = ref.model.export_state()
             continue
-        rb = spiked.step(t, samples(t, b))
-        ref.write_ok()
-        spiked.write_ok()
+        spiked.plan(t, samples(t, b))
+        ra = ref.commit()
+        rb = spiked.commit()
     assert ref_state is not None
     # the spiked run skipped two samples but never saw the spike: same model output
     # as a run that skipped nothing, to the effect of two missing samples only
@@ -185,7 +185,7 @@ def test_stuck_value_is_flagged_only_while_others_move() -> None:
     reasons = []
     for k in range(500):
         t = clock.tick()
-        r = cycle.step(t, samples(t, 25.0, 20.0 + 0.01 * (k % 2)))
+        r = cycle.plan(t, samples(t, 25.0, 20.0 + 0.01 * (k % 2)))
         reasons.append(r.record.validity["bearing"])
     assert reasons[300] is None  # 3000 s < stuck_after_s = 3600 s
     assert reasons[-1] == "stuck"
@@ -197,8 +197,8 @@ def test_quantised_slowly_heating_sensor_is_not_stuck() -> None:
     for k in range(6 * 3600):
         t = clock.tick()
         bearing = round(20.0 + 0.5 * k / 3600.0, 1)
-        r = cycle.step(t, samples(t, bearing, 20.0 + 0.01 * (k % 2)))
-        cycle.write_ok()
+        cycle.plan(t, samples(t, bearing, 20.0 + 0.01 * (k % 2)))
+        r = cycle.commit()
         assert r.record is not None and r.record.validity["bearing"] is None, k
 
 
@@ -209,12 +209,12 @@ def test_frozen_source_timestamp_is_stale() -> None:
     reasons = []
     for _ in range(40):
         t = clock.tick()
-        r = cycle.step(t, samples(t, 25.0, ts_s=frozen_ts))
+        r = cycle.plan(t, samples(t, 25.0, ts_s=frozen_ts))
         reasons.append(r.record.validity["bearing"])
     assert reasons[0] is None and reasons[-1] == "stale"
     # an old timestamp against the wall clock is stale at once
     t = clock.tick()
-    r = cycle.step(t, samples(t, 25.0, ts_s=1000.0), wall_s=1000.0 + 31.0)
+    r = cycle.plan(t, samples(t, 25.0, ts_s=1000.0), wall_s=1000.0 + 31.0)
     assert r.record is not None and r.record.validity["bearing"] == "stale"
 
 
@@ -222,10 +222,10 @@ def test_bad_quality_and_missing_channel_hold() -> None:
     cycle, clock = Cycle(params(), sp2()), FakeClock()
     run_warm(cycle, clock, 10)
     t = clock.tick()
-    r = cycle.step(t, samples(t, 25.0, quality=Quality.BAD))
+    r = cycle.plan(t, samples(t, 25.0, quality=Quality.BAD))
     assert r.state == "hold"
     t = clock.tick()
-    r = cycle.step(t, {"ambient": Sample(20.0, t), "speed_rpm": Sample(0.0, t)})
+    r = cycle.plan(t, {"ambient": Sample(20.0, t), "speed_rpm": Sample(0.0, t)})
     assert r.record is not None and r.record.validity["bearing"] == "missing"
 
 
@@ -233,7 +233,7 @@ def test_invalid_monitoring_channel_does_not_stop_compensation() -> None:
     cycle, clock = Cycle(params(), sp2()), FakeClock()
     run_warm(cycle, clock, 10)
     t = clock.tick()
-    r = cycle.step(t, samples(t, 25.0, speed=-5.0))  # speed is not a model input
+    r = cycle.plan(t, samples(t, 25.0, speed=-5.0))  # speed is not a model input
     assert r.complete and r.state == "ok"
     assert r.record is not None and r.record.validity["speed_rpm"] == "out_of_range"
 
@@ -242,11 +242,11 @@ def test_permanent_write_rejection_stops_offset_writes_and_alarms() -> None:
     cycle, clock = Cycle(params(), sp2()), FakeClock()
     run_warm(cycle, clock, 5, bearing=20.0)
     t = clock.tick()
-    r = cycle.step(t, samples(t, 21.0))
-    ev = cycle.write_failed("offset", permanent=True, reason="not writable")
+    r = cycle.plan(t, samples(t, 21.0))
+    ev = cycle.commit(Outcome.failed("offset", permanent=True, reason="not writable")).write_events
     assert [e.name for e in ev] == ["offset_write_stopped"]
     t = clock.tick()
-    r = cycle.step(t, samples(t, 21.0))
+    r = cycle.plan(t, samples(t, 21.0))
     assert "offset" not in r.writes and "heartbeat" in r.writes
     assert r.status & Status.WRITE_STOPPED and r.status & Status.ALARM
     assert not r.status & Status.OK
@@ -258,36 +258,36 @@ def test_transient_write_failure_is_retried_from_the_confirmed_value() -> None:
     confirmed = cycle.output.current_um
     for _ in range(3):
         t = clock.tick()
-        r = cycle.step(t, samples(t, 20.4))
-        cycle.write_failed("offset", permanent=False, reason="busy")
-        assert r.writes["offset"] == pytest.approx(confirmed + SLEW_UM_S * PERIOD_S)
+        plan = cycle.plan(t, samples(t, 20.4))
+        cycle.commit(Outcome.failed("offset", permanent=False, reason="busy"))
+        assert plan.writes["offset"] == pytest.approx(confirmed + SLEW_UM_S * PERIOD_S)
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.4))
-    cycle.write_ok()
+    cycle.plan(t, samples(t, 20.4))
+    r = cycle.commit()
     assert r.writes["offset"] == pytest.approx(confirmed + SLEW_UM_S * PERIOD_S)
 
 
 def test_readback_mismatch_ramps_from_the_controller_value() -> None:
     cycle, clock = Cycle(params(readback=True), sp2()), FakeClock()
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.0), 0.0)
+    r = cycle.plan(t, samples(t, 20.0), 0.0)
     assert "readback_adopted" in _events(r)
-    cycle.write_ok()
+    cycle.commit()
     controller = 0.0
     for _ in range(60):
         t = clock.tick()
-        r = cycle.step(t, samples(t, 22.0), controller)
-        cycle.write_ok()
-        controller = r.writes["offset"]
+        cycle.plan(t, samples(t, 22.0), controller)
+        row = cycle.commit()
+        controller = row.writes["offset"]
     assert controller > 30.0
     # the controller restarts and forgets the offset
     t = clock.tick()
-    r = cycle.step(t, samples(t, 22.0), 0.0)
+    r = cycle.plan(t, samples(t, 22.0), 0.0)
     assert "readback_mismatch" in _events(r) and r.status & Status.READBACK_MISMATCH
     assert r.writes["offset"] == pytest.approx(SLEW_UM_S * PERIOD_S)
     # read failed: the controller's state is unknown, no offset write
     t = clock.tick()
-    r = cycle.step(t, None, None)
+    r = cycle.plan(t, None, None)
     assert "offset" not in r.writes and "offset_write_skipped" in _events(r)
 
 
@@ -303,7 +303,7 @@ def test_sign_and_scale_convert_to_controller_units() -> None:
                          sp2()), FakeClock()
     run_warm(cycle, clock, 5, bearing=20.0)
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.5))
+    r = cycle.plan(t, samples(t, 20.5))
     assert r.writes["offset"] == pytest.approx(-0.001 * r.offset_um)
     assert r.offset_um > 0
 
@@ -317,8 +317,8 @@ def test_shutdown_ramp_to_zero_finishes_at_zero() -> None:
     n = 0
     while True:
         t = clock.tick()
-        r = cycle.step(t, samples(t, 22.0))
-        cycle.write_ok()
+        cycle.plan(t, samples(t, 22.0))
+        r = cycle.commit()
         n += 1
         if r.shutdown_done:
             break
@@ -330,10 +330,10 @@ def test_deadband_keeps_small_changes_out() -> None:
     cycle, clock = Cycle(params(deadband_um=0.5, slew_um_s=100.0), sp2()), FakeClock()
     run_warm(cycle, clock, 5, bearing=20.0)
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.02))  # ≈0.32 µm
+    r = cycle.plan(t, samples(t, 20.02))  # ≈0.32 µm
     assert r.offset_um == 0.0
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.1))
+    r = cycle.plan(t, samples(t, 20.1))
     assert r.offset_um > 0.5
 
 
@@ -344,7 +344,7 @@ def test_shadow_model_is_evaluated_but_never_written() -> None:
     cycle, clock = Cycle(params(slew_um_s=1000.0), sp2(), shadow), FakeClock()
     run_warm(cycle, clock, 5, bearing=20.0)
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.5))
+    r = cycle.plan(t, samples(t, 20.5))
     assert r.shadow_um is not None and r.model_um is not None
     assert r.shadow_um == pytest.approx(2 * r.model_um, rel=0.01)
     assert r.writes["offset"] == r.offset_um == pytest.approx(r.model_um)
@@ -354,5 +354,5 @@ def test_shadow_model_is_evaluated_but_never_written() -> None:
 def test_heartbeat_wraps() -> None:
     cycle, clock = Cycle(params(), sp2(), heartbeat=32767), FakeClock()
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.0))
+    r = cycle.plan(t, samples(t, 20.0))
     assert r.heartbeat == 0

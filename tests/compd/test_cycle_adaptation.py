@@ -49,8 +49,8 @@ class Machine:
                 self.value = model + self.bias_um - self.held + spoil
                 self.counter += 1
             s = samples(t, math.nan if k == invalid_at else bearing)
-            r = self.cycle.step(t, s, probe=ProbeReading(self.value, self.counter))
-            self.cycle.write_ok()
+            self.cycle.plan(t, s, probe=ProbeReading(self.value, self.counter))
+            r = self.cycle.commit()
             self.held = r.offset_um
             self.results.append(r)
             out.append(r)
@@ -133,7 +133,7 @@ def test_a_garbled_estimator_state_starts_afresh_with_an_event() -> None:
     state = {"model": None, "offset_um": 0.0, "adaptation": {"estimator": {"x": "junk"}}}
     cycle = Cycle.from_state(params(adaptation=_settings()), sp2(), None, state, fresh=True)
     t = 1.0
-    r = cycle.step(t, samples(t, 25.0))
+    r = cycle.plan(t, samples(t, 25.0))
     assert "adaptation_state_refused" in [e.name for e in r.events]
     assert cycle.probes is not None and cycle.probes.adapter.estimated_bias_um == 0.0
 
@@ -142,8 +142,8 @@ def test_the_displacement_convention_takes_the_value_as_measured() -> None:
     cfg = params(adaptation=_settings(measures="displacement"))
     cycle, clock = Cycle(cfg, sp2()), FakeClock()
     t = clock.tick()
-    cycle.step(t, samples(t, 25.0), probe=ProbeReading(0.0, 1.0))  # baseline
-    cycle.write_ok()
+    cycle.plan(t, samples(t, 25.0), probe=ProbeReading(0.0, 1.0))  # baseline
+    cycle.commit()
     t = clock.tick()
-    r = cycle.step(t, samples(t, 25.0), probe=ProbeReading(3.0, 2.0))
+    r = cycle.plan(t, samples(t, 25.0), probe=ProbeReading(3.0, 2.0))
     assert r.record.probe is not None and r.record.probe["measured_um"] == 3.0

@@ -64,7 +64,7 @@ async def test_a_model_step_that_raises_every_cycle_is_held_then_ramped(
         def overflow(*_: object, **__: object) -> float:
             raise OverflowError("(34, 'Numerical result out of range')")
 
-        monkeypatch.setattr(cycle, "_step_model", overflow)
+        monkeypatch.setattr(cycle.models, "step", overflow)
         at = len(driver.cycles)
         await until(lambda: daemon.last_result is not None and daemon.last_result.offset_um
                     == 0.0, limit=4000)
@@ -101,7 +101,7 @@ async def test_a_cycle_that_raises_even_as_a_failed_read_ends_with_its_checkpoin
         def broken(*_: object, **__: object) -> object:
             raise ValueError("math domain error")
 
-        monkeypatch.setattr(cycle.faults, "decide", broken)
+        monkeypatch.setattr(cycle.health, "decide", broken)
         assert await asyncio.wait_for(task, 30.0) == EX_SOFTWARE
     (line,) = _named(logs, "cycle_broken")
     assert "ValueError: math domain error" in line["error"] and line["exc_info"]

@@ -8,14 +8,14 @@ import math
 
 import pytest
 
-from compd.core.cycle import Cycle, CycleResult
+from compd.core.cycle import Cycle, Plan, Row
 from compd.core.output import OutputStage, Readback, Status
 from compd.testing import FakeClock
 
 from .cycle_helpers import LIMIT_UM, PERIOD_S, SLEW_UM_S, params, samples, sp2
 
 
-def _names(r: CycleResult) -> list[str]:
+def _names(r: Plan | Row) -> list[str]:
     return [e.name for e in r.events]
 
 
@@ -24,8 +24,8 @@ def _warm(cycle: Cycle, clock: FakeClock, n: int, bearing: float) -> float:
     controller = cycle.output.current_um
     for _ in range(n):
         t = clock.tick()
-        r = cycle.step(t, samples(t, bearing), controller)
-        cycle.write_ok()
+        cycle.plan(t, samples(t, bearing), controller)
+        r = cycle.commit()
         controller = r.writes.get("offset", controller)
     return controller
 
@@ -42,17 +42,17 @@ def test_foreign_value_within_limit_alarms_and_ramps_from_it() -> None:
     cycle, clock, before = _heated()
     foreign = -50.0
     t = clock.tick()
-    r = cycle.step(t, samples(t, 22.0), foreign)
-    assert "readback_mismatch" in _names(r)
-    assert r.status & Status.ALARM and r.status & Status.READBACK_MISMATCH
-    assert r.writes["offset"] == pytest.approx(foreign + SLEW_UM_S * PERIOD_S)
-    cycle.write_ok()
+    plan = cycle.plan(t, samples(t, 22.0), foreign)
+    assert "readback_mismatch" in _names(plan)
+    assert plan.status & Status.ALARM and plan.status & Status.READBACK_MISMATCH
+    assert plan.writes["offset"] == pytest.approx(foreign + SLEW_UM_S * PERIOD_S)
+    r = cycle.commit()
     controller = r.writes["offset"]
     alarms = 1
     while cycle.output.slewing or r.status & Status.ALARM:
         t = clock.tick()
-        r = cycle.step(t, samples(t, 22.0), controller)
-        cycle.write_ok()
+        cycle.plan(t, samples(t, 22.0), controller)
+        r = cycle.commit()
         assert abs(r.writes["offset"] - controller) <= SLEW_UM_S * PERIOD_S + 1e-9
         controller = r.writes["offset"]
         alarms += bool(r.status & Status.ALARM)
@@ -67,8 +67,8 @@ def test_foreign_value_beyond_limit_holds_writes_until_cleared() -> None:
     held_events = 0
     for _ in range(5):
         t = clock.tick()
-        r = cycle.step(t, samples(t, 22.0), 1000.0)
-        cycle.write_ok()
+        cycle.plan(t, samples(t, 22.0), 1000.0)
+        r = cycle.commit()
         held_events += _names(r).count("readback_out_of_range")
         # no offset write at all (198.998 would be an 801 µm step); heartbeat and
         # status go on and say so
@@ -81,20 +81,20 @@ def test_foreign_value_beyond_limit_holds_writes_until_cleared() -> None:
     assert held_events == 1
     # a read failure in between: still held, still no offset
     t = clock.tick()
-    r = cycle.step(t, samples(t, 22.0), None)
-    assert "offset" not in r.writes and r.status & Status.OFFSET_HELD
+    plan = cycle.plan(t, samples(t, 22.0), None)
+    assert "offset" not in plan.writes and plan.status & Status.OFFSET_HELD
     # an operator clears the register: ramp from 0, alarm until back on target
     controller = 0.0
     t = clock.tick()
-    r = cycle.step(t, samples(t, 22.0), controller)
-    assert "readback_in_range" in _names(r) and r.status & Status.ALARM
-    assert r.writes["offset"] == pytest.approx(SLEW_UM_S * PERIOD_S)
-    cycle.write_ok()
+    plan = cycle.plan(t, samples(t, 22.0), controller)
+    assert "readback_in_range" in _names(plan) and plan.status & Status.ALARM
+    assert plan.writes["offset"] == pytest.approx(SLEW_UM_S * PERIOD_S)
+    r = cycle.commit()
     controller = r.writes["offset"]
     for _ in range(80):
         t = clock.tick()
-        r = cycle.step(t, samples(t, 22.0), controller)
-        cycle.write_ok()
+        cycle.plan(t, samples(t, 22.0), controller)
+        r = cycle.commit()
         assert abs(r.writes["offset"] - controller) <= SLEW_UM_S * PERIOD_S + 1e-9
         controller = r.writes["offset"]
     assert controller == pytest.approx(before, abs=0.05)
@@ -104,7 +104,7 @@ def test_foreign_value_beyond_limit_holds_writes_until_cleared() -> None:
 def test_not_a_number_in_the_register_holds() -> None:
     cycle, clock, _ = _heated()
     t = clock.tick()
-    r = cycle.step(t, samples(t, 22.0), math.nan)
+    r = cycle.plan(t, samples(t, 22.0), math.nan)
     assert "offset" not in r.writes and r.status & Status.OFFSET_HELD
     assert r.record is not None and r.record.state == "held"
 
@@ -112,11 +112,11 @@ def test_not_a_number_in_the_register_holds() -> None:
 def test_start_up_with_a_value_beyond_the_limit_holds() -> None:
     cycle, clock = Cycle(params(readback=True), sp2()), FakeClock()
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.0), -1000.0)
+    r = cycle.plan(t, samples(t, 20.0), -1000.0)
     assert "offset" not in r.writes and "readback_out_of_range" in _names(r)
     assert r.status & Status.OFFSET_HELD and r.status & Status.ALARM
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.0), -LIMIT_UM)  # cleared to a value within
+    r = cycle.plan(t, samples(t, 20.0), -LIMIT_UM)  # cleared to a value within
     assert r.writes["offset"] == pytest.approx(-LIMIT_UM + SLEW_UM_S * PERIOD_S)
 
 
@@ -124,7 +124,7 @@ def test_start_up_from_a_checkpoint_with_a_foreign_value_alarms() -> None:
     cycle, clock, _ = _heated()
     restarted = Cycle.from_state(cycle.params, sp2(), None, cycle.export_state(), fresh=True)
     t = clock.tick()
-    r = restarted.step(t, samples(t, 22.0), 5.0)
+    r = restarted.plan(t, samples(t, 22.0), 5.0)
     assert "readback_mismatch" in _names(r) and r.status & Status.ALARM
     assert r.writes["offset"] == pytest.approx(5.0 + SLEW_UM_S * PERIOD_S)
 
@@ -133,7 +133,7 @@ def test_shutdown_ramp_ends_when_the_offset_is_held() -> None:
     cycle, clock, _ = _heated()
     cycle.begin_shutdown()
     t = clock.tick()
-    r = cycle.step(t, samples(t, 22.0), 1e6)
+    r = cycle.plan(t, samples(t, 22.0), 1e6)
     assert r.shutdown_done and "offset" not in r.writes
 
 

@@ -11,7 +11,7 @@ import math
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from compd.core.cycle import Cycle
+from compd.core.cycle import Cycle, Outcome
 from compd.core.output import LIMIT_ROUNDING, Status
 from drivers.base import Quality, Sample
 
@@ -65,12 +65,12 @@ def _run(actions: list[Action], readback: bool) -> None:
                               Quality.GOOD),
             "ambient": Sample(20.0, now), "speed_rpm": Sample(1000.0, now)}
         rb = None if (kind == "read_failed" or not readback) else controller
-        r = cycle.step(now, samples, rb)
-        assert math.isfinite(r.offset_um) and abs(r.offset_um) <= LIMIT_UM
-        for v in r.writes.values():
+        plan = cycle.plan(now, samples, rb)
+        assert math.isfinite(plan.offset_um) and abs(plan.offset_um) <= LIMIT_UM
+        for v in plan.writes.values():
             assert math.isfinite(v)
-        if "offset" in r.writes:
-            w = r.writes["offset"]
+        if "offset" in plan.writes:
+            w = plan.writes["offset"]
             assert abs(w) <= LIMIT_UM + 1e-12
             # a read-back a float32 rounding beyond the limit counts as at the limit
             beyond = abs(controller) - LIMIT_UM
@@ -78,13 +78,13 @@ def _run(actions: list[Action], readback: bool) -> None:
             assert abs(w - controller) <= SLEW_UM_S * dt + max(beyond, 0.0) + 1e-9, \
                 (w, controller, dt)
         elif rb is not None and not abs(rb) <= LIMIT_UM * (1.0 + LIMIT_ROUNDING):
-            assert r.status & Status.ALARM and r.status & Status.OFFSET_HELD
+            assert plan.status & Status.ALARM and plan.status & Status.OFFSET_HELD
         if outcome == "ok":
-            cycle.write_ok()
+            r = cycle.commit()
             if "offset" in r.writes:
                 controller = r.writes["offset"]
         else:
-            cycle.write_failed("offset", permanent=outcome == "permanent")
+            cycle.commit(Outcome.failed("offset", permanent=outcome == "permanent"))
 
 
 @settings(max_examples=150, deadline=None)

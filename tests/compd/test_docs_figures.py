@@ -87,7 +87,7 @@ def test_the_demo_figures_agree_across_the_docs() -> None:
 def test_protocols_md_gives_the_status_of_a_foreign_read_back() -> None:
     cycle, clock, _ = _heated()
     t = clock.tick()
-    status = cycle.step(t, samples(t, 22.0), -50.0).status
+    status = cycle.plan(t, samples(t, 22.0), -50.0).status
     names = " + ".join(f.name for f in Status if f and f & status and f.name)
     row = f"| {int(status)} | {names} |"
     assert row in _read("docs/protocols.md"), row

@@ -130,13 +130,13 @@ def _model(dc_um_per_k: float) -> CompensationModel:
 def test_model_output_far_beyond_the_limit_is_a_fault_not_a_clamp() -> None:
     cycle, clock = Cycle(params(slew_um_s=1000.0, hold_s=5.0), _model(1000.0)), FakeClock()
     t = clock.tick()
-    cycle.step(t, samples(t, 20.0))
-    cycle.write_ok()
+    cycle.plan(t, samples(t, 20.0))
+    cycle.commit()
     seen = []
     for _ in range(40):
         t = clock.tick()
-        r = cycle.step(t, samples(t, 21.0))  # +1 K: the model heads for 1000 µm
-        cycle.write_ok()
+        cycle.plan(t, samples(t, 21.0))  # +1 K: the model heads for 1000 µm
+        r = cycle.commit()
         seen.append(r)
     faulted = [r for r in seen if r.model_um is not None
                and abs(r.model_um) > MODEL_RANGE_FACTOR * LIMIT_UM]

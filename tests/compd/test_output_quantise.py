@@ -165,8 +165,8 @@ def test_the_issue_chatter_on_the_pure_cycle() -> None:
     for k in range(4000):
         t = clock.tick()
         bearing = round(20.0 + 2.0 * k / 4000 + rng.gauss(0.0, 0.03), 1)
-        ys.append(cycle.step(t, samples(t, bearing)).offset_um)
-        cycle.write_ok()
+        ys.append(cycle.plan(t, samples(t, bearing)).offset_um)
+        cycle.commit()
     moves = [(k, b - a) for k, (a, b) in enumerate(itertools.pairwise(ys)) if b != a]
     flips = [(i, j) for (i, a), (j, b) in itertools.pairwise(moves) if a * b < 0]
     assert moves and not flips, flips
@@ -208,8 +208,8 @@ def test_readback_of_the_count_in_force_is_no_mismatch(tmp_path: Path) -> None:
     cycle, clock = _coarse_config(tmp_path), FakeClock()
     for readback in (20.0, 20.000000000000004, 19.999999999999996, 24.9):
         t = clock.tick()
-        r = cycle.step(t, _at(t), readback)
-        cycle.write_ok()
+        cycle.plan(t, _at(t), readback)
+        r = cycle.commit()
         assert "readback_mismatch" not in [e.name for e in r.events], readback
         assert cycle.output.confirmed_um == 20.0
 
@@ -220,10 +220,10 @@ def test_a_foreign_count_is_a_mismatch(tmp_path: Path) -> None:
     1.01 counts for the offset in force: a foreign 30 µm went unnoticed.)"""
     cycle, clock = _coarse_config(tmp_path), FakeClock()
     t = clock.tick()
-    cycle.step(t, _at(t), 20.0)
-    cycle.write_ok()
+    cycle.plan(t, _at(t), 20.0)
+    cycle.commit()
     t = clock.tick()
-    r = cycle.step(t, _at(t), 30.0)
+    r = cycle.plan(t, _at(t), 30.0)
     assert "readback_mismatch" in [e.name for e in r.events]
     assert cycle.output.confirmed_um == 30.0
 

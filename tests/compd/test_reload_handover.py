@@ -8,7 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from compd.config.loader import load_config
-from compd.core.cycle import Cycle, params_from_config
+from compd.core.cycle import Cycle, Row, params_from_config
 from compd.core.faults import FaultState
 from compd.runtime.reload import diff, handover
 from compd.testing import FakeClock
@@ -31,19 +31,18 @@ def _warm(tmp_path: Path) -> tuple[Cycle, FakeClock, Path]:
     for i in range(120):  # first start at 20 °C (the references), then the spindle warms
         t = clock.tick()
         bearing = 20.0 if i < 3 else min(24.0, 20.0 + 0.4 * (i - 3))
-        cycle.step(t, {k: v for k, v in samples(t, bearing, 20.0).items()
+        cycle.plan(t, {k: v for k, v in samples(t, bearing, 20.0).items()
                        if k in cfg.channels})
-        cycle.write_ok()
+        cycle.commit()
     assert cycle.output.current_um > 5.0
     return cycle, clock, path
 
 
-def _step(cycle: Cycle, clock: FakeClock, bearing: float = 24.0):  # type: ignore[no-untyped-def]
+def _step(cycle: Cycle, clock: FakeClock, bearing: float = 24.0) -> Row:
     t = clock.tick()
-    r = cycle.step(t, {k: v for k, v in samples(t, bearing, 20.0).items()
-                       if k in ("bearing", "ambient")})
-    cycle.write_ok()
-    return r
+    cycle.plan(t, {k: v for k, v in samples(t, bearing, 20.0).items()
+                   if k in ("bearing", "ambient")})
+    return cycle.commit()
 
 
 def test_unchanged_model_carries_its_filters_over(tmp_path: Path) -> None:
@@ -83,10 +82,10 @@ def test_another_model_restarts_at_steady_state_and_slews(tmp_path: Path) -> Non
 def test_a_reload_keeps_the_fault_hold_timer(tmp_path: Path) -> None:
     old, clock, path = _warm(tmp_path)
     for _ in range(40):  # the read fails: hold (hold_s 60 by default)
-        old.step(clock.tick(), None)
-    assert old.faults.state == FaultState.HOLD
+        old.plan(clock.tick(), None)
+    assert old.health.policy == FaultState.HOLD
     new_cfg = load_config(path)
     new = handover(old, new_cfg, params_from_config(new_cfg), diff(load_config(path), new_cfg))
-    states = [new.step(clock.tick(), None).state for _ in range(25)]
+    states = [new.plan(clock.tick(), None).state for _ in range(25)]
     # 40 s held before the reload + 25 after: the ramp begins at 60 s, not 60 s after it
     assert FaultState.RAMP in states

@@ -9,7 +9,7 @@ import sqlite3
 from pathlib import Path
 
 from compd.config.loader import load_config
-from compd.core.cycle import WRITE_FAULT_AFTER, Cycle
+from compd.core.cycle import WRITE_FAULT_AFTER, Cycle, Outcome
 from compd.core.output import Status
 from compd.runtime.daemon import Daemon
 from compd.runtime.sdnotify import Notifier
@@ -27,9 +27,10 @@ def test_repeated_write_failures_are_a_fault_until_a_write_succeeds() -> None:
     faults = []
     for i in range(WRITE_FAULT_AFTER + 2):
         t = clock.tick()
-        r = cycle.step(t, samples(t, 20.5))
-        assert r.record is not None and r.record.attempted_um == r.offset_um
-        ev = cycle.write_failed("offset", permanent=False, reason="out of range")
+        plan = cycle.plan(t, samples(t, 20.5))
+        assert plan.record.attempted_um == plan.offset_um
+        r = cycle.commit(Outcome.failed("offset", permanent=False, reason="out of range"))
+        ev = r.write_events
         # not confirmed: the row keeps it as attempted only
         assert r.record.offset_um is None and r.record.attempted_um is not None
         faults += [i for e in ev if e.name == "write_fault"]
@@ -37,13 +38,13 @@ def test_repeated_write_failures_are_a_fault_until_a_write_succeeds() -> None:
     assert r.status & Status.WRITE_FAULT and r.status & Status.ALARM
     assert not r.status & Status.OK and r.state == "write_fault"
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.5))
-    cycle.write_ok()
+    cycle.plan(t, samples(t, 20.5))
+    r = cycle.commit()
     assert r.record.offset_um == r.record.attempted_um == r.offset_um
     t = clock.tick()
-    r = cycle.step(t, samples(t, 20.5))
-    assert "write_recovered" in [e.name for e in r.events]
-    assert r.status & Status.OK and not r.status & Status.ALARM and r.state == "ok"
+    plan = cycle.plan(t, samples(t, 20.5))
+    assert "write_recovered" in [e.name for e in plan.events]
+    assert plan.status & Status.OK and not plan.status & Status.ALARM and plan.state == "ok"
 
 
 def test_a_few_failures_are_no_fault() -> None:
@@ -51,13 +52,13 @@ def test_a_few_failures_are_no_fault() -> None:
     run_warm(cycle, clock, 5, bearing=20.0)
     for _ in range(WRITE_FAULT_AFTER - 1):
         t = clock.tick()
-        cycle.step(t, samples(t, 20.5))
-        cycle.write_failed("offset", permanent=False, reason="busy")
+        cycle.plan(t, samples(t, 20.5))
+        cycle.commit(Outcome.failed("offset", permanent=False, reason="busy"))
     run_warm(cycle, clock, 1, bearing=20.5)
     for _ in range(WRITE_FAULT_AFTER - 1):
         t = clock.tick()
-        r = cycle.step(t, samples(t, 20.5))
-        cycle.write_failed("offset", permanent=False, reason="busy")
+        r = cycle.plan(t, samples(t, 20.5))
+        cycle.commit(Outcome.failed("offset", permanent=False, reason="busy"))
     assert not cycle.write_fault and r.status & Status.OK
 
 

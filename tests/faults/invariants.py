@@ -9,8 +9,9 @@
 - the heartbeat advances (by one, modulo) exactly on a complete valid cycle,
   and what is written to the controller is the cycle's heartbeat.
 
-How: the autouse fixture `invariants` wraps `Cycle.step` (every cycle of every
-daemon and every pure run is seen, with its time and read-back) and
+How: the autouse fixture `invariants` wraps `Cycle.plan` (every cycle of every
+daemon and every pure run is seen, with its time and read-back; `Cycle.commit`
+replaces the logged plan with its final row) and
 `InvariantDriver` wraps a real driver to see every write the daemon sends.
 A violation raises `AssertionError` at once (it propagates out of
 `Daemon.run()`, which only catches driver errors) and is also kept in
@@ -26,7 +27,7 @@ from typing import Any
 
 import pytest
 
-from compd.core.cycle import HEARTBEAT_MODULO, Cycle, CycleResult
+from compd.core.cycle import HEARTBEAT_MODULO, WRITTEN, Cycle, Outcome, Plan, Row
 from drivers.base import Driver, Sample
 
 #: float32 registers and rounding: tolerance on the µm comparisons
@@ -39,7 +40,8 @@ class CycleLog:
 
     now_s: float
     readback: float | None
-    result: CycleResult
+    #: the cycle's plan, replaced by its row once committed
+    result: Plan | Row
     #: output name -> value the driver was asked to write (controller units)
     written: dict[str, float] = field(default_factory=dict)
     write_ok: bool | None = None
@@ -81,7 +83,7 @@ class Invariants:
     # -- hooks -------------------------------------------------------------------
 
     def on_step(self, cycle: Cycle, now_s: float, readback: float | None,
-                heartbeat_before: int, result: CycleResult) -> None:
+                heartbeat_before: int, result: Plan) -> None:
         tr = self._tracks.setdefault(id(cycle), _Track())
         self._cycles[id(cycle)] = cycle  # keep it alive: ids stay unique
         self.current = cycle
@@ -140,6 +142,11 @@ class Invariants:
         if ok and p.offset_name in values:
             tr.held = values[p.offset_name]
 
+    def on_commit(self, cycle: Cycle, row: Row) -> None:
+        tr = self._tracks.get(id(cycle))
+        if tr is not None and tr.cycles and tr.cycles[-1].result.sequence == row.sequence:
+            tr.cycles[-1].result = row
+
     def write_outcome(self, cycle: Cycle, ok: bool) -> None:
         """Pure runs: the harness reports the (simulated) write's outcome."""
         self.current = cycle
@@ -148,31 +155,37 @@ class Invariants:
 
 @pytest.fixture(autouse=True)
 def invariants(monkeypatch: pytest.MonkeyPatch) -> Iterator[Invariants]:
-    """Check the invariants on every `Cycle.step` of the test."""
+    """Check the invariants on every `Cycle.plan` of the test."""
     inv = Invariants()
-    original = Cycle.step
+    original, original_commit = Cycle.plan, Cycle.commit
 
-    def step(self: Cycle, now_s: float, samples: Mapping[str, Sample] | None,
+    def plan(self: Cycle, now_s: float, samples: Mapping[str, Sample] | None,
              readback_offset_um: float | None = None, *,
-             wall_s: float | None = None, **kw: Any) -> CycleResult:
+             wall_s: float | None = None, **kw: Any) -> Plan:
         before = self.heartbeat
         result = original(self, now_s, samples, readback_offset_um, wall_s=wall_s, **kw)
         inv.on_step(self, now_s, readback_offset_um, before, result)
         return result
 
-    monkeypatch.setattr(Cycle, "step", step)
+    def commit(self: Cycle, outcome: Outcome = WRITTEN) -> Row:
+        row = original_commit(self, outcome)
+        inv.on_commit(self, row)
+        return row
+
+    monkeypatch.setattr(Cycle, "plan", plan)
+    monkeypatch.setattr(Cycle, "commit", commit)
     yield inv
     assert not inv.violations, inv.violations
 
 
 def run_pure(inv: Invariants, cycle: Cycle, now_s: float,
              samples: Mapping[str, Sample] | None, readback: float | None = None, *,
-             wall_s: float | None = None, write_ok: bool = True) -> CycleResult:
+             wall_s: float | None = None, write_ok: bool = True) -> Plan | Row:
     """One pure cycle with its (simulated) write outcome, checked."""
-    result = cycle.step(now_s, samples, readback, wall_s=wall_s)
+    result: Plan | Row = cycle.plan(now_s, samples, readback, wall_s=wall_s)
     inv.write_outcome(cycle, write_ok)
     if write_ok:
-        cycle.write_ok()
+        result = cycle.commit()
     return result
 
 

@@ -1,0 +1,225 @@
+"""The output's health: one state machine that owns every `FaultState`, and
+the status word as a pure function of it (pure: no clock, no I/O).
+
+`OutputHealth` holds everything that decides what the output aims at and
+what the PLC is told:
+
+- the fault policy's part (``init``, ``ok``, ``hold``, ``ramp``,
+  ``shutdown``): validity against time (`decide`; see `compd.core.faults`
+  for what each state means);
+- what the writes told (`write_succeeded`, `write_failed`): a write fault
+  after `WRITE_FAULT_AFTER` transient failures in a row, offset writes
+  stopped after a permanent refusal, other outputs stopped one by one;
+- what the read-back told (`foreign`: a value compd did not write, alarmed
+  until the output has ramped back to its target);
+- the model's range latch (`model_range`) and the operator's hold.
+
+`recorded_state(view)` is the state a cycle records (``stopped``, ``held``
+and ``write_fault`` over the policy's), `status_word(view)` its status word;
+both read only a frozen `HealthView`, so neither can disagree with the other.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from compd.core.faults import Event, FaultState
+from compd.core.output import Status
+
+#: this many offset writes in a row failing (transient) are a write fault:
+#: WRITE_FAULT and ALARM, state "write_fault", until a write succeeds
+WRITE_FAULT_AFTER = 5
+
+#: the policy's states that hold the output where it is
+_HOLDING = (FaultState.HOLD, FaultState.INIT)
+
+
+@dataclass(frozen=True, slots=True)
+class Decision:
+    state: FaultState
+    #: None: hold the current output
+    target_um: float | None
+    alarm: bool
+
+
+@dataclass(frozen=True, slots=True)
+class HealthView:
+    """One cycle's health, frozen: all `status_word` and `recorded_state` read."""
+
+    #: the fault policy's state this cycle (init, ok, hold, ramp, shutdown)
+    policy: FaultState
+    #: the policy's alarm (ramping on a fault)
+    alarm: bool = False
+    write_stopped: bool = False
+    write_fault: bool = False
+    #: the controller holds an offset beyond ±limit: none written (`OutputStage.held`)
+    held: bool = False
+    #: a foreign read-back, alarmed until the output has ramped to its target
+    foreign: bool = False
+    operator_hold: bool = False
+    slewing: bool = False
+    #: this cycle's model: non-finite, far beyond the limit, worse than none (probes)
+    model_invalid: bool = False
+    model_range: bool = False
+    model_worse: bool = False
+
+
+def recorded_state(v: HealthView) -> FaultState:
+    """The state recorded and reported: the policy's, unless the offset is not
+    reaching the controller (stopped, held, write fault, in that order)."""
+    if v.write_stopped:
+        return FaultState.STOPPED
+    if v.held:
+        return FaultState.HELD
+    return FaultState.WRITE_FAULT if v.write_fault else v.policy
+
+
+def _state_bits(v: HealthView) -> int:
+    """OK, HOLDING, RAMPING or SHUTDOWN: what the output does."""
+    if v.policy == FaultState.OK and not (v.write_stopped or v.held or v.write_fault):
+        return _HOLDING_BIT if v.operator_hold else _OK_BIT
+    if v.policy in _HOLDING:
+        return _HOLDING_BIT
+    if v.policy == FaultState.RAMP:
+        return int(Status.RAMPING)
+    if v.policy == FaultState.SHUTDOWN:
+        return int(Status.SHUTDOWN)
+    return 0
+
+
+_OK_BIT, _HOLDING_BIT, _ALARM = int(Status.OK), int(Status.HOLDING), int(Status.ALARM)
+
+
+def status_word(v: HealthView) -> Status:
+    """The status word a cycle writes (bits in `compd.core.output.Status`);
+    plain int arithmetic, one `Status` at the end (it runs every cycle)."""
+    s = _state_bits(v)
+    if v.model_invalid:
+        s |= Status.MODEL_INVALID.value
+    if v.model_range:
+        s |= Status.MODEL_RANGE.value | _ALARM
+    if v.model_worse:
+        s |= Status.MODEL_WORSE.value | _ALARM
+    if v.foreign:
+        s |= Status.READBACK_MISMATCH.value | _ALARM
+    if v.alarm:
+        s |= _ALARM
+    if v.write_stopped:
+        s |= Status.WRITE_STOPPED.value | _ALARM
+    if v.held:
+        s |= Status.OFFSET_HELD.value | _ALARM
+    if v.write_fault:
+        s |= Status.WRITE_FAULT.value | _ALARM
+    if v.operator_hold:
+        s |= Status.OPERATOR_HOLD.value
+    if v.slewing:
+        s |= Status.SLEWING.value
+    return Status(s)
+
+
+class OutputHealth:
+    """See the module docstring. `decide` once per cycle, then one of
+    `write_succeeded` / `write_failed` when the shell reports the writes."""
+
+    def __init__(self, hold_s: float, *, operator_hold: bool = False) -> None:
+        self.hold_s = hold_s
+        #: the fault policy's state (init, ok, hold, ramp, shutdown)
+        self.policy: FaultState = FaultState.INIT
+        self.invalid_since_s: float | None = None
+        self.shutting_down = False
+        self.write_stopped = False
+        self.stopped_outputs: set[str] = set()
+        #: offset writes failed in a row; a write fault from WRITE_FAULT_AFTER on
+        self.failed_writes = 0
+        self.write_fault = False
+        #: a foreign read-back was seen: alarm until the output tracks again
+        self.foreign = False
+        #: the model's output was beyond its range last cycle (events on change)
+        self.model_range = False
+        #: an operator's hold (`set_operator_hold`): the offset stays where it is
+        self.operator_hold = operator_hold
+
+    def carry_over(self, old: OutputHealth, *, outputs_same: bool) -> None:
+        """A reload: keep the fault policy's timer and state (a hold goes on
+        toward its ramp), and the stopped outputs when the outputs are the same."""
+        self.policy, self.invalid_since_s = old.policy, old.invalid_since_s
+        self.shutting_down = old.shutting_down
+        if outputs_same:
+            self.write_stopped = old.write_stopped
+            self.stopped_outputs = set(old.stopped_outputs)
+
+    # -- the fault policy ---------------------------------------------------------------
+
+    def decide(self, now_s: float, valid: bool, target_um: float | None,
+               events: list[Event]) -> Decision:
+        """The output's target from validity and time (machine seconds)."""
+        if self.shutting_down:
+            return self._to(Decision(FaultState.SHUTDOWN, 0.0, False), events, now_s)
+        if valid and target_um is not None:
+            if self.policy in (FaultState.HOLD, FaultState.RAMP):
+                events.append(Event("fault_recovered", {
+                    "after_s": now_s - (self.invalid_since_s or now_s)}))
+            self.invalid_since_s = None
+            return self._to(Decision(FaultState.OK, target_um, False), events, now_s)
+        if self.invalid_since_s is None:
+            self.invalid_since_s = now_s
+        if now_s - self.invalid_since_s >= self.hold_s:
+            # init too: no valid sample since start holds what the controller has and,
+            # like any other fault, ramps to zero with the alarm after hold_s (a sensor
+            # broken across a restart once held a stale offset forever with status 0)
+            return self._to(Decision(FaultState.RAMP, 0.0, True), events, now_s)
+        if self.policy == FaultState.INIT:
+            return Decision(FaultState.INIT, None, False)
+        return self._to(Decision(FaultState.HOLD, None, False), events, now_s)
+
+    def _to(self, decision: Decision, events: list[Event], now_s: float) -> Decision:
+        state = decision.state
+        if state != self.policy:
+            if state == FaultState.HOLD:
+                events.append(Event("fault_hold", {"hold_s": self.hold_s}))
+            elif state == FaultState.RAMP:
+                events.append(Event("fault_ramp_to_zero", {
+                    "invalid_for_s": now_s - (self.invalid_since_s or now_s)}))
+            elif state == FaultState.SHUTDOWN:
+                events.append(Event("shutdown_ramp_to_zero"))
+            self.policy = state
+        return decision
+
+    # -- the writes' outcome ------------------------------------------------------------
+
+    def write_succeeded(self, later: list[Event]) -> None:
+        """The offset write arrived: a write fault ends (`later`: the next cycle's events)."""
+        if self.write_fault:
+            later.append(Event("write_recovered", {"failed_writes": self.failed_writes}))
+        self.write_fault = False
+        self.failed_writes = 0
+
+    def write_failed(self, output: str | None, *, permanent: bool, reason: str,
+                     offset_failed: bool, offset_name: str, offset_um: float) -> list[Event]:
+        """A write failed (`offset_failed`: it carried the offset); the events to log."""
+        if not permanent:
+            return self._transient(output, reason, offset_failed, offset_um)
+        # a driver names every output of a refused combined write ("offset,heartbeat")
+        names = {n.strip() for n in output.split(",")} if output else set()
+        if not names or offset_name in names:
+            if self.write_stopped:
+                return []
+            self.write_stopped = True
+            return [Event("offset_write_stopped", {
+                "output": output, "reason": reason, "offset_um": offset_um})]
+        events = [Event("output_write_stopped", {"output": name, "reason": reason})
+                  for name in sorted(names - self.stopped_outputs)]
+        self.stopped_outputs |= names
+        return events
+
+    def _transient(self, output: str | None, reason: str, offset_failed: bool,
+                   offset_um: float) -> list[Event]:
+        events = [Event("write_failed", {"output": output, "reason": reason})]
+        if offset_failed:
+            self.failed_writes += 1
+            if self.failed_writes >= WRITE_FAULT_AFTER and not self.write_fault:
+                self.write_fault = True
+                events.append(Event("write_fault", {
+                    "failed_writes": self.failed_writes, "reason": reason,
+                    "offset_um": offset_um}))
+        return events

@@ -1,0 +1,58 @@
+"""What a cycle is built with (`CycleParams`, frozen) and how the config gives
+it (`params_from_config`): period, hold time, the output stage's limits, the
+channels' validation limits, the output names, adaptation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from compd.core.adaptation import AdaptationSettings
+from compd.core.validation import ChannelLimits
+
+if TYPE_CHECKING:
+    from compd.config.loader import LoadedConfig
+
+
+@dataclass(frozen=True)
+class CycleParams:
+    period_s: float
+    hold_s: float
+    limit_um: float
+    slew_um_s: float
+    channels: dict[str, ChannelLimits]
+    deadband_um: float = 0.0
+    sign: int = 1
+    units_per_um: float = 1.0
+    readback: bool = True
+    #: a float offset address's (an integer one: half a count, `OutputStage`)
+    readback_tolerance_um: float = 0.01
+    #: the offset address's resolution in µm (integer types), 0 for floats
+    offset_quantum_um: float = 0.0
+    time_scale: float = 1.0
+    offset_name: str = "offset"
+    heartbeat_name: str | None = "heartbeat"
+    status_name: str | None = "status"
+    #: probe-assisted adaptation (`compd.core.adaptation`), None when off
+    adaptation: AdaptationSettings | None = None
+
+
+def params_from_config(cfg: LoadedConfig, *, dry_run: bool = False) -> CycleParams:
+    raw = cfg.raw
+    out = raw.output
+    limits = {n: ChannelLimits(ch.range[0], ch.range[1], ch.max_rate_per_s, ch.stale_after_s,
+                               ch.stuck_after_s, stuck_delta_k=ch.effective_stuck_delta_k,
+                               temperature=ch.temperature)
+              for n, ch in raw.channels.items()}
+    return CycleParams(
+        period_s=raw.machine.period_s, hold_s=raw.faults.hold_s, limit_um=out.limit_um,
+        slew_um_s=out.slew_um_s, channels=limits, deadband_um=out.deadband_um, sign=out.sign,
+        units_per_um=out.units_per_um, readback=out.readback and not dry_run,
+        # float32 rounding; an integer address: half a count (OutputStage.observe)
+        readback_tolerance_um=0.01,
+        offset_quantum_um=cfg.offset_quantum_um,
+        time_scale=raw.machine.time_scale,
+        heartbeat_name="heartbeat" if "heartbeat" in cfg.outputs else None,
+        status_name="status" if "status" in cfg.outputs else None,
+        adaptation=cfg.adaptation)

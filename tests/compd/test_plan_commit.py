@@ -1,0 +1,87 @@
+"""The cycle as plan and commit (issue 22, items 1-2): what a cycle returns is
+never changed afterwards, one commit closes one plan, and the status word and
+the recorded state are pure functions of one frozen health view."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+
+import pytest
+
+from compd.core.cycle import WRITTEN, Cycle, Outcome
+from compd.core.faults import FaultState
+from compd.core.health import HealthView, recorded_state, status_word
+from compd.core.output import Status
+from compd.testing import FakeClock
+
+from .cycle_helpers import params, run_warm, samples, sp2
+
+
+def _warm() -> tuple[Cycle, FakeClock]:
+    cycle, clock = Cycle(params(), sp2()), FakeClock()
+    run_warm(cycle, clock, 5, bearing=20.0)
+    return cycle, clock
+
+
+def test_a_failed_write_is_in_the_row_and_leaves_the_plan_as_it_was() -> None:
+    cycle, clock = _warm()
+    t = clock.tick()
+    plan = cycle.plan(t, samples(t, 20.5))
+    before = plan.record
+    row = cycle.commit(Outcome.failed("offset", reason="timeout"))
+    assert plan.record == before and plan.record.offset_um == plan.offset_um
+    assert row.record.offset_um is None and row.record.attempted_um == plan.offset_um
+    assert [e.name for e in row.write_events] == ["write_failed"]
+    assert row.events == plan.events
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        row.record = plan.record  # type: ignore[misc]
+
+
+def test_a_confirmed_write_completes_the_row_and_the_snapshot_says_what_is_in_force() -> None:
+    cycle, clock = _warm()
+    t = clock.tick()
+    plan = cycle.plan(t, samples(t, 20.5))
+    row = cycle.commit(WRITTEN)
+    assert not plan.record.complete and row.record.complete and row.in_force
+    assert row.snapshot.confirmed_um == plan.offset_um
+    assert row.snapshot.operator_hold is False and row.snapshot.adaptation is None
+
+
+def test_one_commit_per_plan() -> None:
+    cycle, clock = _warm()
+    with pytest.raises(RuntimeError):
+        cycle.commit()  # run_warm committed its last plan
+    t = clock.tick()
+    cycle.plan(t, samples(t, 20.0))
+    cycle.commit()
+    with pytest.raises(RuntimeError):
+        cycle.commit()
+
+
+def test_an_operator_hold_is_in_the_snapshot_and_turns_ok_into_holding() -> None:
+    cycle, clock = _warm()
+    assert cycle.set_operator_hold(True, "test") is not None
+    t = clock.tick()
+    cycle.plan(t, samples(t, 20.0))
+    row = cycle.commit()
+    assert row.snapshot.operator_hold and row.state == FaultState.OK
+    assert row.status & Status.OPERATOR_HOLD and row.status & Status.HOLDING
+    assert not row.status & Status.OK
+
+
+_FLAGS = ("write_stopped", "write_fault", "held", "foreign", "operator_hold")
+
+
+@pytest.mark.parametrize("policy", [FaultState.INIT, FaultState.OK, FaultState.HOLD,
+                                    FaultState.RAMP, FaultState.SHUTDOWN])
+def test_status_word_and_recorded_state_agree_for_every_health(policy: FaultState) -> None:
+    for bits in itertools.product([False, True], repeat=len(_FLAGS)):
+        view = HealthView(policy=policy, **dict(zip(_FLAGS, bits, strict=True)))
+        word, state = status_word(view), recorded_state(view)
+        # OK on the wire exactly when the recorded state is ok and no operator holds it
+        assert bool(word & Status.OK) == (state == FaultState.OK and not view.operator_hold)
+        # an alarm state (stopped, held, write fault) always raises the alarm bit
+        if state.gauge >= 3:
+            assert word & Status.ALARM
+        assert status_word(view) == word  # pure: the same view, the same word
