@@ -17,17 +17,19 @@ The residual each probe gives is measured − model. A bad file ends in a
 
 from __future__ import annotations
 
-import io
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 
-from compd.infiles import MAX_RECORD_BYTES, open_input
-from compd.offline.records import RECORDER_SUFFIXES, RecordError, file_sha256
+from compd.offline.records import (
+    RECORDER_SUFFIXES,
+    RecordError,
+    file_sha256,
+    read_csv_columns,
+)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -73,19 +75,8 @@ def _read_recorder(p: Path) -> ProbeLog:
 def _read_csv(p: Path) -> ProbeLog:
     """The CSV probe log, parsed by the records' one CSV reader (every cell a number,
     the same refusals), then checked for what a probe log needs."""
-    from compd.offline.csvstream import parse_csv
-    from compd.offline.records import _time_column
-
     where = str(p)
-    with open_input(p, "probe log", MAX_RECORD_BYTES) as raw:
-        size = os.fstat(raw.fileno()).st_size
-        text = io.TextIOWrapper(raw, encoding="utf-8-sig", newline="")
-        try:
-            header, t_idx, data = parse_csv(text, where, size, _time_column)
-        except UnicodeDecodeError:
-            raise RecordError(f"{where}: not a text (UTF-8) CSV file") from None
-        except OSError as exc:
-            raise RecordError(f"{where}: cannot read the probe log ({exc.strerror})") from None
+    header, t_idx, data = read_csv_columns(p, "probe log")
     missing = [c for c in LOG_COLUMNS[1:] if c not in header]
     if missing:
         raise RecordError(f"{where}: no column(s) {missing} (a probe log has "

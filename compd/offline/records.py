@@ -152,22 +152,31 @@ def _time_column(header: list[str], path: str) -> tuple[int, bool]:
                       f"column named one of {list(_ISO_TIME_NAMES)}; header is {header}")
 
 
+def read_csv_columns(path: str | Path, what: str) -> tuple[list[str], int, FloatArray]:
+    """(header, index of the time column, data[column, row]) of a CSV file of numbers
+    with a time column, streamed (`compd.offline.csvstream`); RecordError naming the
+    file (and the row and column) on anything else. The one CSV reader of records and
+    probe logs: the checks of what the rows mean are the caller's."""
+    from compd.offline.csvstream import parse_csv
+
+    where = str(path)
+    with open_input(path, what, MAX_RECORD_BYTES) as raw:
+        size = os.fstat(raw.fileno()).st_size
+        text = io.TextIOWrapper(raw, encoding="utf-8-sig", newline="")
+        try:
+            return parse_csv(text, where, size, _time_column)
+        except UnicodeDecodeError:
+            raise RecordError(f"{where}: not a text (UTF-8) CSV file") from None
+        except OSError as exc:
+            raise RecordError(f"{where}: cannot read the {what} ({exc.strerror})") from None
+
+
 def read_csv_record(path: str | Path) -> Record:
     """Read and check a CSV calibration record (see the module docstring),
     streamed row by row into float64 columns (`compd.offline.csvstream`): memory is
     the numbers' 8 bytes per cell, whatever the text's size."""
-    from compd.offline.csvstream import parse_csv
-
     where = str(path)
-    with open_input(path, "record", MAX_RECORD_BYTES) as raw:
-        size = os.fstat(raw.fileno()).st_size
-        text = io.TextIOWrapper(raw, encoding="utf-8-sig", newline="")
-        try:
-            header, t_idx, data = parse_csv(text, where, size, _time_column)
-        except UnicodeDecodeError:
-            raise RecordError(f"{where}: not a text (UTF-8) CSV file") from None
-        except OSError as exc:
-            raise RecordError(f"{where}: cannot read the record ({exc.strerror})") from None
+    header, t_idx, data = read_csv_columns(path, "record")
     if data.shape[1] < 3:
         raise RecordError(f"{where}: {data.shape[1]} data row(s); a record needs at least 3")
     t = data[t_idx]
