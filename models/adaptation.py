@@ -362,19 +362,13 @@ class Adapter:
         if abs(y) > self.params.gate_sigma * math.sqrt(s):
             return self._refuse_or_reacquire(measured_um, model_um, terms_um, h, y, p, r)
         self._streak = 0
-        self._keep_score(measured_um - model_um, measured_um - model_um
-                         - float(h @ self._xa))
+        self._score_probe(measured_um, model_um, h)
         k = ph / s
         dx = k * y
         alpha = self._step_scale(h, dx)
         k = k * alpha
         self._x = self._bounded(self._x, self._x + k * y, h)
-        a = np.eye(len(h)) - np.outer(k, h)
-        p = a @ p @ a.T + r * np.outer(k, k)
-        self._p = (p + p.T) * 0.5
-        self._pending_s = 0.0
-        moved = self._apply_if_significant(h)
-        self.accepted += 1
+        moved = self._weighed(p, k, h, r)
         return ProbeOutcome(True, None, y, math.sqrt(s), self._bias, self.bias_sigma_um,
                             moved, float(self._x[0]), self._standing_down)
 
@@ -391,8 +385,7 @@ class Adapter:
             # correction did: the score weighs it (one outlier is within the window's
             # scatter; refusals that agree are not, and a correction they leave stale
             # in the wrong direction stands down)
-            self._keep_score(measured_um - model_um, measured_um - model_um
-                             - float(h @ self._xa))
+            self._score_probe(measured_um, model_um, h)
             if n >= 1 and abs(self._streak) >= n and not self._standing_down:
                 # a change beyond what the correction may hold: the applied correction
                 # is stale, whatever the score says yet; the plain model until it is not
@@ -403,22 +396,31 @@ class Adapter:
         self._streak = 0
         p = p.copy()
         p[0, 0] = min(float(self._cap[0]), max(float(p[0, 0]), _sq(y)))
-        self._keep_score(measured_um - model_um, measured_um - model_um
-                         - float(h @ self._xa))
+        self._score_probe(measured_um, model_um, h)
         ph = p @ h
         s = float(h @ ph) + r
         k = ph / s
         box = np.sqrt(self._cap)
         self._x = np.clip(self._x + k * y, -box, box)
+        moved = self._weighed(p, k, h, r)
+        self.reacquisitions += 1
+        return ProbeOutcome(True, None, y, math.sqrt(s), self._bias, self.bias_sigma_um,
+                            moved, float(self._x[0]), self._standing_down, True)
+
+    def _weighed(self, p: FloatArray, k: FloatArray, h: FloatArray, r: float) -> bool:
+        """After the estimate took a probe with gain k: the Joseph-form covariance, the
+        applied state moved if the estimate departs enough; whether it moved."""
         a = np.eye(len(h)) - np.outer(k, h)
         p = a @ p @ a.T + r * np.outer(k, k)
         self._p = (p + p.T) * 0.5
         self._pending_s = 0.0
-        moved = self._apply_if_significant(h)
         self.accepted += 1
-        self.reacquisitions += 1
-        return ProbeOutcome(True, None, y, math.sqrt(s), self._bias, self.bias_sigma_um,
-                            moved, float(self._x[0]), self._standing_down, True)
+        return self._apply_if_significant(h)
+
+    def _score_probe(self, measured_um: float, model_um: float, h: FloatArray) -> None:
+        """Score a probe: the plain model's error and the applied correction's."""
+        self._keep_score(measured_um - model_um,
+                         measured_um - model_um - float(h @ self._xa))
 
     def _keep_score(self, plain_um: float, adapted_um: float) -> None:
         """Score one accepted probe; stand down while adapting loses over the window."""
