@@ -157,12 +157,14 @@ def _better_validated(args: Any, y: Any, cands: dict[str, Any], seg: Any, radius
 
 
 def table_lines(table: list[dict[str, Any]], chosen: list[str], limit: int = 12) -> list[str]:
-    """The subsets tried, best first (the `limit` best, then a count)."""
+    """The subsets tried, best first (the `limit` best, then a count); each
+    with its screen (`flexible`, `arx`: their figures are each screen's own)."""
     ordered = sorted(table, key=lambda t: -t["validation_fit_percent"])
     out = [f"  inputs chosen by validation: {' '.join(chosen)} ({len(table)} subsets tried)"]
     for t in ordered[:limit]:
         mark = "*" if sorted(t["inputs"]) == sorted(chosen) else " "
-        out.append(f"   {mark} {t['validation_fit_percent']:8.2f} %  {t['step']:<4}  "
+        out.append(f"   {mark} {t['validation_fit_percent']:8.2f} %  {t.get('screen', ''):<8}  "
+                   f"{t['step']:<4}  "
                    f"{' + '.join(t['inputs'])}"
                    + (f"  (rejected: {t['rejected']})" if t.get("rejected") else ""))
     if len(ordered) > limit:
