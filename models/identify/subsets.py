@@ -27,9 +27,11 @@ At the end, among every subset tried within `margin_pct` of the best, the
 one with the fewest inputs wins (then the better validated): a sensor that
 adds less than the margin on day 1 is as likely noise on day 2.
 
-Subsets are scored by the cheap cross-validated Steiglitz–McBride estimate
-(`models.identify.structures.order_search_score`, no output-error
-refinement) on the records averaged down to at most `SEARCH_SAMPLES` samples
+Subsets are scored by a cheap screen: the cross-validated Steiglitz–McBride
+estimate at its best orders (``flexible``,
+`models.identify.structures.order_search_result`, no output-error
+refinement) or a fixed ARX(2, 3) (``arx``, `models.identify.screening`),
+on the records averaged down to at most `SEARCH_SAMPLES` samples
 (blocks of q samples averaged; thermal time constants are minutes to hours,
 and the scores only rank subsets): the search costs the same on a day at
 1 s as on a day at 60 s. The caller fits every structure on the winner, at
