@@ -386,7 +386,7 @@ def _provenance(args: argparse.Namespace, records: list[Record],
         prov["candidates"] = list(args.candidates)
         prov["inputs_chosen"] = list(args.search_chosen)
         prov["subsets_tried"] = [f"{' + '.join(t['inputs'])}: validation "
-                                 f"{t['validation_fit_percent']:.2f} %"
+                                 f"{t['validation_fit_percent']:.2f} % ({t['screen']} screen)"
                                  for t in args.search_table]
     for t in info:
         key = t["name"]

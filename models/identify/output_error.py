@@ -16,8 +16,14 @@ training rows of a fold, or every row)::
   unknowns where a full state would add fast modes that a held-out first
   block cannot determine);
 - stability: B_g is the step-up polynomial of reflection coefficients
-  κ = (1 - 1e-12)·tanh(φ) scaled to the pole radius (see `models.identify.oe`),
-  so φ is unconstrained and every pole stays within |p| < radius.
+  κ = (1 - 1e-12)·tanh(φ) scaled to the pole radius (see
+  `models.identify.reflection`), so φ is unconstrained and every pole stays
+  within |p| < radius.
+
+This is the project's one output-error fitter: the cross-validated
+structures (`models.identify.structures`) call `fit_output_error`, the
+greedy per-term search (`models.identify.tf_fit`) calls `refine_oe`, the
+same fit with one denominator per input, from rest, on every row.
 
 Why not `scipy.optimize.least_squares`: its bounded 'trf' method takes a dense
 SVD of the whole N-row Jacobian at every iteration (90 % of a day-long fit at
@@ -35,7 +41,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from models.identify.oe import scaled, step_down, step_up
+from models.identify.arx import fit_pct
+from models.identify.reflection import scaled, step_up, to_kappa
 from models.identify.segments import Segments
 
 FloatArray = npt.NDArray[np.float64]
@@ -223,8 +230,7 @@ def fit_output_error(y: FloatArray, inputs: Sequence[FloatArray],
     prob = _Problem(y, us, nbs, nas, groups, seg, radius, initial)
     x0: list[float] = [float(v) for a in nums for v in a]
     for b in dens:
-        bb = np.asarray(b, dtype=np.float64)
-        k = step_down(scaled(bb / bb[0], 1.0 / radius))
+        k = to_kappa(b, radius)
         x0 += [float(v) for v in np.arctanh(np.clip(k / _KAPPA_LIM, -0.999999, 0.999999))]
     if initial:
         x0 += list(init0) if init0 is not None and len(init0) == prob.n_init else \
@@ -237,3 +243,29 @@ def fit_output_error(y: FloatArray, inputs: Sequence[FloatArray],
                     groups=tuple(tuple(g) for g in groups),
                     init=tuple(float(v) for v in init))
     return model, prob.simulate(th)
+
+
+@dataclass(frozen=True)
+class OeEstimate:
+    """Per-term (numerator, denominator), den[0] = 1; fit % on the record."""
+
+    nums: tuple[tuple[float, ...], ...]
+    dens: tuple[tuple[float, ...], ...]
+    fit_pct: float
+
+
+def refine_oe(y: FloatArray, inputs: Sequence[FloatArray], nums: Sequence[Sequence[float]],
+              dens: Sequence[Sequence[float]], *, max_iter: int = 200, tol: float = 1e-12,
+              segments: Segments | None = None, radius: float = 1.0) -> OeEstimate:
+    """`fit_output_error` with one denominator per input (the papers'
+    per-term transfer functions), every record from rest, every row: the
+    refinement of the greedy per-term search (`models.identify.tf_fit`).
+    Every pole stays within |p| < `radius` (≤ 1)."""
+    y = np.asarray(y, dtype=np.float64)
+    seg = segments if segments is not None else Segments.single(y.size)
+    if seg.total != y.size:
+        raise ValueError(f"segments cover {seg.total} samples, the record has {y.size}")
+    groups = [(t,) for t in range(len(nums))]
+    model, sim = fit_output_error(y, inputs, nums, dens, groups, segments=seg, radius=radius,
+                                  initial=False, max_iter=max_iter, tol=tol)
+    return OeEstimate(model.nums, model.term_dens(), fit_pct(y, sim))

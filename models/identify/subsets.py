@@ -27,9 +27,11 @@ At the end, among every subset tried within `margin_pct` of the best, the
 one with the fewest inputs wins (then the better validated): a sensor that
 adds less than the margin on day 1 is as likely noise on day 2.
 
-Subsets are scored by the cheap cross-validated Steiglitz–McBride estimate
-(`models.identify.structures.order_search_score`, no output-error
-refinement) on the records averaged down to at most `SEARCH_SAMPLES` samples
+Subsets are scored by a cheap screen: the cross-validated Steiglitz–McBride
+estimate at its best orders (``flexible``,
+`models.identify.structures.order_search_result`, no output-error
+refinement) or a fixed ARX(2, 3) (``arx``, `models.identify.screening`),
+on the records averaged down to at most `SEARCH_SAMPLES` samples
 (blocks of q samples averaged; thermal time constants are minutes to hours,
 and the scores only rank subsets): the search costs the same on a day at
 1 s as on a day at 60 s. The caller fits every structure on the winner, at
@@ -45,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from models.identify.screening import screen_subset
 from models.identify.segments import Segments
 from models.identify.structures import DEFAULT_FOLDS, DEFAULT_VALIDATION, order_search_result
 
@@ -103,13 +106,17 @@ def search_subsets(y: FloatArray, candidates: Mapping[str, FloatArray], *, max_t
                    na_range: tuple[int, int], nb_range: tuple[int, int],
                    segments: Segments | None = None, radius: float = 1.0,
                    folds: int = DEFAULT_FOLDS, validation: str = DEFAULT_VALIDATION,
-                   margin_pct: float = 0.5,
+                   margin_pct: float = 0.5, screen: str = "flexible",
                    progress: Callable[[int, int], None] | None = None) -> SubsetSearch:
     """Forward selection with backward pruning (module docstring).
+    `screen`: ``flexible`` (the Steiglitz–McBride order search) or ``arx``
+    (`models.identify.screening`, a fixed ARX(2, 3)).
     `progress(done, planned)` is called after every subset scored."""
     names = list(candidates)
     if not names:
         raise ValueError("no candidate input")
+    if screen not in ("flexible", "arx"):
+        raise ValueError(f"unknown screen {screen!r}; known: flexible, arx")
     if max_terms < 1:
         raise ValueError(f"max_terms must be >= 1, got {max_terms}")
     seg = segments if segments is not None else Segments.single(np.asarray(y).size)
@@ -128,10 +135,10 @@ def search_subsets(y: FloatArray, candidates: Mapping[str, FloatArray], *, max_t
         key = frozenset(subset)
         if key not in cache:
             order = tuple(n for n in names if n in key)
-            val, why = order_search_result(y, [candidates[n] for n in order],
-                                           na_range=na_range, nb_range=nb_range, segments=seg,
-                                           radius=radius, folds=folds, validation=validation,
-                                           names=order)
+            scorer = screen_subset if screen == "arx" else order_search_result
+            val, why = scorer(y, [candidates[n] for n in order], na_range=na_range,
+                              nb_range=nb_range, segments=seg, radius=radius, folds=folds,
+                              validation=validation, names=order)
             cache[key] = Tried(order, float(val), step, why or "")
             tried.append(cache[key])
             if progress is not None:

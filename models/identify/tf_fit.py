@@ -30,7 +30,8 @@ import numpy as np
 import numpy.typing as npt
 
 from models.identify.arx import ArxEstimate, fit_pct, refit, select_arx, simulate_common
-from models.identify.oe import OeEstimate, refine_oe, step_down, step_up
+from models.identify.output_error import OeEstimate, refine_oe
+from models.identify.reflection import step_down, step_up
 from models.identify.segments import Segments
 
 FloatArray = npt.NDArray[np.float64]
@@ -122,7 +123,7 @@ def fit_tf_terms(y: FloatArray, inputs: Sequence[FloatArray], na_range: tuple[in
 
     def score(nums: Sequence[Sequence[float]],
               dens: Sequence[Sequence[float]]) -> tuple[OeEstimate, float]:
-        est = refine_oe(y_tr, us_tr, nums, dens, max_nfev=25, tol=1e-8, segments=seg_tr,
+        est = refine_oe(y_tr, us_tr, nums, dens, max_iter=25, tol=1e-8, segments=seg_tr,
                         radius=radius)
         sim = _simulate(est.nums, est.dens, us_val, seg_val)
         val = fit_pct(y_val[val_mask], sim[val_mask])
@@ -141,7 +142,7 @@ def fit_tf_terms(y: FloatArray, inputs: Sequence[FloatArray], na_range: tuple[in
     best, best_val = min((r for r in results if r[1] >= top - tolerance_pct),
                          key=lambda r: (sum(len(a) + len(b) for a, b in
                                             zip(r[0].nums, r[0].dens, strict=True)), -r[1]))
-    final = refine_oe(y, us, best.nums, best.dens, max_nfev=60, tol=1e-10, segments=seg,
+    final = refine_oe(y, us, best.nums, best.dens, max_iter=60, tol=1e-10, segments=seg,
                       radius=radius)
     orders = tuple((len(a), len(b) - 1) for a, b in zip(final.nums, final.dens, strict=True))
     return TfFit(arx=arx, arx_fit_pct=arx_fit, oe=final, oe_validation_fit_pct=best_val,

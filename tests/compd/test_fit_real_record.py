@@ -43,3 +43,22 @@ def test_ch4_never_gets_the_cancelling_model(calibration: Path, tmp_path: Path,
         assert abs(t["dc_gain_um_per_k"]) * t["input_span"] <= 4.0 * t["output_span_um"]
     assert main(["check", str(model), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["implausible"] == []
+
+
+def test_the_fixed_screen_wins_where_its_choice_validates_far_better(
+        calibration: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """ch3 over six temperatures: the flexible screen alone chose t4 + t13
+    (its structures validate at 16 %); the fixed ARX(2, 3) screen's
+    t4 + t8 + t11 validates at 74 % and is written. Both screens' subsets are
+    in the table, each marked with its screen."""
+    names = ["t3_degC", "t4_degC", "t8_degC", "t11_degC", "t12_degC", "t13_degC"]
+    model = tmp_path / "ch3.toml"
+    assert main(["fit", str(calibration), "--column", "ch3_um",
+                 *[a for n in names for a in ("--candidates", n)], "--max-terms", "3",
+                 "-o", str(model), "--json"]) == 0
+    fit = json.loads(capsys.readouterr().out)
+    assert sorted(t["name"] for t in fit["terms"]) == ["t11_degC", "t4_degC", "t8_degC"]
+    assert fit["terms"][0]["selection"]["validation_fit_percent"] > 70.0
+    assert {s["screen"] for s in fit["subsets"]} == {"flexible", "arx"}
+    assert main(["check", str(model), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["implausible"] == []

@@ -10,7 +10,8 @@ from models.greybox import GreyBox
 from models.identify.arx import naive_select, select_arx, simulate_common
 from models.identify.greybox_fit import fit_greybox, simulate_greybox
 from models.identify.mbotv_fit import fit_mbotv, simulate_mbotv
-from models.identify.oe import refine_oe, step_down, step_up
+from models.identify.output_error import refine_oe
+from models.identify.reflection import step_down, step_up
 from models.identify.tf_fit import fit_tf_terms
 from models.mbotv import Mbotv
 from models.tf import TransferFunction
