@@ -1,10 +1,14 @@
 """`compd replay MODEL DATA --output dz_um [--init estimate|steady|rest]
 [--score-from SECONDS] [--score-until SECONDS] [--plot out.png] [--json]`
 
-Runs the model over a recorded run exactly as the daemon steps it (the same
-`CompensationModel.set_references` at the first sample, then `step(sample)`
-once per row) and reports fit %, the mean absolute and RMS residue (µm), residue
-min/max, Δpk and range reduction (docs/models.md §11). A model whose sample
+Runs the model over a recorded run (the same `CompensationModel.set_references`
+at the first sample, then `step(sample)` once per row: the bare model, the
+papers' figures) and reports fit %, the mean absolute and RMS residue (µm),
+residue min/max, Δpk and range reduction (docs/models.md §11). With ``--config
+CONFIG`` each row goes through the daemon's own cycle instead
+(`compd.offline.cycle_replay`: that config's channel validation, fault policy,
+clamp, slew limit and deadband, the model started as the daemon starts it), and
+the figures are those of the offset the daemon would have put in force. A model whose sample
 period differs from the record's is refused: its coefficients would mean
 something else.
 
@@ -63,7 +67,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plot", metavar="PNG", default=None,
                         help="write a figure: inputs above, measured/simulated/residue below")
     parser.add_argument("--force", action="store_true", help="replace an existing --plot file")
-    parser.add_argument("--init", choices=INIT_MODES, default="estimate",
+    parser.add_argument("--config", metavar="CONFIG", default=None,
+                        help="through the daemon's own cycle with this config's validation, "
+                             "fault policy and output stage: the offset it would have written")
+    parser.add_argument("--init", choices=INIT_MODES, default=None,
                         help="the model's state at the first sample: estimate (default: "
                              "least squares on the first half of the record), steady, rest")
     parser.add_argument("--score-from", type=number(0.0, 1e9), default=0.0, metavar="SECONDS",
@@ -138,6 +145,14 @@ def run(args: argparse.Namespace) -> int:
     from models.errors import ModelError
 
     problem = replay_probes.usage_problem(args)
+    if not problem and args.config is not None:
+        if args.init is not None:
+            problem = ("--init goes without --config (the daemon's cycle starts the model "
+                       "as the daemon does)")
+        elif args.probe_every is not None:
+            problem = ("--probe-every goes without --config (the probes replay beside the "
+                       "bare model)")
+    args.init = args.init or "estimate"
     if not problem and args.score_until is not None and args.probe_every is not None:
         problem = "--score-until goes without --probe-every (the probes score to the end)"
     if not problem and args.score_until is not None and args.score_until < args.score_from:
@@ -154,7 +169,10 @@ def run(args: argparse.Namespace) -> int:
         record.require([args.output])
         check_units(record, sorted(model.reference_channels), args.output)
         measured = record.columns[args.output]
-        simulated = replay_with_init(model, record, measured, args.init)
+        if args.config is not None:
+            simulated = _through_the_cycle(args.config, model, record)
+        else:
+            simulated = replay_with_init(model, record, measured, args.init)
         first = int(np.searchsorted(record.time_s, args.score_from - 1e-9))
         if not (math.isfinite(args.score_from) and 0 <= first < len(record)):
             raise RecordError(f"--score-from {args.score_from:g} s: the record spans 0 … "
@@ -195,12 +213,14 @@ def run(args: argparse.Namespace) -> int:
                          "figure", force=args.force,
                          inputs=[args.model, args.data])
     if args.json:
-        print(json.dumps({**q.as_dict(), "mae_um": mae, "rms_um": rms, "init": args.init,
+        init = "daemon" if args.config is not None else args.init
+        print(json.dumps({**q.as_dict(), "mae_um": mae, "rms_um": rms, "init": init,
+                          "through": "cycle" if args.config is not None else "model",
                           "scored_samples": last - first, **extra}))
     else:
         until = f" to {record.time_s[last - 1]:g} s" if args.score_until is not None else ""
         print(f"{model.name} on {record.path} ({len(record)} samples, {record.period_s:g} s; "
-              f"init {args.init}; scored {last - first} from {record.time_s[first]:g} s"
+              f"{_how(args)}; scored {last - first} from {record.time_s[first]:g} s"
               f"{until})")
         print(f"  fit {q.fit_percent:.2f} %, MAE {mae:.3f} µm, RMS {rms:.3f} µm, residue "
               f"{q.residue_min_um:.3f} … {q.residue_max_um:.3f} µm, Δpk {q.dpk_um:.3f} µm, "
@@ -211,3 +231,35 @@ def run(args: argparse.Namespace) -> int:
         if args.plot:
             print(f"  figure: {args.plot}")
     return 0
+
+
+def _how(args: argparse.Namespace) -> str:
+    if args.config is not None:
+        return f"through the daemon's cycle with {args.config}"
+    return f"init {args.init}"
+
+
+def _through_the_cycle(config: str, model: CompensationModel, record: Record
+                       ) -> npt.NDArray[np.float64]:
+    """The offset the daemon's cycle puts in force at each row, with `config`'s
+    validation, fault policy and output stage (`compd.offline.cycle_replay`);
+    ConfigError (78) for a bad config, RecordError when the record does not fit it."""
+    from compd.config.loader import load_config
+    from compd.core.params import params_from_config
+    from compd.offline.cycle_replay import replay_cycle
+    from compd.offline.records import RecordError
+
+    cfg = load_config(config)
+    params = params_from_config(cfg)
+    if not math.isclose(params.period_s, record.period_s, rel_tol=1e-6):
+        raise RecordError(f"{record.path}: sampled every {record.period_s:g} s but {config} "
+                          f"runs its cycle every {params.period_s:g} s")
+    if not math.isclose(model.period_s, record.period_s, rel_tol=1e-6):
+        raise RecordError(f"{record.path}: sampled every {record.period_s:g} s but the model "
+                          f"{model.name!r} was identified at {model.period_s:g} s; its "
+                          "coefficients do not apply (refit it at this period)")
+    missing = sorted(set(params.channels) - set(record.columns))
+    if missing:
+        raise RecordError(f"{record.path}: no column(s) {missing} for the channels {config} "
+                          "validates")
+    return replay_cycle(params, model, record).offset_um

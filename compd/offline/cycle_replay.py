@@ -8,9 +8,8 @@ kept beside it (`model_um`, NaN where the cycle did not step the model).
 The time is the record's (`time_s`, machine seconds): no clock is read, the
 rows are the clock. No read-back (a record holds no controller).
 
-This is the building block for issue 22, item 4 (the offline tools driving
-the real cycle); `compd replay` still steps the bare model (the papers'
-figures), see `compd.commands.replay`.
+`compd replay --config CONFIG` replays a record through it; without
+`--config`, `compd replay` steps the bare model (the papers' figures).
 """
 
 from __future__ import annotations
@@ -62,7 +61,8 @@ def replay_params(model: CompensationModel, *, limit_um: float, slew_um_s: float
 def replay_cycle(params: CycleParams, model: CompensationModel, record: Record) -> CycleReplay:
     """Every row of `record` through one `Cycle` (see the module docstring)."""
     record.require(params.channels)
-    cycle = Cycle(dataclasses.replace(params, readback=False), model)
+    # no controller to read back; the rows' time is machine time already
+    cycle = Cycle(dataclasses.replace(params, readback=False, time_scale=1.0), model)
     n = len(record)
     offset, model_um = np.empty(n), np.full(n, math.nan)
     in_force = np.zeros(n, dtype=bool)

@@ -64,7 +64,8 @@ def test_replay_verification_fit_at_least_95_percent(sp3_model: Path,
                  "--plot", str(png), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert set(out) == {"fit_percent", "residue_min_um", "residue_max_um", "dpk_um",
-                        "range_reduction", "mae_um", "rms_um", "init", "scored_samples"}
+                        "range_reduction", "mae_um", "rms_um", "init", "through",
+                        "scored_samples"}
     assert out["init"] == "estimate" and out["scored_samples"] == 6 * 3600 + 1
     assert out["fit_percent"] >= 95.0
     assert out["dpk_um"] == pytest.approx(abs(out["residue_min_um"]) + abs(out["residue_max_um"]))

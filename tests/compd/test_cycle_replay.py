@@ -5,6 +5,8 @@ through (slew limit, hold on a bad row)."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -68,3 +70,99 @@ def test_a_record_without_a_model_channel_is_refused() -> None:
     model = load_model("sp2")
     with pytest.raises(RecordError, match="ambient"):
         replay_cycle(replay_params(model, limit_um=100.0, slew_um_s=1.0), model, record)
+
+
+# -- `compd replay --config`: the command line through the cycle ----------------------------
+
+def _csv_and_config(tmp_path: Path, *, slew_um_s: float, spike_at: int | None = None
+                    ) -> tuple[Path, Path]:
+    import csv
+
+    from .daemon_helpers import write_config
+
+    record = _record(1.0)
+    bare = replay_model(load_model("sp2"), record)
+    bearing = record.columns["bearing"].copy()
+    if spike_at is not None:
+        bearing[spike_at] = 200.0  # beyond the config's range for the bearing (-20 … 150)
+    data = tmp_path / "run.csv"
+    with data.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["time_s", "bearing", "ambient", "dz_um"])
+        for k in range(len(record)):
+            w.writerow([f"{record.time_s[k]:g}", f"{bearing[k]:.1f}",
+                        f"{record.columns['ambient'][k]:.1f}", f"{bare[k]:.6f}"])
+    config = write_config(tmp_path, "modbus://127.0.0.1:1502", time_scale=1.0,
+                          slew_um_s=slew_um_s)
+    # sp2 reaches 123 µm in this hour: a limit above it (the clamp is the slew test's)
+    config.write_text(config.read_text().replace("limit_um = 100.0", "limit_um = 1000.0"))
+    return data, config
+
+
+def _replay_json(argv: list[str], capsys: pytest.CaptureFixture[str]) -> dict[str, Any]:
+    import json
+
+    from compd.cli import main
+
+    assert main(argv) == 0
+    out: dict[str, Any] = json.loads(capsys.readouterr().out.splitlines()[-1])
+    return out
+
+
+def test_replay_through_the_cycle_is_the_bare_model_under_a_generous_output_stage(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    data, config = _csv_and_config(tmp_path, slew_um_s=100.0)
+    cyc = _replay_json(["replay", "sp2", str(data), "--column", "dz_um", "--config",
+                        str(config), "--json"], capsys)
+    assert cyc["through"] == "cycle" and cyc["init"] == "daemon"
+    assert float(cyc["fit_percent"]) > 99.0
+
+
+def test_replay_through_the_cycle_lags_by_the_slew_limit(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    data, config = _csv_and_config(tmp_path, slew_um_s=0.001)  # 3.6 µm in the hour
+    cyc = _replay_json(["replay", "sp2", str(data), "--column", "dz_um", "--config",
+                        str(config), "--json"], capsys)
+    assert float(cyc["fit_percent"]) < 20.0
+
+
+def test_replay_through_the_cycle_refuses_a_row_the_daemon_refuses(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A 200 °C bearing row (the config's range ends at 150): the bare model takes it into
+    its filters and carries the error on; the daemon holds its offset for that row."""
+    data, config = _csv_and_config(tmp_path, slew_um_s=100.0, spike_at=1200)
+    bare = _replay_json(["replay", "sp2", str(data), "--column", "dz_um", "--init", "rest",
+                         "--json"], capsys)
+    cyc = _replay_json(["replay", "sp2", str(data), "--column", "dz_um", "--config",
+                        str(config), "--json"], capsys)
+    assert bare["through"] == "model"
+    assert float(cyc["rms_um"]) < 0.1 * float(bare["rms_um"])
+
+
+@pytest.mark.parametrize(("extra", "words"), [
+    (["--init", "rest"], "--init goes without --config"),
+    (["--probe-every", "3600"], "--probe-every goes without --config"),
+])
+def test_replay_config_usage_errors_are_one_line(tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str],
+                                                 extra: list[str], words: str) -> None:
+    from compd.cli import main
+
+    data, config = _csv_and_config(tmp_path, slew_um_s=1.0)
+    assert main(["replay", "sp2", str(data), "--column", "dz_um", "--config", str(config),
+                 *extra]) == 64
+    err = capsys.readouterr().err
+    assert words in err and err.count("\n") == 1
+
+
+def test_replay_with_a_bad_config_is_78_and_one_line(tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]
+                                                     ) -> None:
+    from compd.cli import main
+
+    data, config = _csv_and_config(tmp_path, slew_um_s=1.0)
+    config.write_text(config.read_text().replace("limit_um = 1000.0", "limit_um = -1.0"))
+    assert main(["replay", "sp2", str(data), "--column", "dz_um", "--config",
+                 str(config)]) == 78
+    err = capsys.readouterr().err
+    assert "limit_um" in err and err.count("\n") == 1
