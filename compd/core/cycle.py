@@ -51,7 +51,8 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from compd.core.adaptation import AdaptationSettings, ProbeReading, ProbeStage
-from compd.core.faults import Event, FaultPolicy, FaultState
+from compd.core.events import Event, EventName
+from compd.core.faults import FaultPolicy, FaultState
 from compd.core.output import OutputStage, Readback, Status
 from compd.core.record import RecordRow
 from compd.core.validation import ChannelLimits, Validator
@@ -228,7 +229,7 @@ class Cycle:
                 self.probes = ProbeStage(params.adaptation, len(model.terms), adaptation_state)
             except (ValueError, KeyError, TypeError) as exc:
                 self.probes = ProbeStage(params.adaptation, len(model.terms))
-                self._later.append(Event("adaptation_state_refused", {"reason": str(exc)}))
+                self._later.append(Event(EventName.ADAPTATION_STATE_REFUSED, {"reason": str(exc)}))
         if model_state is not None:
             model.import_state(model_state)  # ModelError: the caller falls back
             self._model_ready = True
@@ -305,7 +306,7 @@ class Cycle:
         if on == self.operator_hold:
             return None
         self.operator_hold = on
-        return Event("operator_hold" if on else "operator_release", {"by": who})
+        return Event(EventName.OPERATOR_HOLD if on else EventName.OPERATOR_RELEASE, {"by": who})
 
     # -- the cycle ------------------------------------------------------------------
 
@@ -380,7 +381,7 @@ class Cycle:
                 self.output.revert()
                 offset_um = self.output.current_um
                 if not self._mismatch_noted:
-                    events.append(Event("offset_write_skipped", {"reason": "no_readback"}))
+                    events.append(Event(EventName.OFFSET_WRITE_SKIPPED, {"reason": "no_readback"}))
                     self._mismatch_noted = True
             else:
                 self._mismatch_noted = False
@@ -424,7 +425,7 @@ class Cycle:
                                                  confirmed=True):
                 r.record = dataclasses.replace(r.record, complete=True)
             if self.write_fault:
-                self._later.append(Event("write_recovered", {"failed_writes":
+                self._later.append(Event(EventName.WRITE_RECOVERED, {"failed_writes":
                                                              self.failed_writes}))
             self.write_fault = False
             self.failed_writes = 0
@@ -443,12 +444,12 @@ class Cycle:
             self._unconfirmed()
         self._offset_pending = False
         if not permanent:
-            events.append(Event("write_failed", {"output": output, "reason": reason}))
+            events.append(Event(EventName.WRITE_FAILED, {"output": output, "reason": reason}))
             if offset_failed:
                 self.failed_writes += 1
                 if self.failed_writes >= WRITE_FAULT_AFTER and not self.write_fault:
                     self.write_fault = True
-                    events.append(Event("write_fault", {
+                    events.append(Event(EventName.WRITE_FAULT, {
                         "failed_writes": self.failed_writes, "reason": reason,
                         "offset_um": self.output.current_um}))
             return events
@@ -457,13 +458,13 @@ class Cycle:
         if not names or self.params.offset_name in names:
             if not self.write_stopped:
                 self.write_stopped = True
-                events.append(Event("offset_write_stopped", {
+                events.append(Event(EventName.OFFSET_WRITE_STOPPED, {
                     "output": output, "reason": reason,
                     "offset_um": self.output.current_um}))
             return events
         for name in sorted(names - self.stopped_outputs):
             self.stopped_outputs.add(name)
-            events.append(Event("output_write_stopped", {"output": name, "reason": reason}))
+            events.append(Event(EventName.OUTPUT_WRITE_STOPPED, {"output": name, "reason": reason}))
         return events
 
     def _unconfirmed(self) -> None:
@@ -482,19 +483,19 @@ class Cycle:
         seen = out.observe(rb_um, self.params.readback_tolerance_um)
         if seen is Readback.OUT_OF_RANGE:
             if not was_held:
-                events.append(Event("readback_out_of_range", {
+                events.append(Event(EventName.READBACK_OUT_OF_RANGE, {
                     "expected_um": expected, "readback_um": _finite_or_none(rb_um),
                     "limit_um": out.limit_um, "action": "offset writes held"}))
             self._foreign = True
             return Status.READBACK_MISMATCH | Status.OFFSET_HELD | Status.ALARM
         if was_held:
-            events.append(Event("readback_in_range", {
+            events.append(Event(EventName.READBACK_IN_RANGE, {
                 "readback_um": rb_um, "action": "ramping from it"}))
             self._foreign = True
         if seen is Readback.ADOPTED:
-            events.append(Event("readback_adopted", {"offset_um": out.current_um}))
+            events.append(Event(EventName.READBACK_ADOPTED, {"offset_um": out.current_um}))
         elif seen is Readback.FOREIGN:
-            events.append(Event("readback_mismatch", {
+            events.append(Event(EventName.READBACK_MISMATCH, {
                 "expected_um": expected, "readback_um": rb_um, "action": "ramping from it"}))
             self._foreign = True
         return Status(0)
@@ -515,7 +516,7 @@ class Cycle:
         out = abs(model_um) > bound
         if out != self._model_range:
             self._model_range = out
-            events.append(Event("model_out_of_range" if out else "model_in_range", {
+            events.append(Event(EventName.MODEL_OUT_OF_RANGE if out else EventName.MODEL_IN_RANGE, {
                 "model_um": model_um, "bound_um": bound}))
         return out
 
@@ -524,10 +525,10 @@ class Cycle:
             before = self._invalid.get(name)
             if reason is not None and reason != before:
                 self._invalid[name] = reason
-                events.append(Event("channel_invalid", {"channel": name, "reason": reason}))
+                events.append(Event(EventName.CHANNEL_INVALID, {"channel": name, "reason": reason}))
             elif reason is None and before is not None:
                 del self._invalid[name]
-                events.append(Event("channel_valid", {"channel": name, "was": before}))
+                events.append(Event(EventName.CHANNEL_VALID, {"channel": name, "was": before}))
 
     def _init_model(self, model: CompensationModel, values: Mapping[str, float]) -> float:
         refs = dict(self._references or {})
@@ -542,12 +543,12 @@ class Cycle:
             y0 = self._init_model(self.model, values)
             self._references = dict(self.model.references)
             self._model_ready = True
-            events.append(Event("model_initialised", {"mode": self._init_mode,
+            events.append(Event(EventName.MODEL_INITIALISED, {"mode": self._init_mode,
                                                       "steady_um": _finite_or_none(y0)}))
         y = self.model.step(values)
         if math.isfinite(y):
             return y
-        events.append(Event("model_non_finite", {"model": self.model.name}))
+        events.append(Event(EventName.MODEL_NON_FINITE, {"model": self.model.name}))
         self._model_ready = False
         self._init_mode = "steady_state"
         return None
@@ -562,7 +563,7 @@ class Cycle:
         y = shadow.step(values)
         if math.isfinite(y):
             return y
-        events.append(Event("model_non_finite", {"model": shadow.name, "shadow": True}))
+        events.append(Event(EventName.MODEL_NON_FINITE, {"model": shadow.name, "shadow": True}))
         self._shadow_ready = False
         return None
 

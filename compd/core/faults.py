@@ -28,8 +28,11 @@ limit makes it a ramp, never a jump.
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
+
+from compd.core.events import Event, EventName
+
+__all__ = ["GAUGE_ALARM", "Decision", "Event", "FaultPolicy", "FaultState"]
 
 
 class FaultState(enum.StrEnum):
@@ -57,14 +60,6 @@ _GAUGE = {FaultState.INIT: 1, FaultState.OK: 0, FaultState.HOLD: 1, FaultState.R
 
 
 @dataclass(frozen=True, slots=True)
-class Event:
-    """Something the shell logs: an event name and its fields."""
-
-    name: str
-    fields: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass(frozen=True, slots=True)
 class Decision:
     state: FaultState
     #: None: hold the current output
@@ -88,7 +83,7 @@ class FaultPolicy:
                             events, now_s)
         if valid and model_um is not None:
             if self.state in (FaultState.HOLD, FaultState.RAMP):
-                events.append(Event("fault_recovered", {
+                events.append(Event(EventName.FAULT_RECOVERED, {
                     "after_s": now_s - (self.invalid_since_s or now_s)}))
             self.invalid_since_s = None
             return self._to(FaultState.OK, Decision(FaultState.OK, model_um, False),
@@ -111,11 +106,11 @@ class FaultPolicy:
             now_s: float) -> Decision:
         if state != self.state:
             if state == FaultState.HOLD:
-                events.append(Event("fault_hold", {"hold_s": self.hold_s}))
+                events.append(Event(EventName.FAULT_HOLD, {"hold_s": self.hold_s}))
             elif state == FaultState.RAMP:
-                events.append(Event("fault_ramp_to_zero", {
+                events.append(Event(EventName.FAULT_RAMP_TO_ZERO, {
                     "invalid_for_s": now_s - (self.invalid_since_s or now_s)}))
             elif state == FaultState.SHUTDOWN:
-                events.append(Event("shutdown_ramp_to_zero"))
+                events.append(Event(EventName.SHUTDOWN_RAMP_TO_ZERO))
             self.state = state
         return decision
