@@ -21,12 +21,14 @@ import math
 import sqlite3
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 import structlog
 
+from compd.config.loader import LoadedConfig
+from compd.core.cycle import CycleResult
 from compd.core.faults import FaultState
 from compd.core.output import Status
 
@@ -100,8 +102,11 @@ def _num(x: float | None) -> float | None:
 class StatusBoard:
     """The last snapshot and alarms, written by the loop, read by the HTTP threads."""
 
-    def __init__(self, *, history_h: float = 4.0, refresh_s: float = 5.0) -> None:
+    def __init__(self, *, history_h: float = 4.0, refresh_s: float = 5.0,
+                 wall: Callable[[], float] = time.time) -> None:
         self.history_h = history_h
+        #: the wall clock that stamps snapshots and alarms (the daemon's injected one)
+        self._wall = wall
         self.refresh_s = refresh_s
         self.snapshot: dict[str, Any] = {"state": "starting", "why": "no cycle yet",
                                          "channels": [], "alarms": []}
@@ -114,10 +119,10 @@ class StatusBoard:
 
     def alarm(self, name: str, level: str, fields: Mapping[str, Any]) -> None:
         """A warning or error event of the cycle, for the page's list."""
-        self._alarms.append({"wall_s": time.time(), "event": name, "level": level,
+        self._alarms.append({"wall_s": self._wall(), "event": name, "level": level,
                              "detail": {k: _detail(v) for k, v in fields.items()}})
 
-    def publish(self, result: Any, cfg: Any, *, dry_run: bool = False) -> None:
+    def publish(self, result: CycleResult, cfg: LoadedConfig, *, dry_run: bool = False) -> None:
         """Build the snapshot from a `CycleResult` and the running `LoadedConfig`.
         Never raises: a failure is logged once and the page keeps the last snapshot."""
         try:
@@ -128,7 +133,7 @@ class StatusBoard:
                 structlog.get_logger("compd").error("status_snapshot_failed", error=str(exc))
             self._failed = True
 
-    def _build(self, result: Any, cfg: Any, dry_run: bool) -> dict[str, Any]:
+    def _build(self, result: CycleResult, cfg: LoadedConfig, dry_run: bool) -> dict[str, Any]:
         rec = result.record
         held = bool(result.status & Status.OPERATOR_HOLD)
         word, why = operator_state(result.state, rec.validity, dry_run, held)
@@ -145,7 +150,7 @@ class StatusBoard:
                 "sequence": result.sequence, "complete": bool(result.complete),
                 "status_word": result.status, "heartbeat": result.heartbeat,
                 "model": cfg.model.name, "model_sha256": cfg.model_sha256,
-                "dry_run": dry_run, "wall_s": time.time(), "period_s": float(cfg.real_period_s),
+                "dry_run": dry_run, "wall_s": self._wall(), "period_s": float(cfg.real_period_s),
                 "channels": channels,
                 "alarms": list(self._alarms)}
 
