@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -431,12 +431,14 @@ class Cycle:
             self.failed_writes = 0
         self._offset_pending = False
 
-    def write_failed(self, output: str | None, *, permanent: bool,
+    def write_failed(self, outputs: Sequence[str] | str | None, *, permanent: bool,
                      reason: str = "") -> list[Event]:
-        """A write of the last result failed. `output` names the refused
-        output(s) when known (comma-separated for a combined write; any write
-        that carried the offset stops the offset). Transient: retried next
-        cycle from the confirmed value."""
+        """A write of the last result failed. `outputs` names the refused
+        output(s) when known (every output of a refused combined write; one
+        name alone may be a string; any write that carried the offset stops
+        the offset). Transient: retried next cycle from the confirmed value."""
+        names = (outputs,) if isinstance(outputs, str) else tuple(outputs or ())
+        output = ",".join(names) or None  # the log line's field, as before
         events: list[Event] = []
         offset_failed = self._offset_pending
         if offset_failed:
@@ -453,8 +455,6 @@ class Cycle:
                         "failed_writes": self.failed_writes, "reason": reason,
                         "offset_um": self.output.current_um}))
             return events
-        # a driver names every output of a refused combined write ("offset,heartbeat")
-        names = {n.strip() for n in output.split(",")} if output else set()
         if not names or self.params.offset_name in names:
             if not self.write_stopped:
                 self.write_stopped = True
@@ -462,7 +462,7 @@ class Cycle:
                     "output": output, "reason": reason,
                     "offset_um": self.output.current_um}))
             return events
-        for name in sorted(names - self.stopped_outputs):
+        for name in sorted(set(names) - self.stopped_outputs):
             self.stopped_outputs.add(name)
             events.append(Event(EventName.OUTPUT_WRITE_STOPPED, {"output": name, "reason": reason}))
         return events

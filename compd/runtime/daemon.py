@@ -512,7 +512,8 @@ class Daemon:
             if self._read_ok is not False:
                 self.log.warning("read_failed", error=str(exc), type=type(exc).__name__)
             self._read_ok = False
-            self.metrics.read_errors.labels(channel=getattr(exc, "channel", None) or "*").inc()
+            for name in getattr(exc, "channels", None) or ("*",):
+                self.metrics.read_errors.labels(channel=name).inc()
             return None, None
         if self._read_ok is False:
             self.log.info("controller_reconnected")
@@ -549,13 +550,11 @@ class Daemon:
         elif result.writes:
             try:
                 await driver.write(result.writes)
-            except WriteRejected as exc:
-                self.metrics.write_errors.labels(output=exc.channel or "*").inc()
-                self._log_events(cycle.write_failed(exc.channel, permanent=exc.permanent,
-                                                    reason=str(exc)))
             except DriverError as exc:
-                self.metrics.write_errors.labels(output=exc.channel or "*").inc()
-                self._log_events(cycle.write_failed(exc.channel, permanent=False,
+                permanent = isinstance(exc, WriteRejected) and exc.permanent
+                for name in exc.channels or ("*",):  # one label value per output
+                    self.metrics.write_errors.labels(output=name).inc()
+                self._log_events(cycle.write_failed(exc.channels, permanent=permanent,
                                                     reason=str(exc)))
             except Exception as exc:  # a driver's bug: a transient write failure
                 self.metrics.write_errors.labels(output="*").inc()

@@ -78,7 +78,7 @@ def test_out_of_range_is_refused(type_: str, scale: float, value: float) -> None
         encode(a, value, channel="offset")
     assert isinstance(caught.value, BadAddress)
     assert isinstance(caught.value, ValueError)
-    assert caught.value.channel == "offset"
+    assert caught.value.channels == ("offset",)
     assert a.describe() in str(caught.value)
 
 
