@@ -42,7 +42,7 @@ import asyncio
 import signal
 import time
 from collections.abc import Awaitable, Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import structlog
 
@@ -70,6 +70,9 @@ from compd.runtime.sinks.status import StatusSink
 from compd.runtime.sinks.telemetry import TelemetrySink
 from compd.runtime.startup import start_cycle
 from drivers.base import Driver
+
+if TYPE_CHECKING:
+    from compd.faces.opcua_face import OpcUaFace
 
 __all__ = ["Daemon"]
 
@@ -162,7 +165,7 @@ class Daemon:
         return self.reloader.reloads
 
     @property
-    def opcua_face(self) -> Any:
+    def opcua_face(self) -> OpcUaFace | None:
         return self.opcua.face
 
     # -- requests (signals, the OPC UA face) -------------------------------------------
