@@ -132,8 +132,9 @@ class TelemetrySink(CycleSink):
         if result.in_force:  # complete (compd.core.cycle.offset_in_force): what the
             # model asks for is in force (never a held, faulted or unconfirmed offset)
             self.complete_cycles += 1
-            m.cycle_complete()
-            self.last_complete = (self._clock.wall(), self._clock.mono())
+            wall_s = self._clock.wall()
+            m.cycle_complete(wall_s)
+            self.last_complete = (wall_s, self._clock.mono())
         self._notify(tick)
         est = tick.adaptation
         if est is not None:
