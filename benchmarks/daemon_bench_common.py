@@ -6,9 +6,9 @@
   the production defaults (recorder on, commit every 10, checkpoint every 60,
   JSON logs at info);
 - `TimedDriver` and `TimedDaemon`: timing hooks *around* the unchanged daemon
-  (a pass-through driver that times its calls; a subclass that times the
-  cycle, the recorder, telemetry and checkpoint calls and notes each cycle's
-  start), so the daemon's own cost = cycle time - time inside the driver;
+  (a pass-through driver that times its calls; a subclass that wraps its
+  loop's cycle and its recorder, telemetry and checkpoint sinks and notes each
+  cycle's start), so the daemon's own cost = cycle time - time inside the driver;
 - `/proc` readers: resident memory and CPU seconds of a process.
 """
 
@@ -21,12 +21,12 @@ import os
 import subprocess
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from compd.core.cycle import Cycle, CycleResult
+from compd.core.cycle import CycleResult
 from compd.runtime.daemon import Daemon
 from drivers.base import Driver, Sample
 from drivers.errors import ControllerTimeout
@@ -224,7 +224,9 @@ class CycleTimes:
 
 
 class TimedDaemon(Daemon):
-    """The daemon, unchanged, with timing around its cycle and its side calls."""
+    """The daemon, unchanged, with timing around its cycle and its sinks: its
+    loop's `one_cycle` (read to the last sink, the checkpoint excluded), the
+    recorder's and telemetry's `feed`, and each checkpoint `save`."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -233,36 +235,46 @@ class TimedDaemon(Daemon):
         self.first_cycle = asyncio.Event()
         #: request a stop after this many cycles (None: run until stopped)
         self.stop_after: int | None = None
+        setattr(self.loop, "one_cycle", self._timed_cycle(self.loop.one_cycle))  # noqa: B010
+        setattr(self.recorder, "feed", _timed(self.recorder.feed, self.times.record))  # noqa: B010
+        setattr(self.telemetry, "feed",  # noqa: B010
+                _timed(self.telemetry.feed, self.times.telemetry))
+        save = self.checkpoint.save
 
-    async def _one_cycle(self, driver: Any, cycle: Cycle, now_s: float) -> CycleResult:
-        io0 = driver.io_s if isinstance(driver, TimedDriver) else 0.0
-        t0 = time.monotonic()
-        self.times.start.append(t0)
-        self.first_cycle.set()
-        tp = time.perf_counter()
-        result = await super()._one_cycle(driver, cycle, now_s)
-        self.times.total.append(time.perf_counter() - tp)
-        self.times.io.append((driver.io_s - io0) if isinstance(driver, TimedDriver) else 0.0)
-        if self.stop_after is not None and self.cycles >= self.stop_after:
-            self.request_stop()
-        return result
+        def timed_save() -> None:
+            t0 = time.perf_counter()
+            save()
+            self.times.checkpoint_s += time.perf_counter() - t0
+            self.times.checkpoints += 1
 
-    def _record(self, result: CycleResult) -> None:
+        setattr(self.checkpoint, "save", timed_save)  # noqa: B010
+
+    def _timed_cycle(self, one_cycle: Callable[[float], Awaitable[CycleResult]]
+                     ) -> Callable[[float], Awaitable[CycleResult]]:
+        async def timed(now_s: float) -> CycleResult:
+            driver = self.running.driver
+            io0 = driver.io_s if isinstance(driver, TimedDriver) else 0.0
+            self.times.start.append(time.monotonic())
+            self.first_cycle.set()
+            tp = time.perf_counter()
+            result = await one_cycle(now_s)
+            self.times.total.append(time.perf_counter() - tp)
+            self.times.io.append((driver.io_s - io0) if isinstance(driver, TimedDriver)
+                                 else 0.0)
+            if self.stop_after is not None and self.cycles >= self.stop_after:
+                self.request_stop()
+            return result
+
+        return timed
+
+
+def _timed(feed: Callable[[Any], None], into: list[float]) -> Callable[[Any], None]:
+    def timed(tick: Any) -> None:
         t0 = time.perf_counter()
-        super()._record(result)
-        self.times.record.append(time.perf_counter() - t0)
+        feed(tick)
+        into.append(time.perf_counter() - t0)
 
-    def _telemetry(self, result: CycleResult, samples: dict[str, Sample] | None,
-                   confirmed: bool) -> None:
-        t0 = time.perf_counter()
-        super()._telemetry(result, samples, confirmed)
-        self.times.telemetry.append(time.perf_counter() - t0)
-
-    def _checkpoint(self, cycle: Cycle) -> None:
-        t0 = time.perf_counter()
-        super()._checkpoint(cycle)
-        self.times.checkpoint_s += time.perf_counter() - t0
-        self.times.checkpoints += 1
+    return timed
 
 
 # -- /proc ---------------------------------------------------------------------------------

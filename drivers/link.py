@@ -33,7 +33,7 @@ from functools import partial
 from typing import Any, Generic, TypeVar
 
 from drivers.backoff import Backoff
-from drivers.errors import ConnectionLost, ControllerTimeout, DriverError
+from drivers.errors import Channels, ConnectionLost, ControllerTimeout, DriverError
 from drivers.io_thread import IoThread
 
 S = TypeVar("S")
@@ -74,7 +74,7 @@ class Link(Generic[S]):
         self.closed = False
         return await self._open("connect", None, None, gate=False)
 
-    async def ready(self, what: str = "call", channel: str | None = None,
+    async def ready(self, what: str = "call", channel: Channels = None,
                     address: str | None = None) -> S:
         """The session for a call: the open one, else a new one when the link
         is not closed and the backoff allows an attempt; else `ConnectionLost`."""
@@ -85,7 +85,7 @@ class Link(Generic[S]):
             await self.lost(s)  # the controller closed it since the last call
         return await self._open(what, channel, address, gate=True)
 
-    async def _open(self, what: str, channel: str | None, address: str | None, *,
+    async def _open(self, what: str, channel: Channels, address: str | None, *,
                     gate: bool) -> S:
         async with self._opening:  # one attempt at a time; the others see its outcome
             if self.session is not None:
@@ -107,7 +107,7 @@ class Link(Generic[S]):
             self.backoff.succeeded()
             return s
 
-    def _gate(self, channel: str | None, address: str | None) -> None:
+    def _gate(self, channel: Channels, address: str | None) -> None:
         if self.closed:
             raise ConnectionLost("driver closed", channel=channel, address=address)
         if not self.backoff.ready():
@@ -115,7 +115,7 @@ class Link(Generic[S]):
                                  f"≤{self.backoff.delay_s:.2f} s (backing off)",
                                  channel=channel, address=address)
 
-    def _connect_failed(self, exc: BaseException, what: str, channel: str | None,
+    def _connect_failed(self, exc: BaseException, what: str, channel: Channels,
                         address: str | None) -> BaseException:
         if isinstance(exc, DriverError) or not isinstance(exc, Exception):
             return exc
@@ -139,8 +139,8 @@ class Link(Generic[S]):
         await self._drop_session(session, False)
 
     async def call(self, op: Callable[[S], Awaitable[T]], what: str,
-                   channel: str | None = None, address: str | None = None, *,
-                   where: Callable[[], tuple[str | None, str | None]] | None = None) -> T:
+                   channel: Channels = None, address: str | None = None, *,
+                   where: Callable[[], tuple[Channels, str | None]] | None = None) -> T:
         """Run `op` on the session (opened first when due); see the module
         for what a failure does to the link. The errors name `channel` and
         `address`, or what `where()` gives (asked only on a failure)."""
@@ -242,7 +242,7 @@ class WorkerLink(Link[S]):
             self._drop_sync()
             raise
 
-    def run(self, op: Callable[[S], T], what: str, channel: str | None = None,
+    def run(self, op: Callable[[S], T], what: str, channel: Channels = None,
             address: str | None = None) -> Awaitable[T]:
         """`op(session)` on the worker thread, under `Link.call`'s rules."""
         return self.call(

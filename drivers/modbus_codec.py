@@ -101,10 +101,10 @@ class Span:
         return f"unit{self.unit}/{self.kind}/{self.start}+{self.count}"
 
     @property
-    def names(self) -> str:
-        return ",".join(name for name, _ in self.items)
+    def names(self) -> tuple[str, ...]:
+        return tuple(name for name, _ in self.items)
 
-    def where(self) -> tuple[str, str]:
+    def where(self) -> tuple[tuple[str, ...], str]:
         """(channel, address) as errors name them."""
         return self.names, self.describe()
 

@@ -209,7 +209,7 @@ class OpcUaDriver(LinkedDriver):
         params = self._params_for(key)
         if not key:
             return {}
-        where = ",".join(key)
+        where = key
         try:
             results = await self._link.call(partial(self._read, params, where), "Read",
                                             where, self.endpoint)
@@ -221,7 +221,7 @@ class OpcUaDriver(LinkedDriver):
         return {name: decode(dv, self._addresses[name], name)
                 for name, dv in zip(key, results, strict=True)}
 
-    async def _read(self, params: ua.ReadParameters, where: str,
+    async def _read(self, params: ua.ReadParameters, where: tuple[str, ...],
                     client: Client) -> list[ua.DataValue]:
         try:
             async with _deadline(self.timeout_s):
@@ -236,13 +236,13 @@ class OpcUaDriver(LinkedDriver):
             raise ConnectionLost(f"Read failed: {type(exc).__name__}: {exc}",
                                  channel=where, address=self.endpoint) from None
 
-    def _session_fault(self, exc: UaStatusCodeError, where: str) -> None:
+    def _session_fault(self, exc: UaStatusCodeError, where: tuple[str, ...]) -> None:
         """A fault that ends the session is a lost link (raised)."""
         if exc.code in SESSION_CODES:
             raise ConnectionLost(f"session lost: {status_name(exc.code)}", channel=where,
                                  address=self.endpoint) from None
 
-    def _fault(self, exc: UaStatusCodeError, where: str) -> DriverError:
+    def _fault(self, exc: UaStatusCodeError, where: tuple[str, ...]) -> DriverError:
         """A whole-request fault the server answered (the link stays up)."""
         name = status_name(exc.code)
         if exc.code == _SC.BadTimeout:
@@ -259,7 +259,7 @@ class OpcUaDriver(LinkedDriver):
         for name in values:
             if name not in self._outputs:
                 raise BadAddress("not a configured output", channel=name)
-        where = ",".join(values)
+        where = tuple(values)
         try:
             await self._link.call(partial(self._write, values, where), "Write", where,
                                   self.endpoint)
@@ -286,7 +286,8 @@ class OpcUaDriver(LinkedDriver):
             params.NodesToWrite.append(wv)
         return params
 
-    async def _write(self, values: Mapping[str, float], where: str, client: Client) -> None:
+    async def _write(self, values: Mapping[str, float], where: tuple[str, ...],
+                     client: Client) -> None:
         params = self._write_params(values)
         try:
             async with _deadline(self.timeout_s):

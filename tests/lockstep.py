@@ -172,9 +172,9 @@ class Lockstep:
         on: without this the number of cycles until it reconnects would depend on
         how fast the machine is)."""
         daemon = self.daemon
-        if daemon is None or daemon._driver is None or not self.running:
+        if daemon is None or daemon.running.driver is None or not self.running:
             raise RuntimeError("no daemon runs")
-        await daemon._driver.connect()
+        await daemon.running.driver.connect()
 
     async def kill9(self) -> None:
         """Drop the daemon as SIGKILL would: between two cycles, no shutdown
@@ -182,7 +182,7 @@ class Lockstep:
         task, daemon = self._task, self.daemon
         if task is None or daemon is None:
             return
-        recorder = daemon._recorder
+        recorder = daemon.recorder.recorder
         if recorder is not None:
             recorder._buffer.clear()  # uncommitted rows die with the process
         task.cancel()

@@ -10,7 +10,8 @@ machine time are tested in milliseconds.
                 stopped, held...) and the status word as a pure function of it
 - `modelstep`   the live and shadow models as the cycle steps them
 - `validation`  per-channel input checks (missing, bad quality, range, rate, stuck)
-- `faults`      the output's states and the events a cycle reports
+- `faults`      the output's states
+- `events`      what a cycle reports: one `EventName` per kind, with its log level
 - `output`      the output stage: clamp, deadband, slew limit, the status bits
 - `record`      the row a cycle leaves for the recorder
 - `schedule`    absolute deadlines, skipped periods, the shutdown ramp's budget

@@ -52,7 +52,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from compd.core.faults import Event
+from compd.core.events import Event, EventName
 from models.adaptation import AdaptationParams, Adapter, ProbeOutcome
 
 __all__ = ["AdaptationSettings", "ProbeReading", "ProbeStage"]
@@ -150,7 +150,7 @@ class ProbeStage:
             was_down = self.adapter.standing_down
             out = self.adapter.update(measured, model, terms)
             if out.reacquired:
-                events.append(Event("adaptation_reacquired", {
+                events.append(Event(EventName.ADAPTATION_REACQUIRED, {
                     "innovation_um": round(out.innovation_um, 6),
                     "refusals": int(self.settings.params.reacquire_after),
                     "estimated_bias_um": round(out.estimated_bias_um, 6),
@@ -159,13 +159,15 @@ class ProbeStage:
             if out.standing_down != was_down:
                 plain, adapted = self.adapter.score_um
                 events.append(Event(
-                    "adaptation_stood_down" if out.standing_down else "adaptation_resumed",
+                    EventName.ADAPTATION_STOOD_DOWN if out.standing_down
+                    else EventName.ADAPTATION_RESUMED,
                     {"plain_rms_um": round(plain, 6), "adapted_rms_um": round(adapted, 6),
                      "probes": int(self.settings.params.score_window),
                      "stand_downs": self.adapter.stand_downs}))
         self.last = self._describe(reading, measured, model, out)
         fields = {k: v for k, v in self.last.items() if k != "accepted"}
-        events.append(Event("probe_accepted" if out.accepted else "probe_refused", fields))
+        events.append(Event(EventName.PROBE_ACCEPTED if out.accepted
+                            else EventName.PROBE_REFUSED, fields))
 
     def _guard(self, displacement_um: float, offset_um: float, events: list[Event]) -> None:
         """Judge one probe: the error with the compensation against without (see 4.)."""
@@ -178,7 +180,7 @@ class ProbeStage:
         del self.guard[:-window]
         if len(self.guard) == window and all(self.guard):
             self.model_worse = True
-            events.append(Event("model_worse_than_none", {
+            events.append(Event(EventName.MODEL_WORSE_THAN_NONE, {
                 "probes": window, "error_with_um": round(with_um, 6),
                 "error_without_um": round(without_um, 6), "margin_um": round(margin, 6),
                 "action": "fault: hold, then ramp to zero; recalibrate"}))

@@ -55,7 +55,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from compd.core.adaptation import ProbeReading, ProbeStage
-from compd.core.faults import Event, FaultState
+from compd.core.events import Event, EventName
+from compd.core.faults import FaultState
 from compd.core.health import (
     WRITE_FAULT_AFTER,
     Decision,
@@ -178,7 +179,7 @@ class Cycle:
         try:
             return ProbeStage(settings, n_terms, state)
         except (ValueError, KeyError, TypeError) as exc:
-            self._later.append(Event("adaptation_state_refused", {"reason": str(exc)}))
+            self._later.append(Event(EventName.ADAPTATION_STATE_REFUSED, {"reason": str(exc)}))
             return ProbeStage(settings, n_terms)
 
     @property
@@ -275,7 +276,7 @@ class Cycle:
         if on == self.health.operator_hold:
             return None
         self.health.operator_hold = on
-        return Event("operator_hold" if on else "operator_release", {"by": who})
+        return Event(EventName.OPERATOR_HOLD if on else EventName.OPERATOR_RELEASE, {"by": who})
 
     def begin_shutdown(self) -> None:
         """Ramp-to-zero shutdown: from now on the target is 0."""
@@ -370,7 +371,7 @@ class Cycle:
                 self.output.revert()
                 offset_um = self.output.current_um
                 if not self._mismatch_noted:
-                    events.append(Event("offset_write_skipped", {"reason": "no_readback"}))
+                    events.append(Event(EventName.OFFSET_WRITE_SKIPPED, {"reason": "no_readback"}))
                     self._mismatch_noted = True
             else:
                 self._mismatch_noted = False
@@ -426,7 +427,7 @@ class Cycle:
                 self.output.revert()
                 changes["offset_um"] = None
             events = self.health.write_failed(
-                outcome.output, permanent=outcome.permanent, reason=outcome.reason,
+                outcome.outputs, permanent=outcome.permanent, reason=outcome.reason,
                 offset_failed=offset_sent, offset_name=self.params.offset_name,
                 offset_um=self.output.current_um)
         record = RecordRow(**{**plan.row_fields, **changes})
@@ -450,19 +451,19 @@ class Cycle:
         seen = out.observe(rb_um, self.params.readback_tolerance_um)
         if seen is Readback.OUT_OF_RANGE:
             if not was_held:
-                events.append(Event("readback_out_of_range", {
+                events.append(Event(EventName.READBACK_OUT_OF_RANGE, {
                     "expected_um": expected, "readback_um": finite_or_none(rb_um),
                     "limit_um": out.limit_um, "action": "offset writes held"}))
             self.health.foreign = True
             return
         if was_held:
-            events.append(Event("readback_in_range", {
+            events.append(Event(EventName.READBACK_IN_RANGE, {
                 "readback_um": rb_um, "action": "ramping from it"}))
             self.health.foreign = True
         if seen is Readback.ADOPTED:
-            events.append(Event("readback_adopted", {"offset_um": out.current_um}))
+            events.append(Event(EventName.READBACK_ADOPTED, {"offset_um": out.current_um}))
         elif seen is Readback.FOREIGN:
-            events.append(Event("readback_mismatch", {
+            events.append(Event(EventName.READBACK_MISMATCH, {
                 "expected_um": expected, "readback_um": rb_um, "action": "ramping from it"}))
             self.health.foreign = True
 
@@ -473,7 +474,7 @@ class Cycle:
         out = abs(model_um) > bound
         if out != self.health.model_range:
             self.health.model_range = out
-            events.append(Event("model_out_of_range" if out else "model_in_range", {
+            events.append(Event(EventName.MODEL_OUT_OF_RANGE if out else EventName.MODEL_IN_RANGE, {
                 "model_um": model_um, "bound_um": bound}))
         return out
 
@@ -482,10 +483,10 @@ class Cycle:
             before = self._invalid.get(name)
             if reason is not None and reason != before:
                 self._invalid[name] = reason
-                events.append(Event("channel_invalid", {"channel": name, "reason": reason}))
+                events.append(Event(EventName.CHANNEL_INVALID, {"channel": name, "reason": reason}))
             elif reason is None and before is not None:
                 del self._invalid[name]
-                events.append(Event("channel_valid", {"channel": name, "was": before}))
+                events.append(Event(EventName.CHANNEL_VALID, {"channel": name, "was": before}))
 
     def _adapt(self, dt: float, probe: ProbeReading | None, stepped: _Stepped,
                events: list[Event]) -> float:

@@ -1,4 +1,5 @@
-"""The output's states and the cycle's events (pure data). One state machine
+"""The output's states (pure data; the cycle's events are `compd.core.events`,
+`Event` re-exported here). One state machine
 (`compd.core.health.OutputHealth`) owns every state; the fault policy, its
 part, decides what the output aims at when inputs go bad.
 
@@ -30,8 +31,10 @@ limit makes it a ramp, never a jump.
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass, field
-from typing import Any
+
+from compd.core.events import Event
+
+__all__ = ["GAUGE_ALARM", "Event", "FaultState"]
 
 
 class FaultState(enum.StrEnum):
@@ -56,11 +59,3 @@ GAUGE_ALARM = 3
 _GAUGE = {FaultState.INIT: 1, FaultState.OK: 0, FaultState.HOLD: 1, FaultState.RAMP: 2,
           FaultState.SHUTDOWN: 2, FaultState.STOPPED: GAUGE_ALARM,
           FaultState.HELD: GAUGE_ALARM, FaultState.WRITE_FAULT: GAUGE_ALARM}
-
-
-@dataclass(frozen=True, slots=True)
-class Event:
-    """Something the shell logs: an event name and its fields."""
-
-    name: str
-    fields: dict[str, Any] = field(default_factory=dict)

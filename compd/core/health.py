@@ -23,7 +23,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from compd.core.faults import Event, FaultState
+from compd.core.events import Event, EventName
+from compd.core.faults import FaultState
 from compd.core.output import Status
 
 #: this many offset writes in a row failing (transient) are a write fault:
@@ -157,7 +158,7 @@ class OutputHealth:
             return self._to(Decision(FaultState.SHUTDOWN, 0.0, False), events, now_s)
         if valid and target_um is not None:
             if self.policy in (FaultState.HOLD, FaultState.RAMP):
-                events.append(Event("fault_recovered", {
+                events.append(Event(EventName.FAULT_RECOVERED, {
                     "after_s": now_s - (self.invalid_since_s or now_s)}))
             self.invalid_since_s = None
             return self._to(Decision(FaultState.OK, target_um, False), events, now_s)
@@ -176,12 +177,12 @@ class OutputHealth:
         state = decision.state
         if state != self.policy:
             if state == FaultState.HOLD:
-                events.append(Event("fault_hold", {"hold_s": self.hold_s}))
+                events.append(Event(EventName.FAULT_HOLD, {"hold_s": self.hold_s}))
             elif state == FaultState.RAMP:
-                events.append(Event("fault_ramp_to_zero", {
+                events.append(Event(EventName.FAULT_RAMP_TO_ZERO, {
                     "invalid_for_s": now_s - (self.invalid_since_s or now_s)}))
             elif state == FaultState.SHUTDOWN:
-                events.append(Event("shutdown_ramp_to_zero"))
+                events.append(Event(EventName.SHUTDOWN_RAMP_TO_ZERO))
             self.policy = state
         return decision
 
@@ -190,36 +191,37 @@ class OutputHealth:
     def write_succeeded(self, later: list[Event]) -> None:
         """The offset write arrived: a write fault ends (`later`: the next cycle's events)."""
         if self.write_fault:
-            later.append(Event("write_recovered", {"failed_writes": self.failed_writes}))
+            later.append(Event(EventName.WRITE_RECOVERED, {"failed_writes": self.failed_writes}))
         self.write_fault = False
         self.failed_writes = 0
 
-    def write_failed(self, output: str | None, *, permanent: bool, reason: str,
+    def write_failed(self, outputs: tuple[str, ...], *, permanent: bool, reason: str,
                      offset_failed: bool, offset_name: str, offset_um: float) -> list[Event]:
-        """A write failed (`offset_failed`: it carried the offset); the events to log."""
+        """A write failed (`offset_failed`: it carried the offset; `outputs`:
+        every output of the refused write, () when unknown); the events to log."""
+        output = ",".join(outputs) or None  # the log line's field, as before
         if not permanent:
             return self._transient(output, reason, offset_failed, offset_um)
-        # a driver names every output of a refused combined write ("offset,heartbeat")
-        names = {n.strip() for n in output.split(",")} if output else set()
+        names = set(outputs)
         if not names or offset_name in names:
             if self.write_stopped:
                 return []
             self.write_stopped = True
-            return [Event("offset_write_stopped", {
+            return [Event(EventName.OFFSET_WRITE_STOPPED, {
                 "output": output, "reason": reason, "offset_um": offset_um})]
-        events = [Event("output_write_stopped", {"output": name, "reason": reason})
+        events = [Event(EventName.OUTPUT_WRITE_STOPPED, {"output": name, "reason": reason})
                   for name in sorted(names - self.stopped_outputs)]
         self.stopped_outputs |= names
         return events
 
     def _transient(self, output: str | None, reason: str, offset_failed: bool,
                    offset_um: float) -> list[Event]:
-        events = [Event("write_failed", {"output": output, "reason": reason})]
+        events = [Event(EventName.WRITE_FAILED, {"output": output, "reason": reason})]
         if offset_failed:
             self.failed_writes += 1
             if self.failed_writes >= WRITE_FAULT_AFTER and not self.write_fault:
                 self.write_fault = True
-                events.append(Event("write_fault", {
+                events.append(Event(EventName.WRITE_FAULT, {
                     "failed_writes": self.failed_writes, "reason": reason,
                     "offset_um": offset_um}))
         return events

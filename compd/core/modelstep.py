@@ -10,7 +10,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from compd.core.faults import Event
+from compd.core.events import Event, EventName
 from models.compensation import CompensationModel
 from models.errors import ModelError
 
@@ -75,12 +75,12 @@ class ModelStepper:
             y0 = self._init(self.model, values)
             self.references = dict(self.model.references)
             self.model_ready = True
-            events.append(Event("model_initialised", {"mode": self.init_mode,
+            events.append(Event(EventName.MODEL_INITIALISED, {"mode": self.init_mode,
                                                       "steady_um": finite_or_none(y0)}))
         y = self.model.step(values)
         if math.isfinite(y):
             return y
-        events.append(Event("model_non_finite", {"model": self.model.name}))
+        events.append(Event(EventName.MODEL_NON_FINITE, {"model": self.model.name}))
         self.model_ready = False
         self.init_mode = "steady_state"
         return None
@@ -96,6 +96,6 @@ class ModelStepper:
         y = shadow.step(values)
         if math.isfinite(y):
             return y
-        events.append(Event("model_non_finite", {"model": shadow.name, "shadow": True}))
+        events.append(Event(EventName.MODEL_NON_FINITE, {"model": shadow.name, "shadow": True}))
         self.shadow_ready = False
         return None

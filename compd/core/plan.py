@@ -11,11 +11,12 @@ earlier one.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from compd.core.faults import Event, FaultState
+from compd.core.events import Event
+from compd.core.faults import FaultState
 from compd.core.record import RecordRow
 
 __all__ = ["WRITTEN", "AdaptationView", "Outcome", "Plan", "Row", "Snapshot"]
@@ -59,16 +60,20 @@ class Outcome:
     or there was nothing to write), or `Outcome.failed(...)`."""
 
     ok: bool = True
-    #: the refused output(s) when known (comma-separated for a combined write)
-    output: str | None = None
+    #: the refused output(s) when known: every output of a refused combined
+    #: write (a driver error's `channels`), () when the error named none
+    outputs: tuple[str, ...] = ()
     #: the controller refused for good (no retry); transient otherwise
     permanent: bool = False
     reason: str = ""
 
     @classmethod
-    def failed(cls, output: str | None, *, permanent: bool = False,
+    def failed(cls, outputs: Sequence[str] | str | None, *, permanent: bool = False,
                reason: str = "") -> Outcome:
-        return cls(False, output, permanent, reason)
+        """`outputs`: the refused outputs' names (one name alone may be a
+        string, never split), or None when unknown."""
+        names = (outputs,) if isinstance(outputs, str) else tuple(outputs or ())
+        return cls(False, tuple(n for n in names if n), permanent, reason)
 
 
 #: every write of the plan reached the controller (or there was none)

@@ -10,8 +10,9 @@ recorder through its one reader (`compd.store.reader`, read-only; WAL: it
 never blocks the recorder's writes) with a bound on the rows: the last
 `hours` of offset and model output, thinned to at most `MAX_HISTORY_POINTS`
 rows picked by stride on the recorder's contiguous ``seq`` (a bounded number
-of primary-key look-ups, however long the window). Nothing here raises into the cycle: a snapshot
-that cannot be built is logged once and the page keeps the last one.
+of primary-key look-ups, however long the window). Nothing here raises into
+the cycle: a snapshot that cannot be built is logged once and the page keeps
+the last one.
 """
 
 from __future__ import annotations
@@ -20,14 +21,16 @@ import collections
 import math
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 import structlog
 
+from compd.config.loader import LoadedConfig
 from compd.core.faults import FaultState
 from compd.core.output import Status
+from compd.core.plan import Row
 from compd.infiles import InputError
 from compd.store.reader import RecorderReader
 from compd.store.schema import RecorderError
@@ -102,8 +105,11 @@ def _num(x: float | None) -> float | None:
 class StatusBoard:
     """The last snapshot and alarms, written by the loop, read by the HTTP threads."""
 
-    def __init__(self, *, history_h: float = 4.0, refresh_s: float = 5.0) -> None:
+    def __init__(self, *, history_h: float = 4.0, refresh_s: float = 5.0,
+                 wall: Callable[[], float] = time.time) -> None:
         self.history_h = history_h
+        #: the wall clock that stamps snapshots and alarms (the daemon's injected one)
+        self._wall = wall
         self.refresh_s = refresh_s
         self.snapshot: dict[str, Any] = {"state": "starting", "why": "no cycle yet",
                                          "channels": [], "alarms": []}
@@ -116,10 +122,10 @@ class StatusBoard:
 
     def alarm(self, name: str, level: str, fields: Mapping[str, Any]) -> None:
         """A warning or error event of the cycle, for the page's list."""
-        self._alarms.append({"wall_s": time.time(), "event": name, "level": level,
+        self._alarms.append({"wall_s": self._wall(), "event": name, "level": level,
                              "detail": {k: _detail(v) for k, v in fields.items()}})
 
-    def publish(self, result: Any, cfg: Any, *, dry_run: bool = False) -> None:
+    def publish(self, result: Row, cfg: LoadedConfig, *, dry_run: bool = False) -> None:
         """Build the snapshot from a committed `Row` and the running `LoadedConfig`.
         Never raises: a failure is logged once and the page keeps the last snapshot."""
         try:
@@ -130,7 +136,7 @@ class StatusBoard:
                 structlog.get_logger("compd").error("status_snapshot_failed", error=str(exc))
             self._failed = True
 
-    def _build(self, result: Any, cfg: Any, dry_run: bool) -> dict[str, Any]:
+    def _build(self, result: Row, cfg: LoadedConfig, dry_run: bool) -> dict[str, Any]:
         rec = result.record
         held = bool(result.status & Status.OPERATOR_HOLD)
         word, why = operator_state(result.state, rec.validity, dry_run, held)
@@ -147,7 +153,7 @@ class StatusBoard:
                 "sequence": result.sequence, "complete": bool(result.complete),
                 "status_word": result.status, "heartbeat": result.heartbeat,
                 "model": cfg.model.name, "model_sha256": cfg.model_sha256,
-                "dry_run": dry_run, "wall_s": time.time(), "period_s": float(cfg.real_period_s),
+                "dry_run": dry_run, "wall_s": self._wall(), "period_s": float(cfg.real_period_s),
                 "channels": channels,
                 "alarms": list(self._alarms)}
 

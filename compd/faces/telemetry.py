@@ -454,8 +454,11 @@ class Metrics(MetricsServer):
         last = self._last_complete_mono
         return math.inf if last is None else max(0.0, time.monotonic() - last)
 
-    def cycle_complete(self) -> None:
-        """A complete cycle (valid inputs, model stepped, write confirmed) just ended."""
+    def cycle_complete(self, wall_s: float | None = None) -> None:
+        """A complete cycle (valid inputs, model stepped, write confirmed) just ended,
+        at `wall_s` (the daemon's wall clock; now by default) for the timestamp metric.
+        Its age for /health is judged on this server's own monotonic clock, read when
+        a request arrives in an HTTP thread."""
         self._last_complete_mono = time.monotonic()
-        self.last_complete_timestamp.set(time.time())
+        self.last_complete_timestamp.set(time.time() if wall_s is None else wall_s)
         self.cycles_complete.inc()

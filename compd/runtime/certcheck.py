@@ -13,10 +13,13 @@ from __future__ import annotations
 
 import datetime as dt
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from cryptography.x509 import Certificate
+
+    from compd.config.loader import LoadedConfig
+    from compd.faces.telemetry import Metrics
 
 WARN_DAYS = 30.0
 
@@ -42,3 +45,26 @@ def expiry_days(path: Path, *, now: dt.datetime | None = None) -> float:
     cert = _load(path)
     when = now if now is not None else dt.datetime.now(dt.UTC)
     return (cert.not_valid_after_utc - when).total_seconds() / 86400.0
+
+
+def check_certificates(cfg: LoadedConfig, metrics: Metrics, log: Any, *, wall_s: float) -> None:
+    """The daemon's check at start and after a reload: each configured certificate's
+    expiry to the metric, a warning within `WARN_DAYS` (`wall_s`: now, the daemon's
+    clock), a warning for one that cannot be read (compensation starts anyway)."""
+    sec = cfg.raw.controller.security
+    if sec is None:
+        return
+    now = dt.datetime.fromtimestamp(wall_s, dt.UTC)
+    for role, path in (("client", sec.certificate), ("server", sec.server_certificate)):
+        if path is None:
+            continue
+        full = path if path.is_absolute() else cfg.path.parent / path
+        try:
+            days = expiry_days(full, now=now)
+            metrics.certificate_expiry.labels(role=role).set(expiry_timestamp(full))
+        except (OSError, ValueError) as exc:
+            log.warning("certificate_unreadable", role=role, path=str(full), error=str(exc))
+            continue
+        if days <= WARN_DAYS:
+            log.warning("certificate_expiring", role=role, path=str(full),
+                        days_left=round(days, 2), warn_days=WARN_DAYS)

@@ -7,6 +7,7 @@ OPC UA security with its password read here, at run time.
 
 from __future__ import annotations
 
+import asyncio
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +15,7 @@ from compd.config.loader import LoadedConfig, read_password
 from compd.config.schema import SecuritySection
 from drivers.backoff import Backoff
 from drivers.base import Driver
+from drivers.errors import DriverError
 from drivers.factory import open_driver
 from drivers.protocols import PROTOCOLS
 
@@ -79,3 +81,14 @@ def check_driver(cfg: LoadedConfig) -> None:
 
     driver = build_driver(cfg)
     asyncio.run(driver.close())
+
+
+async def connect(driver: Driver, cfg: LoadedConfig, log: Any) -> None:
+    """Connect within ``connect_timeout_s``; a failure is logged, not raised: the
+    reads fail (the cycle holds) and the driver retries with its backoff."""
+    ctl = cfg.raw.controller
+    try:
+        await asyncio.wait_for(driver.connect(), ctl.connect_timeout_s)
+        log.info("controller_connected", endpoint=ctl.endpoint)
+    except (DriverError, TimeoutError, OSError) as exc:
+        log.warning("controller_connect_failed", error=str(exc))

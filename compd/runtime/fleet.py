@@ -57,7 +57,7 @@ from compd.runtime.heap import pin_mmap_threshold
 from compd.runtime.sdnotify import Notifier
 from drivers.base import Driver
 
-__all__ = ["Fleet", "FleetDaemon", "build_drivers", "load_machines"]
+__all__ = ["Fleet", "build_drivers", "load_machines", "machine_daemon"]
 
 BACKOFF_INITIAL_S = 1.0
 BACKOFF_CAP_S = 60.0
@@ -137,20 +137,13 @@ def metrics_limits(configs: list[LoadedConfig]) -> HttpLimits:
     return HttpLimits()
 
 
-class FleetDaemon(Daemon):
-    """A `Daemon` among others: logs with its machine's name, and its metrics are
-    served by the process's one endpoint (`compd.faces.fleet_metrics`)."""
-
-    def __init__(self, cfg: LoadedConfig, **kwargs: Any) -> None:
-        super().__init__(cfg, notifier=Notifier(None), **kwargs)
-        self.log = self.log.bind(machine=cfg.raw.machine.name)
-
-    def _start_metrics(self) -> None:
-        pass  # the fleet serves every machine's registry on one port
-
-    async def run_machine(self) -> int:
-        """`Daemon.run` without the signal handlers (the fleet's) and the heap setting."""
-        return await self._run()
+def machine_daemon(cfg: LoadedConfig, **kwargs: Any) -> Daemon:
+    """A `Daemon` among others: it logs with its machine's name, sends no sd_notify
+    of its own (the fleet's), and serves no endpoint (the fleet serves every
+    machine's registry on one: `compd.faces.fleet_metrics`). Run it with
+    `Daemon.serve` (the fleet holds the signal handlers)."""
+    log = structlog.get_logger("compd").bind(machine=cfg.raw.machine.name)
+    return Daemon(cfg, notifier=Notifier(None), serve_metrics=False, log=log, **kwargs)
 
 
 class Fleet:
@@ -170,7 +163,7 @@ class Fleet:
         self._drivers = dict(drivers or {})
         self.dry_run = dry_run
         self.notifier = notifier if notifier is not None else Notifier()
-        self.daemons: dict[str, FleetDaemon] = {}
+        self.daemons: dict[str, Daemon] = {}
         self.restarts: dict[str, int] = dict.fromkeys(self.configs, 0)
         self.metrics = FleetMetrics(self._machine_metrics)
         self.stopping = asyncio.Event()
@@ -203,7 +196,7 @@ class Fleet:
         self.stopping.set()
         for daemon in list(self.daemons.values()):
             if sig is not None:
-                daemon.stop_signal = sig.name
+                daemon.loop.stop_signal = sig.name
             daemon.request_stop()
 
     def signal_ignored(self, sig: signal.Signals) -> None:
@@ -262,25 +255,25 @@ class Fleet:
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self.stopping.wait(), delay_s)
         while not self.stopping.is_set():
-            daemon = FleetDaemon(self.configs[name], dry_run=self.dry_run,
-                                 driver=self._drivers.pop(name, None), clock=self.clock,
-                                 sleep=self.sleep)
+            daemon = machine_daemon(self.configs[name], dry_run=self.dry_run,
+                                    driver=self._drivers.pop(name, None), clock=self.clock,
+                                    sleep=self.sleep)
             self.daemons[name] = daemon
-            started = time.monotonic()
+            started = self.clock()
             running.set(1)
             try:
-                rc = await daemon.run_machine()
+                rc = await daemon.serve()
                 if rc == 0 or self.stopping.is_set():
                     return  # stopped on request
                 # its cycle broke (logged, shutdown policy applied, checkpoint written)
                 running.set(0)
-                if time.monotonic() - started >= BACKOFF_RESET_S:
+                if self.clock() - started >= BACKOFF_RESET_S:
                     backoff = BACKOFF_INITIAL_S
                 self.log.error("machine_crashed", machine=name, error="cycle_broken",
                                type="exit", rc=rc, restart_in_s=backoff)
             except Exception as exc:  # this machine's failure, never the others'
                 running.set(0)
-                if time.monotonic() - started >= BACKOFF_RESET_S:
+                if self.clock() - started >= BACKOFF_RESET_S:
                     backoff = BACKOFF_INITIAL_S
                 self.log.error("machine_crashed", machine=name, error=str(exc),
                                type=type(exc).__name__, restart_in_s=backoff,

@@ -22,7 +22,7 @@ from typing import Any
 
 from compd.config.loader import LoadedConfig
 from compd.core.cycle import Cycle, CycleParams
-from compd.core.faults import Event
+from compd.core.events import Event, EventName
 from compd.runtime.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from compd.runtime.statedir import StateDir
 from models.errors import ModelError
@@ -49,7 +49,7 @@ def start_cycle(cfg: LoadedConfig, params: CycleParams, *,
     try:
         state = load_checkpoint(path, directory=directory)
     except CheckpointError as exc:
-        events.append(Event("checkpoint_unusable", {"path": str(path), "reason": str(exc)}))
+        events.append(Event(EventName.CHECKPOINT_UNUSABLE, {"path": str(path), "reason": str(exc)}))
         state = None
     if state is None:
         return Startup(Cycle(params, cfg.model, cfg.shadow), "first_start", events)
@@ -67,16 +67,16 @@ def start_cycle(cfg: LoadedConfig, params: CycleParams, *,
             cycle = Cycle.from_state(params, cfg.model, cfg.shadow, state, fresh=True,
                                      same_model=same_model)
         except (ModelError, TypeError, ValueError, KeyError) as exc:
-            events.append(Event("checkpoint_state_refused", {"reason": str(exc)}))
+            events.append(Event(EventName.CHECKPOINT_STATE_REFUSED, {"reason": str(exc)}))
         else:
-            events.append(Event("checkpoint_restored", info))
+            events.append(Event(EventName.CHECKPOINT_RESTORED, info))
             return Startup(cycle, "restored", events)
     try:
         cycle = Cycle.from_state(params, cfg.model, cfg.shadow, state, fresh=False,
                                  same_model=same_model)
     except (ModelError, TypeError, ValueError, KeyError) as exc:
-        events.append(Event("checkpoint_state_refused", {"reason": str(exc)}))
+        events.append(Event(EventName.CHECKPOINT_STATE_REFUSED, {"reason": str(exc)}))
         return Startup(Cycle(params, cfg.model, cfg.shadow), "first_start", events)
-    events.append(Event("checkpoint_too_old", info) if same_model
-                  else Event("checkpoint_other_model", info))
+    events.append(Event(EventName.CHECKPOINT_TOO_OLD, info) if same_model
+                  else Event(EventName.CHECKPOINT_OTHER_MODEL, info))
     return Startup(cycle, "steady_state", events)

@@ -297,7 +297,7 @@ def test_a_reacquisition_in_the_cycle_is_an_event() -> None:
     for k, z in enumerate(values):
         stage.step(3600.0, ProbeReading(z, float(k)), complete=True, model_um=0.0,
                    terms_um=[0.0], offset_in_force_um=0.0, events=events)
-    names = [e.name for e in events]
+    names: list[str] = [e.name for e in events]
     assert names.count("probe_refused") == 2
     (ev,) = [e for e in events if e.name == "adaptation_reacquired"]
     assert ev.fields["refusals"] == 3 and ev.fields["innovation_um"] > 10.0

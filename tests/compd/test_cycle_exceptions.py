@@ -123,7 +123,7 @@ async def test_a_sink_that_raises_never_stops_the_cycle(
         def full(*_: object) -> None:
             raise RuntimeError("recorder exploded")
 
-        monkeypatch.setattr(daemon, "_record", full)
+        monkeypatch.setattr(daemon.recorder, "feed", full)
         done = daemon.complete_cycles
         await until(lambda: daemon.complete_cycles >= done + 20)
         monkeypatch.undo()

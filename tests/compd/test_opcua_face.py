@@ -64,7 +64,7 @@ async def face_daemon(tmp_path: Path, sim: ModbusSimController, face: str,
         await until(lambda: daemon.complete_cycles >= 3 or task.done())
         assert not task.done(), "the daemon ended early"
         # the face starts beside the loop (seconds): compensation did not wait for it
-        await until(lambda: daemon._face_start is None or daemon._face_start.done())
+        await until(lambda: daemon.opcua.starting is None or daemon.opcua.starting.done())
         yield daemon
     finally:
         daemon.request_stop()

@@ -85,3 +85,22 @@ def test_status_word_and_recorded_state_agree_for_every_health(policy: FaultStat
         if state.gauge >= 3:
             assert word & Status.ALARM
         assert status_word(view) == word  # pure: the same view, the same word
+
+
+def test_a_refused_combined_write_names_each_output_as_the_driver_did() -> None:
+    """`Outcome.failed` takes a driver error's channel tuple: each output is its
+    own, a name is never split, and one name alone may be a string."""
+    cycle, clock = _warm()
+    t = clock.tick()
+    cycle.plan(t, samples(t, 20.5))
+    row = cycle.commit(Outcome.failed(("heartbeat", "status"), permanent=True, reason="ro"))
+    assert [(e.name, e.fields["output"]) for e in row.write_events] == [
+        ("output_write_stopped", "heartbeat"), ("output_write_stopped", "status")]
+    assert Outcome.failed("offset").outputs == ("offset",)
+    assert Outcome.failed(None).outputs == () and Outcome.failed([]).outputs == ()
+    t = clock.tick()
+    plan = cycle.plan(t, samples(t, 20.5))
+    assert set(plan.writes) == {"offset"}  # the stopped outputs are written no more
+    row = cycle.commit(Outcome.failed(("offset", "heartbeat"), reason="busy"))
+    assert [(e.name, e.fields["output"]) for e in row.write_events] == [
+        ("write_failed", "offset,heartbeat")]  # the log line's field, as before

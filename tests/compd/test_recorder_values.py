@@ -158,16 +158,17 @@ def test_default_retention_is_bounded(tmp_path: Path) -> None:
     from compd.runtime.daemon import Daemon
 
     daemon = Daemon(load_config(p))
-    daemon._open_recorder()
+    daemon.recorder.open_now()
     try:
-        assert daemon._recorder is not None
-        assert daemon._recorder.keep_rows == math.ceil(30 * 86400 / 1.0)
+        assert daemon.recorder.recorder is not None
+        assert daemon.recorder.recorder.keep_rows == math.ceil(30 * 86400 / 1.0)
     finally:
-        daemon._recorder.close()
+        daemon.recorder.close_now()
     p.write_text(BASE + "\n[recorder]\nretention_days = 0\n", encoding="utf-8")
     keep_all = Daemon(load_config(p))
-    keep_all._open_recorder()
+    keep_all.recorder.open_now()
     try:
-        assert keep_all._recorder is not None and keep_all._recorder.keep_rows is None
+        kept = keep_all.recorder.recorder
+        assert kept is not None and kept.keep_rows is None
     finally:
-        keep_all._recorder.close()
+        keep_all.recorder.close_now()

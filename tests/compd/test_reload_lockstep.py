@@ -108,7 +108,7 @@ async def _offsets(rig: Lockstep, periods: int, into: list[float]) -> None:
 
 async def _prepared(daemon: Daemon) -> None:
     """Until the reload's preparation task is done (it left its result for the loop)."""
-    task = daemon._reload_task
+    task = daemon.reloader.task
     assert task is not None
     await task
 

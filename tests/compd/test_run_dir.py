@@ -102,7 +102,7 @@ async def test_a_stopped_controller_never_holds_up_the_others(
         down = sims[1]
         await down.stop()  # mill-b's controller goes away
         await fs.step()
-        assert fleet.daemons["mill-b"]._read_ok is False
+        assert fleet.daemons["mill-b"].io.read_ok is False
         before = _complete(fleet)
         beats = [(await s.outputs())["heartbeat"] for s in (sims[0], sims[2])]
         await fs.step(50)
@@ -124,7 +124,7 @@ async def test_a_stopped_controller_never_holds_up_the_others(
         await down.start()  # back on the same port: mill-b resumes
         # the driver's reconnect attempt, made now (its backoff runs on real time,
         # which lockstep never waits on)
-        driver = fleet.daemons["mill-b"]._driver
+        driver = fleet.daemons["mill-b"].running.driver
         assert driver is not None
         await driver.connect()
         resumed = _complete(fleet)["mill-b"]
@@ -249,16 +249,16 @@ async def test_machines_start_one_after_the_other_with_their_cycles_spread(
     import time
 
     from compd.core.schedule import START_SPACING_S, staggered_starts
-    from compd.runtime.fleet import FleetDaemon
+    from compd.runtime.daemon import Daemon
 
     started: dict[str, float] = {}
-    run_machine = FleetDaemon.run_machine
+    serve = Daemon.serve
 
-    async def timed(self: FleetDaemon) -> int:
+    async def timed(self: Daemon) -> int:
         started[self.cfg.raw.machine.name] = time.monotonic()
-        return await run_machine(self)
+        return await serve(self)
 
-    monkeypatch.setattr(FleetDaemon, "run_machine", timed)
+    monkeypatch.setattr(Daemon, "serve", timed)
     # the real period the plan spreads over is 20 ms; the start delays run on real
     # time, the machines' cycles on the stepped clock (nothing else waits)
     configs = load_machines(_machines_dir(tmp_path, sims, time_scale=50.0, timeout_s=0.01))

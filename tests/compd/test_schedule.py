@@ -1,7 +1,7 @@
 """The daemon's schedule on a fake clock: hours of cycles in milliseconds.
 
 The clock is a float the test moves: a cycle "takes" what the test says, then
-the loop waits until the deadline, exactly as `Daemon._loop` does with
+the loop waits until the deadline, exactly as `CycleLoop.run` does with
 `time.monotonic`.
 """
 

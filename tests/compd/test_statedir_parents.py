@@ -229,7 +229,7 @@ async def test_the_running_daemon_never_writes_through_a_swapped_state_dir(
                     break
                 await asyncio.sleep(0.005)
             assert daemon.cycles >= swapped_at + 12
-            recorder = daemon._recorder
+            recorder = daemon.recorder.recorder
             assert recorder is not None and recorder.alarm
             assert "no longer names the directory" in str(recorder.last_error)
         finally:

@@ -12,12 +12,15 @@ import socket
 import sqlite3
 import time
 from pathlib import Path
+from typing import cast
 
 import pytest
 import structlog
 
 from compd.commands import status as status_cmd
+from compd.config.loader import LoadedConfig
 from compd.core.faults import FaultState
+from compd.core.plan import Row
 from compd.core.record import RecordRow
 from compd.faces.status import StatusBoard, operator_state, read_history
 from compd.faces.status_page import render_page
@@ -110,9 +113,11 @@ def test_a_locked_recorder_answers_an_error_after_a_bounded_wait(tmp_path: Path)
 def test_a_snapshot_that_cannot_be_built_keeps_the_last_one() -> None:
     board = StatusBoard()
     first = board.snapshot
+    # neither a committed row nor a config: the snapshot cannot be built from them
+    not_a_row, not_a_config = cast(Row, object()), cast(LoadedConfig, object())
     with structlog.testing.capture_logs() as logs:
-        board.publish(object(), object())
-        board.publish(object(), object())
+        board.publish(not_a_row, not_a_config)
+        board.publish(not_a_row, not_a_config)
     assert board.snapshot is first
     assert [e["event"] for e in logs] == ["status_snapshot_failed"]  # once, not per cycle
 

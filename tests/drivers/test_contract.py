@@ -176,7 +176,7 @@ async def test_bad_address_names_channel_and_address(harness: Harness) -> None:
     message = str(caught.value)
     assert "bogus" in message
     assert harness.bad_address.describe() in message
-    assert caught.value.channel == "bogus"
+    assert caught.value.channels == ("bogus",)
 
 
 async def test_stopped_server_fails_fast(harness: Harness) -> None:

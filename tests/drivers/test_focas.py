@@ -67,7 +67,7 @@ def test_return_code_mapping() -> None:
         assert type(abi.error_for(code, "x", writing=True)) is ConnectionLost
     for code in (abi.EW_NUMBER, abi.EW_ATTRIB, abi.EW_LENGTH):
         err = abi.error_for(code, "pmc_rdpmcrng", channel="c", address="PMC D0:long")
-        assert type(err) is BadAddress and err.channel == "c" and err.address == "PMC D0:long"
+        assert type(err) is BadAddress and err.channels == ("c",) and err.address == "PMC D0:long"
     for code in (abi.EW_BUSY, abi.EW_RESET):
         werr = abi.error_for(code, "pmc_wrpmcrng", writing=True)
         assert isinstance(werr, WriteRejected) and not werr.permanent
@@ -182,13 +182,13 @@ async def test_refusals_name_channel_and_address(sim: FocasSimController) -> Non
     try:
         with pytest.raises(BadAddress) as info:
             await drv.read(["bearing", "far"])
-        assert (info.value.channel, info.value.address) == ("far", "PMC D8190:double")
+        assert (info.value.channels, info.value.address) == (("far",), "PMC D8190:double")
         with pytest.raises(WriteRejected) as winfo:
             await drv.write({"f_word": 1})
-        assert winfo.value.permanent and winfo.value.channel == "f_word"
+        assert winfo.value.permanent and winfo.value.channels == ("f_word",)
         with pytest.raises(BadAddress) as einfo:
             await drv.write({"status": 40000})  # a PMC word is signed 16 bit
-        assert einfo.value.channel == "status"
+        assert einfo.value.channels == ("status",)
     finally:
         await drv.close()
 

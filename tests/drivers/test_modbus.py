@@ -210,7 +210,7 @@ async def test_illegal_address_names_the_channel(sim: ModbusSimController) -> No
         samples = await driver.read(["bearing", "power_kw"])
     finally:
         await driver.close()
-    assert caught.value.channel == "speed_rpm"
+    assert caught.value.channels == ("speed_rpm",)
     assert "unit1/input/5:uint16" in str(caught.value)
     assert "code 2" in str(caught.value)
     assert set(samples) == {"bearing", "power_kw"}
@@ -241,7 +241,7 @@ async def test_busy_read_is_a_driver_error_not_bad_address(sim: ModbusSimControl
     finally:
         await driver.close()
     assert not isinstance(caught.value, BadAddress)
-    assert caught.value.channel == "bearing"
+    assert caught.value.channels == ("bearing",)
 
 
 @pytest.mark.parametrize(("code", "permanent"), [
@@ -257,7 +257,7 @@ async def test_write_exception_codes(sim: ModbusSimController, code: int,
     finally:
         await driver.close()
     assert caught.value.permanent is permanent
-    assert caught.value.channel == "offset"
+    assert caught.value.channels == ("offset",)
     assert caught.value.address == OUTPUTS["offset"].describe()
     assert f"code {code}" in str(caught.value)
     assert writes(sim) == [(16, 0, 2)]  # sent once, never retried
@@ -293,7 +293,7 @@ async def test_silent_server_times_out_fast_and_write_is_not_resent() -> None:
     try:
         with pytest.raises(ControllerTimeout) as caught:
             await asyncio.wait_for(driver.read(["offset"]), FAST_S)
-        assert caught.value.channel == "offset"
+        assert caught.value.channels == ("offset",)
         assert not driver.connected
         await asyncio.sleep(0.06)  # backoff elapsed: the next call reconnects
         received.clear()

@@ -78,7 +78,7 @@ def test_out_of_range_is_refused(type_: str, scale: float, value: float) -> None
         encode(a, value, channel="offset")
     assert isinstance(caught.value, BadAddress)
     assert isinstance(caught.value, ValueError)
-    assert caught.value.channel == "offset"
+    assert caught.value.channels == ("offset",)
     assert a.describe() in str(caught.value)
 
 
@@ -139,6 +139,6 @@ def test_plan_writes_merges_only_back_to_back_registers() -> None:
         ("far", addr(10, "uint16"), [9]),
     ])
     assert [(s.start, s.count, s.names, words) for s, words in writes] == [
-        (0, 4, "offset,heartbeat,status", [1, 2, 7, 5]),
-        (10, 1, "far", [9]),
+        (0, 4, ("offset", "heartbeat", "status"), [1, 2, 7, 5]),
+        (10, 1, ("far",), [9]),
     ]

@@ -99,7 +99,7 @@ async def test_driver_against_libmodbus_server(
     assert samples["i16"].value == -1234
     assert samples["sentinel"].value == pytest.approx(3276.7)
     assert samples["i32_milli"].value == pytest.approx(-123.456)
-    assert caught.value.channel == "bogus"
+    assert caught.value.channels == ("bogus",)
     assert "unit1/input/100:int16" in str(caught.value)
     assert back["offset"].value == -12.5
     assert back["heartbeat"].value == 65535

@@ -133,7 +133,7 @@ async def test_unknown_node_in_a_multi_read_is_bad_address(sim: OpcUaSimControll
     try:
         with pytest.raises(BadAddress, match=r"BadNodeIdUnknown.*ghost.*Machine\.Nope") as err:
             await driver.read(["bearing", "ghost"])
-        assert err.value.channel == "ghost"
+        assert err.value.channels == ("ghost",)
         assert driver.connected  # an address error is not a link error
         assert (await driver.read(["bearing"]))["bearing"].quality is Quality.GOOD
     finally:
@@ -149,7 +149,7 @@ async def test_read_only_node_write_is_permanent_rejection(sim: OpcUaSimControll
     finally:
         await driver.close()
     assert err.value.permanent
-    assert err.value.channel == "ro"
+    assert err.value.channels == ("ro",)
 
 
 async def test_unknown_output_node_is_bad_address(sim: OpcUaSimController) -> None:

@@ -78,7 +78,7 @@ async def test_encodings_round_trip_and_range_refused(sim: S7SimController) -> N
         assert await sim.read_back("enc_dint_milli") == pytest.approx(-1234.567)
         with pytest.raises(BadAddress) as info:
             await drv.write({"enc_word": -1})
-        assert info.value.channel == "enc_word" and info.value.address == "DB3.10:WORD"
+        assert info.value.channels == ("enc_word",) and info.value.address == "DB3.10:WORD"
         with pytest.raises(BadAddress):
             await drv.write({"enc_int": 4000.0})  # raw 40000 does not fit an INT
     finally:
@@ -93,10 +93,10 @@ async def test_missing_db_and_out_of_range_name_the_channel(sim: S7SimController
         for name, addr in bad.items():
             with pytest.raises(BadAddress) as info:
                 await drv.read(["bearing", name])
-            assert (info.value.channel, info.value.address) == (name, addr.describe())
+            assert (info.value.channels, info.value.address) == ((name,), addr.describe())
         with pytest.raises(BadAddress) as winfo:
             await drv.write({"ghost": 1.0})
-        assert winfo.value.channel == "ghost"
+        assert winfo.value.channels == ("ghost",)
         assert (await drv.read(["bearing"]))["bearing"].quality.value == "good"
     finally:
         await drv.close()

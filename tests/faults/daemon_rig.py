@@ -103,21 +103,37 @@ class DaemonRig:
         if self.plant is not None:
             await self.plant(index, self.machine_s)
 
-    async def _pace(self, clock: SteppedClock) -> None:
-        """Each time the daemon sleeps, move the clock to its next deadline."""
+    async def _pace(self, clock: SteppedClock, goal: Callable[[], bool]) -> None:
+        """Each time the daemon sleeps, move the clock to its next deadline, until
+        `goal` holds after a cycle: then the clock stays, and so does the daemon (a
+        condition on the cycles is met at that cycle, however late the test looks)."""
         while True:
             await clock.cycle_done(clock.ticks + 1)
+            if goal():
+                return
             clock.tick()
 
     async def start(self) -> None:
         self._task = asyncio.create_task(self.daemon.run())
-        if self.clock is not None:
-            self._pacer = asyncio.create_task(self._pace(self.clock))
 
     async def until(self, predicate: Callable[[], bool], limit_s: float = 120.0) -> None:
-        """Wait (real time) for `predicate`; fail if the daemon ended or time ran out."""
+        """Wait for `predicate`; fail if the daemon ended or time ran out (real time).
+        Stepped: the clock moves until the predicate holds after a cycle, then stops,
+        so the daemon is held at that cycle."""
         loop = asyncio.get_running_loop()
         end = loop.time() + limit_s
+        if self.clock is not None and self._task is not None and not predicate():
+            pacer = self._pacer = asyncio.create_task(self._pace(self.clock, predicate))
+            done, _ = await asyncio.wait({pacer, self._task}, timeout=limit_s,
+                                         return_when=asyncio.FIRST_COMPLETED)
+            if self._task in done:
+                self._task.result()  # raises what the daemon raised
+                raise AssertionError("the daemon stopped before the condition")
+            if pacer not in done:
+                raise AssertionError(f"condition not reached in {limit_s} s "
+                                     f"({self.daemon.cycles} cycles)")
+            pacer.result()
+            return
         while not predicate():
             if self._task is not None and self._task.done():
                 self._task.result()  # raises what the daemon raised

@@ -1,0 +1,47 @@
+"""The shell's one source of time: `Clock`, injected into the loop and every sink.
+
+Three readings, each injectable (`compd.testing.SteppedClock` drives the loop
+in lockstep: ``Clock(mono=clock, sleep=clock.sleep)``):
+
+- `mono`: monotonic seconds: deadlines, machine time, rate limits of repeated
+  log lines, the checkpoint's ``saved_mono_s``;
+- `wall`: wall-clock seconds: sample ages, the recorder's rows, the last
+  complete cycle that `compd health --state-dir` judges;
+- `sleep`: the wait until the next deadline; None waits on the event loop's
+  own timer (`pause`), which a stop request ends early.
+
+Nothing in the loop or its sinks calls `time` itself.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+
+__all__ = ["Clock", "pause"]
+
+
+@dataclass(frozen=True, slots=True)
+class Clock:
+    mono: Callable[[], float] = time.monotonic
+    wall: Callable[[], float] = time.time
+    sleep: Callable[[float], Awaitable[object]] | None = None
+
+
+async def pause(clock: Clock, stop: asyncio.Event, delay_s: float) -> None:
+    """Until `delay_s` has passed on `clock`, or `stop` is set."""
+    if clock.sleep is None:
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(stop.wait(), delay_s)
+        return
+    stopped = asyncio.ensure_future(stop.wait())
+    nap = asyncio.ensure_future(clock.sleep(max(0.0, delay_s)))
+    try:
+        await asyncio.wait({stopped, nap}, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        stopped.cancel()
+        nap.cancel()
+        await asyncio.gather(stopped, nap, return_exceptions=True)

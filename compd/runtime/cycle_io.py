@@ -1,0 +1,182 @@
+"""One cycle's I/O around the pure cycle, and every call the shell makes into
+it: the one place where `compd.core.cycle.Cycle` is planned, committed,
+exported, held, carried over a reload, or shut down.
+
+Per cycle (`CycleIO.run`): read the channels (and the offset when read-back
+is on, and the probe with [adaptation]) → `Cycle.plan` (its events logged
+before the write: a write that hangs for its timeout must not delay the
+cycle's fault lines) → write `plan.writes` → `Cycle.commit(outcome)`, the
+final `Row` (a cycle with nothing to write, or a dry run, commits `WRITTEN`;
+the events of a failed write's outcome are logged after it) → the `Tick`
+the loop feeds its sinks.
+
+Driver errors on read are a failed read (the cycle holds; the driver
+reconnects by itself with its backoff). Anything else a read raises is a
+driver's bug: it propagates (the loop's ``cycle_broken``: only a fresh
+driver mends it). An exception from the cycle itself is logged (a
+``cycle_error`` of stage ``step``) and the cycle is planned again as a
+failed read, so the fault policy holds and then ramps; when that raises too,
+it propagates. Write errors go back to the cycle as the commit's `Outcome`
+(transient: retried next cycle; permanent: that output's writes stop),
+counted per output the driver's error names (`DriverError.channels`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from compd.config.loader import PROBE_NAMES, LoadedConfig
+from compd.core.adaptation import ProbeReading
+from compd.core.cycle import WRITTEN, Cycle, CycleParams, Outcome, Plan
+from compd.core.events import Event
+from compd.runtime.sinks.base import Tick
+from drivers.base import Driver, Quality, Sample
+from drivers.errors import DriverError, WriteRejected
+
+if TYPE_CHECKING:
+    from compd.faces.telemetry import Metrics
+    from compd.runtime.clock import Clock
+    from compd.runtime.journal import Journal
+    from compd.runtime.reload import Changes
+
+__all__ = ["CycleIO", "Running"]
+
+
+@dataclass
+class Running:
+    """What the loop runs, and what a SIGHUP reload swaps between two cycles."""
+
+    cfg: LoadedConfig
+    params: CycleParams
+    driver: Driver | None = None
+    cycle: Cycle | None = None
+
+
+class CycleIO:
+    def __init__(self, running: Running, *, dry_run: bool, metrics: Metrics,
+                 journal: Journal, clock: Clock) -> None:
+        self.running = running
+        self.dry_run = dry_run
+        self.metrics = metrics
+        self.journal = journal
+        self.clock = clock
+        #: whether the last read heard the controller (None: none yet, or a new driver)
+        self.read_ok: bool | None = None
+
+    # -- the cycle, read to write ----------------------------------------------------
+
+    async def run(self, now_s: float) -> Tick:
+        cfg, driver, cycle = self.running.cfg, self.running.driver, self.running.cycle
+        assert driver is not None and cycle is not None
+        samples, readback, probe = await self._read(driver, cfg)
+        try:
+            if probe is not None:
+                plan = cycle.plan(now_s, samples, readback, wall_s=self.clock.wall(),
+                                  probe=probe)
+            else:
+                plan = cycle.plan(now_s, samples, readback, wall_s=self.clock.wall())
+        except Exception as exc:
+            # the fault policy decides what reaches the machine: this cycle is a failed
+            # read (hold, then ramp after hold_s); raises when it cannot even do that
+            self.journal.cycle_error("step", exc)
+            samples = None
+            plan = cycle.plan(now_s, None, readback, wall_s=self.clock.wall())
+        self.journal.events(plan.events)
+        outcome = await self._write(driver, plan)
+        row = cycle.commit(outcome)
+        self.journal.events(row.write_events)
+        confirmed = self.dry_run or (bool(plan.writes) and outcome.ok)
+        return Tick(cfg=cfg, row=row, samples=samples, confirmed=confirmed,
+                    read_ok=self.read_ok)
+
+    async def _read(self, driver: Driver, cfg: LoadedConfig
+                    ) -> tuple[dict[str, Sample] | None, float | None, ProbeReading | None]:
+        params = self.running.params
+        names = list(cfg.channels)
+        if params.readback:
+            names.append(params.offset_name)
+        names.extend(cfg.probes)
+        limit_s = max(cfg.real_period_s, 2.0 * cfg.raw.controller.timeout_s)
+        try:
+            got = await asyncio.wait_for(driver.read(names), limit_s)
+        except (DriverError, TimeoutError) as exc:  # anything else is a driver's bug
+            if self.read_ok is not False:
+                self.journal.log.warning("read_failed", error=str(exc),
+                                         type=type(exc).__name__)
+            self.read_ok = False
+            for name in getattr(exc, "channels", None) or ("*",):
+                self.metrics.read_errors.labels(channel=name).inc()
+            return None, None, None
+        if self.read_ok is False:
+            self.journal.log.info("controller_reconnected")
+        self.read_ok = True
+        readback: float | None = None
+        if params.readback:
+            rb = got.get(params.offset_name)
+            if rb is not None and rb.quality is not Quality.BAD:
+                readback = float(rb.value)
+        probe = _probe_reading(got) if cfg.probes else None
+        return {n: got[n] for n in cfg.channels if n in got}, readback, probe
+
+    async def _write(self, driver: Driver, plan: Plan) -> Outcome:
+        """The plan's writes (none in a dry run), and how they went."""
+        if self.dry_run or not plan.writes:
+            return WRITTEN
+        try:
+            await driver.write(plan.writes)
+        except DriverError as exc:
+            permanent = isinstance(exc, WriteRejected) and exc.permanent
+            for name in exc.channels or ("*",):
+                self.metrics.write_errors.labels(output=name).inc()
+            return Outcome.failed(exc.channels, permanent=permanent, reason=str(exc))
+        except Exception as exc:  # a driver's bug: a transient write failure
+            self.metrics.write_errors.labels(output="*").inc()
+            return Outcome.failed(None, reason=f"{type(exc).__name__}: {exc}")
+        self.journal.write_ok()
+        return WRITTEN
+
+    # -- the cycle outside plan and commit ----------------------------------------------------
+
+    def export_state(self) -> dict[str, Any]:
+        assert self.running.cycle is not None
+        return self.running.cycle.export_state()
+
+    def operator_hold(self, on: bool, who: str) -> Event | None:
+        """None when nothing changed; raises LookupError before the cycle exists."""
+        cycle = self.running.cycle
+        if cycle is None:
+            raise LookupError("no cycle yet")
+        return cycle.set_operator_hold(on, who)
+
+    def carry_over(self, cfg: LoadedConfig, params: CycleParams, changes: Changes) -> None:
+        """A reload: the cycle that continues the running one (`compd.runtime.reload.
+        handover`: built from its state, then `Cycle.carry_over`)."""
+        from compd.runtime.reload import handover
+
+        assert self.running.cycle is not None
+        self.running.cycle = handover(self.running.cycle, cfg, params, changes)
+
+    def begin_shutdown(self) -> None:
+        assert self.running.cycle is not None
+        self.running.cycle.begin_shutdown()
+
+    @property
+    def sequence(self) -> int:
+        return self.running.cycle.sequence if self.running.cycle is not None else 0
+
+    @property
+    def offset_um(self) -> float:
+        cycle = self.running.cycle
+        return cycle.output.current_um if cycle is not None else math.nan
+
+
+def _probe_reading(got: dict[str, Sample]) -> ProbeReading:
+    """The probe's value and counter as read (NaN where a read was bad or missing)."""
+    def value(name: str) -> float:
+        s = got.get(name)
+        return float(s.value) if s is not None and s.quality is not Quality.BAD else math.nan
+
+    return ProbeReading(value_um=value(PROBE_NAMES[0]), counter=value(PROBE_NAMES[1]))

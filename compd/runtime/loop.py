@@ -1,0 +1,152 @@
+"""The loop: one cycle per deadline, its tick fed to the sinks, the shutdown policy.
+
+Scheduling (`compd.core.schedule`): absolute deadlines on the injected
+monotonic clock, one every period / time_scale real seconds. A cycle that
+ends past its next deadline is an overrun: counted, logged, and the schedule
+skips to the next deadline in the future (never a burst of catch-up cycles).
+
+Between two cycles (never during a shutdown ramp) `between` runs: the daemon
+swaps a reloaded config in there (`compd.runtime.reloading`). Each cycle
+(`one_cycle`): `compd.runtime.cycle_io.CycleIO.run` (read, plan, write,
+commit), then every sink is fed the tick (the committed row), none of which
+may stop the cycle; its time goes to ``compd_cycle_seconds``; then the
+checkpoint (last, outside that time: it fsyncs).
+
+A stop request (`stop_requested`): the current cycle finishes, then the
+shutdown policy: "hold" ends the loop, "ramp_to_zero" keeps cycling the ramp
+until the offset is 0 (or its budget of cycles is spent, or a second stop
+request ends it). A cycle that raises even as a failed read is broken
+(``cycle_broken``): the shutdown policy is tried (the ramp needs no input and
+no model), and the loop ends with EX_SOFTWARE. A checkpoint is written at
+the end whichever way the loop ends.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Awaitable, Callable
+from typing import TYPE_CHECKING
+
+from compd.core.schedule import Schedule, shutdown_ramp_cycles
+from compd.runtime.clock import pause
+from compd.sysexits import EX_SOFTWARE
+
+if TYPE_CHECKING:
+    from compd.core.plan import Row
+    from compd.faces.telemetry import Metrics
+    from compd.runtime.clock import Clock
+    from compd.runtime.cycle_io import CycleIO
+    from compd.runtime.journal import Journal
+    from compd.runtime.sinks.base import CycleSink
+    from compd.runtime.sinks.checkpoint import CheckpointSink
+
+__all__ = ["CycleLoop"]
+
+
+class CycleLoop:
+    def __init__(self, io: CycleIO, *, sinks: list[CycleSink], checkpoint: CheckpointSink,
+                 journal: Journal, metrics: Metrics, clock: Clock, once: bool = False,
+                 between: Callable[[], Awaitable[None]] | None = None,
+                 reloads: Callable[[], int] = lambda: 0) -> None:
+        self.io = io
+        self.sinks = sinks
+        self.checkpoint = checkpoint
+        self.journal = journal
+        self.metrics = metrics
+        self.clock = clock
+        self.once = once
+        self.between = between
+        self.reloads = reloads
+        self.stop_requested = asyncio.Event()
+        #: the signal that asked us to stop (None: a caller's request)
+        self.stop_signal: str | None = None
+        self.cycles = 0
+        self.overruns = 0
+        self.last_result: Row | None = None
+        self._checkpoint_due = False
+
+    async def one_cycle(self, now_s: float) -> Row:
+        tick = await self.io.run(now_s)
+        self.cycles += 1
+        self.last_result = tick.row
+        for sink in self.sinks:  # none of them may stop the cycle (the offset is written)
+            self.journal.guard(sink.stage, sink.feed, tick)
+        self._checkpoint_due = self.checkpoint.note(tick)
+        return tick.row
+
+    def _ramp_budget(self) -> int:
+        """Begin the ramp-to-zero shutdown; the cycles it may take."""
+        self.io.begin_shutdown()
+        p = self.io.running.params
+        return shutdown_ramp_cycles(p.limit_um, p.slew_um_s, p.period_s)
+
+    async def run(self) -> int:
+        cfg = self.io.running.cfg
+        clock, log = self.clock, self.journal.log
+        schedule = Schedule(cfg.real_period_s, clock.mono(), time_scale=cfg.raw.machine.time_scale)
+        ramp_left: int | None = None
+        broken = False
+        while True:
+            if self.between is not None and ramp_left is None:
+                try:
+                    await self.between()
+                except Exception as exc:  # after the handover (reopening a sink): go on
+                    self.journal.cycle_error("reload", exc)
+            cfg = self.io.running.cfg
+            started = clock.mono()
+            try:
+                result = await self.one_cycle(schedule.machine_s(started))
+            except Exception as exc:  # the cycle raised even as a failed read: broken
+                error = f"{type(exc).__name__}: {exc}"
+                log.error("cycle_broken", error=error, sequence=self.io.sequence,
+                          offset_um=self.io.offset_um, shutdown=cfg.raw.faults.shutdown,
+                          exc_info=True)
+                self.journal.board.alarm("cycle_broken", "error", {"error": error})
+                if broken or ramp_left is not None or self.once:
+                    break  # the ramp cannot go on either: what is left is the checkpoint
+                broken = True
+                if cfg.raw.faults.shutdown != "ramp_to_zero" or self.io.dry_run:
+                    break
+                ramp_left = self._ramp_budget()
+                log.info("shutdown_requested", policy="ramp_to_zero",
+                         offset_um=self.io.offset_um, reason="cycle_broken")
+                schedule.advance(clock.mono())
+                await pause(clock, self.stop_requested, schedule.wait_s(clock.mono()))
+                continue
+            self.metrics.cycle_seconds.observe(clock.mono() - started)
+            if self.once:
+                self.checkpoint.save()
+                return 0 if result.complete else 1
+            if self._checkpoint_due:
+                self.checkpoint.save()
+            if ramp_left is not None:
+                ramp_left -= 1
+                if result.shutdown_done or ramp_left <= 0:
+                    log.info("shutdown_ramp_finished", offset_um=result.offset_um,
+                             reached_zero=result.shutdown_done)
+                    break
+            elif self.stop_requested.is_set():
+                if cfg.raw.faults.shutdown == "ramp_to_zero" and not self.io.dry_run:
+                    ramp_left = self._ramp_budget()
+                    self.stop_requested = asyncio.Event()  # a second request ends the ramp
+                    log.info("shutdown_requested", policy="ramp_to_zero",
+                             offset_um=result.offset_um, signal=self.stop_signal)
+                else:
+                    log.info("shutdown_requested", policy="hold", offset_um=result.offset_um,
+                             signal=self.stop_signal)
+                    break
+            missed = schedule.advance(clock.mono())
+            if missed:
+                self.overruns += 1
+                self.metrics.overruns.inc()
+                log.warning("cycle_overrun", sequence=result.sequence,
+                            skipped_deadlines=missed, overruns=self.overruns)
+            await pause(clock, self.stop_requested, schedule.wait_s(clock.mono()))
+            if ramp_left is not None and self.stop_requested.is_set():
+                log.warning("shutdown_ramp_interrupted", offset_um=self.io.offset_um)
+                break
+        self.checkpoint.save()
+        log.info("daemon_stopped", cycles=self.cycles, overruns=self.overruns,
+                 offset_um=self.io.offset_um, reloads=self.reloads(), signal=self.stop_signal,
+                 broken=broken)
+        return EX_SOFTWARE if broken else 0

@@ -1,0 +1,64 @@
+"""compd's own OPC UA server face as a sink ([faces.opcua]): the machine's
+state for the PLC and SCADA, and ``SetHold`` for the operator.
+
+The server starts beside the loop (`open` starts it in a task: it takes
+seconds, and compensation starts at once and never waits for it); once up,
+each cycle hands it the committed row, whose `snapshot` it reads
+(`compd.faces.opcua_face.OpcUaFace.publish`), and the face writes it in its
+own task. `close` waits for a start still under way, then stops the server.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from compd.runtime.sinks.base import CycleSink, Tick
+
+if TYPE_CHECKING:
+    from compd.config.loader import LoadedConfig
+    from compd.faces.opcua_face import OpcUaFace
+    from compd.faces.telemetry import Metrics
+
+__all__ = ["OpcUaSink"]
+
+
+class OpcUaSink(CycleSink):
+    stage = "opcua_face"
+
+    def __init__(self, cfg: LoadedConfig, *, metrics: Metrics,
+                 operator_hold: Callable[[bool, str], bool]) -> None:
+        self._cfg = cfg
+        self._metrics = metrics
+        self._operator_hold = operator_hold
+        #: the face once started
+        self.face: OpcUaFace | None = None
+        #: its start, while under way
+        self.starting: asyncio.Task[None] | None = None
+
+    async def open(self) -> None:
+        if not self._cfg.raw.faces.opcua.enabled:
+            return
+        from compd.faces.opcua_face import OpcUaFace
+
+        face = OpcUaFace(self._cfg, self._operator_hold, self._metrics.registry)
+
+        async def start() -> None:
+            if await face.start():
+                self.face = face
+
+        self.starting = asyncio.get_running_loop().create_task(start(),
+                                                               name="opcua-face-start")
+
+    def feed(self, tick: Tick) -> None:
+        if self.face is not None:  # a snapshot; the face writes it in its own task
+            self.face.publish(tick.row)
+
+    async def close(self) -> None:
+        starting, self.starting = self.starting, None
+        if starting is not None:
+            await asyncio.gather(starting, return_exceptions=True)
+        face, self.face = self.face, None
+        if face is not None:
+            await face.stop()

@@ -1,0 +1,100 @@
+"""The recorder as a sink: each cycle's row into SQLite (`compd.runtime.recorder`),
+stamped with the wall-clock time of recording.
+
+Compensation never stops for the recorder: one that cannot open is logged
+(``recorder_unavailable``) and the daemon runs without it; one that fails
+while running drops rows (counted in ``compd_records_dropped``) and raises
+its alarm (``recorder_failing``, then ``recorder_recovered``). Retention is a
+row count (one row per cycle), never judged by a clock that can jump. A
+reload that changes ``[recorder]`` closes it and opens the new one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import TYPE_CHECKING, Any
+
+from compd.runtime.sinks.base import CycleSink, Tick
+
+if TYPE_CHECKING:
+    from compd.config.loader import LoadedConfig
+    from compd.faces.telemetry import Metrics
+    from compd.runtime.clock import Clock
+    from compd.runtime.journal import Journal
+    from compd.runtime.recorder import Recorder
+    from compd.runtime.reload import Changes
+
+__all__ = ["RecorderSink"]
+
+
+class RecorderSink(CycleSink):
+    stage = "record"
+
+    def __init__(self, cfg: LoadedConfig, *, dry_run: bool, metrics: Metrics, clock: Clock,
+                 journal: Journal) -> None:
+        self._cfg = cfg
+        self._dry_run = dry_run
+        self._metrics = metrics
+        self._clock = clock
+        self._journal = journal
+        #: the open recorder (None: none configured, a dry run, or it could not open)
+        self.recorder: Recorder | None = None
+        self._alarm = False
+
+    @property
+    def log(self) -> Any:
+        return self._journal.log
+
+    async def open(self) -> None:
+        self.open_now()
+
+    def open_now(self) -> None:
+        path = self._cfg.recorder_path
+        if self._dry_run or path is None:
+            return
+        from compd.runtime.recorder import Recorder
+
+        rc = self._cfg.raw.recorder
+        keep_rows = (max(1, math.ceil(rc.retention_days * 86400.0 / self._cfg.period_s))
+                     if rc.retention_days else None)
+        recorder = Recorder(path, commit_every=rc.commit_every, keep_rows=keep_rows)
+        try:
+            recorder.open()
+        except Exception as exc:  # compensation never stops for the recorder
+            self.log.error("recorder_unavailable", path=str(path), error=str(exc))
+            return
+        self.recorder = recorder
+
+    def feed(self, tick: Tick) -> None:
+        recorder = self.recorder
+        if recorder is None:
+            return
+        dropped = recorder.dropped
+        recorder.record(dataclasses.replace(tick.row.record, wall_s=self._clock.wall()))
+        if recorder.dropped > dropped:
+            self._metrics.records_dropped.inc(recorder.dropped - dropped)
+        alarm = bool(recorder.alarm)
+        if alarm != self._alarm:
+            # compensation goes on either way; the alarm tells that samples are lost
+            self._alarm = alarm
+            self._metrics.recorder_alarm.set(1 if alarm else 0)
+            if alarm:
+                self.log.error("recorder_failing", error=recorder.last_error,
+                               dropped=recorder.dropped)
+            else:
+                self.log.info("recorder_recovered", dropped=recorder.dropped)
+
+    def reload(self, cfg: LoadedConfig, changes: Changes) -> None:
+        self._cfg = cfg
+        if changes.recorder:
+            self.close_now()
+            self.open_now()
+
+    async def close(self) -> None:
+        self.close_now()
+
+    def close_now(self) -> None:
+        recorder, self.recorder = self.recorder, None
+        if recorder is not None:
+            recorder.close()

@@ -1,0 +1,161 @@
+"""Telemetry as a sink: the cycle's Prometheus metrics, systemd's sd_notify,
+and the count of complete cycles (the health evidence).
+
+Each cycle: the offset, the fault state, the model's output, each channel's
+value, invalid channels counted as read errors, the adaptation estimator's
+state; a complete cycle (`compd.core.cycle.offset_in_force`) is counted and
+its (wall, monotonic) time kept for the checkpoint that `compd health
+--state-dir` judges. READY=1 once the loop runs and the controller answers
+(a broken sensor at start is a fault the policy handles, not a start
+failure); WATCHDOG=1 every cycle from then on; STATUS= on a state change or
+every `STATUS_EVERY` cycles.
+
+`open` labels the metrics for the config and, when this daemon serves its own
+endpoint (`serve`; `compd run DIR` serves every machine's registry on one),
+starts the HTTP server with the operator page beside /metrics. A port that
+cannot be bound is logged (``metrics_unavailable``) and compensation runs
+without it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from compd import __version__
+from compd.faces.http_server import limits_from
+from compd.runtime.sinks.base import CycleSink, Tick
+
+if TYPE_CHECKING:
+    from compd.config.loader import LoadedConfig
+    from compd.faces.status import StatusBoard
+    from compd.faces.telemetry import Metrics, WSGIApp
+    from compd.runtime.clock import Clock
+    from compd.runtime.journal import Journal
+    from compd.runtime.reload import Changes
+    from compd.runtime.sdnotify import Notifier
+
+__all__ = ["STATUS_EVERY", "TelemetrySink"]
+
+#: STATUS= is sent on a state change or at least this often (cycles)
+STATUS_EVERY = 10
+
+
+class TelemetrySink(CycleSink):
+    stage = "telemetry"
+
+    def __init__(self, cfg: LoadedConfig, *, metrics: Metrics, notifier: Notifier,
+                 board: StatusBoard, clock: Clock, journal: Journal, serve: bool) -> None:
+        self._cfg = cfg
+        self.metrics = metrics
+        self.notifier = notifier
+        self._board = board
+        self._clock = clock
+        self._journal = journal
+        self._serve = serve
+        self.complete_cycles = 0
+        #: (wall, monotonic) time of the last complete cycle: the health evidence
+        self.last_complete: tuple[float, float] | None = None
+        self._ready_sent = False
+        self._last_status = ""
+
+    async def open(self) -> None:
+        self.configure()
+        self.start_http()
+
+    def configure(self) -> None:
+        cfg = self._cfg
+        self.metrics.configure({n: ch.unit for n, ch in cfg.raw.channels.items()},
+                               list(cfg.outputs), version=__version__,
+                               model_sha256=cfg.model_sha256, config_sha256=cfg.config_sha256)
+        self.metrics.period_seconds.set(cfg.real_period_s)
+
+    def start_http(self) -> None:
+        if not self._serve:
+            return
+        tel = self._cfg.raw.telemetry
+        if tel.metrics_port is None:
+            if self._cfg.raw.faces.http.enabled:
+                self._journal.log.warning(
+                    "status_page_unavailable",
+                    reason="[faces.http] is served beside /metrics: it needs [telemetry] "
+                           "metrics_port")
+            return
+        try:
+            self.metrics.start_http(tel.metrics_port, tel.metrics_host, self._status_pages(),
+                                    limits_from(tel))
+        except OSError as exc:  # a port in use: compensation never stops for telemetry
+            self._journal.log.error(
+                "metrics_unavailable", host=tel.metrics_host, port=tel.metrics_port,
+                error=str(exc), hint="compd health --url will report unhealthy; free the "
+                                     "port or change telemetry.metrics_port")
+
+    def _status_pages(self) -> Callable[[WSGIApp], WSGIApp] | None:
+        """The operator page's wrapper of the metrics app, None without [faces.http]."""
+        http = self._cfg.raw.faces.http
+        if not http.enabled:
+            return None
+        from compd.faces.status_http import daemon_document, with_status
+
+        board = self._board
+        board.history_h, board.refresh_s = http.history_h, http.refresh_s  # a reload
+        return with_status(lambda history: daemon_document(board, history=history),
+                           lambda: board.refresh_s)
+
+    def reload(self, cfg: LoadedConfig, changes: Changes) -> None:
+        self._cfg = cfg
+        if changes.metrics:
+            self.metrics.stop()
+            self.start_http()
+        self.configure()
+
+    async def close(self) -> None:
+        self.notifier.stopping()
+        self.metrics.stop()
+
+    def feed(self, tick: Tick) -> None:
+        result, m = tick.row, self.metrics
+        m.offset_um.set(result.offset_um)
+        m.fault_state.set(result.state.gauge)
+        m.model_output(result.model_um, result.record.validity)
+        if tick.samples:
+            for name, s in tick.samples.items():
+                if math.isfinite(s.value):
+                    m.channel(name, s.value)
+        for name, reason in result.record.validity.items():
+            if reason is not None and reason != "read_failed":
+                m.read_errors.labels(channel=name).inc()
+        self._journal.log.debug("cycle", sequence=result.sequence, state=result.state,
+                                offset_um=round(result.offset_um, 4), model_um=result.model_um,
+                                shadow_um=result.shadow_um, status=result.status)
+        if result.in_force:  # complete (compd.core.cycle.offset_in_force): what the
+            # model asks for is in force (never a held, faulted or unconfirmed offset)
+            self.complete_cycles += 1
+            wall_s = self._clock.wall()
+            m.cycle_complete(wall_s)
+            self.last_complete = (wall_s, self._clock.mono())
+        self._notify(tick)
+        est = result.snapshot.adaptation
+        if est is not None:
+            m.adaptation(est.bias_um, est.bias_sigma_um, est.correction_um,
+                         result.record.probe, est.standing_down, est.model_worse)
+
+    def _notify(self, tick: Tick) -> None:
+        result = tick.row
+        if not self._ready_sent and (result.complete or tick.read_ok):
+            # up: the loop runs and the controller answers
+            self.notifier.ready()
+            self._ready_sent = True
+            self._journal.log.info("ready", sequence=result.sequence,
+                                   offset_um=round(result.offset_um, 4),
+                                   complete=result.complete)
+        if self._ready_sent:
+            # the loop is alive: systemd restarting us would not mend a sensor or a link,
+            # and a restart would reset the fault policy's hold timer (never ramping)
+            self.notifier.watchdog()
+        state = str(result.state)
+        if state != self._last_status or result.sequence % STATUS_EVERY == 0:
+            self.notifier.status(f"offset {result.offset_um:.2f} um, state {state}")
+            self._last_status = state
+
