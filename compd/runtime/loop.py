@@ -80,6 +80,38 @@ class CycleLoop:
         p = self.io.running.params
         return shutdown_ramp_cycles(p.limit_um, p.slew_um_s, p.period_s)
 
+    def _broken(self, exc: Exception, *, again: bool) -> int | None:
+        """A cycle that raised even as a failed read: logged and alarmed; the shutdown
+        ramp's budget to go on with, or None to stop now (a second break, a break
+        during the ramp or in --once, or a shutdown policy that holds)."""
+        cfg = self.io.running.cfg
+        error = f"{type(exc).__name__}: {exc}"
+        self.journal.log.error("cycle_broken", error=error, sequence=self.io.sequence,
+                               offset_um=self.io.offset_um, shutdown=cfg.raw.faults.shutdown,
+                               exc_info=True)
+        self.journal.board.alarm("cycle_broken", "error", {"error": error})
+        if again or self.once:
+            return None  # the ramp cannot go on either: what is left is the checkpoint
+        if cfg.raw.faults.shutdown != "ramp_to_zero" or self.io.dry_run:
+            return None
+        budget = self._ramp_budget()
+        self.journal.log.info("shutdown_requested", policy="ramp_to_zero",
+                              offset_um=self.io.offset_um, reason="cycle_broken")
+        return budget
+
+    def _stop(self, offset_um: float) -> int | None:
+        """A stop was requested: the shutdown ramp's budget, or None to stop now (hold)."""
+        cfg = self.io.running.cfg
+        if cfg.raw.faults.shutdown == "ramp_to_zero" and not self.io.dry_run:
+            budget = self._ramp_budget()
+            self.stop_requested = asyncio.Event()  # a second request ends the ramp
+            self.journal.log.info("shutdown_requested", policy="ramp_to_zero",
+                                  offset_um=offset_um, signal=self.stop_signal)
+            return budget
+        self.journal.log.info("shutdown_requested", policy="hold", offset_um=offset_um,
+                              signal=self.stop_signal)
+        return None
+
     async def run(self) -> int:
         cfg = self.io.running.cfg
         clock, log = self.clock, self.journal.log
@@ -97,19 +129,10 @@ class CycleLoop:
             try:
                 result = await self.one_cycle(schedule.machine_s(started))
             except Exception as exc:  # the cycle raised even as a failed read: broken
-                error = f"{type(exc).__name__}: {exc}"
-                log.error("cycle_broken", error=error, sequence=self.io.sequence,
-                          offset_um=self.io.offset_um, shutdown=cfg.raw.faults.shutdown,
-                          exc_info=True)
-                self.journal.board.alarm("cycle_broken", "error", {"error": error})
-                if broken or ramp_left is not None or self.once:
-                    break  # the ramp cannot go on either: what is left is the checkpoint
-                broken = True
-                if cfg.raw.faults.shutdown != "ramp_to_zero" or self.io.dry_run:
+                ramp_left = self._broken(exc, again=broken or ramp_left is not None)
+                if ramp_left is None:
                     break
-                ramp_left = self._ramp_budget()
-                log.info("shutdown_requested", policy="ramp_to_zero",
-                         offset_um=self.io.offset_um, reason="cycle_broken")
+                broken = True
                 schedule.advance(clock.mono())
                 await pause(clock, self.stop_requested, schedule.wait_s(clock.mono()))
                 continue
@@ -126,14 +149,8 @@ class CycleLoop:
                              reached_zero=result.shutdown_done)
                     break
             elif self.stop_requested.is_set():
-                if cfg.raw.faults.shutdown == "ramp_to_zero" and not self.io.dry_run:
-                    ramp_left = self._ramp_budget()
-                    self.stop_requested = asyncio.Event()  # a second request ends the ramp
-                    log.info("shutdown_requested", policy="ramp_to_zero",
-                             offset_um=result.offset_um, signal=self.stop_signal)
-                else:
-                    log.info("shutdown_requested", policy="hold", offset_um=result.offset_um,
-                             signal=self.stop_signal)
+                ramp_left = self._stop(result.offset_um)
+                if ramp_left is None:
                     break
             missed = schedule.advance(clock.mono())
             if missed:

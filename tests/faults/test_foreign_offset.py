@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import math
 from pathlib import Path
 
 from pymodbus.client import AsyncModbusTcpClient
@@ -44,6 +45,28 @@ async def _foreign_write(port: int, value: float) -> None:
         client.close()
 
 
+async def _write_until_held(rec: RecordingSim, port: int, value: float,
+                            proc: asyncio.subprocess.Process, log: Path) -> int:
+    """The foreign write, made again until the daemon holds. A write that lands between
+    the daemon's read and its own write of the same cycle is overwritten before the
+    daemon could see it (the register is the daemon's; a second writer that means it
+    writes again), so one write alone left the test waiting on a busy machine. Returns
+    the count of offset writes before the last foreign one."""
+    loop = asyncio.get_running_loop()
+    last = {"at": len(rec.writes), "t": -math.inf}
+
+    async def held_or_again() -> bool:
+        if await _held(rec):
+            return True
+        if loop.time() - last["t"] >= 0.2:  # two of the daemon's periods at 10x
+            last["at"], last["t"] = len(rec.writes), loop.time()
+            await _foreign_write(port, value)
+        return False
+
+    await until(held_or_again, proc, log, "status OFFSET_HELD")
+    return int(last["at"])
+
+
 async def _status(rec: RecordingSim) -> int:
     return int((await rec.sim.outputs())["status"])
 
@@ -60,9 +83,7 @@ async def test_foreign_offset_is_held_then_ramped_from(rec: RecordingSim,
         await rec.sim.publish({"bearing": 30.0})
         await until(lambda: rec.offsets[-1] > 5.0, proc, log, "offset following the heat")
         before = rec.offsets[-1]
-        foreign_at = len(rec.writes)
-        await _foreign_write(port, 1000.0)
-        await until(lambda: _held(rec), proc, log, "status OFFSET_HELD")
+        foreign_at = await _write_until_held(rec, port, 1000.0, proc, log)
         hb = await heartbeat(rec.sim)
         await until(lambda: _hb_past(rec, hb + 10), proc, log, "heartbeat going on")
         assert await _status(rec) & Status.ALARM

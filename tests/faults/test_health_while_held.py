@@ -30,7 +30,7 @@ from .daemon_run import (
     start_daemon,
     until,
 )
-from .test_foreign_offset import _foreign_write, _held, _status
+from .test_foreign_offset import _foreign_write, _status, _write_until_held
 
 
 def _health(*argv: str) -> tuple[int, str]:
@@ -69,8 +69,7 @@ async def test_a_held_output_is_unhealthy_by_every_source(rec: RecordingSim,
         before = await asyncio.to_thread(_health, "--state-dir", str(state))
         before_url = await asyncio.to_thread(_health, "--url", url)
 
-        await _foreign_write(modbus_port, 1000.0)
-        await until(lambda: _held(rec), proc, log, "status OFFSET_HELD")
+        await _write_until_held(rec, modbus_port, 1000.0, proc, log)
         await until(lambda: _last_state(state) == "held", proc, log, "the alarm checkpointed")
         hb = await heartbeat(rec.sim)
         await until(lambda: _hb_past(rec, hb + 20), proc, log, "held cycles going on")
