@@ -42,7 +42,10 @@ from models.sanity import check_model
 
 #: output names as the driver sees them
 OUTPUT_NAMES: tuple[str, ...] = ("offset", "heartbeat", "status")
-_INTEGER_TYPES = {"INT", "DINT", "WORD", "int16", "uint16", "int32", "byte", "word", "long"}
+#: the controller's state read beside the channels ([output] machine_on, estop)
+STATE_NAMES: tuple[str, ...] = ("machine_on", "estop")
+_INTEGER_TYPES = {"INT", "DINT", "WORD", "int16", "uint16", "int32", "byte", "word", "long",
+                  "s32", "u32"}
 
 
 @dataclass
@@ -66,6 +69,8 @@ class LoadedConfig:
     #: (read under PROBE_NAMES beside the channels)
     adaptation: AdaptationSettings | None = None
     probes: dict[str, Address] = field(default_factory=dict)
+    #: the controller's state ([output] machine_on, estop), read under STATE_NAMES
+    states: dict[str, Address] = field(default_factory=dict)
 
     @property
     def period_s(self) -> float:
@@ -244,6 +249,14 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
     clash = sorted(set(channels) & set(OUTPUT_NAMES))
     if clash:
         raise ConfigError(f"channels.{clash[0]}", "this name is reserved for an output")
+    states: dict[str, Address] = {}
+    for name in STATE_NAMES:
+        doc_addr = getattr(out, name)
+        if doc_addr is not None:
+            if name in channels:
+                raise ConfigError(f"channels.{name}", "this name is reserved for the "
+                                  f"controller's state (output.{name})")
+            states[name] = _validate_address(ctl.protocol, doc_addr, f"output.{name}")
 
     m = raw.model
     if m.file is not None:
@@ -281,7 +294,7 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         state_dir=state_dir, recorder_path=recorder_path,
         config_sha256=hashlib.sha256(text).hexdigest(), model_sha256=model_sha256(model),
         offset_quantum_um=_quantum_um(outputs["offset"], out.units_per_um),
-        adaptation=adaptation, probes=probes)
+        adaptation=adaptation, probes=probes, states=states)
 
 
 def _adaptation(raw: DaemonConfig, channels: dict[str, Address],

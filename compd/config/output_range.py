@@ -24,7 +24,7 @@ _FLOAT32_MAX = 3.4028234663852886e38
 #: (every compd.core.output.Status bit); here because the config is the room
 #: below the core (tests/compd/test_output_range.py holds them equal)
 HEARTBEAT_MAX = 32767
-STATUS_MAX = (1 << 14) - 1
+STATUS_MAX = (1 << 15) - 1
 
 #: (protocol, type) -> raw range of the encoding (ints: an integer encoding)
 RAW_RANGES: dict[tuple[str, str], tuple[float, float]] = {
@@ -37,6 +37,8 @@ RAW_RANGES: dict[tuple[str, str], tuple[float, float]] = {
     ("focas", "long"): (-(2**31), 2**31 - 1), ("focas", "float"): (-_FLOAT32_MAX,
                                                                   _FLOAT32_MAX),
     ("focas", "double"): (-math.inf, math.inf),
+    ("linuxcnc", "s32"): (-(2**31), 2**31 - 1), ("linuxcnc", "u32"): (0, 2**32 - 1),
+    ("linuxcnc", "float"): (-math.inf, math.inf), ("linuxcnc", "bit"): (0, 1),
 }
 
 

@@ -20,6 +20,13 @@ One `Cycle.step(now_s, samples, readback_offset_um)`:
    fault: hold, then ramp) with MODEL_RANGE and ALARM;
 4. fault policy (`compd.core.faults`) picks the target; the output stage
    (`compd.core.output`) makes it safe;
+   While the controller says it takes no offset (``controller_off``: machine
+   off, E-stop; `[output] machine_on`/`estop`) the read-back is not judged,
+   the output stage stands still and no offset is written (status
+   CONTROLLER_OFF and HOLDING, state "hold"); the model keeps stepping. The
+   first read-back once it is on again is what the controller holds (LinuxCNC
+   zeroes its external offset at machine on): taken as it is, no alarm, and
+   the output ramps from it at the slew limit;
 5. writes: the offset (in controller units; omitted once the controller
    refused it permanently, and while read-back is configured but the read
    failed, since then the controller's state is unknown), the heartbeat
@@ -220,6 +227,8 @@ class Cycle:
         self._model_range = False
         self._result: CycleResult | None = None
         self._later: list[Event] = []
+        #: why the controller takes no offset now ("machine_off", "estop"), None: it does
+        self.controller_off: str | None = None
         self.probes: ProbeStage | None = None
         #: an operator's hold (`set_operator_hold`): the offset stays where it is
         self.operator_hold = operator_hold
@@ -315,17 +324,35 @@ class Cycle:
 
     def step(self, now_s: float, samples: Mapping[str, Sample] | None,
              readback_offset_um: float | None = None, *,
-             wall_s: float | None = None, probe: ProbeReading | None = None) -> CycleResult:
+             wall_s: float | None = None, probe: ProbeReading | None = None,
+             controller_off: str | None = None) -> CycleResult:
         """One cycle at machine time `now_s`. `samples` None: the read failed.
         `readback_offset_um`: the controller's offset as read (controller units).
-        `probe`: the measuring cycle's values as read (`compd.core.adaptation`)."""
+        `probe`: the measuring cycle's values as read (`compd.core.adaptation`).
+        `controller_off`: why the controller takes no offset now (module, step 1)."""
         p = self.params
         self.sequence += 1
         events, self._later = self._later, []
         status = Status(0)
         dt = p.period_s if self._last_now is None else now_s - self._last_now
 
-        if readback_offset_um is not None:
+        was_off, self.controller_off = self.controller_off, controller_off
+        off = controller_off is not None
+        if off:
+            status |= Status.CONTROLLER_OFF
+            if was_off != controller_off:
+                events.append(Event("controller_off", {
+                    "reason": controller_off, "offset_um": self.output.current_um}))
+        elif was_off is not None:
+            rb = readback_offset_um
+            rb_um = (self.output.from_controller(rb) if rb is not None and math.isfinite(rb)
+                     else None)
+            if rb_um is not None and abs(rb_um) <= self.output.limit_um:
+                self.output.adopt(rb_um)  # what it holds now: ramp from there
+            elif rb is not None:
+                status |= self._readback(rb, events)
+            events.append(Event("controller_on", {"was": was_off, "readback_um": rb_um}))
+        elif readback_offset_um is not None:
             status |= self._readback(readback_offset_um, events)
 
         validity = self.validator.check(now_s, samples, wall_s)
@@ -359,7 +386,11 @@ class Cycle:
         target = self.output.current_um if decision.target_um is None else decision.target_um
         if self.operator_hold and decision.state == FaultState.OK:
             target = self.output.current_um
-        offset_um = self.output.step(target, dt, deadband=decision.state == FaultState.OK)
+        if off:  # the output stands still while the controller takes no offset
+            self.output.slewing = False
+            offset_um = self.output.current_um
+        else:
+            offset_um = self.output.step(target, dt, deadband=decision.state == FaultState.OK)
         # only once the stage has moved: a step that raised before this (the shell then
         # steps again as a failed read) leaves the interval to that step, so a hold still ramps
         self._last_now = now_s
@@ -374,7 +405,7 @@ class Cycle:
 
         writes: dict[str, float] = {}
         self._offset_pending = False
-        if not self.write_stopped and not self.output.held:
+        if not self.write_stopped and not self.output.held and not off:
             if p.readback and readback_offset_um is None:
                 # the controller still holds what it last confirmed: start from there
                 self.output.revert()
@@ -406,7 +437,7 @@ class Cycle:
             attempted_um=offset_um if self._offset_pending else None,
             probe=self.probes.last if self.probes is not None else None)
         done = self.faults.shutting_down and (offset_um == 0.0 or self.write_stopped
-                                              or self.output.held)
+                                              or self.output.held or off)
         self._result = CycleResult(
             sequence=self.sequence, writes=writes, offset_um=offset_um, shadow_um=shadow_um,
             status=int(status), heartbeat=self.heartbeat, complete=valid, record=record,
@@ -506,6 +537,8 @@ class Cycle:
             return FaultState.STOPPED
         if self.output.held:
             return FaultState.HELD
+        if self.controller_off is not None and state == FaultState.OK:
+            return FaultState.HOLD
         return FaultState.WRITE_FAULT if self.write_fault else state
 
     def _model_out_of_range(self, model_um: float, events: list[Event]) -> bool:
@@ -600,8 +633,8 @@ class Cycle:
             s |= Status.WRITE_FAULT | Status.ALARM
         if self.operator_hold:
             s |= Status.OPERATOR_HOLD
-            if s & Status.OK:
-                s = (s & ~Status.OK) | Status.HOLDING
+        if (self.operator_hold or self.controller_off is not None) and s & Status.OK:
+            s = (s & ~Status.OK) | Status.HOLDING
         if self.output.slewing:
             s |= Status.SLEWING
         return s

@@ -1,0 +1,74 @@
+"""The controller takes no offset (machine off, E-stop: `[output] machine_on`,
+`estop`): the cycle holds, writes no offset, keeps stepping the model, and
+when the machine is on again ramps from what the controller then holds
+(LinuxCNC zeroes its external offset at machine on), with no alarm."""
+
+from __future__ import annotations
+
+from compd.core.cycle import Cycle
+from compd.core.faults import FaultState
+from compd.core.output import Status
+
+from .cycle_helpers import PERIOD_S, SLEW_UM_S, FakeClock, params, samples, sp2
+
+
+def _heated() -> tuple[Cycle, FakeClock, float]:
+    cycle, clock = Cycle(params(readback=True), sp2()), FakeClock()
+    held = 0.0
+    for bearing in [20.0] + [22.0] * 60:
+        t = clock.tick()
+        r = cycle.step(t, samples(t, bearing), held)
+        cycle.write_ok()
+        held = r.writes.get("offset", held)
+    assert held > 30.0
+    return cycle, clock, held
+
+
+def test_machine_off_holds_without_writing_and_keeps_the_model_going() -> None:
+    cycle, clock, held = _heated()
+    heartbeat = cycle.heartbeat
+    t = clock.tick()
+    r = cycle.step(t, samples(t, 22.0), held, controller_off="machine_off")
+    assert [e.name for e in r.events] == ["controller_off"]
+    assert r.events[0].fields == {"reason": "machine_off", "offset_um": held}
+    for _ in range(20):
+        t = clock.tick()
+        r = cycle.step(t, samples(t, 22.0), held, controller_off="machine_off")
+        assert "offset" not in r.writes  # no write fight with a machine that is off
+        assert r.offset_um == held
+        assert r.status & Status.CONTROLLER_OFF and r.status & Status.HOLDING
+        assert not r.status & (Status.OK | Status.ALARM | Status.READBACK_MISMATCH)
+        assert r.state == FaultState.HOLD and r.complete and not r.in_force
+        assert "heartbeat" in r.writes and "status" in r.writes
+        assert r.events == []
+    assert cycle.heartbeat == (heartbeat + 21) % 32768  # the model stepped every cycle
+
+
+def test_machine_on_again_ramps_from_zero_without_alarm() -> None:
+    cycle, clock, held = _heated()
+    for _ in range(5):
+        t = clock.tick()
+        cycle.step(t, samples(t, 22.0), held, controller_off="estop")
+    t = clock.tick()
+    r = cycle.step(t, samples(t, 22.0), 0.0)  # LinuxCNC zeroed the offset at machine on
+    assert [e.name for e in r.events] == ["controller_on"]
+    assert r.events[0].fields == {"was": "estop", "readback_um": 0.0}
+    assert not r.status & (Status.ALARM | Status.READBACK_MISMATCH | Status.CONTROLLER_OFF)
+    assert r.writes["offset"] == SLEW_UM_S * PERIOD_S  # one slew step from 0, never a jump
+    cycle.write_ok()
+    previous = r.writes["offset"]
+    for _ in range(10):
+        t = clock.tick()
+        r = cycle.step(t, samples(t, 22.0), previous)
+        cycle.write_ok()
+        assert 0.0 < r.writes["offset"] - previous <= SLEW_UM_S * PERIOD_S + 1e-9
+        assert not r.status & Status.ALARM
+        previous = r.writes["offset"]
+
+
+def test_a_ramp_to_zero_shutdown_is_done_while_the_machine_is_off() -> None:
+    cycle, clock, held = _heated()
+    cycle.begin_shutdown()
+    t = clock.tick()
+    r = cycle.step(t, samples(t, 22.0), held, controller_off="machine_off")
+    assert r.shutdown_done and "offset" not in r.writes
