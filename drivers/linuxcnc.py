@@ -34,7 +34,9 @@ from drivers.base import Quality, Sample
 from drivers.endpoint import endpoint_of
 from drivers.errors import BadAddress, ConnectionLost, ControllerTimeout, DriverError, WriteRejected
 from drivers.link import Link, LinkedDriver
-from drivers.linuxcnc_options import LinuxCncEoffset, LinuxCncPin
+from drivers.linuxcnc_options import LinuxCncEoffset, LinuxCncGet, LinuxCncPin
+
+LinuxCncAddress = LinuxCncPin | LinuxCncEoffset | LinuxCncGet
 
 #: the HAL side, run as a script (never imported by compd)
 HAL_SIDE = Path(__file__).with_name("linuxcnc_hal.py")
@@ -42,12 +44,15 @@ HAL_SIDE = Path(__file__).with_name("linuxcnc_hal.py")
 MAX_LINE = 1 << 20
 
 
-def _check(role: str, table: Mapping[str, object]) -> dict[str, LinuxCncPin | LinuxCncEoffset]:
-    out: dict[str, LinuxCncPin | LinuxCncEoffset] = {}
+def _check(role: str, table: Mapping[str, object]) -> dict[str, LinuxCncAddress]:
+    out: dict[str, LinuxCncAddress] = {}
     for name, addr in table.items():
-        if not isinstance(addr, LinuxCncPin | LinuxCncEoffset):
+        if not isinstance(addr, LinuxCncPin | LinuxCncEoffset | LinuxCncGet):
             raise BadAddress(f"{role} address is not a LinuxCNC address: {addr!r}",
                              channel=name)
+        if role == "output" and isinstance(addr, LinuxCncGet):
+            raise BadAddress("a 'get' address is read only: an output needs a pin (or "
+                             "the eoffset)", channel=name, address=addr.describe())
         out[name] = addr
     return out
 
@@ -128,10 +133,14 @@ class LinuxCncDriver(LinkedDriver):
 
     def _spec(self) -> dict[str, Any]:
         pins: list[dict[str, Any]] = []
+        gets: list[dict[str, Any]] = []
         eoffset: dict[str, Any] | None = None
         for role, table in (("in", self.channels), ("out", self.outputs)):
             for name, a in table.items():
-                if isinstance(a, LinuxCncPin):
+                if isinstance(a, LinuxCncGet):
+                    gets.append({"name": name, "hal": a.hal, "scale": a.scale,
+                                 "invert": a.invert})
+                elif isinstance(a, LinuxCncPin):
                     pins.append({"name": name, "pin": a.pin, "net": a.net, "type": a.type,
                                  "dir": role, "invert": a.invert})
                 else:
@@ -140,7 +149,7 @@ class LinuxCncDriver(LinkedDriver):
                                "enable_net": a.enable_net, "scale": a.scale,
                                "eoffset_scale": a.eoffset_scale,
                                "wait_s": 0.8 * self.timeout_s}
-        return {"component": self.component, "pins": pins, "eoffset": eoffset}
+        return {"component": self.component, "pins": pins, "eoffset": eoffset, "gets": gets}
 
     async def _open(self) -> _Session:
         proc = await asyncio.create_subprocess_exec(

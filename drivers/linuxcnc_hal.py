@@ -17,7 +17,8 @@ version) does not have to load LinuxCNC's extension module. Why a process:
 SPEC (JSON, one argument): ``{"component": "compd", "pins": [{"name",
 "pin", "net", "type", "dir", "invert"}], "eoffset": {"name", "axis",
 "counts_pin", "counts_net", "enable_pin", "enable_net", "scale",
-"eoffset_scale", "wait_s"} | null}``. Each pin is created as
+"eoffset_scale", "wait_s"} | null, "gets": [{"name", "hal", "scale", "invert"}]}``
+(``gets``: read-only, any HAL pin or signal by name, as ``halcmd getp``). Each pin is created as
 ``<component>.<pin>`` and joined to the signal ``net`` (which the machine's
 HAL file makes with a ``net`` line; a missing one is refused by name).
 
@@ -84,6 +85,10 @@ class Component:
             direction = hal.HAL_IN if p["dir"] == "in" else hal.HAL_OUT
             self.comp.newpin(p["pin"], types[p["type"]], direction)
             self.pins[p["name"]] = p
+        #: read-only: any HAL pin, signal or parameter by its name (name -> (hal name, scale))
+        self.gets: dict[str, tuple[str, float, bool]] = {
+            g["name"]: (g["hal"], float(g.get("scale", 1.0)), bool(g.get("invert")))
+            for g in spec.get("gets", [])}
         self.eo: dict[str, Any] | None = spec.get("eoffset")
         if self.eo is not None:
             self.comp.newpin(self.eo["counts_pin"], hal.HAL_S32, hal.HAL_OUT)
@@ -133,6 +138,13 @@ class Component:
             if p is not None:
                 v = self.comp[p["pin"]]
                 out[name] = float((not v) if p.get("invert") else v)
+            elif name in self.gets:
+                what, scale, invert = self.gets[name]
+                try:
+                    raw = self.hal.get_value(what)
+                    out[name] = float((not raw) if invert else raw) * scale
+                except Exception as exc:
+                    raise Refused(f"no HAL item {what!r}: {exc}", "bad_address", name) from exc
             elif self.eo is not None and name == self.eo["name"]:
                 applied = float(self.hal.get_value(f"{self.axis}.eoffset"))
                 out[name] = applied / self.eoffset_scale * self.eo["scale"]

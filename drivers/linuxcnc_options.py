@@ -14,6 +14,8 @@ compd is a HAL user-space component (`drivers.linuxcnc`), named
   ``axis.L.eoffset-enable``) and reads back ``axis.L.eoffset``; the value is
   counts × ``scale`` (controller units per count), and ``eoffset_scale``,
   when given, must equal ``axis.L.eoffset-scale`` (machine units per count).
+- ``get`` (read only): any HAL pin or signal by name (``motion.motion-enabled``),
+  read as ``halcmd getp`` does, without a ``net`` line.
 """
 
 from __future__ import annotations
@@ -96,7 +98,30 @@ class LinuxCncEoffset(_Model):
         return f"axis.{self.axis}.eoffset-counts<-{self.counts_net}"
 
 
-LinuxCncAddress = LinuxCncPin | LinuxCncEoffset
+class LinuxCncGet(_Model):
+    """Read only: any HAL pin, signal or parameter by its name, as ``halcmd
+    getp`` reads it (``motion.motion-enabled``, ``axis.z.eoffset``), × ``scale``
+    (a bit: 0 or 1, inverted with ``invert``). No ``net`` line needed."""
+
+    kind: Literal["get"]
+    hal: HalName
+    scale: float = 1.0
+    invert: bool = False
+
+    _names = field_validator("hal")(_hal_name)
+
+    @field_validator("scale")
+    @classmethod
+    def _scale(cls, v: float) -> float:
+        if not math.isfinite(v) or v == 0.0:
+            raise ValueError("scale must be a finite non-zero number")
+        return v
+
+    def describe(self) -> str:
+        return f"getp {self.hal}"
+
+
+LinuxCncAddress = LinuxCncPin | LinuxCncEoffset | LinuxCncGet
 
 
 class LinuxCncOptions(_Model):
@@ -120,4 +145,5 @@ class LinuxCncOptions(_Model):
         return {"component": self.component, "python": self.python}
 
 
-__all__ = ["LinuxCncAddress", "LinuxCncEoffset", "LinuxCncOptions", "LinuxCncPin"]
+__all__ = ["LinuxCncAddress", "LinuxCncEoffset", "LinuxCncGet", "LinuxCncOptions",
+           "LinuxCncPin"]

@@ -127,7 +127,8 @@ PROTOCOLS: dict[str, ProtocolSpec] = {spec.name: spec for spec in (
         default_port=8193),
     ProtocolSpec(
         "linuxcnc", "linuxcnc",
-        ("drivers.linuxcnc_options:LinuxCncPin", "drivers.linuxcnc_options:LinuxCncEoffset"),
+        ("drivers.linuxcnc_options:LinuxCncPin", "drivers.linuxcnc_options:LinuxCncEoffset",
+         "drivers.linuxcnc_options:LinuxCncGet"),
         "drivers.linuxcnc:LinuxCncDriver", "drivers.sim.linuxcnc_machine:LinuxCncSimController",
         section="linuxcnc", options="drivers.linuxcnc_options:LinuxCncOptions",
         default_kind="pin", connect_timeout=True, title="LinuxCNC HAL", default_port=0,
