@@ -36,6 +36,7 @@ def _summary(cfg: LoadedConfig) -> dict[str, Any]:
                          "range": list(raw.channels[n].range)}
                      for n, a in cfg.channels.items()},
         "outputs": {n: a.describe() for n, a in cfg.outputs.items()},
+        "controller_state": {n: a.describe() for n, a in cfg.states.items()},
         "output": {"limit_um": raw.output.limit_um, "slew_um_s": raw.output.slew_um_s,
                    "deadband_um": raw.output.deadband_um, "sign": raw.output.sign,
                    "units_per_um": raw.output.units_per_um, "readback": raw.output.readback,
@@ -58,7 +59,7 @@ async def _read_once(cfg: LoadedConfig) -> dict[str, Any]:
     driver = build_driver(cfg)
     try:
         await asyncio.wait_for(driver.connect(), cfg.raw.controller.connect_timeout_s)
-        got = await driver.read([*cfg.channels, *cfg.outputs])
+        got = await driver.read([*cfg.channels, *cfg.outputs, *cfg.states])
     except (DriverError, TimeoutError) as exc:
         return {"error": f"{type(exc).__name__}: {exc}"}
     finally:
@@ -125,6 +126,9 @@ def report(cfg: LoadedConfig, args: argparse.Namespace) -> int:
         print(f"  channel {name}: {ch['address']} [{ch['unit']}] range {ch['range']}")
     for name, addr in report["outputs"].items():
         print(f"  output {name}: {addr}")
+    for name, addr in report.get("controller_state", {}).items():
+        print(f"  controller state {name}: {addr} (no offset written while "
+              f"{'set' if name == 'estop' else 'clear'})")
     o = report["output"]
     print(f"  output stage: limit ±{o['limit_um']} µm, slew {o['slew_um_s']} µm/s, "
           f"deadband {o['deadband_um']} µm, sign {o['sign']:+d}, "

@@ -17,6 +17,7 @@ from __future__ import annotations
 import itertools
 import json
 import subprocess
+import tomllib
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -39,6 +40,7 @@ pytestmark = [pytest.mark.skipif(WHY_NOT is not None, reason=str(WHY_NOT)),
               # another worker's module may hold the machine's one LinuxCNC for a minute
               pytest.mark.timeout(300)]
 
+ROOT = Path(__file__).resolve().parents[2]
 PERIOD_S = 60.0
 LIMIT_UM = 200.0
 #: 0.6 µm a period: below the warming machine's fastest growth, so the slew limit binds
@@ -255,3 +257,23 @@ async def test_death_holds_the_offset_and_a_restart_resumes_without_a_jump(
     finally:
         await rig.close()
 
+
+
+async def test_the_shipped_example_runs_against_the_machines_hal_file(
+        lcnc: LinuxCncSimController, tmp_path: Path) -> None:
+    """`compd/examples/linuxcnc.toml` joins the signals the HAL file of
+    `docs/protocols.md` makes (the test machine's), as it is, but its state dir."""
+    doc = tomllib.loads((ROOT / "compd" / "examples" / "linuxcnc.toml").read_text("utf-8"))
+    doc["state"]["dir"] = str(tmp_path / "state")
+    machine = SimMachine(lcnc, program=constant(SPEED_RPM, heat_h=10.0, cool_h=1.0),
+                         seed=5, period_s=float(doc["machine"]["period_s"]), repeat=False)
+    rig = Lockstep(machine, write_config(doc, tmp_path / "compd.toml"))
+    try:
+        await rig.start()
+        await rig.step(10)
+        written = _written(rig)
+        assert written is not None
+        assert (await lcnc.settled())["offset_um"] == pytest.approx(written, abs=SETTLED_UM)
+        assert await rig.stop() == 0
+    finally:
+        await rig.close()
