@@ -14,11 +14,13 @@ largest step per period against the slew limit) are printed: ``-s`` shows them.
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 import json
+import signal
 import subprocess
 import tomllib
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +28,7 @@ import pytest
 import pytest_asyncio
 
 from compd.core.output import Status
+from compd.offline.demo import start_daemon
 from drivers.errors import BadAddress
 from drivers.linuxcnc import LinuxCncDriver
 from drivers.linuxcnc_options import LinuxCncPin
@@ -277,3 +280,66 @@ async def test_the_shipped_example_runs_against_the_machines_hal_file(
         assert await rig.stop() == 0
     finally:
         await rig.close()
+
+
+async def _until(what: str, check: Callable[[], Awaitable[bool]],
+                 deadline_s: float = 120.0) -> None:
+    """Wait on a condition (polled), failing after a generous deadline."""
+    end = asyncio.get_running_loop().time() + deadline_s
+    while not await check():
+        if asyncio.get_running_loop().time() > end:
+            pytest.fail(f"not within {deadline_s:g} s: {what}")
+        await asyncio.sleep(0.05)
+
+
+async def test_compd_run_process_killed_leaves_the_offset_held(
+        lcnc: LinuxCncSimController, tmp_path: Path) -> None:
+    """`compd run` as a process, in real time: kill -9 closes its pipe, its HAL side
+    ends, HAL removes the component and LinuxCNC keeps the last counts; a restarted
+    `compd run` compensates again and ends on SIGTERM with status 0, offset held."""
+    doc = tomllib.loads(_config(lcnc, tmp_path).read_text("utf-8"))
+    doc["machine"]["time_scale"] = PERIOD_S / 0.5  # a cycle every half second
+    doc["controller"]["timeout_s"] = 0.25
+    doc["controller"]["connect_timeout_s"] = 60.0
+    config = write_config(doc, tmp_path / "compd.toml")
+    await lcnc.publish({"bearing": 35.0, "motor": 40.0, "column": 22.0, "ambient": 20.0})
+
+    async def offset_in_counts() -> float:
+        return _signal("compd-eoffset-counts")
+
+    start = (await lcnc.settled())["offset_um"]
+    proc = await start_daemon(config, tmp_path / "run1.log", tmp_path / "notify1")
+    # the model starts at rest on today's temperatures: the machine warms after
+    await lcnc.publish({"bearing": 40.0, "motor": 48.0})
+    try:
+        async def moved() -> bool:
+            return abs((await lcnc.settled())["offset_um"] - start) > 1.0
+        await _until("compd run moved LinuxCNC's offset", moved)
+        proc.kill()
+        await proc.wait()
+
+        async def gone() -> bool:
+            return not _component_exists("compd")
+        await _until("the HAL side of a killed compd ended", gone)
+        counts = await offset_in_counts()
+        held = (await lcnc.settled())["offset_um"]
+        await lcnc.control("stat")  # LinuxCNC runs on meanwhile; nobody drives the counts
+        # the signal keeps the counts compd wrote last, and LinuxCNC the offset
+        assert await offset_in_counts() == counts
+        assert (await lcnc.settled())["offset_um"] == pytest.approx(held, abs=SETTLED_UM)
+        assert abs(held - start) > 1.0
+        beats = _signal("compd-heartbeat")
+        proc = await start_daemon(config, tmp_path / "run2.log", tmp_path / "notify2")
+
+        async def beating() -> bool:
+            return _signal("compd-heartbeat") != beats
+        await _until("a restarted compd run's heartbeat reached HAL", beating)
+        proc.send_signal(signal.SIGTERM)
+        assert await proc.wait() == 0
+        await _until("the HAL side of a stopped compd ended", gone)
+        last = (await lcnc.settled())["offset_um"]
+        assert abs(last - held) <= 2 * STEP_UM  # ramped, never jumped; then held
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
