@@ -43,13 +43,27 @@ def _summary(cfg: LoadedConfig) -> dict[str, Any]:
                    "count_um": cfg.offset_quantum_um or None},
         "warnings": count_warnings(quantum_um=cfg.offset_quantum_um,
                                    slew_um_s=raw.output.slew_um_s,
-                                   period_s=raw.machine.period_s, limit_um=raw.output.limit_um),
+                                   period_s=raw.machine.period_s, limit_um=raw.output.limit_um)
+        + _state_warnings(cfg),
         "model": describe_model(cfg.model),
         "model_sha256": cfg.model_sha256,
     }
     if cfg.shadow is not None:
         out["shadow"] = describe_model(cfg.shadow)
     return out
+
+
+def _state_warnings(cfg: LoadedConfig) -> list[str]:
+    """LinuxCNC zeroes its external offset at machine on and ignores it while off:
+    without output.machine_on compd cannot tell, and fights it (refused writes, a
+    READBACK_MISMATCH alarm at each machine on)."""
+    if cfg.raw.controller.protocol != "linuxcnc" or "machine_on" in cfg.states:
+        return []
+    return ["output.machine_on is not set: LinuxCNC takes no external offset while "
+            "the machine is off and zeroes it at machine on; without it compd's writes "
+            "are refused while off (a write fault) and the zeroed offset reads as foreign "
+            "(READBACK_MISMATCH): set machine_on = { kind = \"get\", hal = "
+            "\"motion.motion-enabled\" } (docs/protocols.md §10)"]
 
 
 async def _read_once(cfg: LoadedConfig) -> dict[str, Any]:

@@ -3,6 +3,8 @@ config may say, and what the driver refuses before it starts its HAL side."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from pydantic import ValidationError
 
@@ -10,6 +12,8 @@ from drivers.errors import BadAddress
 from drivers.linuxcnc import LinuxCncDriver
 from drivers.linuxcnc_options import LinuxCncEoffset, LinuxCncGet, LinuxCncOptions, LinuxCncPin
 from drivers.protocols import spec_of
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_a_pin_is_the_default_kind_and_joins_a_net() -> None:
@@ -78,3 +82,22 @@ async def test_no_hal_module_is_a_lost_link_naming_the_python(tmp_path: object) 
             await driver.connect()
     finally:
         await driver.close()
+
+
+def test_check_warns_of_a_linuxcnc_config_without_machine_on(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Without output.machine_on compd cannot see LinuxCNC switch off (it would
+    fight it): `compd check` says so, and passes the shipped example silently."""
+    from compd.cli import main
+
+    example = (ROOT / "compd" / "examples" / "linuxcnc.toml").read_text("utf-8")
+    assert main(["check", str(ROOT / "compd" / "examples" / "linuxcnc.toml")]) == 0
+    assert "warning" not in capsys.readouterr().err
+    text = "\n".join(line for line in example.splitlines()
+                     if not line.startswith("machine_on = "))
+    path = tmp_path / "compd.toml"
+    path.write_text(text.replace("/tmp/compd-example-linuxcnc", str(tmp_path / "state")),
+                    encoding="utf-8")
+    assert main(["check", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert "output.machine_on is not set" in err and err.count("\n") == 1
