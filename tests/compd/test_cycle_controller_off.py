@@ -5,6 +5,8 @@ when the machine is on again ramps from what the controller then holds
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from compd.core.cycle import Cycle
 from compd.core.faults import FaultState
 from compd.core.output import Status
@@ -72,3 +74,25 @@ def test_a_ramp_to_zero_shutdown_is_done_while_the_machine_is_off() -> None:
     t = clock.tick()
     r = cycle.step(t, samples(t, 22.0), held, controller_off="machine_off")
     assert r.shutdown_done and "offset" not in r.writes
+
+
+def test_the_status_page_says_the_machine_is_off(tmp_path: Path) -> None:
+    from compd.config.loader import load_config
+    from compd.core.cycle import params_from_config
+    from compd.faces.status import StatusBoard
+
+    from .test_config import BASE
+
+    path = tmp_path / "compd.toml"
+    path.write_text(BASE, encoding="utf-8")
+    cfg = load_config(path)
+    cycle, clock = Cycle(params_from_config(cfg), cfg.model), FakeClock()
+    board = StatusBoard()
+    for off in (None, "machine_off"):
+        t = clock.tick()
+        r = cycle.step(t, {k: v for k, v in samples(t, 22.0).items() if k in cfg.channels},
+                       0.0, controller_off=off)
+        cycle.write_ok()
+        board.publish(r, cfg)
+    assert board.snapshot["state"] == "holding"
+    assert "machine is off or in E-stop" in board.snapshot["why"]
