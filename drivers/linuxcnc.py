@@ -42,6 +42,8 @@ LinuxCncAddress = LinuxCncPin | LinuxCncEoffset | LinuxCncGet
 HAL_SIDE = Path(__file__).with_name("linuxcnc_hal.py")
 #: a HAL line is short; a longer one is a broken HAL side
 MAX_LINE = 1 << 20
+#: how long an ending HAL side gets after end-of-file, and after SIGTERM
+END_WAIT_S = 2.0
 
 
 def _check(role: str, table: Mapping[str, object]) -> dict[str, LinuxCncAddress]:
@@ -77,14 +79,20 @@ class _Session:
         return answer
 
     async def end(self) -> None:
+        """End-of-file on its stdin, then SIGTERM, and SIGKILL only for a process that
+        ignores both (it leaves its component behind, which the next HAL side steps
+        around: `drivers.linuxcnc_hal`)."""
         with contextlib.suppress(ProcessLookupError, OSError, RuntimeError):
             self.stdin.close()
-        try:
-            await asyncio.wait_for(self.proc.wait(), 2.0)
-        except TimeoutError:
-            with contextlib.suppress(ProcessLookupError):
-                self.proc.kill()
-            await self.proc.wait()
+        for stop in (None, self.proc.terminate, self.proc.kill):
+            if stop is not None:
+                with contextlib.suppress(ProcessLookupError):
+                    stop()
+            try:
+                await asyncio.wait_for(self.proc.wait(), END_WAIT_S)
+                return
+            except TimeoutError:
+                continue
 
 
 def _error(answer: dict[str, Any], what: str) -> DriverError:
@@ -126,6 +134,8 @@ class LinuxCncDriver(LinkedDriver):
         #: axis.L.eoffset-scale as LinuxCNC reported it at the last connect
         self.eoffset_scale: float | None = None
         self._lock = asyncio.Lock()
+        #: a lost HAL side still ending (`_drop`)
+        self._ending: asyncio.Future[None] | None = None
         self._link: Link[_Session] = Link(
             f"HAL component {component!r}", backoff or Backoff(), timeout_s,
             open=self._open, drop=self._drop, connect_errors=(OSError, ValueError),
@@ -152,6 +162,9 @@ class LinuxCncDriver(LinkedDriver):
         return {"component": self.component, "pins": pins, "eoffset": eoffset, "gets": gets}
 
     async def _open(self) -> _Session:
+        ending, self._ending = self._ending, None
+        if ending is not None:  # the last HAL side must be gone: it holds the name
+            await ending
         proc = await asyncio.create_subprocess_exec(
             self.python, "-I", str(HAL_SIDE), json.dumps(self._spec()),
             stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE,
@@ -171,9 +184,20 @@ class LinuxCncDriver(LinkedDriver):
         self.eoffset_scale = hello.get("eoffset_scale") or None
         return session
 
-    @staticmethod
-    async def _drop(session: _Session, closing: bool) -> None:
-        await session.end()
+    async def _drop(self, session: _Session, closing: bool) -> None:
+        """A lost session ends in the background (a call never waits on a HAL side
+        that hangs); the next open waits for it. Closing waits here."""
+        ending = asyncio.ensure_future(session.end())
+        if closing:
+            await ending
+        else:
+            self._ending = ending
+
+    async def close(self) -> None:
+        await self._link.close()
+        ending, self._ending = self._ending, None
+        if ending is not None:
+            await ending
 
     async def _ask(self, request: dict[str, Any], what: str) -> dict[str, Any]:
         async def op(s: _Session) -> dict[str, Any]:

@@ -46,7 +46,9 @@ from __future__ import annotations
 import contextlib
 import importlib
 import json
+import os
 import signal
+import subprocess
 import sys
 import time
 from typing import Any
@@ -74,11 +76,7 @@ class Component:
     def __init__(self, hal: Any, spec: dict[str, Any]) -> None:
         self.hal = hal
         self.name = spec["component"]
-        try:
-            self.comp = hal.component(self.name)
-        except Exception as exc:  # HAL not running, or the name taken
-            raise Refused(f"cannot create HAL component {self.name!r} (is LinuxCNC "
-                          f"running, and no other {self.name!r}?): {exc}", "lost") from exc
+        self.comp = self._create(spec["component"])
         types = _types(hal)
         self.pins: dict[str, dict[str, Any]] = {}
         for p in spec["pins"]:
@@ -115,19 +113,50 @@ class Component:
             self._join(eo["counts_pin"], eo["counts_net"], eo["name"])
             self._join(eo["enable_pin"], eo["enable_net"], eo["name"])
 
+    def _create(self, name: str) -> Any:
+        """The component `name`; when a process killed with SIGKILL left one of that
+        name behind (HAL cannot remove it), ``name-2``, ``name-3``... (the HAL file
+        names only signals, so the pins' names do not matter to it)."""
+        for n in range(1, 100):
+            candidate = name if n == 1 else f"{name}-{n}"
+            try:
+                return self.hal.component(candidate)
+            except Exception as exc:  # HAL not running, or the name taken
+                owner = _components().get(candidate)
+                if owner is None or _alive(owner):
+                    why = (f"it is taken by the live process {owner} (another compd?)"
+                           if owner is not None else "is LinuxCNC running?")
+                    raise Refused(f"cannot create HAL component {candidate!r}: {why} "
+                                  f"({exc})", "lost") from exc
+        raise Refused(f"cannot create HAL component {name!r}: 99 left behind", "lost")
+
     def _has_signal(self, net: str) -> bool:
         return any(s["NAME"] == net for s in self.hal.get_info_signals())
 
     def _join(self, pin: str, net: str, name: str) -> None:
-        full = f"{self.name}.{pin}"
+        full = f"{self.comp.getprefix()}.{pin}"
         if not self._has_signal(net):
             raise Refused(f"HAL signal {net!r} does not exist: add a 'net {net} ...' line to "
                           f"the machine's HAL file for {full}", "bad_address", name)
+        self._free_writer(net)
         try:
             self.hal.connect(full, net)
         except Exception as exc:
             raise Refused(f"cannot join {full} to signal {net!r}: {exc}", "bad_address",
                           name) from exc
+
+    def _free_writer(self, net: str) -> None:
+        """A signal still driven by a pin of a component whose process is gone (killed
+        with SIGKILL): unlink that pin (the signal keeps its value) so that ours can
+        drive it."""
+        sig = next((s for s in self.hal.get_info_signals() if s["NAME"] == net), None)
+        writer = str(sig.get("DRIVER") or "") if sig is not None else ""
+        if not writer:
+            return
+        owners = _components()
+        comp = max((c for c in owners if writer.startswith(c + ".")), key=len, default=None)
+        if comp is not None and not _alive(owners[comp]):
+            self.hal.disconnect(writer)
 
     # -- read -------------------------------------------------------------------
 
@@ -209,6 +238,28 @@ class Component:
                 raise Refused(f"LinuxCNC did not take the offset within {eo['wait_s']:g} s",
                               "timeout", eo["name"])
             time.sleep(0.0002)
+
+
+def _components() -> dict[str, int]:
+    """HAL's user components: name -> process id (``halcmd show comp``)."""
+    out = subprocess.run(["halcmd", "-s", "show", "comp"], capture_output=True, text=True,
+                         timeout=30, check=False).stdout
+    found: dict[str, int] = {}
+    for line in out.splitlines():
+        f = line.split()
+        if len(f) >= 4 and f[1] == "User" and f[3].isdigit():
+            found[f[2]] = int(f[3])
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _serve(comp: Component) -> None:

@@ -29,7 +29,7 @@ import pytest_asyncio
 
 from compd.core.output import Status
 from compd.offline.demo import start_daemon
-from drivers.errors import BadAddress
+from drivers.errors import BadAddress, ConnectionLost
 from drivers.linuxcnc import LinuxCncDriver
 from drivers.linuxcnc_options import LinuxCncPin
 from drivers.sim.linuxcnc_machine import LinuxCncSimController, unavailable
@@ -343,3 +343,36 @@ async def test_compd_run_process_killed_leaves_the_offset_held(
         if proc.returncode is None:
             proc.kill()
             await proc.wait()
+
+
+async def test_a_hal_side_killed_9_is_stepped_around(lcnc: LinuxCncSimController) -> None:
+    """SIGKILL of the HAL side (systemd's last resort on the whole unit) leaves its
+    component in HAL for good, still driving the signals: the next HAL side takes
+    another name, unlinks the dead one's pins (the signals keep their values: the
+    offset holds) and drives them itself."""
+    # its own name: what it leaves behind stays in this LinuxCNC for the other tests
+    driver = LinuxCncDriver(lcnc.endpoint, {**lcnc.channels}, lcnc.outputs_map,
+                            timeout_s=10.0, connect_timeout_s=60.0, component="compd-k9")
+    try:
+        await driver.connect()
+        before = (await lcnc.settled())["offset_um"]
+        await driver.write({"offset": before + 1.0, "heartbeat": 11})
+        session = driver._link.session
+        assert session is not None
+        session.proc.kill()
+        await session.proc.wait()
+        assert _component_exists("compd-k9")  # left behind, HAL cannot remove it
+        held = (await lcnc.settled())["offset_um"]
+        assert held == pytest.approx(before + 1.0, abs=SETTLED_UM)
+        with pytest.raises(ConnectionLost):  # the link sees its session gone
+            await driver.read(["offset"])
+        await driver.connect()  # a new HAL side (the backoff's attempt, made now)
+        assert _component_exists("compd-k9-2")
+        assert (await driver.read(["offset"]))["offset"].value == pytest.approx(
+            held, abs=SETTLED_UM)
+        await driver.write({"offset": before, "heartbeat": 12})
+        hal = await lcnc.settled()
+        assert hal["offset_um"] == pytest.approx(before, abs=SETTLED_UM)
+        assert hal["heartbeat"] == 12
+    finally:
+        await driver.close()
