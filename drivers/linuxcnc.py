@@ -136,6 +136,8 @@ class LinuxCncDriver(LinkedDriver):
         self._lock = asyncio.Lock()
         #: a lost HAL side still ending (`_drop`)
         self._ending: asyncio.Future[None] | None = None
+        #: a HAL side being started (`_open`)
+        self._starting: asyncio.Future[_Session] | None = None
         self._link: Link[_Session] = Link(
             f"HAL component {component!r}", backoff or Backoff(), timeout_s,
             open=self._open, drop=self._drop, connect_errors=(OSError, ValueError),
@@ -158,10 +160,24 @@ class LinuxCncDriver(LinkedDriver):
                                "counts_net": a.counts_net, "enable_pin": "eoffset-enable",
                                "enable_net": a.enable_net, "scale": a.scale,
                                "eoffset_scale": a.eoffset_scale,
-                               "wait_s": 0.8 * self.timeout_s}
+                               "wait_s": 0.5 * self.timeout_s}
         return {"component": self.component, "pins": pins, "eoffset": eoffset, "gets": gets}
 
     async def _open(self) -> _Session:
+        """The HAL side, started in a task of its own: starting a Python takes longer
+        than a fast cycle's read may wait, and a call that gives up (the daemon bounds
+        each read by its period) leaves the start going on for the next call to
+        take, instead of killing it and starting again every cycle."""
+        task = self._starting
+        if task is None:
+            task = self._starting = asyncio.ensure_future(self._start())
+        try:
+            return await asyncio.shield(task)
+        finally:
+            if task.done():
+                self._starting = None
+
+    async def _start(self) -> _Session:
         ending, self._ending = self._ending, None
         if ending is not None:  # the last HAL side must be gone: it holds the name
             await ending
@@ -195,6 +211,12 @@ class LinuxCncDriver(LinkedDriver):
 
     async def close(self) -> None:
         await self._link.close()
+        starting, self._starting = self._starting, None
+        if starting is not None:  # a start nobody waits for any more
+            starting.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                session = await starting
+                await session.end()
         ending, self._ending = self._ending, None
         if ending is not None:
             await ending

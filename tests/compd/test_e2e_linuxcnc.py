@@ -376,3 +376,24 @@ async def test_a_hal_side_killed_9_is_stepped_around(lcnc: LinuxCncSimController
         assert hal["heartbeat"] == 12
     finally:
         await driver.close()
+
+
+async def test_a_hal_side_start_outlives_a_read_that_gave_up(
+        lcnc: LinuxCncSimController) -> None:
+    """Starting the HAL side (a Python, HAL, the joins) takes longer than a fast
+    cycle's read may wait: a read that gives up leaves the start going on, and the
+    next attempt takes that HAL side instead of killing it and starting again."""
+    driver = LinuxCncDriver(lcnc.endpoint, {"bearing": lcnc.channels["bearing"]}, {},
+                            timeout_s=10.0, connect_timeout_s=60.0, component="compd-slow")
+    try:
+        with pytest.raises(TimeoutError):
+            await asyncio.wait_for(driver.read(["bearing"]), 0.001)
+        starting = driver._starting
+        assert starting is not None and not starting.done()
+        await driver.connect()
+        assert driver._link.session is starting.result()
+        await lcnc.publish({"bearing": 33.3})
+        assert (await driver.read(["bearing"]))["bearing"].value == pytest.approx(33.3)
+    finally:
+        await driver.close()
+    assert not _component_exists("compd-slow")
