@@ -77,7 +77,8 @@ class Component:
 
     def __init__(self, hal: Any, spec: dict[str, Any]) -> None:
         self.hal = hal
-        self.name = spec["component"]
+        #: HAL's user components and their processes (`_components`), once needed
+        self._owners: dict[str, int] | None = None
         self.comp = self._create(spec["component"])
         types = _types(hal)
         self.pins: dict[str, dict[str, Any]] = {}
@@ -158,7 +159,9 @@ class Component:
         writer = str(sig.get("DRIVER") or "") if sig is not None else ""
         if not writer:
             return
-        owners = _components()
+        if self._owners is None:  # asked once per start (a halcmd run)
+            self._owners = _components()
+        owners = self._owners
         comp = max((c for c in owners if writer.startswith(c + ".")), key=len, default=None)
         if comp is not None and not _alive(owners[comp]):
             self.hal.disconnect(writer)
