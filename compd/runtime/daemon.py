@@ -52,7 +52,7 @@ import dataclasses
 import math
 import signal
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
 import structlog
@@ -144,6 +144,7 @@ class Daemon:
         self.status_board = StatusBoard(history_h=http.history_h, refresh_s=http.refresh_s)
         #: the probe's values read this cycle ([adaptation]), None when not configured
         self._probe: ProbeReading | None = None
+        self._controller_off: str | None = None
 
     # -- public --------------------------------------------------------------------
 
@@ -505,6 +506,8 @@ class Daemon:
         if self.params.readback:
             names.append(self.params.offset_name)
         names.extend(self.cfg.probes)
+        names.extend(self.cfg.states)
+        self._controller_off = None
         limit_s = max(self.cfg.real_period_s, 2.0 * self.cfg.raw.controller.timeout_s)
         try:
             got = await asyncio.wait_for(driver.read(names), limit_s)
@@ -524,6 +527,7 @@ class Daemon:
             if rb is not None and rb.quality is not Quality.BAD:
                 readback = float(rb.value)
         self._probe = _probe_reading(got) if self.cfg.probes else None
+        self._controller_off = _controller_off(got) if self.cfg.states else None
         return {n: got[n] for n in self.cfg.channels if n in got}, readback
 
     async def _one_cycle(self, driver: Driver, cycle: Cycle, now_s: float) -> CycleResult:
@@ -532,16 +536,18 @@ class Daemon:
         try:
             if self._probe is not None:
                 plan = cycle.plan(now_s, samples, readback, wall_s=self.wall(),
-                                  probe=self._probe)
+                                  probe=self._probe, controller_off=self._controller_off)
             else:
-                plan = cycle.plan(now_s, samples, readback, wall_s=self.wall())
+                plan = cycle.plan(now_s, samples, readback, wall_s=self.wall(),
+                                  controller_off=self._controller_off)
         except Exception as exc:
             # the fault policy decides what reaches the machine: this cycle is a failed
             # read (hold, then ramp after hold_s). Raises when the cycle cannot even do
             # that (the loop's cycle_broken).
             self._cycle_error("step", exc)
             samples = None
-            plan = cycle.plan(now_s, None, readback, wall_s=self.wall())
+            plan = cycle.plan(now_s, None, readback, wall_s=self.wall(),
+                              controller_off=self._controller_off)
         self.cycles += 1
         self._log_events(list(plan.events))
         outcome = await self._write(driver, plan)
@@ -766,7 +772,23 @@ class Daemon:
 _WARNINGS = frozenset({"channel_invalid", "fault_hold", "readback_mismatch", "write_failed",
                        "offset_write_skipped", "checkpoint_unusable", "checkpoint_state_refused",
                        "model_non_finite", "probe_refused", "adaptation_state_refused",
-                       "adaptation_stood_down"})
+                       "adaptation_stood_down", "controller_off"})
+
+
+def _controller_off(got: Mapping[str, Sample]) -> str | None:
+    """Why the controller takes no offset now, from [output] estop and machine_on
+    as read (`compd.core.cycle`); None when it does or it cannot be told."""
+    def bit(name: str) -> bool | None:
+        s = got.get(name)
+        if s is None or s.quality is Quality.BAD or not math.isfinite(s.value):
+            return None
+        return s.value != 0.0
+
+    if bit("estop"):
+        return "estop"
+    if bit("machine_on") is False:
+        return "machine_off"
+    return None
 
 
 def _probe_reading(got: dict[str, Sample]) -> ProbeReading:
