@@ -12,11 +12,12 @@ the codecs write and the config check keeps apart.
 from __future__ import annotations
 
 import math
+import re
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from drivers.encodings import MODBUS_TYPES, PMC_ENCODINGS, S7_TYPES, Encoding
+from drivers.encodings import HAL_TYPES, MODBUS_TYPES, PMC_ENCODINGS, S7_TYPES, Encoding
 from drivers.footprint import Footprint, Use
 
 
@@ -48,6 +49,11 @@ class _Address(BaseModel):
         reads of it that differ only in their scale read the same value."""
         fields = self.model_dump(exclude={"scale", "node"})
         return Use(key, self.footprint(), written, tuple(sorted(fields.items())))
+
+    def uses(self, key: str, *, written: bool) -> tuple[Use, ...]:
+        """Every use of controller resources by this address: one (`use`), but a
+        LinuxCNC pin is both compd's pin and the HAL signal it joins."""
+        return (self.use(key, written=written),)
 
 
 def _digits(text: str) -> bool:
@@ -246,8 +252,141 @@ FocasAddress = Annotated[
     Field(discriminator="kind"),
 ]
 
+# -- LinuxCNC HAL (`drivers.linuxcnc`; the kinds are explained in `drivers.linuxcnc_options`)
+
+#: a HAL name: letters, digits and ``.-_:`` (HAL_NAME_LEN is 47)
+_HAL_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.:\-]{0,46}")
+HalName = Annotated[str, Field(min_length=1, max_length=47)]
+
+
+def hal_name(v: str) -> str:
+    if not _HAL_NAME.fullmatch(v):
+        raise ValueError(f"not a HAL name: {v!r} (letters, digits, '.', '-', '_', ':'; "
+                         "at most 47 characters)")
+    return v
+
+
+def _hal_signal(name: str) -> Footprint:
+    """A HAL signal (or any HAL name a ``get`` reads): one cell, as an OPC UA node."""
+    return Footprint(("hal", name), 0, 1, "signal")
+
+
+def _hal_pin(pin: str) -> Footprint:
+    """One of compd's own pins (``<component>.<pin>``): one cell, created once."""
+    return Footprint(("hal-pin", pin), 0, 1, "pin")
+
+
+def _pin_use(key: str, pin: str, written: bool) -> Use:
+    # never merged as "the same read": compd creates each of its pins once
+    return Use(key, _hal_pin(pin), written, ("pin", key))
+
+
+class LinuxCncPin(_Address):
+    """compd's own HAL pin joined to the signal ``net`` (`drivers.linuxcnc_options`)."""
+
+    kind: Literal["pin"] = "pin"
+    pin: HalName
+    net: HalName
+    type: Literal["float", "s32", "u32", "bit"] = "float"
+    scale: float = 1.0
+    invert: bool = False
+
+    _names = field_validator("pin", "net")(hal_name)
+    _scale = field_validator("scale")(_check_scale)
+
+    @model_validator(mode="after")
+    def _invert_bits(self) -> LinuxCncPin:
+        if self.invert and self.type != "bit":
+            raise ValueError("invert is for a bit pin only")
+        return self
+
+    @property
+    def encoding(self) -> Encoding:
+        return HAL_TYPES[self.type]
+
+    def footprint(self) -> Footprint:
+        """The signal it joins (the value the machine shares)."""
+        return _hal_signal(self.net)
+
+    def uses(self, key: str, *, written: bool) -> tuple[Use, ...]:
+        """The signal (reads of one signal in one type are one value; HAL lets one
+        pin write a signal) and compd's pin of that name (created once)."""
+        return (Use(key, self.footprint(), written, ("signal", self.net, self.type)),
+                _pin_use(key, self.pin, written))
+
+    def describe(self) -> str:
+        return f"{self.pin}<->{self.net}:{self.type}"
+
+
+class LinuxCncEoffset(_Address):
+    """An axis' external offset in counts (`drivers.linuxcnc_options`)."""
+
+    kind: Literal["eoffset"]
+    axis: Literal["x", "y", "z", "a", "b", "c", "u", "v", "w"] = "z"
+    counts_net: HalName = "compd-eoffset-counts"
+    enable_net: HalName = "compd-eoffset-enable"
+    #: controller units per count (the output's unit: um with 1 µm counts -> 1.0)
+    scale: float = 1.0
+    #: axis.L.eoffset-scale as the HAL file sets it (machine units per count); checked
+    eoffset_scale: float | None = None
+    #: the type compd's count arithmetic sees (whole counts)
+    type: Literal["s32"] = "s32"
+
+    _names = field_validator("counts_net", "enable_net")(hal_name)
+
+    @field_validator("scale", "eoffset_scale")
+    @classmethod
+    def _positive(cls, v: float | None) -> float | None:
+        if v is not None and (not math.isfinite(v) or v <= 0.0):
+            raise ValueError("must be a finite positive number")
+        return v
+
+    @property
+    def encoding(self) -> Encoding:
+        return HAL_TYPES[self.type]
+
+    def footprint(self) -> Footprint:
+        """The counts signal (the value written)."""
+        return _hal_signal(self.counts_net)
+
+    def uses(self, key: str, *, written: bool) -> tuple[Use, ...]:
+        """Both signals it drives and compd's two pins that drive them
+        (`drivers.linuxcnc`: ``eoffset-counts``, ``eoffset-enable``)."""
+        return (Use(key, self.footprint(), written, ("signal", self.counts_net, "s32")),
+                Use(key, _hal_signal(self.enable_net), written,
+                    ("signal", self.enable_net, "bit")),
+                _pin_use(key, "eoffset-counts", written),
+                _pin_use(key, "eoffset-enable", written))
+
+    def describe(self) -> str:
+        return f"axis.{self.axis}.eoffset-counts<-{self.counts_net}"
+
+
+class LinuxCncGet(_Address):
+    """Read only: any HAL pin, signal or parameter by its name, as ``halcmd
+    getp`` reads it (``motion.motion-enabled``, ``axis.z.eoffset``), × ``scale``
+    (a bit: 0 or 1, inverted with ``invert``). No ``net`` line needed."""
+
+    kind: Literal["get"]
+    hal: HalName
+    scale: float = 1.0
+    invert: bool = False
+
+    _names = field_validator("hal")(hal_name)
+    _scale = field_validator("scale")(_check_scale)
+
+    def footprint(self) -> Footprint:
+        """The HAL name it reads (a signal compd writes reads compd's own value)."""
+        return _hal_signal(self.hal)
+
+    def describe(self) -> str:
+        return f"getp {self.hal}"
+
+
+LinuxCncAddress = LinuxCncPin | LinuxCncEoffset | LinuxCncGet
+
 Address = OpcUaAddress | S7Address | ModbusAddress | FocasPmcAddress | FocasDiagAddress \
-    | FocasSpindleLoadAddress
+    | FocasSpindleLoadAddress | LinuxCncPin | LinuxCncEoffset | LinuxCncGet
 
 def __getattr__(name: str) -> Any:
     """``ADDRESS_TYPES``: protocol name -> the address model(s) it accepts,

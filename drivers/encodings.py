@@ -3,7 +3,7 @@
 Every protocol stores a value in one of a few machine encodings (a 16-bit
 signed integer, an IEEE float32, ...). This table is the one place their raw
 ranges live; each protocol's type names map onto it (`S7_TYPES`,
-`MODBUS_TYPES`, `PMC_ENCODINGS` here, the OPC UA variant types in
+`MODBUS_TYPES`, `PMC_ENCODINGS`, `HAL_TYPES` here, the OPC UA variant types in
 `drivers.opcua_codec`), and the codecs, the address models
 (`Address.raw_range`) and the daemon's config check all read it.
 
@@ -67,6 +67,8 @@ ENCODINGS: dict[str, Encoding] = {e.name: e for e in (
     _int("int64", 8, "q", True), _int("uint64", 8, "Q", False),
     Encoding("float32", 4, "f", -FLOAT32_MAX, FLOAT32_MAX),
     Encoding("float64", 8, "d", -FLOAT64_MAX, FLOAT64_MAX),
+    #: one bit (a LinuxCNC HAL bit): 0 or 1
+    Encoding("bit", 1, "?", 0, 1),
 )}
 
 #: S7 data types (big-endian in a DB)
@@ -80,6 +82,9 @@ PMC_ENCODINGS: dict[str, Encoding] = {"byte": ENCODINGS["int8"], "word": ENCODIN
                                       "long": ENCODINGS["int32"],
                                       "float": ENCODINGS["float32"],
                                       "double": ENCODINGS["float64"]}
+#: LinuxCNC HAL pin types (hal_float_t is a C double; values pass as numbers, not bytes)
+HAL_TYPES: dict[str, Encoding] = {"float": ENCODINGS["float64"], "s32": ENCODINGS["int32"],
+                                  "u32": ENCODINGS["uint32"], "bit": ENCODINGS["bit"]}
 
-__all__ = ["ENCODINGS", "FLOAT32_MAX", "FLOAT64_MAX", "MODBUS_TYPES", "PMC_ENCODINGS",
-           "S7_TYPES", "Encoding"]
+__all__ = ["ENCODINGS", "FLOAT32_MAX", "FLOAT64_MAX", "HAL_TYPES", "MODBUS_TYPES",
+           "PMC_ENCODINGS", "S7_TYPES", "Encoding"]

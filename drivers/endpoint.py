@@ -43,6 +43,8 @@ _DOTTED = re.compile(r"[0-9.]+")
 #: a DNS name is at most 253 characters (without a trailing dot), a label 63
 MAX_NAME = 253
 MAX_LABEL = 63
+#: the hosts a `ProtocolSpec.local_only` endpoint may name
+LOCAL_HOSTS = frozenset({"localhost", "127.0.0.1", "::1"})
 
 
 class EndpointError(ValueError):
@@ -203,6 +205,9 @@ def parse_endpoint(url: str, spec: ProtocolSpec) -> Endpoint:
         port = spec.default_port if port_text is None else _port(port_text)
     except ValueError as exc:
         raise refuse(str(exc)) from None
+    if spec.local_only and host not in LOCAL_HOSTS:
+        raise refuse(f"{spec.title} is on this machine only (local shared memory), "
+                     f"not {host!r}")
     return Endpoint(spec.scheme, host, port, path if spec.endpoint_path else "")
 
 

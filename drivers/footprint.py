@@ -3,8 +3,10 @@
 A `Footprint` is a half-open run of cells ``[start, stop)`` in one memory
 `space`: Modbus registers of one unit and table, bytes of one S7 data block
 or one PMC area, or a whole OPC UA node (one cell; two node ids clash only
-when they name the same node). `Address.footprint()` (`drivers.addresses`)
-gives each address's; the codecs write exactly those cells
+when they name the same node), or a LinuxCNC HAL signal or one of compd's own
+HAL pins (one cell each, by name; a pin address has both: `Address.uses`).
+`Address.footprint()` (`drivers.addresses`) gives each address's; the codecs
+write exactly those cells
 (tests/drivers/test_footprint.py holds them to it).
 
 `first_clash(uses)` is the rule the daemon's config and the HIL drive map
@@ -25,7 +27,8 @@ from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
-#: a memory space: ("modbus", unit, kind), ("s7", "DB", db), ("pmc", area), ("opcua", node)
+#: a memory space: ("modbus", unit, kind), ("s7", "DB", db), ("pmc", area), ("opcua", node),
+#: ("hal", signal) and ("hal-pin", compd's pin)
 Space = tuple[str | int, ...]
 
 
@@ -50,7 +53,7 @@ class Footprint(NamedTuple):
 
     def describe(self) -> str:
         """``holding register 1 of unit 1``, ``DB3 bytes 0..3``, ``PMC D100..103``,
-        ``node ns=2;s=X``."""
+        ``node ns=2;s=X``, ``HAL signal compd-offset``, ``HAL pin heartbeat``."""
         one = self.stop - self.start == 1
         span = f"{self.start}" if one else f"{self.start}..{self.stop - 1}"
         kind, cells = self.space[0], self.unit if one else f"{self.unit}s"
@@ -62,6 +65,8 @@ class Footprint(NamedTuple):
             return f"PMC {self.space[1]}{span}"
         if kind == "opcua":
             return f"node {self.space[1]}"
+        if kind in ("hal", "hal-pin"):
+            return f"HAL {self.unit} {self.space[1]}"
         return f"{' '.join(str(s) for s in self.space)} {cells} {span}"
 
 
@@ -89,6 +94,9 @@ class Clash:
     def reason(self) -> str:
         """The message for `second`'s key."""
         written = self.first.written + self.second.written
+        if self.cells.unit == "pin":
+            return (f"names compd's {self.cells.describe()} as {self.first.key} does "
+                    "(HAL creates each pin of a component once)")
         why = ("both are written: each write overwrites part of the other" if written == 2
                else "one is written: a write there changes the other's value"
                if written == 1 else "two reads decode the same cells as different values")

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Annotated, Any, Literal, get_args
 
 #: the protocol names (a Literal for the config and drive-map models)
-ProtocolName = Literal["opcua", "s7", "modbus", "focas"]
+ProtocolName = Literal["opcua", "s7", "modbus", "focas", "linuxcnc"]
 NAMES: tuple[str, ...] = get_args(ProtocolName)
 
 
@@ -64,6 +64,8 @@ class ProtocolSpec:
     endpoint_path: bool = False
     scheme_aliases: tuple[str, ...] = ()
     bare_host_port: bool = False
+    #: the controller is on this machine only (LinuxCNC's HAL is shared memory)
+    local_only: bool = False
 
     @property
     def endpoint_form(self) -> str:
@@ -123,6 +125,14 @@ PROTOCOLS: dict[str, ProtocolSpec] = {spec.name: spec for spec in (
         section="focas", options="drivers.protocol_options:FocasOptions",
         section_required="library_path", default_kind="pmc", title="FOCAS",
         default_port=8193),
+    ProtocolSpec(
+        "linuxcnc", "linuxcnc",
+        ("drivers.addresses:LinuxCncPin", "drivers.addresses:LinuxCncEoffset",
+         "drivers.addresses:LinuxCncGet"),
+        "drivers.linuxcnc:LinuxCncDriver", "drivers.sim.linuxcnc_machine:LinuxCncSimController",
+        section="linuxcnc", options="drivers.linuxcnc_options:LinuxCncOptions",
+        default_kind="pin", connect_timeout=True, title="LinuxCNC HAL", default_port=0,
+        local_only=True),
 )}
 
 

@@ -36,19 +36,34 @@ def _summary(cfg: LoadedConfig) -> dict[str, Any]:
                          "range": list(raw.channels[n].range)}
                      for n, a in cfg.channels.items()},
         "outputs": {n: a.describe() for n, a in cfg.outputs.items()},
+        "controller_state": {n: a.describe() for n, a in cfg.states.items()},
         "output": {"limit_um": raw.output.limit_um, "slew_um_s": raw.output.slew_um_s,
                    "deadband_um": raw.output.deadband_um, "sign": raw.output.sign,
                    "units_per_um": raw.output.units_per_um, "readback": raw.output.readback,
                    "count_um": cfg.offset_quantum_um or None},
         "warnings": count_warnings(quantum_um=cfg.offset_quantum_um,
                                    slew_um_s=raw.output.slew_um_s,
-                                   period_s=raw.machine.period_s, limit_um=raw.output.limit_um),
+                                   period_s=raw.machine.period_s, limit_um=raw.output.limit_um)
+        + _state_warnings(cfg),
         "model": describe_model(cfg.model),
         "model_sha256": cfg.model_sha256,
     }
     if cfg.shadow is not None:
         out["shadow"] = describe_model(cfg.shadow)
     return out
+
+
+def _state_warnings(cfg: LoadedConfig) -> list[str]:
+    """LinuxCNC zeroes its external offset at machine on and ignores it while off:
+    without output.machine_on compd cannot tell, and fights it (refused writes, a
+    READBACK_MISMATCH alarm at each machine on)."""
+    if cfg.raw.controller.protocol != "linuxcnc" or "machine_on" in cfg.states:
+        return []
+    return ["output.machine_on is not set: LinuxCNC takes no external offset while "
+            "the machine is off and zeroes it at machine on; without it compd's writes "
+            "are refused while off (a write fault) and the zeroed offset reads as foreign "
+            "(READBACK_MISMATCH): set machine_on = { kind = \"get\", hal = "
+            "\"motion.motion-enabled\" } (docs/protocols.md §10)"]
 
 
 async def _read_once(cfg: LoadedConfig) -> dict[str, Any]:
@@ -58,7 +73,7 @@ async def _read_once(cfg: LoadedConfig) -> dict[str, Any]:
     driver = build_driver(cfg)
     try:
         await asyncio.wait_for(driver.connect(), cfg.raw.controller.connect_timeout_s)
-        got = await driver.read([*cfg.channels, *cfg.outputs])
+        got = await driver.read([*cfg.channels, *cfg.outputs, *cfg.states])
     except (DriverError, TimeoutError) as exc:
         return {"error": f"{type(exc).__name__}: {exc}"}
     finally:
@@ -125,6 +140,9 @@ def report(cfg: LoadedConfig, args: argparse.Namespace) -> int:
         print(f"  channel {name}: {ch['address']} [{ch['unit']}] range {ch['range']}")
     for name, addr in report["outputs"].items():
         print(f"  output {name}: {addr}")
+    for name, addr in report.get("controller_state", {}).items():
+        print(f"  controller state {name}: {addr} (no offset written while "
+              f"{'set' if name == 'estop' else 'clear'})")
     o = report["output"]
     print(f"  output stage: limit ±{o['limit_um']} µm, slew {o['slew_um_s']} µm/s, "
           f"deadband {o['deadband_um']} µm, sign {o['sign']:+d}, "

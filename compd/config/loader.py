@@ -44,6 +44,8 @@ from models.sanity import check_model
 
 #: output names as the driver sees them
 OUTPUT_NAMES: tuple[str, ...] = ("offset", "heartbeat", "status")
+#: the controller's state read beside the channels ([output] machine_on, estop)
+STATE_NAMES: tuple[str, ...] = ("machine_on", "estop")
 
 
 @dataclass
@@ -66,6 +68,8 @@ class LoadedConfig:
     #: (read under PROBE_NAMES beside the channels)
     adaptation: AdaptationSettings | None = None
     probes: dict[str, Address] = field(default_factory=dict)
+    #: the controller's state ([output] machine_on, estop), read under STATE_NAMES
+    states: dict[str, Address] = field(default_factory=dict)
 
     @property
     def period_s(self) -> float:
@@ -244,6 +248,14 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
     clash = sorted(set(channels) & set(OUTPUT_NAMES))
     if clash:
         raise ConfigError(f"channels.{clash[0]}", "this name is reserved for an output")
+    states: dict[str, Address] = {}
+    for name in STATE_NAMES:
+        doc_addr = getattr(out, name)
+        if doc_addr is not None:
+            if name in channels:
+                raise ConfigError(f"channels.{name}", "this name is reserved for the "
+                                  f"controller's state (output.{name})")
+            states[name] = _validate_address(ctl.protocol, doc_addr, f"output.{name}")
 
     m = raw.model
     if m.file is not None:
@@ -276,13 +288,13 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         if recorder_path.is_dir():
             raise ConfigError("recorder.path", f"{recorder_path} is a directory, not a file")
     adaptation, probes = _adaptation(raw, channels, model.adaptation)
-    check_overlaps(outputs, channels, probes)
+    check_overlaps(outputs, channels, probes, states)
     return LoadedConfig(
         path=path, raw=raw, channels=channels, outputs=outputs, model=model, shadow=shadow,
         state_dir=state_dir, recorder_path=recorder_path,
         config_sha256=hashlib.sha256(text).hexdigest(), model_sha256=model_sha256(model),
         offset_quantum_um=_quantum_um(outputs["offset"], out.units_per_um),
-        adaptation=adaptation, probes=probes)
+        adaptation=adaptation, probes=probes, states=states)
 
 
 def _adaptation(raw: DaemonConfig, channels: dict[str, Address],

@@ -13,7 +13,7 @@ Example (the full set of sections; `compd/examples/*.toml` are complete)::
     time_scale = 1.0          # machine seconds per real second (>1: demo/bench)
 
     [controller]
-    protocol = "modbus"       # opcua | s7 | modbus | focas
+    protocol = "modbus"       # opcua | s7 | modbus | focas | linuxcnc
     endpoint = "modbus://127.0.0.1:5020"
     timeout_s = 0.2           # <= 0.5 * period_s / time_scale
 
@@ -54,6 +54,7 @@ from pydantic import (
 
 from compd.config.urls import url_credentials
 from drivers.endpoint import endpoint_of
+from drivers.linuxcnc_options import LinuxCncOptions
 from drivers.opcua_policy import OpcUaSecurityRules
 from drivers.protocol_options import FocasOptions, S7Options
 from drivers.protocols import ProtocolName
@@ -169,6 +170,8 @@ class SecuritySection(OpcUaSecurityRules):
 #: [controller.s7] and [controller.focas]: the drivers' own option models
 S7Section = S7Options
 FocasSection = FocasOptions
+#: [controller.linuxcnc]: the HAL component's name and the Python of its HAL side
+LinuxCncSection = LinuxCncOptions
 
 
 class ControllerSection(_Section):
@@ -180,6 +183,7 @@ class ControllerSection(_Section):
     security: SecuritySection | None = None
     s7: S7Section | None = None
     focas: FocasSection | None = None
+    linuxcnc: LinuxCncSection | None = None
 
     @field_validator("endpoint")
     @classmethod
@@ -351,6 +355,13 @@ class OutputSection(_Section):
     slew_um_s: Annotated[float, Field(ge=0.001, le=10000.0, allow_inf_nan=False)]
     deadband_um: Annotated[float, Field(ge=0.0, allow_inf_nan=False)] = 0.0
     readback: bool = True
+    #: the controller's state, read each cycle with the read-back (optional): a
+    #: value 0 at `machine_on` or non-zero at `estop` means the controller takes no
+    #: offset now (LinuxCNC zeroes its external offset at machine on): the offset is
+    #: held, not written, and taken from the read-back when the machine is on again
+    #: (compd.core.cycle, status bit CONTROLLER_OFF)
+    machine_on: dict[str, Any] | None = None
+    estop: dict[str, Any] | None = None
 
     @model_validator(mode="after")
     def _scale(self) -> OutputSection:

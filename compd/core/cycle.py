@@ -24,7 +24,14 @@ controller confirmed the offset is in it). `plan`:
    fault: hold, then ramp) with MODEL_RANGE and ALARM;
 4. the output's health (`compd.core.health`: the fault policy and every
    other state) picks the target; the output stage (`compd.core.output`)
-   makes it safe; the status word is a pure function of the health;
+   makes it safe; the status word is a pure function of the health.
+   While the controller says it takes no offset (``controller_off``: machine
+   off, E-stop; `[output] machine_on`/`estop`) the read-back is not judged,
+   the output stage stands still and no offset is written (status
+   CONTROLLER_OFF and HOLDING, state "hold"); the model keeps stepping. The
+   first read-back once it is on again is what the controller holds (LinuxCNC
+   zeroes its external offset at machine on): taken as it is, no alarm, and
+   the output ramps from it at the slew limit;
 5. writes: the offset (in controller units; omitted once the controller
    refused it permanently, and while read-back is configured but the read
    failed, since then the controller's state is unknown), the heartbeat
@@ -286,14 +293,21 @@ class Cycle:
 
     def plan(self, now_s: float, samples: Mapping[str, Sample] | None,
              readback_offset_um: float | None = None, *,
-             wall_s: float | None = None, probe: ProbeReading | None = None) -> Plan:
+             wall_s: float | None = None, probe: ProbeReading | None = None,
+             controller_off: str | None = None) -> Plan:
         """Decide one cycle at machine time `now_s`. `samples` None: the read failed.
         `readback_offset_um`: the controller's offset as read (controller units).
-        `probe`: the measuring cycle's values as read (`compd.core.adaptation`)."""
+        `probe`: the measuring cycle's values as read (`compd.core.adaptation`).
+        `controller_off`: why the controller takes no offset now (module, step 4)."""
         self.sequence += 1
         events, self._later = self._later, []
         dt = self.params.period_s if self._last_now is None else now_s - self._last_now
-        if readback_offset_um is not None:
+        was_off = self.health.controller(controller_off, self.output.current_um, events)
+        if controller_off is not None:
+            pass  # what it holds is not judged while it takes none
+        elif was_off is not None:
+            self._controller_on(was_off, readback_offset_um, events)
+        elif readback_offset_um is not None:
             self._readback(readback_offset_um, events)
         inputs = self._inputs(now_s, samples, wall_s, events)
         stepped = self._step_models(inputs, events)
@@ -347,6 +361,9 @@ class Cycle:
     def _move_output(self, decision: Decision, dt: float) -> float:
         target = self.output.current_um if decision.target_um is None else decision.target_um
         tracking = decision.state == FaultState.OK
+        if self.health.controller_off is not None:  # it takes no offset: stand still
+            self.output.slewing = False
+            return self.output.current_um
         if self.health.operator_hold and tracking:
             target = self.output.current_um
         return self.output.step(target, dt, deadband=tracking)
@@ -358,14 +375,15 @@ class Cycle:
             write_fault=h.write_fault, held=out.held, foreign=h.foreign,
             operator_hold=h.operator_hold, slewing=out.slewing,
             model_invalid=stepped.model_invalid, model_range=stepped.model_range,
-            model_worse=worse)
+            model_worse=worse, controller_off=h.controller_off is not None)
 
     def _writes(self, readback_offset_um: float | None, offset_um: float, status: int,
                 events: list[Event]) -> tuple[dict[str, float], float]:
         """The writes of this cycle, and the offset they leave in force (µm)."""
         p = self.params
         writes: dict[str, float] = {}
-        if not self.health.write_stopped and not self.output.held:
+        h = self.health
+        if not h.write_stopped and not self.output.held and h.controller_off is None:
             if p.readback and readback_offset_um is None:
                 # the controller still holds what it last confirmed: start from there
                 self.output.revert()
@@ -403,8 +421,9 @@ class Cycle:
                 "complete": False}
 
     def _shutdown_done(self, offset_um: float) -> bool:
-        return self.health.shutting_down and (offset_um == 0.0 or self.health.write_stopped
-                                              or self.output.held)
+        h = self.health
+        return h.shutting_down and (offset_um == 0.0 or h.write_stopped or self.output.held
+                                    or h.controller_off is not None)
 
     # -- the cycle: commit ----------------------------------------------------------------
 
@@ -466,6 +485,19 @@ class Cycle:
             events.append(Event(EventName.READBACK_MISMATCH, {
                 "expected_um": expected, "readback_um": rb_um, "action": "ramping from it"}))
             self.health.foreign = True
+
+    def _controller_on(self, was: str, value: float | None, events: list[Event]) -> None:
+        """The controller takes offsets again: what it holds now (LinuxCNC zeroes
+        its offset at machine on) is the start, no alarm, ramped from at the slew
+        limit; a value beyond ±limit, or one after a held offset, is judged as
+        any read-back."""
+        rb_um = (self.output.from_controller(value)
+                 if value is not None and math.isfinite(value) else None)
+        if rb_um is not None and abs(rb_um) <= self.output.limit_um and not self.output.held:
+            self.output.adopt(rb_um)
+        elif value is not None:
+            self._readback(value, events)
+        events.append(Event(EventName.CONTROLLER_ON, {"was": was, "readback_um": rb_um}))
 
     def _model_out_of_range(self, model_um: float, events: list[Event]) -> bool:
         """A model output beyond MODEL_RANGE_FACTOR·limit_um is a broken model,

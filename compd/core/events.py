@@ -77,6 +77,9 @@ class EventName(enum.StrEnum):
     # the operator (OPC UA SetHold)
     OPERATOR_HOLD = "operator_hold", _W
     OPERATOR_RELEASE = "operator_release", _W
+    # the controller takes no offset (machine off, E-stop: compd.core.health), and again
+    CONTROLLER_OFF = "controller_off", _W
+    CONTROLLER_ON = "controller_on", _I
     # adaptation (compd.core.adaptation)
     PROBE_ACCEPTED = "probe_accepted", _I
     PROBE_REFUSED = "probe_refused", _W

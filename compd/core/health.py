@@ -12,7 +12,11 @@ what the PLC is told:
   stopped after a permanent refusal, other outputs stopped one by one;
 - what the read-back told (`foreign`: a value compd did not write, alarmed
   until the output has ramped back to its target);
-- the model's range latch (`model_range`) and the operator's hold.
+- the model's range latch (`model_range`) and the operator's hold;
+- what the controller says of itself (`controller`: machine off or E-stop,
+  ``[output] machine_on``/``estop``): it takes no offset, so none is
+  written and the output holds (CONTROLLER_OFF, HOLDING, state "hold"
+  where the policy says "ok"); no alarm, it is the machine's own state.
 
 `recorded_state(view)` is the state a cycle records (``stopped``, ``held``
 and ``write_fault`` over the policy's), `status_word(view)` its status word;
@@ -63,22 +67,27 @@ class HealthView:
     model_invalid: bool = False
     model_range: bool = False
     model_worse: bool = False
+    #: the controller takes no offset now (machine off, E-stop): held, none written
+    controller_off: bool = False
 
 
 def recorded_state(v: HealthView) -> FaultState:
     """The state recorded and reported: the policy's, unless the offset is not
-    reaching the controller (stopped, held, write fault, in that order)."""
+    reaching the controller (stopped, held, a tracking output held while the
+    controller is off, write fault, in that order)."""
     if v.write_stopped:
         return FaultState.STOPPED
     if v.held:
         return FaultState.HELD
+    if v.controller_off and v.policy == FaultState.OK:
+        return FaultState.HOLD
     return FaultState.WRITE_FAULT if v.write_fault else v.policy
 
 
 def _state_bits(v: HealthView) -> int:
     """OK, HOLDING, RAMPING or SHUTDOWN: what the output does."""
     if v.policy == FaultState.OK and not (v.write_stopped or v.held or v.write_fault):
-        return _HOLDING_BIT if v.operator_hold else _OK_BIT
+        return _HOLDING_BIT if v.operator_hold or v.controller_off else _OK_BIT
     if v.policy in _HOLDING:
         return _HOLDING_BIT
     if v.policy == FaultState.RAMP:
@@ -115,6 +124,8 @@ def status_word(v: HealthView) -> Status:
         s |= Status.OPERATOR_HOLD.value
     if v.slewing:
         s |= Status.SLEWING.value
+    if v.controller_off:
+        s |= Status.CONTROLLER_OFF.value
     return Status(s)
 
 
@@ -139,15 +150,33 @@ class OutputHealth:
         self.model_range = False
         #: an operator's hold (`set_operator_hold`): the offset stays where it is
         self.operator_hold = operator_hold
+        #: why the controller takes no offset now ("machine_off", "estop"), None: it does
+        self.controller_off: str | None = None
 
     def carry_over(self, old: OutputHealth, *, outputs_same: bool) -> None:
         """A reload: keep the fault policy's timer and state (a hold goes on
         toward its ramp), and the stopped outputs when the outputs are the same."""
         self.policy, self.invalid_since_s = old.policy, old.invalid_since_s
         self.shutting_down = old.shutting_down
+        # a machine switched on during the reload still zeroed its offset
+        self.controller_off = old.controller_off
         if outputs_same:
             self.write_stopped = old.write_stopped
             self.stopped_outputs = set(old.stopped_outputs)
+
+    # -- the controller's own state -----------------------------------------------------
+
+    def controller(self, off: str | None, offset_um: float, events: list[Event]) -> str | None:
+        """What the controller says this cycle: `off` why it takes no offset
+        (None: it does). Returns why it was off when it is on again (the cycle
+        then takes what it holds as the start), else None."""
+        was, self.controller_off = self.controller_off, off
+        if off is not None:
+            if was != off:
+                events.append(Event(EventName.CONTROLLER_OFF,
+                                    {"reason": off, "offset_um": offset_um}))
+            return None
+        return was
 
     # -- the fault policy ---------------------------------------------------------------
 

@@ -74,6 +74,7 @@ class Status(enum.IntFlag):
     MODEL_RANGE = 1 << 11     #: the model's output is far beyond ±limit: held/ramped
     OPERATOR_HOLD = 1 << 12   #: an operator switched compensation to hold (OPC UA SetHold)
     MODEL_WORSE = 1 << 13     #: probes show the compensation worse than none: held/ramped
+    CONTROLLER_OFF = 1 << 14  #: the controller takes no offset (machine off, E-stop): held
 
 
 __doc__ = (__doc__ or "") + "\n".join(

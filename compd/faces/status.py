@@ -140,6 +140,10 @@ class StatusBoard:
         rec = result.record
         held = bool(result.status & Status.OPERATOR_HOLD)
         word, why = operator_state(result.state, rec.validity, dry_run, held)
+        if result.status & Status.CONTROLLER_OFF and result.state is FaultState.HOLD:
+            word, why = "holding", ("the machine is off or in E-stop: it takes no offset, "
+                                    "compd holds and writes none; it ramps from what the "
+                                    "controller holds once the machine is on")
         raw = cfg.raw
         self._dry_run = dry_run
         self.recorder_path = None if dry_run else cfg.recorder_path

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -71,19 +72,22 @@ class CycleIO:
     async def run(self, now_s: float) -> Tick:
         cfg, driver, cycle = self.running.cfg, self.running.driver, self.running.cycle
         assert driver is not None and cycle is not None
-        samples, readback, probe = await self._read(driver, cfg)
+        samples, readback, probe, off = await self._read(driver, cfg)
         try:
             if probe is not None:
                 plan = cycle.plan(now_s, samples, readback, wall_s=self.clock.wall(),
-                                  probe=probe)
+                                  probe=probe, controller_off=off)
             else:
-                plan = cycle.plan(now_s, samples, readback, wall_s=self.clock.wall())
+                plan = cycle.plan(now_s, samples, readback, wall_s=self.clock.wall(),
+                                  controller_off=off)
         except Exception as exc:
             # the fault policy decides what reaches the machine: this cycle is a failed
             # read (hold, then ramp after hold_s); raises when it cannot even do that
+            # (a machine that is off stays off for it: nothing is written)
             self.journal.cycle_error("step", exc)
             samples = None
-            plan = cycle.plan(now_s, None, readback, wall_s=self.clock.wall())
+            plan = cycle.plan(now_s, None, readback, wall_s=self.clock.wall(),
+                              controller_off=off)
         self.journal.events(plan.events)
         outcome = await self._write(driver, plan)
         row = cycle.commit(outcome)
@@ -93,12 +97,16 @@ class CycleIO:
                     read_ok=self.read_ok)
 
     async def _read(self, driver: Driver, cfg: LoadedConfig
-                    ) -> tuple[dict[str, Sample] | None, float | None, ProbeReading | None]:
+                    ) -> tuple[dict[str, Sample] | None, float | None, ProbeReading | None,
+                               str | None]:
+        """The channels, the offset read back, the probe, and why the controller takes
+        no offset now ([output] estop / machine_on; None when it does or cannot say)."""
         params = self.running.params
         names = list(cfg.channels)
         if params.readback:
             names.append(params.offset_name)
         names.extend(cfg.probes)
+        names.extend(cfg.states)
         limit_s = max(cfg.real_period_s, 2.0 * cfg.raw.controller.timeout_s)
         try:
             got = await asyncio.wait_for(driver.read(names), limit_s)
@@ -109,7 +117,7 @@ class CycleIO:
             self.read_ok = False
             for name in getattr(exc, "channels", None) or ("*",):
                 self.metrics.read_errors.labels(channel=name).inc()
-            return None, None, None
+            return None, None, None, None
         if self.read_ok is False:
             self.journal.log.info("controller_reconnected")
         self.read_ok = True
@@ -119,7 +127,8 @@ class CycleIO:
             if rb is not None and rb.quality is not Quality.BAD:
                 readback = float(rb.value)
         probe = _probe_reading(got) if cfg.probes else None
-        return {n: got[n] for n in cfg.channels if n in got}, readback, probe
+        off = _controller_off(got) if cfg.states else None
+        return {n: got[n] for n in cfg.channels if n in got}, readback, probe, off
 
     async def _write(self, driver: Driver, plan: Plan) -> Outcome:
         """The plan's writes (none in a dry run), and how they went."""
@@ -180,3 +189,19 @@ def _probe_reading(got: dict[str, Sample]) -> ProbeReading:
         return float(s.value) if s is not None and s.quality is not Quality.BAD else math.nan
 
     return ProbeReading(value_um=value(PROBE_NAMES[0]), counter=value(PROBE_NAMES[1]))
+
+
+def _controller_off(got: Mapping[str, Sample]) -> str | None:
+    """Why the controller takes no offset now, from [output] estop and machine_on as
+    read (`compd.core.cycle`); None when it does or it cannot be told."""
+    def bit(name: str) -> bool | None:
+        s = got.get(name)
+        if s is None or s.quality is Quality.BAD or not math.isfinite(s.value):
+            return None
+        return s.value != 0.0
+
+    if bit("estop"):
+        return "estop"
+    if bit("machine_on") is False:
+        return "machine_off"
+    return None

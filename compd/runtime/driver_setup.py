@@ -64,8 +64,10 @@ def build_driver(cfg: LoadedConfig) -> Driver:
 
     ctl = cfg.raw.controller
     try:
-        # the probe's addresses ([adaptation]) are read like channels
-        return open_driver(ctl.protocol, ctl.endpoint, {**cfg.channels, **cfg.probes},
+        # the probe's addresses ([adaptation]) and the controller's state are read
+        # like channels
+        return open_driver(ctl.protocol, ctl.endpoint,
+                           {**cfg.channels, **cfg.probes, **cfg.states},
                            cfg.outputs, **driver_options(cfg))
     except (ValueError, DriverError) as exc:
         key = ("controller.endpoint" if "endpoint" in str(exc) else

@@ -76,7 +76,7 @@ def diff(old: LoadedConfig, new: LoadedConfig) -> Changes:
     return Changes(
         model=old.model_sha256 != new.model_sha256 or shadow_old != shadow_new,
         controller=(o.controller != n.controller or old.channels != new.channels
-                    or old.outputs != new.outputs),
+                    or old.outputs != new.outputs or old.states != new.states),
         outputs=old.outputs != new.outputs,
         recorder=(old.recorder_path, o.recorder) != (new.recorder_path, n.recorder),
         metrics=(_served(o.telemetry), o.faces.http) != (_served(n.telemetry), n.faces.http))

@@ -134,8 +134,9 @@ class DriveMap(BaseModel):
                                  "a client; use holding registers")
             if self.protocol == "focas" and not isinstance(addr, FocasPmcAddress):
                 raise ValueError(f"write.{name}: only PMC addresses are writable over FOCAS")
-        clash = first_clash([*(a.use(f"write.{n}", written=True) for n, a in self.write.items()),
-                             *(a.use(f"read.{n}", written=False) for n, a in self.read.items())])
+        clash = first_clash([
+            *(u for n, a in self.write.items() for u in a.uses(f"write.{n}", written=True)),
+            *(u for n, a in self.read.items() for u in a.uses(f"read.{n}", written=False))])
         if clash is not None:
             raise ValueError(f"{clash.second.key} {clash.reason()}")
         extra = {k for k in self.driver.as_kwargs() if k != "timeout_s"}

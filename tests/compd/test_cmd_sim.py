@@ -72,6 +72,9 @@ async def _finish(proc: asyncio.subprocess.Process, sig: signal.Signals) -> int:
 async def test_json_first_line_describes_a_live_machine(protocol: str, tmp_path: Path) -> None:
     if not _sim_exists(protocol):
         pytest.skip(f"{SIM_CONTROLLERS[protocol][0]} does not exist yet")
+    if protocol == "linuxcnc":
+        pytest.skip("a real LinuxCNC on this machine, not a server on 127.0.0.1 (one per "
+                    "machine): tests/compd/test_e2e_linuxcnc.py")
     proc = await _start(tmp_path, "--protocol", protocol, "--json", "--speedup", "600",
                         "--program", "constant", "--seed", "4")
     try:

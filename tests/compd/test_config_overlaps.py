@@ -49,6 +49,9 @@ S7_COLUMN = 'address = { db = 1, offset = 4, type = "INT", scale = 0.1 }'
 PMC_HEARTBEAT = 'heartbeat = { kind = "pmc", area = "D", address = 104, type = "long" }'
 PMC_STATUS = 'status = { kind = "pmc", area = "D", address = 108, type = "word" }'
 UA_STATUS = 'status = { node = "ns=2;s=Machine.status" }'
+HAL_STATUS = 'status = { pin = "status", net = "compd-status", type = "s32" }'
+HAL_MOTOR = 'address = { pin = "motor", net = "compd-motor" }'
+HAL_MACHINE_ON = 'machine_on = { kind = "get", hal = "motion.motion-enabled" }'
 
 
 def test_compd_check_refuses_the_issue_case_naming_both_keys_and_the_register(
@@ -87,6 +90,17 @@ REFUSED = [
     # OPC UA: the same node, spelt twice
     ("opcua", [(UA_STATUS, 'status = { node = "ns=2;s=Machine.heartbeat" }')],
      "output.status", "output.heartbeat", "node ns=2;s=Machine.heartbeat"),
+    # LinuxCNC: two outputs driving one HAL signal (HAL allows one writer)
+    ("linuxcnc", [(HAL_STATUS, HAL_STATUS.replace("compd-status", "compd-heartbeat"))],
+     "output.status", "output.heartbeat", "HAL signal compd-heartbeat"),
+    # one pin name for two outputs (on other signals): compd's component has it once
+    ("linuxcnc", [(HAL_STATUS, HAL_STATUS.replace('pin = "status"', 'pin = "heartbeat"'))],
+     "output.status", "output.heartbeat", "HAL pin heartbeat"),
+    # a channel reading the signal compd's offset counts drive; a state read of it
+    ("linuxcnc", [(HAL_MOTOR, 'address = { pin = "motor", net = "compd-eoffset-counts" }')],
+     "channels.motor.address", "output.offset", "HAL signal compd-eoffset-counts"),
+    ("linuxcnc", [(HAL_MACHINE_ON, 'machine_on = { kind = "get", hal = "compd-status" }')],
+     "output.machine_on", "output.status", "HAL signal compd-status"),
 ]
 
 
@@ -115,6 +129,9 @@ ACCEPTED = [
     ("focas", [(PMC_HEARTBEAT, PMC_HEARTBEAT.replace('area = "D"', 'area = "R"')
                 .replace("104", "100"))]),
     ("opcua", []),
+    ("linuxcnc", []),
+    # one HAL signal read by two of compd's pins: one value
+    ("linuxcnc", [(HAL_MOTOR, 'address = { pin = "motor", net = "compd-bearing" }')]),
 ]
 
 

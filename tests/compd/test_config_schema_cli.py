@@ -94,4 +94,4 @@ def test_the_schema_refuses_what_the_loader_refuses(schema: dict[str, object]) -
                 for e in jsonschema.Draft202012Validator(schema).iter_errors(doc)}
     assert ("machine", "additionalProperties") in problems
     assert ("output", "limit_um", "exclusiveMinimum") in problems
-    assert len(EXAMPLES) == 4
+    assert len(EXAMPLES) == 5  # one per protocol

@@ -100,7 +100,7 @@ def test_status_word_in_a_byte_is_refused(tmp_path: Path) -> None:
                                        'type = "byte" }'))
     with pytest.raises(ConfigError) as err:
         load_config(p)
-    assert err.value.key == "output.status" and "0..16383" in str(err.value)
+    assert err.value.key == "output.status" and "0..32767" in str(err.value)
 
 
 def test_compd_check_exits_78_naming_the_key_and_both_ranges(tmp_path: Path) -> None:

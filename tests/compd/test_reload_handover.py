@@ -62,6 +62,17 @@ def test_unchanged_model_carries_its_filters_over(tmp_path: Path) -> None:
     assert r.complete
 
 
+def test_the_controller_state_inputs_are_a_new_driver(tmp_path: Path) -> None:
+    """output.machine_on/estop are read by the driver like channels: adding one
+    needs a driver that knows its address."""
+    _, _, path = _warm(tmp_path)
+    old_cfg = load_config(path)
+    path.write_text(path.read_text().replace(
+        "[output]", '[output]\nmachine_on = { kind = "input", address = 9, type = "uint16" }'))
+    new_cfg = load_config(path)
+    assert diff(old_cfg, new_cfg).controller and "machine_on" in new_cfg.states
+
+
 def test_another_model_restarts_at_steady_state_and_slews(tmp_path: Path) -> None:
     old, clock, path = _warm(tmp_path)
     old_cfg = load_config(path)

@@ -158,7 +158,40 @@ slew_um_s = 1.0
 dir = "state"
 """
 
-BASES = {"modbus": MODBUS, "opcua": OPCUA, "s7": S7, "focas": FOCAS}
+LINUXCNC = """
+[controller]
+protocol = "linuxcnc"
+endpoint = "linuxcnc://localhost"
+timeout_s = 0.2
+
+[controller.linuxcnc]
+component = "compd"
+
+[channels.bearing]
+address = { pin = "bearing", net = "compd-bearing" }
+unit = "degC"
+range = [-20.0, 150.0]
+
+[channels.ambient]
+address = { pin = "ambient", net = "compd-ambient" }
+unit = "degC"
+range = [-10.0, 60.0]
+
+[model]
+file = "sp2"
+
+[output]
+offset = { kind = "eoffset", axis = "z" }
+heartbeat = { pin = "heartbeat", net = "compd-heartbeat", type = "s32" }
+machine_on = { pin = "machine-on", net = "compd-machine-on", type = "bit" }
+limit_um = 100.0
+slew_um_s = 1.0
+
+[state]
+dir = "state"
+"""
+
+BASES = {"modbus": MODBUS, "opcua": OPCUA, "s7": S7, "focas": FOCAS, "linuxcnc": LINUXCNC}
 
 UNSTABLE_MODEL = """
 [model]
@@ -371,6 +404,16 @@ CASES: list[Case] = [
        "controller.security.password_file", "no such file"),
     _c("mode-none", "opcua", SEC_NONE, SEC_B256 + '\nmode = "None"',
        "controller.security.mode", "sign"),
+    _c("linuxcnc-bad-net", "linuxcnc", 'net = "compd-bearing"', 'net = "compd bearing"',
+       "channels.bearing.address.pin.net", "not a HAL name"),
+    _c("linuxcnc-invert-float", "linuxcnc", 'net = "compd-ambient" }',
+       'net = "compd-ambient", invert = true }', "channels.ambient.address.pin",
+       "invert is for a bit pin only"),
+    _c("linuxcnc-relative-python", "linuxcnc", 'component = "compd"',
+       'component = "compd"\npython = "python3"', "controller.linuxcnc.python",
+       "absolute path"),
+    _c("linuxcnc-remote-endpoint", "linuxcnc", 'endpoint = "linuxcnc://localhost"',
+       'endpoint = "linuxcnc://mill-3.shop"', "controller.endpoint", "local shared memory"),
     _c("focas-relative-library", "focas", 'library_path = "/usr/local/lib/libfwlib32.so"',
        'library_path = "lib/libfwlib32.so"', "controller.focas.library_path", "absolute"),
     _c("focas-bad-sha", "focas", 'library_path = "/usr/local/lib/libfwlib32.so"',

@@ -1,0 +1,319 @@
+"""The HAL side of the LinuxCNC driver: a user-space HAL component in its own process.
+
+Run by `drivers.linuxcnc` as ``python3 -I drivers/linuxcnc_hal.py SPEC`` under
+the system Python that LinuxCNC's ``hal`` module was built for (Debian's
+``/usr/bin/python3``), never imported by compd: it uses only the standard
+library and ``hal``, so compd's own interpreter (a venv, another Python
+version) does not have to load LinuxCNC's extension module. Why a process:
+
+- ``hal.component`` turns SIGTERM into KeyboardInterrupt (``halcmd unload
+  all``, LinuxCNC's shutdown, ends user components that way): inside the
+  daemon it would fight compd's own SIGTERM handling;
+- when compd dies (kill -9), this process reads end-of-file on stdin and
+  exits, so HAL removes the component cleanly and a restarted compd can
+  create it again; the signals it wrote keep their last values (HAL keeps a
+  signal's value when its writer goes): the offset is held.
+
+SPEC (JSON, one argument): ``{"component": "compd", "pins": [{"name",
+"pin", "net", "type", "dir", "invert"}], "eoffset": {"name", "axis",
+"counts_pin", "counts_net", "enable_pin", "enable_net", "scale",
+"eoffset_scale", "wait_s"} | null, "gets": [{"name", "hal", "scale", "invert"}]}``
+(``gets``: read-only, any HAL pin or signal by name, as ``halcmd getp``). Each pin is created as
+``<component>.<pin>`` and joined to the signal ``net`` (which the machine's
+HAL file makes with a ``net`` line; a missing one is refused by name).
+
+Requests, one JSON line each on stdin, one JSON line answers on stdout:
+``{"r": [names]}`` -> ``{"v": {name: value}}``; ``{"w": {name: value}}`` ->
+``{"ok": 1}``. A failure answers ``{"e": message, "k": kind, "n": name}``
+with kind ``bad_address`` | ``rejected`` | ``timeout`` | ``lost``.
+The first line written is ``{"ready": 1, "eoffset_scale": s}`` or a failure.
+
+The external offset (``eoffset``) is incremental in LinuxCNC:
+``axis.L.eoffset-counts`` is read like a hand wheel, each change times
+``axis.L.eoffset-scale`` is added to the offset while the machine is on,
+homed and ``eoffset-enable`` is true, and LinuxCNC zeroes the offset at
+machine on. So the value written (counts of the offset wanted) is turned
+into a change of the counts pin against what LinuxCNC holds
+(``axis.L.eoffset-request``), and the write waits until the servo thread
+took it; a servo thread later than ``wait_s`` is a transient refusal, and the
+next write counts from what LinuxCNC will hold once it takes the change. While
+LinuxCNC does not take changes (machine off, E-stop, not homed) the counts are
+left alone and the write is refused (``rejected``): no change is queued that
+would jump the offset at machine on. The offset
+read back is ``axis.L.eoffset`` (what motion applies) in counts.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from typing import Any
+
+
+def _answer(obj: dict[str, Any]) -> None:
+    sys.stdout.write(json.dumps(obj, separators=(",", ":")) + "\n")
+    sys.stdout.flush()
+
+
+class Refused(Exception):
+    def __init__(self, message: str, kind: str, name: str | None = None) -> None:
+        super().__init__(message)
+        self.kind = kind
+        self.name = name
+
+
+def _types(hal: Any) -> dict[str, Any]:
+    return {"float": hal.HAL_FLOAT, "s32": hal.HAL_S32, "u32": hal.HAL_U32, "bit": hal.HAL_BIT}
+
+
+class Component:
+    """The HAL component, its pins and the external offset (see the module)."""
+
+    def __init__(self, hal: Any, spec: dict[str, Any]) -> None:
+        self.hal = hal
+        #: HAL's user components and their processes (`_components`), once needed
+        self._owners: dict[str, int] | None = None
+        self.comp = self._create(spec["component"])
+        types = _types(hal)
+        self.pins: dict[str, dict[str, Any]] = {}
+        for p in spec["pins"]:
+            direction = hal.HAL_IN if p["dir"] == "in" else hal.HAL_OUT
+            self.comp.newpin(p["pin"], types[p["type"]], direction)
+            self.pins[p["name"]] = p
+        #: read-only: any HAL pin, signal or parameter by its name (name -> (hal name, scale))
+        self.gets: dict[str, tuple[str, float, bool]] = {
+            g["name"]: (g["hal"], float(g.get("scale", 1.0)), bool(g.get("invert")))
+            for g in spec.get("gets", [])}
+        self.eo: dict[str, Any] | None = spec.get("eoffset")
+        if self.eo is not None:
+            self.comp.newpin(self.eo["counts_pin"], hal.HAL_S32, hal.HAL_OUT)
+            self.comp.newpin(self.eo["enable_pin"], hal.HAL_BIT, hal.HAL_OUT)
+        self.comp.ready()
+        for p in spec["pins"]:
+            self._join(p["pin"], p["net"], p["name"])
+        self.eoffset_scale = 0.0
+        #: counts LinuxCNC will hold once its servo thread takes our last change (a
+        #: write that returned before it did), None when it holds what we wrote
+        self.expect: int | None = None
+        if self.eo is not None:
+            eo = self.eo
+            self.axis = f"axis.{eo['axis']}"
+            self.eoffset_scale = float(hal.get_value(f"{self.axis}.eoffset-scale"))
+            want = eo.get("eoffset_scale")
+            if not self.eoffset_scale:
+                raise Refused(f"{self.axis}.eoffset-scale is 0: set it in the HAL file "
+                              f"(setp {self.axis}.eoffset-scale ...)", "bad_address", eo["name"])
+            if want is not None and abs(want - self.eoffset_scale) > 1e-9 * abs(want):
+                raise Refused(f"{self.axis}.eoffset-scale is {self.eoffset_scale:g}, the "
+                              f"config says {want:g}", "bad_address", eo["name"])
+            # start from what the counts signal holds (a restart: the last counts written)
+            counts = hal.get_value(eo["counts_net"]) if self._has_signal(eo["counts_net"]) else 0
+            self.comp[eo["counts_pin"]] = int(counts)
+            self.comp[eo["enable_pin"]] = True
+            self._join(eo["counts_pin"], eo["counts_net"], eo["name"])
+            self._join(eo["enable_pin"], eo["enable_net"], eo["name"])
+
+    def _create(self, name: str) -> Any:
+        """The component `name`; when a process killed with SIGKILL left one of that
+        name behind (HAL cannot remove it), ``name-2``, ``name-3``... (the HAL file
+        names only signals, so the pins' names do not matter to it)."""
+        for n in range(1, 100):
+            candidate = name if n == 1 else f"{name}-{n}"
+            try:
+                return self.hal.component(candidate)
+            except Exception as exc:  # HAL not running, or the name taken
+                owner = _components().get(candidate)
+                if owner is None or _alive(owner):
+                    why = (f"it is taken by the live process {owner} (another compd?)"
+                           if owner is not None else "is LinuxCNC running?")
+                    raise Refused(f"cannot create HAL component {candidate!r}: {why} "
+                                  f"({exc})", "lost") from exc
+        raise Refused(f"cannot create HAL component {name!r}: 99 left behind", "lost")
+
+    def _has_signal(self, net: str) -> bool:
+        return any(s["NAME"] == net for s in self.hal.get_info_signals())
+
+    def _join(self, pin: str, net: str, name: str) -> None:
+        full = f"{self.comp.getprefix()}.{pin}"
+        if not self._has_signal(net):
+            raise Refused(f"HAL signal {net!r} does not exist: add a 'net {net} ...' line to "
+                          f"the machine's HAL file for {full}", "bad_address", name)
+        self._free_writer(net)
+        try:
+            self.hal.connect(full, net)
+        except Exception as exc:
+            raise Refused(f"cannot join {full} to signal {net!r}: {exc}", "bad_address",
+                          name) from exc
+
+    def _free_writer(self, net: str) -> None:
+        """A signal still driven by a pin of a component whose process is gone (killed
+        with SIGKILL): unlink that pin (the signal keeps its value) so that ours can
+        drive it."""
+        sig = next((s for s in self.hal.get_info_signals() if s["NAME"] == net), None)
+        writer = str(sig.get("DRIVER") or "") if sig is not None else ""
+        if not writer:
+            return
+        if self._owners is None:  # asked once per start (a halcmd run)
+            self._owners = _components()
+        owners = self._owners
+        comp = max((c for c in owners if writer.startswith(c + ".")), key=len, default=None)
+        if comp is not None and not _alive(owners[comp]):
+            self.hal.disconnect(writer)
+
+    # -- read -------------------------------------------------------------------
+
+    def read(self, names: list[str]) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for name in names:
+            p = self.pins.get(name)
+            if p is not None:
+                v = self.comp[p["pin"]]
+                out[name] = float((not v) if p.get("invert") else v)
+            elif name in self.gets:
+                what, scale, invert = self.gets[name]
+                try:
+                    raw = self.hal.get_value(what)
+                    out[name] = float((not raw) if invert else raw) * scale
+                except Exception as exc:
+                    raise Refused(f"no HAL item {what!r}: {exc}", "bad_address", name) from exc
+            elif self.eo is not None and name == self.eo["name"]:
+                applied = float(self.hal.get_value(f"{self.axis}.eoffset"))
+                out[name] = applied / self.eoffset_scale * self.eo["scale"]
+            else:
+                raise Refused("unknown channel or output name", "bad_address", name)
+        return out
+
+    # -- write ------------------------------------------------------------------
+
+    def write(self, values: dict[str, float]) -> None:
+        # the pins first: a refused offset (machine off) still lets the heartbeat
+        # and the status word through
+        eo_name = self.eo["name"] if self.eo is not None else None
+        for name, value in sorted(values.items(), key=lambda kv: kv[0] == eo_name):
+            p = self.pins.get(name)
+            if p is not None:
+                if p["dir"] != "out":
+                    raise Refused("not an output", "bad_address", name)
+                t = p["type"]
+                self.comp[p["pin"]] = (bool(value) != bool(p.get("invert")) if t == "bit"
+                                       else float(value) if t == "float" else round(value))
+            elif self.eo is not None and name == self.eo["name"]:
+                self._write_offset(float(value))
+            else:
+                raise Refused("unknown output name (not writable)", "bad_address", name)
+
+    def _accepting(self) -> str | None:
+        """Why LinuxCNC takes no offset change now, None when it does."""
+        get = self.hal.get_value
+        if not get("motion.motion-enabled"):
+            return "machine off (or E-stop)"
+        if not get("motion.is-all-homed"):
+            return "machine not homed"
+        return None
+
+    def _write_offset(self, value: float) -> None:
+        eo = self.eo
+        assert eo is not None
+        want = round(value / eo["scale"])
+        why = self._accepting()
+        if why is not None:
+            self.expect = None  # a change not taken before the machine went off is lost
+            raise Refused(f"LinuxCNC takes no external offset now: {why}", "rejected",
+                          eo["name"])
+        q = self.eoffset_scale
+        held = round(float(self.hal.get_value(f"{self.axis}.eoffset-request")) / q)
+        if self.expect is not None and held != self.expect:
+            held = self.expect  # our last change is still on its way: LinuxCNC will hold it
+        self.expect = None
+        delta = want - held
+        if delta == 0:
+            return
+        pin = eo["counts_pin"]
+        self.comp[pin] = int(self.comp[pin]) + delta
+        self.expect = want
+        # the servo thread adds the change within a period: wait until it has, so
+        # that the write reports what LinuxCNC took
+        deadline = time.monotonic() + eo["wait_s"]
+        while True:
+            now = float(self.hal.get_value(f"{self.axis}.eoffset-request"))
+            if round(now / q) == want:
+                self.expect = None
+                return
+            if self._accepting() is not None:
+                self.expect = None
+                raise Refused("LinuxCNC stopped taking the external offset during the write",
+                              "rejected", eo["name"])
+            if time.monotonic() > deadline:
+                # a servo thread late (a loaded machine without a realtime kernel): a
+                # transient refusal, the link stays; the next write counts from `expect`
+                raise Refused(f"LinuxCNC's servo thread did not take the offset within "
+                              f"{eo['wait_s']:g} s", "rejected", eo["name"])
+            time.sleep(0.0002)
+
+
+def _components() -> dict[str, int]:
+    """HAL's user components: name -> process id (``halcmd show comp``)."""
+    out = subprocess.run(["halcmd", "-s", "show", "comp"], capture_output=True, text=True,
+                         timeout=30, check=False).stdout
+    found: dict[str, int] = {}
+    for line in out.splitlines():
+        f = line.split()
+        if len(f) >= 4 and f[1] == "User" and f[3].isdigit():
+            found[f[2]] = int(f[3])
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _serve(comp: Component) -> None:
+    for line in sys.stdin:
+        try:
+            req = json.loads(line)
+            if "r" in req:
+                _answer({"v": comp.read(req["r"])})
+            else:
+                comp.write(req["w"])
+                _answer({"ok": 1})
+        except Refused as exc:
+            _answer({"e": str(exc), "k": exc.kind, "n": exc.name})
+        except Exception as exc:  # HAL gone under us: the driver drops the link
+            _answer({"e": f"{type(exc).__name__}: {exc}", "k": "lost", "n": None})
+
+
+def main() -> int:
+    # halcmd unload (LinuxCNC's shutdown) sends SIGTERM: leave quietly, HAL
+    # removes the component and the driver sees end-of-file
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    try:
+        hal = importlib.import_module("hal")
+    except ImportError as exc:
+        _answer({"e": f"no LinuxCNC 'hal' module for {sys.executable}: {exc}",
+                 "k": "unavailable", "n": None})
+        return 3
+    try:
+        comp = Component(hal, json.loads(sys.argv[1]))
+    except Refused as exc:
+        _answer({"e": str(exc), "k": exc.kind, "n": exc.name})
+        return 2
+    _answer({"ready": 1, "eoffset_scale": comp.eoffset_scale})
+    with contextlib.suppress(KeyboardInterrupt):
+        _serve(comp)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,328 @@
+"""A real LinuxCNC, headless, as the simulated machine's controller.
+
+Not a stand-in: LinuxCNC itself (Debian's ``linuxcnc-uspace``) runs a small
+mill (XYZ, mm, trivkins, simulated joints, Z external offsets at
+``OFFSET_AV_RATIO`` 0.2) from a configuration written to a work folder, with
+the ``dummy`` display (it waits on its stdin: closing it shuts LinuxCNC
+down). The plant's side is a second HAL component, ``compd-plant``
+(`drivers.linuxcnc.LinuxCncDriver` with output pins), driving the sensor
+signals ``compd-<channel>`` that compd's own pins join; the spindle speed is
+LinuxCNC's (``spindle-speed-cmd`` <- ``spindle.0.speed-out``, set by the
+G-code program that runs); the offset the plant sees is what motion applies
+(``axis.z.eoffset``, µm).
+
+The HAL file a user adds for compd is the one written here (`HAL_LINES`),
+less the plant's signals: `docs/protocols.md`.
+
+As root, ``rtapi_app`` runs with the fallback uid ``RTAPI_UID`` (nobody) and a
+FIFO that uid can write (``RTAPI_FIFO_PATH`` in the work folder). One
+LinuxCNC runs per machine: `start()` takes an exclusive lock
+(`LOCK_PATH`) held until `stop()`, which always cleans up (``halrun -U``).
+`unavailable()` says why LinuxCNC cannot run here (None when it can).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import fcntl
+import json
+import os
+import pwd
+import shutil
+import subprocess
+import tempfile
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import IO, Any
+
+from drivers.addresses import LinuxCncEoffset, LinuxCncGet, LinuxCncPin
+from drivers.linuxcnc import LinuxCncDriver
+
+#: the Python LinuxCNC's modules were built for (Debian's)
+SYSTEM_PYTHON = "/usr/bin/python3"
+CTL = Path(__file__).with_name("linuxcnc_ctl.py")
+#: one LinuxCNC per machine: every starter takes this lock
+LOCK_PATH = Path(tempfile.gettempdir()) / "compd-linuxcnc.lock"
+#: seconds LinuxCNC may take to come up (a loaded 2-core machine is slow)
+START_DEADLINE_S = 120.0
+#: seconds the plant waits for motion to apply a requested offset
+SETTLE_DEADLINE_S = 10.0
+#: µm per count of axis.z.eoffset-counts (axis.z.eoffset-scale 0.0001 mm)
+COUNT_UM = 0.1
+#: the sensor channels the plant drives (signals compd-<name>)
+SENSORS: tuple[str, ...] = ("bearing", "motor", "column", "table", "ambient", "power_kw",
+                            "growth_um", "error_um")
+
+HAL_LINES = f"""\
+# compd: external offset of Z in counts of {COUNT_UM} µm
+setp axis.z.eoffset-scale {COUNT_UM / 1000.0:g}
+net compd-eoffset-counts => axis.z.eoffset-counts
+net compd-eoffset-enable => axis.z.eoffset-enable
+# compd's heartbeat and status word, for a ladder or HAL logic to watch
+newsig compd-heartbeat s32
+newsig compd-status s32
+# the sensors (here the simulated plant's component drives them)
+""" + "".join(f"newsig compd-{name} float\n" for name in SENSORS)
+
+INI = """\
+[EMC]
+MACHINE = compd-test-mill
+VERSION = 1.1
+
+[DISPLAY]
+DISPLAY = dummy
+POSITION_OFFSET = RELATIVE
+POSITION_FEEDBACK = ACTUAL
+
+[HAL]
+HALFILE = LIB:basic_sim.tcl -no_use_hal_manualtoolchange
+HALFILE = compd.hal
+
+[TASK]
+TASK = milltask
+CYCLE_TIME = 0.010
+
+[RS274NGC]
+PARAMETER_FILE = sim.var
+
+[EMCIO]
+TOOL_TABLE = tool.tbl
+EMCIO = io
+CYCLE_TIME = 0.100
+
+[EMCMOT]
+EMCMOT = motmod
+SERVO_PERIOD = 1000000
+
+[TRAJ]
+COORDINATES = XYZ
+LINEAR_UNITS = mm
+ANGULAR_UNITS = degree
+MAX_LINEAR_VELOCITY = 50
+
+[KINS]
+JOINTS = 3
+KINEMATICS = trivkins coordinates=XYZ
+""" + "".join(f"""
+[AXIS_{a}]
+{"OFFSET_AV_RATIO = 0.2" if a == "Z" else ""}
+MAX_VELOCITY = 50
+MAX_ACCELERATION = 500
+MIN_LIMIT = -100
+MAX_LIMIT = 100
+
+[JOINT_{j}]
+TYPE = LINEAR
+HOME_SEQUENCE = 0
+MAX_VELOCITY = 50
+MAX_ACCELERATION = 500
+""" for j, a in enumerate("XYZ"))
+
+
+def unavailable() -> str | None:
+    """Why a headless LinuxCNC cannot run here; None when it can."""
+    if shutil.which("linuxcnc") is None or shutil.which("halrun") is None:
+        return "LinuxCNC is not installed (apt-get install linuxcnc-uspace)"
+    if not os.path.exists(SYSTEM_PYTHON):
+        return f"no {SYSTEM_PYTHON} for LinuxCNC's Python modules"
+    probe = subprocess.run([SYSTEM_PYTHON, "-I", "-c", "import hal, linuxcnc"],
+                           capture_output=True, text=True, timeout=60, check=False)
+    if probe.returncode != 0:
+        return f"LinuxCNC's hal/linuxcnc modules do not import under {SYSTEM_PYTHON}"
+    return None
+
+
+def write_config(folder: Path) -> Path:
+    """The machine's configuration in `folder`; returns the INI file."""
+    (folder / "compd.hal").write_text(HAL_LINES, encoding="utf-8")
+    (folder / "tool.tbl").write_text("T1 P1 D6.0 Z0 ;\n", encoding="utf-8")
+    (folder / "sim.var").write_text("", encoding="utf-8")
+    ini = folder / "compd-test.ini"
+    ini.write_text(INI, encoding="utf-8")
+    return ini
+
+
+def _cleanup() -> None:
+    """LinuxCNC's own cleanup of realtime processes and shared memory."""
+    with contextlib.suppress(OSError, subprocess.SubprocessError):
+        subprocess.run(["halrun", "-U"], capture_output=True, timeout=60, check=False,
+                       env=_env())
+
+
+#: where rtapi_app's FIFO lives when run as root (the same for start and cleanup,
+#: or ``halrun -U`` cannot reach a running instance)
+FIFO_DIR = Path(tempfile.gettempdir()) / "compd-linuxcnc-rtapi"
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ, RUNTESTS="1")
+    if os.geteuid() == 0:  # rtapi_app refuses root without a fallback uid
+        FIFO_DIR.mkdir(exist_ok=True)
+        FIFO_DIR.chmod(0o777)
+        env["RTAPI_UID"] = str(pwd.getpwnam("nobody").pw_uid)
+        env["RTAPI_FIFO_PATH"] = str(FIFO_DIR / "rtapi_fifo")
+    return env
+
+
+class LinuxCncSimController:
+    """Headless LinuxCNC with the plant's HAL component (see the module)."""
+
+    protocol = "linuxcnc"
+    endpoint = "linuxcnc://localhost"
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, *,
+                 folder: Path | None = None) -> None:
+        self.channels: dict[str, Any] = {
+            name: LinuxCncPin(pin=name.replace("_", "-"), net=f"compd-{name}")
+            for name in SENSORS}
+        self.channels["speed_rpm"] = LinuxCncPin(pin="speed-rpm", net="spindle-speed-cmd")
+        self.outputs_map: dict[str, Any] = {
+            "offset": LinuxCncEoffset(kind="eoffset", axis="z", scale=COUNT_UM,
+                                      eoffset_scale=COUNT_UM / 1000.0),
+            "heartbeat": LinuxCncPin(pin="heartbeat", net="compd-heartbeat", type="s32"),
+            "status": LinuxCncPin(pin="status", net="compd-status", type="s32")}
+        #: the controller's state for [output] machine_on / estop
+        self.states: dict[str, Any] = {
+            "machine_on": LinuxCncGet(kind="get", hal="motion.motion-enabled"),
+            "estop": LinuxCncGet(kind="get", hal="iocontrol.0.user-enable-out", invert=True)}
+        self.probes: dict[str, Any] = {}
+        self._given = folder
+        self.folder: Path | None = None
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        self._lock: IO[bytes] | None = None
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._plant: LinuxCncDriver | None = None
+
+    # -- lifecycle -----------------------------------------------------------------
+
+    async def start(self) -> None:
+        why = unavailable()
+        if why is not None:
+            raise RuntimeError(why)
+        await asyncio.to_thread(self._start_sync)
+        try:
+            self._plant = LinuxCncDriver(
+                self.endpoint, {
+                    "offset_um": LinuxCncGet(kind="get", hal="axis.z.eoffset", scale=1000.0),
+                    "request_um": LinuxCncGet(kind="get", hal="axis.z.eoffset-request",
+                                              scale=1000.0),
+                    "heartbeat": LinuxCncPin(pin="heartbeat", net="compd-heartbeat",
+                                             type="s32"),
+                    "status": LinuxCncPin(pin="status", net="compd-status", type="s32")},
+                {n: LinuxCncPin(pin=n.replace("_", "-"), net=f"compd-{n}")
+                 for n in SENSORS},
+                timeout_s=10.0, connect_timeout_s=60.0, component="compd-plant",
+                python=SYSTEM_PYTHON)
+            await self._plant.connect()
+            await self.control("on")
+        except BaseException:
+            await self.stop()
+            raise
+
+    def _start_sync(self) -> None:
+        lock = LOCK_PATH.open("wb")
+        fcntl.flock(lock, fcntl.LOCK_EX)  # one LinuxCNC per machine: wait for the other
+        self._lock = lock
+        _cleanup()  # what a killed run may have left
+        if self._given is not None:
+            self.folder = self._given
+        else:
+            self._tmp = tempfile.TemporaryDirectory(prefix="compd-linuxcnc-")
+            self.folder = Path(self._tmp.name)
+        self.folder.chmod(0o755)
+        ini = write_config(self.folder)
+        log = (self.folder / "linuxcnc.log").open("wb")
+        self._proc = subprocess.Popen(["linuxcnc", str(ini)], cwd=self.folder,
+                                      stdin=subprocess.PIPE, stdout=log,
+                                      stderr=subprocess.STDOUT, env=_env(),
+                                      start_new_session=True)
+        log.close()
+        deadline = time.monotonic() + START_DEADLINE_S
+        while b"DUMMY DISPLAY" not in (self.folder / "linuxcnc.log").read_bytes():
+            if self._proc.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError("LinuxCNC did not start: " + self.log_tail())
+            time.sleep(0.05)
+
+    def log_tail(self, chars: int = 2000) -> str:
+        if self.folder is None:
+            return ""
+        path = self.folder / "linuxcnc.log"
+        return path.read_text(errors="replace")[-chars:] if path.exists() else ""
+
+    async def stop(self) -> None:
+        if self._plant is not None:
+            await self._plant.close()
+            self._plant = None
+        await asyncio.to_thread(self._stop_sync)
+
+    def _stop_sync(self) -> None:
+        proc, self._proc = self._proc, None
+        if proc is not None:
+            with contextlib.suppress(OSError):
+                if proc.stdin is not None:
+                    proc.stdin.close()  # the dummy display's "press ENTER": shut down
+            try:
+                proc.wait(60)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(proc.pid, 9)
+                proc.wait(10)
+        _cleanup()
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+        if self._lock is not None:
+            self._lock.close()  # releases the lock
+            self._lock = None
+
+    # -- the machine's side --------------------------------------------------------
+
+    async def control(self, *command: str) -> dict[str, Any]:
+        """A `drivers.sim.linuxcnc_ctl` command (``on``, ``off``, ``estop``,
+        ``run FILE``, ``stat``); returns ``linuxcnc.stat()`` after it."""
+        proc = await asyncio.create_subprocess_exec(
+            SYSTEM_PYTHON, "-I", str(CTL), *command, stdout=asyncio.subprocess.PIPE)
+        out, _ = await proc.communicate()
+        answer: dict[str, Any] = json.loads(out or b'{"e": "no answer"}')
+        if proc.returncode != 0 or "e" in answer:
+            raise RuntimeError(f"linuxcnc {' '.join(command)}: {answer.get('e')}")
+        return answer
+
+    async def hal(self) -> dict[str, float]:
+        """What LinuxCNC's HAL shows of compd: the Z offset applied (µm), the
+        heartbeat and the status word."""
+        assert self._plant is not None
+        got = await self._plant.read(["offset_um", "heartbeat", "status"])
+        return {n: s.value for n, s in got.items()}
+
+    async def publish(self, values: Mapping[str, float]) -> None:
+        assert self._plant is not None
+        await self._plant.write({n: v for n, v in values.items() if n in SENSORS})
+
+    async def settled(self, deadline_s: float = SETTLE_DEADLINE_S) -> dict[str, float]:
+        """`hal()` once motion has applied the offset compd requested (the
+        external offset planner moves at OFFSET_AV_RATIO of the axis' limits:
+        milliseconds for a few µm); a condition, bounded by `deadline_s`."""
+        assert self._plant is not None
+        end = time.monotonic() + deadline_s
+        while True:
+            got = await self._plant.read(["offset_um", "request_um", "heartbeat", "status"])
+            v = {n: s.value for n, s in got.items()}
+            if abs(v["offset_um"] - v["request_um"]) < 1e-3 or time.monotonic() > end:
+                return {n: v[n] for n in ("offset_um", "heartbeat", "status")}
+            await asyncio.sleep(0.001)
+
+    async def outputs(self) -> dict[str, float]:
+        got = await self.settled()
+        return {"offset": got["offset_um"], "heartbeat": got["heartbeat"],
+                "status": got["status"]}
+
+    async def forget_outputs(self) -> None:
+        """Machine off and on again: LinuxCNC zeroes the external offset."""
+        await self.control("off")
+        await self.control("on")
+
+
+__all__ = ["HAL_LINES", "LinuxCncSimController", "unavailable", "write_config"]

@@ -1,0 +1,399 @@
+"""LinuxCNC in the loop: a real, headless LinuxCNC (`drivers.sim.linuxcnc_machine`)
+running a G-code program, the simulated plant feeding its temperature signals,
+and the real daemon (in lockstep, `tests.lockstep`) compensating Z through
+external offsets. Everything is checked on LinuxCNC's side: ``axis.z.eoffset``
+and the HAL signals (read as ``halcmd getp`` does), ``linuxcnc.stat()``.
+
+One LinuxCNC for the module (it takes seconds to start), held under a file
+lock (`LOCK_PATH`: one LinuxCNC per machine, whatever pytest worker or process
+wants one); skipped with the reason where ``linuxcnc-uspace`` is absent.
+
+The figures (offset LinuxCNC applies against the offset compd wrote, the
+largest step per period against the slew limit) are printed: ``-s`` shows them.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import json
+import signal
+import subprocess
+import tomllib
+from collections.abc import AsyncIterator, Awaitable, Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import pytest_asyncio
+
+from compd.core.output import Status
+from compd.offline.demo import start_daemon
+from drivers.errors import BadAddress, ConnectionLost
+from drivers.linuxcnc import LinuxCncDriver
+from drivers.linuxcnc_options import LinuxCncPin
+from drivers.sim.linuxcnc_machine import LinuxCncSimController, unavailable
+from drivers.sim.machine import SimMachine
+from drivers.sim.programs import constant
+from tests.lockstep import Lockstep, lockstep_config, write_config
+
+WHY_NOT = unavailable()
+pytestmark = [pytest.mark.skipif(WHY_NOT is not None, reason=str(WHY_NOT)),
+              pytest.mark.asyncio(loop_scope="module"),
+              # another worker's module may hold the machine's one LinuxCNC for a minute
+              pytest.mark.timeout(300)]
+
+ROOT = Path(__file__).resolve().parents[2]
+PERIOD_S = 60.0
+LIMIT_UM = 200.0
+#: 0.6 µm a period: below the warming machine's fastest growth, so the slew limit binds
+SLEW_UM_S = 0.01
+STEP_UM = SLEW_UM_S * PERIOD_S
+#: one count of axis.z.eoffset-counts (drivers.sim.linuxcnc_machine.COUNT_UM)
+COUNT_UM = 0.1
+SPEED_RPM = 9000.0
+#: how close motion's external offset planner comes to the request before it stops
+#: (its stopping criterion, TINY_DP: under a nanometre here)
+SETTLED_UM = 1e-3
+#: the machine's program: spindle on at the plant's speed, Z down, a long dwell
+PROGRAM = f"""%
+G21 G90 G17
+M3 S{SPEED_RPM:g}
+G1 Z-5 F600
+G4 P3600
+M5
+M2
+%
+"""
+
+
+@pytest_asyncio.fixture(scope="module", loop_scope="module")
+async def lcnc(tmp_path_factory: pytest.TempPathFactory) -> AsyncIterator[LinuxCncSimController]:
+    sim = LinuxCncSimController()
+    await sim.start()
+    try:
+        ngc = tmp_path_factory.mktemp("ngc") / "warm.ngc"
+        ngc.write_text(PROGRAM, encoding="ascii")
+        ngc.parent.chmod(0o755)
+        await sim.control("run", str(ngc))
+        yield sim
+    finally:
+        await sim.stop()
+
+
+def _config(sim: LinuxCncSimController, tmp_path: Path, **faults: Any) -> Path:
+    doc = lockstep_config(sim, tmp_path, model="sim_machine", period_s=PERIOD_S,
+                          limit_um=LIMIT_UM, slew_um_s=SLEW_UM_S)
+    doc["output"]["machine_on"] = sim.states["machine_on"].model_dump()
+    doc["output"]["estop"] = sim.states["estop"].model_dump()
+    doc["faults"].update(faults)
+    return write_config(doc, tmp_path / "compd.toml")
+
+
+def _rig(sim: LinuxCncSimController, tmp_path: Path, **faults: Any) -> Lockstep:
+    machine = SimMachine(sim, program=constant(SPEED_RPM, heat_h=10.0, cool_h=1.0),
+                         seed=3, period_s=PERIOD_S, repeat=False)
+    return Lockstep(machine, _config(sim, tmp_path, **faults))
+
+
+def _written(rig: Lockstep) -> float | None:
+    """The offset the daemon's last cycle wrote (µm), None when it wrote none."""
+    assert rig.daemon is not None and rig.daemon.last_result is not None
+    return rig.daemon.last_result.writes.get("offset")
+
+
+def _signal(name: str) -> float:
+    """A HAL signal's value, as ``halcmd gets`` reads it."""
+    out = subprocess.run(["halcmd", "-s", "gets", name], capture_output=True, text=True,
+                         timeout=30, check=True)
+    text = out.stdout.strip()
+    return float({"TRUE": 1, "FALSE": 0}.get(text, text))
+
+
+def _component_exists(name: str) -> bool:
+    out = subprocess.run(["halcmd", "-s", "show", "comp", name], capture_output=True,
+                         text=True, timeout=30, check=False)
+    return any(line.split()[1:2] == [name] or name in line.split() for line in
+               out.stdout.splitlines())
+
+
+async def test_driver_joins_the_machines_signals(lcnc: LinuxCncSimController) -> None:
+    state = await lcnc.control("stat")
+    assert state["machine_on"] and all(state["homed"])
+    driver = LinuxCncDriver(lcnc.endpoint, {**lcnc.channels, **lcnc.states}, lcnc.outputs_map,
+                            timeout_s=10.0, connect_timeout_s=60.0)
+    try:
+        await driver.connect()
+        await lcnc.publish({"bearing": 31.4, "ambient": 20.5})
+        got = await driver.read(["bearing", "ambient", "speed_rpm", "machine_on", "estop"])
+        assert {n: s.value for n, s in got.items()} == pytest.approx(
+            {"bearing": 31.4, "ambient": 20.5, "speed_rpm": SPEED_RPM, "machine_on": 1.0,
+             "estop": 0.0})
+        before = (await driver.read(["offset"]))["offset"].value
+        await driver.write({"offset": before + 3.7, "heartbeat": 7, "status": 1})
+        hal = await lcnc.settled()
+        assert hal["offset_um"] == pytest.approx(before + 3.7, abs=SETTLED_UM)
+        assert (hal["heartbeat"], hal["status"]) == (7, 1)
+        await driver.write({"offset": before})
+        assert (await lcnc.settled())["offset_um"] == pytest.approx(before, abs=SETTLED_UM)
+    finally:
+        await driver.close()
+    assert not _component_exists("compd")
+    # a signal the HAL file does not make: refused at connect, naming it
+    bad = LinuxCncDriver(lcnc.endpoint, {"bearing": LinuxCncPin(pin="b", net="no-such-net")},
+                         {}, timeout_s=10.0, connect_timeout_s=60.0)
+    with pytest.raises(BadAddress, match="no-such-net"):
+        await bad.connect()
+    await bad.close()
+
+
+async def test_z_offset_follows_the_model_under_the_slew_limit(
+        lcnc: LinuxCncSimController, tmp_path: Path) -> None:
+    rig = _rig(lcnc, tmp_path)
+    seen: list[float] = []
+    rows: list[tuple[float, float, float]] = []  # (written, LinuxCNC's, model)
+    try:
+        await rig.start()
+        seen.append((await lcnc.settled())["offset_um"])
+        for _ in range(150):
+            await rig.step()
+            hal = await lcnc.settled()
+            written = _written(rig)
+            assert written is not None and rig.daemon is not None
+            result = rig.daemon.last_result
+            assert result is not None and result.model_um is not None
+            rows.append((written, hal["offset_um"], result.model_um))
+            seen.append(hal["offset_um"])
+            assert hal["heartbeat"] == result.heartbeat and hal["status"] == result.status
+        assert await rig.stop() == 0
+    finally:
+        await rig.close()
+    diff = max(abs(w - s) for w, s, _ in rows)
+    steps = [b - a for a, b in itertools.pairwise(seen)]
+    # each period LinuxCNC's offset is within a count of the model, or moved toward
+    # it by the whole slew step (the slew limit binds), never past it
+    limited = 0
+    for (_, s, m), step in zip(rows, steps, strict=True):
+        if abs(s - m) > COUNT_UM + SETTLED_UM:
+            assert abs(abs(step) - STEP_UM) <= SETTLED_UM and (m - s) * step > 0
+            limited += 1
+    print(json.dumps({"figure": "linuxcnc_offset_vs_written", "periods": len(rows),
+                      "max_diff_um": diff, "max_step_um": max(map(abs, steps)),
+                      "slew_step_um": STEP_UM,
+                      "max_step_over_slew": max(map(abs, steps)) / STEP_UM,
+                      "slew_limited_periods": limited, "final_offset_um": seen[-1],
+                      "final_model_um": rows[-1][2]}))
+    assert diff <= SETTLED_UM  # what LinuxCNC applies is what compd wrote
+    assert max(map(abs, steps)) <= STEP_UM + SETTLED_UM
+    assert limited >= 10 and seen[-1] > 10.0  # the slew limit bound; the offset followed
+    assert abs(seen[-1] - rows[-1][2]) <= COUNT_UM + SETTLED_UM  # caught up by the end
+
+
+async def test_machine_off_and_estop_are_held_without_a_write_fight(
+        lcnc: LinuxCncSimController, tmp_path: Path) -> None:
+    rig = _rig(lcnc, tmp_path)
+    try:
+        await rig.start()
+        await rig.step(40)
+        warm = (await lcnc.settled())["offset_um"]
+        assert warm > 5.0
+        for off, word in (("off", "machine_off"), ("estop", "estop")):
+            counts = _signal("compd-eoffset-counts")
+            await lcnc.control(off)
+            for _ in range(5):
+                await rig.step()
+                assert _written(rig) is None  # no offset written while LinuxCNC is off
+                status = int((await lcnc.settled())["status"])
+                assert status & Status.CONTROLLER_OFF and not status & Status.ALARM
+            assert _signal("compd-eoffset-counts") == counts  # counts left alone
+            assert rig.logs[-1].names().count("controller_off") == (1 if off == "off" else 2)
+            fields = [f for _, e, f in rig.logs[-1].events if e == "controller_off"][-1]
+            assert fields["reason"] == word
+            await lcnc.control("on")  # LinuxCNC zeroes the external offset at machine on
+            assert (await lcnc.settled())["offset_um"] == pytest.approx(0.0, abs=SETTLED_UM)
+            previous = 0.0
+            for _ in range(3):  # ramps back from 0 at the slew limit, no alarm
+                await rig.step()
+                hal = await lcnc.settled()
+                assert 0.0 < hal["offset_um"] - previous <= STEP_UM + SETTLED_UM
+                assert not int(hal["status"]) & (Status.ALARM | Status.READBACK_MISMATCH)
+                previous = hal["offset_um"]
+        names = rig.logs[-1].names()
+        assert "write_failed" not in names and "readback_mismatch" not in names
+        assert names.count("controller_on") == 2
+        assert await rig.stop() == 0
+    finally:
+        await rig.close()
+
+
+async def test_death_holds_the_offset_and_a_restart_resumes_without_a_jump(
+        lcnc: LinuxCncSimController, tmp_path: Path) -> None:
+    rig = _rig(lcnc, tmp_path)
+    try:
+        await rig.start()
+        await rig.step(40)
+        held = (await lcnc.settled())["offset_um"]
+        assert held > 5.0
+        daemon = rig.daemon
+        assert daemon is not None and daemon.running.driver is not None
+        await rig.kill9()
+        # the kernel closes a killed process' pipes: its HAL side reads end-of-file
+        await daemon.running.driver.close()
+        assert not _component_exists("compd")
+        await rig.idle(5)  # no daemon: the signal keeps the last counts, the offset holds
+        assert (await lcnc.settled())["offset_um"] == pytest.approx(held, abs=SETTLED_UM)
+        await rig.start()
+        # the restart's first cycle: the checkpoint (every 30 cycles) is older than
+        # the offset held, so the read-back is foreign (READBACK_MISMATCH while the
+        # output ramps back, as for every protocol) and the output ramps from it
+        previous = (await lcnc.settled())["offset_um"]
+        assert abs(previous - held) <= STEP_UM + SETTLED_UM
+        for _ in range(5):
+            await rig.step()
+            hal = await lcnc.settled()
+            assert abs(hal["offset_um"] - previous) <= STEP_UM + SETTLED_UM
+            previous = hal["offset_um"]
+        # SIGTERM with shutdown = "hold": the offset stays where it is
+        assert await rig.stop() == 0
+        assert (await lcnc.settled())["offset_um"] == pytest.approx(previous, abs=SETTLED_UM)
+        assert not _component_exists("compd")
+    finally:
+        await rig.close()
+
+
+
+async def test_the_shipped_example_runs_against_the_machines_hal_file(
+        lcnc: LinuxCncSimController, tmp_path: Path) -> None:
+    """`compd/examples/linuxcnc.toml` joins the signals the HAL file of
+    `docs/protocols.md` makes (the test machine's), as it is, but its state dir."""
+    doc = tomllib.loads((ROOT / "compd" / "examples" / "linuxcnc.toml").read_text("utf-8"))
+    doc["state"]["dir"] = str(tmp_path / "state")
+    machine = SimMachine(lcnc, program=constant(SPEED_RPM, heat_h=10.0, cool_h=1.0),
+                         seed=5, period_s=float(doc["machine"]["period_s"]), repeat=False)
+    rig = Lockstep(machine, write_config(doc, tmp_path / "compd.toml"))
+    try:
+        await rig.start()
+        await rig.step(10)
+        written = _written(rig)
+        assert written is not None
+        assert (await lcnc.settled())["offset_um"] == pytest.approx(written, abs=SETTLED_UM)
+        assert await rig.stop() == 0
+    finally:
+        await rig.close()
+
+
+async def _until(what: str, check: Callable[[], Awaitable[bool]],
+                 deadline_s: float = 120.0) -> None:
+    """Wait on a condition (polled), failing after a generous deadline."""
+    end = asyncio.get_running_loop().time() + deadline_s
+    while not await check():
+        if asyncio.get_running_loop().time() > end:
+            pytest.fail(f"not within {deadline_s:g} s: {what}")
+        await asyncio.sleep(0.05)
+
+
+async def test_compd_run_process_killed_leaves_the_offset_held(
+        lcnc: LinuxCncSimController, tmp_path: Path) -> None:
+    """`compd run` as a process, in real time: kill -9 closes its pipe, its HAL side
+    ends, HAL removes the component and LinuxCNC keeps the last counts; a restarted
+    `compd run` compensates again and ends on SIGTERM with status 0, offset held."""
+    doc = tomllib.loads(_config(lcnc, tmp_path).read_text("utf-8"))
+    doc["machine"]["time_scale"] = PERIOD_S / 0.5  # a cycle every half second
+    doc["controller"]["timeout_s"] = 0.25
+    doc["controller"]["connect_timeout_s"] = 60.0
+    config = write_config(doc, tmp_path / "compd.toml")
+    await lcnc.publish({"bearing": 35.0, "motor": 40.0, "column": 22.0, "ambient": 20.0})
+
+    async def offset_in_counts() -> float:
+        return _signal("compd-eoffset-counts")
+
+    start = (await lcnc.settled())["offset_um"]
+    proc = await start_daemon(config, tmp_path / "run1.log", tmp_path / "notify1")
+    # the model starts at rest on today's temperatures: the machine warms after
+    await lcnc.publish({"bearing": 40.0, "motor": 48.0})
+    try:
+        async def moved() -> bool:
+            return abs((await lcnc.settled())["offset_um"] - start) > 1.0
+        await _until("compd run moved LinuxCNC's offset", moved)
+        proc.kill()
+        await proc.wait()
+
+        async def gone() -> bool:
+            return not _component_exists("compd")
+        await _until("the HAL side of a killed compd ended", gone)
+        counts = await offset_in_counts()
+        held = (await lcnc.settled())["offset_um"]
+        await lcnc.control("stat")  # LinuxCNC runs on meanwhile; nobody drives the counts
+        # the signal keeps the counts compd wrote last, and LinuxCNC the offset
+        assert await offset_in_counts() == counts
+        assert (await lcnc.settled())["offset_um"] == pytest.approx(held, abs=SETTLED_UM)
+        assert abs(held - start) > 1.0
+        beats = _signal("compd-heartbeat")
+        proc = await start_daemon(config, tmp_path / "run2.log", tmp_path / "notify2")
+
+        async def beating() -> bool:
+            return _signal("compd-heartbeat") != beats
+        await _until("a restarted compd run's heartbeat reached HAL", beating)
+        proc.send_signal(signal.SIGTERM)
+        assert await proc.wait() == 0
+        await _until("the HAL side of a stopped compd ended", gone)
+        last = (await lcnc.settled())["offset_um"]
+        assert abs(last - held) <= 2 * STEP_UM  # ramped, never jumped; then held
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+
+
+async def test_a_hal_side_killed_9_is_stepped_around(lcnc: LinuxCncSimController) -> None:
+    """SIGKILL of the HAL side (systemd's last resort on the whole unit) leaves its
+    component in HAL for good, still driving the signals: the next HAL side takes
+    another name, unlinks the dead one's pins (the signals keep their values: the
+    offset holds) and drives them itself."""
+    # its own name: what it leaves behind stays in this LinuxCNC for the other tests
+    driver = LinuxCncDriver(lcnc.endpoint, {**lcnc.channels}, lcnc.outputs_map,
+                            timeout_s=10.0, connect_timeout_s=60.0, component="compd-k9")
+    try:
+        await driver.connect()
+        before = (await lcnc.settled())["offset_um"]
+        await driver.write({"offset": before + 1.0, "heartbeat": 11})
+        session = driver._link.session
+        assert session is not None
+        session.proc.kill()
+        await session.proc.wait()
+        assert _component_exists("compd-k9")  # left behind, HAL cannot remove it
+        held = (await lcnc.settled())["offset_um"]
+        assert held == pytest.approx(before + 1.0, abs=SETTLED_UM)
+        with pytest.raises(ConnectionLost):  # the link sees its session gone
+            await driver.read(["offset"])
+        await driver.connect()  # a new HAL side (the backoff's attempt, made now)
+        assert _component_exists("compd-k9-2")
+        assert (await driver.read(["offset"]))["offset"].value == pytest.approx(
+            held, abs=SETTLED_UM)
+        await driver.write({"offset": before, "heartbeat": 12})
+        hal = await lcnc.settled()
+        assert hal["offset_um"] == pytest.approx(before, abs=SETTLED_UM)
+        assert hal["heartbeat"] == 12
+    finally:
+        await driver.close()
+
+
+async def test_a_hal_side_start_outlives_a_read_that_gave_up(
+        lcnc: LinuxCncSimController) -> None:
+    """Starting the HAL side (a Python, HAL, the joins) takes longer than a fast
+    cycle's read may wait: a read that gives up leaves the start going on, and the
+    next attempt takes that HAL side instead of killing it and starting again."""
+    driver = LinuxCncDriver(lcnc.endpoint, {"bearing": lcnc.channels["bearing"]}, {},
+                            timeout_s=10.0, connect_timeout_s=60.0, component="compd-slow")
+    try:
+        with pytest.raises(TimeoutError):
+            await asyncio.wait_for(driver.read(["bearing"]), 0.001)
+        starting = driver._starting
+        assert starting is not None and not starting.done()
+        await driver.connect()
+        assert driver._link.session is starting.result()
+        await lcnc.publish({"bearing": 33.3})
+        assert (await driver.read(["bearing"]))["bearing"].value == pytest.approx(33.3)
+    finally:
+        await driver.close()
+    assert not _component_exists("compd-slow")

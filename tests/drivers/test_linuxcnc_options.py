@@ -1,0 +1,103 @@
+"""LinuxCNC's addresses and driver construction (no LinuxCNC needed): what a
+config may say, and what the driver refuses before it starts its HAL side."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from pydantic import ValidationError
+
+from drivers.errors import BadAddress
+from drivers.linuxcnc import LinuxCncDriver
+from drivers.linuxcnc_options import LinuxCncEoffset, LinuxCncGet, LinuxCncOptions, LinuxCncPin
+from drivers.protocols import spec_of
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_a_pin_is_the_default_kind_and_joins_a_net() -> None:
+    addr = spec_of("linuxcnc").address_adapter().validate_python(
+        {"kind": "pin", "pin": "bearing", "net": "compd-bearing"})
+    assert addr == LinuxCncPin(pin="bearing", net="compd-bearing")
+    assert addr.type == "float" and addr.describe() == "bearing<->compd-bearing:float"
+
+
+@pytest.mark.parametrize("doc", [
+    {"pin": "a b", "net": "x"},                      # a space is no HAL name
+    {"pin": "a", "net": "x" * 48},                   # longer than HAL_NAME_LEN
+    {"pin": "a", "net": "x", "invert": True},        # invert on a float
+    {"pin": "a", "net": "x", "scale": 0.0},
+])
+def test_bad_pins_are_refused(doc: dict[str, object]) -> None:
+    with pytest.raises(ValidationError):
+        LinuxCncPin.model_validate(doc)
+
+
+def test_eoffset_defaults_and_bounds() -> None:
+    eo = LinuxCncEoffset(kind="eoffset")
+    assert (eo.axis, eo.counts_net, eo.enable_net, eo.type) == (
+        "z", "compd-eoffset-counts", "compd-eoffset-enable", "s32")
+    with pytest.raises(ValidationError):
+        LinuxCncEoffset(kind="eoffset", axis="q")  # type: ignore[arg-type]
+    with pytest.raises(ValidationError):
+        LinuxCncEoffset(kind="eoffset", scale=-1.0)
+
+
+def test_options_want_an_absolute_python() -> None:
+    assert LinuxCncOptions().driver_options() == {"component": "compd",
+                                                  "python": "/usr/bin/python3"}
+    with pytest.raises(ValidationError, match="absolute path"):
+        LinuxCncOptions(python="python3")
+
+
+def test_gets_are_read_only() -> None:
+    with pytest.raises(BadAddress, match="read only"):
+        LinuxCncDriver("linuxcnc://localhost", {},
+                       {"offset": LinuxCncGet(kind="get", hal="axis.z.eoffset")})
+
+
+def test_one_eoffset_and_only_as_an_output() -> None:
+    eo = LinuxCncEoffset(kind="eoffset")
+    with pytest.raises(BadAddress, match="one eoffset"):
+        LinuxCncDriver("linuxcnc://localhost", {"x": eo}, {})
+
+
+def test_hal_is_local() -> None:
+    with pytest.raises(ValueError, match="this machine only"):
+        LinuxCncDriver("linuxcnc://mill-3.shop", {}, {})
+
+
+async def test_no_hal_module_is_a_lost_link_naming_the_python(tmp_path: object) -> None:
+    """A Python without LinuxCNC's hal module (here: this venv's, isolated) cannot
+    be the HAL side: connect fails with the reason, as a lost link (backoff)."""
+    import sys
+
+    from drivers.errors import ConnectionLost
+
+    driver = LinuxCncDriver("linuxcnc://localhost", {}, {}, python=sys.executable,
+                            connect_timeout_s=60.0)
+    try:
+        with pytest.raises(ConnectionLost, match="hal"):
+            await driver.connect()
+    finally:
+        await driver.close()
+
+
+def test_check_warns_of_a_linuxcnc_config_without_machine_on(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Without output.machine_on compd cannot see LinuxCNC switch off (it would
+    fight it): `compd check` says so, and passes the shipped example silently."""
+    from compd.cli import main
+
+    example = (ROOT / "compd" / "examples" / "linuxcnc.toml").read_text("utf-8")
+    assert main(["check", str(ROOT / "compd" / "examples" / "linuxcnc.toml")]) == 0
+    assert "warning" not in capsys.readouterr().err
+    text = "\n".join(line for line in example.splitlines()
+                     if not line.startswith("machine_on = "))
+    path = tmp_path / "compd.toml"
+    path.write_text(text.replace("/tmp/compd-example-linuxcnc", str(tmp_path / "state")),
+                    encoding="utf-8")
+    assert main(["check", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert "output.machine_on is not set" in err and err.count("\n") == 1
