@@ -129,10 +129,11 @@ class CycleLoop:
             try:
                 result = await self.one_cycle(schedule.machine_s(started))
             except Exception as exc:  # the cycle raised even as a failed read: broken
-                ramp_left = self._broken(exc, again=broken or ramp_left is not None)
+                again = broken or ramp_left is not None
+                ramp_left = self._broken(exc, again=again)
+                broken = broken or not (again or self.once)  # the exit status says so
                 if ramp_left is None:
                     break
-                broken = True
                 schedule.advance(clock.mono())
                 await pause(clock, self.stop_requested, schedule.wait_s(clock.mono()))
                 continue

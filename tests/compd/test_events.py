@@ -11,7 +11,9 @@ from compd.core.events import Event, EventName, Level
 WAS_WARNING = {"channel_invalid", "fault_hold", "readback_mismatch", "write_failed",
                "offset_write_skipped", "checkpoint_unusable", "checkpoint_state_refused",
                "model_non_finite", "probe_refused", "adaptation_state_refused",
-               "adaptation_stood_down"}
+               "adaptation_stood_down",
+               # issue 23's LinuxCNC: a machine off or in E-stop (h1 added it to _WARNINGS)
+               "controller_off"}
 WAS_ERROR = {"fault_ramp_to_zero", "offset_write_stopped", "output_write_stopped",
              "readback_out_of_range", "write_fault", "model_out_of_range",
              "model_worse_than_none"}
