@@ -45,6 +45,9 @@ SYSTEM_PYTHON = "/usr/bin/python3"
 CTL = Path(__file__).with_name("linuxcnc_ctl.py")
 #: one LinuxCNC per machine: every starter takes this lock
 LOCK_PATH = Path(tempfile.gettempdir()) / "compd-linuxcnc.lock"
+#: how long a starter waits for another's LinuxCNC to end: less than a test's timeout, so
+#: that a start which gets it too late cannot outlive the test that asked for it
+LOCK_WAIT_S = 200.0
 #: seconds LinuxCNC may take to come up (a loaded 2-core machine is slow)
 START_DEADLINE_S = 120.0
 #: seconds the plant waits for motion to apply a requested offset
@@ -201,8 +204,8 @@ class LinuxCncSimController:
         why = unavailable()
         if why is not None:
             raise RuntimeError(why)
-        await asyncio.to_thread(self._start_sync)
         try:
+            await asyncio.to_thread(self._start_sync)
             self._plant = LinuxCncDriver(
                 self.endpoint, {
                     "offset_um": LinuxCncGet(kind="get", hal="axis.z.eoffset", scale=1000.0),
@@ -223,7 +226,17 @@ class LinuxCncSimController:
 
     def _start_sync(self) -> None:
         lock = LOCK_PATH.open("wb")
-        fcntl.flock(lock, fcntl.LOCK_EX)  # one LinuxCNC per machine: wait for the other
+        deadline = time.monotonic() + LOCK_WAIT_S
+        while True:  # one LinuxCNC per machine: wait for the other, a bounded time
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    lock.close()
+                    raise RuntimeError(f"another LinuxCNC run held {LOCK_PATH} for "
+                                       f"{LOCK_WAIT_S:g} s (one LinuxCNC per machine)") from None
+                time.sleep(0.2)
         self._lock = lock
         _cleanup()  # what a killed run may have left
         if self._given is not None:
@@ -258,6 +271,8 @@ class LinuxCncSimController:
         await asyncio.to_thread(self._stop_sync)
 
     def _stop_sync(self) -> None:
+        if self._lock is None:  # it never got the machine's LinuxCNC: nothing here is ours
+            return
         proc, self._proc = self._proc, None
         if proc is not None:
             with contextlib.suppress(OSError):
