@@ -141,7 +141,9 @@ class LinuxCncDriver(LinkedDriver):
         self._link: Link[_Session] = Link(
             f"HAL component {component!r}", backoff or Backoff(), timeout_s,
             open=self._open, drop=self._drop, connect_errors=(OSError, ValueError),
-            lost_errors=(OSError, ValueError), alive=lambda s: s.proc.returncode is None)
+            lost_errors=(OSError, ValueError), alive=lambda s: s.proc.returncode is None,
+            # the start's own bound, after the last HAL side's end (`_start`)
+            connect_timeout_s=connect_timeout_s + 3 * END_WAIT_S)
 
     def _spec(self) -> dict[str, Any]:
         pins: list[dict[str, Any]] = []
