@@ -11,13 +11,13 @@ client or handle) and decides, the same way for every protocol:
   a fresh session before it runs (an explicit `connect()` does not wait for
   the backoff delay).
 - **a connect is its own task**: the open runs in a task of the link's, bounded
-  by `connect_timeout_s` and by nothing else: a caller that gives up (the
-  daemon bounds each cycle's read by its period) never cancels it. A call waits
-  for a connect in progress at most `timeout_s` (its own budget), then fails
-  with `ConnectionLost` while the connect goes on; a later call takes the
-  session it made. Only an explicit `connect()` waits for the whole of it, and
-  only `close()` cancels it. (Before, a connect slower than a cycle was cancelled
-  by every cycle's read deadline and the link never came back.)
+  by `connect_timeout_s` and by nothing else: the call that starts it waits for
+  its outcome, but when that call gives up (the daemon bounds each cycle's read
+  by its period) the connect goes on. A call that finds a connect in progress
+  fails fast with `ConnectionLost` (the daemon's cycle holds, on time); the
+  first call after it completes takes its session. An explicit `connect()`
+  waits for it; only `close()` cancels it. (Before, a connect slower than a
+  cycle was cancelled by every cycle's read deadline: the link never came back.)
 - **connect-failure wrapping**: a failed open starts the backoff delay; a
   timeout becomes `ControllerTimeout`, one of the driver's declared
   `connect_errors` becomes `ConnectionLost`, a `DriverError` passes as it is.
@@ -84,29 +84,33 @@ class Link(Generic[S]):
 
     async def connect(self) -> S:
         """Open the link now (also after `close()`), whatever the backoff says;
-        waits for the whole connect (one already in progress, or a new one)."""
+        waits for the connect in progress, if there is one."""
         self.closed = False
-        return await self._open("connect", None, None, gate=False, wait_s=None)
+        return await self._open("connect", None, None, gate=False, join=True)
 
     async def ready(self, what: str = "call", channel: Channels = None,
                     address: str | None = None) -> S:
-        """The session for a call: the open one, else the one a connect (in
-        progress, or started now when the link is not closed and the backoff
-        allows an attempt) makes within `timeout_s`; else `ConnectionLost`."""
+        """The session for a call: the open one, else a new one when the link
+        is not closed, no connect is in progress and the backoff allows an
+        attempt; else `ConnectionLost`."""
         s = self.session
         if s is not None:
             if self._alive is None or self._alive(s):
                 return s
             await self.lost(s)  # the controller closed it since the last call
-        return await self._open(what, channel, address, gate=True, wait_s=self.timeout_s)
+        return await self._open(what, channel, address, gate=True, join=False)
 
     async def _open(self, what: str, channel: Channels, address: str | None, *,
-                    gate: bool, wait_s: float | None) -> S:
-        """Wait for the connect in progress (one at a time; every caller sees its
-        outcome), or start one; at most `wait_s` (None: until it ends)."""
+                    gate: bool, join: bool) -> S:
+        """Start a connect and wait for its outcome; one in progress is waited
+        for when `join`, else the call fails fast (see the module)."""
         if self.session is not None:
             return self.session
         task = self._connecting
+        if task is not None and not join:
+            raise ConnectionLost(f"{self.endpoint} down; a connect is in progress "
+                                 f"(up to {self.connect_timeout_s:g} s)",
+                                 channel=channel, address=address)
         if task is None:
             if gate:
                 self._gate(channel, address)
@@ -114,12 +118,7 @@ class Link(Generic[S]):
                 self._attempt(), name=f"connect {self.endpoint}")
             task.add_done_callback(self._attempted)
         # asyncio.wait never cancels the task: a caller that gives up leaves it going
-        await asyncio.wait((task,), timeout=wait_s)
-        if not task.done():
-            raise ConnectionLost(f"{self.endpoint} down; connecting (up to "
-                                 f"{self.connect_timeout_s:g} s), not up within "
-                                 f"{wait_s:g} s of the {what}", channel=channel,
-                                 address=address)
+        await asyncio.wait((task,))
         if task.cancelled():
             raise ConnectionLost("driver closed", channel=channel, address=address)
         exc = task.exception()
