@@ -12,9 +12,10 @@ client or handle) and decides, the same way for every protocol:
   the backoff delay).
 - **a connect is its own task**: the open runs in a task of the link's, bounded
   by `connect_timeout_s` and by nothing else: the call that starts it waits for
-  its outcome, but when that call gives up (the daemon bounds each cycle's read
-  by its period) the connect goes on. A call that finds a connect in progress
-  fails fast with `ConnectionLost` (the daemon's cycle holds, on time); the
+  its outcome (so do calls made meanwhile), but when it gives up (the daemon
+  bounds each cycle's read by its period) the connect goes on. A call that
+  finds a connect in progress nobody waits for any more fails fast with
+  `ConnectionLost` (the daemon's cycle holds, on time); the
   first call after it completes takes its session. An explicit `connect()`
   waits for it; only `close()` cancels it. (Before, a connect slower than a
   cycle was cancelled by every cycle's read deadline: the link never came back.)
@@ -73,6 +74,8 @@ class Link(Generic[S]):
         self._alive = alive
         #: the connect in progress (`_attempt`), None when there is none
         self._connecting: asyncio.Task[S] | None = None
+        #: calls waiting for it (none: its caller gave up, and a call fails fast)
+        self._waiting = 0
         #: the open session, None while the link is down
         self.session: S | None = None
         self.closed = False
@@ -102,12 +105,13 @@ class Link(Generic[S]):
 
     async def _open(self, what: str, channel: Channels, address: str | None, *,
                     gate: bool, join: bool) -> S:
-        """Start a connect and wait for its outcome; one in progress is waited
-        for when `join`, else the call fails fast (see the module)."""
+        """Start a connect and wait for its outcome. One in progress is waited
+        for when `join` or while another call waits for it (calls made together);
+        one that nobody waits for any more fails the call fast (see the module)."""
         if self.session is not None:
             return self.session
         task = self._connecting
-        if task is not None and not join:
+        if task is not None and not join and not self._waiting:
             raise ConnectionLost(f"{self.endpoint} down; a connect is in progress "
                                  f"(up to {self.connect_timeout_s:g} s)",
                                  channel=channel, address=address)
@@ -118,7 +122,11 @@ class Link(Generic[S]):
                 self._attempt(), name=f"connect {self.endpoint}")
             task.add_done_callback(self._attempted)
         # asyncio.wait never cancels the task: a caller that gives up leaves it going
-        await asyncio.wait((task,))
+        self._waiting += 1
+        try:
+            await asyncio.wait((task,))
+        finally:
+            self._waiting -= 1
         if task.cancelled():
             raise ConnectionLost("driver closed", channel=channel, address=address)
         exc = task.exception()

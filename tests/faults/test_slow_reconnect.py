@@ -102,21 +102,27 @@ async def test_slow_reconnect_after_link_loss_resumes(protocol: str, tmp_path: P
     finally:
         await proxy.stop()
         await sim.stop()
-    print(f"{protocol}: link lost at cycle {lost_at}; reads failing from {failed_at}; "
-          f"read again at cycle {resumed_at} ({resumed_at - failed_at} cycles of "
-          f"{REAL_PERIOD_S} s, connect ≥ {HELD_CHUNKS[protocol] * HOLD_S:.2f} s, "
-          f"read bound {READ_LIMIT_S} s); connections {proxy.connections_accepted}")
     assert io.read_ok is True, (
         f"no read within {RESUME_WITHIN} cycles after the link loss: the daemon never "
         f"reconnected ({proxy.connections_accepted} connections accepted)")
+    # the cycles as the daemon planned them (the loop's counters race the test's polls)
     log = invariants.log()
-    # log[k - 1] is cycle k: failed_at the first failed read, resumed_at the next good one
-    held = [c.result for c in log[failed_at - 1:resumed_at - 1]]
-    assert held and all(r.status & Status.HOLDING for r in held)
+    first_held = next(i for i in range(lost_at - 1, len(log))
+                      if log[i].result.status & Status.HOLDING)
+    resumed = next(i for i in range(first_held, len(log))
+                   if not log[i].result.status & Status.HOLDING)
+    print(f"{protocol}: link lost after cycle {lost_at}; held {resumed - first_held} cycles "
+          f"of {REAL_PERIOD_S} s (connect ≥ {HELD_CHUNKS[protocol] * HOLD_S:.2f} s, read "
+          f"bound {READ_LIMIT_S} s); connections {proxy.connections_accepted - 1} after the "
+          f"first")
+    # one handshake, gone on through the cycles that gave up on it (a second one at
+    # most: an attempt the backoff allowed before the proxy slowed down); cancelled
+    # by every cycle's deadline, there were 4 to 26 here, each one lost
+    assert proxy.connections_accepted - 1 <= 2, "each cycle started the handshake again"
+    held = [c.result for c in log[first_held:resumed]]
     before = log[lost_at - 1].result.offset_um
     assert all(r.offset_um == pytest.approx(before, abs=1e-9) for r in held)
-    after = [c.result for c in log[resumed_at - 1:]]
-    assert all(r.status & Status.OK for r in after[1:])
+    assert all(c.result.status & Status.OK for c in log[resumed:])
     # never a jump: every step within R·Δt (the invariants check each write too)
     for prev, cur in zip(log[lost_at - 1:], log[lost_at:], strict=False):
         assert abs(cur.result.offset_um - prev.result.offset_um) <= \
