@@ -10,6 +10,15 @@ client or handle) and decides, the same way for every protocol:
 - **reconnect on the next call**: once an attempt is due, the next call opens
   a fresh session before it runs (an explicit `connect()` does not wait for
   the backoff delay).
+- **a connect is its own task**: the open runs in a task of the link's, bounded
+  by `connect_timeout_s` and by nothing else: the call that starts it waits for
+  its outcome (so do calls made meanwhile), but when it gives up (the daemon
+  bounds each cycle's read by its period) the connect goes on. A call that
+  finds a connect in progress nobody waits for any more fails fast with
+  `ConnectionLost` (the daemon's cycle holds, on time); the
+  first call after it completes takes its session. An explicit `connect()`
+  waits for it; only `close()` cancels it. (Before, a connect slower than a
+  cycle was cancelled by every cycle's read deadline: the link never came back.)
 - **connect-failure wrapping**: a failed open starts the backoff delay; a
   timeout becomes `ControllerTimeout`, one of the driver's declared
   `connect_errors` becomes `ConnectionLost`, a `DriverError` passes as it is.
@@ -49,17 +58,24 @@ class Link(Generic[S]):
                  connect_errors: tuple[type[BaseException], ...] = (OSError,),
                  timeout_errors: tuple[type[BaseException], ...] = (),
                  lost_errors: tuple[type[BaseException], ...] = (),
-                 alive: Callable[[S], bool] | None = None) -> None:
+                 alive: Callable[[S], bool] | None = None,
+                 connect_timeout_s: float | None = None) -> None:
         self.endpoint = endpoint
         self.backoff = backoff
         self.timeout_s = timeout_s
+        #: the bound on one connect, whoever waits for it (a connect takes longer
+        #: than a request: by default max(2·timeout_s, 1 s))
+        self.connect_timeout_s = connect_timeout_s or max(2.0 * timeout_s, 1.0)
         self._open_session = open
         self._drop_session = drop
         self._connect_errors = connect_errors
         self._timeout_errors: tuple[type[BaseException], ...] = (TimeoutError, *timeout_errors)
         self._lost_errors = lost_errors
         self._alive = alive
-        self._opening = asyncio.Lock()
+        #: the connect in progress (`_attempt`), None when there is none
+        self._connecting: asyncio.Task[S] | None = None
+        #: calls waiting for it (none: its caller gave up, and a call fails fast)
+        self._waiting = 0
         #: the open session, None while the link is down
         self.session: S | None = None
         self.closed = False
@@ -70,42 +86,78 @@ class Link(Generic[S]):
         return s is not None and (self._alive is None or self._alive(s))
 
     async def connect(self) -> S:
-        """Open the link now (also after `close()`), whatever the backoff says."""
+        """Open the link now (also after `close()`), whatever the backoff says;
+        waits for the connect in progress, if there is one."""
         self.closed = False
-        return await self._open("connect", None, None, gate=False)
+        return await self._open("connect", None, None, gate=False, join=True)
 
     async def ready(self, what: str = "call", channel: Channels = None,
                     address: str | None = None) -> S:
         """The session for a call: the open one, else a new one when the link
-        is not closed and the backoff allows an attempt; else `ConnectionLost`."""
+        is not closed, no connect is in progress and the backoff allows an
+        attempt; else `ConnectionLost`."""
         s = self.session
         if s is not None:
             if self._alive is None or self._alive(s):
                 return s
             await self.lost(s)  # the controller closed it since the last call
-        return await self._open(what, channel, address, gate=True)
+        return await self._open(what, channel, address, gate=True, join=False)
 
     async def _open(self, what: str, channel: Channels, address: str | None, *,
-                    gate: bool) -> S:
-        async with self._opening:  # one attempt at a time; the others see its outcome
-            if self.session is not None:
-                return self.session
+                    gate: bool, join: bool) -> S:
+        """Start a connect and wait for its outcome. One in progress is waited
+        for when `join` or while another call waits for it (calls made together);
+        one that nobody waits for any more fails the call fast (see the module)."""
+        if self.session is not None:
+            return self.session
+        task = self._connecting
+        if task is not None and not join and not self._waiting:
+            raise ConnectionLost(f"{self.endpoint} down; a connect is in progress "
+                                 f"(up to {self.connect_timeout_s:g} s)",
+                                 channel=channel, address=address)
+        if task is None:
             if gate:
                 self._gate(channel, address)
-            try:
+            task = self._connecting = asyncio.create_task(
+                self._attempt(), name=f"connect {self.endpoint}")
+            task.add_done_callback(self._attempted)
+        # asyncio.wait never cancels the task: a caller that gives up leaves it going
+        self._waiting += 1
+        try:
+            await asyncio.wait((task,))
+        finally:
+            self._waiting -= 1
+        if task.cancelled():
+            raise ConnectionLost("driver closed", channel=channel, address=address)
+        exc = task.exception()
+        if exc is None:
+            return task.result()
+        wrapped = self._connect_failed(exc, what, channel, address)
+        if wrapped is exc:
+            raise exc
+        raise wrapped from exc
+
+    async def _attempt(self) -> S:
+        """One connect, in its own task: bounded by `connect_timeout_s`; a failure
+        (or a cancellation by `close()`) starts the backoff delay."""
+        try:
+            async with asyncio.timeout(self.connect_timeout_s):
                 s = await self._open_session()
-            except BaseException as exc:  # cancelled too: or every next call retries at once
-                self.backoff.failed()
-                wrapped = self._connect_failed(exc, what, channel, address)
-                if wrapped is exc:
-                    raise
-                raise wrapped from exc
-            if self.closed:  # closed while connecting
-                await self._drop_session(s, True)
-                raise ConnectionLost("driver closed", channel=channel, address=address)
-            self.session = s
-            self.backoff.succeeded()
-            return s
+        except BaseException:
+            self.backoff.failed()
+            raise
+        if self.closed:  # closed while connecting
+            await self._drop_session(s, True)
+            raise ConnectionLost("driver closed")
+        self.session = s
+        self.backoff.succeeded()
+        return s
+
+    def _attempted(self, task: asyncio.Task[S]) -> None:
+        if self._connecting is task:
+            self._connecting = None
+        if not task.cancelled():
+            task.exception()  # retrieved: its callers (if any) raise it themselves
 
     def _gate(self, channel: Channels, address: str | None) -> None:
         if self.closed:
@@ -169,11 +221,19 @@ class Link(Generic[S]):
                                  channel=channel, address=address) from exc
 
     async def close(self) -> None:
-        """Closed for calls until `connect()`; the session is torn down."""
+        """Closed for calls until `connect()`; a connect in progress is
+        cancelled, the session is torn down."""
         self.closed = True
+        await self._cancel_connect()
         s, self.session = self.session, None
         if s is not None:
             await self._drop_session(s, True)
+
+    async def _cancel_connect(self) -> None:
+        task, self._connecting = self._connecting, None
+        if task is not None:
+            task.cancel()
+            await asyncio.wait((task,))
 
 
 class LinkedDriver:
@@ -253,6 +313,7 @@ class WorkerLink(Link[S]):
         if self.closed:
             return
         self.closed = True
+        await self._cancel_connect()
         self.session = None
         try:
             await self.io.call(self._drop_sync, self._wait_s)

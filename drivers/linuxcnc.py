@@ -136,12 +136,12 @@ class LinuxCncDriver(LinkedDriver):
         self._lock = asyncio.Lock()
         #: a lost HAL side still ending (`_drop`)
         self._ending: asyncio.Future[None] | None = None
-        #: a HAL side being started (`_open`)
-        self._starting: asyncio.Future[_Session] | None = None
         self._link: Link[_Session] = Link(
             f"HAL component {component!r}", backoff or Backoff(), timeout_s,
-            open=self._open, drop=self._drop, connect_errors=(OSError, ValueError),
-            lost_errors=(OSError, ValueError), alive=lambda s: s.proc.returncode is None)
+            open=self._start, drop=self._drop, connect_errors=(OSError, ValueError),
+            lost_errors=(OSError, ValueError), alive=lambda s: s.proc.returncode is None,
+            # the start's own bound, after the last HAL side's end (`_start`)
+            connect_timeout_s=connect_timeout_s + 3 * END_WAIT_S)
 
     def _spec(self) -> dict[str, Any]:
         pins: list[dict[str, Any]] = []
@@ -163,21 +163,10 @@ class LinuxCncDriver(LinkedDriver):
                                "wait_s": 0.5 * self.timeout_s}
         return {"component": self.component, "pins": pins, "eoffset": eoffset, "gets": gets}
 
-    async def _open(self) -> _Session:
-        """The HAL side, started in a task of its own: starting a Python takes longer
-        than a fast cycle's read may wait, and a call that gives up (the daemon bounds
-        each read by its period) leaves the start going on for the next call to
-        take, instead of killing it and starting again every cycle."""
-        task = self._starting
-        if task is None:
-            task = self._starting = asyncio.ensure_future(self._start())
-        try:
-            return await asyncio.shield(task)
-        finally:
-            if task.done():
-                self._starting = None
-
     async def _start(self) -> _Session:
+        """The HAL side (the link runs this in a task of its own: starting a Python
+        takes longer than a fast cycle's read may wait, and a read that gives up
+        leaves the start going on for the next call to take)."""
         ending, self._ending = self._ending, None
         if ending is not None:  # the last HAL side must be gone: it holds the name
             await ending
@@ -210,13 +199,7 @@ class LinuxCncDriver(LinkedDriver):
             self._ending = ending
 
     async def close(self) -> None:
-        await self._link.close()
-        starting, self._starting = self._starting, None
-        if starting is not None:  # a start nobody waits for any more
-            starting.cancel()
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                session = await starting
-                await session.end()
+        await self._link.close()  # a start in progress is cancelled: it ends its process
         ending, self._ending = self._ending, None
         if ending is not None:
             await ending

@@ -112,7 +112,8 @@ class OpcUaDriver(LinkedDriver):
         self._types: dict[str, ua.VariantType | str] = {}
         self._link: Link[Client] = Link(
             endpoint, backoff or Backoff(), timeout_s, open=self._open, drop=self._dispose,
-            connect_errors=(*_CONNECTION_ERRORS, ValueError))
+            connect_errors=(*_CONNECTION_ERRORS, ValueError),
+            connect_timeout_s=self.connect_timeout_s)
 
     # -- link ------------------------------------------------------------------
 

@@ -388,7 +388,7 @@ async def test_a_hal_side_start_outlives_a_read_that_gave_up(
     try:
         with pytest.raises(TimeoutError):
             await asyncio.wait_for(driver.read(["bearing"]), 0.001)
-        starting = driver._starting
+        starting = driver._link._connecting  # the link's own task (`drivers.link`)
         assert starting is not None and not starting.done()
         await driver.connect()
         assert driver._link.session is starting.result()

@@ -15,6 +15,11 @@ accepted later:
   forwarded: what arrives is read, counted and dropped. A connection that was
   blackholed stays dead after the switch back to pass (as after a long
   outage: the lost bytes broke its stream); new connections work again.
+- ``slow_start(per_chunk_s, chunks)``: every connection accepted from now on
+  holds each of its first `chunks` client -> server chunks `per_chunk_s`
+  longer (a handshake of several round trips, each well inside a request
+  timeout, that takes longer as a whole than a fast cycle); its later chunks,
+  and the connections already open, pass as received.
 - ``cut_after(k_bytes, direction)``: each connection may forward `k_bytes`
   more in `direction` (``up``, ``down`` or ``both``), counted from the switch
   (or from its start when opened later); then it is closed (FIN) on both sides.
@@ -89,6 +94,8 @@ class _Conn:
     budget_direction: CutDirection = "down"
     finished: asyncio.Event = field(default_factory=asyncio.Event)
     rst: bool = False
+    #: (extra hold, client -> server chunks it still applies to): `slow_start`
+    slow: tuple[float, int] = (0.0, 0)
 
 
 class FaultProxy:
@@ -104,6 +111,7 @@ class FaultProxy:
         self.mode: str = "pass"
         self._delay_s: dict[Direction, float] = {"up": 0.0, "down": 0.0}
         self._cut: tuple[int, CutDirection] | None = None
+        self._slow: tuple[float, int] = (0.0, 0)
         self._server: asyncio.Server | None = None
         self._conns: set[_Conn] = set()
         self._handlers: set[asyncio.Task[None]] = set()
@@ -158,6 +166,7 @@ class FaultProxy:
         self.mode = "pass"
         self._delay_s = {"up": 0.0, "down": 0.0}
         self._cut = None
+        self._slow = (0.0, 0)
 
     def latency(self, up_s: float, down_s: float | None = None) -> None:
         if up_s < 0 or (down_s is not None and down_s < 0):
@@ -165,6 +174,13 @@ class FaultProxy:
         self.pass_through()
         self.mode = "latency"
         self._delay_s = {"up": up_s, "down": up_s if down_s is None else down_s}
+
+    def slow_start(self, per_chunk_s: float, chunks: int) -> None:
+        if per_chunk_s < 0 or chunks < 0:
+            raise ValueError("per_chunk_s and chunks must be >= 0")
+        self.pass_through()
+        self.mode = "slow_start"
+        self._slow = (per_chunk_s, chunks)
 
     def reset(self) -> None:
         self.pass_through()
@@ -219,7 +235,8 @@ class FaultProxy:
             except (OSError, TimeoutError):
                 _abort_with_rst(c_writer)
                 return
-            conn = _Conn(client=c_writer, server=s_writer, poisoned=self.mode == "blackhole")
+            conn = _Conn(client=c_writer, server=s_writer, poisoned=self.mode == "blackhole",
+                         slow=self._slow)
             if self._cut is not None:
                 conn.budget, conn.budget_direction = self._cut
             await self._run(conn, c_reader, s_reader)
@@ -272,7 +289,12 @@ class FaultProxy:
                     framer.feed(data)
                 if conn.poisoned:
                     continue
-                queue.put_nowait((time.monotonic() + self._delay_s[direction], data))
+                delay_s = self._delay_s[direction]
+                extra_s, left = conn.slow
+                if direction == "up" and left > 0:
+                    delay_s += extra_s
+                    conn.slow = (extra_s, left - 1)
+                queue.put_nowait((time.monotonic() + delay_s, data))
         except OSError:
             pass
         finally:

@@ -96,6 +96,20 @@ async def test_latency_holds_data_then_delivers_in_order() -> None:
         assert got == b"\x01a\x01b"
 
 
+async def test_slow_start_holds_the_first_chunks_of_new_connections_only() -> None:
+    async with echo_proxy() as proxy, client(proxy) as (r_old, w_old):
+        proxy.slow_start(1.0, 1)
+        async with client(proxy) as (reader, writer):
+            w_old.write(b"\x01o")  # a connection open before the switch: not held
+            assert await asyncio.wait_for(r_old.readexactly(2), SOON_S) == b"\x01o"
+            writer.write(b"\x01a")  # the new connection's first chunk: held
+            with pytest.raises(TimeoutError):
+                await asyncio.wait_for(reader.readexactly(1), 0.05)
+            assert await asyncio.wait_for(reader.readexactly(2), SOON_S) == b"\x01a"
+            writer.write(b"\x01b")  # its next one: passes
+            assert await asyncio.wait_for(reader.readexactly(2), 0.5) == b"\x01b"
+
+
 async def test_blackhole_forwards_nothing_and_its_connections_stay_dead() -> None:
     async with echo_proxy() as proxy:
         async with client(proxy) as (reader, writer):
