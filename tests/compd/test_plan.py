@@ -154,6 +154,8 @@ def test_hostile_targets(tmp_path: Path, capsys: pytest.CaptureFixture[str], kin
     ["--safe-position", "Z=nan"], ["--safe-position", "Z=1,Z=2"],
     ["--safe-position", "Z=1e6"], ["--probe-call", "G65 P9810"],
     ["--dialect", "heidenhain"], ["-o", "bad\nname.ngc"],
+    ["--time-scale", "0.5"], ["--time-scale", "0"], ["--time-scale", "nan"],
+    ["--time-scale", "1e5"],
     ["--probe-at", "Z=10"],  # without --probe-every-min it would measure nothing
 ], ids=" ".join)
 def test_hostile_arguments_end_in_one_line_and_64(tmp_path: Path,
