@@ -1,0 +1,99 @@
+"""A `compd plan` program of 2 h run end to end in a real, headless LinuxCNC
+(issue 23's third figure): recorded by `compd run`, fitted by `compd fit`.
+
+``compd plan --hours 2 --speeds 3000,6000,9000 --dialect linuxcnc
+--time-scale N`` (every dwell divided by N: LinuxCNC dwells in real time, so
+the plant and the daemon run at N machine seconds per real second and the
+dwells are divided), LinuxCNC runs it with the plant turning at LinuxCNC's
+``spindle.0.speed-out``, ``compd run`` records the temperatures, the speed
+and the plant's true growth (``dz_um``) with the plan's recorder settings,
+``compd fit`` fits the database and ``compd replay`` scores the model on a
+2 h spindle-speed spectrum it has never seen. The steps are in
+`tests.compd.plan_linuxcnc_run`.
+
+Printed: the program's real time against its dwell, the plant's tick
+overruns (a late tick slows the plant's time against LinuxCNC's), the steps
+the record holds (rpm, machine minutes; the plan: 15 min each), the fit's
+figures and the replay's; then all of it as one JSON line.
+
+Run: OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_plan_linuxcnc.py
+     [--time-scale N] [--hours H] [--keep DIR]
+Needs linuxcnc-uspace (exit 69 with the reason where it is absent); takes
+LinuxCNC's one-per-machine lock (/tmp/compd-linuxcnc.lock), waiting for it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from compd.sysexits import EX_UNAVAILABLE  # noqa: E402
+from drivers.sim.linuxcnc_machine import unavailable  # noqa: E402
+from tests.compd.plan_linuxcnc_run import SPEEDS, fit_and_replay, run_plan  # noqa: E402
+
+
+def _fit_figures(fit: dict[str, Any]) -> dict[str, Any]:
+    selection = fit["terms"][0]["selection"]
+    record = fit["records"][0]
+    return {"fit_percent": round(fit["fit_percent"], 2), "dpk_um": round(fit["dpk_um"], 3),
+            "range_reduction": round(record["range_reduction"], 2),
+            "structure": selection["structure"], "orders": selection["orders"],
+            "validation_fit_percent": round(selection["validation_fit_percent"], 2),
+            "dc_gain_um_per_k": {t["name"]: round(t["dc_gain_um_per_k"], 3)
+                                 for t in fit["terms"]}}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--time-scale", type=float, default=120.0,
+                        help="machine seconds per real second (default 120: 2 h in 60 s)")
+    parser.add_argument("--hours", type=float, default=2.0)
+    parser.add_argument("--seed", type=int, default=3)
+    parser.add_argument("--keep", type=Path, default=None,
+                        help="a folder to keep the files in (default: a temporary one)")
+    args = parser.parse_args()
+    why = unavailable()
+    if why is not None:
+        print(f"bench_plan_linuxcnc: {why}", file=sys.stderr)
+        return EX_UNAVAILABLE
+    with tempfile.TemporaryDirectory(prefix="bench-plan-lcnc-") as tmp:
+        run = run_plan(args.keep or Path(tmp), hours=args.hours, time_scale=args.time_scale,
+                       seed=args.seed)
+        fit, replay = fit_and_replay(run)
+    figures = {
+        "figure": "plan_linuxcnc", "hours": args.hours, "time_scale": args.time_scale,
+        "speeds_rpm": list(SPEEDS), "dwell_real_s": args.hours * 3600.0 / args.time_scale,
+        "program_real_s": round(run.program_real_s, 2), "plant_ticks": run.plant_ticks,
+        "plant_overruns": run.plant_overruns, "rows": len(run.rows),
+        "steps": [[rpm, round(minutes, 1)] for rpm, minutes in run.steps()],
+        "fit": _fit_figures(fit),
+        "replay_spectrum": {k: round(replay[k], 3) for k in
+                            ("fit_percent", "mae_um", "rms_um", "dpk_um", "range_reduction")}}
+    print(f"compd plan --hours {args.hours:g} --speeds {','.join(map(str, SPEEDS))} "
+          f"--dialect linuxcnc --time-scale {args.time_scale:g}")
+    print(f"LinuxCNC ran it in {run.program_real_s:.1f} s (dwell "
+          f"{figures['dwell_real_s']:.1f} s); plant ticks {run.plant_ticks}, overruns "
+          f"{run.plant_overruns}; compd run recorded {len(run.rows)} rows")
+    print("steps recorded (rpm, machine min): "
+          + ", ".join(f"{rpm} {m:.0f}" for rpm, m in figures["steps"]))
+    f = figures["fit"]
+    print(f"compd fit: fit {f['fit_percent']:.2f} %, Δpk {f['dpk_um']:.3f} µm, range "
+          f"reduction {f['range_reduction']:.1f}x, {f['structure']} {f['orders']}, forward "
+          f"validation {f['validation_fit_percent']:.2f} %")
+    r = figures["replay_spectrum"]
+    print(f"compd replay on an unseen {args.hours:g} h spectrum: fit {r['fit_percent']:.2f} %, "
+          f"MAE {r['mae_um']:.3f} µm, RMS {r['rms_um']:.3f} µm, range reduction "
+          f"{r['range_reduction']:.2f}x")
+    print(json.dumps(figures))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
