@@ -11,10 +11,18 @@ and the plant's true growth (``dz_um``) with the plan's recorder settings,
 2 h spindle-speed spectrum it has never seen. The steps are in
 `tests.compd.plan_linuxcnc_run`.
 
+Peer, same run: the same plan played on the same plant without LinuxCNC or
+the daemon (the schedule as the plant's own spindle program, recorded
+offline at 60 s as benchmarks/bench_plan.py does, the same seed, its dz_um
+the true growth as the run's), fitted
+and replayed alike: what LinuxCNC, the compressed real-time run, the HAL
+signals and the recorder cost the fit, if anything.
+
 Printed: the program's real time against its dwell, the plant's tick
 overruns (a late tick slows the plant's time against LinuxCNC's), the steps
 the record holds (rpm, machine minutes; the plan: 15 min each), the fit's
-figures and the replay's; then all of it as one JSON line.
+figures (fit %, Δpk, forward-validation fit %) and the replay's on the
+unseen spectrum, beside the peer's; then all of it as one JSON line.
 
 Run: OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_plan_linuxcnc.py
      [--time-scale N] [--hours H] [--keep DIR]
@@ -25,6 +33,7 @@ LinuxCNC's one-per-machine lock (/tmp/compd-linuxcnc.lock), waiting for it.
 from __future__ import annotations
 
 import argparse
+import bisect
 import json
 import sys
 import tempfile
@@ -34,9 +43,37 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from compd.offline.plan.schedule import design  # noqa: E402
 from compd.sysexits import EX_UNAVAILABLE  # noqa: E402
 from drivers.sim.linuxcnc_machine import unavailable  # noqa: E402
-from tests.compd.plan_linuxcnc_run import SPEEDS, fit_and_replay, run_plan  # noqa: E402
+from drivers.sim.offline import record_program  # noqa: E402
+from drivers.sim.programs import Program  # noqa: E402
+from tests.compd.plan_linuxcnc_run import (  # noqa: E402
+    PERIOD_S,
+    SPEEDS,
+    fit_and_replay,
+    fit_and_replay_record,
+    run_plan,
+)
+
+
+def offline_peer(folder: Path, hours: float, seed: int) -> tuple[dict[str, Any],
+                                                                 dict[str, Any]]:
+    """The plan's schedule as the plant's own program, recorded offline, fitted
+    and replayed as the LinuxCNC run is."""
+    exp = design(hours, list(SPEEDS))
+    starts = [s.start_ms / 1000 for s in exp.steps]
+
+    def speed(t_s: float) -> float:
+        return float(exp.steps[bisect.bisect_right(starts, t_s) - 1].speed_rpm)
+
+    peer = folder / "peer"
+    peer.mkdir(exist_ok=True)
+    record = peer / "plan.csv"
+    # dz_um the true growth, as the LinuxCNC run records it (no probe noise)
+    record_program(record, Program("plan", exp.duration_ms / 1000, speed), seed=seed,
+                   period_s=PERIOD_S, probe_noise_um=0.0)
+    return fit_and_replay_record(record, peer / "model.toml", hours)
 
 
 def _fit_figures(fit: dict[str, Any]) -> dict[str, Any]:
@@ -48,6 +85,11 @@ def _fit_figures(fit: dict[str, Any]) -> dict[str, Any]:
             "validation_fit_percent": round(selection["validation_fit_percent"], 2),
             "dc_gain_um_per_k": {t["name"]: round(t["dc_gain_um_per_k"], 3)
                                  for t in fit["terms"]}}
+
+
+def _replay_figures(replay: dict[str, Any]) -> dict[str, float]:
+    return {k: round(replay[k], 3) for k in
+            ("fit_percent", "mae_um", "rms_um", "dpk_um", "range_reduction")}
 
 
 def main() -> int:
@@ -67,6 +109,7 @@ def main() -> int:
         run = run_plan(args.keep or Path(tmp), hours=args.hours, time_scale=args.time_scale,
                        seed=args.seed)
         fit, replay = fit_and_replay(run)
+        peer_fit, peer_replay = offline_peer(run.folder, args.hours, args.seed)
     figures = {
         "figure": "plan_linuxcnc", "hours": args.hours, "time_scale": args.time_scale,
         "speeds_rpm": list(SPEEDS), "dwell_real_s": args.hours * 3600.0 / args.time_scale,
@@ -74,8 +117,9 @@ def main() -> int:
         "plant_overruns": run.plant_overruns, "rows": len(run.rows),
         "steps": [[rpm, round(minutes, 1)] for rpm, minutes in run.steps()],
         "fit": _fit_figures(fit),
-        "replay_spectrum": {k: round(replay[k], 3) for k in
-                            ("fit_percent", "mae_um", "rms_um", "dpk_um", "range_reduction")}}
+        "replay_spectrum": _replay_figures(replay),
+        "peer_offline": {"fit": _fit_figures(peer_fit),
+                         "replay_spectrum": _replay_figures(peer_replay)}}
     print(f"compd plan --hours {args.hours:g} --speeds {','.join(map(str, SPEEDS))} "
           f"--dialect linuxcnc --time-scale {args.time_scale:g}")
     print(f"LinuxCNC ran it in {run.program_real_s:.1f} s (dwell "
@@ -83,14 +127,14 @@ def main() -> int:
           f"{run.plant_overruns}; compd run recorded {len(run.rows)} rows")
     print("steps recorded (rpm, machine min): "
           + ", ".join(f"{rpm} {m:.0f}" for rpm, m in figures["steps"]))
-    f = figures["fit"]
-    print(f"compd fit: fit {f['fit_percent']:.2f} %, Δpk {f['dpk_um']:.3f} µm, range "
-          f"reduction {f['range_reduction']:.1f}x, {f['structure']} {f['orders']}, forward "
-          f"validation {f['validation_fit_percent']:.2f} %")
-    r = figures["replay_spectrum"]
-    print(f"compd replay on an unseen {args.hours:g} h spectrum: fit {r['fit_percent']:.2f} %, "
-          f"MAE {r['mae_um']:.3f} µm, RMS {r['rms_um']:.3f} µm, range reduction "
-          f"{r['range_reduction']:.2f}x")
+    print(f"{'':28} {'fit %':>7} {'Δpk µm':>7} {'valid. %':>8} {'replay fit %':>12} "
+          f"{'MAE µm':>7} {'RMS µm':>7} {'range x':>7}")
+    for name, figs in (("LinuxCNC + compd run", figures),
+                       ("peer: offline, same plan", figures["peer_offline"])):
+        f, r = figs["fit"], figs["replay_spectrum"]
+        print(f"{name:28} {f['fit_percent']:7.2f} {f['dpk_um']:7.3f} "
+              f"{f['validation_fit_percent']:8.2f} {r['fit_percent']:12.2f} "
+              f"{r['mae_um']:7.3f} {r['rms_um']:7.3f} {r['range_reduction']:7.2f}")
     print(json.dumps(figures))
     return 0
 

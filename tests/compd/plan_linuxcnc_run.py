@@ -177,12 +177,18 @@ def run_plan(folder: Path, *, hours: float = 2.0, time_scale: float = 120.0,
 def fit_and_replay(run: PlanRun) -> tuple[dict[str, Any], dict[str, Any]]:
     """Step 4: `compd fit` on the record and `compd replay` of its model on an
     unseen spectrum; their JSON figures."""
-    model = run.folder / "model.toml"
+    return fit_and_replay_record(run.db, run.folder / "model.toml", run.hours)
+
+
+def fit_and_replay_record(record: Path, model: Path,
+                          hours: float) -> tuple[dict[str, Any], dict[str, Any]]:
+    """`compd fit` of `record` (a recorder database or a CSV) into `model`, and
+    `compd replay` of it on a `hours` spectrum (seed 7) the plant never ran."""
     terms = [a for t in TERMS for a in ("--term", t)]
-    fit = compd(["fit", str(run.db), "--column", "dz_um", *terms, "-o", str(model),
+    fit = compd(["fit", str(record), "--column", "dz_um", *terms, "-o", str(model),
                  "--force", "--json"])
-    spectrum = run.folder / "spectrum.csv"
+    spectrum = model.with_name("spectrum.csv")
     compd(["sim", "--record", str(spectrum), "--program", "spectrum", "--hours",
-           f"{run.hours:g}", "--period-s", f"{PERIOD_S:g}", "--seed", "7", "--force"])
+           f"{hours:g}", "--period-s", f"{PERIOD_S:g}", "--seed", "7", "--force"])
     replay = compd(["replay", str(model), str(spectrum), "--column", "dz_um", "--json"])
     return fit, replay
