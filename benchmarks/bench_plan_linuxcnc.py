@@ -43,6 +43,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from compd.argtypes import count, number  # noqa: E402
 from compd.offline.plan.schedule import design  # noqa: E402
 from compd.sysexits import EX_UNAVAILABLE  # noqa: E402
 from drivers.sim.linuxcnc_machine import unavailable  # noqa: E402
@@ -94,10 +95,10 @@ def _replay_figures(replay: dict[str, Any]) -> dict[str, float]:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--time-scale", type=float, default=120.0,
+    parser.add_argument("--time-scale", type=number(1.0, 10_000.0), default=120.0,
                         help="machine seconds per real second (default 120: 2 h in 60 s)")
-    parser.add_argument("--hours", type=float, default=2.0)
-    parser.add_argument("--seed", type=int, default=3)
+    parser.add_argument("--hours", type=number(0.5, 24.0), default=2.0)
+    parser.add_argument("--seed", type=count(0, 2**31), default=3)
     parser.add_argument("--keep", type=Path, default=None,
                         help="a folder to keep the files in (default: a temporary one)")
     args = parser.parse_args()

@@ -199,7 +199,7 @@ def run(args: argparse.Namespace) -> int:
     if side == out:
         return _usage(f"{out}: the program and its recorder settings would share a name")
     check_output(side, "recorder settings", force=args.force)
-    fragment = recorder_fragment(out, exp, args.dialect)
+    fragment = recorder_fragment(out, exp, args.dialect, args.time_scale)
     write_atomically(out, lambda tmp: tmp.write_text(program.text, encoding="ascii"),
                      "program", force=args.force)
     write_atomically(side, lambda tmp: tmp.write_text(fragment, encoding="utf-8"),
