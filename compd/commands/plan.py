@@ -29,6 +29,8 @@ PROBE_EVERY_MIN = number(1.0, 7 * 24 * 60.0)
 DEPTH_MM = number(0.0, 500.0, lo_open=True)
 FEED_MM_MIN = number(0.0, 10_000.0, lo_open=True)
 SPINDLE_STOP_S = number(0.0, 600.0)
+#: a simulator's speed-up: every dwell divided by it (1: a real machine)
+TIME_SCALE = number(1.0, 10_000.0)
 #: whole rpm (FANUC's S takes no decimal point), at most this many speeds
 MAX_RPM = 100_000
 MAX_SPEEDS = 12
@@ -123,6 +125,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--spindle-stop-s", type=SPINDLE_STOP_S, default=5.0,
                         help="seconds the spindle runs down after M5 before a measuring "
                              "cycle moves (default 5)")
+    parser.add_argument("--time-scale", type=TIME_SCALE, default=1.0, metavar="N",
+                        help="divide every dwell by N (1 … 10000), for a simulated machine "
+                             "whose plant and daemon run at [machine] time_scale = N; the "
+                             "header says so. Never on a real machine (default 1)")
     parser.add_argument("--program-number", type=count(1, 9999), default=1000,
                         help="fanuc: the O number (default 1000)")
 
@@ -137,6 +143,8 @@ def _summary(args: argparse.Namespace) -> str:
     if args.rest_h is not None:
         parts.append(f"--rest-h {args.rest_h:g}")
     parts.append(f"--dialect {args.dialect}")
+    if args.time_scale != 1.0:
+        parts.append(f"--time-scale {args.time_scale:g}")
     if args.safe_position is not None:
         parts.append(f"--safe-position {_position_text(args.safe_position)}")
     if args.probe_every_min is not None:
@@ -184,21 +192,22 @@ def run(args: argparse.Namespace) -> int:
                               depth_mm=args.probe_depth_mm, feed_mm_min=args.probe_feed,
                               call=call, spindle_stop_s=args.spindle_stop_s)
         program = make_program(exp, words, probing, summary=_summary(args),
-                               recorder_name=side.name)
+                               recorder_name=side.name, time_scale=args.time_scale)
     except PlanError as exc:
         return _usage(str(exc))
     check_output(args.output, "program", force=args.force)  # the text: "dir/" is refused
     if side == out:
         return _usage(f"{out}: the program and its recorder settings would share a name")
     check_output(side, "recorder settings", force=args.force)
-    fragment = recorder_fragment(out, exp, args.dialect)
+    fragment = recorder_fragment(out, exp, args.dialect, args.time_scale)
     write_atomically(out, lambda tmp: tmp.write_text(program.text, encoding="ascii"),
                      "program", force=args.force)
     write_atomically(side, lambda tmp: tmp.write_text(fragment, encoding="utf-8"),
                      "recorder settings", force=args.force)
     axes = ", ".join(program.axes) or "none"
+    scaled = "" if args.time_scale == 1.0 else f" at time scale {args.time_scale:g}"
     print(f"compd plan: wrote {out} ({args.dialect}, {exp.duration_ms / 3_600_000:g} h of "
-          f"schedule, {program.dwell_total_ms / 1000:.3f} s of dwell in all, "
+          f"schedule, {program.dwell_total_ms / 1000:.3f} s of dwell in all{scaled}, "
           f"{exp.measurements} measuring cycles, axes moved: {axes}) and {side}")
     for warning in exp.warnings:  # after the files: a failure stays one line
         print(f"compd plan: warning: {warning}", file=sys.stderr)

@@ -211,6 +211,7 @@ class LinuxCncSimController:
                     "offset_um": LinuxCncGet(kind="get", hal="axis.z.eoffset", scale=1000.0),
                     "request_um": LinuxCncGet(kind="get", hal="axis.z.eoffset-request",
                                               scale=1000.0),
+                    "spindle_rpm": LinuxCncGet(kind="get", hal="spindle.0.speed-out"),
                     "heartbeat": LinuxCncPin(pin="heartbeat", net="compd-heartbeat",
                                              type="s32"),
                     "status": LinuxCncPin(pin="status", net="compd-status", type="s32")},
@@ -311,6 +312,12 @@ class LinuxCncSimController:
         assert self._plant is not None
         got = await self._plant.read(["offset_um", "heartbeat", "status"])
         return {n: s.value for n, s in got.items()}
+
+    async def spindle_rpm(self) -> float:
+        """The spindle speed LinuxCNC commands now (``spindle.0.speed-out``, rpm;
+        0 while the spindle is off), as the program running sets it."""
+        assert self._plant is not None
+        return (await self._plant.read(["spindle_rpm"]))["spindle_rpm"].value
 
     async def publish(self, values: Mapping[str, float]) -> None:
         assert self._plant is not None

@@ -94,6 +94,16 @@ def test_the_recorder_settings_are_what_the_daemon_loads(tmp_path: Path,
     text = re.sub(r"\[recorder\][^\[]*", "", text) + "\n" + fragment
     config.write_text(text, encoding="utf-8")
     assert load_config(config).recorder_path == tmp_path / "warmup.sqlite"
+    assert "time_scale" not in fragment
+
+
+def test_a_time_scale_is_said_beside_the_recorder_settings(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert _plan(tmp_path, "--time-scale", "120") == 0
+    assert "at time scale 120" in capsys.readouterr().out
+    fragment = (tmp_path / "warmup.recorder.toml").read_text(encoding="utf-8")
+    assert "[machine] time_scale = 120" in fragment
+    assert RecorderSection.model_validate(tomllib.loads(fragment)["recorder"]).enabled
 
 
 def test_an_existing_program_is_replaced_only_with_force(tmp_path: Path,
@@ -154,6 +164,8 @@ def test_hostile_targets(tmp_path: Path, capsys: pytest.CaptureFixture[str], kin
     ["--safe-position", "Z=nan"], ["--safe-position", "Z=1,Z=2"],
     ["--safe-position", "Z=1e6"], ["--probe-call", "G65 P9810"],
     ["--dialect", "heidenhain"], ["-o", "bad\nname.ngc"],
+    ["--time-scale", "0.5"], ["--time-scale", "0"], ["--time-scale", "nan"],
+    ["--time-scale", "1e5"],
     ["--probe-at", "Z=10"],  # without --probe-every-min it would measure nothing
 ], ids=" ".join)
 def test_hostile_arguments_end_in_one_line_and_64(tmp_path: Path,

@@ -41,6 +41,7 @@ class Canon:
 
 
 def _interpret(tmp_path: Path, argv: list[str]) -> Canon:
+    tmp_path.mkdir(exist_ok=True)
     out = tmp_path / "warmup.ngc"
     assert main(["plan", *argv, "--dialect", "linuxcnc", "-o", str(out)]) == 0
     assert RS274 is not None
@@ -129,6 +130,27 @@ def test_named_axes_only_and_odd_hours_sum_exactly(tmp_path: Path) -> None:
     assert {m[0] for m in moves} <= {0.0, 10.0, -45.5}
     assert all(m[1] == 0.0 for m in moves)  # Y never named, never moved
     assert "Axes moved: X, Z only" in canon.header()
+
+
+def test_a_time_scale_divides_every_dwell_and_the_header_says_so(tmp_path: Path) -> None:
+    """--time-scale 120 (a simulated machine at 120 machine seconds per real
+    second): the same spindle steps, every dwell divided by 120 (the measuring
+    cycles' run-downs too), and a header that says so."""
+    argv = ["--hours", "2", "--speeds", "3000,6000,9000", "--probe-every-min", "30",
+            "--safe-position", "Z=100", "--probe-at", "Z=30", "--spindle-stop-s", "6"]
+    plain = _interpret(tmp_path / "plain", argv)
+    scaled = _interpret(tmp_path / "scaled", [*argv, "--time-scale", "120"])
+    assert [n for n in scaled.names() if n != "COMMENT"] == [
+        n for n in plain.names() if n != "COMMENT"]
+    assert [a[0] * 120 for a in scaled.args("DWELL")] == pytest.approx(
+        [a[0] for a in plain.args("DWELL")], abs=1e-3 * 120)
+    # the cycles at 30 and 90 min stop a turning spindle (0, 60 and 120 min find it at rest)
+    assert sum(a[0] for a in scaled.args("DWELL")) == pytest.approx(
+        (2 * 3600.0 + 2 * 6.0) / 120, abs=1e-3)
+    assert _seconds(header := scaled.header(), r"Dwell in all: ([\d.]+) s") == pytest.approx(
+        sum(a[0] for a in scaled.args("DWELL")), abs=1e-3)
+    assert "--time-scale 120" in header and "TIME SCALE 120: every dwell is divided" in header
+    assert "Not for a real machine" in header and "TIME SCALE" not in plain.header()
 
 
 def test_the_largest_program_runs_through(tmp_path: Path) -> None:

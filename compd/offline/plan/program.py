@@ -2,6 +2,11 @@
 the safe start, the schedule's blocks (`compd.offline.plan.schedule`) in a
 dialect's words (`compd.offline.plan.dialects`), the end.
 
+`time_scale` N > 1 divides every dwell by N (whole milliseconds), for a
+simulated machine whose plant and daemon run at N machine seconds per real
+second (``[machine] time_scale``): the header says so and gives the real
+dwell beside the schedule's. Never on a real machine.
+
 The header states the schedule's time (the dwells of the steps and rests,
 exactly the hours asked), the dwell in all (plus each measuring cycle's
 spindle run-down) and the axes the program moves: only those named in
@@ -22,7 +27,7 @@ WIDTH = 66
 @dataclass(frozen=True)
 class Program:
     text: str
-    #: every second the dwells of the program add up to
+    #: every second the dwells of the program add up to (divided by the time scale)
     dwell_total_ms: int
     axes: tuple[str, ...]
 
@@ -81,8 +86,23 @@ def _measuring_lines(exp: Experiment, dialect: Dialect, probing: Probing | None,
     return lines
 
 
+def _scaled(ms: int, time_scale: float) -> int:
+    """A dwell of `ms` schedule milliseconds at `time_scale` (at least 1 ms)."""
+    return ms if time_scale == 1.0 else max(1, round(ms / time_scale))
+
+
+def _time_scale_lines(exp: Experiment, time_scale: float, dwell_total_ms: int) -> list[str]:
+    if time_scale == 1.0:
+        return []
+    return [f"TIME SCALE {time_scale:g}: every dwell is divided by {time_scale:g}, "
+            f"{dwell_total_ms / 1000:.3f} s of dwell for {_hm(exp.duration_ms)} of "
+            f"schedule, for a simulated machine whose plant and daemon run at "
+            f"[machine] time_scale = {time_scale:g}. Not for a real machine: its heat "
+            f"does not run faster."]
+
+
 def _header(exp: Experiment, dialect: Dialect, probing: Probing | None, dwell_total_ms: int,
-            summary: str, recorder_name: str | None) -> list[str]:
+            summary: str, recorder_name: str | None, time_scale: float) -> list[str]:
     axes = axes_moved(probing)
     moves = (f"Axes moved: {', '.join(axes)} only, rapid G0 to the positions named, Z "
              f"first; work coordinates G54, mm." if axes else
@@ -94,6 +114,7 @@ def _header(exp: Experiment, dialect: Dialect, probing: Probing | None, dwell_to
         f"Duration: {_hm(exp.duration_ms)} of spindle steps and rests, "
         f"{exp.duration_ms / 1000:.3f} s of dwell, plus the measuring cycles. "
         f"Dwell in all: {dwell_total_ms / 1000:.3f} s.",
+        *(_time_scale_lines(exp, time_scale, dwell_total_ms)),
         moves,
         *(_why()),
         *(_measuring_lines(exp, dialect, probing, recorder_name)),
@@ -110,8 +131,10 @@ def _header(exp: Experiment, dialect: Dialect, probing: Probing | None, dwell_to
 
 
 def make_program(exp: Experiment, dialect: Dialect, probing: Probing | None, *,
-                 summary: str, recorder_name: str | None = None) -> Program:
-    """The whole program as text (LF line ends, a final newline)."""
+                 summary: str, recorder_name: str | None = None,
+                 time_scale: float = 1.0) -> Program:
+    """The whole program as text (LF line ends, a final newline); every dwell
+    divided by `time_scale` (see the module)."""
     if exp.probe_every_ms is not None and (probing is None or "Z" not in probing.safe):
         raise PlanError("the measuring cycle moves the machine: give --safe-position with "
                         "a Z to retract to (e.g. --safe-position Z=100)")
@@ -127,20 +150,22 @@ def make_program(exp: Experiment, dialect: Dialect, probing: Probing | None, *,
         if isinstance(action, Spin):
             body += dialect.spindle(action.speed_rpm)
         elif isinstance(action, Dwell):
-            body += dialect.dwell(action.ms)
-            dwell_total += action.ms
+            ms = _scaled(action.ms, time_scale)
+            body += dialect.dwell(ms)
+            dwell_total += ms
         elif isinstance(action, Measure) and probing is not None:  # checked above
             body.append(dialect.comment(f"measuring cycle {action.index + 1} of {count} "
                                         f"at {_h(action.at_ms)}"))
             if action.stops_rpm:
                 stop_ms = round(probing.spindle_stop_s * 1000)
+                stop_ms = _scaled(stop_ms, time_scale) if stop_ms else 0
                 body.append(dialect.stop())
                 if stop_ms:
                     body += dialect.dwell(stop_ms)
                     dwell_total += stop_ms
             body += dialect.measuring(action.index, probing)
     body += [dialect.stop(), *dialect.epilogue()]
-    header = _header(exp, dialect, probing, dwell_total, summary, recorder_name)
+    header = _header(exp, dialect, probing, dwell_total, summary, recorder_name, time_scale)
     header = [h.encode("ascii", "replace").decode("ascii") for h in header]  # names, calls
     lines = [*dialect.prologue("compd plan thermal calibration"),
              *(dialect.comment(h) if h.strip() else dialect.comment("-") for h in header),

@@ -27,8 +27,10 @@ def database_name(program: PurePath) -> str:
     return f"{program.stem}.sqlite"
 
 
-def recorder_fragment(program: PurePath, exp: Experiment, dialect: str) -> str:
-    """The fragment's text; `program` is the program file it belongs to."""
+def recorder_fragment(program: PurePath, exp: Experiment, dialect: str,
+                      time_scale: float = 1.0) -> str:
+    """The fragment's text; `program` is the program file it belongs to,
+    written with every dwell divided by `time_scale`."""
     db = database_name(program)
     hours = exp.duration_ms / 3_600_000
     every = ("no measuring cycle" if exp.probe_every_ms is None else
@@ -49,6 +51,11 @@ def recorder_fragment(program: PurePath, exp: Experiment, dialect: str) -> str:
         "# stays 0 during the run). One daemon run, one database: compd fit refuses a",
         "# record with a restart inside. [machine] period_s must be the period the model",
         "# will run at (its coefficients are per period).",
+        *([] if time_scale == 1.0 else [
+            "#",
+            f"# The program's dwells are divided by {time_scale:g} (compd plan --time-scale): a",
+            f"# simulated machine's run. Run the daemon with [machine] time_scale = {time_scale:g}",
+            "# and the plant at the same speed-up, or the record will not be the schedule."]),
         "",
         "[recorder]",
         "enabled = true",
