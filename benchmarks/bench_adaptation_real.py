@@ -58,14 +58,15 @@ def _run(argv: list[str]) -> dict[str, Any]:
     return json.loads(text[-1]) if text and text[-1].startswith("{") else {}
 
 
-def first_part(d: Path) -> Path:
-    """The rows up to 20.1 h, as their own CSV (the calibration part of the split)."""
-    out = d / "first.csv"
+def first_part(d: Path, split_s: float = SPLIT_S, name: str = "first.csv") -> Path:
+    """The rows up to `split_s` (20.1 h), as their own CSV (the calibration part of the
+    split)."""
+    out = d / name
     with RECORD.open(newline="") as src, out.open("w", newline="") as dst:
         rows = csv.reader(src)
         w = csv.writer(dst)
         w.writerow(next(rows))
-        w.writerows(r for r in rows if float(r[0]) <= SPLIT_S)
+        w.writerows(r for r in rows if float(r[0]) <= split_s)
     return out
 
 

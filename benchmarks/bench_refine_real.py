@@ -26,7 +26,7 @@ import csv
 import tempfile
 from pathlib import Path
 
-from bench_adaptation_real import RECORD, SPLIT_S, TERMS, _run
+from bench_adaptation_real import RECORD, SPLIT_S, TERMS, _run, first_part
 
 from compd.commands.replay import replay_with_init
 from compd.infiles import load_model
@@ -34,16 +34,6 @@ from compd.offline.records import read_record
 
 CAL_S = 14.0 * 3600.0
 EVERY_H = (1, 2)
-
-
-def _first(d: Path) -> Path:
-    out = d / "cal.csv"
-    with RECORD.open(newline="") as src, out.open("w", newline="") as dst:
-        rows = csv.reader(src)
-        w = csv.writer(dst)
-        w.writerow(next(rows))
-        w.writerows(r for r in rows if float(r[0]) <= CAL_S)
-    return out
 
 
 def _probe_log(d: Path, model: Path, channel: str, every_s: float) -> Path:
@@ -68,7 +58,7 @@ def main() -> None:
           f"{'refined':>8s} {'crude':>7s}  rw calib. → refined (µm/√h)")
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
-        first = _first(d)
+        first = first_part(d, CAL_S, "cal.csv")
         for channel in ("ch3_um", "ch4_um"):
             for every_h in EVERY_H:
                 every_s = every_h * 3600.0

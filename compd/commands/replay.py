@@ -83,18 +83,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     replay_probes.add_arguments(parser)
 
 
-def replay_model(model: CompensationModel, record: Record, *, steady: bool = False
-                 ) -> npt.NDArray[np.float64]:
-    """δZ predicted at every row, stepping the model as the daemon does
-    (from rest, or from the steady state of the first sample)."""
-    import numpy as np
-
+def _check_period(model: CompensationModel, record: Record) -> None:
+    """RecordError unless the model was identified at the record's period."""
     from compd.offline.records import RecordError
 
     if not math.isclose(model.period_s, record.period_s, rel_tol=1e-6):
         raise RecordError(f"{record.path}: sampled every {record.period_s:g} s but the model "
                           f"{model.name!r} was identified at {model.period_s:g} s; its "
                           "coefficients do not apply (refit it at this period)")
+
+
+def replay_model(model: CompensationModel, record: Record, *, steady: bool = False
+                 ) -> npt.NDArray[np.float64]:
+    """δZ predicted at every row, stepping the model as the daemon does
+    (from rest, or from the steady state of the first sample)."""
+    import numpy as np
+
+    _check_period(model, record)
     record.require(model.channels)
     samples = record.samples()
     model.reset()
@@ -254,10 +259,7 @@ def _through_the_cycle(config: str, model: CompensationModel, record: Record
     if not math.isclose(params.period_s, record.period_s, rel_tol=1e-6):
         raise RecordError(f"{record.path}: sampled every {record.period_s:g} s but {config} "
                           f"runs its cycle every {params.period_s:g} s")
-    if not math.isclose(model.period_s, record.period_s, rel_tol=1e-6):
-        raise RecordError(f"{record.path}: sampled every {record.period_s:g} s but the model "
-                          f"{model.name!r} was identified at {model.period_s:g} s; its "
-                          "coefficients do not apply (refit it at this period)")
+    _check_period(model, record)
     missing = sorted(set(params.channels) - set(record.columns))
     if missing:
         raise RecordError(f"{record.path}: no column(s) {missing} for the channels {config} "
