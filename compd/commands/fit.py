@@ -253,6 +253,8 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
 
         nums, dens, orders, summary = select_for_fit(args, y, us, seg, radius, holdout,
                                                      [n for n, _ in specs])
+        # for --adaptation: how fast the error moves on rows not calibrated on
+        args.heldout_residuals = summary.pop("_heldout_residuals")
         worse = worse_than_none(summary)
         if worse is not None and not args.force:
             raise ModelError(f"{worse}; not written (--force writes it anyway)")
@@ -583,17 +585,18 @@ def run(args: argparse.Namespace) -> int:
           f"{q.fit_percent:.2f} %, Δpk {q.dpk_um:.3f} µm, range reduction "
           f"{q.range_reduction:.2f}-fold")
     if adapt:
-        print(f"  [adaptation] suggested from the residual (drift over {adapt['lag_s']:g} s): "
+        print(f"  [adaptation] suggested from the residual (drift over {adapt['lag_s']:g} s, "
+              f"measured on {adapt['drift_from']}): "
               f"probe_noise_um = {adapt['probe_noise_um']:.3g}, bias_rw_um_per_sqrt_h = "
               f"{adapt['bias_rw_um_per_sqrt_h']:.3g}, apply_sigma = {adapt['apply_sigma']:g}, "
               f"max_step_um = {adapt['max_step_um']:.3g}; written as the model's [adaptation] "
-              "(a floor: see docs/adaptation.md)")
+              "(see docs/adaptation.md §3)")
     print(f"  wrote {out}")
     return 0
 
 
 def _suggest_adaptation(args: argparse.Namespace, measured: list[Any], simulated: list[Any],
-                        period_s: float) -> dict[str, float]:
+                        period_s: float) -> dict[str, Any]:
     """`--adaptation`'s suggested settings ({} without it, or with a warning when the
     records are too short for the lag: the model is written all the same)."""
     if not args.adaptation:
@@ -602,7 +605,8 @@ def _suggest_adaptation(args: argparse.Namespace, measured: list[Any], simulated
 
     residuals = [m - s for m, s in zip(measured, simulated, strict=True)]
     try:
-        return suggest_settings(residuals, period_s, args.adaptation_lag_s).as_dict()
+        return suggest_settings(residuals, period_s, args.adaptation_lag_s,
+                                getattr(args, "heldout_residuals", ())).as_dict()
     except ValueError as exc:
         print(f"compd fit: warning: --adaptation: {exc}; no settings suggested",
               file=sys.stderr)

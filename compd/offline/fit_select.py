@@ -83,6 +83,7 @@ def summarise(sel: Selection, forced: str, how: str) -> dict[str, Any]:
                        for c in sel.candidates],
         "notes": notes,
         "_model": chosen.model,
+        "_heldout_residuals": chosen.heldout_residuals,
     }
 
 
@@ -101,7 +102,10 @@ def select_for_fit(args: argparse.Namespace, y: FloatArray, us: list[FloatArray]
                    seg: Segments, radius: float, holdout: Any, names: list[str] | None = None
                    ) -> tuple[tuple[tuple[float, ...], ...], tuple[tuple[float, ...], ...],
                               tuple[tuple[int, int], ...], dict[str, Any]]:
-    """(nums, dens, orders per term, summary) of the chosen structure."""
+    """(nums, dens, orders per term, summary) of the chosen structure. The
+    summary's ``_heldout_residuals`` (the chosen structure's residue on the rows
+    each fold's model was not calibrated on, arrays) is for the caller to take out
+    before the summary is written anywhere."""
     sel = run_selection(args, y, us, seg, radius, holdout, names)
     how = "held-out records" if holdout is not None else \
         f"{VALIDATION_WORDS[DEFAULT_VALIDATION]}, {args.folds} folds"

@@ -40,15 +40,19 @@ model over a record sampled every T seconds:
 - the step bound (`max_step_um`): 4 σ of the residual's change over the lag,
   √E[(r(k+L) − r(k))²], at least the default (5 µm): a bound the residual's
   own moves between probes stay within, a wrong probe's not.
-A residual on the calibration records themselves understates the drift a
-changed machine will show: read the suggestion as a floor. `compd fit
---adaptation` writes it into the model file as its `[adaptation]` table, and
-the daemon and `compd replay --probe-every` use it unless told otherwise.
+The drift, the step bound and the prior are measured on the residue of rows
+the model was not calibrated on when `compd fit` has them (its forward folds,
+`suggest_settings`' `heldout`): a residual on the calibration rows themselves
+understates how fast a deployed model's error moves. `compd fit
+--adaptation` writes the suggestion into the model file as its `[adaptation]`
+table, and the daemon and `compd replay --probe-every` use it unless told
+otherwise.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -144,13 +148,16 @@ class Suggestion:
     plain_rms_um: float = 0.0
     held_rms_um: float = 0.0
     prior_probes: float = 0.0
+    #: what the drift, the step bound and the score's prior were measured on
+    #: (`DRIFT_HELDOUT`, `DRIFT_CALIBRATION` or `DRIFT_PROBES`)
+    drift_from: str = ""
 
-    def as_dict(self) -> dict[str, float]:
+    def as_dict(self) -> dict[str, float | str]:
         return {"probe_noise_um": self.probe_noise_um,
                 "bias_rw_um_per_sqrt_h": self.bias_rw_um_per_sqrt_h, "lag_s": self.lag_s,
                 "apply_sigma": self.apply_sigma, "max_step_um": self.max_step_um,
                 "plain_rms_um": self.plain_rms_um, "held_rms_um": self.held_rms_um,
-                "prior_probes": self.prior_probes}
+                "prior_probes": self.prior_probes, "drift_from": self.drift_from}
 
     def settings(self) -> dict[str, float]:
         """The model file's [adaptation] table (`AdaptationParams` fields, rounded to
@@ -169,9 +176,30 @@ def _round(v: float) -> float:
     return float(f"{v:.4g}")
 
 
+#: `Suggestion.drift_from`: the residue of models calibrated without the rows it is on
+DRIFT_HELDOUT = "rows the model was not calibrated on"
+#: `Suggestion.drift_from`: the fitted model's residual on its own calibration rows
+DRIFT_CALIBRATION = "the calibration residual"
+#: `Suggestion.drift_from`: a running machine's probes (`refine_from_probes`)
+DRIFT_PROBES = "the probes"
+#: a held-out block gives the drift at a lag when it spans at least this many lags
+MIN_BLOCK_LAGS = 2
+
+
 def suggest_settings(residuals: list[FloatArray], period_s: float,
-                     lag_s: float = 7200.0) -> Suggestion:
-    """Probe noise and bias random walk from residuals (one array per record)."""
+                     lag_s: float = 7200.0, heldout: Sequence[FloatArray] = ()
+                     ) -> Suggestion:
+    """Probe noise and bias random walk from residuals (one array per record).
+
+    `heldout`: the residue on rows the model was not calibrated on, one array per
+    contiguous block (`compd fit`'s forward folds: each block predicted by a model
+    calibrated on the rows before it). The error a deployed model makes moves as it
+    does there, not as the residual on its own calibration rows does: on the real
+    machine of tests/data/fl_thermal (ch3, the first 20.1 h) the calibration residual
+    drifts 2.9 µm/√h at 2 h, the held-out blocks 8.1, and the probes of a running
+    machine said 10.1. So the drift, the step bound and the score's prior come from the
+    blocks at least `MIN_BLOCK_LAGS` lags long, when there are any; the probe noise
+    always from `residuals` (the model written, row to row)."""
     lag = max(1, round(lag_s / period_s))
     diffs = [np.diff(r) for r in residuals if r.size >= 2]
     if not diffs:
@@ -179,19 +207,22 @@ def suggest_settings(residuals: list[FloatArray], period_s: float,
     d1 = np.concatenate(diffs)
     mad = float(np.median(np.abs(d1 - np.median(d1))))
     sigma_v = 1.4826 * mad / math.sqrt(2.0)
-    far = [r[lag:] - r[:-lag] for r in residuals if r.size > lag]
+    blocks = [np.asarray(b, dtype=np.float64) for b in heldout
+              if b.size >= MIN_BLOCK_LAGS * lag + 1 and np.all(np.isfinite(b))]
+    source, drift_from = (blocks, DRIFT_HELDOUT) if blocks else (residuals, DRIFT_CALIBRATION)
+    far = [r[lag:] - r[:-lag] for r in source if r.size > lag]
     if not far:
         raise ValueError(f"the records are shorter than the lag of {lag * period_s:g} s")
     dl = np.concatenate(far)
     moved = float(np.mean(dl ** 2))
     q = max(0.0, (moved - 2.0 * sigma_v ** 2) / (lag * period_s))
-    plain, held = _held_rms(residuals, lag)
-    spacings = min(sum(r.size for r in residuals) / lag, MAX_PRIOR_PROBES)
-    return _suggestion(sigma_v, q, lag * period_s, moved, plain, held, spacings)
+    plain, held = _held_rms(source, lag)
+    spacings = min(sum(r.size for r in source) / lag, MAX_PRIOR_PROBES)
+    return _suggestion(sigma_v, q, lag * period_s, moved, plain, held, spacings, drift_from)
 
 
 def _suggestion(sigma_v: float, q: float, lag_s: float, moved: float, plain: float,
-                held: float, spacings: float) -> Suggestion:
+                held: float, spacings: float, drift_from: str) -> Suggestion:
     """The settings from the noise σ_v, the drift q (µm²/s) at the lag, the mean square
     move over the lag and the score's prior (see the module docstring)."""
     default = AdaptationParams()
@@ -199,7 +230,7 @@ def _suggestion(sigma_v: float, q: float, lag_s: float, moved: float, plain: flo
     apply_sigma = 0.0 if drift > default.apply_sigma * sigma_v else default.apply_sigma
     max_step = min(max(default.max_step_um, 4.0 * math.sqrt(moved)), MAX_STEP_SUGGESTED_UM)
     return Suggestion(sigma_v, math.sqrt(q * 3600.0), lag_s, apply_sigma, max_step,
-                      plain, held, spacings)
+                      plain, held, spacings, drift_from)
 
 
 #: fewest usable probes (consecutive pairs + 1) a probe record must give to refine settings
@@ -256,7 +287,7 @@ def refine_from_probes(time_s: npt.ArrayLike, residual_um: npt.ArrayLike,
         q = max(0.0, (float(np.mean(d2)) - 2.0 * sigma_v ** 2) / float(np.mean(tau)))
     suggestion = _suggestion(sigma_v, q, spacing, float(np.mean(d2)),
                              math.sqrt(float(np.mean(r ** 2))), math.sqrt(float(np.mean(d2))),
-                             min(float(tau.size), MAX_PRIOR_PROBES))
+                             min(float(tau.size), MAX_PRIOR_PROBES), DRIFT_PROBES)
     return Refinement(suggestion, int(t.size), int(tau.size), spacing, noise_from)
 
 

@@ -93,10 +93,15 @@ class Candidate:
     detail: str = ""
     #: why the final estimate is implausible (`models.identify.checks`): never chosen
     rejected: str = ""
-    #: RMS of the residue on rows it was not calibrated on (`_heldout_rms`), µm
+    #: RMS of the residue on rows it was not calibrated on (`_heldout`), µm
     heldout_rms: float = math.nan
     #: RMS of the displacement itself on those rows (no compensation), µm
     displacement_rms: float = math.nan
+    #: the residue on those rows, one array per contiguous held-out block (each
+    #: predicted by a model trained without it): the error the model makes on
+    #: what it was not calibrated on, from which `compd fit --adaptation`
+    #: learns how fast that error moves
+    heldout_residuals: tuple[FloatArray, ...] = field(default=(), compare=False, repr=False)
 
     @property
     def n_params(self) -> int:
@@ -244,13 +249,21 @@ def _score(d: _Data, fit_on: Callable[[BoolArray], OeModel | None]) -> tuple[flo
     return pooled_fit(d.y, sims, [v for _, v in d.splits]), per
 
 
-def _heldout_rms(d: _Data, models: Sequence[OeModel | None]) -> tuple[float, float]:
-    """(RMS of the residue, RMS of the displacement from each record's first
-    row) over the held-out rows of every fold, each model trained without
-    them: what compensation would leave there, and what no compensation
-    leaves. (nan, nan) when a fold has no model."""
+@dataclass(frozen=True)
+class _Heldout:
+    rms: float = math.nan
+    displacement_rms: float = math.nan
+    residuals: tuple[FloatArray, ...] = ()
+
+
+def _heldout(d: _Data, models: Sequence[OeModel | None]) -> _Heldout:
+    """The residue over the held-out rows of every fold, each model trained
+    without them: its RMS (what compensation would leave there), the RMS of
+    the displacement from each record's first row (what no compensation
+    leaves), and the residue itself per contiguous block. nan when a fold has
+    no model."""
     if any(m is None for m in models):
-        return math.nan, math.nan
+        return _Heldout()
     if d.holdout is not None:
         y, us, seg = d.holdout
         head = np.zeros(y.size, dtype=bool)
@@ -263,15 +276,20 @@ def _heldout_rms(d: _Data, models: Sequence[OeModel | None]) -> tuple[float, flo
     start = np.concatenate([np.full(e - s, y[s]) for s, e in seg.bounds])
     err = disp = 0.0
     count = 0
+    blocks: list[FloatArray] = []
     for m, train, val in pairs:
         assert m is not None
         sim = _simulate(d, m, train, y, us, seg)
         err += float(np.sum((y[val] - sim[val]) ** 2))
         disp += float(np.sum((y[val] - start[val]) ** 2))
         count += int(val.sum())
+        for s, e in seg.bounds:
+            rows = np.flatnonzero(val[s:e]) + s
+            if rows.size:
+                blocks.append(np.asarray(y[rows] - sim[rows], dtype=np.float64))
     if count == 0:
-        return math.nan, math.nan
-    return math.sqrt(err / count), math.sqrt(disp / count)
+        return _Heldout()
+    return _Heldout(math.sqrt(err / count), math.sqrt(disp / count), tuple(blocks))
 
 
 def _sm(d: _Data, na: int, nb: int, train: BoolArray) -> OeModel | None:
@@ -566,9 +584,10 @@ def _candidates_at(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int
         if m is None:
             raise ValueError("fewer rows than parameters")
         why = implausible(m.nums, m.term_dens(), d.us, labels, span, d.y.size) or ""
-        held = _heldout_rms(d, [_static_fit(d, t) for t, _ in d.splits])
+        held = _heldout(d, [_static_fit(d, t) for t, _ in d.splits])
         return ([Candidate("static", m, val, tuple(per), _final_fit(d, m), rejected=why,
-                           heldout_rms=held[0], displacement_rms=held[1])], (0, 1), True)
+                           heldout_rms=held.rms, displacement_rms=held.displacement_rms,
+                           heldout_residuals=held.residuals)], (0, 1), True)
     na, nb, initial = choose_orders(d, na_range, nb_range)
     arx_at = arx_orders(d, na_range, nb_range)
     per_fold = [_fold_models(d, na, nb, train, structures, max_iter, arx_at)
@@ -595,9 +614,9 @@ def _candidates_at(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int
             continue
         detail = f"λ = {best_lam.partition(':')[2]}" if name == "ridge" else ""
         why = implausible(m.nums, m.term_dens(), d.us, labels, span, d.y.size) or ""
-        held = _heldout_rms(d, [pf.get(name) for pf in per_fold])
+        held = _heldout(d, [pf.get(name) for pf in per_fold])
         cands.append(Candidate(name, m, val, tuple(per), _final_fit(d, m), detail, why,
-                               held[0], held[1]))
+                               held.rms, held.displacement_rms, held.residuals))
     if not cands:
         raise ValueError("every structure gave an unstable model")
     return cands, (na, nb), initial

@@ -13,7 +13,12 @@ import pytest
 
 from compd.cli import main
 from compd.offline.plots import replay_figure
-from compd.offline.probes import probe_rows, suggest_settings
+from compd.offline.probes import (
+    DRIFT_CALIBRATION,
+    DRIFT_HELDOUT,
+    probe_rows,
+    suggest_settings,
+)
 from drivers.sim.shop import DAY_WITH_A_CHANGE, ShopChange, parse_change, simulate_shop
 
 # -- the day with a change ------------------------------------------------------------------
@@ -242,6 +247,31 @@ def test_suggested_settings_recover_a_known_noise_and_random_walk() -> None:
     assert suggest_settings([rng.normal(0, 0.4, n)], period).bias_rw_um_per_sqrt_h < 0.1
     with pytest.raises(ValueError, match="shorter than the lag"):
         suggest_settings([residual[:10]], period)
+
+
+def test_the_drift_is_learnt_from_held_out_blocks_and_the_noise_from_the_residual() -> None:
+    """A model fits its own calibration rows closely; on rows it was not calibrated on
+    its error wanders. The drift is measured there, the probe noise on the residual."""
+    rng = np.random.default_rng(3)
+    period, n = 60.0, 60 * 24 * 10
+    residual = rng.normal(0.0, 0.2, n)  # in-sample: noise only
+    rw = 3.0  # µm/√h on the held-out blocks
+    blocks = [np.cumsum(rng.normal(0.0, rw * math.sqrt(period / 3600.0), 600))
+              + rng.normal(0.0, 0.2, 600) for _ in range(6)]  # 10 h each
+    alone = suggest_settings([residual], period)
+    both = suggest_settings([residual], period, heldout=blocks)
+    assert alone.drift_from == DRIFT_CALIBRATION and both.drift_from == DRIFT_HELDOUT
+    assert alone.bias_rw_um_per_sqrt_h < 0.1
+    assert both.bias_rw_um_per_sqrt_h == pytest.approx(rw, rel=0.3)
+    assert both.probe_noise_um == alone.probe_noise_um == pytest.approx(0.2, rel=0.1)
+    assert both.plain_rms_um > alone.plain_rms_um  # the prior: what the model faces
+    assert both.max_step_um > alone.max_step_um
+    # blocks shorter than two lags say nothing of the drift at that lag: the residual does
+    short = suggest_settings([residual], period, heldout=[b[:200] for b in blocks])
+    assert short == alone
+    # a block with a non-finite value (a gap) is left out, not averaged in
+    gap = suggest_settings([residual], period, heldout=[np.full(600, np.nan), *blocks])
+    assert gap.bias_rw_um_per_sqrt_h == both.bias_rw_um_per_sqrt_h
 
 
 def test_fit_adaptation_suggests_the_probe_noise_of_the_record(
