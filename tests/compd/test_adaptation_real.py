@@ -50,17 +50,18 @@ def first_part(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def _fit(first: Path, lag_s: int, capsys: pytest.CaptureFixture[str]) -> Path:
-    model = first.parent / f"ch3-{lag_s}.toml"
+def _fit(first: Path, lag_s: int, capsys: pytest.CaptureFixture[str],
+         column: str = "ch3_um") -> Path:
+    model = first.parent / f"{column}-{lag_s}.toml"
     if not model.exists():
-        _cli(["fit", str(first), "--column", "ch3_um", *TERMS, "--adaptation",
+        _cli(["fit", str(first), "--column", column, *TERMS, "--adaptation",
               "--adaptation-lag-s", str(lag_s), "-o", str(model), "--json"], capsys)
     return model
 
 
 def _replay(model: Path, every_s: int, capsys: pytest.CaptureFixture[str],
-            *extra: str) -> dict[str, Any]:
-    return _cli(["replay", str(model), str(RECORD), "--column", "ch3_um", "--init", "rest",
+            *extra: str, column: str = "ch3_um") -> dict[str, Any]:
+    return _cli(["replay", str(model), str(RECORD), "--column", column, "--init", "rest",
                  "--score-from", f"{SPLIT_S:g}", "--probe-every", str(every_s), "--json",
                  *extra], capsys)
 
@@ -97,15 +98,18 @@ def test_fit_learns_the_drift_on_rows_the_model_was_not_calibrated_on(
     assert long["adaptation"]["drift_from"] == "the calibration residual"
 
 
+@pytest.mark.parametrize("column", ["ch3_um", "ch4_um"])
 @pytest.mark.parametrize("every_s", [3600, 7200])
-def test_with_noisy_probes_the_learnt_estimator_is_within_1_percent_of_crude(
-        first_part: Path, capsys: pytest.CaptureFixture[str], every_s: int) -> None:
-    """0.5 µm of probe noise: a gain just below 1 (the noise weighed) against an error that
-    trends; learnt from the calibration residual alone it was 1.7 % behind crude at 1 h."""
-    model = _fit(first_part, every_s, capsys)
-    r = _replay(model, every_s, capsys, "--probe-noise-um", "0.5")
+def test_with_noisy_probes_the_learnt_estimator_is_at_least_as_good_as_crude(
+        first_part: Path, capsys: pytest.CaptureFixture[str], every_s: int,
+        column: str) -> None:
+    """0.5 µm of probe noise against a learnt drift of 5-8 µm/√h: each probe is precise and
+    taken whole. Weighed with the optimal gain (0.99) the estimator lagged this machine's
+    trend by 0.4-0.6 % of RMS behind crude; from the calibration residual alone, 1.7 %."""
+    model = _fit(first_part, every_s, capsys, column)
+    r = _replay(model, every_s, capsys, "--probe-noise-um", "0.5", column=column)
     a, crude = r["adapted"], r["crude"]
-    assert a["residue_rms_um"] <= 1.01 * crude["residue_rms_um"]  # 3.129 against 3.113 at 1 h
+    assert a["residue_rms_um"] <= crude["residue_rms_um"] + 1e-6
     assert a["residue_rms_um"] < 0.9 * a["plain_residue_rms_um"]
 
 
@@ -116,7 +120,7 @@ def test_replay_with_the_learnt_settings_matches_the_crude_baseline_at_1_h(
     a, crude = learnt["adapted"], learnt["crude"]
     assert learnt["adaptation_from"] == "model"
     assert a["probes_refused"] == 0 and a["stand_downs"] == 0
-    assert a["residue_rms_um"] <= crude["residue_rms_um"] + 0.01
+    assert a["residue_rms_um"] <= crude["residue_rms_um"] + 1e-6
     # well below the plain model's (the figure depends on the model fit chooses)
     assert a["residue_rms_um"] < 0.6 * a["plain_residue_rms_um"]
     defaults = _replay(model, 3600, capsys, "--adaptation-defaults")["adapted"]
@@ -140,7 +144,7 @@ def test_at_2_h_a_warm_up_that_scatters_does_not_stand_it_down(
     r = _replay(model, 7200, capsys)
     a, crude = r["adapted"], r["crude"]
     assert a["stand_downs"] == 0
-    assert a["residue_rms_um"] <= crude["residue_rms_um"] + 0.01
+    assert a["residue_rms_um"] <= crude["residue_rms_um"] + 1e-6
     assert a["residue_rms_um"] < 0.9 * a["plain_residue_rms_um"]
 
 

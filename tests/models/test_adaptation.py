@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from models.adaptation import STATE_VERSION, AdaptationParams, Adapter
+from models.adaptation import PRECISE_PROBE, STATE_VERSION, AdaptationParams, Adapter
 
 HOUR = 3600.0
 
@@ -30,17 +30,38 @@ def _probe_run(adapter: Adapter, truth: list[float], every_s: float, noise_um: f
 
 
 def test_worked_number_of_the_docstring() -> None:
-    a = Adapter(AdaptationParams(probe_noise_um=0.5, initial_bias_sigma_um=5.0), 2)
+    a = Adapter(AdaptationParams(probe_noise_um=0.5, initial_bias_sigma_um=2.0), 2)
     o = a.update(13.0, 10.0, [6.0, 4.0])
     assert o.accepted and o.reason is None
     assert o.innovation_um == pytest.approx(3.0)
-    assert o.innovation_sigma_um == pytest.approx(math.sqrt(25.25))
-    assert a.estimated_bias_um == pytest.approx(3.0 * 25 / 25.25)
-    assert a.bias_sigma_um == pytest.approx(0.4975, abs=1e-4)
-    assert o.applied and a.bias_um == pytest.approx(3.0 * 25 / 25.25 - 4 * a.bias_sigma_um)
+    assert o.innovation_sigma_um == pytest.approx(math.sqrt(4.25))
+    assert a.estimated_bias_um == pytest.approx(3.0 * 4 / 4.25)
+    assert a.bias_sigma_um == pytest.approx(math.sqrt(4 * 0.25 / 4.25))  # 0.485
+    assert o.applied and a.bias_um == pytest.approx(3.0 * 4 / 4.25 - 4 * a.bias_sigma_um)
+    assert a.bias_um == pytest.approx(0.883, abs=1e-3)
     assert a.correction_um([6.0, 4.0]) == a.bias_um
     refused = a.update(60.0, 10.0, [6.0, 4.0])
     assert not refused.accepted and refused.reason == "gate"
+
+
+def test_a_precise_probe_is_taken_whole() -> None:
+    """R/S below PRECISE_PROBE: the prediction meets the probe (the docstring's P = 25)."""
+    a = Adapter(AdaptationParams(probe_noise_um=0.5, initial_bias_sigma_um=5.0,
+                                 bias_rw_um_per_sqrt_h=5.0, max_step_um=10.0,
+                                 apply_sigma=0.0), 1)
+    o = a.update(13.0, 10.0, [0.0])
+    assert o.accepted and PRECISE_PROBE > 0.25 / 25.25
+    assert a.estimated_bias_um == 3.0 and a.correction_um([]) == 3.0
+    assert a.bias_sigma_um == pytest.approx(0.5)  # Joseph form: (1 - 1)² P + 1² R
+    # an error drifting 5 µm/√h probed hourly: the held residual at every probe (crude)
+    for err in [4.0, 6.5, 9.0, 12.0]:
+        a.advance(HOUR)
+        a.update(10.0 + err, 10.0, [0.0])
+        assert a.correction_um([]) == pytest.approx(err)
+    # a noisy probe against a small uncertainty still averages (R/S above the share)
+    b = Adapter(AdaptationParams(probe_noise_um=2.0, initial_bias_sigma_um=1.0), 1)
+    b.update(3.0, 0.0, [0.0])
+    assert b.estimated_bias_um == pytest.approx(3.0 * 1 / 5)
 
 
 def test_bias_converges_on_a_constant_offset() -> None:
