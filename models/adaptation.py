@@ -21,17 +21,17 @@ S = H P Hᵀ + R. Then, in this order:
 
 1. gate: |y| > gate_sigma · √S is refused ("gate": a chip under the probe,
    a wrong tool) and never learnt; a non-finite input is refused ("fault");
-   A precise probe (R < `PRECISE_PROBE` · S: its noise under 2 % of what the
-   filter is unsure of) is taken whole: K = P Hᵀ / (H P Hᵀ), so that the
-   prediction meets the probe (H K = 1, the residual at the probe held, as
-   the crude correction does). The optimal gain there differs from 1 by less
-   than 2 %, which under the random-walk model buys < 0.05 % of variance;
-   a real machine's error drifts the same way for hours, and a gain of 0.98
-   leaves 2 % of each probe's step behind (on the real record's 1 h probes
-   that cost 0.4–0.6 % of residue RMS against holding the last residual);
 2. the Kalman gain K = P Hᵀ / S is scaled by α ∈ (0, 1] so that the change
    of the correction at this probe, |H·Δx|, and of the bias, |Δb|, stay within
-   `max_step_um` (a suboptimal gain, which the Joseph form below keeps exact);
+   `max_step_um` (a suboptimal gain, which the Joseph form below keeps exact).
+   A precise probe (R < `PRECISE_PROBE` · S: its noise under 2 % of what the
+   filter is unsure of) is taken whole before that scaling: K = P Hᵀ / (H P Hᵀ),
+   so that the prediction meets the probe (H K = 1, the residual at the probe
+   held, as the crude correction does). The optimal gain there differs from 1
+   by less than 2 %, which under the random-walk model buys < 0.05 % of
+   variance; a real machine's error drifts the same way for hours, and a gain
+   of 0.98 leaves 2 % of each probe's step behind (on the real record's 1 h
+   probes that cost 0.4–0.6 % of residue RMS against holding the last residual);
 3. x += α K y, then the bias is held within ±`max_total_um` and each gain
    within ±`max_gain` (a box; should that clipping change |H·Δx| beyond
    the step bound, the whole step is shrunk along the segment, which stays
@@ -163,7 +163,7 @@ _POSITIVE = ("probe_noise_um", "gate_sigma", "max_step_um", "max_total_um")
 #: ("fault"), never weighed (and the products the filter forms stay finite)
 MAX_INPUT_UM = 1e6
 #: a probe whose noise variance is below this share of the innovation variance S is
-#: taken whole (H·K = 1; module docstring, step 1)
+#: taken whole (H·K = 1; module docstring, step 2)
 PRECISE_PROBE = 0.02
 #: the pending random walk is counted up to ~32,000 years (the variance is capped long before)
 _MAX_PENDING_S = 1e12
