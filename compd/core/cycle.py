@@ -14,7 +14,10 @@ controller confirmed the offset is in it). `plan`:
    (READBACK_MISMATCH and ALARM until the output has ramped back to its
    target at the slew limit); beyond ±limit_um it is an alarm and no offset
    is written (OFFSET_HELD, state "held") until the controller's value is back
-   within the limit, and then the output ramps from there;
+   within the limit, and then the output ramps from there. The value compd
+   itself last wrote is no foreign value: beyond a limit lowered since (a
+   reload, a restart) it ramps into the limit at the slew limit (SLEWING;
+   OFFSET_BEYOND_LIMIT until it is within, then OFFSET_WITHIN_LIMIT);
 2. validate every channel (`compd.core.validation`); the cycle is valid when every
    channel the live model reads is valid;
 3. valid: initialise the model on the first valid sample if needed (restored
@@ -175,6 +178,9 @@ class Cycle:
         #: events for the next plan (a write fault that ended)
         self._later: list[Event] = []
         self.probes = self._probe_stage(len(model.terms), adaptation_state)
+        #: the output is beyond ±limit_um (told once each way, `_note_limit`)
+        self._beyond_noted = False
+        self._note_limit(self._later)
         self.models = ModelStepper(model, shadow, model_state=model_state,
                                    shadow_state=shadow_state, references=references)
 
@@ -319,6 +325,7 @@ class Cycle:
         target_um = stepped.model_um + correction if stepped.model_um is not None else None
         decision = self.health.decide(now_s, valid, target_um, events)
         offset_um = self._move_output(decision, dt)
+        self._note_limit(events)
         # only once the stage has moved: a plan that raised before this (the shell then
         # plans again as a failed read) leaves the interval to that one, so a hold still ramps
         self._last_now = now_s
@@ -498,6 +505,23 @@ class Cycle:
         elif value is not None:
             self._readback(value, events)
         events.append(Event(EventName.CONTROLLER_ON, {"was": was, "readback_um": rb_um}))
+
+    def _note_limit(self, events: list[Event]) -> None:
+        """The offset compd wrote is beyond ±limit_um (a limit lowered by a reload or
+        a restart; `OutputStage.beyond_limit`): it ramps into it at the slew limit;
+        told when it is found, and when it is within."""
+        out = self.output
+        beyond = out.beyond_limit
+        if beyond == self._beyond_noted:
+            return
+        self._beyond_noted = beyond
+        if beyond:
+            events.append(Event(EventName.OFFSET_BEYOND_LIMIT, {
+                "offset_um": out.current_um, "limit_um": out.limit_um,
+                "slew_um_s": out.slew_um_s, "action": "ramping into the limit"}))
+        else:
+            events.append(Event(EventName.OFFSET_WITHIN_LIMIT, {
+                "offset_um": out.current_um, "limit_um": out.limit_um}))
 
     def _model_out_of_range(self, model_um: float, events: list[Event]) -> bool:
         """A model output beyond MODEL_RANGE_FACTOR·limit_um is a broken model,

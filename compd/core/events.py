@@ -67,6 +67,9 @@ class EventName(enum.StrEnum):
     READBACK_OUT_OF_RANGE = "readback_out_of_range", _E
     READBACK_IN_RANGE = "readback_in_range", _I
     READBACK_ADOPTED = "readback_adopted", _I
+    # the offset compd wrote is beyond a limit lowered since (a reload, a restart)
+    OFFSET_BEYOND_LIMIT = "offset_beyond_limit", _W
+    OFFSET_WITHIN_LIMIT = "offset_within_limit", _I
     # writes
     OFFSET_WRITE_SKIPPED = "offset_write_skipped", _W
     WRITE_FAILED = "write_failed", _W

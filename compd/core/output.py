@@ -25,6 +25,12 @@ ramping down):
    of the wanted value, on average no faster than R, and within ±limit_um;
 6. sign and unit conversion to controller units: value = sign·scale·µm.
 
+A lowered limit (a reload, or a restart with a lower ``limit_um``) finds the
+offset compd last wrote beyond the new ±limit_um: the stage starts from that
+value (`initial_um` is kept, not clamped) and ramps it into the limit at the
+slew limit, the deadband aside, never further out (`beyond_limit` while it
+does); its read-back is compd's own, not a foreign value beyond the limit.
+
 `current_um` is what the controller is believed to hold. After a write the
 controller refused, the shell calls `revert()` and the stage falls back to
 the last value the controller confirmed, so that the next write never moves
@@ -42,8 +48,9 @@ confirmed:
   restarted controller that forgot the offset and reads 0): the shell raises
   an alarm and the output ramps from the controller's value at the slew
   limit, never a step;
-- beyond ±limit_um (by more than float32 rounding, `LIMIT_ROUNDING`) or not
-  a number: the stage is `held`: no offset is written (one step of slew·Δt
+- beyond ±limit_um (by more than float32 rounding, `LIMIT_ROUNDING`) and not
+  what compd last wrote (a lowered limit, above), or not a number: the stage
+  is `held`: no offset is written (one step of slew·Δt
   from there would still be beyond the limit, and a write inside it a step),
   until the controller's value is back within ±limit_um (an operator cleared
   it); then it ramps from there.
@@ -137,7 +144,7 @@ class OutputStage:
             while n > 0 and n * self.quantum_um > limit_um:
                 n -= 1
             self._max_count = n
-        self.current_um = self._on_grid(self._safe(initial_um))
+        self.current_um = self._start(initial_um)
         #: the slew-limited value before the grid (quantised outputs only): the
         #: wanted value, within one count of `current_um` after each step
         self._exact_um = self.current_um
@@ -150,43 +157,75 @@ class OutputStage:
     def _safe(self, x: float) -> float:
         return _clamp(x, self.limit_um) if math.isfinite(x) else 0.0
 
-    def _count(self, k: int) -> float:
-        """Count `k` in µm, within ±limit_um."""
-        k = max(-self._max_count, min(self._max_count, k))
-        return k * self.quantum_um
-
-    def _on_grid(self, x: float) -> float:
-        """`x` (finite, within the limit) as the nearest whole count (what an
-        integer address holds); unchanged for a float address."""
+    def _start(self, x: float) -> float:
+        """The offset the stage starts from: `initial_um`, the value compd last
+        wrote (a checkpoint's, or the running one across a reload). Beyond
+        ±limit_um (the limit was lowered since) it is kept, not clamped, so that
+        the output ramps into the limit at the slew limit instead of jumping to
+        it (an integer address: the nearest whole count)."""
+        if not math.isfinite(x):
+            return 0.0
+        if abs(x) <= self.limit_um:
+            return self._on_grid(x)
         if not self.quantum_um:
             return x
-        return self._count(round(x / self.quantum_um))
+        return round(x / self.quantum_um) * self.quantum_um
+
+    @property
+    def beyond_limit(self) -> bool:
+        """The output is beyond ±limit_um: an offset compd wrote before the limit
+        was lowered, ramping into it (never further out)."""
+        return abs(self.current_um) > self.limit_um
+
+    def _bound(self) -> float:
+        """How far from 0 the output may be: limit_um, or where it is now while
+        it ramps into a lowered limit (`_start`): it only ever comes in."""
+        return max(self.limit_um, abs(self.current_um))
+
+    def _count(self, k: int, bound_um: float | None = None) -> float:
+        """Count `k` in µm, within ±limit_um (or ±`bound_um` when it is further)."""
+        most = self._max_count
+        if bound_um is not None and bound_um > self.limit_um:
+            most = max(most, math.floor(bound_um / self.quantum_um + COUNT_SLACK))
+        k = max(-most, min(most, k))
+        return k * self.quantum_um
+
+    def _on_grid(self, x: float, bound_um: float | None = None) -> float:
+        """`x` (finite, within the limit or `bound_um`) as the nearest whole
+        count (what an integer address holds); unchanged for a float address."""
+        if not self.quantum_um:
+            return x
+        return self._count(round(x / self.quantum_um), bound_um)
 
     def step(self, target_um: float, dt_s: float, *, deadband: bool = True) -> float:
         """Move toward `target_um`; returns the new output in µm (always finite,
-        within ±limit, within slew·Δt of the previous output, or one count of
-        it when a count is more). Held: unchanged."""
+        within ±limit, or nearer to it than the previous output while ramping
+        into a lowered limit, within slew·Δt of the previous output, or one
+        count of it when a count is more). Held: unchanged."""
         if self.held:
             self.slewing = False
             return self.current_um
+        bound = self._bound()
         if not math.isfinite(target_um):
             target_um = self.current_um
         target = _clamp(target_um, self.limit_um)
-        if deadband and abs(target - self.current_um) <= self.deadband_um:
+        # beyond a lowered limit the output comes in, however close the target is
+        if (deadband and not self.beyond_limit
+                and abs(target - self.current_um) <= self.deadband_um):
             target = self.current_um
         dt = min(max(dt_s, 0.0), self.max_dt_s) if math.isfinite(dt_s) else 0.0
         max_step = self.slew_um_s * dt
         if self.quantum_um:
-            self.current_um = self._quantise(target, max_step)
+            self.current_um = self._quantise(target, max_step, bound)
             return self.current_um
         delta = target - self.current_um
         self.slewing = abs(delta) > max_step
         delta = max(-max_step, min(max_step, delta))
-        self.current_um = _clamp(self.current_um + delta, self.limit_um)
+        self.current_um = _clamp(self.current_um + delta, bound)
         self._exact_um = self.current_um
         return self.current_um
 
-    def _quantise(self, target: float, max_step: float) -> float:
+    def _quantise(self, target: float, max_step: float, bound: float) -> float:
         """The count in force after one step toward `target` (module docstring,
         step 5): the wanted value moves at most `max_step`; the count follows it
         with a hysteresis of one count, toward it, never past it, by at most
@@ -196,7 +235,7 @@ class OutputStage:
         exact = self._exact_um
         delta = target - exact
         behind = abs(delta) > max_step
-        exact = _clamp(exact + max(-max_step, min(max_step, delta)), self.limit_um)
+        exact = _clamp(exact + max(-max_step, min(max_step, delta)), bound)
         new = held
         if max_step > 0.0 and abs(exact - held) >= q * (1.0 - COUNT_SLACK):
             k_held = round(held / q)
@@ -205,7 +244,7 @@ class OutputStage:
                 k = min(math.floor(exact / q + COUNT_SLACK), k_held + most)
             else:
                 k = max(math.ceil(exact / q - COUNT_SLACK), k_held - most)
-            new = self._count(k)
+            new = self._count(k, bound)
         # the count could not keep up (more than one count left): still slewing
         self.slewing = behind or abs(exact - new) > q * (1.0 + COUNT_SLACK)
         # the wanted value stays within one count of the count in force, so
@@ -240,7 +279,9 @@ class OutputStage:
         """The controller holds `um`, a hair from what we wrote (its encoding,
         within the read-back tolerance): step from what it really holds,
         keeping any sub-quantum progress of the exact value."""
-        um = self._on_grid(self._safe(um))
+        # beyond the limit only as far as the value compd wrote (`observe`)
+        bound = max(self._bound(), abs(self.confirmed_um or 0.0))
+        um = self._on_grid(_clamp(um, bound), bound) if math.isfinite(um) else self.current_um
         self._exact_um += um - self.current_um
         self.current_um = um
         self.confirmed_um = um
@@ -248,13 +289,17 @@ class OutputStage:
     def observe(self, um: float, tolerance_um: float) -> Readback:
         """The controller holds `um` (read back, µm): see the module docstring.
         `tolerance_um` is a float address's (`readback_tolerance_um`)."""
-        if not math.isfinite(um) or abs(um) > self.limit_um * (1.0 + LIMIT_ROUNDING):
+        confirmed = self.confirmed_um
+        tolerance = self.readback_tolerance_um(tolerance_um)
+        own = (confirmed is not None and math.isfinite(um)
+               and abs(um - confirmed) <= tolerance)
+        # what compd wrote is its own even beyond a limit lowered since (it ramps in)
+        if not own and (not math.isfinite(um)
+                        or abs(um) > self.limit_um * (1.0 + LIMIT_ROUNDING)):
             self.held = True
             return Readback.OUT_OF_RANGE
         self.held = False
-        confirmed = self.confirmed_um
-        tolerance = self.readback_tolerance_um(tolerance_um)
-        if confirmed is not None and abs(um - confirmed) <= tolerance:
+        if own:
             if um != confirmed:
                 # not a mismatch, but the next step is measured from what the
                 # machine has, so the slew limit holds against it

@@ -145,6 +145,10 @@ class StatusBoard:
                                     "compd holds and writes none; it ramps from what the "
                                     "controller holds once the machine is on")
         raw = cfg.raw
+        limit_um = float(raw.output.limit_um)
+        if abs(result.offset_um) > limit_um:  # the only way beyond it: `OutputStage._start`
+            why += ("; the offset compd wrote is beyond limit_um (lowered since it was "
+                    "written): it ramps into the limit at the slew limit")
         self._dry_run = dry_run
         self.recorder_path = None if dry_run else cfg.recorder_path
         channels = [{"name": name, "value": _num(rec.channels.get(name)),
@@ -153,7 +157,7 @@ class StatusBoard:
                     for name, ch in raw.channels.items()]
         return {"machine": raw.machine.name, "state": word, "fault_state": str(result.state),
                 "why": why, "offset_um": _num(result.offset_um),
-                "limit_um": float(raw.output.limit_um), "model_um": _num(rec.model_um),
+                "limit_um": limit_um, "model_um": _num(rec.model_um),
                 "sequence": result.sequence, "complete": bool(result.complete),
                 "status_word": result.status, "heartbeat": result.heartbeat,
                 "model": cfg.model.name, "model_sha256": cfg.model_sha256,

@@ -78,7 +78,9 @@ class CycleLoop:
         """Begin the ramp-to-zero shutdown; the cycles it may take."""
         self.io.begin_shutdown()
         p = self.io.running.params
-        return shutdown_ramp_cycles(p.limit_um, p.slew_um_s, p.period_s)
+        # from beyond a lowered limit too (`compd.core.output`): the ramp is longer
+        start_um = max(p.limit_um, abs(self.io.offset_um))
+        return shutdown_ramp_cycles(start_um, p.slew_um_s, p.period_s)
 
     def _broken(self, exc: Exception, *, again: bool) -> int | None:
         """A cycle that raised even as a failed read: logged and alarmed; the shutdown

@@ -13,7 +13,9 @@ WAS_WARNING = {"channel_invalid", "fault_hold", "readback_mismatch", "write_fail
                "model_non_finite", "probe_refused", "adaptation_state_refused",
                "adaptation_stood_down",
                # issue 23's LinuxCNC: a machine off or in E-stop (h1 added it to _WARNINGS)
-               "controller_off"}
+               "controller_off",
+               # the offset compd wrote beyond a limit lowered since: it ramps in
+               "offset_beyond_limit"}
 WAS_ERROR = {"fault_ramp_to_zero", "offset_write_stopped", "output_write_stopped",
              "readback_out_of_range", "write_fault", "model_out_of_range",
              "model_worse_than_none"}

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from compd.core.output import OutputStage, Status
+from compd.core.output import OutputStage, Readback, Status
 
 
 def test_clamp_slew_and_conversion() -> None:
@@ -90,3 +90,38 @@ def test_quantised_slewing_follows_the_grid() -> None:
     # a count is written once the wanted value is a whole count on (hysteresis)
     assert [round(slow.step(1.0, 1.0), 6) for _ in range(6)] == [0.0, 0.0, 0.1, 0.1,
                                                                   0.2, 0.2]
+
+
+# -- a limit lowered below the offset compd wrote (a reload, a restart) -----------------
+
+
+def test_a_start_beyond_a_lowered_limit_ramps_into_it_at_the_slew_limit() -> None:
+    """21.55 µm written, the limit lowered to 20: the stage starts from 21.55
+    (not a jump to 20) and comes in at 0.5 µm/s, never further out, then holds
+    at the limit; the deadband (larger than what is left) does not stop it."""
+    out = OutputStage(limit_um=20.0, slew_um_s=0.5, deadband_um=2.0, initial_um=21.55)
+    out.confirm()
+    assert out.current_um == 21.55 and out.beyond_limit
+    ys = [out.step(25.0, 1.0) for _ in range(6)]
+    assert ys == pytest.approx([21.05, 20.55, 20.05, 20.0, 20.0, 20.0])
+    assert not out.beyond_limit
+    # from below: the same, mirrored
+    neg = OutputStage(limit_um=20.0, slew_um_s=0.5, initial_um=-21.0)
+    assert [neg.step(-30.0, 1.0) for _ in range(3)] == pytest.approx([-20.5, -20.0, -20.0])
+
+
+def test_the_value_compd_wrote_beyond_a_lowered_limit_is_its_own_not_foreign() -> None:
+    out = OutputStage(limit_um=20.0, slew_um_s=0.5, initial_um=21.55)
+    out.confirm()
+    # float32 rounding of what was written: still compd's own, it steps from it
+    assert out.observe(21.550001, 0.01) is Readback.MATCH and not out.held
+    assert out.step(0.0, 1.0) == pytest.approx(21.05)
+    out.confirm()
+    # another value beyond the limit is foreign: held, nothing written from it
+    assert out.observe(21.8, 0.01) is Readback.OUT_OF_RANGE and out.held
+
+
+def test_a_whole_count_beyond_a_lowered_limit_ramps_in_count_by_count() -> None:
+    out = OutputStage(limit_um=20.0, slew_um_s=1.0, quantum_um=1.0, initial_um=23.0)
+    assert out.current_um == 23.0
+    assert [out.step(20.0, 1.0) for _ in range(4)] == [22.0, 21.0, 20.0, 20.0]

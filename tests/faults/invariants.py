@@ -1,6 +1,8 @@
 """The invariants every fault test checks on EVERY cycle (issue 7).
 
-- the written offset is finite and |u| ≤ Umax;
+- the written offset is finite and |u| ≤ Umax, or, beyond a limit lowered
+  since compd wrote what the controller holds (a reload), nearer to it than
+  that: it only ever ramps in;
 - |Δu| ≤ R·Δt, Δt the machine time since the previous cycle capped at 2·Ts
   (the output stage's cap), Δu measured against what the controller holds:
   the offset read back in this cycle when there is one, else the last
@@ -89,8 +91,14 @@ class Invariants:
         self.current = cycle
         p = cycle.params
         seq = result.sequence
-        if not math.isfinite(result.offset_um) or abs(result.offset_um) > p.limit_um + EPS_UM:
-            self._fail(f"seq {seq}: offset {result.offset_um} µm beyond ±{p.limit_um}")
+        scale = abs(p.units_per_um)
+        # what the controller holds (µm): a lowered limit may find it beyond
+        held_um = abs(readback) / scale if readback is not None and math.isfinite(readback) \
+            else (abs(tr.held) / scale if tr.held is not None else 0.0)
+        bound = max(p.limit_um, held_um)
+        if not math.isfinite(result.offset_um) or abs(result.offset_um) > bound + EPS_UM:
+            self._fail(f"seq {seq}: offset {result.offset_um} µm beyond ±{bound} "
+                       f"(limit {p.limit_um}, held {held_um})")
         expected_hb = (heartbeat_before + 1) % HEARTBEAT_MODULO if result.complete \
             else heartbeat_before
         if result.heartbeat != expected_hb:
@@ -109,8 +117,10 @@ class Invariants:
                       seq: int) -> None:
         p = cycle.params
         scale = abs(p.units_per_um)
-        if not math.isfinite(value) or abs(value) > p.limit_um * scale + EPS_UM * scale:
-            self._fail(f"seq {seq}: written offset {value} beyond ±{p.limit_um} µm")
+        bound = max(p.limit_um * scale, abs(tr.held) if tr.held is not None else 0.0)
+        if not math.isfinite(value) or abs(value) > bound + EPS_UM * scale:
+            self._fail(f"seq {seq}: written offset {value} beyond ±{p.limit_um} µm "
+                       f"(or what the controller held, {tr.held})")
         if tr.held is not None:
             step_um = abs(value - tr.held) / scale
             allowed = p.slew_um_s * min(max(dt, 0.0), 2.0 * p.period_s)
