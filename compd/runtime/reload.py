@@ -21,9 +21,15 @@ validator's stale/stuck timers while the channels' limits are unchanged: a
 reload never resets a fault's hold time (`Cycle.carry_over`).
 
 What cannot change without a restart is refused with the key, like a
-validation error: the state directory (it holds the lock) and
+validation error: the state directory (it holds the lock),
 machine.period_s / machine.time_scale (the models are discretised at the
-period, and the machine clock runs on the schedule).
+period, and the machine clock runs on the schedule), the OPC UA face, and
+output.offset moved to other memory of the same controller (the old address
+would keep the last offset for ever under a live heartbeat: `_offset_stays`).
+
+A reload that lowers output.limit_um below the offset compd last wrote ramps
+that offset into the new limit at the slew limit (`compd.core.output`), the
+read-back of it being compd's own, not a foreign value beyond the limit.
 """
 
 from __future__ import annotations
@@ -66,7 +72,28 @@ def prepare(old: LoadedConfig) -> tuple[LoadedConfig, Changes]:
     if new.raw.faces.opcua != old.raw.faces.opcua:
         raise ConfigError("faces.opcua", "changed: the OPC UA face's server and its "
                           "security are set at start; restart compd to change them")
+    _offset_stays(old, new)
     return new, diff(old, new)
+
+
+def _offset_stays(old: LoadedConfig, new: LoadedConfig) -> None:
+    """Refuse a reload that moves the offset to other memory of the same
+    controller: the old address would keep the last offset for ever while the
+    heartbeat and status word stay live, so a PLC still reading it would apply a
+    stale offset from a healthy-looking compd. Another endpoint is another
+    controller (a replaced PLC): the old one's heartbeat stops, which its PLC
+    sees as compd gone."""
+    if new.raw.controller.endpoint != old.raw.controller.endpoint:
+        return
+    was, now = old.outputs["offset"], new.outputs["offset"]
+    was_at, now_at = was.footprint(), now.footprint()
+    moved = was_at != now_at if was_at is not None or now_at is not None else was != now
+    if moved:
+        raise ConfigError("output.offset", (
+            f"moved from {was.describe()} to {now.describe()}: a reload would leave "
+            f"{was.describe()} holding the last offset while the heartbeat and status "
+            "stay live; restart compd to move it (with [faults] shutdown = "
+            '"ramp_to_zero" the stop ramps the old address to 0 first)'))
 
 
 def diff(old: LoadedConfig, new: LoadedConfig) -> Changes:

@@ -5,12 +5,17 @@ hold timer survives a reload."""
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
+
+import pytest
 
 from compd.config.loader import load_config
 from compd.core.cycle import Cycle, Row, params_from_config
 from compd.core.faults import FaultState
-from compd.runtime.reload import diff, handover
+from compd.core.output import Status
+from compd.errors import ConfigError
+from compd.runtime.reload import diff, handover, prepare
 from compd.testing import FakeClock
 
 from .cycle_helpers import samples
@@ -100,3 +105,67 @@ def test_a_reload_keeps_the_fault_hold_timer(tmp_path: Path) -> None:
     states = [new.plan(clock.tick(), None).state for _ in range(25)]
     # 40 s held before the reload + 25 after: the ramp begins at 60 s, not 60 s after it
     assert FaultState.RAMP in states
+
+
+def test_a_lowered_limit_ramps_the_offset_written_into_it(tmp_path: Path) -> None:
+    """21.55 µm or so written (read back), then a reload to limit_um = 20: the
+    read-back is compd's own (no hold, no alarm), the offset ramps down to 20 at
+    the slew limit, told by offset_beyond_limit and offset_within_limit."""
+    path = _cfg(tmp_path, BASE)  # read-back on
+    cfg = load_config(path)
+    old, clock = Cycle(params_from_config(cfg), cfg.model), FakeClock()
+    controller = 0.0
+    for i in range(400):
+        t = clock.tick()
+        bearing = 20.0 if i < 3 else 22.5
+        old.plan(t, {k: v for k, v in samples(t, bearing, 20.0).items() if k in cfg.channels},
+                 controller)
+        controller = old.commit().writes["offset"]
+        if controller >= 21.55:
+            break
+    assert controller >= 21.55
+    path.write_text(path.read_text().replace("limit_um = 100.0", "limit_um = 20.0"))
+    new_cfg = load_config(path)
+    new = handover(old, new_cfg, params_from_config(new_cfg), diff(cfg, new_cfg))
+    written: list[float] = [controller]
+    names: list[str] = []
+    for _ in range(6):
+        t = clock.tick()
+        new.plan(t, {k: v for k, v in samples(t, 22.5, 20.0).items() if k in cfg.channels},
+                 controller)
+        r = new.commit()
+        names += [str(e.name) for e in r.events]
+        assert not r.status & (Status.OFFSET_HELD | Status.ALARM) and r.state == "ok"
+        controller = r.writes["offset"]
+        written.append(controller)
+    assert "readback_out_of_range" not in names
+    assert names.count("offset_beyond_limit") == 1 and names.count("offset_within_limit") == 1
+    steps = [a - b for a, b in itertools.pairwise(written)]
+    assert all(0.0 <= s <= 1.0 + 1e-9 for s in steps)  # down, never faster than 1 µm/s
+    assert written[1] > 20.0 and written[-1] == 20.0
+
+
+def test_moving_the_offset_on_the_same_controller_is_refused_by_name(tmp_path: Path) -> None:
+    """The old address would keep its last offset under a live heartbeat; a moved
+    heartbeat (the old one stops counting: compd gone for a PLC reading it), a
+    rescaled offset at the same address (read-back judges it) and another endpoint
+    (another controller) are reloads like any other."""
+    text = BASE.replace("[output]", '[output]\nheartbeat = { kind = "holding", address = 2, '
+                        'type = "uint16" }')
+    path = _cfg(tmp_path, text)
+    old = load_config(path)
+    path.write_text(text.replace('offset = { kind = "holding", address = 0,',
+                                 'offset = { kind = "holding", address = 20,'))
+    with pytest.raises(ConfigError) as info:
+        prepare(old)
+    assert info.value.key == "output.offset"
+    assert "unit1/holding/0:float32" in info.value.reason and "restart compd" in info.value.reason
+    for allowed in (text.replace("address = 2,", "address = 22,"),
+                    text.replace('address = 0, type = "float32" }',
+                                 'address = 0, type = "int32", scale = 0.01 }'),
+                    text.replace("127.0.0.1:5020", "127.0.0.1:5021")
+                        .replace('offset = { kind = "holding", address = 0,',
+                                 'offset = { kind = "holding", address = 20,')):
+        path.write_text(allowed)
+        new, _ = prepare(old)
+        assert new.raw.output == load_config(path).raw.output
