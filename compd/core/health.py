@@ -107,7 +107,7 @@ class Decision:
 
 @dataclass(frozen=True, slots=True)
 class HealthView:
-    """One cycle's health, frozen: all `status_word` and `recorded_state` read."""
+    """One cycle's health, frozen: all `status_word`, `recorded_state` and `output_cause` read."""
 
     #: the fault policy's state this cycle (init, ok, hold, ramp, shutdown)
     policy: FaultState
