@@ -1,23 +1,31 @@
 """`compd health [--url URL] [--state-dir DIR] [--max-age-s S]`: is the daemon healthy?
 
 For container health checks and monitoring scripts. Exit 0 when healthy, 1
-otherwise, with one line saying why; 64 for a bad argument. Healthy means a
-COMPLETE cycle (inputs read and valid, model stepped, offset write confirmed
-by the controller) no longer than ``--max-age-s`` ago, shown by either
+otherwise, with one line saying why; 64 for a bad argument. Healthy means
+the offset compd wants is in force NOW (the last cycle's cause,
+`compd.core.health.Cause`, is ``in_force`` or an operator's ``operator_hold``;
+any other cause, a model worse than none, invalid inputs, the controller off,
+a failed write, a foreign offset, the limit ..., is unhealthy and named), and
+a COMPLETE cycle (inputs read and valid, model stepped, offset write
+confirmed by the controller) no longer than ``--max-age-s`` ago, shown by
+either
 
 * the metrics endpoint (``--url http://127.0.0.1:PORT/metrics``): at least one
   ``compd_cycles_complete_total``, ``compd_last_complete_cycle_age_seconds``
-  (measured by the daemon on the monotonic clock) within the age, and a fault
-  state below 3 (alarm/stopped); or
+  (measured by the daemon on the monotonic clock) within the age,
+  ``compd_offset_not_in_force`` 0 (``compd_output_cause`` names the cause
+  otherwise) and a fault state below 3 (alarm/stopped); or
 * the state directory: the checkpoint's record of the last complete cycle,
   read by the daemon's own reader (`compd.runtime.checkpoint.load_checkpoint`:
   a torn, edited or corrupted checkpoint, one of another owner than the state
   directory's, or a link, proves nothing, as the daemon would not restore it)
   (`compd.runtime.liveness`: judged on the monotonic clock within one boot,
   on the wall clock otherwise; a stamp in the future is no evidence), and
-  the fault state of the cycle before it was written (``last_state``) below
-  alarm: the daemon writes a checkpoint at once when it enters or leaves
-  the alarm, so both sources turn red together.
+  the cause and fault state of the cycle before it was written
+  (``last_cause`` healthy, ``last_state`` below alarm): the daemon writes a
+  checkpoint at once when the offset it wants goes out of force or back
+  in, and when it enters or leaves the alarm, so both sources turn red
+  together.
 
 A complete cycle is one whose offset is the one compd wants, in force
 (`compd.core.cycle.offset_in_force`): a held output (a foreign offset
@@ -48,6 +56,7 @@ from pathlib import Path
 
 from compd.config.urls import redact_urls
 from compd.core.faults import GAUGE_ALARM, FaultState
+from compd.core.health import Cause
 from compd.runtime.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from compd.runtime.liveness import last_complete_age_s
 from compd.sysexits import EX_USAGE
@@ -60,6 +69,7 @@ MAX_TIMEOUT_S = 300.0
 MAX_AGE_LIMIT_S = 7 * 86400.0
 FAULT_STOPPED = float(GAUGE_ALARM)
 _STATES = frozenset(str(s) for s in FaultState)
+_CAUSES = frozenset(str(c) for c in Cause)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -103,6 +113,27 @@ def parse_metrics(text: str) -> dict[str, float]:
     return out
 
 
+def causes_named(text: str) -> list[str]:
+    """The causes ``compd_output_cause{cause="..."}`` sets to 1 that are not healthy
+    (several for a fleet's endpoint), sorted; unknown names are kept as sent."""
+    out: set[str] = set()
+    for raw in text.splitlines():
+        line = raw.strip()
+        if not line.startswith("compd_output_cause{"):
+            continue
+        labels, _, rest = line[len("compd_output_cause{"):].rpartition("}")
+        fields = rest.split()
+        if not fields or fields[0] not in ("1", "1.0"):
+            continue
+        for item in labels.split(","):
+            key, _, value = item.partition("=")
+            cause = value.strip().strip('"')
+            if key.strip() == "cause" and cause and not (
+                    cause in _CAUSES and Cause(cause).healthy):
+                out.add(cause[:64])
+    return sorted(out)
+
+
 def check_metrics(url: str, max_age_s: float, timeout_s: float,
                   now_wall_s: float) -> tuple[bool, str]:
     try:
@@ -125,6 +156,9 @@ def check_metrics(url: str, max_age_s: float, timeout_s: float,
     fault = metrics.get("compd_fault_state")
     if fault is not None and fault >= FAULT_STOPPED:
         return False, f"metrics {url}: fault state {fault:g} (alarm/stopped)"
+    if metrics.get("compd_offset_not_in_force", 0.0) > 0:
+        why = ", ".join(causes_named(body)) or "cause not named"
+        return False, f"metrics {url}: the offset compd wants is not in force ({why})"
     age_s = metrics.get("compd_last_complete_cycle_age_seconds")
     if age_s is None:
         last = metrics.get("compd_last_complete_cycle_timestamp_seconds")
@@ -156,6 +190,10 @@ def check_state_dir(state_dir: Path, max_age_s: float) -> tuple[bool, str]:
     last = state.get("last_state")  # absent in an older compd's checkpoint
     if last in _STATES and FaultState(last).gauge >= FAULT_STOPPED:
         return False, f"state dir {state_dir}: fault state {last} (alarm/stopped)"
+    cause = state.get("last_cause")  # absent in an older compd's checkpoint
+    if isinstance(cause, str) and not (cause in _CAUSES and Cause(cause).healthy):
+        return False, (f"state dir {state_dir}: the offset compd wants is not in force "
+                       f"({cause[:64]})")
     age_s, how = last_complete_age_s(state)
     if age_s is None:
         return False, f"state dir {state_dir}: {how}"

@@ -24,17 +24,23 @@ Each cycle `ProbeStage.step`:
    over the last `score_window` accepted probes) makes it stand down or take
    over again, says so ("adaptation_stood_down" with the two RMS errors,
    "adaptation_resumed");
-4. guards against a model worse than none: a probe taken on a complete cycle
-   with the offset in force known tells what the error at the tool is with
-   the compensation, d − o (d the measured displacement, o the offset in
-   force), and what it would be without, d. When `guard_window` probes in a
-   row each show |d − o| > |d| + 2·probe_noise_um, the compensation makes
-   the machine worse than none: "model_worse_than_none" is raised once and
-   latched (`model_worse`; the cycle sets MODEL_WORSE and ALARM and treats
-   it as a fault: hold, then ramp to zero per [faults]), kept in the
+4. guards against a model worse than none: a probe the estimator ACCEPTED
+   (taken on a complete cycle with the offset in force known, and through
+   its gate) tells what the error at the tool is with the compensation,
+   d − o (d the measured displacement, o the offset in force), and what it
+   would be without, d. When `guard_window` accepted probes in a row each
+   show |d − o| > |d| + 2·probe_noise_um, the compensation makes the machine
+   worse than none: "model_worse_than_none" is raised once (with how many
+   accepted probes it decided on, and how many refused ones it left out)
+   and latched (`model_worse`; the cycle sets MODEL_WORSE and ALARM and
+   treats it as a fault: hold, then ramp to zero per [faults]), kept in the
    checkpoint, until another model is loaded (a restart or reload with a
-   recalibrated model starts the estimator and the guard afresh). A single wrong probe (a chip)
-   cannot trip it: every probe of the window must agree;
+   recalibrated model starts the estimator and the guard afresh). A probe
+   the estimator refused (an outlier its gate threw out, a probe on an
+   invalid cycle) is no evidence: it is counted (`refused`) and reported,
+   never judged, so a broken or writable probe source cannot switch
+   compensation off by sending outliers; a single wrong probe that passes
+   the gate cannot trip it either: every probe of the window must agree;
 5. returns the correction to add to the model output. In ``mode = "apply"``
    the cycle adds it BEFORE the fault policy and the output stage, so clamp,
    slew and deadband apply to it as to the model: a jump of the estimate
@@ -97,13 +103,22 @@ class ProbeStage:
         self.correction_um = 0.0
         #: the last probe's outcome (recorded with its cycle), None when none came
         self.last: dict[str, Any] | None = None
-        #: per judged probe (the last guard_window): did the compensation make it worse?
+        #: per accepted probe judged (the last guard_window): did the compensation
+        #: make it worse?
         self.guard: list[bool] = []
         #: the guard tripped (latched): the compensation made the machine worse than none
         self.model_worse = False
+        #: probes the estimator accepted / refused since start (refused: no evidence)
+        self.accepted = 0
+        self.refused = 0
+        #: probes refused since the current run of worse accepted probes began
+        #: (left out of the guard's judgement; reported when it trips)
+        self.refused_in_window = 0
         if state is not None:
             guard = state.get("guard")
-            if isinstance(guard, list) and all(isinstance(g, bool) for g in guard):
+            # a guard list without "guard_accepted_only" may hold refused probes' judgements
+            if isinstance(guard, list) and all(isinstance(g, bool) for g in guard) \
+                    and state.get("guard_accepted_only") is True:
                 self.guard = guard[-max(1, settings.guard_window):]
             self.model_worse = state.get("model_worse") is True
 
@@ -137,9 +152,6 @@ class ProbeStage:
         residual = self.settings.measures == "residual"
         measured = value + (offset_um if offset_um is not None else math.nan) \
             if residual else value
-        if complete and model_um is not None and offset_um is not None \
-                and math.isfinite(measured):
-            self._guard(measured, offset_um, events)
         if not complete or model_um is None:
             out = self.adapter.refuse("fault", measured, model, terms)
         elif residual and offset_um is None:
@@ -164,26 +176,49 @@ class ProbeStage:
                     {"plain_rms_um": round(plain, 6), "adapted_rms_um": round(adapted, 6),
                      "probes": int(self.settings.params.score_window),
                      "stand_downs": self.adapter.stand_downs}))
+        if out.accepted:
+            self.accepted += 1
+            if offset_um is not None and math.isfinite(measured):
+                self._guard(measured, offset_um, events)
+        else:
+            self.refused += 1
+            self.refused_in_window += 1
         self.last = self._describe(reading, measured, model, out)
         fields = {k: v for k, v in self.last.items() if k != "accepted"}
         events.append(Event(EventName.PROBE_ACCEPTED if out.accepted
                             else EventName.PROBE_REFUSED, fields))
 
     def _guard(self, displacement_um: float, offset_um: float, events: list[Event]) -> None:
-        """Judge one probe: the error with the compensation against without (see 4.)."""
+        """Judge one accepted probe: the error with the compensation against
+        without (see 4.)."""
         window = self.settings.guard_window
         if window <= 0 or self.model_worse:
             return
         with_um, without_um = displacement_um - offset_um, displacement_um
         margin = 2.0 * self.settings.params.probe_noise_um
-        self.guard.append(abs(with_um) > abs(without_um) + margin)
+        worse = abs(with_um) > abs(without_um) + margin
+        if not (worse and self.guard and self.guard[-1]):
+            # the refused probes counted are those among the current run of evidence
+            self.refused_in_window = 0
+        self.guard.append(worse)
         del self.guard[:-window]
         if len(self.guard) == window and all(self.guard):
             self.model_worse = True
             events.append(Event(EventName.MODEL_WORSE_THAN_NONE, {
-                "probes": window, "error_with_um": round(with_um, 6),
+                "accepted_probes": window, "refused_probes": self.refused_in_window,
+                "error_with_um": round(with_um, 6),
                 "error_without_um": round(without_um, 6), "margin_um": round(margin, 6),
                 "action": "fault: hold, then ramp to zero; recalibrate"}))
+
+    @property
+    def guard_worse(self) -> int:
+        """Accepted probes in a row (the latest) that showed the compensation worse."""
+        n = 0
+        for worse in reversed(self.guard):
+            if not worse:
+                break
+            n += 1
+        return n
 
     def _describe(self, reading: ProbeReading, measured: float, model: float,
                   out: ProbeOutcome) -> dict[str, Any]:
@@ -201,4 +236,5 @@ class ProbeStage:
 
     def export_state(self) -> dict[str, Any]:
         return {"estimator": self.adapter.export_state(), "counter": self.counter,
-                "guard": list(self.guard), "model_worse": self.model_worse}
+                "guard": list(self.guard), "guard_accepted_only": True,
+                "model_worse": self.model_worse}

@@ -40,14 +40,18 @@ controller confirmed the offset is in it). `plan`:
    failed, since then the controller's state is unknown), the heartbeat
    (advanced only on a complete valid cycle) and the status word.
 
-A cycle is COMPLETE (`offset_in_force`: the one definition, used by the
-daemon's metrics, the checkpoint that `compd health --state-dir` reads, and
-the recorder's ``complete`` column) only when the offset compd wants is the
-offset in force: inputs valid and the model stepped, state "ok" (not held by
-a foreign offset, no write fault, offset writes not stopped, no fault hold,
-ramp or shutdown), and the controller confirmed this cycle's offset write
-(`commit(WRITTEN)`). `Row.complete` is the narrower "inputs valid, model
-stepped" that advances the heartbeat; `Row.in_force` is the complete cycle.
+Each cycle names why the offset compd wants is not in force, or that it is
+(`compd.core.health.Cause`, `Plan.cause` and after the write `Row.cause`):
+health, the status page, the metrics, the OPC UA face and the fault events'
+``reason`` all read it. A cycle is COMPLETE (`offset_in_force`: the one
+definition, used by the daemon's metrics, the checkpoint that `compd health
+--state-dir` reads, and the recorder's ``complete`` column) only when its
+cause is healthy (in force, or an operator's hold: inputs valid and the
+model stepped, state "ok", no foreign offset, write fault, stopped writes,
+fault hold, ramp, shutdown or limit) and the controller confirmed this
+cycle's offset write (`commit(WRITTEN)`). `Row.complete` is the narrower
+"inputs valid, model stepped" that advances the heartbeat; `Row.in_force` is
+the complete cycle.
 
 WRITE_FAULT_AFTER offset writes failing in a row are a write fault (WRITE_FAULT
 and ALARM, state "write_fault") until one succeeds. The row keeps what was
@@ -69,9 +73,11 @@ from compd.core.events import Event, EventName
 from compd.core.faults import FaultState
 from compd.core.health import (
     WRITE_FAULT_AFTER,
+    Cause,
     Decision,
     HealthView,
     OutputHealth,
+    output_cause,
     recorded_state,
     status_word,
 )
@@ -101,15 +107,15 @@ __all__ = ["HEARTBEAT_MODULO", "MODEL_RANGE_FACTOR", "WRITE_FAULT_AFTER", "WRITT
 CycleResult = Row
 
 
-def offset_in_force(*, valid: bool, state: FaultState, confirmed: bool) -> bool:
+def offset_in_force(*, cause: Cause, confirmed: bool) -> bool:
     """Whether a cycle is COMPLETE: the offset compd wants is the offset in force.
 
-    `valid`: inputs valid and the model stepped; `state`: the state recorded for
-    the cycle (`compd.core.health.recorded_state`: held, write_fault and
-    stopped override the policy's); `confirmed`: the controller acknowledged this cycle's offset
-    write. Only "ok" counts: a held, faulted, stopped, holding, ramping or
-    shutting-down output is not what the model asks for, however busy the loop."""
-    return valid and confirmed and state == FaultState.OK
+    `cause`: the cycle's (`compd.core.health.output_cause`; healthy only with
+    valid inputs, the model stepped and state "ok"); `confirmed`: the controller
+    acknowledged this cycle's offset write. A held, faulted, stopped, holding,
+    ramping, shutting-down or clamped output is not what the model asks for,
+    however busy the loop; an operator's hold is what the operator asks for."""
+    return confirmed and cause.healthy
 
 
 @dataclass(frozen=True, slots=True)
@@ -132,6 +138,16 @@ class _Stepped:
     valid: bool = False
     model_invalid: bool = False
     model_range: bool = False
+
+    def invalid(self, inputs: _Inputs, answered: bool) -> Cause | None:
+        """Why the model's output cannot be used this cycle (None: it can)."""
+        if self.valid:
+            return None
+        if not inputs.valid:
+            return Cause.INPUTS_INVALID if answered else Cause.CONTROLLER_NOT_ANSWERING
+        if self.model_range:
+            return Cause.MODEL_OUT_OF_RANGE
+        return Cause.MODEL_NON_FINITE if self.model_invalid else Cause.INPUTS_INVALID
 
 
 def _output_stage(params: CycleParams, offset_um: float | None) -> OutputStage:
@@ -321,9 +337,11 @@ class Cycle:
         worse = self.probes is not None and self.probes.model_worse
         # the probes showed the compensation worse than none: a fault, like a model
         # out of range (hold, then ramp to zero per [faults]), latched
-        valid = stepped.valid and not worse
+        why = Cause.MODEL_WORSE_THAN_NONE if worse \
+            else stepped.invalid(inputs, answered=samples is not None)
+        valid = why is None
         target_um = stepped.model_um + correction if stepped.model_um is not None else None
-        decision = self.health.decide(now_s, valid, target_um, events)
+        decision = self.health.decide(now_s, why, target_um, events)
         offset_um = self._move_output(decision, dt)
         self._note_limit(events)
         # only once the stage has moved: a plan that raised before this (the shell then
@@ -331,8 +349,10 @@ class Cycle:
         self._last_now = now_s
         if valid:
             self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
-        view = self._view(decision, stepped, worse)
+        view = self._view(decision, stepped, worse, why,
+                          no_readback=self.params.readback and readback_offset_um is None)
         status = int(status_word(view))
+        cause = output_cause(view)
         if self.health.foreign:  # its alarm lasts until the output has ramped to its target
             self.health.foreign = self.output.slewing or self.output.held
         writes, offset_um = self._writes(readback_offset_um, offset_um, status, events)
@@ -342,7 +362,7 @@ class Cycle:
             sequence=self.sequence, writes=writes, offset_um=offset_um,
             model_um=stepped.model_um, shadow_um=stepped.shadow_um, state=row["state"],
             status=status, heartbeat=self.heartbeat, complete=valid, row_fields=row,
-            events=tuple(events), shutdown_done=self._shutdown_done(offset_um))
+            events=tuple(events), shutdown_done=self._shutdown_done(offset_um), cause=cause)
         return self._planned
 
     def _inputs(self, now_s: float, samples: Mapping[str, Sample] | None,
@@ -375,14 +395,18 @@ class Cycle:
             target = self.output.current_um
         return self.output.step(target, dt, deadband=tracking)
 
-    def _view(self, decision: Decision, stepped: _Stepped, worse: bool) -> HealthView:
+    def _view(self, decision: Decision, stepped: _Stepped, worse: bool, why: Cause | None,
+              *, no_readback: bool) -> HealthView:
         h, out = self.health, self.output
+        target = decision.target_um
         return HealthView(
             policy=decision.state, alarm=decision.alarm, write_stopped=h.write_stopped,
             write_fault=h.write_fault, held=out.held, foreign=h.foreign,
             operator_hold=h.operator_hold, slewing=out.slewing,
             model_invalid=stepped.model_invalid, model_range=stepped.model_range,
-            model_worse=worse, controller_off=h.controller_off is not None)
+            model_worse=worse, controller_off=h.controller_off is not None, invalid=why,
+            no_readback=no_readback,
+            at_limit=target is not None and abs(target) > out.limit_um)
 
     def _writes(self, readback_offset_um: float | None, offset_um: float, status: int,
                 events: list[Event]) -> tuple[dict[str, float], float]:
@@ -445,8 +469,7 @@ class Cycle:
         if outcome.ok:
             if offset_sent:
                 self.output.confirm()
-                changes["complete"] = offset_in_force(
-                    valid=plan.complete, state=plan.state, confirmed=True)
+                changes["complete"] = offset_in_force(cause=plan.cause, confirmed=True)
                 self.health.write_succeeded(self._later)
         else:
             if offset_sent:  # retried next cycle from the confirmed value
@@ -456,16 +479,22 @@ class Cycle:
                 outcome.outputs, permanent=outcome.permanent, reason=outcome.reason,
                 offset_failed=offset_sent, offset_name=self.params.offset_name,
                 offset_um=self.output.current_um)
+        cause = self.health.committed_cause(plan.cause,
+                                            offset_failed=offset_sent and not outcome.ok)
         record = RecordRow(**{**plan.row_fields, **changes})
-        return Row(plan, record, self._snapshot(), tuple(events))
+        return Row(plan, record, self._snapshot(), tuple(events), cause)
 
     def _snapshot(self) -> Snapshot:
         adaptation = None
-        if self.probes is not None:
-            est = self.probes.adapter
+        probes = self.probes
+        if probes is not None:
+            est = probes.adapter
             adaptation = AdaptationView(est.estimated_bias_um, est.bias_sigma_um,
-                                        self.probes.correction_um, est.standing_down,
-                                        self.probes.model_worse)
+                                        probes.correction_um, est.standing_down,
+                                        probes.model_worse, guard_probes=len(probes.guard),
+                                        guard_worse=probes.guard_worse,
+                                        probes_accepted=probes.accepted,
+                                        probes_refused=probes.refused)
         return Snapshot(self.output.confirmed_um, self.health.operator_hold, adaptation)
 
     # -- internals ------------------------------------------------------------------------

@@ -19,12 +19,21 @@ what the PLC is told:
   where the policy says "ok"); no alarm, it is the machine's own state.
 
 `recorded_state(view)` is the state a cycle records (``stopped``, ``held``
-and ``write_fault`` over the policy's), `status_word(view)` its status word;
-both read only a frozen `HealthView`, so neither can disagree with the other.
+and ``write_fault`` over the policy's), `status_word(view)` its status word,
+`output_cause(view)` why the offset compd wants is not in force (`Cause`);
+all three read only a frozen `HealthView`, so none can disagree with another.
+
+`Cause` is the one answer to "is the offset compd wants in force, and if not,
+why": health (`compd health`, the metrics it reads, the checkpoint's
+``last_cause``), the status page and `compd status`, the OPC UA face and the
+fault events' ``reason`` field are all derived from it. Every cause but
+IN_FORCE and OPERATOR_HOLD is unhealthy (`Cause.healthy`). The cycle's
+commit may turn a planned cause into a write's (`committed_cause`).
 """
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass
 
 from compd.core.events import Event, EventName
@@ -39,6 +48,55 @@ WRITE_FAULT_AFTER = 5
 _HOLDING = (FaultState.HOLD, FaultState.INIT)
 
 
+class Cause(enum.StrEnum):
+    """Why the offset compd wants is not in force this cycle (IN_FORCE: it is).
+
+    A member equals its name as a string (the metrics' ``cause`` label, the
+    checkpoint's ``last_cause``, the events' ``reason``). When several hold,
+    `output_cause` names the first of: shutting down, writes stopped, a foreign
+    offset held, the controller off, a write fault, why the cycle is invalid
+    (the model worse than none, the controller not answering, inputs invalid,
+    the model non-finite or out of range), no read-back, a foreign offset being
+    ramped back from, an operator's hold, the limit."""
+
+    IN_FORCE = "in_force"
+    #: an operator's hold (OPC UA SetHold): the offset stays put, by intent
+    OPERATOR_HOLD = "operator_hold"
+    #: a ramp-to-zero shutdown
+    SHUTTING_DOWN = "shutting_down"
+    #: the controller refused the offset for good: no offset written
+    WRITE_STOPPED = "write_stopped"
+    #: the controller holds an offset beyond ±limit that compd did not write: none written
+    FOREIGN_OFFSET_HELD = "foreign_offset_held"
+    #: the controller takes no offset (machine off, E-stop): none written
+    CONTROLLER_OFF = "controller_off"
+    #: WRITE_FAULT_AFTER offset writes in a row failed
+    WRITE_FAULT = "write_fault"
+    #: this cycle's offset write failed (transient): the controller keeps the last one
+    WRITE_FAILED = "write_failed"
+    #: the probes showed the compensation worse than none (latched): held, then ramped
+    MODEL_WORSE_THAN_NONE = "model_worse_than_none"
+    #: the read failed: nothing read (and nothing written while that lasts)
+    CONTROLLER_NOT_ANSWERING = "controller_not_answering"
+    #: a channel the model reads is invalid: held, then ramped
+    INPUTS_INVALID = "inputs_invalid"
+    #: the model's output was not a number: held, then ramped
+    MODEL_NON_FINITE = "model_non_finite"
+    #: the model's output was far beyond ±limit: held, then ramped
+    MODEL_OUT_OF_RANGE = "model_out_of_range"
+    #: read-back is configured and failed: the controller's offset unknown, none written
+    NO_READBACK = "no_readback"
+    #: another writer changed the offset: ramping back from its value (alarm)
+    FOREIGN_OFFSET = "foreign_offset"
+    #: the target is beyond ±limit_um: the limit is written, not what the model asks
+    AT_LIMIT = "at_limit"
+
+    @property
+    def healthy(self) -> bool:
+        """The offset compd wants is in force, or an operator holds it on purpose."""
+        return self in (Cause.IN_FORCE, Cause.OPERATOR_HOLD)
+
+
 @dataclass(frozen=True, slots=True)
 class Decision:
     state: FaultState
@@ -49,7 +107,7 @@ class Decision:
 
 @dataclass(frozen=True, slots=True)
 class HealthView:
-    """One cycle's health, frozen: all `status_word` and `recorded_state` read."""
+    """One cycle's health, frozen: all `status_word`, `recorded_state` and `output_cause` read."""
 
     #: the fault policy's state this cycle (init, ok, hold, ramp, shutdown)
     policy: FaultState
@@ -69,6 +127,37 @@ class HealthView:
     model_worse: bool = False
     #: the controller takes no offset now (machine off, E-stop): held, none written
     controller_off: bool = False
+    #: why this cycle is not valid (the fault policy's reason), None when it is
+    invalid: Cause | None = None
+    #: read-back is configured and failed this cycle: no offset written
+    no_readback: bool = False
+    #: the target the policy chose is beyond ±limit_um (the stage clamps it)
+    at_limit: bool = False
+
+
+def output_cause(v: HealthView) -> Cause:
+    """Why the offset compd wants is not in force this cycle (`Cause`, in its order)."""
+    if v.policy == FaultState.SHUTDOWN:
+        return Cause.SHUTTING_DOWN
+    if v.write_stopped:
+        return Cause.WRITE_STOPPED
+    if v.held:
+        return Cause.FOREIGN_OFFSET_HELD
+    if v.controller_off:
+        return Cause.CONTROLLER_OFF
+    if v.write_fault:
+        return Cause.WRITE_FAULT
+    if v.invalid is not None:
+        return v.invalid
+    if v.policy != FaultState.OK:  # not reached: the policy holds only on an invalid cycle
+        return Cause.INPUTS_INVALID
+    if v.no_readback:
+        return Cause.NO_READBACK
+    if v.foreign:
+        return Cause.FOREIGN_OFFSET
+    if v.operator_hold:
+        return Cause.OPERATOR_HOLD
+    return Cause.AT_LIMIT if v.at_limit else Cause.IN_FORCE
 
 
 def recorded_state(v: HealthView) -> FaultState:
@@ -138,6 +227,8 @@ class OutputHealth:
         #: the fault policy's state (init, ok, hold, ramp, shutdown)
         self.policy: FaultState = FaultState.INIT
         self.invalid_since_s: float | None = None
+        #: why the policy holds or ramps (None while it tracks the model)
+        self.fault_cause: Cause | None = None
         self.shutting_down = False
         self.write_stopped = False
         self.stopped_outputs: set[str] = set()
@@ -157,6 +248,7 @@ class OutputHealth:
         """A reload: keep the fault policy's timer and state (a hold goes on
         toward its ramp), and the stopped outputs when the outputs are the same."""
         self.policy, self.invalid_since_s = old.policy, old.invalid_since_s
+        self.fault_cause = old.fault_cause
         self.shutting_down = old.shutting_down
         # a machine switched on during the reload still zeroed its offset
         self.controller_off = old.controller_off
@@ -180,17 +272,22 @@ class OutputHealth:
 
     # -- the fault policy ---------------------------------------------------------------
 
-    def decide(self, now_s: float, valid: bool, target_um: float | None,
+    def decide(self, now_s: float, why: Cause | None, target_um: float | None,
                events: list[Event]) -> Decision:
-        """The output's target from validity and time (machine seconds)."""
+        """The output's target from validity and time (machine seconds). `why`:
+        why this cycle is not valid (`Cause`), None when it is (then `target_um`
+        is the model's); the hold and ramp events carry it as ``reason``."""
         if self.shutting_down:
             return self._to(Decision(FaultState.SHUTDOWN, 0.0, False), events, now_s)
-        if valid and target_um is not None:
+        if why is None and target_um is not None:
             if self.policy in (FaultState.HOLD, FaultState.RAMP):
                 events.append(Event(EventName.FAULT_RECOVERED, {
-                    "after_s": now_s - (self.invalid_since_s or now_s)}))
+                    "after_s": now_s - (self.invalid_since_s or now_s),
+                    "was": str(self.fault_cause)}))
             self.invalid_since_s = None
+            self.fault_cause = None
             return self._to(Decision(FaultState.OK, target_um, False), events, now_s)
+        self.fault_cause = why if why is not None else Cause.INPUTS_INVALID
         if self.invalid_since_s is None:
             self.invalid_since_s = now_s
         if now_s - self.invalid_since_s >= self.hold_s:
@@ -205,15 +302,31 @@ class OutputHealth:
     def _to(self, decision: Decision, events: list[Event], now_s: float) -> Decision:
         state = decision.state
         if state != self.policy:
+            reason = str(self.fault_cause)
             if state == FaultState.HOLD:
-                events.append(Event(EventName.FAULT_HOLD, {"hold_s": self.hold_s}))
+                events.append(Event(EventName.FAULT_HOLD, {
+                    "reason": reason, "hold_s": self.hold_s}))
             elif state == FaultState.RAMP:
                 events.append(Event(EventName.FAULT_RAMP_TO_ZERO, {
-                    "invalid_for_s": now_s - (self.invalid_since_s or now_s)}))
+                    "reason": reason,
+                    "fault_for_s": now_s - (self.invalid_since_s or now_s)}))
             elif state == FaultState.SHUTDOWN:
                 events.append(Event(EventName.SHUTDOWN_RAMP_TO_ZERO))
             self.policy = state
         return decision
+
+    def committed_cause(self, planned: Cause, *, offset_failed: bool) -> Cause:
+        """The cause of a cycle whose writes the shell reported (after
+        `write_succeeded` / `write_failed`): stopped writes or a write fault that
+        began with this write name themselves, a failed offset write of a cycle
+        that was in force is WRITE_FAILED; any other planned cause stands."""
+        if not offset_failed:
+            return planned
+        if self.write_stopped:
+            return Cause.WRITE_STOPPED
+        if self.write_fault:
+            return Cause.WRITE_FAULT
+        return Cause.WRITE_FAILED if planned.healthy else planned
 
     # -- the writes' outcome ------------------------------------------------------------
 

@@ -17,6 +17,7 @@ from typing import Any
 
 from compd.core.events import Event
 from compd.core.faults import FaultState
+from compd.core.health import Cause
 from compd.core.record import RecordRow
 
 __all__ = ["WRITTEN", "AdaptationView", "Outcome", "Plan", "Row", "Snapshot"]
@@ -41,6 +42,8 @@ class Plan:
     complete: bool
     #: the `RecordRow`'s fields as planned (read them as `record`); never changed
     row_fields: Mapping[str, Any]
+    #: why the offset compd wants is not in force, as planned (`Row.cause` after the write)
+    cause: Cause
     events: tuple[Event, ...] = ()
     #: a ramp-to-zero shutdown has reached zero (or cannot write any more)
     shutdown_done: bool = False
@@ -89,6 +92,13 @@ class AdaptationView:
     correction_um: float
     standing_down: bool
     model_worse: bool
+    #: the guard's evidence: accepted probes judged in its window, and of them how
+    #: many showed the compensation worse than none (refused probes are not evidence)
+    guard_probes: int = 0
+    guard_worse: int = 0
+    #: probes seen since start: accepted by the estimator, and refused (gate, fault, ...)
+    probes_accepted: int = 0
+    probes_refused: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -113,12 +123,20 @@ class Row:
     record: RecordRow
     snapshot: Snapshot
     #: what the write's outcome caused (write_failed, write_fault, ..._stopped)
-    write_events: tuple[Event, ...] = ()
+    write_events: tuple[Event, ...]
+    #: why the offset compd wants is not in force after the write, or that it is
+    #: (`compd.core.health.Cause`): what health, the page and the faces say
+    cause: Cause
 
     @property
     def in_force(self) -> bool:
         """A complete cycle (`compd.core.cycle.offset_in_force`)."""
         return self.record.complete
+
+    @property
+    def healthy(self) -> bool:
+        """The offset compd wants is in force, or an operator holds it (`Cause.healthy`)."""
+        return self.cause.healthy
 
     @property
     def sequence(self) -> int:

@@ -8,6 +8,10 @@ Namespace ``urn:compd``; under Objects one object per machine, named after
   ``FaultState`` (an enumeration, data type ``CompdFaultState``: 0 init,
   1 ok, 2 hold, 3 ramp, 4 shutdown, 5 stopped, 6 held, 7 write_fault) and
   ``FaultStateName``,
+  ``Cause`` (why the offset compd wants is not in force: ``in_force``,
+  ``operator_hold``, ``inputs_invalid``, ``model_worse_than_none``, ...;
+  `compd.core.health.Cause`) and ``OffsetInForce`` (true for ``in_force``
+  and ``operator_hold``: what `compd health` calls healthy),
   ``StatusWord`` (the status bits written to the controller), ``Heartbeat``,
   ``OperatorHold``, ``Channels/<name>/Value`` and ``/Valid``, ``Model/Name``
   and ``Model/Sha256``, and with ``[adaptation]`` ``Adaptation/Bias_um``,
@@ -383,6 +387,8 @@ class OpcUaFace:
                   ua.VariantType.Int32, shared.fault_type)
         await var(obj, "FaultStateName", "FaultStateName", FaultState.INIT.value,
                   ua.VariantType.String)
+        await var(obj, "Cause", "Cause", "starting", ua.VariantType.String)
+        await var(obj, "OffsetInForce", "OffsetInForce", False, ua.VariantType.Boolean)
         await var(obj, "StatusWord", "StatusWord", 0, ua.VariantType.UInt32)
         await var(obj, "Heartbeat", "Heartbeat", 0, ua.VariantType.UInt32)
         await var(obj, "OperatorHold", "OperatorHold", False, ua.VariantType.Boolean)
@@ -439,6 +445,8 @@ class OpcUaFace:
             "ModelOutput_um": (_num(rec.model_um), ua.VariantType.Double),
             "FaultState": (FAULT_STATES.index(result.state), ua.VariantType.Int32),
             "FaultStateName": (result.state.value, ua.VariantType.String),
+            "Cause": (result.cause.value, ua.VariantType.String),
+            "OffsetInForce": (result.healthy, ua.VariantType.Boolean),
             "StatusWord": (int(result.status), ua.VariantType.UInt32),
             "Heartbeat": (int(result.heartbeat), ua.VariantType.UInt32),
             "OperatorHold": (bool(snap.operator_hold), ua.VariantType.Boolean),

@@ -29,8 +29,8 @@ import structlog
 
 from compd.config.loader import LoadedConfig
 from compd.core.faults import FaultState
-from compd.core.output import Status
-from compd.core.plan import Row
+from compd.core.health import Cause
+from compd.core.plan import AdaptationView, Row
 from compd.infiles import InputError
 from compd.store.reader import RecorderReader
 from compd.store.schema import RecorderError
@@ -50,37 +50,75 @@ _WORDS: dict[FaultState, str] = {
     FaultState.RAMP: "ramping", FaultState.SHUTDOWN: "ramping",
     FaultState.STOPPED: "off", FaultState.HELD: "off", FaultState.WRITE_FAULT: "off"}
 
-_WHY: dict[FaultState, str] = {
-    FaultState.OK: "inputs valid, the model's offset is applied",
+#: the word of a cause whatever the state (the others take the state's word)
+_CAUSE_WORDS: dict[Cause, str] = {
+    Cause.OPERATOR_HOLD: "holding", Cause.CONTROLLER_OFF: "holding",
+    Cause.WRITE_FAILED: "holding", Cause.NO_READBACK: "holding",
+    Cause.FOREIGN_OFFSET: "ramping", Cause.AT_LIMIT: "limited"}
+
+_WHY: dict[Cause, str] = {
+    Cause.IN_FORCE: "inputs valid, the model's offset is applied",
+    Cause.OPERATOR_HOLD: "held by an operator (OPC UA SetHold): the offset stays put",
+    Cause.SHUTTING_DOWN: "shutting down: the offset ramps to 0",
+    Cause.WRITE_STOPPED: "the controller refused the offset: writes stopped (alarm)",
+    Cause.FOREIGN_OFFSET_HELD: "the controller holds an offset beyond the limit that compd "
+                               "did not write: nothing written (alarm)",
+    Cause.CONTROLLER_OFF: "the machine is off or in E-stop: it takes no offset, compd holds "
+                          "and writes none; it ramps from what the controller holds once "
+                          "the machine is on",
+    Cause.WRITE_FAULT: "offset writes keep failing (alarm)",
+    Cause.WRITE_FAILED: "the offset write failed: the controller keeps the offset it last "
+                        "confirmed; compd writes again next cycle",
+    Cause.NO_READBACK: "the controller's offset could not be read back: nothing is written "
+                       "until it can be",
+    Cause.FOREIGN_OFFSET: "another writer changed the offset: compd ramps back from its "
+                          "value to the model's at the slew limit (alarm)",
+    Cause.AT_LIMIT: "the model asks for more than the limit: the offset is held at the limit",
+    # the faults: the policy's part ("the offset is held" ...) is added by `_fault_why`
+    Cause.MODEL_WORSE_THAN_NONE: "recalibrate: the probes showed the compensation worse "
+                                 "than none",
+    Cause.CONTROLLER_NOT_ANSWERING: "the controller does not answer",
+    Cause.INPUTS_INVALID: "inputs invalid",
+    Cause.MODEL_NON_FINITE: "the model's output is not a number",
+    Cause.MODEL_OUT_OF_RANGE: "the model's output is far beyond the limit (alarm)"}
+
+#: what the fault policy does, by its state, after the cause of a fault
+_POLICY: dict[FaultState, str] = {
     FaultState.INIT: "no valid sample yet since start: the offset is held",
-    FaultState.HOLD: "inputs invalid: the offset is held",
-    FaultState.RAMP: "inputs invalid longer than hold_s: the offset ramps to 0 (alarm)",
-    FaultState.SHUTDOWN: "shutting down: the offset ramps to 0",
-    FaultState.STOPPED: "the controller refused the offset: writes stopped (alarm)",
-    FaultState.HELD: "the controller holds an offset beyond the limit that compd did not "
-                     "write: nothing written (alarm)",
-    FaultState.WRITE_FAULT: "offset writes keep failing (alarm)"}
+    FaultState.HOLD: "the offset is held",
+    FaultState.RAMP: "longer than hold_s: the offset ramps to 0 (alarm)"}
 
 
-def operator_state(state: FaultState, validity: Mapping[str, str | None],
-                   dry_run: bool = False, operator_hold: bool = False) -> tuple[str, str]:
-    """(on | dry-run | holding | ramping | off, why) for the fault state and the
-    channels' validity (and an operator's hold, OPC UA SetHold: holding while the
-    state is ok). A dry run that would compensate is "dry-run", not "on": nothing
-    it computes reaches the machine."""
-    word, why = _WORDS[state], _WHY[state]
-    if operator_hold and state is FaultState.OK:
-        word, why = "holding", "held by an operator (OPC UA SetHold): the offset stays put"
-    bad = [f"{name}: {reason}" for name, reason in validity.items() if reason is not None]
-    unreachable = bool(validity) and all(r == "read_failed" for r in validity.values())
-    if unreachable and state in (FaultState.INIT, FaultState.HOLD, FaultState.RAMP):
+def _guard(adaptation: AdaptationView | None) -> str:
+    """What the guard decided on: its accepted probes, and the refused ones left out."""
+    if adaptation is None:
+        return ""
+    return (f" ({adaptation.guard_worse} accepted probes in a row; "
+            f"{adaptation.probes_refused} refused probes since start not counted)")
+
+
+def operator_state(state: FaultState, cause: Cause, validity: Mapping[str, str | None],
+                   dry_run: bool = False, adaptation: AdaptationView | None = None,
+                   ) -> tuple[str, str]:
+    """(on | dry-run | holding | ramping | limited | off, why) for the fault state,
+    the cycle's cause (`compd.core.health.Cause`: why the offset compd wants is
+    not in force, or that it is) and the channels' validity; `adaptation` says
+    what the guard decided on. A dry run that would compensate is "dry-run",
+    not "on": nothing it computes reaches the machine."""
+    word = _CAUSE_WORDS.get(cause, _WORDS[state])
+    why = _WHY[cause]
+    if cause is Cause.MODEL_WORSE_THAN_NONE:
+        why += _guard(adaptation)
+    if state in _POLICY and cause not in (Cause.CONTROLLER_OFF, Cause.SHUTTING_DOWN):
+        why = f"{why}: {_POLICY[state]}"
+    if cause is Cause.CONTROLLER_NOT_ANSWERING:
         # nothing can be written either: no ramp reaches the machine
         why = ("the controller does not answer: nothing can be read or written; the "
                "controller keeps the offset it last got"
                + (" (alarm: longer than hold_s)" if state is FaultState.RAMP else "")
                + "; compd resumes when it answers")
-        bad = []
-    if bad and state is not FaultState.OK:
+    bad = [f"{name}: {reason}" for name, reason in validity.items() if reason is not None]
+    if bad and cause is Cause.INPUTS_INVALID:
         why += " (" + "; ".join(bad) + ")"
     if dry_run and word == "on":
         word, why = "dry-run", ("dry run: inputs valid, the model runs, nothing is written "
@@ -138,12 +176,8 @@ class StatusBoard:
 
     def _build(self, result: Row, cfg: LoadedConfig, dry_run: bool) -> dict[str, Any]:
         rec = result.record
-        held = bool(result.status & Status.OPERATOR_HOLD)
-        word, why = operator_state(result.state, rec.validity, dry_run, held)
-        if result.status & Status.CONTROLLER_OFF and result.state is FaultState.HOLD:
-            word, why = "holding", ("the machine is off or in E-stop: it takes no offset, "
-                                    "compd holds and writes none; it ramps from what the "
-                                    "controller holds once the machine is on")
+        est = result.snapshot.adaptation
+        word, why = operator_state(result.state, result.cause, rec.validity, dry_run, est)
         raw = cfg.raw
         limit_um = float(raw.output.limit_um)
         if abs(result.offset_um) > limit_um:  # the only way beyond it: `OutputStage._start`
@@ -155,7 +189,8 @@ class StatusBoard:
                      "unit": ch.unit, "valid": rec.validity.get(name) is None,
                      "reason": rec.validity.get(name)}
                     for name, ch in raw.channels.items()]
-        return {"machine": raw.machine.name, "state": word, "fault_state": str(result.state),
+        doc = {"machine": raw.machine.name, "state": word, "fault_state": str(result.state),
+                "cause": str(result.cause), "healthy": result.healthy,
                 "why": why, "offset_um": _num(result.offset_um),
                 "limit_um": limit_um, "model_um": _num(rec.model_um),
                 "sequence": result.sequence, "complete": bool(result.complete),
@@ -164,6 +199,11 @@ class StatusBoard:
                 "dry_run": dry_run, "wall_s": self._wall(), "period_s": float(cfg.real_period_s),
                 "channels": channels,
                 "alarms": list(self._alarms)}
+        if est is not None:
+            doc["probes"] = {"accepted": est.probes_accepted, "refused": est.probes_refused,
+                             "guard_probes": est.guard_probes, "guard_worse": est.guard_worse,
+                             "model_worse": est.model_worse}
+        return doc
 
     def history(self) -> dict[str, Any]:
         """The plot's data, read at most once per refresh period (many viewers, one read)."""

@@ -24,7 +24,7 @@ h1{font-size:1.3em;font-weight:normal;margin:.6em 0 .4em 0}
 section{border-bottom:2px solid #ccc;padding-bottom:1em;margin-bottom:1em}
 .state{font-size:5em;font-weight:bold;padding:.1em .4em;border-radius:.15em;
  display:inline-block;color:#fff;background:#777}
-.state.on{background:#1b7a2e}.state.holding{background:#b8860b}
+.state.on{background:#1b7a2e}.state.holding,.state.limited{background:#b8860b}
 .state.ramping{background:#c05a00}.state.off{background:#b00020}
 .state.dry-run{background:#fff;color:#2a4d8f;border:.08em dashed #2a4d8f}
 .why{font-size:1.5em;margin:.4em 0 .8em 0}
@@ -68,7 +68,7 @@ function showMachine(s, m){
   const q = c => s.querySelector(c);
   q(".machine").textContent = (m.machine || "compd") + " \\u00b7 model " + (m.model || "?");
   const st = q(".state"); st.textContent = m.state; st.className = "state " + m.state;
-  q(".why").textContent = m.why;
+  q(".why").textContent = m.why + (m.cause && m.healthy === false ? " [" + m.cause + "]" : "");
   const out = q(".out"); out.textContent = "";
   add(out, "span", "big offset", fmt(m.offset_um, 2) + " \\u00b5m");
   add(out, "span", "limit", "   limit \\u00b1" + fmt(m.limit_um, 1) + " \\u00b5m \\u00b7");

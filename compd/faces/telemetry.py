@@ -49,6 +49,7 @@ from prometheus_client.exposition import make_wsgi_app
 from structlog.typing import EventDict, Processor, WrappedLogger
 
 from compd.config.urls import redact_urls
+from compd.core.health import Cause
 from compd.faces.http_server import REASONS, HttpLimits, HttpServer, WSGIApp
 
 __all__ = ["REDACTED", "HttpLimits", "LogStream", "Metrics", "WSGIApp", "clear_secrets",
@@ -392,6 +393,19 @@ class Metrics(MetricsServer):
             "compd_probes", "Probe measurements seen, by outcome (accepted, refused) and "
             "reason (gate: innovation too large; fault: cycle not complete; no_offset)",
             ["outcome", "reason"], registry=r)
+        self.guard_worse_probes = Gauge(
+            "compd_guard_worse_probes", "Accepted probes in a row that showed the "
+            "compensation worse than none (the guard trips at guard_window; refused "
+            "probes are never counted)", registry=r)
+        self.offset_not_in_force = Gauge(
+            "compd_offset_not_in_force", "1 while the offset compd wants is not in force "
+            "for any reason but an operator's hold (the compd_output_cause that is 1 "
+            "says why): what `compd health --url` judges", registry=r)
+        self.output_cause = Gauge(
+            "compd_output_cause", "1 for the last cycle's cause (why the offset compd "
+            "wants is not in force: in_force, operator_hold, inputs_invalid, "
+            "model_worse_than_none, ...), 0 for the others", ["cause"], registry=r)
+        self._cause: Cause | None = None
         self._init_server()
 
     def configure(self, channels: Mapping[str, str], outputs: list[str], *, version: str,
@@ -439,8 +453,9 @@ class Metrics(MetricsServer):
 
     def adaptation(self, bias_um: float, bias_sigma_um: float, correction_um: float,
                    probe: Mapping[str, Any] | None, standing_down: bool = False,
-                   model_worse: bool = False) -> None:
+                   model_worse: bool = False, guard_worse: int = 0) -> None:
         """The estimator's state this cycle, and the probe that arrived (if one did)."""
+        self.guard_worse_probes.set(float(guard_worse))
         self.adaptation_standing_down.set(1.0 if standing_down else 0.0)
         self.model_worse_than_none.set(1.0 if model_worse else 0.0)
         self.adaptation_bias_um.set(bias_um)
@@ -449,6 +464,15 @@ class Metrics(MetricsServer):
         if probe is not None:
             outcome = "accepted" if probe.get("accepted") else "refused"
             self.probes.labels(outcome=outcome, reason=str(probe.get("reason") or "")).inc()
+
+    def cause(self, cause: Cause) -> None:
+        """The last cycle's cause (`compd.core.health.Cause`): one series at 1."""
+        if cause is self._cause:
+            return
+        for c in Cause:
+            self.output_cause.labels(cause=c.value).set(1.0 if c is cause else 0.0)
+        self.offset_not_in_force.set(0.0 if cause.healthy else 1.0)
+        self._cause = cause
 
     def _age_s(self) -> float:
         last = self._last_complete_mono

@@ -17,6 +17,7 @@ from prometheus_client import CollectorRegistry, Gauge
 
 from compd.cli import main
 from compd.commands import health
+from compd.core.health import Cause
 from compd.faces.telemetry import Metrics
 from compd.runtime.checkpoint import save_checkpoint
 from compd.runtime.liveness import boot_id
@@ -80,8 +81,24 @@ def test_stopped_fault_state_is_unhealthy(
     metrics.fault_state.set(3)
     rc, line = _health(capsys, "--url", _url(metrics))
     assert rc == 1 and "fault state 3 (alarm/stopped)" in line
-    metrics.fault_state.set(1)  # holding is still a working daemon
+    metrics.fault_state.set(1)  # not the alarm: whether it is in force is the cause's
     assert _health(capsys, "--url", _url(metrics))[0] == 0
+
+
+@pytest.mark.parametrize("cause", list(Cause))
+def test_every_cause_but_in_force_and_an_operator_hold_is_unhealthy_and_named(
+        metrics: Metrics, capsys: pytest.CaptureFixture[str], cause: Cause) -> None:
+    """A model worse than none held and ramping (fault state 1, then 2) once passed
+    as healthy: the last complete cycle was recent. The cause says it is not."""
+    metrics.cycle_complete()
+    metrics.fault_state.set(2)
+    metrics.cause(cause)
+    rc, line = _health(capsys, "--url", _url(metrics))
+    if cause in (Cause.IN_FORCE, Cause.OPERATOR_HOLD):
+        assert rc == 0, line
+    else:
+        assert rc == 1 and line.endswith(
+            f"the offset compd wants is not in force ({cause})"), line
 
 
 def test_a_stalled_loop_is_unhealthy_by_the_monotonic_age(
@@ -145,6 +162,19 @@ def test_fresh_complete_cycle_is_healthy(
     rc, line = _health(capsys, "--state-dir", str(tmp_path), "--max-age-s", "60")
     assert rc == 0
     assert line == "healthy: state dir: last complete cycle 0 s ago (monotonic clock)"
+
+
+def test_a_checkpoint_whose_cause_is_not_in_force_is_unhealthy(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    save_checkpoint(tmp_path / "checkpoint.json", {
+        "offset_um": 1.5, "sequence": 9, "last_state": "ramp",
+        "last_cause": "model_worse_than_none", **_stamp()})
+    rc, line = _health(capsys, "--state-dir", str(tmp_path), "--max-age-s", "60")
+    assert rc == 1 and line.endswith("not in force (model_worse_than_none)"), line
+    save_checkpoint(tmp_path / "checkpoint.json", {
+        "offset_um": 1.5, "sequence": 10, "last_state": "ok", "last_cause": "operator_hold",
+        **_stamp()})
+    assert _health(capsys, "--state-dir", str(tmp_path), "--max-age-s", "60")[0] == 0
 
 
 def test_checkpoint_of_a_daemon_that_never_completed_is_unhealthy(

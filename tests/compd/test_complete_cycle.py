@@ -10,18 +10,19 @@ import itertools
 import pytest
 
 from compd.core.cycle import WRITE_FAULT_AFTER, Cycle, Outcome, offset_in_force
-from compd.core.faults import FaultState
+from compd.core.health import Cause
+from compd.core.output import Status
 from compd.testing import FakeClock
 
 from .cycle_helpers import params, samples, sp2
 
 
-@pytest.mark.parametrize(("valid", "state", "confirmed"),
-                         list(itertools.product([True, False], list(FaultState), [True, False])))
-def test_only_a_valid_confirmed_ok_cycle_is_complete(valid: bool, state: FaultState,
-                                                     confirmed: bool) -> None:
-    expected = valid and confirmed and state == FaultState.OK
-    assert offset_in_force(valid=valid, state=state, confirmed=confirmed) is expected
+@pytest.mark.parametrize(("cause", "confirmed"),
+                         list(itertools.product(list(Cause), [True, False])))
+def test_only_a_confirmed_cycle_in_force_or_held_by_an_operator_is_complete(
+        cause: Cause, confirmed: bool) -> None:
+    expected = confirmed and cause in (Cause.IN_FORCE, Cause.OPERATOR_HOLD)
+    assert offset_in_force(cause=cause, confirmed=confirmed) is expected
 
 
 def _warm(readback: bool = True) -> tuple[Cycle, FakeClock, float]:
@@ -46,8 +47,12 @@ def test_a_held_output_has_valid_cycles_that_are_never_complete() -> None:
         assert not r.in_force and not r.record.complete
     t = clock.tick()
     cycle.plan(t, samples(t, 20.0), 0.0)  # cleared: ramping from 0 again
+    r = cycle.commit()  # the cycle that saw the foreign value still raises its alarm
+    assert r.status & Status.ALARM and r.cause is Cause.FOREIGN_OFFSET and not r.in_force
+    t = clock.tick()
+    cycle.plan(t, samples(t, 20.0), r.writes["offset"])  # at its target (the model's 0)
     r = cycle.commit()
-    assert r.in_force
+    assert r.in_force and not r.status & Status.ALARM
 
 
 def test_a_cycle_is_complete_only_once_the_controller_confirmed_it() -> None:

@@ -11,7 +11,7 @@ import pytest
 
 from compd.core.cycle import WRITTEN, Cycle, Outcome
 from compd.core.faults import FaultState
-from compd.core.health import HealthView, recorded_state, status_word
+from compd.core.health import Cause, HealthView, output_cause, recorded_state, status_word
 from compd.core.output import Status
 from compd.testing import FakeClock
 
@@ -76,14 +76,23 @@ _FLAGS = ("write_stopped", "write_fault", "held", "foreign", "operator_hold")
 @pytest.mark.parametrize("policy", [FaultState.INIT, FaultState.OK, FaultState.HOLD,
                                     FaultState.RAMP, FaultState.SHUTDOWN])
 def test_status_word_and_recorded_state_agree_for_every_health(policy: FaultState) -> None:
+    invalid = None if policy in (FaultState.OK, FaultState.SHUTDOWN) else Cause.INPUTS_INVALID
     for bits in itertools.product([False, True], repeat=len(_FLAGS)):
-        view = HealthView(policy=policy, **dict(zip(_FLAGS, bits, strict=True)))
-        word, state = status_word(view), recorded_state(view)
+        stopped, fault, held, foreign, hold = bits
+        view = HealthView(policy=policy, invalid=invalid, write_stopped=stopped,
+                          write_fault=fault, held=held, foreign=foreign, operator_hold=hold)
+        word, state, cause = status_word(view), recorded_state(view), output_cause(view)
         # OK on the wire exactly when the recorded state is ok and no operator holds it
         assert bool(word & Status.OK) == (state == FaultState.OK and not view.operator_hold)
         # an alarm state (stopped, held, write fault) always raises the alarm bit
         if state.gauge >= 3:
             assert word & Status.ALARM
+        # healthy (the offset compd wants in force, or held by an operator) only when the
+        # state is ok and no alarm is raised; OK on the wire without an alarm is in force
+        if cause.healthy:
+            assert state == FaultState.OK and not word & Status.ALARM
+        if word & Status.OK and not word & Status.ALARM:
+            assert cause is Cause.IN_FORCE
         assert status_word(view) == word  # pure: the same view, the same word
 
 

@@ -13,6 +13,7 @@ import pytest
 from compd.cli import main
 from compd.config.loader import load_config
 from compd.core.faults import FaultState
+from compd.core.health import Cause
 from compd.faces.status import operator_state
 from compd.faces.status_page import render_page
 from compd.runtime.daemon import Daemon
@@ -24,13 +25,14 @@ from tests.compd.status_helpers import FACES_HTTP, get
 
 
 def test_a_dry_run_that_would_compensate_is_not_on() -> None:
-    word, why = operator_state(FaultState.OK, {"bearing": None}, dry_run=True)
+    word, why = operator_state(FaultState.OK, Cause.IN_FORCE, {"bearing": None}, dry_run=True)
     assert word == "dry-run"
     assert "nothing is written" in why
     # a fault in a dry run keeps its own word, and says it is a dry run
-    word, why = operator_state(FaultState.HOLD, {"bearing": "stale"}, dry_run=True)
+    word, why = operator_state(FaultState.HOLD, Cause.INPUTS_INVALID, {"bearing": "stale"},
+                               dry_run=True)
     assert word == "holding" and why.endswith("dry run: nothing is written")
-    assert operator_state(FaultState.OK, {"bearing": None})[0] == "on"
+    assert operator_state(FaultState.OK, Cause.IN_FORCE, {"bearing": None})[0] == "on"
 
 
 def test_the_page_styles_the_dry_run_state_apart_from_on() -> None:

@@ -20,6 +20,7 @@ import structlog
 from compd.commands import status as status_cmd
 from compd.config.loader import LoadedConfig
 from compd.core.faults import FaultState
+from compd.core.health import Cause
 from compd.core.plan import Row
 from compd.core.record import RecordRow
 from compd.faces.status import StatusBoard, operator_state, read_history
@@ -35,19 +36,45 @@ from tests.compd.status_helpers import get, page_daemon, step
 
 
 def test_every_fault_state_has_a_word_and_a_reason() -> None:
-    words = {s: operator_state(s, {})[0] for s in FaultState}
+    # the word of each state for a cause that takes the state's word
+    fault = {FaultState.OK: Cause.IN_FORCE, FaultState.INIT: Cause.INPUTS_INVALID,
+             FaultState.HOLD: Cause.INPUTS_INVALID, FaultState.RAMP: Cause.INPUTS_INVALID,
+             FaultState.SHUTDOWN: Cause.SHUTTING_DOWN, FaultState.STOPPED: Cause.WRITE_STOPPED,
+             FaultState.HELD: Cause.FOREIGN_OFFSET_HELD, FaultState.WRITE_FAULT: Cause.WRITE_FAULT}
+    words = {s: operator_state(s, fault[s], {})[0] for s in FaultState}
     assert words == {FaultState.OK: "on", FaultState.INIT: "holding",
                      FaultState.HOLD: "holding", FaultState.RAMP: "ramping",
                      FaultState.SHUTDOWN: "ramping", FaultState.STOPPED: "off",
                      FaultState.HELD: "off", FaultState.WRITE_FAULT: "off"}
-    word, why = operator_state(FaultState.HOLD, {"bearing": "stale", "ambient": None})
+    word, why = operator_state(FaultState.HOLD, Cause.INPUTS_INVALID,
+                               {"bearing": "stale", "ambient": None})
     assert word == "holding" and "held" in why and "bearing: stale" in why
     assert "ambient" not in why
-    assert operator_state(FaultState.OK, {}, operator_hold=True)[0] == "holding"
-    assert operator_state(FaultState.HOLD, {}, operator_hold=True)[0] == "holding"
-    assert operator_state(FaultState.RAMP, {}, operator_hold=True)[0] == "ramping"
-    assert operator_state(FaultState.HOLD, {}, dry_run=True)[1].endswith(
+    assert operator_state(FaultState.OK, Cause.OPERATOR_HOLD, {})[0] == "holding"
+    assert operator_state(FaultState.HOLD, Cause.INPUTS_INVALID, {})[0] == "holding"
+    assert operator_state(FaultState.RAMP, Cause.INPUTS_INVALID, {})[0] == "ramping"
+    assert operator_state(FaultState.HOLD, Cause.INPUTS_INVALID, {}, dry_run=True)[1].endswith(
         "dry run: nothing is written")
+
+
+def test_every_cause_has_its_own_reason() -> None:
+    """Each cause is said as it is: no two causes share a reason, and one that is
+    not about the inputs never says they are invalid (a model worse than none
+    was once shown as "holding - inputs invalid")."""
+    state = {Cause.IN_FORCE: FaultState.OK, Cause.OPERATOR_HOLD: FaultState.OK,
+             Cause.AT_LIMIT: FaultState.OK, Cause.FOREIGN_OFFSET: FaultState.OK,
+             Cause.NO_READBACK: FaultState.OK, Cause.WRITE_FAILED: FaultState.OK,
+             Cause.SHUTTING_DOWN: FaultState.SHUTDOWN, Cause.WRITE_STOPPED: FaultState.STOPPED,
+             Cause.FOREIGN_OFFSET_HELD: FaultState.HELD, Cause.WRITE_FAULT: FaultState.WRITE_FAULT,
+             Cause.CONTROLLER_OFF: FaultState.HOLD}
+    whys = {c: operator_state(state.get(c, FaultState.HOLD), c, {"bearing": None})[1]
+            for c in Cause}
+    assert len(set(whys.values())) == len(Cause)
+    for cause, why in whys.items():
+        assert ("inputs invalid" in why) == (cause is Cause.INPUTS_INVALID), (cause, why)
+    word, why = operator_state(FaultState.RAMP, Cause.MODEL_WORSE_THAN_NONE, {"bearing": None})
+    assert word == "ramping" and "worse than none" in why and "ramps to 0" in why
+    assert operator_state(FaultState.OK, Cause.AT_LIMIT, {})[0] == "limited"
 
 
 def _recorder_with(path: Path, n: int, now: float, step_s: float = 1.0) -> None:

@@ -16,6 +16,7 @@ import subprocess
 import pytest
 
 from compd.core.faults import FaultState
+from compd.core.health import Cause
 from compd.faces.status import StatusBoard, operator_state
 from compd.faces.status_page import _SCRIPT
 
@@ -93,10 +94,12 @@ def test_alarm_details_are_rounded() -> None:
 
 @pytest.mark.parametrize("state", [FaultState.HOLD, FaultState.RAMP])
 def test_an_unreachable_controller_is_said_as_it_is(state: FaultState) -> None:
-    word, why = operator_state(state, {"bearing": "read_failed", "ambient": "read_failed"})
+    word, why = operator_state(state, Cause.CONTROLLER_NOT_ANSWERING,
+                               {"bearing": "read_failed", "ambient": "read_failed"})
     assert word == ("ramping" if state is FaultState.RAMP else "holding")
     assert "ramps to 0" not in why
     assert "does not answer" in why and "nothing can be read or written" in why
     # an invalid reading with the controller answering: still the ramp
-    _, why = operator_state(FaultState.RAMP, {"bearing": "out_of_range", "ambient": None})
+    _, why = operator_state(FaultState.RAMP, Cause.INPUTS_INVALID,
+                            {"bearing": "out_of_range", "ambient": None})
     assert "ramps to 0" in why

@@ -41,6 +41,13 @@ def _health(*argv: str) -> tuple[int, str]:
     return proc.returncode, proc.stdout.strip()
 
 
+def _last_cause(state_dir: Path) -> object:
+    try:
+        return json.loads((state_dir / "checkpoint.json").read_text()).get("last_cause")
+    except (OSError, ValueError):
+        return None
+
+
 def _last_state(state_dir: Path) -> object:
     try:
         return json.loads((state_dir / "checkpoint.json").read_text()).get("last_state")
@@ -63,7 +70,9 @@ async def test_a_held_output_is_unhealthy_by_every_source(rec: RecordingSim,
     proc = await start_daemon(config, log)
     try:
         await until(lambda: len(rec.writes) > 0, proc, log, "first write")
-        await rec.sim.publish({"bearing": 30.0})  # after the start: the model sees it heat
+        # after the start: the model sees it heat, to about 80 µm, within the 100 µm limit
+        # (a model beyond it is clamped, and the limit in force is not what it wants)
+        await rec.sim.publish({"bearing": 25.0})
         await until(lambda: rec.offsets and rec.offsets[-1] > 5.0, proc, log, "compensating")
         await until(lambda: _last_state(state) == "ok", proc, log, "a checkpoint while ok")
         before = await asyncio.to_thread(_health, "--state-dir", str(state))
@@ -81,6 +90,9 @@ async def test_a_held_output_is_unhealthy_by_every_source(rec: RecordingSim,
         await _foreign_write(modbus_port, 0.0)  # an operator clears the register
         await until(lambda: len(rec.writes) > cleared_at + 10, proc, log, "writing again")
         await until(lambda: _last_state(state) == "ok", proc, log, "the recovery checkpointed")
+        # ramping back from the cleared value is an alarm (READBACK_MISMATCH): the offset
+        # compd wants is in force, and healthy, once the ramp is done
+        await until(lambda: _last_cause(state) == "in_force", proc, log, "the ramp back done")
         after = await asyncio.to_thread(_health, "--state-dir", str(state))
         proc.terminate()
         assert await asyncio.wait_for(proc.wait(), 120.0) == 0

@@ -1,11 +1,13 @@
 """The checkpoint as a sink: the model's state saved atomically
 (`compd.runtime.checkpoint`) every ``state.checkpoint_every`` cycles, at once
-when the alarm comes or goes (so `compd health --state-dir` sees it as
-`--url` does), and on demand (`save`: shutdown, `--once`, an operator hold).
+when the alarm comes or goes or the offset compd wants goes out of force or
+back in (so `compd health --state-dir` sees it as `--url` does), and on
+demand (`save`: shutdown, `--once`, an operator hold).
 
 Beside the cycle's state it holds what `compd health --state-dir` judges:
 the last complete cycle's wall and monotonic time, the boot it happened in,
-and the last cycle's state (an alarm is unhealthy however recent the rest).
+and the last cycle's state and cause (an alarm, or an offset not in force, is
+unhealthy however recent the rest).
 A failed save is logged (``checkpoint_failed``) and never stops the loop. A
 dry run saves nothing.
 """
@@ -45,8 +47,10 @@ class CheckpointSink(CycleSink):
         #: the state directory the lock holds open (None without a lock: a dry run)
         self.directory: StateDir | None = None
         self._last_state: str | None = None
-        #: whether the last checkpoint said alarm
+        self._last_cause: str | None = None
+        #: whether the last cycle noted said alarm, and whether its offset was in force
         self._alarm = False
+        self._healthy = True
 
     def feed(self, tick: Tick) -> None:
         if self.note(tick):
@@ -56,9 +60,10 @@ class CheckpointSink(CycleSink):
         """Take the cycle's state; whether a checkpoint is due."""
         result = tick.row
         self._last_state = str(result.state)
+        self._last_cause = str(result.cause)
         alarm = result.state.gauge >= GAUGE_ALARM
-        if alarm != self._alarm:
-            self._alarm = alarm
+        if alarm != self._alarm or result.healthy != self._healthy:
+            self._alarm, self._healthy = alarm, result.healthy
             return True
         return result.sequence % self._cfg.raw.state.checkpoint_every == 0
 
@@ -82,6 +87,8 @@ class CheckpointSink(CycleSink):
                              boot_id=boot_id())
             if self._last_state is not None:  # an alarm is unhealthy however recent
                 state["last_state"] = self._last_state
+            if self._last_cause is not None:  # so is an offset not in force
+                state["last_cause"] = self._last_cause
             save_checkpoint(checkpoint_path(cfg), state, directory=self.directory)
         except Exception as exc:  # a failed checkpoint must not stop the loop
             self._journal.log.error("checkpoint_failed", error=str(exc))

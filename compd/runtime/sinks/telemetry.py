@@ -1,7 +1,9 @@
 """Telemetry as a sink: the cycle's Prometheus metrics, systemd's sd_notify,
 and the count of complete cycles (the health evidence).
 
-Each cycle: the offset, the fault state, the model's output, each channel's
+Each cycle: the offset, the fault state and the cause (why the offset
+compd wants is not in force, or that it is: `compd.core.health.Cause`,
+what `compd health --url` judges), the model's output, each channel's
 value, invalid channels counted as read errors, the adaptation estimator's
 state; a complete cycle (`compd.core.cycle.offset_in_force`) is counted and
 its (wall, monotonic) time kept for the checkpoint that `compd health
@@ -118,6 +120,7 @@ class TelemetrySink(CycleSink):
         result, m = tick.row, self.metrics
         m.offset_um.set(result.offset_um)
         m.fault_state.set(result.state.gauge)
+        m.cause(result.cause)
         m.model_output(result.model_um, result.record.validity)
         if tick.samples:
             for name, s in tick.samples.items():
@@ -139,7 +142,8 @@ class TelemetrySink(CycleSink):
         est = result.snapshot.adaptation
         if est is not None:
             m.adaptation(est.bias_um, est.bias_sigma_um, est.correction_um,
-                         result.record.probe, est.standing_down, est.model_worse)
+                         result.record.probe, est.standing_down, est.model_worse,
+                         est.guard_worse)
 
     def _notify(self, tick: Tick) -> None:
         result = tick.row
@@ -155,6 +159,8 @@ class TelemetrySink(CycleSink):
             # and a restart would reset the fault policy's hold timer (never ramping)
             self.notifier.watchdog()
         state = str(result.state)
+        if not result.healthy:
+            state += f" ({result.cause})"
         if state != self._last_status or result.sequence % STATUS_EVERY == 0:
             self.notifier.status(f"offset {result.offset_um:.2f} um, state {state}")
             self._last_status = state
