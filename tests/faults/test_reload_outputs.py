@@ -120,7 +120,8 @@ async def test_a_lowered_limit_ramps_the_register_into_it_at_the_slew_limit(
     assert daemon.reloads == 1 and daemon.cfg.raw.output.limit_um == LOWERED_UM
     offsets, words = [before], []
     page = daemon.status_board.snapshot
-    assert page["state"] == "on" and "beyond limit_um" in page["why"]
+    # the model still asks for more than the lowered limit: "limited" (not in force)
+    assert page["state"] == "limited" and "beyond limit_um" in page["why"]
     assert page["offset_um"] > page["limit_um"] == LOWERED_UM
     while True:
         out = await rig.outputs()
@@ -145,7 +146,7 @@ async def test_a_lowered_limit_ramps_the_register_into_it_at_the_slew_limit(
     assert beyond["limit_um"] == LOWERED_UM
     assert len(rig.events("offset_within_limit")) == 1
     page = daemon.status_board.snapshot
-    assert page["state"] == "on" and "beyond" not in page["why"]
+    assert page["state"] == "limited" and "beyond limit_um" not in page["why"]
     assert await rig.lockstep.stop() == 0
 
 
