@@ -16,9 +16,13 @@ import argparse
 import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from compd.argtypes import count, number
 from compd.sysexits import EX_USAGE
+
+if TYPE_CHECKING:
+    from compd.offline.plan.calls import ProbeCall
 
 HELP = "write the calibration experiment (spindle steps, rests, measuring cycles) as G-code"
 
@@ -120,8 +124,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--probe-feed", type=FEED_MM_MIN, default=100.0, metavar="MM_MIN",
                         help="linuxcnc: the probing feed in mm/min (default 100)")
     parser.add_argument("--probe-call", default=None, metavar="BLOCK",
-                        help="fanuc: the macro call, e.g. 'G65 P9810 Z-10. F500.'; "
-                             "sinumerik: the cycle, e.g. 'CYCLE978(0,1,,1,-10,100,,3,1)'")
+                        help="the measuring cycle, one call with numeric arguments and "
+                             "nothing else: fanuc 'G65 P9810 Z-10. F500.' (a macro "
+                             "P1-P9999); sinumerik a Siemens measuring cycle "
+                             "'CYCLE978(0,1,,1,-10,100,,3,1)' or a subprogram 'L9810'")
     parser.add_argument("--spindle-stop-s", type=SPINDLE_STOP_S, default=5.0,
                         help="seconds the spindle runs down after M5 before a measuring "
                              "cycle moves (default 5)")
@@ -137,8 +143,9 @@ def _position_text(position: dict[str, float]) -> str:
     return ",".join(f"{axis}={mm:g}" for axis, mm in position.items())
 
 
-def _summary(args: argparse.Namespace) -> str:
-    """The options that shaped the program, as the command line would say them."""
+def _summary(args: argparse.Namespace, call: ProbeCall | None) -> str:
+    """The options that shaped the program, as the command line would say them
+    (the probe call as written in the program, from its parsed value)."""
     parts = [f"--hours {args.hours:g}", f"--speeds {','.join(map(str, args.speeds))}"]
     if args.rest_h is not None:
         parts.append(f"--rest-h {args.rest_h:g}")
@@ -155,8 +162,8 @@ def _summary(args: argparse.Namespace) -> str:
         if args.dialect == "linuxcnc":
             parts += [f"--probe-depth-mm {args.probe_depth_mm:g}",
                       f"--probe-feed {args.probe_feed:g}"]
-        else:
-            parts.append(f"--probe-call '{args.probe_call}'")
+        elif call is not None:
+            parts.append(f"--probe-call '{call.block}'")
     return f"Written by: compd plan {' '.join(parts)}."
 
 
@@ -181,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
                       "--probe-every-min")
     try:
         words = dialect(args.dialect, program_number=args.program_number)
-        call = None if args.probe_call is None else words.check_call(args.probe_call)
+        call = None if args.probe_call is None else words.parse_call(args.probe_call)
         if args.probe_every_min is not None and call is None and args.dialect != "linuxcnc":
             raise PlanError(f"{args.dialect}: the measuring cycle is yours: give --probe-call")
         exp = design(args.hours, args.speeds, rest_h=args.rest_h,
@@ -191,8 +198,8 @@ def run(args: argparse.Namespace) -> int:
             probing = Probing(safe=args.safe_position or {}, at=args.probe_at or {},
                               depth_mm=args.probe_depth_mm, feed_mm_min=args.probe_feed,
                               call=call, spindle_stop_s=args.spindle_stop_s)
-        program = make_program(exp, words, probing, summary=_summary(args),
-                               recorder_name=side.name, time_scale=args.time_scale)
+        program = make_program(exp, words, probing, summary=_summary(args, call),
+                               recorder=True, time_scale=args.time_scale)
     except PlanError as exc:
         return _usage(str(exc))
     check_output(args.output, "program", force=args.force)  # the text: "dir/" is refused

@@ -16,10 +16,12 @@ G, M, S, P (dwell in ms, macro program number), N, O, T, H, D, L take no
 decimal point, while a coordinate or feed without one is read in least
 increments (``Z100`` = 0.1 mm in IS-B), so ours must carry one; ``G04`` stands
 alone in its block with ``X`` (seconds, ≤ 9999.9999 for IS-C) or ``P``;
-one M code a block; an address once a block (G codes of different groups
-apart); the last block before the closing ``%`` is ``M30`` or ``M02``. A block
-is at most 128 characters here (a conservative bound of ours: the manuals give
-none across series).
+one M code a block, at most five G codes (a bound of ours, the 0i's); an
+address once a block (G codes of different groups apart); ``G20``/``G21``
+alone in its block (inch/metric: "an independent block"); the last block
+before the closing ``%`` is ``M30`` or ``M02``. A block is at most 128
+characters here (a conservative bound of ours: the manuals give none across
+series).
 
 SINUMERIK 840D (programming manual, fundamentals; native language): a comment
 runs from ``;`` to the end of the line (parentheses are not comments); a block
@@ -44,9 +46,11 @@ FANUC_MAX_BLOCK = 128
 _FANUC_CHARS = re.compile(r"[A-Z0-9 +\-./*=#\[\],()'?&:]*")
 _FANUC_WORD = re.compile(rf"([A-Z])({_NUMBER}|#\d+)")
 _FANUC_INTEGER = set("GMSPNOTHDL")
+#: the M series (machining centre) G codes; G50/G51 scale there (G50 S is a lathe's)
 _FANUC_G = {0, 1, 2, 3, 4, 9, 10, 15, 16, 17, 18, 19, 20, 21, 28, 30, 31, 40, 41, 42, 43,
-            44, 49, 52, 53, 54, 55, 56, 57, 58, 59, 65, 66, 67, 68, 69, 80, 81, 82, 83, 84,
-            85, 86, 87, 88, 89, 90, 91, 92, 94, 95, 98, 99}
+            44, 49, 50, 51, 52, 53, 54, 55, 56, 57, 58, 59, 65, 66, 67, 68, 69, 80, 81, 82,
+            83, 84, 85, 86, 87, 88, 89, 90, 91, 92, 94, 95, 96, 97, 98, 99}
+FANUC_MAX_G_A_BLOCK = 5
 FANUC_MAX_DWELL_S = 9999.9999
 
 
@@ -112,6 +116,10 @@ def _fanuc_words(words: list[tuple[str, str]]) -> list[str]:
         seen.add(address)
     if sum(a == "M" for a, _ in words) > 1:
         errors.append("more than one M code in a block")
+    if sum(a == "G" for a, _ in words) > FANUC_MAX_G_A_BLOCK:
+        errors.append(f"more than {FANUC_MAX_G_A_BLOCK} G codes in a block")
+    if any(a == "G" and v in ("20", "21") for a, v in words) and len(words) > 1:
+        errors.append("G20/G21 stands alone in its block")
     if any(a == "G" and v.lstrip("0") == "4" for a, v in words):
         others = [a for a, v in words if not (a == "G" and v.lstrip("0") == "4")]
         if len(others) != 1 or others[0] not in ("X", "P"):

@@ -97,6 +97,13 @@ def test_the_recorder_settings_are_what_the_daemon_loads(tmp_path: Path,
     assert "time_scale" not in fragment
 
 
+def test_a_name_past_the_basic_plane_gives_valid_toml(tmp_path: Path) -> None:
+    """JSON writes U+1F600 as a surrogate pair of escapes, which TOML refuses."""
+    assert _plan(tmp_path, name="Wärmegang 😀 𝔊.ngc") == 0
+    fragment = (tmp_path / "Wärmegang 😀 𝔊.recorder.toml").read_text(encoding="utf-8")
+    assert tomllib.loads(fragment)["recorder"]["path"] == "Wärmegang 😀 𝔊.sqlite"
+
+
 def test_a_time_scale_is_said_beside_the_recorder_settings(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert _plan(tmp_path, "--time-scale", "120") == 0

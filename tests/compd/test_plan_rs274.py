@@ -18,6 +18,8 @@ import pytest
 
 from compd.cli import main
 
+from .plan_hostile import rs274_env
+
 RS274 = shutil.which("rs274")
 pytestmark = pytest.mark.skipif(RS274 is None, reason="rs274 (Debian linuxcnc-uspace) is not "
                                                       "installed")
@@ -46,7 +48,8 @@ def _interpret(tmp_path: Path, argv: list[str]) -> Canon:
     assert main(["plan", *argv, "--dialect", "linuxcnc", "-o", str(out)]) == 0
     assert RS274 is not None
     done = subprocess.run([RS274, "-g", str(out)], cwd=tmp_path, capture_output=True,
-                          text=True, timeout=600, check=False)
+                          env=rs274_env(tmp_path / ".rs274-home"), text=True, timeout=600,
+                          check=False)
     assert done.returncode == 0, done.stderr
     assert done.stderr.strip() in ("", "executing"), done.stderr  # an error is printed there
     calls = [(m.group(1), m.group(2)) for m in map(_CALL.match, done.stdout.splitlines()) if m]

@@ -1,20 +1,32 @@
 """Each controller's words for the blocks `compd plan` writes.
 
 - LinuxCNC (RS274NGC, `.ngc`): comments ``(text)`` with no parentheses
-  inside; safe start ``G21 G90 G17 G40 G80 G94``; dwell ``G4 P`` in seconds,
-  no longest (P is a double); the measuring cycle is ``G38.2`` down in Z, its
-  result put out by ``M68``; end ``M2``.
-- FANUC (0i/30i, ISO code): ``%``, ``O####`` and the program, then ``M30``
-  and ``%``; comments ``(TEXT)`` in upper case and ISO characters; safe start
-  ``G21 G90 G17 G40 G80 G94``; dwell ``G04 X`` in seconds with a decimal
-  point, alone in its block, at most 9999.9999 s with IS-C (99999.999 s with
-  IS-B): split at 9999 s; the measuring cycle is the user's macro call
-  (``G65 P9810 …``).
-- SINUMERIK (840D, native language, `.mpf`): comments ``; text``; safe start
-  ``G71 G90 G17 G40 G94`` (G71 is metric; G21 is its ISO dialect); dwell
-  ``G4 F`` in seconds, alone in its block, split at 9999 s as for FANUC (the
-  manual we read gives no longest); the measuring cycle is the user's cycle
-  (``CYCLE978(…)``); end ``M30``.
+  inside; modal state ``G17 G21 G40 G80 G90 G94 G97 G8`` and ``G54``; dwell
+  ``G4 P`` in seconds, no longest (P is a double); the measuring cycle is
+  ``G38.2`` down in Z, its result put out by ``M68``; end ``M2``.
+- FANUC (0i/30i machining centres, M series G codes, ISO code): ``%``,
+  ``O####`` and the program, then ``M30`` and ``%``; comments ``(TEXT)`` in
+  upper case and ISO characters; modal state ``G21`` alone (FANUC wants
+  inch/metric in a block of its own), ``G15 G17 G40 G50 G69``, ``G67 G80 G90
+  G94 G97`` (at most five G codes a block) and ``G54``; dwell ``G04 X`` in
+  seconds with a decimal point, alone in its block, at most 9999.9999 s with
+  IS-C (99999.999 s with IS-B): split at 9999 s; the measuring cycle is the
+  user's macro call (``G65 P9810 …``).
+- SINUMERIK (840D, native language, `.mpf`): comments ``; text``; modal
+  state ``G17 G40 G71 G90 G94`` (G71 is metric, G21 its ISO dialect; G94 is
+  in the group of G96, so it also ends a constant cutting rate) and ``G54``;
+  dwell ``G4 F`` in seconds, alone in its block, split at 9999 s as for
+  FANUC (the manual we read gives no longest); the measuring cycle is the
+  user's cycle (``CYCLE978(…)``); end ``M30``.
+
+The modal state is never assumed: the blocks that set it open the program
+and follow every call of the user's cycle, whose macro may leave G91, G20,
+another work offset, a constant surface speed or a modal macro call behind.
+With G97 (G94 on SINUMERIK) an ``S`` word is rpm, bounded by `compd plan`'s
+own check and the machine's limit; no clamp word is written (FANUC's mill
+has none apart from ``G92 S``, which also sets the coordinate system;
+SINUMERIK's ``LIMS`` works only under G96/G961/G97 and ``G26`` stays in its
+setting data after the program).
 
 Every FANUC coordinate and feed carries a decimal point: without one a
 control without "calculator type" input reads ``Z100`` as 0.1 mm (IS-B).
@@ -23,9 +35,10 @@ A dwell longer than a dialect's longest is split into equal chunks.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 
+from compd.offline.plan.calls import ProbeCall, parse_fanuc, parse_sinumerik
+from compd.offline.plan.comments import plain
 from compd.offline.plan.schedule import PlanError
 
 
@@ -44,7 +57,7 @@ class Probing:
     at: dict[str, float] = field(default_factory=dict)
     depth_mm: float = 10.0
     feed_mm_min: float = 100.0
-    call: str | None = None
+    call: ProbeCall | None = None
     spindle_stop_s: float = 5.0
 
 
@@ -66,9 +79,14 @@ class Dialect:
     suffix = ".nc"
     g0 = "G0"
     max_dwell_ms: int | None = None
-    safe_start = ""
+    #: the blocks that set every modal group the program relies on
+    modal: tuple[str, ...] = ()
 
     def comment(self, text: str) -> str:
+        raise NotImplementedError
+
+    def parse_call(self, call: str) -> ProbeCall:
+        """`--probe-call` as a value, or PlanError (one line)."""
         raise NotImplementedError
 
     def prologue(self, title: str) -> list[str]:
@@ -108,12 +126,11 @@ class Dialect:
         return blocks
 
     def measure(self, index: int, probing: Probing) -> list[str]:
+        """The user's call, written from its parsed value, and the modal state
+        set again after it: the next block is a rapid move."""
         if probing.call is None:
             raise PlanError(f"{self.name}: the measuring cycle needs --probe-call")
-        return [probing.call]
-
-    def check_call(self, call: str) -> str:
-        return call
+        return [probing.call.block, *self.modal]
 
 
 class LinuxCNC(Dialect):
@@ -123,10 +140,10 @@ class LinuxCNC(Dialect):
 
     name = "linuxcnc"
     suffix = ".ngc"
-    safe_start = "G21 G90 G17 G40 G80 G94"
+    modal = ("G17 G21 G40 G80 G90 G94 G97 G8", "G54")
 
     def comment(self, text: str) -> str:
-        return f"({text.replace('(', '[').replace(')', ']')})"
+        return f"({plain(text)})"
 
     def dwell_block(self, seconds: str) -> str:
         return f"G4 P{seconds}"
@@ -143,17 +160,9 @@ class LinuxCNC(Dialect):
                    f"G0 Z{num(probing.at['Z'])}"]
         return blocks
 
-    def check_call(self, call: str) -> str:
+    def parse_call(self, call: str) -> ProbeCall:
         raise PlanError("linuxcnc probes with G38.2 from --probe-at; --probe-call is for "
                         "the fanuc and sinumerik dialects")
-
-
-#: FANUC comment characters (ISO code): upper case, digits and a few signs; never
-#: parentheses (the comment's own), % (end of record) or ; (end of block on screen)
-_FANUC_COMMENT = re.compile(r"[^A-Z0-9 .,+\-/*=:#\[\]'?&]")
-#: addresses whose value is a whole number (codes, speed, program number, dwell in ms)
-_FANUC_INTEGER = frozenset("GMSPNOTHDL")
-_FANUC_CALL = re.compile(r"[A-Z][+-]?(?:\d+\.?\d*|\.\d+)(?: *[A-Z][+-]?(?:\d+\.?\d*|\.\d+))*")
 
 
 class Fanuc(Dialect):
@@ -161,14 +170,13 @@ class Fanuc(Dialect):
     suffix = ".nc"
     g0 = "G00"
     max_dwell_ms = 9_999_000
-    safe_start = "G21 G90 G17 G40 G80 G94"
+    modal = ("G21", "G15 G17 G40 G50 G69", "G67 G80 G90 G94 G97", "G54")
 
     def __init__(self, program_number: int = 1000) -> None:
         self.program_number = program_number
 
     def comment(self, text: str) -> str:
-        text = text.upper().replace("(", "[").replace(")", "]").replace(";", ",")
-        return f"({_FANUC_COMMENT.sub(' ', text)})"
+        return f"({plain(text.upper())})"  # a memory card drops lower case
 
     def prologue(self, title: str) -> list[str]:
         return ["%", f"O{self.program_number:04d} {self.comment(title)}"]
@@ -185,31 +193,18 @@ class Fanuc(Dialect):
     def stop(self) -> str:
         return "M05"
 
-    def check_call(self, call: str) -> str:
-        call = call.strip()
-        if not _FANUC_CALL.fullmatch(call):
-            raise PlanError(f"--probe-call {call!r}: a FANUC block of words, an upper-case "
-                            f"address and a number each (e.g. 'G65 P9810 Z-10. F500.')")
-        for address, value in re.findall(r"([A-Z])([+-]?[\d.]+)", call):
-            if address not in _FANUC_INTEGER and "." not in value:
-                raise PlanError(f"--probe-call {call!r}: {address}{value} without a decimal "
-                                f"point is read in least increments ({address}{value} "
-                                f"could be a thousandth of what you mean): write "
-                                f"{address}{value}.")
-        return call
-
-
-_SINUMERIK_CALL = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,31}(?:\([ -:<-~]*\))?")
+    def parse_call(self, call: str) -> ProbeCall:
+        return parse_fanuc(call, self.program_number)
 
 
 class Sinumerik(Dialect):
     name = "sinumerik"
     suffix = ".mpf"
     max_dwell_ms = 9_999_000
-    safe_start = "G71 G90 G17 G40 G94"
+    modal = ("G17 G40 G71 G90 G94", "G54")
 
     def comment(self, text: str) -> str:
-        return f"; {text}"
+        return f"; {plain(text)}"
 
     def epilogue(self) -> list[str]:
         return ["M30"]
@@ -217,13 +212,8 @@ class Sinumerik(Dialect):
     def dwell_block(self, seconds: str) -> str:
         return f"G4 F{seconds}"
 
-    def check_call(self, call: str) -> str:
-        call = call.strip()
-        if not _SINUMERIK_CALL.fullmatch(call):
-            raise PlanError(f"--probe-call {call!r}: a SINUMERIK cycle or subprogram name, "
-                            f"with its arguments in parentheses if any (e.g. "
-                            f"'CYCLE978(0,1,,1,-10,100,,3,1)'), no ';'")
-        return call
+    def parse_call(self, call: str) -> ProbeCall:
+        return parse_sinumerik(call)
 
 
 def dialect(name: str, *, program_number: int = 1000) -> Dialect:

@@ -1,5 +1,6 @@
 """The program `compd plan` writes: a header that says what it does and why,
-the safe start, the schedule's blocks (`compd.offline.plan.schedule`) in a
+the modal state set (again after every call of the user's measuring cycle),
+the schedule's blocks (`compd.offline.plan.schedule`) in a
 dialect's words (`compd.offline.plan.dialects`), the end.
 
 `time_scale` N > 1 divides every dwell by N (whole milliseconds), for a
@@ -61,7 +62,7 @@ def _why() -> list[str]:
 
 
 def _measuring_lines(exp: Experiment, dialect: Dialect, probing: Probing | None,
-                     recorder_name: str | None) -> list[str]:
+                     recorder: bool) -> list[str]:
     if exp.probe_every_ms is None or probing is None:
         return ["No measuring cycle: record the displacement with sensors at a test "
                 "mandrel (ISO 230-3), as a channel of the daemon."]
@@ -77,12 +78,15 @@ def _measuring_lines(exp: Experiment, dialect: Dialect, probing: Probing | None,
                      f"the first one, in um, goes to motion.analog-out-00 by M68 E0, the "
                      f"measurement's number to motion.analog-out-01 by M68 E1: net them to "
                      f"the pins compd reads as the displacement channel and counter.")
-    else:
-        lines.append(f"The measuring cycle is your call {probing.call!r}: it must leave "
-                     f"the displacement where compd reads it as a channel.")
-    if recorder_name:
-        lines.append(f"Record the run with compd run and the recorder settings in "
-                     f"{recorder_name}; then compd fit takes the database.")
+    elif probing.call is not None:
+        lines.append(f"The measuring cycle is your call {probing.call.block}: it must leave "
+                     f"the displacement where compd reads it as a channel, and it moves "
+                     f"what it moves. After it the program sets its modal state again, "
+                     f"as at the start, before any other block.")
+    if recorder:
+        lines.append("Record the run with compd run and the recorder settings written "
+                     "beside this program, its name with .recorder.toml; then compd fit "
+                     "takes the database.")
     return lines
 
 
@@ -102,11 +106,13 @@ def _time_scale_lines(exp: Experiment, time_scale: float, dwell_total_ms: int) -
 
 
 def _header(exp: Experiment, dialect: Dialect, probing: Probing | None, dwell_total_ms: int,
-            summary: str, recorder_name: str | None, time_scale: float) -> list[str]:
+            summary: str, recorder: bool, time_scale: float) -> list[str]:
     axes = axes_moved(probing)
     moves = (f"Axes moved: {', '.join(axes)} only, rapid G0 to the positions named, Z "
              f"first; work coordinates G54, mm." if axes else
              "Axes moved: none, no --safe-position given: the spindle only.")
+    if probing is not None and probing.call is not None and exp.probe_every_ms is not None:
+        moves += " Your measuring cycle moves what it moves besides."
     paragraphs = [
         f"compd plan: a thermal calibration experiment for compd fit, {dialect.name} "
         f"dialect.",
@@ -117,7 +123,7 @@ def _header(exp: Experiment, dialect: Dialect, probing: Probing | None, dwell_to
         *(_time_scale_lines(exp, time_scale, dwell_total_ms)),
         moves,
         *(_why()),
-        *(_measuring_lines(exp, dialect, probing, recorder_name)),
+        *(_measuring_lines(exp, dialect, probing, recorder)),
         "Schedule:",
     ]
     lines: list[str] = []
@@ -131,7 +137,7 @@ def _header(exp: Experiment, dialect: Dialect, probing: Probing | None, dwell_to
 
 
 def make_program(exp: Experiment, dialect: Dialect, probing: Probing | None, *,
-                 summary: str, recorder_name: str | None = None,
+                 summary: str, recorder: bool = False,
                  time_scale: float = 1.0) -> Program:
     """The whole program as text (LF line ends, a final newline); every dwell
     divided by `time_scale` (see the module)."""
@@ -141,7 +147,7 @@ def make_program(exp: Experiment, dialect: Dialect, probing: Probing | None, *,
     if probing is not None and probing.safe and "Z" not in probing.safe:
         raise PlanError("--safe-position without Z would move X/Y at whatever height the "
                         "tool is: name Z too")
-    body: list[str] = [dialect.safe_start, "G54", dialect.stop()]
+    body: list[str] = [*dialect.modal, dialect.stop()]
     if probing is not None:
         body += dialect.moves(probing.safe)
     dwell_total = 0
@@ -165,9 +171,8 @@ def make_program(exp: Experiment, dialect: Dialect, probing: Probing | None, *,
                     dwell_total += stop_ms
             body += dialect.measuring(action.index, probing)
     body += [dialect.stop(), *dialect.epilogue()]
-    header = _header(exp, dialect, probing, dwell_total, summary, recorder_name, time_scale)
-    header = [h.encode("ascii", "replace").decode("ascii") for h in header]  # names, calls
+    header = _header(exp, dialect, probing, dwell_total, summary, recorder, time_scale)
     lines = [*dialect.prologue("compd plan thermal calibration"),
-             *(dialect.comment(h) if h.strip() else dialect.comment("-") for h in header),
+             *(dialect.comment(h) for h in header),
              *body]
     return Program("\n".join(lines) + "\n", dwell_total, axes_moved(probing))

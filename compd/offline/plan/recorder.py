@@ -8,10 +8,10 @@ run per record, every row kept).
 
 from __future__ import annotations
 
-import json
 from pathlib import PurePath
 
 from compd.offline.plan.schedule import Experiment
+from models import tomltext
 
 #: the displacement channel's name in the fragment and the fit command it suggests
 COLUMN = "dz_um"
@@ -59,7 +59,8 @@ def recorder_fragment(program: PurePath, exp: Experiment, dialect: str,
         "",
         "[recorder]",
         "enabled = true",
-        f"path = {json.dumps(db)}",
+        # a TOML string (JSON's escapes differ: a character past U+FFFF is a surrogate pair)
+        f"path = {tomltext.value(db)}",
         "commit_every = 10",
         "retention_days = 0   # keep every row: the whole run is the record",
         "",
