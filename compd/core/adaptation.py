@@ -40,7 +40,13 @@ Each cycle `ProbeStage.step`:
    invalid cycle) is no evidence: it is counted (`refused`) and reported,
    never judged, so a broken or writable probe source cannot switch
    compensation off by sending outliers; a single wrong probe that passes
-   the gate cannot trip it either: every probe of the window must agree;
+   the gate cannot trip it either: every probe of the window must agree.
+   Refusals are not silent either: `DISAGREE_AFTER` gate refusals in a row
+   mean the model or the probe source is wrong (a model so far off that
+   re-acquisition cannot hold it, or a probe that reads nonsense): "probes_disagree"
+   is raised once per such run (a warning for a person to look at both; the
+   compensation is left as it is, since the probes cannot say which is wrong)
+   and `gate_refusals` shows the run;
 5. returns the correction to add to the model output. In ``mode = "apply"``
    the cycle adds it BEFORE the fault policy and the output stage, so clamp,
    slew and deadband apply to it as to the model: a jump of the estimate
@@ -61,7 +67,12 @@ from typing import Any, Literal
 from compd.core.events import Event, EventName
 from models.adaptation import AdaptationParams, Adapter, ProbeOutcome
 
-__all__ = ["AdaptationSettings", "ProbeReading", "ProbeStage"]
+__all__ = ["DISAGREE_AFTER", "AdaptationSettings", "ProbeReading", "ProbeStage"]
+
+#: gate refusals in a row after which the probes and the model disagree (see 4.):
+#: twice the default re-acquisition run, so a real change that re-acquisition
+#: absorbs never raises it
+DISAGREE_AFTER = 6
 
 
 @dataclass(frozen=True)
@@ -114,6 +125,8 @@ class ProbeStage:
         #: probes refused since the current run of worse accepted probes began
         #: (left out of the guard's judgement; reported when it trips)
         self.refused_in_window = 0
+        #: gate refusals in a row (any accepted probe ends the run)
+        self.gate_refusals = 0
         if state is not None:
             guard = state.get("guard")
             # a guard list without "guard_accepted_only" may hold refused probes' judgements
@@ -178,11 +191,20 @@ class ProbeStage:
                      "stand_downs": self.adapter.stand_downs}))
         if out.accepted:
             self.accepted += 1
+            self.gate_refusals = 0
             if offset_um is not None and math.isfinite(measured):
                 self._guard(measured, offset_um, events)
         else:
             self.refused += 1
             self.refused_in_window += 1
+            if out.reason == "gate":
+                self.gate_refusals += 1
+                if self.gate_refusals == DISAGREE_AFTER:
+                    events.append(Event(EventName.PROBES_DISAGREE, {
+                        "gate_refusals": self.gate_refusals,
+                        "innovation_um": round(out.innovation_um, 6)
+                        if math.isfinite(out.innovation_um) else None,
+                        "action": "check the model and the probe; compensation unchanged"}))
         self.last = self._describe(reading, measured, model, out)
         fields = {k: v for k, v in self.last.items() if k != "accepted"}
         events.append(Event(EventName.PROBE_ACCEPTED if out.accepted

@@ -494,7 +494,8 @@ class Cycle:
                                         probes.model_worse, guard_probes=len(probes.guard),
                                         guard_worse=probes.guard_worse,
                                         probes_accepted=probes.accepted,
-                                        probes_refused=probes.refused)
+                                        probes_refused=probes.refused,
+                                        gate_refusals=probes.gate_refusals)
         return Snapshot(self.output.confirmed_um, self.health.operator_hold, adaptation)
 
     # -- internals ------------------------------------------------------------------------

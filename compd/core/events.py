@@ -91,6 +91,7 @@ class EventName(enum.StrEnum):
     ADAPTATION_RESUMED = "adaptation_resumed", _I
     ADAPTATION_STATE_REFUSED = "adaptation_state_refused", _W
     MODEL_WORSE_THAN_NONE = "model_worse_than_none", _E
+    PROBES_DISAGREE = "probes_disagree", _W
     # start-up from the checkpoint (compd.runtime.startup)
     CHECKPOINT_RESTORED = "checkpoint_restored", _I
     CHECKPOINT_TOO_OLD = "checkpoint_too_old", _I

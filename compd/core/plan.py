@@ -99,6 +99,9 @@ class AdaptationView:
     #: probes seen since start: accepted by the estimator, and refused (gate, fault, ...)
     probes_accepted: int = 0
     probes_refused: int = 0
+    #: gate refusals in a row (`compd.core.adaptation.DISAGREE_AFTER`: the model
+    #: or the probe source is wrong)
+    gate_refusals: int = 0
 
 
 @dataclass(frozen=True, slots=True)

@@ -28,6 +28,7 @@ from typing import Any
 import structlog
 
 from compd.config.loader import LoadedConfig
+from compd.core.adaptation import DISAGREE_AFTER
 from compd.core.faults import FaultState
 from compd.core.health import Cause
 from compd.core.plan import AdaptationView, Row
@@ -120,6 +121,9 @@ def operator_state(state: FaultState, cause: Cause, validity: Mapping[str, str |
     bad = [f"{name}: {reason}" for name, reason in validity.items() if reason is not None]
     if bad and cause is Cause.INPUTS_INVALID:
         why += " (" + "; ".join(bad) + ")"
+    if adaptation is not None and adaptation.gate_refusals >= DISAGREE_AFTER:
+        why += (f"; the last {adaptation.gate_refusals} probes were all refused as outliers: "
+                "the model or the probe source is wrong (check both)")
     if dry_run and word == "on":
         word, why = "dry-run", ("dry run: inputs valid, the model runs, nothing is written "
                                 "to the controller (the offset shown is what would be written)")
@@ -202,7 +206,8 @@ class StatusBoard:
         if est is not None:
             doc["probes"] = {"accepted": est.probes_accepted, "refused": est.probes_refused,
                              "guard_probes": est.guard_probes, "guard_worse": est.guard_worse,
-                             "model_worse": est.model_worse}
+                             "model_worse": est.model_worse,
+                             "gate_refusals": est.gate_refusals}
         return doc
 
     def history(self) -> dict[str, Any]:

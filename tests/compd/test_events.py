@@ -15,7 +15,9 @@ WAS_WARNING = {"channel_invalid", "fault_hold", "readback_mismatch", "write_fail
                # issue 23's LinuxCNC: a machine off or in E-stop (h1 added it to _WARNINGS)
                "controller_off",
                # the offset compd wrote beyond a limit lowered since: it ramps in
-               "offset_beyond_limit"}
+               "offset_beyond_limit",
+               # a long run of probes the gate refused: the model or the probe is wrong
+               "probes_disagree"}
 WAS_ERROR = {"fault_ramp_to_zero", "offset_write_stopped", "output_write_stopped",
              "readback_out_of_range", "write_fault", "model_out_of_range",
              "model_worse_than_none"}

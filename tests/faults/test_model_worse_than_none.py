@@ -30,10 +30,12 @@ from typing import Any
 
 from compd.commands import health as health_cmd
 from compd.commands import status as status_cmd
-from compd.core.adaptation import AdaptationSettings, ProbeReading, ProbeStage
+from compd.core.adaptation import DISAGREE_AFTER, AdaptationSettings, ProbeReading, ProbeStage
 from compd.core.faults import Event, FaultState
 from compd.core.health import Cause
 from compd.core.output import Status
+from compd.core.plan import AdaptationView
+from compd.faces.status import operator_state
 from compd.infiles import load_model
 from compd.runtime.daemon import Daemon
 from compd.runtime.driver_setup import build_driver
@@ -286,6 +288,28 @@ def test_probes_the_estimator_refused_are_no_evidence() -> None:
     assert stage.model_worse
     [tripped] = [e for e in events if e.name == "model_worse_than_none"]
     assert tripped.fields["accepted_probes"] == 3 and tripped.fields["refused_probes"] == 2
+
+
+def test_a_long_run_of_refused_probes_says_the_model_or_the_probe_is_wrong() -> None:
+    """Refused probes switch nothing off, but they are not silent: DISAGREE_AFTER
+    gate refusals in a row raise "probes_disagree" once, the page says so, and an
+    accepted probe ends the run."""
+    stage = _stage()
+    events: list[Event] = []
+    _probe(stage, 0.0, 0.0, 30.0, events)  # the baseline
+    for k in range(1, 3 * DISAGREE_AFTER):
+        _probe(stage, float(k), -25.0, 30.0, events)
+    assert stage.gate_refusals == 3 * DISAGREE_AFTER - 1 and not stage.model_worse
+    [warned] = [e for e in events if e.name == "probes_disagree"]
+    assert warned.fields["gate_refusals"] == DISAGREE_AFTER
+    view = AdaptationView(0.0, 1.0, 0.0, False, False, gate_refusals=stage.gate_refusals)
+    word, why = operator_state(FaultState.OK, Cause.IN_FORCE, {}, adaptation=view)
+    assert word == "on" and "the model or the probe source is wrong" in why
+    _probe(stage, 100.0, 0.0, 30.0, events)  # agrees again
+    assert stage.gate_refusals == 0
+    view = AdaptationView(0.0, 1.0, 0.0, False, False, gate_refusals=stage.gate_refusals)
+    assert "probe source" not in operator_state(FaultState.OK, Cause.IN_FORCE, {},
+                                                adaptation=view)[1]
 
 
 def test_a_guard_from_an_older_checkpoint_keeps_its_latch_not_its_judgements() -> None:
