@@ -104,11 +104,32 @@ def check_output(path: str | os.PathLike[str], what: str, *, force: bool = False
     return p
 
 
+#: bytes of the target's name and suffix kept in a temporary file's name: a
+#: target name near the file system's limit (255 bytes) still leaves room for
+#: the temporary one's dot, random part and ".part"
+_TMP_NAME_BYTES = 96
+_TMP_SUFFIX_BYTES = 16
+
+
+def _tmp_prefix(p: Path) -> str:
+    """The temporary file's prefix: a dot and the target's name, cut to
+    `_TMP_NAME_BYTES` (whole characters), so it is recognisably the target's."""
+    head = p.name.encode("utf-8", "surrogateescape")[:_TMP_NAME_BYTES]
+    return "." + head.decode("utf-8", "ignore") + "."
+
+
+def _tmp_suffix(p: Path) -> str:
+    """The target's suffix when it is a plausible format suffix (a figure's format
+    is read from it), else none."""
+    suffix = p.suffix
+    return suffix if len(suffix.encode("utf-8", "surrogateescape")) <= _TMP_SUFFIX_BYTES else ""
+
+
 def _probe(p: Path) -> None:
     """Create (and remove) a temporary file beside the target: a read-only or
     pseudo file system says no now, not after the work (root passes `access`)."""
     try:
-        fd, name = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".probe", dir=p.parent)
+        fd, name = tempfile.mkstemp(prefix=_tmp_prefix(p), suffix=".probe", dir=p.parent)
     except OSError as exc:
         raise OutputError(f"{p}: cannot create files in {p.parent} ({exc.strerror})") from None
     os.close(fd)
@@ -155,7 +176,7 @@ def write_atomically(path: str | os.PathLike[str], write: Callable[[Path], objec
     inputs = list(inputs)
     p = check_output(path, what, force=force, inputs=inputs)
     try:
-        fd, name = tempfile.mkstemp(prefix=f".{p.name}.", suffix=f".part{p.suffix}",
+        fd, name = tempfile.mkstemp(prefix=_tmp_prefix(p), suffix=f".part{_tmp_suffix(p)}",
                                     dir=p.parent)
     except OSError as exc:
         raise OutputError(f"{p}: cannot create files in {p.parent} ({exc.strerror})") from None

@@ -137,6 +137,25 @@ def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path: Path) -> 
     assert [p.name for p in tmp_path.iterdir()] == ["model.toml"]
 
 
+@pytest.mark.parametrize("name", ["m" * 251 + ".ngc", "a.b" + "c" * 240 + ".png",
+                                  "\U0001f600" * 62 + ".ngc", "x." + "y" * 250])
+def test_a_name_at_the_file_systems_limit_is_written(tmp_path: Path, name: str) -> None:
+    """The temporary file beside a target whose name is near 255 bytes still fits:
+    its name keeps a cut of the target's, and the suffix only when it is short."""
+    assert len(name.encode()) <= 255
+    seen: list[str] = []
+
+    def fill(tmp: Path) -> None:
+        seen.append(tmp.name)
+        tmp.write_text("new\n", encoding="utf-8")
+
+    target = write_atomically(tmp_path / name, fill, "program")
+    assert target.read_text(encoding="utf-8") == "new\n"
+    assert [p.name for p in tmp_path.iterdir()] == [name]
+    suffix = Path(name).suffix
+    assert seen[0].endswith(".part" + (suffix if len(suffix) <= 16 else ""))
+
+
 # -- inputs -----------------------------------------------------------------------------
 
 
