@@ -51,6 +51,8 @@ SYSTEM_PYTHON = "/usr/bin/python3"
 CTL = Path(__file__).with_name("linuxcnc_ctl.py")
 #: seconds LinuxCNC may take to come up (a loaded 2-core machine is slow)
 START_DEADLINE_S = 120.0
+#: seconds LinuxCNC's processes may take to end after its start script did
+END_DEADLINE_S = 30.0
 #: seconds the plant waits for motion to apply a requested offset
 SETTLE_DEADLINE_S = 10.0
 #: µm per count of axis.z.eoffset-counts (axis.z.eoffset-scale 0.0001 mm)
@@ -165,6 +167,17 @@ def _cleanup(env: dict[str, str]) -> None:
     with contextlib.suppress(OSError, subprocess.SubprocessError):
         subprocess.run(["halrun", "-U"], capture_output=True, timeout=60, check=False,
                        env=env)
+
+
+def _gone(deadline_s: float) -> bool:
+    """Wait until no LinuxCNC runs here (the caller's own ending: it holds the
+    machine's lock); False when one still does after `deadline_s`."""
+    end = time.monotonic() + deadline_s
+    while linuxcnc_host.foreign() is not None:
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.05)
+    return True
 
 
 def _env(folder: Path) -> dict[str, str]:
@@ -300,8 +313,12 @@ class LinuxCncSimController:
                 with contextlib.suppress(ProcessLookupError):
                     os.killpg(proc.pid, 9)
                 proc.wait(10)
-            if not ended or proc.returncode != 0 or linuxcnc_host.foreign() is not None:
+            # its processes (linuxcncsvr, rtapi_app) end after its start script: the
+            # lock is given back once they are gone, or the next run would see them
+            # as a LinuxCNC it did not start
+            if not ended or not _gone(END_DEADLINE_S):
                 _cleanup(self._env)  # ours, and it did not clean up after itself
+                _gone(END_DEADLINE_S)
         if self._tmp is not None:
             self._tmp.cleanup()
             self._tmp = None
