@@ -24,7 +24,12 @@ from drivers.backoff import Backoff
 from drivers.base import Driver
 from drivers.linuxcnc import LinuxCncDriver
 from drivers.modbus import ModbusDriver
-from drivers.sim.linuxcnc_machine import LinuxCncSimController, unavailable
+from drivers.sim.linuxcnc_machine import (
+    ForeignLinuxCnc,
+    LinuxCncBusy,
+    LinuxCncSimController,
+    unavailable,
+)
 from drivers.sim.modbus_server import ModbusSimController
 
 BLOCK = 100
@@ -62,12 +67,16 @@ async def main(cycles: int) -> None:
     if why is not None:
         raise SystemExit(f"bench_driver_linuxcnc: {why}")
     lcnc, mb = LinuxCncSimController(), ModbusSimController()
-    await lcnc.start()
+    try:
+        await lcnc.start()
+    except (ForeignLinuxCnc, LinuxCncBusy) as exc:
+        raise SystemExit(f"bench_driver_linuxcnc: {exc}") from None
     await mb.start()
     await lcnc.publish(VALUES)
     await mb.publish({**VALUES, "speed_rpm": 9000})
     lc_driver = LinuxCncDriver(lcnc.endpoint, {**lcnc.channels, **lcnc.states},
-                               lcnc.outputs_map, timeout_s=1.0, connect_timeout_s=60.0)
+                               lcnc.outputs_map, timeout_s=1.0, connect_timeout_s=60.0,
+                               component=lcnc.component)
     mb_driver = ModbusDriver(mb.endpoint, mb.channels, mb.outputs_map, timeout_s=0.5,
                              backoff=Backoff(0.05, 1.0))
     # 0.3 µm a cycle: three counts of 0.1 µm, so every LinuxCNC write is a change

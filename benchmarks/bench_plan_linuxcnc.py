@@ -27,7 +27,8 @@ unseen spectrum, beside the peer's; then all of it as one JSON line.
 Run: OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_plan_linuxcnc.py
      [--time-scale N] [--hours H] [--keep DIR]
 Needs linuxcnc-uspace (exit 69 with the reason where it is absent); takes
-LinuxCNC's one-per-machine lock (/tmp/compd-linuxcnc.lock), waiting for it.
+LinuxCNC's one-per-machine lock (/tmp/compd-linuxcnc.lock), waiting for it; exit 69
+with the reason where a LinuxCNC it did not start runs (never touched).
 """
 
 from __future__ import annotations
@@ -46,7 +47,11 @@ sys.path.insert(0, str(ROOT))
 from compd.argtypes import count, number  # noqa: E402
 from compd.offline.plan.schedule import design  # noqa: E402
 from compd.sysexits import EX_UNAVAILABLE  # noqa: E402
-from drivers.sim.linuxcnc_machine import unavailable  # noqa: E402
+from drivers.sim.linuxcnc_machine import (  # noqa: E402
+    ForeignLinuxCnc,
+    LinuxCncBusy,
+    unavailable,
+)
 from drivers.sim.offline import record_program  # noqa: E402
 from drivers.sim.programs import Program  # noqa: E402
 from tests.compd.plan_linuxcnc_run import (  # noqa: E402
@@ -107,8 +112,12 @@ def main() -> int:
         print(f"bench_plan_linuxcnc: {why}", file=sys.stderr)
         return EX_UNAVAILABLE
     with tempfile.TemporaryDirectory(prefix="bench-plan-lcnc-") as tmp:
-        run = run_plan(args.keep or Path(tmp), hours=args.hours, time_scale=args.time_scale,
-                       seed=args.seed)
+        try:
+            run = run_plan(args.keep or Path(tmp), hours=args.hours,
+                           time_scale=args.time_scale, seed=args.seed)
+        except (ForeignLinuxCnc, LinuxCncBusy) as exc:
+            print(f"bench_plan_linuxcnc: {exc}", file=sys.stderr)
+            return EX_UNAVAILABLE
         fit, replay = fit_and_replay(run)
         peer_fit, peer_replay = offline_peer(run.folder, args.hours, args.seed)
     figures = {

@@ -35,6 +35,7 @@ from drivers.base import Quality, Sample
 from drivers.endpoint import endpoint_of
 from drivers.errors import BadAddress, ConnectionLost, ControllerTimeout, DriverError, WriteRejected
 from drivers.link import Link, LinkedDriver
+from drivers.linuxcnc_options import MAX_LEFT_BEHIND, linuxcnc_name_clash, long_hal_name
 
 LinuxCncAddress = LinuxCncPin | LinuxCncEoffset | LinuxCncGet
 
@@ -44,6 +45,9 @@ HAL_SIDE = Path(__file__).with_name("linuxcnc_hal.py")
 MAX_LINE = 1 << 20
 #: how long an ending HAL side gets after end-of-file, and after SIGTERM
 END_WAIT_S = 2.0
+#: the most of a HAL side's last error line kept (its stderr: a Python traceback's
+#: last line, HAL's own message)
+ERROR_CHARS = 500
 
 
 def _check(role: str, table: Mapping[str, object]) -> dict[str, LinuxCncAddress]:
@@ -60,13 +64,35 @@ def _check(role: str, table: Mapping[str, object]) -> dict[str, LinuxCncAddress]
 
 
 class _Session:
-    """The HAL side's process and its pipe."""
+    """The HAL side's process, its pipe, and the last line it wrote on stderr."""
 
     def __init__(self, proc: asyncio.subprocess.Process) -> None:
         self.proc = proc
         assert proc.stdin is not None and proc.stdout is not None
         self.stdin = proc.stdin
         self.stdout = proc.stdout
+        #: the last non-empty line of its stderr ("" while none), at most ERROR_CHARS
+        self.last_error = ""
+        self._stderr = (asyncio.ensure_future(self._drain(proc.stderr))
+                        if proc.stderr is not None else None)
+
+    async def _drain(self, stream: asyncio.StreamReader) -> None:
+        """Read its stderr to the end (a full pipe would stop it), keeping the last line."""
+        with contextlib.suppress(OSError, ValueError):
+            while line := await stream.readline():
+                text = line.decode(errors="replace").strip()
+                if text:
+                    self.last_error = text[-ERROR_CHARS:]
+
+    async def ended(self) -> str:
+        """Its exit status and last error line, once it has ended (for a start that
+        got no greeting)."""
+        status = await self.proc.wait()
+        if self._stderr is not None:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(asyncio.shield(self._stderr), END_WAIT_S)
+        why = f": {self.last_error}" if self.last_error else ""
+        return f"the HAL side ended at start (status {status}){why}"
 
     async def ask(self, request: dict[str, Any], timeout_s: float) -> dict[str, Any]:
         self.stdin.write(json.dumps(request, separators=(",", ":")).encode() + b"\n")
@@ -90,9 +116,12 @@ class _Session:
                     stop()
             try:
                 await asyncio.wait_for(self.proc.wait(), END_WAIT_S)
-                return
+                break
             except TimeoutError:
                 continue
+        if self._stderr is not None and self.proc.returncode is not None:
+            with contextlib.suppress(TimeoutError, asyncio.CancelledError):
+                await asyncio.wait_for(self._stderr, END_WAIT_S)
 
 
 def _error(answer: dict[str, Any], what: str) -> DriverError:
@@ -119,6 +148,9 @@ class LinuxCncDriver(LinkedDriver):
         if not timeout_s > 0:
             raise ValueError("timeout_s must be positive")
         endpoint_of("linuxcnc", endpoint)  # this machine only (ProtocolSpec.local_only)
+        why = linuxcnc_name_clash(component)
+        if why is not None:
+            raise ValueError(f"component: {why}")
         self.endpoint = endpoint
         self.channels = _check("channel", channels)
         self.outputs = _check("output", outputs)
@@ -127,6 +159,9 @@ class LinuxCncDriver(LinkedDriver):
         if len(offsets) > 1 or any(n in self.channels for n in offsets):
             raise BadAddress("one eoffset address at most, and only as an output",
                              channel=offsets[-1])
+        long = long_hal_name(component, {**self.channels, **self.outputs})
+        if long is not None:
+            raise BadAddress(long[1], channel=long[0])
         self.timeout_s = timeout_s
         self.connect_timeout_s = connect_timeout_s
         self.component = component
@@ -161,7 +196,8 @@ class LinuxCncDriver(LinkedDriver):
                                "enable_net": a.enable_net, "scale": a.scale,
                                "eoffset_scale": a.eoffset_scale,
                                "wait_s": 0.5 * self.timeout_s}
-        return {"component": self.component, "pins": pins, "eoffset": eoffset, "gets": gets}
+        return {"component": self.component, "pins": pins, "eoffset": eoffset, "gets": gets,
+                "max_left": MAX_LEFT_BEHIND}
 
     async def _start(self) -> _Session:
         """The HAL side (the link runs this in a task of its own: starting a Python
@@ -173,13 +209,13 @@ class LinuxCncDriver(LinkedDriver):
         proc = await asyncio.create_subprocess_exec(
             self.python, "-I", str(HAL_SIDE), json.dumps(self._spec()),
             stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE,
-            stderr=asyncio.subprocess.DEVNULL, limit=MAX_LINE)
+            stderr=asyncio.subprocess.PIPE, limit=MAX_LINE)
         session = _Session(proc)
         try:
             async with asyncio.timeout(self.connect_timeout_s):
                 line = await session.stdout.readline()
             hello: dict[str, Any] = json.loads(line) if line else {
-                "e": f"the HAL side ended at start (status {await proc.wait()})", "k": "lost"}
+                "e": await session.ended(), "k": "lost"}
         except BaseException:
             await session.end()
             raise

@@ -17,7 +17,9 @@ version) does not have to load LinuxCNC's extension module. Why a process:
 SPEC (JSON, one argument): ``{"component": "compd", "pins": [{"name",
 "pin", "net", "type", "dir", "invert"}], "eoffset": {"name", "axis",
 "counts_pin", "counts_net", "enable_pin", "enable_net", "scale",
-"eoffset_scale", "wait_s"} | null, "gets": [{"name", "hal", "scale", "invert"}]}``
+"eoffset_scale", "wait_s"} | null, "gets": [{"name", "hal", "scale", "invert"}],
+"max_left": n}`` (``max_left``: how many components of killed HAL sides it steps
+around, `Component._create`)
 (``gets``: read-only, any HAL pin or signal by name, as ``halcmd getp``). Each pin is created as
 ``<component>.<pin>`` and joined to the signal ``net`` (which the machine's
 HAL file makes with a ``net`` line; a missing one is refused by name).
@@ -40,7 +42,8 @@ next write counts from what LinuxCNC will hold once it takes the change. While
 LinuxCNC does not take changes (machine off, E-stop, not homed) the counts are
 left alone and the write is refused (``rejected``): no change is queued that
 would jump the offset at machine on. The offset
-read back is ``axis.L.eoffset`` (what motion applies) in counts.
+read back is ``axis.L.eoffset`` (what motion applies) in counts, or the offset
+requested while motion clips it at a soft limit (`Component._offset`).
 """
 
 from __future__ import annotations
@@ -49,11 +52,12 @@ import contextlib
 import importlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
 import time
-from typing import Any
+from typing import Any, NamedTuple
 
 
 def _answer(obj: dict[str, Any]) -> None:
@@ -77,9 +81,9 @@ class Component:
 
     def __init__(self, hal: Any, spec: dict[str, Any]) -> None:
         self.hal = hal
-        #: HAL's user components and their processes (`_components`), once needed
-        self._owners: dict[str, int] | None = None
-        self.comp = self._create(spec["component"])
+        #: components of killed HAL sides of ours: HAL's component id -> name
+        self._dead: dict[int, str] = {}
+        self.comp = self._create(spec["component"], int(spec.get("max_left", 20)))
         types = _types(hal)
         self.pins: dict[str, dict[str, Any]] = {}
         for p in spec["pins"]:
@@ -96,7 +100,7 @@ class Component:
             self.comp.newpin(self.eo["enable_pin"], hal.HAL_BIT, hal.HAL_OUT)
         self.comp.ready()
         for p in spec["pins"]:
-            self._join(p["pin"], p["net"], p["name"])
+            self._join(p["pin"], p["net"], p["name"], drives=p["dir"] == "out")
         self.eoffset_scale = 0.0
         #: counts LinuxCNC will hold once its servo thread takes our last change (a
         #: write that returned before it did), None when it holds what we wrote
@@ -116,35 +120,61 @@ class Component:
             counts = hal.get_value(eo["counts_net"]) if self._has_signal(eo["counts_net"]) else 0
             self.comp[eo["counts_pin"]] = int(counts)
             self.comp[eo["enable_pin"]] = True
-            self._join(eo["counts_pin"], eo["counts_net"], eo["name"])
-            self._join(eo["enable_pin"], eo["enable_net"], eo["name"])
+            self._join(eo["counts_pin"], eo["counts_net"], eo["name"], drives=True)
+            self._join(eo["enable_pin"], eo["enable_net"], eo["name"], drives=True)
 
-    def _create(self, name: str) -> Any:
-        """The component `name`; when a process killed with SIGKILL left one of that
-        name behind (HAL cannot remove it), ``name-2``, ``name-3``... (the HAL file
-        names only signals, so the pins' names do not matter to it)."""
-        for n in range(1, 100):
+    def _create(self, name: str, max_left: int) -> Any:
+        """The component `name`; when processes killed with SIGKILL left components of
+        that name behind (HAL removes a user component only when its own process
+        exits it), ``name-2``, ``name-3``... up to ``max_left`` of them (the HAL file
+        names only signals, so the pins' names do not matter to it). A name that
+        another live process or LinuxCNC itself holds, or under which pins of other
+        components stand (``spindle`` and ``spindle.0.speed-out``), is refused."""
+        comps = _components()
+        self._dead = {c.cid: c.name for c in comps.values()
+                      if c.user and _family(c.name, name) and not _alive(c.pid)}
+        for n in range(1, max_left + 2):
             candidate = name if n == 1 else f"{name}-{n}"
+            other = comps.get(candidate)
+            if other is not None and other.cid in self._dead:
+                continue  # left behind by a killed HAL side of ours: step around it
+            if other is not None:
+                why = (f"it is taken by the live process {other.pid} (another compd?)"
+                       if other.user else "it is one of LinuxCNC's realtime components")
+                raise Refused(f"cannot create HAL component {candidate!r}: {why}", "lost")
+            foreign = self._foreign_pins(candidate)
+            if foreign is not None:
+                raise Refused(f"cannot create HAL component {candidate!r}: the HAL pin "
+                              f"{foreign} of another component has that name: choose "
+                              f"another controller.linuxcnc.component", "bad_address")
             try:
                 return self.hal.component(candidate)
-            except Exception as exc:  # HAL not running, or the name taken
-                owner = _components().get(candidate)
-                if owner is None or _alive(owner):
-                    why = (f"it is taken by the live process {owner} (another compd?)"
-                           if owner is not None else "is LinuxCNC running?")
-                    raise Refused(f"cannot create HAL component {candidate!r}: {why} "
-                                  f"({exc})", "lost") from exc
-        raise Refused(f"cannot create HAL component {name!r}: 99 left behind", "lost")
+            except Exception as exc:  # HAL not running, or the name taken meanwhile
+                raise Refused(f"cannot create HAL component {candidate!r}: is LinuxCNC "
+                              f"running? ({exc})", "lost") from exc
+        left = ", ".join(sorted(self._dead.values()))
+        raise Refused(f"cannot create HAL component {name!r}: {len(self._dead)} components "
+                      f"of killed compd HAL sides are left in HAL ({left}); HAL frees them "
+                      f"only when LinuxCNC restarts", "lost")
+
+    def _foreign_pins(self, candidate: str) -> str | None:
+        """A pin or parameter ``<candidate>.*`` owned by a component other than a dead
+        one of ours, None when there is none."""
+        for owner, pin in _pins(f"{candidate}."):
+            if owner not in self._dead:
+                return pin
+        return None
 
     def _has_signal(self, net: str) -> bool:
         return any(s["NAME"] == net for s in self.hal.get_info_signals())
 
-    def _join(self, pin: str, net: str, name: str) -> None:
+    def _join(self, pin: str, net: str, name: str, *, drives: bool) -> None:
         full = f"{self.comp.getprefix()}.{pin}"
         if not self._has_signal(net):
             raise Refused(f"HAL signal {net!r} does not exist: add a 'net {net} ...' line to "
                           f"the machine's HAL file for {full}", "bad_address", name)
-        self._free_writer(net)
+        if drives:  # an input joins beside the signal's writer, whoever that is
+            self._free_writer(net)
         try:
             self.hal.connect(full, net)
         except Exception as exc:
@@ -152,18 +182,17 @@ class Component:
                           name) from exc
 
     def _free_writer(self, net: str) -> None:
-        """A signal still driven by a pin of a component whose process is gone (killed
-        with SIGKILL): unlink that pin (the signal keeps its value) so that ours can
-        drive it."""
+        """A signal compd drives that a pin of a dead component of ours (a HAL side
+        killed with SIGKILL) still drives: unlink that pin (the signal keeps its
+        value) so that ours can drive it. The pin's owner is told by the component
+        id HAL reports, never by the pin's name: any other writer is left alone (the
+        join then fails, naming the signal)."""
+        if not self._dead:
+            return
         sig = next((s for s in self.hal.get_info_signals() if s["NAME"] == net), None)
         writer = str(sig.get("DRIVER") or "") if sig is not None else ""
-        if not writer:
-            return
-        if self._owners is None:  # asked once per start (a halcmd run)
-            self._owners = _components()
-        owners = self._owners
-        comp = max((c for c in owners if writer.startswith(c + ".")), key=len, default=None)
-        if comp is not None and not _alive(owners[comp]):
+        if writer and any(owner in self._dead for owner, pin in _pins(writer)
+                          if pin == writer):
             self.hal.disconnect(writer)
 
     # -- read -------------------------------------------------------------------
@@ -183,11 +212,22 @@ class Component:
                 except Exception as exc:
                     raise Refused(f"no HAL item {what!r}: {exc}", "bad_address", name) from exc
             elif self.eo is not None and name == self.eo["name"]:
-                applied = float(self.hal.get_value(f"{self.axis}.eoffset"))
-                out[name] = applied / self.eoffset_scale * self.eo["scale"]
+                out[name] = self._offset() / self.eoffset_scale * self.eo["scale"]
             else:
                 raise Refused("unknown channel or output name", "bad_address", name)
         return out
+
+    def _offset(self) -> float:
+        """The offset LinuxCNC holds (machine units): what motion applies
+        (``axis.L.eoffset``), or, while motion clips it at a soft limit
+        (``motion.eoffset-limited``), what it was asked for (``eoffset-request``):
+        the clipped part is LinuxCNC's limit, not another writer's offset."""
+        try:
+            limited = bool(self.hal.get_value("motion.eoffset-limited"))
+        except Exception:  # a LinuxCNC without the pin: what motion applies
+            limited = False
+        what = "eoffset-request" if limited else "eoffset"
+        return float(self.hal.get_value(f"{self.axis}.{what}"))
 
     # -- write ------------------------------------------------------------------
 
@@ -257,16 +297,45 @@ class Component:
             time.sleep(0.0002)
 
 
-def _components() -> dict[str, int]:
-    """HAL's user components: name -> process id (``halcmd show comp``)."""
-    out = subprocess.run(["halcmd", "-s", "show", "comp"], capture_output=True, text=True,
-                         timeout=30, check=False).stdout
-    found: dict[str, int] = {}
-    for line in out.splitlines():
+class _Comp(NamedTuple):
+    cid: int
+    name: str
+    user: bool
+    pid: int
+
+
+def _halcmd(*args: str) -> str:
+    return subprocess.run(["halcmd", *args], capture_output=True, text=True, timeout=30,
+                          check=False).stdout
+
+
+def _components() -> dict[str, _Comp]:
+    """HAL's components by name (``halcmd show comp``: id, type, name, process)."""
+    found: dict[str, _Comp] = {}
+    for line in _halcmd("-s", "show", "comp").splitlines():
         f = line.split()
-        if len(f) >= 4 and f[1] == "User" and f[3].isdigit():
-            found[f[2]] = int(f[3])
+        if len(f) >= 3 and f[0].isdigit() and f[1] in ("User", "RT"):
+            user = f[1] == "User"
+            pid = int(f[3]) if user and len(f) >= 4 and f[3].isdigit() else 0
+            found[f[2]] = _Comp(int(f[0]), f[2], user, pid)
     return found
+
+
+def _pins(prefix: str) -> list[tuple[int, str]]:
+    """The pins and parameters whose names begin with `prefix`, with their owners'
+    component ids (``halcmd show pin/param``: the owner's id in the first column)."""
+    out: list[tuple[int, str]] = []
+    for what, at in (("pin", 4), ("param", 4)):
+        for line in _halcmd("show", what, prefix).splitlines():
+            f = line.split()
+            if len(f) > at and f[0].isdigit() and f[at].startswith(prefix):
+                out.append((int(f[0]), f[at]))
+    return out
+
+
+def _family(name: str, base: str) -> bool:
+    """`name` is `base` or a restart's ``base-<n>``."""
+    return name == base or re.fullmatch(re.escape(base) + r"-[0-9]+", name) is not None
 
 
 def _alive(pid: int) -> bool:
@@ -308,6 +377,9 @@ def main() -> int:
         comp = Component(hal, json.loads(sys.argv[1]))
     except Refused as exc:
         _answer({"e": str(exc), "k": exc.kind, "n": exc.name})
+        return 2
+    except Exception as exc:  # HAL refused a pin (its stderr says why), or went away
+        _answer({"e": f"{type(exc).__name__}: {exc}", "k": "lost", "n": None})
         return 2
     _answer({"ready": 1, "eoffset_scale": comp.eoffset_scale})
     with contextlib.suppress(KeyboardInterrupt):

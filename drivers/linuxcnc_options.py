@@ -21,6 +21,7 @@ compd is a HAL user-space component (`drivers.linuxcnc`), named
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
@@ -33,6 +34,64 @@ from drivers.addresses import (
     LinuxCncPin,
     hal_name,
 )
+
+#: HAL's longest name (HAL_NAME_LEN): a pin ``<component>.<pin>`` longer than this
+#: cannot be created
+HAL_NAME_LEN = 47
+#: the most components a killed HAL side may leave behind (HAL frees a user
+#: component only when its process calls hal_exit, so one killed with SIGKILL stays
+#: until LinuxCNC restarts): the next start takes ``<component>-2`` up to
+#: ``<component>-<MAX_LEFT_BEHIND + 1>``, then refuses, naming them
+MAX_LEFT_BEHIND = 20
+#: the longest suffix a restarted HAL side adds to the component's name
+RESTART_SUFFIX = f"-{MAX_LEFT_BEHIND + 1}"
+#: the pins compd makes for an external offset (`drivers.linuxcnc`)
+EOFFSET_PINS = ("eoffset-counts", "eoffset-enable")
+#: names of LinuxCNC's own components and of the pins it makes (motion's
+#: ``spindle.0.speed-out``, ``axis.z.eoffset``...): a compd component of such a name
+#: would stand among LinuxCNC's pins (compared without case, on the name's first
+#: dotted part)
+LINUXCNC_NAMES = frozenset({
+    "motion", "motmod", "spindle", "axis", "joint", "iocontrol", "halui", "tp", "tpmod",
+    "homemod", "trivkins", "kins", "ini", "inihal", "halcmd", "io", "iov2", "emcmot",
+    "hal_manualtoolchange", "classicladder", "pid", "stepgen", "encoder", "pwmgen",
+    "siggen", "parport", "threads", "servo-thread", "base-thread"})
+
+
+def linuxcnc_name_clash(component: str) -> str | None:
+    """Why `component` cannot be compd's HAL component name (one of LinuxCNC's
+    own), None when it can."""
+    head = component.split(".", 1)[0].lower()
+    if head in LINUXCNC_NAMES:
+        return (f"{component!r} is a name LinuxCNC uses for its own components and pins "
+                f"({head}.*): choose another, e.g. 'compd'")
+    return None
+
+
+def pin_names(addresses: Mapping[str, object]) -> dict[str, str]:
+    """The pins compd makes for `addresses` (name -> pin, the offset's two pins
+    under the offset's name)."""
+    pins: dict[str, str] = {}
+    for name, a in addresses.items():
+        if isinstance(a, LinuxCncPin):
+            pins[name] = a.pin
+        elif isinstance(a, LinuxCncEoffset):
+            pins[name] = max(EOFFSET_PINS, key=len)
+    return pins
+
+
+def long_hal_name(component: str, addresses: Mapping[str, object]) -> tuple[str, str] | None:
+    """The first address whose pin name, as a restarted HAL side would make it
+    (``<component>-<n>.<pin>``), is longer than HAL allows: (address name, reason);
+    None when every one fits."""
+    for name, pin in pin_names(addresses).items():
+        full = f"{component}{RESTART_SUFFIX}.{pin}"
+        if len(full) > HAL_NAME_LEN:
+            return name, (f"the HAL pin {component}.{pin} is too long: HAL allows "
+                          f"{HAL_NAME_LEN} characters and a restarted component "
+                          f"({full}) takes {len(full)}; shorten the pin or "
+                          f"controller.linuxcnc.component")
+    return None
 
 
 class _Model(BaseModel):
@@ -48,6 +107,17 @@ class LinuxCncOptions(_Model):
 
     _names = field_validator("component")(hal_name)
 
+    @field_validator("component")
+    @classmethod
+    def _not_linuxcncs(cls, v: str) -> str:
+        why = linuxcnc_name_clash(v)
+        if why is not None:
+            raise ValueError(why)
+        if len(v) + len(RESTART_SUFFIX) > HAL_NAME_LEN:
+            raise ValueError(f"at most {HAL_NAME_LEN - len(RESTART_SUFFIX)} characters "
+                             f"(a restarted HAL side adds up to {RESTART_SUFFIX!r})")
+        return v
+
     @field_validator("python")
     @classmethod
     def _absolute(cls, v: str) -> str:
@@ -60,5 +130,6 @@ class LinuxCncOptions(_Model):
         return {"component": self.component, "python": self.python}
 
 
-__all__ = ["LinuxCncAddress", "LinuxCncEoffset", "LinuxCncGet", "LinuxCncOptions",
-           "LinuxCncPin"]
+__all__ = ["EOFFSET_PINS", "HAL_NAME_LEN", "MAX_LEFT_BEHIND", "LinuxCncAddress",
+           "LinuxCncEoffset", "LinuxCncGet", "LinuxCncOptions", "LinuxCncPin",
+           "linuxcnc_name_clash", "long_hal_name", "pin_names"]

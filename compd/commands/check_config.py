@@ -54,16 +54,25 @@ def _summary(cfg: LoadedConfig) -> dict[str, Any]:
 
 
 def _state_warnings(cfg: LoadedConfig) -> list[str]:
-    """LinuxCNC zeroes its external offset at machine on and ignores it while off:
-    without output.machine_on compd cannot tell, and fights it (refused writes, a
-    READBACK_MISMATCH alarm at each machine on)."""
-    if cfg.raw.controller.protocol != "linuxcnc" or "machine_on" in cfg.states:
+    """LinuxCNC zeroes its external offset at machine on and ignores it while off or
+    not homed: without output.machine_on and output.homed compd cannot tell, and
+    fights it (refused writes, a write fault; a READBACK_MISMATCH alarm at each
+    machine on)."""
+    if cfg.raw.controller.protocol != "linuxcnc":
         return []
-    return ["output.machine_on is not set: LinuxCNC takes no external offset while "
-            "the machine is off and zeroes it at machine on; without it compd's writes "
-            "are refused while off (a write fault) and the zeroed offset reads as foreign "
-            "(READBACK_MISMATCH): set machine_on = { kind = \"get\", hal = "
-            "\"motion.motion-enabled\" } (docs/protocols.md §10)"]
+    out: list[str] = []
+    if "homed" not in cfg.states:
+        out.append("output.homed is not set: LinuxCNC takes no external offset before "
+                   "the machine is homed; without it compd's writes are refused then (a "
+                   "write fault): set homed = { kind = \"get\", hal = "
+                   "\"motion.is-all-homed\" } (docs/protocols.md §10)")
+    if "machine_on" not in cfg.states:
+        out.append("output.machine_on is not set: LinuxCNC takes no external offset while "
+                   "the machine is off and zeroes it at machine on; without it compd's "
+                   "writes are refused while off (a write fault) and the zeroed offset "
+                   "reads as foreign (READBACK_MISMATCH): set machine_on = { kind = "
+                   "\"get\", hal = \"motion.motion-enabled\" } (docs/protocols.md §10)")
+    return out
 
 
 async def _read_once(cfg: LoadedConfig) -> dict[str, Any]:

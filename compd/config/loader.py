@@ -35,6 +35,7 @@ from compd.core.adaptation import AdaptationSettings
 from compd.errors import ConfigError
 from compd.infiles import MAX_CONFIG_BYTES, InputError, load_model, read_toml_document
 from drivers.addresses import Address
+from drivers.linuxcnc_options import LinuxCncOptions, long_hal_name
 from drivers.protocols import PROTOCOLS
 from models.adaptation import AdaptationParams
 from models.compensation import CompensationModel
@@ -44,8 +45,8 @@ from models.sanity import check_model
 
 #: output names as the driver sees them
 OUTPUT_NAMES: tuple[str, ...] = ("offset", "heartbeat", "status")
-#: the controller's state read beside the channels ([output] machine_on, estop)
-STATE_NAMES: tuple[str, ...] = ("machine_on", "estop")
+#: the controller's state read beside the channels ([output] machine_on, estop, homed)
+STATE_NAMES: tuple[str, ...] = ("machine_on", "estop", "homed")
 
 
 @dataclass
@@ -68,7 +69,7 @@ class LoadedConfig:
     #: (read under PROBE_NAMES beside the channels)
     adaptation: AdaptationSettings | None = None
     probes: dict[str, Address] = field(default_factory=dict)
-    #: the controller's state ([output] machine_on, estop), read under STATE_NAMES
+    #: the controller's state ([output] machine_on, estop, homed), read under STATE_NAMES
     states: dict[str, Address] = field(default_factory=dict)
 
     @property
@@ -199,6 +200,17 @@ def _check_model(model: CompensationModel, channels: dict[str, Address], period_
                                "sample period is wrong at another")
 
 
+def _check_hal_names(options: LinuxCncOptions, channels: dict[str, Address],
+                     probes: dict[str, Address], outputs: dict[str, Address]) -> None:
+    """Every pin ``<component>.<pin>`` compd makes fits HAL's names (47 characters),
+    also as a restarted HAL side names it; else HAL refuses it at every start."""
+    for where, table in (("channels.{}.address.pin", channels),
+                         ("adaptation.{}", probes), ("output.{}", outputs)):
+        long = long_hal_name(options.component, table)
+        if long is not None:
+            raise ConfigError(where.format(long[0]), long[1])
+
+
 def _check_protocol_sections(ctl: ControllerSection) -> None:
     """Each [controller.<section>] only with its protocol; a required one given."""
     for spec in PROTOCOLS.values():
@@ -289,6 +301,8 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
             raise ConfigError("recorder.path", f"{recorder_path} is a directory, not a file")
     adaptation, probes = _adaptation(raw, channels, model.adaptation)
     check_overlaps(outputs, channels, probes, states)
+    if ctl.protocol == "linuxcnc":
+        _check_hal_names(ctl.linuxcnc or LinuxCncOptions(), channels, probes, outputs)
     return LoadedConfig(
         path=path, raw=raw, channels=channels, outputs=outputs, model=model, shadow=shadow,
         state_dir=state_dir, recorder_path=recorder_path,

@@ -361,6 +361,9 @@ class OutputSection(_Section):
     #: held, not written, and taken from the read-back when the machine is on again
     #: (compd.core.cycle, status bit CONTROLLER_OFF)
     machine_on: dict[str, Any] | None = None
+    #: a value 0 means the machine is not homed (LinuxCNC takes no external offset
+    #: then): held like machine off
+    homed: dict[str, Any] | None = None
     estop: dict[str, Any] | None = None
 
     @model_validator(mode="after")

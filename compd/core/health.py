@@ -241,7 +241,8 @@ class OutputHealth:
         self.model_range = False
         #: an operator's hold (`set_operator_hold`): the offset stays where it is
         self.operator_hold = operator_hold
-        #: why the controller takes no offset now ("machine_off", "estop"), None: it does
+        #: why the controller takes no offset now ("machine_off", "estop", "not_homed"),
+        #: None: it does
         self.controller_off: str | None = None
 
     def carry_over(self, old: OutputHealth, *, outputs_same: bool) -> None:

@@ -33,6 +33,7 @@ from compd.errors import ConfigError
 from compd.infiles import load_model
 from drivers.sim.base import SimController
 from drivers.sim.focas_server import FocasSimController
+from drivers.sim.linuxcnc_machine import LinuxCncSimController
 from drivers.sim.machine import SimMachine
 from models import tomltext
 from models.quality import fit_percent
@@ -95,6 +96,8 @@ def daemon_config(sim: SimController, *, model: str, period_s: float, time_scale
         controller["security"] = {"policy": "None", "insecure": True}
     if isinstance(sim, FocasSimController):  # its library is the twin's own, not the protocol's
         controller["focas"] = {"library_path": str(sim.library_path)}
+    if isinstance(sim, LinuxCncSimController):  # its HAL names are the run's own
+        controller["linuxcnc"] = {"component": sim.component}
     outputs = sim.outputs_map
     return {
         "machine": {"name": f"demo-{sim.protocol}", "period_s": period_s,

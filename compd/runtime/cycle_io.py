@@ -100,7 +100,8 @@ class CycleIO:
                     ) -> tuple[dict[str, Sample] | None, float | None, ProbeReading | None,
                                str | None]:
         """The channels, the offset read back, the probe, and why the controller takes
-        no offset now ([output] estop / machine_on; None when it does or cannot say)."""
+        no offset now ([output] estop / machine_on / homed; None when it does or cannot
+        say)."""
         params = self.running.params
         names = list(cfg.channels)
         if params.readback:
@@ -192,8 +193,8 @@ def _probe_reading(got: dict[str, Sample]) -> ProbeReading:
 
 
 def _controller_off(got: Mapping[str, Sample]) -> str | None:
-    """Why the controller takes no offset now, from [output] estop and machine_on as
-    read (`compd.core.cycle`); None when it does or it cannot be told."""
+    """Why the controller takes no offset now, from [output] estop, machine_on and
+    homed as read (`compd.core.cycle`); None when it does or it cannot be told."""
     def bit(name: str) -> bool | None:
         s = got.get(name)
         if s is None or s.quality is Quality.BAD or not math.isfinite(s.value):
@@ -204,4 +205,6 @@ def _controller_off(got: Mapping[str, Sample]) -> str | None:
         return "estop"
     if bit("machine_on") is False:
         return "machine_off"
+    if bit("homed") is False:
+        return "not_homed"
     return None

@@ -7,7 +7,9 @@ the command) and exits 0, or prints ``{"e": message}`` and exits 1.
 
 Commands: ``stat``; ``on`` (out of E-stop, machine on, manual mode, home
 every joint, wait until homed); ``off`` (machine off); ``estop``; ``run
-FILE`` (auto mode, open FILE, run it from its first line); ``abort``.
+FILE`` (auto mode, open FILE, run it from its first line); ``abort``;
+``unhome`` (abort, joint mode, un-home every joint); ``mdi LINE`` (abort, MDI
+mode, run LINE to its end).
 """
 
 from __future__ import annotations
@@ -77,6 +79,23 @@ def main(argv: list[str]) -> int:
         elif cmd == "abort":
             c.abort()
             c.wait_complete()
+        elif cmd == "unhome":  # stop a program, joint mode, every joint un-homed
+            c.abort()
+            c.wait_complete()
+            c.mode(lc.MODE_MANUAL)
+            c.wait_complete()
+            c.teleop_enable(0)
+            c.wait_complete()
+            c.unhome(-1)
+            c.wait_complete()
+            _until(s, lambda: not any(s.homed[:s.joints]), "un-home")
+        elif cmd == "mdi":  # stop a program, run one MDI line to its end
+            c.abort()
+            c.wait_complete()
+            c.mode(lc.MODE_MDI)
+            c.wait_complete()
+            c.mdi(argv[2])
+            c.wait_complete(DEADLINE_S)
         elif cmd != "stat":
             raise ValueError(f"unknown command {cmd!r}")
         print(json.dumps(_stat(lc, s)))

@@ -4,28 +4,32 @@ Not a stand-in: LinuxCNC itself (Debian's ``linuxcnc-uspace``) runs a small
 mill (XYZ, mm, trivkins, simulated joints, Z external offsets at
 ``OFFSET_AV_RATIO`` 0.2) from a configuration written to a work folder, with
 the ``dummy`` display (it waits on its stdin: closing it shuts LinuxCNC
-down). The plant's side is a second HAL component, ``compd-plant``
+down). The plant's side is a second HAL component, ``<prefix>-plant``
 (`drivers.linuxcnc.LinuxCncDriver` with output pins), driving the sensor
-signals ``compd-<channel>`` that compd's own pins join; the spindle speed is
+signals ``<prefix>-<channel>`` that compd's own pins join; the spindle speed is
 LinuxCNC's (``spindle-speed-cmd`` <- ``spindle.0.speed-out``, set by the
 G-code program that runs); the offset the plant sees is what motion applies
 (``axis.z.eoffset``, µm).
 
-The HAL file a user adds for compd is the one written here (`HAL_LINES`),
-less the plant's signals: `docs/protocols.md`.
+The HAL file a user adds for compd is `hal_lines` with the prefix ``compd``
+(`HAL_LINES`), less the plant's signals: `docs/protocols.md`. A controller here
+names its signals and components with a prefix of its own (`LinuxCncSimController.
+prefix`, ``compd-t<pid>``): a compd left running by a test finds none of them in
+another LinuxCNC, and the names are the run's alone.
 
 As root, ``rtapi_app`` runs with the fallback uid ``RTAPI_UID`` (nobody) and a
-FIFO that uid can write (``RTAPI_FIFO_PATH`` in the work folder). One
-LinuxCNC runs per machine: `start()` takes an exclusive lock
-(`LOCK_PATH`) held until `stop()`, which always cleans up (``halrun -U``).
-`unavailable()` says why LinuxCNC cannot run here (None when it can).
+FIFO that uid can write (``RTAPI_FIFO_PATH`` in the run's work folder). One
+LinuxCNC runs per machine: `start()` takes the machine's lock
+(`drivers.sim.linuxcnc_host`: waits while another run holds it; refuses with
+`ForeignLinuxCnc` when a LinuxCNC it did not start runs) held until `stop()`,
+which runs ``halrun -U`` only for its own LinuxCNC when that did not end by
+itself. `unavailable()` says why LinuxCNC cannot run here (None when it can).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import fcntl
 import json
 import os
 import pwd
@@ -35,21 +39,20 @@ import tempfile
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 from drivers.addresses import LinuxCncEoffset, LinuxCncGet, LinuxCncPin
 from drivers.linuxcnc import LinuxCncDriver
+from drivers.sim import linuxcnc_host
+from drivers.sim.linuxcnc_host import ForeignLinuxCnc, LinuxCncBusy
 
 #: the Python LinuxCNC's modules were built for (Debian's)
 SYSTEM_PYTHON = "/usr/bin/python3"
 CTL = Path(__file__).with_name("linuxcnc_ctl.py")
-#: one LinuxCNC per machine: every starter takes this lock
-LOCK_PATH = Path(tempfile.gettempdir()) / "compd-linuxcnc.lock"
-#: how long a starter waits for another's LinuxCNC to end: less than a test's timeout, so
-#: that a start which gets it too late cannot outlive the test that asked for it
-LOCK_WAIT_S = 200.0
 #: seconds LinuxCNC may take to come up (a loaded 2-core machine is slow)
 START_DEADLINE_S = 120.0
+#: seconds LinuxCNC's processes may take to end after its start script did
+END_DEADLINE_S = 30.0
 #: seconds the plant waits for motion to apply a requested offset
 SETTLE_DEADLINE_S = 10.0
 #: µm per count of axis.z.eoffset-counts (axis.z.eoffset-scale 0.0001 mm)
@@ -58,16 +61,26 @@ COUNT_UM = 0.1
 SENSORS: tuple[str, ...] = ("bearing", "motor", "column", "table", "ambient", "power_kw",
                             "growth_um", "error_um")
 
-HAL_LINES = f"""\
+#: the address fields that name a HAL signal
+NETS = frozenset({"net", "counts_net", "enable_net"})
+
+
+def hal_lines(prefix: str = "compd") -> str:
+    """The HAL file's lines for compd, its signals named ``<prefix>-...``."""
+    return f"""\
 # compd: external offset of Z in counts of {COUNT_UM} µm
 setp axis.z.eoffset-scale {COUNT_UM / 1000.0:g}
-net compd-eoffset-counts => axis.z.eoffset-counts
-net compd-eoffset-enable => axis.z.eoffset-enable
+net {prefix}-eoffset-counts => axis.z.eoffset-counts
+net {prefix}-eoffset-enable => axis.z.eoffset-enable
 # compd's heartbeat and status word, for a ladder or HAL logic to watch
-newsig compd-heartbeat s32
-newsig compd-status s32
+newsig {prefix}-heartbeat s32
+newsig {prefix}-status s32
 # the sensors (here the simulated plant's component drives them)
-""" + "".join(f"newsig compd-{name} float\n" for name in SENSORS)
+""" + "".join(f"newsig {prefix}-{name} float\n" for name in SENSORS)
+
+
+#: the HAL file of docs/protocols.md
+HAL_LINES = hal_lines()
 
 INI = """\
 [EMC]
@@ -137,9 +150,10 @@ def unavailable() -> str | None:
     return None
 
 
-def write_config(folder: Path) -> Path:
-    """The machine's configuration in `folder`; returns the INI file."""
-    (folder / "compd.hal").write_text(HAL_LINES, encoding="utf-8")
+def write_config(folder: Path, prefix: str = "compd") -> Path:
+    """The machine's configuration in `folder` (compd's signals ``<prefix>-...``);
+    returns the INI file."""
+    (folder / "compd.hal").write_text(hal_lines(prefix), encoding="utf-8")
     (folder / "tool.tbl").write_text("T1 P1 D6.0 Z0 ;\n", encoding="utf-8")
     (folder / "sim.var").write_text("", encoding="utf-8")
     ini = folder / "compd-test.ini"
@@ -147,25 +161,35 @@ def write_config(folder: Path) -> Path:
     return ini
 
 
-def _cleanup() -> None:
-    """LinuxCNC's own cleanup of realtime processes and shared memory."""
+def _cleanup(env: dict[str, str]) -> None:
+    """LinuxCNC's own cleanup of realtime processes and shared memory: only ever for
+    a LinuxCNC this run started (`env`: the one it was started with)."""
     with contextlib.suppress(OSError, subprocess.SubprocessError):
         subprocess.run(["halrun", "-U"], capture_output=True, timeout=60, check=False,
-                       env=_env())
+                       env=env)
 
 
-#: where rtapi_app's FIFO lives when run as root (the same for start and cleanup,
-#: or ``halrun -U`` cannot reach a running instance)
-FIFO_DIR = Path(tempfile.gettempdir()) / "compd-linuxcnc-rtapi"
+def _gone(deadline_s: float) -> bool:
+    """Wait until no LinuxCNC runs here (the caller's own ending: it holds the
+    machine's lock); False when one still does after `deadline_s`."""
+    end = time.monotonic() + deadline_s
+    while linuxcnc_host.foreign() is not None:
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.05)
+    return True
 
 
-def _env() -> dict[str, str]:
+def _env(folder: Path) -> dict[str, str]:
+    """LinuxCNC's environment; as root, rtapi_app's FIFO in the run's own `folder`
+    (the same for start and cleanup, or ``halrun -U`` cannot reach the instance)."""
     env = dict(os.environ, RUNTESTS="1")
     if os.geteuid() == 0:  # rtapi_app refuses root without a fallback uid
-        FIFO_DIR.mkdir(exist_ok=True)
-        FIFO_DIR.chmod(0o777)
+        fifo = folder / "rtapi"
+        fifo.mkdir(exist_ok=True)
+        fifo.chmod(0o777)
         env["RTAPI_UID"] = str(pwd.getpwnam("nobody").pw_uid)
-        env["RTAPI_FIFO_PATH"] = str(FIFO_DIR / "rtapi_fifo")
+        env["RTAPI_FIFO_PATH"] = str(fifo / "rtapi_fifo")
     return env
 
 
@@ -177,24 +201,34 @@ class LinuxCncSimController:
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0, *,
                  folder: Path | None = None) -> None:
+        #: the run's own prefix of signal and component names (module docstring)
+        self.prefix = f"compd-t{os.getpid()}"
+        #: the HAL component name a compd against this machine takes
+        self.component = self.prefix
+        p = self.prefix
         self.channels: dict[str, Any] = {
-            name: LinuxCncPin(pin=name.replace("_", "-"), net=f"compd-{name}")
+            name: LinuxCncPin(pin=name.replace("_", "-"), net=f"{p}-{name}")
             for name in SENSORS}
         self.channels["speed_rpm"] = LinuxCncPin(pin="speed-rpm", net="spindle-speed-cmd")
         self.outputs_map: dict[str, Any] = {
             "offset": LinuxCncEoffset(kind="eoffset", axis="z", scale=COUNT_UM,
-                                      eoffset_scale=COUNT_UM / 1000.0),
-            "heartbeat": LinuxCncPin(pin="heartbeat", net="compd-heartbeat", type="s32"),
-            "status": LinuxCncPin(pin="status", net="compd-status", type="s32")}
-        #: the controller's state for [output] machine_on / estop
+                                      eoffset_scale=COUNT_UM / 1000.0,
+                                      counts_net=f"{p}-eoffset-counts",
+                                      enable_net=f"{p}-eoffset-enable"),
+            "heartbeat": LinuxCncPin(pin="heartbeat", net=f"{p}-heartbeat", type="s32"),
+            "status": LinuxCncPin(pin="status", net=f"{p}-status", type="s32")}
+        #: the controller's state for [output] machine_on / estop / homed
         self.states: dict[str, Any] = {
             "machine_on": LinuxCncGet(kind="get", hal="motion.motion-enabled"),
-            "estop": LinuxCncGet(kind="get", hal="iocontrol.0.user-enable-out", invert=True)}
+            "estop": LinuxCncGet(kind="get", hal="iocontrol.0.user-enable-out", invert=True),
+            "homed": LinuxCncGet(kind="get", hal="motion.is-all-homed")}
         self.probes: dict[str, Any] = {}
         self._given = folder
         self.folder: Path | None = None
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
-        self._lock: IO[bytes] | None = None
+        #: whether this controller holds the machine's LinuxCNC lock
+        self._locked = False
+        self._env: dict[str, str] = {}
         self._proc: subprocess.Popen[bytes] | None = None
         self._plant: LinuxCncDriver | None = None
 
@@ -212,12 +246,13 @@ class LinuxCncSimController:
                     "request_um": LinuxCncGet(kind="get", hal="axis.z.eoffset-request",
                                               scale=1000.0),
                     "spindle_rpm": LinuxCncGet(kind="get", hal="spindle.0.speed-out"),
-                    "heartbeat": LinuxCncPin(pin="heartbeat", net="compd-heartbeat",
+                    "heartbeat": LinuxCncPin(pin="heartbeat", net=f"{self.prefix}-heartbeat",
                                              type="s32"),
-                    "status": LinuxCncPin(pin="status", net="compd-status", type="s32")},
-                {n: LinuxCncPin(pin=n.replace("_", "-"), net=f"compd-{n}")
+                    "status": LinuxCncPin(pin="status", net=f"{self.prefix}-status",
+                                          type="s32")},
+                {n: LinuxCncPin(pin=n.replace("_", "-"), net=f"{self.prefix}-{n}")
                  for n in SENSORS},
-                timeout_s=10.0, connect_timeout_s=60.0, component="compd-plant",
+                timeout_s=10.0, connect_timeout_s=60.0, component=f"{self.prefix}-plant",
                 python=SYSTEM_PYTHON)
             await self._plant.connect()
             await self.control("on")
@@ -226,31 +261,22 @@ class LinuxCncSimController:
             raise
 
     def _start_sync(self) -> None:
-        lock = LOCK_PATH.open("wb")
-        deadline = time.monotonic() + LOCK_WAIT_S
-        while True:  # one LinuxCNC per machine: wait for the other, a bounded time
-            try:
-                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
-            except BlockingIOError:
-                if time.monotonic() > deadline:
-                    lock.close()
-                    raise RuntimeError(f"another LinuxCNC run held {LOCK_PATH} for "
-                                       f"{LOCK_WAIT_S:g} s (one LinuxCNC per machine)") from None
-                time.sleep(0.2)
-        self._lock = lock
-        _cleanup()  # what a killed run may have left
+        # one LinuxCNC per machine: waits while another run holds it; refuses to
+        # start beside (or clean up) a LinuxCNC somebody else started
+        linuxcnc_host.acquire()
+        self._locked = True
         if self._given is not None:
             self.folder = self._given
         else:
             self._tmp = tempfile.TemporaryDirectory(prefix="compd-linuxcnc-")
             self.folder = Path(self._tmp.name)
         self.folder.chmod(0o755)
-        ini = write_config(self.folder)
+        ini = write_config(self.folder, self.prefix)
+        self._env = _env(self.folder)
         log = (self.folder / "linuxcnc.log").open("wb")
         self._proc = subprocess.Popen(["linuxcnc", str(ini)], cwd=self.folder,
                                       stdin=subprocess.PIPE, stdout=log,
-                                      stderr=subprocess.STDOUT, env=_env(),
+                                      stderr=subprocess.STDOUT, env=self._env,
                                       start_new_session=True)
         log.close()
         deadline = time.monotonic() + START_DEADLINE_S
@@ -272,28 +298,51 @@ class LinuxCncSimController:
         await asyncio.to_thread(self._stop_sync)
 
     def _stop_sync(self) -> None:
-        if self._lock is None:  # it never got the machine's LinuxCNC: nothing here is ours
+        if not self._locked:  # it never got the machine's LinuxCNC: nothing here is ours
             return
         proc, self._proc = self._proc, None
         if proc is not None:
+            ended = True
             with contextlib.suppress(OSError):
                 if proc.stdin is not None:
                     proc.stdin.close()  # the dummy display's "press ENTER": shut down
             try:
                 proc.wait(60)
             except subprocess.TimeoutExpired:
+                ended = False
                 with contextlib.suppress(ProcessLookupError):
                     os.killpg(proc.pid, 9)
                 proc.wait(10)
-        _cleanup()
+            # its processes (linuxcncsvr, rtapi_app) end after its start script: the
+            # lock is given back once they are gone, or the next run would see them
+            # as a LinuxCNC it did not start
+            if not ended or not _gone(END_DEADLINE_S):
+                _cleanup(self._env)  # ours, and it did not clean up after itself
+                _gone(END_DEADLINE_S)
         if self._tmp is not None:
             self._tmp.cleanup()
             self._tmp = None
-        if self._lock is not None:
-            self._lock.close()  # releases the lock
-            self._lock = None
+        self._locked = False
+        linuxcnc_host.release()
 
     # -- the machine's side --------------------------------------------------------
+
+    def own_config(self, doc: dict[str, Any]) -> dict[str, Any]:
+        """A compd config document written for the HAL file of docs/protocols.md
+        (signals ``compd-...``, component ``compd``) made to join this machine's
+        signals instead: the names of this run (`prefix`)."""
+        def rename(value: Any) -> Any:
+            if isinstance(value, dict):
+                if value.get("kind") == "eoffset":  # its signals' names by default
+                    value = {"counts_net": "compd-eoffset-counts",
+                             "enable_net": "compd-eoffset-enable", **value}
+                return {k: (f"{self.prefix}{v[len('compd'):]}" if k in NETS and isinstance(
+                    v, str) and v.startswith("compd-") else rename(v)) for k, v in value.items()}
+            return value
+
+        out: dict[str, Any] = rename(doc)
+        out.setdefault("controller", {}).setdefault("linuxcnc", {})["component"] = self.component
+        return out
 
     async def control(self, *command: str) -> dict[str, Any]:
         """A `drivers.sim.linuxcnc_ctl` command (``on``, ``off``, ``estop``,
@@ -347,4 +396,5 @@ class LinuxCncSimController:
         await self.control("on")
 
 
-__all__ = ["HAL_LINES", "LinuxCncSimController", "unavailable", "write_config"]
+__all__ = ["HAL_LINES", "ForeignLinuxCnc", "LinuxCncBusy", "LinuxCncSimController",
+           "hal_lines", "unavailable", "write_config"]

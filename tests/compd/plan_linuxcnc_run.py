@@ -101,9 +101,10 @@ def compd(argv: list[str]) -> dict[str, Any]:
     return json.loads(lines[-1]) if lines and lines[-1].startswith("{") else {}
 
 
-def run_config(folder: Path, recorder_toml: Path, time_scale: float) -> Path:
+def run_config(lcnc: LinuxCncSimController, folder: Path, recorder_toml: Path,
+               time_scale: float) -> Path:
     """compd/examples/linuxcnc.toml at `time_scale`, the table and the growth
-    (``dz_um``) as channels too, and the plan's [recorder]."""
+    (``dz_um``) as channels too, and the plan's [recorder]; its HAL names `lcnc`'s."""
     doc = tomllib.loads((ROOT / "compd" / "examples" / "linuxcnc.toml").read_text("utf-8"))
     doc["machine"].update(period_s=PERIOD_S, time_scale=time_scale)
     doc["controller"].update(timeout_s=0.4 * PERIOD_S / time_scale, connect_timeout_s=60.0)
@@ -114,15 +115,15 @@ def run_config(folder: Path, recorder_toml: Path, time_scale: float) -> Path:
     doc["state"]["dir"] = str(folder / "state")
     doc["recorder"] = tomllib.loads(recorder_toml.read_text("utf-8"))["recorder"]
     path = folder / "compd.toml"
-    path.write_text(tomltext.dumps(doc), encoding="utf-8")
+    path.write_text(tomltext.dumps(lcnc.own_config(doc)), encoding="utf-8")
     return path
 
 
-async def _run_program(folder: Path, ngc: Path, config: Path, time_scale: float,
-                       seed: int) -> tuple[float, int, int]:
+async def _run_program(lcnc: LinuxCncSimController, folder: Path, ngc: Path, config: Path,
+                       time_scale: float, seed: int) -> tuple[float, int, int]:
     """LinuxCNC runs `ngc` while the plant follows its spindle and `compd run`
-    records; (real seconds of the program, plant ticks, overruns)."""
-    lcnc = LinuxCncSimController()
+    records; (real seconds of the program, plant ticks, overruns). Raises
+    `ForeignLinuxCnc` (the lock given back) where a LinuxCNC it did not start runs."""
     await lcnc.start()
     try:
         machine = LinuxCncSpindleMachine(lcnc, seed=seed, period_s=PLANT_PERIOD_S,
@@ -164,9 +165,10 @@ def run_plan(folder: Path, *, hours: float = 2.0, time_scale: float = 120.0,
            "--dialect", "linuxcnc", "--time-scale", f"{time_scale:g}", "-o", str(ngc),
            "--force"])
     ngc.chmod(0o644)
-    config = run_config(folder, folder / "warmup.recorder.toml", time_scale)
+    lcnc = LinuxCncSimController()
+    config = run_config(lcnc, folder, folder / "warmup.recorder.toml", time_scale)
     program_s, ticks, overruns = asyncio.run(
-        _run_program(folder, ngc, config, time_scale, seed))
+        _run_program(lcnc, folder, ngc, config, time_scale, seed))
     exported = folder / "warmup.csv"
     compd(["export", str(folder / "warmup.sqlite"), "-o", str(exported), "--force"])
     with exported.open(encoding="utf-8", newline="") as f:

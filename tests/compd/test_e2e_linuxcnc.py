@@ -4,9 +4,13 @@ and the real daemon (in lockstep, `tests.lockstep`) compensating Z through
 external offsets. Everything is checked on LinuxCNC's side: ``axis.z.eoffset``
 and the HAL signals (read as ``halcmd getp`` does), ``linuxcnc.stat()``.
 
-One LinuxCNC for the module (it takes seconds to start), held under a file
-lock (`LOCK_PATH`: one LinuxCNC per machine, whatever pytest worker or process
-wants one); skipped with the reason where ``linuxcnc-uspace`` is absent.
+One LinuxCNC for the module (it takes seconds to start), held under the
+machine's LinuxCNC lock (`drivers.sim.linuxcnc_host`: one LinuxCNC per machine,
+whatever run, checkout or user wants one): a run that finds it held waits (its
+module's setup, outside the tests' timeouts); skipped with the reason where
+``linuxcnc-uspace`` is absent, and where a LinuxCNC this run did not start runs
+(a shop's: never touched). Its signal and component names are the run's own
+(`LinuxCncSimController.prefix`).
 
 The figures (offset LinuxCNC applies against the offset compd wrote, the
 largest step per period against the slew limit) are printed: ``-s`` shows them.
@@ -32,7 +36,12 @@ from compd.offline.demo import start_daemon
 from drivers.errors import BadAddress, ConnectionLost
 from drivers.linuxcnc import LinuxCncDriver
 from drivers.linuxcnc_options import LinuxCncPin
-from drivers.sim.linuxcnc_machine import LinuxCncSimController, unavailable
+from drivers.sim.linuxcnc_machine import (
+    ForeignLinuxCnc,
+    LinuxCncBusy,
+    LinuxCncSimController,
+    unavailable,
+)
 from drivers.sim.machine import SimMachine
 from drivers.sim.programs import constant
 from tests.lockstep import Lockstep, lockstep_config, write_config
@@ -40,8 +49,8 @@ from tests.lockstep import Lockstep, lockstep_config, write_config
 WHY_NOT = unavailable()
 pytestmark = [pytest.mark.skipif(WHY_NOT is not None, reason=str(WHY_NOT)),
               pytest.mark.asyncio(loop_scope="module"),
-              # another worker's module may hold the machine's one LinuxCNC for a minute
-              pytest.mark.timeout(300)]
+              # the test alone: the module's setup may wait for another run's LinuxCNC
+              pytest.mark.timeout(300, func_only=True)]
 
 ROOT = Path(__file__).resolve().parents[2]
 PERIOD_S = 60.0
@@ -70,7 +79,10 @@ M2
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def lcnc(tmp_path_factory: pytest.TempPathFactory) -> AsyncIterator[LinuxCncSimController]:
     sim = LinuxCncSimController()
-    await sim.start()
+    try:
+        await sim.start()
+    except (ForeignLinuxCnc, LinuxCncBusy) as exc:
+        pytest.skip(str(exc))
     try:
         ngc = tmp_path_factory.mktemp("ngc") / "warm.ngc"
         ngc.write_text(PROGRAM, encoding="ascii")
@@ -84,8 +96,8 @@ async def lcnc(tmp_path_factory: pytest.TempPathFactory) -> AsyncIterator[LinuxC
 def _config(sim: LinuxCncSimController, tmp_path: Path, **faults: Any) -> Path:
     doc = lockstep_config(sim, tmp_path, model="sim_machine", period_s=PERIOD_S,
                           limit_um=LIMIT_UM, slew_um_s=SLEW_UM_S)
-    doc["output"]["machine_on"] = sim.states["machine_on"].model_dump()
-    doc["output"]["estop"] = sim.states["estop"].model_dump()
+    for state in ("machine_on", "estop", "homed"):
+        doc["output"][state] = sim.states[state].model_dump()
     doc["faults"].update(faults)
     return write_config(doc, tmp_path / "compd.toml")
 
@@ -121,7 +133,8 @@ async def test_driver_joins_the_machines_signals(lcnc: LinuxCncSimController) ->
     state = await lcnc.control("stat")
     assert state["machine_on"] and all(state["homed"])
     driver = LinuxCncDriver(lcnc.endpoint, {**lcnc.channels, **lcnc.states}, lcnc.outputs_map,
-                            timeout_s=10.0, connect_timeout_s=60.0)
+                            timeout_s=10.0, connect_timeout_s=60.0,
+                            component=lcnc.component)
     try:
         await driver.connect()
         await lcnc.publish({"bearing": 31.4, "ambient": 20.5})
@@ -138,10 +151,10 @@ async def test_driver_joins_the_machines_signals(lcnc: LinuxCncSimController) ->
         assert (await lcnc.settled())["offset_um"] == pytest.approx(before, abs=SETTLED_UM)
     finally:
         await driver.close()
-    assert not _component_exists("compd")
+    assert not _component_exists(lcnc.component)
     # a signal the HAL file does not make: refused at connect, naming it
     bad = LinuxCncDriver(lcnc.endpoint, {"bearing": LinuxCncPin(pin="b", net="no-such-net")},
-                         {}, timeout_s=10.0, connect_timeout_s=60.0)
+                         {}, timeout_s=10.0, connect_timeout_s=60.0, component=lcnc.component)
     with pytest.raises(BadAddress, match="no-such-net"):
         await bad.connect()
     await bad.close()
@@ -198,14 +211,14 @@ async def test_machine_off_and_estop_are_held_without_a_write_fight(
         warm = (await lcnc.settled())["offset_um"]
         assert warm > 5.0
         for off, word in (("off", "machine_off"), ("estop", "estop")):
-            counts = _signal("compd-eoffset-counts")
+            counts = _signal(f"{lcnc.prefix}-eoffset-counts")
             await lcnc.control(off)
             for _ in range(5):
                 await rig.step()
                 assert _written(rig) is None  # no offset written while LinuxCNC is off
                 status = int((await lcnc.settled())["status"])
                 assert status & Status.CONTROLLER_OFF and not status & Status.ALARM
-            assert _signal("compd-eoffset-counts") == counts  # counts left alone
+            assert _signal(f"{lcnc.prefix}-eoffset-counts") == counts  # counts left alone
             assert rig.logs[-1].names().count("controller_off") == (1 if off == "off" else 2)
             fields = [f for _, e, f in rig.logs[-1].events if e == "controller_off"][-1]
             assert fields["reason"] == word
@@ -239,7 +252,7 @@ async def test_death_holds_the_offset_and_a_restart_resumes_without_a_jump(
         await rig.kill9()
         # the kernel closes a killed process' pipes: its HAL side reads end-of-file
         await daemon.running.driver.close()
-        assert not _component_exists("compd")
+        assert not _component_exists(lcnc.component)
         await rig.idle(5)  # no daemon: the signal keeps the last counts, the offset holds
         assert (await lcnc.settled())["offset_um"] == pytest.approx(held, abs=SETTLED_UM)
         await rig.start()
@@ -256,7 +269,7 @@ async def test_death_holds_the_offset_and_a_restart_resumes_without_a_jump(
         # SIGTERM with shutdown = "hold": the offset stays where it is
         assert await rig.stop() == 0
         assert (await lcnc.settled())["offset_um"] == pytest.approx(previous, abs=SETTLED_UM)
-        assert not _component_exists("compd")
+        assert not _component_exists(lcnc.component)
     finally:
         await rig.close()
 
@@ -265,8 +278,10 @@ async def test_death_holds_the_offset_and_a_restart_resumes_without_a_jump(
 async def test_the_shipped_example_runs_against_the_machines_hal_file(
         lcnc: LinuxCncSimController, tmp_path: Path) -> None:
     """`compd/examples/linuxcnc.toml` joins the signals the HAL file of
-    `docs/protocols.md` makes (the test machine's), as it is, but its state dir."""
-    doc = tomllib.loads((ROOT / "compd" / "examples" / "linuxcnc.toml").read_text("utf-8"))
+    `docs/protocols.md` makes (the test machine's, under the run's own names), as it
+    is but its state dir."""
+    doc = lcnc.own_config(tomllib.loads(
+        (ROOT / "compd" / "examples" / "linuxcnc.toml").read_text("utf-8")))
     doc["state"]["dir"] = str(tmp_path / "state")
     machine = SimMachine(lcnc, program=constant(SPEED_RPM, heat_h=10.0, cool_h=1.0),
                          seed=5, period_s=float(doc["machine"]["period_s"]), repeat=False)
@@ -305,7 +320,7 @@ async def test_compd_run_process_killed_leaves_the_offset_held(
     await lcnc.publish({"bearing": 35.0, "motor": 40.0, "column": 22.0, "ambient": 20.0})
 
     async def offset_in_counts() -> float:
-        return _signal("compd-eoffset-counts")
+        return _signal(f"{lcnc.prefix}-eoffset-counts")
 
     start = (await lcnc.settled())["offset_um"]
     proc = await start_daemon(config, tmp_path / "run1.log", tmp_path / "notify1")
@@ -319,7 +334,7 @@ async def test_compd_run_process_killed_leaves_the_offset_held(
         await proc.wait()
 
         async def gone() -> bool:
-            return not _component_exists("compd")
+            return not _component_exists(lcnc.component)
         await _until("the HAL side of a killed compd ended", gone)
         counts = await offset_in_counts()
         held = (await lcnc.settled())["offset_um"]
@@ -328,11 +343,11 @@ async def test_compd_run_process_killed_leaves_the_offset_held(
         assert await offset_in_counts() == counts
         assert (await lcnc.settled())["offset_um"] == pytest.approx(held, abs=SETTLED_UM)
         assert abs(held - start) > 1.0
-        beats = _signal("compd-heartbeat")
+        beats = _signal(f"{lcnc.prefix}-heartbeat")
         proc = await start_daemon(config, tmp_path / "run2.log", tmp_path / "notify2")
 
         async def beating() -> bool:
-            return _signal("compd-heartbeat") != beats
+            return _signal(f"{lcnc.prefix}-heartbeat") != beats
         await _until("a restarted compd run's heartbeat reached HAL", beating)
         proc.send_signal(signal.SIGTERM)
         assert await proc.wait() == 0
@@ -352,7 +367,8 @@ async def test_a_hal_side_killed_9_is_stepped_around(lcnc: LinuxCncSimController
     offset holds) and drives them itself."""
     # its own name: what it leaves behind stays in this LinuxCNC for the other tests
     driver = LinuxCncDriver(lcnc.endpoint, {**lcnc.channels}, lcnc.outputs_map,
-                            timeout_s=10.0, connect_timeout_s=60.0, component="compd-k9")
+                            timeout_s=10.0, connect_timeout_s=60.0,
+                            component=f"{lcnc.prefix}-k9")
     try:
         await driver.connect()
         before = (await lcnc.settled())["offset_um"]
@@ -361,13 +377,13 @@ async def test_a_hal_side_killed_9_is_stepped_around(lcnc: LinuxCncSimController
         assert session is not None
         session.proc.kill()
         await session.proc.wait()
-        assert _component_exists("compd-k9")  # left behind, HAL cannot remove it
+        assert _component_exists(f"{lcnc.prefix}-k9")  # left behind, HAL cannot remove it
         held = (await lcnc.settled())["offset_um"]
         assert held == pytest.approx(before + 1.0, abs=SETTLED_UM)
         with pytest.raises(ConnectionLost):  # the link sees its session gone
             await driver.read(["offset"])
         await driver.connect()  # a new HAL side (the backoff's attempt, made now)
-        assert _component_exists("compd-k9-2")
+        assert _component_exists(f"{lcnc.prefix}-k9-2")
         assert (await driver.read(["offset"]))["offset"].value == pytest.approx(
             held, abs=SETTLED_UM)
         await driver.write({"offset": before, "heartbeat": 12})
@@ -384,7 +400,8 @@ async def test_a_hal_side_start_outlives_a_read_that_gave_up(
     cycle's read may wait: a read that gives up leaves the start going on, and the
     next attempt takes that HAL side instead of killing it and starting again."""
     driver = LinuxCncDriver(lcnc.endpoint, {"bearing": lcnc.channels["bearing"]}, {},
-                            timeout_s=10.0, connect_timeout_s=60.0, component="compd-slow")
+                            timeout_s=10.0, connect_timeout_s=60.0,
+                            component=f"{lcnc.prefix}-slow")
     try:
         with pytest.raises(TimeoutError):
             await asyncio.wait_for(driver.read(["bearing"]), 0.001)
@@ -396,4 +413,153 @@ async def test_a_hal_side_start_outlives_a_read_that_gave_up(
         assert (await driver.read(["bearing"]))["bearing"].value == pytest.approx(33.3)
     finally:
         await driver.close()
-    assert not _component_exists("compd-slow")
+    assert not _component_exists(f"{lcnc.prefix}-slow")
+
+
+def _pin(name: str) -> float:
+    """A HAL pin's value, as ``halcmd getp`` reads it."""
+    out = subprocess.run(["halcmd", "-s", "getp", name], capture_output=True, text=True,
+                         timeout=30, check=True)
+    text = out.stdout.strip()
+    return float({"TRUE": 1, "FALSE": 0}.get(text, text))
+
+
+def _writer(signal_name: str) -> str | None:
+    """The pin driving a HAL signal (``halcmd show sig``), None when none does."""
+    out = subprocess.run(["halcmd", "show", "sig", signal_name], capture_output=True,
+                         text=True, timeout=30, check=True).stdout
+    return next((line.split()[1] for line in out.splitlines()
+                 if line.split()[:1] == ["<=="]), None)
+
+
+def _program_in(folder: Path) -> Path:
+    """The module's program, written in `folder` (LinuxCNC's task reads it)."""
+    ngc = folder / "warm.ngc"
+    ngc.write_text(PROGRAM, encoding="ascii")
+    folder.chmod(0o755)
+    return ngc
+
+
+async def _run_program_again(lcnc: LinuxCncSimController, folder: Path) -> None:
+    """The module's program, for the tests after one that stopped it."""
+    await lcnc.control("run", str(_program_in(folder)))
+
+
+async def test_a_component_named_like_linuxcncs_pins_never_unlinks_them(
+        lcnc: LinuxCncSimController) -> None:
+    """A component named like LinuxCNC's own pins (``spindle``: motion's
+    ``spindle.0.speed-out`` drives ``spindle-speed-cmd``; ``J0_pid``: basic_sim's
+    PID loop) is refused by the driver, and a HAL side given one all the same
+    refuses to start: no component of that name exists, so no kill and restart can
+    ever take LinuxCNC's pins for its own and unlink them. The spindle command keeps
+    its writer (benchmarks/bench_hal_kills_linuxcnc.py: the whole signal table
+    through 20 kills)."""
+    speed = {"speed_rpm": lcnc.channels["speed_rpm"]}
+    with pytest.raises(ValueError, match="LinuxCNC uses"):
+        LinuxCncDriver(lcnc.endpoint, speed, {}, component="spindle")
+    for name in ("spindle", "J0_pid"):
+        driver = LinuxCncDriver(lcnc.endpoint, speed, {}, timeout_s=10.0,
+                                connect_timeout_s=60.0, component=lcnc.component)
+        driver.component = name  # past the driver's own check: the HAL side's
+        try:
+            with pytest.raises(BadAddress, match=rf"pin {name}\."):
+                await driver.connect()
+        finally:
+            await driver.close()
+        assert not _component_exists(name)
+    assert _writer("spindle-speed-cmd") == "spindle.0.speed-out"
+    assert _signal("spindle-speed-cmd") == _pin("spindle.0.speed-out")
+
+
+async def test_dead_components_are_bounded(lcnc: LinuxCncSimController,
+                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each HAL side killed with SIGKILL leaves its component in HAL (only a
+    LinuxCNC restart frees it): the next start steps around at most the bound, then
+    refuses, naming them, instead of piling up components."""
+    import drivers.linuxcnc
+
+    monkeypatch.setattr(drivers.linuxcnc, "MAX_LEFT_BEHIND", 2, raising=False)
+    name = f"{lcnc.prefix}-b"
+    driver = LinuxCncDriver(lcnc.endpoint, {"bearing": lcnc.channels["bearing"]},
+                            {"heartbeat": lcnc.outputs_map["heartbeat"]}, timeout_s=10.0,
+                            connect_timeout_s=60.0, component=name)
+    try:
+        for kill in range(3):
+            await driver.connect()
+            session = driver._link.session
+            assert session is not None
+            session.proc.kill()
+            await session.proc.wait()
+            with pytest.raises(ConnectionLost):
+                await driver.read(["bearing"])
+            assert _component_exists(name if kill == 0 else f"{name}-{kill + 1}")
+        with pytest.raises(ConnectionLost, match="3 components of killed compd HAL sides"):
+            await driver.connect()
+        assert not _component_exists(f"{name}-4")
+        # the last one killed still holds the heartbeat signal at its last value (a
+        # stopped heartbeat, which the PLC sees), until a start is allowed again
+        assert _writer(f"{lcnc.prefix}-heartbeat") == f"{name}-3.heartbeat"
+    finally:
+        await driver.close()
+
+
+async def test_an_unhomed_machine_is_controller_off_not_a_write_fault(
+        lcnc: LinuxCncSimController, tmp_path: Path) -> None:
+    """LinuxCNC takes no external offset before it is homed: with [output] homed
+    compd holds (CONTROLLER_OFF, reason not_homed) instead of having its writes
+    refused into a WRITE_FAULT alarm, and ramps from what LinuxCNC holds once homed."""
+    from compd.core.health import WRITE_FAULT_AFTER
+
+    rig = _rig(lcnc, tmp_path)
+    try:
+        await rig.start()
+        await rig.step(3)
+        await lcnc.control("unhome")
+        assert _pin("motion.is-all-homed") == 0.0
+        for _ in range(WRITE_FAULT_AFTER + 2):
+            await rig.step()
+            assert _written(rig) is None
+            status = int((await lcnc.settled())["status"])
+            assert status & Status.CONTROLLER_OFF
+            assert not status & (Status.ALARM | Status.WRITE_FAULT)
+        fields = [f for _, e, f in rig.logs[-1].events if e == "controller_off"][-1]
+        assert fields["reason"] == "not_homed"
+        await lcnc.control("on")  # homes again
+        await rig.step(2)
+        assert _written(rig) is not None
+        names = rig.logs[-1].names()
+        assert "write_failed" not in names and "readback_mismatch" not in names
+        assert await rig.stop() == 0
+    finally:
+        await rig.close()
+        await _run_program_again(lcnc, tmp_path)
+
+
+async def test_an_offset_clipped_at_a_soft_limit_reads_back_as_held(
+        lcnc: LinuxCncSimController, tmp_path: Path) -> None:
+    """Z a micrometre under its soft limit: LinuxCNC clips the external offset
+    (``motion.eoffset-limited``) and applies less than compd asked. That is
+    LinuxCNC's limit, not a second writer: the offset read back is the one LinuxCNC
+    holds from compd, so the daemon does not see a foreign offset every cycle."""
+    driver = LinuxCncDriver(lcnc.endpoint, {}, {"offset": lcnc.outputs_map["offset"]},
+                            timeout_s=10.0, connect_timeout_s=60.0,
+                            component=f"{lcnc.prefix}-clip")
+    try:
+        await driver.connect()
+        held = (await driver.read(["offset"]))["offset"].value
+        top = 100.0 - 0.001 - held / 1000.0  # MAX_LIMIT 100 mm, 1 µm of room
+        await lcnc.control("mdi", f"G53 G0 Z{top:.6f}")
+        await driver.write({"offset": held + 5.0})
+        await lcnc.settled(deadline_s=1.0)  # motion stops at the limit: never settles
+        assert _pin("motion.eoffset-limited") == 1.0
+        applied = (await lcnc.hal())["offset_um"]
+        assert applied < held + 2.0  # clipped
+        assert (await driver.read(["offset"]))["offset"].value == pytest.approx(
+            held + 5.0, abs=COUNT_UM)
+        await driver.write({"offset": held})
+        assert (await lcnc.settled())["offset_um"] == pytest.approx(held, abs=SETTLED_UM)
+        assert _pin("motion.eoffset-limited") == 0.0
+    finally:
+        await driver.close()
+        await lcnc.control("mdi", "G53 G0 Z0")
+        await _run_program_again(lcnc, tmp_path)

@@ -10,18 +10,20 @@ benchmarks/bench_plan_linuxcnc.py."""
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from drivers.sim.linuxcnc_machine import unavailable
+from drivers.sim import linuxcnc_host
+from drivers.sim.linuxcnc_machine import ForeignLinuxCnc, LinuxCncBusy, unavailable
 from tests.compd.plan_linuxcnc_run import SPEEDS, fit_and_replay, run_plan
 
 WHY_NOT = unavailable()
 pytestmark = [pytest.mark.skipif(WHY_NOT is not None, reason=str(WHY_NOT)),
               pytest.mark.slow,
-              # another process may hold the machine's one LinuxCNC for minutes
-              pytest.mark.timeout(900)]
+              # the test alone: `machine` may wait for another run's LinuxCNC first
+              pytest.mark.timeout(900, func_only=True)]
 
 HOURS = 2.0
 TIME_SCALE = 240.0
@@ -43,6 +45,21 @@ def _runs(rows: list[dict[str, str]]) -> list[tuple[int, list[float]]]:
     return out
 
 
+@pytest.fixture
+def machine() -> Iterator[None]:
+    """The machine's LinuxCNC lock, waited for outside the test's timeout (another
+    run may hold it for minutes); a skip where a LinuxCNC this run did not start runs."""
+    try:
+        linuxcnc_host.acquire()
+    except (ForeignLinuxCnc, LinuxCncBusy) as exc:
+        pytest.skip(str(exc))
+    try:
+        yield
+    finally:
+        linuxcnc_host.release()
+
+
+@pytest.mark.usefixtures("machine")
 def test_a_plan_run_in_linuxcnc_is_recorded_and_fitted(tmp_path: Path) -> None:
     run = run_plan(tmp_path, hours=HOURS, time_scale=TIME_SCALE)
     # LinuxCNC dwelled the program's 30 s (its task polls every 10 ms; the start waits)

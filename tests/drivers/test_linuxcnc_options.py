@@ -101,3 +101,77 @@ def test_check_warns_of_a_linuxcnc_config_without_machine_on(
     assert main(["check", str(path)]) == 0
     err = capsys.readouterr().err
     assert "output.machine_on is not set" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("name", ["spindle", "motion", "Axis", "joint.compd", "iocontrol",
+                                  "halui"])
+def test_linuxcncs_own_names_are_refused(name: str) -> None:
+    """A component named like LinuxCNC's own components and pins (``spindle`` beside
+    motion's ``spindle.0.speed-out``) is refused by the options and the driver."""
+    with pytest.raises(ValidationError, match="LinuxCNC uses"):
+        LinuxCncOptions(component=name)
+    with pytest.raises(ValueError, match="LinuxCNC uses"):
+        LinuxCncDriver("linuxcnc://localhost", {}, {}, component=name)
+
+
+def test_pins_longer_than_hal_allows_are_refused() -> None:
+    """HAL's names hold 47 characters: ``<component>.<pin>`` as a restarted HAL side
+    names it (``<component>-21.<pin>``) must fit, or HAL refuses it at every start."""
+    fits = LinuxCncPin(pin="p" * (47 - len("compd-21.")), net="x")
+    LinuxCncDriver("linuxcnc://localhost", {"a": fits}, {})
+    long = LinuxCncPin(pin="p" * (48 - len("compd-21.")), net="x")
+    with pytest.raises(BadAddress, match="too long") as info:
+        LinuxCncDriver("linuxcnc://localhost", {"a": long}, {})
+    assert info.value.channels == ("a",)
+    with pytest.raises(BadAddress, match="eoffset"):  # the offset's own pins
+        LinuxCncDriver("linuxcnc://localhost", {}, {"offset": LinuxCncEoffset(kind="eoffset")},
+                       component="c" * 30)
+    with pytest.raises(ValidationError, match="at most 44"):
+        LinuxCncOptions(component="c" * 45)
+
+
+async def test_a_hal_side_that_dies_at_start_says_why(tmp_path: Path) -> None:
+    """The HAL side's stderr is kept: a start that ends without a word reports its
+    last error line (HAL's own message), not only its exit status."""
+    from drivers.errors import ConnectionLost
+
+    fake = tmp_path / "python3"
+    fake.write_text("#!/bin/sh\necho 'starting' >&2\n"
+                    "echo \"HAL: ERROR: pin name 'x' is too long\" >&2\nexit 1\n")
+    fake.chmod(0o755)
+    driver = LinuxCncDriver("linuxcnc://localhost", {}, {}, python=str(fake),
+                            connect_timeout_s=60.0)
+    try:
+        with pytest.raises(ConnectionLost, match=r"status 1\): HAL: ERROR: pin name 'x'"):
+            await driver.connect()
+    finally:
+        await driver.close()
+
+
+def test_an_unhomed_machine_is_controller_off() -> None:
+    """[output] homed reading 0: the controller takes no offset (held, CONTROLLER_OFF),
+    as for machine off and E-stop, not a write refused into a write fault."""
+    from compd.runtime.cycle_io import _controller_off
+    from drivers.base import Quality, Sample
+
+    def states(**bits: float) -> dict[str, Sample]:
+        return {n: Sample(v, 0.0, Quality.GOOD) for n, v in bits.items()}
+
+    assert _controller_off(states(machine_on=1, estop=0, homed=0)) == "not_homed"
+    assert _controller_off(states(machine_on=0, homed=0)) == "machine_off"
+    assert _controller_off(states(machine_on=1, estop=0, homed=1)) is None
+
+
+def test_check_warns_of_a_linuxcnc_config_without_homed(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from compd.cli import main
+
+    example = (ROOT / "compd" / "examples" / "linuxcnc.toml").read_text("utf-8")
+    assert "\nhomed = " in example
+    text = "\n".join(line for line in example.splitlines() if not line.startswith("homed = "))
+    path = tmp_path / "compd.toml"
+    path.write_text(text.replace("/tmp/compd-example-linuxcnc", str(tmp_path / "state")),
+                    encoding="utf-8")
+    assert main(["check", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert "output.homed is not set" in err and err.count("\n") == 1
