@@ -99,3 +99,47 @@ def test_health_run_by_root_reads_the_daemons_checkpoint_not_a_strangers(
     os.chown(path, stranger_uid, stranger_uid)
     rc, line = _health(capsys, state)
     assert rc == 1 and f"owned by uid {stranger_uid}" in line
+
+
+def test_an_offset_flapping_in_and_out_of_force_saves_once_a_window_and_stays_red(
+        tmp_path: Path) -> None:
+    """Going out of force saves at once (health --state-dir sees it as --url
+    does); flapping saves no more than once a checkpoint_every window out of turn,
+    and the saved cause stays the one out of force until a window passes in force."""
+    from types import SimpleNamespace
+    from typing import Any, cast
+
+    from compd.core.faults import FaultState
+    from compd.core.health import Cause
+    from compd.runtime.clock import Clock
+    from compd.runtime.sinks.checkpoint import CheckpointSink
+    from compd.testing import FakeClock
+
+    every = 10
+    cfg = SimpleNamespace(raw=SimpleNamespace(state=SimpleNamespace(checkpoint_every=every)),
+                          state_dir=tmp_path, model_sha256="m", config_sha256="c")
+    saved: list[object] = []
+    sink = CheckpointSink(cast(Any, cfg), dry_run=False, clock=Clock(mono=FakeClock()),
+                          journal=cast(Any, None), export=lambda: {"sequence": len(saved)},
+                          last_complete=lambda: None)
+
+    def cycle(seq: int, cause: Cause) -> None:
+        row = SimpleNamespace(state=FaultState.OK, cause=cause, healthy=cause.healthy,
+                              sequence=seq)
+        if sink.note(cast(Any, SimpleNamespace(row=row))):
+            sink.save()
+            doc = load_checkpoint(tmp_path / CHECKPOINT_NAME)
+            assert doc is not None
+            saved.append(doc["last_cause"])
+
+    cycle(1, Cause.IN_FORCE)
+    assert saved == []
+    cycle(2, Cause.AT_LIMIT)  # out of force: saved at once
+    assert saved == ["at_limit"]
+    for seq in range(3, 40):  # flapping every cycle
+        cycle(seq, Cause.AT_LIMIT if seq % 2 else Cause.IN_FORCE)
+    # only the window's own saves, each naming the cause out of force
+    assert saved == ["at_limit"] * 4
+    for seq in range(40, 61):  # in force from here: the window to 40 was not, then green
+        cycle(seq, Cause.IN_FORCE)
+    assert saved == ["at_limit"] * 5 + ["in_force"] * 2, saved

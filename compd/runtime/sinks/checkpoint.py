@@ -1,8 +1,11 @@
 """The checkpoint as a sink: the model's state saved atomically
 (`compd.runtime.checkpoint`) every ``state.checkpoint_every`` cycles, at once
-when the alarm comes or goes or the offset compd wants goes out of force or
-back in (so `compd health --state-dir` sees it as `--url` does), and on
-demand (`save`: shutdown, `--once`, an operator hold).
+when the alarm comes or goes or the offset compd wants goes out of force
+(so `compd health --state-dir` sees it as `--url` does), and on demand
+(`save`: shutdown, `--once`, an operator hold). The cause saved is the first
+one not in force since the last save (else the last cycle's): an offset
+flapping in and out of force saves at most once a ``checkpoint_every`` window
+out of turn, and `--state-dir` stays red until a window passes in force.
 
 Beside the cycle's state it holds what `compd health --state-dir` judges:
 the last complete cycle's wall and monotonic time, the boot it happened in,
@@ -47,10 +50,12 @@ class CheckpointSink(CycleSink):
         #: the state directory the lock holds open (None without a lock: a dry run)
         self.directory: StateDir | None = None
         self._last_state: str | None = None
+        #: the cause to save: the first not in force since the last save, else the last
         self._last_cause: str | None = None
-        #: whether the last cycle noted said alarm, and whether its offset was in force
+        self._unhealthy_since_save = False
+        #: whether the last cycle noted said alarm; whether the last save said in force
         self._alarm = False
-        self._healthy = True
+        self._saved_healthy = True
 
     def feed(self, tick: Tick) -> None:
         if self.note(tick):
@@ -60,10 +65,14 @@ class CheckpointSink(CycleSink):
         """Take the cycle's state; whether a checkpoint is due."""
         result = tick.row
         self._last_state = str(result.state)
-        self._last_cause = str(result.cause)
+        if not self._unhealthy_since_save:
+            self._last_cause = str(result.cause)
+            self._unhealthy_since_save = not result.healthy
         alarm = result.state.gauge >= GAUGE_ALARM
-        if alarm != self._alarm or result.healthy != self._healthy:
-            self._alarm, self._healthy = alarm, result.healthy
+        if alarm != self._alarm:
+            self._alarm = alarm
+            return True
+        if not result.healthy and self._saved_healthy:
             return True
         return result.sequence % self._cfg.raw.state.checkpoint_every == 0
 
@@ -90,5 +99,7 @@ class CheckpointSink(CycleSink):
             if self._last_cause is not None:  # so is an offset not in force
                 state["last_cause"] = self._last_cause
             save_checkpoint(checkpoint_path(cfg), state, directory=self.directory)
+            self._saved_healthy = not self._unhealthy_since_save
+            self._unhealthy_since_save = False
         except Exception as exc:  # a failed checkpoint must not stop the loop
             self._journal.log.error("checkpoint_failed", error=str(exc))
