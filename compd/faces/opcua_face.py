@@ -70,7 +70,13 @@ from asyncua.ua.object_ids import ObjectIds
 from compd.config.loader import credential_path
 from compd.core.faults import FaultState
 from compd.errors import ConfigError
-from compd.faces.opcua_limits import FaceLoop, Guard, GuardCollector, quiet_asyncua_faults
+from compd.faces.opcua_limits import (
+    ACCEPT_BURST,
+    FaceLoop,
+    Guard,
+    GuardCollector,
+    quiet_asyncua_faults,
+)
 
 if TYPE_CHECKING:
     from asyncua.common.node import Node
@@ -254,8 +260,10 @@ class _SharedServer:
         quiet_asyncua_faults()
         server = Server(user_manager=_Users(sec.operator, password, anonymous, self.guard))
         await server.init()
-        # the guard refuses first; asyncua's own watchdog would log each idle connection
-        server.iserver.max_connections = self.guard.limit
+        # the guard limits connections; asyncua's own cap is only a backstop above it (an
+        # evicted connection leaves asyncua's list just after its place is given to the
+        # new one), and its watchdog would log each idle connection
+        server.iserver.max_connections = self.guard.limit + ACCEPT_BURST
         server.iserver.max_pending_activation_seconds = 0
         server.disable_clock()
         server.set_endpoint(f"opc.tcp://{_url_host(sec.host)}:{sec.port}")
