@@ -466,6 +466,8 @@ class OpcUaFaceSection(_Section):
     max_connections: Annotated[int, Field(ge=1, le=1000)] = 32
     #: sessions at once; one more is refused (BadTooManySessions)
     max_sessions: Annotated[int, Field(ge=1, le=1000)] = 16
+    #: sessions anonymous readers never take (with an operator): the operator's
+    reserved_sessions: Annotated[int, Field(ge=1, le=1000)] = 1
     #: a connection without a session this long after it was accepted is closed
     handshake_timeout_s: Annotated[float, Field(gt=0.0, le=300.0, allow_inf_nan=False)] = 10.0
 
@@ -497,6 +499,15 @@ class OpcUaFaceSection(_Section):
         if self.policy == "None" and self.operator is not None:
             raise ValueError("an operator password with policy None would cross the wire "
                              "readable: use a secure policy for SetHold")
+        # the face's anonymous share (compd.faces.opcua_limits.Guard.anonymous_limit)
+        share = min(self.max_sessions - self.reserved_sessions, self.max_connections // 2)
+        if self.anonymous_read and self.operator is not None and share < 1:
+            raise ValueError(
+                f"reserved_sessions = {self.reserved_sessions} with max_sessions = "
+                f"{self.max_sessions} and max_connections = {self.max_connections} leaves "
+                "anonymous readers no session (they take at most max_sessions - "
+                "reserved_sessions, and half the connections): raise the limits, or turn "
+                "anonymous_read off")
         return self
 
 

@@ -42,10 +42,14 @@ keeps trying. Machines of one process (`compd run DIR`) that name the same
 host and port share one server, one object each.
 
 Limits (`compd.faces.opcua_limits`): ``max_connections`` TCP connections
-(fewer when RLIMIT_NOFILE leaves less beside a reserve for the cycle), those
-over it closed at once; ``max_sessions`` sessions; a connection without a
-session after ``handshake_timeout_s`` closed; failed logins logged with the
-user and the peer, rate-limited, and counted in metrics.
+(fewer when RLIMIT_NOFILE leaves less beside a reserve for the cycle); at the
+limit a new connection evicts the one that has waited longest for its
+handshake (silent ones first), and is closed at once only when every other
+has a session or was just accepted; ``max_sessions`` sessions, of which
+anonymous readers leave ``reserved_sessions`` to the operator; a connection
+without a session after ``handshake_timeout_s`` closed; failed logins logged
+with the user and the peer, rate-limited, and counted in metrics. So sockets
+that say nothing, or anonymous readers, never keep the operator from SetHold.
 """
 
 from __future__ import annotations
@@ -70,7 +74,13 @@ from asyncua.ua.object_ids import ObjectIds
 from compd.config.loader import credential_path
 from compd.core.faults import FaultState
 from compd.errors import ConfigError
-from compd.faces.opcua_limits import FaceLoop, Guard, GuardCollector, quiet_asyncua_faults
+from compd.faces.opcua_limits import (
+    ACCEPT_BURST,
+    FaceLoop,
+    Guard,
+    GuardCollector,
+    quiet_asyncua_faults,
+)
 
 if TYPE_CHECKING:
     from asyncua.common.node import Node
@@ -143,8 +153,8 @@ class _Users(UserManager):
             user = User(role=UserRole.User, name=username)
         if user is None:
             self.guard.login_failed("anonymous" if username is None else username)
-        else:
-            self.guard.login_ok(username or "anonymous")  # BadTooManySessions over the limit
+        else:  # BadTooManySessions over the limit (the anonymous share, for anonymous)
+            self.guard.login_ok(username or "anonymous", anonymous=username is None)
         return user
 
 
@@ -183,8 +193,11 @@ class _SharedServer:
         self.base = base
         self.operator = section.operator
         self.server: Server | None = None
+        # sessions are kept back from anonymous readers only for an operator to use
         self.guard = Guard(max_connections=section.max_connections,
                            max_sessions=section.max_sessions,
+                           reserved_sessions=section.reserved_sessions
+                           if section.operator is not None else 0,
                            handshake_timeout_s=section.handshake_timeout_s)
         self._summaries: asyncio.Task[None] | None = None
         #: the face's own event loop, on its own thread (see the module docstring);
@@ -251,8 +264,10 @@ class _SharedServer:
         quiet_asyncua_faults()
         server = Server(user_manager=_Users(sec.operator, password, anonymous, self.guard))
         await server.init()
-        # the guard refuses first; asyncua's own watchdog would log each idle connection
-        server.iserver.max_connections = self.guard.limit
+        # the guard limits connections; asyncua's own cap is only a backstop above it (an
+        # evicted connection leaves asyncua's list just after its place is given to the
+        # new one), and its watchdog would log each idle connection
+        server.iserver.max_connections = self.guard.limit + ACCEPT_BURST
         server.iserver.max_pending_activation_seconds = 0
         server.disable_clock()
         server.set_endpoint(f"opc.tcp://{_url_host(sec.host)}:{sec.port}")

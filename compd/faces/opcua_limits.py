@@ -6,8 +6,17 @@ handshake time, file descriptors, and failed logins told without flooding.
   RLIMIT_NOFILE minus what is open at start, `FD_RESERVE` kept for the cycle,
   its checkpoints, the recorder, /metrics and controller reconnects, and
   `ACCEPT_BURST`, what one wake of the listener may accept before it refuses).
-  A connection over the limit is closed at once (no OPC UA answer, no
-  traceback), counted (``compd_opcua_face_connections_refused_total{reason="limit"}``)
+  A new connection at the limit evicts one that has no session yet
+  (`Guard.victim`): the oldest that has not sent a byte (nor has one waiting
+  in the kernel); else the oldest that spoke but is still without a session
+  half its ``handshake_timeout_s`` after it was accepted (a handshake stalled
+  on purpose). Never one with a session, one in its handshake for less than
+  that, or one accepted so recently that the loop could not read it yet (its
+  transport is not made): a real client sends its Hello with its connect, so
+  sockets that send nothing cannot keep the operator out, nor push out one
+  that is logging in. When no connection may be evicted, the new one is
+  closed at once (no OPC UA answer, no traceback). Both are counted
+  (``compd_opcua_face_connections_refused_total{reason="evicted"|"limit"}``)
   and logged rate-limited (``opcua_connection_refused``). So the face never
   brings the process to EMFILE, and asyncio never logs "socket.accept() out of
   system resource".
@@ -15,7 +24,12 @@ handshake time, file descriptors, and failed logins told without flooding.
   ``handshake_timeout_s`` after it was accepted is closed (reason
   ``handshake_timeout``).
 - **Sessions**: at most ``max_sessions`` activated sessions; one more is
-  refused with BadTooManySessions (``opcua_session_refused``).
+  refused with BadTooManySessions (``opcua_session_refused``, reason
+  ``max_sessions``). With an operator, anonymous sessions take at most
+  `Guard.anonymous_limit`: ``max_sessions`` minus ``reserved_sessions``, so
+  that the operator always gets one, and at most half the connections, so
+  that logins keep room to get in (and be evicted last) while silent sockets
+  take the rest (reason ``anonymous_share``).
 - **Failed logins**: a wrong user name or password is logged with the user
   name and the client's address (``opcua_login_failed``; never the password)
   and counted (``compd_opcua_face_logins_failed_total``).
@@ -36,9 +50,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import contextvars
+import fcntl
 import logging
 import os
 import resource
+import struct
+import termios
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -52,7 +69,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 from prometheus_client.registry import Collector
 
 __all__ = ["ACCEPT_BURST", "BURST", "CONNECTION", "FD_RESERVE", "FaceLoop", "Guard", "Tally",
-           "fd_budget"]
+           "fd_budget", "pending_bytes"]
 
 #: descriptors kept for everything but the face (cycle, checkpoints, recorder,
 #: /metrics and the status page, controller reconnects, other machines of `run DIR`)
@@ -74,6 +91,12 @@ class Connection:
     peer: str
     transport: asyncio.Transport | None = None
     activated: bool = False
+    #: the session is anonymous (counted against the anonymous share)
+    anonymous: bool = False
+    #: the client has sent at least one byte
+    spoke: bool = False
+    #: when it was accepted (the guard's clock)
+    opened_at: float = 0.0
     #: the next service fault on this connection is one the face has logged itself
     quiet_fault: bool = False
     timer: asyncio.TimerHandle | None = None
@@ -178,16 +201,22 @@ class Guard:
     """The face's limits on one server (see the module docstring)."""
 
     def __init__(self, *, max_connections: int, max_sessions: int, handshake_timeout_s: float,
-                 log: Any = None, clock: Callable[[], float] = time.monotonic) -> None:
+                 reserved_sessions: int = 0, log: Any = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.max_connections = max_connections
         self.limit = max_connections  # until `fit_to_descriptors`
         self.max_sessions = max_sessions
+        #: sessions anonymous clients never take (0: no operator to keep them for)
+        self.reserved_sessions = reserved_sessions
         self.handshake_timeout_s = handshake_timeout_s
         self.log = log if log is not None else structlog.get_logger("compd").bind(face="opcua")
-        self.connections: set[Connection] = set()
+        self.clock = clock
+        #: the connections held, oldest first (a dict keeps the order they came in)
+        self.connections: dict[Connection, None] = {}
         self.sessions = 0
-        self.refused: Counter[str] = Counter({"limit": 0, "handshake_timeout": 0})
-        self.sessions_refused = 0
+        self.anonymous_sessions = 0
+        self.refused: Counter[str] = Counter({"limit": 0, "evicted": 0, "handshake_timeout": 0})
+        self.sessions_refused: Counter[str] = Counter({"max_sessions": 0, "anonymous_share": 0})
         self.tallies = {name: Tally(name, self.log, clock) for name in
                         ("opcua_connection_refused", "opcua_login_failed",
                          "opcua_session_refused")}
@@ -210,17 +239,56 @@ class Guard:
         self.limit = min(self.max_connections, budget)
         return self.limit
 
+    @property
+    def anonymous_limit(self) -> int:
+        """Anonymous sessions at most: all of them without an operator; with one,
+        what the reserve leaves of the sessions, and half the connections."""
+        if self.reserved_sessions == 0:
+            return self.max_sessions
+        return max(0, min(self.max_sessions - self.reserved_sessions, self.limit // 2))
+
     # -- connections ---------------------------------------------------------------
 
     def factory(self, inner: Callable[[], asyncio.Protocol]) -> Callable[[], asyncio.Protocol]:
         """asyncua's protocol factory behind the connection limit."""
         def make() -> asyncio.Protocol:
             if len(self.connections) >= self.limit:
-                return _Refused(self)
-            conn = Connection(peer="unknown")
-            self.connections.add(conn)  # counted from now: the accept burst is bounded
+                victim = self.victim()
+                if victim is None:
+                    return _Refused(self)
+                self.evict(victim)
+            conn = Connection(peer="unknown", opened_at=self.clock())
+            self.connections[conn] = None  # counted from now: the accept burst is bounded
             return _Tracked(self, conn, inner())
         return make
+
+    def victim(self) -> Connection | None:
+        """The connection a new one replaces at the limit (see the module docstring):
+        the oldest silent one, else the oldest whose handshake has stalled; None
+        when every other has a session, is logging in, or is too new to be read."""
+        stalled_before = self.clock() - self.handshake_timeout_s / 2.0
+        stalled: Connection | None = None
+        for conn in self.connections:
+            transport = conn.transport
+            if conn.activated or transport is None or transport.is_closing():
+                continue
+            if not conn.spoke and pending_bytes(transport) > 0:
+                conn.spoke = True  # its first message is there, the loop has not read it yet
+            if not conn.spoke:
+                return conn
+            if stalled is None and conn.opened_at <= stalled_before:
+                stalled = conn
+        return stalled
+
+    def evict(self, conn: Connection) -> None:
+        """Close `conn` now to make room (its slot is free at once)."""
+        self.connections.pop(conn, None)
+        if conn.timer is not None:
+            conn.timer.cancel()
+            conn.timer = None
+        if conn.transport is not None:
+            conn.transport.abort()
+        self.refuse("evicted", conn.peer)
 
     def refuse(self, reason: str, peer: str) -> None:
         self.refused[reason] += 1
@@ -246,9 +314,11 @@ class Guard:
             conn.timer.cancel()
             conn.timer = None
         if conn in self.connections:
-            self.connections.discard(conn)
+            del self.connections[conn]
             if conn.activated:
                 self.sessions = max(0, self.sessions - 1)
+                if conn.anonymous:
+                    self.anonymous_sessions = max(0, self.anonymous_sessions - 1)
 
     # -- logins (called by the user manager, in the connection's task) ------------
 
@@ -259,19 +329,28 @@ class Guard:
             conn.quiet_fault = True
         self.tallies["opcua_login_failed"].note(user=safe_user(user), peer=peer)
 
-    def login_ok(self, user: str) -> None:
-        """A session is activated; BadTooManySessions (a ServiceError) over the limit."""
+    def login_ok(self, user: str, *, anonymous: bool = False) -> None:
+        """A session is activated; BadTooManySessions (a ServiceError) over
+        `max_sessions`, or for an anonymous one over `anonymous_limit`."""
         conn = CONNECTION.get()
         if conn is None or conn.activated:
             return  # asyncua's own session, or one connection activating again
         if self.sessions >= self.max_sessions:
-            self.sessions_refused += 1
-            conn.quiet_fault = True
-            self.tallies["opcua_session_refused"].note(user=safe_user(user), peer=conn.peer,
-                                                       limit=self.max_sessions)
-            raise ServiceError(StatusCodes.BadTooManySessions)
+            self._refuse_session(conn, user, "max_sessions", self.max_sessions)
+        if anonymous and self.anonymous_sessions >= self.anonymous_limit:
+            self._refuse_session(conn, user, "anonymous_share", self.anonymous_limit)
         conn.activated = True
+        conn.anonymous = anonymous
         self.sessions += 1
+        if anonymous:
+            self.anonymous_sessions += 1
+
+    def _refuse_session(self, conn: Connection, user: str, reason: str, limit: int) -> None:
+        self.sessions_refused[reason] += 1
+        conn.quiet_fault = True
+        self.tallies["opcua_session_refused"].note(user=safe_user(user), peer=conn.peer,
+                                                   reason=reason, limit=limit)
+        raise ServiceError(StatusCodes.BadTooManySessions)
 
     def flush(self, *, force: bool = False) -> None:
         for tally in self.tallies.values():
@@ -282,6 +361,19 @@ class Guard:
         while True:
             await asyncio.sleep(WINDOW_S / 4)
             self.flush()
+
+
+def pending_bytes(transport: asyncio.BaseTransport) -> int:
+    """Bytes the kernel holds for `transport`'s socket that were not read yet
+    (FIONREAD); 0 when it cannot tell."""
+    sock = transport.get_extra_info("socket")
+    if sock is None:
+        return 0
+    try:
+        raw = fcntl.ioctl(sock.fileno(), termios.FIONREAD, b"\0\0\0\0")
+    except (OSError, ValueError):
+        return 0
+    return int(struct.unpack("i", raw)[0])
 
 
 def _abort(transport: asyncio.BaseTransport) -> None:
@@ -321,6 +413,7 @@ class _Tracked(asyncio.Protocol):
         self.guard._opened(self.conn)
 
     def data_received(self, data: bytes) -> None:
+        self.conn.spoke = True
         self.inner.data_received(data)
 
     def eof_received(self) -> bool | None:
@@ -394,17 +487,21 @@ class GuardCollector(Collector):
                                 "lowered to the file descriptors there are)", value=g.limit)
         refused = CounterMetricFamily(
             "compd_opcua_face_connections_refused",
-            "Connections the OPC UA face closed: over the limit, or no session in time",
-            labels=["reason"])
+            "Connections the OPC UA face closed: over the limit (the new one), evicted "
+            "to make room for a new one, or no session in time", labels=["reason"])
         for reason, n in sorted(g.refused.items()):
             refused.add_metric([reason], n)
         yield refused
         yield CounterMetricFamily("compd_opcua_face_logins_failed",
                                   "Logins refused by the OPC UA face (wrong user or password)",
                                   value=g.tallies["opcua_login_failed"].total)
-        yield CounterMetricFamily("compd_opcua_face_sessions_refused",
-                                  "Sessions refused by the OPC UA face (max_sessions reached)",
-                                  value=g.sessions_refused)
+        sessions = CounterMetricFamily(
+            "compd_opcua_face_sessions_refused",
+            "Sessions refused by the OPC UA face: max_sessions reached, or the anonymous "
+            "share (max_sessions minus reserved_sessions) full", labels=["reason"])
+        for reason, n in sorted(g.sessions_refused.items()):
+            sessions.add_metric([reason], n)
+        yield sessions
 
 
 @contextlib.contextmanager

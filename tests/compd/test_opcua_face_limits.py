@@ -1,6 +1,7 @@
 """The OPC UA face's limits ([faces.opcua] max_connections, max_sessions,
 handshake_timeout_s; compd.faces.opcua_limits): connections over the cap
-closed at once and counted, a connection without a session closed, sessions
+evicting silent ones (or closed at once when the others have sessions) and
+counted, a connection without a session closed, sessions
 over the cap refused, failed logins logged with user and peer (never the
 password), the rate-limited log lines, the descriptor budget, and a daemon
 under RLIMIT_NOFILE that keeps checkpointing while clients flood its face."""
@@ -69,33 +70,58 @@ async def _sockets(port: int, n: int) -> AsyncIterator[list[tuple[asyncio.Stream
                 await writer.wait_closed()
 
 
-async def test_connections_beyond_the_cap_are_closed_at_once_and_counted(
+def _closed(reader: asyncio.StreamReader) -> bool:
+    """The server has closed this connection (EOF or reset seen)."""
+    return reader.at_eof() or reader.exception() is not None
+
+
+async def test_connections_beyond_the_cap_evict_silent_ones_and_are_counted(
         sim: ModbusSimController, tmp_path: Path) -> None:
     port = free_tcp_port("127.0.0.1")
     face = _face(port) + _limits(max_connections=4, handshake_timeout_s=300.0)
     with structlog.testing.capture_logs() as logs:
         async with face_daemon(tmp_path, sim, face) as daemon:
             assert _sample(daemon, "compd_opcua_face_connection_limit") == 4
-            async with _sockets(port, 4) as held:
+            async with _sockets(port, 4) as first:
                 await until(lambda: _sample(daemon, "compd_opcua_face_connections") == 4)
-                async with _sockets(port, 12) as over:
-                    for reader, _ in over:
-                        assert await _closed_by_server(reader)
-                    await until(lambda: _sample(
-                        daemon, "compd_opcua_face_connections_refused_total",
-                        reason="limit") == 12)
-                # the four within the cap are still open, and still served
-                assert _sample(daemon, "compd_opcua_face_connections") == 4
-                assert not any(r.at_eof() for r, _ in held)
+                async with _sockets(port, 12) as more:
+                    readers = [r for r, _ in first + more]
+                    # each new one takes the place of an older silent one (or, when
+                    # all the others were just accepted, is closed itself): 4 stay
+                    await until(lambda: sum(_closed(r) for r in readers) == 12)
+                    closed = sum(_sample(daemon, "compd_opcua_face_connections_refused_total",
+                                         reason=reason) for reason in ("evicted", "limit"))
+                    assert closed == 12
+                    assert _sample(daemon, "compd_opcua_face_connections_refused_total",
+                                   reason="evicted") >= 1
+                    assert _sample(daemon, "compd_opcua_face_connections") == 4
             # room again: a client gets its session
             await until(lambda: _sample(daemon, "compd_opcua_face_connections") == 0)
             async with await _client(port) as client:
                 assert await client.nodes.server.read_browse_name()
     refused = [e for e in logs if e["event"] == "opcua_connection_refused"]
     assert len(refused) == BURST  # the rest wait for the minute's summary
-    assert refused[0]["reason"] == "limit" and refused[0]["peer"].startswith("('127.0.0.1'")
+    assert {e["reason"] for e in refused} <= {"evicted", "limit"}
+    assert refused[0]["peer"].startswith("('127.0.0.1'")
     summary = [e for e in logs if e["event"] == "opcua_connection_refused_summary"]
     assert summary and summary[0]["suppressed"] == 12 - BURST  # told at the face's stop
+
+
+async def test_a_connection_over_the_cap_is_closed_at_once_when_the_others_have_sessions(
+        sim: ModbusSimController, tmp_path: Path) -> None:
+    port = free_tcp_port("127.0.0.1")
+    face = _face(port) + _limits(max_connections=2, handshake_timeout_s=300.0)
+    async with face_daemon(tmp_path, sim, face) as daemon, \
+            await _client(port) as one, await _client(port) as two:
+        async with _sockets(port, 3) as over:
+            for reader, _ in over:
+                assert await _closed_by_server(reader)
+        assert _sample(daemon, "compd_opcua_face_connections_refused_total",
+                       reason="limit") == 3
+        assert _sample(daemon, "compd_opcua_face_connections_refused_total",
+                       reason="evicted") == 0
+        for client in (one, two):  # never evicted: they have sessions
+            assert await client.nodes.server.read_browse_name()
 
 
 async def test_a_connection_without_a_session_is_closed_after_the_handshake_timeout(
@@ -122,7 +148,8 @@ async def test_sessions_beyond_the_cap_are_refused(
                 async with await _client(port):
                     pass
             assert await first.nodes.server.read_browse_name()
-        assert _sample(daemon, "compd_opcua_face_sessions_refused_total") == 1
+        assert _sample(daemon, "compd_opcua_face_sessions_refused_total",
+                       reason="max_sessions") == 1
         await until(lambda: _sample(daemon, "compd_opcua_face_connections") == 0)
         async with await _client(port) as second:  # the first one's session is gone
             assert await second.nodes.server.read_browse_name()
