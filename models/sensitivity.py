@@ -40,13 +40,15 @@ class DcGainSensitivity:
         """The printed digits pin the gain to within ±5 % (first order)."""
         return self.bounded and self.first_order <= 0.05 * abs(self.dc_gain)
 
-    def describe(self) -> str:
+    def describe(self, unit: str = "µm/K") -> str:
+        """One line; `unit` is the DC gain's (µm/K for a temperature term)."""
         if not self.bounded:
-            return (f"DC gain {self.dc_gain:.6g} µm/K is NOT determined by the printed digits: "
-                    "the denominator sum can reach 0 within half a unit of its last digit "
-                    f"(first-order sensitivity ±{self.first_order:.3g} µm/K)")
+            return (f"DC gain {self.dc_gain:.6g} {unit} is NOT determined by the printed "
+                    "digits: the denominator sum can reach 0 within half a unit of its last "
+                    f"digit (first-order sensitivity ±{self.first_order:.3g} {unit})")
         verdict = "well determined" if self.well_determined else "ill-determined"
-        return (f"DC gain {self.dc_gain:.6g} µm/K, ±{self.first_order:.3g} µm/K to first order, "
+        return (f"DC gain {self.dc_gain:.6g} {unit}, ±{self.first_order:.3g} {unit} to first "
+                "order, "
                 f"{self.low:.4g} … {self.high:.4g} within the printed digits ({verdict})")
 
 

@@ -48,8 +48,9 @@ def describe_model(model: Any) -> dict[str, Any]:
     terms: list[dict[str, Any]] = []
     for t in model.terms:
         dyn = t.dynamics
+        unit = dc_gain_unit(t)
         entry: dict[str, Any] = {"name": t.name, "inputs": dict(t.inputs),
-                                 "gain": t.gain_channel or t.gain}
+                                 "gain": t.gain_channel or t.gain, "dc_gain_unit": unit}
         if isinstance(dyn, TransferFunction):
             sens = dc_gain_sensitivity(dyn)
             entry.update(
@@ -59,7 +60,7 @@ def describe_model(model: Any) -> dict[str, Any]:
                 dc_gain=dyn.dc_gain, dc_gain_sensitivity=_finite(sens.first_order),
                 dc_gain_range=[sens.low, sens.high] if sens.bounded else None,
                 dc_gain_well_determined=sens.well_determined,
-                dc_gain_note=sens.describe())
+                dc_gain_note=sens.describe(unit))
         elif isinstance(dyn, GreyBox):
             poles = [1.0 + dyn.period_s * dyn.p[0]] + (
                 [1.0 + dyn.period_s * dyn.p[3]] if dyn.switched else [])
@@ -70,6 +71,23 @@ def describe_model(model: Any) -> dict[str, Any]:
                          stable=True, dc_gain=dyn.dc_gain, dc_gain_sensitivity=None)
         terms.append(entry)
     return {"model": model.name, "period_s": model.period_s, "terms": terms}
+
+
+def dc_gain_unit(term: Any) -> str:
+    """The unit of a term's DC gain: µm per kelvin for a temperature term
+    (relative to its reference), else µm per unit of its input (µm/rpm for a
+    spindle speed, µm/kW for a drive power); a gain channel multiplies it."""
+    from compd.offline.channel_kind import ChannelKind, channel_kind
+
+    if term.relative:
+        per = "K"
+    else:
+        kinds = {channel_kind(ch) for ch in term.inputs}
+        per = {frozenset({ChannelKind.SPEED}): "rpm",
+               frozenset({ChannelKind.POWER}): "kW"}.get(frozenset(kinds),
+                                                         "unit of " + "+".join(term.inputs))
+    gain = f"·{term.gain_channel}" if term.gain_channel else ""
+    return f"µm/({per}{gain})" if gain else f"µm/{per}"
 
 
 def plausibility(model: Any) -> list[str]:
@@ -123,30 +141,68 @@ def plausibility(model: Any) -> list[str]:
 
 
 def _print_text(report: dict[str, Any]) -> None:
+    period = float(report["period_s"])
     print(f"model {report['model']!r}: period {report['period_s']} s, "
           f"{len(report['terms'])} term(s)")
     for t in report["terms"]:
         ins = " ".join(f"{c:+g}·{ch}" for ch, c in t["inputs"].items())
         print(f"\nterm {t['name']!r} ({t['kind']}): input {ins}, gain {t['gain']}")
-        poles = ", ".join(_fmt(p) for p in t["poles"])
+        poles = ", ".join(format_pole(p, period) for p in t["poles"])
         print(f"  poles: {poles}")
         if t.get("zeros"):
-            print(f"  zeros: {', '.join(_fmt(z) for z in t['zeros'])}")
+            print(f"  zeros: {', '.join(_fmt_zero(z) for z in t['zeros'])}")
         for root in t.get("cancelled_unit_circle", []):
             print(f"  note: a pole at z = {root} is cancelled exactly by a zero at z = {root}; "
                   "the reduced form is used (stable)")
         print(f"  stable: {'yes' if t['stable'] else 'NO'}")
-        print(f"  DC gain: {t['dc_gain']:.6g} µm/unit")
+        print(f"  DC gain: {t['dc_gain']:.6g} {t['dc_gain_unit']}")
         if "dc_gain_note" in t:
             print(f"  sensitivity: {t['dc_gain_note']}")
 
 
-def _fmt(p: list[float]) -> str:
+def _body(p: list[float]) -> str:
     re_, im = p
-    mag = math.hypot(re_, im)
-    tau = f", τ ≈ {-1.0 / math.log(mag):.0f} samples" if 0.0 < mag < 1.0 and mag > 0.5 else ""
-    body = f"{re_:.7g}" if abs(im) < 1e-15 else f"{re_:.6g}{im:+.6g}j"
-    return f"{body} (|p| = {mag:.7g}{tau})"
+    return f"{re_:.7g}" if abs(im) < 1e-15 else f"{re_:.6g}{im:+.6g}j"
+
+
+def _fmt_zero(z: list[float]) -> str:
+    return f"{_body(z)} (|z| = {math.hypot(*z):.7g})"
+
+
+def format_pole(p: list[float], period_s: float) -> str:
+    """A pole with its radius and, for a decaying mode that does not alternate
+    sign (positive real part), its time constant in samples and in time."""
+    return f"{_body(p)} (|p| = {math.hypot(*p):.7g}{_tau_text(p, period_s)})"
+
+
+def _tau_text(p: list[float], period_s: float) -> str:
+    tau_n = pole_time_constant_samples(p)
+    if tau_n is None and p[0] < 0.0:
+        if abs(p[1]) < 1e-15:
+            return ", alternates sign every sample: no time constant"
+        return ", turns more than a quarter turn a sample: no time constant"
+    if tau_n is None:
+        return ""
+    return f", τ ≈ {tau_n:.0f} samples = {duration_text(tau_n * period_s)}"
+
+
+def pole_time_constant_samples(p: list[float]) -> float | None:
+    """−1/ln|p| for a pole inside the unit circle with a positive real part
+    (the envelope's decay, in samples); None for a pole at 0, on or outside
+    the unit circle, or with a real part ≤ 0 (a mode that alternates sign or
+    turns faster than twice per 4 samples has no thermal time constant)."""
+    mag = math.hypot(*p)
+    if not (0.0 < mag < 1.0) or p[0] <= 0.0:
+        return None
+    return -1.0 / math.log(mag)
+
+
+def duration_text(seconds: float) -> str:
+    """A duration in the unit a person reads it in: s, min, h or d."""
+    for unit, size in (("d", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if seconds >= 2.0 * size:
+            return f"{seconds / size:.3g} {unit}"
+    return f"{seconds:.3g} s"
 
 
 def run(args: argparse.Namespace) -> int:
