@@ -49,6 +49,15 @@ function ticks(lo, hi, n){ const s = niceStep(hi - lo, n), out = [];
   for (let v = Math.ceil(lo / s) * s; v <= hi + s * 1e-9; v += s)
     out.push(Math.abs(v) < s * 1e-9 ? 0 : v);
   return {step: s, values: out}; }
+function stepDigits(step){ let d = 0;
+  while (d < 10 && Math.abs(step * Math.pow(10, d) - Math.round(step * Math.pow(10, d))) >
+    1e-6 * step * Math.pow(10, d)) d++;
+  return d; }
+function two(n){ return String(n).padStart(2, "0"); }
+function clock(s){ const d = new Date(s * 1000);
+  return two(d.getHours()) + ":" + two(d.getMinutes()) + ":" + two(d.getSeconds()); }
+function stamp(s){ const d = new Date(s * 1000);
+  return d.getFullYear() + "-" + two(d.getMonth() + 1) + "-" + two(d.getDate()) + " " + clock(s); }
 function add(parent, tag, cls, text){ const e = document.createElement(tag);
   if (cls) e.className = cls; if (text !== undefined) e.textContent = text;
   parent.appendChild(e); return e; }
@@ -80,13 +89,13 @@ function showMachine(s, m){
   const al = q("table.alarms tbody"); al.textContent = "";
   const alarms = (m.alarms || []).slice().reverse();
   if (!alarms.length) row(al, [["none"]]);
-  for (const a of alarms) row(al, [[new Date(a.wall_s * 1000).toLocaleString()],
+  for (const a of alarms) row(al, [[stamp(a.wall_s)],
     [a.event, a.level === "error" ? "bad" : ""],
     [Object.entries(a.detail || {}).map(([k, v]) => k + "=" + v).join(" ")]]);
   const late = m.age_s !== null && m.age_s !== undefined && m.period_s &&
     m.age_s > 3 * m.period_s + 2;
   q(".updated").textContent = (m.wall_s ? "cycle " + m.sequence + " at " +
-    new Date(m.wall_s * 1000).toLocaleTimeString() : "") +
+    clock(m.wall_s) : "") +
     (late ? " \u2014 NO CYCLE FOR " + fmt(m.age_s, 0) + " s: the values are old" : "");
   q(".updated").className = late ? "bad updated" : "small updated";
   const cv = q("canvas.plot"), shown = m.history !== null && m.history !== undefined;
@@ -107,13 +116,13 @@ function plot(cv, h, limit){
   const X = v => L + (v - t0) / (t1 - t0) * (W - L - R);
   const Y = v => T + (hi - v) / (hi - lo) * (H - T - B);
   g.strokeStyle = "#ddd"; g.beginPath();
-  const yt = ticks(lo, hi, 5), yd = Math.max(0, -Math.floor(Math.log10(yt.step) + 1e-9));
+  const yt = ticks(lo, hi, 5), yd = stepDigits(yt.step);
   for (const v of yt.values) { g.moveTo(L, Y(v)); g.lineTo(W - R, Y(v));
     g.fillText(v.toFixed(yd), 5, Y(v) + 4); }
   g.stroke(); g.fillText("\\u00b5m", 5, 12);
   for (let i = 0; i <= 4; i++) { const v = t0 + (t1 - t0) * i / 4;
     g.textAlign = i === 0 ? "left" : (i === 4 ? "right" : "center");
-    g.fillText(new Date(v * 1000).toLocaleTimeString(), i === 4 ? W - R : X(v), H - 6); }
+    g.fillText(clock(v), i === 4 ? W - R : X(v), H - 6); }
   g.textAlign = "left";
   function line(ys, color, dash){ g.strokeStyle = color; g.lineWidth = 2; g.setLineDash(dash);
     g.beginPath(); let up = false;
@@ -122,13 +131,18 @@ function plot(cv, h, limit){
       if (up) g.lineTo(X(t[i]), Y(y)); else g.moveTo(X(t[i]), Y(y)); up = true; }
     g.stroke(); g.setLineDash([]); }
   g.strokeStyle = "#b00020"; g.lineWidth = 1; g.setLineDash([2, 3]); g.beginPath();
+  let drawn = 0;
   for (const v of [limit, -limit])
-    if (v > lo && v < hi) { g.moveTo(L, Y(v)); g.lineTo(W - R, Y(v)); }
+    if (v > lo && v < hi) { g.moveTo(L, Y(v)); g.lineTo(W - R, Y(v)); drawn++; }
   g.stroke(); g.setLineDash([]);
   line(h.model_um, "#e07000", [6, 4]); line(h.offset_um, "#0050c0", []);
-  g.fillStyle = "#0050c0"; g.fillText("\\u2014 offset written", W - 380, 12);
-  g.fillStyle = "#e07000"; g.fillText("- - model output", W - 260, 12);
-  g.fillStyle = "#b00020"; g.fillText(".... \\u00b1 limit", W - 140, 12);
+  const keys = [["\\u2014 offset written", "#0050c0"], ["- - model output", "#e07000"]];
+  if (limit !== null && limit !== undefined) keys.push([drawn ? ".... \\u00b1 limit" :
+    "\\u00b1 limit " + fmt(limit, 1) + " \\u00b5m: off scale", "#b00020"]);
+  g.textAlign = "right"; let x = W - R;
+  for (const [text, color] of keys.reverse()) {
+    g.fillStyle = color; g.fillText(text, x, 12); x -= g.measureText(text).width + 16; }
+  g.textAlign = "left";
 }
 function show(doc){ const list = doc.machines || [doc];
   list.forEach((m, i) => showMachine(section(i), m));

@@ -1,9 +1,11 @@
 """What the status page shows (issue 21): °C rather than degC, rpm without
-decimals, y-axis ticks at nice numbers, the last time label inside the
-canvas, rounded numbers in the alarm list, and while the controller does not
-answer, what really happens (nothing can be written) rather than "the offset
-ramps to 0". The page's script runs in node (the browser test needs
-chromium, often absent) with a recording stand-in for the canvas."""
+decimals, y-axis ticks at nice numbers labelled with the step's decimals, the
+last time label inside the canvas, times on the 24-hour clock, the ± limit in
+the legend only as drawn (else its value, off scale), rounded numbers in the
+alarm list, and while the controller does not answer, what really happens
+(nothing can be written) rather than "the offset ramps to 0". The page's
+script runs in node (the browser test needs chromium, often absent) with a
+recording stand-in for the canvas."""
 
 from __future__ import annotations
 
@@ -46,13 +48,16 @@ _CANVAS = """
 const calls = [];
 const g = {font: "", fillStyle: "", strokeStyle: "", lineWidth: 1, textAlign: "left",
   clearRect(){}, beginPath(){}, moveTo(){}, lineTo(){}, stroke(){}, setLineDash(){},
-  fillText(text, x, y){ calls.push({text: String(text), x: x, y: y, align: this.textAlign}); }};
+  measureText(text){ return {width: 7 * String(text).length}; },
+  fillText(text, x, y){ calls.push({text: String(text), x: x, y: y, align: this.textAlign,
+                                    color: this.fillStyle}); }};
 const cv = {clientWidth: 800, clientHeight: 260, getContext: () => g};
 """
 
 
 @needs_node
-@pytest.mark.parametrize("span", [(-2.0, 15.0), (0.0, 0.3), (-120.0, 180.0), (3.0, 3.2)])
+@pytest.mark.parametrize("span", [(-2.0, 15.0), (0.0, 0.3), (-120.0, 180.0), (3.0, 3.2),
+                                  (-4.0, 5.0)])
 def test_the_y_axis_ticks_are_nice_numbers(span: tuple[float, float]) -> None:
     lo, hi = span
     h = {"wall_s": [1000.0 + 60 * i for i in range(11)],
@@ -103,3 +108,43 @@ def test_an_unreachable_controller_is_said_as_it_is(state: FaultState) -> None:
     _, why = operator_state(FaultState.RAMP, Cause.INPUTS_INVALID,
                             {"bearing": "out_of_range", "ambient": None})
     assert "ramps to 0" in why
+
+
+@needs_node
+def test_a_step_of_2_5_is_labelled_with_its_decimal() -> None:
+    h = {"wall_s": [1000.0 + 60 * i for i in range(11)],
+         "offset_um": [-4.0 + 0.9 * i for i in range(11)], "model_um": [0.0] * 11}
+    calls = _node(_CANVAS + f"plot(cv, {json.dumps(h)}, 200);"
+                  "console.log(JSON.stringify(calls.filter(c => c.x === 5 && c.text !== "
+                  '"\\u00b5m").map(c => c.text)));')
+    assert calls == ["-2.5", "0.0", "2.5", "5.0"]  # not 5, 3, 0, -3 on even gridlines
+
+
+@needs_node
+def test_times_are_on_the_24_hour_clock() -> None:
+    # 15:04:05 local time today, whatever the machine's zone and locale
+    got = _node("const d = new Date(); d.setHours(15, 4, 5, 0);"
+                "console.log(JSON.stringify([clock(d.getTime() / 1000),"
+                " stamp(d.getTime() / 1000)]));")
+    assert isinstance(got, list)
+    assert got[0] == "15:04:05"
+    assert got[1].endswith(" 15:04:05") and "PM" not in got[1]
+
+
+def _legend(limit: float, top: float) -> list[str]:
+    h = {"wall_s": [1000.0 + 60 * i for i in range(11)],
+         "offset_um": [top * i / 10 for i in range(11)], "model_um": [top * i / 10
+                                                                   for i in range(11)]}
+    calls = _node(_CANVAS + f"plot(cv, {json.dumps(h)}, {limit});"
+                  "console.log(JSON.stringify(calls.filter(c => c.y === 12 && c.x !== 5)));")
+    assert isinstance(calls, list)
+    # right-aligned from the canvas's right edge leftwards, none overlapping
+    spans = sorted((c["x"] - 7 * len(c["text"]), c["x"]) for c in calls)
+    assert all(a[1] <= b[0] for a, b in itertools.pairwise(spans)) and spans[-1][1] <= 800
+    return [c["text"] for c in calls if c["color"] == "#b00020"]
+
+
+@needs_node
+def test_the_limit_is_in_the_legend_only_as_drawn() -> None:
+    assert _legend(10.0, 12.0) == [".... ± limit"]
+    assert _legend(200.0, 12.0) == ["± limit 200.0 µm: off scale"]
