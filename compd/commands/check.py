@@ -77,15 +77,9 @@ def dc_gain_unit(term: Any) -> str:
     """The unit of a term's DC gain: µm per kelvin for a temperature term
     (relative to its reference), else µm per unit of its input (µm/rpm for a
     spindle speed, µm/kW for a drive power); a gain channel multiplies it."""
-    from compd.offline.channel_kind import ChannelKind, channel_kind
+    from compd.offline.channel_kind import step_unit
 
-    if term.relative:
-        per = "K"
-    else:
-        kinds = {channel_kind(ch) for ch in term.inputs}
-        per = {frozenset({ChannelKind.SPEED}): "rpm",
-               frozenset({ChannelKind.POWER}): "kW"}.get(frozenset(kinds),
-                                                         "unit of " + "+".join(term.inputs))
+    per = step_unit(term.inputs, term.relative)
     gain = f"·{term.gain_channel}" if term.gain_channel else ""
     return f"µm/({per}{gain})" if gain else f"µm/{per}"
 

@@ -110,7 +110,6 @@ def run(args: argparse.Namespace) -> int:
         import numpy as np
 
         from compd.offline.plots import replay_figure
-        from models.quality import delta_pk
 
         h = result.history
         inputs: dict[str, np.ndarray] = {
@@ -121,10 +120,8 @@ def run(args: argparse.Namespace) -> int:
                              f"written, error left; range {result.uncompensated_range_um:.1f}"
                              f" → {result.compensated_range_um:.1f} µm "
                              f"({result.range_reduction:.1f}x)"),
-                      fit_pct=result.fit_percent,
                       labels=("thermal growth at the tool (uncompensated error)",
-                              "offset written by compd", "error left at the tool"),
-                      dpk_um=delta_pk(h["growth_um"], h["offset_um"])),
+                              "offset written by compd", "error left at the tool")),
                          "figure", force=args.force, inputs=[args.model])
         print(f"figure written to {args.plot}", file=human)
     if args.json:

@@ -213,8 +213,8 @@ def run(args: argparse.Namespace) -> int:
 
         write_atomically(args.plot, lambda tmp: replay_figure(
                       tmp, record.time_s, plot_inputs(model, record), measured, simulated,
-                      title=f"{model.name} on {record.path}", fit_pct=q.fit_percent,
-                      dpk_um=q.dpk_um, **replay_probes.plot_extras(probes, record.time_s)),
+                      title=f"{model.name} on {record.path}", scored=(first, last),
+                      **replay_probes.plot_extras(probes, record.time_s)),
                          "figure", force=args.force,
                          inputs=[args.model, args.data])
     if args.json:

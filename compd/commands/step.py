@@ -6,7 +6,9 @@ stepped with the model's own filters at its sample period, like the papers'
 LTI step-response figures. Without --hours the span covers five times the
 slowest time constant (at most two days: then it says the span was capped).
 Each term prints the value at the span's end, labelled with its time, and
-the DC gain (the steady state), with the share of it reached.
+the DC gain (the steady state, µm per unit of the input: µm/K, µm/rpm), with
+the share of it reached. The figure draws every term of one input unit on one
+axis, so that terms that oppose are seen to.
 """
 
 from __future__ import annotations
@@ -70,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from compd.infiles import load_model
+    from compd.offline.channel_kind import step_unit
     from compd.outfiles import check_figure, write_atomically
     from models.errors import ModelError
 
@@ -101,11 +104,12 @@ def run(args: argparse.Namespace) -> int:
         responses[term.name] = term.gain * np.fromiter((step(1.0) for _ in range(n)),
                                                        dtype=np.float64, count=n)
         dyn.reset()
-        units[term.name] = "K" if term.relative else "unit of " + "+".join(term.inputs)
+        units[term.name] = step_unit(term.inputs, term.relative)
         gains[term.name] = float(term.gain * dyn.dc_gain)
     summary = [{"name": k, "input_step": f"1 {units[k]}", "y0_um": float(v[0]),
                 "y_end_um": float(v[-1]), "hours": float(time_s[-1] / 3600.0),
                 "dc_gain_um": gains[k] if math.isfinite(gains[k]) else None,
+                "per": units[k],
                 "span_capped": capped}
                for k, v in responses.items()]
     if args.plot:
@@ -129,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
                      else "")
             print(f"{s['name']}: step of {s['input_step']}: y(0) = {s['y0_um']:.5g} µm, "
                   f"y({s['hours']:.3g} h, the span's end) = {s['y_end_um']:.5g} µm; "
-                  f"DC gain {_g(gain)} µm{share}")
+                  f"DC gain {_g(gain)} µm/{s['per']}{share}")
         if args.plot:
             print(f"figure: {args.plot}")
     return 0

@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import enum
 import re
+from collections.abc import Iterable
 
-__all__ = ["ChannelKind", "channel_kind", "is_rate_channel"]
+__all__ = ["ChannelKind", "channel_kind", "is_rate_channel", "step_unit"]
 
 _WORDS = re.compile(r"[^a-z0-9]+")
 
@@ -47,3 +48,18 @@ def is_rate_channel(name: str) -> bool:
     """A speed or a power: it enters a model as it is, not relative to its
     first sample (only temperatures have a reference)."""
     return channel_kind(name) is not ChannelKind.TEMPERATURE
+
+
+def step_unit(inputs: Iterable[str], relative: bool) -> str:
+    """The unit of one step of a term's input: K for a temperature term (it
+    enters relative to its reference), rpm for a speed, kW for a power, else
+    "unit of a+b" (a combination of rates of different kinds)."""
+    if relative:
+        return "K"
+    names = list(inputs)
+    kinds = {channel_kind(ch) for ch in names}
+    if kinds == {ChannelKind.SPEED}:
+        return "rpm"
+    if kinds == {ChannelKind.POWER}:
+        return "kW"
+    return "unit of " + "+".join(names)

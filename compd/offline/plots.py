@@ -1,29 +1,44 @@
 """Figures like the papers': a replay (inputs above; measured, simulated and
 residual displacement below) and the step response of each term.
 
-matplotlib with the Agg backend (files only, no display); imported only by
-the commands that draw.
+matplotlib's object API (a `Figure` of its own, no pyplot state), files only,
+no display; imported only by the commands that draw. `build_*` return the
+figure (the report embeds it as SVG, the tests inspect it), `*_figure` write
+it to a file whose suffix says the format. Legends stand beside the axes,
+never over a curve.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import IO
 
-import matplotlib as mpl
-
-mpl.use("Agg")
-
-import matplotlib.pyplot as plt
 import numpy as np
 import numpy.typing as npt
+from matplotlib.artist import Artist
 from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 from matplotlib.text import Text
 
 from compd.offline.channel_kind import ChannelKind, channel_kind
 
 FloatArray = npt.NDArray[np.float64]
+
+#: colours of the marked windows of a record
+WINDOW_COLOURS = {"calibration": "#cfe3f7", "held out": "#fbe3c4", "not scored": "#dddddd"}
+
+
+@dataclass(frozen=True)
+class Window:
+    """A span of a record's time (seconds) shaded in a figure, with its name
+    (one of `WINDOW_COLOURS`' keys, or any text in grey)."""
+
+    start_s: float
+    end_s: float
+    label: str
 
 
 def _rate_axis_label(kinds: set[ChannelKind]) -> str:
@@ -34,22 +49,53 @@ def _rate_axis_label(kinds: set[ChannelKind]) -> str:
     return "speed (rpm) / power"
 
 
-def replay_figure(path: str | Path, time_s: FloatArray, inputs: Mapping[str, FloatArray],
-                  measured: FloatArray, simulated: FloatArray, *, title: str,
-                  fit_pct: float, dpk_um: float,
-                  labels: tuple[str, str, str] = ("measured δZ", "simulated (model)",
-                                                  "residue (after compensation)"),
-                  adapted: FloatArray | None = None,
-                  probes: tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]] | None = None
-                  ) -> tuple[list[str], list[str]]:
-    """Draw the figure; return the legends' entries (upper, lower) as drawn.
+def _shade(axes: Sequence[Axes], windows: Sequence[Window]) -> None:
+    """Shade each window on every axis; the first axis carries one legend
+    entry per window name."""
+    named: set[str] = set()
+    for w in windows:
+        colour = WINDOW_COLOURS.get(w.label, "#e4e4e4")
+        for i, ax in enumerate(axes):
+            label = w.label if i == len(axes) - 1 and w.label not in named else None
+            ax.axvspan(w.start_s / 3600.0, w.end_s / 3600.0, color=colour, alpha=0.6, lw=0,
+                       zorder=0, label=label)
+        named.add(w.label)
+        for ax in axes:
+            for edge in (w.start_s, w.end_s):
+                ax.axvline(edge / 3600.0, color="0.45", lw=0.7, ls=":", zorder=1)
 
-    With `adapted` (`compd replay --probe-every`) the lower panel adds the model
-    with the estimator's correction and its residue, and `probes` (times, values,
+
+def _legend_beside(ax: Axes, handles: list[Artist] | None = None,
+                   names: list[str] | None = None, *, past_twin: bool = False) -> None:
+    """The axis's legend outside its right edge (past a twin axis's labels)."""
+    anchor = (1.10 if past_twin else 1.01, 1.0)
+    if handles is None:
+        handles, names = ax.get_legend_handles_labels()
+    ax.legend(handles, names or [], loc="upper left", bbox_to_anchor=anchor, fontsize="small",
+              borderaxespad=0.0)
+
+
+def build_replay_figure(time_s: FloatArray, inputs: Mapping[str, FloatArray],
+                        measured: FloatArray, simulated: FloatArray, *, title: str,
+                        labels: tuple[str, str, str] = ("measured δZ", "simulated (model)",
+                                                        "residue (after compensation)"),
+                        adapted: FloatArray | None = None,
+                        probes: tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]]
+                        | None = None,
+                        scored: tuple[int, int] | None = None,
+                        windows: Sequence[Window] = ()) -> Figure:
+    """The replay figure. `scored` (first, end) are the rows the figures are
+    computed on: the lower panel's title gives fit %, Δpk and the residue's
+    range on those rows alone, and the rows outside are shaded "not scored".
+    `windows` shades more spans (calibration, held out). With `adapted`
+    (`compd replay --probe-every`) the lower panel adds the model with the
+    estimator's correction and its residue, and `probes` (times, values,
     accepted) marks each probe: a dot when used, a cross when refused."""
+    from models.quality import quality
+
     hours = np.asarray(time_s) / 3600.0
-    fig, (top, bottom) = plt.subplots(2, 1, sharex=True, figsize=(10, 7),
-                                      gridspec_kw={"height_ratios": [2, 3]})
+    fig = Figure(figsize=(11, 7), layout="constrained")
+    top, bottom = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2, 3]})
     kinds = {k: channel_kind(k) for k in inputs}
     temps = {k: v for k, v in inputs.items() if kinds[k] is ChannelKind.TEMPERATURE}
     rates = {k: v for k, v in inputs.items() if kinds[k] is not ChannelKind.TEMPERATURE}
@@ -68,8 +114,16 @@ def replay_figure(path: str | Path, time_s: FloatArray, inputs: Mapping[str, Flo
         h2, l2 = right.get_legend_handles_labels()
         handles, names = handles + h2, names + l2
     if handles:
-        top.legend(handles, names, loc="upper right", fontsize="small", ncol=2)
+        _legend_beside(top, handles, names, past_twin=bool(rates))
     top.set_title("inputs")
+    n = len(hours)
+    first, end = scored if scored is not None else (0, n)
+    marks = list(windows)
+    if first > 0:
+        marks.append(Window(float(time_s[0]), float(time_s[first]), "not scored"))
+    if end < n:
+        marks.append(Window(float(time_s[end - 1]), float(time_s[-1]), "not scored"))
+    _shade([top, bottom], marks)
     residue = np.asarray(measured) - np.asarray(simulated)
     bottom.plot(hours, measured, lw=0.8, color="tab:blue", label=labels[0])
     bottom.plot(hours, simulated, lw=1.4, color="tab:orange", label=labels[1])
@@ -89,15 +143,38 @@ def replay_figure(path: str | Path, time_s: FloatArray, inputs: Mapping[str, Flo
     bottom.set_xlabel("time (h)")
     bottom.set_ylabel("Z displacement (µm)")
     bottom.grid(True, alpha=0.3)
-    bottom.legend(loc="best", fontsize="small")
-    bottom.set_title(f"fit {fit_pct:.1f} %, Δpk {dpk_um:.2f} µm "
-                     f"(residue {residue.min():.2f} … {residue.max():.2f} µm)")
+    _legend_beside(bottom)
+    q = quality(np.asarray(measured)[first:end], np.asarray(simulated)[first:end])
+    res = residue[first:end]
+    where = (f"scored {hours[first]:.3g} … {hours[end - 1]:.3g} h: "
+             if (first, end) != (0, n) else "")
+    bottom.set_title(f"{where}fit {q.fit_percent:.1f} %, Δpk {q.dpk_um:.2f} µm "
+                     f"(residue {res.min():.2f} … {res.max():.2f} µm)")
     fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return [t.get_text() for t in legend_texts(top)], [t.get_text() for t in
-                                                       legend_texts(bottom)]
+    return fig
+
+
+def save_figure(fig: Figure, target: str | Path | IO[bytes], fmt: str | None = None) -> None:
+    """Write `fig` (the format from the suffix, or `fmt` for a stream)."""
+    fig.savefig(target, dpi=110, format=fmt)
+
+
+def replay_figure(path: str | Path, time_s: FloatArray, inputs: Mapping[str, FloatArray],
+                  measured: FloatArray, simulated: FloatArray, *, title: str,
+                  labels: tuple[str, str, str] = ("measured δZ", "simulated (model)",
+                                                  "residue (after compensation)"),
+                  adapted: FloatArray | None = None,
+                  probes: tuple[FloatArray, FloatArray, npt.NDArray[np.bool_]] | None = None,
+                  scored: tuple[int, int] | None = None,
+                  ) -> tuple[list[str], list[str]]:
+    """Write `build_replay_figure`'s figure to `path`; return the legends'
+    entries (upper, lower) as drawn."""
+    fig = build_replay_figure(time_s, inputs, measured, simulated, title=title, labels=labels,
+                              adapted=adapted, probes=probes, scored=scored)
+    save_figure(fig, path)
+    top, bottom = fig.axes[:2]
+    return ([t.get_text() for t in legend_texts(top)],
+            [t.get_text() for t in legend_texts(bottom)])
 
 
 def legend_texts(ax: Axes) -> list[Text]:
@@ -105,30 +182,49 @@ def legend_texts(ax: Axes) -> list[Text]:
     return list(legend.get_texts()) if legend is not None else []
 
 
+def build_step_figure(time_s: FloatArray, responses: Mapping[str, FloatArray],
+                      units: Mapping[str, str], *, title: str,
+                      dc_gains: Mapping[str, float] | None = None) -> Figure:
+    """Every term's response to one unit step of its input on one axis per
+    input unit (all temperature terms on one µm/K scale, so that terms that
+    oppose are seen to), each with its DC gain (the steady state, dotted, in
+    the term's colour) and a dot at the span's end; the legend beside the
+    axis says both values."""
+    hours = np.asarray(time_s) / 3600.0
+    groups: dict[str, list[str]] = {}
+    for name in responses:
+        groups.setdefault(units.get(name, "K"), []).append(name)
+    n = max(1, len(groups))
+    fig = Figure(figsize=(11, 3.4 * n + 0.6), layout="constrained")
+    axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
+    colours = [f"C{i}" for i in range(10)]
+    for ax, (unit, names) in zip(axes, groups.items(), strict=False):
+        for i, name in enumerate(names):
+            y = responses[name]
+            colour = colours[i % len(colours)]
+            end = float(y[-1])
+            gain = (dc_gains or {}).get(name)
+            share = (f", {100.0 * end / gain:.0f} % of it"
+                     if gain is not None and math.isfinite(gain) and gain != 0.0 else "")
+            ax.plot(hours, y, lw=1.6, color=colour,
+                    label=f"{name}: {end:.4g} µm/{unit} at {float(hours[-1]):.3g} h")
+            ax.plot([hours[-1]], [end], "o", ms=4, color=colour)
+            if gain is not None and math.isfinite(gain):
+                ax.axhline(gain, color=colour, lw=0.9, ls=":",
+                           label=f"{name}: DC gain (steady state) {gain:.4g} µm/{unit}{share}")
+        ax.axhline(0.0, color="0.3", lw=0.6)
+        ax.set_ylabel(f"δZ per {unit} (µm/{unit})")
+        ax.set_title(f"response to a step of 1 {unit} at t = 0")
+        ax.grid(True, alpha=0.3)
+        _legend_beside(ax)
+    axes[-1].set_xlabel("time (h)")
+    fig.suptitle(title)
+    return fig
+
+
 def step_figure(path: str | Path, time_s: FloatArray, responses: Mapping[str, FloatArray],
                 units: Mapping[str, str], *, title: str,
                 dc_gains: Mapping[str, float] | None = None) -> None:
-    """One panel per term: the response to a unit step of its input, the value
-    at the span's end (labelled with its time: not the steady state when the
-    span is shorter than the settling) and the DC gain, the steady state."""
-    hours = np.asarray(time_s) / 3600.0
-    n = max(1, len(responses))
-    fig, axes = plt.subplots(n, 1, sharex=True, figsize=(9, 2.6 * n + 0.8), squeeze=False)
-    for ax, (name, y) in zip(axes[:, 0], responses.items(), strict=True):
-        ax.plot(hours, y, lw=1.4, color="tab:blue")
-        end = float(y[-1])
-        ax.axhline(end, color="0.5", lw=0.7, ls="--",
-                   label=f"at {float(hours[-1]):.3g} h (span end): {end:.4g} µm")
-        gain = (dc_gains or {}).get(name)
-        if gain is not None and math.isfinite(gain):
-            ax.axhline(gain, color="tab:green", lw=0.8, ls=":",
-                       label=f"DC gain (steady state): {gain:.4g} µm")
-        ax.set_ylabel("δZ (µm)")
-        ax.set_title(f"term {name}: step of 1 {units.get(name, 'K')} at t = 0")
-        ax.grid(True, alpha=0.3)
-        ax.legend(loc="best", fontsize="small")
-    axes[-1, 0].set_xlabel("time (h)")
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    """Write `build_step_figure`'s figure to `path`."""
+    save_figure(build_step_figure(time_s, responses, units, title=title, dc_gains=dc_gains),
+                path)

@@ -199,8 +199,8 @@ def test_replay_with_gains_and_a_plot_of_the_probes(
     assert png.stat().st_size > 10_000
     t = np.arange(10, dtype=np.float64) * 3600.0
     m = np.sin(t / 3e4)
-    _, lower = replay_figure(tmp_path / "p.png", t, {}, m, m * 0.9, title="t", fit_pct=1.0,
-                             dpk_um=1.0, adapted=m * 0.95,
+    _, lower = replay_figure(tmp_path / "p.png", t, {}, m, m * 0.9, title="t",
+                             adapted=m * 0.95,
                              probes=(t[[2, 5]], m[[2, 5]], np.array([True, False])))
     assert "probe (used)" in lower and "probe (refused)" in lower
     assert "adapted (model + bias)" in lower

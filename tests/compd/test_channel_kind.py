@@ -64,8 +64,7 @@ def test_the_figure_draws_a_power_beside_the_speed_not_as_a_temperature(tmp_path
     and `rpm_s1` (not ending in rpm) was drawn as a temperature too."""
     t = np.arange(100.0)
     inputs = {n: 20.0 + t / 50 for n in ("bearing", "power_kw", "rpm_s1")}
-    upper, _ = replay_figure(tmp_path / "f.png", t, inputs, t / 10, t / 11, title="t",
-                             fit_pct=90.0, dpk_um=1.0)
+    upper, _ = replay_figure(tmp_path / "f.png", t, inputs, t / 10, t / 11, title="t")
     assert upper == ["bearing (°C)", "power_kw", "rpm_s1 (rpm)"]
 
 

@@ -41,7 +41,7 @@ def test_a_capped_span_is_said_and_the_dc_gain_shown(
     assert out.startswith("span capped at 48 h")
     line = out.splitlines()[1]
     assert "y(48 h, the span's end) = " in line
-    assert "DC gain 10 µm" in line and "(25.0 % of it)" in line  # 1 - 0.9999^2880 ≈ 0.25
+    assert "DC gain 10 µm/K" in line and "(25.0 % of it)" in line  # 1 - 0.9999^2880 ≈ 0.25
 
 
 def test_json_carries_the_dc_gain_and_the_cap(slow: Path,
@@ -56,7 +56,7 @@ def test_json_carries_the_dc_gain_and_the_cap(slow: Path,
 def test_a_settled_span_is_not_called_capped(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["step", "sp2"]) == 0
     out = capsys.readouterr().out
-    assert "capped" not in out and "DC gain 17.647 µm" in out
+    assert "capped" not in out and "DC gain 17.647 µm/K" in out
 
 
 def test_the_figure_labels_the_span_end_and_the_dc_gain(
@@ -65,15 +65,15 @@ def test_the_figure_labels_the_span_end_and_the_dc_gain(
     from matplotlib.axes import Axes
 
     labels: list[str] = []
-    real = Axes.axhline
+    real = Axes.legend
 
     def spy(self: Axes, *args: object, **kwargs: object) -> object:
-        labels.append(str(kwargs.get("label", "")))
-        return real(self, *args, **kwargs)  # type: ignore[arg-type]
+        legend = real(self, *args, **kwargs)
+        labels.extend(t.get_text() for t in legend.get_texts())
+        return legend
 
-    monkeypatch.setattr(Axes, "axhline", spy)
+    monkeypatch.setattr(Axes, "legend", spy)
     assert main(["step", str(slow), "--plot", str(tmp_path / "s.png")]) == 0
     assert (tmp_path / "s.png").stat().st_size > 0
-    assert any(lb.startswith("at 48 h (span end): ") for lb in labels), labels
-    assert "DC gain (steady state): 10 µm" in labels
-    assert not any(lb.startswith("final") for lb in labels)
+    assert labels[0].startswith("bearing: ") and labels[0].endswith(" µm/K at 48 h"), labels
+    assert labels[1].startswith("bearing: DC gain (steady state) 10 µm/K, 25 % of it"), labels
