@@ -30,6 +30,7 @@ COMMANDS: dict[str, str] = {
     "replay": "replay",
     "refine": "refine",
     "step": "step",
+    "report": "report",
     "health": "health",
     "status": "status",
     "export": "export",

@@ -37,6 +37,10 @@ examples:
   compd replay plant.toml spectrum.csv --column dz_um --plot replay.png
   compd replay sp2 /var/lib/compd/samples.sqlite --column dz_um --json
   compd replay plant.toml spectrum.csv --column dz_um --probe-every 7200 --probe-noise-um 0.5""",
+    "report": """\
+examples:
+  compd report plant.toml constant.csv etve.csv spectrum.csv -o report.html
+  compd report plant.toml shop.csv --column dz_um --held-out-from 86400 -o report.html""",
     "refine": """\
 examples:
   compd refine plant.toml /var/lib/compd/samples.sqlite -o plant-refined.toml

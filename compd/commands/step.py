@@ -17,9 +17,18 @@ import argparse
 import json
 import math
 import sys
+from typing import TYPE_CHECKING
 
 from compd.argtypes import number
 from compd.sysexits import EX_DATAERR
+
+if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
+
+    from models.compensation import CompensationModel
+
+    FloatArray = npt.NDArray[np.float64]
 
 HELP = "step response of each term of a model (1 K step), as numbers and a plot"
 
@@ -64,15 +73,45 @@ def _slowest_tau_s(model: object) -> float:
     return tau
 
 
+def step_responses(model: CompensationModel, n: int
+                   ) -> tuple[FloatArray, dict[str, FloatArray], dict[str, str],
+                              dict[str, float]]:
+    """(time_s, response, unit of the input's step, DC gain) of every term over
+    `n` samples: its response from rest to one step of its input (1 K, 1 rpm, ...)
+    through its own filters; each filter is left at rest."""
+    import numpy as np
+
+    from compd.offline.channel_kind import step_unit
+
+    time_s = np.arange(n, dtype=np.float64) * model.period_s
+    responses: dict[str, FloatArray] = {}
+    units: dict[str, str] = {}
+    gains: dict[str, float] = {}
+    for term in model.terms:
+        dyn = term.dynamics
+        dyn.reset()
+        step = dyn.step
+        responses[term.name] = term.gain * np.fromiter((step(1.0) for _ in range(n)),
+                                                       dtype=np.float64, count=n)
+        dyn.reset()
+        units[term.name] = step_unit(term.inputs, term.relative)
+        gains[term.name] = float(term.gain * dyn.dc_gain)
+    return time_s, responses, units, gains
+
+
+def auto_span_s(model: CompensationModel) -> float:
+    """The span shown without --hours: five of the slowest time constant, at most
+    `MAX_AUTO_SPAN_S`."""
+    return min(5.0 * _slowest_tau_s(model), MAX_AUTO_SPAN_S)
+
+
 def _g(x: object) -> str:
     return f"{x:.5g}" if isinstance(x, float) else "-"
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
 
     from compd.infiles import load_model
-    from compd.offline.channel_kind import step_unit
     from compd.outfiles import check_figure, write_atomically
     from models.errors import ModelError
 
@@ -92,20 +131,7 @@ def run(args: argparse.Namespace) -> int:
               f"{samples:.3g} samples; at most {MAX_STEP_SAMPLES:,} (shorten --hours)",
               file=sys.stderr)
         return EX_DATAERR
-    n = max(2, int(samples))
-    time_s = np.arange(n, dtype=np.float64) * model.period_s
-    responses: dict[str, np.ndarray] = {}
-    units: dict[str, str] = {}
-    gains: dict[str, float] = {}
-    for term in model.terms:
-        dyn = term.dynamics
-        dyn.reset()
-        step = dyn.step
-        responses[term.name] = term.gain * np.fromiter((step(1.0) for _ in range(n)),
-                                                       dtype=np.float64, count=n)
-        dyn.reset()
-        units[term.name] = step_unit(term.inputs, term.relative)
-        gains[term.name] = float(term.gain * dyn.dc_gain)
+    time_s, responses, units, gains = step_responses(model, max(2, int(samples)))
     summary = [{"name": k, "input_step": f"1 {units[k]}", "y0_um": float(v[0]),
                 "y_end_um": float(v[-1]), "hours": float(time_s[-1] / 3600.0),
                 "dc_gain_um": gains[k] if math.isfinite(gains[k]) else None,

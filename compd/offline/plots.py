@@ -41,6 +41,12 @@ class Window:
     label: str
 
 
+def plain(text: str) -> str:
+    """`text` drawn as it is: a dollar sign from a file (a column, a model name)
+    would start matplotlib's math mode, and an odd number of them fails the draw."""
+    return text.replace("$", r"\$")
+
+
 def _rate_axis_label(kinds: set[ChannelKind]) -> str:
     if kinds == {ChannelKind.SPEED}:
         return "spindle speed (rpm)"
@@ -100,7 +106,7 @@ def build_replay_figure(time_s: FloatArray, inputs: Mapping[str, FloatArray],
     temps = {k: v for k, v in inputs.items() if kinds[k] is ChannelKind.TEMPERATURE}
     rates = {k: v for k, v in inputs.items() if kinds[k] is not ChannelKind.TEMPERATURE}
     for name, values in temps.items():
-        top.plot(hours, values, lw=1.0, label=f"{name} (°C)")
+        top.plot(hours, values, lw=1.0, label=f"{plain(name)} (°C)")
     top.set_ylabel("temperature (°C)")
     top.grid(True, alpha=0.3)
     # the inputs' legend has names of its own: `labels` stays the lower panel's
@@ -109,7 +115,7 @@ def build_replay_figure(time_s: FloatArray, inputs: Mapping[str, FloatArray],
         right = top.twinx()
         for name, values in rates.items():
             unit = " (rpm)" if kinds[name] is ChannelKind.SPEED else ""
-            right.plot(hours, values, lw=0.8, color="0.55", ls="--", label=f"{name}{unit}")
+            right.plot(hours, values, lw=0.8, color="0.55", ls="--", label=f"{plain(name)}{unit}")
         right.set_ylabel(_rate_axis_label({kinds[k] for k in rates}))
         h2, l2 = right.get_legend_handles_labels()
         handles, names = handles + h2, names + l2
@@ -150,7 +156,7 @@ def build_replay_figure(time_s: FloatArray, inputs: Mapping[str, FloatArray],
              if (first, end) != (0, n) else "")
     bottom.set_title(f"{where}fit {q.fit_percent:.1f} %, Δpk {q.dpk_um:.2f} µm "
                      f"(residue {res.min():.2f} … {res.max():.2f} µm)")
-    fig.suptitle(title)
+    fig.suptitle(plain(title))
     return fig
 
 
@@ -207,18 +213,19 @@ def build_step_figure(time_s: FloatArray, responses: Mapping[str, FloatArray],
             share = (f", {100.0 * end / gain:.0f} % of it"
                      if gain is not None and math.isfinite(gain) and gain != 0.0 else "")
             ax.plot(hours, y, lw=1.6, color=colour,
-                    label=f"{name}: {end:.4g} µm/{unit} at {float(hours[-1]):.3g} h")
+                    label=f"{plain(name)}: {end:.4g} µm/{unit} at {float(hours[-1]):.3g} h")
             ax.plot([hours[-1]], [end], "o", ms=4, color=colour)
             if gain is not None and math.isfinite(gain):
                 ax.axhline(gain, color=colour, lw=0.9, ls=":",
-                           label=f"{name}: DC gain (steady state) {gain:.4g} µm/{unit}{share}")
+                           label=f"{plain(name)}: DC gain (steady state) {gain:.4g} "
+                                 f"µm/{unit}{share}")
         ax.axhline(0.0, color="0.3", lw=0.6)
-        ax.set_ylabel(f"δZ per {unit} (µm/{unit})")
-        ax.set_title(f"response to a step of 1 {unit} at t = 0")
+        ax.set_ylabel(plain(f"δZ per {unit} (µm/{unit})"))
+        ax.set_title(plain(f"response to a step of 1 {unit} at t = 0"))
         ax.grid(True, alpha=0.3)
         _legend_beside(ax)
     axes[-1].set_xlabel("time (h)")
-    fig.suptitle(title)
+    fig.suptitle(plain(title))
     return fig
 
 
