@@ -159,7 +159,7 @@ def build_page(args: argparse.Namespace, model: CompensationModel,
             title=f"{Path(r.record.path).name}: {r.role}",
             windows=[w.window for w in r.windows])
         page.heading(f"{Path(r.record.path).name} ({r.role})", 3)
-        drawn = "" if n == len(r.record) else f" Drawn every {step.step}th sample."
+        drawn = "" if n == len(r.record) else f" Drawn at one sample in {step.step}."
         page.figure(figure_svg(fig, f"rec{i}"),
                     "Above: the inputs (temperatures °C, spindle speed dashed). Below: the "
                     "measured displacement, the model's prediction and the residue left after "
