@@ -53,7 +53,7 @@ from pydantic import (
 )
 
 from compd.config.urls import url_credentials
-from drivers.endpoint import endpoint_of
+from drivers.endpoint import endpoint_of, numeric_host_reason
 from drivers.linuxcnc_options import LinuxCncOptions
 from drivers.opcua_policy import OpcUaSecurityRules
 from drivers.protocol_options import FocasOptions, S7Options
@@ -89,6 +89,20 @@ class _Section(BaseModel):
 LaxPath = Annotated[Path, Field(strict=False)]
 StrictFloat = Annotated[float, Strict()]
 PositiveS = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+
+
+def _listen_host(v: str) -> str:
+    """A host compd listens on, held to the endpoints' rule for numbers
+    (`drivers.endpoint.numeric_host_reason`): ``0`` or ``0x0`` would listen on every
+    interface, ``127.1`` where it reads as loopback; one spelling, the dotted quad."""
+    why = numeric_host_reason(v)
+    if why is not None:
+        raise ValueError(why)
+    return v
+
+
+#: the address a face listens on: a name, an IPv6 address, or an IPv4 dotted quad
+ListenHost = Annotated[str, Field(min_length=1), AfterValidator(_listen_host)]
 
 
 #: a sample period within models.sanity's MIN_PERIOD_S ... MAX_PERIOD_S (10 ms ... 1 h)
@@ -408,7 +422,7 @@ class TelemetrySection(_Section):
     metrics_port: Annotated[int, Field(ge=1, le=65535)] | None = None
     #: the address /metrics listens on: loopback by default; "0.0.0.0" or "::" in a
     #: container whose port is published, or for a Prometheus on another host
-    metrics_host: Annotated[str, Field(min_length=1)] = "127.0.0.1"
+    metrics_host: ListenHost = "127.0.0.1"
     #: the HTTP server's bounds (/metrics and [faces.http]): open connections at most
     #: (beyond: the one waiting longest for a request is closed), seconds for a whole
     #: request head, seconds a kept-alive connection may sit idle
@@ -442,7 +456,7 @@ class OpcUaFaceSection(_Section):
     read-only for every client; SetHold only for `operator`."""
 
     enabled: bool = False
-    host: Annotated[str, Field(min_length=1)] = "127.0.0.1"
+    host: ListenHost = "127.0.0.1"
     port: Annotated[int, Field(ge=1, le=65535)] = 4841
     policy: Literal["Basic256Sha256", "Aes128_Sha256_RsaOaep", "Aes256_Sha256_RsaPss",
                     "None"] = "Basic256Sha256"
