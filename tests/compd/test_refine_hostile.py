@@ -17,8 +17,8 @@ from compd.cli import main
 from compd.config.schema import MAX_LIMIT_UM, learnt_bounds
 from compd.sysexits import EX_DATAERR
 
-from .test_refine import _MODEL, _walk
 from .test_recorder_hostile import _recorder
+from .test_refine import _MODEL, _walk
 
 
 def _csv(path: Path, rows: list[tuple[float, float, float]]) -> Path:
