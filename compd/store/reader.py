@@ -98,13 +98,23 @@ _PROBE_FIELDS = ("probes.seq", "samples.mono_s", "probes.measured_um", "probes.m
                  "probes.accepted", "probes.reason")
 
 
+#: the text columns of the recorder's layout (`compd.store.schema`): their length is
+#: measured as it is; any other column holds numbers
+_TEXT_COLUMNS = frozenset({"samples.state", "samples.channels", "samples.validity",
+                           "samples.contributions", "probes.reason"})
+
+
 def _fields(columns: Sequence[str]) -> str:
     """`columns` ("table.column") for a SELECT, each NULL when longer than
     MAX_FIELD_CHARS, then one more: the name of the first such column (NULL when none),
-    so that a 100 MB cell never reaches Python. Only a text or blob is measured (a
-    number's length would be formatted first)."""
+    so that a 100 MB cell never reaches Python (SQLite reads it once to measure it).
+    A number column is measured only when it holds a text or a blob: SQLite orders
+    every number before any text or blob, so ``c >= ''`` is false for a number, which
+    is never formatted to be measured (that, or typeof(), cost a third of a batch's
+    read)."""
     def long(c: str) -> str:
-        return f"(typeof({c}) IN ('text', 'blob') AND length({c}) > {MAX_FIELD_CHARS})"
+        measured = f"length({c}) > {MAX_FIELD_CHARS}"
+        return measured if c in _TEXT_COLUMNS else f"({c} >= '' AND {measured})"
 
     bounded = [f"CASE WHEN {long(c)} THEN NULL ELSE {c} END" for c in columns]
     first = " ".join(f"WHEN {long(c)} THEN '{c.partition('.')[2]}'" for c in columns)
