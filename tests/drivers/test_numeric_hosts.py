@@ -13,6 +13,7 @@ import pytest
 
 from compd.cli import main
 from compd.errors import EX_CONFIG
+from compd.sysexits import EX_USAGE
 from drivers.endpoint import EndpointError, endpoint_of, numeric_host_reason
 from drivers.sim.drive import drive_endpoint
 
@@ -101,3 +102,14 @@ def test_check_refuses_a_numeric_spelling_naming_the_key(
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"{key}: " in err
     assert f"{spelling} is a numeric spelling of" in err
+
+
+@pytest.mark.parametrize("command", ["health", "status"])
+@pytest.mark.parametrize("spelling", ["0x7f000001", "127.1", "0177.0.0.1"])
+def test_the_daemons_url_is_held_to_the_rule_too(
+        capsys: pytest.CaptureFixture[str], command: str, spelling: str) -> None:
+    """`compd health --url` and `compd status --url` refuse before they connect."""
+    assert main([command, "--url", f"http://{spelling}:9/", "--timeout-s", "1"]) == EX_USAGE
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert f"{spelling} is a numeric spelling of 127.0.0.1: write the address as 127.0.0.1" in err
