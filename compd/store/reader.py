@@ -77,7 +77,8 @@ BATCH_ROWS = 4096
 #: how long a read waits for a database another process holds locked
 LOCK_WAIT_S = 5.0
 #: how long one statement may run: a batch, a count of a year's rows or the probes take
-#: seconds at most; past this the file is not a recorder compd wrote (a view, a trigger)
+#: seconds at most; one still running after this is stopped (RecorderError), whatever
+#: the file makes SQLite do
 QUERY_S = 60.0
 #: SQLite virtual-machine steps between two looks at the clock
 _PROGRESS_STEPS = 10_000
@@ -96,8 +97,6 @@ _TABLES = ("samples", "meta", "probes")
 #: what `RecorderReader.probes` reads of a probe
 _PROBE_FIELDS = ("probes.seq", "samples.mono_s", "probes.measured_um", "probes.model_um",
                  "probes.accepted", "probes.reason")
-
-
 #: the text columns of the recorder's layout (`compd.store.schema`): their length is
 #: measured as it is; any other column holds numbers
 _TEXT_COLUMNS = frozenset({"samples.state", "samples.channels", "samples.validity",
