@@ -33,6 +33,10 @@ MAX_MODEL_BYTES = 1 << 20
 MAX_CONFIG_BYTES = 1 << 20
 #: a calibration record (CSV): 1 GiB is ~20 million rows, years at 1 s
 MAX_RECORD_BYTES = 1 << 30
+#: one field of a record: a CSV cell (the csv module's own default field_size_limit, which
+#: the records' reader keeps) or a recorder database's column; no number, name list or
+#: row of channel values is near it
+MAX_FIELD_CHARS = 128 * 1024
 
 
 class InputError(CompdError):

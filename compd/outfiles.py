@@ -10,7 +10,8 @@ writes a temporary file in the same directory, fsyncs it, renames it over the
 target and fsyncs the directory: a reader sees the old file or the new one,
 never half of one, and a failed write leaves the old file as it was. Each
 refusal is one `OutputError` with its exit code (73 cannot create, 74 I/O,
-64 a name that is not text in the file system's encoding).
+64 a name that is not text in the file system's encoding, 69 a figure without
+matplotlib).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from compd.errors import CompdError
-from compd.sysexits import EX_CANTCREAT, EX_IOERR, EX_USAGE
+from compd.sysexits import EX_CANTCREAT, EX_IOERR, EX_UNAVAILABLE, EX_USAGE
 
 
 class OutputError(CompdError):
@@ -143,11 +144,20 @@ FIGURE_SUFFIXES = frozenset({".png", ".pdf", ".svg", ".svgz", ".eps", ".ps", ".j
 
 def check_figure(path: str | os.PathLike[str], *, force: bool = False,
                  inputs: Iterable[str | os.PathLike[str]] = ()) -> Path:
-    """`check_output` for a figure, whose suffix also says its format."""
+    """`check_output` for a figure, whose suffix also says its format; and the library
+    that draws it, matplotlib (the ``plot`` extra), loaded now: without it the command
+    ends here (exit 69), before its work, not in a traceback after it."""
     p = check_output(path, "figure", force=force, inputs=inputs)
     if p.suffix.lower() not in FIGURE_SUFFIXES:
         raise OutputError(f"{p}: a figure is written as one of "
                           f"{', '.join(sorted(FIGURE_SUFFIXES))}; name it so")
+    try:
+        import compd.offline.plots  # noqa: F401  (matplotlib, its Agg backend set)
+    except ImportError as exc:
+        root = (exc.name or "matplotlib").partition(".")[0]
+        why = "" if root == "matplotlib" else f" ({root!r}, which it needs, is missing)"
+        raise OutputError(f"a figure (--plot) needs matplotlib{why}: pip install "
+                          "'compd[plot]'", EX_UNAVAILABLE) from None
     return p
 
 

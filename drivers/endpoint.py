@@ -19,7 +19,12 @@ what one refuses they all refuse, with the same one-line reason:
   ASCII rules of DNS (RFC 1035/1123): labels of letters, digits, ``-`` (and
   ``_``, as Windows machine names have), 1..63 characters, not starting or
   ending with ``-``, the whole at most 253. A non-ASCII name is turned into
-  its IDNA (punycode) form first; one that cannot be is refused.
+  its IDNA (punycode) form first; one that cannot be is refused. An IPv4
+  address has one spelling, the dotted quad (``127.0.0.1``): a host made of
+  numbers only, in any other form the C resolver reads as an address
+  (``127.1``, ``0177.0.0.1``, ``0x7f000001``, ``0x0a.0x0.0x0.0x1``), is
+  refused with the address it would reach (`numeric_host_reason`, also
+  applied to the hosts compd listens on).
 * no space or control character anywhere.
 
 Pure string work: no I/O, no name resolution.
@@ -27,19 +32,24 @@ Pure string work: no I/O, no name resolution.
 
 from __future__ import annotations
 
+import contextlib
 import ipaddress
 import re
 from dataclasses import dataclass
 
 from drivers.protocols import PROTOCOLS, ProtocolSpec
 
-__all__ = ["Endpoint", "EndpointError", "credentials_reason", "endpoint_of", "parse_endpoint",
-           "redact_endpoint", "userinfo"]
+__all__ = ["Endpoint", "EndpointError", "credentials_reason", "endpoint_of",
+           "numeric_host_reason", "parse_endpoint", "redact_endpoint", "userinfo"]
 
 _SCHEME = re.compile(r"[A-Za-z][A-Za-z0-9+.\-]*")
 _LABEL = re.compile(r"[A-Za-z0-9_](?:[A-Za-z0-9_\-]{0,61}[A-Za-z0-9_])?")
 _DIGITS = re.compile(r"[0-9]+")
-_DOTTED = re.compile(r"[0-9.]+")
+#: a part of a host that inet_aton reads as a number: hex (0x...), octal (a leading 0),
+#: decimal
+_NUMBER = re.compile(r"0[xX][0-9A-Fa-f]*|[0-9]+")
+#: the bits of the last part of an inet_aton address of 1, 2, 3 or 4 parts
+_LAST_BITS = {1: 32, 2: 24, 3: 16, 4: 8}
 #: a DNS name is at most 253 characters (without a trailing dot), a label 63
 MAX_NAME = 253
 MAX_LABEL = 63
@@ -119,6 +129,53 @@ def _port(text: str) -> int:
     return int(text)
 
 
+def _number(part: str) -> int | None:
+    """A part as inet_aton reads it (hex, octal, decimal); None where it reads none (a
+    bare 0x, an octal part with an 8 or 9)."""
+    if part[:2] in ("0x", "0X"):
+        return int(part[2:], 16) if len(part) > 2 else None
+    if len(part) > 1 and part.startswith("0"):
+        return int(part, 8) if set(part) <= set("01234567") else None
+    return int(part)
+
+
+def _numeric_address(parts: list[str]) -> str | None:
+    """The IPv4 address inet_aton reads from numeric `parts` (1 to 4), or None."""
+    values = [_number(p) for p in parts]
+    if not 1 <= len(values) <= 4 or any(v is None for v in values):
+        return None
+    head = [v for v in values[:-1] if v is not None]
+    last = values[-1]
+    if last is None or any(v > 0xFF for v in head) or last >= 1 << _LAST_BITS[len(values)]:
+        return None
+    value = last
+    for i, v in enumerate(head):
+        value |= v << (24 - 8 * i)
+    return str(ipaddress.IPv4Address(value))
+
+
+def numeric_host_reason(text: str) -> str | None:
+    """Why `text` is refused as a host made of numbers only but not an IPv4 address's
+    dotted quad; None for the dotted quad and for a name (a part that is no number).
+
+    The C resolver (inet_aton, behind getaddrinfo and so behind every protocol library)
+    reads one to four numbers, each decimal, octal (a leading 0) or hex (0x), as an IPv4
+    address: ``0x7f000001``, ``127.1`` and ``0177.0.0.1`` are all 127.0.0.1, and
+    ``010.0.0.1`` is 8.0.0.1, not 10.0.0.1. A host that looks like a name or a typo must
+    not reach an address nobody wrote down, so the one spelling taken is the dotted quad
+    (four decimal numbers 0..255 without leading zeros, as `ipaddress` writes it)."""
+    parts = (text[:-1] if text.endswith(".") else text).split(".")
+    if not all(_NUMBER.fullmatch(p) for p in parts):
+        return None
+    with contextlib.suppress(ValueError):
+        if str(ipaddress.IPv4Address(text)) == text:
+            return None
+    meant = _numeric_address(parts)
+    if meant is None:
+        return f"{text} is not an IPv4 address"
+    return f"{text} is a numeric spelling of {meant}: write the address as {meant}"
+
+
 def _host(text: str) -> str:
     """The host in ASCII; ValueError with the reason."""
     if text.startswith("["):
@@ -134,11 +191,11 @@ def _host(text: str) -> str:
         raise ValueError("no host")
     if ":" in text:
         raise ValueError("an IPv6 address goes in brackets: [::1]:502")
-    if _DOTTED.fullmatch(text):
-        try:
-            return str(ipaddress.IPv4Address(text))
-        except ValueError:
-            raise ValueError(f"{text} is not an IPv4 address") from None
+    numeric = numeric_host_reason(text)
+    if numeric is not None:
+        raise ValueError(numeric)
+    with contextlib.suppress(ValueError):
+        return str(ipaddress.IPv4Address(text))  # the dotted quad
     name = text
     if not name.isascii():
         try:

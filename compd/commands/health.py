@@ -60,6 +60,7 @@ from compd.core.health import Cause
 from compd.runtime.checkpoint import CHECKPOINT_NAME, CheckpointError, load_checkpoint
 from compd.runtime.liveness import last_complete_age_s
 from compd.sysexits import EX_USAGE
+from drivers.endpoint import numeric_host_reason
 
 HELP = "exit 0 when the running daemon is healthy (metrics endpoint or fresh state), else 1"
 
@@ -215,6 +216,8 @@ def url_problem(url: str) -> str | None:
         return f"scheme {parts.scheme!r} is not http or https"
     if not parts.hostname:
         return "no host"
+    if (numeric := numeric_host_reason(parts.hostname)) is not None:
+        return numeric  # the endpoints' rule: an IPv4 address has one spelling
     if port == 0:
         return "port 0"
     if any(c.isspace() or ord(c) < 32 for c in url):

@@ -7,8 +7,11 @@ a floor measured on the day the model was fitted; the probes measure this
 machine's drift at the spacing it really probes at, with the probe it really
 has (`compd.offline.probes.refine_from_probes`). OUT is the model file with
 that table replaced and a `[provenance.adaptation_refined]` entry saying from
-what; the terms are copied as they are. The daemon and `compd replay
---probe-every` use the new table unless the config or an option overrides it.
+what; the terms are copied as they are. Each refined setting is held within the
+bounds `compd check` holds a model's [adaptation] table to, and a setting held at
+its bound is named (`--json`: ``at_bound``, with the value the probes gave). The
+daemon and `compd replay --probe-every` use the new table unless the config or an
+option overrides it.
 """
 
 from __future__ import annotations
@@ -59,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:  # too few probes
         print(f"compd refine: {args.probes}: {exc}", file=sys.stderr)
         return EX_DATAERR
-    table = refined.suggestion.settings()
+    table, at_bound = refined.suggestion.bounded()
     doc = dict(doc)
     doc["adaptation"] = {**model.adaptation, **table}
     provenance = dict(model.provenance)
@@ -79,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         "spacing_s": refined.spacing_s, "probe_noise_from": refined.noise_from,
         "plain_rms_um": refined.suggestion.plain_rms_um,
         "held_rms_um": refined.suggestion.held_rms_um,
-        "before": {k: before.get(k) for k in table}, "after": table}
+        "before": {k: before.get(k) for k in table}, "after": table, "at_bound": at_bound}
     if args.json:
         print(json.dumps(figures))
         return 0
@@ -87,7 +90,9 @@ def run(args: argparse.Namespace) -> int:
           f"({refined.pairs} spacings of about {refined.spacing_s / 3600.0:.3g} h; "
           f"{log.left_out} left out)")
     for key, value in table.items():
-        print(f"  {key:24s} {before.get(key)!s:>10} → {value:g}")
+        bound = (f"  (the probes say {at_bound[key]:.4g}: held at the bound `compd check` "
+                 "enforces)" if key in at_bound else "")
+        print(f"  {key:24s} {before.get(key)!s:>10} → {value:g}{bound}")
     plain, held = refined.suggestion.plain_rms_um, refined.suggestion.held_rms_um
     verdict = ("a correction held from one probe to the next pays" if held < plain else
                "holding a probe's correction does not pay at this spacing: the estimator "

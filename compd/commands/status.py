@@ -24,6 +24,7 @@ from typing import Any
 
 from compd.config.urls import redact_urls
 from compd.sysexits import EX_DATAERR, EX_TEMPFAIL, EX_USAGE
+from drivers.endpoint import numeric_host_reason
 from models.nesting import loads_json
 
 HELP = "print what the running daemon's status page says (state, offset, channels)"
@@ -63,6 +64,9 @@ def status_url(url: str) -> str:
     if parts.scheme not in ("http", "https") or not parts.hostname:
         raise StatusError("bad --url: give http://HOST:PORT/ or http://HOST:PORT/status.json",
                           EX_USAGE)
+    numeric = numeric_host_reason(parts.hostname)  # an IPv4 address has one spelling
+    if numeric is not None:
+        raise StatusError(f"bad --url: {numeric}", EX_USAGE)
     if parts.path in ("", "/", "/metrics"):  # the base URL, or compd health's
         parts = parts._replace(path="/status.json")
     return urllib.parse.urlunsplit(parts)

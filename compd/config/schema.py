@@ -53,7 +53,7 @@ from pydantic import (
 )
 
 from compd.config.urls import url_credentials
-from drivers.endpoint import endpoint_of
+from drivers.endpoint import endpoint_of, numeric_host_reason
 from drivers.linuxcnc_options import LinuxCncOptions
 from drivers.opcua_policy import OpcUaSecurityRules
 from drivers.protocol_options import FocasOptions, S7Options
@@ -89,6 +89,20 @@ class _Section(BaseModel):
 LaxPath = Annotated[Path, Field(strict=False)]
 StrictFloat = Annotated[float, Strict()]
 PositiveS = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+
+
+def _listen_host(v: str) -> str:
+    """A host compd listens on, held to the endpoints' rule for numbers
+    (`drivers.endpoint.numeric_host_reason`): ``0`` or ``0x0`` would listen on every
+    interface, ``127.1`` where it reads as loopback; one spelling, the dotted quad."""
+    why = numeric_host_reason(v)
+    if why is not None:
+        raise ValueError(why)
+    return v
+
+
+#: the address a face listens on: a name, an IPv6 address, or an IPv4 dotted quad
+ListenHost = Annotated[str, Field(min_length=1), AfterValidator(_listen_host)]
 
 
 #: a sample period within models.sanity's MIN_PERIOD_S ... MAX_PERIOD_S (10 ms ... 1 h)
@@ -286,27 +300,44 @@ _WHY_GAIN_RW = ("a term's gain that may wander by its whole size within an hour 
                 "a slow drift but a wrong model")
 _WHY_MAX_GAIN = ("a relative gain correction of ±1 removes or doubles a term: beyond "
                  "that the model is wrong, recalibrate")
-BiasRw = Annotated[float, _field(0.0, 100.0, _WHY_BIAS_RW),
-                   _within(0.0, 100.0, " µm/√h", _WHY_BIAS_RW)]
-ProbeNoise = Annotated[float, _field(0.01, 100.0, _WHY_PROBE_NOISE),
-                       _within(0.01, 100.0, " µm", _WHY_PROBE_NOISE)]
-GateSigma = Annotated[float, _field(1.0, 10.0, _WHY_GATE),
-                      _within(1.0, 10.0, " σ", _WHY_GATE)]
-Correction = Annotated[float, _field(0.001, 10000.0, _WHY_CORRECTION),
-                       _within(0.001, 10000.0, " µm", _WHY_CORRECTION)]
-GainRw = Annotated[float, _field(0.0, 1.0, _WHY_GAIN_RW),
-                   _within(0.0, 1.0, " per √h", _WHY_GAIN_RW)]
-MaxGain = Annotated[float, _field(0.0, 1.0, _WHY_MAX_GAIN),
-                    _within(0.0, 1.0, "", _WHY_MAX_GAIN)]
+#: the largest output.limit_um (10 mm): no correction, step or gain goes beyond it
+MAX_LIMIT_UM = 10000.0
+#: the bounds (low, high) of [adaptation]'s estimator settings, by name: what `compd check`
+#: and `run` hold the config's settings and a model file's [adaptation] table to
+#: (`learnt_bounds`)
+ADAPTATION_BOUNDS: dict[str, tuple[float, float]] = {
+    "bias_rw_um_per_sqrt_h": (0.0, 100.0),
+    "probe_noise_um": (0.01, 100.0),
+    "gate_sigma": (1.0, 10.0),
+    "max_step_um": (0.001, MAX_LIMIT_UM),
+    "max_total_um": (0.001, MAX_LIMIT_UM),
+    "gain_rw_per_sqrt_h": (0.0, 1.0),
+    "max_gain": (0.0, 1.0),
+    "score_window": (0, 100),
+    "reacquire_after": (0, 100),
+}
+_B = ADAPTATION_BOUNDS
+BiasRw = Annotated[float, _field(*_B["bias_rw_um_per_sqrt_h"], _WHY_BIAS_RW),
+                   _within(*_B["bias_rw_um_per_sqrt_h"], " µm/√h", _WHY_BIAS_RW)]
+ProbeNoise = Annotated[float, _field(*_B["probe_noise_um"], _WHY_PROBE_NOISE),
+                       _within(*_B["probe_noise_um"], " µm", _WHY_PROBE_NOISE)]
+GateSigma = Annotated[float, _field(*_B["gate_sigma"], _WHY_GATE),
+                      _within(*_B["gate_sigma"], " σ", _WHY_GATE)]
+Correction = Annotated[float, _field(*_B["max_step_um"], _WHY_CORRECTION),
+                       _within(*_B["max_step_um"], " µm", _WHY_CORRECTION)]
+GainRw = Annotated[float, _field(*_B["gain_rw_per_sqrt_h"], _WHY_GAIN_RW),
+                   _within(*_B["gain_rw_per_sqrt_h"], " per √h", _WHY_GAIN_RW)]
+MaxGain = Annotated[float, _field(*_B["max_gain"], _WHY_MAX_GAIN),
+                    _within(*_B["max_gain"], "", _WHY_MAX_GAIN)]
 _WHY_SCORE_WINDOW = ("probes the estimator scores itself over: 0 never stands down; beyond "
                      "100 probes a machine's error has long changed, the score only lags")
-ScoreWindow = Annotated[int, _field(0, 100, _WHY_SCORE_WINDOW),
-                        _within(0, 100, " probes", _WHY_SCORE_WINDOW)]
+ScoreWindow = Annotated[int, _field(*_B["score_window"], _WHY_SCORE_WINDOW),
+                        _within(*_B["score_window"], " probes", _WHY_SCORE_WINDOW)]
 _WHY_REACQUIRE = ("refusals in a row, agreeing in direction, after which the estimator "
                   "re-acquires: 0 never; beyond 100 probes a real change has long been "
                   "missed")
-ReacquireAfter = Annotated[int, _field(0, 100, _WHY_REACQUIRE),
-                           _within(0, 100, " probes", _WHY_REACQUIRE)]
+ReacquireAfter = Annotated[int, _field(*_B["reacquire_after"], _WHY_REACQUIRE),
+                           _within(*_B["reacquire_after"], " probes", _WHY_REACQUIRE)]
 _WHY_GUARD = ("probes in a row showing the model worse than none before the alarm: 0 no "
               "guard; beyond 100 probes a wrong model would run for days")
 GuardWindow = Annotated[int, _field(0, 100, _WHY_GUARD), _within(0, 100, " probes", _WHY_GUARD)]
@@ -326,8 +357,9 @@ class ModelSection(_Section):
     shadow: str | None = None
     #: refuse a model whose DC gain exceeds this (µm per unit of an input; models.sanity):
     #: at most 10 mm, the largest output.limit_um (one unit of an input never warrants more)
-    max_dc_gain_um: Annotated[float, Field(gt=0.0), _field(0.0, 10000.0, _WHY_DC_GAIN),
-                              _within(0.0, 10000.0, " µm per unit", _WHY_DC_GAIN)] = 1000.0
+    max_dc_gain_um: Annotated[float, Field(gt=0.0), _field(0.0, MAX_LIMIT_UM, _WHY_DC_GAIN),
+                              _within(0.0, MAX_LIMIT_UM, " µm per unit", _WHY_DC_GAIN)
+                              ] = 1000.0
     #: refuse a model whose slowest time constant exceeds this (models.sanity)
     max_time_constant_s: PositiveS = 7 * 86400.0
 
@@ -350,7 +382,7 @@ class OutputSection(_Section):
     scale: float | None = None
     sign: Literal[1, -1] = 1
     #: at most 10 mm: a thermal offset beyond that is a broken model or machine
-    limit_um: Annotated[float, Field(gt=0.0, le=10000.0, allow_inf_nan=False)]
+    limit_um: Annotated[float, Field(gt=0.0, le=MAX_LIMIT_UM, allow_inf_nan=False)]
     #: 0.001 µm/s (3.6 µm/h) ... 10 mm/s: the ramp-to-zero stays finite
     slew_um_s: Annotated[float, Field(ge=0.001, le=10000.0, allow_inf_nan=False)]
     deadband_um: Annotated[float, Field(ge=0.0, allow_inf_nan=False)] = 0.0
@@ -411,7 +443,7 @@ class TelemetrySection(_Section):
     metrics_port: Annotated[int, Field(ge=1, le=65535)] | None = None
     #: the address /metrics listens on: loopback by default; "0.0.0.0" or "::" in a
     #: container whose port is published, or for a Prometheus on another host
-    metrics_host: Annotated[str, Field(min_length=1)] = "127.0.0.1"
+    metrics_host: ListenHost = "127.0.0.1"
     #: the HTTP server's bounds (/metrics and [faces.http]): open connections at most
     #: (beyond: the one waiting longest for a request is closed), seconds for a whole
     #: request head, seconds a kept-alive connection may sit idle
@@ -445,7 +477,7 @@ class OpcUaFaceSection(_Section):
     read-only for every client; SetHold only for `operator`."""
 
     enabled: bool = False
-    host: Annotated[str, Field(min_length=1)] = "127.0.0.1"
+    host: ListenHost = "127.0.0.1"
     port: Annotated[int, Field(ge=1, le=65535)] = 4841
     policy: Literal["Basic256Sha256", "Aes128_Sha256_RsaOaep", "Aes256_Sha256_RsaPss",
                     "None"] = "Basic256Sha256"
@@ -570,6 +602,16 @@ class AdaptationSection(_Section):
                  "max_total_um", "gains", "gain_rw_per_sqrt_h", "max_gain", "score_window",
                  "reacquire_after")
         return {n: getattr(self, n) for n in names if getattr(self, n) is not None}
+
+
+def learnt_bounds() -> dict[str, tuple[float, float]]:
+    """(low, high) of every numeric setting a model file's [adaptation] table may hold, as
+    `compd check` and `run` hold it there: [adaptation]'s bound where the section has the
+    setting (the loader validates the table's keys as the section's), else the
+    estimator's domain (`models.adaptation.DOMAIN`, checked by `models.modelfile`)."""
+    from models.adaptation import DOMAIN
+
+    return {name: ADAPTATION_BOUNDS.get(name, domain) for name, domain in DOMAIN.items()}
 
 
 class DaemonConfig(_Section):

@@ -11,13 +11,17 @@ Two kinds, by the file's suffix:
   and ``model_um`` (the plain model's prediction at that moment), the recorder's own
   names; every cell a number, read by the records' one CSV reader.
 
-The residual each probe gives is measured − model. A bad file ends in a
+The residual each probe gives is measured − model. A probe whose measured value,
+model value or residual lies beyond ±`compd.config.schema.MAX_LIMIT_UM` (10 mm, the
+largest offset `compd check` accepts) measured no thermal error: the file is refused
+naming its row (the CSV's line, the recorder's ``seq``). A bad file ends in a
 `RecordError` naming the file (and the row and column where there is one).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -67,8 +71,10 @@ def _read_recorder(p: Path) -> ProbeLog:
         raise RecordError(f"{where}: {exc.reason}") from None
     use = np.isin(cols["reason"], MEASURED_REASONS) & np.isfinite(cols["measured_um"]) \
         & np.isfinite(cols["model_um"]) & np.isfinite(cols["mono_s"])
-    return ProbeLog(where, file_sha256(p), cols["mono_s"][use],
-                    (cols["measured_um"] - cols["model_um"])[use],
+    seq = cols["seq"][use]
+    measured, model = cols["measured_um"][use], cols["model_um"][use]
+    _check_bound(measured, model, lambda k: f"{where}: probe seq {int(seq[k])}")
+    return ProbeLog(where, file_sha256(p), cols["mono_s"][use], measured - model,
                     int(use.size - np.count_nonzero(use)))
 
 
@@ -87,10 +93,26 @@ def _read_csv(p: Path) -> ProbeLog:
         k = int(back[0])
         raise RecordError(f"{where}: row {k + 3}: time {float(t[k + 1])!r} does not follow "
                           f"{float(t[k])!r} (probes in time order)")
-    residual = data[header.index("measured_um")] - data[header.index("model_um")]
-    if not np.all(np.isfinite(residual)):  # finite cells, an overflowing difference
-        raise RecordError(f"{where}: a residual measured − model beyond the float range")
-    return ProbeLog(where, file_sha256(p), t - t[0] if t.size else t, residual, 0)
+    measured, model = data[header.index("measured_um")], data[header.index("model_um")]
+    _check_bound(measured, model, lambda k: f"{where}: row {k + 2}")
+    return ProbeLog(where, file_sha256(p), t - t[0] if t.size else t, measured - model, 0)
+
+
+def _check_bound(measured: FloatArray, model: FloatArray, row: Callable[[int], str]) -> None:
+    """Refuse the first probe whose measured or model value or residual lies beyond
+    ±MAX_LIMIT_UM, naming it by `row(index)` and the value (finite values in)."""
+    from compd.config.schema import MAX_LIMIT_UM
+
+    with np.errstate(over="ignore", invalid="ignore"):  # ±1e308 − ∓1e308 is ±inf: beyond
+        columns = {"measured_um": measured, "model_um": model, "measured − model": measured - model}
+    beyond = {name: ~(np.abs(values) <= MAX_LIMIT_UM) for name, values in columns.items()}
+    rows = np.flatnonzero(np.logical_or.reduce(list(beyond.values())))
+    if rows.size:
+        k = int(rows[0])
+        name = next(n for n, b in beyond.items() if b[k])
+        raise RecordError(f"{row(k)}: {name} {float(columns[name][k]):g} µm is beyond "
+                          f"±{MAX_LIMIT_UM:g} µm (10 mm, the largest offset compd "
+                          "accepts): no thermal error a probe measures")
 
 
 def describe(log: ProbeLog) -> str:

@@ -40,6 +40,8 @@ model over a record sampled every T seconds:
 - the step bound (`max_step_um`): 4 σ of the residual's change over the lag,
   √E[(r(k+L) − r(k))²], at least the default (5 µm): a bound the residual's
   own moves between probes stay within, a wrong probe's not.
+Each setting written is held within the bounds `compd check` holds a model
+file's [adaptation] table to (`Suggestion.bounded` says which met one).
 The drift, the step bound and the prior are measured on the residue of rows
 the model was not calibrated on when `compd fit` has them (its forward folds,
 `suggest_settings`' `heldout`): a residual on the calibration rows themselves
@@ -129,13 +131,8 @@ def run_probes(simulated: FloatArray, measured: FloatArray, time_s: FloatArray,
     return ProbeRun(adapted, crude, rows, values, accepted, adapter)
 
 
-#: the smallest probe noise the daemon's config accepts (compd.config.schema): a suggestion
-#: below it (a very smooth residual) is written as this
-MIN_PROBE_NOISE_UM = 0.01
 #: the prior's weight is the probe spacings the calibration spans, at most this many
 MAX_PRIOR_PROBES = 100.0
-#: the largest step bound suggested (the config bounds it by output.limit_um anyway)
-MAX_STEP_SUGGESTED_UM = 1000.0
 
 
 @dataclass(frozen=True)
@@ -160,16 +157,30 @@ class Suggestion:
                 "prior_probes": self.prior_probes, "drift_from": self.drift_from}
 
     def settings(self) -> dict[str, float]:
-        """The model file's [adaptation] table (`AdaptationParams` fields, rounded to
-        four significant digits, within the daemon config's bounds)."""
-        return {"bias_rw_um_per_sqrt_h": _round(min(self.bias_rw_um_per_sqrt_h, 100.0)),
-                "probe_noise_um": _round(min(max(self.probe_noise_um, MIN_PROBE_NOISE_UM),
-                                             100.0)),
-                "apply_sigma": _round(self.apply_sigma),
-                "max_step_um": _round(self.max_step_um),
-                "score_prior_plain_um": _round(self.plain_rms_um),
-                "score_prior_adapted_um": _round(self.held_rms_um),
-                "score_prior_probes": _round(self.prior_probes)}
+        """The model file's [adaptation] table (see `bounded`)."""
+        return self.bounded()[0]
+
+    def bounded(self) -> tuple[dict[str, float], dict[str, float]]:
+        """The model file's [adaptation] table (`AdaptationParams` fields, rounded to four
+        significant digits), each setting held within the bounds `compd check` and `run`
+        hold that table to (`compd.config.schema.learnt_bounds`); and the settings that
+        met a bound, each with the value the figures gave."""
+        from compd.config.schema import learnt_bounds
+
+        figures = {"bias_rw_um_per_sqrt_h": self.bias_rw_um_per_sqrt_h,
+                   "probe_noise_um": self.probe_noise_um, "apply_sigma": self.apply_sigma,
+                   "max_step_um": self.max_step_um, "score_prior_plain_um": self.plain_rms_um,
+                   "score_prior_adapted_um": self.held_rms_um,
+                   "score_prior_probes": self.prior_probes}
+        bounds = learnt_bounds()
+        table: dict[str, float] = {}
+        hit: dict[str, float] = {}
+        for name, value in figures.items():
+            lo, hi = bounds[name]
+            table[name] = _round(min(max(value, lo), hi))
+            if not lo <= value <= hi:
+                hit[name] = value
+        return table, hit
 
 
 def _round(v: float) -> float:
@@ -228,7 +239,7 @@ def _suggestion(sigma_v: float, q: float, lag_s: float, moved: float, plain: flo
     default = AdaptationParams()
     drift = math.sqrt(q * lag_s)
     apply_sigma = 0.0 if drift > default.apply_sigma * sigma_v else default.apply_sigma
-    max_step = min(max(default.max_step_um, 4.0 * math.sqrt(moved)), MAX_STEP_SUGGESTED_UM)
+    max_step = max(default.max_step_um, 4.0 * math.sqrt(moved))
     return Suggestion(sigma_v, math.sqrt(q * 3600.0), lag_s, apply_sigma, max_step,
                       plain, held, spacings, drift_from)
 

@@ -7,6 +7,14 @@ exception: not a readable regular file (a FIFO, a device, a directory, missing:
 not the recorder's tables, a corrupt ``meta`` (`RecorderError`, exit 65 in the
 commands). There is no size cap: the rows are streamed.
 
+A file is data, never code: each table read (``samples``, ``meta``, ``probes``)
+must be an ordinary table, not a view (whose query may recurse without end,
+and read-only mode does not stop a view) nor a virtual table; each statement
+is aborted after `query_s` seconds (SQLite's progress handler), and a field
+longer than `compd.infiles.MAX_FIELD_CHARS` (as a CSV cell) is refused naming
+its row and column before it reaches Python, so a 100 MB cell costs SQLite's
+one read of it, not its parsing.
+
 `batches(since, until)` yields the rows whose wall-clock stamp lies in
 [since, until), oldest first (by the table's rowid, which is the recorder's
 ``seq``), as numpy columns of at most `batch_rows` rows each: memory is one
@@ -37,17 +45,19 @@ rows of (wall_s, offset_um, model_um) picked by stride on ``seq``.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import sqlite3
-from collections.abc import Iterable, Iterator
+import time
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from compd.infiles import open_input
+from compd.infiles import MAX_FIELD_CHARS, open_input
 from compd.store.schema import (
     CHANNELS_KEY,
     FIXED_COLUMNS,
@@ -66,6 +76,12 @@ Columns = dict[str, npt.NDArray[Any]]
 BATCH_ROWS = 4096
 #: how long a read waits for a database another process holds locked
 LOCK_WAIT_S = 5.0
+#: how long one statement may run: a batch, a count of a year's rows or the probes take
+#: seconds at most; one still running after this is stopped (RecorderError), whatever
+#: the file makes SQLite do
+QUERY_S = 60.0
+#: SQLite virtual-machine steps between two looks at the clock
+_PROGRESS_STEPS = 10_000
 _MAGIC = b"SQLite format 3\x00"
 #: the file is streamed: any size is read in the same memory
 _ANY_SIZE = 1 << 62
@@ -76,6 +92,32 @@ _PICK = """
 WITH RECURSIVE pick(s) AS (SELECT ? UNION ALL SELECT s - ? FROM pick WHERE s - ? >= ?)
 SELECT wall_s, offset_um, model_um FROM pick JOIN samples ON samples.seq = pick.s
 ORDER BY pick.s"""
+#: the tables a reader reads: each must be an ordinary table (`_check_tables`)
+_TABLES = ("samples", "meta", "probes")
+#: what `RecorderReader.probes` reads of a probe
+_PROBE_FIELDS = ("probes.seq", "samples.mono_s", "probes.measured_um", "probes.model_um",
+                 "probes.accepted", "probes.reason")
+#: the text columns of the recorder's layout (`compd.store.schema`): their length is
+#: measured as it is; any other column holds numbers
+_TEXT_COLUMNS = frozenset({"samples.state", "samples.channels", "samples.validity",
+                           "samples.contributions", "probes.reason"})
+
+
+def _fields(columns: Sequence[str]) -> str:
+    """`columns` ("table.column") for a SELECT, each NULL when longer than
+    MAX_FIELD_CHARS, then one more: the name of the first such column (NULL when none),
+    so that a 100 MB cell never reaches Python (SQLite reads it once to measure it).
+    A number column is measured only when it holds a text or a blob: SQLite orders
+    every number before any text or blob, so ``c >= ''`` is false for a number, which
+    is never formatted to be measured (that, or typeof(), cost a third of a batch's
+    read)."""
+    def long(c: str) -> str:
+        measured = f"length({c}) > {MAX_FIELD_CHARS}"
+        return measured if c in _TEXT_COLUMNS else f"({c} >= '' AND {measured})"
+
+    bounded = [f"CASE WHEN {long(c)} THEN NULL ELSE {c} END" for c in columns]
+    first = " ".join(f"WHEN {long(c)} THEN '{c.partition('.')[2]}'" for c in columns)
+    return ", ".join([*bounded, f"CASE {first} END"])
 
 
 class _Window:
@@ -97,18 +139,25 @@ class RecorderReader:
 
     Use as a context manager, or `open()` and `close()`. `channels` and `terms`
     name every channel and model term the file holds, in the order first seen.
+    Each statement may run `query_s` seconds (default `QUERY_S`) on `clock`
+    (default: the monotonic clock).
     """
 
     def __init__(self, path: str | Path, *, batch_rows: int = BATCH_ROWS,
-                 timeout_s: float = LOCK_WAIT_S) -> None:
+                 timeout_s: float = LOCK_WAIT_S, query_s: float | None = None,
+                 clock: Callable[[], float] | None = None) -> None:
         if batch_rows < 1:
             raise ValueError(f"batch_rows must be >= 1, got {batch_rows}")
         self.path = Path(path)
         self.batch_rows = batch_rows
         self.timeout_s = timeout_s
+        self.query_s = QUERY_S if query_s is None else query_s
         self.channels: tuple[str, ...] = ()
         self._terms: tuple[str, ...] | None = None
         self._conn: sqlite3.Connection | None = None
+        self._clock = time.monotonic if clock is None else clock
+        self._deadline = math.inf
+        self._late = False
 
     def __enter__(self) -> RecorderReader:
         self.open()
@@ -129,12 +178,11 @@ class RecorderReader:
                                    timeout=self.timeout_s, check_same_thread=False)
         except sqlite3.Error as exc:
             raise RecorderError(self.path, f"cannot open: {exc}") from None
+        conn.set_progress_handler(self._too_late, _PROGRESS_STEPS)
         try:
-            kind = conn.execute("SELECT type FROM sqlite_schema WHERE name = 'samples'"
-                                ).fetchone()
-            if kind is None or kind[0] != "table":
-                raise RecorderError(self.path, "not a recorder database (no table samples)")
-            columns = {str(r[1]) for r in conn.execute("PRAGMA table_info(samples)")}
+            with self._timed("not a recorder database"):
+                self._check_tables(conn)
+                columns = {str(r[1]) for r in conn.execute("PRAGMA table_info(samples)")}
             missing = [c for c in SAMPLE_COLUMNS if c not in columns]
             if missing:
                 raise RecorderError(self.path, f"not a recorder database (samples lacks {missing})")
@@ -145,13 +193,47 @@ class RecorderReader:
                                     f"channel name(s) {clash} collide with fixed columns")
             terms = self._meta_names(conn, TERMS_KEY)
             self._terms = None if terms is None else tuple(terms)
-        except sqlite3.Error as exc:
-            conn.close()
-            raise RecorderError(self.path, f"not a recorder database: {exc}") from None
         except RecorderError:
             conn.close()
             raise
         self._conn = conn
+
+    def _check_tables(self, conn: sqlite3.Connection) -> None:
+        """Each table read is an ordinary table (``samples`` and ``meta`` there, ``probes``
+        there or absent), never a view or a virtual table: data, not a query."""
+        kinds = {str(name): (str(kind), str(sql or "")) for name, kind, sql in conn.execute(
+            "SELECT name, type, sql FROM sqlite_schema WHERE name IN (?, ?, ?)", _TABLES)}
+        if "samples" not in kinds:
+            raise RecorderError(self.path, "not a recorder database (no table samples)")
+        for name, (kind, sql) in kinds.items():
+            virtual = sql.lstrip().upper().startswith("CREATE VIRTUAL")
+            if kind != "table" or virtual:
+                what = "a virtual table" if virtual else f"a {kind}"
+                raise RecorderError(self.path, f"not a recorder database ({name} is {what}, "
+                                    "not a table: compd reads data, never a query)")
+
+    def _too_late(self) -> int:
+        """SQLite's progress handler: nonzero (abort the statement) past the deadline."""
+        if self._clock() > self._deadline:
+            self._late = True
+            return 1
+        return 0
+
+    @contextlib.contextmanager
+    def _timed(self, what: str) -> Iterator[None]:
+        """The statements inside run against a deadline `query_s` away; an SQLite error
+        (the deadline's among them) ends in one RecorderError, `what` first."""
+        self._deadline, self._late = self._clock() + self.query_s, False
+        try:
+            yield
+        except sqlite3.Error as exc:
+            if self._late:
+                raise RecorderError(self.path, f"{what}: a read stopped after {self.query_s:g} "
+                                    "s (one read of a recorder compd wrote takes seconds)"
+                                    ) from None
+            raise RecorderError(self.path, f"{what}: {exc}") from None
+        finally:
+            self._deadline = math.inf
 
     def close(self) -> None:
         conn, self._conn = self._conn, None
@@ -162,10 +244,9 @@ class RecorderReader:
     def terms(self) -> tuple[str, ...]:
         """The model terms; found in the rows when the file does not list them."""
         if self._terms is None:
-            try:
-                self._terms = tuple(scan_terms(self._connection()))
-            except sqlite3.Error as exc:
-                raise RecorderError(self.path, f"corrupt contributions: {exc}") from None
+            conn = self._connection()
+            with self._timed("corrupt contributions"):
+                self._terms = tuple(scan_terms(conn, MAX_FIELD_CHARS))
         return self._terms
 
     def batches(self, since: float | None = None, until: float | None = None, *,
@@ -210,41 +291,47 @@ class RecorderReader:
     def _span(self, window: _Window) -> tuple[int, int] | None:
         """The first and last rowid stamped inside the window (its index), or None."""
         sql = "SELECT MIN(rowid), MAX(rowid) FROM samples"
-        try:
-            first, last = self._connection().execute(
+        conn = self._connection()
+        with self._timed("cannot read"):
+            first, last = conn.execute(
                 sql + (f" WHERE {window.sql[5:]}" if window.sql else ""), window.bounds
             ).fetchone()
-        except sqlite3.Error as exc:
-            raise RecorderError(self.path, f"cannot read: {exc}") from None
         return None if first is None else (int(first), int(last))
 
     def _count(self, window: _Window, span: tuple[int, int]) -> int:
-        try:
-            return int(self._connection().execute(
+        conn = self._connection()
+        with self._timed("cannot read"):
+            return int(conn.execute(
                 f"SELECT COUNT(*) FROM samples WHERE rowid BETWEEN ? AND ?{window.sql}",
                 (*span, *window.bounds)).fetchone()[0])
-        except sqlite3.Error as exc:
-            raise RecorderError(self.path, f"cannot read: {exc}") from None
 
     def _batches(self, window: _Window, span: tuple[int, int], terms: tuple[str, ...],
                  detail: bool) -> Iterator[Columns]:
-        fields = ", validity, contributions" if detail else ""
-        select = (f"SELECT rowid, seq, cycle, mono_s, wall_s, offset_um, model_um, valid,"
-                  f" state, channels{fields} FROM samples"
+        columns = ["seq", "cycle", "mono_s", "wall_s", "offset_um", "model_um", "valid",
+                   "state", "channels", *(["validity", "contributions"] if detail else [])]
+        select = (f"SELECT rowid, {_fields([f'samples.{c}' for c in columns])} FROM samples"
                   f" WHERE rowid > ? AND rowid <= ?{window.sql.replace('wall_s', '+wall_s')}"
                   " ORDER BY rowid LIMIT ?")
         conn = self._connection()
         after, last = span[0] - 1, span[1]
-        try:
-            while True:
+        while True:
+            with self._timed("cannot read"):
                 rows = conn.execute(select, (after, last, *window.bounds, self.batch_rows)
                                     ).fetchall()
-                if not rows:
-                    return
-                after = int(rows[-1][0])
-                yield self._columns(rows, terms, detail)
-        except sqlite3.Error as exc:
-            raise RecorderError(self.path, f"cannot read: {exc}") from None
+            if not rows:
+                return
+            self._refuse_long(rows, "seq")
+            after = int(rows[-1][0])
+            yield self._columns([r[:-1] for r in rows], terms, detail)
+
+    def _refuse_long(self, rows: list[Any], which: str) -> None:
+        """Refuse the first row with a field past MAX_FIELD_CHARS, naming it by its rowid
+        (the recorder's ``seq``) and the column (a row's last value, `_fields`)."""
+        for row in rows:
+            if row[-1] is not None:
+                raise RecorderError(self.path, f"{which} {row[0]!r}, column {row[-1]}: a field "
+                                    f"longer than {MAX_FIELD_CHARS // 1024} KiB (no value "
+                                    "compd records is that long); not a recorder compd wrote")
 
     def history(self, since_wall_s: float,
                 max_points: int) -> list[tuple[float, float | None, float | None]]:
@@ -253,17 +340,17 @@ class RecorderReader:
         newest always included, oldest first: a bounded number of key look-ups."""
         conn = self._connection()
         try:
-            last = conn.execute("SELECT MAX(seq) FROM samples").fetchone()[0]
-            first = conn.execute("SELECT seq FROM samples WHERE wall_s >= ? ORDER BY wall_s "
-                                 "LIMIT 1", (since_wall_s,)).fetchone()
-            if last is None or first is None:
-                return []
-            lo = min(int(first[0]), int(last))
-            stride = max(1, math.ceil((int(last) - lo + 1) / max(1, max_points)))
-            rows = conn.execute(_PICK, (int(last), stride, stride, lo)).fetchmany(max_points)
+            with self._timed("cannot read"):
+                last = conn.execute("SELECT MAX(seq) FROM samples").fetchone()[0]
+                first = conn.execute("SELECT seq FROM samples WHERE wall_s >= ? ORDER BY "
+                                     "wall_s LIMIT 1", (since_wall_s,)).fetchone()
+                if last is None or first is None:
+                    return []
+                lo = min(int(first[0]), int(last))
+                stride = max(1, math.ceil((int(last) - lo + 1) / max(1, max_points)))
+                rows = conn.execute(_PICK, (int(last), stride, stride, lo)
+                                    ).fetchmany(max_points)
             return [(float(w), o, m) for w, o, m in rows]
-        except sqlite3.Error as exc:
-            raise RecorderError(self.path, f"cannot read: {exc}") from None
         except _CORRUPT as exc:
             raise RecorderError(self.path, f"corrupt rows ({type(exc).__name__})") from None
 
@@ -274,14 +361,17 @@ class RecorderReader:
         refused). A file from before probes were recorded has none: empty columns."""
         conn = self._connection()
         try:
-            if conn.execute("SELECT 1 FROM sqlite_schema WHERE name = 'probes'"
-                            ).fetchone() is None:
-                rows: list[Any] = []
-            else:
-                rows = conn.execute(
-                    "SELECT p.seq, s.mono_s, p.measured_um, p.model_um, p.accepted, p.reason"
-                    " FROM probes p JOIN samples s ON s.seq = p.seq ORDER BY p.seq"
-                ).fetchall()
+            with self._timed("cannot read its probes"):
+                if conn.execute("SELECT 1 FROM sqlite_schema WHERE name = 'probes'"
+                                ).fetchone() is None:
+                    rows: list[Any] = []
+                else:
+                    rows = conn.execute(
+                        f"SELECT probes.rowid, {_fields(_PROBE_FIELDS)} FROM probes"
+                        " JOIN samples ON samples.seq = probes.seq ORDER BY probes.seq"
+                        ).fetchall()
+            self._refuse_long(rows, "probe seq")
+            rows = [r[1:-1] for r in rows]
             return {
                 "seq": np.array([r[0] for r in rows], dtype=np.int64),
                 "mono_s": _floats(r[1] for r in rows),
@@ -290,8 +380,6 @@ class RecorderReader:
                 "reason": np.array(["" if r[4] else str(r[5] or "refused") for r in rows],
                                    dtype=str),
             }
-        except sqlite3.Error as exc:
-            raise RecorderError(self.path, f"cannot read its probes: {exc}") from None
         except _CORRUPT as exc:
             raise RecorderError(self.path, f"corrupt probe rows ({type(exc).__name__}); "
                                 "not a recorder compd wrote") from None
@@ -303,7 +391,8 @@ class RecorderReader:
 
     def _meta_names(self, conn: sqlite3.Connection, key: str) -> list[str] | None:
         try:
-            return meta_names(conn, key)
+            with self._timed("not a recorder database"):
+                return meta_names(conn, key, MAX_FIELD_CHARS)
         except ValueError as exc:
             raise RecorderError(self.path, f"corrupt: {exc}; not a recorder compd wrote"
                                 ) from None

@@ -108,22 +108,32 @@ CHANNELS_KEY = "channels"
 TERMS_KEY = "terms"
 
 
-def scan_terms(conn: sqlite3.Connection) -> list[str]:
+def scan_terms(conn: sqlite3.Connection, max_chars: int | None = None) -> list[str]:
     """Every term named in the rows' contributions, in the order first seen: for a
     file whose ``meta`` has no ``terms`` (an older compd's). One pass over the table
-    inside SQLite (bounded memory). Raises sqlite3.Error on a row that is not JSON."""
+    inside SQLite (bounded memory); rows whose contributions are longer than
+    `max_chars` (when given) are passed over. Raises sqlite3.Error on a row that is
+    not JSON."""
     rows = conn.execute(
         "SELECT c.key FROM samples AS s JOIN json_each(s.contributions) AS c"
-        " GROUP BY c.key ORDER BY MIN(s.rowid), MIN(c.id)").fetchall()
+        " WHERE ?1 IS NULL OR length(s.contributions) <= ?1"
+        " GROUP BY c.key ORDER BY MIN(s.rowid), MIN(c.id)", (max_chars,)).fetchall()
     return [str(r[0]) for r in rows]
 
 
-def meta_names(conn: sqlite3.Connection, key: str) -> list[str] | None:
+def meta_names(conn: sqlite3.Connection, key: str,
+               max_chars: int | None = None) -> list[str] | None:
     """The JSON list of names under `key` in table ``meta``; None when there is none.
-    Raises ValueError when it is not a list of names (a file compd did not write)."""
-    row = conn.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
+    Raises ValueError when it is not a list of names (a file compd did not write), or
+    is longer than `max_chars` (when given: read no further)."""
+    row = conn.execute("SELECT CASE WHEN ? IS NOT NULL AND length(value) > ? THEN NULL "
+                       "ELSE value END, length(value) FROM meta WHERE key = ?",
+                       (max_chars, max_chars, key)).fetchone()
     if row is None:
         return None
+    if row[0] is None and max_chars is not None and row[1] is not None:
+        raise ValueError(f"meta {key!r} is {row[1]} characters long (more than "
+                         f"{max_chars // 1024} KiB)")
     try:
         names = json.loads(row[0])
     except (ValueError, TypeError, RecursionError):
