@@ -32,6 +32,7 @@ COMMANDS: dict[str, str] = {
     "step": "step",
     "health": "health",
     "status": "status",
+    "rezero": "rezero",
     "export": "export",
     "schema": "schema",
     "plan": "plan",
