@@ -13,8 +13,8 @@ answered or not (a controller that is off when the PC boots is retried with
 the backoff, and health says why nothing is in force), WATCHDOG=1 on every
 cycle after that while the loop is alive (a broken sensor or a lost link is
 the fault policy's business: hold, then ramp with the alarm; a restart by
-systemd would mend neither and would reset the hold timer), STATUS= with the current offset and state,
-STOPPING=1 on shutdown.
+systemd would mend neither and would reset the hold timer), STATUS= with
+the current offset and state, STOPPING=1 on shutdown.
 """
 
 from __future__ import annotations
