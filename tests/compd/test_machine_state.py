@@ -6,6 +6,8 @@ sample and (16.0005 - 15.9975)/(1 - 0.99983) ≈ 17.6 µm at steady state."""
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 import pytest
 
 from compd.core.cycle import Cycle
@@ -28,6 +30,10 @@ def _model(reference: dict[str, float] | None = None):  # type: ignore[no-untype
 
 def _names(events: tuple) -> list[str]:  # type: ignore[type-arg]
     return [str(e.name) for e in events]
+
+
+def _all(rows: list) -> list[str]:  # type: ignore[type-arg]
+    return [n for r in rows for n in _names(r.events)]
 
 
 def _run(cycle: Cycle, clock: FakeClock, n: int, bearing: float, **kw: object) -> list:  # type: ignore[type-arg]
@@ -97,7 +103,7 @@ def test_rezero_takes_the_prediction_as_zero_and_ramps_with_no_step() -> None:
         cycle.models.last_raw_um)
     rows = _run(cycle, clock, 60, bearing=22.0)
     offsets = [before.offset_um] + [r.offset_um for r in rows]
-    steps = [abs(b - a) for a, b in zip(offsets, offsets[1:], strict=False)]
+    steps = [abs(b - a) for a, b in pairwise(offsets)]
     assert max(steps) <= SLEW_UM_S * 1.0 + 1e-12  # never more than the slew limit
     assert abs(rows[-1].model_um or 0.0) < 1.0 and abs(rows[-1].offset_um) < 1.0
     # the re-zero survives a restart, fresh or not, and goes with another model
@@ -124,13 +130,13 @@ def test_rezero_input_acts_on_its_rising_edge_only() -> None:
     cycle = Cycle(params(), _model(REF))
     # high from the start (a bit left set): no edge, no re-zero
     rows = _run(cycle, clock, 5, bearing=20.3, rezero_bit=True)
-    assert "rezero" not in sum((_names(r.events) for r in rows), [])
+    assert "rezero" not in _all(rows)
     rows = _run(cycle, clock, 2, bearing=20.3, rezero_bit=None)  # unreadable: no edge
     rows += _run(cycle, clock, 1, bearing=20.3, rezero_bit=True)
-    assert "rezero" not in sum((_names(r.events) for r in rows), [])
+    assert "rezero" not in _all(rows)
     rows = _run(cycle, clock, 1, bearing=20.3, rezero_bit=False)
     rows += _run(cycle, clock, 3, bearing=20.3, rezero_bit=True)  # one pulse, held high
-    assert sum((_names(r.events) for r in rows), []).count("rezero") == 1
+    assert _all(rows).count("rezero") == 1
     assert cycle.models.zero_by == "controller input [output] rezero"
 
 
@@ -153,7 +159,7 @@ def test_no_permission_holds_the_offset_while_the_model_steps_then_ramps() -> No
     go = _run(cycle, clock, 10, bearing=20.3, permitted=True)
     assert "permission_granted" in _names(go[0].events)
     offsets = [last.offset_um] + [r.offset_um for r in go]
-    assert max(abs(b - a) for a, b in zip(offsets, offsets[1:], strict=False)) \
+    assert max(abs(b - a) for a, b in pairwise(offsets)) \
         <= SLEW_UM_S + 1e-12
     assert go[-1].offset_um == pytest.approx(go[-1].model_um, abs=0.5)
     assert go[-1].snapshot.pending_um is None
@@ -218,7 +224,7 @@ def test_a_config_reference_is_the_models_and_checked(tmp_path) -> None:  # type
                                                "column": 20.0, "motor": 20.0}
     plain = _example(tmp_path, "modbus.toml", "[model]", "")
     assert plain.model_sha256 != cfg.model_sha256  # another reference is another model
-    with pytest.raises(ConfigError, match="model.reference.*no reference temperature"):
+    with pytest.raises(ConfigError, match=r"model\.reference.*no reference temperature"):
         _example(tmp_path, "modbus.toml", "[model]", "reference = { bearing = 20.0 }")
-    with pytest.raises(ConfigError, match="model.reference.*no channel 'spindle'"):
+    with pytest.raises(ConfigError, match=r"model\.reference.*no channel 'spindle'"):
         _example(tmp_path, "modbus.toml", "[model]", "reference = { spindle = 20.0 }")
