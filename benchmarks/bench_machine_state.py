@@ -38,9 +38,9 @@ Run: .venv/bin/python benchmarks/bench_machine_state.py [SEEDS…]   (default 0 
 from __future__ import annotations
 
 import math
-from itertools import pairwise
 import sys
 from collections.abc import Callable
+from itertools import pairwise
 
 from compd.core.cycle import WRITTEN, Cycle, CycleParams
 from compd.core.validation import ChannelLimits
