@@ -89,6 +89,8 @@ async def test_permit_holds_the_offset_then_the_change_ramps_in(
         assert r.snapshot.pending_um is not None and r.snapshot.pending_um > 5.0
         assert r.model_um is not None and r.model_um > held_at + 5.0
         assert (await sim.outputs())["offset"] == held_at
+        status = rig.daemon.telemetry._last_status
+        assert "waiting_for_permission" in status and "um pending" in status
         since = len(invariants.log())
         await sim.publish({"plc_update_permitted": 1})  # between cuts
         await rig.until(lambda: rig.daemon.last_result is not None

@@ -166,9 +166,14 @@ class TelemetrySink(CycleSink):
             # and a restart would reset the fault policy's hold timer (never ramping)
             self.notifier.watchdog()
         state = str(result.state)
+        snap = result.snapshot
         if not result.healthy:
             state += f" ({result.cause})"
+        elif snap.pending_um is not None:
+            state += f" ({result.cause}, {snap.pending_um:+.2f} um pending)"
         if state != self._last_status or result.sequence % STATUS_EVERY == 0:
-            self.notifier.status(f"offset {result.offset_um:.2f} um, state {state}")
+            start = f", model {snap.model_start}, reference {snap.reference}" \
+                if snap.model_start else ""
+            self.notifier.status(f"offset {result.offset_um:.2f} um, state {state}{start}")
             self._last_status = state
 
