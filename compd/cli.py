@@ -33,6 +33,7 @@ COMMANDS: dict[str, str] = {
     "report": "report",
     "health": "health",
     "status": "status",
+    "rezero": "rezero",
     "export": "export",
     "schema": "schema",
     "plan": "plan",

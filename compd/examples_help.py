@@ -57,6 +57,10 @@ examples:
 examples:
   compd status                                the daemon on this host (port 9105)
   compd status --url http://10.0.0.5:9108/ --json""",
+    "rezero": """\
+examples:
+  compd rezero /etc/compd/compd.toml          at tool touch-off: the prediction now is zero
+  sudo compd rezero --state-dir /var/lib/compd --wait-s 10""",
     "export": """\
 examples:
   compd export /var/lib/compd/samples.sqlite -o day.csv --since 2026-11-23T06:00 \\

@@ -126,6 +126,10 @@ class CompensationModel:
         self.adaptation: dict[str, Any] = {}
         self.contributions: list[float] = [0.0] * len(terms)
         self.references: dict[str, float] = {}
+        #: the reference state the model was calibrated from (°C per relative input
+        #: channel: the temperatures at which its growth is zero), empty when the
+        #: model file does not say; `set_references` is what a running model uses
+        self.calibration_reference: dict[str, float] = {}
 
     # -- structure ----------------------------------------------------------------------------
 

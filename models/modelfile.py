@@ -23,6 +23,9 @@ only, at most 1 MiB, nesting bounded), which hands the document to
     bias_rw_um_per_sqrt_h = 2.7      # from the calibration residual (compd fit
     probe_noise_um = 0.07            # --adaptation); any field of
                                      # models.adaptation.AdaptationParams
+    [reference]                      # optional: the calibration's reference state,
+    bearing = 20.0                   # °C per relative input channel (zero growth);
+    ambient = 20.0                   # every relative input channel, or none
     [provenance]                     # free: data hash, orders, fit %, date
 
 Grey-box terms take ``p = [p1, p2, p3]`` (or six with ``switch_channel``)
@@ -149,7 +152,7 @@ def parse_term(doc: Any, period_s: float, where: str) -> Term:
 
 def parse_model(doc: Mapping[str, Any], where: str = "model") -> CompensationModel:
     """Build a model from a parsed TOML document (the file, or a config's inline model)."""
-    _check_keys(doc, {"model", "terms", "provenance", "adaptation"}, where)
+    _check_keys(doc, {"model", "terms", "provenance", "adaptation", "reference"}, where)
     head = doc.get("model", {})
     if not isinstance(head, Mapping):
         raise ModelError(f"{where}.model: must be a table")
@@ -169,12 +172,28 @@ def parse_model(doc: Mapping[str, Any], where: str = "model") -> CompensationMod
                               description=_str(head, "description", f"{where}.model", ""),
                               provenance=dict(provenance))
     model.adaptation = parse_adaptation(doc.get("adaptation", {}), f"{where}.adaptation")
+    if "reference" in doc:
+        model.calibration_reference = parse_reference(model, doc["reference"],
+                                                      f"{where}.reference")
     declared = head.get("channels")
     if declared is not None:
         if not isinstance(declared, list) or not all(isinstance(c, str) for c in declared):
             raise ModelError(f"{where}.model.channels: must be a list of channel names")
         model.check_channels(declared)
     return model
+
+
+def parse_reference(model: CompensationModel, doc: Any, where: str) -> dict[str, float]:
+    """A reference state: a finite temperature for every relative input channel of
+    `model` (the state in which its growth is zero), nothing else."""
+    if not isinstance(doc, Mapping):
+        raise ModelError(f"{where}: must be a table of channel = temperature")
+    need = model.reference_channels
+    _check_keys(doc, need, where)
+    missing = sorted(need - set(doc))
+    if missing:
+        raise ModelError(f"{where}: no reference temperature for channel(s) {missing}")
+    return {ch: _number(doc, ch, where) for ch in sorted(need)}
 
 
 def parse_adaptation(doc: Any, where: str) -> dict[str, Any]:
@@ -245,6 +264,8 @@ def model_document(model: CompensationModel) -> dict[str, Any]:
     }
     if model.adaptation:
         doc["adaptation"] = dict(model.adaptation)
+    if model.calibration_reference:
+        doc["reference"] = dict(model.calibration_reference)
     if model.provenance:
         doc["provenance"] = dict(model.provenance)
     return doc

@@ -3,7 +3,8 @@
 For container health checks and monitoring scripts. Exit 0 when healthy, 1
 otherwise, with one line saying why; 64 for a bad argument. Healthy means
 the offset compd wants is in force NOW (the last cycle's cause,
-`compd.core.health.Cause`, is ``in_force`` or an operator's ``operator_hold``;
+`compd.core.health.Cause`, is ``in_force``, an operator's ``operator_hold`` or
+``waiting_for_permission`` (the controller holds the change back by design);
 any other cause, a model worse than none, invalid inputs, the controller off,
 a failed write, a foreign offset, the limit ..., is unhealthy and named), and
 a COMPLETE cycle (inputs read and valid, model stepped, offset write

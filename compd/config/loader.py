@@ -45,8 +45,9 @@ from models.sanity import check_model
 
 #: output names as the driver sees them
 OUTPUT_NAMES: tuple[str, ...] = ("offset", "heartbeat", "status")
-#: the controller's state read beside the channels ([output] machine_on, estop, homed)
-STATE_NAMES: tuple[str, ...] = ("machine_on", "estop", "homed")
+#: the controller's state read beside the channels ([output] machine_on, estop, homed,
+#: update_permitted, rezero)
+STATE_NAMES: tuple[str, ...] = ("machine_on", "estop", "homed", "update_permitted", "rezero")
 
 
 @dataclass
@@ -163,6 +164,23 @@ _NUMERIC_ERRORS = (ArithmeticError, ValueError)
 
 def _numeric_reason(exc: Exception) -> str:
     return f"the model's coefficients cannot be evaluated ({type(exc).__name__}: {exc})"
+
+
+def _set_reference(model: CompensationModel, reference: dict[str, float]) -> None:
+    """[model] reference: the reference state for `model` (its relative input channels;
+    a channel it does not read is refused only when no model reads it)."""
+    from models.modelfile import parse_reference
+
+    mine = {ch: v for ch, v in reference.items() if ch in model.reference_channels}
+    unknown = sorted(set(reference) - model.channels)
+    if unknown:
+        raise ConfigError("model.reference", f"the model reads no channel {unknown[0]!r}; "
+                          f"its reference channels: {sorted(model.reference_channels)}")
+    try:
+        model.calibration_reference = parse_reference(model, mine, "model.reference")
+    except ModelError as exc:
+        raise ConfigError("model.reference", str(exc).removeprefix("model.reference: ")) \
+            from None
 
 
 def _load_model(ref: str, base: Path, key: str) -> CompensationModel:
@@ -288,6 +306,10 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
     if m.shadow is not None:
         shadow = _load_model(m.shadow, base, "model.shadow")
         _check_model(shadow, channels, machine.period_s, "model.shadow", raw)
+    if m.reference is not None:
+        for target in (model, shadow):
+            if target is not None:
+                _set_reference(target, m.reference)
 
     state_dir = resolve_state_dir(raw.state.dir, base)
     if state_dir.exists() and not state_dir.is_dir():

@@ -355,6 +355,10 @@ class ModelSection(_Section):
     period_s: PeriodS | None = None
     #: a candidate model evaluated beside the live one, logged and recorded, never written
     shadow: str | None = None
+    #: the reference state (°C per relative input channel: the temperatures at which the
+    #: model's growth is zero, e.g. those of the calibration's start); overrides the model
+    #: file's [reference]; neither: the temperatures at the first start (said in the log)
+    reference: dict[str, float] | None = None
     #: refuse a model whose DC gain exceeds this (µm per unit of an input; models.sanity):
     #: at most 10 mm, the largest output.limit_um (one unit of an input never warrants more)
     max_dc_gain_um: Annotated[float, Field(gt=0.0), _field(0.0, MAX_LIMIT_UM, _WHY_DC_GAIN),
@@ -397,6 +401,13 @@ class OutputSection(_Section):
     #: then): held like machine off
     homed: dict[str, Any] | None = None
     estop: dict[str, Any] | None = None
+    #: the controller permits the offset to change (optional; a PLC bit, an M-code, a
+    #: HAL pin): while it reads 0 the offset in force is held and the model keeps
+    #: stepping; unreadable counts as 0 (compd.core.cycle, cause waiting_for_permission)
+    update_permitted: dict[str, Any] | None = None
+    #: a re-zero request (optional; a PLC bit or an M-code pulse at tool touch-off): its
+    #: rising edge takes the present prediction as the new zero (compd.core.cycle)
+    rezero: dict[str, Any] | None = None
 
     @model_validator(mode="after")
     def _scale(self) -> OutputSection:

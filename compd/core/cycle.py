@@ -35,6 +35,17 @@ controller confirmed the offset is in it). `plan`:
    first read-back once it is on again is what the controller holds (LinuxCNC
    zeroes its external offset at machine on): taken as it is, no alarm, and
    the output ramps from it at the slew limit;
+   While the controller withholds its permission (``permitted`` False:
+   ``[output] update_permitted`` reads 0; None: it could not be read, taken
+   as not permitted, PERMIT_UNREADABLE) a cycle that would track the model
+   holds the offset in force (HOLDING, cause WAITING_FOR_PERMISSION with the
+   pending difference in `Snapshot.pending_um`); the model keeps stepping,
+   and the next permitted cycle moves the offset toward the model at the slew
+   limit. Faults, the operator's ramp and the shutdown ramp are not held: a
+   ramp to zero is a safety action. The rising edge of ``rezero_bit``
+   (``[output] rezero``, a PLC bit or an M-code pulse) re-zeroes
+   (`Cycle.rezero`, `compd.core.modelstep`) after this cycle's step: the
+   target changes, the output stage ramps to it at the slew limit;
 5. writes: the offset (in controller units; omitted once the controller
    refused it permanently, and while read-back is configured but the read
    failed, since then the controller's state is unknown), the heartbeat
@@ -178,7 +189,10 @@ class Cycle:
                  offset_um: float | None = None, sequence: int = 0,
                  heartbeat: int = 0,
                  adaptation_state: Mapping[str, Any] | None = None,
-                 operator_hold: bool = False) -> None:
+                 operator_hold: bool = False,
+                 stale_state: Mapping[str, Any] | None = None,
+                 stale_age_s: float | None = None,
+                 zero: Mapping[str, Any] | None = None) -> None:
         self.params = params
         self.validator = Validator(params.channels, params.time_scale)
         self.health = OutputHealth(params.hold_s, operator_hold=operator_hold)
@@ -198,7 +212,14 @@ class Cycle:
         self._beyond_noted = False
         self._note_limit(self._later)
         self.models = ModelStepper(model, shadow, model_state=model_state,
-                                   shadow_state=shadow_state, references=references)
+                                   shadow_state=shadow_state, references=references,
+                                   stale_state=stale_state, stale_age_s=stale_age_s, zero=zero)
+        #: the permit as last told: "permitted", "waiting", "unreadable" (events on change)
+        self._permit = "permitted"
+        #: the re-zero input's last readable value (an edge needs a known 0 before it)
+        self._rezero_bit: bool | None = None
+        #: the target a permit holds back, minus the offset in force (µm), None: none
+        self.pending_um: float | None = None
 
     def _probe_stage(self, n_terms: int,
                      state: Mapping[str, Any] | None) -> ProbeStage | None:
@@ -240,13 +261,16 @@ class Cycle:
     @classmethod
     def from_state(cls, params: CycleParams, model: CompensationModel,
                    shadow: CompensationModel | None, state: Mapping[str, Any], *,
-                   fresh: bool, same_model: bool = True) -> Cycle:
+                   fresh: bool, same_model: bool = True,
+                   age_s: float | None = None) -> Cycle:
         """A cycle continuing `state` (an `export_state()` / checkpoint dict).
-        Fresh: the filters resume where they were. Too old: only the references
-        and the last written offset are kept; the filters restart at the steady
-        state matching the first valid sample. The adaptation estimator resumes
-        whenever the model is the same (`same_model`), fresh or not; another
-        model clears it."""
+        Fresh: the filters resume where they were. Too old (`age_s` machine
+        seconds since it was saved) and the same model: the filters are advanced
+        from there over `age_s` with the first valid sample's inputs held, or
+        start at its steady state (`compd.core.modelstep`). Another model: only
+        the references and the last written offset are kept. The re-zero and the
+        adaptation estimator resume whenever the model is the same
+        (`same_model`), fresh or not; another model clears them."""
         model_state = state.get("model")
         refs: Mapping[str, float] | None = None
         if isinstance(model_state, Mapping):
@@ -259,14 +283,24 @@ class Cycle:
         usable = fresh and isinstance(model_state, Mapping) and "terms" in model_state
         shadow_state = state.get("shadow") if usable else None
         adapted = state.get("adaptation") if same_model else None
-        return cls(params, model, shadow,
-                   model_state=model_state if usable else None,
-                   shadow_state=shadow_state if isinstance(shadow_state, Mapping) else None,
-                   references=refs, offset_um=offset_um,
-                   sequence=int(state.get("sequence", 0)),
-                   heartbeat=int(state.get("heartbeat", 0)),
-                   adaptation_state=adapted if isinstance(adapted, Mapping) else None,
-                   operator_hold=state.get("operator_hold") is True)
+        stale = model_state if (not usable and same_model and isinstance(model_state, Mapping)
+                                and "terms" in model_state) else None
+        zero = state.get("zero")
+        cycle = cls(params, model, shadow,
+                    model_state=model_state if usable else None,
+                    shadow_state=shadow_state if isinstance(shadow_state, Mapping) else None,
+                    references=refs, offset_um=offset_um,
+                    sequence=int(state.get("sequence", 0)),
+                    heartbeat=int(state.get("heartbeat", 0)),
+                    adaptation_state=adapted if isinstance(adapted, Mapping) else None,
+                    operator_hold=state.get("operator_hold") is True,
+                    stale_state=stale, stale_age_s=age_s,
+                    zero=zero if isinstance(zero, Mapping) else None)
+        if not same_model:
+            dropped = cycle.models.drop_zero("another model")
+            if dropped is not None:
+                cycle._later.append(dropped)
+        return cycle
 
     def carry_over(self, old: Cycle, *, same_outputs: bool) -> None:
         """Continue `old` across a reload (this cycle built by `from_state` from
@@ -307,6 +341,13 @@ class Cycle:
         self.health.operator_hold = on
         return Event(EventName.OPERATOR_HOLD if on else EventName.OPERATOR_RELEASE, {"by": who})
 
+    def rezero(self, who: str, wall_s: float | None = None) -> Event:
+        """Take the present prediction as the new zero (an operator at tool
+        touch-off): from the next cycle on the target is the growth since now; the
+        output stage ramps the offset to it at the slew limit, never a step.
+        REZERO, or REZERO_REFUSED before the model has predicted anything."""
+        return self.models.rezero(who, wall_s)
+
     def begin_shutdown(self) -> None:
         """Ramp-to-zero shutdown: from now on the target is 0."""
         self.health.shutting_down = True
@@ -316,11 +357,14 @@ class Cycle:
     def plan(self, now_s: float, samples: Mapping[str, Sample] | None,
              readback_offset_um: float | None = None, *,
              wall_s: float | None = None, probe: ProbeReading | None = None,
-             controller_off: str | None = None) -> Plan:
+             controller_off: str | None = None, permitted: bool | None = True,
+             rezero_bit: bool | None = None) -> Plan:
         """Decide one cycle at machine time `now_s`. `samples` None: the read failed.
         `readback_offset_um`: the controller's offset as read (controller units).
         `probe`: the measuring cycle's values as read (`compd.core.adaptation`).
-        `controller_off`: why the controller takes no offset now (module, step 4)."""
+        `controller_off`: why the controller takes no offset now (module, step 4).
+        `permitted`: the controller lets the offset change (None: unreadable, not
+        permitted); `rezero_bit`: the re-zero input as read (None: unreadable)."""
         self.sequence += 1
         events, self._later = self._later, []
         dt = self.params.period_s if self._last_now is None else now_s - self._last_now
@@ -333,6 +377,7 @@ class Cycle:
             self._readback(readback_offset_um, events)
         inputs = self._inputs(now_s, samples, wall_s, events)
         stepped = self._step_models(inputs, events)
+        self._rezero_edge(rezero_bit, wall_s, events)
         correction = self._adapt(dt, probe, stepped, events)
         worse = self.probes is not None and self.probes.model_worse
         # the probes showed the compensation worse than none: a fault, like a model
@@ -342,14 +387,15 @@ class Cycle:
         valid = why is None
         target_um = stepped.model_um + correction if stepped.model_um is not None else None
         decision = self.health.decide(now_s, why, target_um, events)
-        offset_um = self._move_output(decision, dt)
+        permit = self._permit_cause(permitted, decision, events)
+        offset_um = self._move_output(decision, dt, held_for_permit=permit is not None)
         self._note_limit(events)
         # only once the stage has moved: a plan that raised before this (the shell then
         # plans again as a failed read) leaves the interval to that one, so a hold still ramps
         self._last_now = now_s
         if valid:
             self.heartbeat = (self.heartbeat + 1) % HEARTBEAT_MODULO
-        view = self._view(decision, stepped, worse, why,
+        view = self._view(decision, stepped, worse, why, permit,
                           no_readback=self.params.readback and readback_offset_um is None)
         status = int(status_word(view))
         cause = output_cause(view)
@@ -385,18 +431,56 @@ class Cycle:
         shadow_um = self.models.step_shadow(inputs.values, events)
         return _Stepped(model_um=model_um, shadow_um=shadow_um, valid=True)
 
-    def _move_output(self, decision: Decision, dt: float) -> float:
+    def _move_output(self, decision: Decision, dt: float, *, held_for_permit: bool) -> float:
         target = self.output.current_um if decision.target_um is None else decision.target_um
         tracking = decision.state == FaultState.OK
+        self.pending_um = None
         if self.health.controller_off is not None:  # it takes no offset: stand still
             self.output.slewing = False
             return self.output.current_um
-        if self.health.operator_hold and tracking:
+        if held_for_permit and tracking:
+            out = self.output
+            wanted = max(-out.limit_um, min(out.limit_um, target))
+            self.pending_um = wanted - out.current_um
+        if (self.health.operator_hold or held_for_permit) and tracking:
             target = self.output.current_um
         return self.output.step(target, dt, deadband=tracking)
 
+    def _permit_cause(self, permitted: bool | None, decision: Decision,
+                      events: list[Event]) -> Cause | None:
+        """Why a tracking output is held for the controller's permission (None: it is
+        not); the events when the permit changes (module docstring, step 4)."""
+        if decision.state != FaultState.OK:
+            return None  # a fault holds or ramps whatever the permit: nothing to tell
+        now = "permitted" if permitted else ("waiting" if permitted is False else "unreadable")
+        if now != self._permit:
+            if now == "unreadable":
+                events.append(Event(EventName.PERMIT_UNREADABLE, {
+                    "action": "taken as not permitted: the offset in force is held"}))
+            elif now == "waiting":
+                events.append(Event(EventName.PERMISSION_WAITING, {
+                    "offset_um": self.output.current_um}))
+            else:
+                target = decision.target_um
+                events.append(Event(EventName.PERMISSION_GRANTED, {
+                    "offset_um": self.output.current_um,
+                    "pending_um": None if target is None else target - self.output.current_um,
+                    "slew_um_s": self.output.slew_um_s}))
+            self._permit = now
+        if now == "permitted":
+            return None
+        return Cause.WAITING_FOR_PERMISSION if now == "waiting" else Cause.PERMIT_UNREADABLE
+
+    def _rezero_edge(self, bit: bool | None, wall_s: float | None,
+                     events: list[Event]) -> None:
+        """The re-zero input's rising edge (a known 0, then 1) re-zeroes; an
+        unreadable value is no edge, and the next readable one starts afresh."""
+        was, self._rezero_bit = self._rezero_bit, bit
+        if bit and was is False:
+            events.append(self.rezero("controller input [output] rezero", wall_s))
+
     def _view(self, decision: Decision, stepped: _Stepped, worse: bool, why: Cause | None,
-              *, no_readback: bool) -> HealthView:
+              permit: Cause | None, *, no_readback: bool) -> HealthView:
         h, out = self.health, self.output
         target = decision.target_um
         return HealthView(
@@ -406,7 +490,8 @@ class Cycle:
             model_invalid=stepped.model_invalid, model_range=stepped.model_range,
             model_worse=worse, controller_off=h.controller_off is not None, invalid=why,
             no_readback=no_readback,
-            at_limit=target is not None and abs(target) > out.limit_um)
+            at_limit=target is not None and abs(target) > out.limit_um,
+            permit=permit if decision.state == FaultState.OK else None)
 
     def _writes(self, readback_offset_um: float | None, offset_um: float, status: int,
                 events: list[Event]) -> tuple[dict[str, float], float]:
@@ -496,7 +581,10 @@ class Cycle:
                                         probes_accepted=probes.accepted,
                                         probes_refused=probes.refused,
                                         gate_refusals=probes.gate_refusals)
-        return Snapshot(self.output.confirmed_um, self.health.operator_hold, adaptation)
+        m = self.models
+        return Snapshot(self.output.confirmed_um, self.health.operator_hold, adaptation,
+                        pending_um=self.pending_um, zero_um=m.zero_um if m.zero_by else None,
+                        model_start=m.init_mode, reference=m.reference_source)
 
     # -- internals ------------------------------------------------------------------------
 

@@ -80,6 +80,14 @@ class EventName(enum.StrEnum):
     # the operator (OPC UA SetHold)
     OPERATOR_HOLD = "operator_hold", _W
     OPERATOR_RELEASE = "operator_release", _W
+    # the controller's permission to change the offset ([output] update_permitted)
+    PERMISSION_WAITING = "permission_waiting", _I
+    PERMISSION_GRANTED = "permission_granted", _I
+    PERMIT_UNREADABLE = "permit_unreadable", _W
+    # re-zero: the present prediction taken as the new zero (compd.core.modelstep)
+    REZERO = "rezero", _W
+    REZERO_REFUSED = "rezero_refused", _W
+    REZERO_DROPPED = "rezero_dropped", _W
     # the controller takes no offset (machine off, E-stop: compd.core.health), and again
     CONTROLLER_OFF = "controller_off", _W
     CONTROLLER_ON = "controller_on", _I

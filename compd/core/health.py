@@ -27,7 +27,8 @@ all three read only a frozen `HealthView`, so none can disagree with another.
 why": health (`compd health`, the metrics it reads, the checkpoint's
 ``last_cause``), the status page and `compd status`, the OPC UA face and the
 fault events' ``reason`` field are all derived from it. Every cause but
-IN_FORCE and OPERATOR_HOLD is unhealthy (`Cause.healthy`). The cycle's
+IN_FORCE, OPERATOR_HOLD and WAITING_FOR_PERMISSION (the controller holds the
+offset by intent: a change only between cuts) is unhealthy (`Cause.healthy`). The cycle's
 commit may turn a planned cause into a write's (`committed_cause`).
 """
 
@@ -57,7 +58,8 @@ class Cause(enum.StrEnum):
     offset held, the controller off, a write fault, why the cycle is invalid
     (the model worse than none, the controller not answering, inputs invalid,
     the model non-finite or out of range), no read-back, a foreign offset being
-    ramped back from, an operator's hold, the limit."""
+    ramped back from, a permit input that cannot be read, an operator's hold,
+    waiting for the controller's permission, the limit."""
 
     IN_FORCE = "in_force"
     #: an operator's hold (OPC UA SetHold): the offset stays put, by intent
@@ -90,11 +92,17 @@ class Cause(enum.StrEnum):
     FOREIGN_OFFSET = "foreign_offset"
     #: the target is beyond ±limit_um: the limit is written, not what the model asks
     AT_LIMIT = "at_limit"
+    #: [output] update_permitted reads 0: the offset in force is held until it permits
+    WAITING_FOR_PERMISSION = "waiting_for_permission"
+    #: [output] update_permitted could not be read (bad quality, not a number): taken as
+    #: not permitted, the offset in force held
+    PERMIT_UNREADABLE = "permit_unreadable"
 
     @property
     def healthy(self) -> bool:
-        """The offset compd wants is in force, or an operator holds it on purpose."""
-        return self in (Cause.IN_FORCE, Cause.OPERATOR_HOLD)
+        """The offset compd wants is in force, or is held on purpose (an operator's
+        hold, the controller's permission not given)."""
+        return self in (Cause.IN_FORCE, Cause.OPERATOR_HOLD, Cause.WAITING_FOR_PERMISSION)
 
 
 @dataclass(frozen=True, slots=True)
@@ -133,6 +141,9 @@ class HealthView:
     no_readback: bool = False
     #: the target the policy chose is beyond ±limit_um (the stage clamps it)
     at_limit: bool = False
+    #: a tracking output held for [output] update_permitted: WAITING_FOR_PERMISSION or
+    #: PERMIT_UNREADABLE; None: permitted (or no permit input)
+    permit: Cause | None = None
 
 
 def output_cause(v: HealthView) -> Cause:
@@ -155,8 +166,12 @@ def output_cause(v: HealthView) -> Cause:
         return Cause.NO_READBACK
     if v.foreign:
         return Cause.FOREIGN_OFFSET
+    if v.permit is Cause.PERMIT_UNREADABLE:
+        return v.permit
     if v.operator_hold:
         return Cause.OPERATOR_HOLD
+    if v.permit is not None:
+        return v.permit
     return Cause.AT_LIMIT if v.at_limit else Cause.IN_FORCE
 
 
@@ -176,7 +191,8 @@ def recorded_state(v: HealthView) -> FaultState:
 def _state_bits(v: HealthView) -> int:
     """OK, HOLDING, RAMPING or SHUTDOWN: what the output does."""
     if v.policy == FaultState.OK and not (v.write_stopped or v.held or v.write_fault):
-        return _HOLDING_BIT if v.operator_hold or v.controller_off else _OK_BIT
+        held = v.operator_hold or v.controller_off or v.permit is not None
+        return _HOLDING_BIT if held else _OK_BIT
     if v.policy in _HOLDING:
         return _HOLDING_BIT
     if v.policy == FaultState.RAMP:

@@ -112,6 +112,14 @@ class Snapshot:
     confirmed_um: float | None
     operator_hold: bool
     adaptation: AdaptationView | None = None
+    #: waiting for the controller's permission: the change held back (µm), else None
+    pending_um: float | None = None
+    #: the re-zero in force (the raw prediction taken as zero, µm), None: never re-zeroed
+    zero_um: float | None = None
+    #: how the model started (restored, advanced, steady_state, first_start) and where
+    #: its reference state came from (calibration, checkpoint, first_sample)
+    model_start: str = ""
+    reference: str = ""
 
 
 @dataclass(frozen=True, slots=True)

@@ -18,9 +18,15 @@ Namespace ``urn:compd``; under Objects one object per machine, named after
   ``Adaptation/BiasSigma_um``, ``Adaptation/Correction_um``;
 - the method ``SetHold(Boolean)``: true switches compensation to hold (the
   offset stays where it is; faults still hold and ramp as always), false
-  releases it (the offset slews back to the model at the slew limit). Only
-  the configured ``operator`` may call it; every call, allowed or refused, is
-  logged with the user, the client's address and what was asked.
+  releases it (the offset slews back to the model at the slew limit);
+- the method ``Rezero()``: the present prediction becomes the new zero (at
+  tool touch-off; the offset ramps to the new target at the slew limit, the
+  re-zero is checkpointed and survives a restart); returns whether the daemon
+  took it. ``Cause`` ``waiting_for_permission`` and ``PendingOffset_um`` tell a
+  change held back for ``[output] update_permitted``.
+  Only the configured ``operator`` may call either method; every call, allowed
+  or refused, is logged with the user, the client's address and what was
+  asked.
 
 Everything else is read-only for every client: writes, node management and
 history updates are refused (BadUserAccessDenied) by the permission rules.
@@ -325,8 +331,10 @@ class OpcUaFace:
     """One machine's part of the OPC UA face (see the module docstring)."""
 
     def __init__(self, cfg: LoadedConfig, hold: Callable[[bool, str], bool],
-                 registry: CollectorRegistry | None = None) -> None:
+                 registry: CollectorRegistry | None = None, *,
+                 rezero: Callable[[str], bool] | None = None) -> None:
         self.cfg = cfg
+        self._rezero = rezero
         #: where the face's counts (connections, refusals, failed logins) are served
         self.registry = registry
         self._collector: GuardCollector | None = None
@@ -407,6 +415,7 @@ class OpcUaFace:
         await var(obj, "StatusWord", "StatusWord", 0, ua.VariantType.UInt32)
         await var(obj, "Heartbeat", "Heartbeat", 0, ua.VariantType.UInt32)
         await var(obj, "OperatorHold", "OperatorHold", False, ua.VariantType.Boolean)
+        await var(obj, "PendingOffset_um", "PendingOffset_um", nan, ua.VariantType.Double)
         terms = await obj.add_folder(nid("Terms"), ua.QualifiedName("Terms", idx))
         for term in self.cfg.model.terms:
             await var(terms, f"Terms.{term.name}", f"{term.name}_um", nan, ua.VariantType.Double)
@@ -425,6 +434,8 @@ class OpcUaFace:
         await obj.add_method(nid("SetHold"), ua.QualifiedName("SetHold", idx),
                              self._set_hold(shared), [ua.VariantType.Boolean],
                              [ua.VariantType.Boolean])
+        await obj.add_method(nid("Rezero"), ua.QualifiedName("Rezero", idx),
+                             self._rezero_call(shared), [], [ua.VariantType.Boolean])
         shared.machines[self.name] = m
         return m
 
@@ -450,6 +461,22 @@ class OpcUaFace:
             return [ua.Variant(done, ua.VariantType.Boolean)]
         return call
 
+    def _rezero_call(self, shared: _SharedServer) -> Callable[..., Any]:
+        async def on_daemon_loop(user: str, peer: str) -> bool:
+            return self._rezero is not None and self._rezero(f"opcua: {user} from {peer}")
+
+        async def call(parent: ua.NodeId) -> list[ua.Variant]:
+            user, peer = shared.caller
+            loop = self._daemon_loop
+            done = False
+            if loop is not None and not loop.is_closed():  # the cycle lives on that loop
+                done = await asyncio.wrap_future(asyncio.run_coroutine_threadsafe(
+                    on_daemon_loop(user, peer), loop))
+            self.log.warning("opcua_rezero", machine=self.name, user=user, peer=peer,
+                             applied=done)
+            return [ua.Variant(done, ua.VariantType.Boolean)]
+        return call
+
     def publish(self, result: Row) -> None:
         """The committed row for the face's task (cheap; never raises, never waits)."""
         if self._machine is None:
@@ -465,6 +492,7 @@ class OpcUaFace:
             "StatusWord": (int(result.status), ua.VariantType.UInt32),
             "Heartbeat": (int(result.heartbeat), ua.VariantType.UInt32),
             "OperatorHold": (bool(snap.operator_hold), ua.VariantType.Boolean),
+            "PendingOffset_um": (_num(snap.pending_um), ua.VariantType.Double),
         }
         for term in self.cfg.model.terms:
             values[f"Terms.{term.name}"] = (_num(rec.contributions.get(term.name)),

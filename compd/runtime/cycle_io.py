@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 from compd.config.loader import PROBE_NAMES, LoadedConfig
 from compd.core.adaptation import ProbeReading
 from compd.core.cycle import WRITTEN, Cycle, CycleParams, Outcome, Plan
-from compd.core.events import Event
+from compd.core.events import Event, EventName
 from compd.runtime.sinks.base import Tick
 from drivers.base import Driver, Quality, Sample
 from drivers.errors import DriverError, WriteRejected
@@ -66,20 +66,32 @@ class CycleIO:
         self.clock = clock
         #: whether the last read heard the controller (None: none yet, or a new driver)
         self.read_ok: bool | None = None
+        #: who asked for a re-zero since the last cycle (`compd rezero`, OPC UA Rezero):
+        #: applied at the start of the next one, on the daemon's loop
+        self.rezero_requests: list[str] = []
+        #: a re-zero happened (any source): the loop checkpoints at once and clears it
+        self.rezeroed = False
 
     # -- the cycle, read to write ----------------------------------------------------
 
     async def run(self, now_s: float) -> Tick:
         cfg, driver, cycle = self.running.cfg, self.running.driver, self.running.cycle
         assert driver is not None and cycle is not None
-        samples, readback, probe, off = await self._read(driver, cfg)
+        samples, readback, probe, off, got = await self._read(driver, cfg)
+        permitted, rezero = _permit(got, cfg), _bit(got, "rezero")
+        if self.rezero_requests:
+            for who in self.rezero_requests:
+                self.journal.events([cycle.rezero(who, self.clock.wall())])
+            self.rezero_requests.clear()
+            self.rezeroed = True
         try:
             if probe is not None:
                 plan = cycle.plan(now_s, samples, readback, wall_s=self.clock.wall(),
-                                  probe=probe, controller_off=off)
+                                  probe=probe, controller_off=off, permitted=permitted,
+                                  rezero_bit=rezero)
             else:
                 plan = cycle.plan(now_s, samples, readback, wall_s=self.clock.wall(),
-                                  controller_off=off)
+                                  controller_off=off, permitted=permitted, rezero_bit=rezero)
         except Exception as exc:
             # the fault policy decides what reaches the machine: this cycle is a failed
             # read (hold, then ramp after hold_s); raises when it cannot even do that
@@ -89,6 +101,8 @@ class CycleIO:
             plan = cycle.plan(now_s, None, readback, wall_s=self.clock.wall(),
                               controller_off=off)
         self.journal.events(plan.events)
+        if any(e.name is EventName.REZERO for e in plan.events):
+            self.rezeroed = True
         outcome = await self._write(driver, plan)
         row = cycle.commit(outcome)
         self.journal.events(row.write_events)
@@ -98,7 +112,7 @@ class CycleIO:
 
     async def _read(self, driver: Driver, cfg: LoadedConfig
                     ) -> tuple[dict[str, Sample] | None, float | None, ProbeReading | None,
-                               str | None]:
+                               str | None, Mapping[str, Sample]]:
         """The channels, the offset read back, the probe, and why the controller takes
         no offset now ([output] estop / machine_on / homed; None when it does or cannot
         say)."""
@@ -118,7 +132,7 @@ class CycleIO:
             self.read_ok = False
             for name in getattr(exc, "channels", None) or ("*",):
                 self.metrics.read_errors.labels(channel=name).inc()
-            return None, None, None, None
+            return None, None, None, None, {}
         if self.read_ok is False:
             self.journal.log.info("controller_reconnected")
         self.read_ok = True
@@ -129,7 +143,7 @@ class CycleIO:
                 readback = float(rb.value)
         probe = _probe_reading(got) if cfg.probes else None
         off = _controller_off(got) if cfg.states else None
-        return {n: got[n] for n in cfg.channels if n in got}, readback, probe, off
+        return {n: got[n] for n in cfg.channels if n in got}, readback, probe, off, got
 
     async def _write(self, driver: Driver, plan: Plan) -> Outcome:
         """The plan's writes (none in a dry run), and how they went."""
@@ -153,6 +167,14 @@ class CycleIO:
     def export_state(self) -> dict[str, Any]:
         assert self.running.cycle is not None
         return self.running.cycle.export_state()
+
+    def request_rezero(self, who: str) -> bool:
+        """A re-zero asked for by `who`, applied at the start of the next cycle on
+        the daemon's loop; False before the cycle exists."""
+        if self.running.cycle is None:
+            return False
+        self.rezero_requests.append(who)
+        return True
 
     def operator_hold(self, on: bool, who: str) -> Event | None:
         """None when nothing changed; raises LookupError before the cycle exists."""
@@ -192,14 +214,27 @@ def _probe_reading(got: dict[str, Sample]) -> ProbeReading:
     return ProbeReading(value_um=value(PROBE_NAMES[0]), counter=value(PROBE_NAMES[1]))
 
 
+def _bit(got: Mapping[str, Sample], name: str) -> bool | None:
+    """A state input as read: non-zero is true; None when missing, bad or not a number."""
+    s = got.get(name)
+    if s is None or s.quality is Quality.BAD or not math.isfinite(s.value):
+        return None
+    return s.value != 0.0
+
+
+def _permit(got: Mapping[str, Sample], cfg: LoadedConfig) -> bool | None:
+    """[output] update_permitted as read: True without one; None (not permitted,
+    said so) when it could not be read, a failed read included."""
+    if "update_permitted" not in cfg.states:
+        return True
+    return _bit(got, "update_permitted")
+
+
 def _controller_off(got: Mapping[str, Sample]) -> str | None:
     """Why the controller takes no offset now, from [output] estop, machine_on and
     homed as read (`compd.core.cycle`); None when it does or it cannot be told."""
     def bit(name: str) -> bool | None:
-        s = got.get(name)
-        if s is None or s.quality is Quality.BAD or not math.isfinite(s.value):
-            return None
-        return s.value != 0.0
+        return _bit(got, name)
 
     if bit("estop"):
         return "estop"

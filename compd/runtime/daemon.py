@@ -16,7 +16,10 @@ the driver, and the requests: SIGHUP reloads (`compd.runtime.reloading`: read
 and validated in a worker thread while the loop keeps cycling, swapped in
 between two cycles; a file that does not validate leaves the old config
 running, ``reload_failed``). SIGUSR1, SIGUSR2, SIGXFSZ are logged
-(``signal_ignored``) and otherwise ignored (`compd.runtime.signals`).
+(``signal_ignored``) and otherwise ignored (`compd.runtime.signals`). A
+re-zero (`rezero`: OPC UA Rezero, a `compd rezero` request found in the state
+directory between two cycles, `compd.runtime.rezero_request`) is applied at
+the start of the next cycle and checkpointed at once.
 SIGTERM/SIGINT and every other signal whose default would end the process:
 the current cycle finishes, then the shutdown policy ("hold", or
 "ramp_to_zero" cycling until the offset is 0), a checkpoint, and `run()`
@@ -63,6 +66,7 @@ from compd.runtime.heap import pin_mmap_threshold
 from compd.runtime.journal import Journal
 from compd.runtime.loop import CycleLoop
 from compd.runtime.reloading import Reloader
+from compd.runtime.rezero_request import RezeroRequests
 from compd.runtime.sdnotify import Notifier
 from compd.runtime.sinks.base import CycleSink
 from compd.runtime.sinks.checkpoint import CheckpointSink
@@ -112,7 +116,8 @@ class Daemon:
         self.telemetry = TelemetrySink(cfg, metrics=self.metrics, notifier=self.notifier,
                                        board=self.status_board, clock=self.time,
                                        journal=self.journal, serve=serve_metrics)
-        self.opcua = OpcUaSink(cfg, metrics=self.metrics, operator_hold=self.operator_hold)
+        self.opcua = OpcUaSink(cfg, metrics=self.metrics, operator_hold=self.operator_hold,
+                               rezero=self.rezero)
         self.checkpoint = CheckpointSink(cfg, dry_run=dry_run, clock=self.time,
                                          journal=self.journal, export=self.io.export_state,
                                          last_complete=lambda: self.telemetry.last_complete)
@@ -124,8 +129,10 @@ class Daemon:
                                  journal=self.journal, metrics=self.metrics, clock=self.time)
         self.loop = CycleLoop(self.io, sinks=self.sinks, checkpoint=self.checkpoint,
                               journal=self.journal, metrics=self.metrics, clock=self.time,
-                              once=once, between=self.reloader.swap,
+                              once=once, between=self._between,
                               reloads=lambda: self.reloader.reloads)
+        #: `compd rezero`'s requests in the state directory (`compd.runtime.rezero_request`)
+        self.rezero_requests = RezeroRequests(None)
         self._lock: Any = None
 
     # -- what tests, benchmarks and the fleet read -------------------------------------
@@ -201,6 +208,23 @@ class Daemon:
             self.checkpoint.save()
         return True
 
+    def rezero(self, who: str) -> bool:
+        """A re-zero (OPC UA Rezero, `compd rezero`): the present prediction becomes
+        the new zero at the start of the next cycle, checkpointed at once. False
+        before the cycle exists."""
+        return self.io.request_rezero(who)
+
+    async def _between(self) -> None:
+        """Between two cycles: a reload swapped in, a `compd rezero` request taken."""
+        await self.reloader.swap()
+        box = self.rezero_requests
+        who = box.take(self.time.wall())
+        if who is not None:
+            self.rezero(who)
+        elif box.refused is not None:
+            self.log.warning("rezero_request_refused", reason=box.refused)
+            box.refused = None
+
     # -- running -------------------------------------------------------------------------
 
     async def run(self) -> int:
@@ -227,6 +251,7 @@ class Daemon:
         try:
             directory = None if self._lock is None else self._lock.directory
             self.checkpoint.directory = directory
+            self.rezero_requests.directory = directory
             startup = start_cycle(cfg, self.running.params, directory=directory,
                                   wall_s=self.time.wall())
             self.running.cycle = startup.cycle

@@ -72,6 +72,9 @@ class CycleLoop:
         for sink in self.sinks:  # none of them may stop the cycle (the offset is written)
             self.journal.guard(sink.stage, sink.feed, tick)
         self._checkpoint_due = self.checkpoint.note(tick)
+        if self.io.rezeroed:  # a re-zero survives a restart from this cycle on
+            self.io.rezeroed = False
+            self._checkpoint_due = True
         return tick.row
 
     def _ramp_budget(self) -> int:

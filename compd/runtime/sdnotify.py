@@ -8,12 +8,13 @@ socket buffer) is counted in `errors`, kept in `last_error`, and never raised:
 compensation does not stop for a missing service manager. The socket is
 non-blocking, so a stuck receiver never delays a cycle.
 
-The daemon sends READY=1 once its loop runs with the controller answering
-(or a cycle completed), WATCHDOG=1 on every cycle after that while the loop
-is alive (a broken sensor or a lost link is the fault policy's business:
-hold, then ramp with the alarm; a restart by systemd would mend neither and
-would reset the hold timer), STATUS= with the current offset and state,
-STOPPING=1 on shutdown.
+The daemon sends READY=1 after its loop's first cycle, whether the controller
+answered or not (a controller that is off when the PC boots is retried with
+the backoff, and health says why nothing is in force), WATCHDOG=1 on every
+cycle after that while the loop is alive (a broken sensor or a lost link is
+the fault policy's business: hold, then ramp with the alarm; a restart by
+systemd would mend neither and would reset the hold timer), STATUS= with
+the current offset and state, STOPPING=1 on shutdown.
 """
 
 from __future__ import annotations

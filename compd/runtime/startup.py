@@ -2,10 +2,19 @@
 
 - fresh (saved less than checkpoint_max_age_s machine seconds ago, same
   model): the filters resume exactly where they were;
-- too old, another model, or unusable state: the references are kept (they
-  describe the machine's reference state) and every term starts at the steady
-  state matching the first valid sample: never from zero on a warm machine;
-- none at all (first-ever start): the references are the current temperatures.
+- too old, same model: the saved filter state is advanced over the time since
+  it was saved with the first valid sample's inputs held (or, past
+  `compd.core.modelstep.MAX_ADVANCE_STEPS`, the steady state of those inputs);
+- another model, or unusable state: the references are kept (they describe
+  the machine's reference state) and every term starts at the steady state
+  matching the first valid sample: never from zero on a warm machine;
+- none at all (first-ever start): the model's calibration reference
+  (``[reference]`` / ``[model] reference``) and the steady state of the first
+  valid sample; without one, the first sample's temperatures are the reference.
+
+The ``model_initialised`` event says which (``mode``, ``reference``), and the
+status page shows it. A re-zero (``zero`` in the checkpoint) is kept with the
+same model, whatever the checkpoint's age.
 
 In every case the output starts from the last offset the controller
 confirmed (the checkpoint's `offset_um`; a write it refused, or one never
@@ -73,7 +82,8 @@ def start_cycle(cfg: LoadedConfig, params: CycleParams, *,
             return Startup(cycle, "restored", events)
     try:
         cycle = Cycle.from_state(params, cfg.model, cfg.shadow, state, fresh=False,
-                                 same_model=same_model)
+                                 same_model=same_model,
+                                 age_s=age_s if age_s != float("inf") else None)
     except (ModelError, TypeError, ValueError, KeyError) as exc:
         events.append(Event(EventName.CHECKPOINT_STATE_REFUSED, {"reason": str(exc)}))
         return Startup(Cycle(params, cfg.model, cfg.shadow), "first_start", events)

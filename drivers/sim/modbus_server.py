@@ -19,6 +19,8 @@ holding registers (written by the daemon)
     12..13 enc_i32_milli     int32, 0.001 per count
     14     enc_i16           int16, 1 per count
     15     enc_i16_centi     int16, 0.01 per count
+    20     plc_update_permitted  uint16, set by the PLC (`publish`): a permit bit
+    21     plc_rezero        uint16, set by the PLC: a re-zero pulse
 Everything else up to input 31 / holding 63 (or the sizes given) reads as 0;
 beyond is an illegal address (exception code 2), e.g. `BAD_ADDRESS`.
 
@@ -82,6 +84,12 @@ ENCODINGS: dict[str, ModbusAddress] = {
     "enc_i16": ModbusAddress(unit=UNIT, kind="holding", address=14, type="int16"),
     "enc_i16_centi": ModbusAddress(unit=UNIT, kind="holding", address=15, type="int16",
                                    scale=0.01),
+}
+#: the PLC's bits a daemon may read (`[output] update_permitted`, `rezero`): holding
+#: registers the PLC sets (`publish`), 0 at start
+PLC: dict[str, ModbusAddress] = {
+    "plc_update_permitted": ModbusAddress(unit=UNIT, kind="holding", address=20, type="uint16"),
+    "plc_rezero": ModbusAddress(unit=UNIT, kind="holding", address=21, type="uint16"),
 }
 #: valid for the protocol, absent on this server
 BAD_ADDRESS = ModbusAddress(unit=UNIT, kind="holding", address=5000, type="float32")
@@ -234,7 +242,7 @@ class ModbusSimController:
     # -- internals ----------------------------------------------------------------
 
     def _address(self, name: str) -> ModbusAddress:
-        for table in (CHANNELS, OUTPUTS, ENCODINGS, PROBES):
+        for table in (CHANNELS, OUTPUTS, ENCODINGS, PROBES, PLC):
             if name in table:
                 return table[name]
         raise KeyError(f"the Modbus sim has no channel or output {name!r}")

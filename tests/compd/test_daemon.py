@@ -125,7 +125,7 @@ async def test_sd_notify_ready_watchdog_status(sim: ModbusSimController,
     assert "WATCHDOG=1" not in messages[:ready]
 
 
-async def test_unreachable_controller_holds_and_never_signals_ready(tmp_path: Path) -> None:
+async def test_unreachable_controller_holds_and_completes_nothing(tmp_path: Path) -> None:
     with socket.socket() as s:  # a port nobody listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]

@@ -17,7 +17,10 @@ WAS_WARNING = {"channel_invalid", "fault_hold", "readback_mismatch", "write_fail
                # the offset compd wrote beyond a limit lowered since: it ramps in
                "offset_beyond_limit",
                # a long run of probes the gate refused: the model or the probe is wrong
-               "probes_disagree"}
+               "probes_disagree",
+               # a re-zero moves the offset (an audit line); one refused or dropped; a
+               # permit input that cannot be read (taken as not permitted)
+               "rezero", "rezero_refused", "rezero_dropped", "permit_unreadable"}
 WAS_ERROR = {"fault_ramp_to_zero", "offset_write_stopped", "output_write_stopped",
              "readback_out_of_range", "write_fault", "model_out_of_range",
              "model_worse_than_none"}

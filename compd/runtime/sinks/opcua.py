@@ -1,5 +1,5 @@
 """compd's own OPC UA server face as a sink ([faces.opcua]): the machine's
-state for the PLC and SCADA, and ``SetHold`` for the operator.
+state for the PLC and SCADA, and ``SetHold`` and ``Rezero`` for the operator.
 
 The server starts beside the loop (`open` starts it in a task: it takes
 seconds, and compensation starts at once and never waits for it); once up,
@@ -28,10 +28,12 @@ class OpcUaSink(CycleSink):
     stage = "opcua_face"
 
     def __init__(self, cfg: LoadedConfig, *, metrics: Metrics,
-                 operator_hold: Callable[[bool, str], bool]) -> None:
+                 operator_hold: Callable[[bool, str], bool],
+                 rezero: Callable[[str], bool] | None = None) -> None:
         self._cfg = cfg
         self._metrics = metrics
         self._operator_hold = operator_hold
+        self._rezero = rezero
         #: the face once started
         self.face: OpcUaFace | None = None
         #: its start, while under way
@@ -42,7 +44,8 @@ class OpcUaSink(CycleSink):
             return
         from compd.faces.opcua_face import OpcUaFace
 
-        face = OpcUaFace(self._cfg, self._operator_hold, self._metrics.registry)
+        face = OpcUaFace(self._cfg, self._operator_hold, self._metrics.registry,
+                         rezero=self._rezero)
 
         async def start() -> None:
             if await face.start():

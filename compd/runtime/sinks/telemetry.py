@@ -7,10 +7,15 @@ what `compd health --url` judges), the model's output, each channel's
 value, invalid channels counted as read errors, the adaptation estimator's
 state; a complete cycle (`compd.core.cycle.offset_in_force`) is counted and
 its (wall, monotonic) time kept for the checkpoint that `compd health
---state-dir` judges. READY=1 once the loop runs and the controller answers
-(a broken sensor at start is a fault the policy handles, not a start
-failure); WATCHDOG=1 every cycle from then on; STATUS= on a state change or
-every `STATUS_EVERY` cycles.
+--state-dir` judges. READY=1 after the loop's first cycle, whatever that cycle
+read: the daemon is up, connected or retrying with its backoff (a controller
+that is off when the PC boots, or a broken sensor at start, is a state the
+fault policy and health report, not a start failure: waiting for the
+controller before READY ended in systemd's start timeout and a restart loop);
+WATCHDOG=1 every cycle from then on; STATUS= on a state change or every
+`STATUS_EVERY` cycles, naming why nothing is in force while it is not
+(`compd.core.health.Cause`: ``controller_not_answering`` for a controller
+that is off).
 
 `open` labels the metrics for the config and, when this daemon serves its own
 endpoint (`serve`; `compd run DIR` serves every machine's registry on one),
@@ -147,21 +152,28 @@ class TelemetrySink(CycleSink):
 
     def _notify(self, tick: Tick) -> None:
         result = tick.row
-        if not self._ready_sent and (result.complete or tick.read_ok):
-            # up: the loop runs and the controller answers
+        if not self._ready_sent:
+            # up: the loop runs (the controller answering or the driver retrying)
             self.notifier.ready()
             self._ready_sent = True
             self._journal.log.info("ready", sequence=result.sequence,
                                    offset_um=round(result.offset_um, 4),
-                                   complete=result.complete)
-        if self._ready_sent:
+                                   complete=result.complete,
+                                   controller_answers=bool(tick.read_ok),
+                                   cause=str(result.cause))
+        if self._ready_sent:  # always, from the first cycle
             # the loop is alive: systemd restarting us would not mend a sensor or a link,
             # and a restart would reset the fault policy's hold timer (never ramping)
             self.notifier.watchdog()
         state = str(result.state)
+        snap = result.snapshot
         if not result.healthy:
             state += f" ({result.cause})"
+        elif snap.pending_um is not None:
+            state += f" ({result.cause}, {snap.pending_um:+.2f} um pending)"
         if state != self._last_status or result.sequence % STATUS_EVERY == 0:
-            self.notifier.status(f"offset {result.offset_um:.2f} um, state {state}")
+            start = f", model {snap.model_start}, reference {snap.reference}" \
+                if snap.model_start else ""
+            self.notifier.status(f"offset {result.offset_um:.2f} um, state {state}{start}")
             self._last_status = state
 
