@@ -266,10 +266,27 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
                    "arx_fit_percent": fit.arx_fit_pct, "oe_fit_percent": fit.oe.fit_pct}
         nums, dens, orders = fit.oe.nums, fit.oe.dens, fit.orders
     else:
+        from compd.commands.fit_checks import CheckVeto, fallback_line
         from compd.offline.fit_select import select_for_fit, worse_than_none
 
-        nums, dens, orders, summary = select_for_fit(args, y, us, seg, radius, holdout,
-                                                     [n for n, _ in specs])
+        names = [n for n, _ in specs]
+        veto = CheckVeto(specs, rel, [float(np.ptp(u)) for u in us], float(np.ptp(y)), period)
+        try:
+            nums, dens, orders, summary = select_for_fit(args, y, us, seg, radius, holdout,
+                                                         names, veto)
+        except ModelError:
+            if not veto.vetoed:
+                raise
+            if not args.force:
+                raise ModelError(f"every candidate model gets a warning from compd check (the "
+                                 f"first: {veto.vetoed[0]}); nothing written (--force writes "
+                                 "the best validated anyway)") from None
+            nums, dens, orders, summary = select_for_fit(args, y, us, seg, radius, holdout,
+                                                         names)
+        else:
+            line = fallback_line(summary, veto)
+            if line is not None:
+                print(line, file=sys.stderr)
         # for --adaptation: how fast the error moves on rows not calibrated on
         args.heldout_residuals = summary.pop("_heldout_residuals")
         worse = worse_than_none(summary)
@@ -517,6 +534,9 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
     model = CompensationModel(fixed + terms, records[0].period_s, name=_text(name),
                               description=_text(f"compd fit --kind {args.kind} on {names}"),
                               provenance=_text(_provenance(args, records, info)))
+    from compd.commands.fit_checks import gate
+
+    gate(model, args.force)  # compd check's warnings: nothing written without --force
     write_atomically(out, lambda tmp: save_model(model, tmp), "model file", force=args.force,
                      inputs=sources)
     written = load_model(out)  # what the daemon will load
