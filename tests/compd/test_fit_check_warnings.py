@@ -65,7 +65,7 @@ def test_with_no_candidate_check_accepts_nothing_is_written(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Were check to warn about every model, fit exits 65 with one line and no
     file; --force writes the best validated one and repeats check's warnings."""
-    import compd.commands.check as check
+    from compd.commands import check
 
     def always(model: Any) -> list[str]:
         return [f"term {model.terms[0].name!r}: a warning for the test"]
