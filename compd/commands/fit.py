@@ -192,12 +192,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", default=None, help="model name (default: from DATA)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON line")
     parser.add_argument("--adaptation", action="store_true",
-                        help="kept for old scripts: the probe estimator's settings are always "
-                             "learnt from the fitted model's residual and written into the "
-                             "model file's [adaptation] table")
+                        help="also learn the probe estimator's settings from the fitted model's "
+                             "residual (compd.offline.probes) and write them into the model "
+                             "file's [adaptation] table (without them, adaptation starts "
+                             "stood down: docs/adaptation.md §2)")
     parser.add_argument("--adaptation-lag-s", type=number(0.0, 1e7, lo_open=True),
                         default=7200.0, metavar="SECONDS",
-                        help="the probe interval the estimator's drift is measured over "
+                        help="with --adaptation: the probe interval the drift is measured over "
                              "(default 7200: give your probe spacing)")
 
 
@@ -695,10 +696,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _suggest_adaptation(args: argparse.Namespace, measured: list[Any], simulated: list[Any],
                         period_s: float) -> dict[str, Any]:
-    """The probe estimator's settings learnt from the residual (always: a model without
-    them runs adaptation on the library's defaults, which lagged a real machine's
-    drift); {} with a warning when the records are too short for the lag (the model is
-    written all the same, and `compd check` says so of a config that applies it)."""
+    """`--adaptation`'s learnt settings ({} without it, or with a warning when the
+    records are too short for the lag: the model is written all the same)."""
     if not args.adaptation:
         return {}
     from compd.offline.probes import suggest_settings

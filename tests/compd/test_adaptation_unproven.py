@@ -1,6 +1,7 @@
 """No path to the worse adaptation: settings not learnt for the model (the library's
-defaults on an old or bundled model) start stood down and must earn their place from the probes (`models.adaptation`), and
-`compd check` says so of a config that applies them."""
+defaults on an old or bundled model) start stood down and must earn their place from
+the probes (`models.adaptation`), and `compd check` says so of a config that applies
+them."""
 
 from __future__ import annotations
 
