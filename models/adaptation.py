@@ -86,7 +86,14 @@ have been, so that it takes over again as soon as that pays. `stand_downs`
 counts the times it stood down; `score_window = 0` never stands down.
 Standing down and taking over again move the whole correction at once:
 `max_step_um` does not bound them (the daemon's output stage, its slew, does).
-The score may start from a prior (`score_prior_plain_um`,
+Settings not learnt for the model (`unproven`: the daemon and `compd replay` set
+it when the model file's [adaptation] table holds no score prior) start stood
+down too, and their score spans up to `UNPROVEN_WINDOW` accepted probes (all the
+evidence there is, where a learnt prior would weigh in): the library's defaults
+lagged a real machine's drift and made it worse than the plain model
+(docs/adaptation.md §6; a window of 3 took over on three good probes and lost
+the next two), so they must earn their place from the probes first. The score
+may start from a prior (`score_prior_plain_um`,
 `score_prior_adapted_um`: the RMS error of the plain model and of a correction
 held over one probe spacing, on the calibration record: `compd fit
 --adaptation` learns them), weighted as `score_prior_probes` probes (the
@@ -194,6 +201,10 @@ class AdaptationParams:
     score_prior_adapted_um: float = 0.0  # the held correction's, weighted as
     score_prior_probes: float = 0.0  # this many probes (0: a full score window)
     reacquire_after: float = 3  # gate refusals in a row agreeing in direction: re-acquire
+    #: settings not learnt for this model (no score prior), whose worth is unknown:
+    #: start stood down (the plain model), the score spanning up to `UNPROVEN_WINDOW`
+    #: probes, until it shows adapting pays
+    unproven: bool = False
 
     def __post_init__(self) -> None:
         problems = self.problems()
@@ -205,7 +216,7 @@ class AdaptationParams:
         out: dict[str, str] = {}
         for f in fields(self):
             v = getattr(self, f.name)
-            if f.name == "gains":
+            if f.name in ("gains", "unproven"):
                 if not isinstance(v, bool):
                     out[f.name] = f"must be true or false, got {v!r}"
                 continue
@@ -221,6 +232,26 @@ class AdaptationParams:
         if not out and self.gains and self.max_gain <= 0:
             out["max_gain"] = "must be > 0 when gains are estimated"
         return out
+
+
+#: the keys of a model file's [adaptation] table that say its settings were learnt for
+#: it (`compd fit` learns them from its residual, `compd refine` from the probes): the
+#: score's prior, what adapting is worth at the probe spacing
+LEARNT_KEYS = ("score_prior_plain_um", "score_prior_adapted_um")
+
+
+#: the accepted probes an `unproven` estimator's score spans (all its evidence, as a
+#: learnt prior weighs at most this many probe spacings: compd.offline.probes)
+UNPROVEN_WINDOW = 100
+
+
+def mark_unproven(table: Mapping[str, Any]) -> dict[str, Any]:
+    """`table` (a model file's [adaptation] settings) with `unproven` set when it holds
+    no learnt prior (`LEARNT_KEYS`): settings whose worth for this model is unknown
+    start stood down and earn their place from the probes."""
+    if all(k in table for k in LEARNT_KEYS):
+        return dict(table)
+    return {**table, "unproven": True}
 
 
 @dataclass(frozen=True)
@@ -266,9 +297,11 @@ class Adapter:
         self._gains: list[float] = [0.0] * (n - 1)
         #: (plain², adapted²) at each of the last score_window accepted probes
         self._score: list[tuple[float, float]] = []
-        #: a prior that says adapting does not pay starts stood down (until probes say it does)
-        self._standing_down = params.score_window >= 1 \
-            and params.score_prior_adapted_um > params.score_prior_plain_um
+        #: a prior that says adapting does not pay starts stood down (until probes say it
+        #: does), and so do settings whose worth is unknown (`unproven`)
+        self._standing_down = params.score_window >= 1 and (
+            params.unproven
+            or params.score_prior_adapted_um > params.score_prior_plain_um)
         self.stand_downs = 0  # times the score made the estimator stand down
         #: gate refusals in a row agreeing in direction (signed: + above, - below)
         self._streak = 0
@@ -597,8 +630,8 @@ def _score_verdict(score: Sequence[tuple[float, float]], params: AdaptationParam
     weight = params.score_prior_probes or len(score)
     prior = _sq(params.score_prior_adapted_um) - _sq(params.score_prior_plain_um)
     mean = (sum(d) + weight * prior) / (len(d) + weight)
-    if len(d) < 2:  # no scatter to weigh it by yet: the sign decides
-        return mean > 0.0
+    if len(d) < 2:  # no scatter to weigh it by yet: the sign decides (a tie: no change)
+        return mean > 0.0 or (mean == 0.0 and down)
     centre = sum(d) / len(d)
     spread = math.sqrt(sum((x - centre) ** 2 for x in d) / (len(d) - 1) / len(d))
     if mean > spread:
@@ -612,7 +645,9 @@ def _score_window(params: AdaptationParams) -> int:
     """The probes the score spans: score_window, and with a prior at least as many as the
     prior weighs (its evidence and the probes' weigh alike); 0 when score_window is 0."""
     window = int(params.score_window)
-    return max(window, int(params.score_prior_probes)) if window > 0 else 0
+    if window <= 0:
+        return 0
+    return max(window, int(params.score_prior_probes), UNPROVEN_WINDOW if params.unproven else 0)
 
 
 def _sq(v: float) -> float:

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import shlex
 import sys
@@ -173,6 +174,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         default=DEFAULT_MAX_TIME_CONSTANT_DAYS, metavar="DAYS",
                         help="slowest allowed pole, as a time constant in days (default "
                              f"{DEFAULT_MAX_TIME_CONSTANT_DAYS:g})")
+    parser.add_argument("--from", dest="fit_from", type=number(0.0, 1e9), default=None,
+                        metavar="SECONDS",
+                        help="calibrate on the rows from this time on (as replay "
+                             "--score-from): the rows before still run through the model "
+                             "from the record's start, outside every loss")
+    parser.add_argument("--until", dest="fit_until", type=number(0.0, 1e9), default=None,
+                        metavar="SECONDS",
+                        help="calibrate on the rows up to this time (inclusive, as replay "
+                             "--score-until); the rows after are not read")
     parser.add_argument("-o", dest="model_file", metavar="MODEL.toml", default=None,
                         help="model file to write (default: the first DATA with .model.toml)")
     parser.add_argument("--force", action="store_true",
@@ -184,11 +194,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--adaptation", action="store_true",
                         help="also learn the probe estimator's settings from the fitted model's "
                              "residual (compd.offline.probes) and write them into the model "
-                             "file's [adaptation] table")
+                             "file's [adaptation] table (without them, adaptation starts "
+                             "stood down: docs/adaptation.md §2)")
     parser.add_argument("--adaptation-lag-s", type=number(0.0, 1e7, lo_open=True),
                         default=7200.0, metavar="SECONDS",
                         help="with --adaptation: the probe interval the drift is measured over "
-                             "(default 7200)")
+                             "(default 7200: give your probe spacing)")
 
 
 def _fixed_terms(specs: list[str], records: list[Record]) -> tuple[list[Term], list[Any]]:
@@ -266,11 +277,28 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
                    "arx_fit_percent": fit.arx_fit_pct, "oe_fit_percent": fit.oe.fit_pct}
         nums, dens, orders = fit.oe.nums, fit.oe.dens, fit.orders
     else:
+        from compd.commands.fit_checks import CheckVeto, fallback_line
         from compd.offline.fit_select import select_for_fit, worse_than_none
 
-        nums, dens, orders, summary = select_for_fit(args, y, us, seg, radius, holdout,
-                                                     [n for n, _ in specs])
-        # for --adaptation: how fast the error moves on rows not calibrated on
+        names = [n for n, _ in specs]
+        veto = CheckVeto(specs, rel, [float(np.ptp(u)) for u in us], float(np.ptp(y)), period)
+        try:
+            nums, dens, orders, summary = select_for_fit(args, y, us, seg, radius, holdout,
+                                                         names, veto)
+        except ModelError:
+            if not veto.vetoed:
+                raise
+            if not args.force:
+                raise ModelError(f"every candidate model gets a warning from compd check (the "
+                                 f"first: {veto.vetoed[0]}); nothing written (--force writes "
+                                 "the best validated anyway)") from None
+            nums, dens, orders, summary = select_for_fit(args, y, us, seg, radius, holdout,
+                                                         names)
+        else:
+            line = fallback_line(summary, veto)
+            if line is not None:
+                print(line, file=sys.stderr)
+        # for the adaptation settings: how fast the error moves on rows not calibrated on
         args.heldout_residuals = summary.pop("_heldout_residuals")
         worse = worse_than_none(summary)
         if worse is not None and not args.force:
@@ -357,7 +385,7 @@ def _check_folds(args: argparse.Namespace, records: list[Record]) -> None:
     if args.folds is None:
         args.folds = DEFAULT_FOLDS
         return
-    shortest = min(len(r) for r in records)
+    shortest = min(int((r.time_s >= (args.fit_from or 0.0) - 1e-9).sum()) for r in records)
     most = shortest // MIN_FOLD_ROWS - 1
     if args.folds > most:
         hint = f"give --folds {most} or fewer" if most >= 2 else "the record is too short"
@@ -401,6 +429,10 @@ def _provenance(args: argparse.Namespace, records: list[Record],
         prov["samples_per_record"] = [len(r) for r in records]
     if args.validation_record:
         prov["validation_records"] = [str(p) for p in args.validation_record]
+    if args.fit_from is not None:
+        prov["calibrated_from_s"] = args.fit_from
+    if args.fit_until is not None:
+        prov["calibrated_until_s"] = args.fit_until
     if getattr(args, "search_table", None):
         prov["candidates"] = list(args.candidates)
         prov["inputs_chosen"] = list(args.search_chosen)
@@ -451,6 +483,48 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
     return records
 
 
+def _calibration_rows(args: argparse.Namespace, records: list[Record]) -> list[Record]:
+    """--until: each record up to that time (the model is causal: nothing after it
+    changes what it predicts before, so the rows after are cut, not masked);
+    --from: ``args.fit_window``, the rows each loss may count (the rows before run
+    through the model from the record's start). InputError (64) naming the flag."""
+    import dataclasses
+
+    import numpy as np
+
+    from compd.infiles import InputError
+    from compd.sysexits import EX_USAGE
+
+    start, until = args.fit_from, args.fit_until
+    args.fit_window = None
+    if start is None and until is None:
+        return records
+    if until is not None and start is not None and until < start:
+        raise InputError(f"--until {until:g} s is before --from {start:g} s", EX_USAGE)
+    if start and (args.candidates or args.kind != "tf" or args.structure == "search"
+                  or args.validation_record):
+        raise InputError("--from goes with --kind tf and --term, without --candidates, "
+                         "--structure search or --validation-record (those cut no window)",
+                         EX_USAGE)
+    out: list[Record] = []
+    for whole in records:
+        r = whole
+        if until is not None:
+            n = int(np.searchsorted(whole.time_s, until + 1e-9, side="right"))
+            r = dataclasses.replace(whole, time_s=whole.time_s[:n],
+                                    columns={k: v[:n] for k, v in whole.columns.items()})
+        first = int(np.searchsorted(r.time_s, (start or 0.0) - 1e-9))
+        if len(r) - first < 2 * MIN_FOLD_ROWS:
+            span = f"0 … {r.time_s[-1]:g} s" if len(r) else "nothing"
+            window = f"--from {start or 0.0:g} s --until {math.inf if until is None else until:g} s"
+            raise InputError(f"{window}: {r.path} has {max(0, len(r) - first)} rows there (it "
+                             f"spans {span}); at least {2 * MIN_FOLD_ROWS} needed", EX_USAGE)
+        out.append(r)
+    if start:
+        args.fit_window = np.concatenate([r.time_s >= start - 1e-9 for r in out])
+    return out
+
+
 def _search_specs(args: argparse.Namespace, records: list[Record]
                   ) -> list[tuple[str, dict[str, float]]]:
     """--candidates: the inputs chosen by validation, one term each."""
@@ -499,12 +573,12 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
                        Path(data[0]).with_suffix(".model.toml"), "model file",
                        force=args.force, inputs=sources)
     channels = {ch for _, inputs in specs for ch in inputs}
-    records = _read_records(data, args, channels)
+    records = _calibration_rows(args, _read_records(data, args, channels))
     _check_folds(args, records)
     if args.candidates:
         specs = _search_specs(args, records)
         channels = {ch for _, inputs in specs for ch in inputs}
-        records = _read_records(data, args, channels)
+        records = _calibration_rows(args, _read_records(data, args, channels))
     holdout = _read_records([str(p) for p in args.validation_record], args, channels,
                             records[0])
     for w in [w for r in records for w in speed_warnings(r)] if len(records) == 1 else []:
@@ -517,6 +591,9 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
     model = CompensationModel(fixed + terms, records[0].period_s, name=_text(name),
                               description=_text(f"compd fit --kind {args.kind} on {names}"),
                               provenance=_text(_provenance(args, records, info)))
+    from compd.commands.fit_checks import gate
+
+    gate(model, args.force)  # compd check's warnings: nothing written without --force
     write_atomically(out, lambda tmp: save_model(model, tmp), "model file", force=args.force,
                      inputs=sources)
     written = load_model(out)  # what the daemon will load
@@ -550,7 +627,11 @@ def run(args: argparse.Namespace) -> int:
         return EX_DATAERR
     finally:
         status.done()
-    measured = [r.column(args.output) for r in records]
+    # the figures and the residual over the calibration rows (--from: the rows before
+    # ran through the model, outside the calibration)
+    keep = [r.time_s >= (args.fit_from or 0.0) - 1e-9 for r in records]
+    measured = [r.column(args.output)[k] for r, k in zip(records, keep, strict=True)]
+    simulated = [s[k] for s, k in zip(simulated, keep, strict=True)]
     adapt = _suggest_adaptation(args, measured, simulated, records[0].period_s)
     if adapt:  # the suggestion travels with the model: its [adaptation] table
         from compd.offline.probes import Suggestion
@@ -571,8 +652,9 @@ def run(args: argparse.Namespace) -> int:
                           "records": [{"path": r.path, **pq.as_dict()}
                                       for r, pq in zip(records, per, strict=True)]}))
         return 0
+    rows = "" if args.fit_from is None else f", calibrated on those from {args.fit_from:g} s"
     for r in records:
-        print(f"compd fit: {len(r)} samples every {r.period_s:g} s from {r.path}")
+        print(f"compd fit: {len(r)} samples every {r.period_s:g} s from {r.path}{rows}")
     for t in info:
         if t["kind"] == "tf":
             print(f"  term {t['name']} {t['inputs']}: numerator length "
@@ -602,7 +684,7 @@ def run(args: argparse.Namespace) -> int:
           f"{q.fit_percent:.2f} %, Δpk {q.dpk_um:.3f} µm, range reduction "
           f"{q.range_reduction:.2f}-fold")
     if adapt:
-        print(f"  [adaptation] suggested from the residual (drift over {adapt['lag_s']:g} s, "
+        print(f"  [adaptation] learnt from the residual (drift over {adapt['lag_s']:g} s, "
               f"measured on {adapt['drift_from']}): "
               f"probe_noise_um = {adapt['probe_noise_um']:.3g}, bias_rw_um_per_sqrt_h = "
               f"{adapt['bias_rw_um_per_sqrt_h']:.3g}, apply_sigma = {adapt['apply_sigma']:g}, "
@@ -614,7 +696,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _suggest_adaptation(args: argparse.Namespace, measured: list[Any], simulated: list[Any],
                         period_s: float) -> dict[str, Any]:
-    """`--adaptation`'s suggested settings ({} without it, or with a warning when the
+    """`--adaptation`'s learnt settings ({} without it, or with a warning when the
     records are too short for the lag: the model is written all the same)."""
     if not args.adaptation:
         return {}

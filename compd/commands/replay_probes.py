@@ -122,7 +122,10 @@ def params_from_args(args: argparse.Namespace,
         changes["probe_noise_um"] = math.hypot(float(table.get("probe_noise_um", 0.0)),
                                                args.probe_noise_um)
     gains = {"gains": True} if args.gains else {}
-    return dataclasses.replace(_defaults(), **{**table, **gains, **changes})
+    from models.adaptation import mark_unproven
+
+    # as the daemon: settings not learnt for the model start stood down
+    return dataclasses.replace(_defaults(), **{**mark_unproven(table), **gains, **changes})
 
 
 def figures(run: ProbeRun, adapted: CompensationFigures, crude: CompensationFigures,
@@ -162,7 +165,10 @@ def lines(plain: CompensationFigures, extra: dict[str, Any], every_s: float,
         f"  adapted (a probe every {every_s:g} s, +{noise_um:g} µm noise; {a['probes']} probes, "
         f"{a['probes_used']} used, {a['probes_refused']} refused, applied at "
         f"{a['applied_moves']}, stood down {a['stand_downs']} time(s); settings from the "
-        f"{extra['adaptation_from']}; bias applied {a['bias_um']:.3f} µm, estimated "
+        f"{extra['adaptation_from']}"
+        + (", not learnt for this model: started stood down" if extra["adaptation"].get(
+            "unproven") else "")
+        + f"; bias applied {a['bias_um']:.3f} µm, estimated "
         f"{a['estimated_bias_um']:.3f} ± {a['bias_sigma_um']:.3f} µm):",
         f"    fit {a['fit_percent']:.2f} %, residue {a['residue_min_um']:.3f} … "
         f"{a['residue_max_um']:.3f} µm, RMS {a['residue_rms_um']:.3f} µm (plain "

@@ -37,7 +37,7 @@ from compd.infiles import MAX_CONFIG_BYTES, InputError, load_model, read_toml_do
 from drivers.addresses import Address
 from drivers.linuxcnc_options import LinuxCncOptions, long_hal_name
 from drivers.protocols import PROTOCOLS
-from models.adaptation import AdaptationParams
+from models.adaptation import AdaptationParams, mark_unproven
 from models.compensation import CompensationModel
 from models.errors import ModelError
 from models.modelfile import model_document, parse_model
@@ -360,7 +360,8 @@ def _adaptation(raw: DaemonConfig, channels: dict[str, Address],
                               f"({limit:g} µm): the output stage clamps there, a larger "
                               "bound only hides a runaway estimate")
     try:
-        params = AdaptationParams(**{**table, **a.estimator_settings()})
+        # settings not learnt for this model start stood down (models.adaptation.mark_unproven)
+        params = AdaptationParams(**{**mark_unproven(table), **a.estimator_settings()})
     except (ValueError, TypeError) as exc:  # "name: why; …" (AdaptationParams.problems)
         first = str(exc).split("; ")[0]
         name, _, why = first.partition(": ")

@@ -29,8 +29,11 @@ VALIDATION_WORDS = {"blocked": "blocked cross-validation",
 
 
 def run_selection(args: argparse.Namespace, y: FloatArray, us: list[FloatArray], seg: Segments,
-                  radius: float, holdout: Any, names: list[str] | None = None) -> Selection:
-    """The selection for `--structure` (auto: every structure)."""
+                  radius: float, holdout: Any, names: list[str] | None = None,
+                  veto: Any = None) -> Selection:
+    """The selection for `--structure` (auto: every structure), within the
+    calibration rows `--from`/`--until` mark (``args.fit_window``); `veto`: why a
+    candidate must not be chosen (`compd fit`: a model `compd check` warns about)."""
     structures = STRUCTURES if args.structure == "auto" else ("arx", args.structure)
     if args.folds < 2:
         raise ModelError(f"--folds {args.folds}: cross-validation needs at least 2 folds")
@@ -38,7 +41,8 @@ def run_selection(args: argparse.Namespace, y: FloatArray, us: list[FloatArray],
     try:
         return select_structure(y, us, na_range=args.orders, nb_range=args.orders,
                                 segments=seg, radius=radius, folds=args.folds,
-                                structures=structures, holdout=h, names=names)
+                                structures=structures, holdout=h, names=names,
+                                window=getattr(args, "fit_window", None), veto=veto)
     except ValueError as exc:
         raise ModelError(f"identification failed: {exc}") from None
 
@@ -99,14 +103,15 @@ def worse_than_none(summary: dict[str, Any]) -> str | None:
 
 
 def select_for_fit(args: argparse.Namespace, y: FloatArray, us: list[FloatArray],
-                   seg: Segments, radius: float, holdout: Any, names: list[str] | None = None
+                   seg: Segments, radius: float, holdout: Any, names: list[str] | None = None,
+                   veto: Any = None
                    ) -> tuple[tuple[tuple[float, ...], ...], tuple[tuple[float, ...], ...],
                               tuple[tuple[int, int], ...], dict[str, Any]]:
     """(nums, dens, orders per term, summary) of the chosen structure. The
     summary's ``_heldout_residuals`` (the chosen structure's residue on the rows
     each fold's model was not calibrated on, arrays) is for the caller to take out
     before the summary is written anywhere."""
-    sel = run_selection(args, y, us, seg, radius, holdout, names)
+    sel = run_selection(args, y, us, seg, radius, holdout, names, veto)
     how = "held-out records" if holdout is not None else \
         f"{VALIDATION_WORDS[DEFAULT_VALIDATION]}, {args.folds} folds"
     summary = summarise(sel, args.structure, how)

@@ -52,6 +52,7 @@ from models.identify.validate import (
     forced_response,
     pooled_fit,
     split_masks,
+    windowed_splits,
     with_initial,
 )
 from models.initial_state import DEFAULT_WINDOW_FRACTION
@@ -142,11 +143,30 @@ class _Data:
     blocked: list[tuple[BoolArray, BoolArray]] | None = None
     #: held-out records (y, inputs, segments) scoring instead of the folds
     holdout: tuple[FloatArray, list[FloatArray], Segments] | None = None
+    #: the rows a loss may count (the calibration window, `validate.windowed_splits`);
+    #: None: every row. The simulation always runs from each record's start
+    window: BoolArray | None = None
+    #: why a final estimate is refused besides `implausible` (the caller's own
+    #: diagnostics: `compd fit` vetoes a model `compd check` would warn about)
+    veto: Callable[[OeModel], str | None] | None = None
+
+    @property
+    def every(self) -> BoolArray:
+        """The rows a final estimate is fitted on: the window, or every row."""
+        return self.window if self.window is not None else np.ones(self.y.size, dtype=bool)
+
+    def refused(self, m: OeModel, labels: Sequence[str]) -> str:
+        """Why the final estimate `m` is never chosen ("" when it may be)."""
+        why = implausible(m.nums, m.term_dens(), self.us, labels, float(np.ptp(self.y)),
+                          self.y.size)
+        if why is None and self.veto is not None:
+            why = self.veto(m)
+        return why or ""
 
 
-def _blocked(seg: Segments, folds: int, validation: str
+def _blocked(seg: Segments, folds: int, validation: str, window: BoolArray | None = None
              ) -> list[tuple[BoolArray, BoolArray]] | None:
-    return None if validation == "blocked" else split_masks(seg, folds, "blocked")
+    return None if validation == "blocked" else windowed_splits(seg, folds, "blocked", window)
 
 
 def _lag_ok(mask: BoolArray, seg: Segments, lag: int) -> BoolArray:
@@ -236,7 +256,7 @@ def _score_holdout(d: _Data, m: OeModel | None) -> tuple[float, list[float]]:
 
 def _score(d: _Data, fit_on: Callable[[BoolArray], OeModel | None]) -> tuple[float, list[float]]:
     if d.holdout is not None:
-        return _score_holdout(d, fit_on(np.ones(d.y.size, dtype=bool)))
+        return _score_holdout(d, fit_on(d.every))
     sims: list[FloatArray] = []
     per: list[float] = []
     for train, val in d.splits:
@@ -412,8 +432,8 @@ def _ridge(d: _Data, shared: OeModel | None, train: BoolArray, lam: float) -> Oe
 
 
 def _final_fit(d: _Data, m: OeModel) -> float:
-    every = np.ones(d.y.size, dtype=bool)
-    return fit_pct(d.y, _simulate(d, m, every, d.y, d.us, d.seg))
+    every = d.every
+    return fit_pct(d.y[every], _simulate(d, m, every, d.y, d.us, d.seg)[every])
 
 
 def arx_orders(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int]
@@ -504,22 +524,29 @@ def select_structure(y: FloatArray, inputs: Sequence[FloatArray], *,
                      structures: Sequence[str] = STRUCTURES, margin_pct: float = 0.5,
                      max_iter: int = 40,
                      holdout: tuple[FloatArray, Sequence[FloatArray], Segments] | None = None,
-                     names: Sequence[str] | None = None) -> Selection:
+                     names: Sequence[str] | None = None, window: BoolArray | None = None,
+                     veto: Callable[[OeModel], str | None] | None = None) -> Selection:
     """Cross-validate every structure at the ARX-chosen orders; re-estimate on
     every row; choose (module docstring). With `holdout` records the
     candidates train on every row and are scored on those records instead
-    (initial conditions from each one's first half, as `compd replay`)."""
+    (initial conditions from each one's first half, as `compd replay`).
+    `window`: the only rows any loss counts (folds cut within it, the final
+    estimates fitted on it), every record still simulated from its start.
+    `veto(model)`: why a final estimate must not be chosen besides the
+    diagnostics here (None: it may), kept in the table as a rejection."""
     unknown = sorted(set(structures) - set(STRUCTURES))
     if unknown:
         raise ValueError(f"unknown structure(s) {unknown}; known: {list(STRUCTURES)}")
     seg = segments if segments is not None else Segments.single(np.asarray(y).size)
+    if window is not None and (window.shape != (seg.total,) or not window.any()):
+        raise ValueError("the calibration window must mark some rows of the records")
     d = _Data(np.asarray(y, dtype=np.float64), [np.asarray(u, dtype=np.float64) for u in inputs],
-              seg, radius, split_masks(seg, folds, validation),
-              blocked=_blocked(seg, folds, validation))
+              seg, radius, windowed_splits(seg, folds, validation, window),
+              blocked=_blocked(seg, folds, validation, window), window=window, veto=veto)
     if holdout is not None:
         d.holdout = (np.asarray(holdout[0], dtype=np.float64),
                      [np.asarray(u, dtype=np.float64) for u in holdout[1]], holdout[2])
-        d.splits = [(np.ones(d.y.size, dtype=bool), np.zeros(d.y.size, dtype=bool))]
+        d.splits = [(d.every, np.zeros(d.y.size, dtype=bool))]
         d.blocked = None
     labels = list(names) if names is not None else [f"input {i + 1}" for i in range(len(d.us))]
     failed: list[str] = []
@@ -575,15 +602,14 @@ def _candidates_at(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int
                    ) -> tuple[list[Candidate], tuple[int, int], bool]:
     """Every structure validated at the orders chosen in the ranges, each
     final estimate checked (`implausible`); na = 0: the static model."""
-    span = float(np.ptp(d.y))
-    every = np.ones(d.y.size, dtype=bool)
+    every = d.every
     if na_range == (0, 0):
         d.initial = True
         val, per = _score(d, functools.partial(_static_fit, d))
         m = _static_fit(d, every)
         if m is None:
             raise ValueError("fewer rows than parameters")
-        why = implausible(m.nums, m.term_dens(), d.us, labels, span, d.y.size) or ""
+        why = d.refused(m, labels)
         held = _heldout(d, [_static_fit(d, t) for t, _ in d.splits])
         return ([Candidate("static", m, val, tuple(per), _final_fit(d, m), rejected=why,
                            heldout_rms=held.rms, displacement_rms=held.displacement_rms,
@@ -613,7 +639,7 @@ def _candidates_at(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int
         if m is None:
             continue
         detail = f"λ = {best_lam.partition(':')[2]}" if name == "ridge" else ""
-        why = implausible(m.nums, m.term_dens(), d.us, labels, span, d.y.size) or ""
+        why = d.refused(m, labels)
         held = _heldout(d, [pf.get(name) for pf in per_fold])
         cands.append(Candidate(name, m, val, tuple(per), _final_fit(d, m), detail, why,
                                held.rms, held.displacement_rms, held.residuals))

@@ -79,6 +79,37 @@ def split_masks(seg: Segments, k: int, scheme: str) -> list[tuple[BoolArray, Boo
     raise ValueError(f"unknown validation scheme {scheme!r}; known: blocked, forward, both")
 
 
+def windowed_splits(seg: Segments, k: int, scheme: str, window: BoolArray | None
+                    ) -> list[tuple[BoolArray, BoolArray]]:
+    """`split_masks` within a calibration window: each record's window rows (the
+    rows from its first marked one on, a tail of the record) cut into the blocks,
+    training and held-out rows both within the window. The rows before stay
+    outside every loss and still run through the simulation, which starts at the
+    record's start (`forced_response`). None: `split_masks` itself.
+
+    Worked number: a 10-row record whose window starts at row 4, 2 forward
+    folds: blocks 4-5, 6-7, 8-9; fold 1 trains on 4-5 and scores 6-7."""
+    if window is None:
+        return split_masks(seg, k, scheme)
+    starts = []
+    for s, e in seg.bounds:
+        hit = np.flatnonzero(window[s:e])
+        if hit.size == 0 or not window[s + int(hit[0]):e].all():
+            raise ValueError("the calibration window must be a tail of every record")
+        starts.append(s + int(hit[0]))
+    inner = Segments.from_lengths([e - a for a, (_, e) in zip(starts, seg.bounds, strict=True)])
+    rows = np.concatenate([np.arange(a, e) for a, (_, e) in zip(starts, seg.bounds,
+                                                                strict=True)])
+    out: list[tuple[BoolArray, BoolArray]] = []
+    for train_w, val_w in split_masks(inner, k, scheme):
+        train = np.zeros(seg.total, dtype=bool)
+        val = np.zeros(seg.total, dtype=bool)
+        train[rows[train_w]] = True
+        val[rows[val_w]] = True
+        out.append((train, val))
+    return out
+
+
 def forced_response(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]],
                     groups: Sequence[Sequence[int]], inputs: Sequence[FloatArray],
                     seg: Segments) -> FloatArray:

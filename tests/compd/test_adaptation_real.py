@@ -124,10 +124,10 @@ def test_replay_with_the_learnt_settings_matches_the_crude_baseline_at_1_h(
     # well below the plain model's (the figure depends on the model fit chooses)
     assert a["residue_rms_um"] < 0.6 * a["plain_residue_rms_um"]
     defaults = _replay(model, 3600, capsys, "--adaptation-defaults")["adapted"]
-    # the defaults lag far: their probes are refused until they stand down (a change they
-    # cannot hold), so they gain nothing over plain (and, standing down, lose nothing)
-    assert defaults["residue_rms_um"] == pytest.approx(a["plain_residue_rms_um"], abs=0.05)
-    assert defaults["probes_refused"] > 0 and defaults["stand_downs"] >= 1
+    # the defaults lag far and are not learnt for this model: they start stood down and
+    # apply only what the probes have shown pays, never worse than the plain model
+    assert defaults["residue_rms_um"] <= a["plain_residue_rms_um"] + 1e-9
+    assert defaults["probes_refused"] > 0
     # an option still overrides the model's table
     over = _replay(model, 3600, capsys, "--apply-sigma", "4")
     assert over["adaptation"]["apply_sigma"] == 4.0

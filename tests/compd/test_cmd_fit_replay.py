@@ -111,15 +111,17 @@ def test_simulated_machine_calibration_generalises(tmp_path: Path,
                                                    capsys: pytest.CaptureFixture[str]) -> None:
     """The papers' calibration design on the simulated machine: a 9,000 rpm
     heat-up + cool-down and an environmental run fitted jointly (one term per
-    sensor, third-order OE), verified on a spindle-speed spectrum run. At 60 s
-    sampling; the ceiling set by the 0.5 µm probe noise alone is ~91 % / ~7x."""
+    sensor), verified on a spindle-speed spectrum run. At 60 s sampling; the
+    ceiling set by the 0.5 µm probe noise alone is ~91 % / ~7x. (The papers'
+    third order, --orders 3-3, leaves only a model compd check accepts below
+    that: its output-error fits have a negative real pole, and its ARX 5.2x.)"""
     for prog, seed in (("etve", 1), ("constant", 2), ("spectrum", 3)):
         assert main(["sim", "--record", str(tmp_path / f"{prog}.csv"), "--program", prog,
                      "--period-s", "60", "--seed", str(seed)]) == 0
     full = tmp_path / "plant.toml"
     assert main(["fit", str(tmp_path / "constant.csv"), str(tmp_path / "etve.csv"),
                  "--column", "dz_um", "--term", "bearing", "--term", "motor", "--term",
-                 "column", "--term", "ambient", "--orders", "3-3", "-o", str(full)]) == 0
+                 "column", "--term", "ambient", "-o", str(full)]) == 0
     capsys.readouterr()
     assert main(["replay", str(full), str(tmp_path / "spectrum.csv"), "--column", "dz_um",
                  "--json"]) == 0

@@ -43,8 +43,7 @@ def test_calibration_md_quotes_what_its_recipe_prints(tmp_path: Path,
                  ["sim", "--record", rec["etve"], "--program", "etve", "--period-s", "60",
                   "--seed", "1"],
                  ["fit", rec["constant"], rec["etve"], "--column", "dz_um", "--term", "bearing",
-                  "--term", "motor", "--term", "column", "--term", "ambient", "--orders", "3-3",
-                  "-o", plant],
+                  "--term", "motor", "--term", "column", "--term", "ambient", "-o", plant],
                  ["sim", "--record", rec["spectrum"], "--program", "spectrum", "--period-s",
                   "60", "--seed", "7"]):
         assert main(argv) == 0, argv
