@@ -97,3 +97,14 @@ def test_replay_fit_and_refine_take_what_export_wrote(
     assert main(["refine", str(model), str(csv_path), "-o", str(tmp_path / "r.toml")]) == 65
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "measured_um" in err and "not a number" not in err
+
+
+def test_fit_without_o_writes_nothing_beside_the_records(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    csv_path = _export(_recorder(tmp_path / "samples.sqlite", 400), tmp_path / "run.csv")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    capsys.readouterr()
+    assert main(["fit", str(csv_path), "--column", "dz_um", "--term", "bearing"]) == 64
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "-o MODEL.toml is required" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
