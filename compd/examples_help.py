@@ -25,6 +25,7 @@ examples:
     "sim": """\
 examples:
   compd sim --protocol opcua                  serve a simulated machine on 127.0.0.1
+  compd sim --protocol s7 --speedup 60 --write-config s7.toml   and a config for compd run
   compd sim --record etve.csv --program etve --period-s 60 --seed 1
   compd sim --record s.csv --machine shop --period-s 60 --change ambient+3K,heat+30% --change-at-h 6
   compd sim --drive modbus://plc:502 --map map.toml   the plant as a client (HIL)""",

@@ -52,7 +52,7 @@ from typing import TYPE_CHECKING, Any
 
 from compd import __version__
 from compd.argtypes import RenamedOption, count, number
-from compd.sysexits import EX_DATAERR
+from compd.sysexits import EX_DATAERR, EX_USAGE
 
 if TYPE_CHECKING:
     from compd.offline.records import Record
@@ -154,8 +154,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "search (the greedy per-term output-error order search)")
     parser.add_argument("--folds", type=count(2, MAX_FOLDS), default=None, metavar="K",
                         help="cross-validation folds: each record in K + 1 blocks, the first "
-                             f"always training, 2 … {MAX_FOLDS} and at most a block of "
-                             f"{MIN_FOLD_ROWS} rows (default {DEFAULT_FOLDS})")
+                             f"always training, 2 … {MAX_FOLDS}, each block at least "
+                             f"{MIN_FOLD_ROWS} rows long (default {DEFAULT_FOLDS})")
     parser.add_argument("--orders", type=parse_orders, default=DEFAULT_ORDERS, metavar="LO-HI",
                         help="numerator lengths and denominator orders to try (default "
                              f"{DEFAULT_ORDERS[0]}-{DEFAULT_ORDERS[1]}; first order and static "
@@ -184,7 +184,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="calibrate on the rows up to this time (inclusive, as replay "
                              "--score-until); the rows after are not read")
     parser.add_argument("-o", dest="model_file", metavar="MODEL.toml", default=None,
-                        help="model file to write (default: the first DATA with .model.toml)")
+                        help="model file to write (required: nothing is written beside the "
+                             "records, which may be a shared or read-only data folder)")
     parser.add_argument("--force", action="store_true",
                         help="replace an existing model file (never one of the inputs), and "
                              "write a model whose error on held-out rows exceeds the "
@@ -380,7 +381,6 @@ def _check_folds(args: argparse.Namespace, records: list[Record]) -> None:
     holds MIN_FOLD_ROWS rows (else a usage error, 64, naming the flag); the
     default when not given."""
     from compd.infiles import InputError
-    from compd.sysexits import EX_USAGE
 
     if args.folds is None:
         args.folds = DEFAULT_FOLDS
@@ -569,9 +569,7 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
                          "(one of the two)")
     data = [str(p) for p in args.data]
     sources = [*data, *args.validation_record, *(f.rpartition(":")[0] for f in args.fixed)]
-    out = check_output(args.model_file if args.model_file is not None else
-                       Path(data[0]).with_suffix(".model.toml"), "model file",
-                       force=args.force, inputs=sources)
+    out = check_output(args.model_file, "model file", force=args.force, inputs=sources)
     channels = {ch for _, inputs in specs for ch in inputs}
     records = _calibration_rows(args, _read_records(data, args, channels))
     _check_folds(args, records)
@@ -607,6 +605,11 @@ def run(args: argparse.Namespace) -> int:
     # only contend for the cores (a day at 1 s: 10.8 s threaded, 7.5 s not)
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     import numpy as np
+
+    if args.model_file is None:  # before any work: where the model goes is the user's say
+        print("compd fit: -o MODEL.toml is required (where to write the model; nothing is "
+              "written beside the records)", file=sys.stderr)
+        return EX_USAGE
 
     from compd.commands.replay import replay_with_init
     from compd.offline.records import RecordError

@@ -76,7 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--record", metavar="CSV", default=None,
                         help="write a calibration record offline instead of serving")
     parser.add_argument("--force", action="store_true",
-                        help="replace an existing --record file")
+                        help="replace an existing --record or --write-config file")
     parser.add_argument("--machine", choices=("bench", "shop"), default="bench",
                         help="with --record: the bench machine (default) or the shop variant "
                              "(16 sensors, starts warm, room drift; see drivers.sim.shop)")
@@ -94,6 +94,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a measuring cycle every N machine minutes: the controller's "
                              "probe_value (growth - the offset in force + noise, µm) and "
                              "probe_counter (+1), for a daemon's [adaptation]")
+    parser.add_argument("--write-config", metavar="TOML", default=None,
+                        help="write the protocol's example config pointed at this server "
+                             "(its port, --speedup as time_scale; FOCAS: the stand-in "
+                             "library) before serving, for `compd run TOML`; replaces an "
+                             "existing file only with --force")
     parser.add_argument("--no-plant", action="store_true",
                         help="serve the controller's memory only, no plant behind it (a "
                              "stand-in PLC for trying the HIL bench: --drive writes it)")
@@ -174,6 +179,20 @@ def _port_in_use(port: int) -> str:
     return ""
 
 
+def _write_config(args: argparse.Namespace, controller: SimController) -> None:
+    """The example config for this server, before the first line is printed: a
+    reader waiting for that line finds the file written."""
+    from compd.commands.sim_config import config_for
+    from compd.outfiles import write_atomically
+
+    command = f"compd sim --protocol {args.protocol} --speedup {args.speedup:g} " \
+              f"--write-config {Path(args.write_config).name}"
+    text = config_for(controller.protocol, controller.endpoint, args.speedup,
+                      _library_path(controller), command)
+    write_atomically(args.write_config, lambda tmp: tmp.write_text(text, encoding="utf-8"),
+                     "config", force=args.force)
+
+
 def _record_shop(args: argparse.Namespace) -> int:
     from compd.outfiles import write_atomically
     from drivers.sim.shop import simulate_shop, write_shop_record
@@ -211,6 +230,12 @@ async def _serve(args: argparse.Namespace) -> int:
         return EX_TEMPFAIL
     controller = make_sim_controller(args.protocol, "127.0.0.1", args.port, **options)
     await controller.start()
+    if args.write_config is not None:
+        try:
+            _write_config(args, controller)
+        except BaseException:
+            await controller.stop()
+            raise
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     signals = (signal.SIGINT, signal.SIGTERM)
@@ -228,6 +253,8 @@ async def _serve(args: argparse.Namespace) -> int:
             print(json.dumps(describe(controller)), flush=True)
         else:
             print(f"compd sim: {controller.protocol} controller at {controller.endpoint}")
+            if args.write_config is not None:
+                print(f"  config for it in {args.write_config}: compd run {args.write_config}")
             library = _library_path(controller)
             if library is not None:
                 print(f"  library_path {library}  (for [controller.focas] and --focas-library)")
@@ -274,6 +301,10 @@ def run(args: argparse.Namespace) -> int:
         print("compd sim: --probe-every-min applies to a served machine, not --drive",
               file=sys.stderr)
         return EX_USAGE
+    if args.drive is not None and args.write_config is not None:
+        print("compd sim: --write-config applies to a served machine, not --drive",
+              file=sys.stderr)
+        return EX_USAGE
     if args.drive is not None:
         return sim_drive.run_drive(args)
     if args.map is not None or args.duration_h is not None or args.focas_library is not None:
@@ -292,6 +323,18 @@ def run(args: argparse.Namespace) -> int:
         print("compd sim: --probe-every-min needs a plant to measure: not with --record "
               "or --no-plant", file=sys.stderr)
         return EX_USAGE
+    if args.write_config is not None:
+        if args.record is not None or args.protocol is None:
+            print("compd sim: --write-config needs --protocol (a served machine), not --record",
+                  file=sys.stderr)
+            return EX_USAGE
+        if args.protocol == "linuxcnc":
+            print("compd sim: --write-config: the linuxcnc example runs against LinuxCNC "
+                  "itself (docs/protocols.md), not a server of compd sim", file=sys.stderr)
+            return EX_USAGE
+        from compd.outfiles import check_output
+
+        check_output(args.write_config, "config", force=args.force)
     if args.record is not None:
         if args.protocol is not None:
             print("compd sim: --record runs offline; drop --protocol", file=sys.stderr)

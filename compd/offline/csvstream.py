@@ -22,6 +22,13 @@ from compd.offline.records import RecordError, _parse_float, _parse_iso
 FloatArray = npt.NDArray[np.float64]
 
 TimeColumn = Callable[[list[str], str], tuple[int, bool]]
+#: (columns not parsed: text the caller drops, stored as 0.0; columns whose empty
+#: cell is a missing number, stored as NaN) by header
+TextColumns = Callable[[list[str]], tuple[frozenset[int], frozenset[int]]]
+
+
+def _no_text(header: list[str]) -> tuple[frozenset[int], frozenset[int]]:
+    return frozenset(), frozenset()
 
 
 class _Grower:
@@ -46,7 +53,8 @@ class _Grower:
 
 
 def _slow_row(row: list[str], header: list[str], t_idx: int, is_iso: bool, where: str,
-              line_no: int) -> list[float] | None:
+              line_no: int, skip: frozenset[int] = frozenset(),
+              blank: frozenset[int] = frozenset()) -> list[float] | None:
     """The row parsed cell by cell (naming the bad one), or None when blank."""
     if all(not c.strip() for c in row):
         return None
@@ -55,7 +63,11 @@ def _slow_row(row: list[str], header: list[str], t_idx: int, is_iso: bool, where
                           f"{len(header)}")
     out: list[float] = []
     for i, cell in enumerate(row):
-        if i == t_idx and is_iso:
+        if i in skip:
+            out.append(0.0)
+        elif i in blank and not cell.strip():
+            out.append(math.nan)
+        elif i == t_idx and is_iso:
             out.append(_parse_iso(cell, f"{where}: row {line_no}, column {header[i]!r}"))
         else:
             out.append(_parse_float(cell, where, line_no, header[i]))
@@ -63,14 +75,14 @@ def _slow_row(row: list[str], header: list[str], t_idx: int, is_iso: bool, where
 
 
 def parse_csv(text: TextIO, where: str, size: int, time_column: TimeColumn,
-              ) -> tuple[list[str], int, FloatArray]:
+              text_columns: TextColumns = _no_text) -> tuple[list[str], int, FloatArray]:
     """(header, index of the time column, data[column, row]) of a CSV stream
     of `size` bytes; times as read (ISO 8601 as POSIX seconds). What the csv
     module cannot split (a field over its limit of 128 KiB) is a RecordError
     naming the line."""
     reader = csv.reader(text)
     try:
-        return _parse(reader, where, size, time_column)
+        return _parse(reader, where, size, time_column, text_columns)
     except csv.Error as exc:
         reason = str(exc)
         if "field larger than field limit" in reason:
@@ -80,7 +92,7 @@ def parse_csv(text: TextIO, where: str, size: int, time_column: TimeColumn,
 
 
 def _parse(reader: Iterator[list[str]], where: str, size: int, time_column: TimeColumn,
-           ) -> tuple[list[str], int, FloatArray]:
+           text_columns: TextColumns) -> tuple[list[str], int, FloatArray]:
     header = next(reader, None)
     if not header or not any(h.strip() for h in header):
         raise RecordError(f"{where}: empty file (a header line is required)")
@@ -89,6 +101,8 @@ def _parse(reader: Iterator[list[str]], where: str, size: int, time_column: Time
     if dup:
         raise RecordError(f"{where}: duplicated column name(s) {dup} in the header")
     t_idx, is_iso = time_column(header, where)
+    skip, blank = text_columns(header)
+    numbers = [i for i in range(len(header)) if i not in skip and i not in blank]
     ncols = len(header)
     buf: _Grower | None = None
     head: list[list[float]] = []  # the first rows, to size the buffer from their length
@@ -98,11 +112,22 @@ def _parse(reader: Iterator[list[str]], where: str, size: int, time_column: Time
         try:
             if len(row) != ncols or is_iso:
                 raise ValueError
-            values = [float(c) for c in row]
-            if not math.isfinite(sum(values)):
-                raise ValueError
+            if skip or blank:
+                values = [0.0] * ncols
+                for i in numbers:
+                    values[i] = float(row[i])
+                if not math.isfinite(sum(values[i] for i in numbers)):
+                    raise ValueError
+                for i in blank:
+                    values[i] = float(row[i]) if row[i].strip() else math.nan
+                    if row[i].strip() and not math.isfinite(values[i]):
+                        raise ValueError
+            else:
+                values = [float(c) for c in row]
+                if not math.isfinite(sum(values)):
+                    raise ValueError
         except (ValueError, OverflowError):
-            values = _slow_row(row, header, t_idx, is_iso, where, line_no)
+            values = _slow_row(row, header, t_idx, is_iso, where, line_no, skip, blank)
             if values is None:
                 continue
         if buf is None:

@@ -32,6 +32,7 @@ from compd.offline.records import (
     RECORDER_SUFFIXES,
     RecordError,
     file_sha256,
+    is_export,
     read_csv_columns,
 )
 
@@ -84,6 +85,9 @@ def _read_csv(p: Path) -> ProbeLog:
     where = str(p)
     header, t_idx, data = read_csv_columns(p, "probe log")
     missing = [c for c in LOG_COLUMNS[1:] if c not in header]
+    if missing and is_export(header):
+        raise RecordError(f"{where}: an export of the recorder's samples, without the probes' "
+                          "measured_um; give refine the recorder database itself")
     if missing:
         raise RecordError(f"{where}: no column(s) {missing} (a probe log has "
                           f"{', '.join(LOG_COLUMNS)}; header {header[:8]})")

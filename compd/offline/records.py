@@ -18,7 +18,12 @@ column per recorded channel, plus ``offset_um`` / ``model_um`` when every
 sample has them, on the daemon's sample clock. A missing channel value is
 refused like an empty CSV cell, a daemon restart (the clock starts again)
 like a backwards timestamp; rows are numbered as in a CSV export (line 2 is
-the first sample). `read_record` picks the reader by the file's suffix.
+the first sample). `read_record` picks the reader by the file's suffix. A CSV
+that `compd export` wrote (known by its columns, `is_export`) reads as its
+database: ``mono_s`` by ``cycle`` is the time (machine seconds; ``time`` and
+``wall_s`` are the wall clock), ``time``, ``wall_s``, ``seq``, ``state``,
+``valid``, ``valid.<channel>`` and ``contribution.<term>`` are not channels,
+and ``offset_um``/``model_um`` are kept when no cell of theirs is empty.
 """
 
 from __future__ import annotations
@@ -140,8 +145,36 @@ def _parse_iso(text: str, where: str) -> float:
     return stamp.timestamp()
 
 
+#: the columns by which a CSV is known as `compd export`'s (compd.offline.export)
+EXPORT_MARKS = frozenset({"time", "wall_s", "mono_s", "seq", "cycle", "state", "valid"})
+#: an export's columns that are not channels: text, flags, the bookkeeping and the
+#: terms' parts (``valid.<channel>``, ``contribution.<term>``)
+_EXPORT_SKIP = frozenset({"time", "wall_s", "seq", "state", "valid"})
+_EXPORT_SKIP_PREFIXES = ("valid.", "contribution.")
+#: an export's columns left empty where the daemon had no value; kept when full
+_EXPORT_BLANK = frozenset({"offset_um", "model_um"})
+
+
+def is_export(header: Sequence[str]) -> bool:
+    """Whether a CSV header is `compd export`'s."""
+    return {h.strip() for h in header} >= EXPORT_MARKS
+
+
+def _export_text_columns(header: list[str]) -> tuple[frozenset[int], frozenset[int]]:
+    """(skipped, may be empty) columns of a `compd export` CSV; none of another CSV."""
+    if not is_export(header):
+        return frozenset(), frozenset()
+    skip = frozenset(i for i, h in enumerate(header)
+                     if h in _EXPORT_SKIP or h.startswith(_EXPORT_SKIP_PREFIXES))
+    return skip, frozenset(i for i, h in enumerate(header) if h in _EXPORT_BLANK)
+
+
 def _time_column(header: list[str], path: str) -> tuple[int, bool]:
-    """(index, is_iso) of the time column."""
+    """(index, is_iso) of the time column: an export's machine seconds (``mono_s``,
+    the daemon's sample clock, as read from its database), else ``time_s``, else
+    an ISO 8601 column."""
+    if is_export(header):
+        return header.index("mono_s"), False
     lowered = [h.strip().lower() for h in header]
     if "time_s" in lowered:
         return lowered.index("time_s"), False
@@ -164,7 +197,7 @@ def read_csv_columns(path: str | Path, what: str) -> tuple[list[str], int, Float
         size = os.fstat(raw.fileno()).st_size
         text = io.TextIOWrapper(raw, encoding="utf-8-sig", newline="")
         try:
-            return parse_csv(text, where, size, _time_column)
+            return parse_csv(text, where, size, _time_column, _export_text_columns)
         except UnicodeDecodeError:
             raise RecordError(f"{where}: not a text (UTF-8) CSV file") from None
         except OSError as exc:
@@ -177,6 +210,8 @@ def read_csv_record(path: str | Path) -> Record:
     the numbers' 8 bytes per cell, whatever the text's size."""
     where = str(path)
     header, t_idx, data = read_csv_columns(path, "record")
+    if is_export(header):
+        return _export_record(path, header, data)
     if data.shape[1] < 3:
         raise RecordError(f"{where}: {data.shape[1]} data row(s); a record needs at least 3")
     t = data[t_idx]
@@ -184,6 +219,29 @@ def read_csv_record(path: str | Path) -> Record:
     t -= t[0]
     columns = {name: data[i] for i, name in enumerate(header) if i != t_idx}
     return Record(path=where, sha256=file_sha256(path), time_s=t, period_s=period_s,
+                  columns=columns)
+
+
+def _export_record(path: str | Path, header: list[str], data: FloatArray) -> Record:
+    """A `compd export` CSV as the record its recorder database reads as: the same
+    channels (``offset_um``/``model_um`` when every row has them), on the same
+    clock (``mono_s`` by its ``cycle``, `recorder_time`); its text and bookkeeping
+    columns (``time``, ``state``, ``valid``…) are not channels."""
+    where = str(path)
+    if data.shape[1] < 3:
+        raise RecordError(f"{where}: {data.shape[1]} sample(s); a record needs at least 3")
+    skip, blank = _export_text_columns(header)
+    columns: dict[str, FloatArray] = {}
+    for i, name in enumerate(header):
+        if i in skip or name in ("mono_s", "cycle"):
+            continue
+        if i in blank and not np.all(np.isfinite(data[i])):
+            continue
+        columns[name] = data[i]
+    time_s, period_s = recorder_time(data[header.index("mono_s")],
+                                     data[header.index("cycle")].astype(np.int64), where)
+    columns = {name: col[:time_s.size] for name, col in columns.items()}
+    return Record(path=where, sha256=file_sha256(path), time_s=time_s, period_s=period_s,
                   columns=columns)
 
 

@@ -52,9 +52,23 @@ class Changes:
     outputs: bool
     recorder: bool
     metrics: bool
+    #: the config's keys whose values differ ("output.slew_um_s"), and "model" when
+    #: only the model file's content did
+    keys: tuple[str, ...] = ()
 
     def names(self) -> list[str]:
-        return [k for k, v in vars(self).items() if v]
+        """What the reload restarts or rebuilds (model filters, driver, outputs…)."""
+        return [k for k, v in vars(self).items() if v is True]
+
+
+def changed_keys(old: object, new: object, prefix: str = "") -> list[str]:
+    """The dotted keys whose values differ between two dumped config documents."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        out: list[str] = []
+        for key in sorted(set(old) | set(new), key=str):
+            out += changed_keys(old.get(key), new.get(key), f"{prefix}{key}.")
+        return out
+    return [] if old == new else [prefix.rstrip(".")]
 
 
 def prepare(old: LoadedConfig) -> tuple[LoadedConfig, Changes]:
@@ -100,7 +114,11 @@ def diff(old: LoadedConfig, new: LoadedConfig) -> Changes:
     o, n = old.raw, new.raw
     shadow_old = old.shadow.name if old.shadow else None
     shadow_new = new.shadow.name if new.shadow else None
+    keys = changed_keys(o.model_dump(), n.model_dump())
+    if old.model_sha256 != new.model_sha256 and not any(k.startswith("model") for k in keys):
+        keys.append("model")  # the same file name, other content
     return Changes(
+        keys=tuple(keys),
         model=old.model_sha256 != new.model_sha256 or shadow_old != shadow_new,
         controller=(o.controller != n.controller or old.channels != new.channels
                     or old.outputs != new.outputs or old.states != new.states),

@@ -133,7 +133,7 @@ class Reloader:
         self.reloads += 1
         for sink in self.sinks:
             sink.reload(new, changes)
-        log.info("reload_succeeded", changed=changes.names(),
+        log.info("reload_succeeded", changed=list(changes.keys), restarted=changes.names(),
                  config_sha256=new.config_sha256, model_sha256=new.model_sha256,
                  was_config_sha256=old_cfg.config_sha256, was_model_sha256=old_cfg.model_sha256,
                  model=new.model.name,

@@ -167,7 +167,7 @@ def _twin(tmp_path: Path, endpoint_b: str, *changes_b: tuple[str, str]) -> Path:
     text = (EXAMPLES / "modbus.toml").read_text(encoding="utf-8")
     (d / "a.toml").write_text(text, encoding="utf-8")
     b = (text.replace('name = "sim-modbus"', 'name = "twin"')
-         .replace('dir = "/tmp/compd-example-modbus"', 'dir = "/tmp/compd-example-twin"')
+         .replace('dir = "state-modbus"', 'dir = "state-twin"')
          .replace('endpoint = "modbus://127.0.0.1:5020"', f'endpoint = "{endpoint_b}"'))
     for old, new in changes_b:
         assert b.count(old) == 1, old

@@ -77,8 +77,9 @@ async def test_hup_swaps_in_another_model_under_the_slew_limit(
             proc.kill()
             await proc.wait()
     (done,) = _events(log, "reload_succeeded")
-    assert "model" in done["changed"] and done["filters"] == "restart_at_steady_state"
-    assert "controller" not in done["changed"]  # same endpoint and addresses: same link
+    assert "model" in done["restarted"] and done["filters"] == "restart_at_steady_state"
+    assert {"model.file", "output.slew_um_s"} <= set(done["changed"])
+    assert "controller" not in done["restarted"]  # same endpoint and addresses: same link
     # never a jump: every step within the (old, then new) slew limit
     steps = [abs(b - a) for a, b in itertools.pairwise(rec.offsets)]
     assert max(steps) <= 2 * SLEW_UM_S * 1.0 + 1e-3
@@ -144,7 +145,8 @@ async def test_hup_storm_during_cycles_misses_no_cycle(
             await proc.wait()
     done = _events(log, "reload_succeeded")
     assert len(done) == 10
-    assert all(d["filters"] == "carried_over" and d["changed"] == [] for d in done)
+    assert all(d["filters"] == "carried_over" and d["restarted"] == []
+               and d["changed"] == ["state.checkpoint_every"] for d in done)
     (stopped,) = _events(log, "daemon_stopped")
     assert stopped["reloads"] == 10
 
@@ -176,5 +178,5 @@ async def test_hup_with_another_endpoint_reconnects(
             await proc.wait()
         await other.stop()
     (done,) = _events(log, "reload_succeeded")
-    assert "controller" in done["changed"] and "model" not in done["changed"]
+    assert "controller" in done["restarted"] and "model" not in done["restarted"]
     assert any(e["endpoint"] == other.endpoint for e in _events(log, "controller_connected"))

@@ -197,7 +197,8 @@ def test_hostile_records_end_in_one_line(tmp_path: Path,
     _corrupt_recorder(bad_db)
     for data, code in ((fifo, 66), (huge, 65), (Path("/dev/zero"), 66), (bad_db, 65)):
         assert _rc(["replay", "sp2", str(data), "--column", "dz_um"]) == code
-        assert _rc(["fit", str(data), "--column", "dz_um", "--term", "bearing"]) == code
+        assert _rc(["fit", str(data), "--column", "dz_um", "--term", "bearing", "-o",
+                    str(tmp_path / "out.toml")]) == code
         err = capsys.readouterr().err
         assert err.count("\n") == 2 and "Traceback" not in err, err
 
