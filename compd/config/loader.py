@@ -367,7 +367,8 @@ def _adaptation(raw: DaemonConfig, channels: dict[str, Address],
         name, _, why = first.partition(": ")
         raise ConfigError(f"adaptation.{name}" if why else "adaptation", why or first) from None
     return AdaptationSettings(mode=a.mode, measures=a.measures, params=params,
-                              guard_window=a.guard_window), probes
+                              guard_window=a.guard_window,
+                              guard_action=a.guard_action), probes
 
 
 def _learnt_settings(table: dict[str, Any], limit_um: float) -> dict[str, Any]:

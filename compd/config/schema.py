@@ -578,7 +578,8 @@ class AdaptationSection(_Section):
     `output.limit_um` (the loader)."""
 
     enabled: bool = False
-    #: "shadow": estimated and recorded, not applied; "apply": added to the model output
+    #: "shadow": the estimator's correction is estimated and recorded, not applied;
+    #: "apply": added to the model output (the guard acts in both: guard_action)
     mode: Literal["shadow", "apply"] = "shadow"
     #: what the measuring cycle leaves: "residual" (the probe on a compensating
     #: machine: growth minus the offset in force) or "displacement"
@@ -606,6 +607,10 @@ class AdaptationSection(_Section):
     #: (by more than twice probe_noise_um) are an alarm and a fault (hold, then ramp
     #: to zero per [faults]) until another model is loaded; 0: no guard
     guard_window: GuardWindow = 3
+    #: what the guard's verdict does, in either mode (it judges the compensation in
+    #: force, which "shadow" does not change): "fault" holds, then ramps to zero;
+    #: "report" raises the event, the status page's line and the metric only
+    guard_action: Literal["fault", "report"] = "fault"
 
     def estimator_settings(self) -> dict[str, Any]:
         """The estimator settings given (the others keep their defaults)."""

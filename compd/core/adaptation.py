@@ -79,13 +79,22 @@ DISAGREE_AFTER = 6
 class AdaptationSettings:
     """What `ProbeStage` does (``[adaptation]``, built by the config loader): the
     mode ("shadow": estimated and recorded; "apply": added to the model output),
-    what the probe measures, the estimator's settings, and the probes over which
-    the guard "no model worse than none" judges the compensation (0: off)."""
+    what the probe measures, the estimator's settings, the probes over which
+    the guard "no model worse than none" judges the compensation (0: off), and
+    what its verdict does ("fault": hold, then ramp to zero; "report": the
+    event, status page and metric only). The guard judges the compensation in
+    force, not the estimator's correction, so it acts in either mode."""
 
     mode: Literal["shadow", "apply"]
     measures: Literal["residual", "displacement"]
     params: AdaptationParams
     guard_window: int = 3
+    guard_action: Literal["fault", "report"] = "fault"
+
+    @property
+    def guard_acts(self) -> bool:
+        """A verdict of the guard is a fault (not only reported)."""
+        return self.guard_action == "fault"
 
 
 @dataclass(frozen=True)
@@ -230,7 +239,9 @@ class ProbeStage:
                 "accepted_probes": window, "refused_probes": self.refused_in_window,
                 "error_with_um": round(with_um, 6),
                 "error_without_um": round(without_um, 6), "margin_um": round(margin, 6),
-                "action": "fault: hold, then ramp to zero; recalibrate"}))
+                "action": "fault: hold, then ramp to zero; recalibrate"
+                if self.settings.guard_acts
+                else "reported only (guard_action = report); recalibrate"}))
 
     @property
     def guard_worse(self) -> int:

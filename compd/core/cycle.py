@@ -379,9 +379,11 @@ class Cycle:
         stepped = self._step_models(inputs, events)
         self._rezero_edge(rezero_bit, wall_s, events)
         correction = self._adapt(dt, probe, stepped, events)
-        worse = self.probes is not None and self.probes.model_worse
+        worse = self.probes is not None and self.probes.model_worse \
+            and self.probes.settings.guard_acts
         # the probes showed the compensation worse than none: a fault, like a model
-        # out of range (hold, then ramp to zero per [faults]), latched
+        # out of range (hold, then ramp to zero per [faults]), latched; with
+        # guard_action = "report" only the event, the page and the metric say so
         why = Cause.MODEL_WORSE_THAN_NONE if worse \
             else stepped.invalid(inputs, answered=samples is not None)
         valid = why is None

@@ -121,6 +121,10 @@ def operator_state(state: FaultState, cause: Cause, validity: Mapping[str, str |
     bad = [f"{name}: {reason}" for name, reason in validity.items() if reason is not None]
     if bad and cause is Cause.INPUTS_INVALID:
         why += " (" + "; ".join(bad) + ")"
+    if adaptation is not None and adaptation.model_worse \
+            and cause is not Cause.MODEL_WORSE_THAN_NONE:
+        why += ("; the probes showed the compensation worse than none (guard_action = "
+                "\"report\": not acted on): recalibrate")
     if adaptation is not None and adaptation.gate_refusals >= DISAGREE_AFTER:
         why += (f"; the last {adaptation.gate_refusals} probes were all refused as outliers: "
                 "the model or the probe source is wrong (check both)")

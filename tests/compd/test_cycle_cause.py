@@ -8,10 +8,15 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
+from compd.core.adaptation import AdaptationSettings
 from compd.core.cycle import Cycle, Outcome
 from compd.core.health import Cause
 from compd.core.plan import Row
+from compd.faces.status import operator_state
 from compd.testing import FakeClock
+from models.adaptation import AdaptationParams
 
 from .cycle_helpers import HOLD_S, params, run_warm, samples, sp2
 
@@ -72,3 +77,27 @@ def test_an_operator_hold_is_healthy_and_a_model_beyond_the_limit_is_not() -> No
     hot = [_step(cycle, clock, 20.0 + 0.4 * k) for k in range(1, 6)]  # ~16 µm/K: > 10 µm
     assert hot[-1].model_um is not None and hot[-1].model_um > 10.0
     assert hot[-1].cause is Cause.AT_LIMIT and not hot[-1].healthy and not hot[-1].in_force
+
+
+@pytest.mark.parametrize("action", ["fault", "report"])
+def test_the_guard_acts_in_shadow_mode_unless_told_to_report_only(action: str) -> None:
+    """The guard judges the compensation in force, which shadow mode does not
+    change: its verdict holds, then ramps, in either mode; with guard_action =
+    "report" it is reported (the view the page and metric read) and the offset
+    stays in force."""
+    settings = AdaptationSettings("shadow", "residual", AdaptationParams(),
+                                  guard_window=3, guard_action=action)  # type: ignore[arg-type]
+    cycle, clock = Cycle(params(adaptation=settings), sp2()), FakeClock()
+    run_warm(cycle, clock, 5, bearing=21.0)
+    assert cycle.probes is not None
+    cycle.probes.model_worse = True  # the latch, as three accepted probes set it
+    rows = [_step(cycle, clock, 21.0) for _ in range(3)]
+    view = rows[-1].snapshot.adaptation
+    assert view is not None and view.model_worse
+    if action == "fault":
+        assert {r.cause for r in rows} == {Cause.MODEL_WORSE_THAN_NONE}
+        assert not rows[-1].healthy
+    else:
+        assert {r.cause for r in rows} == {Cause.IN_FORCE} and rows[-1].healthy
+        word, why = operator_state(rows[-1].state, rows[-1].cause, {}, adaptation=view)
+        assert word == "on" and "not acted on" in why
