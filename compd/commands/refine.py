@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
           f"{log.left_out} left out)")
     for key, value in table.items():
         bound = (f"  (the probes say {at_bound[key]:.4g}: held at the bound `compd check` "
-                 "enforces)" if key in at_bound else "")
+                 "enforces)" if key in at_bound else _remark(key, before.get(key), value))
         print(f"  {key:24s} {before.get(key)!s:>10} → {value:g}{bound}")
     plain, held = refined.suggestion.plain_rms_um, refined.suggestion.held_rms_um
     verdict = ("a correction held from one probe to the next pays" if held < plain else
@@ -100,6 +100,23 @@ def run(args: argparse.Namespace) -> int:
     print(f"  at the probes: plain model {plain:.3g} µm RMS, held correction {held:.3g} µm "
           f"RMS: {verdict}")
     return 0
+
+
+#: what a refined setting of zero means, said beside it (a zero looks like "off")
+_ZERO_MEANS = {
+    "bias_rw_um_per_sqrt_h": "the probes show no drift beyond their noise: the estimator "
+                             "learns one constant bias and never follows a drift",
+    "gain_rw_per_sqrt_h": "the probes show no change of the terms' gains: the gains are "
+                          "learnt once and held",
+}
+
+
+def _remark(key: str, before: object, after: float) -> str:
+    """A note beside a refined setting whose new value changes its meaning."""
+    if after == 0.0 and isinstance(before, int | float) and before != 0.0 \
+            and key in _ZERO_MEANS:
+        return f"  ({_ZERO_MEANS[key]})"
+    return ""
 
 
 def _defaults(params: Any) -> dict[str, Any]:

@@ -194,3 +194,17 @@ def test_a_garbage_database_or_model_is_one_line(tmp_path: Path,
     assert len(err) == 3 and all(line.startswith("compd refine: ") or ": " in line
                                  for line in err)
     assert not (tmp_path / "o.toml").exists()
+
+
+def test_a_setting_refined_to_zero_says_what_zero_means(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A drift refined from 0.5 to 0 is not "off": the line beside it says the probes
+    show no drift beyond their noise, so the estimator learns one constant bias."""
+    model = tmp_path / "m.toml"
+    model.write_text(_MODEL)
+    t = np.arange(200) * 7200.0
+    log = _log(tmp_path / "probes.csv", t, np.zeros(t.size))
+    assert main(["refine", str(model), str(log), "-o", str(tmp_path / "r.toml")]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines()
+                if "bias_rw_um_per_sqrt_h" in ln)
+    assert "→ 0" in line and "no drift beyond their noise" in line, line
