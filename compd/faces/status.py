@@ -55,7 +55,8 @@ _WORDS: dict[FaultState, str] = {
 _CAUSE_WORDS: dict[Cause, str] = {
     Cause.OPERATOR_HOLD: "holding", Cause.CONTROLLER_OFF: "holding",
     Cause.WRITE_FAILED: "holding", Cause.NO_READBACK: "holding",
-    Cause.FOREIGN_OFFSET: "ramping", Cause.AT_LIMIT: "limited"}
+    Cause.FOREIGN_OFFSET: "ramping", Cause.AT_LIMIT: "limited",
+    Cause.WAITING_FOR_PERMISSION: "holding", Cause.PERMIT_UNREADABLE: "holding"}
 
 _WHY: dict[Cause, str] = {
     Cause.IN_FORCE: "inputs valid, the model's offset is applied",
@@ -75,6 +76,11 @@ _WHY: dict[Cause, str] = {
     Cause.FOREIGN_OFFSET: "another writer changed the offset: compd ramps back from its "
                           "value to the model's at the slew limit (alarm)",
     Cause.AT_LIMIT: "the model asks for more than the limit: the offset is held at the limit",
+    Cause.WAITING_FOR_PERMISSION: "waiting for permission ([output] update_permitted reads "
+                                  "0): the offset in force is held, the model keeps "
+                                  "stepping; the change ramps in when it permits",
+    Cause.PERMIT_UNREADABLE: "[output] update_permitted cannot be read: taken as not "
+                             "permitted, the offset in force is held",
     # the faults: the policy's part ("the offset is held" ...) is added by `_fault_why`
     Cause.MODEL_WORSE_THAN_NONE: "recalibrate: the probes showed the compensation worse "
                                  "than none",
