@@ -28,7 +28,7 @@ gain absurd for the data is refused (`models.identify.checks`).
 - ``--kind greybox --term power_kw [--switch moving]`` and
   ``--kind mbotv --term bearing-column``: bounded least squares (one term).
 - fallbacks: for each input, a model on the others fitted the same way
-  (`compd.offline.fit_fallback`), written as the model file's
+  (`compd.commands.fit_fallback`), written as the model file's
   ``[[fallback]]`` tables; ``--no-fallbacks`` writes none.
 - ``--fixed model.toml:ambient`` keeps an already-calibrated term: its
   prediction is subtracted before fitting, and it is copied into the output.
@@ -601,7 +601,7 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
 
     gate(model, args.force)  # compd check's warnings: nothing written without --force
     if not args.no_fallbacks:  # a model for the loss of each input, in the same file
-        from compd.offline.fit_fallback import fit_fallbacks
+        from compd.commands.fit_fallback import fit_fallbacks
 
         args.fallbacks = fit_fallbacks(args, records, ys, specs, holdout, fixed)
         model.fallbacks = args.fallbacks.models
