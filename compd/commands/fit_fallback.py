@@ -70,7 +70,8 @@ def fit_fallbacks(args: argparse.Namespace, records: list[Record], ys: list[Any]
                     description=f"compd fit: the model without {lost}")
                 gate(model, False)
         except ModelError as exc:
-            out.notes.append(f"no fallback without {lost}: {exc}")
+            why = str(exc).replace(" (--force writes it anyway)", "")  # never forced
+            out.notes.append(f"no fallback without {lost}: {why}")
             continue
         selection = info[0]["selection"] if info else {}
         figures = {"validation_fit_percent": selection.get("validation_fit_percent"),
