@@ -130,6 +130,10 @@ class CompensationModel:
         #: channel: the temperatures at which its growth is zero), empty when the
         #: model file does not say; `set_references` is what a running model uses
         self.calibration_reference: dict[str, float] = {}
+        #: fallback models by the input channel whose loss each covers (a model on the
+        #: remaining channels, fitted with this one: the model file's [[fallback]]);
+        #: none reads the channel it stands in for
+        self.fallbacks: dict[str, CompensationModel] = {}
 
     # -- structure ----------------------------------------------------------------------------
 

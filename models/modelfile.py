@@ -28,6 +28,15 @@ only, at most 1 MiB, nesting bounded), which hands the document to
     ambient = 20.0                   # every relative input channel, or none
     [provenance]                     # free: data hash, orders, fit %, date
 
+    [[fallback]]                     # optional, one per input channel it covers: the
+    lost = "ambient"                 # model on the remaining channels used while
+    model = { name = "...", period_s = 1.0 }   # `lost` is invalid (compd fit writes
+    terms = [ { name = "spindle", ... } ]      # them); it must not read `lost`, and
+    provenance = { ... }                       # reads only the main model's channels
+
+Fallbacks live in the model's own file so a model stays one verifiable file
+and its hash (the checkpoint's ``model_sha256``) covers them.
+
 Grey-box terms take ``p = [p1, p2, p3]`` (or six with ``switch_channel``)
 and ``relative = false`` for power inputs; MBOTV terms take ``alpha``,
 ``beta``, ``gamma``, ``k`` or ``tau_s``, optional ``delta``. Every key is
@@ -152,7 +161,8 @@ def parse_term(doc: Any, period_s: float, where: str) -> Term:
 
 def parse_model(doc: Mapping[str, Any], where: str = "model") -> CompensationModel:
     """Build a model from a parsed TOML document (the file, or a config's inline model)."""
-    _check_keys(doc, {"model", "terms", "provenance", "adaptation", "reference"}, where)
+    _check_keys(doc, {"model", "terms", "provenance", "adaptation", "reference", "fallback"},
+                where)
     head = doc.get("model", {})
     if not isinstance(head, Mapping):
         raise ModelError(f"{where}.model: must be a table")
@@ -180,7 +190,50 @@ def parse_model(doc: Mapping[str, Any], where: str = "model") -> CompensationMod
         if not isinstance(declared, list) or not all(isinstance(c, str) for c in declared):
             raise ModelError(f"{where}.model.channels: must be a list of channel names")
         model.check_channels(declared)
+    if "fallback" in doc:
+        model.fallbacks = parse_fallbacks(model, doc["fallback"], f"{where}.fallback")
     return model
+
+
+#: keys of one [[fallback]] table
+_FALLBACK_KEYS = {"lost", "model", "terms", "provenance", "reference"}
+
+
+def parse_fallbacks(model: CompensationModel, doc: Any, where: str
+                    ) -> dict[str, CompensationModel]:
+    """The [[fallback]] tables: for each, the channel lost and a model on the others
+    (its period the main model's, its channels among the main model's but the lost
+    one; one fallback per lost channel)."""
+    if not isinstance(doc, list):
+        raise ModelError(f"{where}: must be [[fallback]] tables")
+    if len(doc) > MAX_TERMS:
+        raise ModelError(f"{where}: {len(doc)} fallbacks; at most {MAX_TERMS}")
+    out: dict[str, CompensationModel] = {}
+    for i, table in enumerate(doc):
+        at = f"{where}[{i}]"
+        if not isinstance(table, Mapping):
+            raise ModelError(f"{at}: must be a table")
+        _check_keys(table, _FALLBACK_KEYS, at)
+        lost = _str(table, "lost", at)
+        if lost not in model.channels:
+            raise ModelError(f"{at}.lost: the model reads no channel {lost!r}; it reads "
+                             f"{sorted(model.channels)}")
+        if lost in out:
+            raise ModelError(f"{at}.lost: a second fallback for {lost!r}")
+        sub = {k: v for k, v in table.items() if k != "lost"}
+        fb = parse_model(sub, at)
+        if fb.fallbacks:
+            raise ModelError(f"{at}: a fallback has no fallbacks of its own")
+        if lost in fb.channels:
+            raise ModelError(f"{at}.terms: the fallback for {lost!r} reads {lost!r}")
+        extra = sorted(fb.channels - model.channels)
+        if extra:
+            raise ModelError(f"{at}.terms: reads {extra}, which the main model does not")
+        if not math.isclose(fb.period_s, model.period_s, rel_tol=1e-9):
+            raise ModelError(f"{at}.model.period_s: {fb.period_s:g} s, the model's is "
+                             f"{model.period_s:g} s")
+        out[lost] = fb
+    return out
 
 
 def parse_reference(model: CompensationModel, doc: Any, where: str) -> dict[str, float]:
@@ -268,6 +321,9 @@ def model_document(model: CompensationModel) -> dict[str, Any]:
         doc["reference"] = dict(model.calibration_reference)
     if model.provenance:
         doc["provenance"] = dict(model.provenance)
+    if model.fallbacks:
+        doc["fallback"] = [{"lost": lost, **model_document(fb)}
+                           for lost, fb in sorted(model.fallbacks.items())]
     return doc
 
 

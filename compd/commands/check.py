@@ -70,7 +70,13 @@ def describe_model(model: Any) -> dict[str, Any]:
             entry.update(kind="mbotv", poles=[[dyn.k, 0.0], [dyn.gamma, 0.0]], zeros=[],
                          stable=True, dc_gain=dyn.dc_gain, dc_gain_sensitivity=None)
         terms.append(entry)
-    return {"model": model.name, "period_s": model.period_s, "terms": terms}
+    out: dict[str, Any] = {"model": model.name, "period_s": model.period_s, "terms": terms}
+    if model.fallbacks:
+        out["fallbacks"] = {lost: {**describe_model(fb),
+                                   "validation_fit_percent":
+                                       fb.provenance.get("validation_fit_percent")}
+                            for lost, fb in sorted(model.fallbacks.items())}
+    return out
 
 
 def dc_gain_unit(term: Any) -> str:
@@ -134,6 +140,19 @@ def plausibility(model: Any) -> list[str]:
     return warnings
 
 
+def fallback_lines(fallbacks: dict[str, Any]) -> list[str]:
+    """One line per fallback model of `describe_model`'s ``fallbacks``."""
+    out = []
+    for lost, fb in sorted(fallbacks.items()):
+        terms = ", ".join(f"{t['name']} DC {t['dc_gain']:.4g}" for t in fb["terms"])
+        fit = fb.get("validation_fit_percent")
+        out.append(f"fallback without {lost}: {len(fb['terms'])} term(s) ({terms})"
+                   + (f", validation {fit:.2f} %" if isinstance(fit, int | float) else ""))
+    if not fallbacks:
+        out.append("no fallback models: an invalid input holds, then ramps the offset to 0")
+    return out
+
+
 def _print_text(report: dict[str, Any]) -> None:
     period = float(report["period_s"])
     print(f"model {report['model']!r}: period {report['period_s']} s, "
@@ -152,6 +171,9 @@ def _print_text(report: dict[str, Any]) -> None:
         print(f"  DC gain: {t['dc_gain']:.6g} {t['dc_gain_unit']}")
         if "dc_gain_note" in t:
             print(f"  sensitivity: {t['dc_gain_note']}")
+    print()
+    for line in fallback_lines(report.get("fallbacks", {})):
+        print(line)
 
 
 def _body(p: list[float]) -> str:
@@ -224,13 +246,19 @@ def run(args: argparse.Namespace) -> int:
                          "model", EX_USAGE)
     try:
         check_model(loaded)  # physically absurd: refused (models.sanity)
+        for lost, fb in loaded.fallbacks.items():
+            try:
+                check_model(fb)
+            except ModelError as exc:
+                raise ModelError(f"fallback for {lost!r}: {exc}") from None
     except ModelError as exc:
         raise ConfigError("", str(exc)) from None
     report_ = describe_model(loaded)
     flags = plausibility(loaded)
     if args.json:
         print(json.dumps({"terms": report_["terms"], "model": report_["model"],
-                          "period_s": report_["period_s"], "implausible": flags}))
+                          "period_s": report_["period_s"], "implausible": flags,
+                          "fallbacks": report_.get("fallbacks", {})}))
     else:
         _print_text(report_)
     for w in flags:

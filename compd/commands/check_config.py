@@ -176,6 +176,10 @@ def report(cfg: LoadedConfig, args: argparse.Namespace) -> int:
     m = report["model"]
     print(f"  model {m['model']!r}: {len(m['terms'])} term(s), all stable "
           f"({', '.join(t['name'] + ' DC ' + format(t['dc_gain'], '.4g') for t in m['terms'])})")
+    from compd.commands.check import fallback_lines
+
+    for line in fallback_lines(m.get("fallbacks", {})):
+        print(f"  {line}")
     if "shadow" in report:
         print(f"  shadow model {report['shadow']['model']!r} (evaluated, never written)")
     if "read" in report:

@@ -27,6 +27,9 @@ gain absurd for the data is refused (`models.identify.checks`).
   speed and power channels enter absolute, temperatures relative.
 - ``--kind greybox --term power_kw [--switch moving]`` and
   ``--kind mbotv --term bearing-column``: bounded least squares (one term).
+- fallbacks: for each input, a model on the others fitted the same way
+  (`compd.commands.fit_fallback`), written as the model file's
+  ``[[fallback]]`` tables; ``--no-fallbacks`` writes none.
 - ``--fixed model.toml:ambient`` keeps an already-calibrated term: its
   prediction is subtracted before fitting, and it is copied into the output.
 
@@ -197,6 +200,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "residual (compd.offline.probes) and write them into the model "
                              "file's [adaptation] table (without them, adaptation starts "
                              "stood down: docs/adaptation.md §2)")
+    parser.add_argument("--no-fallbacks", action="store_true",
+                        help="write no fallback models (by default one per input, fitted "
+                             "the same way without it, used while that sensor is invalid)")
     parser.add_argument("--adaptation-lag-s", type=number(0.0, 1e7, lo_open=True),
                         default=7200.0, metavar="SECONDS",
                         help="with --adaptation: the probe interval the drift is measured over "
@@ -592,6 +598,11 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
     from compd.commands.fit_checks import gate
 
     gate(model, args.force)  # compd check's warnings: nothing written without --force
+    if not args.no_fallbacks:  # a model for the loss of each input, in the same file
+        from compd.commands.fit_fallback import fit_fallbacks
+
+        args.fallbacks = fit_fallbacks(args, records, ys, specs, holdout, fixed)
+        model.fallbacks = args.fallbacks.models
     write_atomically(out, lambda tmp: save_model(model, tmp), "model file", force=args.force,
                      inputs=sources)
     written = load_model(out)  # what the daemon will load
@@ -647,11 +658,16 @@ def run(args: argparse.Namespace) -> int:
     per = [quality(m, s) for m, s in zip(measured, simulated, strict=True)]
     q = per[0] if len(records) == 1 else quality(np.concatenate(measured),
                                                  np.concatenate(simulated))
+    fallbacks = getattr(args, "fallbacks", None)
+    fallback_figures = fallbacks.figures if fallbacks is not None else {}
+    for note in fallbacks.notes if fallbacks is not None else ():
+        print(f"compd fit: {note}", file=sys.stderr)
     if args.json:
         extra = {"subsets": args.search_table} if getattr(args, "search_table", None) else {}
         print(json.dumps({"terms": info, "fit_percent": q.fit_percent, "dpk_um": q.dpk_um, **extra,
                           **({"adaptation": adapt} if adapt else {}),
                           "model_file": str(out),
+                          "fallbacks": fallback_figures,
                           "records": [{"path": r.path, **pq.as_dict()}
                                       for r, pq in zip(records, per, strict=True)]}))
         return 0
@@ -693,6 +709,10 @@ def run(args: argparse.Namespace) -> int:
               f"{adapt['bias_rw_um_per_sqrt_h']:.3g}, apply_sigma = {adapt['apply_sigma']:g}, "
               f"max_step_um = {adapt['max_step_um']:.3g}; written as the model's [adaptation] "
               "(see docs/adaptation.md §3)")
+    for lost, fig in sorted(fallback_figures.items()):
+        v = fig["validation_fit_percent"]
+        print(f"  fallback without {lost}: {' + '.join(fig['inputs'])}"
+              + (f", validation {v:.2f} %" if v is not None else ""))
     print(f"  wrote {out}")
     return 0
 

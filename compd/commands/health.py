@@ -4,7 +4,9 @@ For container health checks and monitoring scripts. Exit 0 when healthy, 1
 otherwise, with one line saying why; 64 for a bad argument. Healthy means
 the offset compd wants is in force NOW (the last cycle's cause,
 `compd.core.health.Cause`, is ``in_force``, an operator's ``operator_hold`` or
-``waiting_for_permission`` (the controller holds the change back by design);
+``waiting_for_permission`` (the controller holds the change back by design),
+or ``degraded`` (a fallback model stands in for a failed sensor: healthy, the
+machine is compensated from valid inputs, with a warning on the line);
 any other cause, a model worse than none, invalid inputs, the controller off,
 a failed write, a foreign offset, the limit ..., is unhealthy and named), and
 a COMPLETE cycle (inputs read and valid, model stepped, offset write
@@ -115,6 +117,17 @@ def parse_metrics(text: str) -> dict[str, float]:
     return out
 
 
+def _degraded(text: str) -> str | None:
+    """The input whose fallback model is in force (``compd_fallback_in_force`` 1), or None."""
+    for line in text.splitlines():
+        if line.startswith("compd_fallback_in_force{") and line.rstrip().endswith(" 1.0"):
+            labels = line[len("compd_fallback_in_force{"):].rpartition("}")[0]
+            key, _, value = labels.partition("=")
+            if key.strip() == "lost":
+                return value.strip().strip('"')[:64]
+    return None
+
+
 def causes_named(text: str) -> list[str]:
     """The causes ``compd_output_cause{cause="..."}`` sets to 1 that are not healthy
     (several for a fleet's endpoint), sorted; unknown names are kept as sent."""
@@ -170,7 +183,10 @@ def check_metrics(url: str, max_age_s: float, timeout_s: float,
     if not 0.0 <= age_s <= max_age_s:
         return False, (f"metrics {url}: last complete cycle {age_s:.0f} s ago "
                        f"(max {max_age_s:g} s)")
-    return True, f"metrics: {complete:.0f} complete cycles, last {age_s:.0f} s ago"
+    degraded = _degraded(body)
+    return True, (f"metrics: {complete:.0f} complete cycles, last {age_s:.0f} s ago"
+                  + (f"; warning: degraded, fallback model without {degraded} in force"
+                     if degraded else ""))
 
 
 # -- state directory ---------------------------------------------------------------------
@@ -202,7 +218,9 @@ def check_state_dir(state_dir: Path, max_age_s: float) -> tuple[bool, str]:
     if not age_s <= max_age_s:
         return False, (f"state dir {state_dir}: last complete cycle {age_s:.0f} s ago "
                        f"(max {max_age_s:g} s)")
-    return True, f"state dir: last complete cycle {age_s:.0f} s ago ({how})"
+    warn = ("; warning: degraded, a fallback model is in force"
+            if cause == Cause.DEGRADED.value else "")
+    return True, f"state dir: last complete cycle {age_s:.0f} s ago ({how}){warn}"
 
 
 def url_problem(url: str) -> str | None:

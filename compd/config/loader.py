@@ -210,6 +210,12 @@ def _check_model(model: CompensationModel, channels: dict[str, Address], period_
         model.check_channels(channels)
         check_model(model, max_dc_gain_um=raw.model.max_dc_gain_um,
                     max_time_constant_s=raw.model.max_time_constant_s)
+        for lost, fb in model.fallbacks.items():
+            try:
+                check_model(fb, max_dc_gain_um=raw.model.max_dc_gain_um,
+                            max_time_constant_s=raw.model.max_time_constant_s)
+            except ModelError as exc:
+                raise ModelError(f"fallback for {lost!r}: {exc}") from None
     except ModelError as exc:
         raise ConfigError(key, str(exc)) from None
     if not math.isclose(model.period_s, period_s, rel_tol=1e-9):

@@ -24,7 +24,13 @@ controller confirmed the offset is in it). `plan`:
    state, or the steady state matching today's temperatures), then step it
    (and the shadow model) once; invalid: the filters are NOT stepped; a model
    output beyond MODEL_RANGE_FACTOR·limit_um makes the cycle invalid (a
-   fault: hold, then ramp) with MODEL_RANGE and ALARM;
+   fault: hold, then ramp) with MODEL_RANGE and ALARM. The fallback models
+   (`compd.core.fallback`) step beside it on every answered cycle; when exactly
+   one channel the model reads is invalid and a fallback covers it, that
+   fallback's output is the model's from the first invalid sample on (cause
+   DEGRADED, no hold, no alarm; FALLBACK_IN_FORCE), the output stage ramps the
+   difference at the slew limit, and the main model takes over again, ramped
+   the same way, when the channel is valid (FALLBACK_ENDED);
 4. the output's health (`compd.core.health`: the fault policy and every
    other state) picks the target; the output stage (`compd.core.output`)
    makes it safe; the status word is a pure function of the health.
@@ -149,15 +155,17 @@ class _Stepped:
     valid: bool = False
     model_invalid: bool = False
     model_range: bool = False
+    #: the channel whose fallback model is in force this cycle (degraded), None: the main
+    fallback_for: str | None = None
 
     def invalid(self, inputs: _Inputs, answered: bool) -> Cause | None:
         """Why the model's output cannot be used this cycle (None: it can)."""
         if self.valid:
             return None
+        if self.model_range:  # the live model's, or a fallback's in force
+            return Cause.MODEL_OUT_OF_RANGE
         if not inputs.valid:
             return Cause.INPUTS_INVALID if answered else Cause.CONTROLLER_NOT_ANSWERING
-        if self.model_range:
-            return Cause.MODEL_OUT_OF_RANGE
         return Cause.MODEL_NON_FINITE if self.model_invalid else Cause.INPUTS_INVALID
 
 
@@ -192,7 +200,8 @@ class Cycle:
                  operator_hold: bool = False,
                  stale_state: Mapping[str, Any] | None = None,
                  stale_age_s: float | None = None,
-                 zero: Mapping[str, Any] | None = None) -> None:
+                 zero: Mapping[str, Any] | None = None,
+                 fallback_states: Mapping[str, Any] | None = None) -> None:
         self.params = params
         self.validator = Validator(params.channels, params.time_scale)
         self.health = OutputHealth(params.hold_s, operator_hold=operator_hold)
@@ -213,7 +222,13 @@ class Cycle:
         self._note_limit(self._later)
         self.models = ModelStepper(model, shadow, model_state=model_state,
                                    shadow_state=shadow_state, references=references,
-                                   stale_state=stale_state, stale_age_s=stale_age_s, zero=zero)
+                                   stale_state=stale_state, stale_age_s=stale_age_s, zero=zero,
+                                   fallback_states=fallback_states)
+        #: each channel the model reads at its last valid value (the live model steps
+        #: on it while a fallback stands in for that channel)
+        self._last_valid: dict[str, float] = {}
+        #: the channel whose fallback is in force (events on change), None: the main model
+        self.fallback_for: str | None = None
         #: the permit as last told: "permitted", "waiting", "unreadable" (events on change)
         self._permit = "permitted"
         #: the re-zero input's last readable value (an edge needs a known 0 before it)
@@ -282,6 +297,7 @@ class Cycle:
         offset_um = float(offset) if isinstance(offset, int | float) else None
         usable = fresh and isinstance(model_state, Mapping) and "terms" in model_state
         shadow_state = state.get("shadow") if usable else None
+        fallback_states = state.get("fallbacks") if usable else None
         adapted = state.get("adaptation") if same_model else None
         stale = model_state if (not usable and same_model and isinstance(model_state, Mapping)
                                 and "terms" in model_state) else None
@@ -295,7 +311,9 @@ class Cycle:
                     adaptation_state=adapted if isinstance(adapted, Mapping) else None,
                     operator_hold=state.get("operator_hold") is True,
                     stale_state=stale, stale_age_s=age_s,
-                    zero=zero if isinstance(zero, Mapping) else None)
+                    zero=zero if isinstance(zero, Mapping) else None,
+                    fallback_states=fallback_states if isinstance(fallback_states, Mapping)
+                    else None)
         if not same_model:
             dropped = cycle.models.drop_zero("another model")
             if dropped is not None:
@@ -376,7 +394,8 @@ class Cycle:
         elif readback_offset_um is not None:
             self._readback(readback_offset_um, events)
         inputs = self._inputs(now_s, samples, wall_s, events)
-        stepped = self._step_models(inputs, events)
+        stepped = self._step_models(inputs, events, answered=samples is not None)
+        self._note_fallback(stepped, events)
         self._rezero_edge(rezero_bit, wall_s, events)
         correction = self._adapt(dt, probe, stepped, events)
         worse = self.probes is not None and self.probes.model_worse \
@@ -422,9 +441,15 @@ class Cycle:
                   for n in self.params.channels}
         return _Inputs(values, validity, all(validity.get(ch) is None for ch in self.gate))
 
-    def _step_models(self, inputs: _Inputs, events: list[Event]) -> _Stepped:
-        if not inputs.valid:
+    def _step_models(self, inputs: _Inputs, events: list[Event], *,
+                     answered: bool) -> _Stepped:
+        if not answered:
             return _Stepped()
+        valid = {ch for ch in self.gate if inputs.validity.get(ch) is None}
+        self.models.step_fallbacks(inputs.values, valid, events)
+        if not inputs.valid:
+            return self._step_degraded(inputs, valid, events)
+        self._last_valid.update((ch, inputs.values[ch]) for ch in valid)
         model_um = self.models.step(inputs.values, events)
         if model_um is None:
             return _Stepped(model_invalid=True)
@@ -432,6 +457,40 @@ class Cycle:
             return _Stepped(model_um=model_um, model_range=True)
         shadow_um = self.models.step_shadow(inputs.values, events)
         return _Stepped(model_um=model_um, shadow_um=shadow_um, valid=True)
+
+    def _step_degraded(self, inputs: _Inputs, valid: set[str],
+                       events: list[Event]) -> _Stepped:
+        """One channel the model reads is invalid and its fallback was stepped: the
+        fallback's output is the model's this cycle (`compd.core.fallback`); else
+        nothing stepped (the fault policy holds, then ramps). The live model keeps
+        stepping with the lost channel at its last valid value, so every other term
+        is current when the channel returns; its output is not used meanwhile."""
+        bank = self.models.fallbacks
+        lost = bank.in_force([ch for ch in self.gate if ch not in valid])
+        fallback_um = bank.output_um(lost) if lost is not None else None
+        if lost is None or fallback_um is None:
+            return _Stepped()
+        self._last_valid.update((ch, inputs.values[ch]) for ch in valid)
+        if self.models.model_ready and lost in self._last_valid:
+            self.models.step({**inputs.values, lost: self._last_valid[lost]}, events)
+        if self._model_out_of_range(fallback_um, events):
+            return _Stepped(model_um=fallback_um, model_range=True)
+        return _Stepped(model_um=fallback_um, valid=True, fallback_for=lost)
+
+    def _note_fallback(self, stepped: _Stepped, events: list[Event]) -> None:
+        """Tell when a fallback comes into force, and when it leaves."""
+        was, now = self.fallback_for, stepped.fallback_for
+        if was == now:
+            return
+        if was is not None:
+            events.append(Event(EventName.FALLBACK_ENDED, {
+                "lost": was, "now": "main model" if stepped.valid and now is None
+                else (f"fallback for {now}" if now is not None else "none: hold, then ramp")}))
+        if now is not None:
+            events.append(Event(EventName.FALLBACK_IN_FORCE, {
+                "lost": now, "reason": self._invalid.get(now), "fallback_um": stepped.model_um,
+                "offset_um": self.output.current_um, "slew_um_s": self.output.slew_um_s}))
+        self.fallback_for = now
 
     def _move_output(self, decision: Decision, dt: float, *, held_for_permit: bool) -> float:
         target = self.output.current_um if decision.target_um is None else decision.target_um
@@ -491,6 +550,7 @@ class Cycle:
             operator_hold=h.operator_hold, slewing=out.slewing,
             model_invalid=stepped.model_invalid, model_range=stepped.model_range,
             model_worse=worse, controller_off=h.controller_off is not None, invalid=why,
+            degraded=stepped.fallback_for is not None,
             no_readback=no_readback,
             at_limit=target is not None and abs(target) > out.limit_um,
             permit=permit if decision.state == FaultState.OK else None)
@@ -524,6 +584,8 @@ class Cycle:
                     offset_written: bool) -> dict[str, Any]:
         """The record row's fields as planned (`RecordRow`; built once, at commit)."""
         contributions = self.models.contributions() if valid else {}
+        if stepped.fallback_for is not None and stepped.model_um is not None:
+            contributions["fallback_total"] = stepped.model_um
         if stepped.shadow_um is not None:
             contributions["shadow_total"] = stepped.shadow_um
         if self.probes is not None and valid:
@@ -586,7 +648,8 @@ class Cycle:
         m = self.models
         return Snapshot(self.output.confirmed_um, self.health.operator_hold, adaptation,
                         pending_um=self.pending_um, zero_um=m.zero_um if m.zero_by else None,
-                        model_start=m.init_mode, reference=m.reference_source)
+                        model_start=m.init_mode, reference=m.reference_source,
+                        fallback_for=self.fallback_for)
 
     # -- internals ------------------------------------------------------------------------
 
@@ -670,7 +733,7 @@ class Cycle:
         in shadow mode, or while the cycle is not valid)."""
         if self.probes is None:
             return 0.0
-        valid = stepped.valid
+        valid = stepped.valid and stepped.fallback_for is None  # the live model's own cycle
         terms = self.model.contributions if valid else []
         correction = self.probes.step(dt, probe, complete=valid, model_um=stepped.model_um,
                                       terms_um=terms, offset_in_force_um=self.output.confirmed_um,

@@ -88,6 +88,10 @@ class EventName(enum.StrEnum):
     REZERO = "rezero", _W
     REZERO_REFUSED = "rezero_refused", _W
     REZERO_DROPPED = "rezero_dropped", _W
+    #: one input invalid: the fallback model without it is in force (degraded)
+    FALLBACK_IN_FORCE = "fallback_in_force", _W
+    #: the lost input is valid again: the main model is in force
+    FALLBACK_ENDED = "fallback_ended", _I
     # the controller takes no offset (machine off, E-stop: compd.core.health), and again
     CONTROLLER_OFF = "controller_off", _W
     CONTROLLER_ON = "controller_on", _I

@@ -27,8 +27,14 @@ all three read only a frozen `HealthView`, so none can disagree with another.
 why": health (`compd health`, the metrics it reads, the checkpoint's
 ``last_cause``), the status page and `compd status`, the OPC UA face and the
 fault events' ``reason`` field are all derived from it. Every cause but
-IN_FORCE, OPERATOR_HOLD and WAITING_FOR_PERMISSION (the controller holds the
-offset by intent: a change only between cuts) is unhealthy (`Cause.healthy`). The cycle's
+IN_FORCE, OPERATOR_HOLD, WAITING_FOR_PERMISSION (the controller holds the
+offset by intent: a change only between cuts) and DEGRADED is unhealthy
+(`Cause.healthy`). DEGRADED (a fallback model stands in for a failed sensor)
+counts as healthy because the offset the daemon wants is computed from valid
+inputs and is in force: the machine is compensated, by a model validated at
+fit time, and turning a sensor fault into a red health check would restart or
+page for a daemon doing its job; it is a warning instead (`compd health` says
+so, the metrics carry ``compd_degraded``), and the sensor wants replacing. The cycle's
 commit may turn a planned cause into a write's (`committed_cause`).
 """
 
@@ -59,7 +65,7 @@ class Cause(enum.StrEnum):
     (the model worse than none, the controller not answering, inputs invalid,
     the model non-finite or out of range), no read-back, a foreign offset being
     ramped back from, a permit input that cannot be read, an operator's hold,
-    waiting for the controller's permission, the limit."""
+    waiting for the controller's permission, the limit, a fallback model in force."""
 
     IN_FORCE = "in_force"
     #: an operator's hold (OPC UA SetHold): the offset stays put, by intent
@@ -97,12 +103,16 @@ class Cause(enum.StrEnum):
     #: [output] update_permitted could not be read (bad quality, not a number): taken as
     #: not permitted, the offset in force held
     PERMIT_UNREADABLE = "permit_unreadable"
+    #: one input is invalid and the fallback model on the others is in force: the
+    #: machine is compensated, less well (healthy, with a warning: `compd health`)
+    DEGRADED = "degraded"
 
     @property
     def healthy(self) -> bool:
         """The offset compd wants is in force, or is held on purpose (an operator's
         hold, the controller's permission not given)."""
-        return self in (Cause.IN_FORCE, Cause.OPERATOR_HOLD, Cause.WAITING_FOR_PERMISSION)
+        return self in (Cause.IN_FORCE, Cause.OPERATOR_HOLD, Cause.WAITING_FOR_PERMISSION,
+                        Cause.DEGRADED)
 
 
 @dataclass(frozen=True, slots=True)
@@ -144,6 +154,8 @@ class HealthView:
     #: a tracking output held for [output] update_permitted: WAITING_FOR_PERMISSION or
     #: PERMIT_UNREADABLE; None: permitted (or no permit input)
     permit: Cause | None = None
+    #: a fallback model stands in for an invalid input this cycle
+    degraded: bool = False
 
 
 def output_cause(v: HealthView) -> Cause:
@@ -172,7 +184,9 @@ def output_cause(v: HealthView) -> Cause:
         return Cause.OPERATOR_HOLD
     if v.permit is not None:
         return v.permit
-    return Cause.AT_LIMIT if v.at_limit else Cause.IN_FORCE
+    if v.at_limit:
+        return Cause.AT_LIMIT
+    return Cause.DEGRADED if v.degraded else Cause.IN_FORCE
 
 
 def recorded_state(v: HealthView) -> FaultState:

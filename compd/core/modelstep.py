@@ -30,6 +30,9 @@ later output is the prediction minus it (the growth since the touch-off,
 exact for a linear model: the filters keep stepping untouched). The zero is
 kept in the checkpoint (restored with the same model, whatever the
 checkpoint's age) and dropped with another model (`drop_zero`).
+
+The fallback models (`compd.core.fallback`) are stepped here too, beside the
+live model, and share its reference state, re-zero and checkpoint.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from compd.core.events import Event, EventName
+from compd.core.fallback import FallbackBank
 from models.compensation import CompensationModel
 from models.errors import ModelError
 
@@ -60,7 +64,8 @@ class ModelStepper:
                  references: Mapping[str, float] | None = None,
                  stale_state: Mapping[str, Any] | None = None,
                  stale_age_s: float | None = None,
-                 zero: Mapping[str, Any] | None = None) -> None:
+                 zero: Mapping[str, Any] | None = None,
+                 fallback_states: Mapping[str, Any] | None = None) -> None:
         self.model = model
         self.shadow = shadow
         explicit = dict(model.calibration_reference)
@@ -81,6 +86,10 @@ class ModelStepper:
         #: who re-zeroed, and when (wall seconds), None: never
         self.zero_by: str | None = None
         self.zero_wall_s: float | None = None
+        fallback_zeros = zero.get("fallback_um") if zero is not None else None
+        self.fallbacks = FallbackBank(
+            model.fallbacks, states=fallback_states if model_state is not None else None,
+            zeros=fallback_zeros if isinstance(fallback_zeros, Mapping) else None)
         if zero is not None:
             self._import_zero(zero)
         if model_state is not None:
@@ -113,6 +122,8 @@ class ModelStepper:
             out["model"] = self.model.export_state()
             if self.shadow is not None and self.shadow_ready:
                 out["shadow"] = self.shadow.export_state()
+            if self.fallbacks:
+                out["fallbacks"] = self.fallbacks.export_state()
         else:
             out["model"] = None
             if self.references:
@@ -120,6 +131,8 @@ class ModelStepper:
         if self.zero_by is not None:
             out["zero"] = {"um": self.zero_um, "shadow_um": self.shadow_zero_um,
                            "by": self.zero_by, "wall_s": self.zero_wall_s}
+            if self.fallbacks:
+                out["zero"]["fallback_um"] = dict(self.fallbacks.zero_um)
         return out
 
     def contributions(self) -> dict[str, float]:
@@ -193,6 +206,13 @@ class ModelStepper:
         self.init_mode = "steady_state"
         return None
 
+    def step_fallbacks(self, values: Mapping[str, float], valid: set[str],
+                       events: list[Event]) -> None:
+        """One step of every fallback whose channels are in `valid` (`FallbackBank.step`),
+        each started at the steady state relative to the live model's reference state."""
+        if self.fallbacks:
+            self.fallbacks.step(values, valid, self._steady, events)
+
     def step_shadow(self, values: Mapping[str, float], events: list[Event]) -> float | None:
         """One step of the shadow model, less its zero; None without one or when not finite."""
         shadow = self.shadow
@@ -223,6 +243,7 @@ class ModelStepper:
         self.zero_um = raw
         if self.last_shadow_raw_um is not None:
             self.shadow_zero_um = self.last_shadow_raw_um
+        self.fallbacks.rezero()
         self.zero_by = who
         self.zero_wall_s = wall_s
         return Event(EventName.REZERO, {"by": who, "zero_um": raw, "was_zero_um": was,
@@ -235,5 +256,6 @@ class ModelStepper:
         event = Event(EventName.REZERO_DROPPED, {"reason": reason, "zero_um": self.zero_um,
                                                  "by": self.zero_by})
         self.zero_um = self.shadow_zero_um = 0.0
+        self.fallbacks.drop_zero()
         self.zero_by = self.zero_wall_s = None
         return event

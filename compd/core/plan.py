@@ -120,6 +120,8 @@ class Snapshot:
     #: its reference state came from (calibration, checkpoint, first_sample)
     model_start: str = ""
     reference: str = ""
+    #: the input whose fallback model is in force (degraded), None: the main model
+    fallback_for: str | None = None
 
 
 @dataclass(frozen=True, slots=True)

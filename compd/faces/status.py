@@ -53,7 +53,7 @@ _WORDS: dict[FaultState, str] = {
 
 #: the word of a cause whatever the state (the others take the state's word)
 _CAUSE_WORDS: dict[Cause, str] = {
-    Cause.OPERATOR_HOLD: "holding", Cause.CONTROLLER_OFF: "holding",
+    Cause.OPERATOR_HOLD: "holding", Cause.CONTROLLER_OFF: "holding", Cause.DEGRADED: "degraded",
     Cause.WRITE_FAILED: "holding", Cause.NO_READBACK: "holding",
     Cause.FOREIGN_OFFSET: "ramping", Cause.AT_LIMIT: "limited",
     Cause.WAITING_FOR_PERMISSION: "holding", Cause.PERMIT_UNREADABLE: "holding"}
@@ -81,6 +81,8 @@ _WHY: dict[Cause, str] = {
                                   "stepping; the change ramps in when it permits",
     Cause.PERMIT_UNREADABLE: "[output] update_permitted cannot be read: taken as not "
                              "permitted, the offset in force is held",
+    Cause.DEGRADED: "a sensor is invalid: the fallback model on the remaining sensors is in "
+                    "force (compensating, less well; replace the sensor)",
     # the faults: the policy's part ("the offset is held" ...) is added by `_fault_why`
     Cause.MODEL_WORSE_THAN_NONE: "recalibrate: the probes showed the compensation worse "
                                  "than none",
@@ -210,6 +212,8 @@ class StatusBoard:
                 "sequence": result.sequence, "complete": bool(result.complete),
                 "status_word": result.status, "heartbeat": result.heartbeat,
                 "model": cfg.model.name, "model_sha256": cfg.model_sha256,
+                "fallback_for": result.snapshot.fallback_for,
+                "fallbacks": sorted(cfg.model.fallbacks),
                 "dry_run": dry_run, "wall_s": self._wall(), "period_s": float(cfg.real_period_s),
                 "channels": channels,
                 "alarms": list(self._alarms)}

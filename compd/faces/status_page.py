@@ -25,7 +25,7 @@ section{border-bottom:2px solid #ccc;padding-bottom:1em;margin-bottom:1em}
 .state{font-size:5em;font-weight:bold;padding:.1em .4em;border-radius:.15em;
  display:inline-block;color:#fff;background:#777}
 .state.on{background:#1b7a2e}.state.holding,.state.limited{background:#b8860b}
-.state.ramping{background:#c05a00}.state.off{background:#b00020}
+.state.ramping{background:#c05a00}.state.degraded{background:#8a6d00}.state.off{background:#b00020}
 .state.dry-run{background:#fff;color:#2a4d8f;border:.08em dashed #2a4d8f}
 .why{font-size:1.5em;margin:.4em 0 .8em 0}
 .big{font-size:2.2em}
@@ -75,7 +75,8 @@ function section(i){ let s = document.getElementById("m" + i); if (s) return s;
   return s; }
 function showMachine(s, m){
   const q = c => s.querySelector(c);
-  q(".machine").textContent = (m.machine || "compd") + " \\u00b7 model " + (m.model || "?");
+  q(".machine").textContent = (m.machine || "compd") + " \\u00b7 model " + (m.model || "?")
+    + (m.fallback_for ? " \\u00b7 FALLBACK without " + m.fallback_for : "");
   const st = q(".state"); st.textContent = m.state; st.className = "state " + m.state;
   q(".why").textContent = m.why + (m.cause && m.healthy === false ? " [" + m.cause + "]" : "");
   const out = q(".out"); out.textContent = "";

@@ -405,6 +405,11 @@ class Metrics(MetricsServer):
             "compd_output_cause", "1 for the last cycle's cause (why the offset compd "
             "wants is not in force: in_force, operator_hold, inputs_invalid, "
             "model_worse_than_none, ...), 0 for the others", ["cause"], registry=r)
+        self.fallback_in_force = Gauge(
+            "compd_fallback_in_force", "1 for the input whose fallback model is in force "
+            "(degraded: that sensor is invalid), 0 for the others; all 0: the main model",
+            ["lost"], registry=r)
+        self._fallback: str | None = None
         self._cause: Cause | None = None
         self._init_server()
 
@@ -473,6 +478,16 @@ class Metrics(MetricsServer):
             self.output_cause.labels(cause=c.value).set(1.0 if c is cause else 0.0)
         self.offset_not_in_force.set(0.0 if cause.healthy else 1.0)
         self._cause = cause
+
+    def fallback(self, lost: str | None) -> None:
+        """The input whose fallback model is in force this cycle (None: the main model)."""
+        if lost == self._fallback:
+            return
+        if self._fallback is not None:
+            self.fallback_in_force.labels(lost=self._fallback).set(0.0)
+        if lost is not None:
+            self.fallback_in_force.labels(lost=lost).set(1.0)
+        self._fallback = lost
 
     def _age_s(self) -> float:
         last = self._last_complete_mono

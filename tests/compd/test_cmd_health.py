@@ -94,7 +94,8 @@ def test_every_cause_but_in_force_and_an_operator_hold_is_unhealthy_and_named(
     metrics.fault_state.set(2)
     metrics.cause(cause)
     rc, line = _health(capsys, "--url", _url(metrics))
-    if cause in (Cause.IN_FORCE, Cause.OPERATOR_HOLD, Cause.WAITING_FOR_PERMISSION):
+    if cause in (Cause.IN_FORCE, Cause.OPERATOR_HOLD, Cause.WAITING_FOR_PERMISSION,
+                 Cause.DEGRADED):
         assert rc == 0, line
     else:
         assert rc == 1 and line.endswith(
@@ -347,3 +348,19 @@ async def test_daemon_without_a_controller_is_unhealthy_by_both_sources(
     finally:
         daemon.request_stop()
         assert await task == 0
+
+
+def test_degraded_is_healthy_with_a_warning_naming_the_sensor(
+        metrics: Metrics, capsys: pytest.CaptureFixture[str]) -> None:
+    """A fallback model in force compensates from valid inputs: healthy (exit 0),
+    and the line says which sensor is lost."""
+    metrics.cycle_complete()
+    metrics.fault_state.set(0)
+    metrics.cause(Cause.DEGRADED)
+    metrics.fallback("ambient")
+    rc, line = _health(capsys, "--url", _url(metrics))
+    assert rc == 0 and "warning: degraded, fallback model without ambient in force" in line
+    metrics.fallback(None)
+    metrics.cause(Cause.IN_FORCE)
+    rc, line = _health(capsys, "--url", _url(metrics))
+    assert rc == 0 and "degraded" not in line

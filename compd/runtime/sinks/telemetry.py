@@ -126,6 +126,7 @@ class TelemetrySink(CycleSink):
         m.offset_um.set(result.offset_um)
         m.fault_state.set(result.state.gauge)
         m.cause(result.cause)
+        m.fallback(result.snapshot.fallback_for)
         m.model_output(result.model_um, result.record.validity)
         if tick.samples:
             for name, s in tick.samples.items():
@@ -169,6 +170,8 @@ class TelemetrySink(CycleSink):
         snap = result.snapshot
         if not result.healthy:
             state += f" ({result.cause})"
+        elif snap.fallback_for is not None:
+            state += f" (degraded: fallback without {snap.fallback_for})"
         elif snap.pending_um is not None:
             state += f" ({result.cause}, {snap.pending_um:+.2f} um pending)"
         if state != self._last_status or result.sequence % STATUS_EVERY == 0:

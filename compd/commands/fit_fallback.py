@@ -1,0 +1,86 @@
+"""`compd fit`'s fallback models: for each input of the model, a model on the
+others, fitted and validated the same way on the same records, written into
+the model file as a ``[[fallback]]`` table (`models.modelfile`); the daemon
+switches to it while that input is invalid (`compd.core.fallback`).
+
+A fallback is the main fit run again (`compd.commands.fit._fit_terms`: the
+same structure selection, folds, pole bound and checks) on the terms that do
+not read the lost channel (a term ``bearing-column`` goes with either). No
+fallback is written for a channel when no term is left without it, when a
+``--fixed`` term reads it, when its identification fails, when `compd check`
+would warn about it, or when it validated worse than no compensation: that
+one is refused even with ``--force`` (a fallback is never forced: without it
+the daemon holds, then ramps, which is safe). Only ``--kind tf`` models get
+fallbacks (the other kinds fit one term). Each skipped channel is said, with
+why, in ``notes``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from compd.offline.records import Record
+    from models.compensation import CompensationModel, Term
+
+
+@dataclass
+class Fallbacks:
+    """The fallbacks fitted, by the channel each covers, and a line per channel left out."""
+
+    models: dict[str, CompensationModel] = field(default_factory=dict)
+    #: per fallback: its validation figure and structure (for the provenance and --json)
+    figures: dict[str, dict[str, Any]] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+
+def fit_fallbacks(args: argparse.Namespace, records: list[Record], ys: list[Any],
+                  specs: list[tuple[str, dict[str, float]]], holdout: list[Record],
+                  fixed: list[Term]) -> Fallbacks:
+    """A fallback for the loss of each input channel of `specs` (module docstring)."""
+    from compd.commands.fit import _fit_terms
+    from compd.commands.fit_checks import gate
+    from models.compensation import CompensationModel
+    from models.errors import ModelError
+
+    out = Fallbacks()
+    if args.kind != "tf":
+        return out
+    channels = sorted({ch for _, inputs in specs for ch in inputs})
+    for lost in channels:
+        reduced = [(n, i) for n, i in specs if lost not in i]
+        if not reduced:
+            out.notes.append(f"no fallback without {lost}: no term is left without it")
+            continue
+        if any(lost in t.channels for t in fixed):
+            out.notes.append(f"no fallback without {lost}: a --fixed term reads it")
+            continue
+        one = argparse.Namespace(**vars(args))
+        one.force = False  # a fallback worse than none, or one check warns of, is never written
+        said = io.StringIO()
+        try:
+            with contextlib.redirect_stderr(said):
+                terms, info = _fit_terms(one, records, ys, reduced, holdout)
+                model = CompensationModel(
+                    fixed + terms, records[0].period_s, name=f"without {lost}",
+                    description=f"compd fit: the model without {lost}")
+                gate(model, False)
+        except ModelError as exc:
+            why = str(exc).replace(" (--force writes it anyway)", "")  # never forced
+            out.notes.append(f"no fallback without {lost}: {why}")
+            continue
+        selection = info[0]["selection"] if info else {}
+        figures = {"validation_fit_percent": selection.get("validation_fit_percent"),
+                   "structure": selection.get("structure"),
+                   "inputs": [n for n, _ in reduced]}
+        model.provenance = {"tool": "compd fit (fallback)", "lost": lost,
+                            **{k: v for k, v in figures.items() if v is not None}}
+        out.models[lost] = model
+        out.figures[lost] = figures
+        out.notes.extend(f"fallback without {lost}: {line}"
+                         for line in said.getvalue().splitlines() if line.strip())
+    return out
