@@ -27,9 +27,10 @@ all three read only a frozen `HealthView`, so none can disagree with another.
 why": health (`compd health`, the metrics it reads, the checkpoint's
 ``last_cause``), the status page and `compd status`, the OPC UA face and the
 fault events' ``reason`` field are all derived from it. Every cause but
-IN_FORCE, OPERATOR_HOLD and WAITING_FOR_PERMISSION (the controller holds the
-offset by intent: a change only between cuts) is unhealthy (`Cause.healthy`). The cycle's
-commit may turn a planned cause into a write's (`committed_cause`).
+IN_FORCE, OPERATOR_HOLD, WAITING_FOR_PERMISSION (the controller holds the
+offset by intent: a change only between cuts) and RECORDER_ONLY (a run that only
+records: valid inputs recorded, nothing written by intent) is unhealthy
+(`Cause.healthy`). The cycle's commit may turn a planned cause into a write's (`committed_cause`).
 """
 
 from __future__ import annotations
@@ -57,8 +58,8 @@ class Cause(enum.StrEnum):
     `output_cause` names the first of: shutting down, writes stopped, a foreign
     offset held, the controller off, a write fault, why the cycle is invalid
     (the model worse than none, the controller not answering, inputs invalid,
-    the model non-finite or out of range), no read-back, a foreign offset being
-    ramped back from, a permit input that cannot be read, an operator's hold,
+    the model non-finite or out of range), recorder only, no read-back, a foreign
+    offset being ramped back from, a permit input that cannot be read, an operator's hold,
     waiting for the controller's permission, the limit."""
 
     IN_FORCE = "in_force"
@@ -97,12 +98,16 @@ class Cause(enum.StrEnum):
     #: [output] update_permitted could not be read (bad quality, not a number): taken as
     #: not permitted, the offset in force held
     PERMIT_UNREADABLE = "permit_unreadable"
+    #: recorder only ([output] enabled = false or no [model]): read, validated and
+    #: recorded; nothing written to the controller, by intent
+    RECORDER_ONLY = "recorder_only"
 
     @property
     def healthy(self) -> bool:
         """The offset compd wants is in force, or is held on purpose (an operator's
         hold, the controller's permission not given)."""
-        return self in (Cause.IN_FORCE, Cause.OPERATOR_HOLD, Cause.WAITING_FOR_PERMISSION)
+        return self in (Cause.IN_FORCE, Cause.OPERATOR_HOLD, Cause.WAITING_FOR_PERMISSION,
+                        Cause.RECORDER_ONLY)
 
 
 @dataclass(frozen=True, slots=True)
@@ -144,6 +149,8 @@ class HealthView:
     #: a tracking output held for [output] update_permitted: WAITING_FOR_PERMISSION or
     #: PERMIT_UNREADABLE; None: permitted (or no permit input)
     permit: Cause | None = None
+    #: recorder only: nothing is written (RECORDER_ONLY once the inputs are valid)
+    recorder_only: bool = False
 
 
 def output_cause(v: HealthView) -> Cause:
@@ -162,6 +169,8 @@ def output_cause(v: HealthView) -> Cause:
         return v.invalid
     if v.policy != FaultState.OK:  # not reached: the policy holds only on an invalid cycle
         return Cause.INPUTS_INVALID
+    if v.recorder_only:
+        return Cause.RECORDER_ONLY
     if v.no_readback:
         return Cause.NO_READBACK
     if v.foreign:
