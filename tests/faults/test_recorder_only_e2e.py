@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -87,6 +88,11 @@ async def test_recorder_only_records_what_fit_reads_and_writes_nothing(
         "fit", str(tmp_path / "calib.sqlite"), "--column", "growth_um",
         "--term", "bearing-ambient", "-o", str(model)]) == 0
     capsys.readouterr()
+    # the reference the fit measured from (the record's first sample), said what it is
+    text = model.read_text(encoding="utf-8")
+    assert "The reference state: the temperatures of the calibration record's first" \
+        " sample\n# (calib.sqlite)" in text
+    assert tomllib.loads(text)["reference"] == {"ambient": 20.0, "bearing": 20.0}
     assert await asyncio.to_thread(cli, ["check", str(model), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     dc = report["terms"][0]["dc_gain"]
