@@ -209,9 +209,9 @@ async def test_rezero_is_the_operators_audited_and_ramps_without_a_step(
         # anonymous reads, but may not re-zero: refused, audited nowhere, nothing changed
         async with await _client(port, pki) as anon:
             idx, machine = await _machine(anon)
-            with structlog.testing.capture_logs() as logs:
-                with pytest.raises(UaStatusCodeError):
-                    await machine.call_method(f"{idx}:Rezero")
+            with structlog.testing.capture_logs() as logs, \
+                    pytest.raises(UaStatusCodeError):
+                await machine.call_method(f"{idx}:Rezero")
             assert not [e for e in logs if e["event"] == "opcua_rezero"]
         assert daemon.cycle is not None and daemon.cycle.models.zero_by is None
         async with await _client(port, pki, OPERATOR, PASSWORD) as op:
