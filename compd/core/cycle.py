@@ -597,7 +597,8 @@ class Cycle:
         m = self.models
         return Snapshot(self.output.confirmed_um, self.health.operator_hold, adaptation,
                         pending_um=self.pending_um, zero_um=m.zero_um if m.zero_by else None,
-                        model_start=m.init_mode, reference=m.reference_source)
+                        model_start=m.init_mode, reference=m.reference_source,
+                        references=m.references)
 
     # -- internals ------------------------------------------------------------------------
 

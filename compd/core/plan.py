@@ -120,6 +120,8 @@ class Snapshot:
     #: its reference state came from (calibration, checkpoint, first_sample)
     model_start: str = ""
     reference: str = ""
+    #: the reference state in force (°C per relative input channel), None: not yet known
+    references: Mapping[str, float] | None = None
 
 
 @dataclass(frozen=True, slots=True)
