@@ -132,7 +132,7 @@ def _model_text(machine: dict[str, Any]) -> str:
         parts.append(f"started {start}")
     ref = machine.get("reference")
     temps = ref.get("temperatures_c") if isinstance(ref, dict) else None
-    if isinstance(temps, dict) and temps:
+    if isinstance(ref, dict) and isinstance(temps, dict) and temps:
         listed = ", ".join(f"{k} {v:g}" for k, v in temps.items()
                            if isinstance(k, str) and isinstance(v, int | float))
         parts.append(f"reference ({ref.get('source') or '?'}) {listed} C")

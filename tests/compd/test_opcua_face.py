@@ -224,7 +224,8 @@ async def test_rezero_is_the_operators_audited_and_ramps_without_a_step(
             assert audit[0]["peer"].startswith("('127.0.0.1'")  # who, from where, what
             await until(lambda: daemon.cycle is not None
                         and daemon.cycle.models.zero_by is not None)
-            assert daemon.cycle.models.zero_by.startswith(f"opcua: {OPERATOR} from ")
+            by = daemon.cycle.models.zero_by
+            assert by is not None and by.startswith(f"opcua: {OPERATOR} from ")
             assert daemon.cycle.models.zero_um > 5.0  # the prediction taken as zero
             # the target is now ~0: the offset ramps down at the slew limit, never a step
             await until(lambda: daemon.cycle is not None
