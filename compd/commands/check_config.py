@@ -47,7 +47,13 @@ def _summary(cfg: LoadedConfig) -> dict[str, Any]:
         + _state_warnings(cfg) + _adaptation_warnings(cfg),
         "model": describe_model(cfg.model),
         "model_sha256": cfg.model_sha256,
+        "recorder_only": cfg.recorder_only,
     }
+    if cfg.recorder_only:  # no output stage: its figures are nobody's
+        del out["output"]
+        out["warnings"] = _state_warnings(cfg) + _adaptation_warnings(cfg)
+        if not cfg.model_given:
+            del out["model"], out["model_sha256"]
     if cfg.shadow is not None:
         out["shadow"] = describe_model(cfg.shadow)
     return out
@@ -168,6 +174,14 @@ def report(cfg: LoadedConfig, args: argparse.Namespace) -> int:
     for name, addr in report.get("controller_state", {}).items():
         print(f"  controller state {name}: {addr} (no offset written while "
               f"{'set' if name == 'estop' else 'clear'})")
+    if report["recorder_only"]:
+        print("  recorder only ([output] enabled = false): reads, validates and records; "
+              "writes nothing to the controller (no offset, heartbeat or status)")
+        if "model" in report:
+            m = report["model"]
+            print(f"  model {m['model']!r}: evaluated and recorded, never written")
+        _print_read(report)
+        return rc
     o = report["output"]
     print(f"  output stage: limit ±{o['limit_um']} µm, slew {o['slew_um_s']} µm/s, "
           f"deadband {o['deadband_um']} µm, sign {o['sign']:+d}, "
@@ -182,10 +196,14 @@ def report(cfg: LoadedConfig, args: argparse.Namespace) -> int:
         print(f"  {line}")
     if "shadow" in report:
         print(f"  shadow model {report['shadow']['model']!r} (evaluated, never written)")
+    _print_read(report)
+    return rc
+
+
+def _print_read(report: dict[str, Any]) -> None:
     if "read" in report:
         if "error" in report["read"]:
             print(f"  connect: FAILED {report['read']['error']}")
         for name, v in report["read"].items():
             if name != "error":
                 print(f"  read {name} = {v['value']} ({v['quality']})")
-    return rc

@@ -549,6 +549,33 @@ def _search_specs(args: argparse.Namespace, records: list[Record]
     return [(name, {name: 1.0}) for name in chosen]
 
 
+#: said above a fitted model's [reference] table
+REFERENCE_COMMENT = (
+    "# The reference state: the temperatures of the calibration record's first sample\n"
+    "# ({record}), from which the fit measured every relative input's change. The model's\n"
+    "# growth is zero here; the tool was touched off in this state. The daemon starts\n"
+    "# from it on a warm machine (a config's [model] reference overrides it).\n")
+
+
+def calibration_reference(model: CompensationModel, record: Record) -> dict[str, float]:
+    """The reference the fit used for `model`'s relative input channels: `record`'s
+    first sample ({} when one of them is not a finite number there)."""
+    refs = {ch: float(record.column(ch)[0]) for ch in sorted(model.reference_channels)}
+    return refs if all(math.isfinite(v) for v in refs.values()) else {}
+
+
+def save_model(model: CompensationModel, path: Path, record: str = "") -> None:
+    """The model file, its [reference] table with a comment saying what it is."""
+    from models.modelfile import dumps_model, model_document
+
+    text = dumps_model(model_document(model))
+    note = REFERENCE_COMMENT.format(record=record or "the first DATA")
+    text = text.replace("\n[reference]\n", "\n" + note + "[reference]\n", 1)
+    if text.startswith("[reference]\n"):
+        text = note + text
+    path.write_text(text, encoding="utf-8")
+
+
 def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[str, Any]], Path,
                                                   list[Record]]:
     """Everything but the printing (the tests call `run`)."""
@@ -557,7 +584,6 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
     from compd.outfiles import check_output, write_atomically
     from models.compensation import CompensationModel
     from models.errors import ModelError
-    from models.modelfile import save_model
 
     if len(args.term) > MAX_FIT_TERMS:
         from compd.infiles import InputError
@@ -597,14 +623,15 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
                               provenance=_text(_provenance(args, records, info)))
     from compd.commands.fit_checks import gate
 
+    model.calibration_reference = calibration_reference(model, records[0])
     gate(model, args.force)  # compd check's warnings: nothing written without --force
     if not args.no_fallbacks:  # a model for the loss of each input, in the same file
         from compd.commands.fit_fallback import fit_fallbacks
 
         args.fallbacks = fit_fallbacks(args, records, ys, specs, holdout, fixed)
         model.fallbacks = args.fallbacks.models
-    write_atomically(out, lambda tmp: save_model(model, tmp), "model file", force=args.force,
-                     inputs=sources)
+    write_atomically(out, lambda tmp: save_model(model, tmp, Path(data[0]).name),
+                     "model file", force=args.force, inputs=sources)
     written = load_model(out)  # what the daemon will load
     return written, info, out, records
 
@@ -650,10 +677,10 @@ def run(args: argparse.Namespace) -> int:
     if adapt:  # the suggestion travels with the model: its [adaptation] table
         from compd.offline.probes import Suggestion
         from compd.outfiles import write_atomically
-        from models.modelfile import save_model
 
         model.adaptation = Suggestion(**adapt).settings()
-        write_atomically(out, lambda tmp: save_model(model, tmp), "model file", force=True,
+        write_atomically(out, lambda tmp: save_model(model, tmp, Path(records[0].path).name),
+                         "model file", force=True,
                          inputs=[r.path for r in records])
     per = [quality(m, s) for m, s in zip(measured, simulated, strict=True)]
     q = per[0] if len(records) == 1 else quality(np.concatenate(measured),

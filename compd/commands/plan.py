@@ -1,7 +1,9 @@
 """`compd plan --hours H --speeds S1,S2,… --dialect D -o FILE`: the calibration
 experiment as a G-code program (`compd.offline.plan`), and beside it the
-recorder settings that record its run for `compd fit` (FILE's stem +
-``.recorder.toml``).
+recorder-only daemon config that records its run for `compd fit` (FILE's stem +
+``.recorder.toml``): with ``--config CONFIG`` complete (the machine's
+[machine], [controller] and [channels] copied, the config checked first: a bad
+one is exit 78 naming the key), else with those tables left for the user.
 
 Both files are checked before anything is written (`compd.outfiles`: never
 over an existing file without ``--force``, never a directory or a symbolic
@@ -16,7 +18,7 @@ import argparse
 import math
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from compd.argtypes import count, number
 from compd.sysexits import EX_USAGE
@@ -109,6 +111,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", required=True, metavar="FILE",
                         help="the program file; the recorder settings go beside it as "
                              "STEM.recorder.toml")
+    parser.add_argument("--config", default=None, metavar="CONFIG",
+                        help="the machine's daemon config: its [machine], [controller] and "
+                             "[channels] go into the recorder config, which then runs as it "
+                             "is (default: left for you to add)")
     parser.add_argument("--force", action="store_true",
                         help="replace existing output files")
     parser.add_argument("--safe-position", type=position, default=None, metavar="AXIS=MM,…",
@@ -167,6 +173,21 @@ def _summary(args: argparse.Namespace, call: ProbeCall | None) -> str:
     return f"Written by: compd plan {' '.join(parts)}."
 
 
+def _machine_tables(path: Path) -> dict[str, Any]:
+    """[machine], [controller] and [channels] of a daemon config that loads (a
+    ConfigError naming the key otherwise: exit 78)."""
+    from compd.config.loader import load_config
+    from compd.errors import ConfigError
+    from compd.infiles import MAX_CONFIG_BYTES, InputError, read_toml_document
+
+    load_config(path)  # the whole config checked, as compd check would
+    try:
+        _, doc = read_toml_document(path, "config file", MAX_CONFIG_BYTES)
+    except InputError as exc:  # changed since: as any unreadable config
+        raise ConfigError("", str(exc)) from None
+    return {k: doc[k] for k in ("machine", "controller", "channels") if k in doc}
+
+
 def _usage(message: str) -> int:
     print(f"compd plan: {message}", file=sys.stderr)
     return EX_USAGE
@@ -175,7 +196,7 @@ def _usage(message: str) -> int:
 def run(args: argparse.Namespace) -> int:
     from compd.offline.plan.dialects import Probing, dialect
     from compd.offline.plan.program import make_program
-    from compd.offline.plan.recorder import recorder_fragment
+    from compd.offline.plan.recorder import recorder_config
     from compd.offline.plan.schedule import PlanError, design
     from compd.outfiles import check_output, write_atomically
 
@@ -206,7 +227,9 @@ def run(args: argparse.Namespace) -> int:
     if side == out:
         return _usage(f"{out}: the program and its recorder settings would share a name")
     check_output(side, "recorder settings", force=args.force)
-    fragment = recorder_fragment(out, exp, args.dialect, args.time_scale)
+    machine = None if args.config is None else _machine_tables(Path(args.config))
+    fragment = recorder_config(out, exp, args.dialect, args.time_scale, machine=machine,
+                               source=args.config)
     write_atomically(out, lambda tmp: tmp.write_text(program.text, encoding="ascii"),
                      "program", force=args.force)
     write_atomically(side, lambda tmp: tmp.write_text(fragment, encoding="utf-8"),

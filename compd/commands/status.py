@@ -120,7 +120,23 @@ def describe(machine: dict[str, Any]) -> str:
     late = f"; NO CYCLE FOR {machine['age_s']:.0f} s" if stalled(machine) else ""
     return (f"{machine.get('machine') or '?'}: {machine['state']} - {machine.get('why', '')}; "
             f"offset {_um(machine.get('offset_um'))}{limit_text}, model "
-            f"{_um(machine.get('model_um'))}, channels {valid}/{len(channels)} valid{late}")
+            f"{_um(machine.get('model_um'))}{_model_text(machine)}, "
+            f"channels {valid}/{len(channels)} valid{late}")
+
+
+def _model_text(machine: dict[str, Any]) -> str:
+    """How the model started and its reference state in force, as the page gives them."""
+    parts: list[str] = []
+    start = machine.get("model_start")
+    if isinstance(start, str) and start:
+        parts.append(f"started {start}")
+    ref = machine.get("reference")
+    temps = ref.get("temperatures_c") if isinstance(ref, dict) else None
+    if isinstance(ref, dict) and isinstance(temps, dict) and temps:
+        listed = ", ".join(f"{k} {v:g}" for k, v in temps.items()
+                           if isinstance(k, str) and isinstance(v, int | float))
+        parts.append(f"reference ({ref.get('source') or '?'}) {listed} C")
+    return f" ({'; '.join(parts)})" if parts else ""
 
 
 def stalled(machine: dict[str, Any]) -> bool:

@@ -16,6 +16,7 @@ import hashlib
 import json
 import math
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,7 @@ from compd.config.schema import (
     AdaptationSection,
     ControllerSection,
     DaemonConfig,
+    ModelSection,
     SecuritySection,
 )
 from compd.config.suggest import errors_of
@@ -38,10 +40,11 @@ from drivers.addresses import Address
 from drivers.linuxcnc_options import LinuxCncOptions, long_hal_name
 from drivers.protocols import PROTOCOLS
 from models.adaptation import AdaptationParams, mark_unproven
-from models.compensation import CompensationModel
+from models.compensation import CompensationModel, Term
 from models.errors import ModelError
 from models.modelfile import model_document, parse_model
 from models.sanity import check_model
+from models.tf import TransferFunction
 
 #: output names as the driver sees them
 OUTPUT_NAMES: tuple[str, ...] = ("offset", "heartbeat", "status")
@@ -72,6 +75,16 @@ class LoadedConfig:
     probes: dict[str, Address] = field(default_factory=dict)
     #: the controller's state ([output] machine_on, estop, homed), read under STATE_NAMES
     states: dict[str, Address] = field(default_factory=dict)
+
+    @property
+    def recorder_only(self) -> bool:
+        """[output] enabled = false (or no [output]): nothing is written to the controller."""
+        return self.raw.recorder_only
+
+    @property
+    def model_given(self) -> bool:
+        """The config names a model; False: `model` is `recorder_model`'s stand-in."""
+        return self.raw.model is not None
 
     @property
     def period_s(self) -> float:
@@ -205,15 +218,15 @@ def model_sha256(model: CompensationModel) -> str:
 
 
 def _check_model(model: CompensationModel, channels: dict[str, Address], period_s: float,
-                 key: str, raw: DaemonConfig) -> None:
+                 key: str, section: ModelSection) -> None:
     try:
         model.check_channels(channels)
-        check_model(model, max_dc_gain_um=raw.model.max_dc_gain_um,
-                    max_time_constant_s=raw.model.max_time_constant_s)
+        check_model(model, max_dc_gain_um=section.max_dc_gain_um,
+                    max_time_constant_s=section.max_time_constant_s)
         for lost, fb in model.fallbacks.items():
             try:
-                check_model(fb, max_dc_gain_um=raw.model.max_dc_gain_um,
-                            max_time_constant_s=raw.model.max_time_constant_s)
+                check_model(fb, max_dc_gain_um=section.max_dc_gain_um,
+                            max_time_constant_s=section.max_time_constant_s)
             except ModelError as exc:
                 raise ModelError(f"fallback for {lost!r}: {exc}") from None
     except ModelError as exc:
@@ -272,29 +285,15 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
 
     channels = {name: _validate_address(ctl.protocol, ch.address, f"channels.{name}.address")
                 for name, ch in raw.channels.items()}
-    out = raw.output
-    outputs: dict[str, Address] = {"offset": _validate_address(ctl.protocol, out.offset,
-                                                               "output.offset")}
-    for name in ("heartbeat", "status"):
-        doc_addr = getattr(out, name)
-        if doc_addr is not None:
-            outputs[name] = _validate_address(ctl.protocol, doc_addr, f"output.{name}")
-    check_outputs(outputs, limit_um=out.limit_um, units_per_um=out.units_per_um,
-                  sign=out.sign, heartbeat_max=HEARTBEAT_MAX, status_max=STATUS_MAX)
-    clash = sorted(set(channels) & set(OUTPUT_NAMES))
-    if clash:
-        raise ConfigError(f"channels.{clash[0]}", "this name is reserved for an output")
-    states: dict[str, Address] = {}
-    for name in STATE_NAMES:
-        doc_addr = getattr(out, name)
-        if doc_addr is not None:
-            if name in channels:
-                raise ConfigError(f"channels.{name}", "this name is reserved for the "
-                                  f"controller's state (output.{name})")
-            states[name] = _validate_address(ctl.protocol, doc_addr, f"output.{name}")
-
+    outputs, states = _outputs(raw, channels)
     m = raw.model
-    if m.file is not None:
+    if m is None and not raw.recorder_only:
+        raise ConfigError("model", "required key is missing (a run without a model only "
+                          "records: say so with [output] enabled = false)")
+    if m is None:  # recorder only
+        model = recorder_model(channels, machine.period_s)
+        model_key = "model"
+    elif m.file is not None:
         model = _load_model(m.file, base, "model.file")
         model_key = "model.file"
     else:
@@ -307,12 +306,13 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         except _NUMERIC_ERRORS as exc:
             raise ConfigError("model.terms", _numeric_reason(exc)) from None
         model_key = "model.terms"
-    _check_model(model, channels, machine.period_s, model_key, raw)
+    if m is not None:
+        _check_model(model, channels, machine.period_s, model_key, m)
     shadow = None
-    if m.shadow is not None:
+    if m is not None and m.shadow is not None:
         shadow = _load_model(m.shadow, base, "model.shadow")
-        _check_model(shadow, channels, machine.period_s, "model.shadow", raw)
-    if m.reference is not None:
+        _check_model(shadow, channels, machine.period_s, "model.shadow", m)
+    if m is not None and m.reference is not None:
         for target in (model, shadow):
             if target is not None:
                 _set_reference(target, m.reference)
@@ -335,8 +335,52 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         path=path, raw=raw, channels=channels, outputs=outputs, model=model, shadow=shadow,
         state_dir=state_dir, recorder_path=recorder_path,
         config_sha256=hashlib.sha256(text).hexdigest(), model_sha256=model_sha256(model),
-        offset_quantum_um=_quantum_um(outputs["offset"], out.units_per_um),
+        offset_quantum_um=(_quantum_um(outputs["offset"], raw.output.units_per_um)
+                           if "offset" in outputs else 0.0),
         adaptation=adaptation, probes=probes, states=states)
+
+
+def _outputs(raw: DaemonConfig, channels: dict[str, Address]
+             ) -> tuple[dict[str, Address], dict[str, Address]]:
+    """The written outputs and the controller's state read beside the channels, each
+    address checked; recorder only: none of either (its [output] addresses unused)."""
+    out, protocol = raw.output, raw.controller.protocol
+    if raw.recorder_only:
+        return {}, {}
+    outputs: dict[str, Address] = {"offset": _validate_address(protocol, out.offset,
+                                                               "output.offset")}
+    for name in ("heartbeat", "status"):
+        doc_addr = getattr(out, name)
+        if doc_addr is not None:
+            outputs[name] = _validate_address(protocol, doc_addr, f"output.{name}")
+    check_outputs(outputs, limit_um=out.limit_um, units_per_um=out.units_per_um,
+                  sign=out.sign, heartbeat_max=HEARTBEAT_MAX, status_max=STATUS_MAX)
+    clash = sorted(set(channels) & set(OUTPUT_NAMES))
+    if clash:
+        raise ConfigError(f"channels.{clash[0]}", "this name is reserved for an output")
+    states: dict[str, Address] = {}
+    for name in STATE_NAMES:
+        doc_addr = getattr(out, name)
+        if doc_addr is not None:
+            if name in channels:
+                raise ConfigError(f"channels.{name}", "this name is reserved for the "
+                                  f"controller's state (output.{name})")
+            states[name] = _validate_address(protocol, doc_addr, f"output.{name}")
+    return outputs, states
+
+
+#: the name of the stand-in model of a recorder-only config without [model]
+RECORDER_MODEL_NAME = "none (recorder only)"
+
+
+def recorder_model(channels: Mapping[str, Address], period_s: float) -> CompensationModel:
+    """A recorder-only config's stand-in for [model]: one zero-gain static term per
+    channel, so the cycle validates every channel (a cycle is valid when all are) and
+    predicts nothing; its output is not recorded (`compd.core.cycle`)."""
+    terms = [Term(f"record_{i}", {name: 1.0}, TransferFunction([1.0], [1.0], name=name),
+                  gain=0.0, relative=False)
+             for i, name in enumerate(sorted(channels))]
+    return CompensationModel(terms, period_s, name=RECORDER_MODEL_NAME)
 
 
 def _adaptation(raw: DaemonConfig, channels: dict[str, Address],

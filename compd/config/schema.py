@@ -377,7 +377,16 @@ class ModelSection(_Section):
         return self
 
 
+#: [output] enabled = false (or no [output]): the stage's figures a recorder-only run
+#: still steps its model's output through (nothing is written; `compd.core.cycle`)
+_RECORDER_ONLY_OUTPUT: dict[str, Any] = {"offset": {}, "limit_um": MAX_LIMIT_UM,
+                                         "slew_um_s": 1000.0, "readback": False}
+
+
 class OutputSection(_Section):
+    #: false: recorder only (read, validate, record; nothing at all written to the
+    #: controller: no offset, heartbeat or status); its addresses are then not needed
+    enabled: bool = True
     offset: dict[str, Any]
     heartbeat: dict[str, Any] | None = None
     status: dict[str, Any] | None = None
@@ -408,6 +417,13 @@ class OutputSection(_Section):
     #: a re-zero request (optional; a PLC bit or an M-code pulse at tool touch-off): its
     #: rising edge takes the present prediction as the new zero (compd.core.cycle)
     rezero: dict[str, Any] | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _recorder_only(cls, data: Any) -> Any:
+        if isinstance(data, dict) and data.get("enabled") is False:
+            return {**_RECORDER_ONLY_OUTPUT, **data}
+        return data
 
     @model_validator(mode="after")
     def _scale(self) -> OutputSection:
@@ -634,14 +650,22 @@ class DaemonConfig(_Section):
     machine: MachineSection = MachineSection()
     controller: ControllerSection
     channels: dict[str, ChannelSection]
-    model: ModelSection
-    output: OutputSection
+    #: none: recorder only, which [output] must say (enabled = false, or no [output]);
+    #: `compd.config.loader` refuses no model with an enabled output
+    model: ModelSection | None = None
+    #: none: recorder only (as enabled = false)
+    output: OutputSection = OutputSection.model_validate({"enabled": False})
     faults: FaultsSection = FaultsSection()
     state: StateSection = StateSection()
     recorder: RecorderSection = RecorderSection()
     telemetry: TelemetrySection = TelemetrySection()
     faces: FacesSection = FacesSection()
     adaptation: AdaptationSection = AdaptationSection()
+
+    @property
+    def recorder_only(self) -> bool:
+        """Read, validate and record; nothing written to the controller."""
+        return not self.output.enabled
 
     @field_validator("channels")
     @classmethod

@@ -52,7 +52,11 @@ controller confirmed the offset is in it). `plan`:
    (``[output] rezero``, a PLC bit or an M-code pulse) re-zeroes
    (`Cycle.rezero`, `compd.core.modelstep`) after this cycle's step: the
    target changes, the output stage ramps to it at the slew limit;
-5. writes: the offset (in controller units; omitted once the controller
+5. writes: nothing at all in a recorder-only run (``params.recorder_only``:
+   ``[output] enabled = false`` or no ``[model]``: no offset, heartbeat or
+   status; cause RECORDER_ONLY while the inputs are valid, and a cycle whose
+   inputs were valid and recorded is its complete one); else the offset
+   (in controller units; omitted once the controller
    refused it permanently, and while read-back is configured but the read
    failed, since then the controller's state is unknown), the heartbeat
    (advanced only on a complete valid cycle) and the status word.
@@ -427,7 +431,7 @@ class Cycle:
                                offset_written=self.params.offset_name in writes)
         self._planned = Plan(
             sequence=self.sequence, writes=writes, offset_um=offset_um,
-            model_um=stepped.model_um, shadow_um=stepped.shadow_um, state=row["state"],
+            model_um=row["model_um"], shadow_um=stepped.shadow_um, state=row["state"],
             status=status, heartbeat=self.heartbeat, complete=valid, row_fields=row,
             events=tuple(events), shutdown_done=self._shutdown_done(offset_um), cause=cause)
         return self._planned
@@ -553,13 +557,16 @@ class Cycle:
             degraded=stepped.fallback_for is not None,
             no_readback=no_readback,
             at_limit=target is not None and abs(target) > out.limit_um,
-            permit=permit if decision.state == FaultState.OK else None)
+            permit=permit if decision.state == FaultState.OK else None,
+            recorder_only=self.params.recorder_only)
 
     def _writes(self, readback_offset_um: float | None, offset_um: float, status: int,
                 events: list[Event]) -> tuple[dict[str, float], float]:
         """The writes of this cycle, and the offset they leave in force (µm)."""
         p = self.params
         writes: dict[str, float] = {}
+        if p.recorder_only:  # nothing at all reaches the controller
+            return writes, offset_um
         h = self.health
         if not h.write_stopped and not self.output.held and h.controller_off is None:
             if p.readback and readback_offset_um is None:
@@ -583,8 +590,9 @@ class Cycle:
                     stepped: _Stepped, valid: bool, view: HealthView, offset_um: float, *,
                     offset_written: bool) -> dict[str, Any]:
         """The record row's fields as planned (`RecordRow`; built once, at commit)."""
-        contributions = self.models.contributions() if valid else {}
-        if stepped.fallback_for is not None and stepped.model_um is not None:
+        recorded = self.params.record_model
+        contributions = self.models.contributions() if valid and recorded else {}
+        if stepped.fallback_for is not None and stepped.model_um is not None and recorded:
             contributions["fallback_total"] = stepped.model_um
         if stepped.shadow_um is not None:
             contributions["shadow_total"] = stepped.shadow_um
@@ -593,7 +601,8 @@ class Cycle:
         written = offset_um if offset_written else None
         return {"seq": self.sequence, "mono_s": now_s,
                 "wall_s": math.nan if wall_s is None else wall_s, "offset_um": written,
-                "model_um": stepped.model_um, "state": recorded_state(view), "valid": valid,
+                "model_um": stepped.model_um if recorded else None,
+                "state": recorded_state(view), "valid": valid,
                 "channels": {n: finite_or_none(v) for n, v in inputs.values.items()},
                 "validity": inputs.validity, "contributions": contributions,
                 "attempted_um": written,
@@ -602,6 +611,8 @@ class Cycle:
 
     def _shutdown_done(self, offset_um: float) -> bool:
         h = self.health
+        if h.shutting_down and self.params.recorder_only:
+            return True  # nothing was written: nothing to ramp
         return h.shutting_down and (offset_um == 0.0 or h.write_stopped or self.output.held
                                     or h.controller_off is not None)
 
@@ -620,6 +631,8 @@ class Cycle:
                 self.output.confirm()
                 changes["complete"] = offset_in_force(cause=plan.cause, confirmed=True)
                 self.health.write_succeeded(self._later)
+            elif self.params.recorder_only:  # recorded is what such a run is for
+                changes["complete"] = plan.cause.healthy
         else:
             if offset_sent:  # retried next cycle from the confirmed value
                 self.output.revert()
@@ -649,7 +662,7 @@ class Cycle:
         return Snapshot(self.output.confirmed_um, self.health.operator_hold, adaptation,
                         pending_um=self.pending_um, zero_um=m.zero_um if m.zero_by else None,
                         model_start=m.init_mode, reference=m.reference_source,
-                        fallback_for=self.fallback_for)
+                        fallback_for=self.fallback_for, references=m.references)
 
     # -- internals ------------------------------------------------------------------------
 

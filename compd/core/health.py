@@ -28,11 +28,12 @@ why": health (`compd health`, the metrics it reads, the checkpoint's
 ``last_cause``), the status page and `compd status`, the OPC UA face and the
 fault events' ``reason`` field are all derived from it. Every cause but
 IN_FORCE, OPERATOR_HOLD, WAITING_FOR_PERMISSION (the controller holds the
-offset by intent: a change only between cuts) and DEGRADED is unhealthy
-(`Cause.healthy`). DEGRADED (a fallback model stands in for a failed sensor)
-counts as healthy because the offset the daemon wants is computed from valid
-inputs and is in force: the machine is compensated, by a model validated at
-fit time, and turning a sensor fault into a red health check would restart or
+offset by intent: a change only between cuts), RECORDER_ONLY (a run that only
+records: valid inputs recorded, nothing written by intent) and DEGRADED is
+unhealthy (`Cause.healthy`). DEGRADED (a fallback model stands in for a failed
+sensor) counts as healthy because the offset the daemon wants is computed from
+valid inputs and is in force: the machine is compensated, by a model validated
+at fit time, and turning a sensor fault into a red health check would restart or
 page for a daemon doing its job; it is a warning instead (`compd health` says
 so, the metrics carry ``compd_degraded``), and the sensor wants replacing. The cycle's
 commit may turn a planned cause into a write's (`committed_cause`).
@@ -63,8 +64,8 @@ class Cause(enum.StrEnum):
     `output_cause` names the first of: shutting down, writes stopped, a foreign
     offset held, the controller off, a write fault, why the cycle is invalid
     (the model worse than none, the controller not answering, inputs invalid,
-    the model non-finite or out of range), no read-back, a foreign offset being
-    ramped back from, a permit input that cannot be read, an operator's hold,
+    the model non-finite or out of range), recorder only, no read-back, a foreign
+    offset being ramped back from, a permit input that cannot be read, an operator's hold,
     waiting for the controller's permission, the limit, a fallback model in force."""
 
     IN_FORCE = "in_force"
@@ -106,13 +107,16 @@ class Cause(enum.StrEnum):
     #: one input is invalid and the fallback model on the others is in force: the
     #: machine is compensated, less well (healthy, with a warning: `compd health`)
     DEGRADED = "degraded"
+    #: recorder only ([output] enabled = false or no [model]): read, validated and
+    #: recorded; nothing written to the controller, by intent
+    RECORDER_ONLY = "recorder_only"
 
     @property
     def healthy(self) -> bool:
         """The offset compd wants is in force, or is held on purpose (an operator's
         hold, the controller's permission not given)."""
         return self in (Cause.IN_FORCE, Cause.OPERATOR_HOLD, Cause.WAITING_FOR_PERMISSION,
-                        Cause.DEGRADED)
+                        Cause.RECORDER_ONLY, Cause.DEGRADED)
 
 
 @dataclass(frozen=True, slots=True)
@@ -156,6 +160,8 @@ class HealthView:
     permit: Cause | None = None
     #: a fallback model stands in for an invalid input this cycle
     degraded: bool = False
+    #: recorder only: nothing is written (RECORDER_ONLY once the inputs are valid)
+    recorder_only: bool = False
 
 
 def output_cause(v: HealthView) -> Cause:
@@ -174,6 +180,8 @@ def output_cause(v: HealthView) -> Cause:
         return v.invalid
     if v.policy != FaultState.OK:  # not reached: the policy holds only on an invalid cycle
         return Cause.INPUTS_INVALID
+    if v.recorder_only:
+        return Cause.RECORDER_ONLY
     if v.no_readback:
         return Cause.NO_READBACK
     if v.foreign:

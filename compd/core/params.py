@@ -36,6 +36,10 @@ class CycleParams:
     status_name: str | None = "status"
     #: probe-assisted adaptation (`compd.core.adaptation`), None when off
     adaptation: AdaptationSettings | None = None
+    #: read, validate, record; write nothing at all (`compd.core.cycle`)
+    recorder_only: bool = False
+    #: the model's output goes into the record (False: a recorder-only stand-in's)
+    record_model: bool = True
 
 
 def params_from_config(cfg: LoadedConfig, *, dry_run: bool = False) -> CycleParams:
@@ -48,11 +52,13 @@ def params_from_config(cfg: LoadedConfig, *, dry_run: bool = False) -> CyclePara
     return CycleParams(
         period_s=raw.machine.period_s, hold_s=raw.faults.hold_s, limit_um=out.limit_um,
         slew_um_s=out.slew_um_s, channels=limits, deadband_um=out.deadband_um, sign=out.sign,
-        units_per_um=out.units_per_um, readback=out.readback and not dry_run,
+        units_per_um=out.units_per_um,
+        readback=out.readback and not dry_run and not cfg.recorder_only,
         # float32 rounding; an integer address: half a count (OutputStage.observe)
         readback_tolerance_um=0.01,
         offset_quantum_um=cfg.offset_quantum_um,
         time_scale=raw.machine.time_scale,
         heartbeat_name="heartbeat" if "heartbeat" in cfg.outputs else None,
         status_name="status" if "status" in cfg.outputs else None,
-        adaptation=cfg.adaptation)
+        adaptation=cfg.adaptation, recorder_only=cfg.recorder_only,
+        record_model=cfg.model_given)

@@ -122,6 +122,8 @@ class Snapshot:
     reference: str = ""
     #: the input whose fallback model is in force (degraded), None: the main model
     fallback_for: str | None = None
+    #: the reference state in force (°C per relative input channel), None: not yet known
+    references: Mapping[str, float] | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -56,7 +56,8 @@ _CAUSE_WORDS: dict[Cause, str] = {
     Cause.OPERATOR_HOLD: "holding", Cause.CONTROLLER_OFF: "holding", Cause.DEGRADED: "degraded",
     Cause.WRITE_FAILED: "holding", Cause.NO_READBACK: "holding",
     Cause.FOREIGN_OFFSET: "ramping", Cause.AT_LIMIT: "limited",
-    Cause.WAITING_FOR_PERMISSION: "holding", Cause.PERMIT_UNREADABLE: "holding"}
+    Cause.WAITING_FOR_PERMISSION: "waiting", Cause.PERMIT_UNREADABLE: "holding",
+    Cause.RECORDER_ONLY: "recording"}
 
 _WHY: dict[Cause, str] = {
     Cause.IN_FORCE: "inputs valid, the model's offset is applied",
@@ -76,11 +77,13 @@ _WHY: dict[Cause, str] = {
     Cause.FOREIGN_OFFSET: "another writer changed the offset: compd ramps back from its "
                           "value to the model's at the slew limit (alarm)",
     Cause.AT_LIMIT: "the model asks for more than the limit: the offset is held at the limit",
-    Cause.WAITING_FOR_PERMISSION: "waiting for permission ([output] update_permitted reads "
-                                  "0): the offset in force is held, the model keeps "
-                                  "stepping; the change ramps in when it permits",
+    Cause.WAITING_FOR_PERMISSION: "waiting for permission ([output] update_permitted is 0): "
+                                  "the offset in force is held while the model runs; the "
+                                  "change ramps in at the slew limit once it permits",
     Cause.PERMIT_UNREADABLE: "[output] update_permitted cannot be read: taken as not "
                              "permitted, the offset in force is held",
+    Cause.RECORDER_ONLY: "recorder only: inputs valid and recorded; nothing is written to "
+                         "the controller (no offset, heartbeat or status)",
     Cause.DEGRADED: "a sensor is invalid: the fallback model on the remaining sensors is in "
                     "force (compensating, less well; replace the sensor)",
     # the faults: the policy's part ("the offset is held" ...) is added by `_fault_why`
@@ -194,6 +197,9 @@ class StatusBoard:
         rec = result.record
         est = result.snapshot.adaptation
         word, why = operator_state(result.state, result.cause, rec.validity, dry_run, est)
+        snap = result.snapshot
+        if snap.pending_um is not None:
+            why += f" ({snap.pending_um:+.3f} um pending)"
         raw = cfg.raw
         limit_um = float(raw.output.limit_um)
         if abs(result.offset_um) > limit_um:  # the only way beyond it: `OutputStage._start`
@@ -215,6 +221,16 @@ class StatusBoard:
                 "fallback_for": result.snapshot.fallback_for,
                 "fallbacks": sorted(cfg.model.fallbacks),
                 "dry_run": dry_run, "wall_s": self._wall(), "period_s": float(cfg.real_period_s),
+                "recorder_only": cfg.recorder_only,
+                # waiting for permission: the change held back (µm), else None
+                "pending_um": _num(snap.pending_um),
+                # how the model started and the reference state in force (and whence)
+                "model_start": snap.model_start or None,
+                "reference": ({"source": snap.reference,
+                               "temperatures_c": {k: _num(v) for k, v in
+                                                  sorted(snap.references.items())}}
+                              if snap.references else None),
+                "zero_um": _num(snap.zero_um),
                 "channels": channels,
                 "alarms": list(self._alarms)}
         if est is not None:

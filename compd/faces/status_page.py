@@ -66,7 +66,8 @@ function row(tbody, cells){ const tr = add(tbody, "tr");
 function section(i){ let s = document.getElementById("m" + i); if (s) return s;
   s = add(document.getElementById("machines"), "section"); s.id = "m" + i;
   for (const [tag, cls] of [["h1", "machine"], ["div", "state"], ["div", "why"],
-      ["div", "out"], ["h2", ""], ["table", "channels"], ["h2", "plotlabel"],
+      ["div", "out"], ["div", "small modelref"],
+      ["h2", ""], ["table", "channels"], ["h2", "plotlabel"],
       ["canvas", "plot"], ["h2", ""], ["table", "alarms"], ["p", "small updated"]])
     add(s, tag, cls);
   const h = s.querySelectorAll("h2"); h[0].textContent = "Channels";
@@ -83,6 +84,17 @@ function showMachine(s, m){
   add(out, "span", "big offset", fmt(m.offset_um, 2) + " \\u00b5m");
   add(out, "span", "limit", "   limit \\u00b1" + fmt(m.limit_um, 1) + " \\u00b5m \\u00b7");
   add(out, "span", "model_um", " model output " + fmt(m.model_um, 2) + " \\u00b5m");
+  if (m.pending_um !== null && m.pending_um !== undefined)
+    add(out, "span", "pending", " \\u00b7 " + fmt(m.pending_um, 2) +
+      " \\u00b5m pending (waiting for permission)");
+  const ref = m.reference && m.reference.temperatures_c ?
+    Object.entries(m.reference.temperatures_c).map(([k, v]) => k + " " + fmt(v, 2) +
+      " \\u00b0C").join(", ") : "";
+  q(".modelref").textContent = (m.recorder_only ? "recorder only: nothing is written" +
+      " \\u00b7 " : "") + (m.model_start ? "model started: " + m.model_start : "") +
+    (ref ? " \\u00b7 reference (" + (m.reference.source || "?") + "): " + ref : "") +
+    (m.zero_um !== null && m.zero_um !== undefined ? " \\u00b7 re-zeroed at " +
+      fmt(m.zero_um, 2) + " \\u00b5m" : "");
   const tb = q("table.channels tbody"); tb.textContent = "";
   for (const c of m.channels || []) row(tb, [[c.name, "name"],
     [fmt(c.value, digits(c.unit)) + " " + unit(c.unit), "value"],

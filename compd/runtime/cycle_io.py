@@ -106,7 +106,8 @@ class CycleIO:
         outcome = await self._write(driver, plan)
         row = cycle.commit(outcome)
         self.journal.events(row.write_events)
-        confirmed = self.dry_run or (bool(plan.writes) and outcome.ok)
+        confirmed = self.dry_run or self.running.params.recorder_only or (
+            bool(plan.writes) and outcome.ok)
         return Tick(cfg=cfg, row=row, samples=samples, confirmed=confirmed,
                     read_ok=self.read_ok)
 

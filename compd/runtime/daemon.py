@@ -295,3 +295,7 @@ class Daemon:
                       outputs={n: a.describe() for n, a in cfg.outputs.items()},
                       config_sha256=cfg.config_sha256, model_sha256=cfg.model_sha256,
                       dry_run=self.dry_run)
+        if cfg.recorder_only:
+            self.log.warning("recorder_only", model=cfg.model.name if cfg.model_given else None,
+                             action="reading, validating and recording; nothing is "
+                                    "written to the controller")

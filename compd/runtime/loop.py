@@ -97,7 +97,7 @@ class CycleLoop:
         self.journal.board.alarm("cycle_broken", "error", {"error": error})
         if again or self.once:
             return None  # the ramp cannot go on either: what is left is the checkpoint
-        if cfg.raw.faults.shutdown != "ramp_to_zero" or self.io.dry_run:
+        if cfg.raw.faults.shutdown != "ramp_to_zero" or self.io.dry_run or cfg.recorder_only:
             return None
         budget = self._ramp_budget()
         self.journal.log.info("shutdown_requested", policy="ramp_to_zero",
@@ -107,7 +107,8 @@ class CycleLoop:
     def _stop(self, offset_um: float) -> int | None:
         """A stop was requested: the shutdown ramp's budget, or None to stop now (hold)."""
         cfg = self.io.running.cfg
-        if cfg.raw.faults.shutdown == "ramp_to_zero" and not self.io.dry_run:
+        if (cfg.raw.faults.shutdown == "ramp_to_zero" and not self.io.dry_run
+                and not cfg.recorder_only):  # a recorder-only run wrote nothing to ramp
             budget = self._ramp_budget()
             self.stop_requested = asyncio.Event()  # a second request ends the ramp
             self.journal.log.info("shutdown_requested", policy="ramp_to_zero",
@@ -165,6 +166,10 @@ class CycleLoop:
                 log.warning("cycle_overrun", sequence=result.sequence,
                             skipped_deadlines=missed, overruns=self.overruns)
             await pause(clock, self.stop_requested, schedule.wait_s(clock.mono()))
+            if self.stop_requested.is_set() and cfg.recorder_only:
+                # nothing to ramp, and a cycle now would record a row off the sample
+                # grid (or twice at one time), which compd fit refuses
+                break
             if ramp_left is not None and self.stop_requested.is_set():
                 log.warning("shutdown_ramp_interrupted", offset_um=self.io.offset_um)
                 break

@@ -86,7 +86,12 @@ def prepare(old: LoadedConfig) -> tuple[LoadedConfig, Changes]:
     if new.raw.faces.opcua != old.raw.faces.opcua:
         raise ConfigError("faces.opcua", "changed: the OPC UA face's server and its "
                           "security are set at start; restart compd to change them")
-    _offset_stays(old, new)
+    if new.recorder_only != old.recorder_only:
+        raise ConfigError("output.enabled", (
+            "changed between recorder only and writing: what compd writes to the "
+            "controller is decided at start; restart compd to change it"))
+    if not new.recorder_only:
+        _offset_stays(old, new)
     return new, diff(old, new)
 
 

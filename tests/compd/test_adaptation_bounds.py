@@ -75,7 +75,8 @@ def test_the_model_dc_gain_bound_has_a_cap(tmp_path: Path,
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "model.max_dc_gain_um" in err[0] and "10000" in err[0]
     ok = _config(tmp_path, "probe_noise_um = 0.8", model="max_dc_gain_um = 10000.0")
-    assert load_config(ok).raw.model.max_dc_gain_um == 10000.0
+    section = load_config(ok).raw.model
+    assert section is not None and section.max_dc_gain_um == 10000.0
 
 
 def test_the_bounds_themselves_are_accepted(tmp_path: Path) -> None:

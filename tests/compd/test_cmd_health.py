@@ -95,7 +95,7 @@ def test_every_cause_but_in_force_and_an_operator_hold_is_unhealthy_and_named(
     metrics.cause(cause)
     rc, line = _health(capsys, "--url", _url(metrics))
     if cause in (Cause.IN_FORCE, Cause.OPERATOR_HOLD, Cause.WAITING_FOR_PERMISSION,
-                 Cause.DEGRADED):
+                 Cause.RECORDER_ONLY, Cause.DEGRADED):
         assert rc == 0, line
     else:
         assert rc == 1 and line.endswith(

@@ -197,6 +197,60 @@ async def test_sethold_is_the_operators_and_holds_then_slews_back(
                 assert 0.0 <= b - a <= 4.0 * (qb - qa) + 1e-9
 
 
+async def test_rezero_is_the_operators_audited_and_ramps_without_a_step(
+        sim: ModbusSimController, tmp_path: Path, pki: Pki) -> None:
+    port = free_tcp_port("127.0.0.1")
+    async with face_daemon(tmp_path, sim, _face(port, secure=pki, anonymous=True),
+                           slew_um_s=2.0) as daemon:
+        await sim.publish({"bearing": 22.0, "ambient": 20.0})  # warm: a prediction
+        await until(lambda: daemon.last_result is not None
+                    and daemon.last_result.model_um is not None
+                    and daemon.last_result.model_um > 5.0)
+        # anonymous reads, but may not re-zero: refused, audited nowhere, nothing changed
+        async with await _client(port, pki) as anon:
+            idx, machine = await _machine(anon)
+            with structlog.testing.capture_logs() as logs, \
+                    pytest.raises(UaStatusCodeError):
+                await machine.call_method(f"{idx}:Rezero")
+            assert not [e for e in logs if e["event"] == "opcua_rezero"]
+        assert daemon.cycle is not None and daemon.cycle.models.zero_by is None
+        async with await _client(port, pki, OPERATOR, PASSWORD) as op:
+            idx, machine = await _machine(op)
+            before = daemon.cycle.output.current_um
+            with structlog.testing.capture_logs() as logs:
+                assert await machine.call_method(f"{idx}:Rezero") is True
+            audit = [e for e in logs if e["event"] == "opcua_rezero"]
+            assert audit and audit[0]["user"] == OPERATOR and audit[0]["applied"] is True
+            assert audit[0]["peer"].startswith("('127.0.0.1'")  # who, from where, what
+            await until(lambda: daemon.cycle is not None
+                        and daemon.cycle.models.zero_by is not None)
+            by = daemon.cycle.models.zero_by
+            assert by is not None and by.startswith(f"opcua: {OPERATOR} from ")
+            assert daemon.cycle.models.zero_um > 5.0  # the prediction taken as zero
+            # the target is now ~0: the offset ramps down at the slew limit, never a step
+            await until(lambda: daemon.cycle is not None
+                        and daemon.cycle.output.current_um < before - 3.0)
+            seen: list[tuple[int, float]] = []
+            for _ in range(4):
+                await until(lambda: daemon.last_result is not None
+                            and daemon.last_result.sequence not in [q for q, _ in seen[-1:]])
+                assert daemon.last_result is not None
+                seen.append((daemon.last_result.sequence, daemon.last_result.offset_um))
+            for (qa, a), (qb, b) in itertools.pairwise(seen):
+                assert 0.0 <= a - b <= 4.0 * (qb - qa) + 1e-9  # 2 µm/s, ≤ 2 periods a cycle
+
+
+async def test_rezero_on_a_face_without_an_operator_is_refused(
+        sim: ModbusSimController, tmp_path: Path) -> None:
+    port = free_tcp_port("127.0.0.1")
+    async with face_daemon(tmp_path, sim, _face(port)) as daemon:
+        async with await _client(port) as client:
+            idx, machine = await _machine(client)
+            with pytest.raises(UaStatusCodeError):
+                await machine.call_method(f"{idx}:Rezero")
+        assert daemon.cycle is not None and daemon.cycle.models.zero_by is None
+
+
 async def test_a_face_that_cannot_start_leaves_compensation_running(
         sim: ModbusSimController, tmp_path: Path) -> None:
     with socket.socket() as taken:

@@ -6,7 +6,6 @@ sysexits code with nothing written."""
 from __future__ import annotations
 
 import os
-import re
 import tomllib
 from pathlib import Path
 
@@ -17,6 +16,7 @@ from compd.config.loader import load_config
 from compd.config.schema import RecorderSection
 from compd.offline.plan.schedule import Measure, PlanError, Spin, design
 from compd.sysexits import EX_CANTCREAT, EX_USAGE
+from models import tomltext
 
 from .daemon_helpers import write_config
 
@@ -88,13 +88,48 @@ def test_the_recorder_settings_are_what_the_daemon_loads(tmp_path: Path,
     assert section.enabled and section.retention_days == 0
     assert str(section.path) == "warmup.sqlite"
     assert "compd fit warmup.sqlite --column dz_um" in fragment
-    # put in place of a daemon config's [recorder]: the run is recorded beside the config
-    config = write_config(tmp_path, "modbus://127.0.0.1:5020")
-    text = config.read_text(encoding="utf-8")
-    text = re.sub(r"\[recorder\][^\[]*", "", text) + "\n" + fragment
-    config.write_text(text, encoding="utf-8")
-    assert load_config(config).recorder_path == tmp_path / "warmup.sqlite"
+    # not runnable until [controller] and [channels] are added, and says so first
+    assert "NOT YET RUNNABLE" in fragment.splitlines()[3]
+    machine = write_config(tmp_path, "modbus://127.0.0.1:5020")
+    mdoc = tomllib.loads(machine.read_text(encoding="utf-8"))
+    config = tmp_path / "warmup.recorder.toml"
+    config.write_text(fragment + "\n" + tomltext.dumps(
+        {k: mdoc[k] for k in ("controller", "channels")}), encoding="utf-8")
+    loaded = load_config(config)
+    assert loaded.recorder_only and not loaded.outputs and not loaded.model_given
+    assert loaded.recorder_path == tmp_path / "warmup.sqlite"
+    assert loaded.state_dir == tmp_path / "warmup.state"
     assert "time_scale" not in fragment
+
+
+def test_with_the_machines_config_the_recorder_config_runs_as_it_is(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    machine = write_config(tmp_path, "modbus://127.0.0.1:5020")
+    assert _plan(tmp_path, "--config", str(machine)) == 0
+    path = tmp_path / "warmup.recorder.toml"
+    text = path.read_text(encoding="utf-8")
+    assert "NOT YET RUNNABLE" not in text and "compd run warmup.recorder.toml" in text
+    loaded = load_config(path)
+    mine = load_config(machine)
+    assert loaded.recorder_only and not loaded.outputs and not loaded.model_given
+    assert loaded.channels == mine.channels
+    assert loaded.raw.controller == mine.raw.controller
+    assert loaded.raw.machine == mine.raw.machine
+    assert loaded.recorder_path == tmp_path / "warmup.sqlite"
+    assert main(["check", str(path)]) == 0
+    assert "recorder only" in capsys.readouterr().out
+
+
+def test_a_bad_machine_config_is_refused_naming_the_key_and_nothing_is_written(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    machine = write_config(tmp_path, "modbus://127.0.0.1:5020")
+    machine.write_text(machine.read_text(encoding="utf-8").replace(
+        "[machine]", "[machine]\nbogus = 1"), encoding="utf-8")
+    assert _plan(tmp_path, "--config", str(machine)) == 78
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "machine.bogus" in err[0]
+    assert not (tmp_path / "warmup.ngc").exists()
+    assert not (tmp_path / "warmup.recorder.toml").exists()
 
 
 def test_a_name_past_the_basic_plane_gives_valid_toml(tmp_path: Path) -> None:

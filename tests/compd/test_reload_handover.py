@@ -169,3 +169,24 @@ def test_moving_the_offset_on_the_same_controller_is_refused_by_name(tmp_path: P
         path.write_text(allowed)
         new, _ = prepare(old)
         assert new.raw.output == load_config(path).raw.output
+
+
+@pytest.mark.parametrize("start_recording", [True, False])
+def test_a_reload_never_switches_recorder_only_on_or_off(
+        tmp_path: Path, start_recording: bool) -> None:
+    """Recorder only writes nothing: a reload that would start writing (or stop, leaving
+    the last offset in the controller) is refused; a restart decides it."""
+    writing = BASE
+    recording = BASE.replace("[output]", "[output]\nenabled = false")
+    path = _cfg(tmp_path, recording if start_recording else writing)
+    old = load_config(path)
+    assert old.recorder_only is start_recording
+    path.write_text(writing if start_recording else recording)
+    with pytest.raises(ConfigError) as info:
+        prepare(old)
+    assert info.value.key == "output.enabled" and "restart compd" in info.value.reason
+    # a recorder-only config reloads as any other (nothing to keep in place)
+    path.write_text(recording)
+    if start_recording:
+        new, _ = prepare(old)
+        assert new.recorder_only and not new.outputs

@@ -337,3 +337,49 @@ async def test_a_fleet_page_lists_every_machine(tmp_path: Path,
         await asyncio.wait_for(task, 120.0)
         for sim in sims:
             await sim.stop()
+
+
+# -- the model's start, its reference and a change waiting for permission --------------
+
+
+def test_the_page_and_compd_status_say_the_pending_change_the_start_and_the_reference(
+        tmp_path: Path) -> None:
+    from compd.config.loader import load_config
+    from compd.core.cycle import Cycle, params_from_config
+    from tests.compd.cycle_helpers import samples
+    from tests.compd.daemon_helpers import write_config
+
+    cfg = load_config(write_config(tmp_path, "modbus://127.0.0.1:5020"))
+    cycle = Cycle(params_from_config(cfg), cfg.model)
+    board = StatusBoard(wall=lambda: 1000.0)
+    controller, t = 0.0, 0.0
+    for k in range(40):
+        t += 1.0
+        bearing = 20.0 if k < 30 else 20.0 + 0.4 * (k - 29)  # warms while not permitted
+        cycle.plan(t, samples(t, bearing), controller, permitted=k < 30)
+        row = cycle.commit()
+        controller = row.writes.get("offset", controller)
+    board.publish(row, cfg)
+    doc = board.snapshot
+    assert doc["cause"] == "waiting_for_permission" and doc["state"] == "waiting"
+    assert doc["pending_um"] is not None and doc["pending_um"] > 1.0
+    assert f"({doc['pending_um']:+.3f} um pending)" in doc["why"]
+    assert doc["model_start"] == "first_start"
+    assert doc["reference"] == {"source": "first_sample",
+                                "temperatures_c": {"ambient": 20.0, "bearing": 20.0}}
+    assert doc["recorder_only"] is False and doc["zero_um"] is None
+    line = status_cmd.describe({**doc, "age_s": 0.0})
+    assert "um pending" in line and "started first_start" in line
+    assert "reference (first_sample) ambient 20, bearing 20 C" in line
+    json.dumps(doc, allow_nan=False)  # the page's JSON as served
+    page = render_page(doc, 5.0)
+    assert "m.pending_um" in page and "m.model_start" in page and "m.reference" in page
+
+
+def test_every_cause_has_a_reason_on_the_page() -> None:
+    """A cause the page had no words for (waiting for permission, an unreadable permit,
+    recorder only) made every snapshot fail: the page froze at the last one."""
+    for cause in Cause:
+        word, why = operator_state(FaultState.OK, cause, {})
+        assert word and why, cause
+    assert operator_state(FaultState.OK, Cause.RECORDER_ONLY, {})[0] == "recording"
