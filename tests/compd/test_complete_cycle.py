@@ -21,9 +21,11 @@ from .cycle_helpers import params, samples, sp2
                          list(itertools.product(list(Cause), [True, False])))
 def test_only_a_confirmed_cycle_in_force_or_held_by_an_operator_is_complete(
         cause: Cause, confirmed: bool) -> None:
-    # held on purpose (an operator, the controller's permit) or recording only
+    # held on purpose (an operator, the controller's permit), recording only, or the
+    # fallback model for a lost sensor in force (degraded: compensating, less well)
     expected = confirmed and cause in (Cause.IN_FORCE, Cause.OPERATOR_HOLD,
-                                       Cause.WAITING_FOR_PERMISSION, Cause.RECORDER_ONLY)
+                                       Cause.WAITING_FOR_PERMISSION, Cause.RECORDER_ONLY,
+                                       Cause.DEGRADED)
     assert offset_in_force(cause=cause, confirmed=confirmed) is expected
 
 
