@@ -63,9 +63,11 @@ def _params() -> CycleParams:
 
 
 def _model(reference: dict[str, float] | None) -> CompensationModel:
+    """The bundled model with `reference` as its calibration reference; None: with
+    none at all (its own ``[reference]`` dropped too), so a start takes the first
+    sample's temperatures as the reference, the filters at rest."""
     m = load_model("sim_machine")
-    if reference is not None:
-        m.calibration_reference = dict(reference)
+    m.calibration_reference = {} if reference is None else dict(reference)
     return m
 
 
@@ -75,7 +77,7 @@ def _cycle_step(cycle: Cycle, t: float, sensors: dict[str, float]) -> float:
 
 
 def _warm(seed: int, speed_after_rpm: float,
-          start: Callable[[dict[str, float], dict[str, float]], Cycle | None]
+          start: Callable[[dict[str, float], dict[str, object]], Cycle | None]
           ) -> tuple[float, float, float]:
     """RMS and largest |error| (µm) over the hour after a start at 3 h, and the RMS
     from its 10th minute (the output stage's first ramp from 0 done)."""
