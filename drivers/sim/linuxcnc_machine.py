@@ -82,6 +82,21 @@ newsig {prefix}-status s32
 #: the HAL file of docs/protocols.md
 HAL_LINES = hal_lines()
 
+#: motion's digital outputs G-code sets (``M64 P<n>`` on, ``M65 P<n>`` off) that the
+#: test machine's HAL joins to compd's ``[output] update_permitted`` and ``rezero``
+PERMIT_DOUT = 0
+REZERO_DOUT = 1
+
+
+def mcode_hal_lines(prefix: str = "compd") -> str:
+    """The HAL lines that let G-code permit offset changes and re-zero (docs/protocols.md)."""
+    return f"""\
+# compd's update_permitted and rezero, set by G-code: M64/M65 P{PERMIT_DOUT} permits
+# offset changes, an M64 P{REZERO_DOUT} ... M65 P{REZERO_DOUT} pulse re-zeroes at touch-off
+net {prefix}-permit <= motion.digital-out-{PERMIT_DOUT:02d}
+net {prefix}-rezero <= motion.digital-out-{REZERO_DOUT:02d}
+"""
+
 INI = """\
 [EMC]
 MACHINE = compd-test-mill
@@ -153,7 +168,8 @@ def unavailable() -> str | None:
 def write_config(folder: Path, prefix: str = "compd") -> Path:
     """The machine's configuration in `folder` (compd's signals ``<prefix>-...``);
     returns the INI file."""
-    (folder / "compd.hal").write_text(hal_lines(prefix), encoding="utf-8")
+    (folder / "compd.hal").write_text(hal_lines(prefix) + mcode_hal_lines(prefix),
+                                      encoding="utf-8")
     (folder / "tool.tbl").write_text("T1 P1 D6.0 Z0 ;\n", encoding="utf-8")
     (folder / "sim.var").write_text("", encoding="utf-8")
     ini = folder / "compd-test.ini"
@@ -222,6 +238,11 @@ class LinuxCncSimController:
             "machine_on": LinuxCncGet(kind="get", hal="motion.motion-enabled"),
             "estop": LinuxCncGet(kind="get", hal="iocontrol.0.user-enable-out", invert=True),
             "homed": LinuxCncGet(kind="get", hal="motion.is-all-homed")}
+        #: [output] update_permitted and rezero as G-code sets them (`mcode_hal_lines`)
+        self.mcode_inputs: dict[str, Any] = {
+            "update_permitted": LinuxCncPin(pin="update-permitted", net=f"{p}-permit",
+                                            type="bit"),
+            "rezero": LinuxCncPin(pin="rezero", net=f"{p}-rezero", type="bit")}
         self.probes: dict[str, Any] = {}
         self._given = folder
         self.folder: Path | None = None
@@ -396,5 +417,6 @@ class LinuxCncSimController:
         await self.control("on")
 
 
-__all__ = ["HAL_LINES", "ForeignLinuxCnc", "LinuxCncBusy", "LinuxCncSimController",
-           "hal_lines", "unavailable", "write_config"]
+__all__ = ["HAL_LINES", "PERMIT_DOUT", "REZERO_DOUT", "ForeignLinuxCnc", "LinuxCncBusy",
+           "LinuxCncSimController", "hal_lines", "mcode_hal_lines", "unavailable",
+           "write_config"]

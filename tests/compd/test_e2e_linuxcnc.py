@@ -31,12 +31,15 @@ from typing import Any
 import pytest
 import pytest_asyncio
 
+from compd.core.health import Cause
 from compd.core.output import Status
 from compd.offline.demo import start_daemon
 from drivers.errors import BadAddress, ConnectionLost
 from drivers.linuxcnc import LinuxCncDriver
 from drivers.linuxcnc_options import LinuxCncPin
 from drivers.sim.linuxcnc_machine import (
+    PERMIT_DOUT,
+    REZERO_DOUT,
     ForeignLinuxCnc,
     LinuxCncBusy,
     LinuxCncSimController,
@@ -44,6 +47,7 @@ from drivers.sim.linuxcnc_machine import (
 )
 from drivers.sim.machine import SimMachine
 from drivers.sim.programs import constant
+from tests.faults.invariants import watch
 from tests.lockstep import Lockstep, lockstep_config, write_config
 
 WHY_NOT = unavailable()
@@ -563,3 +567,99 @@ async def test_an_offset_clipped_at_a_soft_limit_reads_back_as_held(
         await driver.close()
         await lcnc.control("mdi", "G53 G0 Z0")
         await _run_program_again(lcnc, tmp_path)
+
+
+async def _settled_steps(rig: Lockstep, lcnc: LinuxCncSimController, start_um: float,
+                         until: Callable[[float, float], bool], limit: int = 60) -> list[float]:
+    """Step until `until(LinuxCNC's offset, the model)` holds; LinuxCNC's offset after
+    each period, from `start_um`."""
+    seen = [start_um]
+    for _ in range(limit):
+        await rig.step()
+        assert rig.daemon is not None and rig.daemon.last_result is not None
+        model = rig.daemon.last_result.model_um
+        assert model is not None
+        seen.append((await lcnc.settled())["offset_um"])
+        if until(seen[-1], model):
+            return seen
+    pytest.fail(f"not within {limit} periods: {seen[-5:]}")
+
+
+async def test_g_code_permits_offset_changes_and_re_zeroes_by_m_code(
+        lcnc: LinuxCncSimController, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``[output] update_permitted`` and ``rezero`` as HAL pins (``type = "bit"``) the
+    machine's HAL joins to motion's digital outputs, set by G-code in MDI (``M64``/
+    ``M65 P<n>``; docs/protocols.md §10). While the permit is low, what LinuxCNC applies
+    (``axis.z.eoffset``) and compd's counts stand still, the model steps on and the
+    status word says HOLDING; raised, the change ramps in at the slew limit; an
+    ``M64``/``M65`` pulse re-zeroes, the offset ramping to the new zero, never stepped.
+    The output invariants are checked on every cycle (`tests.faults.invariants`)."""
+    inv = watch(monkeypatch)
+    doc = tomllib.loads(_config(lcnc, tmp_path).read_text("utf-8"))
+    for name, address in lcnc.mcode_inputs.items():
+        doc["output"][name] = address.model_dump()
+    machine = SimMachine(lcnc, program=constant(SPEED_RPM, heat_h=10.0, cool_h=1.0),
+                         seed=7, period_s=PERIOD_S, repeat=False)
+    rig = Lockstep(machine, write_config(doc, tmp_path / "compd.toml"))
+
+    async def mcode(on: bool, dout: int) -> None:
+        await lcnc.control("mdi", f"M{64 if on else 65} P{dout}")
+
+    def last() -> Any:
+        assert rig.daemon is not None and rig.daemon.last_result is not None
+        return rig.daemon.last_result
+
+    try:
+        await mcode(True, PERMIT_DOUT)  # between cuts: changes permitted
+        await mcode(False, REZERO_DOUT)
+        await rig.start()
+        await rig.step(30)
+        assert _pin(f"{lcnc.component}.update-permitted") == 1.0
+        assert last().cause is Cause.IN_FORCE and last().offset_um > 3.0
+
+        await mcode(False, PERMIT_DOUT)  # a cut starts: no change until it ends
+        await rig.step()
+        held = (await lcnc.settled())["offset_um"]
+        counts = _signal(f"{lcnc.prefix}-eoffset-counts")
+        model_from = last().model_um
+        for _ in range(8):
+            await rig.step()
+            assert last().cause is Cause.WAITING_FOR_PERMISSION
+            hal = await lcnc.settled()
+            assert hal["offset_um"] == pytest.approx(held, abs=SETTLED_UM)
+            assert int(hal["status"]) & Status.HOLDING and not int(hal["status"]) & Status.ALARM
+        assert _signal(f"{lcnc.prefix}-eoffset-counts") == counts
+        assert last().model_um > model_from + STEP_UM  # the model stepped on meanwhile
+        pending = last().snapshot.pending_um
+        assert pending is not None and pending > 2 * STEP_UM
+
+        await mcode(True, PERMIT_DOUT)  # the cut ended: the change ramps in
+        seen = await _settled_steps(rig, lcnc, held,
+                                    lambda off, model: abs(off - model) <= COUNT_UM)
+        steps = [abs(b - a) for a, b in itertools.pairwise(seen)]
+        assert max(steps) <= STEP_UM + SETTLED_UM
+        assert max(steps) >= STEP_UM - SETTLED_UM  # the slew limit bound: no jump
+        names = rig.logs[-1].names()
+        assert "permission_waiting" in names and "permission_granted" in names
+
+        before = seen[-1]
+        await mcode(True, REZERO_DOUT)  # the touch-off's pulse
+        await rig.step()
+        assert rig.daemon is not None and rig.daemon.cycle is not None
+        assert rig.daemon.cycle.models.zero_by == "controller input [output] rezero"
+        await mcode(False, REZERO_DOUT)
+        after = (await lcnc.settled())["offset_um"]
+        seen = await _settled_steps(rig, lcnc, after,
+                                    lambda off, model: abs(off - model) <= COUNT_UM)
+        steps = [abs(b - a) for a, b in itertools.pairwise([before, *seen])]
+        assert max(steps) <= STEP_UM + SETTLED_UM  # no step at the tool
+        assert abs(seen[-1]) < before - 3.0  # the growth since the touch-off only
+        assert rig.logs[-1].names().count("rezero") == 1  # one pulse, one re-zero
+        assert await rig.stop() == 0
+    finally:
+        await rig.close()
+        await _run_program_again(lcnc, tmp_path)
+    print(json.dumps({"figure": "linuxcnc_mcode_permit_rezero", "held_um": held,
+                      "pending_um": pending, "rezero_from_um": before,
+                      "max_step_um": max(steps), "slew_step_um": STEP_UM}))
+    assert inv.total_cycles > 40 and not inv.violations

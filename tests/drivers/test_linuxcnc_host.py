@@ -149,8 +149,11 @@ def test_a_test_machines_names_are_the_runs_own() -> None:
     nets = [a.net for a in sim.channels.values() if a.net != "spindle-speed-cmd"]
     nets += [sim.outputs_map["offset"].counts_net, sim.outputs_map["offset"].enable_net]
     nets += [sim.outputs_map[n].net for n in ("heartbeat", "status")]
+    nets += [a.net for a in sim.mcode_inputs.values()]
     assert all(n.startswith(sim.prefix + "-") for n in nets)
     assert "compd-" not in linuxcnc_machine.hal_lines(sim.prefix).replace(sim.prefix, "")
+    assert "compd-" not in linuxcnc_machine.mcode_hal_lines(sim.prefix).replace(
+        sim.prefix, "")
     doc = sim.own_config(tomllib.loads(
         (ROOT / "compd" / "examples" / "linuxcnc.toml").read_text("utf-8")))
     assert doc["controller"]["linuxcnc"]["component"] == sim.prefix

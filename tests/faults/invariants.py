@@ -166,6 +166,14 @@ class Invariants:
 @pytest.fixture(autouse=True)
 def invariants(monkeypatch: pytest.MonkeyPatch) -> Iterator[Invariants]:
     """Check the invariants on every `Cycle.plan` of the test."""
+    inv = watch(monkeypatch)
+    yield inv
+    assert not inv.violations, inv.violations
+
+
+def watch(monkeypatch: pytest.MonkeyPatch) -> Invariants:
+    """Check the invariants on every `Cycle.plan` until `monkeypatch` is undone (the
+    fixture's work, for a test in a module whose other tests do without it)."""
     inv = Invariants()
     original, original_commit = Cycle.plan, Cycle.commit
 
@@ -184,8 +192,7 @@ def invariants(monkeypatch: pytest.MonkeyPatch) -> Iterator[Invariants]:
 
     monkeypatch.setattr(Cycle, "plan", plan)
     monkeypatch.setattr(Cycle, "commit", commit)
-    yield inv
-    assert not inv.violations, inv.violations
+    return inv
 
 
 def run_pure(inv: Invariants, cycle: Cycle, now_s: float,
