@@ -179,7 +179,8 @@ def _port_in_use(port: int) -> str:
     return ""
 
 
-def _write_config(args: argparse.Namespace, controller: SimController) -> None:
+def _write_config(args: argparse.Namespace, controller: SimController,
+                  rest_c: float | None) -> None:
     """The example config for this server, before the first line is printed: a
     reader waiting for that line finds the file written."""
     from compd.commands.sim_config import config_for
@@ -188,7 +189,7 @@ def _write_config(args: argparse.Namespace, controller: SimController) -> None:
     command = f"compd sim --protocol {args.protocol} --speedup {args.speedup:g} " \
               f"--write-config {Path(args.write_config).name}"
     text = config_for(controller.protocol, controller.endpoint, args.speedup,
-                      _library_path(controller), command)
+                      _library_path(controller), command, rest_c)
     write_atomically(args.write_config, lambda tmp: tmp.write_text(text, encoding="utf-8"),
                      "config", force=args.force)
 
@@ -219,6 +220,7 @@ def _record_shop(args: argparse.Namespace) -> int:
 
 async def _serve(args: argparse.Namespace) -> int:
     from drivers.sim.machine import SimMachine
+    from drivers.sim.plant import ThermalPlant
     from drivers.sim.programs import make_program
     from drivers.sim.registry import make_sim_controller
 
@@ -232,7 +234,10 @@ async def _serve(args: argparse.Namespace) -> int:
     await controller.start()
     if args.write_config is not None:
         try:
-            _write_config(args, controller)
+            # the plant SimMachine builds below: its rest state is the model's zero
+            rest_c = None if args.no_plant else ThermalPlant(
+                seed=args.seed, params=program.plant_params()).rest_c
+            _write_config(args, controller, rest_c)
         except BaseException:
             await controller.stop()
             raise

@@ -5,7 +5,11 @@ The example (`compd/examples/<protocol>.toml`) is copied line by line, its
 comments kept, with only what ties it to this server changed: the endpoint
 (the port the server took), ``[machine] time_scale`` (``--speedup``), the I/O
 timeout when the speed-up makes a cycle shorter than the example's timeout
-allows, and for FOCAS the stand-in library the server built. Its state
+allows, for FOCAS the stand-in library the server built, and ``[model]
+reference``: the simulated plant's rest temperatures for its seed (the state
+in which its growth is zero, as a shop's touch-off state), so a daemon that
+starts on a plant already warm estimates its state instead of taking the warm
+temperatures as zero. Its state
 directory is relative (``state-<protocol>``), so it lands beside the written
 file: every user and checkout has its own.
 """
@@ -61,9 +65,10 @@ def _get(doc: dict[str, Any], section: str, key: str) -> Any:
 
 
 def config_for(protocol: str, endpoint: str, speedup: float, library_path: str | None,
-               command: str) -> str:
+               command: str, rest_c: float | None = None) -> str:
     """The example config of `protocol` for a simulated controller at `endpoint`
-    running `speedup` machine seconds per real second."""
+    running `speedup` machine seconds per real second; `rest_c`: the plant's rest
+    temperature, written as the model's reference (None: a plant-less server)."""
     text = example_path(protocol).read_text(encoding="utf-8")
     doc = tomllib.loads(text)
     period_s = float(doc["machine"]["period_s"])
@@ -74,13 +79,36 @@ def config_for(protocol: str, endpoint: str, speedup: float, library_path: str |
     if library_path is not None:
         values[("controller.focas", "library_path")] = f'"{library_path}"'
     body = _replace(text, values)
+    if rest_c is not None:
+        body = _with_reference(body, doc, rest_c)
     written = tomllib.loads(body)
     for (section, key), value in values.items():  # what was meant is what is read
         if _get(written, section, key) != tomllib.loads(f"v = {value}")["v"]:
             raise RuntimeError(f"[{section}] {key} was not replaced")
+    if rest_c is not None and set(written["model"]["reference"].values()) != {rest_c}:
+        raise RuntimeError("[model] reference was not written")
     header = (f"# Written by `{command}` (compd {__version__}):\n"
               f"# {example_path(protocol).name} for the simulated controller at {endpoint},\n"
               f"# {speedup:g} machine seconds per real second. Run it with\n"
               f"#   compd run <this file>\n"
               f"# while that compd sim serves. The example's own notes follow.\n#\n")
     return header + body
+
+
+def _with_reference(body: str, doc: dict[str, Any], rest_c: float) -> str:
+    """`body` with ``reference = {…}`` (every relative input channel of the
+    example's model at `rest_c`) as the first key of its ``[model]`` table."""
+    from compd.infiles import load_model
+
+    if "reference" in doc.get("model", {}):
+        raise RuntimeError("the example sets [model] reference itself")
+    channels = sorted(load_model(str(doc["model"]["file"])).reference_channels)
+    table = ", ".join(f"{ch} = {rest_c!r}" for ch in channels)
+    lines = body.splitlines()
+    at = next(i for i, line in enumerate(lines) if _HEADER.match(line)
+              and _HEADER.match(line).group(1).strip() == "model")  # type: ignore[union-attr]
+    lines[at + 1:at + 1] = [
+        "# the simulated plant's rest temperatures (its growth is zero there, as at a",
+        "# shop's touch-off): the model's zero, whatever the plant's state at start",
+        f"reference = {{ {table} }}"]
+    return "\n".join(lines) + "\n"

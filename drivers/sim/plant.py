@@ -213,6 +213,13 @@ class ThermalPlant:
         self.offset_um = 0.0
         self._cache: dict[tuple[float, bool], tuple[np.ndarray, np.ndarray]] = {}
 
+    @property
+    def rest_c(self) -> float:
+        """The temperature of every node at rest (t = 0, in equilibrium with the
+        room): the state in which the plant's growth is zero, the reference of a
+        model of it. It is the room's at the start, seeded (the room walk)."""
+        return self._ambient_ref
+
     # -- physics ---------------------------------------------------------
     def losses_w(self, speed_rpm: float, load: float) -> tuple[float, float, float]:
         """(q_bearing W, q_motor W, power_kw) at a speed and load fraction."""
