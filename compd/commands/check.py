@@ -90,11 +90,18 @@ def dc_gain_unit(term: Any) -> str:
     return f"µm/({per}{gain})" if gain else f"µm/{per}"
 
 
+#: a negative real pole of smaller magnitude is no behaviour to warn of: its mode
+#: alternates sign every sample but shrinks by this factor or more each sample
+#: (below 1 % of its start after two), gone before the slew limit lets it show
+NEGLIGIBLE_ALTERNATING = 0.1
+
+
 def plausibility(model: Any) -> list[str]:
     """Warnings about a model that is stable yet implausible: DC gains that
     cancel, a DC gain out of proportion to the recorded range (the spans
     `compd fit` writes into the provenance; else a fixed bound per kelvin),
-    negative real poles (a mode that alternates sign every sample)."""
+    negative real poles (a mode that alternates sign every sample) of magnitude
+    `NEGLIGIBLE_ALTERNATING` or more."""
     from models.identify.checks import PLAUSIBLE_DC_SPAN_RATIO
     from models.tf import TransferFunction
 
@@ -107,7 +114,7 @@ def plausibility(model: Any) -> list[str]:
         if not isinstance(dyn, TransferFunction):
             continue
         for p in dyn.poles:
-            if abs(p.imag) < 1e-12 and p.real < -1e-9:
+            if abs(p.imag) < 1e-12 and p.real <= -NEGLIGIBLE_ALTERNATING:
                 warnings.append(f"term {t.name!r}: a negative real pole {p.real:.6g}: a mode "
                                 "that alternates sign every sample (not a thermal behaviour)")
         if t.gain_channel or not t.relative:
