@@ -78,7 +78,7 @@ def test_fit_json_and_a_fixed_term(sp3_records: tuple[Path, Path], tmp_path: Pat
     assert main(["fit", str(sp3_records[0]), "--column", "dz_um", "--term", "spindle=bearing",
                  "--fixed", "sp3:ambient", "--orders", "1-2", "-o", str(out), "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
-    assert set(doc) == {"terms", "fit_percent", "dpk_um", "model_file", "records"}
+    assert set(doc) == {"terms", "fit_percent", "dpk_um", "model_file", "records", "fallbacks"}
     assert [r["path"] for r in doc["records"]] == [str(sp3_records[0])]
     assert doc["model_file"] == str(out) and doc["fit_percent"] > 95.0
     model = load_model(out)
@@ -94,7 +94,8 @@ def test_replay_refuses_another_period_and_bad_data(tmp_path: Path,
     assert main(["replay", "sp3", str(rec), "--column", "dz_um"]) == 65
     assert "sampled every 10 s" in capsys.readouterr().err
     rec.write_text("time_s,bearing,ambient,dz_um\n0,20,20,1\n1,20,20,2\n1,20,20,3\n2,20,20,4\n")
-    assert main(["fit", str(rec), "--column", "dz_um", "--term", "bearing"]) == 65
+    assert main(["fit", str(rec), "--column", "dz_um", "--term", "bearing",
+                 "-o", str(tmp_path / "m.toml")]) == 65
     assert "duplicated timestamp" in capsys.readouterr().err
 
 
@@ -139,7 +140,7 @@ def test_fit_refuses_records_with_different_periods_and_a_too_slow_pole(
     ten.write_text("time_s,bearing,ambient,dz_um\n" + "".join(
         f"{10 * k},{20 + k / 10:.1f},20.0,{k * 1.5}\n" for k in range(20)))
     assert main(["fit", str(sp3_records[0]), str(ten), "--column", "dz_um",
-                 "--term", "bearing"]) == 65
+                 "--term", "bearing", "-o", str(tmp_path / "m.toml")]) == 65
     assert "need one sample period" in capsys.readouterr().err
     # SP3's spindle pole (0.9984 at 1 s, τ ≈ 10 min) is slower than a 1-minute bound:
     # every dynamic order fails, said, and the static model is what fits (issue 19)

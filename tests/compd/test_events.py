@@ -20,7 +20,9 @@ WAS_WARNING = {"channel_invalid", "fault_hold", "readback_mismatch", "write_fail
                "probes_disagree",
                # a re-zero moves the offset (an audit line); one refused or dropped; a
                # permit input that cannot be read (taken as not permitted)
-               "rezero", "rezero_refused", "rezero_dropped", "permit_unreadable"}
+               "rezero", "rezero_refused", "rezero_dropped", "permit_unreadable",
+               # a sensor lost: the fallback model on the others is in force (degraded)
+               "fallback_in_force"}
 WAS_ERROR = {"fault_ramp_to_zero", "offset_write_stopped", "output_write_stopped",
              "readback_out_of_range", "write_fault", "model_out_of_range",
              "model_worse_than_none"}

@@ -202,7 +202,8 @@ def test_what_is_not_a_recorder_ends_in_one_line(kind: str, error: type[Exceptio
         with pytest.raises(RecordError, match=r"samples\.db"):
             read_record(path)
     for argv in (["export", str(path)], ["replay", "sp2", str(path), "--column", "dz_um"],
-                 ["fit", str(path), "--column", "dz_um", "--term", "bearing"]):
+                 ["fit", str(path), "--column", "dz_um", "--term", "bearing",
+                  "-o", str(path.parent / "m.toml")]):
         assert main(argv) == code, argv
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "Traceback" not in err, err

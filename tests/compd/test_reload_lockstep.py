@@ -162,8 +162,9 @@ async def test_a_reload_being_prepared_costs_no_cycle_and_swaps_under_the_slew_l
     assert daemon.overruns == 0
 
     (done,) = _events(rig, "reload_succeeded")
-    assert "model" in done["changed"] and done["filters"] == "restart_at_steady_state"
-    assert "controller" not in done["changed"]  # same endpoint and addresses: same link
+    assert "model.file" in done["changed"] and "output.slew_um_s" in done["changed"]
+    assert "model" in done["restarted"] and done["filters"] == "restart_at_steady_state"
+    assert "controller" not in done["restarted"]  # same endpoint and addresses: same link
     steps = [abs(b - a) for a, b in itertools.pairwise(offsets)]
     assert max(steps[:swapped_at - 1]) <= OLD_SLEW_UM_S * PERIOD_S + 1e-3
     assert max(steps[swapped_at - 1:]) <= NEW_SLEW_UM_S * PERIOD_S + 1e-3
@@ -199,7 +200,8 @@ async def test_a_storm_of_reloads_misses_no_cycle(
     assert daemon.cycles == cycles + stepped and daemon.overruns == 0
     done = _events(rig, "reload_succeeded")
     assert len(done) == 10 and gate.calls == 10
-    assert all(d["filters"] == "carried_over" and d["changed"] == [] for d in done)
+    assert all(d["filters"] == "carried_over" and d["restarted"] == []
+               and d["changed"] == ["state.checkpoint_every"] for d in done)
     assert await rig.stop() == 0
     (stopped,) = _events(rig, "daemon_stopped")
     assert stopped["reloads"] == 10 and stopped["overruns"] == 0

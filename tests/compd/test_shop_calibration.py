@@ -89,10 +89,11 @@ def test_a_searched_model_with_a_speed_term_is_one_the_daemon_steps(
 def test_term_or_candidates_one_of_the_two(days: tuple[Path, Path],
                                            capsys: pytest.CaptureFixture[str]) -> None:
     day1, _ = days
-    assert main(["fit", str(day1), "--column", "dz_um"]) == 65
+    out = ["-o", str(day1.parent / "m.toml")]
+    assert main(["fit", str(day1), "--column", "dz_um", *out]) == 65
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--candidates" in err
-    assert main(["fit", str(day1), "--column", "dz_um", "--candidates", "nope*"]) == 65
+    assert main(["fit", str(day1), "--column", "dz_um", "--candidates", "nope*", *out]) == 65
     assert "matches no column" in capsys.readouterr().err
 
 

@@ -111,7 +111,7 @@ def test_prometheus_scrapes_compd_with_machine_labels_and_the_rules(
         assert machines == {"mill-1": 2.0, f"127.0.0.1:{unnamed.port}": 0.0}
         groups = _wait(lambda: _api(web, "rules")["groups"], proc)
         rules = {r["name"]: r for g in groups for r in g["rules"]}
-        assert len(rules) == 10 and {r["health"] for r in rules.values()} <= {"ok", "unknown"}
+        assert len(rules) == 11 and {r["health"] for r in rules.values()} <= {"ok", "unknown"}
         # mill-1 ramps (fault state 2): CompdCompensationNotActive is pending for its
         # minute (firing after it, on a machine slow enough), labelled with the machine
         alerts = _wait(lambda: [a for a in _api(web, "alerts")["alerts"]
