@@ -11,6 +11,9 @@ import compd
 import models
 from drivers.sim.drive_map import MAPS_DIR
 
+#: the folder that holds compd/, drivers/ and models/ as imported: the checkout
+#: in an editable install, site-packages for a wheel (tests that read the source)
+PACKAGES_ROOT = Path(compd.__file__).resolve().parents[1]
 #: the complete configs, one per protocol (compd/examples/*.toml)
 EXAMPLES = Path(compd.__file__).resolve().parent / "examples"
 #: the model library `compd check NAME` and `--model NAME` read (models/library/*.toml)

@@ -233,7 +233,7 @@ def _compd(*argv: str, encoding: str) -> subprocess.CompletedProcess[bytes]:
 
 
 @pytest.mark.parametrize(("argv", "code"), [
-    (["check", "sp2"], 0), (["check", "compd/examples/modbus.toml"], 0),
+    (["check", "sp2"], 0), (["check", str(EXAMPLES / "modbus.toml")], 0),
     (["check", "tests/nonexistent/µ°±.toml"], 66)])
 def test_a_narrow_output_encoding_never_ends_a_command(argv: list[str], code: int) -> None:
     done = _compd(*argv, encoding="ascii")
