@@ -11,4 +11,5 @@
 - `compd.testing`   test doubles for code built on compd
 """
 
+#: the one version (pyproject reads it: `dynamic = ["version"]`); a release tag is v + this
 __version__ = "0.1.0"

@@ -2,8 +2,9 @@
 
 The HIL bench's machine side (`drivers.sim.drive`): the thermal plant writes
 its sensors into the controller addresses of a drive map (``--map``, default
-``deploy/hil/maps/<protocol>.toml``) and reads back the offset the daemon
-wrote there. Runs until SIGINT/SIGTERM or ``--duration-h`` of machine time
+the one shipped for the protocol, ``drivers/sim/maps/<protocol>.toml``, which
+the repository's ``deploy/hil/maps`` points to) and reads back the offset the
+daemon wrote there. Runs until SIGINT/SIGTERM or ``--duration-h`` of machine time
 (exit 0), printing one status line every ``--print-every-s`` real seconds;
 ``--record CSV`` writes the run (a calibration record plus offset, error,
 heartbeat, status and link state) on the way out.
@@ -31,9 +32,6 @@ from compd.argtypes import number
 from compd.config.urls import redact_urls
 from compd.sysexits import EX_CONFIG, EX_USAGE
 
-#: the bench maps shipped in the repository
-MAPS_DIR = Path(__file__).resolve().parents[2] / "deploy" / "hil" / "maps"
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("HIL bench (--drive)")
@@ -42,7 +40,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                             "s7://HOST:PORT, modbus://HOST:PORT or focas://HOST:PORT")
     group.add_argument("--map", metavar="TOML", default=None,
                        help="drive map: which addresses the plant writes and reads "
-                            "(default: deploy/hil/maps/<protocol>.toml)")
+                            "(default: the one shipped for the protocol, as in "
+                            "deploy/hil/maps/)")
     group.add_argument("--duration-h", type=number(0.0, 8784.0, lo_open=True), default=None,
                        help="stop after this much machine time, hours (default: run until "
                             "SIGINT/SIGTERM)")
@@ -117,7 +116,7 @@ def run_drive(args: argparse.Namespace) -> int:
     from compd.infiles import read_toml
     from compd.outfiles import check_output, write_atomically
     from drivers.sim.drive import DriveLoop, drive_endpoint, open_drive_driver, write_drive_record
-    from drivers.sim.drive_map import DriveMapError, parse_drive_map
+    from drivers.sim.drive_map import MAPS_DIR, DriveMapError, parse_drive_map
     from drivers.sim.programs import make_program
 
     if args.protocol is not None:

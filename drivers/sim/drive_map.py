@@ -44,6 +44,10 @@ from models.nesting import NestingError, loads_toml
 #: the protocol names, from the one registry (`drivers.protocols`)
 Protocol = ProtocolName
 
+#: the bench maps shipped with the package, one per protocol (`<protocol>.toml`);
+#: the repository's deploy/hil/maps points here
+MAPS_DIR = Path(__file__).with_name("maps")
+
 
 def _protocol_options(protocol: str) -> frozenset[str]:
     """Driver options a map may set for `protocol` (besides timeout_s): those

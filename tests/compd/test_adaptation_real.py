@@ -24,6 +24,7 @@ from compd.errors import EX_CONFIG, ConfigError
 from models.adaptation import AdaptationParams, Adapter
 from models.errors import ModelError
 from models.modelfile import parse_model
+from tests.shipped import LIBRARY
 
 from .test_adaptation_config import ADAPTATION
 from .test_config import BASE
@@ -290,7 +291,7 @@ def test_a_bad_adaptation_table_in_a_model_file_is_refused_by_name(
 
 
 def _model_with(tmp_path: Path, table: str) -> str:
-    src = Path(__file__).resolve().parents[2] / "models" / "library" / "sp2.toml"
+    src = LIBRARY / "sp2.toml"
     p = tmp_path / "learnt.toml"
     p.write_text(src.read_text() + "\n[adaptation]\n" + table, encoding="utf-8")
     return BASE.replace('file = "sp2"', f'file = "{p}"')

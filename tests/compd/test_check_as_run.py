@@ -18,9 +18,10 @@ from compd.commands.sim import describe
 from compd.sysexits import EX_CONFIG
 from drivers.sim.fwlib_build import build_standin
 from drivers.sim.registry import make_sim_controller
+from tests.shipped import EXAMPLES
 
 ROOT = Path(__file__).resolve().parents[2]
-FOCAS = ROOT / "compd" / "examples" / "focas.toml"
+FOCAS = EXAMPLES / "focas.toml"
 
 
 def _focas_config(tmp_path: Path, library: str) -> Path:

@@ -13,8 +13,9 @@ from pathlib import Path
 
 import pytest
 
+from tests.shipped import EXAMPLES
+
 ROOT = Path(__file__).resolve().parents[2]
-EXAMPLES = ROOT / "compd" / "examples"
 
 COARSE = '{ unit = 1, kind = "holding", address = 20, type = "int16", scale = 10.0 }'
 

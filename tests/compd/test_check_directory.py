@@ -14,9 +14,9 @@ import pytest
 from compd.cli import main
 from compd.sysexits import EX_CONFIG, EX_NOINPUT
 from models.modelfile import library_names
+from tests.shipped import EXAMPLES
 
 ROOT = Path(__file__).resolve().parents[2]
-EXAMPLES = ROOT / "compd" / "examples"
 
 
 def _fleet(tmp_path: Path, *names: str) -> Path:

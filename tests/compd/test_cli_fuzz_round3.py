@@ -31,6 +31,7 @@ import pytest
 
 from compd.cli import main
 from compd.infiles import load_model
+from tests.shipped import EXAMPLES, LIBRARY
 
 from .test_cli_fuzz import _check
 
@@ -125,12 +126,12 @@ def _deep_files(root: Path) -> None:
     (root / "deep_dotted.toml").write_text("a." * DEEP + "b = 1\n", encoding="utf-8")
     (root / "deep_header.toml").write_text("[" + ".".join(["t"] * DEEP) + "]\nx = 1\n",
                                            encoding="utf-8")
-    config = (ROOT / "compd" / "examples" / "modbus.toml").read_text(encoding="utf-8")
+    config = (EXAMPLES / "modbus.toml").read_text(encoding="utf-8")
     (root / "deep_config.toml").write_text(
         config.replace("[machine]\n", f"[machine]\nnote = {arr}\n", 1), encoding="utf-8")
     (root / "config_deep_model.toml").write_text(
         re.sub(r'(?m)^file = ".*$', 'file = "deep_array.toml"', config, count=1), encoding="utf-8")
-    sp2 = (ROOT / "models" / "library" / "sp2.toml").read_text(encoding="utf-8")
+    sp2 = (LIBRARY / "sp2.toml").read_text(encoding="utf-8")
     (root / "deep_strings_ok.toml").write_text(
         f"# {arr}\n" + re.sub(r'(?m)^description = .*$', f'description = "{arr}"', sp2, count=1)
         + f"\n# {arr}\n", encoding="utf-8")
@@ -234,7 +235,7 @@ def _compd(*argv: str, encoding: str) -> subprocess.CompletedProcess[bytes]:
 
 
 @pytest.mark.parametrize(("argv", "code"), [
-    (["check", "sp2"], 0), (["check", "compd/examples/modbus.toml"], 0),
+    (["check", "sp2"], 0), (["check", str(EXAMPLES / "modbus.toml")], 0),
     (["check", "tests/nonexistent/µ°±.toml"], 66)])
 def test_a_narrow_output_encoding_never_ends_a_command(argv: list[str], code: int) -> None:
     done = _compd(*argv, encoding="ascii")

@@ -20,10 +20,9 @@ from compd.runtime.daemon import Daemon
 from compd.runtime.sdnotify import Notifier
 from compd.sysexits import EX_CONFIG, EX_DATAERR, EX_NOINPUT, EX_USAGE
 from drivers.sim.modbus_server import ModbusSimController
+from tests.shipped import EXAMPLES, LIBRARY, PACKAGES_ROOT
 
 from .daemon_helpers import write_config
-
-REPO = Path(__file__).resolve().parents[2]
 
 
 def _subparsers() -> dict[str, argparse.ArgumentParser]:
@@ -85,9 +84,9 @@ def test_check_on_a_missing_file_does_not_call_it_a_model_file(
 
 
 def test_check_reads_a_config_and_a_model_once_each(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["check", str(REPO / "compd/examples/modbus.toml")]) == 0
+    assert main(["check", str(EXAMPLES / "modbus.toml")]) == 0
     assert ": OK" in capsys.readouterr().out
-    assert main(["check", str(REPO / "models/library/sp2.toml")]) == 0
+    assert main(["check", str(LIBRARY / "sp2.toml")]) == 0
     assert "term" in capsys.readouterr().out
 
 
@@ -95,8 +94,9 @@ def test_exit_codes_are_declared_once_in_sysexits() -> None:
     """No module assigns or returns a sysexits number itself (health had its
     own EX_USAGE = 64)."""
     pattern = re.compile(r"(?:\bEX_[A-Z]+\s*=|\breturn|exit\()\s*(64|65|66|73|74|75|78)\b")
-    offenders = [f"{p.relative_to(REPO)}:{n}" for root in ("compd", "drivers", "models")
-                 for p in (REPO / root).rglob("*.py") if p.name != "sysexits.py"
+    offenders = [f"{p.relative_to(PACKAGES_ROOT)}:{n}"
+                 for root in ("compd", "drivers", "models")
+                 for p in (PACKAGES_ROOT / root).rglob("*.py") if p.name != "sysexits.py"
                  for n, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
                  if pattern.search(line)]
     assert offenders == []
@@ -145,6 +145,8 @@ def test_one_csv_reader_for_records() -> None:
     """drivers/sim/csvlog.py had a second, looser reader (no sampling or cell
     checks): records are parsed in compd/offline/csvstream.py only."""
     parsers = re.compile(r"csv\.(reader|DictReader)\(|loadtxt\(|genfromtxt\(|def read_record")
-    found = sorted(str(p.relative_to(REPO)) for root in ("compd", "drivers", "models")
-                   for p in (REPO / root).rglob("*.py") if parsers.search(p.read_text("utf-8")))
+    found = sorted(str(p.relative_to(PACKAGES_ROOT))
+                   for root in ("compd", "drivers", "models")
+                   for p in (PACKAGES_ROOT / root).rglob("*.py")
+                   if parsers.search(p.read_text("utf-8")))
     assert found == ["compd/offline/csvstream.py", "compd/offline/records.py"]

@@ -24,6 +24,7 @@ from drivers.sim.drive import RECORD_FIELDS
 from drivers.sim.drive_map import load_drive_map
 from drivers.sim.registry import make_sim_controller
 from tests.record_columns import read_columns as read_record
+from tests.shipped import MAPS
 
 REPO = Path(__file__).resolve().parents[2]
 HIL = REPO / "deploy" / "hil"
@@ -40,7 +41,7 @@ async def _compd(tmp_path: Path, *args: str, name: str = "compd") -> asyncio.sub
 async def test_subprocess_drives_a_modbus_controller(tmp_path: Path) -> None:
     sim: Any = make_sim_controller("modbus")
     await sim.start()
-    drive_map = load_drive_map(HIL / "maps" / "modbus.toml")
+    drive_map = load_drive_map(MAPS / "modbus.toml")
     try:
         await sim.publish({"offset": 5.0, "heartbeat": 99, "status": 1})  # the daemon's part
         out = tmp_path / "run.csv"
@@ -76,7 +77,7 @@ def test_in_process_drives_an_s7_cpu(tmp_path: Path, capsys: pytest.CaptureFixtu
     try:
         asyncio.run(sim.publish({"offset": -2.5, "heartbeat": 3}))
         out = tmp_path / "s7.csv"
-        rc = main(["sim", "--drive", sim.endpoint, "--map", str(HIL / "maps" / "s7.toml"),
+        rc = main(["sim", "--drive", sim.endpoint, "--map", str(MAPS / "s7.toml"),
                    "--speedup", "10000", "--duration-h", "0.02", "--record", str(out),
                    "--program", "constant", "--print-every-s", "0"])
         assert rc == 0, capsys.readouterr().err
@@ -128,7 +129,7 @@ async def test_the_daemon_closes_the_loop_through_the_controller(tmp_path: Path)
     # on a loaded machine holds a cycle, it does not break the loop
     config = tmp_path / "modbus.toml"
     config.write_text(text)
-    drive_map = load_drive_map(HIL / "maps" / "modbus.toml")
+    drive_map = load_drive_map(MAPS / "modbus.toml")
     drive = DriveLoop(open_drive_driver(sim.endpoint, drive_map), drive_map,
                       program=constant(9_000.0, 1.0, 1.0), speedup=10.0, record=True)
     daemon = await _compd(tmp_path, "run", str(config), name="run")
@@ -151,7 +152,7 @@ async def test_the_daemon_closes_the_loop_through_the_controller(tmp_path: Path)
 @pytest.mark.parametrize("protocol", PROTOCOLS)
 def test_bench_configs_read_where_the_maps_write(protocol: str) -> None:
     config = load_config(HIL / f"{protocol}.toml")
-    drive_map = load_drive_map(HIL / "maps" / f"{protocol}.toml")
+    drive_map = load_drive_map(MAPS / f"{protocol}.toml")
     assert config.raw.controller.protocol == drive_map.protocol == protocol
     for name, addr in config.channels.items():
         assert drive_map.write[name] == addr, name
@@ -168,7 +169,7 @@ def test_bench_configs_read_where_the_maps_write(protocol: str) -> None:
     (["--drive", "modbus://127.0.0.1:1", "--duration-h", "-1"], 64, "--duration-h"),
     (["--drive", "s7://127.0.0.1:1", "--focas-library", "/x.so"], 64, "focas:// only"),
     (["--map", "m.toml", "--protocol", "modbus"], 64, "apply to --drive only"),
-    (["--drive", "s7://127.0.0.1:1", "--map", str(HIL / "maps" / "modbus.toml")], 78,
+    (["--drive", "s7://127.0.0.1:1", "--map", str(MAPS / "modbus.toml")], 78,
      "drive map is for modbus"),
     (["--drive", "s7://127.0.0.1:1", "--map", "/nonexistent.toml"], 66, "cannot read"),
     (["--drive", "focas://127.0.0.1:8193", "--focas-library", "/nonexistent/libfwlib32.so"],
@@ -210,7 +211,7 @@ async def test_no_plant_serves_a_stand_in_plc_for_the_drive(tmp_path: Path) -> N
         line = await asyncio.wait_for(proc.stdout.readline(), 30.0)
         assert line, (tmp_path / "plc.stderr").read_text()
         endpoint = json.loads(line)["endpoint"]
-        drive_map = load_drive_map(HIL / "maps" / "modbus.toml")
+        drive_map = load_drive_map(MAPS / "modbus.toml")
         probe = open_driver("modbus", endpoint, drive_map.write, {})
         try:
             idle = await probe.read(["bearing", "speed_rpm"])

@@ -11,8 +11,7 @@ from compd.config.loader import load_config
 from compd.config.schema import DEFAULT_STUCK_DELTA_K
 from compd.core.cycle import params_from_config
 from compd.errors import EX_CONFIG, ConfigError
-
-EXAMPLES = Path(__file__).resolve().parents[2] / "compd" / "examples"
+from tests.shipped import EXAMPLES, LIBRARY
 
 BASE = """
 [machine]
@@ -159,7 +158,7 @@ b = ["1", "-0.99983", "0", "0"]
 
 def test_model_file_relative_to_the_config(tmp_path: Path) -> None:
     (tmp_path / "models").mkdir()
-    src = Path(__file__).resolve().parents[2] / "models" / "library" / "sp2.toml"
+    src = LIBRARY / "sp2.toml"
     (tmp_path / "models" / "mine.toml").write_text(src.read_text())
     cfg = load_config(_write(tmp_path, BASE.replace('file = "sp2"',
                                                     'file = "models/mine.toml"')))

@@ -15,9 +15,9 @@ from compd.cli import main
 from compd.config.loader import load_config
 from compd.errors import ConfigError
 from compd.sysexits import EX_CONFIG
+from tests.shipped import EXAMPLES
 
 ROOT = Path(__file__).resolve().parents[2]
-EXAMPLES = ROOT / "compd" / "examples"
 
 ADAPTATION = """
 [adaptation]

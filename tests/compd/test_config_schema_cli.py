@@ -15,8 +15,9 @@ from compd.cli import main
 from compd.config.loader import load_config
 from compd.errors import ConfigError
 from compd.sysexits import EX_CONFIG
+from tests.shipped import EXAMPLES as SHIPPED_EXAMPLES
 
-EXAMPLES = sorted((Path(__file__).resolve().parents[2] / "compd" / "examples").glob("*.toml"))
+EXAMPLES = sorted(SHIPPED_EXAMPLES.glob("*.toml"))
 
 TWO_MISTAKES = """
 [machine]

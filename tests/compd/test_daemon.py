@@ -17,6 +17,7 @@ from compd.runtime.recorder import read_samples
 from compd.runtime.sdnotify import Notifier
 from compd.testing import RecordingDriver
 from drivers.sim.modbus_server import ModbusSimController
+from tests.shipped import LIBRARY
 
 from .daemon_helpers import until as _until
 from .daemon_helpers import write_config
@@ -155,7 +156,7 @@ async def test_second_daemon_on_the_same_state_dir_is_refused(
 
 
 def _shadow_config(tmp_path: Path, endpoint: str) -> Path:
-    src = Path(__file__).resolve().parents[2] / "models" / "library" / "sp2.toml"
+    src = LIBRARY / "sp2.toml"
     (tmp_path / "candidate.toml").write_text(
         src.read_text().replace('name = "SP2 per-spindle"', 'name = "candidate"').replace(
             'a = ["16.0005", "-15.9975", "0"]', 'a = ["32.001", "-31.995", "0"]'))

@@ -26,9 +26,9 @@ from drivers.sim.machine import SimMachine
 from drivers.sim.programs import make_program
 from drivers.sim.registry import make_sim_controller
 from tests.lockstep import CONNECT_TIMEOUT_S, REQUEST_TIMEOUT_S, Lockstep, write_config
+from tests.shipped import EXAMPLES
 
 ROOT = Path(__file__).resolve().parents[2]
-EXAMPLES = ROOT / "compd" / "examples"
 HIL = ROOT / "deploy" / "hil"
 PROTOCOLS = ["opcua", "s7", "modbus", "focas"]
 HOURS = 4.0

@@ -6,6 +6,8 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
+from tests.shipped import PACKAGES_ROOT
+
 ROOT = Path(__file__).resolve().parents[2]
 #: in no layer on purpose: the package's docstring, and the test doubles (their own contract)
 UNLAYERED = {"compd", "compd.testing"}
@@ -31,7 +33,7 @@ def _layered() -> set[str]:
 
 def _compd_modules() -> set[str]:
     """compd's top-level modules and sub-packages (the rooms)."""
-    pkg = ROOT / "compd"
+    pkg = PACKAGES_ROOT / "compd"
     files = {f"compd.{p.stem}" for p in pkg.glob("*.py") if p.stem != "__init__"}
     rooms = {f"compd.{p.parent.name}" for p in pkg.glob("*/__init__.py")}
     return files | rooms | {"compd"}

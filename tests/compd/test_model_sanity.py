@@ -22,6 +22,7 @@ from compd.errors import ConfigError
 from compd.testing import FakeClock
 from models.compensation import CompensationModel
 from models.modelfile import parse_model
+from tests.shipped import EXAMPLES
 
 from .cycle_helpers import LIMIT_UM, params, samples
 
@@ -75,7 +76,7 @@ def test_check_step_replay_refuse_with_one_line(tmp_path: Path, case: str) -> No
 
 def _config(tmp_path: Path, *, model: str = 'file = "sp2"', period: str = "1.0",
             limit: str = "200.0", slew: str = "1.0", extra: str = "") -> Path:
-    text = (ROOT / "compd" / "examples" / "modbus.toml").read_text(encoding="utf-8")
+    text = (EXAMPLES / "modbus.toml").read_text(encoding="utf-8")
     text = re.sub(r'(?m)^file = ".*$', model, text, count=1)
     text = re.sub(r"(?m)^period_s = .*$", f"period_s = {period}", text, count=1)
     text = re.sub(r"(?m)^time_scale = .*$", "time_scale = 1.0", text, count=1)

@@ -16,9 +16,9 @@ from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX
 from compd.core.cycle import HEARTBEAT_MODULO
 from compd.core.output import Status
 from compd.errors import ConfigError
+from tests.shipped import EXAMPLES
 
 ROOT = Path(__file__).resolve().parents[2]
-EXAMPLES = ROOT / "compd" / "examples"
 
 
 def _config(tmp_path: Path, protocol: str, offset: str, limit_um: float = 200.0,

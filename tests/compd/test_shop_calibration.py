@@ -6,6 +6,7 @@ ARX least squares on the best pair of the same search, in the same run."""
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -17,12 +18,10 @@ SEED = 3
 
 
 @pytest.fixture(scope="module")
-def days(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+def days(tmp_path_factory: pytest.TempPathFactory,
+         shop_record: Callable[[int], Path]) -> tuple[Path, Path]:
     d = tmp_path_factory.mktemp("shop")
-    full = d / "shop.csv"
-    assert main(["sim", "--record", str(full), "--machine", "shop", "--hours", "48",
-                 "--period-s", "60", "--seed", str(SEED)]) == 0
-    lines = full.read_text().splitlines()
+    lines = shop_record(SEED).read_text().splitlines()
     head, rows = lines[0], lines[1:]
     half = len(rows) // 2
     day1, day2 = d / "day1.csv", d / "day2.csv"

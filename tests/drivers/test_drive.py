@@ -29,9 +29,9 @@ from drivers.sim.drive_map import DriveMap, DriveMapError, load_drive_map, parse
 from drivers.sim.programs import constant
 from drivers.sim.registry import make_sim_controller
 from tests.record_columns import read_columns as read_record
+from tests.shipped import MAPS
 
 REPO = Path(__file__).resolve().parents[2]
-MAPS = REPO / "deploy" / "hil" / "maps"
 PROTOCOLS = ("modbus", "s7", "focas", "opcua")
 TEMPERATURES = ("bearing", "motor", "column", "table", "ambient")
 

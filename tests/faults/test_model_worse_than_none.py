@@ -47,17 +47,18 @@ from drivers.sim.ports import free_tcp_port
 from models.adaptation import AdaptationParams
 from tests.faults.clocked_driver import ClockedDriver
 from tests.faults.daemon_rig import EventLog, make_config
+from tests.shipped import LIBRARY
 
 SLEW_UM_S = 1.0
 HOLD_S = 10.0
 PROBE_EVERY = 10
 CYCLES = 400
-LIBRARY = Path(__file__).resolve().parents[2] / "models" / "library" / "sp2.toml"
+SP2 = LIBRARY / "sp2.toml"
 
 
 def _miscalibrated(tmp_path: Path) -> Path:
     """sp2 with every term's sign flipped (gain = -1)."""
-    text = LIBRARY.read_text(encoding="utf-8").replace("[[terms]]\n", "[[terms]]\ngain = -1.0\n")
+    text = SP2.read_text(encoding="utf-8").replace("[[terms]]\n", "[[terms]]\ngain = -1.0\n")
     p = tmp_path / "wrong.toml"
     p.write_text(text, encoding="utf-8")
     assert [t.gain for t in load_model(p).terms] == [-1.0, -1.0]

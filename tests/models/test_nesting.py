@@ -23,6 +23,7 @@ from models.nesting import (
     loads_toml,
     text_depth,
 )
+from tests.shipped import EXAMPLES, LIBRARY
 
 ROOT = Path(__file__).resolve().parents[2]
 DEEP = 900  # the file: tomllib and json recurse past Python's limit
@@ -60,8 +61,7 @@ def test_brackets_in_strings_and_comments_do_not_count(text: str) -> None:
 
 
 def test_every_shipped_config_and_model_reads_as_tomllib_reads_it() -> None:
-    files = [*(ROOT / "compd" / "examples").glob("*.toml"),
-             *(ROOT / "models" / "library").glob("*.toml")]
+    files = [*EXAMPLES.glob("*.toml"), *LIBRARY.glob("*.toml")]
     assert len(files) >= 5
     for path in files:
         text = path.read_text(encoding="utf-8")
