@@ -17,6 +17,7 @@ from compd.core.modelstep import MAX_ADVANCE_STEPS
 from compd.core.output import Status
 from compd.testing import FakeClock
 from tests.compd.cycle_helpers import SLEW_UM_S, params, samples, sp2
+from tests.shipped import EXAMPLES
 
 REF = {"bearing": 20.0, "ambient": 20.0}
 
@@ -190,7 +191,7 @@ def test_a_fault_ramps_to_zero_whatever_the_permit() -> None:
 
 # -- the config -----------------------------------------------------------------------
 
-_EXAMPLES = __import__("pathlib").Path(__file__).resolve().parents[2] / "compd" / "examples"
+_EXAMPLES = EXAMPLES
 
 
 def _example(tmp_path, name: str, after: str, extra: str):  # type: ignore[no-untyped-def]
