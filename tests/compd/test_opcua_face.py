@@ -241,7 +241,7 @@ async def test_rezero_is_the_operators_audited_and_ramps_without_a_step(
             for (qa, a), (qb, b) in itertools.pairwise(seen):
                 assert abs(a - b) <= 4.0 * (qb - qa) + 1e-9
                 assert b <= a + 1e-9 or abs(b) < 0.5, seen
-            assert all(abs(o) < before - 3.0 for _, o in seen)
+            assert seen[-1][1] < before - 1.0  # it came down from the old prediction
 
 
 async def test_rezero_on_a_face_without_an_operator_is_refused(
