@@ -39,9 +39,7 @@ def _replace(text: str, values: dict[tuple[str, str], str]) -> str:
     seen: set[tuple[str, str]] = set()
     out: list[str] = []
     for line in text.splitlines():
-        header = _HEADER.match(line)
-        if header:
-            section = header.group(1).strip()
+        section = _section(line) or section
         key = _KEY.match(line)
         if key and (section, key.group(2)) in values:
             where = (section, key.group(2))
@@ -55,6 +53,12 @@ def _replace(text: str, values: dict[tuple[str, str], str]) -> str:
     if missing:
         raise RuntimeError(f"the example lacks {sorted(missing)}")
     return "\n".join(out) + "\n"
+
+
+def _section(line: str) -> str | None:
+    """The table a ``[header]`` line opens, None for any other line."""
+    header = _HEADER.match(line)
+    return header.group(1).strip() if header else None
 
 
 def _get(doc: dict[str, Any], section: str, key: str) -> Any:
@@ -105,8 +109,7 @@ def _with_reference(body: str, doc: dict[str, Any], rest_c: float) -> str:
     channels = sorted(load_model(str(doc["model"]["file"])).reference_channels)
     table = ", ".join(f"{ch} = {rest_c!r}" for ch in channels)
     lines = body.splitlines()
-    at = next(i for i, line in enumerate(lines) if _HEADER.match(line)
-              and _HEADER.match(line).group(1).strip() == "model")  # type: ignore[union-attr]
+    at = next(i for i, line in enumerate(lines) if _section(line) == "model")
     lines[at + 1:at + 1] = [
         "# the simulated plant's rest temperatures (its growth is zero there, as at a",
         "# shop's touch-off): the model's zero, whatever the plant's state at start",
