@@ -14,6 +14,7 @@ ambient give 16.0005 µm on the first sample.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -156,6 +157,19 @@ class CompensationModel:
             if missing:
                 raise ModelError(f"term {t.name!r}: unknown channel(s) {missing}; "
                                  f"known channels: {sorted(have)}")
+
+    def fresh(self) -> CompensationModel:
+        """A model of the same description (terms, coefficients, calibration
+        reference, fallbacks) with a state of its own, at rest and without a
+        reference state set: the one to step, this one staying untouched."""
+        out = copy.deepcopy(self)
+        out.references = {}
+        for t in out.terms:
+            t._refs = out.references
+            t._rebuild()
+        out.reset()
+        out.fallbacks = {lost: fb.fresh() for lost, fb in self.fallbacks.items()}
+        return out
 
     # -- references and state -----------------------------------------------------------------
 

@@ -18,6 +18,7 @@ gain 0.01779 / 0.0016 = 11.11875 µm/K.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Sequence
 from decimal import Decimal, localcontext
@@ -90,6 +91,17 @@ class TransferFunction:
                 + ", ".join(_fmt_complex(p) for p in bad)
                 + " (a compensation filter must settle)")
         self.step = self._make_step()
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> TransferFunction:
+        """A copy with a state of its own: `step` is a closure over the state list, so
+        it is made again for the copy (a plain deep copy would keep stepping this one's)."""
+        out = TransferFunction.__new__(TransferFunction)
+        memo[id(self)] = out
+        for name in self.__slots__:
+            if name != "step":
+                setattr(out, name, copy.deepcopy(getattr(self, name), memo))
+        out.step = out._make_step()
+        return out
 
     # -- stepping -----------------------------------------------------------------------------
 

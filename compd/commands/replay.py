@@ -248,13 +248,21 @@ def _through_the_cycle(config: str, model: CompensationModel, record: Record
                        ) -> npt.NDArray[np.float64]:
     """The offset the daemon's cycle puts in force at each row, with `config`'s
     validation, fault policy and output stage (`compd.offline.cycle_replay`);
-    ConfigError (78) for a bad config, RecordError when the record does not fit it."""
-    from compd.config.loader import load_config
+    ConfigError (78) for a bad config, ModelError when `model` does not fit it (checked
+    as the loader checks the config's own model), RecordError when the record does not."""
+    from compd.config.loader import load_config, with_model
     from compd.core.params import params_from_config
+    from compd.errors import ConfigError
     from compd.offline.cycle_replay import replay_cycle
     from compd.offline.records import RecordError
+    from models.errors import ModelError
 
     cfg = load_config(config)
+    try:
+        cfg = with_model(cfg, model)
+    except ConfigError as exc:
+        raise ModelError(f"the model {model.name!r} does not fit {config}: {exc.reason}"
+                         ) from None
     params = params_from_config(cfg)
     if not math.isclose(params.period_s, record.period_s, rel_tol=1e-6):
         raise RecordError(f"{record.path}: sampled every {record.period_s:g} s but {config} "
@@ -264,4 +272,4 @@ def _through_the_cycle(config: str, model: CompensationModel, record: Record
     if missing:
         raise RecordError(f"{record.path}: no column(s) {missing} for the channels {config} "
                           "validates")
-    return replay_cycle(params, model, record).offset_um
+    return replay_cycle(params, cfg.model, record).offset_um

@@ -12,6 +12,7 @@ here connects to anything.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -53,9 +54,12 @@ OUTPUT_NAMES: tuple[str, ...] = ("offset", "heartbeat", "status")
 STATE_NAMES: tuple[str, ...] = ("machine_on", "estop", "homed", "update_permitted", "rezero")
 
 
-@dataclass
+@dataclass(frozen=True)
 class LoadedConfig:
-    """A validated config with everything resolved (addresses typed, model built)."""
+    """A validated config with everything resolved (addresses typed, model built):
+    a plain value, shared and reused as it is (a reload makes a new one). Its
+    `model` and `shadow` are descriptions: the cycle steps copies of its own
+    (`compd.core.modelstep.ModelStepper`), never these."""
 
     path: Path
     raw: DaemonConfig
@@ -219,14 +223,22 @@ def model_sha256(model: CompensationModel) -> str:
 
 def _check_model(model: CompensationModel, channels: dict[str, Address], period_s: float,
                  key: str, section: ModelSection) -> None:
+    _check_limits(model, channels, period_s, key, max_dc_gain_um=section.max_dc_gain_um,
+                  max_time_constant_s=section.max_time_constant_s)
+
+
+def _check_limits(model: CompensationModel, channels: Mapping[str, Address], period_s: float,
+                  key: str, *, max_dc_gain_um: float, max_time_constant_s: float) -> None:
+    """The one check of a model against a config: its channels configured, stable
+    within the limits (its fallbacks too), identified at the config's period."""
     try:
         model.check_channels(channels)
-        check_model(model, max_dc_gain_um=section.max_dc_gain_um,
-                    max_time_constant_s=section.max_time_constant_s)
+        check_model(model, max_dc_gain_um=max_dc_gain_um,
+                    max_time_constant_s=max_time_constant_s)
         for lost, fb in model.fallbacks.items():
             try:
-                check_model(fb, max_dc_gain_um=section.max_dc_gain_um,
-                            max_time_constant_s=section.max_time_constant_s)
+                check_model(fb, max_dc_gain_um=max_dc_gain_um,
+                            max_time_constant_s=max_time_constant_s)
             except ModelError as exc:
                 raise ModelError(f"fallback for {lost!r}: {exc}") from None
     except ModelError as exc:
@@ -235,6 +247,21 @@ def _check_model(model: CompensationModel, channels: dict[str, Address], period_
         raise ConfigError(key, f"the model's period_s ({model.period_s:g} s) differs from "
                                f"machine.period_s ({period_s:g} s); a model identified at one "
                                "sample period is wrong at another")
+
+
+def with_model(cfg: LoadedConfig, model: CompensationModel) -> LoadedConfig:
+    """`cfg` with `model` in place of its own (`compd replay MODEL --config CFG`), checked
+    as the loader checks the config's model (its channels among cfg's, stable, its
+    period cfg's); ConfigError with the key ``model`` and the reason."""
+    m = cfg.raw.model
+    if m is not None:
+        limits = {"max_dc_gain_um": m.max_dc_gain_um,
+                  "max_time_constant_s": m.max_time_constant_s}
+    else:
+        limits = {name: ModelSection.model_fields[name].default
+                  for name in ("max_dc_gain_um", "max_time_constant_s")}
+    _check_limits(model, cfg.channels, cfg.period_s, "model", **limits)
+    return dataclasses.replace(cfg, model=model, model_sha256=model_sha256(model))
 
 
 def _check_hal_names(options: LinuxCncOptions, channels: dict[str, Address],

@@ -56,7 +56,12 @@ def finite_or_none(x: float) -> float | None:
 
 
 class ModelStepper:
-    """The model, its shadow (None without one) and whether each is initialised."""
+    """The model, its shadow (None without one) and whether each is initialised.
+
+    The models given are descriptions (a config's, or a caller's): the stepper
+    steps copies of its own (`CompensationModel.fresh`), so a config, and the
+    model in it, can be shared and reused by another cycle (a reload, a
+    restart, a replay) without carrying this one's filter state."""
 
     def __init__(self, model: CompensationModel, shadow: CompensationModel | None, *,
                  model_state: Mapping[str, Any] | None = None,
@@ -66,8 +71,10 @@ class ModelStepper:
                  stale_age_s: float | None = None,
                  zero: Mapping[str, Any] | None = None,
                  fallback_states: Mapping[str, Any] | None = None) -> None:
+        model = model.fresh()
         self.model = model
-        self.shadow = shadow
+        self.shadow = shadow.fresh() if shadow is not None else None
+        shadow = self.shadow
         explicit = dict(model.calibration_reference)
         #: where the reference state came from: calibration, checkpoint, first_sample
         self.reference_source = "calibration" if explicit else (

@@ -356,3 +356,23 @@ def test_heartbeat_wraps() -> None:
     t = clock.tick()
     r = cycle.plan(t, samples(t, 20.0))
     assert r.heartbeat == 0
+
+
+def test_a_cycle_steps_a_model_of_its_own_and_leaves_the_description_as_it_was() -> None:
+    """The model given (a config's) is a description: two cycles built from it step
+    states of their own, and the description keeps no reference state nor filter state,
+    so a reload, a restart or a replay may build another cycle from it."""
+    model = sp2()
+    described = model.export_state()
+    first, second = Cycle(params(), model), Cycle(params(), model)
+    clock = FakeClock()
+    run_warm(first, clock, 10, bearing=25.0)
+    run_warm(first, clock, 20, bearing=25.3)  # its filters move off the steady state
+    assert first.model is not model and first.model is not second.model
+    assert model.export_state() == described and model.references == {}
+    assert first.model.references == {"bearing": 25.0, "ambient": 20.0}
+    later = FakeClock()
+    run_warm(second, later, 30, bearing=30.0)  # its own first sample: its own reference
+    assert second.model.references == {"bearing": 30.0, "ambient": 20.0}
+    assert first.model.references == {"bearing": 25.0, "ambient": 20.0}
+    assert first.export_state()["model"]["terms"] != model.export_state()["terms"]

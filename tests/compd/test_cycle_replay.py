@@ -166,3 +166,37 @@ def test_replay_with_a_bad_config_is_78_and_one_line(tmp_path: Path,
                  str(config)]) == 78
     err = capsys.readouterr().err
     assert "limit_um" in err and err.count("\n") == 1
+
+
+def test_replay_of_a_model_the_config_has_no_channel_for_is_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """MODEL is checked against CONFIG's channels by the loader's own check, as the
+    config's model is: a model reading a channel the config lacks (``table``) is one
+    line naming it and EX_DATAERR, never a KeyError from the cycle."""
+    import csv
+
+    from compd.cli import main
+
+    from .daemon_helpers import write_config
+
+    record = _record(0.1)
+    data = tmp_path / "lathe.csv"
+    with data.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["time_s", "bearing", "column", "table", "clamp_gain", "ambient", "dz_um"])
+        for k in range(len(record)):
+            b = f"{record.columns['bearing'][k]:.1f}"
+            w.writerow([f"{record.time_s[k]:g}", b, "20.0", b, "1.0", "20.0", f"{k % 7}"])
+    config = write_config(tmp_path, "modbus://127.0.0.1:1502", time_scale=1.0)
+    config.write_text(config.read_text().replace("[model]", (  # every channel but table
+        '[channels.column]\naddress = { kind = "input", address = 2, type = "int16", '
+        'scale = 0.1 }\nunit = "degC"\nrange = [-20.0, 150.0]\n\n'
+        '[channels.clamp_gain]\naddress = { kind = "input", address = 6, type = "float32" }'
+        '\nunit = "ratio"\nrange = [0.0, 10.0]\n\n[model]')))
+    capsys.readouterr()
+    rc = main(["replay", "lathe_milling_turning", str(data), "--column", "dz_um",
+               "--config", str(config)])
+    err = capsys.readouterr().err
+    assert rc == 65, err
+    assert "'table'" in err and str(config) in err and err.count("\n") == 1
+    assert "Traceback" not in err

@@ -99,3 +99,21 @@ def test_bad_terms() -> None:
         CompensationModel([Term("t", {"x": 1.0}, tf), Term("t", {"y": 1.0}, tf)], 1.0)
     with pytest.raises(ModelError, match="at least one term"):
         CompensationModel([], 1.0)
+
+
+def test_fresh_is_the_same_model_with_a_state_of_its_own() -> None:
+    """`fresh` copies the description; stepping the copy leaves the original at rest
+    (each transfer function's step is a closure over its own state)."""
+    from models.modelfile import model_document
+
+    original = load_model("sp2")
+    original.set_references({"bearing": 20.0, "ambient": 20.0})
+    copy = original.fresh()
+    assert model_document(copy) == model_document(original)
+    assert copy.references == {}
+    copy.set_references({"bearing": 20.0, "ambient": 20.0})
+    ys = [copy.step({"bearing": 21.0, "ambient": 20.0}) for _ in range(5)]
+    assert ys[0] == pytest.approx(16.0005)
+    assert original.export_state()["terms"] == original.fresh().export_state()["terms"]
+    assert all(z == 0.0 for t in original.export_state()["terms"].values() for z in t["z"])
+    assert original.step({"bearing": 21.0, "ambient": 20.0}) == ys[0]  # from rest, as the copy
