@@ -22,7 +22,9 @@ Running: a daemon task that ends by an exception is logged
 (``machine_crashed``) and started again, with a fresh driver, after a backoff
 (1 s doubling to 60 s, back to 1 s after a minute of running); the others are
 untouched; so is one whose cycle broke (its loop returned EX_SOFTWARE after
-its shutdown policy and checkpoint). SIGTERM/SIGINT, and every other signal
+its shutdown policy and checkpoint). It starts again on the config it ran (the
+last one a SIGHUP reload swapped in), its model state restored from its
+checkpoint as at any start. SIGTERM/SIGINT, and every other signal
 whose default would end the process (`compd.runtime.signals`), stop every
 machine (each applies its shutdown policy and writes its checkpoint), SIGHUP
 reloads each machine's own file; SIGUSR1/2 and SIGXFSZ are logged and ignored.
@@ -278,6 +280,9 @@ class Fleet:
                 self.log.error("machine_crashed", machine=name, error=str(exc),
                                type=type(exc).__name__, restart_in_s=backoff,
                                exc_info=True)
+            # the restart runs the config the machine ran (a reload's), not the file as
+            # read at start; its cycle builds fresh model state from it and the checkpoint
+            self.configs[name] = daemon.cfg
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self.stopping.wait(), backoff)
             backoff = min(backoff * 2.0, BACKOFF_CAP_S)

@@ -140,6 +140,7 @@ async def test_a_stopped_controller_never_holds_up_the_others(
 class _CrashingDriver:
     """A driver whose read fails with an error no driver should raise: a bug."""
 
+    protocol = "modbus"
     connected = True
 
     async def connect(self) -> None:
@@ -277,3 +278,42 @@ async def test_machines_start_one_after_the_other_with_their_cycles_spread(
     assert all(t >= d - 0.002 for t, d in zip(times, delays, strict=True))
     # the plan itself: every phase of the period taken once
     assert sorted(round(d / period * 3) % 3 for d in delays) == [0, 1, 2]
+
+
+async def test_a_restart_after_a_reload_runs_the_reloaded_config_with_fresh_model_state(
+        sims: list[ModbusSimController], tmp_path: Path) -> None:
+    """A machine reloaded by SIGHUP that then crashes comes back on the config it
+    ran (the reloaded one, not the file as read at start), and its new cycle steps a
+    model of its own, not the object the dead cycle was stepping."""
+    d = tmp_path / "machines.d"
+    d.mkdir()
+    path = _write_machine(d, "mill-a", sims[0].endpoint)
+    fleet, task, fs = _lockstep(load_machines(d))
+    try:
+        await fs.until_asleep(1)
+        await fs.step(3)
+        path.write_text(path.read_text().replace('file = "sp2"', 'file = "sp1"'))
+        reloaded = load_config(path)
+        daemon = fleet.daemons["mill-a"]
+        daemon.request_reload()
+        assert daemon.reloader.task is not None
+        await daemon.reloader.task  # prepared beside the loop; swapped in at the next cycle
+        await fs.step()
+        assert daemon.reloads == 1 and daemon.cfg.model_sha256 == reloaded.model_sha256
+        assert daemon.cycle is not None
+        dead_model = daemon.cycle.model
+        daemon.running.driver = _CrashingDriver()  # its next read is a bug: a crash
+        await fs.step()  # the crash, the backoff (real time), the new daemon's first cycle
+        assert fleet.restarts == {"mill-a": 1}
+        again = fleet.daemons["mill-a"]
+        assert again is not daemon and again.cycle is not None
+        assert again.cfg.model_sha256 == reloaded.model_sha256
+        assert again.cfg.model.name == "SP1 per-spindle"
+        assert again.cycle.model is not dead_model
+        assert again.cycle.model is not again.cfg.model  # the config stays a description
+        await fs.step(2)
+        assert again.complete_cycles >= 2
+        assert await _stop(fleet, task) == 0
+    finally:
+        if not task.done():
+            await _stop(fleet, task)
