@@ -87,6 +87,7 @@ from compd.faces.opcua_limits import (
     GuardCollector,
     quiet_asyncua_faults,
 )
+from compd.faces.opcua_shape import MachineNodes
 
 if TYPE_CHECKING:
     from asyncua.common.node import Node
@@ -189,6 +190,8 @@ class _Machine:
     obj: Node
     nodes: dict[str, Node] = field(default_factory=dict)
     hold: Callable[[bool, str], bool] | None = None
+    #: the config's part of the object (terms, channels, model, adaptation)
+    shape: MachineNodes | None = None
 
 
 class _SharedServer:
@@ -348,6 +351,9 @@ class OpcUaFace:
         self._task: asyncio.Task[None] | None = None
         self._daemon_loop: asyncio.AbstractEventLoop | None = None
         self._failed = False
+        #: the config the machine's object has the nodes of (the face's task makes them
+        #: match `cfg` before it writes the next values)
+        self._shaped: LoadedConfig | None = None
         self.log = structlog.get_logger("compd").bind(face="opcua")
 
     @property
@@ -389,20 +395,13 @@ class OpcUaFace:
         assert server is not None
         if self.name in shared.machines:
             raise RuntimeError(f"a machine named {self.name!r} is already served")
-
-        def nid(path: str) -> ua.NodeId:
-            return ua.NodeId(ua.String(f"{self.name}.{path}"), ua.Int16(idx))
-
-        obj = await server.nodes.objects.add_object(nid("Machine"),
-                                                    ua.QualifiedName(self.name, idx))
+        cfg = self.cfg
+        obj = await server.nodes.objects.add_object(
+            ua.NodeId(ua.String(f"{self.name}.Machine"), ua.Int16(idx)),
+            ua.QualifiedName(self.name, idx))
         m = _Machine(self.name, obj, hold=self._hold)
-
-        async def var(parent: Node, path: str, name: str, value: Any,
-                      vtype: ua.VariantType, datatype: ua.NodeId | None = None) -> None:
-            node = await parent.add_variable(nid(path), ua.QualifiedName(name, idx),
-                                             ua.Variant(value, vtype), datatype=datatype)
-            m.nodes[path] = node
-
+        at = MachineNodes(server, idx, self.name, obj, m.nodes)
+        var = at.var
         nan = math.nan
         await var(obj, "Offset_um", "Offset_um", nan, ua.VariantType.Double)
         await var(obj, "ModelOutput_um", "ModelOutput_um", nan, ua.VariantType.Double)
@@ -416,26 +415,16 @@ class OpcUaFace:
         await var(obj, "Heartbeat", "Heartbeat", 0, ua.VariantType.UInt32)
         await var(obj, "OperatorHold", "OperatorHold", False, ua.VariantType.Boolean)
         await var(obj, "PendingOffset_um", "PendingOffset_um", nan, ua.VariantType.Double)
-        terms = await obj.add_folder(nid("Terms"), ua.QualifiedName("Terms", idx))
-        for term in self.cfg.model.terms:
-            await var(terms, f"Terms.{term.name}", f"{term.name}_um", nan, ua.VariantType.Double)
-        channels = await obj.add_folder(nid("Channels"), ua.QualifiedName("Channels", idx))
-        for ch in self.cfg.channels:
-            folder = await channels.add_folder(nid(f"Channels.{ch}"), ua.QualifiedName(ch, idx))
-            await var(folder, f"Channels.{ch}.Value", "Value", nan, ua.VariantType.Double)
-            await var(folder, f"Channels.{ch}.Valid", "Valid", False, ua.VariantType.Boolean)
-        model = await obj.add_folder(nid("Model"), ua.QualifiedName("Model", idx))
-        await var(model, "Model.Name", "Name", self.cfg.model.name, ua.VariantType.String)
-        await var(model, "Model.Sha256", "Sha256", self.cfg.model_sha256, ua.VariantType.String)
-        if self.cfg.adaptation is not None:
-            ad = await obj.add_folder(nid("Adaptation"), ua.QualifiedName("Adaptation", idx))
-            for name in ("Bias_um", "BiasSigma_um", "Correction_um"):
-                await var(ad, f"Adaptation.{name}", name, nan, ua.VariantType.Double)
-        await obj.add_method(nid("SetHold"), ua.QualifiedName("SetHold", idx),
+        for folder in ("Terms", "Channels", "Model"):
+            await at.folder(obj, folder, folder)
+        await at.shape(cfg)  # the terms, channels, model and adaptation of the config
+        self._shaped = cfg
+        await obj.add_method(at.nid("SetHold"), ua.QualifiedName("SetHold", idx),
                              self._set_hold(shared), [ua.VariantType.Boolean],
                              [ua.VariantType.Boolean])
-        await obj.add_method(nid("Rezero"), ua.QualifiedName("Rezero", idx),
+        await obj.add_method(at.nid("Rezero"), ua.QualifiedName("Rezero", idx),
                              self._rezero_call(shared), [], [ua.VariantType.Boolean])
+        m.shape = at
         shared.machines[self.name] = m
         return m
 
@@ -476,6 +465,12 @@ class OpcUaFace:
                              applied=done)
             return [ua.Variant(done, ua.VariantType.Boolean)]
         return call
+
+    def reconfigure(self, cfg: LoadedConfig) -> None:
+        """A reloaded config: from the next `publish` on, the face shows its terms,
+        channels, model and adaptation (`compd.faces.opcua_shape`); the face's task
+        makes the nodes match before it writes the values."""
+        self.cfg = cfg
 
     def publish(self, result: Row) -> None:
         """The committed row for the face's task (cheap; never raises, never waits)."""
@@ -521,6 +516,10 @@ class OpcUaFace:
             if values is None or self._machine is None:
                 continue
             try:
+                cfg, shape = self.cfg, self._machine.shape
+                if cfg is not self._shaped and shape is not None:
+                    await shape.shape(cfg)  # a reload: the new config's nodes first
+                    self._shaped = cfg
                 for path, (value, vtype) in values.items():
                     node = self._machine.nodes.get(path)
                     if node is not None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
+import math
 import socket
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -366,3 +367,70 @@ async def test_machines_of_one_process_share_one_server(tmp_path: Path) -> None:
         await release_all()
         for sim in sims:
             await sim.stop()
+
+
+_COLUMN_MODEL = """
+[model]
+name = "spindle and column"
+period_s = 1.0
+
+[[terms]]
+name = "spindle"
+inputs = { bearing = 1.0 }
+a = ["16.0005", "-15.9975", "0"]
+b = ["1", "-0.99983", "0", "0"]
+
+[[terms]]
+name = "column"
+inputs = { column = 1.0 }
+a = ["0.5", "0"]
+b = ["1", "-0.9"]
+"""
+
+_COLUMN_CHANNEL = """
+[channels.column]
+address = { kind = "input", address = 2, type = "int16", scale = 0.1 }
+unit = "degC"
+range = [-20.0, 150.0]
+
+[model]"""
+
+
+async def _names(folder: Node) -> set[str]:
+    return {(await n.read_browse_name()).Name for n in await folder.get_children()}
+
+
+async def test_a_reload_that_changes_the_model_is_published_by_the_face(
+        sim: ModbusSimController, tmp_path: Path) -> None:
+    """After a SIGHUP reload to another model on another channel set, the face's
+    Terms, Channels and Model are the new model's, and it publishes their values."""
+    port = free_tcp_port("127.0.0.1")
+    await sim.publish({"column": 20.0})
+    async with face_daemon(tmp_path, sim, _face(port)) as daemon:
+        client = await _client(port)
+        async with client:
+            idx, machine = await _machine(client)
+            terms = await machine.get_child(f"{idx}:Terms")
+            channels = await machine.get_child(f"{idx}:Channels")
+            assert await _names(terms) == {"spindle_um", "ambient_um"}
+            (tmp_path / "column.toml").write_text(_COLUMN_MODEL, encoding="utf-8")
+            path = daemon.cfg.path
+            text = path.read_text(encoding="utf-8")
+            path.write_text(text.replace('file = "sp2"', 'file = "column.toml"')
+                            .replace("[model]", _COLUMN_CHANNEL), encoding="utf-8")
+            daemon.request_reload()
+            await until(lambda: daemon.reloads >= 1)
+            assert daemon.cfg.model.name == "spindle and column"
+            await _becomes(machine, idx, ("Model", "Name"), "spindle and column")
+            assert await _value(machine, idx, "Model", "Sha256") == daemon.cfg.model_sha256
+            assert await _names(terms) == {"spindle_um", "column_um"}
+            assert await _names(channels) == {"bearing", "ambient", "column"}
+            await sim.publish({"column": 21.0})
+            await _becomes(machine, idx, ("Channels", "column", "Value"), 21.0)
+            await _becomes(machine, idx, ("Channels", "column", "Valid"), True)
+            for _ in range(12_000):  # the new term's contribution, once stepped
+                column = await _value(machine, idx, "Terms", "column_um")
+                if isinstance(column, float) and not math.isnan(column):
+                    break
+                await asyncio.sleep(0.01)
+            assert isinstance(column, float) and not math.isnan(column)

@@ -5,7 +5,9 @@ The server starts beside the loop (`open` starts it in a task: it takes
 seconds, and compensation starts at once and never waits for it); once up,
 each cycle hands it the committed row, whose `snapshot` it reads
 (`compd.faces.opcua_face.OpcUaFace.publish`), and the face writes it in its
-own task. `close` waits for a start still under way, then stops the server.
+own task. The config is the tick's: after a SIGHUP reload the face shows the
+new config's terms, channels and model (`compd.faces.opcua_shape`). `close`
+waits for a start still under way, then stops the server.
 """
 
 from __future__ import annotations
@@ -30,6 +32,8 @@ class OpcUaSink(CycleSink):
     def __init__(self, cfg: LoadedConfig, *, metrics: Metrics,
                  operator_hold: Callable[[bool, str], bool],
                  rezero: Callable[[str], bool] | None = None) -> None:
+        #: the config at start: whether the face runs, and its server (a reload may not
+        #: change them); every cycle's config is the tick's
         self._cfg = cfg
         self._metrics = metrics
         self._operator_hold = operator_hold
@@ -55,8 +59,11 @@ class OpcUaSink(CycleSink):
                                                                name="opcua-face-start")
 
     def feed(self, tick: Tick) -> None:
-        if self.face is not None:  # a snapshot; the face writes it in its own task
-            self.face.publish(tick.row)
+        face = self.face
+        if face is not None:  # a snapshot; the face writes it in its own task
+            if face.cfg is not tick.cfg:  # a reload: its terms, channels and model
+                face.reconfigure(tick.cfg)
+            face.publish(tick.row)
 
     async def close(self) -> None:
         starting, self.starting = self.starting, None

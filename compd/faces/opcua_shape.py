@@ -1,0 +1,103 @@
+"""The part of a machine's object in the OPC UA face (`compd.faces.opcua_face`)
+that its config decides: ``Terms/<term>_um``, ``Channels/<name>/Value`` and
+``/Valid``, ``Model/Name`` and ``Model/Sha256``, and the ``Adaptation`` folder.
+
+`shape` builds them when the machine's object is added, and makes them match
+a reloaded config: the nodes of a term or channel no longer there are
+deleted, new ones added (NaN, invalid, until the next cycle is published),
+the model's name and sha256 written, the Adaptation folder added or deleted.
+Every other node (``Offset_um``, ``FaultState``, the methods...) stays as it
+is, so a client's subscription to it goes on across a reload. It runs on the
+face's own loop, in the task that writes the values.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any
+
+from asyncua import ua
+
+if TYPE_CHECKING:
+    from asyncua.common.node import Node
+    from asyncua.server.server import Server
+
+    from compd.config.loader import LoadedConfig
+
+__all__ = ["ADAPTATION_NAMES", "MachineNodes"]
+
+#: the adaptation estimator's variables, under Adaptation/
+ADAPTATION_NAMES: tuple[str, ...] = ("Bias_um", "BiasSigma_um", "Correction_um")
+
+
+class MachineNodes:
+    """One machine's object and its variables by path ("Terms.spindle")."""
+
+    def __init__(self, server: Server, idx: int, name: str, obj: Node,
+                 nodes: dict[str, Node]) -> None:
+        self.server = server
+        self.idx = idx
+        self.name = name
+        self.obj = obj
+        self.nodes = nodes
+
+    def nid(self, path: str) -> ua.NodeId:
+        return ua.NodeId(ua.String(f"{self.name}.{path}"), ua.Int16(self.idx))
+
+    async def var(self, parent: Node, path: str, name: str, value: Any,
+                  vtype: ua.VariantType, datatype: ua.NodeId | None = None) -> None:
+        node = await parent.add_variable(self.nid(path), ua.QualifiedName(name, self.idx),
+                                         ua.Variant(value, vtype), datatype=datatype)
+        self.nodes[path] = node
+
+    async def folder(self, parent: Node, path: str, name: str) -> Node:
+        return await parent.add_folder(self.nid(path), ua.QualifiedName(name, self.idx))
+
+    async def _delete(self, path: str, *children: str) -> None:
+        """The node at `path` and everything under it; `children`: its variables."""
+        for child in children:
+            self.nodes.pop(child, None)
+        self.nodes.pop(path, None)
+        await self.server.delete_nodes([self.server.get_node(self.nid(path))], recursive=True)
+
+    async def shape(self, cfg: LoadedConfig) -> None:
+        """Make the config's part of the object match `cfg` (the module docstring);
+        the Terms, Channels and Model folders exist already."""
+        nan, double = math.nan, ua.VariantType.Double
+        terms = {f"Terms.{t.name}": f"{t.name}_um" for t in cfg.model.terms}
+        for path in [p for p in self.nodes if p.startswith("Terms.") and p not in terms]:
+            await self._delete(path)
+        folder = self.server.get_node(self.nid("Terms"))
+        for path, name in terms.items():
+            if path not in self.nodes:
+                await self.var(folder, path, name, nan, double)
+
+        have = {p.removeprefix("Channels.").removesuffix(".Value") for p in self.nodes
+                if p.startswith("Channels.") and p.endswith(".Value")}
+        for ch in sorted(have - set(cfg.channels)):
+            await self._delete(f"Channels.{ch}", f"Channels.{ch}.Value",
+                               f"Channels.{ch}.Valid")
+        channels = self.server.get_node(self.nid("Channels"))
+        for ch in cfg.channels:
+            if ch not in have:
+                sub = await self.folder(channels, f"Channels.{ch}", ch)
+                await self.var(sub, f"Channels.{ch}.Value", "Value", nan, double)
+                await self.var(sub, f"Channels.{ch}.Valid", "Valid", False,
+                               ua.VariantType.Boolean)
+
+        model = {"Model.Name": cfg.model.name, "Model.Sha256": cfg.model_sha256}
+        for path, value in model.items():
+            node = self.nodes.get(path)
+            if node is None:
+                await self.var(self.server.get_node(self.nid("Model")), path,
+                               path.removeprefix("Model."), value, ua.VariantType.String)
+            else:
+                await node.write_value(ua.DataValue(ua.Variant(value, ua.VariantType.String)))
+
+        adapting = f"Adaptation.{ADAPTATION_NAMES[0]}" in self.nodes
+        if adapting and cfg.adaptation is None:
+            await self._delete("Adaptation", *(f"Adaptation.{n}" for n in ADAPTATION_NAMES))
+        elif not adapting and cfg.adaptation is not None:
+            ad = await self.folder(self.obj, "Adaptation", "Adaptation")
+            for name in ADAPTATION_NAMES:
+                await self.var(ad, f"Adaptation.{name}", name, nan, double)
