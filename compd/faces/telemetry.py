@@ -247,6 +247,12 @@ def configure_logging(json: bool | None = None, level: str = "info", *,
                                          else floor)
 
 
+#: what ``compd_offset_micrometres`` is: the value compd sends, confirmed or not
+OFFSET_HELP = ("Offset the output stage sent this cycle (after limit, slew limit and "
+               "fault policy), in micrometres; a failed write leaves the controller on "
+               "its last confirmed offset, which this does not show")
+
+
 class MetricsServer:
     """`registry` served as /metrics by a bounded server (`compd.faces.http_server`):
     `start_http`, `port`, `stop` (for one daemon's `Metrics` and for a fleet
@@ -324,8 +330,9 @@ class Metrics(MetricsServer):
                                    ["channel"], registry=r)
         self.write_errors = Counter("compd_write_errors", "Failed writes to the controller",
                                     ["output"], registry=r)
-        self.offset_um = Gauge("compd_offset_micrometres",
-                               "Offset last written, in micrometres", registry=r)
+        #: the output stage's value, not what the controller holds: that is the
+        #: confirmed offset (the OPC UA face's Offset_um, the recorder's offset_um)
+        self.offset_um = Gauge("compd_offset_micrometres", OFFSET_HELP, registry=r)
         self.channel_temperature = Gauge(
             "compd_channel_temperature_celsius",
             "Last value read per temperature channel, in degrees Celsius", ["channel"],

@@ -295,3 +295,18 @@ async def test_daemon_exports_model_output_and_channel_validity(
     finally:
         daemon.request_stop()
         assert await asyncio.wait_for(task, 120.0) == 0
+
+
+def test_the_offset_gauges_help_says_it_is_the_stage_value_not_the_confirmed_one() -> None:
+    """``compd_offset_micrometres`` is set from the output stage every cycle, a failed
+    write included: its help says so, not "last written" (which reads as what the
+    controller holds)."""
+    from prometheus_client import generate_latest
+
+    from compd.faces.telemetry import Metrics
+
+    text = generate_latest(Metrics().registry).decode()
+    help_line = next(ln for ln in text.splitlines()
+                     if ln.startswith("# HELP compd_offset_micrometres "))
+    assert "output stage" in help_line and "failed write" in help_line
+    assert "last written" not in help_line
