@@ -213,7 +213,11 @@ class StatusBoard:
                     for name, ch in raw.channels.items()]
         doc = {"machine": raw.machine.name, "state": word, "fault_state": str(result.state),
                 "cause": str(result.cause), "healthy": result.healthy,
+                # the output stage's value (sent this cycle, confirmed or not) and what
+                # the controller confirmed holding (None: unknown); the history's
+                # offset_um is the recorder's, the confirmed one
                 "why": why, "offset_um": _num(result.offset_um),
+                "confirmed_um": _num(snap.confirmed_um),
                 "limit_um": limit_um, "model_um": _num(rec.model_um),
                 "sequence": result.sequence, "complete": bool(result.complete),
                 "status_word": result.status, "heartbeat": result.heartbeat,

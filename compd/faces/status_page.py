@@ -82,6 +82,10 @@ function showMachine(s, m){
   q(".why").textContent = m.why + (m.cause && m.healthy === false ? " [" + m.cause + "]" : "");
   const out = q(".out"); out.textContent = "";
   add(out, "span", "big offset", fmt(m.offset_um, 2) + " \\u00b5m");
+  if (!m.recorder_only && m.confirmed_um !== m.offset_um)
+    add(out, "span", "confirmed", " (sent; the controller holds " +
+      (m.confirmed_um === null || m.confirmed_um === undefined ? "an unconfirmed offset"
+       : fmt(m.confirmed_um, 2) + " \\u00b5m") + ")");
   add(out, "span", "limit", "   limit \\u00b1" + fmt(m.limit_um, 1) + " \\u00b5m \\u00b7");
   add(out, "span", "model_um", " model output " + fmt(m.model_um, 2) + " \\u00b5m");
   if (m.pending_um !== null && m.pending_um !== undefined)
@@ -149,7 +153,7 @@ function plot(cv, h, limit){
     if (v > lo && v < hi) { g.moveTo(L, Y(v)); g.lineTo(W - R, Y(v)); drawn++; }
   g.stroke(); g.setLineDash([]);
   line(h.model_um, "#e07000", [6, 4]); line(h.offset_um, "#0050c0", []);
-  const keys = [["\\u2014 offset written", "#0050c0"], ["- - model output", "#e07000"]];
+  const keys = [["\\u2014 offset confirmed", "#0050c0"], ["- - model output", "#e07000"]];
   if (limit !== null && limit !== undefined) keys.push([drawn ? ".... \\u00b1 limit" :
     "\\u00b1 limit " + fmt(limit, 1) + " \\u00b5m: off scale", "#b00020"]);
   g.textAlign = "right"; let x = W - R;

@@ -383,3 +383,37 @@ def test_every_cause_has_a_reason_on_the_page() -> None:
         word, why = operator_state(FaultState.OK, cause, {})
         assert word and why, cause
     assert operator_state(FaultState.OK, Cause.RECORDER_ONLY, {})[0] == "recording"
+
+
+def test_the_page_says_the_offset_sent_and_the_one_the_controller_holds(
+        tmp_path: Path) -> None:
+    """A failed write: the stage's value (``offset_um``, sent) moved on, the controller
+    still holds the last confirmed offset (``confirmed_um``), which the page says beside
+    it; its history (the recorder's) is the confirmed one and its legend says so."""
+    from compd.config.loader import load_config
+    from compd.core.cycle import Cycle, params_from_config
+    from compd.core.plan import Outcome
+    from tests.compd.cycle_helpers import samples
+    from tests.compd.daemon_helpers import write_config
+
+    cfg = load_config(write_config(tmp_path, "modbus://127.0.0.1:5020"))
+    cycle = Cycle(params_from_config(cfg), cfg.model)
+    board = StatusBoard(wall=lambda: 1000.0)
+    controller, t = 0.0, 0.0  # what the controller holds, as read back
+    for k in range(20):
+        t += 1.0
+        cycle.plan(t, samples(t, 20.0 + 0.4 * k), controller)
+        row = cycle.commit()
+        controller = row.writes.get("offset", controller)
+    held = row.snapshot.confirmed_um
+    t += 1.0
+    cycle.plan(t, samples(t, 28.0), controller)
+    row = cycle.commit(Outcome.failed("offset", reason="timed out"))
+    board.publish(row, cfg)
+    doc = board.snapshot
+    assert held is not None and doc["confirmed_um"] == pytest.approx(held)
+    assert doc["offset_um"] == pytest.approx(row.offset_um)
+    assert doc["offset_um"] != doc["confirmed_um"]
+    page = render_page(doc, 5.0)
+    assert "m.confirmed_um" in page and "offset confirmed" in page
+    assert "offset written" not in page
