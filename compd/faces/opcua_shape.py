@@ -17,6 +17,7 @@ import math
 from typing import TYPE_CHECKING, Any
 
 from asyncua import ua
+from asyncua.ua.status_codes import StatusCodes
 
 if TYPE_CHECKING:
     from asyncua.common.node import Node
@@ -54,11 +55,15 @@ class MachineNodes:
         return await parent.add_folder(self.nid(path), ua.QualifiedName(name, self.idx))
 
     async def _delete(self, path: str, *children: str) -> None:
-        """The node at `path` and everything under it; `children`: its variables."""
-        for child in children:
+        """The node at `path` and everything under it; `children`: its variables
+        (forgotten once deleted: a failed delete is tried again at the next shape)."""
+        _, results = await self.server.delete_nodes([self.server.get_node(self.nid(path))],
+                                                    recursive=True)
+        for status in results:
+            if status.value != StatusCodes.BadNodeIdUnknown:  # gone already: deleted
+                status.check()
+        for child in (path, *children):
             self.nodes.pop(child, None)
-        self.nodes.pop(path, None)
-        await self.server.delete_nodes([self.server.get_node(self.nid(path))], recursive=True)
 
     async def shape(self, cfg: LoadedConfig) -> None:
         """Make the config's part of the object match `cfg` (the module docstring);
