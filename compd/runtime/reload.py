@@ -9,7 +9,8 @@ key and the reason). `handover` builds the cycle that continues the old one:
 - the output stage starts from what the controller is known to hold (the last
   confirmed offset; with read-back, what it reads) and slews to the new
   model's value at the (new) slew limit: never a jump;
-- the same model (same sha256): the filters carry over exactly;
+- the same model (same sha256): the filters carry over exactly (the old
+  cycle's state, imported into the new cycle's own copy of the model);
 - another model: the references are kept and every term starts at the steady
   state matching the first valid sample (today's temperatures), as after a
   restart with an old checkpoint;

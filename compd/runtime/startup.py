@@ -12,6 +12,10 @@
   (``[reference]`` / ``[model] reference``) and the steady state of the first
   valid sample; without one, the first sample's temperatures are the reference.
 
+The config's model is a description: the cycle steps a copy of its own
+(`compd.core.modelstep.ModelStepper`), so the same config starts a cycle
+again (a fleet's restart, a reload) without the state of one before.
+
 The ``model_initialised`` event says which (``mode``, ``reference``), and the
 status page shows it. A re-zero (``zero`` in the checkpoint) is kept with the
 same model, whatever the checkpoint's age.

@@ -311,6 +311,7 @@ async def test_a_restart_after_a_reload_runs_the_reloaded_config_with_fresh_mode
         assert again.cfg.model.name == "SP1 per-spindle"
         assert again.cycle.model is not dead_model
         assert again.cycle.model is not again.cfg.model  # the config stays a description
+        assert again.cfg.model.references == {}  # never stepped: no reference state set
         await fs.step(2)
         assert again.complete_cycles >= 2
         assert await _stop(fleet, task) == 0
