@@ -8,7 +8,7 @@ Per seed, on the shop machine (`compd sim --record … --machine shop --hours 48
    --candidates 't*_degC' --candidates spindle_rpm --max-terms 3`);
 3. verify on day 2 as a running daemon would (`compd replay MODEL all.csv
    --score-from 86400`, the initial state estimated on day 1), a probe every 2 h
-   with 0.5 µm of added noise (`--probe-every 7200 --probe-noise-um 0.5`).
+   with 0.5 µm of added noise (`--probe-every-min 120 --probe-noise-um 0.5`).
 
 Printed per seed and day: range reduction plain → adapted (ratio) with the
 defaults (the applied correction earned: `apply_sigma` 4), the always-following
@@ -39,7 +39,7 @@ from typing import Any
 
 from compd.cli import main as cli
 
-PROBES = ["--probe-every", "7200", "--probe-noise-um", "0.5"]
+PROBES = ["--probe-every-min", "120", "--probe-noise-um", "0.5"]
 
 
 def _run(argv: list[str]) -> dict[str, Any]:

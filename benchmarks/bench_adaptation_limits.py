@@ -58,7 +58,7 @@ def seed_limits(d: Path, seed: int) -> None:
         ratios = []
         for every in INTERVALS:
             r = _run(["replay", str(model), str(record), "--column", "dz_um", "--score-from",
-                      "86400", "--probe-every", str(every), "--probe-noise-um", "0.5",
+                      "86400", "--probe-every-min", f"{every / 60:g}", "--probe-noise-um", "0.5",
                       "--gains", "--json"])
             ratios.append(r["adapted"]["range_reduction"] / r["range_reduction"])
         sweep = ", ".join(f"{e} s {x:.2f}" for e, x in zip(INTERVALS, ratios, strict=True))

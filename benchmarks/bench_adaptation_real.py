@@ -10,7 +10,7 @@ split through the command line as a user would:
 2. replay the whole record from rest (`compd replay MODEL calibration.csv
    --init rest --score-from 72360`), scored on the 7.7 h after the calibration
    rows, with a probe every 1, 2, 4 and 8 h taken from the measured channel,
-   without and with 0.5 µm of seeded noise (`--probe-every --probe-noise-um`).
+   without and with 0.5 µm of seeded noise (`--probe-every-min --probe-noise-um`).
 
 Printed per row: the residue RMS (µm, scored rows) of the plain model, the
 estimator with the library defaults (`--adaptation-defaults`: the model
@@ -78,7 +78,7 @@ def channel_rows(d: Path, first: Path, channel: str, seed: int) -> list[dict[str
                     "--adaptation-lag-s", str(every_h * 3600), "-o", str(model), "--json"])
         for noise in NOISE_UM:
             argv = ["replay", str(model), str(RECORD), "--column", channel, "--init", "rest",
-                    "--score-from", f"{SPLIT_S:g}", "--probe-every", str(every_h * 3600),
+                    "--score-from", f"{SPLIT_S:g}", "--probe-every-min", str(every_h * 60),
                     "--probe-noise-um", str(noise), "--probe-seed", str(seed), "--json"]
             learnt = _run(argv)
             default = _run([*argv, "--adaptation-defaults"])

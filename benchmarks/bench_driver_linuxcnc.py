@@ -33,7 +33,7 @@ from drivers.sim.linuxcnc_machine import (
 from drivers.sim.modbus_server import ModbusSimController
 
 BLOCK = 100
-CHANNELS = ("bearing", "motor", "column", "table", "ambient", "speed_rpm")
+CHANNELS = ("bearing", "motor", "column", "table", "ambient", "spindle_rpm")
 VALUES = {"bearing": 31.2, "motor": 45.6, "column": 22.3, "table": 24.1, "ambient": 20.5}
 
 
@@ -73,7 +73,7 @@ async def main(cycles: int) -> None:
         raise SystemExit(f"bench_driver_linuxcnc: {exc}") from None
     await mb.start()
     await lcnc.publish(VALUES)
-    await mb.publish({**VALUES, "speed_rpm": 9000})
+    await mb.publish({**VALUES, "spindle_rpm": 9000})
     lc_driver = LinuxCncDriver(lcnc.endpoint, {**lcnc.channels, **lcnc.states},
                                lcnc.outputs_map, timeout_s=1.0, connect_timeout_s=60.0,
                                component=lcnc.component)

@@ -38,7 +38,7 @@ async def main(cycles: int) -> None:
     sim = ModbusSimController()
     await sim.start()
     await sim.publish({"bearing": 31.2, "motor": 45.6, "column": 22.3, "table": 24.1,
-                       "ambient": 20.5, "speed_rpm": 12000, "power_kw": 7.5,
+                       "ambient": 20.5, "spindle_rpm": 12000, "power_kw": 7.5,
                        "growth_um": 12.25, "error_um": -3.5})
     driver = ModbusDriver(sim.endpoint, sim.channels, sim.outputs_map, timeout_s=0.5,
                           backoff=Backoff(0.05, 1.0))

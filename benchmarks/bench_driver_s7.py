@@ -72,7 +72,7 @@ async def main(cycles: int) -> None:
     bare_client, hop_client = Client(), Client()
     executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="bench-hop")
     try:
-        await sim.publish({"bearing": 24.5, "speed_rpm": 9000, "power_kw": 3.0})
+        await sim.publish({"bearing": 24.5, "spindle_rpm": 9000, "power_kw": 3.0})
         names = list(CHANNELS)
         bare_client.connect(sim.host, 0, 1, sim.port)
         hop_client.connect(sim.host, 0, 1, sim.port)

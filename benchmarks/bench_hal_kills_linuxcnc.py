@@ -140,7 +140,7 @@ async def run(kills: int) -> dict[str, Any]:
             await driver.connect()  # the HAL side after the last kill, left running
             held.append((await driver.read(["offset"]))["offset"].value)
             await lcnc.control("mdi", "S3000 M3")
-            spindle = (await driver.read(["speed_rpm"]))["speed_rpm"].value
+            spindle = (await driver.read(["spindle_rpm"]))["spindle_rpm"].value
             after_text = show_sig()
             after = table(after_text)
         finally:

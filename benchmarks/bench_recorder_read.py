@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from tests.compd.recorder_layouts import write_previous  # noqa: E402
 
-CHANNELS = ("bearing", "motor", "column", "ambient", "speed_rpm")
+CHANNELS = ("bearing", "motor", "column", "ambient", "spindle_rpm")
 TERMS = ("spindle", "motor", "column", "ambient")
 T0 = 1_795_000_000.0
 COMMIT_ROWS = 100_000
@@ -50,7 +50,7 @@ def row(k: int, rng: random.Random) -> RecordRow:
         "motor": 30.0 + 8.0 * math.sin(h / 2.0 + 1.0) + rng.gauss(0.0, 0.02),
         "column": 21.0 + 1.5 * math.sin(h / 5.0) + rng.gauss(0.0, 0.02),
         "ambient": 20.0 + 2.0 * math.sin(2 * math.pi * h / 24.0) + rng.gauss(0.0, 0.02),
-        "speed_rpm": float(rng.choice((0, 3000, 6000, 9000)) if k % 600 == 0 else 0)}
+        "spindle_rpm": float(rng.choice((0, 3000, 6000, 9000)) if k % 600 == 0 else 0)}
     contributions = {t: rng.gauss(0.0, 4.0) for t in TERMS}
     total = sum(contributions.values())
     return RecordRow(seq=k, mono_s=float(k), wall_s=T0 + k, offset_um=total, model_um=total,

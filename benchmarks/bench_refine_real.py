@@ -10,7 +10,7 @@ Per channel (ch3_um, ch4_um) and probe spacing, as a user would:
    logged as the daemon's recorder would (time_s, measured_um, model_um: the plain
    model replayed from rest), and `compd refine MODEL probes.csv -o REFINED`;
 3. replay the whole record from rest (`compd replay … --init rest --score-from 72360
-   --probe-every EVERY`), scored on the 7.7 h after 20.1 h, which neither step saw,
+   --probe-every-min EVERY`), scored on the 7.7 h after 20.1 h, which neither step saw,
    with the calibration's settings and with the refined ones, without and with 0.5 µm
    of probe noise; plain and crude in the same run.
 
@@ -74,7 +74,7 @@ def main() -> None:
                     continue
                 for noise in ("0", "0.5"):
                     argv = ["--column", channel, "--init", "rest", "--score-from",
-                            f"{SPLIT_S:g}", "--probe-every", f"{every_s:g}",
+                            f"{SPLIT_S:g}", "--probe-every-min", f"{every_s / 60:g}",
                             "--probe-noise-um", noise, "--json"]
                     a = _run(["replay", str(model), str(RECORD), *argv])
                     b = _run(["replay", str(refined), str(RECORD), *argv])

@@ -32,14 +32,14 @@ from drivers.base import Driver, Sample
 from drivers.errors import ControllerTimeout
 
 #: the sensors a simulated controller offers (growth/error are the plant's truth)
-SENSORS: tuple[str, ...] = ("bearing", "motor", "column", "table", "ambient", "speed_rpm",
+SENSORS: tuple[str, ...] = ("bearing", "motor", "column", "table", "ambient", "spindle_rpm",
                             "power_kw")
 _TEMPERATURE: dict[str, Any] = {"unit": "degC", "range": [-20.0, 150.0],
                                 "max_rate_per_s": 1.0}
 _SETTINGS: dict[str, dict[str, Any]] = {
     "bearing": _TEMPERATURE, "motor": _TEMPERATURE, "column": _TEMPERATURE,
     "table": _TEMPERATURE, "ambient": _TEMPERATURE,
-    "speed_rpm": {"unit": "rpm", "range": [0.0, 30000.0]},
+    "spindle_rpm": {"unit": "rpm", "range": [0.0, 30000.0]},
     "power_kw": {"unit": "kW", "range": [-1.0, 200.0]},
 }
 

@@ -37,7 +37,7 @@ examples:
 examples:
   compd replay plant.toml spectrum.csv --column dz_um --plot replay.png
   compd replay sp2 /var/lib/compd/samples.sqlite --column dz_um --json
-  compd replay plant.toml spectrum.csv --column dz_um --probe-every 7200 --probe-noise-um 0.5""",
+  compd replay plant.toml spectrum.csv --column dz_um --probe-every-min 120 --probe-noise-um 0.5""",
     "report": """\
 examples:
   compd report plant.toml constant.csv etve.csv spectrum.csv -o report.html

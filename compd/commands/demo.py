@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
 
         h = result.history
         inputs: dict[str, np.ndarray] = {
-            k: h[k] for k in ("bearing", "motor", "column", "ambient", "speed_rpm") if k in h}
+            k: h[k] for k in ("bearing", "motor", "column", "ambient", "spindle_rpm") if k in h}
         write_atomically(args.plot, lambda tmp: replay_figure(
                       tmp, h["time_s"], inputs, h["growth_um"], h["offset_um"],
                       title=(f"compd demo ({args.protocol}): Z growth at the tool, offset "

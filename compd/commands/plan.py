@@ -102,9 +102,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "then held falling, rest")
     parser.add_argument("--rest-h", type=REST_H, default=None, metavar="R",
                         help="each of the two rests in hours (default: as long as a step)")
-    parser.add_argument("--probe-every-min", type=PROBE_EVERY_MIN, default=None, metavar="N",
-                        help="a measuring cycle every N minutes of the schedule, and at its "
-                             "start and end (default: none; needs --safe-position)")
+    parser.add_argument("--probe-every-min", type=PROBE_EVERY_MIN, default=None,
+                        metavar="MINUTES",
+                        help="a measuring cycle every MINUTES minutes of the schedule, and "
+                             "at its start and end (default: none; needs --safe-position)")
     parser.add_argument("--dialect", choices=DIALECTS, required=True,
                         help="the controller: linuxcnc (G38.2 probing), fanuc or sinumerik "
                              "(your measuring cycle, --probe-call)")

@@ -10,7 +10,7 @@ that table replaced and a `[provenance.adaptation_refined]` entry saying from
 what; the terms are copied as they are. Each refined setting is held within the
 bounds `compd check` holds a model's [adaptation] table to, and a setting held at
 its bound is named (`--json`: ``at_bound``, with the value the probes gave). The
-daemon and `compd replay --probe-every` use the new table unless the config or an
+daemon and `compd replay --probe-every-min` use the new table unless the config or an
 option overrides it.
 """
 

@@ -154,12 +154,12 @@ def run(args: argparse.Namespace) -> int:
         if args.init is not None:
             problem = ("--init goes without --config (the daemon's cycle starts the model "
                        "as the daemon does)")
-        elif args.probe_every is not None:
-            problem = ("--probe-every goes without --config (the probes replay beside the "
+        elif args.probe_every_min is not None:
+            problem = ("--probe-every-min goes without --config (the probes replay beside the "
                        "bare model)")
     args.init = args.init or "estimate"
-    if not problem and args.score_until is not None and args.probe_every is not None:
-        problem = "--score-until goes without --probe-every (the probes score to the end)"
+    if not problem and args.score_until is not None and args.probe_every_min is not None:
+        problem = "--score-until goes without --probe-every-min (the probes score to the end)"
     if not problem and args.score_until is not None and args.score_until < args.score_from:
         problem = (f"--score-until {args.score_until:g} s is before --score-from "
                    f"{args.score_from:g} s")
@@ -198,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
                             args.output)
         res = measured[first:last] - simulated[first:last]
         mae, rms = float(np.mean(np.abs(res))), float(np.sqrt(np.mean(res ** 2)))
-        if args.probe_every is not None:
+        if args.probe_every_min is not None:
             probes, extra = replay_probes.replay(args, model, record, measured, simulated, first)
     except RecordError as exc:
         print(f"compd replay: {exc}", file=sys.stderr)
@@ -231,7 +231,7 @@ def run(args: argparse.Namespace) -> int:
               f"{q.residue_min_um:.3f} … {q.residue_max_um:.3f} µm, Δpk {q.dpk_um:.3f} µm, "
               f"range reduction {q.range_reduction:.2f}-fold")
         if extra:
-            print("\n".join(replay_probes.lines(q, extra, args.probe_every,
+            print("\n".join(replay_probes.lines(q, extra, args.probe_every_min,
                                                  args.probe_noise_um)))
         if args.plot:
             print(f"  figure: {args.plot}")

@@ -1,4 +1,4 @@
-"""`compd replay … --probe-every SECONDS`: the options of adaptation offline and
+"""`compd replay … --probe-every-min MINUTES`: the options of adaptation offline and
 its report (the estimator `models.adaptation`, the run `compd.offline.probes`).
 
 The plain figures stay as they are; beside them ``"adapted"`` (the same keys,
@@ -68,9 +68,14 @@ _SETTINGS: tuple[tuple[str, str, Any, str], ...] = (
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("adaptation offline (probes taken from --output)")
-    group.add_argument("--probe-every", type=number(0.0, 1e9, lo_open=True), default=None,
-                       metavar="SECONDS", help="probe the measured column this often and "
-                       "report the figures with the estimator beside the plain ones")
+    group.add_argument("--probe-every-min", type=number(0.0, 1e9 / 60.0, lo_open=True),
+                       default=None, metavar="MINUTES",
+                       help="probe the measured column every this many minutes of the record "
+                       "and report the figures with the estimator beside the plain ones (as "
+                       "compd sim/plan --probe-every-min)")
+    group.add_argument("--probe-every", type=number(0.0, 1e9, lo_open=True),
+                       dest="probe_every_min", action=_SecondsAsMinutes, metavar="SECONDS",
+                       help="deprecated: --probe-every-min in seconds")
     group.add_argument("--probe-noise-um", type=number(0.0, 1000.0), default=0.0,
                        metavar="X", help="seeded noise added to each probe value (default 0)")
     group.add_argument("--probe-seed", type=seed, default=0, help="seed of the probe noise")
@@ -85,6 +90,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                            help=text.format(getattr(defaults, field)))
 
 
+class _SecondsAsMinutes(argparse.Action):
+    """The former ``--probe-every SECONDS``: stored as minutes, with one line on stderr
+    naming the option that replaces it."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: object, option_string: str | None = None) -> None:
+        import sys
+
+        seconds = float(values)  # type: ignore[arg-type]  # argparse gives what type made
+        print(f"{parser.prog}: --probe-every SECONDS is deprecated, use --probe-every-min "
+              f"MINUTES (--probe-every {seconds:g} is --probe-every-min {seconds / 60.0:g})",
+              file=sys.stderr)
+        setattr(namespace, self.dest, seconds / 60.0)
+
+
 def _dest(option: str) -> str:
     return option.lstrip("-").replace("-", "_")
 
@@ -97,7 +117,7 @@ def _defaults() -> AdaptationParams:
 
 def usage_problem(args: argparse.Namespace) -> str:
     """Why the probe options cannot be used as given ("" when they can)."""
-    if args.probe_every is not None:
+    if args.probe_every_min is not None:
         try:
             params_from_args(args)
         except ValueError as exc:
@@ -107,7 +127,7 @@ def usage_problem(args: argparse.Namespace) -> str:
     given += [o for o, v in (("--probe-noise-um", args.probe_noise_um),
                              ("--probe-seed", args.probe_seed), ("--gains", args.gains),
                              ("--adaptation-defaults", args.adaptation_defaults)) if v]
-    return f"{', '.join(given)} need(s) --probe-every" if given else ""
+    return f"{', '.join(given)} need(s) --probe-every-min" if given else ""
 
 
 def params_from_args(args: argparse.Namespace,
@@ -153,7 +173,7 @@ def figures(run: ProbeRun, adapted: CompensationFigures, crude: CompensationFigu
     }
 
 
-def lines(plain: CompensationFigures, extra: dict[str, Any], every_s: float,
+def lines(plain: CompensationFigures, extra: dict[str, Any], every_min: float,
           noise_um: float) -> list[str]:
     """The text report's lines after the plain figures."""
     a, c = extra["adapted"], extra["crude"]
@@ -162,8 +182,8 @@ def lines(plain: CompensationFigures, extra: dict[str, Any], every_s: float,
         return f"{x / plain.range_reduction:.2f}x the plain model's"
 
     return [
-        f"  adapted (a probe every {every_s:g} s, +{noise_um:g} µm noise; {a['probes']} probes, "
-        f"{a['probes_used']} used, {a['probes_refused']} refused, applied at "
+        f"  adapted (a probe every {every_min:g} min, +{noise_um:g} µm noise; "
+        f"{a['probes']} probes, {a['probes_used']} used, {a['probes_refused']} refused, applied at "
         f"{a['applied_moves']}, stood down {a['stand_downs']} time(s); settings from the "
         f"{extra['adaptation_from']}"
         + (", not learnt for this model: started stood down" if extra["adaptation"].get(
@@ -189,18 +209,19 @@ def replay(args: argparse.Namespace, model: CompensationModel, record: Record,
     from compd.offline.probes import run_probes, term_contributions
     from compd.offline.quality_check import checked_quality
 
-    if args.probe_every < record.period_s:  # a probe at every row is the most there can be
+    every_s = 60.0 * args.probe_every_min
+    if every_s < record.period_s:  # a probe at every row is the most there can be
         from compd.infiles import InputError
         from compd.sysexits import EX_USAGE
 
-        raise InputError(f"--probe-every {args.probe_every:g} s: shorter than the record's "
-                         f"period of {record.period_s:g} s (at most one probe per row)",
-                         EX_USAGE)
+        raise InputError(f"--probe-every-min {args.probe_every_min:g}: shorter than the "
+                         f"record's period of {record.period_s:g} s (at most one probe per "
+                         "row)", EX_USAGE)
     params = params_from_args(args, model.adaptation)
     terms = None
     if params.gains:
         terms = term_contributions(model, record, steady=args.init == "steady")
-    run = run_probes(simulated, measured, record.time_s, terms, every_s=args.probe_every,
+    run = run_probes(simulated, measured, record.time_s, terms, every_s=every_s,
                      noise_um=args.probe_noise_um, seed=args.probe_seed, params=params)
     adapted = checked_quality(measured[first:], run.adapted[first:], record.path, args.output)
     crude = checked_quality(measured[first:], run.crude[first:], record.path, args.output)

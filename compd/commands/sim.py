@@ -90,10 +90,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--probe-noise-um", type=PROBE_NOISE_UM, default=0.5,
                         help="probe noise added to dz_um in --record, and to each "
                              "measurement of --probe-every-min (default 0.5 µm)")
-    parser.add_argument("--probe-every-min", type=PROBE_EVERY_MIN, default=None, metavar="N",
-                        help="a measuring cycle every N machine minutes: the controller's "
-                             "probe_value (growth - the offset in force + noise, µm) and "
-                             "probe_counter (+1), for a daemon's [adaptation]")
+    parser.add_argument("--probe-every-min", type=PROBE_EVERY_MIN, default=None,
+                        metavar="MINUTES",
+                        help="a measuring cycle every MINUTES machine minutes: the "
+                             "controller's probe_value (growth - the offset in force + "
+                             "noise, µm) and probe_counter (+1), for a daemon's [adaptation]")
     parser.add_argument("--write-config", metavar="TOML", default=None,
                         help="write the protocol's example config pointed at this server "
                              "(its port, --speedup as time_scale; FOCAS: the stand-in "

@@ -68,7 +68,7 @@ def _status_line(drive: DriveLoop) -> str:
 
     # the URL was checked (no user name or password); hidden here all the same
     link = "up" if row.get("link_ok") else f"DOWN ({redact_urls(str(drive.last_error))})"
-    return (f"t={row['time_s'] / 3600:.3f} h speed={num('speed_rpm', '.0f')} rpm "
+    return (f"t={row['time_s'] / 3600:.3f} h speed={num('spindle_rpm', '.0f')} rpm "
             f"bearing={num('bearing', '.1f')} C growth={num('growth_um', '.2f')} um "
             f"offset={num('offset_um', '.2f')} um error={num('error_um', '.2f')} um "
             f"heartbeat={num('heartbeat', '.0f')} status={num('status', '.0f')} link={link}")

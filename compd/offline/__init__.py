@@ -6,6 +6,6 @@ demo's simulated machine.
 - `demo`     the simulated machine on loopback and the real daemon against it
 - `plan/`    the calibration experiment as a G-code program (`compd plan`) and the
              recorder settings that record its run
-- `probes`   probes replayed from a record beside a model (`compd replay --probe-every`)
+- `probes`   probes replayed from a record beside a model (`compd replay --probe-every-min`)
              and the adaptation settings a residual suggests (`compd fit --adaptation`)
 """

@@ -7,11 +7,11 @@ relative to its first sample, plotted on the temperature axis, checked for a
 mK slip) or a rate that heats the machine (spindle speed, drive power:
 enters as it is, plotted on its own axis). One function answers for all:
 
-- SPEED: the name contains ``speed`` or ``rpm`` (``speed_rpm``,
-  ``spindle_rpm``, ``SpindleSpeed``, ``rpm_s1``);
+- SPEED: the name contains ``speed`` or ``rpm`` (``spindle_rpm``,
+  ``SpindleSpeed``, ``rpm_s1``);
 - POWER: the name contains ``power`` or has ``kW`` as a word of its own
   (``power_kw``, ``p_kw``, ``kw_drive``);
-- TEMPERATURE: everything else (``bearing``, ``t01_degC``, ``ambient``).
+- TEMPERATURE: everything else (``bearing``, ``t1_degC``, ``ambient``).
 
 Case does not matter; words are separated by anything but letters and digits.
 The daemon never guesses: its channels carry units (`[channels.*] unit`).

@@ -35,6 +35,7 @@ from drivers.sim.base import SimController
 from drivers.sim.focas_server import FocasSimController
 from drivers.sim.linuxcnc_machine import LinuxCncSimController
 from drivers.sim.machine import SimMachine
+from drivers.sim.renamed import current_name, warn_former
 from models import tomltext
 from models.quality import fit_percent
 
@@ -43,7 +44,7 @@ _TEMPERATURE = {"unit": "degC", "range": [-20.0, 150.0], "max_rate_per_s": 0.5}
 _CHANNEL_SETTINGS: dict[str, dict[str, Any]] = {
     "bearing": _TEMPERATURE, "motor": _TEMPERATURE, "column": _TEMPERATURE,
     "table": _TEMPERATURE, "ambient": _TEMPERATURE,
-    "speed_rpm": {"unit": "rpm", "range": [0.0, 30000.0]},
+    "spindle_rpm": {"unit": "rpm", "range": [0.0, 30000.0]},
     "power_kw": {"unit": "kW", "range": [-1.0, 200.0]},
 }
 
@@ -73,18 +74,24 @@ class DemoResult:
 
 def daemon_config(sim: SimController, *, model: str, period_s: float, time_scale: float,
                   state_dir: Path, limit_um: float = 200.0, slew_um_s: float = 0.2,
-                  extra_channels: tuple[str, ...] = ("speed_rpm",)) -> dict[str, Any]:
+                  extra_channels: tuple[str, ...] = ("spindle_rpm",)) -> dict[str, Any]:
     """A daemon config document for the simulated controller `sim`."""
     needed = load_model(model).channels
     channels: dict[str, Any] = {}
-    for name in sorted(needed | set(extra_channels)):
-        if name not in sim.channels:
+    # a model's term on a channel's former name (speed_rpm) reads that channel, under
+    # the model's name and not twice
+    former = {current_name(n) for n in needed if current_name(n) != n}
+    for name in sorted(needed | (set(extra_channels) - former)):
+        served = current_name(name)
+        if served not in sim.channels:
             raise ConfigError("", f"--model {model}: the simulated machine has no channel "
                                   f"{name!r}; it has {sorted(sim.channels)}")
-        settings = dict(_CHANNEL_SETTINGS.get(name, {"unit": "ratio",
-                                                     "range": [-1e6, 1e6]}))
+        if served != name:
+            warn_former(name, f"--model {model}")
+        settings = dict(_CHANNEL_SETTINGS.get(served, {"unit": "ratio",
+                                                       "range": [-1e6, 1e6]}))
         settings["stale_after_s"] = 10.0 * period_s
-        channels[name] = {"address": sim.channels[name].model_dump(), **settings}
+        channels[name] = {"address": sim.channels[served].model_dump(), **settings}
     real_period_s = period_s / time_scale
     controller: dict[str, Any] = {
         "protocol": sim.protocol, "endpoint": sim.endpoint,

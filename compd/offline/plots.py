@@ -94,7 +94,7 @@ def build_replay_figure(time_s: FloatArray, inputs: Mapping[str, FloatArray],
     computed on: the lower panel's title gives fit %, Δpk and the residue's
     range on those rows alone, and the rows outside are shaded "not scored".
     `windows` shades more spans (calibration, held out). With `adapted`
-    (`compd replay --probe-every`) the lower panel adds the model with the
+    (`compd replay --probe-every-min`) the lower panel adds the model with the
     estimator's correction and its residue, and `probes` (times, values,
     accepted) marks each probe: a dot when used, a cross when refused."""
     from models.quality import quality

@@ -1,5 +1,5 @@
 """Probes replayed offline: the estimator of `models.adaptation` run beside a model
-over a record (`compd replay --probe-every`), and the noise settings a record
+over a record (`compd replay --probe-every-min`), and the noise settings a record
 suggests for it (`compd fit --adaptation`).
 
 Probes: every `every_s` seconds of the record (the first at t0 + every_s), the
@@ -47,7 +47,7 @@ the model was not calibrated on when `compd fit` has them (its forward folds,
 `suggest_settings`' `heldout`): a residual on the calibration rows themselves
 understates how fast a deployed model's error moves. `compd fit
 --adaptation` writes the suggestion into the model file as its `[adaptation]`
-table, and the daemon and `compd replay --probe-every` use it unless told
+table, and the daemon and `compd replay --probe-every-min` use it unless told
 otherwise.
 """
 

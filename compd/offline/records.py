@@ -79,6 +79,7 @@ class Record:
         return int(self.time_s.size)
 
     def column(self, name: str) -> FloatArray:
+        self._former_spelling(name)
         try:
             return self.columns[name]
         except KeyError:
@@ -86,10 +87,28 @@ class Record:
                               f"{sorted(self.columns)}") from None
 
     def require(self, names: Iterable[str]) -> None:
+        names = list(names)
+        for name in names:
+            self._former_spelling(name)
         missing = sorted(set(names) - set(self.columns))
         if missing:
             raise RecordError(f"{self.path}: missing column(s) {missing}; the record has "
                               f"{sorted(self.columns)}")
+
+    def _former_spelling(self, name: str) -> None:
+        """A column wanted under one spelling of a renamed simulator channel and held
+        under the other (`drivers.sim.renamed`: ``speed_rpm`` is now ``spindle_rpm``)
+        is filed under the name wanted, with the warning once per process: an old
+        record read with today's names, or an old model or command line on a new
+        record. The samples then carry the name the model steps on."""
+        from drivers.sim.renamed import FORMER_NAMES, counterpart, warn_former
+
+        other = counterpart(name)
+        if name in self.columns or other is None or other not in self.columns:
+            return
+        self.columns[name] = self.columns.pop(other)
+        warn_former(other if other in FORMER_NAMES else name,
+                    f"{self.path}" if other in FORMER_NAMES else "the model or command line")
 
     def samples(self) -> Samples:
         """One dict per row (channel -> float), as the daemon sees a sample;

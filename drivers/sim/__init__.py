@@ -16,7 +16,7 @@ channels (read by the daemon)
     ``column``   column temperature, °C
     ``table``    rotary table bearing temperature, °C
     ``ambient``  ambient (room) temperature, °C
-    ``speed_rpm`` spindle speed, rpm
+    ``spindle_rpm`` spindle speed, rpm
     ``power_kw`` spindle drive power, kW
     ``growth_um`` thermal Z growth at the tool (what a probe measures), µm
     ``error_um`` Z error at the tool = growth - offset written, µm
@@ -28,7 +28,7 @@ outputs (written by the daemon, readable back)
 """
 
 CHANNELS: tuple[str, ...] = ("bearing", "motor", "column", "table", "ambient",
-                             "speed_rpm", "power_kw", "growth_um", "error_um")
+                             "spindle_rpm", "power_kw", "growth_um", "error_um")
 OUTPUTS: tuple[str, ...] = ("offset", "heartbeat", "status")
 #: the measuring cycle's values (`compd sim --probe-every-min`, a daemon's
 #: ``[adaptation]``): the probe's measured Z deviation (µm: the growth minus the

@@ -1,6 +1,6 @@
 """Calibration records as CSV: one row per sample, a fixed header.
 
-    time_s,speed_rpm,bearing,motor,column,table,ambient,power_kw,dz_um
+    time_s,spindle_rpm,bearing,motor,column,table,ambient,power_kw,dz_um
 
 ``time_s`` machine time (s); temperatures in °C as the controller shows them
 (0.1 K); ``power_kw`` drive power; ``dz_um`` the Z growth a probe measured (µm).
@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-RECORD_COLUMNS: tuple[str, ...] = ("time_s", "speed_rpm", "bearing", "motor", "column",
+RECORD_COLUMNS: tuple[str, ...] = ("time_s", "spindle_rpm", "bearing", "motor", "column",
                                    "table", "ambient", "power_kw", "dz_um")
 #: printf formats per column (temperatures keep their 0.1 K, growth 0.001 µm)
-_FORMATS: dict[str, str] = {"time_s": "{:.3f}", "speed_rpm": "{:.0f}", "bearing": "{:.1f}",
+_FORMATS: dict[str, str] = {"time_s": "{:.3f}", "spindle_rpm": "{:.0f}", "bearing": "{:.1f}",
                             "motor": "{:.1f}", "column": "{:.1f}", "table": "{:.1f}",
                             "ambient": "{:.1f}", "power_kw": "{:.3f}", "dz_um": "{:.3f}"}
 

@@ -53,10 +53,10 @@ DRIVE_COLUMNS: tuple[str, ...] = ("time_s", *CHANNELS, "offset_um", "heartbeat",
                                   "link_ok")
 #: columns of `write_drive_record`: a calibration record (`drivers.sim.csvlog`,
 #: ``dz_um`` = the true growth) plus what the bench observed
-RECORD_FIELDS: tuple[str, ...] = ("time_s", "speed_rpm", "bearing", "motor", "column", "table",
+RECORD_FIELDS: tuple[str, ...] = ("time_s", "spindle_rpm", "bearing", "motor", "column", "table",
                                   "ambient", "power_kw", "dz_um", "offset_um", "error_um",
                                   "heartbeat", "status", "link_ok")
-_FORMATS: dict[str, str] = {"time_s": "{:.3f}", "speed_rpm": "{:.0f}", "bearing": "{:.1f}",
+_FORMATS: dict[str, str] = {"time_s": "{:.3f}", "spindle_rpm": "{:.0f}", "bearing": "{:.1f}",
                             "motor": "{:.1f}", "column": "{:.1f}", "table": "{:.1f}",
                             "ambient": "{:.1f}", "power_kw": "{:.3f}", "dz_um": "{:.3f}",
                             "offset_um": "{:.3f}", "error_um": "{:.3f}", "heartbeat": "{:.0f}",

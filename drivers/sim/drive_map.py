@@ -39,6 +39,7 @@ from drivers.addresses import Address, FocasPmcAddress, ModbusAddress
 from drivers.footprint import first_clash
 from drivers.protocols import PROTOCOLS, ProtocolName
 from drivers.sim import CHANNELS, OUTPUTS
+from drivers.sim.renamed import FORMER_NAMES, current_name, warn_former
 from models.nesting import NestingError, loads_toml
 
 #: the protocol names, from the one registry (`drivers.protocols`)
@@ -151,9 +152,18 @@ class DriveMap(BaseModel):
 
 
 def parse_drive_map(doc: Mapping[str, Any], source: str = "<map>") -> DriveMap:
-    """Validate a parsed TOML document; `DriveMapError` names the key."""
+    """Validate a parsed TOML document; `DriveMapError` names the key. A plant channel
+    under its former name (``speed_rpm``) is taken for its current one, with a
+    warning (`drivers.sim.renamed`)."""
+    doc = dict(doc)
+    write = doc.get("write")
+    if isinstance(write, Mapping):
+        former = [k for k in write if k in FORMER_NAMES and FORMER_NAMES[k] not in write]
+        for old in former:
+            warn_former(old, f"{source}: [write]")
+        doc["write"] = {current_name(k) if k in former else k: v for k, v in write.items()}
     try:
-        return DriveMap.model_validate(dict(doc))
+        return DriveMap.model_validate(doc)
     except ValidationError as exc:
         lines = []
         for e in exc.errors():

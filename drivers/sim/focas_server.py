@@ -10,7 +10,7 @@ the generation (a power cycle: handles opened before get EW_HANDLE);
 
 Addresses (PMC data little-endian, as in a FANUC PMC):
     bearing D0, column D2, table D4, ambient D6: word ×0.1 °C
-    speed_rpm D8 long; power_kw D12, growth_um D16, error_um D20: float
+    spindle_rpm D8 long; power_kw D12, growth_um D16, error_um D20: float
     motor: diagnosis 403 (the stand-in keeps tenths: scale 0.1; a real CNC
     gives whole °C, configure scale 1 there)
     outputs: offset D100 long ×0.1 µm, heartbeat D104 long, status D108 word;
@@ -66,7 +66,7 @@ CHANNELS: dict[str, FocasAddr] = {
     "column": _d(2, "word", 0.1),
     "table": _d(4, "word", 0.1),
     "ambient": _d(6, "word", 0.1),
-    "speed_rpm": _d(8, "long"),
+    "spindle_rpm": _d(8, "long"),
     "power_kw": _d(12, "float"),
     "growth_um": _d(16, "float"),
     "error_um": _d(20, "float"),

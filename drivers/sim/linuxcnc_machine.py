@@ -225,7 +225,7 @@ class LinuxCncSimController:
         self.channels: dict[str, Any] = {
             name: LinuxCncPin(pin=name.replace("_", "-"), net=f"{p}-{name}")
             for name in SENSORS}
-        self.channels["speed_rpm"] = LinuxCncPin(pin="speed-rpm", net="spindle-speed-cmd")
+        self.channels["spindle_rpm"] = LinuxCncPin(pin="spindle-rpm", net="spindle-speed-cmd")
         self.outputs_map: dict[str, Any] = {
             "offset": LinuxCncEoffset(kind="eoffset", axis="z", scale=COUNT_UM,
                                       eoffset_scale=COUNT_UM / 1000.0,

@@ -7,7 +7,7 @@ input registers (read-only, what the plant publishes)
     0..4   bearing, motor, column, table, ambient   int16, 0.1 °C per count
            (like a PLC's analog card, so the Pt100 sentinels 32767 / -32768
            are representable)
-    5      speed_rpm    uint16, 1 rpm
+    5      spindle_rpm  uint16, 1 rpm
     6..7   power_kw     float32, big word order
     8..9   growth_um    float32, big word order
     10..11 error_um     float32, big word order
@@ -62,7 +62,7 @@ CHANNELS: dict[str, ModbusAddress] = {
     "column": _temp(2),
     "table": _temp(3),
     "ambient": _temp(4),
-    "speed_rpm": ModbusAddress(unit=UNIT, kind="input", address=5, type="uint16"),
+    "spindle_rpm": ModbusAddress(unit=UNIT, kind="input", address=5, type="uint16"),
     "power_kw": ModbusAddress(unit=UNIT, kind="input", address=6, type="float32"),
     "growth_um": ModbusAddress(unit=UNIT, kind="input", address=8, type="float32"),
     "error_um": ModbusAddress(unit=UNIT, kind="input", address=10, type="float32"),

@@ -35,7 +35,7 @@ def simulate(program: Program, *, seed: int = 0, period_s: float = 1.0,
     duration = program.duration_s if duration_s is None else duration_s
     n = math.floor(duration / period_s + 1e-9) + 1
     plant = ThermalPlant(seed=seed, params=program.plant_params(params))
-    names = ("speed_rpm", "bearing", "motor", "column", "table", "ambient", "power_kw",
+    names = ("spindle_rpm", "bearing", "motor", "column", "table", "ambient", "power_kw",
              "growth_um")
     out: dict[str, np.ndarray] = {name: np.empty(n) for name in names}
     cols = [out[name] for name in names]

@@ -8,7 +8,11 @@ Address space (namespace ``urn:compd:sim``, string NodeIds ``Machine.<name>``):
 - writable outputs ``offset`` (``Float``), ``heartbeat`` (``UInt32``),
   ``status`` (``UInt16``);
 - writable encoding nodes (``enc_*``: Int16, Int32, Int64, Double, Float) used
-  by the contract tests.
+  by the contract tests;
+- a channel's former name (``Machine.speed_rpm``, `drivers.sim.renamed`), read-only,
+  holding what its current node holds, so that a config written before the
+  rename still reads; the first client Read of it says once, on stderr, to use
+  the current node.
 
 Test hooks: `publish_status` puts a channel in a Bad/Uncertain state (an open
 sensor), `set_latency` delays every client Read/Write (a hung controller),
@@ -51,6 +55,7 @@ from drivers.addresses import Address, OpcUaAddress
 from drivers.opcua_codec import INT_RANGES
 from drivers.sim import CHANNELS, OUTPUTS, PROBES
 from drivers.sim.ports import free_tcp_port
+from drivers.sim.renamed import FORMER_NAMES, warn_former
 
 NAMESPACE = "urn:compd:sim"
 #: asyncua gives the first registered namespace index 2 (0: OPC UA, 1: the server)
@@ -63,6 +68,9 @@ CHANNEL_TYPES["power_kw"] = _VT.Float
 CHANNEL_TYPES.update({"probe_value": _VT.Double, "probe_counter": _VT.UInt32})
 OUTPUT_TYPES: dict[str, ua.VariantType] = {
     "offset": _VT.Float, "heartbeat": _VT.UInt32, "status": _VT.UInt16}
+#: a channel's node under its former name -> the channel (module docstring)
+FORMER_NODES: dict[str, str] = {old: new for old, new in FORMER_NAMES.items()
+                                if new in CHANNEL_TYPES}
 #: extra writable nodes for encoding tests: name -> (type, scale)
 ENCODING_NODES: dict[str, tuple[ua.VariantType, float]] = {
     "enc_int16": (_VT.Int16, 0.1),
@@ -158,7 +166,8 @@ class OpcUaSimController:
             for name, (_, scale) in ENCODING_NODES.items()}
         self.types: dict[str, ua.VariantType] = {
             **CHANNEL_TYPES, **OUTPUT_TYPES,
-            **{name: vt for name, (vt, _) in ENCODING_NODES.items()}}
+            **{name: vt for name, (vt, _) in ENCODING_NODES.items()},
+            **{old: CHANNEL_TYPES[new] for old, new in FORMER_NODES.items()}}
         #: client Read requests that touched this namespace (server-side count)
         self.read_requests = 0
         self.write_requests = 0
@@ -167,6 +176,7 @@ class OpcUaSimController:
         self._machine: Any = None
         self._nodeids: dict[str, ua.NodeId] = {
             name: ua.NodeId.from_string(node_id(name)) for name in self.types}
+        self._former: dict[ua.NodeId, str] = {self._nodeids[old]: old for old in FORMER_NODES}
 
     # -- lifecycle ---------------------------------------------------------
 
@@ -243,6 +253,9 @@ class OpcUaSimController:
         now = _now()
         for name, value in values.items():
             await self._write(name, value, now)
+        for old, new in FORMER_NODES.items():
+            if new in values:
+                await self._write(old, values[new], now)
 
     async def publish_status(self, name: str, *, bad: bool = True,
                              uncertain: bool = False) -> None:
@@ -311,6 +324,8 @@ class OpcUaSimController:
         var = await self._machine.add_variable(
             self._nodeids[name], ua.QualifiedName(name, NAMESPACE_INDEX),
             ua.Variant(_coerce(0.0, vtype), vtype))
+        if name in FORMER_NODES:
+            return
         if name not in CHANNEL_TYPES or self.writable_channels:
             await var.set_writable()
 
@@ -334,6 +349,9 @@ class OpcUaSimController:
     async def _on_read(self, event: ServerItemCallback, _dispatcher: Any) -> None:
         if not event.is_external:
             return
+        for r in event.request_params.NodesToRead:
+            if r.NodeId in self._former:
+                warn_former(self._former[r.NodeId], f"OPC UA node {r.NodeId.to_string()}")
         if self._ours([r.NodeId for r in event.request_params.NodesToRead]):
             self.read_requests += 1
             if self._latency_s > 0:

@@ -303,7 +303,7 @@ class ThermalPlant:
         for k, (name, idx) in enumerate(SENSOR_NODES):
             out[name] = self._quantise(float(self._x[idx]) + p.sensor_noise_k * float(noise[k]))
         out["ambient"] = self._quantise(self._ambient_now + p.sensor_noise_k * float(noise[4]))
-        out["speed_rpm"] = self.speed_rpm
+        out["spindle_rpm"] = self.speed_rpm
         _, _, power = self.losses_w(self.speed_rpm, self.load)
         if power > 0.0:
             power = max(0.0, power + p.power_noise_kw * float(noise[5]))

@@ -5,7 +5,7 @@ Memory layout (big-endian, non-optimised DBs as on an S7-300/400):
 DB1 (inputs, 32 bytes)
     0 bearing INT ×0.1 °C   2 motor INT ×0.1 °C   4 column INT ×0.1 °C
     6 table INT ×0.1 °C     8 ambient INT ×0.1 °C
-    10 speed_rpm DINT       14 power_kw REAL      18 growth_um REAL   22 error_um REAL
+    10 spindle_rpm DINT     14 power_kw REAL      18 growth_um REAL   22 error_um REAL
   Temperatures are INT tenths of a degree so that a Pt100 card's open/short
   sentinels (raw 32767 / -32768) are representable and pass through.
 DB2 (outputs, 16 bytes)
@@ -45,7 +45,7 @@ CHANNELS: dict[str, S7Address] = {
     "column": S7Address(db=1, offset=4, type="INT", scale=0.1),
     "table": S7Address(db=1, offset=6, type="INT", scale=0.1),
     "ambient": S7Address(db=1, offset=8, type="INT", scale=0.1),
-    "speed_rpm": S7Address(db=1, offset=10, type="DINT"),
+    "spindle_rpm": S7Address(db=1, offset=10, type="DINT"),
     "power_kw": S7Address(db=1, offset=14, type="REAL"),
     "growth_um": S7Address(db=1, offset=18, type="REAL"),
     "error_um": S7Address(db=1, offset=22, type="REAL"),

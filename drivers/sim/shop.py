@@ -20,7 +20,8 @@ running since 6:00. The spindle program is a
 workday: random speed steps (every 20-60 min, 2,000-10,000 rpm, some idle
 stops) from 6:00 to 22:00, standing at night (a cool-down every night).
 
-Columns: ``time_s, spindle_rpm, t01_degC … t16_degC, dz_um``.
+Columns: ``time_s, spindle_rpm, t1_degC … t16_degC, dz_um`` (the names of the real
+record in tests/data/fl_thermal).
 
 A day with a change the model never saw (`ShopChange`, `compd sim --record …
 --machine shop --change ambient+3K,heat+30% --change-at-h 24`): from the
@@ -45,7 +46,7 @@ import numpy as np
 from drivers.sim.ambient import Ambient
 from drivers.sim.plant import PlantParams, ThermalPlant
 
-SENSORS: tuple[str, ...] = tuple(f"t{i:02d}_degC" for i in range(1, 17))
+SENSORS: tuple[str, ...] = tuple(f"t{i}_degC" for i in range(1, 17))
 SHOP_COLUMNS: tuple[str, ...] = ("time_s", "spindle_rpm", *SENSORS, "dz_um")
 #: room drift, K per day
 DRIFT_K_PER_DAY = 0.8

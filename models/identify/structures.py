@@ -568,8 +568,9 @@ def select_structure(y: FloatArray, inputs: Sequence[FloatArray], *,
             failed.append(f"{_stage_name(stage, na_range, nb_range)}: {why}")
             continue
         sel = _choose(cands, orders, margin_pct, initial)
+        # a rejected candidate's reason is its own (`Candidate.rejected`, printed in the
+        # table of candidates), not a note as well
         notes = [f"failed: {f}" for f in failed] + list(sel.notes)
-        notes += [f"{c.structure} rejected: {c.rejected}" for c in cands if c.rejected]
         return Selection(chosen=sel.chosen, candidates=sel.candidates, orders=sel.orders,
                          notes=tuple(notes), initial=sel.initial, fallback=stage != "orders")
     raise ValueError("nothing could be fitted: " + "; ".join(failed))

@@ -23,7 +23,7 @@ def params(**overrides: object) -> CycleParams:
             "bearing": ChannelLimits(-20.0, 150.0, max_rate_per_s=0.5, stale_after_s=30.0,
                                      stuck_after_s=3600.0),
             "ambient": ChannelLimits(-10.0, 60.0, max_rate_per_s=0.1, stale_after_s=30.0),
-            "speed_rpm": ChannelLimits(0.0, 30000.0),
+            "spindle_rpm": ChannelLimits(0.0, 30000.0),
         },
         readback=False)
     base.update(overrides)
@@ -38,7 +38,7 @@ def samples(t_s: float, bearing: float, ambient: float = 20.0, speed: float = 10
             quality: Quality = Quality.GOOD, ts_s: float | None = None) -> dict[str, Sample]:
     ts = t_s if ts_s is None else ts_s
     return {"bearing": Sample(bearing, ts, quality), "ambient": Sample(ambient, ts),
-            "speed_rpm": Sample(speed, ts)}
+            "spindle_rpm": Sample(speed, ts)}
 
 
 def run_warm(cycle: Cycle, clock: FakeClock, n: int, bearing: float = 25.0,

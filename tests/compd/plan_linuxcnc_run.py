@@ -79,7 +79,7 @@ class PlanRun:
         out: list[tuple[int, float]] = []
         start = previous = None
         for row in self.rows:
-            rpm, t_s = round(float(row["speed_rpm"])), float(row["mono_s"])
+            rpm, t_s = round(float(row["spindle_rpm"])), float(row["mono_s"])
             if rpm != previous:
                 if previous is not None and start is not None:
                     out.append((previous, (t_s - start) / 60.0))

@@ -34,7 +34,7 @@ def inputs(n: int, seed: int, step_s: float = 2700.0) -> dict[str, np.ndarray]:
         bearing[k] = acc
     walk = np.cumsum(rng.normal(0.0, 0.004, n))
     ambient = 1.5 * np.sin(2 * np.pi * t / (6 * 3600.0) + rng.uniform(0, 6.28)) + walk
-    return {"time_s": t, "speed_rpm": 9000.0 * level, "bearing": 25.0 + bearing,
+    return {"time_s": t, "spindle_rpm": 9000.0 * level, "bearing": 25.0 + bearing,
             "ambient": 20.0 + ambient - ambient[0] + 1.5 * np.sin(0.0)}
 
 
@@ -51,8 +51,8 @@ def make_record(path: Path, model: str, hours: float, seed: int,
     cols["dz_um"] = y + noise_um * rng.standard_normal(n)
     with path.open("w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["time_s", "speed_rpm", "bearing", "ambient", "dz_um"])
-        for row in zip(cols["time_s"], cols["speed_rpm"], cols["bearing"], cols["ambient"],
+        w.writerow(["time_s", "spindle_rpm", "bearing", "ambient", "dz_um"])
+        for row in zip(cols["time_s"], cols["spindle_rpm"], cols["bearing"], cols["ambient"],
                        cols["dz_um"], strict=True):
             w.writerow([f"{row[0]:.0f}", f"{row[1]:.0f}", f"{row[2]:.1f}", f"{row[3]:.1f}",
                         f"{row[4]:.3f}"])

@@ -1,7 +1,7 @@
 """Issue 20: adaptation learnt from the machine, keeping score of itself, on the real record.
 
 `compd fit --adaptation` writes what it learnt into the model file ([adaptation]);
-`compd replay --probe-every` and the daemon's config use it unless told otherwise; the
+`compd replay --probe-every-min` and the daemon's config use it unless told otherwise; the
 estimator stands down while its score says adapting does not pay.
 """
 
@@ -63,8 +63,8 @@ def _fit(first: Path, lag_s: int, capsys: pytest.CaptureFixture[str],
 def _replay(model: Path, every_s: int, capsys: pytest.CaptureFixture[str],
             *extra: str, column: str = "ch3_um") -> dict[str, Any]:
     return _cli(["replay", str(model), str(RECORD), "--column", column, "--init", "rest",
-                 "--score-from", f"{SPLIT_S:g}", "--probe-every", str(every_s), "--json",
-                 *extra], capsys)
+                 "--score-from", f"{SPLIT_S:g}", "--probe-every-min", f"{every_s / 60:g}",
+                 "--json", *extra], capsys)
 
 
 def test_fit_writes_the_learnt_settings_into_the_model_file(

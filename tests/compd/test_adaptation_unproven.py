@@ -94,7 +94,7 @@ def test_the_defaults_are_no_worse_than_plain_on_the_real_record(
                  "t6_degC", "-o", str(model), "--json"]) == 0
     capsys.readouterr()
     assert main(["replay", str(model), str(RECORD), "--column", "ch3_um", "--init", "rest",
-                 "--score-from", f"{SPLIT_S:g}", "--probe-every", "7200",
+                 "--score-from", f"{SPLIT_S:g}", "--probe-every-min", "120",
                  "--adaptation-defaults", "--json"]) == 0
     adapted = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["adapted"]
     assert adapted["residue_rms_um"] <= adapted["plain_residue_rms_um"] + 1e-9

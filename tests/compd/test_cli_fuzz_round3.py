@@ -101,8 +101,8 @@ _add(65, ["fit", "@/tiny_period.csv", "--column", "dz_um", "--term", "bearing"],
      ["fit", "@/huge_period.csv", "--column", "dz_um", "--term", "bearing"],
      ["replay", "sp2", "@/tiny_period.csv", "--column", "dz_um"])
 # a probe more often than the record's rows (numpy "Maximum allowed size exceeded")
-_add(64, ["replay", "sp2", REC, "--column", "dz_um", "--probe-every", "1e-308"],
-     ["replay", "sp2", REC, "--column", "dz_um", "--probe-every", "0.5"])
+_add(64, ["replay", "sp2", REC, "--column", "dz_um", "--probe-every-min", "1e-308"],
+     ["replay", "sp2", REC, "--column", "dz_um", "--probe-every-min", "0.005"])
 # counts that grow the identification without bound: 200 candidate columns or 60 terms
 # took minutes
 _add(64, ["fit", "@/wide.csv", "--column", "dz_um", "--candidates", "c*"],

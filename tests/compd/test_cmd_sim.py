@@ -99,10 +99,10 @@ async def test_json_first_line_describes_a_live_machine(protocol: str, tmp_path:
                                  **options)
             try:
                 await driver.connect()
-                got = await driver.read(["bearing", "ambient", "speed_rpm"])
+                got = await driver.read(["bearing", "ambient", "spindle_rpm"])
                 assert 10.0 < got["bearing"].value < 60.0
                 assert 10.0 < got["ambient"].value < 30.0
-                assert got["speed_rpm"].value in (0.0, 9_000.0)
+                assert got["spindle_rpm"].value in (0.0, 9_000.0)
             finally:
                 await driver.close()
     finally:
@@ -135,7 +135,7 @@ def test_record_writes_a_calibration_csv(tmp_path: Path, capsys: pytest.CaptureF
     assert out.read_text().splitlines()[0] == ",".join(RECORD_COLUMNS)
     rec = read_record(out)
     assert len(rec["time_s"]) == 361 and rec["time_s"][-1] == 3600.0
-    assert set(rec["speed_rpm"][1:]) == {9_000.0, 0.0}
+    assert set(rec["spindle_rpm"][1:]) == {9_000.0, 0.0}
     assert rec["dz_um"].max() > 10.0
 
 
@@ -144,7 +144,7 @@ def test_record_defaults_to_the_spectrum_at_one_second(tmp_path: Path) -> None:
     assert main(["sim", "--record", str(out), "--hours", "0.25", "--probe-noise-um", "0"]) == 0
     rec = read_record(out)
     assert len(rec["time_s"]) == 901
-    assert rec["speed_rpm"][1] >= 500.0
+    assert rec["spindle_rpm"][1] >= 500.0
 
 
 @pytest.mark.parametrize("argv", [["sim"], ["sim", "--record", "x.csv", "--protocol", "s7"],

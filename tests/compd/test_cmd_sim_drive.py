@@ -59,7 +59,7 @@ async def test_subprocess_drives_a_modbus_controller(tmp_path: Path) -> None:
         assert set(rec["offset_um"]) == {5.0} and set(rec["heartbeat"]) == {99.0}
         assert rec["error_um"] == pytest.approx(rec["dz_um"] - 5.0, abs=2e-3)
         # the controller's holding registers hold the plant's last row
-        for name in ("bearing", "motor", "column", "table", "ambient", "speed_rpm"):
+        for name in ("bearing", "motor", "column", "table", "ambient", "spindle_rpm"):
             addr: Any = drive_map.write[name]
             raw = decode(addr, sim.raw("holding", addr.address, addr.count))
             assert raw == pytest.approx(rec[name][-1], abs=1e-6), name
@@ -86,7 +86,7 @@ def test_in_process_drives_an_s7_cpu(tmp_path: Path, capsys: pytest.CaptureFixtu
         assert set(rec["offset_um"]) == {-2.5}
         assert rec["error_um"] == pytest.approx(rec["dz_um"] + 2.5, abs=2e-3)
         assert asyncio.run(sim.read_back("bearing")) == pytest.approx(rec["bearing"][-1])
-        assert asyncio.run(sim.read_back("speed_rpm")) == 9_000.0
+        assert asyncio.run(sim.read_back("spindle_rpm")) == 9_000.0
     finally:
         asyncio.run(sim.stop())
 
@@ -214,15 +214,15 @@ async def test_no_plant_serves_a_stand_in_plc_for_the_drive(tmp_path: Path) -> N
         drive_map = load_drive_map(MAPS / "modbus.toml")
         probe = open_driver("modbus", endpoint, drive_map.write, {})
         try:
-            idle = await probe.read(["bearing", "speed_rpm"])
-            assert idle["bearing"].value == 0.0 and idle["speed_rpm"].value == 0.0  # no plant
+            idle = await probe.read(["bearing", "spindle_rpm"])
+            assert idle["bearing"].value == 0.0 and idle["spindle_rpm"].value == 0.0  # no plant
             drive = DriveLoop(open_drive_driver(endpoint, drive_map), drive_map,
                               speedup=10_000.0)
             await drive.run(until_s=20.0)
             assert drive.link_errors == 0
-            got = await probe.read(["bearing", "speed_rpm"])
+            got = await probe.read(["bearing", "spindle_rpm"])
             assert got["bearing"].value == pytest.approx(drive.latest["bearing"], abs=0.051)
-            assert got["speed_rpm"].value == drive.latest["speed_rpm"] > 0.0
+            assert got["spindle_rpm"].value == drive.latest["spindle_rpm"] > 0.0
         finally:
             await probe.close()
     finally:

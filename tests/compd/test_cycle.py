@@ -225,7 +225,7 @@ def test_bad_quality_and_missing_channel_hold() -> None:
     r = cycle.plan(t, samples(t, 25.0, quality=Quality.BAD))
     assert r.state == "hold"
     t = clock.tick()
-    r = cycle.plan(t, {"ambient": Sample(20.0, t), "speed_rpm": Sample(0.0, t)})
+    r = cycle.plan(t, {"ambient": Sample(20.0, t), "spindle_rpm": Sample(0.0, t)})
     assert r.record is not None and r.record.validity["bearing"] == "missing"
 
 
@@ -235,7 +235,7 @@ def test_invalid_monitoring_channel_does_not_stop_compensation() -> None:
     t = clock.tick()
     r = cycle.plan(t, samples(t, 25.0, speed=-5.0))  # speed is not a model input
     assert r.complete and r.state == "ok"
-    assert r.record is not None and r.record.validity["speed_rpm"] == "out_of_range"
+    assert r.record is not None and r.record.validity["spindle_rpm"] == "out_of_range"
 
 
 def test_permanent_write_rejection_stops_offset_writes_and_alarms() -> None:

@@ -63,7 +63,7 @@ def _run(actions: list[Action], readback: bool) -> None:
         samples = None if kind == "read_failed" else {
             "bearing": Sample(value if value is not None else temp, now,
                               Quality.GOOD),
-            "ambient": Sample(20.0, now), "speed_rpm": Sample(1000.0, now)}
+            "ambient": Sample(20.0, now), "spindle_rpm": Sample(1000.0, now)}
         rb = None if (kind == "read_failed" or not readback) else controller
         plan = cycle.plan(now, samples, rb)
         assert math.isfinite(plan.offset_um) and abs(plan.offset_um) <= LIMIT_UM

@@ -141,7 +141,7 @@ def test_replay_through_the_cycle_refuses_a_row_the_daemon_refuses(
 
 @pytest.mark.parametrize(("extra", "words"), [
     (["--init", "rest"], "--init goes without --config"),
-    (["--probe-every", "3600"], "--probe-every goes without --config"),
+    (["--probe-every-min", "60"], "--probe-every-min goes without --config"),
 ])
 def test_replay_config_usage_errors_are_one_line(tmp_path: Path,
                                                  capsys: pytest.CaptureFixture[str],

@@ -142,9 +142,9 @@ async def test_driver_joins_the_machines_signals(lcnc: LinuxCncSimController) ->
     try:
         await driver.connect()
         await lcnc.publish({"bearing": 31.4, "ambient": 20.5})
-        got = await driver.read(["bearing", "ambient", "speed_rpm", "machine_on", "estop"])
+        got = await driver.read(["bearing", "ambient", "spindle_rpm", "machine_on", "estop"])
         assert {n: s.value for n, s in got.items()} == pytest.approx(
-            {"bearing": 31.4, "ambient": 20.5, "speed_rpm": SPEED_RPM, "machine_on": 1.0,
+            {"bearing": 31.4, "ambient": 20.5, "spindle_rpm": SPEED_RPM, "machine_on": 1.0,
              "estop": 0.0})
         before = (await driver.read(["offset"]))["offset"].value
         await driver.write({"offset": before + 3.7, "heartbeat": 7, "status": 1})
@@ -458,7 +458,7 @@ async def test_a_component_named_like_linuxcncs_pins_never_unlinks_them(
     ever take LinuxCNC's pins for its own and unlink them. The spindle command keeps
     its writer (benchmarks/bench_hal_kills_linuxcnc.py: the whole signal table
     through 20 kills)."""
-    speed = {"speed_rpm": lcnc.channels["speed_rpm"]}
+    speed = {"spindle_rpm": lcnc.channels["spindle_rpm"]}
     with pytest.raises(ValueError, match="LinuxCNC uses"):
         LinuxCncDriver(lcnc.endpoint, speed, {}, component="spindle")
     for name in ("spindle", "J0_pid"):

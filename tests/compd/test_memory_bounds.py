@@ -43,7 +43,7 @@ def _sqlite_lib() -> ctypes.CDLL | None:
 
 def _row(i: int) -> RecordRow:
     channels = {n: 20.0 + i * 1e-3 for n in ("bearing", "motor", "column", "table", "ambient",
-                                               "speed_rpm", "power_kw")}
+                                               "spindle_rpm", "power_kw")}
     return RecordRow(seq=i, mono_s=float(i), wall_s=1e9 + i, offset_um=1.0 + i * 1e-4,
                      model_um=1.0, state="ok", valid=True, channels=channels,
                      validity=dict.fromkeys(channels), contributions={"a": 1.0, "b": 2.0})

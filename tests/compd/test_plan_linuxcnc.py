@@ -38,7 +38,7 @@ def _runs(rows: list[dict[str, str]]) -> list[tuple[int, list[float]]]:
     """The record's growth (dz_um) in runs of one spindle speed, in order."""
     out: list[tuple[int, list[float]]] = []
     for row in rows:
-        rpm = round(float(row["speed_rpm"]))
+        rpm = round(float(row["spindle_rpm"]))
         if not out or out[-1][0] != rpm:
             out.append((rpm, []))
         out[-1][1].append(float(row["dz_um"]))

@@ -15,15 +15,15 @@ from compd.offline.plots import legend_texts, replay_figure
 LOWER = ("measured δZ", "simulated (model)", "residue (after compensation)")
 
 
-@pytest.mark.parametrize("inputs", [("bearing", "ambient", "speed_rpm"), ("bearing",),
-                                    ("speed_rpm",)])
+@pytest.mark.parametrize("inputs", [("bearing", "ambient", "spindle_rpm"), ("bearing",),
+                                    ("spindle_rpm",)])
 def test_the_lower_legend_names_the_three_curves(inputs: tuple[str, ...], tmp_path: Path) -> None:
     t = np.arange(100.0)
     upper, lower = replay_figure(
         tmp_path / "f.png", t, {n: 20.0 + t / 50 for n in inputs}, t / 10, t / 11,
         title="t")
     assert lower == list(LOWER)
-    assert upper == [f"{n} ({'rpm' if 'speed' in n else '°C'})" for n in inputs]
+    assert upper == [f"{n} ({'rpm' if 'rpm' in n else '°C'})" for n in inputs]
     assert (tmp_path / "f.png").stat().st_size > 0
 
 
@@ -80,7 +80,7 @@ def test_a_scored_window_is_titled_with_its_own_figures_and_shaded_outside() -> 
     measured = np.where(t > 7 * 3600, 20.0, 0.0) + t / 3600
     simulated = t / 3600
     simulated[:60] += 12.0  # a large residue before the scored window only
-    fig = build_replay_figure(t, {"bearing": 20 + t / 7200, "speed_rpm": t * 0 + 9000},
+    fig = build_replay_figure(t, {"bearing": 20 + t / 7200, "spindle_rpm": t * 0 + 9000},
                               measured, simulated, title="t", scored=(120, len(t)))
     title = fig.axes[1].get_title()
     assert title.startswith("scored 2 … 10 h: ")

@@ -61,10 +61,10 @@ def test_no_time_column_is_refused(tmp_path: Path) -> None:
 
 def test_constant_speed_heat_up_alone_is_warned_about(tmp_path: Path) -> None:
     rows = [f"{10 * k},9000,{20 + k / 100},{k}" for k in range(200)]
-    rec = read_csv_record(_write(tmp_path / "r.csv", rows, "time_s,speed_rpm,bearing,dz_um"))
+    rec = read_csv_record(_write(tmp_path / "r.csv", rows, "time_s,spindle_rpm,bearing,dz_um"))
     assert any("constant-speed heat-up" in w for w in speed_warnings(rec))
     rows += [f"{10 * k},0,{22 - k / 1000},{k}" for k in range(200, 300)]
-    rec = read_csv_record(_write(tmp_path / "r2.csv", rows, "time_s,speed_rpm,bearing,dz_um"))
+    rec = read_csv_record(_write(tmp_path / "r2.csv", rows, "time_s,spindle_rpm,bearing,dz_um"))
     assert speed_warnings(rec) == []
 
 

@@ -69,15 +69,15 @@ def test_a_searched_model_with_a_speed_term_is_one_the_daemon_steps(
     starts at steady state and round-trips its state like any other."""
     day1, _ = days
     model_path = tmp_path / "speed.toml"
-    assert main(["fit", str(day1), "--column", "dz_um", "--term", "t01_degC", "--term",
+    assert main(["fit", str(day1), "--column", "dz_um", "--term", "t1_degC", "--term",
                  "spindle_rpm", "--orders", "1-2", "-o", str(model_path)]) == 0
     model = load_model(model_path)
     speed = next(t for t in model.terms if t.name == "spindle_rpm")
-    assert speed.relative is False and model.reference_channels == {"t01_degC"}
+    assert speed.relative is False and model.reference_channels == {"t1_degC"}
     assert 'relative = false' in model_path.read_text()
     assert main(["check", str(model_path)]) == 0
-    sample = {"t01_degC": 25.0, "spindle_rpm": 6000.0}
-    model.set_references({"t01_degC": 22.0})
+    sample = {"t1_degC": 25.0, "spindle_rpm": 6000.0}
+    model.set_references({"t1_degC": 22.0})
     level = model.steady_state(sample)
     state = model.export_state()
     first = model.step(sample)

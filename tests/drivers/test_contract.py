@@ -31,7 +31,7 @@ HARNESS_MODULES = sorted(
 #: encoding's range; temperatures, rpm, kW, µm
 KNOWN_VALUES: dict[str, float] = {
     "bearing": 31.2, "motor": 45.6, "column": 22.3, "table": -4.1, "ambient": 20.5,
-    "speed_rpm": 12000.0, "power_kw": 7.5, "growth_um": 12.25, "error_um": -3.5,
+    "spindle_rpm": 12000.0, "power_kw": 7.5, "growth_um": 12.25, "error_um": -3.5,
 }
 #: bound on any single call against a stopped server: "fast", not a hang
 FAST_S = 5.0

@@ -105,7 +105,7 @@ async def test_plant_writes_sensors_and_applies_the_offset_the_daemon_wrote(
             assert set(got) == set(drive_map.write)
             for name in TEMPERATURES:
                 assert got[name].value == pytest.approx(last[name], abs=0.051), name
-            assert got["speed_rpm"].value == last["speed_rpm"] == 9_000.0
+            assert got["spindle_rpm"].value == last["spindle_rpm"] == 9_000.0
             for name in ("power_kw", "growth_um", "error_um"):
                 assert got[name].value == pytest.approx(last[name], rel=1e-6, abs=1e-6), name
         finally:
@@ -185,7 +185,7 @@ async def test_record_is_a_calibration_record_with_what_the_bench_saw(tmp_path: 
     assert list(rec) == list(RECORD_FIELDS)
     assert set(rec["offset_um"]) == {3.0} and set(rec["heartbeat"]) == {41.0}
     assert rec["error_um"] == pytest.approx(rec["dz_um"] - 3.0, abs=2e-3)
-    assert set(rec["speed_rpm"][1:]) == {6_000.0}
+    assert set(rec["spindle_rpm"][1:]) == {6_000.0}
 
 
 # -- maps and endpoints ----------------------------------------------------------------
@@ -195,7 +195,7 @@ async def test_record_is_a_calibration_record_with_what_the_bench_saw(tmp_path: 
 def test_shipped_maps_load_and_map_every_plant_sensor(protocol: str) -> None:
     m = load_drive_map(MAPS / f"{protocol}.toml")
     assert m.protocol == protocol
-    assert {"bearing", "motor", "column", "table", "ambient", "speed_rpm",
+    assert {"bearing", "motor", "column", "table", "ambient", "spindle_rpm",
             "power_kw"} <= set(m.write)
     assert set(m.read) == {"offset", "heartbeat", "status"}
 

@@ -79,7 +79,7 @@ def test_return_code_mapping() -> None:
 
 
 async def test_reads_one_call_per_area_and_source(sim: FocasSimController) -> None:
-    await sim.publish({"bearing": 3276.7, "motor": 61.4, "table": -12.5, "speed_rpm": 8000,
+    await sim.publish({"bearing": 3276.7, "motor": 61.4, "table": -12.5, "spindle_rpm": 8000,
                        "power_kw": 3.5, "servo_z_temp": 44.0, "spindle_load_pct": 37,
                        "enc_r_long": -5})
     drv = _driver(sim)
@@ -92,7 +92,7 @@ async def test_reads_one_call_per_area_and_source(sim: FocasSimController) -> No
         assert got["bearing"].value == pytest.approx(3276.7)  # Pt100 open: raw 32767 passes
         assert got["motor"].value == pytest.approx(61.4)
         assert got["table"].value == pytest.approx(-12.5)
-        assert got["speed_rpm"].value == 8000 and got["power_kw"].value == 3.5
+        assert got["spindle_rpm"].value == 8000 and got["power_kw"].value == 3.5
         assert got["servo_z_temp"].value == pytest.approx(44.0)
         assert got["spindle_load_pct"].value == 37 and got["enc_r_long"].value == -5
         before = sim.calls

@@ -159,4 +159,4 @@ def test_a_test_machines_names_are_the_runs_own() -> None:
     assert doc["controller"]["linuxcnc"]["component"] == sim.prefix
     assert doc["channels"]["bearing"]["address"]["net"] == f"{sim.prefix}-bearing"
     assert doc["output"]["offset"]["counts_net"] == f"{sim.prefix}-eoffset-counts"
-    assert doc["channels"]["speed_rpm"]["address"]["net"] == "spindle-speed-cmd"
+    assert doc["channels"]["spindle_rpm"]["address"]["net"] == "spindle-speed-cmd"

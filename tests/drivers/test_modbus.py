@@ -201,7 +201,7 @@ async def test_out_of_range_write_sends_nothing(sim: ModbusSimController) -> Non
 # -- exception responses ----------------------------------------------------------
 
 async def test_illegal_address_names_the_channel(sim: ModbusSimController) -> None:
-    sim.inject_exception("input", 5, 2, on="read")  # speed_rpm
+    sim.inject_exception("input", 5, 2, on="read")  # spindle_rpm
     driver = driver_for(sim)
     try:
         with pytest.raises(BadAddress) as caught:
@@ -210,7 +210,7 @@ async def test_illegal_address_names_the_channel(sim: ModbusSimController) -> No
         samples = await driver.read(["bearing", "power_kw"])
     finally:
         await driver.close()
-    assert caught.value.channels == ("speed_rpm",)
+    assert caught.value.channels == ("spindle_rpm",)
     assert "unit1/input/5:uint16" in str(caught.value)
     assert "code 2" in str(caught.value)
     assert set(samples) == {"bearing", "power_kw"}

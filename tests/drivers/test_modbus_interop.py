@@ -155,7 +155,7 @@ def polled(output: str) -> dict[int, str]:
 
 async def test_mbpoll_reads_sim_input_registers(sim: ModbusSimController) -> None:
     await sim.publish({"bearing": 31.2, "motor": 45.6, "column": 22.3, "table": -4.1,
-                       "ambient": 20.5, "speed_rpm": 12000, "power_kw": 7.5,
+                       "ambient": 20.5, "spindle_rpm": 12000, "power_kw": 7.5,
                        "growth_um": 12.25, "error_um": -3.5})
     words = polled(await mbpoll(sim, "-t", "3", "-r", "0", "-c", "6"))
     assert words == {0: "312", 1: "456", 2: "223", 3: "-41", 4: "205", 5: "12000"}

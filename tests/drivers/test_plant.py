@@ -50,7 +50,7 @@ def test_sensors_have_the_standard_names_and_start_at_equilibrium() -> None:
     s = plant.sensors()
     assert set(s) == set(CHANNELS)
     assert s["growth_um"] == 0.0
-    assert s["speed_rpm"] == 0.0
+    assert s["spindle_rpm"] == 0.0
     assert s["power_kw"] == 0.0
     for name in ("bearing", "motor", "column", "table", "ambient"):
         assert abs(s[name] - 20.0) <= 0.2

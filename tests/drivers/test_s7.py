@@ -51,17 +51,17 @@ async def test_one_read_request_per_db(sim: S7SimController) -> None:
 
 async def test_values_and_pt100_sentinels_pass_through(sim: S7SimController) -> None:
     await sim.publish({"bearing": 3276.7, "motor": -3276.8, "column": 21.4,
-                       "speed_rpm": 15000, "power_kw": 7.25, "error_um": -3.5})
+                       "spindle_rpm": 15000, "power_kw": 7.25, "error_um": -3.5})
     drv = _driver(sim)
     try:
-        got = await drv.read(["bearing", "motor", "column", "speed_rpm", "power_kw", "error_um"])
+        got = await drv.read(["bearing", "motor", "column", "spindle_rpm", "power_kw", "error_um"])
     finally:
         await drv.close()
     # raw 32767 / -32768 are what a Pt100 card reports open / shorted: not clamped
     assert got["bearing"].value == pytest.approx(3276.7)
     assert got["motor"].value == pytest.approx(-3276.8)
     assert got["column"].value == pytest.approx(21.4)
-    assert got["speed_rpm"].value == 15000
+    assert got["spindle_rpm"].value == 15000
     assert got["power_kw"].value == 7.25
     assert got["error_um"].value == -3.5
 

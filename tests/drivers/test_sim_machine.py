@@ -74,7 +74,7 @@ async def test_tick_advances_machine_time_and_publishes_every_channel() -> None:
     assert machine.time_s == 10.0 and machine.ticks == 5
     assert set(ctl.values) == set(CHANNELS)
     assert published == ctl.values
-    assert ctl.values["speed_rpm"] == 9_000.0
+    assert ctl.values["spindle_rpm"] == 9_000.0
     assert ctl.published == 6
 
 
@@ -113,8 +113,8 @@ async def test_record_keeps_time_speed_sensors_offset_and_error() -> None:
     assert last["offset_um"] == pytest.approx(2.9)
     assert last["error_um"] == pytest.approx(last["growth_um"] - last["offset_um"])
     arrays = machine.history_arrays()
-    assert arrays["speed_rpm"].shape == (31,)
-    assert set(arrays["speed_rpm"][1:]) <= {spectrum(seed=2)(t) for t in range(0, 1800, 60)}
+    assert arrays["spindle_rpm"].shape == (31,)
+    assert set(arrays["spindle_rpm"][1:]) <= {spectrum(seed=2)(t) for t in range(0, 1800, 60)}
 
     bounded = SimMachine(MemoryController(), record=True, max_rows=5)
     for _ in range(10):
@@ -205,9 +205,9 @@ async def test_machine_behind_a_real_controller(protocol: str) -> None:
         for _ in range(30):
             published = await machine.tick()
         await driver.connect()
-        got = await driver.read(["bearing", "speed_rpm", "growth_um"])
+        got = await driver.read(["bearing", "spindle_rpm", "growth_um"])
         assert got["bearing"].value == pytest.approx(published["bearing"], abs=0.051)
-        assert got["speed_rpm"].value == pytest.approx(9_000.0)
+        assert got["spindle_rpm"].value == pytest.approx(9_000.0)
         assert got["growth_um"].value == pytest.approx(published["growth_um"], abs=1e-3)
         await driver.write({"offset": 7.5})
         s = await machine.tick()

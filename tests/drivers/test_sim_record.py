@@ -12,7 +12,7 @@ from drivers.sim.offline import record_program, simulate
 from drivers.sim.programs import constant, make_program
 from tests.record_columns import read_columns as read_record
 
-HEADER = "time_s,speed_rpm,bearing,motor,column,table,ambient,power_kw,dz_um"
+HEADER = "time_s,spindle_rpm,bearing,motor,column,table,ambient,power_kw,dz_um"
 
 
 def test_one_hour_at_one_second_has_3601_rows_and_the_header(tmp_path: Path) -> None:
@@ -26,8 +26,8 @@ def test_one_hour_at_one_second_has_3601_rows_and_the_header(tmp_path: Path) -> 
     rec = read_record(path)
     assert tuple(rec) == RECORD_COLUMNS
     assert np.array_equal(rec["time_s"], np.arange(3601.0))
-    assert rec["speed_rpm"][0] == 0.0  # row 0: the machine before the program starts
-    speeds = rec["speed_rpm"][1:]
+    assert rec["spindle_rpm"][0] == 0.0  # row 0: the machine before the program starts
+    speeds = rec["spindle_rpm"][1:]
     assert np.all((speeds >= 500.0) & (speeds <= 10_000.0))
     assert np.all(np.abs(rec["bearing"] * 10 - np.round(rec["bearing"] * 10)) < 1e-9)
 

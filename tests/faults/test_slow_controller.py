@@ -69,7 +69,7 @@ BACKOFF = (0.5, 2.0)
 #: bound for resources to drain after close (sockets and tasks unwind)
 DRAIN_S = 5.0
 
-READ_NAMES = ["bearing", "motor", "ambient", "speed_rpm", "offset"]
+READ_NAMES = ["bearing", "motor", "ambient", "spindle_rpm", "offset"]
 WRITES: dict[str, float] = {"offset": 12.5, "heartbeat": 7.0, "status": 1.0}
 
 
