@@ -11,6 +11,7 @@ With ``stepped=True`` the daemon's clock is a `compd.testing.SteppedClock`
 moved to each next deadline as soon as the daemon sleeps: cycles follow each
 other as fast as the machine allows, never late (no overrun, no skipped
 deadline, exactly one machine period between two samples), whatever the load.
+`wall` replaces the daemon's wall clock (sample ages, the rows' ``wall_s``).
 """
 
 from __future__ import annotations
@@ -73,19 +74,23 @@ def make_config(sim: SimController, tmp_path: Path, *, time_scale: float,
 
 class DaemonRig:
     def __init__(self, sim: SimController, cfg: LoadedConfig, inv: Invariants,
-                 plant: Plant | None = None, *, stepped: bool = False) -> None:
+                 plant: Plant | None = None, *, stepped: bool = False,
+                 wall: Callable[[], float] | None = None) -> None:
         self.sim = sim
         self.cfg = cfg
         self.inv = inv
         self.plant = plant
         self.driver = InvariantDriver(build_driver(cfg), inv, self._before_read)
         self.clock: SteppedClock | None = None
+        # the daemon's own wall clock (time.time as bound when compd loaded) unless
+        # the test gives one
+        walls: dict[str, Any] = {} if wall is None else {"wall": wall}
         if stepped:
             self.clock = SteppedClock(period_s=cfg.real_period_s)
             self.daemon = Daemon(cfg, driver=self.driver, notifier=Notifier(None),
-                                 clock=self.clock, sleep=self.clock.sleep)
+                                 clock=self.clock, sleep=self.clock.sleep, **walls)
         else:
-            self.daemon = Daemon(cfg, driver=self.driver, notifier=Notifier(None))
+            self.daemon = Daemon(cfg, driver=self.driver, notifier=Notifier(None), **walls)
         self._pacer: asyncio.Task[None] | None = None
         self.log = EventLog()
         self.daemon.log = self.log

@@ -1,0 +1,86 @@
+"""The simulated OPC UA server's standard address space: built once per process
+and copied into each server (`drivers.sim.opcua_space`), the same nodes as
+asyncua's own fill, and no server sees what another one changed."""
+
+from __future__ import annotations
+
+import pytest
+from asyncua import ua
+from asyncua.server.address_space import NodeData
+from asyncua.server.server import Server
+from asyncua.ua.object_ids import ObjectIds
+
+from drivers.sim import opcua_space
+from drivers.sim.opcua_server import NAMESPACE, OpcUaSimController
+from drivers.sim.opcua_space import standard_nodes
+
+
+def _node(name: str) -> ua.NodeId:
+    """A standard node's id by its name in asyncua's ObjectIds."""
+    return ua.NodeId.from_string(f"i={getattr(ObjectIds, name)}")
+
+
+async def test_the_standard_space_is_built_once_and_copied(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    builds: list[int] = []
+    build = opcua_space._build
+
+    def counting() -> dict[ua.NodeId, NodeData]:
+        builds.append(1)
+        return build()
+
+    monkeypatch.setattr(opcua_space, "_template", None)
+    monkeypatch.setattr(opcua_space, "_build", counting)
+    first, second = await standard_nodes(), await standard_nodes()
+    assert len(builds) == 1
+    assert first.keys() == second.keys()
+    some = _node("Server_NamespaceArray")
+    assert first[some] is not second[some]
+    assert first[some].references is not second[some].references
+
+
+async def test_a_copied_space_is_asyncua_own_standard_space() -> None:
+    """Every node, attribute value and reference of a server started the plain
+    way (asyncua fills the standard address space itself) is in the copy."""
+    plain = Server()
+    await plain.iserver.load_standard_address_space()
+    want = plain.iserver.aspace._nodes
+    got = await standard_nodes()
+    assert got.keys() == want.keys() and len(got) > 5000
+    for nodeid, node in want.items():
+        mine = got[nodeid]
+        assert mine.attributes.keys() == node.attributes.keys(), nodeid
+        for attr, av in node.attributes.items():
+            assert mine.attributes[attr].value == av.value, (nodeid, attr)
+        assert mine.references == node.references, nodeid
+
+
+async def test_servers_do_not_share_what_they_change() -> None:
+    """A namespace registered, a value written and a reference added on one
+    simulated server are not on the next one (each has its own copy)."""
+    one = OpcUaSimController()
+    await one.start()
+    try:
+        server = one._require()
+        await server.register_namespace("urn:compd:test:one")
+        level = server.get_node(_node("Server_ServiceLevel"))
+        await level.write_value(ua.Variant(7, ua.VariantType.Byte))
+        objects = server.get_node(_node("ObjectsFolder"))
+        await objects.add_folder(2, "OnlyOnOne")
+        two = OpcUaSimController()
+        await two.start()
+        try:
+            other = two._require()
+            namespaces = await other.get_namespace_array()
+            assert namespaces[-1] == NAMESPACE and "urn:compd:test:one" not in namespaces
+            level_two = other.get_node(_node("Server_ServiceLevel"))
+            assert await level_two.read_value() == 255
+            names = [(await n.read_browse_name()).Name
+                     for n in await other.get_node(_node("ObjectsFolder"))
+                     .get_children()]
+            assert "Machine" in names and "OnlyOnOne" not in names
+        finally:
+            await two.stop()
+        assert "urn:compd:test:one" in await server.get_namespace_array()
+    finally:
+        await one.stop()
