@@ -84,6 +84,7 @@ def fit_value_slope(positions_mm: Sequence[float], displacements_um: FloatArray,
                     orders: tuple[int, int] = DEFAULT_ORDERS) -> ValueSlopeFit:
     """Regress each row onto a line (`line_per_sample`), then fit the value and
     the slope series each from its own temperatures (`fit_line_model`)."""
+    _relative(columns, [*value_inputs, *slope_inputs])  # every input named before fitting
     value, slope = line_per_sample(positions_mm, displacements_um, x0_mm)
     return ValueSlopeFit(x0_mm, tuple(value_inputs), tuple(slope_inputs),
                          fit_line_model(value, columns, value_inputs, orders),
