@@ -15,9 +15,10 @@ of the position-dependent part of the error that the slope removes:
     share removed = 1 - RMS(dependent part, c) / RMS(dependent part, b)
 
 (goal: >= 80 %). Training: `compd sim --machine ballscrew` for 48 h (seed 1);
-held out: 24 h of another duty cycle (seed 2). Or two records of one's own:
+held out: 24 h of another duty cycle (seed 2; ``--seed N``: N and N + 1).
+Or two records of one's own:
 
-    .venv/bin/python benchmarks/bench_axes.py
+    .venv/bin/python benchmarks/bench_axes.py [--seed N]
     .venv/bin/python benchmarks/bench_axes.py --train A.csv --heldout B.csv
 
 A record without two or more ``dx_at_<x>mm_um`` columns is refused with one
@@ -112,12 +113,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--train", metavar="CSV", help="training record (default: simulated)")
     parser.add_argument("--heldout", metavar="CSV", help="held-out record (default: simulated)")
+    parser.add_argument("--seed", type=int, default=1,
+                        help="simulated: train on this seed, hold out the next (default 1)")
     args = parser.parse_args(argv)
     try:
         train = (read_position_record(Path(args.train)) if args.train
-                 else simulated(48.0, seed=1))
+                 else simulated(48.0, seed=args.seed))
         heldout = (read_position_record(Path(args.heldout)) if args.heldout
-                   else simulated(24.0, seed=2))
+                   else simulated(24.0, seed=args.seed + 1))
         report(train, heldout)
     except (CompdError, ValueError) as exc:
         print(f"bench_axes: {exc}", file=sys.stderr)

@@ -57,8 +57,10 @@ PROBE_NOISE_UM = number(0.0, 1000.0)
 #: the measuring cycle: every minute of machine time to once a week
 PROBE_EVERY_MIN = number(1.0, 7 * 24 * 60.0)
 CHANGE_AT_H = number(0.0, 8784.0)
-#: the farthest a --positions entry may lie from the axis's zero, mm
+#: the farthest a --positions entry may lie from the axis's zero, mm, and the most
+#: positions (each one more column of every row)
 MAX_POSITION_MM = 100_000.0
+MAX_POSITIONS = 100
 #: an offline record longer than this many rows is refused (~0.6 GB of CSV)
 MAX_RECORD_ROWS = 10_000_000
 
@@ -130,8 +132,11 @@ def _change(text: str) -> ShopChange:
 
 def _positions(text: str) -> tuple[float, ...]:
     """An argparse type: two or more distinct finite positions (mm), comma-separated."""
+    items = text.split(",")
+    if len(items) > MAX_POSITIONS:
+        raise argparse.ArgumentTypeError(f"at most {MAX_POSITIONS} positions, got {len(items)}")
     try:
-        out = tuple(float(item) for item in text.split(","))
+        out = tuple(float(item) for item in items)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected positions in mm like 0,200,400, got "
                                          f"{text!r}") from None

@@ -45,6 +45,7 @@ def test_positions_option_names_the_columns(tmp_path: Path) -> None:
     ["--machine", "ballscrew", "--positions", "5"],
     ["--machine", "ballscrew", "--positions", "5,5"],
     ["--machine", "ballscrew", "--positions", "0,nan"],
+    ["--machine", "ballscrew", "--positions", ",".join(str(x) for x in range(101))],
     ["--positions", "0,100"],  # the bench machine measures Z at one place
 ])
 def test_bad_positions_are_a_usage_error(tmp_path: Path, argv: list[str],
