@@ -4,9 +4,11 @@ measured position on a held-out day, three ways.
 (a) no compensation; (b) a position-independent offset, as compd writes for
 Z today: one model fitted to the mean of the positions' displacements; (c)
 a value at the reference position plus a slope, each with its own model
-(`models.identify.positions`). All models are the ARX least squares with
-order selection of `compd fit`'s baseline; the value and the offset from
-every temperature, the slope from the screw's nut and bearing temperatures.
+(`models.identify.positions`: the ARX least squares with order selection of
+`compd fit`'s baseline; with ``--via-fit`` the model files `compd fit
+--positions` writes with its whole structure choice, stepped as `compd replay
+--init rest` steps them). The value and the offset from every temperature,
+the slope from the screw's nut and bearing temperatures.
 
 Peer: (a) and (b) on the same held-out rows. The figure of merit is the share
 of the position-dependent part of the error that the slope removes:
@@ -18,7 +20,7 @@ of the position-dependent part of the error that the slope removes:
 held out: 24 h of another duty cycle (seed 2; ``--seed N``: N and N + 1).
 Or two records of one's own:
 
-    .venv/bin/python benchmarks/bench_axes.py [--seed N]
+    .venv/bin/python benchmarks/bench_axes.py [--seed N] [--via-fit]
     .venv/bin/python benchmarks/bench_axes.py --train A.csv --heldout B.csv
 
 A record without two or more ``dx_at_<x>mm_um`` columns is refused with one
@@ -28,17 +30,19 @@ line on stderr (exit 65).
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import sys
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from compd.errors import CompdError
-from compd.offline.position_record import PositionRecord, position_record, read_position_record
-from compd.offline.records import Record
+from compd.offline.position_record import PositionRecord, read_position_record
 from compd.sysexits import EX_DATAERR
-from drivers.sim.ballscrew import simulate_ballscrew
+from drivers.sim.ballscrew import simulate_ballscrew, write_ballscrew_record
 from models.identify.positions import (
     fit_line_model,
     fit_value_slope,
@@ -52,15 +56,13 @@ SLOPE_INPUTS = ("nut", "screw_bearing")
 GOAL_PCT = 80.0
 
 
-def simulated(hours: float, seed: int) -> PositionRecord:
-    """A ball-screw record in memory, as `compd sim --machine ballscrew` writes it."""
-    cols = simulate_ballscrew(hours, seed=seed)
-    t = cols.pop("time_s")
-    for truth in ("value_um", "slope_um_m"):
-        cols.pop(truth)
-    record = Record(path=f"<ballscrew seed {seed}>", sha256="", time_s=t,
-                    period_s=float(t[1] - t[0]), columns=cols)
-    return position_record(record)
+def _record(path: str | None, hours: float, seed: int, scratch: Path) -> PositionRecord:
+    """The record at `path`, or a simulated one written to `scratch` as `compd sim
+    --machine ballscrew --record` writes it."""
+    if path is None:
+        write_ballscrew_record(scratch, simulate_ballscrew(hours, seed=seed))
+        path = str(scratch)
+    return read_position_record(Path(path))
 
 
 def residuals(train: PositionRecord, heldout: PositionRecord) -> dict[str, np.ndarray]:
@@ -80,6 +82,41 @@ def residuals(train: PositionRecord, heldout: PositionRecord) -> dict[str, np.nd
                                                  heldout.positions_mm)}
 
 
+def residuals_via_fit(train: PositionRecord, heldout: PositionRecord,
+                      workdir: Path) -> dict[str, np.ndarray]:
+    """The same three ways through the command line: `compd fit --positions` writes
+    the value, slope and offset model files (the offset: the value at the mean of
+    the positions, which is the mean of the line there), and they are stepped over
+    the held-out record as `compd replay --init rest` steps a model."""
+    from compd.cli import main as compd
+    from compd.commands.replay import replay_with_init
+    from compd.infiles import load_model
+    from compd.offline.position_record import SLOPE_COLUMN, VALUE_COLUMN, with_line_columns
+
+    x0 = train.positions_mm[0]
+
+    def fitted(column: str, inputs: Sequence[str], ref_mm: float, name: str) -> np.ndarray:
+        out = workdir / f"{name}.toml"
+        argv = ["fit", train.record.path, "--positions", f"--reference-position-mm={ref_mm}",
+                "--column", column, *(a for i in inputs for a in ("--term", i)),
+                "--no-fallbacks", "--json", "-o", str(out)]
+        said = io.StringIO()
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            code = compd(argv)
+        if code:
+            raise CompdError(f"compd {' '.join(argv)} exited {code}: {said.getvalue()}")
+        held = with_line_columns(heldout.record, ref_mm)
+        return replay_with_init(load_model(out), held, held.column(column), "rest")
+
+    value = fitted(VALUE_COLUMN, VALUE_INPUTS, x0, "value")
+    slope = fitted(SLOPE_COLUMN, SLOPE_INPUTS, x0, "slope")
+    offset = fitted(VALUE_COLUMN, VALUE_INPUTS, float(np.mean(train.positions_mm)), "offset")
+    measured = heldout.displacements()
+    dx = (np.asarray(heldout.positions_mm) - x0) / 1000.0
+    return {"none": measured, "offset": measured - offset[:, None],
+            "value+slope": measured - (value[:, None] + slope[:, None] * dx[None, :])}
+
+
 def _dependent(r: np.ndarray) -> np.ndarray:
     return r - r.mean(axis=1, keepdims=True)
 
@@ -88,9 +125,11 @@ def _rms(v: np.ndarray) -> float:
     return float(np.sqrt(np.mean(v ** 2)))
 
 
-def report(train: PositionRecord, heldout: PositionRecord) -> float:
-    """Print the table; return the share (%) of the position-dependent part removed."""
-    res = residuals(train, heldout)
+def report(train: PositionRecord, heldout: PositionRecord,
+           res: dict[str, np.ndarray] | None = None) -> float:
+    """Print the table (of `residuals` unless given); return the share (%) of the
+    position-dependent part removed."""
+    res = res if res is not None else residuals(train, heldout)
     positions = heldout.positions_mm
     print(f"held-out {heldout.record.path}: {len(heldout.record)} rows; trained on "
           f"{train.record.path}: {len(train.record)} rows")
@@ -115,13 +154,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--heldout", metavar="CSV", help="held-out record (default: simulated)")
     parser.add_argument("--seed", type=int, default=1,
                         help="simulated: train on this seed, hold out the next (default 1)")
+    parser.add_argument("--via-fit", action="store_true",
+                        help="fit with compd fit --positions (each model file written, then "
+                             "stepped as compd replay --init rest) instead of the library")
     args = parser.parse_args(argv)
     try:
-        train = (read_position_record(Path(args.train)) if args.train
-                 else simulated(48.0, seed=args.seed))
-        heldout = (read_position_record(Path(args.heldout)) if args.heldout
-                   else simulated(24.0, seed=args.seed + 1))
-        report(train, heldout)
+        with tempfile.TemporaryDirectory() as tmp:
+            workdir = Path(tmp)
+            train = _record(args.train, 48.0, args.seed, workdir / "train.csv")
+            heldout = _record(args.heldout, 24.0, args.seed + 1, workdir / "heldout.csv")
+            print("models:", "compd fit --positions" if args.via_fit
+                  else "models.identify.positions")
+            report(train, heldout,
+                   residuals_via_fit(train, heldout, workdir) if args.via_fit else None)
     except (CompdError, ValueError) as exc:
         print(f"bench_axes: {exc}", file=sys.stderr)
         return EX_DATAERR
