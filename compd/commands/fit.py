@@ -127,6 +127,10 @@ MIN_FOLD_ROWS = 10
 MAX_TERMS = 12
 MAX_FIT_TERMS = 16
 
+#: the columns --positions offers: the line's value at the reference position and its
+#: slope (`compd.offline.position_record`; literal here: the parser imports no numerics)
+POSITIONS_COLUMNS = ("value_um", "slope_um_m")
+
 #: default slowest allowed time constant of a fitted pole, days
 DEFAULT_MAX_TIME_CONSTANT_DAYS = 3.0
 
@@ -485,10 +489,10 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
     from compd.offline.records import RecordError, check_units, read_record
 
     records = [read_record(p) for p in paths]
-    if args.positions:  # the line through each row's positions, as two more columns
-        from compd.offline.position_record import with_line_columns
+    if args.positions:  # the line through each row's positions: its value or its slope
+        from compd.offline.position_record import line_record
 
-        records = [with_line_columns(r, args.reference_position_mm) for r in records]
+        records = [line_record(r, args.reference_position_mm, args.output) for r in records]
     for r in records:
         r.require([args.output, *sorted(channels), *([args.switch] if args.switch else [])])
         temps = sorted(c for c in channels if not is_rate_channel(c))
@@ -662,6 +666,11 @@ def run(args: argparse.Namespace) -> int:
         return EX_USAGE
     if args.reference_position_mm and not args.positions:
         print("compd fit: --reference-position-mm applies with --positions", file=sys.stderr)
+        return EX_USAGE
+    if args.positions and args.output not in POSITIONS_COLUMNS:
+        print(f"compd fit: --positions fits --column {' or '.join(POSITIONS_COLUMNS)} (the "
+              f"value or the slope of the line along the axis), not {args.output!r}",
+              file=sys.stderr)
         return EX_USAGE
 
     from compd.commands.replay import replay_with_init

@@ -72,3 +72,18 @@ def with_line_columns(record: Record, x0_mm: float) -> Record:
     value, slope = line_per_sample(pr.positions_mm, pr.displacements(), x0_mm)
     return dataclasses.replace(record, columns={**record.columns, VALUE_COLUMN: value,
                                                 SLOPE_COLUMN: slope})
+
+
+def line_record(record: Record, x0_mm: float, output: str) -> Record:
+    """What `compd fit --positions` fits: the record's temperatures and machine
+    state, and of the line only `output` (`VALUE_COLUMN` or `SLOPE_COLUMN`). The
+    displacements at the positions and the other half of the line are dropped: a
+    measured displacement is never an input (a --term or --candidates naming one
+    finds no such column)."""
+    if output not in (VALUE_COLUMN, SLOPE_COLUMN):
+        raise ValueError(f"output must be {VALUE_COLUMN} or {SLOPE_COLUMN}, got {output!r}")
+    full = with_line_columns(record, x0_mm)
+    columns = {name: v for name, v in record.columns.items()
+               if parse_position_column(name) is None}
+    columns[output] = full.columns[output]
+    return dataclasses.replace(record, columns=columns)

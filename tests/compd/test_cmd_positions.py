@@ -111,3 +111,34 @@ def test_reference_position_needs_positions(tmp_path: Path,
                  "--reference-position-mm", "100", "-o", str(tmp_path / "m.toml")])
     assert code == EX_USAGE
     assert "--positions" in capsys.readouterr().err
+
+
+def test_positions_fits_only_the_value_or_the_slope(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    from compd.commands.fit import POSITIONS_COLUMNS
+    from compd.offline.position_record import SLOPE_COLUMN, VALUE_COLUMN
+
+    assert POSITIONS_COLUMNS == (VALUE_COLUMN, SLOPE_COLUMN)
+    code = main(["fit", str(tmp_path / "none.csv"), "--positions", "--column",
+                 "dx_at_0mm_um", "--term", "nut", "-o", str(tmp_path / "m.toml")])
+    assert code == EX_USAGE
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "value_um or slope_um_m" in err[0]
+
+
+def test_a_measured_displacement_is_never_an_input(tmp_path: Path,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    rec = tmp_path / "bs.csv"
+    assert main(["sim", "--machine", "ballscrew", "--record", str(rec), "--hours", "12"]) == 0
+    capsys.readouterr()
+    for term in ("dx_at_800mm_um", "value_um"):  # a position, the line's other half
+        code = main(["fit", str(rec), "--positions", "--column", "slope_um_m", "--term", term,
+                     "-o", str(tmp_path / "m.toml")])
+        assert code == EX_DATAERR
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and term in err[0]
+    # and --candidates cannot pick one either: they are not among the record's columns
+    from compd.offline.position_record import line_record, read_position_record
+
+    fitted = line_record(read_position_record(rec).record, 0.0, "slope_um_m")
+    assert sorted(fitted.columns) == sorted([*HEAD[1:], "slope_um_m"])
