@@ -131,7 +131,8 @@ def _change(text: str) -> ShopChange:
 
 
 def _positions(text: str) -> tuple[float, ...]:
-    """An argparse type: two or more distinct finite positions (mm), comma-separated."""
+    """An argparse type: two or more finite positions (mm), comma-separated, distinct
+    to the 0.001 mm their column names hold."""
     items = text.split(",")
     if len(items) > MAX_POSITIONS:
         raise argparse.ArgumentTypeError(f"at most {MAX_POSITIONS} positions, got {len(items)}")
@@ -143,7 +144,7 @@ def _positions(text: str) -> tuple[float, ...]:
     if not all(abs(x) <= MAX_POSITION_MM for x in out):
         raise argparse.ArgumentTypeError(f"positions must be finite and within "
                                          f"±{MAX_POSITION_MM:g} mm, got {text!r}")
-    if len(set(out)) != len(out) or len(out) < 2:
+    if len({round(x, 3) for x in out}) != len(out) or len(out) < 2:  # one column each
         raise argparse.ArgumentTypeError(f"need two or more distinct positions (a line "
                                          f"along the travel), got {text!r}")
     return out

@@ -1,7 +1,7 @@
 """A calibration record with the displacement measured at several positions.
 
 Its displacement columns are named ``dx_at_<x>mm_um`` (x the position along
-the axis in mm, as ``%g``: ``dx_at_0mm_um``, ``dx_at_200mm_um``,
+the axis in mm to 0.001 mm, without trailing zeros: ``dx_at_0mm_um``, ``dx_at_200mm_um``,
 ``dx_at_-50mm_um``), one per position, every row a measuring pass (what
 `compd sim --machine ballscrew --record` writes); the other columns are the
 temperatures and the machine's state, read as by `compd fit`

@@ -43,7 +43,8 @@ temperatures quantised to 0.1 K with 0.03 K noise, as in the plant.
 
 Columns: ``time_s, spindle_rpm, axis_duty, axis_speed_mm_min, nut,
 screw_bearing, column, ambient`` then one ``dx_at_<x>mm_um`` per position
-(`position_column`; x in mm as ``%g``: ``dx_at_0mm_um``, ``dx_at_200mm_um``,
+(`position_column`; x in mm to the micrometre, without trailing zeros:
+``dx_at_0mm_um``, ``dx_at_200mm_um``,
 ``dx_at_-50mm_um``, ``dx_at_12.5mm_um``).
 """
 
@@ -74,8 +75,13 @@ _POSITION_RE = re.compile(r"^dx_at_(-?\d+(?:\.\d+)?)mm_um$")
 
 
 def position_column(x_mm: float) -> str:
-    """The record's column of the displacement measured at `x_mm`."""
-    return f"dx_at_{x_mm:g}mm_um"
+    """The record's column of the displacement measured at `x_mm`, the position
+    written to 0.001 mm without trailing zeros (never an exponent: 1e-05 mm is
+    ``dx_at_0mm_um``, 1234.5678 mm ``dx_at_1234.568mm_um``)."""
+    if not math.isfinite(x_mm):
+        raise ValueError(f"a position must be finite, got {x_mm!r}")
+    text = f"{round(x_mm, 3) + 0.0:.3f}".rstrip("0").rstrip(".")
+    return f"dx_at_{'0' if text == '-0' else text}mm_um"
 
 
 def parse_position_column(name: str) -> float | None:
@@ -198,8 +204,10 @@ def simulate_ballscrew(hours: float, *, period_s: float = 300.0, seed: int = 0,
         raise ValueError("need period_s > 0 and hours > 0")
     if probe_noise_um < 0.0:
         raise ValueError("probe_noise_um must be >= 0")
-    if len(positions_mm) < 1:
-        raise ValueError("need at least one position")
+    names = [position_column(x) for x in positions_mm]
+    if not names or len(set(names)) != len(names):
+        raise ValueError(f"need one or more positions distinct to 0.001 mm, got "
+                         f"{list(positions_mm)}")
     prog = program if program is not None else axis_workday(seed, hours)
     ambient_seq, sensor_seq, probe_seq = np.random.SeedSequence(seed).spawn(3)
     room = Ambient(np.random.default_rng(ambient_seq), mean_c=p.ambient_mean_c,

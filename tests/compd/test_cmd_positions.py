@@ -44,6 +44,7 @@ def test_positions_option_names_the_columns(tmp_path: Path) -> None:
 @pytest.mark.parametrize("argv", [
     ["--machine", "ballscrew", "--positions", "5"],
     ["--machine", "ballscrew", "--positions", "5,5"],
+    ["--machine", "ballscrew", "--positions", "5,5.0001"],  # one column name
     ["--machine", "ballscrew", "--positions", "0,nan"],
     ["--machine", "ballscrew", "--positions", ",".join(str(x) for x in range(101))],
     ["--positions", "0,100"],  # the bench machine measures Z at one place

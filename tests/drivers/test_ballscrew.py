@@ -6,6 +6,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+import pytest
 
 from drivers.sim.ballscrew import (
     DEFAULT_POSITIONS_MM,
@@ -59,5 +60,13 @@ def test_position_column_names_round_trip() -> None:
     for x in (*DEFAULT_POSITIONS_MM, -50.0, 12.5):
         assert parse_position_column(position_column(x)) == x
     assert position_column(200.0) == "dx_at_200mm_um"
+    assert position_column(1e-5) == position_column(-1e-5) == "dx_at_0mm_um"
+    assert position_column(1234.5678) == "dx_at_1234.568mm_um"
+    assert position_column(-50.0) == "dx_at_-50mm_um"
     assert parse_position_column("dz_um") is None
     assert parse_position_column("dx_at_mm_um") is None
+
+
+def test_positions_that_share_a_column_name_are_refused() -> None:
+    with pytest.raises(ValueError, match=r"distinct to 0\.001 mm"):
+        simulate_ballscrew(1.0, positions_mm=(5.0, 5.0001))
