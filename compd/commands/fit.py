@@ -127,6 +127,10 @@ MIN_FOLD_ROWS = 10
 MAX_TERMS = 12
 MAX_FIT_TERMS = 16
 
+#: the columns --positions offers: the line's value at the reference position and its
+#: slope (`compd.offline.position_record`; literal here: the parser imports no numerics)
+POSITIONS_COLUMNS = ("value_um", "slope_um_m")
+
 #: default slowest allowed time constant of a fitted pole, days
 DEFAULT_MAX_TIME_CONSTANT_DAYS = 3.0
 
@@ -139,6 +143,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         metavar="COLUMN", action=RenamedOption,
                         help="the measured displacement column (µm); --output is its "
                              "deprecated spelling")
+    parser.add_argument("--positions", action="store_true",
+                        help="the record measures the displacement at several positions "
+                             "(columns dx_at_<x>mm_um): fit --column value_um (the value at "
+                             "--reference-position-mm) or --column slope_um_m (µm/m) of the "
+                             "line through each row's positions (docs/calibration.md)")
+    parser.add_argument("--reference-position-mm", type=number(-1e5, 1e5), default=0.0,
+                        metavar="MM", help="with --positions: the position the value is "
+                        "taken at, e.g. the screw's fixed bearing (default 0)")
     parser.add_argument("--term", action="append", default=[], metavar="[NAME=]EXPR",
                         help="a term's input: a channel or e.g. bearing-column (repeatable)")
     parser.add_argument("--candidates", action="append", default=[], metavar="PATTERN",
@@ -477,6 +489,10 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
     from compd.offline.records import RecordError, check_units, read_record
 
     records = [read_record(p) for p in paths]
+    if args.positions:  # the line through each row's positions: its value or its slope
+        from compd.offline.position_record import line_record
+
+        records = [line_record(r, args.reference_position_mm, args.output) for r in records]
     for r in records:
         r.require([args.output, *sorted(channels), *([args.switch] if args.switch else [])])
         temps = sorted(c for c in channels if not is_rate_channel(c))
@@ -647,6 +663,14 @@ def run(args: argparse.Namespace) -> int:
     if args.model_file is None:  # before any work: where the model goes is the user's say
         print("compd fit: -o MODEL.toml is required (where to write the model; nothing is "
               "written beside the records)", file=sys.stderr)
+        return EX_USAGE
+    if args.reference_position_mm and not args.positions:
+        print("compd fit: --reference-position-mm applies with --positions", file=sys.stderr)
+        return EX_USAGE
+    if args.positions and args.output not in POSITIONS_COLUMNS:
+        print(f"compd fit: --positions fits --column {' or '.join(POSITIONS_COLUMNS)} (the "
+              f"value or the slope of the line along the axis), not {args.output!r}",
+              file=sys.stderr)
         return EX_USAGE
 
     from compd.commands.replay import replay_with_init

@@ -16,7 +16,11 @@ same controller.
 
 Offline: ``compd sim --record out.csv [--program P] [--hours H] [--period-s S]
 [--seed N]`` writes a calibration record (see `drivers.sim.csvlog`) without
-any server, faster than real time.
+any server, faster than real time. ``--machine shop`` is the production
+machine of `drivers.sim.shop`; ``--machine ballscrew [--positions 0,200,...]``
+a ball-screw X axis whose record holds the displacement measured at each
+position every row (`drivers.sim.ballscrew`; one row per 300 s unless
+``--period-s``).
 """
 
 from __future__ import annotations
@@ -53,6 +57,10 @@ PROBE_NOISE_UM = number(0.0, 1000.0)
 #: the measuring cycle: every minute of machine time to once a week
 PROBE_EVERY_MIN = number(1.0, 7 * 24 * 60.0)
 CHANGE_AT_H = number(0.0, 8784.0)
+#: the farthest a --positions entry may lie from the axis's zero, mm, and the most
+#: positions (each one more column of every row)
+MAX_POSITION_MM = 100_000.0
+MAX_POSITIONS = 100
 #: an offline record longer than this many rows is refused (~0.6 GB of CSV)
 MAX_RECORD_ROWS = 10_000_000
 
@@ -68,8 +76,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="spindle program (default spectrum; it repeats when served)")
     parser.add_argument("--hours", type=HOURS, default=None,
                         help="program duration in hours (default: the program's own)")
-    parser.add_argument("--period-s", type=PERIOD_S, default=1.0,
-                        help="machine seconds per tick / per record row (default 1)")
+    parser.add_argument("--period-s", type=PERIOD_S, default=None,
+                        help="machine seconds per tick / per record row (default 1; "
+                             "300 with --machine ballscrew: one measuring pass a row)")
     parser.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     parser.add_argument("--json", action="store_true",
                         help="print the endpoint and addresses as one JSON line first")
@@ -77,9 +86,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="write a calibration record offline instead of serving")
     parser.add_argument("--force", action="store_true",
                         help="replace an existing --record or --write-config file")
-    parser.add_argument("--machine", choices=("bench", "shop"), default="bench",
-                        help="with --record: the bench machine (default) or the shop variant "
-                             "(16 sensors, starts warm, room drift; see drivers.sim.shop)")
+    parser.add_argument("--machine", choices=("bench", "shop", "ballscrew"), default="bench",
+                        help="with --record: the bench machine (default), the shop variant "
+                             "(16 sensors, starts warm, room drift; see drivers.sim.shop) or "
+                             "a ball-screw X axis measured at several --positions (see "
+                             "drivers.sim.ballscrew)")
+    parser.add_argument("--positions", type=_positions, default=None, metavar="MM,MM,...",
+                        help="with --machine ballscrew: the positions along the travel the "
+                             "displacement is measured at, mm (default 0,200,400,600,800)")
     parser.add_argument("--change", type=_change, default=None, metavar="ambient±NK,heat±N%",
                         help="with --machine shop: a change the model never saw, e.g. "
                              "ambient+3K,heat+30%% (the room 3 K warmer, the spindle bearing's "
@@ -116,6 +130,26 @@ def _change(text: str) -> ShopChange:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _positions(text: str) -> tuple[float, ...]:
+    """An argparse type: two or more finite positions (mm), comma-separated, distinct
+    to the 0.001 mm their column names hold."""
+    items = text.split(",")
+    if len(items) > MAX_POSITIONS:
+        raise argparse.ArgumentTypeError(f"at most {MAX_POSITIONS} positions, got {len(items)}")
+    try:
+        out = tuple(float(item) for item in items)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected positions in mm like 0,200,400, got "
+                                         f"{text!r}") from None
+    if not all(abs(x) <= MAX_POSITION_MM for x in out):
+        raise argparse.ArgumentTypeError(f"positions must be finite and within "
+                                         f"±{MAX_POSITION_MM:g} mm, got {text!r}")
+    if len({round(x, 3) for x in out}) != len(out) or len(out) < 2:  # one column each
+        raise argparse.ArgumentTypeError(f"need two or more distinct positions (a line "
+                                         f"along the travel), got {text!r}")
+    return out
+
+
 def describe(controller: SimController) -> dict[str, object]:
     """The JSON object `--json` prints."""
     doc: dict[str, object] = {
@@ -145,6 +179,8 @@ def _record(args: argparse.Namespace) -> int:
     check_output(args.record, "record", force=args.force)
     if args.machine == "shop":
         return _record_shop(args)
+    if args.machine == "ballscrew":
+        return _record_ballscrew(args)
     program = make_program(args.program, seed=args.seed, hours=args.hours)
     if program.duration_s / args.period_s > MAX_RECORD_ROWS:
         print(f"compd sim: {program.duration_s / 3600:g} h every {args.period_s:g} s is "
@@ -216,6 +252,33 @@ def _record_shop(args: argparse.Namespace) -> int:
                                       f"x{change.heat_factor:g} from {change.at_h:g} h")
     print(f"compd sim: wrote {rows} rows (shop machine, workday program, {hours:g} h, period "
           f"{args.period_s:g} s, seed {args.seed}{what}) to {args.record}")
+    return 0
+
+
+def _record_ballscrew(args: argparse.Namespace) -> int:
+    from compd.outfiles import write_atomically
+    from drivers.sim.ballscrew import (
+        DEFAULT_POSITIONS_MM,
+        simulate_ballscrew,
+        write_ballscrew_record,
+    )
+
+    hours = args.hours if args.hours is not None else 24.0
+    positions = args.positions if args.positions is not None else DEFAULT_POSITIONS_MM
+    if hours * 3600.0 / args.period_s > MAX_RECORD_ROWS:
+        print(f"compd sim: {hours:g} h every {args.period_s:g} s is "
+              f"{hours * 3600.0 / args.period_s:.3g} rows; at most {MAX_RECORD_ROWS:,}",
+              file=sys.stderr)
+        return EX_DATAERR
+    columns = simulate_ballscrew(hours, period_s=args.period_s, seed=args.seed,
+                                 positions_mm=positions, probe_noise_um=args.probe_noise_um)
+    rows = len(columns["time_s"])
+    write_atomically(args.record,
+                     lambda tmp: write_ballscrew_record(str(tmp), columns, positions),
+                     "record", force=args.force)
+    print(f"compd sim: wrote {rows} rows (ball-screw machine, axis workday, {hours:g} h, "
+          f"period {args.period_s:g} s, seed {args.seed}, displacement at "
+          f"{','.join(f'{x:g}' for x in positions)} mm) to {args.record}")
     return 0
 
 
@@ -303,6 +366,12 @@ async def _serve(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.period_s is None:
+        args.period_s = 300.0 if args.machine == "ballscrew" else 1.0
+    if args.positions is not None and (args.record is None or args.machine != "ballscrew"):
+        print("compd sim: --positions applies to --record with --machine ballscrew",
+              file=sys.stderr)
+        return EX_USAGE
     if args.drive is not None and args.probe_every_min is not None:
         print("compd sim: --probe-every-min applies to a served machine, not --drive",
               file=sys.stderr)
