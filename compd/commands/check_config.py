@@ -21,8 +21,8 @@ from drivers.endpoint import redact_endpoint
 
 
 def _summary(cfg: LoadedConfig) -> dict[str, Any]:
-    from compd.commands.check import describe_model
     from compd.core.output import count_warnings
+    from compd.offline.model_description import describe_model
 
     raw = cfg.raw
     out: dict[str, Any] = {
@@ -190,7 +190,7 @@ def report(cfg: LoadedConfig, args: argparse.Namespace) -> int:
     m = report["model"]
     print(f"  model {m['model']!r}: {len(m['terms'])} term(s), all stable "
           f"({', '.join(t['name'] + ' DC ' + format(t['dc_gain'], '.4g') for t in m['terms'])})")
-    from compd.commands.check import fallback_lines
+    from compd.offline.model_description import fallback_lines
 
     for line in fallback_lines(m.get("fallbacks", {})):
         print(f"  {line}")

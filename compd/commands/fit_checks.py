@@ -4,7 +4,7 @@
 (`models.identify.structures.select_structure`'s ``veto``): each candidate's
 final estimate is built as the model file will hold it (its terms, their
 inputs, and the spans fit writes into the provenance) and given to `compd
-check`'s own warnings (`compd.commands.check.plausibility`: a negative real
+check`'s own warnings (`compd.offline.model_description.plausibility`: a negative real
 pole, a DC gain out of proportion to the recorded range, terms that cancel).
 A candidate they flag is rejected like an implausible one, so the selection
 falls back to the best candidate without a warning (another structure, then
@@ -61,7 +61,7 @@ class CheckVeto:
                                  provenance=dict(self._provenance))
 
     def __call__(self, m: OeModel) -> str | None:
-        from compd.commands.check import plausibility
+        from compd.offline.model_description import plausibility
 
         try:
             flags = plausibility(self.model(m.nums, m.term_dens()))
@@ -102,7 +102,7 @@ def fallback_line(summary: dict[str, Any], veto: CheckVeto) -> str | None:
 def gate(model: CompensationModel, force: bool) -> None:
     """ModelError (the model is not written) when `compd check` would warn about
     `model`, unless `force` (then the warnings go to stderr)."""
-    from compd.commands.check import plausibility
+    from compd.offline.model_description import plausibility
 
     flags = plausibility(model)
     if not flags:

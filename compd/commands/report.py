@@ -218,7 +218,7 @@ def build_page(args: argparse.Namespace, model: CompensationModel,
 
 def poles_rows(model: CompensationModel) -> list[list[Cell]]:
     """Each term's poles with |p| and the time constant (as `compd check` says it)."""
-    from compd.commands.check import (
+    from compd.offline.model_description import (
         describe_model,
         duration_text,
         pole_time_constant_samples,

@@ -17,7 +17,7 @@ from typing import TextIO
 import numpy as np
 import numpy.typing as npt
 
-from compd.offline.records import RecordError, _parse_float, _parse_iso
+from compd.offline.record_cells import RecordError, parse_float, parse_iso
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -68,9 +68,9 @@ def _slow_row(row: list[str], header: list[str], t_idx: int, is_iso: bool, where
         elif i in blank and not cell.strip():
             out.append(math.nan)
         elif i == t_idx and is_iso:
-            out.append(_parse_iso(cell, f"{where}: row {line_no}, column {header[i]!r}"))
+            out.append(parse_iso(cell, f"{where}: row {line_no}, column {header[i]!r}"))
         else:
-            out.append(_parse_float(cell, where, line_no, header[i]))
+            out.append(parse_float(cell, where, line_no, header[i]))
     return out
 
 

@@ -30,19 +30,17 @@ from __future__ import annotations
 
 import hashlib
 import io
-import math
 import os
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 
-from compd.errors import CompdError
 from compd.infiles import MAX_RECORD_BYTES, open_input
 from compd.offline.channel_kind import ChannelKind, channel_kind
+from compd.offline.record_cells import RecordError as RecordError  # noqa: PLC0414  (callers' import)
 from models.sanity import MAX_PERIOD_S, MIN_PERIOD_S
 
 FloatArray = npt.NDArray[np.float64]
@@ -58,11 +56,6 @@ GAP_FACTOR = 1.5
 MAX_PLAUSIBLE_TEMP_C = 1000.0
 #: a displacement record whose whole range is below this (µm) is probably in mm
 MIN_PLAUSIBLE_RANGE_UM = 0.5
-
-
-class RecordError(CompdError):
-    """A calibration record cannot be used as it is. The message names the
-    file, the row and/or the column, and what is wrong."""
 
 
 @dataclass(frozen=True)
@@ -149,19 +142,6 @@ def file_sha256(path: str | Path) -> str:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
-
-
-def _parse_iso(text: str, where: str) -> float:
-    t = text.strip()
-    if t.endswith(("Z", "z")):
-        t = t[:-1] + "+00:00"
-    try:
-        stamp = datetime.fromisoformat(t)
-    except ValueError:
-        raise RecordError(f"{where}: {text!r} is not an ISO 8601 timestamp") from None
-    if stamp.tzinfo is None:
-        stamp = stamp.replace(tzinfo=UTC)
-    return stamp.timestamp()
 
 
 #: the columns by which a CSV is known as `compd export`'s (compd.offline.export)
@@ -366,22 +346,6 @@ def _nice_period(period: float) -> float:
         if abs(nice - period) <= 5e-3 * period:
             return nice
     return round(period, 9)
-
-
-def _parse_float(cell: str, where: str, line_no: int, column: str) -> float:
-    text = cell.strip()
-    if not text:
-        raise RecordError(f"{where}: row {line_no}, column {column!r}: empty cell "
-                          "(a missing sample is not filled in; cut the record or repair it)")
-    try:
-        v = float(text)
-    except ValueError:
-        raise RecordError(f"{where}: row {line_no}, column {column!r}: {text!r} is not a "
-                          "number") from None
-    if not math.isfinite(v):
-        raise RecordError(f"{where}: row {line_no}, column {column!r}: {text!r} is not finite "
-                          "(NaN/inf rows are not skipped silently)")
-    return v
 
 
 def check_sampling(t: FloatArray, where: str) -> float:

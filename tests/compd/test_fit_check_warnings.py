@@ -65,12 +65,12 @@ def test_with_no_candidate_check_accepts_nothing_is_written(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Were check to warn about every model, fit exits 65 with one line and no
     file; --force writes the best validated one and repeats check's warnings."""
-    from compd.commands import check
+    from compd.offline import model_description
 
     def always(model: Any) -> list[str]:
         return [f"term {model.terms[0].name!r}: a warning for the test"]
 
-    monkeypatch.setattr(check, "plausibility", always)
+    monkeypatch.setattr(model_description, "plausibility", always)
     data, out = tmp_path / "rec.csv", tmp_path / "m.toml"
     _record(data)
     argv = ["fit", str(data), "--column", "dz_um", "--term", "t1_degC", "-o", str(out)]
