@@ -27,8 +27,8 @@ INTERVALS = (600, 1800, 3600, 7200)
 
 def hindsight(model_path: Path, record_path: Path) -> float:
     """Range reduction of the best bias + gains on day 2, over the plain one."""
-    from compd.commands.replay import replay_with_init
     from compd.infiles import load_model
+    from compd.offline.model_replay import replay_with_init
     from compd.offline.probes import term_contributions
     from compd.offline.records import read_record
 

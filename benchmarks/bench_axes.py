@@ -89,8 +89,8 @@ def residuals_via_fit(train: PositionRecord, heldout: PositionRecord,
     the positions, which is the mean of the line there), and they are stepped over
     the held-out record as `compd replay --init rest` steps a model."""
     from compd.cli import main as compd
-    from compd.commands.replay import replay_with_init
     from compd.infiles import load_model
+    from compd.offline.model_replay import replay_with_init
     from compd.offline.position_record import SLOPE_COLUMN, VALUE_COLUMN, with_line_columns
 
     x0 = train.positions_mm[0]

@@ -94,8 +94,8 @@ def figures(y: FloatArray, sim: FloatArray) -> tuple[float, float]:
 
 def compd_choice(cal: Path, model: Path, out: str, n_cal: int) -> tuple[FloatArray, str, float]:
     """(prediction over the whole record, what was chosen, seconds the fit took)."""
-    from compd.commands.replay import replay_model
     from compd.infiles import load_model
+    from compd.offline.model_replay import replay_model
     from compd.offline.records import read_record
     from models.initial_state import estimate_initial_state, relaxation_basis
 

@@ -28,8 +28,8 @@ from pathlib import Path
 
 from bench_adaptation_real import RECORD, SPLIT_S, TERMS, _run, first_part
 
-from compd.commands.replay import replay_with_init
 from compd.infiles import load_model
+from compd.offline.model_replay import replay_with_init
 from compd.offline.records import read_record
 
 CAL_S = 14.0 * 3600.0

@@ -225,8 +225,8 @@ def _fixed_terms(specs: list[str], records: list[Record]) -> tuple[list[Term], l
     """The fixed terms and their summed prediction over each record."""
     import numpy as np
 
-    from compd.commands.replay import replay_model
     from compd.infiles import load_model
+    from compd.offline.model_replay import replay_model
     from models.compensation import CompensationModel
     from models.errors import ModelError
 
@@ -673,7 +673,7 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return EX_USAGE
 
-    from compd.commands.replay import replay_with_init
+    from compd.offline.model_replay import replay_with_init
     from compd.offline.records import RecordError
     from compd.progress import terminal_status
     from models.errors import ModelError

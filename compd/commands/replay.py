@@ -12,17 +12,9 @@ the figures are those of the offset the daemon would have put in force. A model 
 period differs from the record's is refused: its coefficients would mean
 something else.
 
-A record rarely starts cold, so the model's starting state is said, never
-assumed silently (``--init``):
-
-- ``estimate`` (default): the output level and each transfer-function term's
-  initial state (steady for an input level) are estimated by least squares
-  on the first half of the measured displacement (`models.initial_state`),
-  as system-identification tools compare a model with data;
-- ``steady``: every term at steady state for the first sample (speed and
-  power terms at their first value), at the displacement measured there
-  (the mean of the first five samples);
-- ``rest``: every filter at rest at the first sample (the machine cold).
+The model's starting state is said, never assumed silently (``--init``:
+estimate, the default, steady or rest; `compd.offline.model_replay` says each,
+and steps the model: this module is the command line around it).
 
 ``--score-from S`` runs the model from the record's start and scores only the
 samples from S seconds on (what a daemon that has been running sees);
@@ -40,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 from compd.argtypes import RenamedOption, number
 from compd.commands import replay_probes
+from compd.offline.model_replay import INIT_MODES
 from compd.sysexits import EX_DATAERR, EX_USAGE
 
 if TYPE_CHECKING:
@@ -52,9 +45,6 @@ if TYPE_CHECKING:
 
 HELP = "run a model over a recorded run offline: fit %, residue, Δpk, range reduction, a plot"
 
-INIT_MODES: tuple[str, ...] = ("estimate", "steady", "rest")
-#: samples averaged for the displacement level of --init steady
-STEADY_LEVEL_SAMPLES = 5
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("model", metavar="MODEL", help="model file, or a library name (sp2)")
@@ -83,67 +73,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     replay_probes.add_arguments(parser)
 
 
-def _check_period(model: CompensationModel, record: Record) -> None:
-    """RecordError unless the model was identified at the record's period."""
-    from compd.offline.records import RecordError
-
-    if not math.isclose(model.period_s, record.period_s, rel_tol=1e-6):
-        raise RecordError(f"{record.path}: sampled every {record.period_s:g} s but the model "
-                          f"{model.name!r} was identified at {model.period_s:g} s; its "
-                          "coefficients do not apply (refit it at this period)")
-
-
-def replay_model(model: CompensationModel, record: Record, *, steady: bool = False
-                 ) -> npt.NDArray[np.float64]:
-    """δZ predicted at every row, stepping the model as the daemon does
-    (from rest, or from the steady state of the first sample)."""
-    import numpy as np
-
-    _check_period(model, record)
-    record.require(model.channels)
-    samples = record.samples()
-    model.reset()
-    model.set_references(samples[0])
-    if steady:
-        model.steady_state(samples[0])
-    step = model.step
-    return np.fromiter((step(s) for s in samples), dtype=np.float64, count=len(samples))
-
-
-def plot_inputs(model: CompensationModel, record: Record) -> dict[str, npt.NDArray[np.float64]]:
-    """The channels a replay figure shows above the displacement."""
-    names = [c for c in record.columns if c in model.channels]
-    from compd.offline.channel_kind import ChannelKind, channel_kind
-
-    names += [c for c in record.columns
-              if channel_kind(c) is ChannelKind.SPEED and c not in names]
-    return {c: record.columns[c] for c in names}
-
-
-def replay_with_init(model: CompensationModel, record: Record, measured: npt.NDArray[np.float64],
-                     init: str) -> npt.NDArray[np.float64]:
-    """The replay with the starting state `init` (see the module docstring)."""
-    import numpy as np
-
-    from models.initial_state import default_window, estimate_initial_state, relaxation_basis
-
-    simulated = replay_model(model, record, steady=init == "steady")
-    if init == "steady":
-        k = min(STEADY_LEVEL_SAMPLES, simulated.size)
-        return simulated + float(np.mean(measured[:k] - simulated[:k]))
-    if init == "rest":
-        return simulated
-    gains = [record.column(t.gain_channel) if t.gain_channel else t.gain for t in model.terms]
-    basis, names = relaxation_basis(model, gains, simulated.size)
-    est = estimate_initial_state(measured - simulated, basis, names,
-                                 default_window(simulated.size))
-    return simulated + est.response
-
-
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from compd.infiles import load_model
+    from compd.offline.model_replay import plot_inputs, replay_with_init
     from compd.offline.quality_check import checked_quality
     from compd.offline.records import RecordError, check_units, read_record
     from compd.outfiles import check_figure, write_atomically
@@ -254,6 +188,7 @@ def _through_the_cycle(config: str, model: CompensationModel, record: Record
     from compd.core.params import params_from_config
     from compd.errors import ConfigError
     from compd.offline.cycle_replay import replay_cycle
+    from compd.offline.model_replay import check_period
     from compd.offline.records import RecordError
     from models.errors import ModelError
 
@@ -267,7 +202,7 @@ def _through_the_cycle(config: str, model: CompensationModel, record: Record
     if not math.isclose(params.period_s, record.period_s, rel_tol=1e-6):
         raise RecordError(f"{record.path}: sampled every {record.period_s:g} s but {config} "
                           f"runs its cycle every {params.period_s:g} s")
-    _check_period(model, record)
+    check_period(model, record)
     missing = sorted(set(params.channels) - set(record.columns))
     if missing:
         raise RecordError(f"{record.path}: no column(s) {missing} for the channels {config} "

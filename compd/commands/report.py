@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
         model = load_model(args.model)
         provenance = dict(model.provenance or {})
         column = _column(args, provenance)
-        from compd.commands.replay import replay_with_init
+        from compd.offline.model_replay import replay_with_init
         from compd.offline.report import RecordResult, record_role, score
 
         results: list[RecordResult] = []

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from compd.commands.replay import plot_inputs
 from compd.infiles import load_model
 from compd.offline.channel_kind import ChannelKind, channel_kind, is_rate_channel
+from compd.offline.model_replay import plot_inputs
 from compd.offline.plots import replay_figure
 from compd.offline.records import read_csv_record, speed_warnings
 

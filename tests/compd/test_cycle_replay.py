@@ -11,9 +11,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from compd.commands.replay import replay_model
 from compd.infiles import load_model
 from compd.offline.cycle_replay import replay_cycle, replay_params
+from compd.offline.model_replay import replay_model
 from compd.offline.records import Record
 
 from .records_gen import inputs
