@@ -19,6 +19,7 @@ over a 3 K span (46 and 71 µm each) on a 20 µm record are flagged.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -44,26 +45,47 @@ def input_condition(inputs: Sequence[FloatArray]) -> float:
     return float(np.linalg.cond(x / norms))
 
 
-def cancelling_terms(names: Sequence[str], inputs: Sequence[FloatArray],
-                     gains: Sequence[float], output_span: float) -> list[str]:
-    """One warning per pair of terms that cancel (module docstring)."""
-    out: list[str] = []
-    cond = input_condition(inputs)
+@dataclass(frozen=True)
+class CancellingPair:
+    """Inputs `i` and `j` correlated at `r` whose terms cancel each other."""
+
+    i: int
+    j: int
+    r: float
+
+
+def cancelling_pairs(inputs: Sequence[FloatArray], gains: Sequence[float],
+                     output_span: float, min_r: float = CORRELATED_R) -> list[CancellingPair]:
+    """Every pair of inputs correlated at |r| >= `min_r` whose terms' DC gains
+    push opposite ways and each alone move the output by more than
+    `output_span` over its input's range (the model predicts the small
+    difference of two large numbers); a constant input correlates with none.
+    The one test of cancelling terms: `cancelling_terms` warns of them, fit's
+    selection (`models.identify.checks.implausible`) rejects them."""
+    out: list[CancellingPair] = []
     for i in range(len(inputs)):
         for j in range(i + 1, len(inputs)):
             a, b = inputs[i], inputs[j]
             if np.std(a) == 0.0 or np.std(b) == 0.0:
                 continue
             r = float(np.corrcoef(a, b)[0, 1])
-            big_i = abs(gains[i]) * float(np.ptp(a)) > output_span
-            big_j = abs(gains[j]) * float(np.ptp(b)) > output_span
-            if abs(r) >= CORRELATED_R and gains[i] * gains[j] * np.sign(r) < 0 and big_i \
-                    and big_j:
-                out.append(f"terms {names[i]!r} and {names[j]!r} cancel each other: DC gains "
-                           f"{gains[i]:+.4g} and {gains[j]:+.4g} on inputs correlated at "
-                           f"r = {r:.3f} (condition number {cond:.3g}); the model predicts "
-                           "the small difference of two large terms: keep one of them, or "
-                           "use --structure ridge or --candidates")
+            big = (abs(gains[i]) * float(np.ptp(a)) > output_span
+                   and abs(gains[j]) * float(np.ptp(b)) > output_span)
+            if abs(r) >= min_r and gains[i] * gains[j] * r < 0.0 and big:
+                out.append(CancellingPair(i, j, r))
+    return out
+
+
+def cancelling_terms(names: Sequence[str], inputs: Sequence[FloatArray],
+                     gains: Sequence[float], output_span: float) -> list[str]:
+    """One warning per pair of terms that cancel (module docstring)."""
+    cond = input_condition(inputs)
+    out = [f"terms {names[p.i]!r} and {names[p.j]!r} cancel each other: DC gains "
+           f"{gains[p.i]:+.4g} and {gains[p.j]:+.4g} on inputs correlated at "
+           f"r = {p.r:.3f} (condition number {cond:.3g}); the model predicts "
+           "the small difference of two large terms: keep one of them, or "
+           "use --structure ridge or --candidates"
+           for p in cancelling_pairs(inputs, gains, output_span)]
     if not out and cond > CONDITION_WARN:
         out.append(f"the inputs are nearly collinear (condition number {cond:.3g}): their "
                    "split between terms is poorly determined")

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from models.diagnostics import cancelling_pairs
 from models.errors import ModelError
 from models.sensitivity import dc_gain_sensitivity
 from models.tf import TransferFunction
@@ -130,15 +131,9 @@ def implausible(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]]
                     f"{output_span:.3g} µm")
         responses.append(k)
     arrays = [np.asarray(u, dtype=np.float64) for u in inputs]
-    for i in range(len(arrays)):
-        for j in range(i + 1, len(arrays)):
-            a_i, a_j = arrays[i], arrays[j]
-            if np.std(a_i) == 0.0 or np.std(a_j) == 0.0:
-                continue
-            r = float(np.corrcoef(a_i, a_j)[0, 1])
-            big = (abs(responses[i]) * float(np.ptp(a_i)) > output_span
-                   and abs(responses[j]) * float(np.ptp(a_j)) > output_span)
-            if abs(r) >= CANCEL_R and responses[i] * responses[j] * r < 0.0 and big:
-                return (f"{names[i]} and {names[j]} cancel: DC gains {responses[i]:+.4g} and "
-                        f"{responses[j]:+.4g} on inputs correlated at r = {r:.3f}")
+    pairs = cancelling_pairs(arrays, responses, output_span, min_r=CANCEL_R)
+    if pairs:
+        p = pairs[0]
+        return (f"{names[p.i]} and {names[p.j]} cancel: DC gains {responses[p.i]:+.4g} and "
+                f"{responses[p.j]:+.4g} on inputs correlated at r = {p.r:.3f}")
     return None
