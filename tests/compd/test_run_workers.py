@@ -261,3 +261,16 @@ def test_workers_take_a_directory(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert main(["run", str(path), "--workers", "2"]) == 64
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "--workers" in err
+
+
+def test_the_status_page_lists_a_down_workers_machines_as_off() -> None:
+    pool = PoolMetrics(lambda: [WorkerView(0, ("mill-b", "mill-a"), None,
+                                           paged=("mill-b", "mill-a")),
+                                WorkerView(1, ("mill-c",), None)])  # no [faces.http]
+    try:
+        doc = pool.status_document(1.0, history=True)
+    finally:
+        pool.stop()
+    assert [m["machine"] for m in doc["machines"]] == ["mill-a", "mill-b"]
+    assert {m["state"] for m in doc["machines"]} == {"off"}
+    assert all("restarting" in m["why"] for m in doc["machines"])
