@@ -217,7 +217,7 @@ def print_header() -> None:
           f"{'max':>9s}{'overrun':>8s}{'cpu cmp':>8s}{'cpu sim':>8s}{'RSS sum':>8s}"
           f"{'RSS max':>8s}{'start':>7s}{'load':>6s}\n(lateness ms over the window; cpu = "
           "CPU s per s (parent + workers; the simulated controllers); RSS MB;\n start = s "
-          "until every machine started; overrun: every cycle since the start)")
+          "until every machine's first cycle; overrun: every cycle since the start)")
 
 
 def print_step(protocol: str, s: RunDirStep) -> None:

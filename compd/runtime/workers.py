@@ -16,10 +16,12 @@ shop PC's cores serve one fleet, and each worker is a failure domain:
   A restarted worker reads its files again, as a process that systemd
   restarts would (a file made bad since keeps that worker's machines down,
   exit 78 logged at each attempt, until it is mended);
-- a worker whose event loop stops answering (no ``WATCHDOG=1`` on its notify
-  socket for its watchdog period: systemd's own, else `WORKER_WATCHDOG_S`) is
-  killed (``worker_hung``) and restarted, as systemd's watchdog would kill a
-  single process;
+- under systemd's watchdog (``WatchdogSec=``), a worker whose event loop stops
+  answering (no ``WATCHDOG=1`` on its notify socket for that period) is killed
+  (``worker_hung``) and restarted, as systemd would kill a single process
+  whose loop hangs; without it, a worker silent for `WORKER_SILENT_S` is only
+  logged (``worker_silent``): an overloaded loop is slow, not dead, and a
+  restart would only add its start-up to the load;
 - SIGTERM and the other stop signals are forwarded as SIGTERM to every worker
   (each machine applies its shutdown policy and writes its checkpoint); the
   parent exits 0 once every worker has, 70 when one ended otherwise; SIGHUP is
@@ -69,10 +71,10 @@ from compd.runtime.fleet import (
 from compd.runtime.sdnotify import Notifier, watchdog_interval_s
 from compd.sysexits import EX_CONFIG, EX_SOFTWARE
 
-__all__ = ["WORKER_WATCHDOG_S", "WorkerPool", "assign", "default_workers"]
+__all__ = ["WORKER_SILENT_S", "WorkerPool", "assign", "default_workers"]
 
-#: a worker's watchdog period when systemd gives the parent none
-WORKER_WATCHDOG_S = 30.0
+#: without systemd's watchdog: a worker silent this long is logged, never killed
+WORKER_SILENT_S = 60.0
 #: the worker's entry point
 WORKER_COMMAND: tuple[str, ...] = (sys.executable, "-m", "compd.runtime.worker_main")
 _COMPENSATING = re.compile(r"(\d+) compensating")
@@ -110,6 +112,7 @@ class Worker:
     port: int | None = None
     last_ping: float = 0.0
     compensating: int = 0
+    silent_logged: bool = False
     reload_pending: bool = False
     exit_codes: list[int] = field(default_factory=list)
 
@@ -140,8 +143,8 @@ class WorkerPool:
         self.stopping = asyncio.Event()
         self.ready = False
         self.rc = 0
-        #: the parent's watchdog period from systemd, else the workers' default
-        self.watchdog_s = watchdog_interval_s() or WORKER_WATCHDOG_S
+        #: systemd's watchdog period for the parent: each worker's too (None: none)
+        self.watchdog_s = watchdog_interval_s()
         self.metrics = PoolMetrics(self._views)
         self._tmp = tempfile.mkdtemp(prefix="compd-workers-")  # mode 0700
         by_name = {c.raw.machine.name: c for c in configs}
@@ -152,6 +155,12 @@ class WorkerPool:
             sock.bind(path)
             sock.setblocking(False)
             self.workers.append(Worker(k, [by_name[n] for n in names], sock, path))
+
+    def close(self) -> None:
+        """Close the notify sockets and remove their directory (`run` does, at its end)."""
+        for w in self.workers:
+            w.sock.close()
+        shutil.rmtree(self._tmp, ignore_errors=True)
 
     def _views(self) -> list[WorkerView]:
         return [w.view() for w in self.workers]
@@ -211,6 +220,9 @@ class WorkerPool:
                     self._signal(w, signal.SIGHUP)
             if fields.get("WATCHDOG") == "1":
                 w.last_ping = now
+                if w.silent_logged:
+                    w.silent_logged = False
+                    self.log.info("worker_answering", worker=w.index)
             status = fields.get("STATUS")
             if status is not None and (m := _COMPENSATING.search(status)):
                 w.compensating = int(m.group(1))
@@ -225,8 +237,10 @@ class WorkerPool:
     def _env(self, w: Worker) -> dict[str, str]:
         env = dict(os.environ)
         env["NOTIFY_SOCKET"] = w.path
-        env["WATCHDOG_USEC"] = str(int(self.watchdog_s * 1e6))
         env.pop("WATCHDOG_PID", None)
+        env.pop("WATCHDOG_USEC", None)
+        if self.watchdog_s is not None:
+            env["WATCHDOG_USEC"] = str(int(self.watchdog_s * 1e6))
         return env
 
     async def run(self) -> int:
@@ -266,8 +280,7 @@ class WorkerPool:
             self.metrics.stop()
             for w in self.workers:
                 loop.remove_reader(w.sock.fileno())
-                w.sock.close()
-            shutil.rmtree(self._tmp, ignore_errors=True)
+            self.close()
             signals.remove(loop, installed)
         self.log.info("pool_stopped", workers=len(self.workers), rc=self.rc,
                       restarts={w.index: len(w.exit_codes) for w in self.workers
@@ -289,7 +302,7 @@ class WorkerPool:
         running = self.metrics.worker_running.labels(worker=str(w.index))
         restarts = self.metrics.worker_restarts.labels(worker=str(w.index))
         while not self.stopping.is_set():
-            w.ready, w.port, w.compensating = False, None, 0
+            w.ready, w.port, w.compensating, w.silent_logged = False, None, 0, False
             started = self.clock()
             try:
                 w.proc = await self._spawn(w, serve)
@@ -331,6 +344,22 @@ class WorkerPool:
                 self.log.info("worker_restarting", worker=w.index,
                               restarts=len(w.exit_codes))
 
+    def _check_silence(self, w: Worker, now: float) -> None:
+        """A ready worker without WATCHDOG=1 for systemd's period is killed (restarted
+        by its supervisor); without systemd's watchdog, one silent for long is logged."""
+        if not w.ready or w.proc is None:
+            return
+        silent_s = now - w.last_ping
+        if self.watchdog_s is not None and silent_s > self.watchdog_s:
+            self.log.error("worker_hung", worker=w.index, silent_s=round(silent_s, 1),
+                           action="kill")
+            w.ready = False
+            with contextlib.suppress(ProcessLookupError):
+                w.proc.kill()
+        elif self.watchdog_s is None and silent_s > WORKER_SILENT_S and not w.silent_logged:
+            w.silent_logged = True
+            self.log.warning("worker_silent", worker=w.index, silent_s=round(silent_s, 1))
+
     async def _watch(self) -> None:
         """READY once every worker was ready; WATCHDOG and STATUS; kill hung workers."""
         interval = self.notifier.watchdog_interval_s()
@@ -344,12 +373,7 @@ class WorkerPool:
                 self.log.info("pool_ready", workers=len(self.workers),
                               machines=len(self.configs))
             for w in self.workers:
-                if w.ready and now - w.last_ping > self.watchdog_s and w.proc is not None:
-                    self.log.error("worker_hung", worker=w.index, silent_s=now - w.last_ping,
-                                   action="kill")
-                    w.ready = False
-                    with contextlib.suppress(ProcessLookupError):
-                        w.proc.kill()
+                self._check_silence(w, now)
             if self.ready and now - last_beat >= every:
                 last_beat = now
                 up = sum(1 for w in self.workers if w.ready)

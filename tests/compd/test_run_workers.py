@@ -274,3 +274,42 @@ def test_the_status_page_lists_a_down_workers_machines_as_off() -> None:
     assert [m["machine"] for m in doc["machines"]] == ["mill-a", "mill-b"]
     assert {m["state"] for m in doc["machines"]} == {"off"}
     assert all("restarting" in m["why"] for m in doc["machines"])
+
+
+class _Proc:
+    """A worker process as the pool sees it: killed or not."""
+
+    pid = 4242
+    returncode = None
+    killed = False
+
+    def kill(self) -> None:
+        self.killed = True
+
+
+@pytest.mark.parametrize(("watchdog_s", "silent_s", "killed", "event"), [
+    (5.0, 4.0, False, None),           # within systemd's period
+    (5.0, 6.0, True, "worker_hung"),   # past it: killed, as systemd would
+    (None, 59.0, False, None),
+    (None, 61.0, False, "worker_silent"),  # no watchdog: logged, never killed
+])
+async def test_a_silent_worker_is_killed_only_under_systemds_watchdog(
+        watchdog_s: float | None, silent_s: float, killed: bool, event: str | None) -> None:
+    from structlog.testing import capture_logs
+
+    from compd.runtime.workers import WorkerPool
+
+    pool = WorkerPool([], 1)
+    pool.watchdog_s = watchdog_s
+    w = pool.workers[0]
+    proc = _Proc()
+    w.proc, w.ready, w.last_ping = proc, True, 100.0  # type: ignore[assignment]
+    try:
+        with capture_logs() as logs:
+            pool._check_silence(w, 100.0 + silent_s)
+            pool._check_silence(w, 100.0 + silent_s + 1.0)  # logged once
+    finally:
+        pool.close()
+        pool.metrics.stop()
+    assert proc.killed is killed
+    assert [e["event"] for e in logs] == ([event] if event else [])
