@@ -29,8 +29,8 @@ HELP = "run the compensation daemon against the configured controller"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", metavar="CONFIG",
-                        help="daemon config file (TOML), or a directory: one process "
-                             "serving every *.toml in it, one machine each")
+                        help="daemon config file (TOML), or a directory: every *.toml "
+                             "in it, one machine each (see --workers)")
     parser.add_argument("--dry-run", action="store_true",
                         help="compute and log, write nothing to the controller or the state")
     parser.add_argument("--once", action="store_true",
