@@ -290,6 +290,7 @@ class WorkerPool:
     async def _spawn(self, w: Worker, serve: bool) -> asyncio.subprocess.Process:
         proc = await asyncio.create_subprocess_exec(
             *self.command, stdin=asyncio.subprocess.PIPE, env=self._env(w))
+        w.proc = proc  # before its READY=1 can arrive
         if proc.stdin is not None:  # asked for above
             proc.stdin.write(self._spec(w, serve))
             with contextlib.suppress(ConnectionError):
@@ -316,11 +317,14 @@ class WorkerPool:
                 running.set(1)
                 rc = await w.proc.wait()
                 running.set(0)
-                w.ready, w.port = False, None
+                was_ready, w.ready, w.port = w.ready, False, None
                 if w.proc.stdin is not None:
                     w.proc.stdin.close()
                 if self.stopping.is_set():
-                    if rc != 0:
+                    # a worker stopped before it was ready had started no machine yet:
+                    # SIGTERM's default action ended it, and that is clean
+                    clean = rc == 0 or (rc == -signal.SIGTERM and not was_ready)
+                    if not clean:
                         self.rc = EX_SOFTWARE
                         self.log.error("worker_stopped", worker=w.index, rc=rc)
                     return
