@@ -105,12 +105,14 @@ def run_directory(args: argparse.Namespace) -> int:
     configure_logging(json=as_json, level=tel.log_level, library_level=tel.library_log_level)
     log = {"json": as_json, "level": tel.log_level, "library_level": tel.library_log_level}
     drivers = build_drivers(configs)  # constructed, so checked: a refusal is 78
-    from compd.runtime.workers import WorkerPool, default_workers
+    if args.workers != 1:
+        from compd.runtime.workers import WorkerPool, default_workers
 
-    workers = min(args.workers or default_workers(), len(configs))
-    if workers > 1:
-        del drivers  # each worker builds its own machines' drivers
-        pool = WorkerPool(configs, workers, dry_run=args.dry_run, log_settings=log)
-        return asyncio.run(pool.run())
+        workers = min(args.workers or default_workers(), len(configs))
+        if workers > 1:
+            del drivers  # each worker builds its own machines' drivers
+            pool = WorkerPool(configs, workers, dry_run=args.dry_run, log_settings=log)
+            return asyncio.run(pool.run())
+    # --workers 1, or one machine, or one core: every machine in this process
     fleet = Fleet(configs, dry_run=args.dry_run, drivers=drivers)
     return asyncio.run(fleet.run())
