@@ -324,8 +324,10 @@ class WorkerPool:
                     # a worker stopped before it was ready had started no machine yet:
                     # SIGTERM's default action ended it, and that is clean
                     clean = rc == 0 or (rc == -signal.SIGTERM and not was_ready)
-                    if not clean:
-                        self.rc = EX_SOFTWARE
+                    if rc == EX_CONFIG and not self.ready:
+                        self.rc = EX_CONFIG  # it too refused its files at the start
+                    elif not clean:
+                        self.rc = self.rc or EX_SOFTWARE
                         self.log.error("worker_stopped", worker=w.index, rc=rc)
                     return
                 w.exit_codes.append(rc)

@@ -313,3 +313,19 @@ async def test_a_silent_worker_is_killed_only_under_systemds_watchdog(
         pool.metrics.stop()
     assert proc.killed is killed
     assert [e["event"] for e in logs] == ([event] if event else [])
+
+
+async def test_a_worker_refusing_its_files_before_the_pool_is_ready_refuses_the_start(
+        tmp_path: Path) -> None:
+    """A file edited between the parent's check and the worker's load: 78, as a
+    bad file at the start, rather than a pool that never becomes ready."""
+    from compd.runtime.fleet import load_machines
+    from compd.runtime.sdnotify import Notifier
+    from compd.runtime.workers import WorkerPool
+
+    for name, port in (("mill-a", 1502), ("mill-b", 1503)):
+        _write_machine(tmp_path, name, f"modbus://127.0.0.1:{port}")
+    refuse = [sys.executable, "-c", "import sys; sys.stdin.readline(); sys.exit(78)"]
+    pool = WorkerPool(load_machines(tmp_path), 2, notifier=Notifier(None), command=refuse)
+    assert await asyncio.wait_for(pool.run(), BOUND_S) == 78
+    assert not pool.ready
