@@ -76,8 +76,8 @@ def _events(log: Path) -> list[dict[str, Any]]:
     return out
 
 
-def _scrape(port: int) -> str:
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=30) as r:
+def _scrape(port: int, path: str = "/metrics") -> str:
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}{path}", timeout=30) as r:
         return str(r.read().decode())
 
 
@@ -88,8 +88,10 @@ async def test_two_workers_share_the_fleet_and_each_is_a_failure_domain(
     port = free_tcp_port("127.0.0.1")
     for name, sim in zip(NAMES, sims4, strict=True):
         # a 500 ms period, checkpoints only at the stop
-        _write_machine(d, name, sim.endpoint, metrics_port=port, time_scale=2.0,
-                       timeout_s=0.25, checkpoint_every=1_000_000)
+        path = _write_machine(d, name, sim.endpoint, metrics_port=port, time_scale=2.0,
+                              timeout_s=0.25, checkpoint_every=1_000_000)
+        if name != "mill-d":  # the page shows the machines that ask for it
+            path.write_text(path.read_text() + "\n[faces.http]\nenabled = true\n")
     sim_of = dict(zip(NAMES, sims4, strict=True))
     paths = {n: checkpoint_path(load_config(d / f"{n}.toml")) for n in NAMES}
     notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
@@ -149,6 +151,10 @@ async def test_two_workers_share_the_fleet_and_each_is_a_failure_domain(
         assert len(types) == len(set(types))  # one family per name
         assert 'compd_worker_running{worker="0"} 1.0' in body
         assert 'compd_worker_running{worker="1"} 1.0' in body
+        # one status page: every worker's machines that enable it, in name order
+        status = json.loads(await asyncio.to_thread(_scrape, port, "/status.json"))
+        assert [m["machine"] for m in status["machines"]] == ["mill-a", "mill-b", "mill-c"]
+        assert all(m["state"] != "off" for m in status["machines"])
 
         # SIGKILL worker 0: it is started again; worker 1's machines never stop
         os.kill(pid_of[0], signal.SIGKILL)
