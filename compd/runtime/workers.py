@@ -198,9 +198,7 @@ class WorkerPool:
         while True:
             try:
                 data = w.sock.recv(4096)
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError:
+            except OSError:  # none left (BlockingIOError), or the socket closed
                 return
             fields = dict(line.partition("=")[::2]
                           for line in data.decode("utf-8", "replace").splitlines())
