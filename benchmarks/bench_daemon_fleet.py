@@ -27,9 +27,20 @@ the ratios is the single machine (N = 1) measured the same way in the same
 run. The 1-minute load average is printed per step: other work on the same
 cores moves the figures.
 
+With --run-dir, each step is `compd run DIR --workers W` itself (the real
+parent, `compd.runtime.workers`, and its workers, or with W = 1 the one-process
+`compd.runtime.fleet`) over a directory of N machine files, every W of
+--workers in turn at each N of --sizes; the same timing hook is put around
+each machine's daemon inside the worker processes (`--pool-worker`). The
+window opens 3 s after the log shows every machine's first cycle; CPU and RSS are
+those of the parent plus its workers (RSS: the sum, and the largest process);
+the simulated controllers are served by --farms processes whatever W is.
+
 Run:  .venv/bin/python benchmarks/bench_daemon_fleet.py [--protocols modbus opcua]
       [--seconds 20] [--start 32] [--max 1024] [--workers 2] [--aligned]
 (about 2-3 minutes per protocol with the defaults; --seconds 60 for a longer run).
+      .venv/bin/python benchmarks/bench_daemon_fleet.py --run-dir --protocols modbus
+      --sizes 2000 --workers 1 2 [--farms 2]
 """
 
 from __future__ import annotations
@@ -49,6 +60,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import fleet_run_dir
 from daemon_bench_common import (
     TimedDaemon,
     TimedDriver,
@@ -250,19 +262,17 @@ class Step:
                 and self.incomplete <= 0.01 * max(1, self.cycles))
 
 
-def run_step(protocol: str, n: int, *, seconds: int, workers: int, aligned: bool,
-             checkpoint_every: int, work: Path) -> Step:
-    step_dir = work / f"{protocol}-{n}"
-    step_dir.mkdir(parents=True)
-    w = min(workers, n)
+def start_farms(protocol: str, n: int, w: int, step_dir: Path
+                ) -> tuple[list[subprocess.Popen[str]], list[dict[str, Any]]]:
+    """`w` sim farm processes serving `n` simulated controllers between them, and
+    the controllers' descriptions once every farm serves."""
     farms = [subprocess.Popen(
         [sys.executable, str(HERE), "--sim-farm", protocol,
          "--count", str(n // w + (k < n % w))],
         stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
         stderr=(step_dir / f"farm{k}.err").open("w"), text=True) for k in range(w)]
-    procs: list[subprocess.Popen[str]] = []
+    descs: list[dict[str, Any]] = []
     try:
-        descs: list[dict[str, Any]] = []
         for k, farm in enumerate(farms):
             line = farm.stdout.readline() if farm.stdout else ""
             if not line:
@@ -270,6 +280,22 @@ def run_step(protocol: str, n: int, *, seconds: int, workers: int, aligned: bool
                 tail = "".join((step_dir / f"farm{k}.err").read_text().splitlines(True)[-5:])
                 raise RuntimeError(f"a sim farm for {protocol} exited {rc}:\n{tail}")
             descs.extend(json.loads(line))
+    except BaseException:
+        for farm in farms:
+            farm.kill()
+            farm.wait()
+        raise
+    return farms, descs
+
+
+def run_step(protocol: str, n: int, *, seconds: int, workers: int, aligned: bool,
+             checkpoint_every: int, work: Path) -> Step:
+    step_dir = work / f"{protocol}-{n}"
+    step_dir.mkdir(parents=True)
+    w = min(workers, n)
+    farms, descs = start_farms(protocol, n, w, step_dir)
+    procs: list[subprocess.Popen[str]] = []
+    try:
         specs: list[dict[str, Any]] = [
             {"configs": [], "offsets_s": [], "seconds": seconds,
              "log": str(step_dir / f"worker{k}.log")} for k in range(w)]
@@ -345,7 +371,7 @@ def print_step(protocol: str, s: Step) -> None:
 
 def search(protocol: str, args: argparse.Namespace, work: Path) -> tuple[Step, int, Step | None]:
     def step(n: int) -> Step:
-        s = run_step(protocol, n, seconds=args.seconds, workers=args.workers,
+        s = run_step(protocol, n, seconds=args.seconds, workers=args.workers[0],
                      aligned=args.aligned, checkpoint_every=args.checkpoint_every,
                      work=work)
         print_step(protocol, s)
@@ -371,6 +397,22 @@ def search(protocol: str, args: argparse.Namespace, work: Path) -> tuple[Step, i
     return single, best, best_step
 
 
+def run_dir(args: argparse.Namespace) -> None:
+    """`compd run DIR --workers W` at each N of --sizes, each W of --workers in turn."""
+    print(f"compd run DIR --workers W at 1 Hz on {os.cpu_count()} CPUs, {args.farms} sim "
+          f"farms, {args.seconds} s window, checkpoint every {args.checkpoint_every}")
+    fleet_run_dir.print_header()
+    with tempfile.TemporaryDirectory(prefix="bench-daemon-fleet-") as tmp:
+        for protocol in args.protocols:
+            for n in args.sizes:
+                for w in args.workers:
+                    s = fleet_run_dir.run_step_run_dir(
+                        protocol, n, w, seconds=args.seconds,
+                        checkpoint_every=args.checkpoint_every, work=Path(tmp), here=HERE,
+                        start_farms=lambda d, n=n, p=protocol: start_farms(p, n, args.farms, d))
+                    fleet_run_dir.print_step(protocol, s)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--protocols", nargs="+", default=["modbus", "opcua"],
@@ -379,8 +421,20 @@ def main() -> None:
                         help="measured cycles (1 Hz) per machine per step")
     parser.add_argument("--start", type=int, default=32, help="first N after N = 1")
     parser.add_argument("--max", type=int, default=1024)
-    parser.add_argument("--workers", type=int, default=len(os.sched_getaffinity(0)),
-                        help="daemon worker processes (default: the CPUs)")
+    parser.add_argument("--workers", type=int, nargs="+",
+                        default=[len(os.sched_getaffinity(0))],
+                        help="daemon worker processes (default: the CPUs); with --run-dir "
+                             "compd run's --workers, each in turn")
+    parser.add_argument("--run-dir", action="store_true",
+                        help="measure `compd run DIR --workers W` itself at each --sizes")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[2000],
+                        help="with --run-dir: the numbers of machines")
+    parser.add_argument("--farms", type=int, default=len(os.sched_getaffinity(0)),
+                        help="with --run-dir: sim farm processes (default: the CPUs)")
+    parser.add_argument("--pool", metavar="DIR", help=argparse.SUPPRESS)
+    parser.add_argument("--pool-workers", type=int, default=1, help=argparse.SUPPRESS)
+    parser.add_argument("--pool-out", help=argparse.SUPPRESS)
+    parser.add_argument("--pool-worker", metavar="OUT", help=argparse.SUPPRESS)
     parser.add_argument("--checkpoint-every", type=int, default=20,
                         help="state.checkpoint_every (default 20, so that each daemon "
                              "checkpoints (fsync) once in a 20 s step: 3x the production "
@@ -397,7 +451,14 @@ def main() -> None:
     if args.worker:
         _worker_main(args)
         return
-    print(f"fleet at 1 Hz on {os.cpu_count()} CPUs, {args.workers} daemon workers, "
+    if args.pool_worker:
+        sys.exit(fleet_run_dir.pool_worker_main(args.pool_worker))
+    if args.pool:
+        sys.exit(fleet_run_dir.pool_main(args.pool, args.pool_workers, args.pool_out, HERE))
+    if args.run_dir:
+        run_dir(args)
+        return
+    print(f"fleet at 1 Hz on {os.cpu_count()} CPUs, {args.workers[0]} daemon workers, "
           f"{args.seconds} s window per step, checkpoint every "
           f"{args.checkpoint_every}, phases "
           f"{'aligned' if args.aligned else 'spread over the period'}")

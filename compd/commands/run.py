@@ -1,8 +1,9 @@
 """`compd run CONFIG [--dry-run] [--once]`: the compensation daemon.
 
-`compd run DIR`: one process serving every ``*.toml`` in DIR, each machine its
-own failure domain (`compd.runtime.fleet`); 78 when any file is bad (naming it),
-0 after SIGTERM.
+`compd run DIR`: every ``*.toml`` in DIR, each machine its own failure domain
+(`compd.runtime.fleet`), spread over ``--workers N`` processes (default: the
+cores; `compd.runtime.workers`; ``--workers 1``: all in this one process); 78
+when any file is bad (naming it), 0 after SIGTERM.
 
 Exit status: 0 after SIGTERM/SIGINT (checkpoint written, shutdown policy
 applied), 78 on an invalid configuration (systemd does not restart it),
@@ -20,19 +21,24 @@ import argparse
 import asyncio
 import sys
 
-from compd.sysexits import EX_TEMPFAIL
+from compd.argtypes import count
+from compd.sysexits import EX_TEMPFAIL, EX_USAGE
 
 HELP = "run the compensation daemon against the configured controller"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", metavar="CONFIG",
-                        help="daemon config file (TOML), or a directory: one process "
-                             "serving every *.toml in it, one machine each")
+                        help="daemon config file (TOML), or a directory: every *.toml "
+                             "in it, one machine each (see --workers)")
     parser.add_argument("--dry-run", action="store_true",
                         help="compute and log, write nothing to the controller or the state")
     parser.add_argument("--once", action="store_true",
                         help="run one cycle, print it as JSON and exit")
+    parser.add_argument("--workers", metavar="N", type=count(1, 1024), default=None,
+                        help="with a directory: spread its machines over N worker "
+                             "processes, each restarted alone (default: the cores; 1: "
+                             "every machine in this one process)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -40,6 +46,10 @@ def run(args: argparse.Namespace) -> int:
 
     if Path(args.config).is_dir():
         return run_directory(args)
+    if args.workers is not None:
+        print("compd run: --workers takes a directory of machine configs, not one file",
+              file=sys.stderr)
+        return EX_USAGE
     from compd.config.loader import load_config
 
     cfg = load_config(args.config)  # ConfigError -> 78 in compd.cli
@@ -78,11 +88,11 @@ def run(args: argparse.Namespace) -> int:
 
 def run_directory(args: argparse.Namespace) -> int:
     """`compd run DIR`: every *.toml in DIR, one machine each, in this one process
-    (compd.runtime.fleet). A bad file refuses the whole start (78, naming it)."""
+    (compd.runtime.fleet) or over --workers processes (compd.runtime.workers). A
+    bad file refuses the whole start (78, naming it)."""
     from pathlib import Path
 
     from compd.runtime.fleet import Fleet, build_drivers, load_machines
-    from compd.sysexits import EX_USAGE
 
     if args.once:
         print("compd run: --once takes one config file, not a directory", file=sys.stderr)
@@ -91,7 +101,18 @@ def run_directory(args: argparse.Namespace) -> int:
     from compd.faces.telemetry import configure_logging
 
     tel = configs[0].raw.telemetry
-    configure_logging(json=None if tel.log_format == "auto" else tel.log_format == "json",
-                      level=tel.log_level, library_level=tel.library_log_level)
-    fleet = Fleet(configs, dry_run=args.dry_run, drivers=build_drivers(configs))
+    as_json = None if tel.log_format == "auto" else tel.log_format == "json"
+    configure_logging(json=as_json, level=tel.log_level, library_level=tel.library_log_level)
+    log = {"json": as_json, "level": tel.log_level, "library_level": tel.library_log_level}
+    drivers = build_drivers(configs)  # constructed, so checked: a refusal is 78
+    if args.workers != 1:
+        from compd.runtime.workers import WorkerPool, default_workers
+
+        workers = min(args.workers or default_workers(), len(configs))
+        if workers > 1:
+            del drivers  # each worker builds its own machines' drivers
+            pool = WorkerPool(configs, workers, dry_run=args.dry_run, log_settings=log)
+            return asyncio.run(pool.run())
+    # --workers 1, or one machine, or one core: every machine in this process
+    fleet = Fleet(configs, dry_run=args.dry_run, drivers=drivers)
     return asyncio.run(fleet.run())

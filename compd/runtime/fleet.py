@@ -168,6 +168,10 @@ class Fleet:
         self.daemons: dict[str, Daemon] = {}
         self.restarts: dict[str, int] = dict.fromkeys(self.configs, 0)
         self.metrics = FleetMetrics(self._machine_metrics)
+        #: where /metrics is served: the files' endpoint; a worker of `compd run DIR
+        #: --workers N` serves on a free loopback port for its parent
+        #: (`compd.runtime.worker_main`)
+        self.endpoint = metrics_endpoint(configs)
         self.stopping = asyncio.Event()
         self.log = structlog.get_logger("compd")
 
@@ -216,7 +220,7 @@ class Fleet:
         # not the main thread: none installed, the caller stops us with request_stop()
         installed = signals.install(loop, stop=self.request_stop, reload=self.request_reload,
                                     ignored=self.signal_ignored)
-        endpoint = metrics_endpoint(list(self.configs.values()))
+        endpoint = self.endpoint
         if endpoint is not None:
             try:
                 self.metrics.start_http(endpoint[1], endpoint[0], self._status_pages(),

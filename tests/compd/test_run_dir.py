@@ -217,7 +217,7 @@ async def test_sigterm_stops_every_machine_with_its_checkpoint(
     paths = [checkpoint_path(load_config(d / f"{n}.toml")) for n in NAMES]
     env = {**os.environ, "NOTIFY_SOCKET": ""}
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "compd", "run", str(d), env=env,
+        sys.executable, "-m", "compd", "run", str(d), "--workers", "1", env=env,
         stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE)
     try:
         for sim in sims:  # every machine is writing its heartbeat (a generous bound)
