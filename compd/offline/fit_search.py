@@ -81,6 +81,7 @@ def progress_bar(enabled: bool) -> Callable[[int, int], None] | None:
 def search_inputs(args: Any, records: list[Record], ys: list[Any], radius: float
                   ) -> tuple[list[str], list[dict[str, Any]]]:
     """(chosen channels, table of subsets tried)."""
+    from compd.offline.fit_select import excluded_rows
     from models.identify.segments import Segments
     from models.identify.subsets import search_subsets
 
@@ -102,7 +103,8 @@ def search_inputs(args: Any, records: list[Record], ys: list[Any], radius: float
             searches[screen] = search_subsets(y, cands, max_terms=args.max_terms,
                                               na_range=args.orders, nb_range=args.orders,
                                               segments=seg, radius=radius, folds=args.folds,
-                                              screen=screen, progress=show)
+                                              screen=screen, progress=show,
+                                              exclude=excluded_rows(args))
     except ValueError as exc:
         raise ModelError(f"input search failed: {exc}") from None
     if show is not None:

@@ -28,6 +28,16 @@ VALIDATION_WORDS = {"blocked": "blocked cross-validation",
                     "both": "blocked and forward validation pooled"}
 
 
+def excluded_rows(args: argparse.Namespace) -> npt.NDArray[np.bool_] | None:
+    """Rows of the records (concatenated) masked from every loss, or None.
+    No flag sets it: a caller that scores the whole procedure on rows it
+    holds out (benchmarks/bench_real_record.py) sets ``args.exclude_rows`` so
+    that the model is still simulated through them from each record's start,
+    as the daemon runs it, and never fitted nor validated on them."""
+    ex = getattr(args, "exclude_rows", None)
+    return None if ex is None else np.asarray(ex, dtype=bool)
+
+
 def run_selection(args: argparse.Namespace, y: FloatArray, us: list[FloatArray], seg: Segments,
                   radius: float, holdout: Any, names: list[str] | None = None) -> Selection:
     """The selection for `--structure` (auto: every structure)."""
@@ -38,7 +48,8 @@ def run_selection(args: argparse.Namespace, y: FloatArray, us: list[FloatArray],
     try:
         return select_structure(y, us, na_range=args.orders, nb_range=args.orders,
                                 segments=seg, radius=radius, folds=args.folds,
-                                structures=structures, holdout=h, names=names)
+                                structures=structures, holdout=h, names=names,
+                                exclude=excluded_rows(args))
     except ValueError as exc:
         raise ModelError(f"identification failed: {exc}") from None
 

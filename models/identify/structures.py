@@ -142,6 +142,50 @@ class _Data:
     blocked: list[tuple[BoolArray, BoolArray]] | None = None
     #: held-out records (y, inputs, segments) scoring instead of the folds
     holdout: tuple[FloatArray, list[FloatArray], Segments] | None = None
+    #: rows the loss may use (None: every row); the simulation always runs
+    #: over every row, the rows outside are only never fitted nor scored
+    usable: BoolArray | None = None
+
+    @property
+    def every(self) -> BoolArray:
+        """The rows a final estimate is fitted on: every usable row."""
+        return self.usable if self.usable is not None else np.ones(self.y.size, dtype=bool)
+
+
+def make_data(y: FloatArray, inputs: Sequence[FloatArray], seg: Segments, radius: float,
+              folds: int, validation: str, exclude: BoolArray | None = None) -> _Data:
+    """The data and folds of a validation `scheme`. `exclude`: rows masked from
+    every loss (never fitted, never scored; a held-out block of a benchmark),
+    while every model is still simulated from each record's start through
+    them. The folds are laid over the rows left, in order, as if the excluded
+    ones were cut out: a record's first rows still always train, and a
+    forward fold trains on the rows left before its block."""
+    d = _Data(np.asarray(y, dtype=np.float64), [np.asarray(u, dtype=np.float64) for u in inputs],
+              seg, radius, split_masks(seg, folds, validation),
+              blocked=_blocked(seg, folds, validation))
+    if exclude is not None and bool(np.any(exclude)):
+        keep = ~np.asarray(exclude, dtype=bool)
+        lengths = [int(keep[s:e].sum()) for s, e in seg.bounds]
+        if min(lengths) < folds + 1:
+            raise ValueError(f"a record has {min(lengths)} rows left outside the excluded "
+                             f"ones, too few for {folds + 1} blocks")
+        left = Segments.from_lengths(lengths)
+        at = np.flatnonzero(keep)
+
+        def spread(splits: list[tuple[BoolArray, BoolArray]]
+                   ) -> list[tuple[BoolArray, BoolArray]]:
+            out = []
+            for t, v in splits:
+                ft, fv = np.zeros(d.y.size, dtype=bool), np.zeros(d.y.size, dtype=bool)
+                ft[at], fv[at] = t, v
+                out.append((ft, fv))
+            return out
+
+        d.usable = keep
+        d.splits = spread(split_masks(left, folds, validation))
+        blocked = _blocked(left, folds, validation)
+        d.blocked = None if blocked is None else spread(blocked)
+    return d
 
 
 def _blocked(seg: Segments, folds: int, validation: str
@@ -412,8 +456,8 @@ def _ridge(d: _Data, shared: OeModel | None, train: BoolArray, lam: float) -> Oe
 
 
 def _final_fit(d: _Data, m: OeModel) -> float:
-    every = np.ones(d.y.size, dtype=bool)
-    return fit_pct(d.y, _simulate(d, m, every, d.y, d.us, d.seg))
+    every = d.every
+    return fit_pct(d.y[every], _simulate(d, m, every, d.y, d.us, d.seg)[every])
 
 
 def arx_orders(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int]
@@ -465,20 +509,19 @@ def order_search_result(y: FloatArray, inputs: Sequence[FloatArray], *,
                         na_range: tuple[int, int], nb_range: tuple[int, int],
                         segments: Segments | None = None, radius: float = 1.0,
                         folds: int = DEFAULT_FOLDS, validation: str = DEFAULT_VALIDATION,
-                        names: Sequence[str] | None = None) -> tuple[float, str | None]:
+                        names: Sequence[str] | None = None, exclude: BoolArray | None = None
+                        ) -> tuple[float, str | None]:
     """(the validated fit % of the best Steiglitz–McBride estimate over the
     orders (`choose_orders`), why the estimate on every row is implausible
     (`models.identify.checks.implausible`) or None). -inf when no order gives
     a stable model."""
     seg = segments if segments is not None else Segments.single(np.asarray(y).size)
-    d = _Data(np.asarray(y, dtype=np.float64), [np.asarray(u, dtype=np.float64) for u in inputs],
-              seg, radius, split_masks(seg, folds, validation),
-              blocked=_blocked(seg, folds, validation))
+    d = make_data(y, inputs, seg, radius, folds, validation, exclude)
     try:
         na, nb, _ = choose_orders(d, na_range, nb_range)
     except ValueError as exc:
         return -math.inf, str(exc)
-    m = _sm(d, na, nb, np.ones(d.y.size, dtype=bool))
+    m = _sm(d, na, nb, d.every)
     if m is None:
         return d.best_order_fit, "unstable on every row"
     labels = list(names) if names is not None else [f"input {i + 1}" for i in range(len(d.us))]
@@ -504,18 +547,18 @@ def select_structure(y: FloatArray, inputs: Sequence[FloatArray], *,
                      structures: Sequence[str] = STRUCTURES, margin_pct: float = 0.5,
                      max_iter: int = 40,
                      holdout: tuple[FloatArray, Sequence[FloatArray], Segments] | None = None,
-                     names: Sequence[str] | None = None) -> Selection:
+                     names: Sequence[str] | None = None, exclude: BoolArray | None = None
+                     ) -> Selection:
     """Cross-validate every structure at the ARX-chosen orders; re-estimate on
     every row; choose (module docstring). With `holdout` records the
     candidates train on every row and are scored on those records instead
-    (initial conditions from each one's first half, as `compd replay`)."""
+    (initial conditions from each one's first half, as `compd replay`).
+    `exclude`: rows masked from every loss (`make_data`)."""
     unknown = sorted(set(structures) - set(STRUCTURES))
     if unknown:
         raise ValueError(f"unknown structure(s) {unknown}; known: {list(STRUCTURES)}")
     seg = segments if segments is not None else Segments.single(np.asarray(y).size)
-    d = _Data(np.asarray(y, dtype=np.float64), [np.asarray(u, dtype=np.float64) for u in inputs],
-              seg, radius, split_masks(seg, folds, validation),
-              blocked=_blocked(seg, folds, validation))
+    d = make_data(y, inputs, seg, radius, folds, validation, exclude)
     if holdout is not None:
         d.holdout = (np.asarray(holdout[0], dtype=np.float64),
                      [np.asarray(u, dtype=np.float64) for u in holdout[1]], holdout[2])
@@ -576,7 +619,7 @@ def _candidates_at(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int
     """Every structure validated at the orders chosen in the ranges, each
     final estimate checked (`implausible`); na = 0: the static model."""
     span = float(np.ptp(d.y))
-    every = np.ones(d.y.size, dtype=bool)
+    every = d.every
     if na_range == (0, 0):
         d.initial = True
         val, per = _score(d, functools.partial(_static_fit, d))
