@@ -176,7 +176,7 @@ def textbook(d: dict[str, FloatArray], out: str, held: BoolArray) -> tuple[Float
     temps = [c for c in d if c.startswith("t") and c.endswith("_degC")]
     rel = {t: d[t] - d[t][0] for t in temps}
     cal = np.flatnonzero(~held)
-    cut = cal[int(round(cal.size * (1.0 - INNER_FRACTION)))]
+    cut = cal[round(cal.size * (1.0 - INNER_FRACTION))]
     inner_train = ~held & (np.arange(y.size) < cut)
     inner_score = ~held & (np.arange(y.size) >= cut)
     best: tuple[float, tuple[str, ...]] | None = None

@@ -234,6 +234,7 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
             ) -> tuple[list[Term], list[dict[str, Any]]]:
     import numpy as np
 
+    from compd.offline.fit_select import FitTerm
     from models.compensation import Term
     from models.errors import ModelError
     from models.identify.checks import build_checked_tf
@@ -264,12 +265,13 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
         summary = {"structure": "per-term-oe (greedy search)",
                    "validation_fit_percent": fit.oe_validation_fit_pct,
                    "arx_fit_percent": fit.arx_fit_pct, "oe_fit_percent": fit.oe.fit_pct}
-        nums, dens, orders = fit.oe.nums, fit.oe.dens, fit.orders
+        fitted = [FitTerm(n, inputs, u, tuple(num), tuple(den), rl) for (n, inputs), u, num,
+                  den, rl in zip(specs, us, fit.oe.nums, fit.oe.dens, rel, strict=True)]
     else:
         from compd.offline.fit_select import select_for_fit, worse_than_none
 
-        nums, dens, orders, summary = select_for_fit(args, y, us, seg, radius, holdout,
-                                                     [n for n, _ in specs])
+        fitted, summary = select_for_fit(args, y, us, seg, radius, holdout, specs, rel,
+                                         getattr(args, "search_pool", None))
         # for --adaptation: how fast the error moves on rows not calibrated on
         args.heldout_residuals = summary.pop("_heldout_residuals")
         worse = worse_than_none(summary)
@@ -281,8 +283,9 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
     y_span = float(np.ptp(y))
     terms: list[Term] = []
     info: list[dict[str, Any]] = []
-    for (name, inputs), u, num, den, (nb, na), rl in zip(specs, us, nums, dens, orders, rel,
-                                                         strict=True):
+    for ft in fitted:
+        name, inputs, u, num, den, rl = ft.name, ft.inputs, ft.u, ft.num, ft.den, ft.relative
+        nb, na = len(num), len(den) - 1
         check = build_checked_tf(num, den, name, max_pole=radius, period_s=period,
                                  input_span=float(np.ptp(u)), output_span=y_span)
         terms.append(Term(name=name, inputs=inputs, dynamics=check.tf, relative=rl))
@@ -298,8 +301,8 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
                      "selection": summary})
     from models.diagnostics import cancelling_terms
 
-    for w in cancelling_terms([n for n, _ in specs], us, [t["dc_gain_um_per_k"] for t in info],
-                              y_span):
+    for w in cancelling_terms([t.name for t in fitted], [t.u for t in fitted],
+                              [t["dc_gain_um_per_k"] for t in info], y_span):
         print(f"compd fit: warning: {w}", file=sys.stderr)
     return terms, info
 
@@ -421,6 +424,11 @@ def _provenance(args: argparse.Namespace, records: list[Record],
             sel = t["selection"]
             prov["structure"] = sel["structure"]
             prov["validation_fit_percent"] = sel["validation_fit_percent"]
+            if "stability" in sel:
+                from compd.offline.fit_hedge import stability_lines
+
+                prov["choice_stability"] = sel["stability"]["share"]
+                prov["choice_stability_text"] = [ln.strip() for ln in stability_lines(sel)]
             if "candidates" in sel:
                 prov["runners_up"] = [f"{c['structure']}: validation "
                                       f"{c['validation_fit_percent']:.2f} %"
@@ -587,9 +595,11 @@ def run(args: argparse.Namespace) -> int:
 
         print("\n".join(table_lines(args.search_table, args.search_chosen)))
     if info and info[0]["kind"] == "tf" and "candidates" in info[0]["selection"]:
+        from compd.offline.fit_hedge import stability_lines
         from compd.offline.fit_select import selection_lines
 
-        print("\n".join(selection_lines(info[0]["selection"])))
+        print("\n".join(selection_lines(info[0]["selection"])
+                        + stability_lines(info[0]["selection"])))
     elif info and info[0]["kind"] == "tf":
         head = info[0]
         print(f"  ARX fit {head['arx_fit_percent']:.2f} %, output-error fit "

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -109,22 +110,47 @@ def worse_than_none(summary: dict[str, Any]) -> str | None:
             "µm): compensation would make the machine worse")
 
 
+@dataclass(frozen=True)
+class FitTerm:
+    """One term of the model to write: a channel combination, its input as
+    fitted, its transfer function."""
+
+    name: str
+    inputs: dict[str, float]
+    u: FloatArray
+    num: tuple[float, ...]
+    den: tuple[float, ...]
+    relative: bool
+
+
 def select_for_fit(args: argparse.Namespace, y: FloatArray, us: list[FloatArray],
-                   seg: Segments, radius: float, holdout: Any, names: list[str] | None = None
-                   ) -> tuple[tuple[tuple[float, ...], ...], tuple[tuple[float, ...], ...],
-                              tuple[tuple[int, int], ...], dict[str, Any]]:
-    """(nums, dens, orders per term, summary) of the chosen structure. The
-    summary's ``_heldout_residuals`` (the chosen structure's residue on the rows
-    each fold's model was not calibrated on, arrays) is for the caller to take out
-    before the summary is written anywhere."""
+                   seg: Segments, radius: float, holdout: Any,
+                   specs: list[tuple[str, dict[str, float]]], rel: list[bool],
+                   pool: dict[str, FloatArray] | None = None
+                   ) -> tuple[list[FitTerm], dict[str, Any]]:
+    """(terms, summary) of the chosen model: the chosen structure on the
+    inputs of `specs`, or, when that choice is not stable across resampled
+    held-out blocks, the leading candidates averaged (`compd.offline.
+    fit_hedge`; the textbook ARX on a pair of `pool`, temperatures relative to
+    their first sample, is always one of them). The summary's
+    ``_heldout_residuals`` (the residue on the rows each fold's model was not
+    calibrated on, arrays) is for the caller to take out before the summary is
+    written anywhere."""
+    from compd.offline.fit_hedge import hedge_choice
+
+    names = [n for n, _ in specs]
     sel = run_selection(args, y, us, seg, radius, holdout, names)
     how = "held-out records" if holdout is not None else \
         f"{VALIDATION_WORDS[DEFAULT_VALIDATION]}, {args.folds} folds"
     summary = summarise(sel, args.structure, how)
     model = summary.pop("_model")
-    dens = model.term_dens()
-    orders = tuple((len(a), len(b) - 1) for a, b in zip(model.nums, dens, strict=True))
-    return model.nums, dens, orders, summary
+    terms = [FitTerm(n, inputs, u, num, den, r) for (n, inputs), u, num, den, r
+             in zip(specs, us, model.nums, model.term_dens(), rel, strict=True)]
+    if holdout is not None:
+        return terms, summary
+    if pool is None:
+        pool = {n: u for (n, _), u, r in zip(specs, us, rel, strict=True) if r}
+    return hedge_choice(args, y, seg, radius, sel, specs, us, rel, pool, terms, summary)
 
 
 def selection_lines(summary: dict[str, Any]) -> list[str]:

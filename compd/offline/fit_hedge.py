@@ -1,0 +1,174 @@
+"""`compd fit`'s bet on its choice, measured: how stable the chosen
+structure is against the other validated candidates and the textbook ARX
+(`models.identify.stability`, `models.identify.textbook`), and, when it is
+not stable, the leading candidates averaged into the model written.
+
+Every candidate's residue on the rows each fold held out is cut into blocks;
+the stability is the share of resampled draws of those blocks that the
+chosen candidate wins. Below `models.identify.stability.STABLE_SHARE` the
+model written is the share-weighted sum of the candidates leading the draws:
+its terms are theirs, numerators scaled by the weights (terms on the same
+inputs over the same denominator merged into one). Its residue on the
+held-out rows is the same weighted sum, so the refusal of a model worse than
+no compensation (`compd.offline.fit_select.worse_than_none`) judges what is
+written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+
+from models.identify.arx import fit_pct
+from models.identify.segments import Segments
+from models.identify.stability import DRAWS, block_errors, hedge, stability
+from models.identify.structures import DEFAULT_VALIDATION, Candidate, Selection, make_data
+from models.identify.textbook import textbook
+from models.identify.validate import forced_response
+
+if TYPE_CHECKING:
+    from compd.offline.fit_select import FitTerm
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def _label(c: Candidate, names: list[str]) -> str:
+    return f"{c.structure}{f' ({c.detail})' if c.detail else ''} on {' + '.join(names)}"
+
+
+def _merge(terms: list[FitTerm]) -> list[FitTerm]:
+    """Terms on the same inputs over the same denominator summed into one;
+    names kept unique."""
+    from compd.offline.fit_select import FitTerm
+
+    merged: dict[tuple[Any, ...], FitTerm] = {}
+    for t in terms:
+        key = (tuple(sorted(t.inputs.items())), t.relative, t.den)
+        old = merged.get(key)
+        if old is None:
+            merged[key] = t
+            continue
+        n = max(len(old.num), len(t.num))
+        num = np.zeros(n)
+        num[:len(old.num)] += old.num
+        num[:len(t.num)] += t.num
+        merged[key] = FitTerm(old.name, old.inputs, old.u, tuple(float(v) for v in num),
+                              old.den, old.relative)
+    out: list[FitTerm] = []
+    used: set[str] = set()
+    for t in merged.values():
+        name, k = t.name, 1
+        while name in used:
+            k += 1
+            name = f"{t.name}.{k}"
+        used.add(name)
+        out.append(FitTerm(name, t.inputs, t.u, t.num, t.den, t.relative))
+    return out
+
+
+def hedge_choice(args: argparse.Namespace, y: FloatArray, seg: Segments, radius: float,
+                 sel: Selection, specs: list[tuple[str, dict[str, float]]],
+                 us: list[FloatArray], rel: list[bool], pool: dict[str, FloatArray],
+                 terms: list[FitTerm], summary: dict[str, Any]
+                 ) -> tuple[list[FitTerm], dict[str, Any]]:
+    """(terms, summary) with the stability said and, when the choice is not
+    stable and the structure was not forced, the hedge written."""
+    from compd.offline.channel_kind import is_rate_channel
+    from compd.offline.fit_select import FitTerm, excluded_rows
+
+    names = [n for n, _ in specs]
+    chosen = sel.chosen
+    if args.structure not in ("auto", "arx"):
+        chosen = next((c for c in sel.candidates if c.structure == args.structure), chosen)
+    cands = [c for c in sel.candidates if c.heldout_residuals and (
+        c is chosen or (not c.rejected and math.isfinite(c.validation_fit_pct)))]
+    if chosen not in cands:
+        return terms, summary
+    labels = [_label(c, names) for c in cands]
+    errors = [block_errors(c.heldout_residuals) for c in cands]
+    residuals = [c.heldout_residuals for c in cands]
+    members: list[list[FitTerm]] = [
+        [FitTerm(n, inputs, u, num, den, r) for (n, inputs), u, num, den, r
+         in zip(specs, us, c.model.nums, c.model.term_dens(), rel, strict=True)] for c in cands]
+    for alt_names, alt in getattr(args, "search_alternatives", []):
+        if sorted(alt_names) == sorted(names):
+            continue
+        alt_us = [args.search_inputs[n] for n in alt_names]
+        for c in alt.candidates:
+            if c.rejected or not math.isfinite(c.validation_fit_pct) or \
+                    len(c.heldout_residuals) != len(residuals[0]):
+                continue
+            labels.append(_label(c, alt_names))
+            errors.append(block_errors(c.heldout_residuals))
+            residuals.append(c.heldout_residuals)
+            members.append([FitTerm(n, {n: 1.0}, u, num, den, not is_rate_channel(n))
+                            for n, u, num, den in zip(alt_names, alt_us, c.model.nums,
+                                                      c.model.term_dens(), strict=True)])
+    pool_names = list(pool)
+    if pool_names:
+        d = make_data(y, [pool[n] for n in pool_names], seg, radius, args.folds,
+                      DEFAULT_VALIDATION, excluded_rows(args))
+        tb = textbook(d, [pool[n] for n in pool_names])
+        if tb is not None and len(tb.residuals) == len(residuals[0]):
+            pair = [pool_names[i] for i in tb.inputs]
+            dens = tb.model.term_dens()
+            members.append([FitTerm(pool_names[i], {pool_names[i]: 1.0}, pool[pool_names[i]],
+                                    num, den, True)
+                            for i, num, den in zip(tb.inputs, tb.model.nums, dens, strict=True)])
+            labels.append(f"textbook ARX(2,3) on {' + '.join(pair)}")
+            errors.append(block_errors(tb.residuals))
+            residuals.append(tb.residuals)
+            every = d.every
+            sim = forced_response(tb.model.nums, tb.model.dens, tb.model.groups,
+                                  [pool[n] for n in pair], seg)
+            summary["candidates"].append({
+                "structure": "textbook", "validation_fit_percent": tb.validation_fit_pct,
+                "fit_percent": fit_pct(y[every], sim[every]),
+                "parameters": tb.model.n_params,
+                "detail": f"ARX(2,3) on {' + '.join(pair)}, no level, from rest"})
+    st = stability(errors)
+    at = cands.index(chosen)
+    weights = hedge(st.shares, at) if args.structure == "auto" else [(at, 1.0)]
+    info: dict[str, Any] = {
+        "share": st.shares[at], "chosen": labels[at], "blocks": st.blocks, "draws": DRAWS,
+        "block_wins": st.block_wins[at],
+        "shares": [{"candidate": lab, "share": s} for lab, s in zip(labels, st.shares,
+                                                                     strict=True)],
+        "hedge": [{"candidate": labels[i], "weight": w} for i, w in weights]
+        if weights != [(at, 1.0)] else []}
+    summary["stability"] = info
+    if not info["hedge"]:
+        return terms, summary
+    out = _merge([FitTerm(t.name, t.inputs, t.u, tuple(w * v for v in t.num), t.den,
+                          t.relative) for i, w in weights for t in members[i]])
+    blocks = tuple(sum((w * residuals[i][b] for i, w in weights), np.zeros(len(residuals[0][b])))
+                   for b in range(len(residuals[0])))
+    count = sum(r.size for r in blocks)
+    summary["_heldout_residuals"] = blocks
+    summary["heldout_rms_um"] = math.sqrt(sum(float(np.sum(r ** 2)) for r in blocks) / count)
+    summary["structure"] = "average of " + ", ".join(
+        f"{labels[i]} ×{w:.2f}" for i, w in weights)
+    return out, summary
+
+
+def stability_lines(summary: dict[str, Any]) -> list[str]:
+    """What `compd fit` prints about how stable its choice was."""
+    st = summary.get("stability")
+    if not st:
+        return []
+    out = [f"  stability of the choice: {st['chosen']} wins {st['share'] * 100:.0f} % of "
+           f"{st['draws']} resampled draws of {st['blocks']} held-out blocks (alone on "
+           f"{st['block_wins'] * 100:.0f} % of the blocks)"]
+    others = sorted((s for s in st["shares"] if s["candidate"] != st["chosen"]),
+                    key=lambda s: -s["share"])[:3]
+    if others:
+        out.append("    others: " + "; ".join(f"{s['candidate']} {s['share'] * 100:.0f} %"
+                                             for s in others))
+    if st["hedge"]:
+        out.append("  not stable: the model written averages "
+                   + " + ".join(f"{h['weight']:.2f} × {h['candidate']}" for h in st["hedge"]))
+    return out
