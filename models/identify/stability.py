@@ -20,8 +20,10 @@ difference-equation models is again one: its terms are the members' terms,
 numerators scaled by the weights, and the daemon steps them as any other.
 
 Worked number: two candidates, four blocks with squared errors (1, 1, 1, 5)
-and (2, 2, 2, 1): the first wins three blocks of four; a draw holding the
-fourth block twice goes to the second.
+and (2, 2, 2, 1): the first wins three blocks of four, yet every draw
+holding the fourth block goes to the second, 1 - (3/4)^4 = 68 % of them: a
+choice that wins most blocks by a little and loses one by much is not
+stable.
 """
 
 from __future__ import annotations
