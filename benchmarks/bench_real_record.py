@@ -38,8 +38,11 @@ that ratio over every block (the goals: worst ≤ 1, geometric mean ≤ 0.7),
 with the stability `compd fit` reports for its choice. A default is chosen
 on this whole table, never on one family of blocks.
 
+``--shop 1,2,3,4,5``: the same protocol on the simulated shop machine
+(`compd sim --machine shop --hours 48 --period-s 60`), day 2 held out.
+
 Run: OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_real_record.py
-[--blocks NAME,NAME…] [ch1 ch3 …]
+[--blocks NAME,NAME…] [--shop SEEDS] [ch1 ch3 …]
 """
 
 from __future__ import annotations
@@ -68,6 +71,8 @@ BoolArray = npt.NDArray[np.bool_]
 
 RECORD = Path(__file__).resolve().parent.parent / "tests" / "data" / "fl_thermal" / \
     "calibration.csv"
+#: more `compd fit` arguments (--fit-args), to judge another default on the whole table
+FIT_ARGS: list[str] = []
 CHANNELS = ("ch1_um", "ch2_um", "ch3_um", "ch4_um", "ch5_um")
 ARX_NA, ARX_NB = 2, 3
 #: the baseline's pair is picked on the last INNER_FRACTION of the calibration rows
@@ -111,15 +116,15 @@ class Choice:
     stability: float
 
 
-def compd_choice(out: str, held: BoolArray, model: Path) -> Choice:
+def compd_choice(record: Path, out: str, held: BoolArray, model: Path) -> Choice:
     """`compd fit` on the whole record with `held` masked from every loss,
     the written model replayed from rest over the whole record."""
     from compd.commands.replay import replay_model
     from compd.infiles import load_model
     from compd.offline.records import read_record
 
-    argv = ["fit", str(RECORD), "--column", out, "--candidates", "t*_degC", "--candidates",
-            "spindle_rpm", "--max-terms", "3", "-o", str(model), "--force", "--json"]
+    argv = ["fit", str(record), "--column", out, "--candidates", "t*_degC", "--candidates",
+            "spindle_rpm", "--max-terms", "3", "-o", str(model), "--force", "--json", *FIT_ARGS]
     args = build_parser().parse_args(argv)
     args.exclude_rows = held
     buf, err = io.StringIO(), io.StringIO()
@@ -135,7 +140,7 @@ def compd_choice(out: str, held: BoolArray, model: Path) -> Choice:
     what = f"{' + '.join(fit.get('inputs_chosen', [t['name'] for t in fit['terms']]))} " \
         f"({sel['structure']})"
     stab = sel.get("stability", {}).get("share", math.nan)
-    sim = replay_model(load_model(str(model)), read_record(str(RECORD)))
+    sim = replay_model(load_model(str(model)), read_record(str(record)))
     return Choice(np.asarray(sim, dtype=np.float64), what, took, float(stab))
 
 
@@ -214,7 +219,7 @@ class Cell:
         return self.compd[0] / self.base[0]
 
 
-def run(d: dict[str, FloatArray], blocks: list[tuple[str, str, float, float]],
+def run(record: Path, d: dict[str, FloatArray], blocks: list[tuple[str, str, float, float]],
         channels: list[str], tmp: Path) -> list[Cell]:
     hours = d["time_s"] / 3600.0
     cells: list[Cell] = []
@@ -222,7 +227,7 @@ def run(d: dict[str, FloatArray], blocks: list[tuple[str, str, float, float]],
         held = (hours >= lo) & (hours < hi)
         for out in channels:
             y = d[out]
-            choice = compd_choice(out, held, tmp / f"{out}.toml")
+            choice = compd_choice(record, out, held, tmp / f"{out}.toml")
             base, pair = textbook(d, out, held)
             cell = Cell(name, out, figures(y[held], choice.sim[held]),
                         figures(y[held], base[held]), float(np.mean(np.abs(y[held] - y[0]))),
@@ -276,7 +281,17 @@ def main() -> None:
     parser.add_argument("--blocks", default="",
                         help="comma-separated block names (default: every one: "
                              + ", ".join(b[0] for b in BLOCKS) + ")")
+    parser.add_argument("--shop", default="", metavar="SEEDS",
+                        help="instead: the simulated shop machine, day 2 held out, per seed "
+                             "(comma-separated, e.g. 1,2,3,4,5)")
+    parser.add_argument("--fit-args", default="", metavar="ARGS",
+                        help="more compd fit arguments, e.g. '--orders 1-4' (another default "
+                             "judged on the whole table)")
     args = parser.parse_args()
+    FIT_ARGS.extend(args.fit_args.split())
+    if args.shop:
+        shop([int(s) for s in args.shop.split(",")])
+        return
     channels = [c if c.endswith("_um") else f"{c}_um" for c in args.channels] or list(CHANNELS)
     wanted = [b.strip() for b in args.blocks.split(",") if b.strip()]
     blocks = [b for b in BLOCKS if not wanted or b[0] in wanted]
@@ -289,8 +304,36 @@ def main() -> None:
           + "; ".join(f"{n} ({k}, {lo:.1f}-{min(hi, d['time_s'][-1] / 3600):.1f} h)"
                       for n, k, lo, hi in blocks))
     with tempfile.TemporaryDirectory() as tmp:
-        cells = run(d, blocks, channels, Path(tmp))
+        cells = run(RECORD, d, blocks, channels, Path(tmp))
     print_table(cells, [b[0] for b in blocks], channels)
+
+
+def shop(seeds: list[int]) -> None:
+    """The same protocol on the simulated shop machine: 48 h per seed, day 2
+    held out (masked from every loss), both models run from the record's
+    cold start and scored on day 2."""
+    from compd.cli import main as cli
+
+    cells: list[Cell] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in seeds:
+            record = Path(tmp) / f"shop{seed}.csv"
+            with contextlib.redirect_stdout(io.StringIO()):
+                cli(["sim", "--record", str(record), "--machine", "shop", "--hours", "48",
+                     "--period-s", "60", "--seed", str(seed)])
+            d = read(record)
+            for c in run(record, d, [(f"seed {seed} day 2", "end", 24.0, END)], ["dz_um"],
+                         Path(tmp)):
+                cells.append(Cell(c.block, f"seed {seed}", c.compd, c.base, c.none_mae,
+                                  c.choice, c.pair))
+    print("\nshop machine, day 2 held out: MAE µm compd / textbook (ratio)")
+    print("| seed | compd MAE | compd RMS | textbook MAE | textbook RMS | ratio | stability |")
+    print("|---|---|---|---|---|---|---|")
+    for c in cells:
+        print(f"| {c.channel} | {c.compd[0]:.2f} | {c.compd[1]:.2f} | {c.base[0]:.2f} | "
+              f"{c.base[1]:.2f} | {c.ratio:.2f} | {c.choice.stability:.2f} |")
+    r = [c.ratio for c in cells]
+    print(f"geometric mean {geo(r):.3f}, worst {max(r):.2f}")
 
 
 if __name__ == "__main__":
