@@ -17,7 +17,10 @@ gain absurd for the data is refused (`models.identify.checks`).
   the block; candidates are the ARX least-squares baseline, one shared
   denominator refined by output error, ridge on the gains over it, and one
   denominator per term (the papers'); the simplest within 0.5 point of the
-  best wins, and the table is printed. ``--structure`` forces one (a forced
+  best wins, and the table is printed. How stable that choice is against the
+  other candidates and the textbook ARX(2,3) (`compd.offline.fit_hedge`) is
+  printed and written in the provenance; when it is not stable, the leading
+  candidates are averaged into the model written. ``--structure`` forces one (a forced
   structure below the ARX baseline is said); ``--structure search`` is the
   earlier greedy per-term order search (`models.identify.tf_fit`). Orders
   ``--orders 2-4`` (`DEFAULT_ORDERS`): numerator lengths and denominator orders. One term per

@@ -35,6 +35,10 @@ if TYPE_CHECKING:
 
 FloatArray = npt.NDArray[np.float64]
 
+#: the textbook ARX's share of every model written without a forced
+#: structure: (1 - share) × the choice (or its hedge) + share × the textbook
+TEXTBOOK_SHARE = 0.0
+
 
 def _label(c: Candidate, names: list[str]) -> str:
     return f"{c.structure}{f' ({c.detail})' if c.detail else ''} on {' + '.join(names)}"
@@ -140,6 +144,12 @@ def hedge_choice(args: argparse.Namespace, y: FloatArray, seg: Segments, radius:
                                                                      strict=True)],
         "hedge": [{"candidate": labels[i], "weight": w} for i, w in weights]
         if weights != [(at, 1.0)] else []}
+    tb_at = len(labels) - 1 if labels[-1].startswith("textbook") else None
+    if tb_at is not None and TEXTBOOK_SHARE > 0.0 and args.structure == "auto":
+        mixed = [(i, w * (1.0 - TEXTBOOK_SHARE)) for i, w in weights if i != tb_at]
+        kept = sum(w for i, w in weights if i == tb_at) * (1.0 - TEXTBOOK_SHARE)
+        weights = [*mixed, (tb_at, kept + TEXTBOOK_SHARE)]
+        info["hedge"] = [{"candidate": labels[i], "weight": w} for i, w in weights]
     summary["stability"] = info
     if not info["hedge"]:
         return terms, summary
