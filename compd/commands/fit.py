@@ -304,8 +304,16 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
                      "selection": summary})
     from models.diagnostics import cancelling_terms
 
-    for w in cancelling_terms([t.name for t in fitted], [t.u for t in fitted],
-                              [t["dc_gain_um_per_k"] for t in info], y_span):
+    # terms on the same input (members of an averaged model) count once, with
+    # their DC gains summed: their split was not estimated, it is the weights
+    per_input: dict[str, tuple[str, Any, float]] = {}
+    for ft, t in zip(fitted, info, strict=True):
+        key = repr(sorted(ft.inputs.items()))
+        name, u, gain = per_input.get(key, (ft.name, ft.u, 0.0))
+        per_input[key] = (name, u, gain + t["dc_gain_um_per_k"])
+    for w in cancelling_terms([v[0] for v in per_input.values()],
+                              [v[1] for v in per_input.values()],
+                              [v[2] for v in per_input.values()], y_span):
         print(f"compd fit: warning: {w}", file=sys.stderr)
     return terms, info
 
