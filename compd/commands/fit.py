@@ -283,7 +283,10 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
         if worse is not None:
             print(f"compd fit: warning: {worse}; written all the same (--force)",
                   file=sys.stderr)
-    y_span = float(np.ptp(y))
+    from compd.offline.fit_select import excluded_rows
+
+    ex = excluded_rows(args)  # the span the loss saw: rows held out are not calibration
+    y_span = float(np.ptp(y if ex is None else y[~ex]))
     terms: list[Term] = []
     info: list[dict[str, Any]] = []
     for ft in fitted:

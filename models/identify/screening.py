@@ -79,7 +79,8 @@ def screen_subset(y: FloatArray, inputs: Sequence[FloatArray], *,
     if m is None:
         return val, "unstable on every row"
     labels = list(names) if names is not None else [f"input {i + 1}" for i in range(len(d.us))]
-    return val, implausible(m.nums, m.term_dens(), d.us, labels, float(np.ptp(d.y)), d.y.size)
+    span = float(np.ptp(d.y[d.every]))
+    return val, implausible(m.nums, m.term_dens(), d.us, labels, span, d.y.size)
 
 
 def _initial_helps(d: _Data, fit: Callable[[BoolArray], OeModel | None]) -> bool:

@@ -230,7 +230,7 @@ def arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int = 0
     den: tuple[float, ...] = (1.0,)
     nums: tuple[tuple[float, ...], ...] = ()
     for it in range(iterations + 1):
-        fy = d.y if it == 0 else seg.filter([1.0], den, d.y)
+        fy = d.y if it == 0 else seg.filter([1.0], den, _known(d, nums, den))
         cols = [-seg.shift(fy, i) for i in range(1, na + 1)]
         for u in d.us:
             fu = u if it == 0 else seg.filter([1.0], den, u)
@@ -252,6 +252,17 @@ def arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int = 0
         nums = tuple(tuple(float(v) for v in theta[na + t * nb:na + (t + 1) * nb])
                      for t in range(len(d.us)))
     return OeModel(nums=nums, dens=(den,), groups=(tuple(range(len(d.us))),))
+
+
+def _known(d: _Data, nums: tuple[tuple[float, ...], ...], den: tuple[float, ...]
+           ) -> FloatArray:
+    """The displacement to prefilter: on excluded rows (never to be seen) the
+    estimate's own simulation instead, so that a filter's memory carries none
+    of them into the rows after."""
+    if d.usable is None or not nums:
+        return d.y
+    sim = forced_response(nums, (den,), (tuple(range(len(d.us))),), d.us, d.seg)
+    return np.where(d.usable, d.y, sim)
 
 
 def _simulate(d: _Data, m: OeModel, train: BoolArray, y: FloatArray, us: Sequence[FloatArray],
@@ -525,7 +536,7 @@ def order_search_result(y: FloatArray, inputs: Sequence[FloatArray], *,
     if m is None:
         return d.best_order_fit, "unstable on every row"
     labels = list(names) if names is not None else [f"input {i + 1}" for i in range(len(d.us))]
-    why = implausible(m.nums, m.term_dens(), d.us, labels, float(np.ptp(d.y)), d.y.size)
+    why = implausible(m.nums, m.term_dens(), d.us, labels, float(np.ptp(d.y[d.every])), d.y.size)
     return d.best_order_fit, why
 
 
@@ -618,7 +629,7 @@ def _candidates_at(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int
                    ) -> tuple[list[Candidate], tuple[int, int], bool]:
     """Every structure validated at the orders chosen in the ranges, each
     final estimate checked (`implausible`); na = 0: the static model."""
-    span = float(np.ptp(d.y))
+    span = float(np.ptp(d.y[d.every]))
     every = d.every
     if na_range == (0, 0):
         d.initial = True
