@@ -42,7 +42,7 @@ FloatArray = npt.NDArray[np.float64]
 #: (or its hedge) + share × the textbook. Judged on the whole table of
 #: benchmarks/bench_real_record.py (docs/calibration.md §7): a half share
 #: brings the worst ratio to the textbook from 2.88 to 1.94 (geometric mean
-#: 0.68 to 0.75), a quarter to 2.41 (0.68), but on the shop machine's day 2
+#: 0.62 to 0.74), a quarter to 2.41 (0.68), but on the shop machine's day 2
 #: (benchmarks/bench_calibration.py seeds 1-5) a half misses seeds 1, 2 and 4
 #: and a quarter seed 2 (88.97 %, below its ARX's 93.30 %), where none meets
 #: all five. Off: the bench and the tests can set it.
