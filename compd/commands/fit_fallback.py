@@ -55,7 +55,9 @@ def fit_fallbacks(args: argparse.Namespace, records: list[Record], ys: list[Any]
     channels = sorted(reads if reads is not None else
                       {ch for _, inputs in specs for ch in inputs})
     for lost in channels:
-        reduced = [(n, i) for n, i in specs if lost not in i]
+        # the terms left: those that read neither the lost channel nor one the main
+        # model does not read (an average may have left a chosen input out)
+        reduced = [(n, i) for n, i in specs if lost not in i and set(i) <= set(channels)]
         if not reduced:
             out.notes.append(f"no fallback without {lost}: no term is left without it")
             continue

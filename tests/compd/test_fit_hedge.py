@@ -158,3 +158,25 @@ def test_an_averaged_model_has_a_fallback_for_every_channel_it_reads(
         assert fb_reads and lost not in fb_reads and fb_reads <= reads
     # the chosen input alone leaves nothing to fit without it: said, none written
     assert "no fallback without t2_degC: no term is left without it" in capsys.readouterr().err
+
+
+def test_no_fallback_reads_a_chosen_input_the_average_left_out(tmp_path: Path) -> None:
+    """An average may leave a chosen input out (another screen's winner alone won the
+    draws): the model reads t1 only, though t1 and t2 were chosen. Its fallbacks are
+    fitted on what it reads, never on t2 (the model file would be refused)."""
+    from compd.cli import build_parser
+    from compd.commands.fit_fallback import fit_fallbacks
+    from compd.offline.records import read_record
+
+    data = tmp_path / "rec.csv"
+    _record(data, 0.02, 8)
+    args = build_parser().parse_args(["fit", str(data), "--column", "dz_um", "--term",
+                                      "t1_degC", "--term", "t2_degC", "--orders", "1-1",
+                                      "-o", str(tmp_path / "m.toml")])
+    args.folds = 4
+    record = read_record(str(data))
+    specs = [("t1_degC", {"t1_degC": 1.0}), ("t2_degC", {"t2_degC": 1.0})]
+    out = fit_fallbacks(args, [record], [record.column("dz_um")], specs, [], [],
+                        reads={"t1_degC"})
+    assert not out.models
+    assert out.notes == ["no fallback without t1_degC: no term is left without it"]
