@@ -18,9 +18,12 @@ import sys
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from models.errors import ModelError
 
 if TYPE_CHECKING:
+    from compd.offline.fit_terms import FitTerm
     from models.compensation import CompensationModel
     from models.identify.output_error import OeModel
 
@@ -72,6 +75,31 @@ class CheckVeto:
         self.vetoed.append(flags[0])
         return VETO_PREFIX + flags[0] + (f" (and {len(flags) - 1} more)" if len(flags) > 1
                                          else "")
+
+
+    def terms(self, fitted: Sequence[FitTerm]) -> str | None:
+        """Why a model of `fitted` terms (a candidate of the hedge, or the
+        average written: `compd.offline.fit_hedge`) gets a warning from `compd
+        check`, its spans as fit writes them; None: none. Not counted among
+        the selection's vetoes."""
+        from compd.offline.model_description import plausibility
+        from models.compensation import CompensationModel, Term
+        from models.tf import TransferFunction
+
+        prov = {"output_span_um": self._provenance["output_span_um"],
+                **{f"{t.name}_input_span": float(np.ptp(t.u)) for t in fitted}}
+        try:
+            model = CompensationModel(
+                [Term(name=t.name, inputs=t.inputs, relative=t.relative,
+                      dynamics=TransferFunction([repr(float(v)) for v in t.num],
+                                                [repr(float(v)) for v in t.den], name=t.name))
+                 for t in fitted], self._period_s, name="candidate", provenance=prov)
+            flags = plausibility(model)
+        except (ModelError, ValueError) as exc:
+            flags = [str(exc)]
+        if not flags:
+            return None
+        return flags[0] + (f" (and {len(flags) - 1} more)" if len(flags) > 1 else "")
 
 
 def fallback_line(summary: dict[str, Any], veto: CheckVeto) -> str | None:

@@ -40,8 +40,10 @@ class Fallbacks:
 
 def fit_fallbacks(args: argparse.Namespace, records: list[Record], ys: list[Any],
                   specs: list[tuple[str, dict[str, float]]], holdout: list[Record],
-                  fixed: list[Term]) -> Fallbacks:
-    """A fallback for the loss of each input channel of `specs` (module docstring)."""
+                  fixed: list[Term], reads: set[str] | None = None) -> Fallbacks:
+    """A fallback for the loss of each input channel the main model `reads`
+    (default: those of `specs`; an averaged model also reads its other members'
+    channels: `compd.offline.fit_hedge`), module docstring."""
     from compd.commands.fit import _fit_terms
     from compd.commands.fit_checks import gate
     from models.compensation import CompensationModel
@@ -50,9 +52,12 @@ def fit_fallbacks(args: argparse.Namespace, records: list[Record], ys: list[Any]
     out = Fallbacks()
     if args.kind != "tf":
         return out
-    channels = sorted({ch for _, inputs in specs for ch in inputs})
+    channels = sorted(reads if reads is not None else
+                      {ch for _, inputs in specs for ch in inputs})
     for lost in channels:
-        reduced = [(n, i) for n, i in specs if lost not in i]
+        # the terms left: those that read neither the lost channel nor one the main
+        # model does not read (an average may have left a chosen input out)
+        reduced = [(n, i) for n, i in specs if lost not in i and set(i) <= set(channels)]
         if not reduced:
             out.notes.append(f"no fallback without {lost}: no term is left without it")
             continue
@@ -61,6 +66,9 @@ def fit_fallbacks(args: argparse.Namespace, records: list[Record], ys: list[Any]
             continue
         one = argparse.Namespace(**vars(args))
         one.force = False  # a fallback worse than none, or one check warns of, is never written
+        # the hedge's other candidates (`compd.offline.fit_hedge`) read only what the
+        # main model reads, never the lost channel
+        one.hedge_channels = set(channels) - {lost}
         said = io.StringIO()
         try:
             with contextlib.redirect_stderr(said):

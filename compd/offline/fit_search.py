@@ -81,6 +81,7 @@ def progress_bar(enabled: bool) -> Callable[[int, int], None] | None:
 def search_inputs(args: Any, records: list[Record], ys: list[Any], radius: float
                   ) -> tuple[list[str], list[dict[str, Any]]]:
     """(chosen channels, table of subsets tried)."""
+    from compd.offline.fit_terms import usable_rows
     from models.identify.segments import Segments
     from models.identify.subsets import search_subsets
 
@@ -102,7 +103,8 @@ def search_inputs(args: Any, records: list[Record], ys: list[Any], radius: float
             searches[screen] = search_subsets(y, cands, max_terms=args.max_terms,
                                               na_range=args.orders, nb_range=args.orders,
                                               segments=seg, radius=radius, folds=args.folds,
-                                              screen=screen, progress=show)
+                                              screen=screen, progress=show,
+                                              usable=usable_rows(args))
     except ValueError as exc:
         raise ModelError(f"input search failed: {exc}") from None
     if show is not None:
@@ -114,6 +116,10 @@ def search_inputs(args: Any, records: list[Record], ys: list[Any], radius: float
         print(f"compd fit: warning: no subset of the candidates gives a plausible model; the "
               f"best validated is kept for the structure search: {found.rejected}",
               file=sys.stderr)
+    # the textbook ARX's pair is picked among the temperatures
+    # (`compd.offline.fit_hedge`)
+    args.search_pool = {n: u for n, u in cands.items() if not is_rate_channel(n)}
+    args.search_inputs = cands
     table = [{"inputs": list(t.inputs), "validation_fit_percent": t.validation_fit_pct,
               "step": t.step, "screen": screen, **({"rejected": t.rejected} if t.rejected else {})}
              for screen, s in searches.items() for t in s.tried]
@@ -130,6 +136,7 @@ def _better_validated(args: Any, y: Any, cands: dict[str, Any], seg: Any, radius
     from compd.offline.fit_select import run_selection
 
     first = searches[SCREENS[0]]
+    args.search_alternatives = []
     found = [s for s in searches.values() if s.best and not s.rejected]
     if len({frozenset(s.best) for s in found}) < 2:
         return first if first.best and not first.rejected else (found or [first])[0]
@@ -141,6 +148,9 @@ def _better_validated(args: Any, y: Any, cands: dict[str, Any], seg: Any, radius
         except ModelError:
             continue
         scored.append((sel.chosen.validation_fit_pct, s))
+        # every screen's winner stays a candidate of the stability measure
+        # (`compd.offline.fit_hedge`)
+        args.search_alternatives.append((list(s.best), sel))
     if not scored:
         return found[0]
     base = next((v for v, s in scored if s is first), -np.inf)

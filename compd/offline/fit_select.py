@@ -6,11 +6,13 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from compd.offline.fit_terms import FitTerm, usable_rows
 from models.errors import ModelError
 from models.identify.segments import Segments
 from models.identify.structures import (
@@ -31,9 +33,9 @@ VALIDATION_WORDS = {"blocked": "blocked cross-validation",
 def run_selection(args: argparse.Namespace, y: FloatArray, us: list[FloatArray], seg: Segments,
                   radius: float, holdout: Any, names: list[str] | None = None,
                   veto: Any = None) -> Selection:
-    """The selection for `--structure` (auto: every structure), within the
-    calibration rows `--from`/`--until` mark (``args.fit_window``); `veto`: why a
-    candidate must not be chosen (`compd fit`: a model `compd check` warns about)."""
+    """The selection for `--structure` (auto: every structure), on the usable
+    rows (`usable_rows`); `veto`: why a candidate must not be chosen (`compd
+    fit`: a model `compd check` warns about)."""
     structures = STRUCTURES if args.structure == "auto" else ("arx", args.structure)
     if args.folds < 2:
         raise ModelError(f"--folds {args.folds}: cross-validation needs at least 2 folds")
@@ -42,7 +44,7 @@ def run_selection(args: argparse.Namespace, y: FloatArray, us: list[FloatArray],
         return select_structure(y, us, na_range=args.orders, nb_range=args.orders,
                                 segments=seg, radius=radius, folds=args.folds,
                                 structures=structures, holdout=h, names=names,
-                                window=getattr(args, "fit_window", None), veto=veto)
+                                usable=usable_rows(args), veto=veto)
     except ValueError as exc:
         raise ModelError(f"identification failed: {exc}") from None
 
@@ -103,22 +105,37 @@ def worse_than_none(summary: dict[str, Any]) -> str | None:
 
 
 def select_for_fit(args: argparse.Namespace, y: FloatArray, us: list[FloatArray],
-                   seg: Segments, radius: float, holdout: Any, names: list[str] | None = None,
-                   veto: Any = None
-                   ) -> tuple[tuple[tuple[float, ...], ...], tuple[tuple[float, ...], ...],
-                              tuple[tuple[int, int], ...], dict[str, Any]]:
-    """(nums, dens, orders per term, summary) of the chosen structure. The
-    summary's ``_heldout_residuals`` (the chosen structure's residue on the rows
-    each fold's model was not calibrated on, arrays) is for the caller to take out
-    before the summary is written anywhere."""
+                   seg: Segments, radius: float, holdout: Any,
+                   specs: list[tuple[str, dict[str, float]]], rel: list[bool],
+                   pool: dict[str, FloatArray] | None = None, veto: Any = None,
+                   check: Callable[[list[FitTerm]], str | None] | None = None
+                   ) -> tuple[list[FitTerm], dict[str, Any]]:
+    """(terms, summary) of the chosen model: the chosen structure on the
+    inputs of `specs`, or, when that choice is not stable across resampled
+    held-out blocks, the leading candidates averaged (`compd.offline.
+    fit_hedge`; the textbook ARX on a pair of `pool`, temperatures relative to
+    their first sample, is always one of them). `veto` refuses a candidate of
+    the selection, `check` a member of the average and the average itself
+    (`compd fit`: a model `compd check` warns about). The summary's
+    ``_heldout_residuals`` (the residue on the rows each fold's model was not
+    calibrated on, arrays) is for the caller to take out before the summary is
+    written anywhere."""
+    from compd.offline.fit_hedge import hedge_choice
+
+    names = [n for n, _ in specs]
     sel = run_selection(args, y, us, seg, radius, holdout, names, veto)
     how = "held-out records" if holdout is not None else \
         f"{VALIDATION_WORDS[DEFAULT_VALIDATION]}, {args.folds} folds"
     summary = summarise(sel, args.structure, how)
     model = summary.pop("_model")
-    dens = model.term_dens()
-    orders = tuple((len(a), len(b) - 1) for a, b in zip(model.nums, dens, strict=True))
-    return model.nums, dens, orders, summary
+    terms = [FitTerm(n, inputs, u, num, den, r) for (n, inputs), u, num, den, r
+             in zip(specs, us, model.nums, model.term_dens(), rel, strict=True)]
+    if holdout is not None:
+        return terms, summary
+    if pool is None:  # the textbook's pair among the single sensors given, by channel
+        pool = {next(iter(inputs)): u for (_, inputs), u, r in zip(specs, us, rel, strict=True)
+                if r and list(inputs.values()) == [1.0]}
+    return hedge_choice(args, y, seg, radius, sel, specs, us, rel, pool, terms, summary, check)
 
 
 def selection_lines(summary: dict[str, Any]) -> list[str]:

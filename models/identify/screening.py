@@ -40,12 +40,11 @@ from models.identify.structures import (
     DEFAULT_FOLDS,
     DEFAULT_VALIDATION,
     INITIAL_MARGIN_PCT,
-    _blocked,
     _Data,
     _score,
     arx_fit,
+    make_data,
 )
-from models.identify.validate import split_masks
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -63,25 +62,25 @@ def screen_subset(y: FloatArray, inputs: Sequence[FloatArray], *,
                   na_range: tuple[int, int], nb_range: tuple[int, int],
                   segments: Segments | None = None, radius: float = 1.0,
                   folds: int = DEFAULT_FOLDS, validation: str = DEFAULT_VALIDATION,
-                  names: Sequence[str] | None = None) -> tuple[float, str | None]:
+                  names: Sequence[str] | None = None, usable: BoolArray | None = None
+                  ) -> tuple[float, str | None]:
     """(validated fit % of the screening ARX, why its estimate on every row
     is implausible (`models.identify.checks.implausible`) or None); -inf
     when a fold gives no stable model."""
     seg = segments if segments is not None else Segments.single(np.asarray(y).size)
-    d = _Data(np.asarray(y, dtype=np.float64), [np.asarray(u, dtype=np.float64) for u in inputs],
-              seg, radius, split_masks(seg, folds, validation),
-              blocked=_blocked(seg, folds, validation))
+    d = make_data(y, inputs, seg, radius, folds, validation, usable)
     na, nb = _clamp(SCREEN_ORDERS[0], na_range), _clamp(SCREEN_ORDERS[1], nb_range)
     fit = functools.partial(arx_fit, d, na, nb)
     d.initial = _initial_helps(d, fit)
     val, _ = _score(d, fit)
     if not math.isfinite(val):
         return val, "unstable on a fold"
-    m = fit(np.ones(d.y.size, dtype=bool))
+    m = fit(d.every)
     if m is None:
         return val, "unstable on every row"
     labels = list(names) if names is not None else [f"input {i + 1}" for i in range(len(d.us))]
-    return val, implausible(m.nums, m.term_dens(), d.us, labels, float(np.ptp(d.y)), d.y.size)
+    span = float(np.ptp(d.y[d.every]))
+    return val, implausible(m.nums, m.term_dens(), d.us, labels, span, d.y.size)
 
 
 def _initial_helps(d: _Data, fit: Callable[[BoolArray], OeModel | None]) -> bool:

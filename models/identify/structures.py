@@ -51,8 +51,7 @@ from models.identify.segments import Segments
 from models.identify.validate import (
     forced_response,
     pooled_fit,
-    split_masks,
-    windowed_splits,
+    usable_splits,
     with_initial,
 )
 from models.initial_state import DEFAULT_WINDOW_FRACTION
@@ -143,30 +142,53 @@ class _Data:
     blocked: list[tuple[BoolArray, BoolArray]] | None = None
     #: held-out records (y, inputs, segments) scoring instead of the folds
     holdout: tuple[FloatArray, list[FloatArray], Segments] | None = None
-    #: the rows a loss may count (the calibration window, `validate.windowed_splits`);
-    #: None: every row. The simulation always runs from each record's start
-    window: BoolArray | None = None
+    #: the rows a loss may count: the calibration window less any rows held out
+    #: (`validate.usable_splits`); None: every row. The simulation always runs
+    #: over every row from each record's start; the rows outside are only never
+    #: fitted nor scored
+    usable: BoolArray | None = None
     #: why a final estimate is refused besides `implausible` (the caller's own
     #: diagnostics: `compd fit` vetoes a model `compd check` would warn about)
     veto: Callable[[OeModel], str | None] | None = None
 
     @property
     def every(self) -> BoolArray:
-        """The rows a final estimate is fitted on: the window, or every row."""
-        return self.window if self.window is not None else np.ones(self.y.size, dtype=bool)
+        """The rows a final estimate is fitted on: every usable row."""
+        return self.usable if self.usable is not None else np.ones(self.y.size, dtype=bool)
 
     def refused(self, m: OeModel, labels: Sequence[str]) -> str:
-        """Why the final estimate `m` is never chosen ("" when it may be)."""
-        why = implausible(m.nums, m.term_dens(), self.us, labels, float(np.ptp(self.y)),
-                          self.y.size)
+        """Why the final estimate `m` is never chosen ("" when it may be); the
+        output span is that of the rows it was fitted on."""
+        why = implausible(m.nums, m.term_dens(), self.us, labels,
+                          float(np.ptp(self.y[self.every])), self.y.size)
         if why is None and self.veto is not None:
             why = self.veto(m)
         return why or ""
 
 
-def _blocked(seg: Segments, folds: int, validation: str, window: BoolArray | None = None
+def make_data(y: FloatArray, inputs: Sequence[FloatArray], seg: Segments, radius: float,
+              folds: int, validation: str, usable: BoolArray | None = None,
+              veto: Callable[[OeModel], str | None] | None = None) -> _Data:
+    """The data and folds of a validation `scheme`. `usable`: the only rows any
+    loss counts (a calibration window less the rows a benchmark holds out): the
+    folds are laid over them (`validate.usable_splits`), the final estimates
+    fitted on them, while every model is still simulated from each record's
+    start through the others. None or every row: no mask."""
+    if usable is not None:
+        usable = np.asarray(usable, dtype=bool)
+        if usable.shape != (seg.total,) or not usable.any():
+            raise ValueError("the usable rows must mark some rows of the records")
+        if usable.all():
+            usable = None
+    return _Data(np.asarray(y, dtype=np.float64), [np.asarray(u, dtype=np.float64)
+                                                   for u in inputs],
+                 seg, radius, usable_splits(seg, folds, validation, usable),
+                 blocked=_blocked(seg, folds, validation, usable), usable=usable, veto=veto)
+
+
+def _blocked(seg: Segments, folds: int, validation: str, usable: BoolArray | None = None
              ) -> list[tuple[BoolArray, BoolArray]] | None:
-    return None if validation == "blocked" else windowed_splits(seg, folds, "blocked", window)
+    return None if validation == "blocked" else usable_splits(seg, folds, "blocked", usable)
 
 
 def _lag_ok(mask: BoolArray, seg: Segments, lag: int) -> BoolArray:
@@ -206,7 +228,7 @@ def arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int = 0
     den: tuple[float, ...] = (1.0,)
     nums: tuple[tuple[float, ...], ...] = ()
     for it in range(iterations + 1):
-        fy = d.y if it == 0 else seg.filter([1.0], den, d.y)
+        fy = d.y if it == 0 else seg.filter([1.0], den, _known(d, nums, den))
         cols = [-seg.shift(fy, i) for i in range(1, na + 1)]
         for u in d.us:
             fu = u if it == 0 else seg.filter([1.0], den, u)
@@ -228,6 +250,17 @@ def arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int = 0
         nums = tuple(tuple(float(v) for v in theta[na + t * nb:na + (t + 1) * nb])
                      for t in range(len(d.us)))
     return OeModel(nums=nums, dens=(den,), groups=(tuple(range(len(d.us))),))
+
+
+def _known(d: _Data, nums: tuple[tuple[float, ...], ...], den: tuple[float, ...]
+           ) -> FloatArray:
+    """The displacement to prefilter: on rows outside the usable ones (never to be seen) the
+    estimate's own simulation instead, so that a filter's memory carries none
+    of them into the rows after."""
+    if d.usable is None or not nums:
+        return d.y
+    sim = forced_response(nums, (den,), (tuple(range(len(d.us))),), d.us, d.seg)
+    return np.where(d.usable, d.y, sim)
 
 
 def _simulate(d: _Data, m: OeModel, train: BoolArray, y: FloatArray, us: Sequence[FloatArray],
@@ -485,24 +518,23 @@ def order_search_result(y: FloatArray, inputs: Sequence[FloatArray], *,
                         na_range: tuple[int, int], nb_range: tuple[int, int],
                         segments: Segments | None = None, radius: float = 1.0,
                         folds: int = DEFAULT_FOLDS, validation: str = DEFAULT_VALIDATION,
-                        names: Sequence[str] | None = None) -> tuple[float, str | None]:
+                        names: Sequence[str] | None = None, usable: BoolArray | None = None
+                        ) -> tuple[float, str | None]:
     """(the validated fit % of the best Steiglitz–McBride estimate over the
     orders (`choose_orders`), why the estimate on every row is implausible
     (`models.identify.checks.implausible`) or None). -inf when no order gives
     a stable model."""
     seg = segments if segments is not None else Segments.single(np.asarray(y).size)
-    d = _Data(np.asarray(y, dtype=np.float64), [np.asarray(u, dtype=np.float64) for u in inputs],
-              seg, radius, split_masks(seg, folds, validation),
-              blocked=_blocked(seg, folds, validation))
+    d = make_data(y, inputs, seg, radius, folds, validation, usable)
     try:
         na, nb, _ = choose_orders(d, na_range, nb_range)
     except ValueError as exc:
         return -math.inf, str(exc)
-    m = _sm(d, na, nb, np.ones(d.y.size, dtype=bool))
+    m = _sm(d, na, nb, d.every)
     if m is None:
         return d.best_order_fit, "unstable on every row"
     labels = list(names) if names is not None else [f"input {i + 1}" for i in range(len(d.us))]
-    why = implausible(m.nums, m.term_dens(), d.us, labels, float(np.ptp(d.y)), d.y.size)
+    why = implausible(m.nums, m.term_dens(), d.us, labels, float(np.ptp(d.y[d.every])), d.y.size)
     return d.best_order_fit, why
 
 
@@ -524,25 +556,21 @@ def select_structure(y: FloatArray, inputs: Sequence[FloatArray], *,
                      structures: Sequence[str] = STRUCTURES, margin_pct: float = 0.5,
                      max_iter: int = 40,
                      holdout: tuple[FloatArray, Sequence[FloatArray], Segments] | None = None,
-                     names: Sequence[str] | None = None, window: BoolArray | None = None,
+                     names: Sequence[str] | None = None, usable: BoolArray | None = None,
                      veto: Callable[[OeModel], str | None] | None = None) -> Selection:
     """Cross-validate every structure at the ARX-chosen orders; re-estimate on
     every row; choose (module docstring). With `holdout` records the
     candidates train on every row and are scored on those records instead
     (initial conditions from each one's first half, as `compd replay`).
-    `window`: the only rows any loss counts (folds cut within it, the final
-    estimates fitted on it), every record still simulated from its start.
-    `veto(model)`: why a final estimate must not be chosen besides the
-    diagnostics here (None: it may), kept in the table as a rejection."""
+    `usable`: the only rows any loss counts (`make_data`), every record still
+    simulated from its start. `veto(model)`: why a final estimate must not be
+    chosen besides the diagnostics here (None: it may), kept in the table as a
+    rejection."""
     unknown = sorted(set(structures) - set(STRUCTURES))
     if unknown:
         raise ValueError(f"unknown structure(s) {unknown}; known: {list(STRUCTURES)}")
     seg = segments if segments is not None else Segments.single(np.asarray(y).size)
-    if window is not None and (window.shape != (seg.total,) or not window.any()):
-        raise ValueError("the calibration window must mark some rows of the records")
-    d = _Data(np.asarray(y, dtype=np.float64), [np.asarray(u, dtype=np.float64) for u in inputs],
-              seg, radius, windowed_splits(seg, folds, validation, window),
-              blocked=_blocked(seg, folds, validation, window), window=window, veto=veto)
+    d = make_data(y, inputs, seg, radius, folds, validation, usable, veto)
     if holdout is not None:
         d.holdout = (np.asarray(holdout[0], dtype=np.float64),
                      [np.asarray(u, dtype=np.float64) for u in holdout[1]], holdout[2])

@@ -107,11 +107,14 @@ def search_subsets(y: FloatArray, candidates: Mapping[str, FloatArray], *, max_t
                    segments: Segments | None = None, radius: float = 1.0,
                    folds: int = DEFAULT_FOLDS, validation: str = DEFAULT_VALIDATION,
                    margin_pct: float = 0.5, screen: str = "flexible",
-                   progress: Callable[[int, int], None] | None = None) -> SubsetSearch:
+                   progress: Callable[[int, int], None] | None = None,
+                   usable: npt.NDArray[np.bool_] | None = None) -> SubsetSearch:
     """Forward selection with backward pruning (module docstring).
     `screen`: ``flexible`` (the Steiglitz–McBride order search) or ``arx``
     (`models.identify.screening`, a fixed ARX(2, 3)).
-    `progress(done, planned)` is called after every subset scored."""
+    `progress(done, planned)` is called after every subset scored. `usable`:
+    the only rows any loss counts (`models.identify.structures.make_data`; an
+    averaged block holding a row outside them is outside too)."""
     names = list(candidates)
     if not names:
         raise ValueError("no candidate input")
@@ -125,6 +128,8 @@ def search_subsets(y: FloatArray, candidates: Mapping[str, FloatArray], *, max_t
         y = decimate(np.asarray(y, dtype=np.float64), seg, q)
         candidates = {n: decimate(np.asarray(u, dtype=np.float64), seg, q)
                       for n, u in candidates.items()}
+        if usable is not None:
+            usable = decimate(np.asarray(usable, dtype=np.float64), seg, q) >= 1.0
         seg, radius = _decimated_segments(seg, q), radius ** q
     cache: dict[frozenset[str], Tried] = {}
     tried: list[Tried] = []
@@ -138,7 +143,7 @@ def search_subsets(y: FloatArray, candidates: Mapping[str, FloatArray], *, max_t
             scorer = screen_subset if screen == "arx" else order_search_result
             val, why = scorer(y, [candidates[n] for n in order], na_range=na_range,
                               nb_range=nb_range, segments=seg, radius=radius, folds=folds,
-                              validation=validation, names=order)
+                              validation=validation, names=order, usable=usable)
             cache[key] = Tried(order, float(val), step, why or "")
             tried.append(cache[key])
             if progress is not None:

@@ -79,33 +79,35 @@ def split_masks(seg: Segments, k: int, scheme: str) -> list[tuple[BoolArray, Boo
     raise ValueError(f"unknown validation scheme {scheme!r}; known: blocked, forward, both")
 
 
-def windowed_splits(seg: Segments, k: int, scheme: str, window: BoolArray | None
-                    ) -> list[tuple[BoolArray, BoolArray]]:
-    """`split_masks` within a calibration window: each record's window rows (the
-    rows from its first marked one on, a tail of the record) cut into the blocks,
-    training and held-out rows both within the window. The rows before stay
-    outside every loss and still run through the simulation, which starts at the
-    record's start (`forced_response`). None: `split_masks` itself.
+def usable_splits(seg: Segments, k: int, scheme: str, usable: BoolArray | None
+                  ) -> list[tuple[BoolArray, BoolArray]]:
+    """`split_masks` over the rows a loss may count (`usable`: a calibration
+    window, less any rows held out), laid over those rows in order as if the
+    others were cut out: each record's first usable rows always train, a forward
+    fold trains on the usable rows before its block, and no fold trains on or
+    scores a row outside `usable`. Those rows still run through the simulation,
+    which starts at each record's start (`forced_response`). None: `split_masks`
+    itself.
 
-    Worked number: a 10-row record whose window starts at row 4, 2 forward
-    folds: blocks 4-5, 6-7, 8-9; fold 1 trains on 4-5 and scores 6-7."""
-    if window is None:
+    Worked number: a 10-row record usable from row 4, 2 forward folds: blocks
+    4-5, 6-7, 8-9; fold 1 trains on 4-5 and scores 6-7. Rows 6-7 masked as well:
+    blocks 4, then 5 and 8, then 9."""
+    if usable is None:
         return split_masks(seg, k, scheme)
-    starts = []
-    for s, e in seg.bounds:
-        hit = np.flatnonzero(window[s:e])
-        if hit.size == 0 or not window[s + int(hit[0]):e].all():
-            raise ValueError("the calibration window must be a tail of every record")
-        starts.append(s + int(hit[0]))
-    inner = Segments.from_lengths([e - a for a, (_, e) in zip(starts, seg.bounds, strict=True)])
-    rows = np.concatenate([np.arange(a, e) for a, (_, e) in zip(starts, seg.bounds,
-                                                                strict=True)])
+    usable = np.asarray(usable, dtype=bool)
+    if usable.shape != (seg.total,):
+        raise ValueError("the usable rows must mark each row of the records")
+    lengths = [int(usable[s:e].sum()) for s, e in seg.bounds]
+    if min(lengths) < k + 1:
+        raise ValueError(f"a record has {min(lengths)} usable rows, too few for {k + 1} "
+                         "blocks")
+    rows = np.flatnonzero(usable)
     out: list[tuple[BoolArray, BoolArray]] = []
-    for train_w, val_w in split_masks(inner, k, scheme):
+    for train_u, val_u in split_masks(Segments.from_lengths(lengths), k, scheme):
         train = np.zeros(seg.total, dtype=bool)
         val = np.zeros(seg.total, dtype=bool)
-        train[rows[train_w]] = True
-        val[rows[val_w]] = True
+        train[rows[train_u]] = True
+        val[rows[val_u]] = True
         out.append((train, val))
     return out
 

@@ -28,10 +28,14 @@ def test_the_choice_is_printed_with_its_runners_up(sp3: tuple[Path, Path], tmp_p
                  "--term", "ambient", "--orders", "1-2", "-o", str(out)]) == 0
     text = capsys.readouterr().out
     assert "forward validation (each block predicted from the rows before it), 4 folds" in text
-    for name in ("arx", "shared-oe", "ridge", "per-term-oe"):
+    for name in ("arx", "shared-oe", "ridge", "per-term-oe", "textbook"):
         assert f"    {name}" in text
     prov = load_model(out).provenance
-    assert len(prov["runners_up"]) == 4 and prov["validation_fit_percent"] > 90.0
+    assert len(prov["runners_up"]) == 5 and prov["validation_fit_percent"] > 90.0
+    # how stable the choice was: printed, and in the provenance for a report
+    assert "  stability of the choice: " in text and "resampled draws of 8 held-out blocks" in text
+    assert 0.0 <= prov["choice_stability"] <= 1.0
+    assert prov["choice_stability_text"][0].startswith("stability of the choice: ")
 
 
 def test_a_forced_structure_and_held_out_records(sp3: tuple[Path, Path], tmp_path: Path,

@@ -15,7 +15,7 @@ from compd.cli import main
 from compd.infiles import load_model
 from compd.sysexits import EX_USAGE
 from models.identify.segments import Segments
-from models.identify.validate import windowed_splits
+from models.identify.validate import usable_splits
 from models.tf import TransferFunction
 
 RECORD = Path(__file__).resolve().parent.parent / "data" / "fl_thermal" / "calibration.csv"
@@ -76,7 +76,7 @@ def test_from_keeps_the_rows_before_out_of_the_loss(
 
 
 @pytest.mark.parametrize(("extra", "words"), [
-    (["--from", "18000", "--candidates", "t*"], "--from goes with --kind tf and --term"),
+    (["--from", "18000", "--structure", "search"], "--from goes with --kind tf, without"),
     (["--from", "600", "--until", "60"], "--until 60 s is before --from 600 s"),
     (["--from", "71000"], "rows there"),
 ])
@@ -85,17 +85,44 @@ def test_a_window_it_cannot_use_is_one_line_and_64(
         words: str) -> None:
     data = tmp_path / "rec.csv"
     _spoilt_start(data)
-    terms = [] if "--candidates" in extra else ["--term", "t1_degC"]
-    assert main(["fit", str(data), "--column", "dz_um", *terms, *extra, "-o",
+    assert main(["fit", str(data), "--column", "dz_um", "--term", "t1_degC", *extra, "-o",
                  str(tmp_path / "m.toml")]) == EX_USAGE
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and words in err
     assert not (tmp_path / "m.toml").exists()
 
 
-def test_windowed_splits_cut_the_folds_within_the_window() -> None:
-    """The docstring's worked number: 10 rows, the window from row 4, 2 forward folds."""
+def test_usable_splits_cut_the_folds_within_the_window() -> None:
+    """The docstring's worked number: 10 rows, the window from row 4, 2 forward folds;
+    rows 6-7 masked as well (a held-out block inside the window)."""
     window = np.arange(10) >= 4
-    (t1, v1), (t2, v2) = windowed_splits(Segments.single(10), 2, "forward", window)
+    (t1, v1), (t2, v2) = usable_splits(Segments.single(10), 2, "forward", window)
     assert list(np.flatnonzero(t1)) == [4, 5] and list(np.flatnonzero(v1)) == [6, 7]
     assert list(np.flatnonzero(t2)) == [4, 5, 6, 7] and list(np.flatnonzero(v2)) == [8, 9]
+    window[6:8] = False
+    (t1, v1), (t2, v2) = usable_splits(Segments.single(10), 2, "forward", window)
+    assert list(np.flatnonzero(t1)) == [4] and list(np.flatnonzero(v1)) == [5, 8]
+    assert list(np.flatnonzero(t2)) == [4, 5, 8] and list(np.flatnonzero(v2)) == [9]
+
+
+def test_from_with_candidates_searches_the_window_only(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--from with --candidates: the input search counts only the window's rows too
+    (one mask for every loss), so the spoilt start chooses nothing and the gain of the
+    chosen t1 is the one of the window."""
+    data = tmp_path / "rec.csv"
+    _spoilt_start(data)
+    rng = np.random.default_rng(3)
+    lines = data.read_text().splitlines()
+    # a second candidate that follows the spoilt ramp of the first 300 rows, else noise
+    decoy = np.concatenate([np.linspace(0.0, 7.5, 300), rng.uniform(0.0, 0.2, len(lines) - 301)])
+    data.write_text("\n".join([lines[0] + ",t2_degC"] + [f"{ln},{20.0 + v:.4f}" for ln, v
+                                                         in zip(lines[1:], decoy, strict=True)])
+                    + "\n")
+    assert main(["fit", str(data), "--column", "dz_um", "--candidates", "t*", "--max-terms",
+                 "1", "--orders", "1-1", "--from", "18000", "--no-fallbacks", "--json", "-o",
+                 str(tmp_path / "m.toml")]) == 0
+    out = json.loads(capsys.readouterr().out)
+    t1 = [t for t in out["terms"] if t["inputs"] == {"t1_degC": 1.0}]
+    assert t1 and abs(sum(t["dc_gain_um_per_k"] for t in t1) - 2.0) < 0.1
+    assert load_model(tmp_path / "m.toml").provenance["calibrated_from_s"] == 18000.0

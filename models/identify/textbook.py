@@ -1,0 +1,112 @@
+"""The textbook thermal model, as a candidate beside compd's own structures.
+
+ARX(2, 3) on two sensors: y(k) + a1 y(k-1) + a2 y(k-2) = Σ_i Σ_{j<3}
+b_ij u_i(k-j), least squares on the equation error, no level term, run from
+rest at each record's start (the machine starts in equilibrium with its
+room, its inputs relative to their first sample). The pair is picked among
+the candidate inputs on an inner hold-out: fitted on each record's first
+four fifths of the usable rows, simulated from rest, smallest mean absolute
+error on the last fifth; then refitted on every usable row.
+
+It is small, its pair is picked on what follows its calibration, and it is
+the yardstick compd's figures are measured against
+(benchmarks/bench_real_record.py): kept among the candidates, a choice that
+is not stable can lean on it (`models.identify.stability`).
+
+Worked number: 16 temperature candidates give 120 pairs, each one least
+squares of 8 columns.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from models.identify.output_error import OeModel
+from models.identify.structures import _Data, arx_fit
+from models.identify.validate import forced_response, pooled_fit
+
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+#: (denominator order, numerator length)
+TEXTBOOK_ORDERS = (2, 3)
+#: the pair is picked on this last share of each record's usable rows
+INNER_FRACTION = 0.2
+
+
+@dataclass(frozen=True)
+class Textbook:
+    #: indices of the pair among the candidates
+    inputs: tuple[int, ...]
+    #: estimated on every usable row
+    model: OeModel
+    #: residue on each fold's held-out rows, one array per fold and record, in
+    #: the order of `models.identify.structures._heldout`
+    residuals: tuple[FloatArray, ...]
+    #: pooled fit % on the folds' held-out rows (`models.identify.validate.pooled_fit`)
+    validation_fit_pct: float
+
+
+def _data(d: _Data, us: Sequence[FloatArray]) -> _Data:
+    return _Data(d.y, list(us), d.seg, d.radius, d.splits, initial=False, usable=d.usable)
+
+
+def _sim(d: _Data, m: OeModel) -> FloatArray:
+    return forced_response(m.nums, m.dens, m.groups, d.us, d.seg)
+
+
+def pick_pair(d: _Data, candidates: Sequence[FloatArray]) -> tuple[int, ...] | None:
+    """The pair (or the single input when there is one) of smallest inner
+    hold-out MAE; None when no pair gives a stable model."""
+    every = d.every
+    inner = np.zeros(d.y.size, dtype=bool)
+    for s, e in d.seg.bounds:
+        rows = np.flatnonzero(every[s:e]) + s
+        if rows.size:
+            inner[rows[round(rows.size * (1.0 - INNER_FRACTION)):]] = True
+    train = every & ~inner
+    na, nb = TEXTBOOK_ORDERS
+    best: tuple[float, tuple[int, ...]] | None = None
+    k = min(2, len(candidates))
+    for pair in itertools.combinations(range(len(candidates)), k):
+        dp = _data(d, [candidates[i] for i in pair])
+        m = arx_fit(dp, na, nb, train)
+        if m is None:
+            continue
+        mae = float(np.mean(np.abs((d.y - _sim(dp, m))[inner])))
+        if math.isfinite(mae) and (best is None or mae < best[0]):
+            best = (mae, pair)
+    return None if best is None else best[1]
+
+
+def textbook(d: _Data, candidates: Sequence[FloatArray]) -> Textbook | None:
+    """The textbook model on its picked pair, with its residue on the folds
+    of `d` (None: no stable pair, or a fold without a stable model)."""
+    pair = pick_pair(d, candidates)
+    if pair is None:
+        return None
+    dp = _data(d, [candidates[i] for i in pair])
+    na, nb = TEXTBOOK_ORDERS
+    blocks: list[FloatArray] = []
+    sims: list[FloatArray] = []
+    for train, val in d.splits:
+        m = arx_fit(dp, na, nb, train)
+        if m is None:
+            return None
+        sims.append(_sim(dp, m))
+        r = d.y - sims[-1]
+        for s, e in d.seg.bounds:
+            rows = np.flatnonzero(val[s:e]) + s
+            if rows.size:
+                blocks.append(np.asarray(r[rows], dtype=np.float64))
+    final = arx_fit(dp, na, nb, d.every)
+    if final is None:
+        return None
+    return Textbook(pair, final, tuple(blocks),
+                    pooled_fit(d.y, sims, [v for _, v in d.splits]))
