@@ -36,8 +36,9 @@ operator) unless ``anonymous_read``; policy None only with ``insecure =
 true`` on a loopback host (the config refuses anything else).
 
 The loop never waits for the face: the server runs on a thread of its own,
-with its own event loop (``compd-opcua-face``), so that its start (asyncua
-builds the standard address space: seconds of CPU) and its clients never
+with its own event loop (``compd-opcua-face``), so that its start (the
+first server of a process builds the standard address space, about a second
+of CPU; later ones copy it, `drivers.opcua_space`) and its clients never
 hold the daemon's loop; `publish` hands the cycle's snapshot over and the
 face's task writes it into the address space. SetHold runs on the face's
 thread and hands the hold to the daemon's loop, where the cycle lives. A
@@ -88,6 +89,7 @@ from compd.faces.opcua_limits import (
     quiet_asyncua_faults,
 )
 from compd.faces.opcua_shape import MachineNodes
+from drivers.opcua_space import CopiedSpaceInternalServer
 
 if TYPE_CHECKING:
     from asyncua.common.node import Node
@@ -271,7 +273,10 @@ class _SharedServer:
         anonymous = sec.anonymous_read or sec.policy == "None"
         self.guard.fit_to_descriptors()  # ValueError: not one descriptor to spare
         quiet_asyncua_faults()
-        server = Server(user_manager=_Users(sec.operator, password, anonymous, self.guard))
+        # the standard address space is a copy of the one this process built first
+        # (drivers.opcua_space), not filled node by node again for every server
+        users = _Users(sec.operator, password, anonymous, self.guard)
+        server = Server(iserver=CopiedSpaceInternalServer(user_manager=users))
         await server.init()
         # the guard limits connections; asyncua's own cap is only a backstop above it (an
         # evicted connection leaves asyncua's list just after its place is given to the

@@ -30,7 +30,7 @@ case to BadNotWritable (what a conforming controller sends).
 
 The first start in a process costs about a second (asyncua builds the
 standard address space), later ones a tenth of that (a copy of it,
-`drivers.sim.opcua_space`); stopping is immediate (the server clock task is
+`drivers.opcua_space`); stopping is immediate (the server clock task is
 disabled).
 """
 
@@ -55,8 +55,8 @@ from asyncua.ua.status_codes import StatusCodes
 
 from drivers.addresses import Address, OpcUaAddress
 from drivers.opcua_codec import INT_RANGES
+from drivers.opcua_space import CopiedSpaceInternalServer
 from drivers.sim import CHANNELS, OUTPUTS, PROBES
-from drivers.sim.opcua_space import CopiedSpaceInternalServer
 from drivers.sim.ports import free_tcp_port
 from drivers.sim.renamed import FORMER_NAMES, warn_former
 

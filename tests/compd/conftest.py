@@ -1,11 +1,15 @@
 """What the daemon tests share: `sim`, the simulated Modbus controller on
-127.0.0.1 publishing a machine at rest (20 °C), and `shop_record`, 48 h of the
-shop machine per seed, simulated once per session."""
+127.0.0.1 publishing a machine at rest (20 °C), `shop_record`, 48 h of the
+shop machine per seed, simulated once per session, and `recipe_plant`, the
+calibration recipe's records and the model fitted on them, once per session."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import stat
 from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -43,3 +47,36 @@ def shop_record(tmp_path_factory: pytest.TempPathFactory) -> Callable[[int], Pat
         return made[seed]
 
     return record
+
+
+@dataclass(frozen=True)
+class RecipePlant:
+    """calibration.md §3's records and model: `constant` (seed 2) and `etve`
+    (seed 1) at 60 s, and `plant` fitted jointly on them with one term per
+    sensor; `fit_out`, what that `compd fit` printed."""
+
+    constant: Path
+    etve: Path
+    plant: Path
+    fit_out: str
+
+
+@pytest.fixture(scope="session")
+def recipe_plant(tmp_path_factory: pytest.TempPathFactory) -> RecipePlant:
+    """The calibration recipe's fit, run once per session (of the xdist worker)
+    for the tests that only read it. Read-only files."""
+    d = tmp_path_factory.mktemp("recipe")
+    constant, etve, plant = d / "constant.csv", d / "etve.csv", d / "plant.toml"
+    for argv in (["sim", "--record", str(constant), "--program", "constant", "--period-s",
+                  "60", "--seed", "2"],
+                 ["sim", "--record", str(etve), "--program", "etve", "--period-s", "60",
+                  "--seed", "1"]):
+        assert main(argv) == 0, argv
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main(["fit", str(constant), str(etve), "--column", "dz_um", "--term",
+                     "bearing", "--term", "motor", "--term", "column", "--term", "ambient",
+                     "-o", str(plant)]) == 0
+    for path in (constant, etve, plant):
+        path.chmod(stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH)
+    return RecipePlant(constant, etve, plant, out.getvalue())

@@ -21,6 +21,7 @@ import pytest
 
 from compd.cli import main
 from compd.core.output import Status
+from tests.compd.conftest import RecipePlant
 from tests.compd.cycle_helpers import samples
 from tests.compd.test_cycle_foreign import _heated
 from tests.compd.test_e2e_protocols import RANGE_REDUCTION
@@ -33,28 +34,24 @@ def _read(name: str) -> str:
     return (ROOT / name).read_text(encoding="utf-8")
 
 
-def test_calibration_md_quotes_what_its_recipe_prints(tmp_path: Path,
+def test_calibration_md_quotes_what_its_recipe_prints(recipe_plant: RecipePlant,
+                                                     tmp_path: Path,
                                                      capsys: pytest.CaptureFixture[str]) -> None:
-    """calibration.md §3's commands, run as written (in tmp_path)."""
-    rec = {n: str(tmp_path / f"{n}.csv") for n in ("constant", "etve", "spectrum")}
-    plant = str(tmp_path / "plant.toml")
-    for argv in (["sim", "--record", rec["constant"], "--program", "constant", "--period-s",
-                  "60", "--seed", "2"],
-                 ["sim", "--record", rec["etve"], "--program", "etve", "--period-s", "60",
-                  "--seed", "1"],
-                 ["fit", rec["constant"], rec["etve"], "--column", "dz_um", "--term", "bearing",
-                  "--term", "motor", "--term", "column", "--term", "ambient", "-o", plant],
-                 ["sim", "--record", rec["spectrum"], "--program", "spectrum", "--period-s",
-                  "60", "--seed", "7"]):
-        assert main(argv) == 0, argv
-    fit_out = capsys.readouterr().out
+    """calibration.md §3's commands, run as written: the records and the fit
+    (shared with the session, `recipe_plant`), then the spectrum record."""
+    spectrum = str(tmp_path / "spectrum.csv")
+    plant = str(recipe_plant.plant)
+    assert main(["sim", "--record", spectrum, "--program", "spectrum", "--period-s", "60",
+                 "--seed", "7"]) == 0
+    fit_out = recipe_plant.fit_out
+    capsys.readouterr()
     text = _read("docs/calibration.md")
     calibration = re.search(r"model \(replayed as the daemon steps it, initial state "
                             r"estimated\): fit ([\d.]+) %", fit_out)
     assert calibration is not None and calibration.group(0) in text
     figures = {}
     for model in (plant, "sim_machine"):
-        assert main(["replay", model, rec["spectrum"], "--column", "dz_um", "--json"]) == 0
+        assert main(["replay", model, spectrum, "--column", "dz_um", "--json"]) == 0
         doc = json.loads(capsys.readouterr().out)
         figures[model] = (doc["fit_percent"], doc["range_reduction"])
     fit, reduction = figures[plant]

@@ -20,6 +20,7 @@ from asyncua import ua
 from asyncua.client.client import Client
 from asyncua.common.node import Node
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+from asyncua.server.address_space import NodeData
 from asyncua.ua.uaerrors import BadUserAccessDenied, UaStatusCodeError
 
 from compd.cli import main
@@ -29,6 +30,7 @@ from compd.errors import EX_CONFIG, ConfigError
 from compd.faces.opcua_face import NAMESPACE, release_all
 from compd.runtime.daemon import Daemon
 from compd.runtime.sdnotify import Notifier
+from drivers import opcua_space
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
 from tests.compd.daemon_helpers import until, write_config
@@ -148,6 +150,33 @@ async def test_the_namespace_follows_the_cycle_and_is_read_only(
             await _becomes(machine, idx, ("FaultStateName",), "hold")
             await _becomes(machine, idx, ("Channels", "bearing", "Valid"), False)
         assert daemon.cycle is not None and daemon.cycle.operator_hold is False
+
+
+async def test_each_face_has_a_copy_of_the_standard_space_built_once(
+        sim: ModbusSimController, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The face's server takes the standard address space from the process's
+    template (`drivers.opcua_space`): built by the first face, copied for the
+    next; each has its own namespace array."""
+    builds: list[int] = []
+    build = opcua_space._build
+
+    def counting() -> dict[ua.NodeId, NodeData]:
+        builds.append(1)
+        return build()
+
+    monkeypatch.setattr(opcua_space, "_template", None)
+    monkeypatch.setattr(opcua_space, "_build", counting)
+    for run in ("one", "two"):
+        port = free_tcp_port("127.0.0.1")
+        (tmp_path / run).mkdir()
+        async with face_daemon(tmp_path / run, sim, _face(port)):
+            client = await _client(port)
+            async with client:
+                assert await client.get_namespace_array() == [
+                    "http://opcfoundation.org/UA/", "urn:compd:server", NAMESPACE]
+                _, machine = await _machine(client)
+                assert (await machine.read_browse_name()).Name == "test"
+        assert len(builds) == 1, run
 
 
 async def test_sethold_is_the_operators_and_holds_then_slews_back(

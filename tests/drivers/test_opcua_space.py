@@ -1,5 +1,5 @@
 """The simulated OPC UA server's standard address space: built once per process
-and copied into each server (`drivers.sim.opcua_space`), the same nodes as
+and copied into each server (`drivers.opcua_space`), the same nodes as
 asyncua's own fill, and no server sees what another one changed."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ from asyncua.server.address_space import NodeData
 from asyncua.server.server import Server
 from asyncua.ua.object_ids import ObjectIds
 
-from drivers.sim import opcua_space
+from drivers import opcua_space
+from drivers.opcua_space import standard_nodes
 from drivers.sim.opcua_server import NAMESPACE, OpcUaSimController
-from drivers.sim.opcua_space import standard_nodes
 
 
 def _node(name: str) -> ua.NodeId:

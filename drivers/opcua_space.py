@@ -1,12 +1,16 @@
 """The OPC UA standard address space, built once per process and copied into
-every simulated server.
+every OPC UA server this process starts: the simulated controllers
+(`drivers.sim.opcua_server`) and the daemon's own face (`compd.faces.opcua_face`).
 
 asyncua fills a new server's address space (about 6000 nodes of the OPC UA
 standard) by adding node after node, about a second of CPU per server. The
-simulated controllers start hundreds of times in a test run and a bench may
-start several: `CopiedSpaceInternalServer` builds it once
+simulated controllers start hundreds of times in a test run, a bench may
+start several, and the tests start the daemon's face a few dozen times:
+`CopiedSpaceInternalServer` builds it once
 (`standard_address_space.fill_address_space`, as asyncua does) and gives
-every later server its own copy, which takes a tenth of the time.
+every later server its own copy, which takes a tenth of the time. The
+template is only read once built; two threads that start the first servers
+together may both build it, and either result is the same.
 
 What a server may change is copied; what it only replaces is shared:
 
