@@ -287,6 +287,9 @@ class Daemon:
             await self.telemetry.close()
             await self.recorder.close()
             if self._lock is not None:
+                # a save handed to the disk thread writes through the lock's directory
+                # descriptor: it must be done before that closes (a cancelled loop)
+                self.checkpoint.writer.drain()
                 self._lock.release()
 
     def _log_start(self, mode: str) -> None:

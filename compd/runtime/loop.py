@@ -10,7 +10,8 @@ swaps a reloaded config in there (`compd.runtime.reloading`). Each cycle
 (`one_cycle`): `compd.runtime.cycle_io.CycleIO.run` (read, plan, write,
 commit), then every sink is fed the tick (the committed row), none of which
 may stop the cycle; its time goes to ``compd_cycle_seconds``; then the
-checkpoint (last, outside that time: it fsyncs); then, when one is due, the
+checkpoint (last, outside that time: written and fsynced on the process's disk
+thread while this machine's task awaits it, `compd.runtime.diskwriter`); then, when one is due, the
 process's full garbage collection (`compd.runtime.gcpolicy`), in the slack
 before the next deadline.
 
@@ -154,7 +155,7 @@ class CycleLoop:
                 self.checkpoint.save()
                 return 0 if result.complete else 1
             if self._checkpoint_due:
-                self.checkpoint.save()
+                await self.checkpoint.save_async()
             if ramp_left is not None:
                 ramp_left -= 1
                 if result.shutdown_done or ramp_left <= 0:
