@@ -54,7 +54,8 @@ def test_install_leaves_the_young_generations_and_stops_automatic_full_collectio
 
 def test_full_collection_only_when_due_and_in_slack(
         thresholds: tuple[int, int, int]) -> None:
-    clock, collected = Clock(), []
+    clock = Clock()
+    collected: list[int] = []
     policy = make(clock, collected)
     assert not policy.after_cycle(0.9)  # not installed: CPython's own rules
     policy.install()
@@ -74,7 +75,8 @@ def test_full_collection_only_when_due_and_in_slack(
 
 def test_overdue_collection_runs_without_slack(thresholds: tuple[int, int, int]) -> None:
     """A loop that never has the slack still collects, so cyclic garbage stays bounded."""
-    clock, collected = Clock(), []
+    clock = Clock()
+    collected: list[int] = []
     policy = make(clock, collected)
     policy.install()
     clock.now += 119.0
