@@ -206,3 +206,31 @@ async def test_a_checkpoint_failing_on_the_writer_is_logged_and_tried_again(
     row.sequence = 5
     assert not sink.note(cast(Any, SimpleNamespace(row=row)))  # saved unhealthy: not again
     writer.shutdown()
+
+
+def test_a_new_recorder_file_has_small_pages_and_an_old_one_keeps_its_own(
+        tmp_path: Path) -> None:
+    """Small pages cut the bytes each commit writes (WAL frames are whole pages); a
+    file an older compd made keeps its page size (WAL mode cannot change it) and
+    is appended to as before."""
+    from compd.runtime.recorder import PAGE_BYTES
+
+    def page_size(path: Path) -> int:
+        with sqlite3.connect(path) as conn:
+            return int(conn.execute("PRAGMA page_size").fetchone()[0])
+
+    new = tmp_path / "new.sqlite"
+    with Recorder(new, commit_every=2) as rec:
+        for k in range(1, 5):
+            rec.record(row(k))
+    assert page_size(new) == PAGE_BYTES == 1024
+    old = tmp_path / "old.sqlite"
+    with sqlite3.connect(old) as conn:
+        conn.execute("PRAGMA page_size=4096")
+        conn.execute("PRAGMA journal_mode=WAL")
+    for start in (1, 5):
+        with Recorder(old, commit_every=2) as rec:
+            for k in range(start, start + 4):
+                rec.record(row(k))
+    assert page_size(old) == 4096
+    assert rows_in(old) == list(range(1, 9))
