@@ -263,7 +263,8 @@ class Recorder:
             return
         batch = self._batch()
         if batch is not None:
-            self._in_flight = self._writer.submit(lambda: self._commit(batch))
+            self._in_flight = self._writer.submit(lambda: self._commit(batch),
+                                                  key=str(self.path.parent))
 
     def flush(self) -> None:
         """Commit the buffered rows now (after the batch in flight). Never raises: a

@@ -43,6 +43,21 @@ def test_jobs_run_in_order_on_one_thread_and_drain_waits_for_them() -> None:
     writer.shutdown()
 
 
+def test_other_keys_run_beside_a_slow_job() -> None:
+    """One machine's slow fsync does not hold the others' saves: a job of another
+    key runs while the first still waits (the first would wait forever in a
+    single queue; it gives up after 10 s and the test fails)."""
+    writer = DiskWriter(threads=4)
+    keys = [f"/var/lib/compd/m{k}" for k in range(16)]
+    slow_key = keys[0]
+    other = next(k for k in keys if hash(k) % 4 != hash(slow_key) % 4)
+    released = threading.Event()
+    slow = writer.submit(lambda: released.wait(10.0), key=slow_key)
+    writer.submit(released.set, key=other).result()
+    assert slow.result() is True
+    writer.shutdown()
+
+
 def test_a_failing_job_reports_on_its_future_and_the_next_ones_run() -> None:
     writer = DiskWriter()
 
@@ -75,7 +90,7 @@ def test_recorder_commits_on_the_writer_in_order_and_close_flushes(tmp_path: Pat
     path = tmp_path / "samples.sqlite"
     rec = Recorder(path, commit_every=10, writer=writer)
     rec.open()
-    writer.submit(gate.wait)
+    writer.submit(gate.wait, key=str(tmp_path))  # the recorder's thread
     for k in range(1, 11):
         rec.record(row(k))
     assert rec.pending == 0 and rec.committed == 0  # handed over, not committed yet
@@ -96,7 +111,7 @@ def test_never_more_rows_uncommitted_than_one_commit_interval(tmp_path: Path) ->
     gate = threading.Event()
     rec = Recorder(tmp_path / "samples.sqlite", commit_every=5, writer=writer)
     rec.open()
-    writer.submit(gate.wait)
+    writer.submit(gate.wait, key=str(tmp_path))
     for k in range(1, 6):
         rec.record(row(k))
     assert rec.committed == 0 and rec.pending == 0  # 1..5 in flight
@@ -162,7 +177,7 @@ async def test_checkpoint_saves_run_on_the_writer_in_the_order_asked(tmp_path: P
     gate = threading.Event()
     state = {"sequence": 0}
     sink = checkpoint_sink(tmp_path, writer, lambda: dict(state), Log())
-    writer.submit(gate.wait)
+    writer.submit(gate.wait, key=str(tmp_path))  # the state directory's thread
     first = asyncio.ensure_future(sink.save_async())
     await asyncio.sleep(0)
     state["sequence"] = 1  # the cycle goes on: the first save keeps what it took

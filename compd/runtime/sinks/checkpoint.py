@@ -14,13 +14,14 @@ unhealthy however recent the rest).
 A failed save is logged (``checkpoint_failed``) and never stops the loop. A
 dry run saves nothing.
 
-The state is taken and encoded on the loop's thread, at the cycle that asks for
-it; the file is written (temp file, fsync, rename, fsync of the directory) on
-the process's disk thread (`compd.runtime.diskwriter`), in the order the saves
-were asked for. The loop awaits its due saves (`save_async`: the machine's
-next cycle starts after its checkpoint is on disk, as before, while the other
-machines of the process cycle on); `save` waits on the thread (shutdown,
-``--once``, an operator's hold: the caller goes on once the file is there).
+The state is taken and encoded on the loop's thread, at the cycle that asks
+for it; the file is written (temp file, fsync, rename, fsync of the directory)
+on one of the process's disk threads (`compd.runtime.diskwriter`, the state
+directory's), in the order the saves were asked for. The loop awaits its due
+saves (`save_async`: the machine's next cycle starts after its checkpoint is
+on disk, as before, while the other machines of the process cycle on); `save`
+waits on the thread (shutdown, ``--once``, an operator's hold: the caller goes
+on once the file is there).
 """
 
 from __future__ import annotations
@@ -144,7 +145,8 @@ class CheckpointSink(CycleSink):
             self._failed(exc)
             return None
         directory = self.directory
-        return self.writer.submit(lambda: write_checkpoint(path, data, directory=directory))
+        return self.writer.submit(lambda: write_checkpoint(path, data, directory=directory),
+                                  key=str(path.parent))
 
     def _saved(self) -> None:
         self._saved_healthy = not self._unhealthy_since_save
