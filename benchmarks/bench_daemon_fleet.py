@@ -27,6 +27,12 @@ the ratios is the single machine (N = 1) measured the same way in the same
 run. The 1-minute load average is printed per step: other work on the same
 cores moves the figures.
 
+Per step it also prints the longest garbage-collector pause in the window (ms,
+from `gc.callbacks`) and the count of full (generation 2) collections, the bytes
+the daemon processes wrote to disk per cycle (`/proc/self/io` write_bytes over
+the window: recorder, checkpoints, logs) and the requests per cycle (socket
+sends of the drivers' asyncio transports over the window / cycles).
+
 With --run-dir, each step is `compd run DIR --workers W` itself (the real
 parent, `compd.runtime.workers`, and its workers, or with W = 1 the one-process
 `compd.runtime.fleet`) over a directory of N machine files, every W of
@@ -38,7 +44,9 @@ the simulated controllers are served by --farms processes whatever W is.
 
 Run:  .venv/bin/python benchmarks/bench_daemon_fleet.py [--protocols modbus opcua]
       [--seconds 20] [--start 32] [--max 1024] [--workers 2] [--aligned]
-(about 2-3 minutes per protocol with the defaults; --seconds 60 for a longer run).
+      [--sizes 256 512 768 1024]
+(about 2-3 minutes per protocol with the defaults; --seconds 60 for a longer run;
+--sizes runs exactly those N, after N = 1, instead of the search).
       .venv/bin/python benchmarks/bench_daemon_fleet.py --run-dir --protocols modbus
       --sizes 2000 --workers 1 2 [--farms 2]
 """
@@ -141,9 +149,36 @@ async def _sim_farm(protocol: str, count: int) -> None:
 
 # -- a daemon worker process -------------------------------------------------------------
 
+def _write_bytes() -> int:
+    """Bytes this process has caused to be written to storage (/proc/self/io)."""
+    for line in Path("/proc/self/io").read_text().splitlines():
+        if line.startswith("write_bytes:"):
+            return int(line.split()[1])
+    return 0
+
+
+def _count_sends() -> list[int]:
+    """Count the socket sends of every asyncio transport of this process (the
+    drivers' requests: one send per Modbus request or OPC UA message chunk)."""
+    from asyncio import selector_events
+
+    sent = [0]
+    cls: Any = selector_events._SelectorSocketTransport
+    write = cls.write
+
+    def counted(self: Any, data: Any) -> None:
+        sent[0] += 1
+        write(self, data)
+
+    cls.write = counted
+    return sent
+
+
 async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> dict[str, Any]:
     from compd.config.loader import load_config
     from compd.runtime.driver_setup import build_driver
+
+    sends = _count_sends()
 
     daemons: list[TimedDaemon] = []
     drivers: list[TimedDriver] = []
@@ -178,10 +213,12 @@ async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> d
         await asyncio.sleep(WARMUP_CYCLES)
         window.extend([time.monotonic(), time.process_time()])
         counts.append(troubles())
+        io.extend([_write_bytes(), sends[0]])
         print("window", flush=True)
         await asyncio.sleep(seconds)
         window.extend([time.monotonic(), time.process_time()])
         counts.append(troubles())
+        io.extend([_write_bytes(), sends[0]])
         for d in daemons:
             d.request_stop()
 
@@ -190,6 +227,7 @@ async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> d
                 sum(d.cycles - d.complete_cycles for d in daemons))
 
     counts: list[tuple[int, int]] = []  # (overruns, incomplete) at window open, close
+    io: list[int] = []  # (write_bytes, sends) at window open, then at close
     tasks = [one(d, o) for d, o in zip(daemons, offsets_s, strict=True)]
     rcs = await asyncio.gather(conductor(), *tasks, return_exceptions=True)
     late: list[float] = []
@@ -216,6 +254,8 @@ async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> d
         "gc_gen2": sum(1 for g, _ in gc_pauses if g == 2),
         "gc_max_ms": max((p for _, p in gc_pauses), default=0.0) * 1e3,
         "gc_ms": sum(p for _, p in gc_pauses) * 1e3,
+        "write_bytes": io[2] - io[0],
+        "sends": io[3] - io[1],
         "failed": [repr(r) for r in rcs[1:] if r != 0] + (
             [repr(rcs[0])] if rcs[0] is not None else []),
     }
@@ -255,6 +295,12 @@ class Step:
     rss_worker_mb: float
     failed: list[str]
     loadavg: float
+    #: longest collection in the window (ms, any worker) and full collections in it
+    gc_max_ms: float = math.nan
+    gc_gen2: int = 0
+    #: disk bytes written by the workers per cycle in the window; requests per cycle
+    write_bytes_per_cycle: float = math.nan
+    requests_per_cycle: float = math.nan
 
     @property
     def holds(self) -> bool:
@@ -345,6 +391,7 @@ def run_step(protocol: str, n: int, *, seconds: int, workers: int, aligned: bool
                 farm.kill()
                 farm.wait()
     late = [x for r in results for x in r["late_s"]]
+    cycles_in_window = max(1, sum(r["cycles"] for r in results))
     return Step(
         n=n, cycles=sum(r["cycles"] for r in results),
         late_p50_ms=percentile(late, 0.5) * 1e3, late_p99_ms=percentile(late, 0.99) * 1e3,
@@ -356,13 +403,19 @@ def run_step(protocol: str, n: int, *, seconds: int, workers: int, aligned: bool
         leaked=sum(r["leaked"] for r in results),
         own_ms=mean([r["own_s"] for r in results]) * 1e3,
         cpu_daemons=cpu_d, cpu_sims=cpu_f, rss_worker_mb=rss,
-        failed=[f for r in results for f in r["failed"]], loadavg=float(load))
+        failed=[f for r in results for f in r["failed"]], loadavg=float(load),
+        gc_max_ms=max(r["gc_max_ms"] for r in results),
+        gc_gen2=sum(r["gc_gen2"] for r in results),
+        write_bytes_per_cycle=sum(r["write_bytes"] for r in results) / cycles_in_window,
+        requests_per_cycle=sum(r["sends"] for r in results) / cycles_in_window)
 
 
 def print_step(protocol: str, s: Step) -> None:
     print(f"{protocol:7s}{s.n:6d}{s.cycles:8d}{s.late_p50_ms:9.2f}{s.late_p99_ms:9.2f}"
           f"{s.late_max_ms:9.2f}{s.overruns:8d}{s.incomplete:7d}{s.own_ms:8.3f}"
           f"{s.cpu_daemons:8.2f}{s.cpu_sims:8.2f}{s.rss_worker_mb:8.0f}{s.loadavg:6.1f}"
+          f"{s.gc_max_ms:7.1f}{s.gc_gen2:4d}{s.write_bytes_per_cycle:8.0f}"
+          f"{s.requests_per_cycle:6.2f}"
           f"  {'holds' if s.holds else 'FAILS'}"
           f"  start: {s.start_overruns} overruns, {s.start_incomplete} incomplete"
           f"{'  leaked=' + str(s.leaked) if s.leaked else ''}"
@@ -378,6 +431,10 @@ def search(protocol: str, args: argparse.Namespace, work: Path) -> tuple[Step, i
         return s
 
     single = step(1)
+    if args.sizes:
+        held = [s for s in map(step, args.sizes) if s.holds]
+        top = max(held, key=lambda s: s.n, default=None)
+        return single, top.n if top else 0, top
     best = 0
     best_step: Step | None = None
     n = args.start
@@ -427,8 +484,6 @@ def main() -> None:
                              "compd run's --workers, each in turn")
     parser.add_argument("--run-dir", action="store_true",
                         help="measure `compd run DIR --workers W` itself at each --sizes")
-    parser.add_argument("--sizes", type=int, nargs="+", default=[2000],
-                        help="with --run-dir: the numbers of machines")
     parser.add_argument("--farms", type=int, default=len(os.sched_getaffinity(0)),
                         help="with --run-dir: sim farm processes (default: the CPUs)")
     parser.add_argument("--pool", metavar="DIR", help=argparse.SUPPRESS)
@@ -439,6 +494,9 @@ def main() -> None:
                         help="state.checkpoint_every (default 20, so that each daemon "
                              "checkpoints (fsync) once in a 20 s step: 3x the production "
                              "rate of 60; use 60 with --seconds 65 for the production rate)")
+    parser.add_argument("--sizes", type=int, nargs="+", default=None,
+                        help="run exactly these N (after N = 1) instead of the search; "
+                             "with --run-dir the numbers of machines (default 2000)")
     parser.add_argument("--aligned", action="store_true",
                         help="start all daemons at the same instant (worst case)")
     parser.add_argument("--sim-farm", metavar="PROTOCOL", help=argparse.SUPPRESS)
@@ -456,6 +514,7 @@ def main() -> None:
     if args.pool:
         sys.exit(fleet_run_dir.pool_main(args.pool, args.pool_workers, args.pool_out, HERE))
     if args.run_dir:
+        args.sizes = args.sizes or [2000]
         run_dir(args)
         return
     print(f"fleet at 1 Hz on {os.cpu_count()} CPUs, {args.workers[0]} daemon workers, "
@@ -464,9 +523,12 @@ def main() -> None:
           f"{'aligned' if args.aligned else 'spread over the period'}")
     print(f"{'proto':7s}{'N':>6s}{'cycles':>8s}{'late50':>9s}{'late99':>9s}{'max':>9s}"
           f"{'overrun':>8s}{'incmpl':>7s}{'own ms':>8s}{'cpu dmn':>8s}{'cpu sim':>8s}"
-          f"{'RSS MB':>8s}{'load':>6s}\n(lateness ms over the window; cpu = CPU s per s; "
+          f"{'RSS MB':>8s}{'load':>6s}{'gc ms':>7s}{'gc2':>4s}{'B/cyc':>8s}{'req':>6s}\n"
+          "(lateness ms over the window; cpu = CPU s per s; "
           "RSS of the largest worker; load = 1-min load average at the end of the window;\n"
-          " overrun/incmpl in the window; start: before it, while the daemons started)")
+          " overrun/incmpl in the window; start: before it, while the daemons started;\n"
+          " gc ms = longest collection in the window, gc2 = full collections in it; "
+          "B/cyc = disk bytes written per cycle; req = requests (socket sends) per cycle)")
     summary = []
     with tempfile.TemporaryDirectory(prefix="bench-daemon-fleet-") as tmp:
         for protocol in args.protocols:

@@ -342,6 +342,10 @@ class Metrics(MetricsServer):
             "in the channel's configured unit (the unit label)", ["channel", "unit"],
             registry=r)
         self._channel_units: dict[str, str] = {}
+        #: each channel's value and validity series, resolved once per configuration
+        #: (`labels()` hashes and locks on every call: twice a channel a cycle before)
+        self._value_series: dict[str, Gauge] = {}
+        self._valid_series: dict[str, Gauge] = {}
         self.build_info = Info("compd_build", "compd's version and the sha256 of the model "
                                "and config it runs", registry=r)
         self.fault_state = Gauge("compd_fault_state",
@@ -432,6 +436,8 @@ class Metrics(MetricsServer):
             if name not in channels:
                 self._remove(self.channel_valid, name)
         self._channel_units = dict(channels)
+        self._value_series.clear()
+        self._valid_series.clear()
         for name in channels:
             self.read_errors.labels(channel=name)
         self.read_errors.labels(channel="*")
@@ -447,13 +453,13 @@ class Metrics(MetricsServer):
 
     def channel(self, name: str, value: float) -> None:
         """The last value of channel `name` (degC and K to °C; others as read)."""
+        series = self._value_series.get(name)
         unit = self._channel_units.get(name, "")
-        if unit == "degC":
-            self.channel_temperature.labels(channel=name).set(value)
-        elif unit == "K":
-            self.channel_temperature.labels(channel=name).set(value - 273.15)
-        else:
-            self.channel_value.labels(channel=name, unit=unit).set(value)
+        if series is None:
+            series = (self.channel_temperature.labels(channel=name) if unit in ("degC", "K")
+                      else self.channel_value.labels(channel=name, unit=unit))
+            self._value_series[name] = series
+        series.set(value - 273.15 if unit == "K" else value)
 
     def model_output(self, model_um: float | None,
                      validity: Mapping[str, str | None]) -> None:
@@ -461,7 +467,10 @@ class Metrics(MetricsServer):
         validity (name -> None when valid, else the reason)."""
         self.model_output_um.set(math.nan if model_um is None else model_um)
         for name, reason in validity.items():
-            self.channel_valid.labels(channel=name).set(1.0 if reason is None else 0.0)
+            series = self._valid_series.get(name)
+            if series is None:
+                series = self._valid_series[name] = self.channel_valid.labels(channel=name)
+            series.set(1.0 if reason is None else 0.0)
 
     def adaptation(self, bias_um: float, bias_sigma_um: float, correction_um: float,
                    probe: Mapping[str, Any] | None, standing_down: bool = False,

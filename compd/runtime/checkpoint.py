@@ -43,7 +43,7 @@ from compd.runtime.statedir import StateDir, StateDirError, open_private
 from models.nesting import loads_json
 
 __all__ = ["CHECKPOINT_NAME", "FORMAT_VERSION", "RESERVED_KEYS", "CheckpointError",
-           "load_checkpoint", "save_checkpoint"]
+           "encode_checkpoint", "load_checkpoint", "save_checkpoint", "write_checkpoint"]
 
 #: The checkpoint's name in the state directory (the daemon writes it, `compd health` reads it).
 CHECKPOINT_NAME = "checkpoint.json"
@@ -88,6 +88,13 @@ def save_checkpoint(path: Path, state: dict[str, Any], *,
     infinity, a value JSON cannot hold, a reserved key) and OSError when the
     file system refuses (the old checkpoint is then left as it was).
     """
+    write_checkpoint(path, encode_checkpoint(path, state), directory=directory)
+
+
+def encode_checkpoint(path: Path, state: dict[str, Any]) -> bytes:
+    """The file's bytes for `state` (the first half of `save_checkpoint`: no I/O,
+    so the caller may write them later or on another thread); CheckpointError as
+    `save_checkpoint` raises it."""
     clash = RESERVED_KEYS.intersection(state)
     if clash:
         raise CheckpointError(path, f"state uses reserved key(s) {sorted(clash)}")
@@ -102,8 +109,12 @@ def save_checkpoint(path: Path, state: dict[str, Any], *,
     except TypeError as exc:
         raise CheckpointError(path, f"state is not storable as JSON: {exc}") from exc
     payload["checksum"] = checksum
-    data = json.dumps(payload, sort_keys=True, indent=1, allow_nan=False).encode("utf-8")
+    return json.dumps(payload, sort_keys=True, indent=1, allow_nan=False).encode("utf-8")
 
+
+def write_checkpoint(path: Path, data: bytes, *, directory: StateDir | None = None) -> None:
+    """Write `encode_checkpoint`'s bytes to `path` atomically (the second half of
+    `save_checkpoint`: temp file, fsync, rename, fsync of the directory)."""
     if directory is not None:
         _write(directory, path, data)
         return

@@ -62,6 +62,7 @@ from compd.runtime.clock import Clock
 from compd.runtime.cycle_io import CycleIO, Running
 from compd.runtime.driver_setup import connect
 from compd.runtime.gcfreeze import freeze_long_lived
+from compd.runtime.gcpolicy import PROCESS_GC
 from compd.runtime.heap import pin_mmap_threshold
 from compd.runtime.journal import Journal
 from compd.runtime.loop import CycleLoop
@@ -130,7 +131,7 @@ class Daemon:
         self.loop = CycleLoop(self.io, sinks=self.sinks, checkpoint=self.checkpoint,
                               journal=self.journal, metrics=self.metrics, clock=self.time,
                               once=once, between=self._between,
-                              reloads=lambda: self.reloader.reloads)
+                              reloads=lambda: self.reloader.reloads, gc_policy=PROCESS_GC)
         #: `compd rezero`'s requests in the state directory (`compd.runtime.rezero_request`)
         self.rezero_requests = RezeroRequests(None)
         self._lock: Any = None
@@ -270,7 +271,13 @@ class Daemon:
                 # full GC pauses stall every machine's loop (gcfreeze.py): the objects
                 # made so far (driver connected) are frozen before the first deadline
                 freeze_long_lived()
-                return await self.loop.run()
+                # and full collections only between cycles, once a minute (gcpolicy.py)
+                gc_policy = self.loop.gc_policy or PROCESS_GC
+                gc_policy.install()
+                try:
+                    return await self.loop.run()
+                finally:
+                    gc_policy.uninstall()
             finally:
                 await self.reloader.cancel()
                 if self.running.driver is not None:
@@ -280,6 +287,9 @@ class Daemon:
             await self.telemetry.close()
             await self.recorder.close()
             if self._lock is not None:
+                # a save handed to the disk thread writes through the lock's directory
+                # descriptor: it must be done before that closes (a cancelled loop)
+                self.checkpoint.writer.drain()
                 self._lock.release()
 
     def _log_start(self, mode: str) -> None:

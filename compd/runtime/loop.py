@@ -10,7 +10,10 @@ swaps a reloaded config in there (`compd.runtime.reloading`). Each cycle
 (`one_cycle`): `compd.runtime.cycle_io.CycleIO.run` (read, plan, write,
 commit), then every sink is fed the tick (the committed row), none of which
 may stop the cycle; its time goes to ``compd_cycle_seconds``; then the
-checkpoint (last, outside that time: it fsyncs).
+checkpoint (last, outside that time: written and fsynced on the process's disk
+thread while this machine's task awaits it, `compd.runtime.diskwriter`); then, when one is due, the
+process's full garbage collection (`compd.runtime.gcpolicy`), in the slack
+before the next deadline.
 
 A stop request (`stop_requested`): the current cycle finishes, then the
 shutdown policy: "hold" ends the loop, "ramp_to_zero" keeps cycling the ramp
@@ -36,6 +39,7 @@ if TYPE_CHECKING:
     from compd.faces.telemetry import Metrics
     from compd.runtime.clock import Clock
     from compd.runtime.cycle_io import CycleIO
+    from compd.runtime.gcpolicy import GcPolicy
     from compd.runtime.journal import Journal
     from compd.runtime.sinks.base import CycleSink
     from compd.runtime.sinks.checkpoint import CheckpointSink
@@ -47,7 +51,8 @@ class CycleLoop:
     def __init__(self, io: CycleIO, *, sinks: list[CycleSink], checkpoint: CheckpointSink,
                  journal: Journal, metrics: Metrics, clock: Clock, once: bool = False,
                  between: Callable[[], Awaitable[None]] | None = None,
-                 reloads: Callable[[], int] = lambda: 0) -> None:
+                 reloads: Callable[[], int] = lambda: 0,
+                 gc_policy: GcPolicy | None = None) -> None:
         self.io = io
         self.sinks = sinks
         self.checkpoint = checkpoint
@@ -57,6 +62,8 @@ class CycleLoop:
         self.once = once
         self.between = between
         self.reloads = reloads
+        #: full garbage collections run here, after a cycle, when due (`gcpolicy`)
+        self.gc_policy = gc_policy
         self.stop_requested = asyncio.Event()
         #: the signal that asked us to stop (None: a caller's request)
         self.stop_signal: str | None = None
@@ -148,7 +155,7 @@ class CycleLoop:
                 self.checkpoint.save()
                 return 0 if result.complete else 1
             if self._checkpoint_due:
-                self.checkpoint.save()
+                await self.checkpoint.save_async()
             if ramp_left is not None:
                 ramp_left -= 1
                 if result.shutdown_done or ramp_left <= 0:
@@ -165,6 +172,8 @@ class CycleLoop:
                 self.metrics.overruns.inc()
                 log.warning("cycle_overrun", sequence=result.sequence,
                             skipped_deadlines=missed, overruns=self.overruns)
+            if self.gc_policy is not None:
+                self.gc_policy.after_cycle(schedule.wait_s(clock.mono()))
             await pause(clock, self.stop_requested, schedule.wait_s(clock.mono()))
             if self.stop_requested.is_set() and cfg.recorder_only:
                 # nothing to ramp, and a cycle now would record a row off the sample

@@ -247,6 +247,53 @@ def test_model_output_and_channel_validity_gauges() -> None:
     assert 'compd_channel_valid{channel="bearing"}' in text
 
 
+def test_channel_series_resolved_once_per_configuration(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A cycle sets each channel's value and validity series without `labels()`
+    (a hash, a lock and a dict look-up each: 14 calls a cycle for seven channels,
+    a measurable share of a 1,000-machine fleet's loop); a reload resolves them
+    again, so a dropped series is never written to."""
+    from prometheus_client import generate_latest
+
+    m = Metrics()
+    m.configure({"bearing": "degC", "ambient": "K", "speed": "rpm"}, ["offset"],
+                version="0.1.0", model_sha256="a", config_sha256="b")
+    calls: list[str] = []
+    for gauge in (m.channel_temperature, m.channel_value, m.channel_valid):
+        labels = gauge.labels
+
+        def counted(*args: str, _labels: object = labels, **kw: str) -> object:
+            calls.append(kw.get("channel", ""))
+            return _labels(*args, **kw)  # type: ignore[operator]
+
+        monkeypatch.setattr(gauge, "labels", counted)
+
+    def cycle(bearing: float) -> None:
+        for name, value in (("bearing", bearing), ("ambient", 293.15), ("speed", 1500.0)):
+            m.channel(name, value)
+        m.model_output(1.0, {"bearing": None, "ambient": None, "speed": "stale"})
+
+    cycle(20.0)
+    assert len(calls) == 6
+    cycle(21.5)
+    cycle(22.5)
+    assert len(calls) == 6  # the later cycles resolved nothing
+    text = generate_latest(m.registry).decode()
+    assert _value(text, 'compd_channel_temperature_celsius{channel="bearing"}') == 22.5
+    assert _value(text, 'compd_channel_temperature_celsius{channel="ambient"}') \
+        == pytest.approx(20.0)
+    assert _value(text, 'compd_channel_value{channel="speed",unit="rpm"}') == 1500.0
+    assert _value(text, 'compd_channel_valid{channel="speed"}') == 0
+    # a reload that gives speed another unit: its old series goes, the new one is set
+    m.configure({"bearing": "degC", "ambient": "K", "speed": "percent"}, ["offset"],
+                version="0.1.0", model_sha256="a", config_sha256="b")
+    cycle(23.0)
+    text = generate_latest(m.registry).decode()
+    assert 'compd_channel_value{channel="speed",unit="rpm"}' not in text
+    assert _value(text, 'compd_channel_value{channel="speed",unit="percent"}') == 1500.0
+    assert _value(text, 'compd_channel_temperature_celsius{channel="bearing"}') == 23.0
+
+
 async def test_daemon_exports_model_output_and_channel_validity(
         sim: ModbusSimController, tmp_path: Path) -> None:
     from prometheus_client import generate_latest

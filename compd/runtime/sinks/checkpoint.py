@@ -13,14 +13,26 @@ and the last cycle's state and cause (an alarm, or an offset not in force, is
 unhealthy however recent the rest).
 A failed save is logged (``checkpoint_failed``) and never stops the loop. A
 dry run saves nothing.
+
+The state is taken and encoded on the loop's thread, at the cycle that asks
+for it; the file is written (temp file, fsync, rename, fsync of the directory)
+on one of the process's disk threads (`compd.runtime.diskwriter`, the state
+directory's), in the order the saves were asked for. The loop awaits its due
+saves (`save_async`: the machine's next cycle starts after its checkpoint is
+on disk, as before, while the other machines of the process cycle on); `save`
+waits on the thread (shutdown, ``--once``, an operator's hold: the caller goes
+on once the file is there).
 """
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Callable
+from concurrent.futures import Future
 from typing import TYPE_CHECKING, Any
 
 from compd.core.faults import GAUGE_ALARM
+from compd.runtime.diskwriter import PROCESS_DISK, DiskWriter
 from compd.runtime.liveness import boot_id
 from compd.runtime.sinks.base import CycleSink, Tick
 from compd.runtime.startup import checkpoint_path
@@ -40,8 +52,11 @@ class CheckpointSink(CycleSink):
 
     def __init__(self, cfg: LoadedConfig, *, dry_run: bool, clock: Clock, journal: Journal,
                  export: Callable[[], dict[str, Any]],
-                 last_complete: Callable[[], tuple[float, float] | None]) -> None:
+                 last_complete: Callable[[], tuple[float, float] | None],
+                 writer: DiskWriter = PROCESS_DISK) -> None:
         self._cfg = cfg
+        #: the thread that writes the files (`compd.runtime.diskwriter`)
+        self.writer = writer
         self._dry_run = dry_run
         self._clock = clock
         self._journal = journal
@@ -80,9 +95,35 @@ class CheckpointSink(CycleSink):
         self._cfg = cfg
 
     def save(self) -> None:
+        """Save now: the file is written when this returns (after every save asked
+        for before it)."""
+        job = self._submit()
+        if job is not None:
+            try:
+                job.result()
+            except Exception as exc:  # a failed checkpoint must not stop the loop
+                self._failed(exc)
+            else:
+                self._saved()
+
+    async def save_async(self) -> None:
+        """Save; the caller's task resumes once the file is written, the loop's
+        thread free meanwhile."""
+        job = self._submit()
+        if job is not None:
+            try:
+                await asyncio.wrap_future(job)
+            except Exception as exc:  # a failed checkpoint must not stop the loop
+                self._failed(exc)
+            else:
+                self._saved()
+
+    def _submit(self) -> Future[None] | None:
+        """The state encoded now and handed to the disk thread (None: nothing to
+        write, a dry run or a state that cannot be stored, logged)."""
         if self._dry_run:
-            return
-        from compd.runtime.checkpoint import save_checkpoint
+            return None
+        from compd.runtime.checkpoint import encode_checkpoint, write_checkpoint
 
         cfg = self._cfg
         try:
@@ -98,8 +139,18 @@ class CheckpointSink(CycleSink):
                 state["last_state"] = self._last_state
             if self._last_cause is not None:  # so is an offset not in force
                 state["last_cause"] = self._last_cause
-            save_checkpoint(checkpoint_path(cfg), state, directory=self.directory)
-            self._saved_healthy = not self._unhealthy_since_save
-            self._unhealthy_since_save = False
-        except Exception as exc:  # a failed checkpoint must not stop the loop
-            self._journal.log.error("checkpoint_failed", error=str(exc))
+            path = checkpoint_path(cfg)
+            data = encode_checkpoint(path, state)
+        except Exception as exc:
+            self._failed(exc)
+            return None
+        directory = self.directory
+        return self.writer.submit(lambda: write_checkpoint(path, data, directory=directory),
+                                  key=str(path.parent))
+
+    def _saved(self) -> None:
+        self._saved_healthy = not self._unhealthy_since_save
+        self._unhealthy_since_save = False
+
+    def _failed(self, exc: Exception) -> None:
+        self._journal.log.error("checkpoint_failed", error=str(exc))

@@ -7,6 +7,10 @@ while running drops rows (counted in ``compd_records_dropped``) and raises
 its alarm (``recorder_failing``, then ``recorder_recovered``). Retention is a
 row count (one row per cycle), never judged by a clock that can jump. A
 reload that changes ``[recorder]`` closes it and opens the new one.
+
+Commits run on the process's disk thread (`compd.runtime.diskwriter`; the
+rows formatted here, on the loop's thread): a commit that failed there is
+counted and alarmed at the next cycle's feed.
 """
 
 from __future__ import annotations
@@ -41,6 +45,8 @@ class RecorderSink(CycleSink):
         #: the open recorder (None: none configured, a dry run, or it could not open)
         self.recorder: Recorder | None = None
         self._alarm = False
+        #: the open recorder's drops already counted in ``compd_records_dropped``
+        self._dropped = 0
 
     @property
     def log(self) -> Any:
@@ -53,27 +59,31 @@ class RecorderSink(CycleSink):
         path = self._cfg.recorder_path
         if self._dry_run or path is None:
             return
+        from compd.runtime.diskwriter import PROCESS_DISK
         from compd.runtime.recorder import Recorder
 
         rc = self._cfg.raw.recorder
         keep_rows = (max(1, math.ceil(rc.retention_days * 86400.0 / self._cfg.period_s))
                      if rc.retention_days else None)
-        recorder = Recorder(path, commit_every=rc.commit_every, keep_rows=keep_rows)
+        recorder = Recorder(path, commit_every=rc.commit_every, keep_rows=keep_rows,
+                            writer=PROCESS_DISK)
         try:
             recorder.open()
         except Exception as exc:  # compensation never stops for the recorder
             self.log.error("recorder_unavailable", path=str(path), error=str(exc))
             return
         self.recorder = recorder
+        self._dropped = 0
 
     def feed(self, tick: Tick) -> None:
         recorder = self.recorder
         if recorder is None:
             return
-        dropped = recorder.dropped
         recorder.record(dataclasses.replace(tick.row.record, wall_s=self._clock.wall()))
-        if recorder.dropped > dropped:
-            self._metrics.records_dropped.inc(recorder.dropped - dropped)
+        dropped = recorder.dropped  # this cycle's, or a commit's on the disk thread
+        if dropped > self._dropped:
+            self._metrics.records_dropped.inc(dropped - self._dropped)
+            self._dropped = dropped
         alarm = bool(recorder.alarm)
         if alarm != self._alarm:
             # compensation goes on either way; the alarm tells that samples are lost
