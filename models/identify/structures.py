@@ -37,14 +37,16 @@ a level per record) are tried, and the failures are kept as notes.
 from __future__ import annotations
 
 import functools
+import itertools
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
 
 from models.identify.arx import fit_pct, is_stable
+from models.identify.blocks import SegFilter, SegLags, normal_sums, row_blocks, solve_blocks
 from models.identify.checks import implausible
 from models.identify.output_error import OeModel, fit_output_error
 from models.identify.segments import Segments
@@ -177,21 +179,6 @@ def _lag_ok(mask: BoolArray, seg: Segments, lag: int) -> BoolArray:
     return ok
 
 
-def _solve(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Least squares through the column-scaled normal equations (the
-    regressors are few; an N-row SVD per candidate cost more than the rest)."""
-    scale = np.sqrt(np.mean(a ** 2, axis=0))
-    scale[scale == 0.0] = 1.0
-    x = a / scale
-    g = x.T @ x
-    g[np.diag_indices_from(g)] += 1e-12 * float(np.trace(g)) / g.shape[0]
-    try:
-        theta = np.linalg.solve(g, x.T @ b)
-    except np.linalg.LinAlgError:
-        theta, *_ = np.linalg.lstsq(x, b, rcond=None)
-    return np.asarray(theta / scale, dtype=np.float64)
-
-
 def arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int = 0
             ) -> OeModel | None:
     """Shared-denominator ARX by least squares; with `iterations` > 0 refined
@@ -205,20 +192,11 @@ def arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int = 0
     rows = _lag_ok(train, seg, lag)
     den: tuple[float, ...] = (1.0,)
     nums: tuple[tuple[float, ...], ...] = ()
+    n_cols = na + len(d.us) * nb + (len(seg.bounds) * (lag + 1) if d.initial else 0)
     for it in range(iterations + 1):
-        fy = d.y if it == 0 else seg.filter([1.0], den, d.y)
-        cols = [-seg.shift(fy, i) for i in range(1, na + 1)]
-        for u in d.us:
-            fu = u if it == 0 else seg.filter([1.0], den, u)
-            cols += [seg.shift(fu, j) for j in range(nb)]
-        for s, e in seg.bounds if d.initial else ():
-            ind = np.zeros(d.y.size)
-            ind[s:e] = 1.0
-            find = ind if it == 0 else seg.filter([1.0], den, ind)
-            cols += [seg.shift(find, j) for j in range(lag + 1)]
-        if int(rows.sum()) <= len(cols):  # fewer rows than parameters: nothing determined
+        if int(rows.sum()) <= n_cols:  # fewer rows than parameters: nothing determined
             return None
-        theta = _solve(np.stack(cols, axis=1)[rows], fy[rows])
+        theta = solve_blocks(_arx_blocks(d, na, nb, lag, den if it else None, rows))
         new_den = (1.0, *(float(v) for v in theta[:na]))
         if not is_stable(new_den, d.radius):
             if it == 0:
@@ -228,6 +206,48 @@ def arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int = 0
         nums = tuple(tuple(float(v) for v in theta[na + t * nb:na + (t + 1) * nb])
                      for t in range(len(d.us)))
     return OeModel(nums=nums, dens=(den,), groups=(tuple(range(len(d.us))),))
+
+
+def _arx_blocks(d: _Data, na: int, nb: int, lag: int, den: Sequence[float] | None,
+                rows: BoolArray) -> Iterator[tuple[FloatArray, FloatArray]]:
+    """`arx_fit`'s (regressors, target) over the `rows`, block by block
+    (`models.identify.blocks`): [-fy(k-1) … -fy(k-na) | fu_t(k) … fu_t(k-nb+1)
+    per input | a record indicator's shifts 0 … lag per record], fy and fu
+    filtered by 1/den (`den` None: unfiltered)."""
+    seg = d.seg
+    sigs = [d.y, *d.us]
+    filters = [SegFilter(seg, [1.0], den) if den is not None else None for _ in sigs]
+    lags = [SegLags(seg, lag) for _ in sigs]
+    n_init = len(seg.bounds) if d.initial else 0
+    ind_filters = [SegFilter(seg, [1.0], den) if den is not None else None
+                   for _ in range(n_init)]
+    ind_lags = [SegLags(seg, lag) for _ in range(n_init)]
+    p = na + len(d.us) * nb + n_init * (lag + 1)
+    for lo, hi in row_blocks(d.y.size):
+        x = np.empty((hi - lo, p))
+        fy = d.y[lo:hi]
+        for k, (sig, f, lg) in enumerate(zip(sigs, filters, lags, strict=True)):
+            fb = sig[lo:hi] if f is None else f(sig[lo:hi], lo)
+            if k == 0:
+                fy = fb
+            lg.feed(fb, lo)
+        for i in range(1, na + 1):
+            x[:, i - 1] = -lags[0].shift(i)
+        col = na
+        for lg in lags[1:]:
+            for j in range(nb):
+                x[:, col] = lg.shift(j)
+                col += 1
+        for r, (s, e) in enumerate(seg.bounds[:n_init]):
+            ind = np.zeros(hi - lo)
+            ind[max(s, lo) - lo:max(min(e, hi) - lo, 0)] = 1.0
+            f = ind_filters[r]
+            ind_lags[r].feed(ind if f is None else f(ind, lo), lo)
+            for j in range(lag + 1):
+                x[:, col] = ind_lags[r].shift(j)
+                col += 1
+        keep = rows[lo:hi]
+        yield x[keep], fy[keep]
 
 
 def _simulate(d: _Data, m: OeModel, train: BoolArray, y: FloatArray, us: Sequence[FloatArray],
@@ -402,26 +422,28 @@ def _ridge(d: _Data, shared: OeModel | None, train: BoolArray, lam: float) -> Oe
         return None
     den = shared.dens[0]
     nb = len(shared.nums[0])
-    cols = []
-    for u in d.us:
-        w = d.seg.filter([1.0], np.asarray(den), u)
-        cols += [w] + [d.seg.shift(w, j) - w for j in range(1, nb)]
-    n_num = len(cols)
-    for s, e in d.seg.bounds if d.initial else ():  # a level, and Σ_t a_tj·v_t per lag j
-        ind = np.zeros(d.y.size)
-        ind[s:e] = 1.0
-        h = d.seg.filter([1.0], np.asarray(den), ind)
-        cols += [ind] + [d.seg.shift(h, j) for j in range(nb)]
-    x = np.stack(cols, axis=1)
-    a = x[train]
-    scale = np.sqrt(np.mean(a ** 2, axis=0))
-    scale[scale == 0.0] = 1.0
-    a = a / scale
-    gram = a.T @ a
-    pen = np.full(a.shape[1], 1e-12 * float(np.trace(gram)) / a.shape[1])
-    pen[:n_num:nb] += lam * a.shape[0]
+    n_num = len(d.us) * nb
+    blocks = _ridge_blocks(d, den, nb, train)
+    first = next(blocks)
+    second = next(blocks, None)
+    if second is None:  # one block: the scaled rows themselves
+        a = first[0]
+        scale = np.sqrt(np.mean(a ** 2, axis=0))
+        scale[scale == 0.0] = 1.0
+        a = a / scale
+        gram = a.T @ a
+        rhs = a.T @ first[1]
+        n = a.shape[0]
+    else:
+        g, r, sumsq, n = normal_sums(itertools.chain([first, second], blocks))
+        scale = np.sqrt(sumsq / n)
+        scale[scale == 0.0] = 1.0
+        gram = g / scale[:, None] / scale[None, :]
+        rhs = r / scale
+    pen = np.full(gram.shape[0], 1e-12 * float(np.trace(gram)) / gram.shape[0])
+    pen[:n_num:nb] += lam * n
     try:
-        theta = np.linalg.solve(gram + np.diag(pen), a.T @ d.y[train]) / scale
+        theta = np.linalg.solve(gram + np.diag(pen), rhs) / scale
     except np.linalg.LinAlgError:
         return None
     nums = []
@@ -429,6 +451,41 @@ def _ridge(d: _Data, shared: OeModel | None, train: BoolArray, lam: float) -> Oe
         gain, rest = theta[t * nb], theta[t * nb + 1:(t + 1) * nb]
         nums.append((float(gain - rest.sum()), *(float(v) for v in rest)))
     return OeModel(nums=tuple(nums), dens=(den,), groups=shared.groups)
+
+
+def _ridge_blocks(d: _Data, den: Sequence[float], nb: int, train: BoolArray
+                  ) -> Iterator[tuple[FloatArray, FloatArray]]:
+    """`_ridge`'s (regressors, target) over the `train` rows, block by block:
+    per input w = u/B, then w(k-j) - w(k) for j = 1 … nb-1; with the initial
+    conditions, per record its indicator and the shifts 0 … nb-1 of the
+    indicator filtered by 1/B."""
+    seg = d.seg
+    filters = [SegFilter(seg, [1.0], den) for _ in d.us]
+    lags = [SegLags(seg, nb) for _ in d.us]
+    n_init = len(seg.bounds) if d.initial else 0
+    ind_filters = [SegFilter(seg, [1.0], den) for _ in range(n_init)]
+    ind_lags = [SegLags(seg, nb) for _ in range(n_init)]
+    p = len(d.us) * nb + n_init * (nb + 1)
+    for lo, hi in row_blocks(d.y.size):
+        x = np.empty((hi - lo, p))
+        col = 0
+        for u, f, lg in zip(d.us, filters, lags, strict=True):
+            w = f(u[lo:hi], lo)
+            lg.feed(w, lo)
+            x[:, col] = w
+            for j in range(1, nb):
+                x[:, col + j] = lg.shift(j) - w
+            col += nb
+        for r, (s, e) in enumerate(seg.bounds[:n_init]):
+            ind = np.zeros(hi - lo)
+            ind[max(s, lo) - lo:max(min(e, hi) - lo, 0)] = 1.0
+            ind_lags[r].feed(ind_filters[r](ind, lo), lo)
+            x[:, col] = ind
+            for j in range(nb):
+                x[:, col + 1 + j] = ind_lags[r].shift(j)
+            col += nb + 1
+        keep = train[lo:hi]
+        yield x[keep], d.y[lo:hi][keep]
 
 
 def _final_fit(d: _Data, m: OeModel) -> float:
@@ -589,10 +646,10 @@ def _static_fit(d: _Data, train: BoolArray) -> OeModel | None:
         ind = np.zeros(d.y.size)
         ind[s:e] = 1.0
         cols.append(ind)
-    x = np.stack(cols, axis=1)[train]
-    if x.shape[0] < x.shape[1]:
+    if int(train.sum()) < len(cols):
         return None
-    theta = _solve(x, d.y[train])
+    theta = solve_blocks((np.stack([c[lo:hi] for c in cols], axis=1)[train[lo:hi]],
+                          d.y[lo:hi][train[lo:hi]]) for lo, hi in row_blocks(d.y.size))
     return OeModel(nums=tuple((float(k),) for k in theta[:len(d.us)]), dens=((1.0,),),
                    groups=(tuple(range(len(d.us))),))
 

@@ -22,12 +22,14 @@ Worked number: 2 folds of a 9-sample record hold out rows 3-5 and 6-8.
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 import numpy.typing as npt
 
+from models.identify.blocks import SegFilter, normal_sums, row_blocks
 from models.identify.segments import Segments
 
 FloatArray = npt.NDArray[np.float64]
@@ -141,16 +143,50 @@ def initial_basis(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float
     return np.stack(cols, axis=1)
 
 
+def _basis_blocks(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]],
+                  groups: Sequence[Sequence[int]], seg: Segments
+                  ) -> Iterator[tuple[int, int, FloatArray]]:
+    """`initial_basis`'s rows block by block (`models.identify.blocks`)."""
+    filters = [[SegFilter(seg, np.asarray(nums[t], dtype=np.float64),
+                          np.asarray(dens[g], dtype=np.float64))
+                for g, members in enumerate(groups) for t in members] for _ in seg.bounds]
+    per = 1 + sum(len(m) for m in groups)
+    for lo, hi in row_blocks(seg.total):
+        out = np.zeros((hi - lo, per * len(seg.bounds)))
+        for r, (s, e) in enumerate(seg.bounds):
+            ind = np.zeros(hi - lo)
+            ind[max(s, lo) - lo:max(min(e, hi) - lo, 0)] = 1.0
+            out[:, r * per] = ind
+            for c, f in enumerate(filters[r]):
+                out[:, r * per + 1 + c] = f(ind, lo)
+        yield lo, hi, out
+
+
 def with_initial(y: FloatArray, forced: FloatArray, nums: Sequence[Sequence[float]],
                  dens: Sequence[Sequence[float]], groups: Sequence[Sequence[int]],
                  seg: Segments, train: BoolArray) -> FloatArray:
-    """`forced` plus the initial-condition response fitted on `train` rows."""
-    basis = initial_basis(nums, dens, groups, seg)
-    a = basis[train]
-    scale = np.sqrt(np.mean(a ** 2, axis=0))
+    """`forced` plus the initial-condition response fitted on `train` rows
+    (least squares on the scaled basis; over several blocks through its
+    normal equations, the basis built block by block twice)."""
+    blocks = _basis_blocks(nums, dens, groups, seg)
+    lo, hi, basis = next(blocks)
+    if hi == seg.total:  # one block: the basis itself
+        a = basis[train]
+        scale = np.sqrt(np.mean(a ** 2, axis=0))
+        scale[scale == 0.0] = 1.0
+        theta, *_ = np.linalg.lstsq(a / scale, (y - forced)[train], rcond=1e-10)
+        return np.asarray(forced + basis @ (theta / scale), dtype=np.float64)
+    rest = ((b[train[lo:hi]], (y[lo:hi] - forced[lo:hi])[train[lo:hi]]) for lo, hi, b in
+            itertools.chain([(lo, hi, basis)], blocks))
+    gram, rhs, sumsq, n = normal_sums(rest)
+    scale = np.sqrt(sumsq / max(n, 1))
     scale[scale == 0.0] = 1.0
-    theta, *_ = np.linalg.lstsq(a / scale, (y - forced)[train], rcond=1e-10)
-    return np.asarray(forced + basis @ (theta / scale), dtype=np.float64)
+    theta, *_ = np.linalg.lstsq(gram / scale[:, None] / scale[None, :], rhs / scale,
+                                rcond=1e-20)
+    out = np.empty_like(forced, dtype=np.float64)
+    for lo, hi, b in _basis_blocks(nums, dens, groups, seg):
+        out[lo:hi] = forced[lo:hi] + b @ (theta / scale)
+    return out
 
 
 def pooled_fit(y: FloatArray, sims: Sequence[FloatArray], masks: Sequence[BoolArray]) -> float:
