@@ -53,6 +53,7 @@ from models.identify.segments import Segments
 from models.identify.validate import (
     forced_response,
     pooled_fit,
+    pooled_parts,
     split_masks,
     windowed_splits,
     with_initial,
@@ -277,16 +278,16 @@ def _score_holdout(d: _Data, m: OeModel | None) -> tuple[float, list[float]]:
 def _score(d: _Data, fit_on: Callable[[BoolArray], OeModel | None]) -> tuple[float, list[float]]:
     if d.holdout is not None:
         return _score_holdout(d, fit_on(d.every))
-    sims: list[FloatArray] = []
+    held: list[tuple[FloatArray, FloatArray]] = []  # the held-out rows only, not every row
     per: list[float] = []
     for train, val in d.splits:
         m = fit_on(train)
         if m is None:
             return -math.inf, []
         sim = _simulate(d, m, train, d.y, d.us, d.seg)
-        sims.append(sim)
-        per.append(fit_pct(d.y[val], sim[val]))
-    return pooled_fit(d.y, sims, [v for _, v in d.splits]), per
+        held.append((d.y[val], sim[val]))
+        per.append(fit_pct(*held[-1]))
+    return pooled_parts(held), per
 
 
 @dataclass(frozen=True)

@@ -191,13 +191,18 @@ def with_initial(y: FloatArray, forced: FloatArray, nums: Sequence[Sequence[floa
 
 def pooled_fit(y: FloatArray, sims: Sequence[FloatArray], masks: Sequence[BoolArray]) -> float:
     """The pooled held-out fit % (module docstring); -inf if any is not finite."""
+    return pooled_parts([(y[m], sim[m]) for sim, m in zip(sims, masks, strict=True)])
+
+
+def pooled_parts(held: Sequence[tuple[FloatArray, FloatArray]]) -> float:
+    """`pooled_fit` of the (measured, simulated) held-out rows of each fold."""
     err = 0.0
     spread = 0.0
-    for sim, m in zip(sims, masks, strict=True):
-        if not np.all(np.isfinite(sim[m])):
+    for y_m, sim_m in held:
+        if not np.all(np.isfinite(sim_m)):
             return -math.inf
-        err += float(np.sum((y[m] - sim[m]) ** 2))
-        spread += float(np.sum((y[m] - y[m].mean()) ** 2))
+        err += float(np.sum((y_m - sim_m) ** 2))
+        spread += float(np.sum((y_m - y_m.mean()) ** 2))
     if spread == 0.0:
         return -math.inf
     return (1.0 - math.sqrt(err / spread)) * 100.0

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
+from models import diagnostics
 from models.diagnostics import cancelling_terms, flat_window, input_condition
 
 
@@ -25,3 +27,15 @@ def test_a_flat_window_is_said_and_a_moving_one_is_not() -> None:
     assert flat_window(moving, 0.3 * np.sin(50.0 * t)) is None
     warning = flat_window(0.5 * t, 0.2 * np.sin(50.0 * t))
     assert warning is not None and "spans only 0.5 µm" in warning
+
+
+def test_condition_of_long_inputs_comes_from_their_gram_blocks(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Past GRAM_ROWS rows the figure is the Gram matrix's, summed block by block:
+    the SVD's to many digits, without the centred columns of every row stacked."""
+    rng = np.random.default_rng(1)
+    a = np.cumsum(rng.normal(0.0, 0.05, 5000))
+    inputs = [a, a + rng.normal(0.0, 0.02, 5000), rng.normal(0.0, 1.0, 5000)]
+    whole = input_condition(inputs)
+    monkeypatch.setattr(diagnostics, "GRAM_ROWS", 700)
+    assert input_condition(inputs) == pytest.approx(whole, rel=1e-9)
