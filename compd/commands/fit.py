@@ -211,7 +211,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _fixed_terms(specs: list[str], records: list[Record]) -> tuple[list[Term], list[Any]]:
     """The fixed terms and their summed prediction over each record."""
-    import numpy as np
 
     from compd.commands.replay import replay_model
     from compd.infiles import load_model
@@ -219,7 +218,7 @@ def _fixed_terms(specs: list[str], records: list[Record]) -> tuple[list[Term], l
     from models.errors import ModelError
 
     terms: list[Term] = []
-    totals = [np.zeros(len(r)) for r in records]
+    totals: list[Any] = [0.0 for _ in records]  # no array of zeros per record without --fixed
     for spec in specs:
         path, sep, term_name = spec.rpartition(":")
         if not sep or not path or not term_name:
@@ -247,6 +246,14 @@ def _relative_input(record: Record, inputs: dict[str, float], relative: bool) ->
     return u
 
 
+def _joined(parts: list[Any]) -> Any:
+    """The records' arrays end to end (one record's array itself, not a copy: a
+    month at 1 s is 21 MB a column)."""
+    import numpy as np
+
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
 def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
             specs: list[tuple[str, dict[str, float]]], holdout_records: list[Record],
             ) -> tuple[list[Term], list[dict[str, Any]]]:
@@ -261,11 +268,11 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
     period = records[0].period_s
     radius = pole_radius(period, args.max_time_constant_days * 86400.0)
     seg = Segments.from_lengths([len(r) for r in records])
-    y = np.concatenate(ys)
+    y = _joined(ys)
     from compd.offline.channel_kind import is_rate_channel
 
     rel = [not all(is_rate_channel(ch) for ch in inputs) for _, inputs in specs]
-    us = [np.concatenate([_relative_input(r, inputs, rl) for r in records])
+    us = [_joined([_relative_input(r, inputs, rl) for r in records])
           for (_, inputs), rl in zip(specs, rel, strict=True)]
     holdout = None
     if holdout_records:
@@ -614,7 +621,8 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
     for w in [w for r in records for w in speed_warnings(r)] if len(records) == 1 else []:
         print(f"compd fit: warning: {w}", file=sys.stderr)
     fixed, fixed_preds = _fixed_terms(list(args.fixed), records)
-    ys = [r.column(args.output) - f for r, f in zip(records, fixed_preds, strict=True)]
+    ys = [r.column(args.output) - f if fixed else r.column(args.output)
+          for r, f in zip(records, fixed_preds, strict=True)]
     terms, info = _fit_terms(args, records, ys, specs, holdout)
     names = ", ".join(Path(p).name for p in data)
     name = args.name or f"fitted from {names}"

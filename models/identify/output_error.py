@@ -144,9 +144,17 @@ class _Problem:
             out[lo:hi] = sum(outs) + level
         return out
 
-    def normal_equations(self, th: FloatArray, weight: FloatArray, resid: FloatArray
+    def residual(self, th: FloatArray, mask: BoolArray) -> FloatArray:
+        """(y - ŷ) · weight, the weight 1 on the rows of `mask` and 0 elsewhere,
+        made block by block (neither ŷ nor the weights of every row held)."""
+        out = np.empty(self.y.size)
+        for lo, hi, _, outs, level in self.blocks(th):
+            out[lo:hi] = (self.y[lo:hi] - (sum(outs) + level)) * mask[lo:hi].astype(np.float64)
+        return out
+
+    def normal_equations(self, th: FloatArray, mask: BoolArray, resid: FloatArray
                          ) -> tuple[FloatArray, FloatArray]:
-        """(JᵀJ, Jᵀr) of J = diag(weight) · ∂ŷ/∂θ, accumulated block by block
+        """(JᵀJ, Jᵀr) of J = diag(weight) · ∂ŷ/∂θ (`residual`'s weight), accumulated block by block
         (the p × N Jacobian is never built whole: its rows are filled in place
         per block, as building an N × p matrix and fancy-indexing its rows cost
         more than the filters)."""
@@ -173,7 +181,7 @@ class _Problem:
         jtj: FloatArray | None = None
         jtr: FloatArray | None = None
         for lo, hi, us, outs, _ in self.blocks(th):
-            wb = weight[lo:hi]
+            wb = mask[lo:hi].astype(np.float64)
             jt = np.empty((p, hi - lo))
             i = 0
             for t, nb in enumerate(self.nbs):
@@ -208,14 +216,13 @@ def _levenberg_marquardt(prob: _Problem, th0: FloatArray, mask: BoolArray, max_i
                          tol: float) -> tuple[FloatArray, float, int]:
     """Damped Gauss-Newton on the column-scaled normal equations; stops when
     a step gains less than `tol` of the cost, or none is found."""
-    weight = mask.astype(np.float64)
     th = th0.copy()
-    r = (prob.y - prob.simulate(th)) * weight
+    r = prob.residual(th, mask)
     cost = float(r @ r)
     lam = 1e-3
     it = 0
     for it in range(1, max_iter + 1):  # noqa: B007
-        jtj, jtr = prob.normal_equations(th, weight, r)
+        jtj, jtr = prob.normal_equations(th, mask, r)
         d = np.sqrt(np.maximum(np.diag(jtj), 1e-300))
         a = jtj / d[:, None] / d[None, :]
         g = jtr / d
@@ -227,7 +234,7 @@ def _levenberg_marquardt(prob: _Problem, th0: FloatArray, mask: BoolArray, max_i
                 lam *= 10.0
                 continue
             cand = th + step
-            rc = (prob.y - prob.simulate(cand)) * weight
+            rc = prob.residual(cand, mask)
             c_cost = float(rc @ rc)
             if math.isfinite(c_cost) and c_cost < cost:
                 gain = (cost - c_cost) / max(cost, 1e-300)
