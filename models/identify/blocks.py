@@ -3,8 +3,8 @@ equations accumulated, so no regressor matrix of every row is ever built.
 
 The identification's regressors are lagged and filtered copies of a few
 signals. Built for every row at once, a month at 1 s (2.6 M rows) with 25
-regressors is 520 MB per copy. Here the rows are taken `BLOCK_ROWS` at a
-time, in order:
+regressors is 520 MB per copy. Here the rows are taken a block at a time,
+in order (`row_blocks`):
 
 - `SegFilter` runs ``lfilter(b, a, ·)`` over consecutive blocks, carrying the
   filter's state (``zi``) from one block to the next and restarting from
@@ -22,8 +22,8 @@ rows) fits to the same digits as before the rows were blocked. Over
 several blocks the sums are taken block by block (the same figures to
 rounding).
 
-Worked number: 300,000 rows are the blocks 0-131,071, 131,072-262,143 and
-262,144-299,999.
+Worked number: 100,000 rows are one block; 300,000 rows are ten blocks of
+32,768 rows and one of 5,088.
 """
 
 from __future__ import annotations
@@ -39,14 +39,19 @@ from models.identify.segments import Segments
 
 FloatArray = npt.NDArray[np.float64]
 
-#: rows per block: a day at 1 s is one block (the numbers of an unblocked fit)
+#: a record of at most this many rows is one block (a day at 1 s: the numbers of
+#: an unblocked fit) ...
 BLOCK_ROWS = 1 << 17
+#: ... a longer one goes in blocks of this many (the block's own regressors and
+#: their scaled copies stay a few MB)
+STREAM_ROWS = 1 << 15
 
 
 def row_blocks(n: int, size: int | None = None) -> Iterator[tuple[int, int]]:
-    """(lo, hi) of consecutive blocks of `size` rows (default `BLOCK_ROWS`)."""
-    step = BLOCK_ROWS if size is None else size
-    for lo in range(0, n, step):
+    """(lo, hi) of consecutive blocks of `size` rows (default: one block up to
+    `BLOCK_ROWS` rows, else blocks of `STREAM_ROWS`)."""
+    step = size if size is not None else n if n <= BLOCK_ROWS else STREAM_ROWS
+    for lo in range(0, n, max(step, 1)):
         yield lo, min(n, lo + step)
 
 

@@ -176,7 +176,10 @@ def _lag_ok(mask: BoolArray, seg: Segments, lag: int) -> BoolArray:
     """Rows whose `lag` predecessors are all in `mask` and in the same record."""
     ok = mask.copy()
     for d in range(1, lag + 1):
-        ok &= seg.shift(mask.astype(np.float64), d) > 0.5
+        for s, e in seg.bounds:  # mask(k - d) within the record, False before its start
+            ok[s:min(e, s + d)] = False
+            if e - s > d:
+                ok[s + d:e] &= mask[s:e - d]
     return ok
 
 

@@ -115,13 +115,18 @@ def windowed_splits(seg: Segments, k: int, scheme: str, window: BoolArray | None
 def forced_response(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]],
                     groups: Sequence[Sequence[int]], inputs: Sequence[FloatArray],
                     seg: Segments) -> FloatArray:
-    """Σ_g (Σ_{t∈g} A_t u_t) / B_g from rest at every record's start."""
+    """Σ_g (Σ_{t∈g} A_t u_t) / B_g from rest at every record's start (block by
+    block, `models.identify.blocks`: only the sum is of every row)."""
     total = np.zeros(inputs[0].size)
-    for g, members in enumerate(groups):
-        v = np.zeros(inputs[0].size)
-        for t in members:
-            v += seg.filter(np.asarray(nums[t], dtype=np.float64), [1.0], inputs[t])
-        total += seg.filter([1.0], np.asarray(dens[g], dtype=np.float64), v)
+    firs = {t: SegFilter(seg, np.asarray(nums[t], dtype=np.float64), [1.0])
+            for members in groups for t in members}
+    iirs = [SegFilter(seg, [1.0], np.asarray(b, dtype=np.float64)) for b in dens]
+    for lo, hi in row_blocks(total.size):
+        for g, members in enumerate(groups):
+            v = np.zeros(hi - lo)
+            for t in members:
+                v += firs[t](inputs[t][lo:hi], lo)
+            total[lo:hi] += iirs[g](v, lo)
     return total
 
 

@@ -69,6 +69,7 @@ def test_structure_choice_over_many_blocks_is_that_of_one(monkeypatch: pytest.Mo
     kwargs = {"na_range": (1, 2), "nb_range": (1, 2), "segments": seg, "radius": 0.9999}
     whole = select_structure(y, us, **kwargs)  # type: ignore[arg-type]
     monkeypatch.setattr(blocks, "BLOCK_ROWS", 700)  # several blocks, straddling the records
+    monkeypatch.setattr(blocks, "STREAM_ROWS", 700)
     blocked = select_structure(y, us, **kwargs)  # type: ignore[arg-type]
     assert blocked.chosen.structure == whole.chosen.structure
     assert blocked.orders == whole.orders and blocked.initial == whole.initial
@@ -84,13 +85,13 @@ def test_output_error_holds_no_jacobian_of_every_row(monkeypatch: pytest.MonkeyP
     """Four inputs, per-term denominators of order 2, numerators of 3, initial
     conditions: 25 parameters. Its Jacobian over every row is 25 arrays of
     the record's length; the fit now holds a handful (the residue, the
-    weights, a simulation) beside blocks of `BLOCK_ROWS` rows."""
+    weights, a simulation) beside blocks of `STREAM_ROWS` rows."""
     n = 200_000
     rng = np.random.default_rng(3)
     us = [_steps(rng, n, h) for h in (900, 1300, 1700, 2100)]
     y = sum(lfilter([0.02 * (t + 1)], [1.0, -0.99], u) for t, u in enumerate(us))
     y = np.asarray(y) + 0.05 * rng.standard_normal(n)
-    monkeypatch.setattr(blocks, "BLOCK_ROWS", 8192)
+    monkeypatch.setattr(blocks, "STREAM_ROWS", 8192)
     nums = [(0.01, 0.0, 0.0)] * 4
     dens = [(1.0, -1.5, 0.55)] * 4
     tracemalloc.start()
@@ -102,3 +103,19 @@ def test_output_error_holds_no_jacobian_of_every_row(monkeypatch: pytest.MonkeyP
         tracemalloc.stop()
     row_arrays = peak / (8 * n)
     assert row_arrays < 10, f"peak {peak / 1e6:.0f} MB: {row_arrays:.1f} arrays of every row"
+
+
+def test_initial_state_over_a_long_window_is_that_of_one_least_squares(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from models import initial_state
+
+    rng = np.random.default_rng(4)
+    n = 6000
+    basis = np.stack([np.ones(n), 0.999 ** np.arange(n), 0.99 ** np.arange(n)], axis=1)
+    residual = basis @ [0.5, -3.0, 2.0] + 0.01 * rng.standard_normal(n)
+    whole = initial_state.estimate_initial_state(residual, basis, ["a", "b"], 4000)
+    monkeypatch.setattr(initial_state, "GRAM_ROWS", 700)
+    blocked = initial_state.estimate_initial_state(residual, basis, ["a", "b"], 4000)
+    assert blocked.offset_um == pytest.approx(whole.offset_um, rel=1e-8)
+    for name in ("a", "b"):
+        assert blocked.levels[name] == pytest.approx(whole.levels[name], rel=1e-8)
