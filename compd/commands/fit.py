@@ -480,20 +480,37 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
     """Read and check records; all must share `first`'s (or the first one's) period."""
     import math
 
-    from compd.offline.channel_kind import is_rate_channel
+    from compd.offline.channel_kind import ChannelKind, channel_kind, is_rate_channel
     from compd.offline.records import RecordError, check_units, read_record
 
-    records = [read_record(p) for p in paths]
-    for r in records:
-        r.require([args.output, *sorted(channels), *([args.switch] if args.switch else [])])
+    records: list[Record] = []
+    for p in paths:
+        r = read_record(p)
+        wanted = [args.output, *sorted(channels), *([args.switch] if args.switch else [])]
+        r.require(wanted)
         temps = sorted(c for c in channels if not is_rate_channel(c))
         check_units(r, temps if args.kind != "greybox" else [], args.output)
+        if channels:  # (--candidates reads every column first, to choose among them)
+            # and the speeds, of which speed_warnings speaks
+            r = _only_columns(r, {*wanted, *(c for c in r.columns
+                                             if channel_kind(c) is ChannelKind.SPEED)})
+        records.append(r)
         ref = first if first is not None else records[0]
         if not math.isclose(r.period_s, ref.period_s, rel_tol=1e-6):
             raise RecordError(f"{r.path}: sampled every {r.period_s:g} s but {ref.path} "
                               f"every {ref.period_s:g} s; records fitted together "
                               "need one sample period")
     return records
+
+
+def _only_columns(record: Record, names: set[str]) -> Record:
+    """`record` with only the columns `names` (and its time), copied so that the rest
+    of the block the reader parsed is freed: a month at 1 s is 21 MB a column."""
+    import dataclasses
+
+    return dataclasses.replace(record, time_s=record.time_s.copy(),
+                               columns={k: v.copy() for k, v in record.columns.items()
+                                        if k in names})
 
 
 def _calibration_rows(args: argparse.Namespace, records: list[Record]) -> list[Record]:
