@@ -317,7 +317,6 @@ def _heldout(d: _Data, models: Sequence[OeModel | None]) -> _Heldout:
     else:
         y, us, seg = d.y, d.us, d.seg
         pairs = [(m, t, v) for m, (t, v) in zip(models, d.splits, strict=True)]
-    start = np.concatenate([np.full(e - s, y[s]) for s, e in seg.bounds])
     err = disp = 0.0
     count = 0
     blocks: list[FloatArray] = []
@@ -325,7 +324,9 @@ def _heldout(d: _Data, models: Sequence[OeModel | None]) -> _Heldout:
         assert m is not None
         sim = _simulate(d, m, train, y, us, seg)
         err += float(np.sum((y[val] - sim[val]) ** 2))
-        disp += float(np.sum((y[val] - start[val]) ** 2))
+        # each record's first row, on the held-out rows only (not a copy of every row)
+        start = np.concatenate([np.full(int(val[s:e].sum()), y[s]) for s, e in seg.bounds])
+        disp += float(np.sum((y[val] - start) ** 2))
         count += int(val.sum())
         for s, e in seg.bounds:
             rows = np.flatnonzero(val[s:e]) + s
@@ -494,7 +495,10 @@ def _ridge_blocks(d: _Data, den: Sequence[float], nb: int, train: BoolArray
 
 def _final_fit(d: _Data, m: OeModel) -> float:
     every = d.every
-    return fit_pct(d.y[every], _simulate(d, m, every, d.y, d.us, d.seg)[every])
+    sim = _simulate(d, m, every, d.y, d.us, d.seg)
+    if d.window is None:  # every row: the arrays themselves, not copies
+        return fit_pct(d.y, sim)
+    return fit_pct(d.y[every], sim[every])
 
 
 def arx_orders(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int]
