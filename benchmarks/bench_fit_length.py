@@ -3,21 +3,23 @@
 Records of 1 s data from the simulated plant (`drivers.sim.offline`, the
 ``spectrum`` program, seed 3: deterministic) of 1 h, 1 day, 1 week and one
 month (30 days, 2,592,001 rows), four terms (bearing, motor, column,
-ambient; fallbacks as by default). Each length: ``compd fit`` and then
-``compd replay`` of the model it wrote, each in its own process, its wall
-time, CPU time (user + system) and peak resident memory (``ru_maxrss`` of
-that child, from ``os.wait4``). The peer of a fit is its replay on the same record in the
-same run (fit / replay is the ratio printed, of CPU times: on a shared
-machine the wall time measures the neighbours too), and the growth with
-length is printed against the 1-day fit (a fit that streams grows with the rows:
-the month at <= 31x the day).
+ambient; ``--no-fallbacks`` unless ``--fallbacks``: a fallback is the same
+fit again on three of the inputs, four more fits of the same kind). Each
+length: ``compd fit`` and then ``compd replay`` of the model it wrote, each
+in its own process: its wall time, CPU time (user + system) and peak
+resident memory (``ru_maxrss`` of that child, from ``os.wait4``). The peer
+of a fit is its replay on the same record in the same run (fit / replay is
+the ratio printed, of CPU times: on a shared machine the wall time measures
+the neighbours too), and the growth with length is printed against the
+1-day fit (a fit that streams grows with the rows: the month at <= 31x the
+day).
 
 Records are written once into a cache folder (default
-``$TMPDIR/compd_bench_fit_length``; a month's CSV is about 150 MB and takes
-a minute or two to simulate) and reused.
+``$TMPDIR/compd_bench_fit_length``; a month's CSV is about 140 MB and takes
+a few minutes to simulate) and reused.
 
 Run: .venv/bin/python benchmarks/bench_fit_length.py [--lengths 1h,1d,1w,1mo]
-     [--cache DIR] [--repeat N]
+     [--cache DIR] [--repeat N] [--fallbacks]
 """
 
 from __future__ import annotations
@@ -73,6 +75,9 @@ def main() -> None:
                         default=Path(tempfile.gettempdir()) / "compd_bench_fit_length")
     parser.add_argument("--repeat", type=int, default=1,
                         help="runs per length (the best is printed)")
+    parser.add_argument("--fallbacks", action="store_true",
+                        help="fit the fallback models too (the same fit again without each "
+                             "input: five fits in all; by default --no-fallbacks)")
     args = parser.parse_args()
     lengths = [s.strip() for s in args.lengths.split(",") if s.strip()]
     compd = [sys.executable, "-m", "compd.cli"]
@@ -89,7 +94,8 @@ def main() -> None:
             for _ in range(args.repeat):
                 fits.append(run_child([*compd, "fit", str(rec), "--column", "dz_um",
                                        *(a for t in TERMS for a in ("--term", t)),
-                                       "-o", str(model), "--force"]))
+                                       "-o", str(model), "--force",
+                                       *([] if args.fallbacks else ["--no-fallbacks"])]))
                 replays.append(run_child([*compd, "replay", str(model), str(rec),
                                           "--column", "dz_um"]))
             fit = min(fits, key=lambda r: r[1])
