@@ -18,6 +18,7 @@ over a 3 K span (46 and 71 µm each) on a 20 µm record are flagged.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -70,6 +71,22 @@ def _condition_by_blocks(inputs: Sequence[FloatArray]) -> float:
     return float(np.sqrt(eig[-1] / eig[0])) if eig[0] > 0.0 else float("inf")
 
 
+def correlation(a: FloatArray, b: FloatArray) -> float:
+    """Pearson's r of two inputs: `numpy.corrcoef`'s up to `GRAM_ROWS` rows; past
+    them from centred sums taken block by block (corrcoef stacks and centres
+    both, four copies of a month's column)."""
+    if a.size <= GRAM_ROWS:
+        return float(np.corrcoef(a, b)[0, 1])
+    ma, mb = a.mean(), b.mean()
+    sab = saa = sbb = 0.0
+    for lo in range(0, a.size, GRAM_ROWS):
+        da, db = a[lo:lo + GRAM_ROWS] - ma, b[lo:lo + GRAM_ROWS] - mb
+        sab += float(da @ db)
+        saa += float(da @ da)
+        sbb += float(db @ db)
+    return sab / math.sqrt(saa * sbb) if saa > 0.0 and sbb > 0.0 else math.nan
+
+
 def cancelling_terms(names: Sequence[str], inputs: Sequence[FloatArray],
                      gains: Sequence[float], output_span: float) -> list[str]:
     """One warning per pair of terms that cancel (module docstring)."""
@@ -80,7 +97,7 @@ def cancelling_terms(names: Sequence[str], inputs: Sequence[FloatArray],
             a, b = inputs[i], inputs[j]
             if np.std(a) == 0.0 or np.std(b) == 0.0:
                 continue
-            r = float(np.corrcoef(a, b)[0, 1])
+            r = correlation(a, b)
             big_i = abs(gains[i]) * float(np.ptp(a)) > output_span
             big_j = abs(gains[j]) * float(np.ptp(b)) > output_span
             if abs(r) >= CORRELATED_R and gains[i] * gains[j] * np.sign(r) < 0 and big_i \

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from models.diagnostics import correlation
 from models.errors import ModelError
 from models.sensitivity import dc_gain_sensitivity
 from models.tf import TransferFunction
@@ -135,7 +136,7 @@ def implausible(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]]
             a_i, a_j = arrays[i], arrays[j]
             if np.std(a_i) == 0.0 or np.std(a_j) == 0.0:
                 continue
-            r = float(np.corrcoef(a_i, a_j)[0, 1])
+            r = correlation(a_i, a_j)
             big = (abs(responses[i]) * float(np.ptp(a_i)) > output_span
                    and abs(responses[j]) * float(np.ptp(a_j)) > output_span)
             if abs(r) >= CANCEL_R and responses[i] * responses[j] * r < 0.0 and big:

@@ -39,3 +39,14 @@ def test_condition_of_long_inputs_comes_from_their_gram_blocks(
     whole = input_condition(inputs)
     monkeypatch.setattr(diagnostics, "GRAM_ROWS", 700)
     assert input_condition(inputs) == pytest.approx(whole, rel=1e-9)
+
+
+def test_correlation_of_long_inputs_is_corrcoefs_from_centred_block_sums(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = np.random.default_rng(2)
+    a = np.cumsum(rng.normal(0.0, 0.05, 5000))
+    b = 0.3 * a + rng.normal(0.0, 0.05, 5000)
+    whole = diagnostics.correlation(a, b)
+    assert whole == float(np.corrcoef(a, b)[0, 1])
+    monkeypatch.setattr(diagnostics, "GRAM_ROWS", 700)
+    assert diagnostics.correlation(a, b) == pytest.approx(whole, rel=1e-12)
