@@ -490,7 +490,9 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
         r.require(wanted)
         temps = sorted(c for c in channels if not is_rate_channel(c))
         check_units(r, temps if args.kind != "greybox" else [], args.output)
-        if channels:  # (--candidates reads every column first, to choose among them)
+        # (--candidates reads every column first, to choose among them; a --fixed term
+        # reads its own channels)
+        if channels and not getattr(args, "fixed", None):
             # and the speeds, of which speed_warnings speaks
             r = _only_columns(r, {*wanted, *(c for c in r.columns
                                              if channel_kind(c) is ChannelKind.SPEED)})
