@@ -116,8 +116,8 @@ def solve_blocks(blocks: Iterable[tuple[FloatArray, FloatArray]]) -> FloatArray:
     it = iter(blocks)
     first = next(it)
     second = next(it, None)
-    if second is None:
-        return solve_one(*first)
+    if second is None:  # row-major, as one stacked matrix was
+        return solve_one(np.ascontiguousarray(first[0]), first[1])
     gram, rhs, sumsq, n = normal_sums(itertools.chain([first, second], it))
     scale = np.sqrt(sumsq / n)
     scale[scale == 0.0] = 1.0
@@ -132,17 +132,18 @@ def solve_blocks(blocks: Iterable[tuple[FloatArray, FloatArray]]) -> FloatArray:
 
 def normal_sums(blocks: Iterable[tuple[FloatArray, FloatArray]]
             ) -> tuple[FloatArray, FloatArray, FloatArray, int]:
-    """(aᵀa, aᵀb, Σ a², rows) summed over the blocks (an iterable consumed once)."""
-    gram = rhs = sumsq = None
+    """(aᵀa, aᵀb, Σ a², rows) summed over the blocks (an iterable consumed once;
+    Σ a² is aᵀa's diagonal)."""
+    gram = rhs = None
     n = 0
     for a, b in blocks:
-        g, r, s = a.T @ a, a.T @ b, np.sum(a ** 2, axis=0)
+        g, r = a.T @ a, a.T @ b
         gram = g if gram is None else gram + g
         rhs = r if rhs is None else rhs + r
-        sumsq = s if sumsq is None else sumsq + s
         n += a.shape[0]
-    assert gram is not None and rhs is not None and sumsq is not None
-    return gram, rhs, sumsq, n
+    if gram is None or rhs is None:
+        raise ValueError("no rows")
+    return gram, rhs, np.diag(gram).copy(), n
 
 
 def solve_one(a: FloatArray, b: FloatArray) -> FloatArray:

@@ -228,7 +228,7 @@ def _arx_blocks(d: _Data, na: int, nb: int, lag: int, den: Sequence[float] | Non
     ind_lags = [SegLags(seg, lag) for _ in range(n_init)]
     p = na + len(d.us) * nb + n_init * (lag + 1)
     for lo, hi in row_blocks(d.y.size):
-        x = np.empty((hi - lo, p))
+        x = np.empty((p, hi - lo))  # a regressor per row: each filled contiguously
         fy = d.y[lo:hi]
         for k, (sig, f, lg) in enumerate(zip(sigs, filters, lags, strict=True)):
             fb = sig[lo:hi] if f is None else f(sig[lo:hi], lo)
@@ -236,11 +236,11 @@ def _arx_blocks(d: _Data, na: int, nb: int, lag: int, den: Sequence[float] | Non
                 fy = fb
             lg.feed(fb, lo)
         for i in range(1, na + 1):
-            x[:, i - 1] = -lags[0].shift(i)
+            x[i - 1] = -lags[0].shift(i)
         col = na
         for lg in lags[1:]:
             for j in range(nb):
-                x[:, col] = lg.shift(j)
+                x[col] = lg.shift(j)
                 col += 1
         for r, (s, e) in enumerate(seg.bounds[:n_init]):
             ind = np.zeros(hi - lo)
@@ -248,10 +248,10 @@ def _arx_blocks(d: _Data, na: int, nb: int, lag: int, den: Sequence[float] | Non
             f = ind_filters[r]
             ind_lags[r].feed(ind if f is None else f(ind, lo), lo)
             for j in range(lag + 1):
-                x[:, col] = ind_lags[r].shift(j)
+                x[col] = ind_lags[r].shift(j)
                 col += 1
         keep = rows[lo:hi]
-        yield x[keep], fy[keep]
+        yield x[:, keep].T, fy[keep]
 
 
 def _simulate(d: _Data, m: OeModel, train: BoolArray, y: FloatArray, us: Sequence[FloatArray],
@@ -431,8 +431,8 @@ def _ridge(d: _Data, shared: OeModel | None, train: BoolArray, lam: float) -> Oe
     blocks = _ridge_blocks(d, den, nb, train)
     first = next(blocks)
     second = next(blocks, None)
-    if second is None:  # one block: the scaled rows themselves
-        a = first[0]
+    if second is None:  # one block: the scaled rows themselves (row-major, as stacked)
+        a = np.ascontiguousarray(first[0])
         scale = np.sqrt(np.mean(a ** 2, axis=0))
         scale[scale == 0.0] = 1.0
         a = a / scale
@@ -472,25 +472,25 @@ def _ridge_blocks(d: _Data, den: Sequence[float], nb: int, train: BoolArray
     ind_lags = [SegLags(seg, nb) for _ in range(n_init)]
     p = len(d.us) * nb + n_init * (nb + 1)
     for lo, hi in row_blocks(d.y.size):
-        x = np.empty((hi - lo, p))
+        x = np.empty((p, hi - lo))  # a regressor per row: each filled contiguously
         col = 0
         for u, f, lg in zip(d.us, filters, lags, strict=True):
             w = f(u[lo:hi], lo)
             lg.feed(w, lo)
-            x[:, col] = w
+            x[col] = w
             for j in range(1, nb):
-                x[:, col + j] = lg.shift(j) - w
+                x[col + j] = lg.shift(j) - w
             col += nb
         for r, (s, e) in enumerate(seg.bounds[:n_init]):
             ind = np.zeros(hi - lo)
             ind[max(s, lo) - lo:max(min(e, hi) - lo, 0)] = 1.0
             ind_lags[r].feed(ind_filters[r](ind, lo), lo)
-            x[:, col] = ind
+            x[col] = ind
             for j in range(nb):
-                x[:, col + 1 + j] = ind_lags[r].shift(j)
+                x[col + 1 + j] = ind_lags[r].shift(j)
             col += nb + 1
         keep = train[lo:hi]
-        yield x[keep], d.y[lo:hi][keep]
+        yield x[:, keep].T, d.y[lo:hi][keep]
 
 
 def _final_fit(d: _Data, m: OeModel) -> float:
