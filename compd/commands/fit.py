@@ -697,9 +697,12 @@ def run(args: argparse.Namespace) -> int:
         status.done()
     # the figures and the residual over the calibration rows (--from: the rows before
     # ran through the model, outside the calibration)
-    keep = [r.time_s >= (args.fit_from or 0.0) - 1e-9 for r in records]
-    measured = [r.column(args.output)[k] for r, k in zip(records, keep, strict=True)]
-    simulated = [s[k] for s, k in zip(simulated, keep, strict=True)]
+    if args.fit_from is None:  # every row: the arrays themselves, not copies
+        measured = [r.column(args.output) for r in records]
+    else:
+        keep = [r.time_s >= args.fit_from - 1e-9 for r in records]
+        measured = [r.column(args.output)[k] for r, k in zip(records, keep, strict=True)]
+        simulated = [s[k] for s, k in zip(simulated, keep, strict=True)]
     adapt = _suggest_adaptation(args, measured, simulated, records[0].period_s)
     if adapt:  # the suggestion travels with the model: its [adaptation] table
         from compd.offline.probes import Suggestion
