@@ -631,6 +631,8 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
     channels = {ch for _, inputs in specs for ch in inputs}
     records = _calibration_rows(args, _read_records(data, args, channels))
     _check_folds(args, records)
+    if sum(len(r) for r in records) > LONG_RECORD_ROWS:
+        _return_freed_arrays()
     if args.candidates:
         specs = _search_specs(args, records)
         channels = {ch for _, inputs in specs for ch in inputs}
@@ -687,7 +689,6 @@ def run(args: argparse.Namespace) -> int:
         status.stage("reading the records and identifying the model")
         model, info, out, records = fit_model(args)
         status.stage("replaying the model as the daemon steps it")
-        _return_freed_memory()  # the identification's arrays, before the replay's
         simulated = [replay_with_init(model, r, r.column(args.output), "estimate")
                      for r in records]
     except (RecordError, ModelError) as exc:
@@ -775,11 +776,21 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _return_freed_memory() -> None:
-    """Give the heap's freed pages back to the system (glibc's malloc_trim): a
-    month's 21 MB arrays come from the heap once glibc has raised its mmap
-    threshold, and once freed stay in the process's resident memory, beside what
-    the replay after the identification allocates. Nothing without glibc."""
+#: arrays at least this large are mapped on their own and given back on free (a
+#: month's columns at 1 s are 21 MB; the identification's blocks, a few MB, stay on
+#: the heap and are reused: at 1 MB the month spent 99 s more in the kernel)
+MMAP_THRESHOLD_BYTES = 8 << 20
+#: ... for records longer than this (a day's arrays are 0.7 MB and its one block
+#: 17 MB: mapped afresh each time, a day at 1 s spent 7 s more in the kernel)
+LONG_RECORD_ROWS = 1 << 17
+
+
+def _return_freed_arrays() -> None:
+    """glibc's malloc raises its mmap threshold each time a mapped block is freed
+    (up to 32 MB): a month's 21 MB columns then come from the heap, and once freed
+    stay in the process's resident memory beside what comes next (a month at 1 s
+    peaked at 512-522 MB, 478 MB with this). A fixed threshold (mallopt
+    M_MMAP_THRESHOLD) gives them back. Nothing where there is no glibc."""
     import ctypes
     import ctypes.util
 
@@ -787,7 +798,7 @@ def _return_freed_memory() -> None:
     if not name:
         return
     try:
-        ctypes.CDLL(name).malloc_trim(0)
+        ctypes.CDLL(name).mallopt(-3, MMAP_THRESHOLD_BYTES)  # M_MMAP_THRESHOLD
     except (OSError, AttributeError):
         return
 
