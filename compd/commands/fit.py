@@ -789,7 +789,7 @@ def _return_freed_arrays() -> None:
     """glibc's malloc raises its mmap threshold each time a mapped block is freed
     (up to 32 MB): a month's 21 MB columns then come from the heap, and once freed
     stay in the process's resident memory beside what comes next (a month at 1 s
-    peaked at 512-522 MB, 478 MB with this). A fixed threshold (mallopt
+    peaked at 512-522 MB, 493 MB with this). A fixed threshold (mallopt
     M_MMAP_THRESHOLD) gives them back. Nothing where there is no glibc."""
     import ctypes
     import ctypes.util
