@@ -18,6 +18,7 @@ over a 3 K span (46 and 71 µm each) on a 20 µm record are flagged.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -34,15 +35,57 @@ CONDITION_WARN = 100.0
 FLAT_RANGE_UM = 2.0
 
 
+#: inputs longer than this are reduced block by block to their Gram matrix (the
+#: centred columns of a month at 1 s, stacked and copied for the SVD, were 330 MB)
+GRAM_ROWS = 1 << 17
+
+
 def input_condition(inputs: Sequence[FloatArray]) -> float:
-    """Condition number of the centred, unit-norm input columns."""
+    """Condition number of the centred, unit-norm input columns (past
+    `GRAM_ROWS` rows from their Gram matrix, accumulated block by block: the
+    same figure while it is far below 1e7)."""
     if len(inputs) < 2:
         return 1.0
+    if inputs[0].size > GRAM_ROWS:
+        return _condition_by_blocks(inputs)
     x = np.stack([u - u.mean() for u in inputs], axis=1)
     norms = np.linalg.norm(x, axis=0)
     if np.any(norms == 0.0):
         return float("inf")
     return float(np.linalg.cond(x / norms))
+
+
+def _condition_by_blocks(inputs: Sequence[FloatArray]) -> float:
+    """`input_condition` through the centred columns' Gram matrix, summed over
+    blocks of `GRAM_ROWS` rows: cond = sqrt(λmax / λmin) of the correlation matrix."""
+    means = [u.mean() for u in inputs]
+    n = inputs[0].size
+    gram = np.zeros((len(inputs), len(inputs)))
+    for lo in range(0, n, GRAM_ROWS):
+        x = np.stack([u[lo:lo + GRAM_ROWS] - m for u, m in zip(inputs, means, strict=True)],
+                     axis=1)
+        gram += x.T @ x
+    norms = np.sqrt(np.diag(gram))
+    if np.any(norms == 0.0):
+        return float("inf")
+    eig = np.linalg.eigvalsh(gram / norms[:, None] / norms[None, :])
+    return float(np.sqrt(eig[-1] / eig[0])) if eig[0] > 0.0 else float("inf")
+
+
+def correlation(a: FloatArray, b: FloatArray) -> float:
+    """Pearson's r of two inputs: `numpy.corrcoef`'s up to `GRAM_ROWS` rows; past
+    them from centred sums taken block by block (corrcoef stacks and centres
+    both, four copies of a month's column)."""
+    if a.size <= GRAM_ROWS:
+        return float(np.corrcoef(a, b)[0, 1])
+    ma, mb = a.mean(), b.mean()
+    sab = saa = sbb = 0.0
+    for lo in range(0, a.size, GRAM_ROWS):
+        da, db = a[lo:lo + GRAM_ROWS] - ma, b[lo:lo + GRAM_ROWS] - mb
+        sab += float(da @ db)
+        saa += float(da @ da)
+        sbb += float(db @ db)
+    return sab / math.sqrt(saa * sbb) if saa > 0.0 and sbb > 0.0 else math.nan
 
 
 @dataclass(frozen=True)
@@ -68,7 +111,7 @@ def cancelling_pairs(inputs: Sequence[FloatArray], gains: Sequence[float],
             a, b = inputs[i], inputs[j]
             if np.std(a) == 0.0 or np.std(b) == 0.0:
                 continue
-            r = float(np.corrcoef(a, b)[0, 1])
+            r = correlation(a, b)
             big = (abs(gains[i]) * float(np.ptp(a)) > output_span
                    and abs(gains[j]) * float(np.ptp(b)) > output_span)
             if abs(r) >= min_r and gains[i] * gains[j] * r < 0.0 and big:

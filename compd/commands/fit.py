@@ -228,7 +228,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _fixed_terms(specs: list[str], records: list[Record]) -> tuple[list[Term], list[Any]]:
     """The fixed terms and their summed prediction over each record."""
-    import numpy as np
 
     from compd.infiles import load_model
     from compd.offline.model_replay import replay_model
@@ -236,7 +235,7 @@ def _fixed_terms(specs: list[str], records: list[Record]) -> tuple[list[Term], l
     from models.errors import ModelError
 
     terms: list[Term] = []
-    totals = [np.zeros(len(r)) for r in records]
+    totals: list[Any] = [0.0 for _ in records]  # no array of zeros per record without --fixed
     for spec in specs:
         path, sep, term_name = spec.rpartition(":")
         if not sep or not path or not term_name:
@@ -264,6 +263,14 @@ def _relative_input(record: Record, inputs: dict[str, float], relative: bool) ->
     return u
 
 
+def _joined(parts: list[Any]) -> Any:
+    """The records' arrays end to end (one record's array itself, not a copy: a
+    month at 1 s is 21 MB a column)."""
+    import numpy as np
+
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
 def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
             specs: list[tuple[str, dict[str, float]]], holdout_records: list[Record],
             ) -> tuple[list[Term], list[dict[str, Any]]]:
@@ -279,7 +286,7 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
     period = records[0].period_s
     radius = pole_radius(period, args.max_time_constant_days * 86400.0)
     seg = Segments.from_lengths([len(r) for r in records])
-    y = np.concatenate(ys)
+    y = _joined(ys)
     from compd.offline.channel_kind import is_rate_channel
     from compd.offline.fit_terms import usable_rows
 
@@ -287,7 +294,7 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
     y_span = float(np.ptp(y if usable is None else y[usable]))
 
     rel = [not all(is_rate_channel(ch) for ch in inputs) for _, inputs in specs]
-    us = [np.concatenate([_relative_input(r, inputs, rl) for r in records])
+    us = [_joined([_relative_input(r, inputs, rl) for r in records])
           for (_, inputs), rl in zip(specs, rel, strict=True)]
     holdout = None
     if holdout_records:
@@ -509,24 +516,43 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
     """Read and check records; all must share `first`'s (or the first one's) period."""
     import math
 
-    from compd.offline.channel_kind import is_rate_channel
+    from compd.offline.channel_kind import ChannelKind, channel_kind, is_rate_channel
     from compd.offline.records import RecordError, check_units, read_record
 
-    records = [read_record(p) for p in paths]
-    if args.positions:  # the line through each row's positions: its value or its slope
-        from compd.offline.position_record import line_record
+    records: list[Record] = []
+    for p in paths:
+        r = read_record(p)
+        if args.positions:  # the line through each row's positions: its value or its slope
+            from compd.offline.position_record import line_record
 
-        records = [line_record(r, args.reference_position_mm, args.output) for r in records]
-    for r in records:
-        r.require([args.output, *sorted(channels), *([args.switch] if args.switch else [])])
+            r = line_record(r, args.reference_position_mm, args.output)
+        wanted = [args.output, *sorted(channels), *([args.switch] if args.switch else [])]
+        r.require(wanted)
         temps = sorted(c for c in channels if not is_rate_channel(c))
         check_units(r, temps if args.kind != "greybox" else [], args.output)
+        # (--candidates reads every column first, to choose among them; a --fixed term
+        # reads its own channels)
+        if channels and not getattr(args, "fixed", None):
+            # and the speeds, of which speed_warnings speaks
+            r = _only_columns(r, {*wanted, *(c for c in r.columns
+                                             if channel_kind(c) is ChannelKind.SPEED)})
+        records.append(r)
         ref = first if first is not None else records[0]
         if not math.isclose(r.period_s, ref.period_s, rel_tol=1e-6):
             raise RecordError(f"{r.path}: sampled every {r.period_s:g} s but {ref.path} "
                               f"every {ref.period_s:g} s; records fitted together "
                               "need one sample period")
     return records
+
+
+def _only_columns(record: Record, names: set[str]) -> Record:
+    """`record` with only the columns `names` (and its time), copied so that the rest
+    of the block the reader parsed is freed: a month at 1 s is 21 MB a column."""
+    import dataclasses
+
+    return dataclasses.replace(record, time_s=record.time_s.copy(),
+                               columns={k: v.copy() for k, v in record.columns.items()
+                                        if k in names})
 
 
 def _calibration_rows(args: argparse.Namespace, records: list[Record]) -> list[Record]:
@@ -643,6 +669,8 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
     channels = {ch for _, inputs in specs for ch in inputs}
     records = _calibration_rows(args, _read_records(data, args, channels))
     _check_folds(args, records)
+    if sum(len(r) for r in records) > LONG_RECORD_ROWS:
+        _return_freed_arrays()
     if args.candidates:
         specs = _search_specs(args, records)
         channels = {ch for _, inputs in specs for ch in inputs}
@@ -652,7 +680,8 @@ def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[st
     for w in [w for r in records for w in speed_warnings(r)] if len(records) == 1 else []:
         print(f"compd fit: warning: {w}", file=sys.stderr)
     fixed, fixed_preds = _fixed_terms(list(args.fixed), records)
-    ys = [r.column(args.output) - f for r, f in zip(records, fixed_preds, strict=True)]
+    ys = [r.column(args.output) - f if fixed else r.column(args.output)
+          for r, f in zip(records, fixed_preds, strict=True)]
     terms, info = _fit_terms(args, records, ys, specs, holdout)
     names = ", ".join(Path(p).name for p in data)
     name = args.name or f"fitted from {names}"
@@ -717,9 +746,12 @@ def run(args: argparse.Namespace) -> int:
         status.done()
     # the figures and the residual over the calibration rows (--from: the rows before
     # ran through the model, outside the calibration)
-    keep = [r.time_s >= (args.fit_from or 0.0) - 1e-9 for r in records]
-    measured = [r.column(args.output)[k] for r, k in zip(records, keep, strict=True)]
-    simulated = [s[k] for s, k in zip(simulated, keep, strict=True)]
+    if args.fit_from is None:  # every row: the arrays themselves, not copies
+        measured = [r.column(args.output) for r in records]
+    else:
+        keep = [r.time_s >= args.fit_from - 1e-9 for r in records]
+        measured = [r.column(args.output)[k] for r, k in zip(records, keep, strict=True)]
+        simulated = [s[k] for s, k in zip(simulated, keep, strict=True)]
     adapt = _suggest_adaptation(args, measured, simulated, records[0].period_s)
     if adapt:  # the suggestion travels with the model: its [adaptation] table
         from compd.offline.probes import Suggestion
@@ -791,6 +823,33 @@ def run(args: argparse.Namespace) -> int:
               + (f", validation {v:.2f} %" if v is not None else ""))
     print(f"  wrote {out}")
     return 0
+
+
+#: arrays at least this large are mapped on their own and given back on free (a
+#: month's columns at 1 s are 21 MB; the identification's blocks, a few MB, stay on
+#: the heap and are reused: at 1 MB the month spent 99 s more in the kernel)
+MMAP_THRESHOLD_BYTES = 8 << 20
+#: ... for records longer than this (a day's arrays are 0.7 MB and its one block
+#: 17 MB: mapped afresh each time, a day at 1 s spent 7 s more in the kernel)
+LONG_RECORD_ROWS = 1 << 17
+
+
+def _return_freed_arrays() -> None:
+    """glibc's malloc raises its mmap threshold each time a mapped block is freed
+    (up to 32 MB): a month's 21 MB columns then come from the heap, and once freed
+    stay in the process's resident memory beside what comes next (a month at 1 s
+    peaked at 512-522 MB, 493 MB with this). A fixed threshold (mallopt
+    M_MMAP_THRESHOLD) gives them back. Nothing where there is no glibc."""
+    import ctypes
+    import ctypes.util
+
+    name = ctypes.util.find_library("c")
+    if not name:
+        return
+    try:
+        ctypes.CDLL(name).mallopt(-3, MMAP_THRESHOLD_BYTES)  # M_MMAP_THRESHOLD
+    except (OSError, AttributeError):
+        return
 
 
 def _suggest_adaptation(args: argparse.Namespace, measured: list[Any], simulated: list[Any],

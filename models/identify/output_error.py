@@ -35,13 +35,14 @@ iteration is a few filter runs over the record.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
 from models.identify.arx import fit_pct
+from models.identify.blocks import SegFilter, SegLags, row_blocks
 from models.identify.reflection import scaled, step_up, to_kappa
 from models.identify.segments import Segments
 
@@ -86,11 +87,6 @@ class _Problem:
         self.n_den = sum(nas)
         self.per_record = 1 + len(self.us)
         self.n_init = len(seg.bounds) * self.per_record if initial else 0
-        self.indicators = []
-        for s, e in seg.bounds:
-            ind = np.zeros(y.size)
-            ind[s:e] = 1.0
-            self.indicators.append(ind)
         self.group_of = {t: g for g, m in enumerate(self.groups) for t in m}
 
     def unpack(self, th: FloatArray) -> tuple[list[FloatArray], list[FloatArray],
@@ -107,84 +103,126 @@ class _Problem:
             i += na
         return nums, kappas, dens, th[i:]
 
-    def shifted_inputs(self, init: FloatArray) -> tuple[list[FloatArray], FloatArray]:
-        """Inputs plus their per-record level v_t, and the output level c."""
-        level = np.zeros(self.y.size)
+    def block_inputs(self, init: FloatArray, lo: int, hi: int
+                     ) -> tuple[list[FloatArray], FloatArray]:
+        """Rows lo … hi-1 of the inputs plus their per-record level v_t, and of
+        the output level c."""
+        level = np.zeros(hi - lo)
         if not self.initial:
-            return self.us, level
-        us = [u.copy() for u in self.us]
-        for r, ind in enumerate(self.indicators):
+            return [u[lo:hi] for u in self.us], level
+        us = [u[lo:hi].copy() for u in self.us]
+        for r, (s, e) in enumerate(self.seg.bounds):
+            a, b = max(s, lo) - lo, min(e, hi) - lo
+            if a >= b:
+                continue
             block = init[r * self.per_record:(r + 1) * self.per_record]
-            level += block[0] * ind
+            level[a:b] += block[0]
             for t in range(len(us)):
-                us[t] += block[1 + t] * ind
+                us[t][a:b] += block[1 + t]
         return us, level
 
-    def group_outputs(self, th: FloatArray) -> tuple[list[FloatArray], FloatArray,
-                                                     list[FloatArray]]:
+    def blocks(self, th: FloatArray) -> Iterator[tuple[int, int, list[FloatArray],
+                                                       list[FloatArray], FloatArray]]:
+        """(lo, hi, inputs, each group's output, output level) block by block
+        (`models.identify.blocks`: the filters' states carried across)."""
         nums, _, dens, init = self.unpack(th)
-        us, level = self.shifted_inputs(init)
-        outs = []
-        for g, members in enumerate(self.groups):
-            v = np.zeros(self.y.size)
-            for t in members:
-                v += self.seg.filter(nums[t], [1.0], us[t])
-            outs.append(self.seg.filter([1.0], dens[g], v))
-        return outs, level, us
+        firs = [SegFilter(self.seg, a, [1.0]) for a in nums]
+        iirs = [SegFilter(self.seg, [1.0], b) for b in dens]
+        for lo, hi in row_blocks(self.y.size):
+            us, level = self.block_inputs(init, lo, hi)
+            outs = []
+            for g, members in enumerate(self.groups):
+                v = np.zeros(hi - lo)
+                for t in members:
+                    v += firs[t](us[t], lo)
+                outs.append(iirs[g](v, lo))
+            yield lo, hi, us, outs, level
 
     def simulate(self, th: FloatArray) -> FloatArray:
-        outs, level, _ = self.group_outputs(th)
-        return np.asarray(sum(outs) + level, dtype=np.float64)
+        out = np.empty(self.y.size)
+        for lo, hi, _, outs, level in self.blocks(th):
+            out[lo:hi] = sum(outs) + level
+        return out
 
-    def jacobian(self, th: FloatArray, weight: FloatArray) -> FloatArray:
-        """(∂ŷ/∂θ)ᵀ · diag(weight), p × N (rows filled in place: building an
-        N × p matrix and fancy-indexing its rows cost more than the filters)."""
+    def residual(self, th: FloatArray, mask: BoolArray) -> FloatArray:
+        """(y - ŷ) · weight, the weight 1 on the rows of `mask` and 0 elsewhere,
+        made block by block (neither ŷ nor the weights of every row held)."""
+        out = np.empty(self.y.size)
+        for lo, hi, _, outs, level in self.blocks(th):
+            out[lo:hi] = (self.y[lo:hi] - (sum(outs) + level)) * mask[lo:hi].astype(np.float64)
+        return out
+
+    def normal_equations(self, th: FloatArray, mask: BoolArray, resid: FloatArray
+                         ) -> tuple[FloatArray, FloatArray]:
+        """(JᵀJ, Jᵀr) of J = diag(weight) · ∂ŷ/∂θ (`residual`'s weight), accumulated block by block
+        (the p × N Jacobian is never built whole: its rows are filled in place
+        per block, as building an N × p matrix and fancy-indexing its rows cost
+        more than the filters)."""
         nums, kappas, dens, _ = self.unpack(th)
-        outs, _, us = self.group_outputs(th)
         seg = self.seg
-        jt = np.empty((self.n_num + self.n_den + self.n_init, self.y.size))
-        i = 0
-        for t, nb in enumerate(self.nbs):
-            w = seg.filter([1.0], dens[self.group_of[t]], us[t]) * weight
-            for j in range(nb):
-                jt[i] = seg.shift(w, j)
-                i += 1
+        w_filt = [SegFilter(seg, [1.0], dens[self.group_of[t]]) for t in range(len(self.us))]
+        w_lags = [SegLags(seg, nb - 1) for nb in self.nbs]
+        v_filt = [SegFilter(seg, [1.0], b) for b in dens]
+        v_lags = [SegLags(seg, na) for na in self.nas]
+        dpolys, dks = [], []
         for g, na in enumerate(self.nas):
-            v = seg.filter([1.0], dens[g], outs[g])
-            d_den = np.stack([-seg.shift(v, m) for m in range(1, na + 1)], axis=0)
             k = kappas[g]
-            dk = _KAPPA_LIM * (1.0 - (k / _KAPPA_LIM) ** 2)
+            dks.append(_KAPPA_LIM * (1.0 - (k / _KAPPA_LIM) ** 2))
+            rows = []
             for m in range(na):
                 kp, km = k.copy(), k.copy()
                 kp[m] += 0.5
                 km[m] -= 0.5
-                dpoly = scaled(step_up(kp) - step_up(km), self.radius)[1:]
-                np.multiply(dpoly @ d_den, dk[m] * weight, out=jt[i])
-                i += 1
-        if self.initial:
-            for ind in self.indicators:
-                jt[i] = ind * weight
+                rows.append(scaled(step_up(kp) - step_up(km), self.radius)[1:])
+            dpolys.append(rows)
+        i_filt = [[SegFilter(seg, nums[t], dens[self.group_of[t]]) for t in range(len(self.us))]
+                  for _ in seg.bounds] if self.initial else []
+        p = self.n_num + self.n_den + self.n_init
+        jtj: FloatArray | None = None
+        jtr: FloatArray | None = None
+        for lo, hi, us, outs, _ in self.blocks(th):
+            wb = mask[lo:hi].astype(np.float64)
+            jt = np.empty((p, hi - lo))
+            i = 0
+            for t, nb in enumerate(self.nbs):
+                w = w_filt[t](us[t], lo) * wb
+                w_lags[t].feed(w, lo)
+                jt[i] = w
+                for j in range(1, nb):
+                    jt[i + j] = w_lags[t].shift(j)
+                i += nb
+            for g, na in enumerate(self.nas):
+                v_lags[g].feed(v_filt[g](outs[g], lo), lo)
+                d_den = np.stack([-v_lags[g].shift(m) for m in range(1, na + 1)], axis=0)
+                for m in range(na):
+                    np.multiply(dpolys[g][m] @ d_den, dks[g][m] * wb, out=jt[i])
+                    i += 1
+            for r, (s, e) in enumerate(seg.bounds if self.initial else ()):
+                ind = np.zeros(hi - lo)
+                ind[max(s, lo) - lo:max(min(e, hi) - lo, 0)] = 1.0
+                jt[i] = ind * wb
                 i += 1
                 for t in range(len(self.us)):
-                    jt[i] = seg.filter(nums[t], dens[self.group_of[t]], ind) * weight
+                    jt[i] = i_filt[r][t](ind, lo) * wb
                     i += 1
-        return jt
+            g_blk, r_blk = jt @ jt.T, jt @ resid[lo:hi]
+            jtj = g_blk if jtj is None else jtj + g_blk
+            jtr = r_blk if jtr is None else jtr + r_blk
+        assert jtj is not None and jtr is not None
+        return jtj, jtr
 
 
 def _levenberg_marquardt(prob: _Problem, th0: FloatArray, mask: BoolArray, max_iter: int,
                          tol: float) -> tuple[FloatArray, float, int]:
     """Damped Gauss-Newton on the column-scaled normal equations; stops when
     a step gains less than `tol` of the cost, or none is found."""
-    weight = mask.astype(np.float64)
     th = th0.copy()
-    r = (prob.y - prob.simulate(th)) * weight
+    r = prob.residual(th, mask)
     cost = float(r @ r)
     lam = 1e-3
     it = 0
     for it in range(1, max_iter + 1):  # noqa: B007
-        jt = prob.jacobian(th, weight)
-        jtj = jt @ jt.T
-        jtr = jt @ r
+        jtj, jtr = prob.normal_equations(th, mask, r)
         d = np.sqrt(np.maximum(np.diag(jtj), 1e-300))
         a = jtj / d[:, None] / d[None, :]
         g = jtr / d
@@ -196,7 +234,7 @@ def _levenberg_marquardt(prob: _Problem, th0: FloatArray, mask: BoolArray, max_i
                 lam *= 10.0
                 continue
             cand = th + step
-            rc = (prob.y - prob.simulate(cand)) * weight
+            rc = prob.residual(cand, mask)
             c_cost = float(rc @ rc)
             if math.isfinite(c_cost) and c_cost < cost:
                 gain = (cost - c_cost) / max(cost, 1e-300)

@@ -37,20 +37,23 @@ a level per record) are tried, and the failures are kept as notes.
 from __future__ import annotations
 
 import functools
+import itertools
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
 
 from models.identify.arx import fit_pct, is_stable
+from models.identify.blocks import SegFilter, SegLags, normal_sums, row_blocks, solve_blocks
 from models.identify.checks import implausible
 from models.identify.output_error import OeModel, fit_output_error
 from models.identify.segments import Segments
 from models.identify.validate import (
     forced_response,
     pooled_fit,
+    pooled_parts,
     usable_splits,
     with_initial,
 )
@@ -195,23 +198,11 @@ def _lag_ok(mask: BoolArray, seg: Segments, lag: int) -> BoolArray:
     """Rows whose `lag` predecessors are all in `mask` and in the same record."""
     ok = mask.copy()
     for d in range(1, lag + 1):
-        ok &= seg.shift(mask.astype(np.float64), d) > 0.5
+        for s, e in seg.bounds:  # mask(k - d) within the record, False before its start
+            ok[s:min(e, s + d)] = False
+            if e - s > d:
+                ok[s + d:e] &= mask[s:e - d]
     return ok
-
-
-def _solve(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Least squares through the column-scaled normal equations (the
-    regressors are few; an N-row SVD per candidate cost more than the rest)."""
-    scale = np.sqrt(np.mean(a ** 2, axis=0))
-    scale[scale == 0.0] = 1.0
-    x = a / scale
-    g = x.T @ x
-    g[np.diag_indices_from(g)] += 1e-12 * float(np.trace(g)) / g.shape[0]
-    try:
-        theta = np.linalg.solve(g, x.T @ b)
-    except np.linalg.LinAlgError:
-        theta, *_ = np.linalg.lstsq(x, b, rcond=None)
-    return np.asarray(theta / scale, dtype=np.float64)
 
 
 def arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int = 0
@@ -227,20 +218,12 @@ def arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int = 0
     rows = _lag_ok(train, seg, lag)
     den: tuple[float, ...] = (1.0,)
     nums: tuple[tuple[float, ...], ...] = ()
+    n_cols = na + len(d.us) * nb + (len(seg.bounds) * (lag + 1) if d.initial else 0)
     for it in range(iterations + 1):
-        fy = d.y if it == 0 else seg.filter([1.0], den, _known(d, nums, den))
-        cols = [-seg.shift(fy, i) for i in range(1, na + 1)]
-        for u in d.us:
-            fu = u if it == 0 else seg.filter([1.0], den, u)
-            cols += [seg.shift(fu, j) for j in range(nb)]
-        for s, e in seg.bounds if d.initial else ():
-            ind = np.zeros(d.y.size)
-            ind[s:e] = 1.0
-            find = ind if it == 0 else seg.filter([1.0], den, ind)
-            cols += [seg.shift(find, j) for j in range(lag + 1)]
-        if int(rows.sum()) <= len(cols):  # fewer rows than parameters: nothing determined
+        if int(rows.sum()) <= n_cols:  # fewer rows than parameters: nothing determined
             return None
-        theta = _solve(np.stack(cols, axis=1)[rows], fy[rows])
+        y = d.y if it == 0 else _known(d, nums, den)
+        theta = solve_blocks(_arx_blocks(d, y, na, nb, lag, den if it else None, rows))
         new_den = (1.0, *(float(v) for v in theta[:na]))
         if not is_stable(new_den, d.radius):
             if it == 0:
@@ -261,6 +244,49 @@ def _known(d: _Data, nums: tuple[tuple[float, ...], ...], den: tuple[float, ...]
         return d.y
     sim = forced_response(nums, (den,), (tuple(range(len(d.us))),), d.us, d.seg)
     return np.where(d.usable, d.y, sim)
+
+
+def _arx_blocks(d: _Data, y: FloatArray, na: int, nb: int, lag: int,
+                den: Sequence[float] | None, rows: BoolArray
+                ) -> Iterator[tuple[FloatArray, FloatArray]]:
+    """`arx_fit`'s (regressors, target) over the `rows`, block by block
+    (`models.identify.blocks`): [-fy(k-1) … -fy(k-na) | fu_t(k) … fu_t(k-nb+1)
+    per input | a record indicator's shifts 0 … lag per record], fy (of `y`: the
+    displacement, or `_known`'s) and fu filtered by 1/den (`den` None: unfiltered)."""
+    seg = d.seg
+    sigs = [y, *d.us]
+    filters = [SegFilter(seg, [1.0], den) if den is not None else None for _ in sigs]
+    lags = [SegLags(seg, lag) for _ in sigs]
+    n_init = len(seg.bounds) if d.initial else 0
+    ind_filters = [SegFilter(seg, [1.0], den) if den is not None else None
+                   for _ in range(n_init)]
+    ind_lags = [SegLags(seg, lag) for _ in range(n_init)]
+    p = na + len(d.us) * nb + n_init * (lag + 1)
+    for lo, hi in row_blocks(y.size):
+        x = np.empty((p, hi - lo))  # a regressor per row: each filled contiguously
+        fy = y[lo:hi]
+        for k, (sig, f, lg) in enumerate(zip(sigs, filters, lags, strict=True)):
+            fb = sig[lo:hi] if f is None else f(sig[lo:hi], lo)
+            if k == 0:
+                fy = fb
+            lg.feed(fb, lo)
+        for i in range(1, na + 1):
+            x[i - 1] = -lags[0].shift(i)
+        col = na
+        for lg in lags[1:]:
+            for j in range(nb):
+                x[col] = lg.shift(j)
+                col += 1
+        for r, (s, e) in enumerate(seg.bounds[:n_init]):
+            ind = np.zeros(hi - lo)
+            ind[max(s, lo) - lo:max(min(e, hi) - lo, 0)] = 1.0
+            f = ind_filters[r]
+            ind_lags[r].feed(ind if f is None else f(ind, lo), lo)
+            for j in range(lag + 1):
+                x[col] = ind_lags[r].shift(j)
+                col += 1
+        keep = rows[lo:hi]
+        yield x[:, keep].T, fy[keep]
 
 
 def _simulate(d: _Data, m: OeModel, train: BoolArray, y: FloatArray, us: Sequence[FloatArray],
@@ -290,16 +316,16 @@ def _score_holdout(d: _Data, m: OeModel | None) -> tuple[float, list[float]]:
 def _score(d: _Data, fit_on: Callable[[BoolArray], OeModel | None]) -> tuple[float, list[float]]:
     if d.holdout is not None:
         return _score_holdout(d, fit_on(d.every))
-    sims: list[FloatArray] = []
+    held: list[tuple[FloatArray, FloatArray]] = []  # the held-out rows only, not every row
     per: list[float] = []
     for train, val in d.splits:
         m = fit_on(train)
         if m is None:
             return -math.inf, []
         sim = _simulate(d, m, train, d.y, d.us, d.seg)
-        sims.append(sim)
-        per.append(fit_pct(d.y[val], sim[val]))
-    return pooled_fit(d.y, sims, [v for _, v in d.splits]), per
+        held.append((d.y[val], sim[val]))
+        per.append(fit_pct(*held[-1]))
+    return pooled_parts(held), per
 
 
 @dataclass(frozen=True)
@@ -326,7 +352,6 @@ def _heldout(d: _Data, models: Sequence[OeModel | None]) -> _Heldout:
     else:
         y, us, seg = d.y, d.us, d.seg
         pairs = [(m, t, v) for m, (t, v) in zip(models, d.splits, strict=True)]
-    start = np.concatenate([np.full(e - s, y[s]) for s, e in seg.bounds])
     err = disp = 0.0
     count = 0
     blocks: list[FloatArray] = []
@@ -334,7 +359,9 @@ def _heldout(d: _Data, models: Sequence[OeModel | None]) -> _Heldout:
         assert m is not None
         sim = _simulate(d, m, train, y, us, seg)
         err += float(np.sum((y[val] - sim[val]) ** 2))
-        disp += float(np.sum((y[val] - start[val]) ** 2))
+        # each record's first row, on the held-out rows only (not a copy of every row)
+        start = np.concatenate([np.full(int(val[s:e].sum()), y[s]) for s, e in seg.bounds])
+        disp += float(np.sum((y[val] - start) ** 2))
         count += int(val.sum())
         for s, e in seg.bounds:
             rows = np.flatnonzero(val[s:e]) + s
@@ -435,26 +462,28 @@ def _ridge(d: _Data, shared: OeModel | None, train: BoolArray, lam: float) -> Oe
         return None
     den = shared.dens[0]
     nb = len(shared.nums[0])
-    cols = []
-    for u in d.us:
-        w = d.seg.filter([1.0], np.asarray(den), u)
-        cols += [w] + [d.seg.shift(w, j) - w for j in range(1, nb)]
-    n_num = len(cols)
-    for s, e in d.seg.bounds if d.initial else ():  # a level, and Σ_t a_tj·v_t per lag j
-        ind = np.zeros(d.y.size)
-        ind[s:e] = 1.0
-        h = d.seg.filter([1.0], np.asarray(den), ind)
-        cols += [ind] + [d.seg.shift(h, j) for j in range(nb)]
-    x = np.stack(cols, axis=1)
-    a = x[train]
-    scale = np.sqrt(np.mean(a ** 2, axis=0))
-    scale[scale == 0.0] = 1.0
-    a = a / scale
-    gram = a.T @ a
-    pen = np.full(a.shape[1], 1e-12 * float(np.trace(gram)) / a.shape[1])
-    pen[:n_num:nb] += lam * a.shape[0]
+    n_num = len(d.us) * nb
+    blocks = _ridge_blocks(d, den, nb, train)
+    first = next(blocks)
+    second = next(blocks, None)
+    if second is None:  # one block: the scaled rows themselves (row-major, as stacked)
+        a = np.ascontiguousarray(first[0])
+        scale = np.sqrt(np.mean(a ** 2, axis=0))
+        scale[scale == 0.0] = 1.0
+        a = a / scale
+        gram = a.T @ a
+        rhs = a.T @ first[1]
+        n = a.shape[0]
+    else:
+        g, r, sumsq, n = normal_sums(itertools.chain([first, second], blocks))
+        scale = np.sqrt(sumsq / n)
+        scale[scale == 0.0] = 1.0
+        gram = g / scale[:, None] / scale[None, :]
+        rhs = r / scale
+    pen = np.full(gram.shape[0], 1e-12 * float(np.trace(gram)) / gram.shape[0])
+    pen[:n_num:nb] += lam * n
     try:
-        theta = np.linalg.solve(gram + np.diag(pen), a.T @ d.y[train]) / scale
+        theta = np.linalg.solve(gram + np.diag(pen), rhs) / scale
     except np.linalg.LinAlgError:
         return None
     nums = []
@@ -464,9 +493,47 @@ def _ridge(d: _Data, shared: OeModel | None, train: BoolArray, lam: float) -> Oe
     return OeModel(nums=tuple(nums), dens=(den,), groups=shared.groups)
 
 
+def _ridge_blocks(d: _Data, den: Sequence[float], nb: int, train: BoolArray
+                  ) -> Iterator[tuple[FloatArray, FloatArray]]:
+    """`_ridge`'s (regressors, target) over the `train` rows, block by block:
+    per input w = u/B, then w(k-j) - w(k) for j = 1 … nb-1; with the initial
+    conditions, per record its indicator and the shifts 0 … nb-1 of the
+    indicator filtered by 1/B."""
+    seg = d.seg
+    filters = [SegFilter(seg, [1.0], den) for _ in d.us]
+    lags = [SegLags(seg, nb) for _ in d.us]
+    n_init = len(seg.bounds) if d.initial else 0
+    ind_filters = [SegFilter(seg, [1.0], den) for _ in range(n_init)]
+    ind_lags = [SegLags(seg, nb) for _ in range(n_init)]
+    p = len(d.us) * nb + n_init * (nb + 1)
+    for lo, hi in row_blocks(d.y.size):
+        x = np.empty((p, hi - lo))  # a regressor per row: each filled contiguously
+        col = 0
+        for u, f, lg in zip(d.us, filters, lags, strict=True):
+            w = f(u[lo:hi], lo)
+            lg.feed(w, lo)
+            x[col] = w
+            for j in range(1, nb):
+                x[col + j] = lg.shift(j) - w
+            col += nb
+        for r, (s, e) in enumerate(seg.bounds[:n_init]):
+            ind = np.zeros(hi - lo)
+            ind[max(s, lo) - lo:max(min(e, hi) - lo, 0)] = 1.0
+            ind_lags[r].feed(ind_filters[r](ind, lo), lo)
+            x[col] = ind
+            for j in range(nb):
+                x[col + 1 + j] = ind_lags[r].shift(j)
+            col += nb + 1
+        keep = train[lo:hi]
+        yield x[:, keep].T, d.y[lo:hi][keep]
+
+
 def _final_fit(d: _Data, m: OeModel) -> float:
     every = d.every
-    return fit_pct(d.y[every], _simulate(d, m, every, d.y, d.us, d.seg)[every])
+    sim = _simulate(d, m, every, d.y, d.us, d.seg)
+    if d.usable is None:  # every row: the arrays themselves, not copies
+        return fit_pct(d.y, sim)
+    return fit_pct(d.y[every], sim[every])
 
 
 def arx_orders(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int]
@@ -618,10 +685,10 @@ def _static_fit(d: _Data, train: BoolArray) -> OeModel | None:
         ind = np.zeros(d.y.size)
         ind[s:e] = 1.0
         cols.append(ind)
-    x = np.stack(cols, axis=1)[train]
-    if x.shape[0] < x.shape[1]:
+    if int(train.sum()) < len(cols):
         return None
-    theta = _solve(x, d.y[train])
+    theta = solve_blocks((np.stack([c[lo:hi] for c in cols], axis=1)[train[lo:hi]],
+                          d.y[lo:hi][train[lo:hi]]) for lo, hi in row_blocks(d.y.size))
     return OeModel(nums=tuple((float(k),) for k in theta[:len(d.us)]), dens=((1.0,),),
                    groups=(tuple(range(len(d.us))),))
 

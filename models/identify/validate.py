@@ -22,12 +22,14 @@ Worked number: 2 folds of a 9-sample record hold out rows 3-5 and 6-8.
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 import numpy.typing as npt
 
+from models.identify.blocks import SegFilter, normal_sums, row_blocks
 from models.identify.segments import Segments
 
 FloatArray = npt.NDArray[np.float64]
@@ -115,13 +117,18 @@ def usable_splits(seg: Segments, k: int, scheme: str, usable: BoolArray | None
 def forced_response(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]],
                     groups: Sequence[Sequence[int]], inputs: Sequence[FloatArray],
                     seg: Segments) -> FloatArray:
-    """Σ_g (Σ_{t∈g} A_t u_t) / B_g from rest at every record's start."""
+    """Σ_g (Σ_{t∈g} A_t u_t) / B_g from rest at every record's start (block by
+    block, `models.identify.blocks`: only the sum is of every row)."""
     total = np.zeros(inputs[0].size)
-    for g, members in enumerate(groups):
-        v = np.zeros(inputs[0].size)
-        for t in members:
-            v += seg.filter(np.asarray(nums[t], dtype=np.float64), [1.0], inputs[t])
-        total += seg.filter([1.0], np.asarray(dens[g], dtype=np.float64), v)
+    firs = {t: SegFilter(seg, np.asarray(nums[t], dtype=np.float64), [1.0])
+            for members in groups for t in members}
+    iirs = [SegFilter(seg, [1.0], np.asarray(b, dtype=np.float64)) for b in dens]
+    for lo, hi in row_blocks(total.size):
+        for g, members in enumerate(groups):
+            v = np.zeros(hi - lo)
+            for t in members:
+                v += firs[t](inputs[t][lo:hi], lo)
+            total[lo:hi] += iirs[g](v, lo)
     return total
 
 
@@ -143,27 +150,66 @@ def initial_basis(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float
     return np.stack(cols, axis=1)
 
 
+def _basis_blocks(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]],
+                  groups: Sequence[Sequence[int]], seg: Segments
+                  ) -> Iterator[tuple[int, int, FloatArray]]:
+    """`initial_basis`'s rows block by block (`models.identify.blocks`)."""
+    filters = [[SegFilter(seg, np.asarray(nums[t], dtype=np.float64),
+                          np.asarray(dens[g], dtype=np.float64))
+                for g, members in enumerate(groups) for t in members] for _ in seg.bounds]
+    per = 1 + sum(len(m) for m in groups)
+    for lo, hi in row_blocks(seg.total):
+        out = np.zeros((hi - lo, per * len(seg.bounds)))
+        for r, (s, e) in enumerate(seg.bounds):
+            ind = np.zeros(hi - lo)
+            ind[max(s, lo) - lo:max(min(e, hi) - lo, 0)] = 1.0
+            out[:, r * per] = ind
+            for c, f in enumerate(filters[r]):
+                out[:, r * per + 1 + c] = f(ind, lo)
+        yield lo, hi, out
+
+
 def with_initial(y: FloatArray, forced: FloatArray, nums: Sequence[Sequence[float]],
                  dens: Sequence[Sequence[float]], groups: Sequence[Sequence[int]],
                  seg: Segments, train: BoolArray) -> FloatArray:
-    """`forced` plus the initial-condition response fitted on `train` rows."""
-    basis = initial_basis(nums, dens, groups, seg)
-    a = basis[train]
-    scale = np.sqrt(np.mean(a ** 2, axis=0))
+    """`forced` plus the initial-condition response fitted on `train` rows
+    (least squares on the scaled basis; over several blocks through its
+    normal equations, the basis built block by block twice)."""
+    blocks = _basis_blocks(nums, dens, groups, seg)
+    lo, hi, basis = next(blocks)
+    if hi == seg.total:  # one block: the basis itself
+        a = basis[train]
+        scale = np.sqrt(np.mean(a ** 2, axis=0))
+        scale[scale == 0.0] = 1.0
+        theta, *_ = np.linalg.lstsq(a / scale, (y - forced)[train], rcond=1e-10)
+        return np.asarray(forced + basis @ (theta / scale), dtype=np.float64)
+    rest = ((b[train[lo:hi]], (y[lo:hi] - forced[lo:hi])[train[lo:hi]]) for lo, hi, b in
+            itertools.chain([(lo, hi, basis)], blocks))
+    gram, rhs, sumsq, n = normal_sums(rest)
+    scale = np.sqrt(sumsq / max(n, 1))
     scale[scale == 0.0] = 1.0
-    theta, *_ = np.linalg.lstsq(a / scale, (y - forced)[train], rcond=1e-10)
-    return np.asarray(forced + basis @ (theta / scale), dtype=np.float64)
+    theta, *_ = np.linalg.lstsq(gram / scale[:, None] / scale[None, :], rhs / scale,
+                                rcond=1e-20)
+    out = np.empty_like(forced, dtype=np.float64)
+    for lo, hi, b in _basis_blocks(nums, dens, groups, seg):
+        out[lo:hi] = forced[lo:hi] + b @ (theta / scale)
+    return out
 
 
 def pooled_fit(y: FloatArray, sims: Sequence[FloatArray], masks: Sequence[BoolArray]) -> float:
     """The pooled held-out fit % (module docstring); -inf if any is not finite."""
+    return pooled_parts([(y[m], sim[m]) for sim, m in zip(sims, masks, strict=True)])
+
+
+def pooled_parts(held: Sequence[tuple[FloatArray, FloatArray]]) -> float:
+    """`pooled_fit` of the (measured, simulated) held-out rows of each fold."""
     err = 0.0
     spread = 0.0
-    for sim, m in zip(sims, masks, strict=True):
-        if not np.all(np.isfinite(sim[m])):
+    for y_m, sim_m in held:
+        if not np.all(np.isfinite(sim_m)):
             return -math.inf
-        err += float(np.sum((y[m] - sim[m]) ** 2))
-        spread += float(np.sum((y[m] - y[m].mean()) ** 2))
+        err += float(np.sum((y_m - sim_m) ** 2))
+        spread += float(np.sum((y_m - y_m.mean()) ** 2))
     if spread == 0.0:
         return -math.inf
     return (1.0 - math.sqrt(err / spread)) * 100.0

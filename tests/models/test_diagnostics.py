@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
+from models import diagnostics
 from models.diagnostics import cancelling_terms, flat_window, input_condition
 
 
@@ -63,3 +65,26 @@ def test_fit_selection_and_fits_warning_find_the_same_cancelling_pair() -> None:
         else:
             assert pairs == [] and rejected is None
             assert not any("cancel" in w for w in warned)
+
+
+def test_condition_of_long_inputs_comes_from_their_gram_blocks(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Past GRAM_ROWS rows the figure is the Gram matrix's, summed block by block:
+    the SVD's to many digits, without the centred columns of every row stacked."""
+    rng = np.random.default_rng(1)
+    a = np.cumsum(rng.normal(0.0, 0.05, 5000))
+    inputs = [a, a + rng.normal(0.0, 0.02, 5000), rng.normal(0.0, 1.0, 5000)]
+    whole = input_condition(inputs)
+    monkeypatch.setattr(diagnostics, "GRAM_ROWS", 700)
+    assert input_condition(inputs) == pytest.approx(whole, rel=1e-9)
+
+
+def test_correlation_of_long_inputs_is_corrcoefs_from_centred_block_sums(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = np.random.default_rng(2)
+    a = np.cumsum(rng.normal(0.0, 0.05, 5000))
+    b = 0.3 * a + rng.normal(0.0, 0.05, 5000)
+    whole = diagnostics.correlation(a, b)
+    assert whole == float(np.corrcoef(a, b)[0, 1])
+    monkeypatch.setattr(diagnostics, "GRAM_ROWS", 700)
+    assert diagnostics.correlation(a, b) == pytest.approx(whole, rel=1e-12)
