@@ -522,7 +522,7 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
     records: list[Record] = []
     for p in paths:
         r = read_record(p)
-        if args.positions:  # the line through each row's positions: its value or its slope
+        if getattr(args, "positions", False):  # the line through the positions: value or slope
             from compd.offline.position_record import line_record
 
             r = line_record(r, args.reference_position_mm, args.output)
@@ -530,9 +530,10 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
         r.require(wanted)
         temps = sorted(c for c in channels if not is_rate_channel(c))
         check_units(r, temps if args.kind != "greybox" else [], args.output)
-        # (--candidates reads every column first, to choose among them; a --fixed term
-        # reads its own channels)
-        if channels and not getattr(args, "fixed", None):
+        # (--candidates keeps every column: it chooses among them, and the hedge's
+        # textbook and other members may read inputs the choice left out; a --fixed
+        # term reads its own channels)
+        if channels and not getattr(args, "fixed", None) and not args.candidates:
             # and the speeds, of which speed_warnings speaks
             r = _only_columns(r, {*wanted, *(c for c in r.columns
                                              if channel_kind(c) is ChannelKind.SPEED)})
