@@ -253,6 +253,11 @@ OFFSET_HELP = ("Offset the output stage sent this cycle (after limit, slew limit
                "its last confirmed offset, which this does not show")
 
 
+#: what ``compd_offset_confirmed_micrometres`` is: the offset the controller holds
+CONFIRMED_HELP = ("Offset the controller last confirmed holding (read back or acknowledged), "
+                  "in micrometres; NaN while unknown (before the first confirmed write)")
+
+
 class MetricsServer:
     """`registry` served as /metrics by a bounded server (`compd.faces.http_server`):
     `start_http`, `port`, `stop` (for one daemon's `Metrics` and for a fleet
@@ -333,6 +338,8 @@ class Metrics(MetricsServer):
         #: the output stage's value, not what the controller holds: that is the
         #: confirmed offset (the OPC UA face's Offset_um, the recorder's offset_um)
         self.offset_um = Gauge("compd_offset_micrometres", OFFSET_HELP, registry=r)
+        self.confirmed_um = Gauge("compd_offset_confirmed_micrometres", CONFIRMED_HELP,
+                                  registry=r)
         self.channel_temperature = Gauge(
             "compd_channel_temperature_celsius",
             "Last value read per temperature channel, in degrees Celsius", ["channel"],

@@ -357,3 +357,59 @@ def test_the_offset_gauges_help_says_it_is_the_stage_value_not_the_confirmed_one
                      if ln.startswith("# HELP compd_offset_micrometres "))
     assert "output stage" in help_line and "failed write" in help_line
     assert "last written" not in help_line
+
+
+def test_the_confirmed_offset_has_its_own_gauge_apart_from_the_one_sent(
+        tmp_path: Path) -> None:
+    """A failed write: ``compd_offset_micrometres`` shows the stage's value (sent), and
+    ``compd_offset_confirmed_micrometres`` what the controller still holds (the last
+    confirmed offset); before any confirmed write it is NaN, never a made-up 0."""
+    from prometheus_client import generate_latest
+
+    from compd.config.loader import load_config
+    from compd.core.cycle import Cycle, params_from_config
+    from compd.core.plan import Outcome
+    from compd.faces.status import StatusBoard
+    from compd.runtime.clock import Clock
+    from compd.runtime.journal import Journal
+    from compd.runtime.sdnotify import Notifier
+    from compd.runtime.sinks.base import Tick
+    from compd.runtime.sinks.telemetry import TelemetrySink
+    from tests.compd.cycle_helpers import samples
+    from tests.compd.daemon_helpers import write_config
+
+    cfg = load_config(write_config(tmp_path, "modbus://127.0.0.1:5020"))
+    metrics = Metrics()
+    board = StatusBoard(wall=lambda: 1000.0)
+    clock = Clock(mono=lambda: 0.0, wall=lambda: 1000.0)
+    sink = TelemetrySink(cfg, metrics=metrics, notifier=Notifier(None), board=board,
+                         clock=clock, journal=Journal(logging.getLogger("t"), board,
+                                                      clock.mono),
+                         serve=False)
+    cycle = Cycle(params_from_config(cfg), cfg.model)
+
+    def gauges() -> tuple[float, float]:
+        text = generate_latest(metrics.registry).decode()
+        return (_value(text, "compd_offset_micrometres"),
+                _value(text, "compd_offset_confirmed_micrometres"))
+
+    controller, t = 0.0, 0.0
+    cycle.plan(t, samples(t, 20.0), None)
+    row = cycle.commit(Outcome.failed("offset", reason="timed out"))
+    sink.feed(Tick(cfg, row, None, False, False))
+    assert math.isnan(gauges()[1])
+    for k in range(20):
+        t += 1.0
+        cycle.plan(t, samples(t, 20.0 + 0.4 * k), controller)
+        row = cycle.commit()
+        controller = row.writes.get("offset", controller)
+    sink.feed(Tick(cfg, row, None, True, True))
+    sent, confirmed = gauges()
+    assert sent == pytest.approx(confirmed) == pytest.approx(controller)
+    t += 1.0
+    cycle.plan(t, samples(t, 28.0), controller)
+    row = cycle.commit(Outcome.failed("offset", reason="timed out"))
+    sink.feed(Tick(cfg, row, None, False, True))
+    sent, confirmed = gauges()
+    assert sent == pytest.approx(row.offset_um) and sent != pytest.approx(controller)
+    assert confirmed == pytest.approx(controller)

@@ -124,6 +124,8 @@ class TelemetrySink(CycleSink):
     def feed(self, tick: Tick) -> None:
         result, m = tick.row, self.metrics
         m.offset_um.set(result.offset_um)
+        confirmed = result.snapshot.confirmed_um
+        m.confirmed_um.set(math.nan if confirmed is None else confirmed)
         m.fault_state.set(result.state.gauge)
         m.cause(result.cause)
         m.fallback(result.snapshot.fallback_for)
