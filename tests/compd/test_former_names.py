@@ -163,8 +163,9 @@ def test_demo_takes_a_model_on_the_former_channel_name(
     under the model's name, once, from the simulated machine's spindle_rpm."""
     from compd.offline.demo import daemon_config
     from drivers.sim.modbus_server import ModbusSimController
+    from tests.shipped import LIBRARY
 
-    text = (Path(__file__).resolve().parents[2] / "models" / "library" / "sp2.toml").read_text()
+    text = (LIBRARY / "sp2.toml").read_text()
     model = tmp_path / "old.toml"
     model.write_text(text.replace('channels = ["bearing", "ambient"]',
                                   'channels = ["bearing", "speed_rpm"]')
