@@ -119,20 +119,37 @@ def redact(_logger: WrappedLogger, _name: str, event_dict: EventDict) -> EventDi
 class LogStream:
     """The stream log lines go to, made safe for the daemon: a line that cannot
     be written (a full disk under a log file, a closed pipe) is dropped and
-    counted in `dropped_lines`, never raised into the compensation loop."""
+    counted in `dropped_lines`, never raised into the compensation loop.
+
+    Each line reaches the stream whole, in one write and a flush: the text of a
+    line is held until its newline (`print` writes a message and its end
+    apart). Processes that share one stderr (`compd run DIR --workers N`: the
+    parent and its workers) then never splice one line into another."""
 
     def __init__(self, stream: TextIO) -> None:
         self.stream = stream
         self.dropped_lines = 0
+        self._pending = ""
 
     def write(self, text: str) -> int:
-        try:
-            return self.stream.write(text)
-        except (OSError, ValueError):  # ENOSPC, EIO, EPIPE; ValueError: closed
-            self.dropped_lines += 1
-            return len(text)
+        taken = len(text)
+        text = self._pending + text
+        head, newline, self._pending = text.rpartition("\n")
+        if newline:
+            try:
+                self.stream.write(head + newline)
+                self.stream.flush()
+            except (OSError, ValueError):  # ENOSPC, EIO, EPIPE; ValueError: closed
+                self.dropped_lines += 1
+        return taken
 
     def flush(self) -> None:
+        if self._pending:  # a line without its newline yet: written as it is
+            text, self._pending = self._pending, ""
+            try:
+                self.stream.write(text)
+            except (OSError, ValueError):
+                self.dropped_lines += 1
         try:
             self.stream.flush()
         except (OSError, ValueError):

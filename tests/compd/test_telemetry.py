@@ -413,3 +413,33 @@ def test_the_confirmed_offset_has_its_own_gauge_apart_from_the_one_sent(
     sent, confirmed = gauges()
     assert sent == pytest.approx(row.offset_um) and sent != pytest.approx(controller)
     assert confirmed == pytest.approx(controller)
+
+
+def test_processes_sharing_one_stderr_never_splice_their_log_lines(tmp_path: Path) -> None:
+    """`compd run DIR --workers N`: the parent and its workers write JSON lines to one
+    inherited stderr. Each line leaves a process in one write, so however the
+    processes interleave, every line of the file is one whole JSON object (print
+    writes a message and its newline apart: unbuffered, another process's line
+    landed between them)."""
+    import subprocess
+    import sys
+
+    script = (
+        "import sys, structlog\n"
+        "from compd.faces.telemetry import configure_logging\n"
+        "sys.stderr.reconfigure(write_through=True)\n"
+        "configure_logging(json=True, journal=False)\n"
+        "log = structlog.get_logger()\n"
+        "for i in range(2000):\n"
+        "    log.info('daemon_stopped', machine=sys.argv[1], i=i)\n")
+    out = tmp_path / "shared.log"
+    with out.open("wb") as err:
+        procs = [subprocess.Popen([sys.executable, "-c", script, name], stderr=err,
+                                  stdout=subprocess.DEVNULL) for name in ("mill-a", "mill-b")]
+        for p in procs:
+            assert p.wait(timeout=120) == 0
+    lines = out.read_text().splitlines()
+    assert len(lines) == 4000
+    docs = [json.loads(line) for line in lines]  # a spliced line is no JSON
+    assert sorted((d["machine"], d["i"]) for d in docs) == sorted(
+        (m, i) for m in ("mill-a", "mill-b") for i in range(2000))
