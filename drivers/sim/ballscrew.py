@@ -60,6 +60,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers.sim.ambient import Ambient
+from drivers.sim.plant import exact_zoh
 
 NODES: tuple[str, ...] = ("nut", "bearing", "screw", "column")
 _N, _BR, _S, _C = range(4)
@@ -178,14 +179,7 @@ def _discretise(p: BallscrewParams, h_s: float) -> tuple[np.ndarray, np.ndarray]
     cap = np.array([p.c_nut_j_k, p.c_bearing_j_k, p.c_screw_j_k, p.c_column_j_k])
     if np.any(cap <= 0.0) or np.any(to_room <= 0.0):
         raise ValueError("heat capacities and conductances to the room must be > 0")
-    root = np.sqrt(cap)
-    lam, V = np.linalg.eigh(-(L / root[:, None]) / root[None, :])
-    exp_l = np.exp(lam * h_s)
-    left = V / root[:, None]
-    right = V.T * root[None, :]
-    Phi = (left * exp_l) @ right
-    Gamma = (left * ((exp_l - 1.0) / lam)) @ (V.T @ (G / root[:, None]))
-    return Phi, Gamma
+    return exact_zoh(L, G, cap, h_s)
 
 
 def simulate_ballscrew(hours: float, *, period_s: float = 300.0, seed: int = 0,

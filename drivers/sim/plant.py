@@ -167,6 +167,14 @@ def _discretise(p: PlantParams, cooler_on: bool, h_s: float) -> tuple[np.ndarray
     L, G = _conductance_matrix(p, cooler_on)
     cap = np.array([p.c_bearing_j_k, p.c_motor_j_k, p.c_headstock_j_k, p.c_shaft_j_k,
                     p.c_column_j_k, p.c_table_j_k])
+    return exact_zoh(L, G, cap, h_s)
+
+
+def exact_zoh(L: np.ndarray, G: np.ndarray, cap: np.ndarray, h_s: float
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """(Φ, Γ) of C x' = -L x + G u held over h_s seconds (exact zero-order hold),
+    C = diag(`cap`), L symmetric: through the symmetric C^-½ (-L) C^-½, whose
+    eigenvalues are real and negative when every node reaches the room."""
     if np.any(cap <= 0.0):
         raise ValueError("heat capacities must be > 0")
     root = np.sqrt(cap)
