@@ -1,10 +1,17 @@
 """Configs for the daemon tests (the recording driver is
-`compd.testing.RecordingDriver`)."""
+`compd.testing.RecordingDriver`), and a set of simulated Modbus controllers
+for the tests of a fleet."""
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+from collections.abc import AsyncIterator
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from drivers.sim.modbus_server import ModbusSimController
 
 CONFIG = """
 [machine]
@@ -74,3 +81,20 @@ async def until(predicate: object, limit: int = 24_000) -> None:
             return
         await asyncio.sleep(0.005)
     raise AssertionError("condition not reached")
+
+
+@contextlib.asynccontextmanager
+async def modbus_sims(count: int) -> AsyncIterator[list[ModbusSimController]]:
+    """`count` simulated Modbus controllers on free 127.0.0.1 ports, bearing and
+    ambient at 20 °C, stopped on exit."""
+    from drivers.sim.modbus_server import ModbusSimController
+
+    controllers = [ModbusSimController() for _ in range(count)]
+    for c in controllers:
+        await c.start()
+        await c.publish({"bearing": 20.0, "ambient": 20.0})
+    try:
+        yield controllers
+    finally:
+        for c in controllers:
+            await c.stop()

@@ -30,7 +30,7 @@ from compd.testing import SteppedClock
 from drivers.base import Sample
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
-from tests.compd.daemon_helpers import CONFIG
+from tests.compd.daemon_helpers import CONFIG, modbus_sims
 from tests.lockstep import Fleetstep
 
 NAMES = ("mill-a", "mill-b", "mill-c")
@@ -54,15 +54,8 @@ def _write_machine(directory: Path, name: str, endpoint: str, *, checkpoint_ever
 
 @pytest.fixture
 async def sims() -> AsyncIterator[list[ModbusSimController]]:
-    controllers = [ModbusSimController() for _ in NAMES]
-    for c in controllers:
-        await c.start()
-        await c.publish({"bearing": 20.0, "ambient": 20.0})
-    try:
+    async with modbus_sims(len(NAMES)) as controllers:
         yield controllers
-    finally:
-        for c in controllers:
-            await c.stop()
 
 
 def _machines_dir(tmp_path: Path, sims: Sequence[ModbusSimController], **kw: Any) -> Path:

@@ -35,6 +35,7 @@ from compd.runtime.startup import checkpoint_path
 from compd.runtime.workers import assign
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
+from tests.compd.daemon_helpers import modbus_sims
 from tests.compd.test_run_dir import _write_machine
 
 NAMES = ("mill-a", "mill-b", "mill-c", "mill-d")
@@ -44,15 +45,8 @@ BOUND_S = 120.0
 
 @pytest.fixture
 async def sims4() -> AsyncIterator[list[ModbusSimController]]:
-    controllers = [ModbusSimController() for _ in NAMES]
-    for c in controllers:
-        await c.start()
-        await c.publish({"bearing": 20.0, "ambient": 20.0})
-    try:
+    async with modbus_sims(len(NAMES)) as controllers:
         yield controllers
-    finally:
-        for c in controllers:
-            await c.stop()
 
 
 async def _until(what: str, predicate: Callable[[], Any], bound_s: float = BOUND_S) -> None:
