@@ -77,6 +77,7 @@ from daemon_bench_common import (
     mean,
     percentile,
     rss_mb,
+    stop_processes,
     write_config,
 )
 
@@ -382,14 +383,7 @@ def run_step(protocol: str, n: int, *, seconds: int, workers: int, aligned: bool
             if p.poll() is None:
                 p.kill()
                 p.wait()
-        for farm in farms:
-            farm.terminate()
-        for farm in farms:
-            try:
-                farm.wait(60)
-            except subprocess.TimeoutExpired:
-                farm.kill()
-                farm.wait()
+        stop_processes(farms)
     late = [x for r in results for x in r["late_s"]]
     cycles_in_window = max(1, sum(r["cycles"] for r in results))
     return Step(

@@ -299,3 +299,16 @@ def cpu_s(pid: int) -> float:
         return math.nan
     ticks = os.sysconf("SC_CLK_TCK")
     return (int(fields[11]) + int(fields[12])) / ticks
+
+
+def stop_processes(procs: Sequence[subprocess.Popen[Any]], timeout_s: float = 60.0) -> None:
+    """SIGTERM each of `procs` (the simulator farms), then wait for each, killing
+    one that has not ended within `timeout_s`."""
+    for proc in procs:
+        proc.terminate()
+    for proc in procs:
+        try:
+            proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()

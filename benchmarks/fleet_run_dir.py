@@ -42,6 +42,7 @@ from daemon_bench_common import (
     cpu_s,
     percentile,
     rss_mb,
+    stop_processes,
     write_config,
 )
 
@@ -184,14 +185,7 @@ def run_step_run_dir(protocol: str, n: int, workers: int, *, seconds: int,
         if pool is not None and pool.poll() is None:
             pool.kill()
             pool.wait()
-        for farm in farms:
-            farm.terminate()
-        for farm in farms:
-            try:
-                farm.wait(60)
-            except subprocess.TimeoutExpired:
-                farm.kill()
-                farm.wait()
+        stop_processes(farms)
     late: list[float] = []
     cycles = overruns = 0
     from daemon_bench_common import CycleTimes
