@@ -1,7 +1,7 @@
 """One address of the daemon's config checked against its protocol's address
 model (`drivers.protocols`), and pydantic's errors as one `ConfigError` naming
-the dotted key: what `compd.config.loader` and the per-axis outputs
-(`compd.config.axis_outputs`) share."""
+the dotted key, and the grid an address puts values on: what
+`compd.config.loader` and the per-axis outputs (`compd.config.axis_outputs`) share."""
 
 from __future__ import annotations
 
@@ -83,4 +83,14 @@ def _other_protocol(doc: dict[str, Any], protocol: str) -> str | None:
     return None
 
 
-__all__ = ["config_error", "validate_address"]
+def quantum(addr: Address, per_unit: float = 1.0) -> float:
+    """The step between values `addr` can hold, in the unit of which `per_unit`
+    engineering units make one (0 for a float: no grid). Worked number: an int32
+    at scale 0.1 holding µm steps by 0.1 µm."""
+    enc = addr.encoding
+    if enc is not None and enc.integer:
+        return abs(float(getattr(addr, "scale", 1.0)) / per_unit)
+    return 0.0
+
+
+__all__ = ["config_error", "quantum", "validate_address"]

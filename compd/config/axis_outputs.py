@@ -32,7 +32,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from compd.config.address_check import validate_address
+from compd.config.address_check import quantum, validate_address
 from compd.config.output_range import check_range
 from compd.errors import ConfigError
 from drivers.addresses import Address, ModbusAddress
@@ -61,6 +61,10 @@ class AxisOutputSet:
     outputs: AxisOutputs
     #: axis -> the reference position written with every line, mm
     reference_mm: Mapping[str, float]
+    #: axis -> the steps the controller holds its value (µm) and slope (µm/m) in
+    #: (0: a float, no grid; TwinCAT: 0.1 µm and 1 µm/m), for the output stage to
+    #: put each on the controller's grid as it does the offset
+    quanta: Mapping[str, tuple[float, float]]
 
     def line(self, axis: str, value_um: float, slope_um_m: float) -> AxisCompensation:
         """The line to write for `axis` at its configured reference position."""
@@ -96,6 +100,7 @@ def parse_axis_outputs(protocol: str, table: Mapping[str, Any], *,
     addresses: dict[str, AxisAddresses] = {}
     limits: dict[str, AxisLimits] = {}
     refs: dict[str, float] = {}
+    quanta: dict[str, tuple[float, float]] = {}
     uses = [u for k, a in (others or {}).items()
             for u in a.uses(k, written=k.startswith("output."))]
     for axis, doc in table.items():
@@ -135,10 +140,11 @@ def parse_axis_outputs(protocol: str, table: Mapping[str, Any], *,
         addresses[axis] = AxisAddresses(**typed)
         limits[axis] = lim
         refs[axis] = ref
+        quanta[axis] = (quantum(typed["value"]), quantum(typed["slope"]))
     clash = first_clash(uses)
     if clash is not None:
         raise ConfigError(clash.second.key, clash.reason())
-    return AxisOutputSet(AxisOutputs(addresses, limits, key=key), refs)
+    return AxisOutputSet(AxisOutputs(addresses, limits, key=key), refs, quanta)
 
 
 __all__ = ["NO_PARAMETERS", "SETTINGS", "AxisOutputSet", "parse_axis_outputs"]

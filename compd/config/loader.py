@@ -25,6 +25,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from compd.config.address_check import config_error
+from compd.config.address_check import quantum as _quantum_um
 from compd.config.address_check import validate_address as _validate_address
 from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX, check_outputs
 from compd.config.overlaps import check_overlaps
@@ -98,13 +99,6 @@ class LoadedConfig:
     @property
     def real_period_s(self) -> float:
         return self.raw.machine.period_s / self.raw.machine.time_scale
-
-
-def _quantum_um(addr: Address, units_per_um: float) -> float:
-    enc = addr.encoding
-    if enc is not None and enc.integer:
-        return abs(float(getattr(addr, "scale", 1.0)) / units_per_um)
-    return 0.0
 
 
 #: what numpy raises on coefficients that overflow once normalised (1e308 over

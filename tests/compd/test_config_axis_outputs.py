@@ -54,6 +54,9 @@ def test_the_twincat_layout_is_the_modbus_sims() -> None:
     got = parse_axis_outputs("modbus", doc)
     assert got.outputs.outputs() == MODBUS_SIM
     assert got.outputs.axes == ("x", "y", "z")
+    # TwinCAT holds the offset in 0.1 µm and the coefficient in whole µm/m
+    assert got.quanta == dict.fromkeys("xyz", (0.1, 1.0))
+    assert parse_axis_outputs("opcua", OPCUA).quanta == {"x": (0.0, 0.0)}
 
 
 @pytest.mark.parametrize(("doc", "key", "reason"), [
