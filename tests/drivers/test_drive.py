@@ -17,7 +17,6 @@ from drivers.backoff import Backoff
 from drivers.base import Driver
 from drivers.errors import WriteRejected
 from drivers.factory import open_driver
-from drivers.sim import AXIS_OUTPUTS
 from drivers.sim.drive import (
     DRIVE_COLUMNS,
     RECORD_FIELDS,
@@ -198,9 +197,8 @@ def test_shipped_maps_load_and_map_every_plant_sensor(protocol: str) -> None:
     assert m.protocol == protocol
     assert {"bearing", "motor", "column", "table", "ambient", "spindle_rpm",
             "power_kw"} <= set(m.write)
-    # and, but for FOCAS, every axis's temperature-compensation parameters
-    axis_params = set() if protocol == "focas" else set(AXIS_OUTPUTS)
-    assert set(m.read) == {"offset", "heartbeat", "status", *axis_params}
+    # the per-axis temperature-compensation parameters are opt-in (commented out)
+    assert set(m.read) == {"offset", "heartbeat", "status"}
 
 
 _MODBUS = {"protocol": "modbus",
