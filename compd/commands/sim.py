@@ -4,8 +4,9 @@ Serving: ``compd sim --protocol modbus [--port N] [--speedup X] [--program P]
 [--seed N] [--json]`` starts the protocol's simulated controller, runs the
 thermal plant behind it and serves until SIGINT/SIGTERM (exit 0). With
 ``--json`` the first stdout line is one JSON object
-``{"protocol", "endpoint", "channels": {name: address}, "outputs": {...}}``
-(addresses as the pydantic models of `drivers.addresses` dump them), so a
+``{"protocol", "endpoint", "channels": {name: address}, "outputs": {...}}``,
+plus ``"temp_comp"`` where the controller holds per-axis compensation
+parameters (addresses as the pydantic models of `drivers.addresses` dump them), so a
 bench script can configure the daemon from it.
 
 With ``--no-plant`` only the controller is served (no plant publishes into
@@ -159,6 +160,9 @@ def describe(controller: SimController) -> dict[str, object]:
         "outputs": {n: a.model_dump() for n, a in controller.outputs_map.items()},
         "probes": {n: a.model_dump() for n, a in controller.probes.items()},
     }
+    temp_comp = getattr(controller, "temp_comp", None)
+    if temp_comp:  # each axis's temperature-compensation parameters (docs/protocols.md §11)
+        doc["temp_comp"] = {n: a.model_dump() for n, a in temp_comp.items()}
     library = _library_path(controller)
     if library is not None:  # what a daemon config's [controller.focas] needs
         doc["focas"] = {"library_path": library}

@@ -22,8 +22,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ValidationError
+from pydantic import ValidationError
 
+from compd.config.address_check import config_error
+from compd.config.address_check import quantum as _quantum_um
+from compd.config.address_check import validate_address as _validate_address
 from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX, check_outputs
 from compd.config.overlaps import check_overlaps
 from compd.config.schema import (
@@ -33,7 +36,6 @@ from compd.config.schema import (
     ModelSection,
     SecuritySection,
 )
-from compd.config.suggest import errors_of
 from compd.core.adaptation import AdaptationSettings
 from compd.errors import ConfigError
 from compd.infiles import MAX_CONFIG_BYTES, InputError, load_model, read_toml_document
@@ -97,81 +99,6 @@ class LoadedConfig:
     @property
     def real_period_s(self) -> float:
         return self.raw.machine.period_s / self.raw.machine.time_scale
-
-
-def _loc(parts: tuple[int | str, ...]) -> str:
-    out = ""
-    for p in parts:
-        if isinstance(p, int):
-            out += f"[{p}]"
-        else:
-            out += ("." if out else "") + str(p)
-    return out
-
-
-def _reason(err: Any) -> str:
-    kind = err.get("type", "")
-    msg = str(err.get("msg", "invalid"))
-    if kind == "extra_forbidden":
-        return "unknown key"
-    if kind == "missing":
-        return "required key is missing"
-    for prefix in ("Value error, ", "Assertion failed, "):
-        if msg.startswith(prefix):
-            msg = msg[len(prefix):]
-    return msg
-
-
-def config_error(exc: ValidationError, prefix: str = "",
-                 root: type[BaseModel] | None = None) -> ConfigError:
-    """Every pydantic error as one ConfigError, each with its dotted key path
-    ("did you mean" for an unknown key when `root`, the validated model, is
-    given); `key` and `reason` are the first error's. Tagged-union branch
-    names (model class names) are dropped from the paths."""
-    found = [(_loc(loc), why) for loc, why in errors_of(exc, root, _reason)]
-    if prefix:
-        found = [(f"{prefix}.{k}" if k else prefix, why) for k, why in found]
-    if len(found) == 1:
-        return ConfigError(*found[0])
-    error = ConfigError("", f"{len(found)} mistakes: " + "; ".join(
-        f"{k}: {why}" if k else why for k, why in found))
-    error.key, error.reason = found[0]
-    return error
-
-
-def _validate_address(protocol: str, doc: dict[str, Any], key: str) -> Address:
-    spec = PROTOCOLS[protocol]
-    if spec.default_kind is not None and "kind" not in doc:
-        doc = {**doc, "kind": spec.default_kind}
-    try:
-        addr: Address = spec.address_adapter().validate_python(doc)
-    except ValidationError as exc:
-        other = _other_protocol(doc, protocol)
-        if other:
-            raise ConfigError(key, f"this looks like a {other} address but the controller "
-                                   f"protocol is {protocol}") from None
-        raise config_error(exc, key) from None
-    return addr
-
-
-def _other_protocol(doc: dict[str, Any], protocol: str) -> str | None:
-    for name, spec in PROTOCOLS.items():
-        if name == protocol:
-            continue
-        for cls in spec.address_types():
-            try:
-                cls.model_validate(doc)
-            except ValidationError:
-                continue
-            return name
-    return None
-
-
-def _quantum_um(addr: Address, units_per_um: float) -> float:
-    enc = addr.encoding
-    if enc is not None and enc.integer:
-        return abs(float(getattr(addr, "scale", 1.0)) / units_per_um)
-    return 0.0
 
 
 #: what numpy raises on coefficients that overflow once normalised (1e308 over

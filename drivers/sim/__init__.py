@@ -25,11 +25,20 @@ outputs (written by the daemon, readable back)
     ``offset``    Z offset, µm
     ``heartbeat`` counter, advanced once per complete valid cycle
     ``status``    status word (bit flags, see compd.core.output)
+
+per-axis temperature compensation (written by the daemon, readable back;
+`drivers.temp_comp`: the controller applies value + slope·(x - reference)/1000)
+    ``<axis>_comp_value``      µm at the reference position (SD43900 / P-AXIS-00273)
+    ``<axis>_comp_slope``      µm/m (SD43910 / P-AXIS-00274)
+    ``<axis>_comp_reference``  mm (SD43920 / P-AXIS-00272), for axis x, y, z
 """
 
 CHANNELS: tuple[str, ...] = ("bearing", "motor", "column", "table", "ambient",
                              "spindle_rpm", "power_kw", "growth_um", "error_um")
 OUTPUTS: tuple[str, ...] = ("offset", "heartbeat", "status")
+#: the per-axis compensation parameters every simulated controller holds
+AXIS_OUTPUTS: tuple[str, ...] = tuple(f"{axis}_comp_{p}" for axis in ("x", "y", "z")
+                                      for p in ("value", "slope", "reference"))
 #: the measuring cycle's values (`compd sim --probe-every-min`, a daemon's
 #: ``[adaptation]``): the probe's measured Z deviation (µm: the growth minus the
 #: offset in force, plus the probe's noise) and a counter advanced per measurement

@@ -7,7 +7,9 @@
 2. reads back what the daemon wrote (the drive map's ``read`` addresses:
    ``offset``, and ``heartbeat`` / ``status`` when mapped) and applies the
    offset (× `offset_um_per_unit`) to the plant, so its
-   ``error_um = growth_um - offset``;
+   ``error_um = growth_um - offset``; an axis's temperature-compensation
+   parameters, when the map names all three, are read in the same request and
+   kept as the line the controller holds (`lines`);
 3. writes the plant's sensor values to the map's ``write`` addresses;
 4. records the row (with `record=True`).
 
@@ -47,6 +49,7 @@ from drivers.sim.drive_map import DriveMap
 from drivers.sim.plant import ThermalPlant
 from drivers.sim.programs import Program
 from drivers.sim.runner import PlantRunner
+from drivers.temp_comp import AXES, PARAMETERS, AxisCompensation, output_name
 
 #: columns of a recorded row
 DRIVE_COLUMNS: tuple[str, ...] = ("time_s", *CHANNELS, "offset_um", "heartbeat", "status",
@@ -92,6 +95,11 @@ class DriveLoop(PlantRunner):
         #: the last row (as `DRIVE_COLUMNS`), also without `record`
         self.latest: dict[str, float] = {}
         self._read_names = tuple(drive_map.read)
+        #: the axes whose three compensation parameters the map reads
+        self._axes = tuple(a for a in AXES if all(output_name(a, p) in drive_map.read
+                                                  for p in PARAMETERS))
+        #: the line each of those axes' controller held at the last good read
+        self.lines: dict[str, AxisCompensation] = {}
         self._write_names = tuple(drive_map.write)
         self._link_ok = True
 
@@ -118,6 +126,10 @@ class DriveLoop(PlantRunner):
         hb, st = samples.get("heartbeat"), samples.get("status")
         self.heartbeat = hb.value if hb is not None else math.nan
         self.status = st.value if st is not None else math.nan
+        for axis in self._axes:
+            got = [samples[output_name(axis, p)] for p in PARAMETERS]
+            if all(g.quality is Quality.GOOD and math.isfinite(g.value) for g in got):
+                self.lines[axis] = AxisCompensation(*(g.value for g in got))
         return True
 
     async def _write_sensors(self, sensors: dict[str, float]) -> bool:

@@ -17,6 +17,9 @@ reads back the offset (and heartbeat / status) the daemon wrote. A drive map
 
     [read]                         # offset (required), heartbeat, status
     offset = { unit = 1, kind = "holding", address = 0, type = "float32" }
+    # per axis, the controller's temperature-compensation parameters (optional;
+    # `drivers.temp_comp`: µm, µm/m and mm, the scale converting the controller's units)
+    x_comp_value = { unit = 1, kind = "holding", address = 34, type = "int32", scale = 0.1 }
 
 Addresses are the typed models of `drivers.addresses` (as in the daemon's
 config). Written addresses must be writable by a client (Modbus holding
@@ -38,7 +41,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from drivers.addresses import Address, FocasPmcAddress, ModbusAddress
 from drivers.footprint import first_clash
 from drivers.protocols import PROTOCOLS, ProtocolName
-from drivers.sim import CHANNELS, OUTPUTS
+from drivers.sim import AXIS_OUTPUTS, CHANNELS, OUTPUTS
 from drivers.sim.renamed import FORMER_NAMES, current_name, warn_former
 from models.nesting import NestingError, loads_toml
 
@@ -128,9 +131,10 @@ class DriveMap(BaseModel):
             raise ValueError(f"write: unknown plant channel(s) {unknown}; known: {list(CHANNELS)}")
         if not self.write:
             raise ValueError("write: give at least one plant channel")
-        unknown = sorted(set(self.read) - set(OUTPUTS))
+        unknown = sorted(set(self.read) - set(OUTPUTS) - set(AXIS_OUTPUTS))
         if unknown:
-            raise ValueError(f"read: unknown name(s) {unknown}; known: {list(OUTPUTS)}")
+            raise ValueError(f"read: unknown name(s) {unknown}; known: {list(OUTPUTS)} and "
+                             "<axis>_comp_value, _slope, _reference for axis x, y, z")
         if "offset" not in self.read:
             raise ValueError("read.offset is required (the address the daemon writes)")
         for name, addr in self.write.items():

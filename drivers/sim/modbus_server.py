@@ -21,6 +21,12 @@ holding registers (written by the daemon)
     15     enc_i16_centi     int16, 0.01 per count
     20     plc_update_permitted  uint16, set by the PLC (`publish`): a permit bit
     21     plc_rezero        uint16, set by the PLC: a re-zero pulse
+    32..37, 38..43, 44..49  temperature compensation of axis X, Y, Z, TwinCAT
+           units (`drivers.sim.temp_comp`), each an int32, big word order:
+           +0 <axis>_comp_reference  P-AXIS-00272 position, 0.1 µm
+           +2 <axis>_comp_value      P-AXIS-00273 offset, 0.1 µm
+           +4 <axis>_comp_slope      P-AXIS-00274 coefficient, µm/m
+           `compensation(axis)` is the line in force
 Everything else up to input 31 / holding 63 (or the sizes given) reads as 0;
 beyond is an illegal address (exception code 2), e.g. `BAD_ADDRESS`.
 
@@ -46,6 +52,8 @@ from pymodbus.simulator.simcore import SimCore
 from drivers.addresses import Address, ModbusAddress
 from drivers.modbus_codec import decode, encode
 from drivers.sim.ports import free_tcp_port
+from drivers.sim.temp_comp import TWINCAT_SCALES, line_of
+from drivers.temp_comp import AXES, AxisCompensation, output_name
 
 UNIT = 1
 INPUT_REGISTERS = 32
@@ -91,6 +99,15 @@ PLC: dict[str, ModbusAddress] = {
     "plc_update_permitted": ModbusAddress(unit=UNIT, kind="holding", address=20, type="uint16"),
     "plc_rezero": ModbusAddress(unit=UNIT, kind="holding", address=21, type="uint16"),
 }
+#: the first holding register of each axis's compensation parameters
+AXIS_REGISTERS: dict[str, int] = {"x": 32, "y": 38, "z": 44}
+#: TwinCAT's order: P-AXIS-00272 position, 00273 offset, 00274 coefficient
+_TWINCAT_ORDER: tuple[str, ...] = ("reference", "value", "slope")
+TEMP_COMP: dict[str, ModbusAddress] = {
+    output_name(axis, p): ModbusAddress(unit=UNIT, kind="holding",
+                                        address=AXIS_REGISTERS[axis] + 2 * i, type="int32",
+                                        scale=TWINCAT_SCALES[p])
+    for axis in AXES for i, p in enumerate(_TWINCAT_ORDER)}
 #: valid for the protocol, absent on this server
 BAD_ADDRESS = ModbusAddress(unit=UNIT, kind="holding", address=5000, type="float32")
 
@@ -141,6 +158,7 @@ class ModbusSimController:
         self.outputs_map: dict[str, Address] = dict(OUTPUTS)
         self.encodings: dict[str, ModbusAddress] = dict(ENCODINGS)
         self.probes: dict[str, Address] = dict(PROBES)
+        self.temp_comp: dict[str, ModbusAddress] = dict(TEMP_COMP)
         self.requests: list[Request] = []
         self.faults: list[Fault] = []
         self._input = [0] * input_registers
@@ -206,8 +224,14 @@ class ModbusSimController:
                 for a in [self._address(name)]}
 
     async def forget_outputs(self) -> None:
-        for addr in OUTPUTS.values():
+        """Outputs and every axis's compensation parameters back at 0 (a restart)."""
+        for addr in (*OUTPUTS.values(), *TEMP_COMP.values()):
             self._poke(addr, [0] * addr.count)
+
+    async def compensation(self, axis: str) -> AxisCompensation:
+        """The line the controller applies to `axis` now (its parameters)."""
+        return line_of({name: decode(addr, self._peek(addr)) for name, addr in TEMP_COMP.items()
+                        if name.startswith(f"{axis}_")}, axis)
 
     def set_raw(self, kind: Literal["holding", "input"], address: int,
                 registers: list[int]) -> None:
@@ -242,7 +266,7 @@ class ModbusSimController:
     # -- internals ----------------------------------------------------------------
 
     def _address(self, name: str) -> ModbusAddress:
-        for table in (CHANNELS, OUTPUTS, ENCODINGS, PROBES, PLC):
+        for table in (CHANNELS, OUTPUTS, ENCODINGS, PROBES, PLC, TEMP_COMP):
             if name in table:
                 return table[name]
         raise KeyError(f"the Modbus sim has no channel or output {name!r}")

@@ -9,6 +9,12 @@ Address space (namespace ``urn:compd:sim``, string NodeIds ``Machine.<name>``):
   ``status`` (``UInt16``);
 - writable encoding nodes (``enc_*``: Int16, Int32, Int64, Double, Float) used
   by the contract tests;
+- per axis X, Y, Z the SINUMERIK temperature-compensation setting data as
+  writable ``Double`` nodes ``Machine.<AXIS>.$SA_TEMP_COMP_ABS_VALUE`` (SD43900,
+  mm), ``...$SA_TEMP_COMP_SLOPE`` (SD43910, tan β) and
+  ``...$SA_TEMP_COMP_REF_POSITION`` (SD43920, mm) (`drivers.sim.temp_comp`;
+  their addresses with compd's scales in `temp_comp`); `compensation(axis)` is
+  the line in force;
 - a channel's former name (``Machine.speed_rpm``, `drivers.sim.renamed`), read-only,
   holding what its current node holds, so that a config written before the
   rename still reads; the first client Read of it says once, on stderr, to use
@@ -59,6 +65,8 @@ from drivers.opcua_space import CopiedSpaceInternalServer
 from drivers.sim import CHANNELS, OUTPUTS, PROBES
 from drivers.sim.ports import free_tcp_port
 from drivers.sim.renamed import FORMER_NAMES, warn_former
+from drivers.sim.temp_comp import SINUMERIK_DATA, SINUMERIK_SCALES, line_of
+from drivers.temp_comp import AXES, PARAMETERS, AxisCompensation, output_name
 
 NAMESPACE = "urn:compd:sim"
 #: asyncua gives the first registered namespace index 2 (0: OPC UA, 1: the server)
@@ -83,6 +91,11 @@ ENCODING_NODES: dict[str, tuple[ua.VariantType, float]] = {
     "enc_float": (_VT.Float, 1.0),
 }
 
+#: per-axis temperature-compensation nodes: name -> (node path, scale to compd's units)
+TEMP_COMP_NODES: dict[str, tuple[str, float]] = {
+    output_name(axis, p): (f"{axis.upper()}.{SINUMERIK_DATA[p]}", SINUMERIK_SCALES[p])
+    for axis in AXES for p in PARAMETERS}
+
 #: name -> asyncua policy types for the sim's `policies` option
 POLICY_TYPES: dict[str, ua.SecurityPolicyType] = {
     "None": ua.SecurityPolicyType.NoSecurity,
@@ -105,7 +118,8 @@ def _now() -> ua.DateTime:
 
 def node_id(name: str) -> str:
     """The NodeId string of a sim variable."""
-    return f"ns={NAMESPACE_INDEX};s=Machine.{name}"
+    path = TEMP_COMP_NODES[name][0] if name in TEMP_COMP_NODES else name
+    return f"ns={NAMESPACE_INDEX};s=Machine.{path}"
 
 
 @dataclass(frozen=True)
@@ -167,9 +181,13 @@ class OpcUaSimController:
         self.encodings: dict[str, OpcUaAddress] = {
             name: OpcUaAddress(node=node_id(name), scale=scale)
             for name, (_, scale) in ENCODING_NODES.items()}
+        self.temp_comp: dict[str, OpcUaAddress] = {
+            name: OpcUaAddress(node=node_id(name), scale=scale)
+            for name, (_, scale) in TEMP_COMP_NODES.items()}
         self.types: dict[str, ua.VariantType] = {
             **CHANNEL_TYPES, **OUTPUT_TYPES,
             **{name: vt for name, (vt, _) in ENCODING_NODES.items()},
+            **dict.fromkeys(TEMP_COMP_NODES, _VT.Double),
             **{old: CHANNEL_TYPES[new] for old, new in FORMER_NODES.items()}}
         #: client Read requests that touched this namespace (server-side count)
         self.read_requests = 0
@@ -281,12 +299,17 @@ class OpcUaSimController:
         server = self._require()
         dv = server.read_attribute_value(self._nodeid(name))
         raw = dv.Value.Value if dv.Value is not None else None
-        scale = self.encodings[name].scale if name in self.encodings else 1.0
-        return float(raw) * scale if raw is not None else float("nan")
+        return float(raw) * self._scale(name) if raw is not None else float("nan")
+
+    async def compensation(self, axis: str) -> AxisCompensation:
+        """The line the controller applies to `axis` now (its setting data)."""
+        return line_of({output_name(axis, p): await self.value(output_name(axis, p))
+                        for p in PARAMETERS}, axis)
 
     async def forget_outputs(self) -> None:
+        """Outputs, encoding nodes and every axis's compensation back at 0 (a restart)."""
         now = _now()
-        for name in (*OUTPUTS, *ENCODING_NODES):
+        for name in (*OUTPUTS, *ENCODING_NODES, *TEMP_COMP_NODES):
             await self._write(name, 0.0, now)
 
     async def set_write_access(self, name: str, *, writable: bool = True,
@@ -317,6 +340,12 @@ class OpcUaSimController:
 
     # -- internals -----------------------------------------------------------
 
+    def _scale(self, name: str) -> float:
+        """Engineering value per raw unit of a sim node."""
+        if name in self.encodings:
+            return self.encodings[name].scale
+        return self.temp_comp[name].scale if name in self.temp_comp else 1.0
+
     def _require(self) -> Server:
         if self._server is None:
             raise RuntimeError("sim server not started")
@@ -341,8 +370,7 @@ class OpcUaSimController:
     async def _write(self, name: str, value: float, when: ua.DateTime) -> None:
         server = self._require()
         vtype = self.types[name]
-        scale = self.encodings[name].scale if name in self.encodings else 1.0
-        variant = ua.Variant(_coerce(value / scale, vtype), vtype)
+        variant = ua.Variant(_coerce(value / self._scale(name), vtype), vtype)
         await server.write_attribute_value(self._nodeid(name), ua.DataValue(
             variant, SourceTimestamp=when, ServerTimestamp=when))
 

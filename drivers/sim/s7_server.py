@@ -13,6 +13,11 @@ DB2 (outputs, 16 bytes)
 DB3 (encodings, 16 bytes)
     0 enc_int INT ×0.1      2 enc_dint_milli DINT ×0.001
     6 enc_real REAL         10 enc_word WORD
+DB10, DB11, DB12 (temperature compensation of axis X, Y, Z; 12 bytes each,
+  SINUMERIK units, `drivers.sim.temp_comp`)
+    0 <axis>_comp_value REAL mm (SD43900)   4 <axis>_comp_slope REAL tan β (SD43910)
+    8 <axis>_comp_reference REAL mm (SD43920)
+  The PLC hands them on to the NCK; `compensation(axis)` is the line in force.
 
 The DB buffers are bytearrays registered with the server (it serves the very
 same objects); `publish`/`outputs` go through the server's own area locks.
@@ -35,9 +40,13 @@ from snap7.type import SrvArea
 from drivers.addresses import Address, S7Address
 from drivers.s7_codec import decode, encode
 from drivers.sim.ports import free_tcp_port
+from drivers.sim.temp_comp import SINUMERIK_SCALES, line_of
+from drivers.temp_comp import AXES, PARAMETERS, AxisCompensation, output_name
 
 INPUT_DB, OUTPUT_DB, ENCODING_DB = 1, 2, 3
-_SIZES = {INPUT_DB: 40, OUTPUT_DB: 16, ENCODING_DB: 16}
+#: one data block per axis for its temperature-compensation parameters
+AXIS_DBS: dict[str, int] = {"x": 10, "y": 11, "z": 12}
+_SIZES = {INPUT_DB: 40, OUTPUT_DB: 16, ENCODING_DB: 16, **dict.fromkeys(AXIS_DBS.values(), 12)}
 
 CHANNELS: dict[str, S7Address] = {
     "bearing": S7Address(db=1, offset=0, type="INT", scale=0.1),
@@ -65,6 +74,12 @@ ENCODINGS: dict[str, S7Address] = {
     "enc_real": S7Address(db=3, offset=6, type="REAL"),
     "enc_word": S7Address(db=3, offset=10, type="WORD"),
 }
+
+#: each axis's value, slope and reference as REALs at bytes 0, 4, 8 of its DB
+TEMP_COMP: dict[str, S7Address] = {
+    output_name(axis, p): S7Address(db=AXIS_DBS[axis], offset=4 * i, type="REAL",
+                                    scale=SINUMERIK_SCALES[p])
+    for axis in AXES for i, p in enumerate(PARAMETERS)}
 
 
 class _Server(Server):
@@ -130,7 +145,9 @@ class S7SimController:
         self.outputs_map: dict[str, Address] = dict(OUTPUTS)
         self.encodings: dict[str, S7Address] = dict(ENCODINGS)
         self.probes: dict[str, Address] = dict(PROBES)
-        self._table: dict[str, S7Address] = {**CHANNELS, **OUTPUTS, **ENCODINGS, **PROBES}
+        self.temp_comp: dict[str, S7Address] = dict(TEMP_COMP)
+        self._table: dict[str, S7Address] = {**CHANNELS, **OUTPUTS, **ENCODINGS, **PROBES,
+                                             **TEMP_COMP}
         self._dbs = {db: bytearray(size) for db, size in _SIZES.items()}
         self._server: _Server | None = None
 
@@ -208,6 +225,13 @@ class S7SimController:
             return decode(addr, self._dbs[addr.db], addr.offset)
 
     async def forget_outputs(self) -> None:
-        buf = self._dbs[OUTPUT_DB]
-        with self._lock(OUTPUT_DB):
-            buf[:] = bytes(len(buf))
+        """Outputs and every axis's compensation parameters back at 0 (a restart)."""
+        for db in (OUTPUT_DB, *AXIS_DBS.values()):
+            buf = self._dbs[db]
+            with self._lock(db):
+                buf[:] = bytes(len(buf))
+
+    async def compensation(self, axis: str) -> AxisCompensation:
+        """The line the controller applies to `axis` now (its DB's parameters)."""
+        return line_of({name: await self.read_back(name) for name in TEMP_COMP
+                        if name.startswith(f"{axis}_")}, axis)

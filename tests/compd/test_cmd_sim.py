@@ -17,7 +17,7 @@ import pytest
 from compd.cli import main
 from drivers.addresses import ADDRESS_TYPES, Address
 from drivers.factory import DRIVERS, open_driver
-from drivers.sim import CHANNELS, OUTPUTS
+from drivers.sim import AXIS_OUTPUTS, CHANNELS, OUTPUTS
 from drivers.sim.csvlog import RECORD_COLUMNS
 from drivers.sim.registry import SIM_CONTROLLERS
 from tests.record_columns import read_columns as read_record
@@ -82,7 +82,11 @@ async def test_json_first_line_describes_a_live_machine(protocol: str, tmp_path:
         line = await asyncio.wait_for(proc.stdout.readline(), 30.0)
         assert line, (tmp_path / "stderr.txt").read_text()
         info = json.loads(line)
-        assert set(info) - {"focas"} == {"protocol", "endpoint", "channels", "outputs", "probes"}
+        assert set(info) - {"focas", "temp_comp"} == {"protocol", "endpoint", "channels",
+                                                      "outputs", "probes"}
+        # the per-axis compensation parameters where the controller has them
+        assert set(info.get("temp_comp", AXIS_OUTPUTS)) == set(AXIS_OUTPUTS)
+        assert ("temp_comp" in info) == (protocol in ("opcua", "s7", "modbus"))
         assert info["protocol"] == protocol
         assert "127.0.0.1" in info["endpoint"]
         assert set(CHANNELS) <= set(info["channels"])

@@ -1,0 +1,150 @@
+"""The config's per-axis temperature-compensation outputs: ``[output.axes.<axis>]``.
+
+For a controller that takes the compensation line per axis as its own
+parameters (SINUMERIK SD43900/43910/43920, TwinCAT P-AXIS-00272..274;
+`drivers.temp_comp`), each axis X, Y, Z names where its three parameters
+live, the reference position compd writes, and what compd may send::
+
+    [output.axes.x]
+    value = { node = "ns=2;s=Machine.X.$SA_TEMP_COMP_ABS_VALUE", scale = 1000.0 }
+    slope = { node = "ns=2;s=Machine.X.$SA_TEMP_COMP_SLOPE", scale = 1e6 }
+    reference = { node = "ns=2;s=Machine.X.$SA_TEMP_COMP_REF_POSITION" }
+    reference_mm = 0.0          # the line's reference position (the fixed bearing)
+    value_limit_um = 100.0      # |value| ≤ this
+    slope_limit_um_m = 50.0     # |slope| ≤ this
+
+Each address is the protocol's own address model with ``scale`` turning the
+controller's unit into µm, µm/m and mm (engineering value = raw · scale). The
+checks are the offset's: each address valid for the protocol
+(`compd.config.address_check`), writable by a client, able to hold ±its
+limit (`compd.config.output_range.check_range`), and sharing no controller
+memory with another output (`drivers.footprint.first_clash`). Every refusal
+is a `ConfigError` naming the key (``output.axes.x.slope``).
+
+`parse_axis_outputs` returns `AxisOutputSet`: the drivers' `AxisOutputs`
+(names, writes, read-back) and each axis's reference position.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from compd.config.address_check import quantum, validate_address
+from compd.config.output_range import check_range
+from compd.errors import ConfigError
+from drivers.addresses import Address, ModbusAddress
+from drivers.footprint import first_clash
+from drivers.temp_comp import (
+    AXES,
+    PARAMETERS,
+    UNITS,
+    AxisAddresses,
+    AxisCompensation,
+    AxisLimits,
+    AxisOutputs,
+)
+
+#: the keys of one axis's table besides its three addresses
+SETTINGS: tuple[str, ...] = ("reference_mm", "value_limit_um", "slope_limit_um_m")
+#: protocols whose controllers have no such parameters (their axes take an offset
+#: evaluated at the axis position instead)
+NO_PARAMETERS: frozenset[str] = frozenset({"linuxcnc"})
+
+
+@dataclass(frozen=True)
+class AxisOutputSet:
+    """The per-axis outputs of one config."""
+
+    outputs: AxisOutputs
+    #: axis -> the reference position written with every line, mm
+    reference_mm: Mapping[str, float]
+    #: axis -> the steps the controller holds its value (µm) and slope (µm/m) in
+    #: (0: a float, no grid; TwinCAT: 0.1 µm and 1 µm/m), for the output stage to
+    #: put each on the controller's grid as it does the offset
+    quanta: Mapping[str, tuple[float, float]]
+
+    def line(self, axis: str, value_um: float, slope_um_m: float) -> AxisCompensation:
+        """The line to write for `axis` at its configured reference position."""
+        return AxisCompensation(value_um, slope_um_m, self.reference_mm[axis])
+
+
+def _number(key: str, v: Any, *, positive: bool) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        raise ConfigError(key, f"must be a finite number, got {v!r}")
+    if positive and v <= 0.0:
+        raise ConfigError(key, f"must be > 0, got {v!r}")
+    return float(v)
+
+
+def _writable(key: str, addr: Address) -> None:
+    if isinstance(addr, ModbusAddress) and addr.kind != "holding":
+        raise ConfigError(key, "input registers are read-only for a client; use holding "
+                               "registers")
+    if addr.footprint() is None:  # a FOCAS diagnosis number or spindle load: read only
+        raise ConfigError(key, f"{addr.describe()} cannot be written by a client")
+
+
+def parse_axis_outputs(protocol: str, table: Mapping[str, Any], *,
+                       others: Mapping[str, Address] | None = None,
+                       key: str = "output.axes") -> AxisOutputSet:
+    """``[output.axes]`` of a config whose controller speaks `protocol`, checked
+    (see the module); `others` are the config's other addresses by key
+    (``output.offset``, ``channels.bearing.address``), which no axis parameter
+    may overlap. `ConfigError` names the key."""
+    if protocol in NO_PARAMETERS and table:
+        raise ConfigError(key, f"a {protocol} controller has no temperature-compensation "
+                               "parameters per axis")
+    addresses: dict[str, AxisAddresses] = {}
+    limits: dict[str, AxisLimits] = {}
+    refs: dict[str, float] = {}
+    quanta: dict[str, tuple[float, float]] = {}
+    uses = [u for k, a in (others or {}).items()
+            for u in a.uses(k, written=k.startswith("output."))]
+    for axis, doc in table.items():
+        at = f"{key}.{axis}"
+        if axis not in AXES:
+            raise ConfigError(at, f"unknown axis; known: {', '.join(AXES)}")
+        if not isinstance(doc, Mapping):
+            raise ConfigError(at, "must be a table")
+        unknown = sorted(set(doc) - set(PARAMETERS) - set(SETTINGS))
+        if unknown:
+            raise ConfigError(f"{at}.{unknown[0]}", "unknown key; known: "
+                              + ", ".join((*PARAMETERS, *SETTINGS)))
+        missing = [k for k in (*PARAMETERS, "value_limit_um", "slope_limit_um_m")
+                   if k not in doc]
+        if missing:
+            raise ConfigError(f"{at}.{missing[0]}", "required key is missing")
+        lim = AxisLimits(_number(f"{at}.value_limit_um", doc["value_limit_um"], positive=True),
+                         _number(f"{at}.slope_limit_um_m", doc["slope_limit_um_m"],
+                                 positive=True))
+        ref = _number(f"{at}.reference_mm", doc.get("reference_mm", 0.0), positive=False)
+        typed: dict[str, Address] = {}
+        for p in PARAMETERS:
+            given = doc[p]
+            if not isinstance(given, Mapping):
+                raise ConfigError(f"{at}.{p}", "must be an address table")
+            addr = validate_address(protocol, dict(given), f"{at}.{p}")
+            _writable(f"{at}.{p}", addr)
+            typed[p] = addr
+            uses.extend(addr.uses(f"{at}.{p}", written=True))
+        bounds = {"value": (lim.value_limit_um, f"value_limit_um = {lim.value_limit_um:g}"),
+                  "slope": (lim.slope_limit_um_m,
+                            f"slope_limit_um_m = {lim.slope_limit_um_m:g}"),
+                  "reference": (abs(ref), f"reference_mm = {ref:g}")}
+        for p, addr in typed.items():
+            bound, what = bounds[p]
+            check_range(f"{at}.{p}", addr, -bound, bound, what, unit=f" {UNITS[p]}")
+        addresses[axis] = AxisAddresses(**typed)
+        limits[axis] = lim
+        refs[axis] = ref
+        quanta[axis] = (quantum(typed["value"]), quantum(typed["slope"]))
+    clash = first_clash(uses)
+    if clash is not None:
+        raise ConfigError(clash.second.key, clash.reason())
+    return AxisOutputSet(AxisOutputs(addresses, limits, key=key), refs, quanta)
+
+
+__all__ = ["NO_PARAMETERS", "SETTINGS", "AxisOutputSet", "parse_axis_outputs"]
