@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from compd.commands.fit import _read_records
+from compd.offline.fit import _read_records
 
 
 def test_the_records_hold_only_the_columns_the_fit_reads(tmp_path: Path) -> None:

@@ -107,9 +107,9 @@ def test_an_average_check_warns_about_is_not_written(
         capsys: pytest.CaptureFixture[str]) -> None:
     """An average is a model of its own: when `compd check` would warn about it,
     the choice is written alone (its terms only), and that is said."""
-    from compd.commands.fit_checks import CheckVeto
     from compd.infiles import load_model
     from compd.offline import fit_hedge
+    from compd.offline.fit_checks import CheckVeto
 
     monkeypatch.setattr(fit_hedge, "TEXTBOOK_SHARE", 0.5)
     real = CheckVeto.terms
@@ -165,7 +165,7 @@ def test_no_fallback_reads_a_chosen_input_the_average_left_out(tmp_path: Path) -
     draws): the model reads t1 only, though t1 and t2 were chosen. Its fallbacks are
     fitted on what it reads, never on t2 (the model file would be refused)."""
     from compd.cli import build_parser
-    from compd.commands.fit_fallback import fit_fallbacks
+    from compd.offline.fit_fallback import fit_fallbacks
     from compd.offline.records import read_record
 
     data = tmp_path / "rec.csv"

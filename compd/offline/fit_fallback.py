@@ -3,7 +3,7 @@ others, fitted and validated the same way on the same records, written into
 the model file as a ``[[fallback]]`` table (`models.modelfile`); the daemon
 switches to it while that input is invalid (`compd.core.fallback`).
 
-A fallback is the main fit run again (`compd.commands.fit._fit_terms`: the
+A fallback is the main fit run again (`compd.offline.fit_identify.identify_terms`: the
 same structure selection, folds, pole bound and checks) on the terms that do
 not read the lost channel (a term ``bearing-column`` goes with either). No
 fallback is written for a channel when no term is left without it, when a
@@ -44,8 +44,8 @@ def fit_fallbacks(args: argparse.Namespace, records: list[Record], ys: list[Any]
     """A fallback for the loss of each input channel the main model `reads`
     (default: those of `specs`; an averaged model also reads its other members'
     channels: `compd.offline.fit_hedge`), module docstring."""
-    from compd.commands.fit import _fit_terms
-    from compd.commands.fit_checks import gate
+    from compd.offline.fit_checks import gate
+    from compd.offline.fit_identify import identify_terms
     from models.compensation import CompensationModel
     from models.errors import ModelError
 
@@ -72,7 +72,7 @@ def fit_fallbacks(args: argparse.Namespace, records: list[Record], ys: list[Any]
         said = io.StringIO()
         try:
             with contextlib.redirect_stderr(said):
-                terms, info = _fit_terms(one, records, ys, reduced, holdout)
+                terms, info = identify_terms(one, records, ys, reduced, holdout)
                 model = CompensationModel(
                     fixed + terms, records[0].period_s, name=f"without {lost}",
                     description=f"compd fit: the model without {lost}")
