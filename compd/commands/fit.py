@@ -48,31 +48,24 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 from pathlib import Path
+from typing import get_args
 
 from compd.argtypes import RenamedOption, count, number
-from compd.offline.fit import DEFAULT_FOLDS, MIN_FOLD_ROWS
+from compd.offline.fit_request import (
+    DEFAULT_FOLDS,
+    DEFAULT_MAX_TIME_CONSTANT_DAYS,
+    DEFAULT_ORDERS,
+    MIN_FOLD_ROWS,
+    FitRequest,
+    Structure,
+)
 from compd.sysexits import EX_DATAERR, EX_USAGE
 
 HELP = "identify a compensation model from a calibration record and write a model file"
 
-#: the orders `--orders` tries unless told: from second order up. A first-order
-#: link from a sensor to the tool (one time constant) validated best on the
-#: calibration rows and then extrapolated worse: on the real record
-#: (tests/data/fl_thermal, six forward splits at 12-22 h × channels, the
-#: benchmark's earlier form, its ARX baseline with a level) compd's choice was at
-#: or below the textbook ARX baseline on 26 of 29 with 2-4 against 22 with
-#: 1-4, geometric mean of the MAE ratio 0.53 against 0.64 (12 better, 9
-#: worse, 9 the same). On the simulated shop machine (benchmarks/
-#: bench_calibration.py seeds 1-8) both meet the day-2 targets on 7 of 8 (2-4
-#: misses seed 6, 1-4 seed 7; seeds 1-5 within 1.4 points of fit). Screening
-#: the inputs at 1-4 and fitting at 2-4 kept seed 6 and lost the real
-#: record's gain (22 of 29). A first-order model stays the fallback when no
-#: order here gives a plausible one. Not yet judged on the whole table of
-#: benchmarks/bench_real_record.py (every kind of held-out block:
-#: `--fit-args '--orders 1-4'`).
-DEFAULT_ORDERS = (2, 4)
 
 
 def parse_orders(text: str) -> tuple[int, int]:
@@ -87,9 +80,8 @@ def parse_orders(text: str) -> tuple[int, int]:
     return lo, hi
 
 
-#: --structure values (kept literal: building the parser imports no numerics)
-STRUCTURE_CHOICES: tuple[str, ...] = ("auto", "arx", "shared-oe", "ridge", "per-term-oe",
-                                      "search")
+#: --structure values
+STRUCTURE_CHOICES: tuple[str, ...] = get_args(Structure)
 
 #: the most cross-validation folds that make sense (each fold is one more
 #: identification: --folds 100000 ran for minutes)
@@ -102,8 +94,6 @@ MAX_TERMS = 12
 #: slope (`compd.offline.position_record`; literal here: the parser imports no numerics)
 POSITIONS_COLUMNS = ("value_um", "slope_um_m")
 
-#: default slowest allowed time constant of a fitted pole, days
-DEFAULT_MAX_TIME_CONSTANT_DAYS = 3.0
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("data", metavar="DATA", nargs="+",
@@ -191,6 +181,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default 7200: give your probe spacing)")
 
 
+def fit_request(args: argparse.Namespace) -> FitRequest:
+    """The fit `args` ask for (`add_arguments`' options, each a field of the same name)."""
+    argv_is_fit = sys.argv[1:2] == ["fit"]  # compd fit …, not a test calling `run`
+    return FitRequest(
+        data=tuple(str(p) for p in args.data), output=args.output, term=tuple(args.term),
+        candidates=tuple(args.candidates), max_terms=args.max_terms, kind=args.kind,
+        structure=args.structure, folds=args.folds, orders=args.orders, switch=args.switch,
+        fixed=tuple(args.fixed), validation=args.validation,
+        validation_record=tuple(args.validation_record),
+        max_time_constant_days=args.max_time_constant_days, fit_from=args.fit_from,
+        fit_until=args.fit_until, positions=args.positions,
+        reference_position_mm=args.reference_position_mm, force=args.force, name=args.name,
+        json=args.json, adaptation=args.adaptation, adaptation_lag_s=args.adaptation_lag_s,
+        no_fallbacks=args.no_fallbacks,
+        command_line=shlex.join(["compd", *sys.argv[1:]]) if argv_is_fit else None)
+
+
 def run(args: argparse.Namespace) -> int:
     import os
 
@@ -213,7 +220,7 @@ def run(args: argparse.Namespace) -> int:
         return EX_USAGE
 
     from compd.infiles import load_model
-    from compd.offline.fit import fit_model, input_paths, save_model, term_specs
+    from compd.offline.fit import fit_model, save_model, suggest_adaptation, term_specs
     from compd.offline.model_replay import replay_with_init
     from compd.offline.records import RecordError
     from compd.outfiles import check_output, write_atomically
@@ -221,18 +228,20 @@ def run(args: argparse.Namespace) -> int:
     from models.errors import ModelError
     from models.quality import quality
 
-    status = terminal_status("compd fit", quiet=args.json)  # a terminal only
+    request = fit_request(args)
+    status = terminal_status("compd fit", quiet=request.json)  # a terminal only
     try:
         status.stage("reading the records and identifying the model")
-        term_specs(args)  # a term that does not parse is said before the output is checked
-        sources = input_paths(args)
-        out = check_output(args.model_file, "model file", force=args.force, inputs=sources)
-        fitted, info, records = fit_model(args)
-        write_atomically(out, lambda tmp: save_model(fitted, tmp, Path(str(args.data[0])).name),
-                         "model file", force=args.force, inputs=sources)
+        term_specs(request)  # a term that does not parse is said before the output is checked
+        sources = request.input_paths()
+        out = check_output(args.model_file, "model file", force=request.force, inputs=sources)
+        fit = fit_model(request)
+        write_atomically(out, lambda tmp: save_model(fit.model, tmp, Path(request.data[0]).name),
+                         "model file", force=request.force, inputs=sources)
         model = load_model(out)  # what the daemon will load
+        records, info = fit.records, fit.info
         status.stage("replaying the model as the daemon steps it")
-        simulated = [replay_with_init(model, r, r.column(args.output), "estimate")
+        simulated = [replay_with_init(model, r, r.column(request.output), "estimate")
                      for r in records]
     except (RecordError, ModelError) as exc:
         status.done()
@@ -242,17 +251,16 @@ def run(args: argparse.Namespace) -> int:
         status.done()
     # the figures and the residual over the calibration rows (--from: the rows before
     # ran through the model, outside the calibration)
-    if args.fit_from is None:  # every row: the arrays themselves, not copies
-        measured = [r.column(args.output) for r in records]
+    if request.fit_from is None:  # every row: the arrays themselves, not copies
+        measured = [r.column(request.output) for r in records]
     else:
-        keep = [r.time_s >= args.fit_from - 1e-9 for r in records]
-        measured = [r.column(args.output)[k] for r, k in zip(records, keep, strict=True)]
+        keep = [r.time_s >= request.fit_from - 1e-9 for r in records]
+        measured = [r.column(request.output)[k] for r, k in zip(records, keep, strict=True)]
         simulated = [s[k] for s, k in zip(simulated, keep, strict=True)]
-    from compd.offline.fit import suggest_adaptation
-
-    adapt = suggest_adaptation(args, measured, simulated, records[0].period_s)
+    adapt = suggest_adaptation(fit, request, measured, simulated, records[0].period_s)
     if adapt:  # the suggestion travels with the model: its [adaptation] table
         from compd.offline.probes import Suggestion
+
         model.adaptation = Suggestion(**adapt).settings()
         write_atomically(out, lambda tmp: save_model(model, tmp, Path(records[0].path).name),
                          "model file", force=True,
@@ -260,12 +268,12 @@ def run(args: argparse.Namespace) -> int:
     per = [quality(m, s) for m, s in zip(measured, simulated, strict=True)]
     q = per[0] if len(records) == 1 else quality(np.concatenate(measured),
                                                  np.concatenate(simulated))
-    fallbacks = getattr(args, "fallbacks", None)
+    fallbacks = fit.fallbacks
     fallback_figures = fallbacks.figures if fallbacks is not None else {}
     for note in fallbacks.notes if fallbacks is not None else ():
         print(f"compd fit: {note}", file=sys.stderr)
-    if args.json:
-        extra = {"subsets": args.search_table} if getattr(args, "search_table", None) else {}
+    if request.json:
+        extra = {"subsets": fit.search_table} if fit.search_table else {}
         print(json.dumps({"terms": info, "fit_percent": q.fit_percent, "dpk_um": q.dpk_um, **extra,
                           **({"adaptation": adapt} if adapt else {}),
                           "model_file": str(out),
@@ -273,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
                           "records": [{"path": r.path, **pq.as_dict()}
                                       for r, pq in zip(records, per, strict=True)]}))
         return 0
-    rows = "" if args.fit_from is None else f", calibrated on those from {args.fit_from:g} s"
+    rows = "" if request.fit_from is None else f", calibrated on those from {request.fit_from:g} s"
     for r in records:
         print(f"compd fit: {len(r)} samples every {r.period_s:g} s from {r.path}{rows}")
     for t in info:
@@ -285,10 +293,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"    {t['sensitivity']}")
         else:
             print(f"  term {t['name']} ({t['kind']}) {t['inputs']}: fit {t['fit_percent']:.2f} %")
-    if getattr(args, "search_table", None):
+    if fit.search_table:
         from compd.offline.fit_search import table_lines
 
-        print("\n".join(table_lines(args.search_table, args.search_chosen)))
+        print("\n".join(table_lines(fit.search_table, fit.search_chosen)))
     if info and info[0]["kind"] == "tf" and "candidates" in info[0]["selection"]:
         from compd.offline.fit_hedge import stability_lines
         from compd.offline.fit_select import selection_lines

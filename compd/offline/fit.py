@@ -6,31 +6,33 @@ checked as `compd check` would (`compd.offline.fit_checks`). The command
 
 from __future__ import annotations
 
-import argparse
 import math
 import re
 import shlex
 import sys
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from compd import __version__
 from compd.offline.fit_identify import identify_terms
+from compd.offline.fit_request import (
+    DEFAULT_FOLDS,
+    MAX_FIT_TERMS,
+    MIN_FOLD_ROWS,
+    FitRequest,
+    FitRun,
+)
 from compd.sysexits import EX_USAGE
 
 if TYPE_CHECKING:
+    from compd.offline.fit_fallback import Fallbacks
     from compd.offline.records import Record
     from models.compensation import CompensationModel, Term
 
 _TERM_RE = re.compile(r"\s*([+-]?)\s*([A-Za-z_][A-Za-z0-9_.]*)\s*")
 
-#: cross-validation folds: the default (`models.identify.structures.DEFAULT_FOLDS`)
-#: and the fewest rows of the shortest record each of the K + 1 blocks needs
-DEFAULT_FOLDS = 4
-MIN_FOLD_ROWS = 10
-#: at most this many --term (the identification grows with each)
-MAX_FIT_TERMS = 16
 
 
 def parse_term(text: str) -> tuple[str, dict[str, float]]:
@@ -80,21 +82,22 @@ def _fixed_terms(specs: list[str], records: list[Record]) -> tuple[list[Term], l
 
 
 
-def _check_folds(args: argparse.Namespace, records: list[Record]) -> None:
+def _check_folds(run: FitRun, records: list[Record]) -> None:
     """--folds as given, if each of its K + 1 blocks of the shortest record
     holds MIN_FOLD_ROWS rows (else a usage error, 64, naming the flag); the
     default when not given."""
     from compd.infiles import InputError
 
-    if args.folds is None:
-        args.folds = DEFAULT_FOLDS
+    if run.request.folds is None:
+        run.folds = DEFAULT_FOLDS
         return
-    shortest = min(int((r.time_s >= (args.fit_from or 0.0) - 1e-9).sum()) for r in records)
+    run.folds = run.request.folds
+    shortest = min(int((r.time_s >= (run.request.fit_from or 0.0) - 1e-9).sum()) for r in records)
     most = shortest // MIN_FOLD_ROWS - 1
-    if args.folds > most:
+    if run.folds > most:
         hint = f"give --folds {most} or fewer" if most >= 2 else "the record is too short"
-        raise InputError(f"--folds {args.folds}: the shortest record has {shortest} rows, too "
-                         f"few for {args.folds + 1} blocks of {MIN_FOLD_ROWS} rows; {hint}",
+        raise InputError(f"--folds {run.folds}: the shortest record has {shortest} rows, too "
+                         f"few for {run.folds + 1} blocks of {MIN_FOLD_ROWS} rows; {hint}",
                          EX_USAGE)
 
 
@@ -111,38 +114,38 @@ def _text(value: Any) -> Any:
     return value
 
 
-def _provenance(args: argparse.Namespace, records: list[Record],
+def _provenance(run: FitRun, records: list[Record],
                 info: list[dict[str, Any]]) -> dict[str, Any]:
     prov: dict[str, Any] = {
         "tool": "compd fit",
         "compd_version": __version__,
-        "command_line": shlex.join(["compd", *sys.argv[1:]]) if sys.argv[1:2] == ["fit"]
-        else "compd fit " + shlex.join([*args.data, "--column", args.output]),
+        "command_line": run.request.command_line
+        or "compd fit " + shlex.join([*run.request.data, "--column", run.request.output]),
         "date": datetime.now(UTC).isoformat(timespec="seconds"),
-        "data_file": str(args.data[0]),
+        "data_file": str(run.request.data[0]),
         "data_sha256": records[0].sha256,
         "samples": sum(len(r) for r in records),
         "period_s": records[0].period_s,
-        "kind": args.kind,
-        "fixed_terms": list(args.fixed),
-        "max_time_constant_days": args.max_time_constant_days,
+        "kind": run.request.kind,
+        "fixed_terms": list(run.request.fixed),
+        "max_time_constant_days": run.request.max_time_constant_days,
     }
     if len(records) > 1:
-        prov["data_files"] = [str(p) for p in args.data]
+        prov["data_files"] = [str(p) for p in run.request.data]
         prov["data_sha256s"] = [r.sha256 for r in records]
         prov["samples_per_record"] = [len(r) for r in records]
-    if args.validation_record:
-        prov["validation_records"] = [str(p) for p in args.validation_record]
-    if args.fit_from is not None:
-        prov["calibrated_from_s"] = args.fit_from
-    if args.fit_until is not None:
-        prov["calibrated_until_s"] = args.fit_until
-    if getattr(args, "search_table", None):
-        prov["candidates"] = list(args.candidates)
-        prov["inputs_chosen"] = list(args.search_chosen)
+    if run.request.validation_record:
+        prov["validation_records"] = [str(p) for p in run.request.validation_record]
+    if run.request.fit_from is not None:
+        prov["calibrated_from_s"] = run.request.fit_from
+    if run.request.fit_until is not None:
+        prov["calibrated_until_s"] = run.request.fit_until
+    if run.search_table:
+        prov["candidates"] = list(run.request.candidates)
+        prov["inputs_chosen"] = list(run.search_chosen)
         prov["subsets_tried"] = [f"{' + '.join(t['inputs'])}: validation "
                                  f"{t['validation_fit_percent']:.2f} % ({t['screen']} screen)"
-                                 for t in args.search_table]
+                                 for t in run.search_table]
     for t in info:
         key = t["name"]
         if t["kind"] == "tf":
@@ -171,7 +174,7 @@ def _provenance(args: argparse.Namespace, records: list[Record],
     return prov
 
 
-def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str],
+def _read_records(paths: list[str], request: FitRequest, channels: set[str],
                   first: Record | None = None) -> list[Record]:
     """Read and check records; all must share `first`'s (or the first one's) period."""
     import math
@@ -182,18 +185,18 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
     records: list[Record] = []
     for p in paths:
         r = read_record(p)
-        if getattr(args, "positions", False):  # the line through the positions: value or slope
+        if request.positions:  # the line through the positions: value or slope
             from compd.offline.position_record import line_record
 
-            r = line_record(r, args.reference_position_mm, args.output)
-        wanted = [args.output, *sorted(channels), *([args.switch] if args.switch else [])]
+            r = line_record(r, request.reference_position_mm, request.output)
+        wanted = [request.output, *sorted(channels), *([request.switch] if request.switch else [])]
         r.require(wanted)
         temps = sorted(c for c in channels if not is_rate_channel(c))
-        check_units(r, temps if args.kind != "greybox" else [], args.output)
+        check_units(r, temps if request.kind != "greybox" else [], request.output)
         # (--candidates keeps every column: it chooses among them, and the hedge's
         # textbook and other members may read inputs the choice left out; a --fixed
         # term reads its own channels)
-        if channels and not getattr(args, "fixed", None) and not args.candidates:
+        if channels and not request.fixed and not request.candidates:
             # and the speeds, of which speed_warnings speaks
             r = _only_columns(r, {*wanted, *(c for c in r.columns
                                              if channel_kind(c) is ChannelKind.SPEED)})
@@ -216,10 +219,10 @@ def _only_columns(record: Record, names: set[str]) -> Record:
                                         if k in names})
 
 
-def _calibration_rows(args: argparse.Namespace, records: list[Record]) -> list[Record]:
+def _calibration_rows(run: FitRun, records: list[Record]) -> list[Record]:
     """--until: each record up to that time (the model is causal: nothing after it
     changes what it predicts before, so the rows after are cut, not masked);
-    --from: ``args.fit_window``, the rows each loss may count (the rows before run
+    --from: ``run.fit_window``, the rows each loss may count (the rows before run
     through the model from the record's start). InputError (64) naming the flag."""
     import dataclasses
 
@@ -228,13 +231,13 @@ def _calibration_rows(args: argparse.Namespace, records: list[Record]) -> list[R
     from compd.infiles import InputError
     from compd.sysexits import EX_USAGE
 
-    start, until = args.fit_from, args.fit_until
-    args.fit_window = None
+    start, until = run.request.fit_from, run.request.fit_until
+    run.fit_window = None
     if start is None and until is None:
         return records
     if until is not None and start is not None and until < start:
         raise InputError(f"--until {until:g} s is before --from {start:g} s", EX_USAGE)
-    if start and (args.kind != "tf" or args.structure == "search"):
+    if start and (run.request.kind != "tf" or run.request.structure == "search"):
         raise InputError("--from goes with --kind tf, without --structure search (the "
                          "greedy order search masks no rows)", EX_USAGE)
     out: list[Record] = []
@@ -252,25 +255,25 @@ def _calibration_rows(args: argparse.Namespace, records: list[Record]) -> list[R
                              f"spans {span}); at least {2 * MIN_FOLD_ROWS} needed", EX_USAGE)
         out.append(r)
     if start:
-        args.fit_window = np.concatenate([r.time_s >= start - 1e-9 for r in out])
+        run.fit_window = np.concatenate([r.time_s >= start - 1e-9 for r in out])
     return out
 
 
-def _search_specs(args: argparse.Namespace, records: list[Record]
+def _search_specs(run: FitRun, records: list[Record]
                   ) -> list[tuple[str, dict[str, float]]]:
     """--candidates: the inputs chosen by validation, one term each."""
     from compd.offline.fit_search import search_inputs
     from models.errors import ModelError
     from models.identify.segments import pole_radius
 
-    if args.kind != "tf" or args.fixed or args.validation_record:
+    if run.request.kind != "tf" or run.request.fixed or run.request.validation_record:
         raise ModelError("--candidates goes with --kind tf, without --fixed or "
                          "--validation-record")
-    radius = pole_radius(records[0].period_s, args.max_time_constant_days * 86400.0)
-    chosen, table = search_inputs(args, records, [r.column(args.output) for r in records],
+    radius = pole_radius(records[0].period_s, run.request.max_time_constant_days * 86400.0)
+    chosen, table = search_inputs(run, records, [r.column(run.request.output) for r in records],
                                   radius)
-    args.search_table = table
-    args.search_chosen = chosen
+    run.search_table = table
+    run.search_chosen = chosen
     return [(name, {name: 1.0}) for name in chosen]
 
 
@@ -301,77 +304,90 @@ def save_model(model: CompensationModel, path: Path, record: str = "") -> None:
     path.write_text(text, encoding="utf-8")
 
 
-def term_specs(args: argparse.Namespace) -> list[tuple[str, dict[str, float]]]:
-    """The terms ``--term`` asks for, as (name, {channel: ±1}); [] with
-    ``--candidates`` (the one or the other). InputError (64) for too many terms,
-    ModelError for one that does not parse."""
+def term_specs(request: FitRequest) -> list[tuple[str, dict[str, float]]]:
+    """The terms `request.term` asks for, as (name, {channel: ±1}); [] with
+    `request.candidates` (the one or the other). InputError (64) for too many
+    terms, ModelError for one that does not parse."""
     from models.errors import ModelError
 
-    if len(args.term) > MAX_FIT_TERMS:
+    if len(request.term) > MAX_FIT_TERMS:
         from compd.infiles import InputError
 
-        raise InputError(f"--term given {len(args.term)} times; at most {MAX_FIT_TERMS} "
+        raise InputError(f"--term given {len(request.term)} times; at most {MAX_FIT_TERMS} "
                          "(each one more set of coefficients to identify: 60 took minutes)",
                          EX_USAGE)
     try:
-        specs = [parse_term(t) for t in args.term]
+        specs = [parse_term(t) for t in request.term]
     except ValueError as exc:
         raise ModelError(str(exc)) from None
-    if bool(specs) == bool(args.candidates):
+    if bool(specs) == bool(request.candidates):
         raise ModelError("give the inputs with --term, or let --candidates choose them "
                          "(one of the two)")
     return specs
 
 
-def input_paths(args: argparse.Namespace) -> list[str]:
-    """Every file the fit reads: the records, the validation records, the models
-    of the fixed terms (a model file written must be none of them)."""
-    return [*(str(p) for p in args.data), *args.validation_record,
-            *(f.rpartition(":")[0] for f in args.fixed)]
+@dataclass(frozen=True)
+class FitResult:
+    """A fit's model (not yet written) and what the printing and the provenance
+    say of it."""
+
+    model: CompensationModel
+    #: per term: its kind, inputs, orders, poles, DC gain, the structure selection
+    info: list[dict[str, Any]]
+    #: the records as fitted (the calibration rows)
+    records: list[Record]
+    #: the fallbacks fitted (None: `no_fallbacks`)
+    fallbacks: Fallbacks | None
+    #: the input search's table and choice (None and []: the terms were given)
+    search_table: list[dict[str, Any]] | None
+    search_chosen: list[str]
+    #: the chosen model's residuals on rows it was not calibrated on
+    heldout_residuals: Any
 
 
-def fit_model(args: argparse.Namespace) -> tuple[CompensationModel, list[dict[str, Any]],
-                                                  list[Record]]:
-    """The model identified from the records (not yet written), each term's
-    figures, and the records as fitted (the calibration rows)."""
+def fit_model(request: FitRequest) -> FitResult:
+    """The model `request` asks for, identified from its records (warnings on
+    stderr); ModelError, RecordError or InputError when it cannot be."""
     from compd.offline.records import speed_warnings
     from models.compensation import CompensationModel
 
-    specs = term_specs(args)
-    data = [str(p) for p in args.data]
+    run = FitRun.of(request)
+    specs = term_specs(request)
+    data = list(request.data)
     channels = {ch for _, inputs in specs for ch in inputs}
-    records = _calibration_rows(args, _read_records(data, args, channels))
-    _check_folds(args, records)
+    records = _calibration_rows(run, _read_records(data, request, channels))
+    _check_folds(run, records)
     if sum(len(r) for r in records) > LONG_RECORD_ROWS:
         _return_freed_arrays()
-    if args.candidates:
-        specs = _search_specs(args, records)
+    if request.candidates:
+        specs = _search_specs(run, records)
         channels = {ch for _, inputs in specs for ch in inputs}
-        records = _calibration_rows(args, _read_records(data, args, channels))
-    holdout = _read_records([str(p) for p in args.validation_record], args, channels,
-                            records[0])
+        records = _calibration_rows(run, _read_records(data, request, channels))
+    holdout = _read_records(list(request.validation_record), request, channels, records[0])
     for w in [w for r in records for w in speed_warnings(r)] if len(records) == 1 else []:
         print(f"compd fit: warning: {w}", file=sys.stderr)
-    fixed, fixed_preds = _fixed_terms(list(args.fixed), records)
-    ys = [r.column(args.output) - f if fixed else r.column(args.output)
+    fixed, fixed_preds = _fixed_terms(list(request.fixed), records)
+    ys = [r.column(request.output) - f if fixed else r.column(request.output)
           for r, f in zip(records, fixed_preds, strict=True)]
-    terms, info = identify_terms(args, records, ys, specs, holdout)
+    terms, info = identify_terms(run, records, ys, specs, holdout)
     names = ", ".join(Path(p).name for p in data)
-    name = args.name or f"fitted from {names}"
+    name = request.name or f"fitted from {names}"
     model = CompensationModel(fixed + terms, records[0].period_s, name=_text(name),
-                              description=_text(f"compd fit --kind {args.kind} on {names}"),
-                              provenance=_text(_provenance(args, records, info)))
+                              description=_text(f"compd fit --kind {request.kind} on {names}"),
+                              provenance=_text(_provenance(run, records, info)))
     from compd.offline.fit_checks import gate
 
     model.calibration_reference = calibration_reference(model, records[0])
-    gate(model, args.force)  # compd check's warnings: nothing written without --force
-    if not args.no_fallbacks:  # a model for the loss of each input, in the same file
+    gate(model, request.force)  # compd check's warnings: nothing written without --force
+    fallbacks = None
+    if not request.no_fallbacks:  # a model for the loss of each input, in the same file
         from compd.offline.fit_fallback import fit_fallbacks
 
         reads = {ch for t in terms for ch in t.inputs}
-        args.fallbacks = fit_fallbacks(args, records, ys, specs, holdout, fixed, reads)
-        model.fallbacks = args.fallbacks.models
-    return model, info, records
+        fallbacks = fit_fallbacks(run, records, ys, specs, holdout, fixed, reads)
+        model.fallbacks = fallbacks.models
+    return FitResult(model, info, records, fallbacks, run.search_table, run.search_chosen,
+                     run.heldout_residuals)
 
 
 #: arrays at least this large are mapped on their own and given back on free (a
@@ -401,18 +417,19 @@ def _return_freed_arrays() -> None:
         return
 
 
-def suggest_adaptation(args: argparse.Namespace, measured: list[Any], simulated: list[Any],
-                        period_s: float) -> dict[str, Any]:
-    """`--adaptation`'s learnt settings ({} without it, or with a warning when the
-    records are too short for the lag: the model is written all the same)."""
-    if not args.adaptation:
+def suggest_adaptation(fit: FitResult, request: FitRequest, measured: list[Any],
+                       simulated: list[Any], period_s: float) -> dict[str, Any]:
+    """`request.adaptation`'s learnt settings from the residual of `measured` less
+    `simulated` and `fit`'s held-out residuals ({} without it, or with a warning
+    when the records are too short for the lag: the model is written all the same)."""
+    if not request.adaptation:
         return {}
     from compd.offline.probes import suggest_settings
 
     residuals = [m - s for m, s in zip(measured, simulated, strict=True)]
     try:
-        return suggest_settings(residuals, period_s, args.adaptation_lag_s,
-                                getattr(args, "heldout_residuals", ())).as_dict()
+        return suggest_settings(residuals, period_s, request.adaptation_lag_s,
+                                fit.heldout_residuals).as_dict()
     except ValueError as exc:
         print(f"compd fit: warning: --adaptation: {exc}; no settings suggested",
               file=sys.stderr)

@@ -17,13 +17,14 @@ why, in ``notes``.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
+import dataclasses
 import io
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from compd.offline.fit_request import FitRun
     from compd.offline.records import Record
     from models.compensation import CompensationModel, Term
 
@@ -38,7 +39,7 @@ class Fallbacks:
     notes: list[str] = field(default_factory=list)
 
 
-def fit_fallbacks(args: argparse.Namespace, records: list[Record], ys: list[Any],
+def fit_fallbacks(run: FitRun, records: list[Record], ys: list[Any],
                   specs: list[tuple[str, dict[str, float]]], holdout: list[Record],
                   fixed: list[Term], reads: set[str] | None = None) -> Fallbacks:
     """A fallback for the loss of each input channel the main model `reads`
@@ -50,7 +51,7 @@ def fit_fallbacks(args: argparse.Namespace, records: list[Record], ys: list[Any]
     from models.errors import ModelError
 
     out = Fallbacks()
-    if args.kind != "tf":
+    if run.request.kind != "tf":
         return out
     channels = sorted(reads if reads is not None else
                       {ch for _, inputs in specs for ch in inputs})
@@ -64,11 +65,10 @@ def fit_fallbacks(args: argparse.Namespace, records: list[Record], ys: list[Any]
         if any(lost in t.channels for t in fixed):
             out.notes.append(f"no fallback without {lost}: a --fixed term reads it")
             continue
-        one = argparse.Namespace(**vars(args))
-        one.force = False  # a fallback worse than none, or one check warns of, is never written
-        # the hedge's other candidates (`compd.offline.fit_hedge`) read only what the
-        # main model reads, never the lost channel
-        one.hedge_channels = set(channels) - {lost}
+        # a fallback worse than none, or one check warns of, is never written (never
+        # forced); the hedge's other candidates (`compd.offline.fit_hedge`) read
+        # only what the main model reads, never the lost channel
+        one = dataclasses.replace(run, force=False, hedge_channels=set(channels) - {lost})
         said = io.StringIO()
         try:
             with contextlib.redirect_stderr(said):

@@ -7,11 +7,11 @@ hold it. The main fit (`compd.offline.fit`) and each fallback
 
 from __future__ import annotations
 
-import argparse
 import sys
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from compd.offline.fit_request import FitRun
     from compd.offline.records import Record
     from models.compensation import Term
 
@@ -34,7 +34,7 @@ def joined(parts: list[Any]) -> Any:
     return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
-def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
+def _fit_tf(run: FitRun, records: list[Record], ys: list[Any],
             specs: list[tuple[str, dict[str, float]]], holdout_records: list[Record],
             ) -> tuple[list[Term], list[dict[str, Any]]]:
     import numpy as np
@@ -47,13 +47,13 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
     from models.identify.tf_fit import Holdout, fit_tf_terms
 
     period = records[0].period_s
-    radius = pole_radius(period, args.max_time_constant_days * 86400.0)
+    radius = pole_radius(period, run.request.max_time_constant_days * 86400.0)
     seg = Segments.from_lengths([len(r) for r in records])
     y = joined(ys)
     from compd.offline.channel_kind import is_rate_channel
     from compd.offline.fit_terms import usable_rows
 
-    usable = usable_rows(args)  # the span the loss saw: rows outside are not calibration
+    usable = usable_rows(run)  # the span the loss saw: rows outside are not calibration
     y_span = float(np.ptp(y if usable is None else y[usable]))
 
     rel = [not all(is_rate_channel(ch) for ch in inputs) for _, inputs in specs]
@@ -61,14 +61,15 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
           for (_, inputs), rl in zip(specs, rel, strict=True)]
     holdout = None
     if holdout_records:
-        h_y = np.concatenate([r.column(args.output) for r in holdout_records])
+        h_y = np.concatenate([r.column(run.request.output) for r in holdout_records])
         h_us = tuple(np.concatenate([relative_input(r, inputs, rl) for r in holdout_records])
                      for (_, inputs), rl in zip(specs, rel, strict=True))
         holdout = Holdout(h_y, h_us, Segments.from_lengths([len(r) for r in holdout_records]))
-    if args.structure == "search":
+    if run.request.structure == "search":
         try:
-            fit = fit_tf_terms(y, us, args.orders, args.orders, validation=args.validation,
-                               segments=seg, radius=radius, holdout=holdout)
+            fit = fit_tf_terms(y, us, run.request.orders, run.request.orders,
+                               validation=run.request.validation, segments=seg, radius=radius,
+                               holdout=holdout)
         except ValueError as exc:
             raise ModelError(f"identification failed: {exc}") from None
         summary = {"structure": "per-term-oe (greedy search)",
@@ -81,27 +82,27 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
         from compd.offline.fit_select import select_for_fit, worse_than_none
 
         veto = CheckVeto(specs, rel, [float(np.ptp(u)) for u in us], y_span, period)
-        pool = getattr(args, "search_pool", None)
+        pool = run.search_pool
         try:
-            fitted, summary = select_for_fit(args, y, us, seg, radius, holdout, specs, rel,
+            fitted, summary = select_for_fit(run, y, us, seg, radius, holdout, specs, rel,
                                              pool, veto, veto.terms)
         except ModelError:
             if not veto.vetoed:
                 raise
-            if not args.force:
+            if not run.force:
                 raise ModelError(f"every candidate model gets a warning from compd check (the "
                                  f"first: {veto.vetoed[0]}); nothing written (--force writes "
                                  "the best validated anyway)") from None
-            fitted, summary = select_for_fit(args, y, us, seg, radius, holdout, specs, rel,
+            fitted, summary = select_for_fit(run, y, us, seg, radius, holdout, specs, rel,
                                              pool, None, veto.terms)
         else:
             line = fallback_line(summary, veto)
             if line is not None:
                 print(line, file=sys.stderr)
         # for the adaptation settings: how fast the error moves on rows not calibrated on
-        args.heldout_residuals = summary.pop("_heldout_residuals")
+        run.heldout_residuals = summary.pop("_heldout_residuals")
         worse = worse_than_none(summary)
-        if worse is not None and not args.force:
+        if worse is not None and not run.force:
             raise ModelError(f"{worse}; not written (--force writes it anyway)")
         if worse is not None:
             print(f"compd fit: warning: {worse}; written all the same (--force)",
@@ -140,7 +141,7 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
     return terms, info
 
 
-def identify_terms(args: argparse.Namespace, records: list[Record], ys: list[Any],
+def identify_terms(run: FitRun, records: list[Record], ys: list[Any],
                specs: list[tuple[str, dict[str, float]]], holdout_records: list[Record],
                ) -> tuple[list[Term], list[dict[str, Any]]]:
     from models.compensation import Term
@@ -150,25 +151,25 @@ def identify_terms(args: argparse.Namespace, records: list[Record], ys: list[Any
     from models.identify.mbotv_fit import fit_mbotv
     from models.mbotv import Mbotv
 
-    if args.kind == "tf":
-        return _fit_tf(args, records, ys, specs, holdout_records)
+    if run.request.kind == "tf":
+        return _fit_tf(run, records, ys, specs, holdout_records)
     if len(records) != 1 or holdout_records:
-        raise ModelError(f"--kind {args.kind} fits one record; got {len(records)} (and "
+        raise ModelError(f"--kind {run.request.kind} fits one record; got {len(records)} (and "
                          f"{len(holdout_records)} validation record(s)); use --kind tf")
     record, y = records[0], ys[0]
     period = record.period_s
     terms: list[Term] = []
     info: list[dict[str, Any]] = []
     if len(specs) != 1:
-        raise ModelError(f"--kind {args.kind} fits one term; got {len(specs)}")
+        raise ModelError(f"--kind {run.request.kind} fits one term; got {len(specs)}")
     name, inputs = specs[0]
-    if args.kind == "greybox":
+    if run.request.kind == "greybox":
         u1 = relative_input(record, inputs, False)
-        u2 = record.column(args.switch) if args.switch else None
+        u2 = record.column(run.request.switch) if run.request.switch else None
         gfit = fit_greybox(y, u1, period, u2)
         gb = GreyBox(list(gfit.p), period, name=name)
         terms.append(Term(name=name, inputs=inputs, dynamics=gb, relative=False,
-                          switch_channel=args.switch))
+                          switch_channel=run.request.switch))
         info.append({"name": name, "kind": "greybox", "inputs": inputs, "p": list(gfit.p),
                      "dc_gain": gb.dc_gain, "fit_percent": gfit.fit_pct})
         return terms, info
