@@ -206,7 +206,8 @@ def replay(args: argparse.Namespace, model: CompensationModel, record: Record,
     """Run the probes over the replay; RecordError when the figures mean nothing."""
     import numpy as np
 
-    from compd.offline.probes import run_probes, term_contributions
+    from compd.offline.model_replay import replay_terms
+    from compd.offline.probes import run_probes
     from compd.offline.quality_check import checked_quality
 
     every_s = 60.0 * args.probe_every_min
@@ -220,7 +221,7 @@ def replay(args: argparse.Namespace, model: CompensationModel, record: Record,
     params = params_from_args(args, model.adaptation)
     terms = None
     if params.gains:
-        terms = term_contributions(model, record, steady=args.init == "steady")
+        terms = replay_terms(model, record, steady=args.init == "steady")
     run = run_probes(simulated, measured, record.time_s, terms, every_s=every_s,
                      noise_um=args.probe_noise_um, seed=args.probe_seed, params=params)
     adapted = checked_quality(measured[first:], run.adapted[first:], record.path, args.output)
