@@ -22,7 +22,7 @@ gain absurd for the data is refused (`models.identify.checks`).
   printed and written in the provenance; when it is not stable, the leading
   candidates are averaged into the model written. ``--structure`` forces one (a forced
   structure below the ARX baseline is said); ``--structure search`` is the
-  earlier greedy per-term order search (`models.identify.tf_fit`). Orders
+  greedy per-term order search (`models.identify.tf_fit`). Orders
   ``--orders 2-4`` (`DEFAULT_ORDERS`): numerator lengths and denominator orders. One term per
   ``--term`` (a channel or a signed combination, ``bearing-column``,
   optionally named ``spindle=bearing-column``), or ``--candidates PATTERN

@@ -28,8 +28,8 @@ Structure = Literal["auto", "arx", "shared-oe", "ridge", "per-term-oe", "search"
 #: the orders tried unless told: from second order up. A first-order
 #: link from a sensor to the tool (one time constant) validated best on the
 #: calibration rows and then extrapolated worse: on the real record
-#: (tests/data/fl_thermal, six forward splits at 12-22 h × channels, the
-#: benchmark's earlier form, its ARX baseline with a level) compd's choice was at
+#: (tests/data/fl_thermal, six forward splits at 12-22 h × channels, against
+#: an ARX baseline with a level) compd's choice was at
 #: or below the textbook ARX baseline on 26 of 29 with 2-4 against 22 with
 #: 1-4, geometric mean of the MAE ratio 0.53 against 0.64 (12 better, 9
 #: worse, 9 the same). On the simulated shop machine (benchmarks/
