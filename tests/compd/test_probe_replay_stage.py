@@ -9,17 +9,20 @@ its own measurement)."""
 from __future__ import annotations
 
 import dataclasses
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from compd.cli import main
 from compd.core.adaptation import AdaptationSettings, ProbeReading
 from compd.core.cycle import WRITTEN, Cycle
 from compd.infiles import load_model
 from compd.offline.cycle_replay import replay_params
-from compd.offline.model_replay import replay_model, replay_terms
+from compd.offline.model_replay import replay_model, replay_terms, replay_with_init
 from compd.offline.probes import run_probes
-from compd.offline.records import Record
+from compd.offline.records import Record, read_record
 from drivers.base import Sample
 from models.adaptation import AdaptationParams
 
@@ -79,3 +82,33 @@ def test_the_replay_and_the_daemons_cycle_give_the_same_corrections(gains: bool)
     if not gains:  # the correction a probe sets is the same, a row earlier in the daemon
         assert np.array_equal(daemon[run.rows], daemon[run.rows + 1])
     assert np.max(np.abs(offset - (simulated + daemon))) <= 1e-9  # what the stage wrote
+
+
+def test_the_probe_replay_is_a_library_call_on_a_typed_request(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The figures `compd replay --probe-every-min … --json` prints are the library's,
+    called with a `ProbeRequest` and no argparse."""
+    record = _record()
+    model = load_model("sp2")
+    measured = replay_model(model, record) + 1.0 + 2.0 * record.time_s / record.time_s[-1]
+    data = tmp_path / "rec.csv"
+    data.write_text("time_s,bearing,ambient,dz_um\n" + "".join(
+        f"{t:g},{b!r},{a!r},{d!r}\n" for t, b, a, d in zip(
+            record.time_s.tolist(), record.columns["bearing"].tolist(),
+            record.columns["ambient"].tolist(), measured.tolist(), strict=True)))
+    assert main(["replay", "sp2", str(data), "--column", "dz_um", "--probe-every-min", "15",
+                 "--probe-noise-um", "0.2", "--apply-sigma", "0", "--score-window", "0",
+                 "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+
+    from compd.offline.probe_replay import ProbeRequest, replay_probes
+
+    request = ProbeRequest(every_min=15.0, noise_um=0.2,
+                           settings=(("apply_sigma", 0.0), ("score_window", 0.0)))
+    read = read_record(str(data))
+    simulated = replay_with_init(model, read, read.column("dz_um"), "estimate")
+    run, figures = replay_probes(request, model, read, read.column("dz_um"), simulated, 0)
+    assert run.adapter.applied_moves > 0
+    assert printed["adapted"] == figures["adapted"]
+    assert printed["crude"] == figures["crude"]
+    assert printed["adaptation"]["apply_sigma"] == 0.0
