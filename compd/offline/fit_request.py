@@ -13,7 +13,7 @@ parser reads the defaults.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
 if TYPE_CHECKING:
     import numpy as np
@@ -104,6 +104,23 @@ class FitRequest:
     #: the command line written into the provenance (None: one made of `data`
     #: and `output`)
     command_line: str | None = None
+
+    def __post_init__(self) -> None:
+        """ValueError naming the field a caller gave out of its domain (the command's
+        parser has checked each already)."""
+        if not self.data:
+            raise ValueError("data: at least one record")
+        if self.kind not in get_args(Kind):
+            raise ValueError(f"kind: one of {get_args(Kind)}, got {self.kind!r}")
+        if self.structure not in get_args(Structure):
+            raise ValueError(f"structure: one of {get_args(Structure)}, got {self.structure!r}")
+        lo, hi = self.orders
+        if not 1 <= lo <= hi <= 8:
+            raise ValueError(f"orders: 1 <= lo <= hi <= 8, got {self.orders!r}")
+        if self.folds is not None and self.folds < 2:
+            raise ValueError(f"folds: at least 2, got {self.folds!r}")
+        if self.max_terms < 1:
+            raise ValueError(f"max_terms: at least 1, got {self.max_terms!r}")
 
     def input_paths(self) -> list[str]:
         """Every file the fit reads: the records, the validation records, the

@@ -71,3 +71,14 @@ def test_the_request_is_frozen_and_every_field_is_an_option_of_the_command(
             assert getattr(built, f.name) == (tuple(given) if isinstance(given, list) else given)
     assert built.data == ("a.csv", "b.csv") and built.orders == (1, 3) and built.folds == 5
     assert built.input_paths() == ["a.csv", "b.csv", "c.csv"]
+
+
+@pytest.mark.parametrize(("change", "field"), [
+    ({"kind": "spline"}, "kind"), ({"structure": "best"}, "structure"),
+    ({"orders": (3, 2)}, "orders"), ({"folds": 1}, "folds"), ({"max_terms": 0}, "max_terms"),
+    ({"data": ()}, "data")])
+def test_a_request_out_of_its_domain_names_the_field(change: dict[str, object],
+                                                      field: str) -> None:
+    good = FitRequest(data=("a.csv",), output="dz_um", term=("bearing",))
+    with pytest.raises(ValueError, match=f"^{field}: "):
+        dataclasses.replace(good, **change)  # type: ignore[arg-type]
