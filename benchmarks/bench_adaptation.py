@@ -19,7 +19,7 @@ reduction rests on two extreme samples; fit and RMS on all of them). The issue's
 targets: adapted >= 1.5x plain on the changed day, and never below plain
 (ratio >= 1) on the day without change.
 
-Then the estimator's cost per sample (`correction_um` + `advance`, no probe)
+Then the estimator's cost per sample (the daemon's `ProbeStage.step`, no probe)
 against the model's step (`CompensationModel.step`) in the same run (target < 2x).
 
 Run: OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_adaptation.py [SEEDS…]
@@ -93,10 +93,13 @@ def seed_figures(d: Path, seed: int, probe_seed: int) -> dict[str, dict[str, flo
 
 
 def cost(d: Path, seed: int) -> None:
-    """µs per sample: the estimator (bias only, and with gains) against the model step."""
+    """µs per sample: the daemon's probe stage (bias only, and with gains) on a cycle
+    without a probe, against the model step."""
+    from compd.core.adaptation import AdaptationSettings, ProbeStage
+    from compd.core.events import Event
     from compd.infiles import load_model
     from compd.offline.records import read_record
-    from models.adaptation import AdaptationParams, Adapter
+    from models.adaptation import AdaptationParams
 
     model = load_model(str(d / f"shop{seed}.toml"))
     rows = list(read_record(d / f"plain{seed}.csv").samples())
@@ -111,17 +114,20 @@ def cost(d: Path, seed: int) -> None:
         for s in rows:
             model.step(s)
 
-    def adapter_all(adapter: Adapter) -> Any:
+    def stage_all(params: AdaptationParams) -> Any:
+        stage = ProbeStage(AdaptationSettings("apply", "displacement", params), n)
+        events: list[Event] = []
+
         def go() -> None:
             for _ in rows:
-                adapter.correction_um(terms)
-                adapter.advance(60.0)
+                stage.step(60.0, None, complete=True, model_um=0.0, terms_um=terms,
+                           offset_in_force_um=None, events=events)
         return go
 
     n = len(model.terms)
     t_model = per_sample(step_all)
-    t_bias = per_sample(adapter_all(Adapter(AdaptationParams(), n)))
-    t_gains = per_sample(adapter_all(Adapter(AdaptationParams(gains=True), n)))
+    t_bias = per_sample(stage_all(AdaptationParams()))
+    t_gains = per_sample(stage_all(AdaptationParams(gains=True)))
     print(f"cost per sample ({n}-term model, {len(rows)} samples, best of 7): model step "
           f"{t_model:.2f} µs; estimator {t_bias:.2f} µs = {t_bias / t_model:.2f}x the step, "
           f"with gains {t_gains:.2f} µs = {t_gains / t_model:.2f}x [target < 2x]")

@@ -28,15 +28,14 @@ INTERVALS = (600, 1800, 3600, 7200)
 def hindsight(model_path: Path, record_path: Path) -> float:
     """Range reduction of the best bias + gains on day 2, over the plain one."""
     from compd.infiles import load_model
-    from compd.offline.model_replay import replay_with_init
-    from compd.offline.probes import term_contributions
+    from compd.offline.model_replay import replay_terms, replay_with_init
     from compd.offline.records import read_record
 
     model = load_model(str(model_path))
     record = read_record(record_path)
     measured = record.columns["dz_um"]
     simulated = replay_with_init(model, record, measured, "estimate")
-    terms = term_contributions(model, record)
+    terms = replay_terms(model, record)
     first = int(np.searchsorted(record.time_s, 86400 - 1e-9))
     r = (measured - simulated)[first:]
     x = np.column_stack([np.ones(r.size), terms[first:]])

@@ -50,7 +50,6 @@ from __future__ import annotations
 import contextlib
 import io
 import itertools
-import json
 import math
 import os
 import tempfile
@@ -119,26 +118,32 @@ class Choice:
 def compd_choice(record: Path, out: str, held: BoolArray, model: Path) -> Choice:
     """`compd fit` on the whole record with `held` masked from every loss,
     the written model replayed from rest over the whole record."""
+    import dataclasses
+
+    from compd.commands.fit import fit_request
+    from compd.errors import CompdError
     from compd.infiles import load_model
+    from compd.offline.fit import fit_model, save_model
     from compd.offline.model_replay import replay_model
     from compd.offline.records import read_record
+    from models.errors import ModelError
 
     argv = ["fit", str(record), "--column", out, "--candidates", "t*_degC", "--candidates",
             "spindle_rpm", "--max-terms", "3", "-o", str(model), "--force", "--json", *FIT_ARGS]
-    args = build_parser().parse_args(argv)
-    args.exclude_rows = held
-    buf, err = io.StringIO(), io.StringIO()
+    request = dataclasses.replace(fit_request(build_parser().parse_args(argv)),
+                                  exclude_rows=held)
+    err = io.StringIO()
     t0 = time.perf_counter()
-    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(err):
-        code = args._run(args)
+    try:
+        with contextlib.redirect_stderr(err):
+            fit = fit_model(request)
+    except (CompdError, ModelError) as exc:
+        return Choice(np.full(held.size, math.nan), f"fit failed: {exc}",
+                      time.perf_counter() - t0, math.nan)
     took = time.perf_counter() - t0
-    if code != 0:
-        return Choice(np.full(held.size, math.nan), f"fit failed (exit {code}): "
-                      f"{err.getvalue().strip()}", took, math.nan)
-    fit = json.loads(buf.getvalue().strip().splitlines()[-1])
-    sel = fit["terms"][0]["selection"]
-    what = f"{' + '.join(fit.get('inputs_chosen', [t['name'] for t in fit['terms']]))} " \
-        f"({sel['structure']})"
+    save_model(fit.model, model, record.name)
+    sel = fit.info[0]["selection"]
+    what = f"{' + '.join(t['name'] for t in fit.info)} ({sel['structure']})"
     stab = sel.get("stability", {}).get("share", math.nan)
     sim = replay_model(load_model(str(model)), read_record(str(record)))
     return Choice(np.asarray(sim, dtype=np.float64), what, took, float(stab))

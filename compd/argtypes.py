@@ -79,9 +79,9 @@ def seed(text: str) -> int:
 class RenamedOption(argparse.Action):
     """An option with a new name and an old spelling that still works: the old
     one stores the same value and says, in one line on stderr, to use the new
-    one (e.g. ``--column`` for the CSV column that ``--output`` used to name,
-    while ``--output`` names a file in `compd export`). The new name is the
-    first option string."""
+    one (e.g. ``--column`` for the CSV column, whose old spelling ``--output``
+    `compd fit` still takes, while ``--output`` names a file in `compd export`).
+    The new name is the first option string."""
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
                  values: object, option_string: str | None = None) -> None:

@@ -17,8 +17,9 @@ client or handle) and decides, the same way for every protocol:
   finds a connect in progress nobody waits for any more fails fast with
   `ConnectionLost` (the daemon's cycle holds, on time); the
   first call after it completes takes its session. An explicit `connect()`
-  waits for it; only `close()` cancels it. (Before, a connect slower than a
-  cycle was cancelled by every cycle's read deadline: the link never came back.)
+  waits for it; only `close()` cancels it. (Were the connect bounded by its
+  caller's deadline, one slower than a cycle would be cancelled by every
+  cycle's read deadline, and the link would never come back.)
 - **connect-failure wrapping**: a failed open starts the backoff delay; a
   timeout becomes `ControllerTimeout`, one of the driver's declared
   `connect_errors` becomes `ConnectionLost`, a `DriverError` passes as it is.

@@ -20,8 +20,8 @@ from there while its relative input starts at 0, plus one output level c
 
 c and v_t are found by least squares on the first `window` samples of the
 measured displacement (default the first half); the relaxations then run
-through the whole record. On the issue's 48 h split (second half replayed
-with the per-term model fitted on the first) this gives 85.15 %, as the run
+through the whole record. On a 48 h record split in two (the second half
+replayed with the per-term model fitted on the first) this gives 85.15 %, as the run
 continuous from the start of the whole record, where the rest start gives
 -319 % (benchmarks/bench_calibration.py). Grey-box and MBOTV terms keep
 their rest state (only c covers them).

@@ -133,7 +133,10 @@ def run(args: argparse.Namespace) -> int:
         res = measured[first:last] - simulated[first:last]
         mae, rms = float(np.mean(np.abs(res))), float(np.sqrt(np.mean(res ** 2)))
         if args.probe_every_min is not None:
-            probes, extra = replay_probes.replay(args, model, record, measured, simulated, first)
+            from compd.offline.probe_replay import replay_probes as run_probe_replay
+
+            probes, extra = run_probe_replay(replay_probes.probe_request(args), model, record,
+                                             measured, simulated, first)
     except RecordError as exc:
         print(f"compd replay: {exc}", file=sys.stderr)
         return EX_DATAERR

@@ -1,5 +1,6 @@
-"""`compd replay … --probe-every-min MINUTES`: the options of adaptation offline and
-its report (the estimator `models.adaptation`, the run `compd.offline.probes`).
+"""`compd replay … --probe-every-min MINUTES`: the options of adaptation offline,
+the request they make (`compd.offline.probe_replay.ProbeRequest`: the replay is
+library code there) and its report.
 
 The plain figures stay as they are; beside them ``"adapted"`` (the same keys,
 plus the probes used and refused and the final bias) and ``"crude"`` (the
@@ -14,9 +15,6 @@ made it stand down.
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import math
-from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 from compd.argtypes import number, seed
@@ -25,10 +23,9 @@ if TYPE_CHECKING:
     import numpy as np
     import numpy.typing as npt
 
+    from compd.offline.probe_replay import ProbeRequest
     from compd.offline.probes import ProbeRun
-    from compd.offline.records import Record
     from models.adaptation import AdaptationParams
-    from models.compensation import CompensationModel
     from models.quality import CompensationFigures
 
     FloatArray = npt.NDArray[np.float64]
@@ -117,9 +114,11 @@ def _defaults() -> AdaptationParams:
 
 def usage_problem(args: argparse.Namespace) -> str:
     """Why the probe options cannot be used as given ("" when they can)."""
+    from compd.offline.probe_replay import probe_params
+
     if args.probe_every_min is not None:
         try:
-            params_from_args(args)
+            probe_params(probe_request(args))
         except ValueError as exc:
             return f"adaptation settings: {exc}"
         return ""
@@ -130,47 +129,16 @@ def usage_problem(args: argparse.Namespace) -> str:
     return f"{', '.join(given)} need(s) --probe-every-min" if given else ""
 
 
-def params_from_args(args: argparse.Namespace,
-                     learnt: Mapping[str, Any] | None = None) -> AdaptationParams:
-    """The estimator's settings: the options given over the model's learnt table (unless
-    --adaptation-defaults) over the defaults (ValueError when bad)."""
-    table = {} if args.adaptation_defaults or learnt is None else dict(learnt)
-    changes: dict[str, Any] = {f: getattr(args, _dest(o)) for o, f, _, _ in _SETTINGS
-                               if getattr(args, _dest(o)) is not None}
-    if "probe_noise_um" not in changes and args.probe_noise_um > 0:
-        # the probe's added noise, on top of what the model's own residual does fast
-        changes["probe_noise_um"] = math.hypot(float(table.get("probe_noise_um", 0.0)),
-                                               args.probe_noise_um)
-    gains = {"gains": True} if args.gains else {}
-    from models.adaptation import mark_unproven
+def probe_request(args: argparse.Namespace) -> ProbeRequest:
+    """The probe replay `args` ask for (``--probe-every-min`` given)."""
+    from compd.offline.probe_replay import ProbeRequest
 
-    # as the daemon: settings not learnt for the model start stood down
-    return dataclasses.replace(_defaults(), **{**mark_unproven(table), **gains, **changes})
-
-
-def figures(run: ProbeRun, adapted: CompensationFigures, crude: CompensationFigures,
-            first: int, params: AdaptationParams, rms: dict[str, float],
-            args_defaults: bool = True) -> dict[str, Any]:
-    """The JSON keys "adapted", "crude" and "adaptation" (the settings used); `rms`
-    the residue's RMS (µm, scored rows) of "plain", "adapted" and "crude"."""
-    scored = int((run.rows >= first).sum())
-    return {
-        "adapted": {**adapted.as_dict(), "probes": int(run.rows.size),
-                    "probes_scored": scored, "probes_used": int(run.accepted.sum()),
-                    "probes_refused": int((~run.accepted).sum()),
-                    "applied_moves": run.adapter.applied_moves,
-                    "stand_downs": run.adapter.stand_downs,
-                    "standing_down": run.adapter.standing_down,
-                    "bias_um": run.adapter.bias_um,
-                    "estimated_bias_um": run.adapter.estimated_bias_um,
-                    "bias_sigma_um": run.adapter.bias_sigma_um,
-                    "residue_rms_um": rms["adapted"],
-                    "plain_residue_rms_um": rms["plain"]},
-        "crude": {**crude.as_dict(), "probes": int(run.rows.size),
-                  "residue_rms_um": rms["crude"]},
-        "adaptation": dataclasses.asdict(params),
-        "adaptation_from": "defaults" if args_defaults else "model",
-    }
+    return ProbeRequest(
+        every_min=args.probe_every_min, noise_um=args.probe_noise_um, seed=args.probe_seed,
+        gains=args.gains, defaults_only=args.adaptation_defaults,
+        settings=tuple((f, getattr(args, _dest(o))) for o, f, _, _ in _SETTINGS
+                       if getattr(args, _dest(o)) is not None),
+        init=args.init or "estimate", output=args.output)
 
 
 def lines(plain: CompensationFigures, extra: dict[str, Any], every_min: float,
@@ -198,38 +166,6 @@ def lines(plain: CompensationFigures, extra: dict[str, Any], every_min: float,
         f"RMS {c['residue_rms_um']:.3f} µm, Δpk {c['dpk_um']:.3f} µm, range reduction "
         f"{c['range_reduction']:.2f}-fold ({ratio(c['range_reduction'])})",
     ]
-
-
-def replay(args: argparse.Namespace, model: CompensationModel, record: Record,
-           measured: FloatArray, simulated: FloatArray, first: int
-           ) -> tuple[ProbeRun, dict[str, Any]]:
-    """Run the probes over the replay; RecordError when the figures mean nothing."""
-    import numpy as np
-
-    from compd.offline.probes import run_probes, term_contributions
-    from compd.offline.quality_check import checked_quality
-
-    every_s = 60.0 * args.probe_every_min
-    if every_s < record.period_s:  # a probe at every row is the most there can be
-        from compd.infiles import InputError
-        from compd.sysexits import EX_USAGE
-
-        raise InputError(f"--probe-every-min {args.probe_every_min:g}: shorter than the "
-                         f"record's period of {record.period_s:g} s (at most one probe per "
-                         "row)", EX_USAGE)
-    params = params_from_args(args, model.adaptation)
-    terms = None
-    if params.gains:
-        terms = term_contributions(model, record, steady=args.init == "steady")
-    run = run_probes(simulated, measured, record.time_s, terms, every_s=every_s,
-                     noise_um=args.probe_noise_um, seed=args.probe_seed, params=params)
-    adapted = checked_quality(measured[first:], run.adapted[first:], record.path, args.output)
-    crude = checked_quality(measured[first:], run.crude[first:], record.path, args.output)
-    rms = {name: float(np.sqrt(np.mean((measured[first:] - pred[first:]) ** 2)))
-           for name, pred in (("plain", simulated), ("adapted", run.adapted),
-                              ("crude", run.crude))}
-    return run, figures(run, adapted, crude, first, params, rms,
-                        args.adaptation_defaults or not model.adaptation)
 
 
 def plot_extras(run: ProbeRun | None, time_s: FloatArray) -> dict[str, Any]:

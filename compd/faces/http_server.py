@@ -1,8 +1,8 @@
 """A bounded HTTP/1.1 server for the faces (/metrics, the operator page, /status.json).
 
 The standard library's threading servers start a thread per connection: 800
-sockets that each send half a request head made 803 threads, and under the
-shipped unit's ``TasksMax=64`` the daemon could no longer start the thread a
+sockets that each send half a request head make 803 threads, and under the
+shipped unit's ``TasksMax=64`` the daemon then cannot start the thread a
 reload needs. This server has a fixed number of threads whatever the clients
 do: one I/O thread (a `selectors` loop that accepts, reads request heads and
 writes answers, all non-blocking) and `HttpLimits.workers` threads that run

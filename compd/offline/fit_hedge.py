@@ -18,7 +18,6 @@ the calibration's own folds does not see what a later block does.
 
 from __future__ import annotations
 
-import argparse
 import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
@@ -34,6 +33,7 @@ from models.identify.textbook import textbook
 from models.identify.validate import forced_response
 
 if TYPE_CHECKING:
+    from compd.offline.fit_request import FitRun
     from compd.offline.fit_terms import FitTerm
 
 FloatArray = npt.NDArray[np.float64]
@@ -84,7 +84,7 @@ def _merge(terms: list[FitTerm]) -> list[FitTerm]:
     return out
 
 
-def hedge_choice(args: argparse.Namespace, y: FloatArray, seg: Segments, radius: float,
+def hedge_choice(args: FitRun, y: FloatArray, seg: Segments, radius: float,
                  sel: Selection, specs: list[tuple[str, dict[str, float]]],
                  us: list[FloatArray], rel: list[bool], pool: dict[str, FloatArray],
                  terms: list[FitTerm], summary: dict[str, Any],
@@ -100,8 +100,8 @@ def hedge_choice(args: argparse.Namespace, y: FloatArray, seg: Segments, radius:
 
     names = [n for n, _ in specs]
     chosen = sel.chosen
-    if args.structure not in ("auto", "arx"):
-        chosen = next((c for c in sel.candidates if c.structure == args.structure), chosen)
+    if args.request.structure not in ("auto", "arx"):
+        chosen = next((c for c in sel.candidates if c.structure == args.request.structure), chosen)
     cands = [c for c in sel.candidates if c.heldout_residuals and (
         c is chosen or (not c.rejected and math.isfinite(c.validation_fit_pct)))]
     if chosen not in cands:
@@ -121,7 +121,7 @@ def hedge_choice(args: argparse.Namespace, y: FloatArray, seg: Segments, radius:
     members: list[list[FitTerm]] = [
         [FitTerm(n, inputs, u, num, den, r) for (n, inputs), u, num, den, r
          in zip(specs, us, c.model.nums, c.model.term_dens(), rel, strict=True)] for c in cands]
-    # a fallback's hedge (`compd.commands.fit_fallback`) reads only these channels
+    # a fallback's hedge (`compd.offline.fit_fallback`) reads only these channels
     allowed = getattr(args, "hedge_channels", None)
     for alt_names, alt in getattr(args, "search_alternatives", []):
         if sorted(alt_names) == sorted(names) or (
@@ -170,7 +170,7 @@ def hedge_choice(args: argparse.Namespace, y: FloatArray, seg: Segments, radius:
                 **({"rejected": why} if why else {})})
     st = stability(errors)
     at = cands.index(chosen)
-    weights = hedge(st.shares, at) if args.structure == "auto" else [(at, 1.0)]
+    weights = hedge(st.shares, at) if args.request.structure == "auto" else [(at, 1.0)]
     info: dict[str, Any] = {
         "share": st.shares[at], "chosen": labels[at], "blocks": st.blocks, "draws": DRAWS,
         "block_wins": st.block_wins[at],
@@ -182,7 +182,7 @@ def hedge_choice(args: argparse.Namespace, y: FloatArray, seg: Segments, radius:
         "left_out": left_out}
     tb_at = len(labels) - 1 if labels[-1].startswith("textbook") else None
     searched = getattr(args, "search_pool", None) is not None
-    if tb_at is not None and TEXTBOOK_SHARE > 0.0 and args.structure == "auto" and searched:
+    if tb_at is not None and TEXTBOOK_SHARE > 0.0 and args.request.structure == "auto" and searched:
         mixed = [(i, w * (1.0 - TEXTBOOK_SHARE)) for i, w in weights if i != tb_at]
         kept = sum(w for i, w in weights if i == tb_at) * (1.0 - TEXTBOOK_SHARE)
         weights = [*mixed, (tb_at, kept + TEXTBOOK_SHARE)]

@@ -19,6 +19,7 @@ from compd.sysexits import EX_USAGE
 from models.errors import ModelError
 
 if TYPE_CHECKING:
+    from compd.offline.fit_request import FitRun
     from compd.offline.records import Record
     from models.identify.subsets import SubsetSearch
 
@@ -78,30 +79,31 @@ def progress_bar(enabled: bool) -> Callable[[int, int], None] | None:
     return show
 
 
-def search_inputs(args: Any, records: list[Record], ys: list[Any], radius: float
+def search_inputs(args: FitRun, records: list[Record], ys: list[Any], radius: float
                   ) -> tuple[list[str], list[dict[str, Any]]]:
     """(chosen channels, table of subsets tried)."""
     from compd.offline.fit_terms import usable_rows
     from models.identify.segments import Segments
     from models.identify.subsets import search_subsets
 
-    names = expand_candidates(list(args.candidates), records[0], args.output)
+    names = expand_candidates(list(args.request.candidates), records[0], args.request.output)
     if len(names) > MAX_CANDIDATES:
-        raise InputError(f"--candidates {' '.join(args.candidates)}: matches {len(names)} "
+        raise InputError(f"--candidates {' '.join(args.request.candidates)}: matches {len(names)} "
                          f"columns; at most {MAX_CANDIDATES} (the search tries each in every "
                          "round: narrow the patterns)", EX_USAGE)
     for r in records[1:]:
         r.require(names)
-    if args.max_terms < 1:
-        raise ModelError(f"--max-terms {args.max_terms}: must be >= 1")
+    if args.request.max_terms < 1:
+        raise ModelError(f"--max-terms {args.request.max_terms}: must be >= 1")
     seg = Segments.from_lengths([len(r) for r in records])
-    show = progress_bar(sys.stderr.isatty() and not args.json)
+    show = progress_bar(sys.stderr.isatty() and not args.request.json)
     y, cands = np.concatenate(ys), candidate_inputs(records, names)
     searches: dict[str, SubsetSearch] = {}
     try:
         for screen in SCREENS:
-            searches[screen] = search_subsets(y, cands, max_terms=args.max_terms,
-                                              na_range=args.orders, nb_range=args.orders,
+            searches[screen] = search_subsets(y, cands, max_terms=args.request.max_terms,
+                                              na_range=args.request.orders,
+                                              nb_range=args.request.orders,
                                               segments=seg, radius=radius, folds=args.folds,
                                               screen=screen, progress=show,
                                               usable=usable_rows(args))
@@ -126,7 +128,7 @@ def search_inputs(args: Any, records: list[Record], ys: list[Any], radius: float
     return list(found.best), table
 
 
-def _better_validated(args: Any, y: Any, cands: dict[str, Any], seg: Any, radius: float,
+def _better_validated(args: FitRun, y: Any, cands: dict[str, Any], seg: Any, radius: float,
                       searches: dict[str, SubsetSearch]) -> SubsetSearch:
     """The screens' winners, when they differ, judged by what `compd fit`
     will do with them: every structure validated forward at full rate

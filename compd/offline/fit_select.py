@@ -4,10 +4,9 @@ summary the command prints and writes as provenance."""
 
 from __future__ import annotations
 
-import argparse
 import math
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -22,6 +21,9 @@ from models.identify.structures import (
     select_structure,
 )
 
+if TYPE_CHECKING:
+    from compd.offline.fit_request import FitRun
+
 FloatArray = npt.NDArray[np.float64]
 
 #: how `compd fit` names each validation scheme
@@ -30,18 +32,18 @@ VALIDATION_WORDS = {"blocked": "blocked cross-validation",
                     "both": "blocked and forward validation pooled"}
 
 
-def run_selection(args: argparse.Namespace, y: FloatArray, us: list[FloatArray], seg: Segments,
+def run_selection(args: FitRun, y: FloatArray, us: list[FloatArray], seg: Segments,
                   radius: float, holdout: Any, names: list[str] | None = None,
                   veto: Any = None) -> Selection:
     """The selection for `--structure` (auto: every structure), on the usable
     rows (`usable_rows`); `veto`: why a candidate must not be chosen (`compd
     fit`: a model `compd check` warns about)."""
-    structures = STRUCTURES if args.structure == "auto" else ("arx", args.structure)
+    structures = STRUCTURES if args.request.structure == "auto" else ("arx", args.request.structure)
     if args.folds < 2:
         raise ModelError(f"--folds {args.folds}: cross-validation needs at least 2 folds")
     h = None if holdout is None else (holdout.y, list(holdout.inputs), holdout.segments)
     try:
-        return select_structure(y, us, na_range=args.orders, nb_range=args.orders,
+        return select_structure(y, us, na_range=args.request.orders, nb_range=args.request.orders,
                                 segments=seg, radius=radius, folds=args.folds,
                                 structures=structures, holdout=h, names=names,
                                 usable=usable_rows(args), veto=veto)
@@ -104,7 +106,7 @@ def worse_than_none(summary: dict[str, Any]) -> str | None:
             "µm): compensation would make the machine worse")
 
 
-def select_for_fit(args: argparse.Namespace, y: FloatArray, us: list[FloatArray],
+def select_for_fit(args: FitRun, y: FloatArray, us: list[FloatArray],
                    seg: Segments, radius: float, holdout: Any,
                    specs: list[tuple[str, dict[str, float]]], rel: list[bool],
                    pool: dict[str, FloatArray] | None = None, veto: Any = None,
@@ -126,7 +128,7 @@ def select_for_fit(args: argparse.Namespace, y: FloatArray, us: list[FloatArray]
     sel = run_selection(args, y, us, seg, radius, holdout, names, veto)
     how = "held-out records" if holdout is not None else \
         f"{VALIDATION_WORDS[DEFAULT_VALIDATION]}, {args.folds} folds"
-    summary = summarise(sel, args.structure, how)
+    summary = summarise(sel, args.request.structure, how)
     model = summary.pop("_model")
     terms = [FitTerm(n, inputs, u, num, den, r) for (n, inputs), u, num, den, r
              in zip(specs, us, model.nums, model.term_dens(), rel, strict=True)]

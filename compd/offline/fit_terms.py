@@ -3,11 +3,14 @@ is made of (`FitTerm`) and the rows every loss may count (`usable_rows`)."""
 
 from __future__ import annotations
 
-import argparse
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
+
+if TYPE_CHECKING:
+    from compd.offline.fit_request import FitRun
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -25,16 +28,16 @@ class FitTerm:
     relative: bool
 
 
-def usable_rows(args: argparse.Namespace) -> npt.NDArray[np.bool_] | None:
+def usable_rows(args: FitRun) -> npt.NDArray[np.bool_] | None:
     """The rows of the records (concatenated) that every loss, fold and
     prefilter may count, or None (every row): the calibration window
     (``args.fit_window``, set from ``--from``) less the rows held out
-    (``args.exclude_rows``: no flag sets it; a caller that scores the whole
+    (``args.request.exclude_rows``: no flag sets it; a caller that scores the whole
     procedure on rows it holds out, benchmarks/bench_real_record.py, sets it).
     The rows outside still run through every model from each record's start,
     as the daemon runs it; they are never fitted nor validated on."""
     window = getattr(args, "fit_window", None)
-    ex = getattr(args, "exclude_rows", None)
+    ex = args.request.exclude_rows
     masks: list[npt.NDArray[np.bool_]] = []
     if window is not None:
         masks.append(np.asarray(window, dtype=np.bool_))

@@ -31,7 +31,7 @@ if TYPE_CHECKING:  # numpy and the model load when a replay runs: `compd --help`
     import numpy as np
     import numpy.typing as npt
 
-    from compd.offline.records import Record
+    from compd.offline.records import Record, Samples
     from models.compensation import CompensationModel
 
     FloatArray = npt.NDArray[np.float64]
@@ -53,13 +53,9 @@ def check_period(model: CompensationModel, record: Record) -> None:
                           "coefficients do not apply (refit it at this period)")
 
 
-def replay_model(model: CompensationModel, record: Record, *, steady: bool = False
-                 ) -> FloatArray:
-    """δZ predicted at every row, stepping the model as the daemon does
-    (from rest, or from the steady state of the first sample). The model's
-    state is reset first and left as the last row left it."""
-    import numpy as np
-
+def _started(model: CompensationModel, record: Record, steady: bool) -> Samples:
+    """`record`'s samples, `model` reset and referenced to the first (at its steady
+    state there with `steady`), as the daemon starts it."""
     check_period(model, record)
     record.require(model.channels)
     samples = record.samples()
@@ -67,8 +63,33 @@ def replay_model(model: CompensationModel, record: Record, *, steady: bool = Fal
     model.set_references(samples[0])
     if steady:
         model.steady_state(samples[0])
+    return samples
+
+
+def replay_model(model: CompensationModel, record: Record, *, steady: bool = False
+                 ) -> FloatArray:
+    """δZ predicted at every row, stepping the model as the daemon does
+    (from rest, or from the steady state of the first sample). The model's
+    state is reset first and left as the last row left it."""
+    import numpy as np
+
+    samples = _started(model, record, steady)
     step = model.step
     return np.fromiter((step(s) for s in samples), dtype=np.float64, count=len(samples))
+
+
+def replay_terms(model: CompensationModel, record: Record, *, steady: bool = False
+                 ) -> FloatArray:
+    """Each term's contribution at every row (rows × terms), from the replay
+    `replay_model` steps (the same start, one step per row)."""
+    import numpy as np
+
+    samples = _started(model, record, steady)
+    out = np.empty((len(samples), len(model.terms)))
+    for k, s in enumerate(samples):
+        model.step(s)
+        out[k] = model.contributions
+    return out
 
 
 def replay_with_init(model: CompensationModel, record: Record, measured: FloatArray,

@@ -1,13 +1,17 @@
-"""Probes replayed offline: the estimator of `models.adaptation` run beside a model
-over a record (`compd replay --probe-every-min`), and the noise settings a record
-suggests for it (`compd fit --adaptation`).
+"""Probes replayed offline: the daemon's own probe stage
+(`compd.core.adaptation.ProbeStage`, around the estimator of `models.adaptation`)
+run beside a model over a record (`compd replay --probe-every-min`), and the noise
+settings a record suggests for it (`compd fit --adaptation`).
 
 Probes: every `every_s` seconds of the record (the first at t0 + every_s), the
 value of the measured column at that row, plus seeded Gaussian noise of
 `noise_um` (0: the column as it is, already carrying its own measurement
-noise). At each row the adapted prediction uses the correction known BEFORE
-that row's probe (a probe changes the offset of the cycles after it, as in
-the daemon); then the probe is weighed.
+noise). The stage steps once per row, its time running as the daemon's cycle
+runs it (one period at the first row). At each row the adapted prediction uses
+the correction known BEFORE that row's probe: the probe is the row's own
+measurement, so it changes the correction of the rows after it; the daemon,
+whose probe is a measuring cycle read later, applies it in the cycle that
+reads it (tests/compd/test_probe_replay_stage.py holds the two together).
 
 Beside it, in the same run, the crude correction a textbook would start from:
 the residual measured at each probe (probe - model) held until the next one.
@@ -60,9 +64,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from compd.offline.records import Record
 from models.adaptation import AdaptationParams, Adapter
-from models.compensation import CompensationModel
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -88,27 +90,21 @@ def probe_rows(time_s: FloatArray, every_s: float) -> IntArray:
     return np.unique(rows[rows < t.size]).astype(np.int64)
 
 
-def term_contributions(model: CompensationModel, record: Record, *,
-                       steady: bool = False) -> FloatArray:
-    """Each term's contribution at every row (rows × terms), stepped as the daemon does."""
-    samples = record.samples()
-    model.reset()
-    model.set_references(samples[0])
-    if steady:
-        model.steady_state(samples[0])
-    out = np.empty((len(samples), len(model.terms)))
-    for k, s in enumerate(samples):
-        model.step(s)
-        out[k] = model.contributions
-    return out
-
-
 def run_probes(simulated: FloatArray, measured: FloatArray, time_s: FloatArray,
                terms: FloatArray | None, *, every_s: float, noise_um: float, seed: int,
                params: AdaptationParams) -> ProbeRun:
-    """Run the estimator and the crude correction beside `simulated` (see the docstring)."""
+    """Run the daemon's probe stage and the crude correction beside `simulated`
+    (see the docstring). The stage (`compd.core.adaptation.ProbeStage`, applying,
+    the probe measuring the displacement) steps once per row with that row's
+    model output and terms; the probe taken at a row reaches it in a cycle of
+    its own right after the row (no time passes), so the row's prediction is
+    made before its own measurement is known."""
+    from compd.core.adaptation import AdaptationSettings, ProbeReading, ProbeStage
+    from compd.core.events import Event
+
     n_terms = 1 if terms is None else int(terms.shape[1])
-    adapter = Adapter(params, n_terms)
+    settings = AdaptationSettings("apply", "displacement", params, guard_window=0)
+    stage = ProbeStage(settings, n_terms)
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(13,)))
     rows = probe_rows(time_s, every_s)
     values = measured[rows] + noise_um * rng.standard_normal(rows.size)
@@ -116,19 +112,29 @@ def run_probes(simulated: FloatArray, measured: FloatArray, time_s: FloatArray,
     adapted = np.empty_like(simulated)
     crude = np.empty_like(simulated)
     held, j = 0.0, 0
-    no_terms: tuple[float, ...] = ()
+    events: list[Event] = []  # the daemon's events: the figures need none of them
+    reading: ProbeReading | None = ProbeReading(math.nan, 0.0)  # the counter's baseline
+    # the daemon's first cycle counts one period, as each cycle after it
+    first_dt = float(time_s[1] - time_s[0]) if time_s.size > 1 else 0.0
     for k in range(simulated.size):
-        row_terms = no_terms if terms is None else terms[k].tolist()
-        if k:
-            adapter.advance(float(time_s[k] - time_s[k - 1]))
-        adapted[k] = simulated[k] + adapter.correction_um(row_terms)
-        crude[k] = simulated[k] + held
+        model_um = float(simulated[k])
+        # without gains the estimator reads no term: the output stands for the one
+        row_terms = [model_um] if terms is None else terms[k].tolist()
+        dt = float(time_s[k] - time_s[k - 1]) if k else first_dt
+        adapted[k] = model_um + stage.step(dt, reading, complete=True, model_um=model_um,
+                                           terms_um=row_terms, offset_in_force_um=None,
+                                           events=events)
+        reading = None
+        crude[k] = model_um + held
         if j < rows.size and rows[j] == k:
             z = float(values[j])
-            accepted[j] = adapter.update(z, float(simulated[k]), row_terms).accepted
-            held = z - float(simulated[k])
+            stage.step(0.0, ProbeReading(z, float(j + 1)), complete=True, model_um=model_um,
+                       terms_um=row_terms, offset_in_force_um=None, events=events)
+            accepted[j] = stage.last is not None and stage.last["accepted"] is True
+            held = z - model_um
             j += 1
-    return ProbeRun(adapted, crude, rows, values, accepted, adapter)
+        events.clear()
+    return ProbeRun(adapted, crude, rows, values, accepted, stage.adapter)
 
 
 #: the prior's weight is the probe spacings the calibration spans, at most this many

@@ -4,11 +4,11 @@ against the host.
 
 The daemon often runs as root (or as a DynamicUser whose state directory a
 privileged user can reach), so its state directory is a target: a symbolic
-link planted at ``compd.lock`` made the lock truncate the file it pointed at,
-one at the checkpoint's temporary name made the checkpoint overwrite it, and
-(issue 24) a state directory under a world-writable place whose parents compd
-itself had created 0777 could be renamed away and replaced by a link, so that
-the root daemon replaced another directory's ``checkpoint.json``.
+link planted at ``compd.lock`` would make the lock truncate the file it points
+at, one at the checkpoint's temporary name would make the checkpoint overwrite
+it, and a state directory under a world-writable place, whose parents compd
+itself created 0777, could be renamed away and replaced by a link, so that the
+root daemon would replace another directory's ``checkpoint.json``.
 
 - `StateDir.open` walks the path one component at a time from ``/`` (each
   opened ``O_DIRECTORY | O_NOFOLLOW`` relative to the one before), creates

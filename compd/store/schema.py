@@ -13,11 +13,11 @@ the order first seen. Table ``probes``: one row per probe ([adaptation]).
 
 Channel values are stored once, in the JSON column. ``channel_values`` (seq,
 channel, value, validity) is a view over it for a SQL client or Grafana (one
-row per sample and channel, value REAL). A compd before this layout kept a
+row per sample and channel, value REAL). A file of an older layout holds a
 table of that name beside the JSON, the same values twice (+40 % bytes per
 row): `upgrade` drops it (its values are all in the JSON) and creates the
-view, whose INSTEAD OF triggers let such an older compd, run again on the
-upgraded file, go on writing its rows (into the JSON, as before).
+view, whose INSTEAD OF triggers let an older compd, run again on the
+upgraded file, go on writing its rows (into the JSON).
 """
 
 from __future__ import annotations

@@ -31,7 +31,7 @@ Everything else up to input 31 / holding 63 (or the sizes given) reads as 0;
 beyond is an illegal address (exception code 2), e.g. `BAD_ADDRESS`.
 
 The server keeps pymodbus's SimDevice datastore (`SimData` addresses are the
-wire addresses: no off-by-one as with the old sequential blocks). For tests it
+wire addresses, where pymodbus's sequential blocks are one off from them). For tests it
 counts every request it receives (`requests`), and can answer a chosen
 register range with an exception code (`inject_exception`) or stall every
 request until released (`set_hang`).

@@ -97,7 +97,8 @@ class ShopChange:
                              "and ramp_h >= 0")
 
 
-#: the issue's day with a change: the room 3 K warmer and a heat source 30 % stronger
+#: the day with a change the adaptation is judged on (docs/adaptation.md,
+#: benchmarks/bench_adaptation.py): the room 3 K warmer and a heat source 30 % stronger
 DAY_WITH_A_CHANGE = ShopChange(ambient_k=3.0, heat_factor=1.3)
 
 _CHANGE_ITEM = re.compile(r"^(ambient)([+-]\d+(?:\.\d+)?)K$|^(heat)([+-]\d+(?:\.\d+)?)%$")

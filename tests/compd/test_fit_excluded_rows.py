@@ -1,4 +1,4 @@
-"""Rows masked from every loss of `compd fit` (``args.exclude_rows``, set by
+"""Rows masked from every loss of the fit (`FitRequest.exclude_rows`, set by
 benchmarks/bench_real_record.py to hold a block out): whatever the
 displacement does there, the model written is the same, and the simulation
 still runs through them (the record is not cut)."""
@@ -10,8 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from compd.cli import build_parser
 from compd.infiles import load_model
+from compd.offline.fit import fit_model, save_model
+from compd.offline.fit_request import FitRequest
 
 
 def _record(path: Path, spoil: bool) -> None:
@@ -30,11 +31,9 @@ def _record(path: Path, spoil: bool) -> None:
 
 
 def _fit(data: Path, out: Path, held: np.ndarray | None) -> None:
-    args = build_parser().parse_args(["fit", str(data), "--column", "dz_um", "--term",
-                                      "t1_degC", "--orders", "2-2", "-o", str(out), "--json"])
-    if held is not None:
-        args.exclude_rows = held
-    assert args._run(args) == 0
+    fit = fit_model(FitRequest(data=(str(data),), output="dz_um", term=("t1_degC",),
+                               orders=(2, 2), exclude_rows=held))
+    save_model(fit.model, out)
     assert load_model(out).terms
 
 

@@ -107,9 +107,9 @@ def test_an_average_check_warns_about_is_not_written(
         capsys: pytest.CaptureFixture[str]) -> None:
     """An average is a model of its own: when `compd check` would warn about it,
     the choice is written alone (its terms only), and that is said."""
-    from compd.commands.fit_checks import CheckVeto
     from compd.infiles import load_model
     from compd.offline import fit_hedge
+    from compd.offline.fit_checks import CheckVeto
 
     monkeypatch.setattr(fit_hedge, "TEXTBOOK_SHARE", 0.5)
     real = CheckVeto.terms
@@ -164,19 +164,17 @@ def test_no_fallback_reads_a_chosen_input_the_average_left_out(tmp_path: Path) -
     """An average may leave a chosen input out (another screen's winner alone won the
     draws): the model reads t1 only, though t1 and t2 were chosen. Its fallbacks are
     fitted on what it reads, never on t2 (the model file would be refused)."""
-    from compd.cli import build_parser
-    from compd.commands.fit_fallback import fit_fallbacks
+    from compd.offline.fit_fallback import fit_fallbacks
+    from compd.offline.fit_request import FitRequest, FitRun
     from compd.offline.records import read_record
 
     data = tmp_path / "rec.csv"
     _record(data, 0.02, 8)
-    args = build_parser().parse_args(["fit", str(data), "--column", "dz_um", "--term",
-                                      "t1_degC", "--term", "t2_degC", "--orders", "1-1",
-                                      "-o", str(tmp_path / "m.toml")])
-    args.folds = 4
+    run = FitRun.of(FitRequest(data=(str(data),), output="dz_um", term=("t1_degC", "t2_degC"),
+                               orders=(1, 1)))
     record = read_record(str(data))
     specs = [("t1_degC", {"t1_degC": 1.0}), ("t2_degC", {"t2_degC": 1.0})]
-    out = fit_fallbacks(args, [record], [record.column("dz_um")], specs, [], [],
+    out = fit_fallbacks(run, [record], [record.column("dz_um")], specs, [], [],
                         reads={"t1_degC"})
     assert not out.models
     assert out.notes == ["no fallback without t1_degC: no term is left without it"]

@@ -19,7 +19,7 @@ for it; the file is written (temp file, fsync, rename, fsync of the directory)
 on one of the process's disk threads (`compd.runtime.diskwriter`, the state
 directory's), in the order the saves were asked for. The loop awaits its due
 saves (`save_async`: the machine's next cycle starts after its checkpoint is
-on disk, as before, while the other machines of the process cycle on); `save`
+on disk, while the other machines of the process cycle on); `save`
 waits on the thread (shutdown, ``--once``, an operator's hold: the caller goes
 on once the file is there).
 """

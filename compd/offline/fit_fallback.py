@@ -3,7 +3,7 @@ others, fitted and validated the same way on the same records, written into
 the model file as a ``[[fallback]]`` table (`models.modelfile`); the daemon
 switches to it while that input is invalid (`compd.core.fallback`).
 
-A fallback is the main fit run again (`compd.commands.fit._fit_terms`: the
+A fallback is the main fit run again (`compd.offline.fit_identify.identify_terms`: the
 same structure selection, folds, pole bound and checks) on the terms that do
 not read the lost channel (a term ``bearing-column`` goes with either). No
 fallback is written for a channel when no term is left without it, when a
@@ -17,13 +17,14 @@ why, in ``notes``.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
+import dataclasses
 import io
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from compd.offline.fit_request import FitRun
     from compd.offline.records import Record
     from models.compensation import CompensationModel, Term
 
@@ -38,19 +39,19 @@ class Fallbacks:
     notes: list[str] = field(default_factory=list)
 
 
-def fit_fallbacks(args: argparse.Namespace, records: list[Record], ys: list[Any],
+def fit_fallbacks(run: FitRun, records: list[Record], ys: list[Any],
                   specs: list[tuple[str, dict[str, float]]], holdout: list[Record],
                   fixed: list[Term], reads: set[str] | None = None) -> Fallbacks:
     """A fallback for the loss of each input channel the main model `reads`
     (default: those of `specs`; an averaged model also reads its other members'
     channels: `compd.offline.fit_hedge`), module docstring."""
-    from compd.commands.fit import _fit_terms
-    from compd.commands.fit_checks import gate
+    from compd.offline.fit_checks import gate
+    from compd.offline.fit_identify import identify_terms
     from models.compensation import CompensationModel
     from models.errors import ModelError
 
     out = Fallbacks()
-    if args.kind != "tf":
+    if run.request.kind != "tf":
         return out
     channels = sorted(reads if reads is not None else
                       {ch for _, inputs in specs for ch in inputs})
@@ -64,15 +65,14 @@ def fit_fallbacks(args: argparse.Namespace, records: list[Record], ys: list[Any]
         if any(lost in t.channels for t in fixed):
             out.notes.append(f"no fallback without {lost}: a --fixed term reads it")
             continue
-        one = argparse.Namespace(**vars(args))
-        one.force = False  # a fallback worse than none, or one check warns of, is never written
-        # the hedge's other candidates (`compd.offline.fit_hedge`) read only what the
-        # main model reads, never the lost channel
-        one.hedge_channels = set(channels) - {lost}
+        # a fallback worse than none, or one check warns of, is never written (never
+        # forced); the hedge's other candidates (`compd.offline.fit_hedge`) read
+        # only what the main model reads, never the lost channel
+        one = dataclasses.replace(run, force=False, hedge_channels=set(channels) - {lost})
         said = io.StringIO()
         try:
             with contextlib.redirect_stderr(said):
-                terms, info = _fit_terms(one, records, ys, reduced, holdout)
+                terms, info = identify_terms(one, records, ys, reduced, holdout)
                 model = CompensationModel(
                     fixed + terms, records[0].period_s, name=f"without {lost}",
                     description=f"compd fit: the model without {lost}")
