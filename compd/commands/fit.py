@@ -473,6 +473,9 @@ def _provenance(args: argparse.Namespace, records: list[Record],
         prov["samples_per_record"] = [len(r) for r in records]
     if args.validation_record:
         prov["validation_records"] = [str(p) for p in args.validation_record]
+    if getattr(args, "positions", False):  # what compd replay --slope-model checks
+        prov["positions_column"] = args.output
+        prov["reference_position_mm"] = args.reference_position_mm
     if args.fit_from is not None:
         prov["calibrated_from_s"] = args.fit_from
     if args.fit_until is not None:
