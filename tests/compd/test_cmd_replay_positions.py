@@ -5,6 +5,8 @@ refusals (one line, a sysexits code)."""
 from __future__ import annotations
 
 import json
+import re
+import shlex
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -165,3 +167,28 @@ def test_without_a_column_or_a_slope_model_replay_says_what_it_needs(
               str(fitted.held))
     _one_line(capsys, EX_USAGE, "--reference-position-mm goes with --slope-model",
               str(fitted.value), str(fitted.held), "--reference-position-mm", "5")
+
+
+def _docs_blocks() -> list[str]:
+    text = (Path(__file__).resolve().parents[2] / "docs" / "calibration.md").read_text(
+        encoding="utf-8")
+    section = text[text.index("### Along an axis: a value and a slope"):]
+    return re.findall(r"```\n(.*?)```", section.replace("\\\n", " "), flags=re.S)
+
+
+def test_calibration_md_quotes_what_its_commands_print(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """§7's fit commands and its replay, run as written: the table quoted is the one
+    replay prints."""
+    fits, replay = _docs_blocks()[:2]
+    monkeypatch.chdir(tmp_path)
+    for line in fits.strip().splitlines():
+        assert main(shlex.split(line)[1:]) == 0, line
+    commands = [ln.removeprefix("$ ") for ln in replay.splitlines() if ln.startswith("$ ")]
+    quoted = [ln for ln in replay.splitlines() if ln and not ln.startswith("$ ")]
+    assert len(commands) == 2 and len(quoted) == 9
+    for command in commands:
+        capsys.readouterr()
+        assert main(shlex.split(command)[1:]) == 0, command
+    assert [ln.rstrip() for ln in capsys.readouterr().out.splitlines()] == quoted
