@@ -105,6 +105,7 @@ def test_the_recorder_settings_name_a_column_per_position(tmp_path: Path) -> Non
     for x in (0, 250, 500, 750, 1000):
         assert f'# [channels."dx_at_{x}mm_um"]' in side
     assert "--positions --reference-position-mm 0.0 --column slope_um_m" in side
+    assert "(linuxcnc; 6 h of schedule, 13 measuring passes, every 30 min)" in side
     assert "dz_um" not in side
 
 

@@ -55,7 +55,8 @@ def _header(program: PurePath, exp: Experiment, dialect: str, time_scale: float,
     db = database_name(program)
     hours = exp.duration_ms / 3_600_000
     every = ("no measuring cycle" if exp.probe_every_ms is None else
-             f"{exp.measurements} measuring cycles, every {exp.probe_every_ms / 60_000:g} min")
+             f"{exp.measurements} measuring {'passes' if positions_mm else 'cycles'}, every "
+             f"{exp.probe_every_ms / 60_000:g} min")
     if source is None:
         what = [
             "# NOT YET RUNNABLE: add your machine's [controller] and [channels] tables (as in",
