@@ -192,3 +192,20 @@ def test_calibration_md_quotes_what_its_commands_print(
         capsys.readouterr()
         assert main(shlex.split(command)[1:]) == 0, command
     assert [ln.rstrip() for ln in capsys.readouterr().out.splitlines()] == quoted
+
+
+def test_models_that_do_not_say_take_the_position_asked_else_zero(fitted: Fitted) -> None:
+    from compd.infiles import load_model
+    from compd.offline.position_replay import LineModelError, check_line_models
+
+    value, slope = load_model(str(fitted.value)), load_model(str(fitted.slope))
+    assert check_line_models(value, slope, None) == (0.0, "models")
+    for m in (value, slope):  # a model written by hand, or by an older compd fit
+        del m.provenance["positions_column"], m.provenance["reference_position_mm"]
+    assert check_line_models(value, slope, None) == (0.0, "default")
+    assert check_line_models(value, slope, 250.0) == (250.0, "asked")
+    slope.provenance["reference_position_mm"] = "0"
+    with pytest.raises(LineModelError, match="is not a position"):
+        check_line_models(value, slope, None, names=("v.toml", "s.toml"))
+    slope.provenance["reference_position_mm"] = 250.0  # one model says, the other does not
+    assert check_line_models(value, slope, None) == (250.0, "models")

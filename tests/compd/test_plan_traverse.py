@@ -10,8 +10,10 @@ from pathlib import Path
 import pytest
 
 from compd.cli import main
+from compd.config.loader import load_config
 from compd.sysexits import EX_USAGE
 
+from .daemon_helpers import write_config
 from .plan_grammar import check_fanuc, check_sinumerik
 from .plan_hostile import RS274, calls_of, run_rs274
 
@@ -166,3 +168,16 @@ def test_a_hostile_probe_call_never_reaches_the_program(tmp_path: Path,
     text = _plan(tmp_path, [*BASE, "--dialect", "linuxcnc"])
     for comment in re.findall(r"\(([^()]*)\)", text):
         assert not comment.lstrip().upper().startswith(("MSG", "LOG", "PY", "DEBUG", "ABORT"))
+
+
+def test_with_the_machines_config_the_recorder_settings_run_as_they_are(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    machine = write_config(tmp_path, "modbus://127.0.0.1:5020")
+    _plan(tmp_path, [*BASE, "--dialect", "linuxcnc", "--config", str(machine)])
+    path = tmp_path / "tr.recorder.toml"
+    loaded = load_config(path)
+    assert loaded.recorder_only and not loaded.outputs
+    assert loaded.channels == load_config(machine).channels
+    text = path.read_text(encoding="utf-8")
+    assert "compd run tr.recorder.toml" in text
+    assert '# [channels."dx_at_500mm_um"]' in text  # the machine's config has none yet
