@@ -25,6 +25,13 @@ Or two records of one's own:
 
 A record without two or more ``dx_at_<x>mm_um`` columns is refused with one
 line on stderr (exit 65).
+
+The issue's other figures, from the same script:
+
+    .venv/bin/python benchmarks/bench_axes.py --real [--blocks …] [ch1 …]
+        the real record's five channels fitted as five axes (`bench_axes_real`)
+    .venv/bin/python benchmarks/bench_axes.py --cost [--cycles N]
+        three axes (value + slope each) against one per cycle (`bench_axes_cost`)
 """
 
 from __future__ import annotations
@@ -149,6 +156,15 @@ def report(train: PositionRecord, heldout: PositionRecord,
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["--real"]:
+        import bench_axes_real
+
+        return bench_axes_real.main(argv[1:])
+    if argv[:1] == ["--cost"]:
+        import bench_axes_cost
+
+        return bench_axes_cost.main(argv[1:])
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--train", metavar="CSV", help="training record (default: simulated)")
     parser.add_argument("--heldout", metavar="CSV", help="held-out record (default: simulated)")

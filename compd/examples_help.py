@@ -37,7 +37,9 @@ examples:
 examples:
   compd replay plant.toml spectrum.csv --column dz_um --plot replay.png
   compd replay sp2 /var/lib/compd/samples.sqlite --column dz_um --json
-  compd replay plant.toml spectrum.csv --column dz_um --probe-every-min 120 --probe-noise-um 0.5""",
+  compd replay plant.toml spectrum.csv --column dz_um --probe-every-min 120 --probe-noise-um 0.5
+  compd replay x_value.toml held.csv --slope-model x_slope.toml
+      (a record measured at several positions: the error at each, before and after the line)""",
     "report": """\
 examples:
   compd report plant.toml constant.csv etve.csv spectrum.csv -o report.html
@@ -76,7 +78,10 @@ examples:
   compd plan --hours 24 --speeds 2000,4000,8000 --rest-h 3 --dialect fanuc -o O1000.nc \\
       --probe-every-min 15 --safe-position Z=150 --probe-call 'G65 P9810 Z-10. F500.'
   compd plan --hours 24 --speeds 2000,4000,8000 --dialect sinumerik -o WARMUP.MPF \\
-      --probe-every-min 15 --safe-position Z=150 --probe-call 'CYCLE978(0,1,,1,-10,100,,3,1)'""",
+      --probe-every-min 15 --safe-position Z=150 --probe-call 'CYCLE978(0,1,,1,-10,100,,3,1)'
+  compd plan --traverse X --positions 0,250,500,750,1000 --duties 25,50,90 --hours 24 \\
+      --probe-every-min 30 --safe-position Z=100 --dialect linuxcnc -o x_traverse.ngc
+      (the axis moving as the heat source, a measuring pass stopping at every position)""",
     "schema": """\
 examples:
   compd schema > compd.schema.json            the config's JSON Schema, for editors

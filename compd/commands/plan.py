@@ -21,10 +21,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from compd.argtypes import count, number
+from compd.commands import plan_traverse
 from compd.sysexits import EX_USAGE
 
 if TYPE_CHECKING:
     from compd.offline.plan.calls import ProbeCall
+    from compd.offline.plan.program import Program
+    from compd.offline.plan.schedule import Experiment
 
 HELP = "write the calibration experiment (spindle steps, rests, measuring cycles) as G-code"
 
@@ -97,9 +100,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--hours", type=HOURS, required=True,
                         help="the schedule's length in hours (0 < H <= 168): steps and "
                              "rests; the measuring cycles add their own time")
-    parser.add_argument("--speeds", type=speeds, required=True, metavar="RPM,RPM,…",
+    parser.add_argument("--speeds", type=speeds, default=None, metavar="RPM,RPM,…",
                         help="spindle speeds in whole rpm, each once: held rising, rest, "
-                             "then held falling, rest")
+                             "then held falling, rest (required unless --traverse)")
     parser.add_argument("--rest-h", type=REST_H, default=None, metavar="R",
                         help="each of the two rests in hours (default: as long as a step)")
     parser.add_argument("--probe-every-min", type=PROBE_EVERY_MIN, default=None,
@@ -144,6 +147,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "header says so. Never on a real machine (default 1)")
     parser.add_argument("--program-number", type=count(1, 9999), default=1000,
                         help="fanuc: the O number (default 1000)")
+    plan_traverse.add_arguments(parser, max_position_mm=MAX_POSITION_MM)
 
 
 def _position_text(position: dict[str, float]) -> str:
@@ -195,10 +199,8 @@ def _usage(message: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from compd.offline.plan.dialects import Probing, dialect
-    from compd.offline.plan.program import make_program
     from compd.offline.plan.recorder import recorder_config
-    from compd.offline.plan.schedule import PlanError, design
+    from compd.offline.plan.schedule import PlanError
     from compd.outfiles import check_output, write_atomically
 
     out = Path(args.output)
@@ -208,20 +210,17 @@ def run(args: argparse.Namespace) -> int:
     if args.probe_every_min is None and (args.probe_at or args.probe_call):
         return _usage("--probe-at and --probe-call say how to measure: they go with "
                       "--probe-every-min")
+    trouble = plan_traverse.problem(args)
+    if trouble is None and args.traverse is None and args.speeds is None:
+        trouble = "--speeds is required (or --traverse AXIS for the traverse experiment)"
+    if trouble is not None:
+        return _usage(trouble)
     try:
-        words = dialect(args.dialect, program_number=args.program_number)
-        call = None if args.probe_call is None else words.parse_call(args.probe_call)
-        if args.probe_every_min is not None and call is None and args.dialect != "linuxcnc":
-            raise PlanError(f"{args.dialect}: the measuring cycle is yours: give --probe-call")
-        exp = design(args.hours, args.speeds, rest_h=args.rest_h,
-                     probe_every_min=args.probe_every_min)
-        probing = None
-        if args.safe_position is not None or args.probe_at is not None:
-            probing = Probing(safe=args.safe_position or {}, at=args.probe_at or {},
-                              depth_mm=args.probe_depth_mm, feed_mm_min=args.probe_feed,
-                              call=call, spindle_stop_s=args.spindle_stop_s)
-        program = make_program(exp, words, probing, summary=_summary(args, call),
-                               recorder=True, time_scale=args.time_scale)
+        if args.traverse is not None:
+            program, exp, warnings = plan_traverse.build(args)
+        else:
+            program, exp = _spindle_program(args)
+            warnings = exp.warnings
     except PlanError as exc:
         return _usage(str(exc))
     check_output(args.output, "program", force=args.force)  # the text: "dir/" is refused
@@ -230,16 +229,39 @@ def run(args: argparse.Namespace) -> int:
     check_output(side, "recorder settings", force=args.force)
     machine = None if args.config is None else _machine_tables(Path(args.config))
     fragment = recorder_config(out, exp, args.dialect, args.time_scale, machine=machine,
-                               source=args.config)
+                               source=args.config, positions_mm=args.positions or ())
     write_atomically(out, lambda tmp: tmp.write_text(program.text, encoding="ascii"),
                      "program", force=args.force)
     write_atomically(side, lambda tmp: tmp.write_text(fragment, encoding="utf-8"),
                      "recorder settings", force=args.force)
     axes = ", ".join(program.axes) or "none"
     scaled = "" if args.time_scale == 1.0 else f" at time scale {args.time_scale:g}"
+    what = "measuring passes" if args.traverse is not None else "measuring cycles"
     print(f"compd plan: wrote {out} ({args.dialect}, {exp.duration_ms / 3_600_000:g} h of "
           f"schedule, {program.dwell_total_ms / 1000:.3f} s of dwell in all{scaled}, "
-          f"{exp.measurements} measuring cycles, axes moved: {axes}) and {side}")
-    for warning in exp.warnings:  # after the files: a failure stays one line
+          f"{exp.measurements} {what}, axes moved: {axes}) and {side}")
+    for warning in warnings:  # after the files: a failure stays one line
         print(f"compd plan: warning: {warning}", file=sys.stderr)
     return 0
+
+
+def _spindle_program(args: argparse.Namespace) -> tuple[Program, Experiment]:
+    """The spindle experiment's program and schedule; PlanError (one line)."""
+    from compd.offline.plan.dialects import Probing, dialect
+    from compd.offline.plan.program import make_program
+    from compd.offline.plan.schedule import PlanError, design
+
+    words = dialect(args.dialect, program_number=args.program_number)
+    call = None if args.probe_call is None else words.parse_call(args.probe_call)
+    if args.probe_every_min is not None and call is None and args.dialect != "linuxcnc":
+        raise PlanError(f"{args.dialect}: the measuring cycle is yours: give --probe-call")
+    exp = design(args.hours, args.speeds, rest_h=args.rest_h,
+                 probe_every_min=args.probe_every_min)
+    probing = None
+    if args.safe_position is not None or args.probe_at is not None:
+        probing = Probing(safe=args.safe_position or {}, at=args.probe_at or {},
+                          depth_mm=args.probe_depth_mm, feed_mm_min=args.probe_feed,
+                          call=call, spindle_stop_s=args.spindle_stop_s)
+    program = make_program(exp, words, probing, summary=_summary(args, call),
+                           recorder=True, time_scale=args.time_scale)
+    return program, exp

@@ -31,7 +31,7 @@ import sys
 from typing import TYPE_CHECKING, Any
 
 from compd.argtypes import RenamedOption, number
-from compd.commands import replay_probes
+from compd.commands import replay_positions, replay_probes
 from compd.offline.model_replay import INIT_MODES
 from compd.sysexits import EX_DATAERR, EX_USAGE
 
@@ -50,10 +50,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("model", metavar="MODEL", help="model file, or a library name (sp2)")
     parser.add_argument("data", metavar="DATA",
                         help="calibration/verification record (CSV, or a compd recorder .db)")
-    parser.add_argument("--column", "--output", dest="output", required=True,
+    parser.add_argument("--column", "--output", dest="output", default=None,
                         metavar="COLUMN", action=RenamedOption,
-                        help="the measured displacement column (µm); --output is its "
-                             "deprecated spelling")
+                        help="the measured displacement column (µm; required unless "
+                             "--slope-model); --output is its deprecated spelling")
     parser.add_argument("--plot", metavar="PNG", default=None,
                         help="write a figure: inputs above, measured/simulated/residue below")
     parser.add_argument("--force", action="store_true", help="replace an existing --plot file")
@@ -71,6 +71,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "block inside the record)")
     parser.add_argument("--json", action="store_true", help="print the figures as one JSON line")
     replay_probes.add_arguments(parser)
+    replay_positions.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -83,6 +84,12 @@ def run(args: argparse.Namespace) -> int:
     from compd.outfiles import check_figure, write_atomically
     from models.errors import ModelError
 
+    if args.slope_model is not None or args.reference_position_mm is not None:
+        return replay_positions.run(args)  # a line along an axis, scored at its positions
+    if args.output is None:
+        print("compd replay: --column COLUMN is required (the measured displacement; or "
+              "--slope-model for a record measured at several positions)", file=sys.stderr)
+        return EX_USAGE
     problem = replay_probes.usage_problem(args)
     if not problem and args.config is not None:
         if args.init is not None:

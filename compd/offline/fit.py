@@ -123,6 +123,9 @@ def _provenance(run: FitRun, records: list[Record],
         prov["samples_per_record"] = [len(r) for r in records]
     if run.request.validation_record:
         prov["validation_records"] = [str(p) for p in run.request.validation_record]
+    if run.request.positions:  # what compd replay --slope-model checks
+        prov["positions_column"] = run.request.output
+        prov["reference_position_mm"] = run.request.reference_position_mm
     if run.request.fit_from is not None:
         prov["calibrated_from_s"] = run.request.fit_from
     if run.request.fit_until is not None:

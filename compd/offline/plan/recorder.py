@@ -14,11 +14,13 @@ guess a controller's addresses.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import PurePath
 from typing import Any
 
+from compd.offline.plan.dialects import num
 from compd.offline.plan.schedule import Experiment
+from drivers.sim.ballscrew import position_column
 from models import tomltext
 
 #: the displacement channel's name in the fragment and the fit command it suggests
@@ -35,12 +37,26 @@ def database_name(program: PurePath) -> str:
     return f"{program.stem}.sqlite"
 
 
+def _fit_lines(db: str, positions_mm: Sequence[float]) -> list[str]:
+    """The fit command(s) the header suggests: one displacement column, or the value
+    and the slope of the line through the positions (`compd fit --positions`)."""
+    if not positions_mm:
+        return [f"#   compd fit {db} --column {COLUMN} --candidates 't*' --max-terms 3 "
+                "-o plant.toml"]
+    x0 = num(min(positions_mm))
+    return [f"#   compd fit {db} --positions --reference-position-mm {x0} --column value_um",
+            "#       --candidates 't*' --max-terms 3 -o value.toml",
+            f"#   compd fit {db} --positions --reference-position-mm {x0} --column slope_um_m",
+            "#       --candidates 't*' --max-terms 3 -o slope.toml"]
+
+
 def _header(program: PurePath, exp: Experiment, dialect: str, time_scale: float,
-            source: str | None) -> list[str]:
+            source: str | None, positions_mm: Sequence[float] = ()) -> list[str]:
     db = database_name(program)
     hours = exp.duration_ms / 3_600_000
     every = ("no measuring cycle" if exp.probe_every_ms is None else
-             f"{exp.measurements} measuring cycles, every {exp.probe_every_ms / 60_000:g} min")
+             f"{exp.measurements} measuring {'passes' if positions_mm else 'cycles'}, every "
+             f"{exp.probe_every_ms / 60_000:g} min")
     if source is None:
         what = [
             "# NOT YET RUNNABLE: add your machine's [controller] and [channels] tables (as in",
@@ -66,7 +82,7 @@ def _header(program: PurePath, exp: Experiment, dialect: str, time_scale: float,
         "# and stop it after the program's end; then fit on the database (path relative to",
         "# this file):",
         "#",
-        f"#   compd fit {db} --column {COLUMN} --candidates 't*' --max-terms 3 -o plant.toml",
+        *_fit_lines(db, positions_mm),
         "#",
         "# (name your temperature channels in --candidates or --term). One daemon run, one",
         "# database: compd fit refuses a record with a restart inside. [machine] period_s",
@@ -82,31 +98,36 @@ def _header(program: PurePath, exp: Experiment, dialect: str, time_scale: float,
 
 def recorder_config(program: PurePath, exp: Experiment, dialect: str,
                     time_scale: float = 1.0, *, machine: Mapping[str, Any] | None = None,
-                    source: str | None = None) -> str:
+                    source: str | None = None, positions_mm: Sequence[float] = ()) -> str:
     """The recorder config's text; `program` is the program file it belongs to,
     written with every dwell divided by `time_scale`. `machine`: the [machine],
     [controller] and [channels] tables of the machine's config (`source`, its
-    name), copied in; None: left for the user to add."""
+    name), copied in; None: left for the user to add. `positions_mm`: the
+    traverse experiment's measuring positions, one displacement channel each
+    (``dx_at_<x>mm_um``) in place of the one `COLUMN`."""
     db = database_name(program)
     doc: dict[str, Any] = dict(machine or {})
     doc["output"] = {"enabled": False}
     doc["recorder"] = {"enabled": True, "path": db, "commit_every": 10, "retention_days": 0}
     doc["state"] = {"dir": f"{program.stem}.state"}
-    has_column = COLUMN in (machine or {}).get("channels", {})
+    columns = [position_column(x) for x in sorted(positions_mm)] or [COLUMN]
+    has_column = all(c in (machine or {}).get("channels", {}) for c in columns)
     lines = [
-        *_header(program, exp, dialect, time_scale, source if machine else None),
+        *_header(program, exp, dialect, time_scale, source if machine else None,
+                 positions_mm),
         tomltext.dumps(doc, header_depth=3).rstrip("\n"),
         "",
         "# retention_days = 0 keeps every row (the whole run is the record); [state] is",
         "# the run's own, apart from the compensating daemon's checkpoint.",
     ]
     if not has_column:
-        lines += [
-            "#",
-            "# The displacement the measuring cycle leaves, as a channel (the record's column):",
-            f"# [channels.{COLUMN}]",
-            f"# address = ...          # {_where(dialect)}",
-            '# unit = "um"',
-            "# range = [-1000.0, 1000.0]",
-        ]
+        lines += ["#", "# The displacement the measuring cycle leaves, as a channel (the "
+                       "record's column)" + (",\n# one per position:" if positions_mm else ":")]
+        for column in columns:
+            lines += [
+                f"# [channels.{column}]" if column == COLUMN else f'# [channels."{column}"]',
+                f"# address = ...          # {_where(dialect)}",
+                '# unit = "um"',
+                "# range = [-1000.0, 1000.0]",
+            ]
     return "\n".join(lines) + "\n"
