@@ -144,7 +144,7 @@ async def test_the_start_log_line_names_the_version(tmp_path: Path) -> None:
 def test_one_csv_reader_for_records() -> None:
     """drivers/sim/csvlog.py had a second, looser reader (no sampling or cell
     checks): records are parsed in compd/offline/csvstream.py only."""
-    parsers = re.compile(r"csv\.(reader|DictReader)\(|loadtxt\(|genfromtxt\(|def read_record")
+    parsers = re.compile(r"csv\.(reader|DictReader)\(|loadtxt\(|genfromtxt\(|def read_record\(")
     found = sorted(str(p.relative_to(PACKAGES_ROOT))
                    for root in ("compd", "drivers", "models")
                    for p in (PACKAGES_ROOT / root).rglob("*.py")
