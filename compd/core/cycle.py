@@ -87,6 +87,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any
 
 from compd.core.adaptation import ProbeReading, ProbeStage
@@ -106,7 +107,6 @@ from compd.core.modelstep import ModelStepper, finite_or_none
 from compd.core.output import OutputStage, Readback
 from compd.core.params import CycleParams, params_from_config
 from compd.core.plan import WRITTEN, AdaptationView, Outcome, Plan, Row, Snapshot
-from compd.core.record import RecordRow
 from compd.core.validation import Validator
 from drivers.base import Sample
 from models.compensation import CompensationModel
@@ -427,13 +427,20 @@ class Cycle:
         if self.health.foreign:  # its alarm lasts until the output has ramped to its target
             self.health.foreign = self.output.slewing or self.output.held
         writes, offset_um = self._writes(readback_offset_um, offset_um, status, events)
-        row = self._row_fields(now_s, wall_s, inputs, stepped, valid, view, offset_um,
-                               offset_written=self.params.offset_name in writes)
+        recorded = self.params.record_model
         self._planned = Plan(
-            sequence=self.sequence, writes=writes, offset_um=offset_um,
-            model_um=row["model_um"], shadow_um=stepped.shadow_um, state=row["state"],
-            status=status, heartbeat=self.heartbeat, complete=valid, row_fields=row,
-            events=tuple(events), shutdown_done=self._shutdown_done(offset_um), cause=cause)
+            sequence=self.sequence, machine_s=now_s,
+            wall_s=math.nan if wall_s is None else wall_s, writes=MappingProxyType(writes),
+            stage_um=offset_um,
+            sent_um=offset_um if self.params.offset_name in writes else None,
+            model_um=stepped.model_um if recorded else None, shadow_um=stepped.shadow_um,
+            state=recorded_state(view), status=status, heartbeat=self.heartbeat,
+            inputs_valid=valid, cause=cause,
+            channels=MappingProxyType({n: finite_or_none(v) for n, v in inputs.values.items()}),
+            validity=MappingProxyType(inputs.validity),
+            contributions=MappingProxyType(self._contributions(stepped, valid)),
+            probe=self._probe_record(), events=tuple(events),
+            shutdown_done=self._shutdown_done(offset_um))
         return self._planned
 
     def _inputs(self, now_s: float, samples: Mapping[str, Sample] | None,
@@ -586,10 +593,9 @@ class Cycle:
             writes[p.status_name] = float(status)
         return writes, offset_um
 
-    def _row_fields(self, now_s: float, wall_s: float | None, inputs: _Inputs,
-                    stepped: _Stepped, valid: bool, view: HealthView, offset_um: float, *,
-                    offset_written: bool) -> dict[str, Any]:
-        """The record row's fields as planned (`RecordRow`; built once, at commit)."""
+    def _contributions(self, stepped: _Stepped, valid: bool) -> dict[str, float]:
+        """Each term's contribution as recorded, with the fallback's, the shadow's
+        and the adaptation's totals."""
         recorded = self.params.record_model
         contributions = self.models.contributions() if valid and recorded else {}
         if stepped.fallback_for is not None and stepped.model_um is not None and recorded:
@@ -598,16 +604,11 @@ class Cycle:
             contributions["shadow_total"] = stepped.shadow_um
         if self.probes is not None and valid:
             contributions["adaptation"] = self.probes.correction_um
-        written = offset_um if offset_written else None
-        return {"seq": self.sequence, "mono_s": now_s,
-                "wall_s": math.nan if wall_s is None else wall_s, "offset_um": written,
-                "model_um": stepped.model_um if recorded else None,
-                "state": recorded_state(view), "valid": valid,
-                "channels": {n: finite_or_none(v) for n, v in inputs.values.items()},
-                "validity": inputs.validity, "contributions": contributions,
-                "attempted_um": written,
-                "probe": self.probes.last if self.probes is not None else None,
-                "complete": False}
+        return contributions
+
+    def _probe_record(self) -> Mapping[str, Any] | None:
+        last = self.probes.last if self.probes is not None else None
+        return None if last is None else MappingProxyType(dict(last))
 
     def _shutdown_done(self, offset_um: float) -> bool:
         h = self.health
@@ -619,32 +620,38 @@ class Cycle:
     # -- the cycle: commit ----------------------------------------------------------------
 
     def commit(self, outcome: Outcome = WRITTEN) -> Row:
-        """Close the planned cycle with how its writes went; its final row."""
+        """Close the planned cycle with how its writes went; its report."""
         plan, self._planned = self._planned, None
         if plan is None:
             raise RuntimeError("commit() without a plan(): one commit per plan")
-        offset_sent = self.params.offset_name in plan.writes
-        changes: dict[str, Any] = {}
-        events: list[Event] = []
+        offset_sent = plan.sent_um is not None
+        in_force = False
+        events: tuple[Event, ...] = ()
         if outcome.ok:
             if offset_sent:
                 self.output.confirm()
-                changes["complete"] = offset_in_force(cause=plan.cause, confirmed=True)
+                in_force = offset_in_force(cause=plan.cause, confirmed=True)
                 self.health.write_succeeded(self._later)
             elif self.params.recorder_only:  # recorded is what such a run is for
-                changes["complete"] = plan.cause.healthy
+                in_force = plan.cause.healthy
         else:
             if offset_sent:  # retried next cycle from the confirmed value
                 self.output.revert()
-                changes["offset_um"] = None
-            events = self.health.write_failed(
+            events = tuple(self.health.write_failed(
                 outcome.outputs, permanent=outcome.permanent, reason=outcome.reason,
                 offset_failed=offset_sent, offset_name=self.params.offset_name,
-                offset_um=self.output.current_um)
+                offset_um=self.output.current_um))
         cause = self.health.committed_cause(plan.cause,
                                             offset_failed=offset_sent and not outcome.ok)
-        record = RecordRow(**{**plan.row_fields, **changes})
-        return Row(plan, record, self._snapshot(), tuple(events), cause)
+        return Row(
+            sequence=plan.sequence, machine_s=plan.machine_s, wall_s=plan.wall_s,
+            writes=plan.writes, stage_um=plan.stage_um, sent_um=plan.sent_um,
+            write_ok=outcome.ok, confirmed_um=self.output.confirmed_um,
+            model_um=plan.model_um, shadow_um=plan.shadow_um, state=plan.state,
+            status=plan.status, heartbeat=plan.heartbeat, inputs_valid=plan.inputs_valid,
+            in_force=in_force, cause=cause, channels=plan.channels, validity=plan.validity,
+            contributions=plan.contributions, probe=plan.probe, snapshot=self._snapshot(),
+            events=plan.events, write_events=events, shutdown_done=plan.shutdown_done)
 
     def _snapshot(self) -> Snapshot:
         adaptation = None
@@ -659,10 +666,14 @@ class Cycle:
                                         probes_refused=probes.refused,
                                         gate_refusals=probes.gate_refusals)
         m = self.models
-        return Snapshot(self.output.confirmed_um, self.health.operator_hold, adaptation,
-                        pending_um=self.pending_um, zero_um=m.zero_um if m.zero_by else None,
+        # the stepper replaces its references, never changes them in place: a
+        # read-only view of the dict in force is the snapshot's
+        refs = m.references
+        return Snapshot(self.health.operator_hold, adaptation, pending_um=self.pending_um,
+                        zero_um=m.zero_um if m.zero_by else None,
                         model_start=m.init_mode, reference=m.reference_source,
-                        fallback_for=self.fallback_for, references=m.references)
+                        fallback_for=self.fallback_for,
+                        references=None if refs is None else MappingProxyType(refs))
 
     # -- internals ------------------------------------------------------------------------
 

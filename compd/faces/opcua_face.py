@@ -483,7 +483,7 @@ class OpcUaFace:
             return
         rec, snap = result.record, result.snapshot
         values: dict[str, tuple[Any, ua.VariantType]] = {
-            "Offset_um": (_num(snap.confirmed_um), ua.VariantType.Double),
+            "Offset_um": (_num(result.confirmed_um), ua.VariantType.Double),
             "ModelOutput_um": (_num(rec.model_um), ua.VariantType.Double),
             "FaultState": (FAULT_STATES.index(result.state), ua.VariantType.Int32),
             "FaultStateName": (result.state.value, ua.VariantType.String),

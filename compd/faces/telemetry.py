@@ -339,8 +339,11 @@ class MetricsServer:
 class Metrics(MetricsServer):
     """The daemon's Prometheus metrics, in their own registry (`registry`)."""
 
-    def __init__(self, registry: CollectorRegistry | None = None) -> None:
+    def __init__(self, registry: CollectorRegistry | None = None, *,
+                 mono: Callable[[], float] = time.monotonic) -> None:
         self.registry = registry if registry is not None else CollectorRegistry()
+        #: the monotonic clock the last complete cycle's age is judged on (the daemon's)
+        self._mono = mono
         r = self.registry
         self.cycle_seconds = Histogram(
             "compd_cycle_seconds", "Time one cycle took, read to record (s)", registry=r,
@@ -531,13 +534,13 @@ class Metrics(MetricsServer):
 
     def _age_s(self) -> float:
         last = self._last_complete_mono
-        return math.inf if last is None else max(0.0, time.monotonic() - last)
+        return math.inf if last is None else max(0.0, self._mono() - last)
 
-    def cycle_complete(self, wall_s: float | None = None) -> None:
-        """A complete cycle (valid inputs, model stepped, write confirmed) just ended,
-        at `wall_s` (the daemon's wall clock; now by default) for the timestamp metric.
-        Its age for /health is judged on this server's own monotonic clock, read when
-        a request arrives in an HTTP thread."""
-        self._last_complete_mono = time.monotonic()
+    def cycle_complete(self, wall_s: float | None = None, mono_s: float | None = None) -> None:
+        """A complete cycle (the report's `in_force`) at `wall_s` and `mono_s` (the
+        cycle's time, read once by the daemon's loop; now by default). Its age for
+        /health is judged on the same monotonic clock (`mono`), read when a request
+        arrives in an HTTP thread."""
+        self._last_complete_mono = self._mono() if mono_s is None else mono_s
         self.last_complete_timestamp.set(time.time() if wall_s is None else wall_s)
         self.cycles_complete.inc()

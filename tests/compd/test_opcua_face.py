@@ -220,7 +220,7 @@ async def test_sethold_is_the_operators_and_holds_then_slews_back(
                 await until(lambda: daemon.last_result is not None
                             and daemon.last_result.sequence not in [q for q, _ in seen[-1:]])
                 assert daemon.last_result is not None
-                seen.append((daemon.last_result.sequence, daemon.last_result.offset_um))
+                seen.append((daemon.last_result.sequence, daemon.last_result.stage_um))
             for (qa, a), (qb, b) in itertools.pairwise(seen):
                 # 2 µm/s over a cycle's machine time: at most 2 periods (the output
                 # stage's bound on a late cycle's dt), so 4 µm a cycle; a jump is ~10
@@ -265,7 +265,7 @@ async def test_rezero_is_the_operators_audited_and_ramps_without_a_step(
                 await until(lambda: daemon.last_result is not None
                             and daemon.last_result.sequence not in [q for q, _ in seen[-1:]])
                 assert daemon.last_result is not None
-                seen.append((daemon.last_result.sequence, daemon.last_result.offset_um))
+                seen.append((daemon.last_result.sequence, daemon.last_result.stage_um))
             # down at most the slew limit a cycle (2 µm/s, ≤ 2 periods a cycle); once at
             # the new zero it follows the model's small drift (either way, as small)
             for (qa, a), (qb, b) in itertools.pairwise(seen):

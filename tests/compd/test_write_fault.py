@@ -28,7 +28,7 @@ def test_repeated_write_failures_are_a_fault_until_a_write_succeeds() -> None:
     for i in range(WRITE_FAULT_AFTER + 2):
         t = clock.tick()
         plan = cycle.plan(t, samples(t, 20.5))
-        assert plan.record.attempted_um == plan.offset_um
+        assert plan.sent_um == plan.stage_um
         r = cycle.commit(Outcome.failed("offset", permanent=False, reason="out of range"))
         ev = r.write_events
         # not confirmed: the row keeps it as attempted only
@@ -40,7 +40,7 @@ def test_repeated_write_failures_are_a_fault_until_a_write_succeeds() -> None:
     t = clock.tick()
     cycle.plan(t, samples(t, 20.5))
     r = cycle.commit()
-    assert r.record.offset_um == r.record.attempted_um == r.offset_um
+    assert r.record.offset_um == r.record.attempted_um == r.stage_um
     t = clock.tick()
     plan = cycle.plan(t, samples(t, 20.5))
     assert "write_recovered" in [e.name for e in plan.events]

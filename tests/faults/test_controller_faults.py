@@ -68,12 +68,12 @@ async def test_restart_forgets_offset_ramps_back(protocol: str, tmp_path: Path,
     finally:
         await sim.stop()
     log = invariants.log()
-    before = log[forget_at - 1].result.offset_um
+    before = log[forget_at - 1].result.stage_um
     assert log[forget_at].readback == 0.0
     first = log[forget_at].written["offset"]
     dt = log[forget_at].now_s - log[forget_at - 1].now_s
     back = next(i for i in range(forget_at, len(log))
-                if abs(log[i].result.offset_um - before) <= 0.1) - forget_at
+                if abs(log[i].result.stage_um - before) <= 0.1) - forget_at
     print(f"{protocol}: offset {before:.3f} µm forgotten; first write {first:.3f} µm "
           f"(R·Δt = {SLEW * dt:.3f}); back within 0.1 µm after {back} cycles")
     assert before > 20.0 and 0.0 < first <= SLEW * min(dt, 2.0) + 1e-3
@@ -106,9 +106,9 @@ async def test_modbus_busy_is_transient_and_retried(tmp_path: Path,
     assert rig.daemon.cycle is not None and not rig.daemon.cycle.write_stopped
     assert log[busy_at + busy_cycles].write_ok is True
     assert int((await sim.outputs())["status"]) & Status.OK
-    assert log[-1].result.offset_um > 30.0
+    assert log[-1].result.stage_um > 30.0
     print(f"modbus busy: {len(failed)} cycles refused, retried each next cycle, "
-          f"offset {log[-1].result.offset_um:.3f} µm at the end")
+          f"offset {log[-1].result.stage_um:.3f} µm at the end")
 
 
 def _touches_offset(sim: ModbusSimController, start: int) -> int:
@@ -249,10 +249,10 @@ async def test_focas_ew_busy_is_transient_and_retried(tmp_path: Path,
     assert rig.daemon.cycle is not None and not rig.daemon.cycle.write_stopped
     assert "offset_write_stopped" not in rig.log.names()
     assert status & Status.OK and not status & Status.ALARM
-    assert log[-1].result.offset_um > 30.0
-    assert written == pytest.approx(log[-1].result.offset_um, abs=0.1)  # ×0.1 µm long
+    assert log[-1].result.stage_um > 30.0
+    assert written == pytest.approx(log[-1].result.stage_um, abs=0.1)  # ×0.1 µm long
     print(f"focas EW_BUSY: {len(failed)} cycles refused, retried each next cycle, "
-          f"offset {log[-1].result.offset_um:.3f} µm at the end")
+          f"offset {log[-1].result.stage_um:.3f} µm at the end")
 
 
 @pytest.mark.parametrize(("access", "code"), [
@@ -319,7 +319,7 @@ async def test_opcua_offset_node_retyped_is_transient(tmp_path: Path,
         and "Double" in reasons[0], reasons
     assert rig.daemon.cycle is not None and not rig.daemon.cycle.write_stopped
     assert "offset_write_stopped" not in rig.log.names()
-    assert written == pytest.approx(log[-1].result.offset_um, abs=1e-3)
-    assert log[-1].result.offset_um > 30.0
+    assert written == pytest.approx(log[-1].result.stage_um, abs=1e-3)
+    assert log[-1].result.stage_um > 30.0
     print(f"opcua retyped offset node: 1 cycle refused ({reasons[0]}), "
           f"offset {written:.3f} µm at the end")
