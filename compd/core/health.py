@@ -258,7 +258,14 @@ def status_word(v: HealthView) -> Status:
 
 class OutputHealth:
     """See the module docstring. `decide` once per cycle, then one of
-    `write_succeeded` / `write_failed` when the shell reports the writes."""
+    `write_succeeded` / `write_failed` when the shell reports the writes.
+
+    Its fields are read by anyone and changed only by its own methods, one per
+    transition: the controller's state (`controller`), the fault policy
+    (`decide`, `begin_shutdown`), the writes (`write_succeeded`,
+    `write_failed`), a foreign read-back (`foreign_seen`, `foreign_settled`),
+    the model's range (`model_in_range`), the operator (`set_operator_hold`),
+    and a reload (`carry_over`)."""
 
     def __init__(self, hold_s: float, *, operator_hold: bool = False) -> None:
         self.hold_s = hold_s
@@ -294,6 +301,39 @@ class OutputHealth:
         if outputs_same:
             self.write_stopped = old.write_stopped
             self.stopped_outputs = set(old.stopped_outputs)
+
+    # -- the operator, the shutdown, the read-back and the model's range -----------------
+
+    def set_operator_hold(self, on: bool) -> bool:
+        """An operator's hold (on) or its release (off); whether that changed anything."""
+        if on == self.operator_hold:
+            return False
+        self.operator_hold = on
+        return True
+
+    def begin_shutdown(self) -> None:
+        """A ramp-to-zero shutdown: from the next `decide` on the target is 0."""
+        self.shutting_down = True
+
+    def foreign_seen(self) -> None:
+        """The read-back showed a value compd did not write: alarmed from now on."""
+        self.foreign = True
+
+    def foreign_settled(self, *, moving: bool) -> None:
+        """After the output stage moved: a foreign read-back's alarm lasts until the
+        output has ramped to its target (`moving`: still slewing, or held)."""
+        if self.foreign:
+            self.foreign = moving
+
+    def model_in_range(self, model_um: float, bound_um: float, events: list[Event]) -> bool:
+        """Whether the model's output is within ±`bound_um`; MODEL_OUT_OF_RANGE and
+        MODEL_IN_RANGE when that changes (a latch: told once each way)."""
+        out = abs(model_um) > bound_um
+        if out != self.model_range:
+            self.model_range = out
+            events.append(Event(EventName.MODEL_OUT_OF_RANGE if out else EventName.MODEL_IN_RANGE,
+                                {"model_um": model_um, "bound_um": bound_um}))
+        return not out
 
     # -- the controller's own state -----------------------------------------------------
 

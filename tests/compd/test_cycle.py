@@ -24,7 +24,7 @@ def test_first_start_takes_current_temperatures_as_reference() -> None:
     r = cycle.plan(t, samples(t, 30.0, 21.0))
     assert "model_initialised" in _events(r)
     assert r.inputs_valid and r.model_um == pytest.approx(0.0, abs=1e-9)
-    assert cycle.model.references == {"bearing": 30.0, "ambient": 21.0}
+    assert cycle.models.model.references == {"bearing": 30.0, "ambient": 21.0}
     assert r.writes["offset"] == 0.0 and r.writes["heartbeat"] == 1.0
     assert r.status & Status.OK
 
@@ -87,7 +87,7 @@ def test_bad_value_holds_then_ramps_at_hold_s_and_recovers_without_jump(
     run_warm(cycle, clock, 10, bearing=20.0)
     run_warm(cycle, clock, 80, bearing=22.0)  # offset slews up to ~32 µm
     held = cycle.output.current_um
-    model_state = cycle.model.export_state()
+    model_state = cycle.models.model.export_state()
     fault_start = clock.tick()
     plan = cycle.plan(fault_start, samples(fault_start, bearing))
     assert plan.validity["bearing"] == reason
@@ -103,7 +103,7 @@ def test_bad_value_holds_then_ramps_at_hold_s_and_recovers_without_jump(
         if r.state == "ramp" and ramp_started is None:
             ramp_started = t
             assert r.status & Status.ALARM and r.status & Status.RAMPING
-    assert cycle.model.export_state() == model_state  # filters never saw the bad value
+    assert cycle.models.model.export_state() == model_state  # filters never saw the bad value
     assert ramp_started is not None
     assert abs(ramp_started - (fault_start + HOLD_S)) <= PERIOD_S
     assert held > 20.0
@@ -168,7 +168,7 @@ def test_one_sample_spike_is_rejected_and_filters_not_stepped() -> None:
             plan = spiked.plan(t, samples(t, b + (50.0 if k == 100 else -50.0)))
             assert plan.validity["bearing"] == "rate"
             assert plan.state == "hold"
-            ref_state = ref.model.export_state()
+            ref_state = ref.models.model.export_state()
             continue
         spiked.plan(t, samples(t, b))
         ra = ref.commit()
@@ -368,11 +368,11 @@ def test_a_cycle_steps_a_model_of_its_own_and_leaves_the_description_as_it_was()
     clock = FakeClock()
     run_warm(first, clock, 10, bearing=25.0)
     run_warm(first, clock, 20, bearing=25.3)  # its filters move off the steady state
-    assert first.model is not model and first.model is not second.model
+    assert first.models.model is not model and first.models.model is not second.models.model
     assert model.export_state() == described and model.references == {}
-    assert first.model.references == {"bearing": 25.0, "ambient": 20.0}
+    assert first.models.model.references == {"bearing": 25.0, "ambient": 20.0}
     later = FakeClock()
     run_warm(second, later, 30, bearing=30.0)  # its own first sample: its own reference
-    assert second.model.references == {"bearing": 30.0, "ambient": 20.0}
-    assert first.model.references == {"bearing": 25.0, "ambient": 20.0}
+    assert second.models.model.references == {"bearing": 30.0, "ambient": 20.0}
+    assert first.models.model.references == {"bearing": 25.0, "ambient": 20.0}
     assert first.export_state()["model"]["terms"] != model.export_state()["terms"]

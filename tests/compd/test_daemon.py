@@ -87,7 +87,7 @@ async def test_permanent_rejection_stops_offset_writes_and_raises_alarm(
     task = asyncio.create_task(daemon.run())
     await _until(lambda: daemon.complete_cycles >= 3)
     sim.inject_exception("holding", 0, 2, count=2, on="write")  # illegal address
-    await _until(lambda: daemon.cycle is not None and daemon.cycle.write_stopped)
+    await _until(lambda: daemon.cycle is not None and daemon.cycle.health.write_stopped)
     await _until(lambda: daemon.cycles >= 20)
     daemon.request_stop()
     assert await task == 0

@@ -57,9 +57,9 @@ def test_unchanged_model_carries_its_filters_over(tmp_path: Path) -> None:
     new_cfg = load_config(path)
     changes = diff(old_cfg, new_cfg)
     assert not changes.model and not changes.controller
-    state = old.model.export_state()
+    state = old.models.model.export_state()
     new = handover(old, new_cfg, params_from_config(new_cfg), changes)
-    assert new.model is not old.model and new.model.export_state() == state
+    assert new.models.model is not old.models.model and new.models.model.export_state() == state
     assert new.output.current_um == old.output.current_um
     assert new.sequence == old.sequence and new.heartbeat == old.heartbeat
     r = _step(new, clock)
