@@ -20,18 +20,9 @@ controller confirmed the offset is in it). `plan`:
    While the controller says it takes no offset (``controller_off``: machine
    off, E-stop; `[output] machine_on`/`estop`) the output stage stands still
    and no offset is written (status CONTROLLER_OFF and HOLDING, state "hold");
-   the model keeps stepping;
-   While the controller withholds its permission (``permitted`` False:
-   ``[output] update_permitted`` reads 0; None: it could not be read, taken
-   as not permitted, PERMIT_UNREADABLE) a cycle that would track the model
-   holds the offset in force (HOLDING, cause WAITING_FOR_PERMISSION with the
-   pending difference in `Snapshot.pending_um`); the model keeps stepping,
-   and the next permitted cycle moves the offset toward the model at the slew
-   limit. Faults, the operator's ramp and the shutdown ramp are not held: a
-   ramp to zero is a safety action. The rising edge of ``rezero_bit``
-   (``[output] rezero``, a PLC bit or an M-code pulse) re-zeroes
-   (`Cycle.rezero`, `compd.core.modelstep`) after this cycle's step: the
-   target changes, the output stage ramps to it at the slew limit;
+   the model keeps stepping. While the controller withholds its permission
+   a tracking output holds, and the re-zero input's rising edge re-zeroes
+   (`compd.core.permit`);
 5. writes: nothing at all in a recorder-only run (``params.recorder_only``:
    ``[output] enabled = false`` or no ``[model]``: no offset, heartbeat or
    status; cause RECORDER_ONLY while the inputs are valid, and a cycle whose
@@ -68,24 +59,18 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any
 
-from compd.core.adaptation import ProbeReading, ProbeStage
+from compd.core.adaptation import ProbeReading
 from compd.core.events import Event, EventName
 from compd.core.faults import FaultState
-from compd.core.health import (
-    WRITE_FAULT_AFTER,
-    Cause,
-    Decision,
-    HealthView,
-    OutputHealth,
-    output_cause,
-    recorded_state,
-    status_word,
-)
+from compd.core.health import WRITE_FAULT_AFTER, Cause, Decision, OutputHealth
+from compd.core.health_view import HealthView, output_cause, recorded_state, status_word
 from compd.core.modelstep import ModelStepper, finite_or_none
 from compd.core.params import CycleParams, params_from_config
-from compd.core.plan import WRITTEN, AdaptationView, Outcome, Plan, Row, Snapshot
+from compd.core.permit import Permit, RezeroEdge
+from compd.core.plan import WRITTEN, Outcome, Plan, Row
 from compd.core.readback import ReadBack
-from compd.core.restore import output_stage, restore_arguments
+from compd.core.restore import output_stage, probe_stage, restore_arguments
+from compd.core.snapshot import probe_record, recorded_contributions, take_snapshot
 from compd.core.stepping import MODEL_RANGE_FACTOR, Inputs, Stepped, Stepping
 from drivers.base import Sample
 from models.compensation import CompensationModel
@@ -105,7 +90,7 @@ CycleResult = Row
 def offset_in_force(*, cause: Cause, confirmed: bool) -> bool:
     """Whether a cycle is COMPLETE: the offset compd wants is the offset in force.
 
-    `cause`: the cycle's (`compd.core.health.output_cause`; healthy only with
+    `cause`: the cycle's (`compd.core.health_view.output_cause`; healthy only with
     valid inputs, the model stepped and state "ok"); `confirmed`: the controller
     acknowledged this cycle's offset write. A held, faulted, stopped, holding,
     ramping, shutting-down or clamped output is not what the model asks for,
@@ -140,30 +125,18 @@ class Cycle:
         self._planned: Plan | None = None
         #: events for the next plan (a write fault that ended)
         self._later: list[Event] = []
-        self.probes = self._probe_stage(len(model.terms), adaptation_state)
+        self.probes = probe_stage(params.adaptation, len(model.terms), adaptation_state,
+                                  self._later)
         self.readback.note_limit(self._later)
         self.models = ModelStepper(model, shadow, model_state=model_state,
                                    shadow_state=shadow_state, references=references,
                                    stale_state=stale_state, stale_age_s=stale_age_s, zero=zero,
                                    fallback_states=fallback_states)
         self.stepping = Stepping(params, self.models, sorted(model.channels), self.health)
-        #: the permit as last told: "permitted", "waiting", "unreadable" (events on change)
-        self._permit = "permitted"
-        #: the re-zero input's last readable value (an edge needs a known 0 before it)
-        self._rezero_bit: bool | None = None
+        self.permit = Permit()
+        self.rezero_edge = RezeroEdge()
         #: the target a permit holds back, minus the offset in force (µm), None: none
         self.pending_um: float | None = None
-
-    def _probe_stage(self, n_terms: int,
-                     state: Mapping[str, Any] | None) -> ProbeStage | None:
-        settings = self.params.adaptation
-        if settings is None:
-            return None
-        try:
-            return ProbeStage(settings, n_terms, state)
-        except (ValueError, KeyError, TypeError) as exc:
-            self._later.append(Event(EventName.ADAPTATION_STATE_REFUSED, {"reason": str(exc)}))
-            return ProbeStage(settings, n_terms)
 
     # -- construction from a checkpoint, and across a reload ------------------------------
 
@@ -255,7 +228,8 @@ class Cycle:
         inputs = self.stepping.inputs(now_s, samples, wall_s, events)
         stepped = self.stepping.step(inputs, events, answered=answered)
         self.stepping.note_fallback(stepped, self.output, events)
-        self._rezero_edge(rezero_bit, wall_s, events)
+        if self.rezero_edge.rising(rezero_bit):
+            events.append(self.rezero("controller input [output] rezero", wall_s))
         correction = self._adapt(dt, probe, stepped, events)
         worse = self.probes is not None and self.probes.model_worse \
             and self.probes.settings.guard_acts
@@ -265,7 +239,7 @@ class Cycle:
         why = Cause.MODEL_WORSE_THAN_NONE if worse else stepped.invalid(inputs, answered)
         target_um = stepped.model_um + correction if stepped.model_um is not None else None
         decision = self.health.decide(now_s, why, target_um, events)
-        permit = self._permit_cause(permitted, decision, events)
+        permit = self.permit.cause(permitted, decision, self.output, events)
         offset_um = self._move_output(decision, dt, held_for_permit=permit is not None)
         self.readback.note_limit(events)
         # only once the stage has moved: a plan that raised before this (the shell then
@@ -299,8 +273,9 @@ class Cycle:
             heartbeat=self.heartbeat, inputs_valid=valid, cause=output_cause(view),
             channels=MappingProxyType({n: finite_or_none(v) for n, v in inputs.values.items()}),
             validity=MappingProxyType(inputs.validity),
-            contributions=MappingProxyType(self._contributions(stepped, valid)),
-            probe=self._probe_record(), events=tuple(events),
+            contributions=MappingProxyType(recorded_contributions(
+                self.models, self.probes, stepped, valid=valid, recorded=recorded)),
+            probe=probe_record(self.probes), events=tuple(events),
             shutdown_done=self._shutdown_done(offset_um))
 
     def _move_output(self, decision: Decision, dt: float, *, held_for_permit: bool) -> float:
@@ -317,39 +292,6 @@ class Cycle:
         if (self.health.operator_hold or held_for_permit) and tracking:
             target = self.output.current_um
         return self.output.step(target, dt, deadband=tracking)
-
-    def _permit_cause(self, permitted: bool | None, decision: Decision,
-                      events: list[Event]) -> Cause | None:
-        """Why a tracking output is held for the controller's permission (None: it is
-        not); the events when the permit changes (module docstring, step 4)."""
-        if decision.state != FaultState.OK:
-            return None  # a fault holds or ramps whatever the permit: nothing to tell
-        now = "permitted" if permitted else ("waiting" if permitted is False else "unreadable")
-        if now != self._permit:
-            if now == "unreadable":
-                events.append(Event(EventName.PERMIT_UNREADABLE, {
-                    "action": "taken as not permitted: the offset in force is held"}))
-            elif now == "waiting":
-                events.append(Event(EventName.PERMISSION_WAITING, {
-                    "offset_um": self.output.current_um}))
-            else:
-                target = decision.target_um
-                events.append(Event(EventName.PERMISSION_GRANTED, {
-                    "offset_um": self.output.current_um,
-                    "pending_um": None if target is None else target - self.output.current_um,
-                    "slew_um_s": self.output.slew_um_s}))
-            self._permit = now
-        if now == "permitted":
-            return None
-        return Cause.WAITING_FOR_PERMISSION if now == "waiting" else Cause.PERMIT_UNREADABLE
-
-    def _rezero_edge(self, bit: bool | None, wall_s: float | None,
-                     events: list[Event]) -> None:
-        """The re-zero input's rising edge (a known 0, then 1) re-zeroes; an
-        unreadable value is no edge, and the next readable one starts afresh."""
-        was, self._rezero_bit = self._rezero_bit, bit
-        if bit and was is False:
-            events.append(self.rezero("controller input [output] rezero", wall_s))
 
     def _view(self, decision: Decision, stepped: Stepped, worse: bool, why: Cause | None,
               permit: Cause | None, *, no_readback: bool) -> HealthView:
@@ -388,23 +330,6 @@ class Cycle:
         if p.status_name and p.status_name not in stopped:
             writes[p.status_name] = float(status)
         return writes, offset_um
-
-    def _contributions(self, stepped: Stepped, valid: bool) -> dict[str, float]:
-        """Each term's contribution as recorded, with the fallback's, the shadow's
-        and the adaptation's totals."""
-        recorded = self.params.record_model
-        contributions = self.models.contributions() if valid and recorded else {}
-        if stepped.fallback_for is not None and stepped.model_um is not None and recorded:
-            contributions["fallback_total"] = stepped.model_um
-        if stepped.shadow_um is not None:
-            contributions["shadow_total"] = stepped.shadow_um
-        if self.probes is not None and valid:
-            contributions["adaptation"] = self.probes.correction_um
-        return contributions
-
-    def _probe_record(self) -> Mapping[str, Any] | None:
-        last = self.probes.last if self.probes is not None else None
-        return None if last is None else MappingProxyType(dict(last))
 
     def _shutdown_done(self, offset_um: float) -> bool:
         h = self.health
@@ -446,30 +371,10 @@ class Cycle:
             model_um=plan.model_um, shadow_um=plan.shadow_um, state=plan.state,
             status=plan.status, heartbeat=plan.heartbeat, inputs_valid=plan.inputs_valid,
             in_force=in_force, cause=cause, channels=plan.channels, validity=plan.validity,
-            contributions=plan.contributions, probe=plan.probe, snapshot=self._snapshot(),
+            contributions=plan.contributions, probe=plan.probe, snapshot=take_snapshot(
+                operator_hold=self.health.operator_hold, probes=self.probes, models=self.models,
+                fallback_for=self.stepping.fallback_for, pending_um=self.pending_um),
             events=plan.events, write_events=events, shutdown_done=plan.shutdown_done)
-
-    def _snapshot(self) -> Snapshot:
-        adaptation = None
-        probes = self.probes
-        if probes is not None:
-            est = probes.adapter
-            adaptation = AdaptationView(est.estimated_bias_um, est.bias_sigma_um,
-                                        probes.correction_um, est.standing_down,
-                                        probes.model_worse, guard_probes=len(probes.guard),
-                                        guard_worse=probes.guard_worse,
-                                        probes_accepted=probes.accepted,
-                                        probes_refused=probes.refused,
-                                        gate_refusals=probes.gate_refusals)
-        m = self.models
-        # the stepper replaces its references, never changes them in place: a
-        # read-only view of the dict in force is the snapshot's
-        refs = m.references
-        return Snapshot(self.health.operator_hold, adaptation, pending_um=self.pending_um,
-                        zero_um=m.zero_um if m.zero_by else None,
-                        model_start=m.init_mode, reference=m.reference_source,
-                        fallback_for=self.stepping.fallback_for,
-                        references=None if refs is None else MappingProxyType(refs))
 
     # -- internals ------------------------------------------------------------------------
 

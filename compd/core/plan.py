@@ -42,7 +42,7 @@ class Plan:
     #: the model's output as recorded (None: not stepped, or not recorded)
     model_um: float | None
     shadow_um: float | None
-    #: the state the cycle records (`compd.core.health.recorded_state`)
+    #: the state the cycle records (`compd.core.health_view.recorded_state`)
     state: FaultState
     status: int
     heartbeat: int

@@ -25,10 +25,12 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+from compd.core.adaptation import AdaptationSettings, ProbeStage
+from compd.core.events import Event, EventName
 from compd.core.output import OutputStage
 from compd.core.params import CycleParams
 
-__all__ = ["output_stage", "restore_arguments"]
+__all__ = ["output_stage", "probe_stage", "restore_arguments"]
 
 
 def _mapping(value: Any) -> Mapping[str, Any] | None:
@@ -79,3 +81,16 @@ def output_stage(params: CycleParams, offset_um: float | None) -> OutputStage:
     if (offset_um is not None and math.isfinite(offset_um)) or not params.readback:
         stage.confirm()
     return stage
+
+
+def probe_stage(settings: AdaptationSettings | None, n_terms: int,
+                state: Mapping[str, Any] | None, events: list[Event]) -> ProbeStage | None:
+    """The adaptation's estimator continuing `state` (None: no [adaptation]); a
+    state it refuses starts it afresh, told (ADAPTATION_STATE_REFUSED)."""
+    if settings is None:
+        return None
+    try:
+        return ProbeStage(settings, n_terms, state)
+    except (ValueError, KeyError, TypeError) as exc:
+        events.append(Event(EventName.ADAPTATION_STATE_REFUSED, {"reason": str(exc)}))
+        return ProbeStage(settings, n_terms)

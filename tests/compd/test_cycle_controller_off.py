@@ -9,7 +9,7 @@ from pathlib import Path
 
 from compd.core.cycle import Cycle
 from compd.core.faults import FaultState
-from compd.core.health import HealthView, recorded_state, status_word
+from compd.core.health_view import HealthView, recorded_state, status_word
 from compd.core.output import Status
 from compd.testing import FakeClock
 

@@ -11,7 +11,8 @@ import pytest
 
 from compd.core.cycle import WRITTEN, Cycle, Outcome
 from compd.core.faults import FaultState
-from compd.core.health import Cause, HealthView, output_cause, recorded_state, status_word
+from compd.core.health import Cause
+from compd.core.health_view import HealthView, output_cause, recorded_state, status_word
 from compd.core.output import Status
 from compd.testing import FakeClock
 
