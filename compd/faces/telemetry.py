@@ -264,15 +264,16 @@ def configure_logging(json: bool | None = None, level: str = "info", *,
                                          else floor)
 
 
-#: what ``compd_offset_micrometres`` is: the value compd sends, confirmed or not
-OFFSET_HELP = ("Offset the output stage sent this cycle (after limit, slew limit and "
-               "fault policy), in micrometres; a failed write leaves the controller on "
-               "its last confirmed offset, which this does not show")
+#: what ``compd_offset_micrometres`` is: the cycle report's ``stage_um``
+OFFSET_HELP = ("The output stage's offset this cycle (the cycle report's stage_um: after "
+               "limit, slew limit and fault policy), in micrometres; sent to the controller, "
+               "confirmed or not: compd_offset_confirmed_micrometres is what it holds")
 
 
-#: what ``compd_offset_confirmed_micrometres`` is: the offset the controller holds
-CONFIRMED_HELP = ("Offset the controller last confirmed holding (read back or acknowledged), "
-                  "in micrometres; NaN while unknown (before the first confirmed write)")
+#: what ``compd_offset_confirmed_micrometres`` is: the cycle report's ``confirmed_um``
+CONFIRMED_HELP = ("Offset the controller last confirmed holding (the cycle report's "
+                  "confirmed_um: read back or acknowledged), in micrometres; NaN while "
+                  "unknown (before the first confirmed write)")
 
 
 class MetricsServer:
@@ -388,11 +389,13 @@ class Metrics(MetricsServer):
             "When the OPC UA certificate expires (s since the epoch); only where one is "
             "configured", ["role"], registry=r)
         self.cycles_complete = Counter(
-            "compd_cycles_complete", "Complete cycles: inputs read and valid, model stepped, "
-            "offset write confirmed by the controller", registry=r)
+            "compd_cycles_complete", "Complete cycles (the cycle report's in_force): inputs "
+            "read and valid, model stepped, offset write confirmed by the controller",
+            registry=r)
         self.last_complete_timestamp = Gauge(
             "compd_last_complete_cycle_timestamp_seconds",
-            "Wall-clock time of the last complete cycle (s since the epoch)", registry=r)
+            "Wall-clock time of the last complete cycle, read once at its start (the cycle "
+            "report's wall_s; s since the epoch)", registry=r)
         self._last_complete_mono: float | None = None
         self.last_complete_age = Gauge(
             "compd_last_complete_cycle_age_seconds",
@@ -400,9 +403,9 @@ class Metrics(MetricsServer):
             "the first): what `compd health --url` judges", registry=r)
         self.last_complete_age.set_function(self._age_s)
         self.model_output_um = Gauge(
-            "compd_model_output_micrometres", "The model's output in the last cycle, in "
-            "micrometres, before limits and the fault policy (NaN when the model did not "
-            "step)", registry=r)
+            "compd_model_output_micrometres", "The model's output in the last cycle (the "
+            "cycle report's model_um), in micrometres, before limits and the fault policy "
+            "(NaN when the model did not step)", registry=r)
         self.period_seconds = Gauge(
             "compd_period_seconds", "The sampling period in wall-clock seconds (period_s / "
             "time_scale): what alert rules measure lateness and silence against",
