@@ -266,8 +266,9 @@ def configure_logging(json: bool | None = None, level: str = "info", *,
 
 #: what ``compd_offset_micrometres`` is: the cycle report's ``stage_um``
 OFFSET_HELP = ("The output stage's offset this cycle (the cycle report's stage_um: after "
-               "limit, slew limit and fault policy), in micrometres; sent to the controller, "
-               "confirmed or not: compd_offset_confirmed_micrometres is what it holds")
+               "limit, slew limit and fault policy), in micrometres, sent whether or not "
+               "the controller took it: a failed write leaves the controller on its last "
+               "confirmed offset, compd_offset_confirmed_micrometres")
 
 
 #: what ``compd_offset_confirmed_micrometres`` is: the cycle report's ``confirmed_um``
