@@ -251,15 +251,15 @@ class Cycle:
                           no_readback=self.params.readback and readback_offset_um is None)
         # a foreign read-back's alarm lasts until the output has ramped to its target
         self.health.foreign_settled(moving=self.output.slewing or self.output.held)
-        writes, offset_um = self._writes(readback_offset_um, offset_um, int(status_word(view)),
-                                         events)
+        status = int(status_word(view))
+        writes, offset_um = self._writes(readback_offset_um, offset_um, status, events)
         self._planned = self._plan(now_s, wall_s, writes, offset_um, inputs, stepped, view,
-                                   events)
+                                   status, events)
         return self._planned
 
     def _plan(self, now_s: float, wall_s: float | None, writes: dict[str, float],
               offset_um: float, inputs: Inputs, stepped: Stepped, view: HealthView,
-              events: list[Event]) -> Plan:
+              status: int, events: list[Event]) -> Plan:
         """The frozen plan of this cycle (its mappings read-only)."""
         valid = view.invalid is None
         recorded = self.params.record_model
@@ -269,7 +269,7 @@ class Cycle:
             stage_um=offset_um,
             sent_um=offset_um if self.params.offset_name in writes else None,
             model_um=stepped.model_um if recorded else None, shadow_um=stepped.shadow_um,
-            state=recorded_state(view), status=int(status_word(view)),
+            state=recorded_state(view), status=status,
             heartbeat=self.heartbeat, inputs_valid=valid, cause=output_cause(view),
             channels=MappingProxyType({n: finite_or_none(v) for n, v in inputs.values.items()}),
             validity=MappingProxyType(inputs.validity),

@@ -4,7 +4,6 @@ the recorded state are pure functions of one frozen health view."""
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 
 import pytest
@@ -29,14 +28,14 @@ def test_a_failed_write_is_in_the_row_and_leaves_the_plan_as_it_was() -> None:
     cycle, clock = _warm()
     t = clock.tick()
     plan = cycle.plan(t, samples(t, 20.5))
-    before = dataclasses.replace(plan)
+    before = plan._replace()
     row = cycle.commit(Outcome.failed("offset", reason="timeout"))
     assert plan == before and plan.sent_um == plan.stage_um
     assert row.sent_um == plan.stage_um and not row.write_ok
     assert row.record.offset_um is None and row.record.attempted_um == plan.stage_um
     assert [e.name for e in row.write_events] == ["write_failed"]
     assert row.events == plan.events
-    with pytest.raises(dataclasses.FrozenInstanceError):
+    with pytest.raises(AttributeError):
         row.stage_um = 0.0  # type: ignore[misc]
     with pytest.raises(TypeError):  # read-only all the way down
         row.writes["offset"] = 0.0  # type: ignore[index]
