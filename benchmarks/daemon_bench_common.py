@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from compd.core.cycle import CycleResult
+from compd.core.plan import Row
 from compd.runtime.daemon import Daemon
 from drivers.base import Driver, Sample
 from drivers.errors import ControllerTimeout
@@ -249,9 +249,9 @@ class TimedDaemon(Daemon):
 
         setattr(self.checkpoint, "save", timed_save)  # noqa: B010
 
-    def _timed_cycle(self, one_cycle: Callable[[Any], Awaitable[CycleResult]]
-                     ) -> Callable[[Any], Awaitable[CycleResult]]:
-        async def timed(at: Any) -> CycleResult:  # the cycle's time (`Instant`)
+    def _timed_cycle(self, one_cycle: Callable[[Any], Awaitable[Row]]
+                     ) -> Callable[[Any], Awaitable[Row]]:
+        async def timed(at: Any) -> Row:  # the cycle's time (`Instant`)
             driver = self.running.driver
             io0 = driver.io_s if isinstance(driver, TimedDriver) else 0.0
             self.times.start.append(time.monotonic())

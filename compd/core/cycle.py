@@ -80,11 +80,8 @@ from models.compensation import CompensationModel
 HEARTBEAT_MODULO = 32768
 
 __all__ = ["HEARTBEAT_MODULO", "MODEL_RANGE_FACTOR", "WRITE_FAULT_AFTER", "WRITTEN", "Cycle",
-           "CycleParams", "CycleResult", "Outcome", "Plan", "Row", "offset_in_force",
+           "CycleParams", "Outcome", "Plan", "Row", "offset_in_force",
            "params_from_config"]
-
-#: the name the shell used for a committed cycle before plan/commit
-CycleResult = Row
 
 
 def offset_in_force(*, cause: Cause, confirmed: bool) -> bool:

@@ -9,7 +9,8 @@ from typing import Any
 import pytest
 
 from compd.core.adaptation import AdaptationSettings, ProbeReading
-from compd.core.cycle import Cycle, CycleResult
+from compd.core.cycle import Cycle
+from compd.core.plan import Row
 from compd.testing import FakeClock
 from models.adaptation import AdaptationParams
 
@@ -36,10 +37,10 @@ class Machine:
         self.counter = 7.0  # whatever the controller shows at start
         self.value = 0.0
         self.held = 0.0  # what the controller holds (confirmed writes)
-        self.results: list[CycleResult] = []
+        self.results: list[Row] = []
 
     def run(self, n: int, *, bearing: float = 25.0, spoil: float = 0.0,
-            invalid_at: int | None = None) -> list[CycleResult]:
+            invalid_at: int | None = None) -> list[Row]:
         out = []
         for _ in range(n):
             t = self.clock.tick()
@@ -57,7 +58,7 @@ class Machine:
         return out
 
 
-def _probes(results: list[CycleResult]) -> list[dict[str, Any]]:  # as RecordRow.probe
+def _probes(results: list[Row]) -> list[dict[str, Any]]:  # as RecordRow.probe
     return [dict(r.probe) for r in results if r.probe is not None]
 
 
