@@ -38,7 +38,7 @@ async def pause(clock: Clock, stop: asyncio.Event, delay_s: float) -> None:
     task (every machine pauses once a cycle): `asyncio.wait_for` would start a
     task for it and, at the timeout, cancel that task and wait a loop turn for
     it, about twice the CPU per pause (20-24 against 11 µs, 500 tasks pausing
-    together on Python 3.11)."""
+    together on Python 3.11, benchmarks/bench_loop_pause.py)."""
     if clock.sleep is None:
         with contextlib.suppress(TimeoutError):
             async with asyncio.timeout(delay_s):
