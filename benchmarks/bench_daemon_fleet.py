@@ -33,6 +33,12 @@ the daemon processes wrote to disk per cycle (`/proc/self/io` write_bytes over
 the window: recorder, checkpoints, logs) and the requests per cycle (socket
 sends of the drivers' asyncio transports over the window / cycles).
 
+To find what a step's time goes to, FLEET_ABLATE=disk1,norecorder,nogc (any of
+them) runs the daemons with one disk thread, without the recorder, or with
+CPython's own collector thresholds instead of `compd.runtime.gcpolicy`;
+FLEET_DEBUG=1 prints each worker's figures (own time, collections per
+generation) and when its window opens (to attach a profiler) on stderr.
+
 With --run-dir, each step is `compd run DIR --workers W` itself (the real
 parent, `compd.runtime.workers`, and its workers, or with W = 1 the one-process
 `compd.runtime.fleet`) over a directory of N machine files, every W of
@@ -216,6 +222,8 @@ async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> d
         counts.append(troubles())
         io.extend([_write_bytes(), sends[0]])
         print("window", flush=True)
+        if os.environ.get("FLEET_DEBUG"):  # a profiler attached from outside starts here
+            print(f"window open at {time.strftime('%H:%M:%S')}", file=sys.stderr, flush=True)
         await asyncio.sleep(seconds)
         window.extend([time.monotonic(), time.process_time()])
         counts.append(troubles())
@@ -255,6 +263,7 @@ async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> d
         "gc_gen2": sum(1 for g, _ in gc_pauses if g == 2),
         "gc_max_ms": max((p for _, p in gc_pauses), default=0.0) * 1e3,
         "gc_ms": sum(p for _, p in gc_pauses) * 1e3,
+        "gc_counts": [sum(1 for g, _ in gc_pauses if g == k) for k in range(3)],
         "write_bytes": io[2] - io[0],
         "sends": io[3] - io[1],
         "failed": [repr(r) for r in rcs[1:] if r != 0] + (
@@ -262,9 +271,33 @@ async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> d
     }
 
 
+#: what FLEET_ABLATE (a comma-separated list) may take out of the daemons, to find
+#: what a step's time goes to: one disk thread instead of `diskwriter.THREADS`, the
+#: recorder, or the garbage-collection policy (CPython's own thresholds instead)
+ABLATIONS = ("disk1", "norecorder", "nogc")
+
+
+def ablations() -> set[str]:
+    asked = {a for a in os.environ.get("FLEET_ABLATE", "").split(",") if a}
+    if bad := asked - set(ABLATIONS):
+        raise SystemExit(f"FLEET_ABLATE: unknown {sorted(bad)} (known: {', '.join(ABLATIONS)})")
+    return asked
+
+
+def _ablate(asked: set[str]) -> None:
+    from compd.runtime import diskwriter, gcpolicy
+
+    if "disk1" in asked:
+        diskwriter.PROCESS_DISK.shutdown()
+        diskwriter.PROCESS_DISK._threads = 1
+    if "nogc" in asked:
+        gcpolicy.PROCESS_GC.install = lambda: None  # type: ignore[method-assign]
+
+
 def _worker_main(args: argparse.Namespace) -> None:
     from compd.faces.telemetry import configure_logging
 
+    _ablate(ablations())
     spec = json.loads(Path(args.worker).read_text())
     with Path(spec["log"]).open("w") as log:
         configure_logging(json=True, level="info", stream=log)
@@ -349,6 +382,8 @@ def run_step(protocol: str, n: int, *, seconds: int, workers: int, aligned: bool
         for i, desc in enumerate(descs):
             doc = config_doc(desc, state_dir=step_dir / f"state{i}",
                              checkpoint_every=checkpoint_every)
+            if "norecorder" in ablations():
+                doc["recorder"]["enabled"] = False
             path = write_config(doc, step_dir / f"machine{i}.toml")
             spec = specs[i % w]
             spec["configs"].append(str(path))
@@ -514,7 +549,8 @@ def main() -> None:
     print(f"fleet at 1 Hz on {os.cpu_count()} CPUs, {args.workers[0]} daemon workers, "
           f"{args.seconds} s window per step, checkpoint every "
           f"{args.checkpoint_every}, phases "
-          f"{'aligned' if args.aligned else 'spread over the period'}")
+          f"{'aligned' if args.aligned else 'spread over the period'}"
+          f"{', without ' + ', '.join(sorted(ablations())) if ablations() else ''}")
     print(f"{'proto':7s}{'N':>6s}{'cycles':>8s}{'late50':>9s}{'late99':>9s}{'max':>9s}"
           f"{'overrun':>8s}{'incmpl':>7s}{'own ms':>8s}{'cpu dmn':>8s}{'cpu sim':>8s}"
           f"{'RSS MB':>8s}{'load':>6s}{'gc ms':>7s}{'gc2':>4s}{'B/cyc':>8s}{'req':>6s}\n"

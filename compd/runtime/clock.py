@@ -50,10 +50,17 @@ class Clock:
 
 
 async def pause(clock: Clock, stop: asyncio.Event, delay_s: float) -> None:
-    """Until `delay_s` has passed on `clock`, or `stop` is set."""
+    """Until `delay_s` has passed on `clock`, or `stop` is set.
+
+    On the event loop's timer the wait is a timeout around the caller's own
+    task (every machine pauses once a cycle): `asyncio.wait_for` would start a
+    task for it and, at the timeout, cancel that task and wait a loop turn for
+    it, about twice the CPU per pause (20-24 against 11 µs, 500 tasks pausing
+    together on Python 3.11, benchmarks/bench_loop_pause.py)."""
     if clock.sleep is None:
         with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(stop.wait(), delay_s)
+            async with asyncio.timeout(delay_s):
+                await stop.wait()
         return
     stopped = asyncio.ensure_future(stop.wait())
     nap = asyncio.ensure_future(clock.sleep(max(0.0, delay_s)))

@@ -60,11 +60,11 @@ import json
 import math
 import os
 import sqlite3
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from compd.core.record import RecordRow
 from compd.runtime.statedir import StateDir, StateDirError
@@ -85,6 +85,8 @@ if TYPE_CHECKING:
     from compd.runtime.diskwriter import DiskWriter
 
 __all__ = ["FIXED_COLUMNS", "RecordRow", "Recorder", "RecorderError", "read_samples"]
+
+T = TypeVar("T")
 
 #: SQLite page cache of the recorder's connection, KiB. The recorder only appends
 #: (the rightmost pages of the table and of its wall_s index) and purges from the
@@ -243,6 +245,13 @@ class Recorder:
         except ValueError as exc:
             raise RecorderError(self.path, f"cannot prepare: {exc}") from None
 
+    def writer_job(self, job: Callable[[], T]) -> Future[T] | None:
+        """`job` run on this recorder's disk thread, after its commits handed over
+        before (None: no writer)."""
+        if self._writer is None:
+            return None
+        return self._writer.submit(job, key=str(self.path.parent))
+
     def record(self, row: RecordRow) -> None:
         """Buffer one row; commit when `commit_every` rows are waiting. Never raises."""
         if self._conn is None:
@@ -263,8 +272,7 @@ class Recorder:
             return
         batch = self._batch()
         if batch is not None:
-            self._in_flight = self._writer.submit(lambda: self._commit(batch),
-                                                  key=str(self.path.parent))
+            self._in_flight = self.writer_job(lambda: self._commit(batch))
 
     def flush(self) -> None:
         """Commit the buffered rows now (after the batch in flight). Never raises: a

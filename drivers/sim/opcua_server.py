@@ -35,8 +35,9 @@ writable at all is BadNotWritable, so this sim's PostWrite hook rewrites that
 case to BadNotWritable (what a conforming controller sends).
 
 The first start in a process costs about a second (asyncua builds the
-standard address space), later ones a tenth of that (a copy of it,
-`drivers.opcua_space`); stopping is immediate (the server clock task is
+standard address space), later ones about 10 ms of CPU and 0.6 MB: each server
+shares the standard nodes it never looks up with the others of its process
+(`drivers.opcua_space`); stopping is immediate (the server clock task is
 disabled).
 """
 

@@ -20,6 +20,7 @@ from compd.runtime.clock import Clock
 from compd.runtime.diskwriter import DiskWriter
 from compd.runtime.recorder import Recorder
 from compd.runtime.sinks.checkpoint import CheckpointSink
+from compd.runtime.sinks.recorder import RecorderSink
 from compd.runtime.statedir import StateDirError
 from compd.testing import FakeClock
 
@@ -251,3 +252,37 @@ def test_a_new_recorder_file_has_small_pages_and_an_old_one_keeps_its_own(
                 rec.record(row(k))
     assert page_size(old) == 4096
     assert rows_in(old) == list(range(1, 9))
+
+
+async def test_the_recorder_opens_on_its_disk_thread_while_the_loop_runs(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Opening a new recorder file syncs it to disk (tens of ms on a busy disk); a
+    machine starting in `compd run DIR` must not hold the others' cycles meanwhile:
+    the open runs on the disk thread and the loop goes on (on the loop's thread the
+    open would wait out its 10 s for the loop and the test fails)."""
+    loop_ran = threading.Event()
+    seen: list[tuple[str, bool]] = []
+    real_open = Recorder.open
+
+    def open_slowly(self: Recorder) -> None:
+        seen.append((threading.current_thread().name, loop_ran.wait(10.0)))
+        real_open(self)
+
+    monkeypatch.setattr(Recorder, "open", open_slowly)
+    cfg = SimpleNamespace(
+        recorder_path=tmp_path / "state" / "samples.sqlite", period_s=1.0,
+        raw=SimpleNamespace(recorder=SimpleNamespace(commit_every=2, retention_days=0)))
+    log: list[tuple[Any, ...]] = []
+    journal = SimpleNamespace(log=SimpleNamespace(error=lambda *a, **k: log.append(a)))
+    sink = RecorderSink(cast(Any, cfg), dry_run=False, metrics=cast(Any, None),
+                        clock=cast(Any, None), journal=cast(Any, journal))
+    opening = asyncio.create_task(sink.open())
+    await asyncio.sleep(0)  # the open has started
+    loop_ran.set()
+    await opening
+    assert len(seen) == 1 and seen[0][0].startswith("compd-disk") and seen[0][1]
+    assert sink.recorder is not None and sink.recorder.is_open and log == []
+    for seq in (1, 2):
+        sink.recorder.record(row(seq))
+    sink.close_now()
+    assert rows_in(cfg.recorder_path) == [1, 2]

@@ -8,6 +8,7 @@ import asyncio
 from pathlib import Path
 
 from compd.config.loader import load_config
+from compd.runtime.clock import Clock, pause
 from compd.runtime.daemon import Daemon
 from compd.runtime.sdnotify import Notifier
 from compd.testing import MemoryDriver, SteppedClock
@@ -51,3 +52,17 @@ async def test_the_sinks_stamp_with_the_daemons_wall_clock(tmp_path: Path) -> No
     stamp = daemon.metrics.registry.get_sample_value(
         "compd_last_complete_cycle_timestamp_seconds")
     assert stamp == EPOCH + 4 * cfg.period_s  # the last complete cycle, before the fault
+
+
+async def test_a_pause_on_the_loops_timer_runs_in_the_callers_task() -> None:
+    """Every machine pauses once a cycle: on the event loop's timer the pause is
+    a timeout in the caller's task, not a task of its own (asyncio.wait_for's),
+    and it ends at a stop request or at its delay."""
+    stop = asyncio.Event()
+    pausing = asyncio.create_task(pause(Clock(), stop, 3600.0))
+    for _ in range(3):
+        await asyncio.sleep(0)  # a few loop turns: the pause is waiting
+    assert asyncio.all_tasks() == {asyncio.current_task(), pausing}
+    stop.set()
+    await pausing
+    await pause(Clock(), asyncio.Event(), 0.0)  # the delay passed: returns

@@ -1,8 +1,10 @@
 """The simulated OPC UA server's standard address space: built once per process
-and copied into each server (`drivers.opcua_space`), the same nodes as
-asyncua's own fill, and no server sees what another one changed."""
+and shared by each server until it looks a node up (`drivers.opcua_space`), the
+same nodes as asyncua's own fill, and no server sees what another one changed."""
 
 from __future__ import annotations
+
+import asyncio
 
 import pytest
 from asyncua import ua
@@ -11,7 +13,7 @@ from asyncua.server.server import Server
 from asyncua.ua.object_ids import ObjectIds
 
 from drivers import opcua_space
-from drivers.opcua_space import standard_nodes
+from drivers.opcua_space import SharedNodes, standard_nodes
 from drivers.sim.opcua_server import NAMESPACE, OpcUaSimController
 
 
@@ -37,6 +39,48 @@ async def test_the_standard_space_is_built_once_and_copied(
     some = _node("Server_NamespaceArray")
     assert first[some] is not second[some]
     assert first[some].references is not second[some].references
+
+
+async def test_servers_started_together_build_the_space_once(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A farm starts its servers at once: they wait for one build, not one each."""
+    builds: list[int] = []
+    build = opcua_space._build
+
+    def counting() -> dict[ua.NodeId, NodeData]:
+        builds.append(1)
+        return build()
+
+    monkeypatch.setattr(opcua_space, "_template", None)
+    monkeypatch.setattr(opcua_space, "_build", counting)
+    spaces = await asyncio.gather(*(standard_nodes() for _ in range(4)))
+    assert len(builds) == 1
+    assert all(s.keys() == spaces[0].keys() for s in spaces)
+
+
+async def test_a_server_shares_the_nodes_it_never_looked_up() -> None:
+    """A started simulated controller and a client's browse copy about a hundred
+    standard nodes; the thousands it never looked up stay the template's."""
+    sim = OpcUaSimController()
+    await sim.start()
+    try:
+        nodes = sim._require().iserver.aspace._nodes
+        assert isinstance(nodes, SharedNodes)
+        template = opcua_space._template
+        assert template is not None
+        status = _node("Server_ServerStatus")
+        assert dict.__getitem__(nodes, status) is not template[status]
+        untouched = _node("HistoricalDataConfigurationType")
+        assert dict.__getitem__(nodes, untouched) is template[untouched]
+        assert nodes.shared() > 0.9 * len(template)
+        # a lookup by any route hands out the server's own copy
+        mine = nodes[untouched]
+        assert mine is not template[untouched] and nodes.get(untouched) is mine
+        assert mine.attributes is not template[untouched].attributes
+        assert all(node is not template.get(k) for k, node in nodes.items())
+        assert nodes.shared() == 0
+    finally:
+        await sim.stop()
 
 
 async def test_a_copied_space_is_asyncua_own_standard_space() -> None:

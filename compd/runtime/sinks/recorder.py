@@ -8,13 +8,16 @@ its alarm (``recorder_failing``, then ``recorder_recovered``). Retention is a
 row count (one row per cycle), never judged by a clock that can jump. A
 reload that changes ``[recorder]`` closes it and opens the new one.
 
-Commits run on the process's disk thread (`compd.runtime.diskwriter`; the
-rows formatted here, on the loop's thread): a commit that failed there is
-counted and alarmed at the next cycle's feed.
+The file is opened, and commits run, on the process's disk thread
+(`compd.runtime.diskwriter`, the state directory's; the rows formatted here, on
+the loop's thread): a commit that failed there is counted and alarmed at the
+next cycle's feed. A reload opens the new recorder between cycles, on the
+loop's thread.
 """
 
 from __future__ import annotations
 
+import asyncio
 import math
 from typing import TYPE_CHECKING, Any
 
@@ -48,25 +51,55 @@ class RecorderSink(CycleSink):
         return self._journal.log
 
     async def open(self, cfg: LoadedConfig) -> None:
-        self.open_now(cfg)
+        """Open the recorder on its disk thread: opening a new file switches it to
+        WAL and creates its tables (fsyncs, tens of ms on a busy disk), which on
+        the loop's thread would hold every other machine of the process."""
+        recorder = self._new(cfg)
+        if recorder is None:
+            return
+        job = recorder.writer_job(recorder.open)
+        try:
+            if job is None:
+                recorder.open()
+            else:
+                await asyncio.wrap_future(job)
+        except asyncio.CancelledError:  # stopped while opening: closed once it is open
+            recorder.writer_job(recorder.close)
+            raise
+        except Exception as exc:  # compensation never stops for the recorder
+            self._unavailable(recorder, exc)
+            return
+        self._opened(recorder)
 
     def open_now(self, cfg: LoadedConfig) -> None:
+        """Open the recorder on the caller's thread (a reload between cycles)."""
+        recorder = self._new(cfg)
+        if recorder is None:
+            return
+        try:
+            recorder.open()
+        except Exception as exc:  # compensation never stops for the recorder
+            self._unavailable(recorder, exc)
+            return
+        self._opened(recorder)
+
+    def _new(self, cfg: LoadedConfig) -> Recorder | None:
         path = cfg.recorder_path
         if self._dry_run or path is None:
-            return
+            return None
         from compd.runtime.diskwriter import PROCESS_DISK
         from compd.runtime.recorder import Recorder
 
         rc = cfg.raw.recorder
         keep_rows = (max(1, math.ceil(rc.retention_days * 86400.0 / cfg.period_s))
                      if rc.retention_days else None)
-        recorder = Recorder(path, commit_every=rc.commit_every, keep_rows=keep_rows,
-                            writer=PROCESS_DISK)
-        try:
-            recorder.open()
-        except Exception as exc:  # compensation never stops for the recorder
-            self.log.error("recorder_unavailable", path=str(path), error=str(exc))
-            return
+        return Recorder(path, commit_every=rc.commit_every, keep_rows=keep_rows,
+                        writer=PROCESS_DISK)
+
+    def _unavailable(self, recorder: Recorder, exc: Exception) -> None:
+        self.log.error("recorder_unavailable", path=str(recorder.path), error=str(exc))
+
+    def _opened(self, recorder: Recorder) -> None:
         self.recorder = recorder
         self._dropped = 0
 
