@@ -58,7 +58,7 @@ import struct
 import termios
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -485,23 +485,26 @@ class GuardCollector(Collector):
         yield GaugeMetricFamily("compd_opcua_face_connection_limit",
                                 "Connections the OPC UA face accepts at most (max_connections, "
                                 "lowered to the file descriptors there are)", value=g.limit)
-        refused = CounterMetricFamily(
+        yield _by_reason(
             "compd_opcua_face_connections_refused",
             "Connections the OPC UA face closed: over the limit (the new one), evicted "
-            "to make room for a new one, or no session in time", labels=["reason"])
-        for reason, n in sorted(g.refused.items()):
-            refused.add_metric([reason], n)
-        yield refused
+            "to make room for a new one, or no session in time", g.refused)
         yield CounterMetricFamily("compd_opcua_face_logins_failed",
                                   "Logins refused by the OPC UA face (wrong user or password)",
                                   value=g.tallies["opcua_login_failed"].total)
-        sessions = CounterMetricFamily(
+        yield _by_reason(
             "compd_opcua_face_sessions_refused",
             "Sessions refused by the OPC UA face: max_sessions reached, or the anonymous "
-            "share (max_sessions minus reserved_sessions) full", labels=["reason"])
-        for reason, n in sorted(g.sessions_refused.items()):
-            sessions.add_metric([reason], n)
-        yield sessions
+            "share (max_sessions minus reserved_sessions) full", g.sessions_refused)
+
+
+def _by_reason(name: str, documentation: str, counts: Mapping[str, int]
+               ) -> CounterMetricFamily:
+    """A counter labelled by reason, one sample a reason in `counts`, sorted."""
+    family = CounterMetricFamily(name, documentation, labels=["reason"])
+    for reason, n in sorted(counts.items()):
+        family.add_metric([reason], n)
+    return family
 
 
 @contextlib.contextmanager
