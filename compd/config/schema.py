@@ -267,21 +267,18 @@ class ChannelSection(_Section):
         return v
 
 
-def _field(lo: float, hi: float, why: str) -> Any:
-    """A finite float's Field: its range in the JSON schema (`compd schema`), `why` as
-    the description."""
-    return Field(allow_inf_nan=False, description=why,
-                 json_schema_extra={"minimum": lo, "maximum": hi})
-
-
-def _within(lo: float, hi: float, unit: str, why: str) -> AfterValidator:
-    """Refuse a value outside [lo, hi] with the range and the reason."""
+def _bounded(lo: float, hi: float, unit: str, why: str) -> tuple[Any, AfterValidator]:
+    """A finite number's metadata: its Field (its range in the JSON schema, `compd
+    schema`; `why` as the description) and a validator refusing a value outside
+    [lo, hi] with the range and the reason."""
     def check(v: float) -> float:
         if not lo <= v <= hi:
             raise ValueError(f"must be within {lo:g} ... {hi:g}{unit}, got {v:g} ({why})")
         return v
 
-    return AfterValidator(check)
+    return (Field(allow_inf_nan=False, description=why,
+                  json_schema_extra={"minimum": lo, "maximum": hi}),
+            AfterValidator(check))
 
 
 #: [adaptation]'s physical bounds. The estimator (models.adaptation.DOMAIN) stays finite
@@ -317,30 +314,22 @@ ADAPTATION_BOUNDS: dict[str, tuple[float, float]] = {
     "reacquire_after": (0, 100),
 }
 _B = ADAPTATION_BOUNDS
-BiasRw = Annotated[float, _field(*_B["bias_rw_um_per_sqrt_h"], _WHY_BIAS_RW),
-                   _within(*_B["bias_rw_um_per_sqrt_h"], " µm/√h", _WHY_BIAS_RW)]
-ProbeNoise = Annotated[float, _field(*_B["probe_noise_um"], _WHY_PROBE_NOISE),
-                       _within(*_B["probe_noise_um"], " µm", _WHY_PROBE_NOISE)]
-GateSigma = Annotated[float, _field(*_B["gate_sigma"], _WHY_GATE),
-                      _within(*_B["gate_sigma"], " σ", _WHY_GATE)]
-Correction = Annotated[float, _field(*_B["max_step_um"], _WHY_CORRECTION),
-                       _within(*_B["max_step_um"], " µm", _WHY_CORRECTION)]
-GainRw = Annotated[float, _field(*_B["gain_rw_per_sqrt_h"], _WHY_GAIN_RW),
-                   _within(*_B["gain_rw_per_sqrt_h"], " per √h", _WHY_GAIN_RW)]
-MaxGain = Annotated[float, _field(*_B["max_gain"], _WHY_MAX_GAIN),
-                    _within(*_B["max_gain"], "", _WHY_MAX_GAIN)]
+BiasRw = Annotated[float, *_bounded(*_B["bias_rw_um_per_sqrt_h"], " µm/√h", _WHY_BIAS_RW)]
+ProbeNoise = Annotated[float, *_bounded(*_B["probe_noise_um"], " µm", _WHY_PROBE_NOISE)]
+GateSigma = Annotated[float, *_bounded(*_B["gate_sigma"], " σ", _WHY_GATE)]
+Correction = Annotated[float, *_bounded(*_B["max_step_um"], " µm", _WHY_CORRECTION)]
+GainRw = Annotated[float, *_bounded(*_B["gain_rw_per_sqrt_h"], " per √h", _WHY_GAIN_RW)]
+MaxGain = Annotated[float, *_bounded(*_B["max_gain"], "", _WHY_MAX_GAIN)]
 _WHY_SCORE_WINDOW = ("probes the estimator scores itself over: 0 never stands down; beyond "
                      "100 probes a machine's error has long changed, the score only lags")
-ScoreWindow = Annotated[int, _field(*_B["score_window"], _WHY_SCORE_WINDOW),
-                        _within(*_B["score_window"], " probes", _WHY_SCORE_WINDOW)]
+ScoreWindow = Annotated[int, *_bounded(*_B["score_window"], " probes", _WHY_SCORE_WINDOW)]
 _WHY_REACQUIRE = ("refusals in a row, agreeing in direction, after which the estimator "
                   "re-acquires: 0 never; beyond 100 probes a real change has long been "
                   "missed")
-ReacquireAfter = Annotated[int, _field(*_B["reacquire_after"], _WHY_REACQUIRE),
-                           _within(*_B["reacquire_after"], " probes", _WHY_REACQUIRE)]
+ReacquireAfter = Annotated[int, *_bounded(*_B["reacquire_after"], " probes", _WHY_REACQUIRE)]
 _WHY_GUARD = ("probes in a row showing the model worse than none before the alarm: 0 no "
               "guard; beyond 100 probes a wrong model would run for days")
-GuardWindow = Annotated[int, _field(0, 100, _WHY_GUARD), _within(0, 100, " probes", _WHY_GUARD)]
+GuardWindow = Annotated[int, *_bounded(0, 100, " probes", _WHY_GUARD)]
 #: µm per unit of an input: one unit never warrants more than the largest output.limit_um
 _WHY_DC_GAIN = ("one unit of an input never warrants more than the largest "
                 "output.limit_um, 10 mm")
@@ -361,8 +350,8 @@ class ModelSection(_Section):
     reference: dict[str, float] | None = None
     #: refuse a model whose DC gain exceeds this (µm per unit of an input; models.sanity):
     #: at most 10 mm, the largest output.limit_um (one unit of an input never warrants more)
-    max_dc_gain_um: Annotated[float, Field(gt=0.0), _field(0.0, MAX_LIMIT_UM, _WHY_DC_GAIN),
-                              _within(0.0, MAX_LIMIT_UM, " µm per unit", _WHY_DC_GAIN)
+    max_dc_gain_um: Annotated[float, Field(gt=0.0),
+                              *_bounded(0.0, MAX_LIMIT_UM, " µm per unit", _WHY_DC_GAIN)
                               ] = 1000.0
     #: refuse a model whose slowest time constant exceeds this (models.sanity)
     max_time_constant_s: PositiveS = 7 * 86400.0
