@@ -74,7 +74,7 @@ import structlog
 from asyncua import ua
 
 from compd.core.faults import FaultState
-from compd.faces.opcua_limits import GuardCollector
+from compd.faces.opcua_guard_report import GuardCollector
 from compd.faces.opcua_shape import MachineNodes
 from compd.faces.opcua_shared import FAULT_STATES, NAMESPACE, FaceMachine, SharedServer, url_host
 

@@ -22,7 +22,8 @@ from compd.config.loader import credential_path
 from compd.core.faults import FaultState
 from compd.errors import ConfigError
 from compd.faces.opcua_access import POLICIES, ReadOnlyRules, Users
-from compd.faces.opcua_limits import ACCEPT_BURST, FaceLoop, Guard, quiet_asyncua_faults
+from compd.faces.opcua_guard_report import quiet_asyncua_faults
+from compd.faces.opcua_limits import ACCEPT_BURST, FaceLoop, Guard
 from compd.faces.opcua_shape import MachineNodes
 from drivers.opcua_space import CopiedSpaceInternalServer
 
