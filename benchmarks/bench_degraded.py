@@ -55,7 +55,7 @@ def _run(model: CompensationModel, rec: object, lost: str | None) -> np.ndarray:
                               else float(v[k]), float(now)) for ch, v in cols.items()}
         plan = cycle.plan(float(now), samples)
         cycle.commit(WRITTEN)
-        out[k] = plan.offset_um
+        out[k] = plan.stage_um
     return out
 
 

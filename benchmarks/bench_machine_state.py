@@ -73,7 +73,7 @@ def _model(reference: dict[str, float] | None) -> CompensationModel:
 
 def _cycle_step(cycle: Cycle, t: float, sensors: dict[str, float]) -> float:
     cycle.plan(t, {n: Sample(sensors[n], t) for n in CHANNELS}, wall_s=t)
-    return cycle.commit(WRITTEN).offset_um
+    return cycle.commit(WRITTEN).stage_um
 
 
 def _warm(seed: int, speed_after_rpm: float,

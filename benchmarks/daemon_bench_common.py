@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from compd.core.cycle import CycleResult
+from compd.core.plan import Row
 from compd.runtime.daemon import Daemon
 from drivers.base import Driver, Sample
 from drivers.errors import ControllerTimeout
@@ -241,23 +241,23 @@ class TimedDaemon(Daemon):
                 _timed(self.telemetry.feed, self.times.telemetry))
         save = self.checkpoint.save
 
-        def timed_save() -> None:
+        def timed_save(*args: Any) -> None:  # the config in force, as the loop passes it
             t0 = time.perf_counter()
-            save()
+            save(*args)
             self.times.checkpoint_s += time.perf_counter() - t0
             self.times.checkpoints += 1
 
         setattr(self.checkpoint, "save", timed_save)  # noqa: B010
 
-    def _timed_cycle(self, one_cycle: Callable[[float], Awaitable[CycleResult]]
-                     ) -> Callable[[float], Awaitable[CycleResult]]:
-        async def timed(now_s: float) -> CycleResult:
+    def _timed_cycle(self, one_cycle: Callable[[Any], Awaitable[Row]]
+                     ) -> Callable[[Any], Awaitable[Row]]:
+        async def timed(at: Any) -> Row:  # the cycle's time (`Instant`)
             driver = self.running.driver
             io0 = driver.io_s if isinstance(driver, TimedDriver) else 0.0
             self.times.start.append(time.monotonic())
             self.first_cycle.set()
             tp = time.perf_counter()
-            result = await one_cycle(now_s)
+            result = await one_cycle(at)
             self.times.total.append(time.perf_counter() - tp)
             self.times.io.append((driver.io_s - io0) if isinstance(driver, TimedDriver)
                                  else 0.0)

@@ -77,12 +77,12 @@ def run(args: argparse.Namespace) -> int:
         import json
 
         r = daemon.last_result
-        print(json.dumps({"sequence": r.sequence, "state": r.state, "complete": r.complete,
-                          "offset_um": r.offset_um, "model_um": r.model_um,
+        print(json.dumps({"sequence": r.sequence, "state": r.state, "complete": r.in_force,
+                          "inputs_valid": r.inputs_valid, "offset_um": r.stage_um,
+                          "confirmed_um": r.confirmed_um, "model_um": r.model_um,
                           "shadow_um": r.shadow_um, "status": r.status,
-                          "writes": {} if args.dry_run else r.writes,
-                          "channels": r.record.channels if r.record else {},
-                          "validity": r.record.validity if r.record else {}}))
+                          "writes": {} if args.dry_run else dict(r.writes),
+                          "channels": dict(r.channels), "validity": dict(r.validity)}))
     return rc
 
 

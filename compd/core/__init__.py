@@ -3,11 +3,18 @@ the record row out. No asyncio, no clock, no logging, no I/O, so hours of
 machine time are tested in milliseconds.
 
 - `cycle`       one cycle as plan (read-back, validation, model, health, output)
-                and commit (the write's outcome, the final row)
+                and commit (the write's outcome, the cycle's report)
+- `readback`    step 1: the controller's offset as read back, judged
+- `stepping`    steps 2 and 3: the inputs validated, the models stepped
+- `permit`      the controller's permission to change the offset, the re-zero edge
+- `restore`     what a cycle keeps of a checkpoint's or a reload's state
+- `snapshot`    what the faces read beyond the output, the recorded contributions
 - `params`      what a cycle is built with, and how the config gives it
-- `plan`        what a cycle hands the shell: Plan, Outcome, Row, Snapshot
+- `plan`        what a cycle hands the shell: Plan, Outcome, and Row, the
+                cycle's report (one meaning per name), with its Snapshot
 - `health`      the output's one state machine (fault policy, write fault,
-                stopped, held...) and the status word as a pure function of it
+                stopped, held...), each transition one of its methods
+- `health_view` a cycle's health as told: the status word, the state, the cause
 - `modelstep`   the live and shadow models as the cycle steps them
 - `validation`  per-channel input checks (missing, bad quality, range, rate, stuck)
 - `faults`      the output's states

@@ -1,5 +1,5 @@
 """The output's health: one state machine that owns every `FaultState`, and
-the status word as a pure function of it (pure: no clock, no I/O).
+why the offset compd wants is not in force (`Cause`) (pure: no clock, no I/O).
 
 `OutputHealth` holds everything that decides what the output aims at and
 what the PLC is told:
@@ -18,10 +18,9 @@ what the PLC is told:
   written and the output holds (CONTROLLER_OFF, HOLDING, state "hold"
   where the policy says "ok"); no alarm, it is the machine's own state.
 
-`recorded_state(view)` is the state a cycle records (``stopped``, ``held``
-and ``write_fault`` over the policy's), `status_word(view)` its status word,
-`output_cause(view)` why the offset compd wants is not in force (`Cause`);
-all three read only a frozen `HealthView`, so none can disagree with another.
+What the PLC and every face are told of one cycle's health (the state
+recorded, the status word, the `Cause`) are pure functions of a frozen
+`compd.core.health_view.HealthView`.
 
 `Cause` is the one answer to "is the offset compd wants in force, and if not,
 why": health (`compd health`, the metrics it reads, the checkpoint's
@@ -46,14 +45,10 @@ from dataclasses import dataclass
 
 from compd.core.events import Event, EventName
 from compd.core.faults import FaultState
-from compd.core.output import Status
 
 #: this many offset writes in a row failing (transient) are a write fault:
 #: WRITE_FAULT and ALARM, state "write_fault", until a write succeeds
 WRITE_FAULT_AFTER = 5
-
-#: the policy's states that hold the output where it is
-_HOLDING = (FaultState.HOLD, FaultState.INIT)
 
 
 class Cause(enum.StrEnum):
@@ -127,138 +122,16 @@ class Decision:
     alarm: bool
 
 
-@dataclass(frozen=True, slots=True)
-class HealthView:
-    """One cycle's health, frozen: all `status_word`, `recorded_state` and `output_cause` read."""
-
-    #: the fault policy's state this cycle (init, ok, hold, ramp, shutdown)
-    policy: FaultState
-    #: the policy's alarm (ramping on a fault)
-    alarm: bool = False
-    write_stopped: bool = False
-    write_fault: bool = False
-    #: the controller holds an offset beyond ±limit: none written (`OutputStage.held`)
-    held: bool = False
-    #: a foreign read-back, alarmed until the output has ramped to its target
-    foreign: bool = False
-    operator_hold: bool = False
-    slewing: bool = False
-    #: this cycle's model: non-finite, far beyond the limit, worse than none (probes)
-    model_invalid: bool = False
-    model_range: bool = False
-    model_worse: bool = False
-    #: the controller takes no offset now (machine off, E-stop): held, none written
-    controller_off: bool = False
-    #: why this cycle is not valid (the fault policy's reason), None when it is
-    invalid: Cause | None = None
-    #: read-back is configured and failed this cycle: no offset written
-    no_readback: bool = False
-    #: the target the policy chose is beyond ±limit_um (the stage clamps it)
-    at_limit: bool = False
-    #: a tracking output held for [output] update_permitted: WAITING_FOR_PERMISSION or
-    #: PERMIT_UNREADABLE; None: permitted (or no permit input)
-    permit: Cause | None = None
-    #: a fallback model stands in for an invalid input this cycle
-    degraded: bool = False
-    #: recorder only: nothing is written (RECORDER_ONLY once the inputs are valid)
-    recorder_only: bool = False
-
-
-def output_cause(v: HealthView) -> Cause:
-    """Why the offset compd wants is not in force this cycle (`Cause`, in its order)."""
-    if v.policy == FaultState.SHUTDOWN:
-        return Cause.SHUTTING_DOWN
-    if v.write_stopped:
-        return Cause.WRITE_STOPPED
-    if v.held:
-        return Cause.FOREIGN_OFFSET_HELD
-    if v.controller_off:
-        return Cause.CONTROLLER_OFF
-    if v.write_fault:
-        return Cause.WRITE_FAULT
-    if v.invalid is not None:
-        return v.invalid
-    if v.policy != FaultState.OK:  # not reached: the policy holds only on an invalid cycle
-        return Cause.INPUTS_INVALID
-    if v.recorder_only:
-        return Cause.RECORDER_ONLY
-    if v.no_readback:
-        return Cause.NO_READBACK
-    if v.foreign:
-        return Cause.FOREIGN_OFFSET
-    if v.permit is Cause.PERMIT_UNREADABLE:
-        return v.permit
-    if v.operator_hold:
-        return Cause.OPERATOR_HOLD
-    if v.permit is not None:
-        return v.permit
-    if v.at_limit:
-        return Cause.AT_LIMIT
-    return Cause.DEGRADED if v.degraded else Cause.IN_FORCE
-
-
-def recorded_state(v: HealthView) -> FaultState:
-    """The state recorded and reported: the policy's, unless the offset is not
-    reaching the controller (stopped, held, a tracking output held while the
-    controller is off, write fault, in that order)."""
-    if v.write_stopped:
-        return FaultState.STOPPED
-    if v.held:
-        return FaultState.HELD
-    if v.controller_off and v.policy == FaultState.OK:
-        return FaultState.HOLD
-    return FaultState.WRITE_FAULT if v.write_fault else v.policy
-
-
-def _state_bits(v: HealthView) -> int:
-    """OK, HOLDING, RAMPING or SHUTDOWN: what the output does."""
-    if v.policy == FaultState.OK and not (v.write_stopped or v.held or v.write_fault):
-        held = v.operator_hold or v.controller_off or v.permit is not None
-        return _HOLDING_BIT if held else _OK_BIT
-    if v.policy in _HOLDING:
-        return _HOLDING_BIT
-    if v.policy == FaultState.RAMP:
-        return int(Status.RAMPING)
-    if v.policy == FaultState.SHUTDOWN:
-        return int(Status.SHUTDOWN)
-    return 0
-
-
-_OK_BIT, _HOLDING_BIT, _ALARM = int(Status.OK), int(Status.HOLDING), int(Status.ALARM)
-
-
-def status_word(v: HealthView) -> Status:
-    """The status word a cycle writes (bits in `compd.core.output.Status`);
-    plain int arithmetic, one `Status` at the end (it runs every cycle)."""
-    s = _state_bits(v)
-    if v.model_invalid:
-        s |= Status.MODEL_INVALID.value
-    if v.model_range:
-        s |= Status.MODEL_RANGE.value | _ALARM
-    if v.model_worse:
-        s |= Status.MODEL_WORSE.value | _ALARM
-    if v.foreign:
-        s |= Status.READBACK_MISMATCH.value | _ALARM
-    if v.alarm:
-        s |= _ALARM
-    if v.write_stopped:
-        s |= Status.WRITE_STOPPED.value | _ALARM
-    if v.held:
-        s |= Status.OFFSET_HELD.value | _ALARM
-    if v.write_fault:
-        s |= Status.WRITE_FAULT.value | _ALARM
-    if v.operator_hold:
-        s |= Status.OPERATOR_HOLD.value
-    if v.slewing:
-        s |= Status.SLEWING.value
-    if v.controller_off:
-        s |= Status.CONTROLLER_OFF.value
-    return Status(s)
-
-
 class OutputHealth:
     """See the module docstring. `decide` once per cycle, then one of
-    `write_succeeded` / `write_failed` when the shell reports the writes."""
+    `write_succeeded` / `write_failed` when the shell reports the writes.
+
+    Its fields are read by anyone and changed only by its own methods, one per
+    transition: the controller's state (`controller`), the fault policy
+    (`decide`, `begin_shutdown`), the writes (`write_succeeded`,
+    `write_failed`), a foreign read-back (`foreign_seen`, `foreign_settled`),
+    the model's range (`model_in_range`), the operator (`set_operator_hold`),
+    and a reload (`carry_over`)."""
 
     def __init__(self, hold_s: float, *, operator_hold: bool = False) -> None:
         self.hold_s = hold_s
@@ -294,6 +167,39 @@ class OutputHealth:
         if outputs_same:
             self.write_stopped = old.write_stopped
             self.stopped_outputs = set(old.stopped_outputs)
+
+    # -- the operator, the shutdown, the read-back and the model's range -----------------
+
+    def set_operator_hold(self, on: bool) -> bool:
+        """An operator's hold (on) or its release (off); whether that changed anything."""
+        if on == self.operator_hold:
+            return False
+        self.operator_hold = on
+        return True
+
+    def begin_shutdown(self) -> None:
+        """A ramp-to-zero shutdown: from the next `decide` on the target is 0."""
+        self.shutting_down = True
+
+    def foreign_seen(self) -> None:
+        """The read-back showed a value compd did not write: alarmed from now on."""
+        self.foreign = True
+
+    def foreign_settled(self, *, moving: bool) -> None:
+        """After the output stage moved: a foreign read-back's alarm lasts until the
+        output has ramped to its target (`moving`: still slewing, or held)."""
+        if self.foreign:
+            self.foreign = moving
+
+    def model_in_range(self, model_um: float, bound_um: float, events: list[Event]) -> bool:
+        """Whether the model's output is within ±`bound_um`; MODEL_OUT_OF_RANGE and
+        MODEL_IN_RANGE when that changes (a latch: told once each way)."""
+        out = abs(model_um) > bound_um
+        if out != self.model_range:
+            self.model_range = out
+            events.append(Event(EventName.MODEL_OUT_OF_RANGE if out else EventName.MODEL_IN_RANGE,
+                                {"model_um": model_um, "bound_um": bound_um}))
+        return not out
 
     # -- the controller's own state -----------------------------------------------------
 

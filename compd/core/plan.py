@@ -1,19 +1,21 @@
 """What one cycle hands the shell, frozen: the `Plan` (what to write), the
 `Outcome` the shell reports back (how the write went) and the `Row` that
-closes the cycle (the final record, with whether the controller confirmed
-the offset), with the `Snapshot` every face reads (pure data).
+closes the cycle: the cycle's one report, each name one meaning, read by every
+output (pure data).
 
 `Cycle.plan(...) -> Plan`, the shell writes `plan.writes`, then
 `Cycle.commit(outcome) -> Row`. Nothing is changed after it is returned: a
 write that failed is in the row that `commit` returns, not patched into an
-earlier one.
+earlier one. `Plan` and `Row` are named tuples (made once a cycle each, and a
+tuple is built several times faster than a frozen dataclass of 20-odd
+fields) whose mappings are read-only views; the rest are frozen dataclasses.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 from compd.core.events import Event
 from compd.core.faults import FaultState
@@ -23,38 +25,41 @@ from compd.core.record import RecordRow
 __all__ = ["WRITTEN", "AdaptationView", "Outcome", "Plan", "Row", "Snapshot"]
 
 
-@dataclass(frozen=True, slots=True)
-class Plan:
-    """One cycle's decision: what to write and why."""
+class Plan(NamedTuple):
+    """One cycle's decision: what to write and why (the `Row` fields known before
+    the write, by the same names)."""
 
     sequence: int
-    #: output name -> value in controller units
+    #: the cycle's machine time (s) and wall-clock time (s, NaN when none was
+    #: given): read once by the loop, passed to `plan`
+    machine_s: float
+    wall_s: float
+    #: output name -> value in controller units (read-only)
     writes: Mapping[str, float]
-    #: the output stage's value in µm (what is, or would be, written)
-    offset_um: float
+    #: the output stage's value in µm (after clamp, slew limit and fault policy)
+    stage_um: float
+    #: the offset in this cycle's writes (µm), None: none written
+    sent_um: float | None
+    #: the model's output as recorded (None: not stepped, or not recorded)
     model_um: float | None
     shadow_um: float | None
-    #: the state the cycle records (`compd.core.health.recorded_state`)
+    #: the state the cycle records (`compd.core.health_view.recorded_state`)
     state: FaultState
     status: int
     heartbeat: int
-    #: inputs valid and the model stepped (heartbeat advanced)
-    complete: bool
-    #: the `RecordRow`'s fields as planned (read them as `record`); never changed
-    row_fields: Mapping[str, Any]
+    #: every channel the live model reads valid and the model stepped (heartbeat advanced)
+    inputs_valid: bool
     #: why the offset compd wants is not in force, as planned (`Row.cause` after the write)
     cause: Cause
+    #: each channel's value (None: missing or not finite), why each is invalid
+    #: (None: valid), each term's contribution (µm), the probe that arrived (read-only)
+    channels: Mapping[str, float | None]
+    validity: Mapping[str, str | None]
+    contributions: Mapping[str, float]
+    probe: Mapping[str, Any] | None = None
     events: tuple[Event, ...] = ()
     #: a ramp-to-zero shutdown has reached zero (or cannot write any more)
     shutdown_done: bool = False
-
-    @property
-    def record(self) -> RecordRow:
-        """The row as planned, before the write (`offset_um`: sent, not yet
-        confirmed; `complete` False; wall_s: as passed to `plan`, NaN when none
-        was): `commit` makes the final `Row.record`. Built when asked for: the
-        daemon reads only the committed row."""
-        return RecordRow(**self.row_fields)
 
 
 @dataclass(frozen=True, slots=True)
@@ -108,8 +113,6 @@ class AdaptationView:
 class Snapshot:
     """What the faces show of the cycle beyond its row, taken at commit."""
 
-    #: the last offset the controller confirmed (None: unknown)
-    confirmed_um: float | None
     operator_hold: bool
     adaptation: AdaptationView | None = None
     #: waiting for the controller's permission: the change held back (µm), else None
@@ -126,27 +129,56 @@ class Snapshot:
     references: Mapping[str, float] | None = None
 
 
-@dataclass(frozen=True, slots=True)
-class Row:
-    """A committed cycle: its plan, the final `record`, what the faces show
-    (`snapshot`) and the events of its write's outcome (`write_events`, after
-    the plan's `events`). The plan's figures read through."""
+class Row(NamedTuple):
+    """The cycle's report: a committed cycle, one meaning per name, frozen
+    (mappings read-only). Every output reads the field it means:
 
-    plan: Plan
-    #: the recorder's row: `offset_um` what the controller confirmed,
-    #: `complete` a COMPLETE cycle (`compd.core.cycle.offset_in_force`)
-    record: RecordRow
-    snapshot: Snapshot
-    #: what the write's outcome caused (write_failed, write_fault, ..._stopped)
-    write_events: tuple[Event, ...]
+    - `stage_um` the output stage's value (``compd_offset_micrometres``, the
+      status page's ``offset_um``, the shutdown ramp);
+    - `sent_um` the offset written this cycle (None: none written), and
+      `write_ok` whether this cycle's writes arrived (the recorder's
+      ``attempted_um``; its ``offset_um`` is `sent_um` when they did);
+    - `confirmed_um` the offset the controller last confirmed holding, after
+      this cycle's write (None: unknown): ``compd_offset_confirmed_micrometres``,
+      the OPC UA face's ``Offset_um``, the page's ``confirmed_um``, the checkpoint;
+    - `inputs_valid` every channel the model reads valid and the model stepped
+      (the heartbeat advanced; the recorder's ``valid``);
+    - `in_force` a COMPLETE cycle (`compd.core.cycle.offset_in_force`): what the
+      model asks for is the offset in force (``compd_cycles_complete``, the
+      recorder's ``complete``, the checkpoint's last complete cycle, the page's
+      ``complete``);
+    - `machine_s`, `wall_s` the cycle's time, read once by the loop.
+    """
+
+    sequence: int
+    machine_s: float
+    wall_s: float
+    writes: Mapping[str, float]
+    stage_um: float
+    sent_um: float | None
+    write_ok: bool
+    confirmed_um: float | None
+    model_um: float | None
+    shadow_um: float | None
+    state: FaultState
+    status: int
+    heartbeat: int
+    inputs_valid: bool
+    in_force: bool
     #: why the offset compd wants is not in force after the write, or that it is
     #: (`compd.core.health.Cause`): what health, the page and the faces say
     cause: Cause
-
-    @property
-    def in_force(self) -> bool:
-        """A complete cycle (`compd.core.cycle.offset_in_force`)."""
-        return self.record.complete
+    channels: Mapping[str, float | None]
+    validity: Mapping[str, str | None]
+    contributions: Mapping[str, float]
+    probe: Mapping[str, Any] | None
+    #: what the faces show of the cycle beyond the offset and the cause
+    snapshot: Snapshot
+    #: the plan's events (logged before the write), then what the write's outcome
+    #: caused (write_failed, write_fault, ..._stopped)
+    events: tuple[Event, ...] = ()
+    write_events: tuple[Event, ...] = ()
+    shutdown_done: bool = False
 
     @property
     def healthy(self) -> bool:
@@ -154,47 +186,13 @@ class Row:
         return self.cause.healthy
 
     @property
-    def sequence(self) -> int:
-        return self.plan.sequence
-
-    @property
-    def writes(self) -> Mapping[str, float]:
-        return self.plan.writes
-
-    @property
-    def offset_um(self) -> float:
-        """The output stage's value (what was written, or would have been)."""
-        return self.plan.offset_um
-
-    @property
-    def model_um(self) -> float | None:
-        return self.plan.model_um
-
-    @property
-    def shadow_um(self) -> float | None:
-        return self.plan.shadow_um
-
-    @property
-    def state(self) -> FaultState:
-        return self.plan.state
-
-    @property
-    def status(self) -> int:
-        return self.plan.status
-
-    @property
-    def heartbeat(self) -> int:
-        return self.plan.heartbeat
-
-    @property
-    def complete(self) -> bool:
-        """Inputs valid and the model stepped (heartbeat advanced)."""
-        return self.plan.complete
-
-    @property
-    def events(self) -> tuple[Event, ...]:
-        return self.plan.events
-
-    @property
-    def shutdown_done(self) -> bool:
-        return self.plan.shutdown_done
+    def record(self) -> RecordRow:
+        """This cycle as the recorder stores it (its columns' names: ``offset_um``
+        the offset sent and confirmed, ``attempted_um`` the offset sent,
+        ``complete`` in force, ``valid`` inputs valid, ``mono_s`` machine time)."""
+        return RecordRow(
+            seq=self.sequence, mono_s=self.machine_s, wall_s=self.wall_s,
+            offset_um=self.sent_um if self.write_ok else None, model_um=self.model_um,
+            state=self.state, valid=self.inputs_valid, channels=self.channels,
+            validity=self.validity, contributions=self.contributions,
+            attempted_um=self.sent_um, probe=self.probe, complete=self.in_force)

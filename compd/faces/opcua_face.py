@@ -84,7 +84,7 @@ if TYPE_CHECKING:
     from compd.config.loader import LoadedConfig
     from compd.core.plan import Row
 
-__all__ = ["NAMESPACE", "OpcUaFace", "release_all"]
+__all__ = ["NAMESPACE", "OpcUaFace", "published_values", "release_all"]
 
 #: running servers of this process by (host, port): machines of one process share one
 _SERVERS: dict[tuple[str, int], SharedServer] = {}
@@ -236,31 +236,7 @@ class OpcUaFace:
         """The committed row for the face's task (cheap; never raises, never waits)."""
         if self._machine is None:
             return
-        rec, snap = result.record, result.snapshot
-        values: dict[str, tuple[Any, ua.VariantType]] = {
-            "Offset_um": (_num(snap.confirmed_um), ua.VariantType.Double),
-            "ModelOutput_um": (_num(rec.model_um), ua.VariantType.Double),
-            "FaultState": (FAULT_STATES.index(result.state), ua.VariantType.Int32),
-            "FaultStateName": (result.state.value, ua.VariantType.String),
-            "Cause": (result.cause.value, ua.VariantType.String),
-            "OffsetInForce": (result.healthy, ua.VariantType.Boolean),
-            "StatusWord": (int(result.status), ua.VariantType.UInt32),
-            "Heartbeat": (int(result.heartbeat), ua.VariantType.UInt32),
-            "OperatorHold": (bool(snap.operator_hold), ua.VariantType.Boolean),
-            "PendingOffset_um": (_num(snap.pending_um), ua.VariantType.Double),
-        }
-        for term in self.cfg.model.terms:
-            values[f"Terms.{term.name}"] = (_num(rec.contributions.get(term.name)),
-                                            ua.VariantType.Double)
-        for ch in self.cfg.channels:
-            values[f"Channels.{ch}.Value"] = (_num(rec.channels.get(ch)), ua.VariantType.Double)
-            values[f"Channels.{ch}.Valid"] = (rec.validity.get(ch) is None,
-                                              ua.VariantType.Boolean)
-        if snap.adaptation is not None:
-            est = snap.adaptation
-            values["Adaptation.Bias_um"] = (est.bias_um, ua.VariantType.Double)
-            values["Adaptation.BiasSigma_um"] = (est.bias_sigma_um, ua.VariantType.Double)
-            values["Adaptation.Correction_um"] = (est.correction_um, ua.VariantType.Double)
+        values = published_values(result, self.cfg)
         self._pending = values
         shared, wake = self._shared, self._wake
         if shared is not None and wake is not None:
@@ -329,3 +305,35 @@ async def release_all() -> None:
 
 def _num(x: float | None) -> float:
     return math.nan if x is None or not isinstance(x, int | float) else float(x)
+
+
+def published_values(result: Row, cfg: LoadedConfig) -> dict[str, tuple[Any, ua.VariantType]]:
+    """What the face writes for one cycle's report: node path -> (value, type).
+    ``Offset_um`` is the offset the controller confirmed (`Row.confirmed_um`),
+    ``OffsetInForce`` the cause's verdict (`Row.healthy`)."""
+    snap = result.snapshot
+    values: dict[str, tuple[Any, ua.VariantType]] = {
+        "Offset_um": (_num(result.confirmed_um), ua.VariantType.Double),
+        "ModelOutput_um": (_num(result.model_um), ua.VariantType.Double),
+        "FaultState": (FAULT_STATES.index(result.state), ua.VariantType.Int32),
+        "FaultStateName": (result.state.value, ua.VariantType.String),
+        "Cause": (result.cause.value, ua.VariantType.String),
+        "OffsetInForce": (result.healthy, ua.VariantType.Boolean),
+        "StatusWord": (int(result.status), ua.VariantType.UInt32),
+        "Heartbeat": (int(result.heartbeat), ua.VariantType.UInt32),
+        "OperatorHold": (bool(snap.operator_hold), ua.VariantType.Boolean),
+        "PendingOffset_um": (_num(snap.pending_um), ua.VariantType.Double),
+    }
+    for term in cfg.model.terms:
+        values[f"Terms.{term.name}"] = (_num(result.contributions.get(term.name)),
+                                        ua.VariantType.Double)
+    for ch in cfg.channels:
+        values[f"Channels.{ch}.Value"] = (_num(result.channels.get(ch)), ua.VariantType.Double)
+        values[f"Channels.{ch}.Valid"] = (result.validity.get(ch) is None,
+                                          ua.VariantType.Boolean)
+    if snap.adaptation is not None:
+        est = snap.adaptation
+        values["Adaptation.Bias_um"] = (est.bias_um, ua.VariantType.Double)
+        values["Adaptation.BiasSigma_um"] = (est.bias_sigma_um, ua.VariantType.Double)
+        values["Adaptation.Correction_um"] = (est.correction_um, ua.VariantType.Double)
+    return values

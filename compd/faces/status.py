@@ -202,7 +202,7 @@ class StatusBoard:
             why += f" ({snap.pending_um:+.3f} um pending)"
         raw = cfg.raw
         limit_um = float(raw.output.limit_um)
-        if abs(result.offset_um) > limit_um:  # the only way beyond it: `OutputStage._start`
+        if abs(result.stage_um) > limit_um:  # the only way beyond it: `OutputStage._start`
             why += ("; the offset compd wrote is beyond limit_um (lowered since it was "
                     "written): it ramps into the limit at the slew limit")
         self._dry_run = dry_run
@@ -216,15 +216,17 @@ class StatusBoard:
                 # the output stage's value (sent this cycle, confirmed or not) and what
                 # the controller confirmed holding (None: unknown); the history's
                 # offset_um is the recorder's, the confirmed one
-                "why": why, "offset_um": _num(result.offset_um),
-                "confirmed_um": _num(snap.confirmed_um),
+                "why": why, "offset_um": _num(result.stage_um),
+                "confirmed_um": _num(result.confirmed_um),
                 "limit_um": limit_um, "model_um": _num(rec.model_um),
-                "sequence": result.sequence, "complete": bool(result.complete),
+                "sequence": result.sequence, "complete": result.in_force,
+                "inputs_valid": result.inputs_valid,
                 "status_word": result.status, "heartbeat": result.heartbeat,
                 "model": cfg.model.name, "model_sha256": cfg.model_sha256,
                 "fallback_for": result.snapshot.fallback_for,
                 "fallbacks": sorted(cfg.model.fallbacks),
-                "dry_run": dry_run, "wall_s": self._wall(), "period_s": float(cfg.real_period_s),
+                "dry_run": dry_run, "wall_s": _num(result.wall_s),
+                "period_s": float(cfg.real_period_s),
                 "recorder_only": cfg.recorder_only,
                 # waiting for permission: the change held back (µm), else None
                 "pending_um": _num(snap.pending_um),

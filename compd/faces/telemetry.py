@@ -41,15 +41,17 @@ __all__ = ["LIBRARY_LOG_FLOOR", "REDACTED", "HttpLimits", "LogStream", "Metrics"
            "clear_secrets", "configure_logging", "is_journal_stream", "redact",
            "register_secret"]
 
-#: what ``compd_offset_micrometres`` is: the value compd sends, confirmed or not
-OFFSET_HELP = ("Offset the output stage sent this cycle (after limit, slew limit and "
-               "fault policy), in micrometres; a failed write leaves the controller on "
-               "its last confirmed offset, which this does not show")
+#: what ``compd_offset_micrometres`` is: the cycle report's ``stage_um``
+OFFSET_HELP = ("The output stage's offset this cycle (the cycle report's stage_um: after "
+               "limit, slew limit and fault policy), in micrometres, sent whether or not "
+               "the controller took it: a failed write leaves the controller on its last "
+               "confirmed offset, compd_offset_confirmed_micrometres")
 
 
-#: what ``compd_offset_confirmed_micrometres`` is: the offset the controller holds
-CONFIRMED_HELP = ("Offset the controller last confirmed holding (read back or acknowledged), "
-                  "in micrometres; NaN while unknown (before the first confirmed write)")
+#: what ``compd_offset_confirmed_micrometres`` is: the cycle report's ``confirmed_um``
+CONFIRMED_HELP = ("Offset the controller last confirmed holding (the cycle report's "
+                  "confirmed_um: read back or acknowledged), in micrometres; NaN while "
+                  "unknown (before the first confirmed write)")
 
 
 class MetricsServer:
@@ -116,8 +118,11 @@ class MetricsServer:
 class Metrics(MetricsServer):
     """The daemon's Prometheus metrics, in their own registry (`registry`)."""
 
-    def __init__(self, registry: CollectorRegistry | None = None) -> None:
+    def __init__(self, registry: CollectorRegistry | None = None, *,
+                 mono: Callable[[], float] = time.monotonic) -> None:
         self.registry = registry if registry is not None else CollectorRegistry()
+        #: the monotonic clock the last complete cycle's age is judged on (the daemon's)
+        self._mono = mono
         r = self.registry
         self.cycle_seconds = Histogram(
             "compd_cycle_seconds", "Time one cycle took, read to record (s)", registry=r,
@@ -162,11 +167,13 @@ class Metrics(MetricsServer):
             "When the OPC UA certificate expires (s since the epoch); only where one is "
             "configured", ["role"], registry=r)
         self.cycles_complete = Counter(
-            "compd_cycles_complete", "Complete cycles: inputs read and valid, model stepped, "
-            "offset write confirmed by the controller", registry=r)
+            "compd_cycles_complete", "Complete cycles (the cycle report's in_force): inputs "
+            "read and valid, model stepped, offset write confirmed by the controller",
+            registry=r)
         self.last_complete_timestamp = Gauge(
             "compd_last_complete_cycle_timestamp_seconds",
-            "Wall-clock time of the last complete cycle (s since the epoch)", registry=r)
+            "Wall-clock time of the last complete cycle, read once at its start (the cycle "
+            "report's wall_s; s since the epoch)", registry=r)
         self._last_complete_mono: float | None = None
         self.last_complete_age = Gauge(
             "compd_last_complete_cycle_age_seconds",
@@ -174,9 +181,9 @@ class Metrics(MetricsServer):
             "the first): what `compd health --url` judges", registry=r)
         self.last_complete_age.set_function(self._age_s)
         self.model_output_um = Gauge(
-            "compd_model_output_micrometres", "The model's output in the last cycle, in "
-            "micrometres, before limits and the fault policy (NaN when the model did not "
-            "step)", registry=r)
+            "compd_model_output_micrometres", "The model's output in the last cycle (the "
+            "cycle report's model_um), in micrometres, before limits and the fault policy "
+            "(NaN when the model did not step)", registry=r)
         self.period_seconds = Gauge(
             "compd_period_seconds", "The sampling period in wall-clock seconds (period_s / "
             "time_scale): what alert rules measure lateness and silence against",
@@ -308,13 +315,13 @@ class Metrics(MetricsServer):
 
     def _age_s(self) -> float:
         last = self._last_complete_mono
-        return math.inf if last is None else max(0.0, time.monotonic() - last)
+        return math.inf if last is None else max(0.0, self._mono() - last)
 
-    def cycle_complete(self, wall_s: float | None = None) -> None:
-        """A complete cycle (valid inputs, model stepped, write confirmed) just ended,
-        at `wall_s` (the daemon's wall clock; now by default) for the timestamp metric.
-        Its age for /health is judged on this server's own monotonic clock, read when
-        a request arrives in an HTTP thread."""
-        self._last_complete_mono = time.monotonic()
+    def cycle_complete(self, wall_s: float | None = None, mono_s: float | None = None) -> None:
+        """A complete cycle (the report's `in_force`) at `wall_s` and `mono_s` (the
+        cycle's time, read once by the daemon's loop; now by default). Its age for
+        /health is judged on the same monotonic clock (`mono`), read when a request
+        arrives in an HTTP thread."""
+        self._last_complete_mono = self._mono() if mono_s is None else mono_s
         self.last_complete_timestamp.set(time.time() if wall_s is None else wall_s)
         self.cycles_complete.inc()

@@ -71,7 +71,7 @@ def replay_cycle(params: CycleParams, model: CompensationModel, record: Record) 
         samples = {name: Sample(row[name], t) for name in params.channels}
         cycle.plan(t, samples, wall_s=t)
         done = cycle.commit(WRITTEN)
-        offset[k] = done.offset_um
+        offset[k] = done.stage_um
         if done.model_um is not None:
             model_um[k] = done.model_um
         in_force[k] = done.in_force

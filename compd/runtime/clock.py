@@ -10,7 +10,11 @@ in lockstep: ``Clock(mono=clock, sleep=clock.sleep)``):
 - `sleep`: the wait until the next deadline; None waits on the event loop's
   own timer (`pause`), which a stop request ends early.
 
-Nothing in the loop or its sinks calls `time` itself.
+The loop reads `mono` and `wall` once per cycle, at its start (`Clock.at`):
+that `Instant` is the cycle's time for the cycle (`Cycle.plan`), its report
+(`compd.core.plan.Row.machine_s`, ``wall_s``) and every sink (the recorder's
+row, the metrics' last complete cycle, the checkpoint's). Nothing in the loop
+or its sinks calls `time` itself.
 """
 
 from __future__ import annotations
@@ -21,7 +25,17 @@ import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 
-__all__ = ["Clock", "pause"]
+__all__ = ["Clock", "Instant", "pause"]
+
+
+@dataclass(frozen=True, slots=True)
+class Instant:
+    """One cycle's time, read once: machine seconds (the schedule's, what the
+    cycle steps on), monotonic seconds and wall-clock seconds."""
+
+    machine_s: float
+    mono_s: float
+    wall_s: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -29,6 +43,10 @@ class Clock:
     mono: Callable[[], float] = time.monotonic
     wall: Callable[[], float] = time.time
     sleep: Callable[[float], Awaitable[object]] | None = None
+
+    def at(self, mono_s: float, machine_s: Callable[[float], float]) -> Instant:
+        """The cycle's `Instant`: `mono_s` as read, its machine time, the wall clock now."""
+        return Instant(machine_s(mono_s), mono_s, self.wall())
 
 
 async def pause(clock: Clock, stop: asyncio.Event, delay_s: float) -> None:

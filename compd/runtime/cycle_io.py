@@ -39,7 +39,7 @@ from drivers.errors import DriverError, WriteRejected
 
 if TYPE_CHECKING:
     from compd.faces.telemetry import Metrics
-    from compd.runtime.clock import Clock
+    from compd.runtime.clock import Instant
     from compd.runtime.journal import Journal
     from compd.runtime.reload import Changes
 
@@ -58,12 +58,11 @@ class Running:
 
 class CycleIO:
     def __init__(self, running: Running, *, dry_run: bool, metrics: Metrics,
-                 journal: Journal, clock: Clock) -> None:
+                 journal: Journal) -> None:
         self.running = running
         self.dry_run = dry_run
         self.metrics = metrics
         self.journal = journal
-        self.clock = clock
         #: whether the last read heard the controller (None: none yet, or a new driver)
         self.read_ok: bool | None = None
         #: who asked for a re-zero since the last cycle (`compd rezero`, OPC UA Rezero):
@@ -74,23 +73,24 @@ class CycleIO:
 
     # -- the cycle, read to write ----------------------------------------------------
 
-    async def run(self, now_s: float) -> Tick:
+    async def run(self, at: Instant) -> Tick:
+        """One cycle at `at` (its time, read once by the loop)."""
         cfg, driver, cycle = self.running.cfg, self.running.driver, self.running.cycle
+        now_s, wall_s = at.machine_s, at.wall_s
         assert driver is not None and cycle is not None
         samples, readback, probe, off, got = await self._read(driver, cfg)
         permitted, rezero = _permit(got, cfg), _bit(got, "rezero")
         if self.rezero_requests:
             for who in self.rezero_requests:
-                self.journal.events([cycle.rezero(who, self.clock.wall())])
+                self.journal.events([cycle.rezero(who, wall_s)])
             self.rezero_requests.clear()
             self.rezeroed = True
         try:
             if probe is not None:
-                plan = cycle.plan(now_s, samples, readback, wall_s=self.clock.wall(),
-                                  probe=probe, controller_off=off, permitted=permitted,
-                                  rezero_bit=rezero)
+                plan = cycle.plan(now_s, samples, readback, wall_s=wall_s, probe=probe,
+                                  controller_off=off, permitted=permitted, rezero_bit=rezero)
             else:
-                plan = cycle.plan(now_s, samples, readback, wall_s=self.clock.wall(),
+                plan = cycle.plan(now_s, samples, readback, wall_s=wall_s,
                                   controller_off=off, permitted=permitted, rezero_bit=rezero)
         except Exception as exc:
             # the fault policy decides what reaches the machine: this cycle is a failed
@@ -98,8 +98,7 @@ class CycleIO:
             # (a machine that is off stays off for it: nothing is written)
             self.journal.cycle_error("step", exc)
             samples = None
-            plan = cycle.plan(now_s, None, readback, wall_s=self.clock.wall(),
-                              controller_off=off)
+            plan = cycle.plan(now_s, None, readback, wall_s=wall_s, controller_off=off)
         self.journal.events(plan.events)
         if any(e.name is EventName.REZERO for e in plan.events):
             self.rezeroed = True
@@ -108,8 +107,8 @@ class CycleIO:
         self.journal.events(row.write_events)
         confirmed = self.dry_run or self.running.params.recorder_only or (
             bool(plan.writes) and outcome.ok)
-        return Tick(cfg=cfg, row=row, samples=samples, confirmed=confirmed,
-                    read_ok=self.read_ok)
+        return Tick(cfg=cfg, row=row, mono_s=at.mono_s, samples=samples,
+                    confirmed=confirmed, read_ok=self.read_ok)
 
     async def _read(self, driver: Driver, cfg: LoadedConfig
                     ) -> tuple[dict[str, Sample] | None, float | None, ProbeReading | None,

@@ -97,39 +97,37 @@ class Daemon:
         self.dry_run = dry_run
         self.once = once
         self.notifier = notifier if notifier is not None else Notifier()
-        self.metrics = metrics if metrics is not None else Metrics()
         #: monotonic seconds (deadlines, machine time), wall seconds (sample ages,
         #: records, checkpoint age) and the wait until the next deadline: all
         #: injectable (`compd.testing.SteppedClock` drives the loop in lockstep)
-        self.clock = clock
-        self.time = Clock(mono=clock, wall=wall, sleep=sleep)
+        self.clock = Clock(mono=clock, wall=wall, sleep=sleep)
+        self.metrics = metrics if metrics is not None else Metrics(mono=clock)
         #: what the operator page shows ([faces.http]), and the alarms listed on it
         http = cfg.raw.faces.http
         self.status_board = StatusBoard(history_h=http.history_h, refresh_s=http.refresh_s,
                                         wall=wall)
         self.journal = Journal(log if log is not None else structlog.get_logger("compd"),
-                               self.status_board, clock)
+                               self.status_board, self.clock)
         self.running = Running(cfg, params_from_config(cfg, dry_run=dry_run), driver)
         self.io = CycleIO(self.running, dry_run=dry_run, metrics=self.metrics,
-                          journal=self.journal, clock=self.time)
-        self.recorder = RecorderSink(cfg, dry_run=dry_run, metrics=self.metrics,
-                                     clock=self.time, journal=self.journal)
-        self.telemetry = TelemetrySink(cfg, metrics=self.metrics, notifier=self.notifier,
-                                       board=self.status_board, clock=self.time,
-                                       journal=self.journal, serve=serve_metrics)
-        self.opcua = OpcUaSink(cfg, metrics=self.metrics, operator_hold=self.operator_hold,
+                          journal=self.journal)
+        self.recorder = RecorderSink(dry_run=dry_run, metrics=self.metrics,
+                                     journal=self.journal)
+        self.telemetry = TelemetrySink(metrics=self.metrics, notifier=self.notifier,
+                                       board=self.status_board, journal=self.journal,
+                                       serve=serve_metrics)
+        self.opcua = OpcUaSink(metrics=self.metrics, operator_hold=self.operator_hold,
                                rezero=self.rezero)
-        self.checkpoint = CheckpointSink(cfg, dry_run=dry_run, clock=self.time,
-                                         journal=self.journal, export=self.io.export_state,
-                                         last_complete=lambda: self.telemetry.last_complete)
+        self.checkpoint = CheckpointSink(dry_run=dry_run, clock=self.clock,
+                                         journal=self.journal, export=self.io.export_state)
         #: fed in this order every cycle; the checkpoint last, by the loop
         self.sinks: list[CycleSink] = [self.recorder, self.telemetry,
                                        StatusSink(self.status_board, dry_run=dry_run),
                                        self.opcua]
         self.reloader = Reloader(self.io, sinks=[*self.sinks, self.checkpoint],
-                                 journal=self.journal, metrics=self.metrics, clock=self.time)
+                                 journal=self.journal, metrics=self.metrics, clock=self.clock)
         self.loop = CycleLoop(self.io, sinks=self.sinks, checkpoint=self.checkpoint,
-                              journal=self.journal, metrics=self.metrics, clock=self.time,
+                              journal=self.journal, metrics=self.metrics, clock=self.clock,
                               once=once, between=self._between,
                               reloads=lambda: self.reloader.reloads, gc_policy=PROCESS_GC)
         #: `compd rezero`'s requests in the state directory (`compd.runtime.rezero_request`)
@@ -206,7 +204,7 @@ class Daemon:
             return False
         if event is not None:
             self.journal.events([event], alarms=False)
-            self.checkpoint.save()
+            self.checkpoint.save(self.cfg)
         return True
 
     def rezero(self, who: str) -> bool:
@@ -219,7 +217,7 @@ class Daemon:
         """Between two cycles: a reload swapped in, a `compd rezero` request taken."""
         await self.reloader.swap()
         box = self.rezero_requests
-        who = box.take(self.time.wall())
+        who = box.take(self.clock.wall())
         if who is not None:
             self.rezero(who)
         elif box.refused is not None:
@@ -254,18 +252,18 @@ class Daemon:
             self.checkpoint.directory = directory
             self.rezero_requests.directory = directory
             startup = start_cycle(cfg, self.running.params, directory=directory,
-                                  wall_s=self.time.wall())
+                                  wall_s=self.clock.wall())
             self.running.cycle = startup.cycle
             self.journal.events(startup.events)
             self._log_start(startup.mode)
-            check_certificates(cfg, self.metrics, self.log, wall_s=self.time.wall())
-            await self.recorder.open()
-            await self.telemetry.open()
+            check_certificates(cfg, self.metrics, self.log, wall_s=self.clock.wall())
+            await self.recorder.open(cfg)
+            await self.telemetry.open(cfg)
             if self.running.driver is None:
                 from compd.runtime.driver_setup import build_driver
 
                 self.running.driver = build_driver(cfg)
-            await self.opcua.open()
+            await self.opcua.open(cfg)
             try:
                 await connect(self.running.driver, cfg, self.log)
                 # full GC pauses stall every machine's loop (gcfreeze.py): the objects

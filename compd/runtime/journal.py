@@ -23,6 +23,7 @@ from typing import Any
 
 from compd.core.events import Event, EventName, Level
 from compd.faces.status import StatusBoard
+from compd.runtime.clock import Clock
 from compd.runtime.repeats import RepeatLimiter
 
 __all__ = ["Journal"]
@@ -31,10 +32,10 @@ _LIMITED = {EventName.WRITE_FAILED, EventName.PROBE_REFUSED}
 
 
 class Journal:
-    def __init__(self, log: Any, board: StatusBoard, mono: Callable[[], float]) -> None:
+    def __init__(self, log: Any, board: StatusBoard, clock: Clock) -> None:
         self.log = log
         self.board = board
-        self._mono = mono
+        self._mono = clock.mono
         self._limiters = {name: RepeatLimiter(name.value) for name in _LIMITED}
         #: exceptions where none is expected, per stage of the cycle
         self._cycle_errors: dict[str, RepeatLimiter] = {}

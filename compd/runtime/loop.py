@@ -37,7 +37,7 @@ from compd.sysexits import EX_SOFTWARE
 if TYPE_CHECKING:
     from compd.core.plan import Row
     from compd.faces.telemetry import Metrics
-    from compd.runtime.clock import Clock
+    from compd.runtime.clock import Clock, Instant
     from compd.runtime.cycle_io import CycleIO
     from compd.runtime.gcpolicy import GcPolicy
     from compd.runtime.journal import Journal
@@ -72,8 +72,8 @@ class CycleLoop:
         self.last_result: Row | None = None
         self._checkpoint_due = False
 
-    async def one_cycle(self, now_s: float) -> Row:
-        tick = await self.io.run(now_s)
+    async def one_cycle(self, at: Instant) -> Row:
+        tick = await self.io.run(at)
         self.cycles += 1
         self.last_result = tick.row
         for sink in self.sinks:  # none of them may stop the cycle (the offset is written)
@@ -140,7 +140,7 @@ class CycleLoop:
             cfg = self.io.running.cfg
             started = clock.mono()
             try:
-                result = await self.one_cycle(schedule.machine_s(started))
+                result = await self.one_cycle(clock.at(started, schedule.machine_s))
             except Exception as exc:  # the cycle raised even as a failed read: broken
                 again = broken or ramp_left is not None
                 ramp_left = self._broken(exc, again=again)
@@ -152,18 +152,18 @@ class CycleLoop:
                 continue
             self.metrics.cycle_seconds.observe(clock.mono() - started)
             if self.once:
-                self.checkpoint.save()
-                return 0 if result.complete else 1
+                self.checkpoint.save(self.io.running.cfg)
+                return 0 if result.in_force else 1
             if self._checkpoint_due:
-                await self.checkpoint.save_async()
+                await self.checkpoint.save_async(self.io.running.cfg)
             if ramp_left is not None:
                 ramp_left -= 1
                 if result.shutdown_done or ramp_left <= 0:
-                    log.info("shutdown_ramp_finished", offset_um=result.offset_um,
+                    log.info("shutdown_ramp_finished", offset_um=result.stage_um,
                              reached_zero=result.shutdown_done)
                     break
             elif self.stop_requested.is_set():
-                ramp_left = self._stop(result.offset_um)
+                ramp_left = self._stop(result.stage_um)
                 if ramp_left is None:
                     break
             missed = schedule.advance(clock.mono())
@@ -182,7 +182,7 @@ class CycleLoop:
             if ramp_left is not None and self.stop_requested.is_set():
                 log.warning("shutdown_ramp_interrupted", offset_um=self.io.offset_um)
                 break
-        self.checkpoint.save()
+        self.checkpoint.save(self.io.running.cfg)
         log.info("daemon_stopped", cycles=self.cycles, overruns=self.overruns,
                  offset_um=self.io.offset_um, reloads=self.reloads(), signal=self.stop_signal,
                  broken=broken)

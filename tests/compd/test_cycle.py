@@ -23,8 +23,8 @@ def test_first_start_takes_current_temperatures_as_reference() -> None:
     t = clock.tick()
     r = cycle.plan(t, samples(t, 30.0, 21.0))
     assert "model_initialised" in _events(r)
-    assert r.complete and r.model_um == pytest.approx(0.0, abs=1e-9)
-    assert cycle.model.references == {"bearing": 30.0, "ambient": 21.0}
+    assert r.inputs_valid and r.model_um == pytest.approx(0.0, abs=1e-9)
+    assert cycle.models.model.references == {"bearing": 30.0, "ambient": 21.0}
     assert r.writes["offset"] == 0.0 and r.writes["heartbeat"] == 1.0
     assert r.status & Status.OK
 
@@ -39,10 +39,10 @@ def test_heating_is_followed_within_the_slew_limit() -> None:
         bearing += 1.0 / 3600.0
         cycle.plan(t, samples(t, round(bearing, 1)))
         r = cycle.commit()
-        assert abs(r.offset_um - previous) <= SLEW_UM_S * PERIOD_S + 1e-9
-        previous = r.offset_um
+        assert abs(r.stage_um - previous) <= SLEW_UM_S * PERIOD_S + 1e-9
+        previous = r.stage_um
     assert r.model_um is not None and r.model_um > 10.0
-    assert r.offset_um == pytest.approx(r.model_um, abs=1.0)
+    assert r.stage_um == pytest.approx(r.model_um, abs=1.0)
 
 
 def test_warm_restart_with_an_old_checkpoint_starts_at_the_steady_state() -> None:
@@ -58,7 +58,7 @@ def test_warm_restart_with_an_old_checkpoint_starts_at_the_steady_state() -> Non
     assert expected > 50.0  # a warm machine: far from zero
     assert r.model_um == pytest.approx(expected, rel=1e-6)
     # the output starts from the last written offset, slew-limited
-    assert r.offset_um == pytest.approx(40.0 + SLEW_UM_S * PERIOD_S)
+    assert r.stage_um == pytest.approx(40.0 + SLEW_UM_S * PERIOD_S)
     assert r.sequence == 8
 
 
@@ -75,7 +75,7 @@ def test_fresh_checkpoint_resumes_the_filters_exactly() -> None:
         ra = a.commit()
         rb = b.commit()
         assert rb.model_um == ra.model_um
-        assert rb.offset_um == ra.offset_um
+        assert rb.stage_um == ra.stage_um
 
 
 @pytest.mark.parametrize(("bearing", "reason"), [
@@ -87,11 +87,11 @@ def test_bad_value_holds_then_ramps_at_hold_s_and_recovers_without_jump(
     run_warm(cycle, clock, 10, bearing=20.0)
     run_warm(cycle, clock, 80, bearing=22.0)  # offset slews up to ~32 µm
     held = cycle.output.current_um
-    model_state = cycle.model.export_state()
+    model_state = cycle.models.model.export_state()
     fault_start = clock.tick()
     plan = cycle.plan(fault_start, samples(fault_start, bearing))
-    assert plan.record is not None and plan.record.validity["bearing"] == reason
-    assert plan.state == "hold" and plan.offset_um == held and not plan.complete
+    assert plan.validity["bearing"] == reason
+    assert plan.state == "hold" and plan.stage_um == held and not plan.inputs_valid
     assert plan.status & Status.HOLDING and "fault_hold" in _events(plan)
     heartbeat = plan.heartbeat
     ramp_started: float | None = None
@@ -103,18 +103,18 @@ def test_bad_value_holds_then_ramps_at_hold_s_and_recovers_without_jump(
         if r.state == "ramp" and ramp_started is None:
             ramp_started = t
             assert r.status & Status.ALARM and r.status & Status.RAMPING
-    assert cycle.model.export_state() == model_state  # filters never saw the bad value
+    assert cycle.models.model.export_state() == model_state  # filters never saw the bad value
     assert ramp_started is not None
     assert abs(ramp_started - (fault_start + HOLD_S)) <= PERIOD_S
     assert held > 20.0
-    assert r.offset_um == pytest.approx(
+    assert r.stage_um == pytest.approx(
         max(0.0, held - SLEW_UM_S * (clock.now_s - ramp_started + PERIOD_S)), abs=1e-9)
     # recovery: valid again, the offset moves toward the model without a jump
-    before = r.offset_um
+    before = r.stage_um
     t = clock.tick()
     plan = cycle.plan(t, samples(t, 22.0))
-    assert plan.complete and plan.state == "ok" and "fault_recovered" in _events(plan)
-    assert abs(plan.offset_um - before) <= SLEW_UM_S * PERIOD_S + 1e-9
+    assert plan.inputs_valid and plan.state == "ok" and "fault_recovered" in _events(plan)
+    assert abs(plan.stage_um - before) <= SLEW_UM_S * PERIOD_S + 1e-9
     assert not plan.status & Status.ALARM
 
 
@@ -125,13 +125,13 @@ def test_read_failure_holds_then_ramps_to_zero() -> None:
     held = cycle.output.current_um
     start = clock.tick()
     plan = cycle.plan(start, None)
-    assert plan.state == "hold" and plan.offset_um == held
-    assert set(plan.record.validity.values()) == {"read_failed"}
+    assert plan.state == "hold" and plan.stage_um == held
+    assert set(plan.validity.values()) == {"read_failed"}
     for _ in range(int(HOLD_S + held / SLEW_UM_S) + 5):
         t = clock.tick()
         cycle.plan(t, None)
         r = cycle.commit()
-    assert r.state == "ramp" and r.offset_um == 0.0 and r.writes["offset"] == 0.0
+    assert r.state == "ramp" and r.stage_um == 0.0 and r.writes["offset"] == 0.0
 
 
 def test_invalid_from_the_start_holds_then_ramps_with_the_alarm() -> None:
@@ -148,13 +148,13 @@ def test_invalid_from_the_start_holds_then_ramps_with_the_alarm() -> None:
     cycle._last_now = clock.now_s
     t = clock.tick()
     plan = cycle.plan(t, samples(t, 900.0))  # an open Pt100
-    assert plan.state == "init" and plan.offset_um == held
+    assert plan.state == "init" and plan.stage_um == held
     assert plan.status & Status.HOLDING and not plan.status & Status.ALARM
     for _ in range(int(HOLD_S) + int(held / SLEW_UM_S) + 5):
         t = clock.tick()
         cycle.plan(t, samples(t, 900.0))
         r = cycle.commit()
-    assert r.state == "ramp" and r.offset_um == 0.0
+    assert r.state == "ramp" and r.stage_um == 0.0
     assert r.status & Status.ALARM and r.status & Status.RAMPING
 
 
@@ -166,9 +166,9 @@ def test_one_sample_spike_is_rejected_and_filters_not_stepped() -> None:
         ref.plan(t, samples(t, b))
         if k in (100, 150):
             plan = spiked.plan(t, samples(t, b + (50.0 if k == 100 else -50.0)))
-            assert plan.record is not None and plan.record.validity["bearing"] == "rate"
+            assert plan.validity["bearing"] == "rate"
             assert plan.state == "hold"
-            ref_state = ref.model.export_state()
+            ref_state = ref.models.model.export_state()
             continue
         spiked.plan(t, samples(t, b))
         ra = ref.commit()
@@ -186,7 +186,7 @@ def test_stuck_value_is_flagged_only_while_others_move() -> None:
     for k in range(500):
         t = clock.tick()
         r = cycle.plan(t, samples(t, 25.0, 20.0 + 0.01 * (k % 2)))
-        reasons.append(r.record.validity["bearing"])
+        reasons.append(r.validity["bearing"])
     assert reasons[300] is None  # 3000 s < stuck_after_s = 3600 s
     assert reasons[-1] == "stuck"
 
@@ -199,7 +199,7 @@ def test_quantised_slowly_heating_sensor_is_not_stuck() -> None:
         bearing = round(20.0 + 0.5 * k / 3600.0, 1)
         cycle.plan(t, samples(t, bearing, 20.0 + 0.01 * (k % 2)))
         r = cycle.commit()
-        assert r.record is not None and r.record.validity["bearing"] is None, k
+        assert r.validity["bearing"] is None, k
 
 
 def test_frozen_source_timestamp_is_stale() -> None:
@@ -210,12 +210,12 @@ def test_frozen_source_timestamp_is_stale() -> None:
     for _ in range(40):
         t = clock.tick()
         r = cycle.plan(t, samples(t, 25.0, ts_s=frozen_ts))
-        reasons.append(r.record.validity["bearing"])
+        reasons.append(r.validity["bearing"])
     assert reasons[0] is None and reasons[-1] == "stale"
     # an old timestamp against the wall clock is stale at once
     t = clock.tick()
     r = cycle.plan(t, samples(t, 25.0, ts_s=1000.0), wall_s=1000.0 + 31.0)
-    assert r.record is not None and r.record.validity["bearing"] == "stale"
+    assert r.validity["bearing"] == "stale"
 
 
 def test_bad_quality_and_missing_channel_hold() -> None:
@@ -226,7 +226,7 @@ def test_bad_quality_and_missing_channel_hold() -> None:
     assert r.state == "hold"
     t = clock.tick()
     r = cycle.plan(t, {"ambient": Sample(20.0, t), "spindle_rpm": Sample(0.0, t)})
-    assert r.record is not None and r.record.validity["bearing"] == "missing"
+    assert r.validity["bearing"] == "missing"
 
 
 def test_invalid_monitoring_channel_does_not_stop_compensation() -> None:
@@ -234,8 +234,8 @@ def test_invalid_monitoring_channel_does_not_stop_compensation() -> None:
     run_warm(cycle, clock, 10)
     t = clock.tick()
     r = cycle.plan(t, samples(t, 25.0, speed=-5.0))  # speed is not a model input
-    assert r.complete and r.state == "ok"
-    assert r.record is not None and r.record.validity["spindle_rpm"] == "out_of_range"
+    assert r.inputs_valid and r.state == "ok"
+    assert r.validity["spindle_rpm"] == "out_of_range"
 
 
 def test_permanent_write_rejection_stops_offset_writes_and_alarms() -> None:
@@ -304,8 +304,8 @@ def test_sign_and_scale_convert_to_controller_units() -> None:
     run_warm(cycle, clock, 5, bearing=20.0)
     t = clock.tick()
     r = cycle.plan(t, samples(t, 20.5))
-    assert r.writes["offset"] == pytest.approx(-0.001 * r.offset_um)
-    assert r.offset_um > 0
+    assert r.writes["offset"] == pytest.approx(-0.001 * r.stage_um)
+    assert r.stage_um > 0
 
 
 def test_shutdown_ramp_to_zero_finishes_at_zero() -> None:
@@ -322,7 +322,7 @@ def test_shutdown_ramp_to_zero_finishes_at_zero() -> None:
         n += 1
         if r.shutdown_done:
             break
-    assert r.offset_um == 0.0 and r.status & Status.SHUTDOWN
+    assert r.stage_um == 0.0 and r.status & Status.SHUTDOWN
     assert n == math.ceil(start / SLEW_UM_S)
 
 
@@ -331,10 +331,10 @@ def test_deadband_keeps_small_changes_out() -> None:
     run_warm(cycle, clock, 5, bearing=20.0)
     t = clock.tick()
     r = cycle.plan(t, samples(t, 20.02))  # ≈0.32 µm
-    assert r.offset_um == 0.0
+    assert r.stage_um == 0.0
     t = clock.tick()
     r = cycle.plan(t, samples(t, 20.1))
-    assert r.offset_um > 0.5
+    assert r.stage_um > 0.5
 
 
 def test_shadow_model_is_evaluated_but_never_written() -> None:
@@ -347,8 +347,8 @@ def test_shadow_model_is_evaluated_but_never_written() -> None:
     r = cycle.plan(t, samples(t, 20.5))
     assert r.shadow_um is not None and r.model_um is not None
     assert r.shadow_um == pytest.approx(2 * r.model_um, rel=0.01)
-    assert r.writes["offset"] == r.offset_um == pytest.approx(r.model_um)
-    assert r.record is not None and r.record.contributions["shadow_total"] == r.shadow_um
+    assert r.writes["offset"] == r.stage_um == pytest.approx(r.model_um)
+    assert r.contributions["shadow_total"] == r.shadow_um
 
 
 def test_heartbeat_wraps() -> None:
@@ -368,11 +368,11 @@ def test_a_cycle_steps_a_model_of_its_own_and_leaves_the_description_as_it_was()
     clock = FakeClock()
     run_warm(first, clock, 10, bearing=25.0)
     run_warm(first, clock, 20, bearing=25.3)  # its filters move off the steady state
-    assert first.model is not model and first.model is not second.model
+    assert first.models.model is not model and first.models.model is not second.models.model
     assert model.export_state() == described and model.references == {}
-    assert first.model.references == {"bearing": 25.0, "ambient": 20.0}
+    assert first.models.model.references == {"bearing": 25.0, "ambient": 20.0}
     later = FakeClock()
     run_warm(second, later, 30, bearing=30.0)  # its own first sample: its own reference
-    assert second.model.references == {"bearing": 30.0, "ambient": 20.0}
-    assert first.model.references == {"bearing": 25.0, "ambient": 20.0}
+    assert second.models.model.references == {"bearing": 30.0, "ambient": 20.0}
+    assert first.models.model.references == {"bearing": 25.0, "ambient": 20.0}
     assert first.export_state()["model"]["terms"] != model.export_state()["terms"]

@@ -9,7 +9,8 @@ from typing import Any
 import pytest
 
 from compd.core.adaptation import AdaptationSettings, ProbeReading
-from compd.core.cycle import Cycle, CycleResult
+from compd.core.cycle import Cycle
+from compd.core.plan import Row
 from compd.testing import FakeClock
 from models.adaptation import AdaptationParams
 
@@ -36,10 +37,10 @@ class Machine:
         self.counter = 7.0  # whatever the controller shows at start
         self.value = 0.0
         self.held = 0.0  # what the controller holds (confirmed writes)
-        self.results: list[CycleResult] = []
+        self.results: list[Row] = []
 
     def run(self, n: int, *, bearing: float = 25.0, spoil: float = 0.0,
-            invalid_at: int | None = None) -> list[CycleResult]:
+            invalid_at: int | None = None) -> list[Row]:
         out = []
         for _ in range(n):
             t = self.clock.tick()
@@ -51,14 +52,14 @@ class Machine:
             s = samples(t, math.nan if k == invalid_at else bearing)
             self.cycle.plan(t, s, probe=ProbeReading(self.value, self.counter))
             r = self.cycle.commit()
-            self.held = r.offset_um
+            self.held = r.stage_um
             self.results.append(r)
             out.append(r)
         return out
 
 
-def _probes(results: list[CycleResult]) -> list[dict[str, Any]]:  # as RecordRow.probe
-    return [dict(r.record.probe) for r in results if r.record.probe is not None]
+def _probes(results: list[Row]) -> list[dict[str, Any]]:  # as RecordRow.probe
+    return [dict(r.probe) for r in results if r.probe is not None]
 
 
 def test_a_constant_bias_is_learnt_and_reaches_the_tool_within_the_slew_limit() -> None:
@@ -69,11 +70,11 @@ def test_a_constant_bias_is_learnt_and_reaches_the_tool_within_the_slew_limit() 
     # the correction went to the tool: the offset follows model + correction (the
     # estimator applies what departs from zero by more than its band: most of the 6 µm)
     last = results[-1]
-    correction = last.record.contributions["adaptation"]
+    correction = last.contributions["adaptation"]
     assert 4.0 < correction <= 6.5
     assert last.model_um is not None
-    assert last.offset_um == pytest.approx(last.model_um + correction, abs=0.05)
-    steps = [abs(b.offset_um - a.offset_um) for a, b in itertools.pairwise(results)]
+    assert last.stage_um == pytest.approx(last.model_um + correction, abs=0.05)
+    steps = [abs(b.stage_um - a.stage_um) for a, b in itertools.pairwise(results)]
     assert max(steps) <= SLEW_UM_S * PERIOD_S + 1e-9  # never a jump at the tool
 
 
@@ -84,9 +85,9 @@ def test_shadow_mode_estimates_and_records_but_never_applies() -> None:
     cycle = m.cycle
     assert cycle.probes is not None and cycle.probes.adapter.estimated_bias_um > 4.0
     # the recorded proposal is there, the tool never saw it
-    assert results[-1].record.contributions["adaptation"] > 4.0
+    assert results[-1].contributions["adaptation"] > 4.0
     for r in results:
-        assert r.model_um is not None and r.offset_um == pytest.approx(r.model_um, abs=1.0)
+        assert r.model_um is not None and r.stage_um == pytest.approx(r.model_um, abs=1.0)
 
 
 def test_the_same_counter_twice_is_one_probe_and_the_first_one_seen_is_a_baseline() -> None:
@@ -146,4 +147,4 @@ def test_the_displacement_convention_takes_the_value_as_measured() -> None:
     cycle.commit()
     t = clock.tick()
     r = cycle.plan(t, samples(t, 25.0), probe=ProbeReading(3.0, 2.0))
-    assert r.record.probe is not None and r.record.probe["measured_um"] == 3.0
+    assert r.probe is not None and r.probe["measured_um"] == 3.0

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from compd.core.cycle import Cycle
 from compd.core.faults import FaultState
-from compd.core.health import HealthView, recorded_state, status_word
+from compd.core.health_view import HealthView, recorded_state, status_word
 from compd.core.output import Status
 from compd.testing import FakeClock
 
@@ -41,10 +41,10 @@ def test_machine_off_holds_without_writing_and_keeps_the_model_going() -> None:
         cycle.plan(t, samples(t, 22.0), held, controller_off="machine_off")
         r = cycle.commit()
         assert "offset" not in r.writes  # no write fight with a machine that is off
-        assert r.offset_um == held
+        assert r.stage_um == held
         assert r.status & Status.CONTROLLER_OFF and r.status & Status.HOLDING
         assert not r.status & (Status.OK | Status.ALARM | Status.READBACK_MISMATCH)
-        assert r.state == FaultState.HOLD and r.complete and not r.in_force
+        assert r.state == FaultState.HOLD and r.inputs_valid and not r.in_force
         assert "heartbeat" in r.writes and "status" in r.writes
         assert r.events == ()
     assert cycle.heartbeat == (heartbeat + 21) % 32768  # the model stepped every cycle

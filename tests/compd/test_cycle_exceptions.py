@@ -44,7 +44,7 @@ def _named(logs: Sequence[Mapping[str, Any]], name: str) -> list[Mapping[str, An
 async def _warm(sim: ModbusSimController, daemon: Daemon) -> Cycle:
     await until(lambda: daemon.complete_cycles >= 3)
     await sim.publish({"bearing": 21.5})  # sp2 wants ≈ +25 µm
-    await until(lambda: daemon.last_result is not None and daemon.last_result.offset_um > 15.0)
+    await until(lambda: daemon.last_result is not None and daemon.last_result.stage_um > 15.0)
     assert daemon.cycle is not None
     return daemon.cycle
 
@@ -66,7 +66,7 @@ async def test_a_model_step_that_raises_every_cycle_is_held_then_ramped(
 
         monkeypatch.setattr(cycle.models, "step", overflow)
         at = len(driver.cycles)
-        await until(lambda: daemon.last_result is not None and daemon.last_result.offset_um
+        await until(lambda: daemon.last_result is not None and daemon.last_result.stage_um
                     == 0.0, limit=4000)
         assert not task.done()  # still cycling: heartbeat and status go on
         beat = (await sim.outputs())["heartbeat"]

@@ -37,16 +37,16 @@ def _names(rows: list[Row]) -> list[str]:
 def _no_step(rows: list[Row], before_um: float) -> None:
     last = before_um
     for r in rows:
-        assert r.offset_um is not None
-        assert abs(r.offset_um - last) <= SLEW_UM_S * 1.0 + 1e-9
-        last = r.offset_um
+        assert r.stage_um is not None
+        assert abs(r.stage_um - last) <= SLEW_UM_S * 1.0 + 1e-9
+        last = r.stage_um
 
 
 def test_sensor_lost_degraded_no_step_and_back_to_main_ramped() -> None:
     cycle, clock = Cycle(params(), sp2_with_fallbacks()), FakeClock()
     warm = _warm(cycle, clock, 200)
     assert warm[-1].cause is Cause.IN_FORCE
-    before = warm[-1].offset_um
+    before = warm[-1].stage_um
     assert before is not None and before > 5.0
     lost = [_step(cycle, clock, 21.0 + 0.005 * k, math.nan) for k in range(int(HOLD_S) * 3)]
     assert {r.cause for r in lost} == {Cause.DEGRADED}
@@ -56,7 +56,7 @@ def test_sensor_lost_degraded_no_step_and_back_to_main_ramped() -> None:
     assert "fallback_in_force" in _names(lost[:1])  # at the first invalid sample
     assert not {"fault_hold", "fault_ramp_to_zero"} & set(_names(lost))
     assert all(r.snapshot.fallback_for == "ambient" for r in lost)
-    assert all("fallback_total" in r.record.contributions for r in lost)
+    assert all("fallback_total" in r.contributions for r in lost)
     _no_step(lost, before)
     # the fallback, not the frozen main model, drives the output: it kept tracking
     assert lost[-1].model_um is not None and lost[-1].model_um > before + 5.0
@@ -64,7 +64,7 @@ def test_sensor_lost_degraded_no_step_and_back_to_main_ramped() -> None:
     assert "fallback_ended" in _names(back[:1])
     assert back[0].snapshot.fallback_for is None
     assert {r.cause for r in back[-10:]} == {Cause.IN_FORCE}
-    _no_step(back, lost[-1].offset_um or 0.0)
+    _no_step(back, lost[-1].stage_um or 0.0)
 
 
 def test_the_fallback_is_warm_stepped_from_the_start() -> None:

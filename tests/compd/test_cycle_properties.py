@@ -66,7 +66,7 @@ def _run(actions: list[Action], readback: bool) -> None:
             "ambient": Sample(20.0, now), "spindle_rpm": Sample(1000.0, now)}
         rb = None if (kind == "read_failed" or not readback) else controller
         plan = cycle.plan(now, samples, rb)
-        assert math.isfinite(plan.offset_um) and abs(plan.offset_um) <= LIMIT_UM
+        assert math.isfinite(plan.stage_um) and abs(plan.stage_um) <= LIMIT_UM
         for v in plan.writes.values():
             assert math.isfinite(v)
         if "offset" in plan.writes:

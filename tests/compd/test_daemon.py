@@ -74,7 +74,7 @@ async def test_dry_run_writes_nothing(sim: ModbusSimController, tmp_path: Path) 
     await _until(lambda: daemon.complete_cycles >= 30)
     daemon.request_stop()
     assert await task == 0
-    assert daemon.last_result is not None and daemon.last_result.offset_um > 0.0
+    assert daemon.last_result is not None and daemon.last_result.stage_um > 0.0
     assert await sim.outputs() == {"offset": 0.0, "heartbeat": 0.0, "status": 0.0}
     assert not (cfg.state_dir / "checkpoint.json").exists()
     assert not any(r.function_code in (6, 16) for r in sim.requests)
@@ -87,7 +87,7 @@ async def test_permanent_rejection_stops_offset_writes_and_raises_alarm(
     task = asyncio.create_task(daemon.run())
     await _until(lambda: daemon.complete_cycles >= 3)
     sim.inject_exception("holding", 0, 2, count=2, on="write")  # illegal address
-    await _until(lambda: daemon.cycle is not None and daemon.cycle.write_stopped)
+    await _until(lambda: daemon.cycle is not None and daemon.cycle.health.write_stopped)
     await _until(lambda: daemon.cycles >= 20)
     daemon.request_stop()
     assert await task == 0
@@ -181,8 +181,8 @@ async def test_shadow_model_is_recorded_never_written(sim: ModbusSimController,
     r = daemon.last_result
     assert r is not None and r.shadow_um is not None and r.model_um is not None
     assert r.shadow_um == pytest.approx(2 * r.model_um, rel=0.01)
-    assert (await sim.outputs())["offset"] == pytest.approx(r.offset_um, abs=1e-3)
-    assert r.offset_um == pytest.approx(r.model_um, abs=1e-3)
+    assert (await sim.outputs())["offset"] == pytest.approx(r.stage_um, abs=1e-3)
+    assert r.stage_um == pytest.approx(r.model_um, abs=1e-3)
 
 
 class _Notes(Notifier):

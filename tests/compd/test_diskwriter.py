@@ -162,12 +162,13 @@ class Log:
 
 
 def checkpoint_sink(state_dir: Path, writer: DiskWriter, export: Callable[[], dict[str, Any]],
-                    log: Log) -> CheckpointSink:
+                    log: Log) -> tuple[CheckpointSink, Any]:
     cfg = SimpleNamespace(raw=SimpleNamespace(state=SimpleNamespace(checkpoint_every=10)),
                           state_dir=state_dir, model_sha256="m", config_sha256="c")
-    return CheckpointSink(cast(Any, cfg), dry_run=False, clock=Clock(mono=FakeClock()),
+    sink = CheckpointSink(dry_run=False, clock=Clock(mono=FakeClock()),
                           journal=cast(Any, SimpleNamespace(log=log)), export=export,
-                          last_complete=lambda: None, writer=writer)
+                          writer=writer)
+    return sink, cast(Any, cfg)
 
 
 async def test_checkpoint_saves_run_on_the_writer_in_the_order_asked(tmp_path: Path) -> None:
@@ -176,12 +177,12 @@ async def test_checkpoint_saves_run_on_the_writer_in_the_order_asked(tmp_path: P
     writer = DiskWriter()
     gate = threading.Event()
     state = {"sequence": 0}
-    sink = checkpoint_sink(tmp_path, writer, lambda: dict(state), Log())
+    sink, cfg = checkpoint_sink(tmp_path, writer, lambda: dict(state), Log())
     writer.submit(gate.wait, key=str(tmp_path))  # the state directory's thread
-    first = asyncio.ensure_future(sink.save_async())
+    first = asyncio.ensure_future(sink.save_async(cfg))
     await asyncio.sleep(0)
     state["sequence"] = 1  # the cycle goes on: the first save keeps what it took
-    second = asyncio.ensure_future(sink.save_async())
+    second = asyncio.ensure_future(sink.save_async(cfg))
     await asyncio.sleep(0)
     assert load_checkpoint(tmp_path / CHECKPOINT_NAME) is None  # nothing written yet
     gate.set()
@@ -189,7 +190,7 @@ async def test_checkpoint_saves_run_on_the_writer_in_the_order_asked(tmp_path: P
     doc = load_checkpoint(tmp_path / CHECKPOINT_NAME)
     assert doc is not None and doc["sequence"] == 1
     state["sequence"] = 2
-    sink.save()  # shutdown, --once, a hold: written when it returns
+    sink.save(cfg)  # shutdown, --once, a hold: written when it returns
     doc = load_checkpoint(tmp_path / CHECKPOINT_NAME)
     assert doc is not None and doc["sequence"] == 2
     writer.shutdown()
@@ -204,22 +205,23 @@ async def test_a_checkpoint_failing_on_the_writer_is_logged_and_tried_again(
     from compd.core.health import Cause
 
     writer, log = DiskWriter(), Log()
-    sink = checkpoint_sink(tmp_path / "gone", writer, lambda: {"sequence": 1}, log)
+    sink, cfg = checkpoint_sink(tmp_path / "gone", writer, lambda: {"sequence": 1}, log)
     row = SimpleNamespace(state=FaultState.OK, cause=Cause.AT_LIMIT, healthy=False,
-                          sequence=3)
-    assert sink.note(cast(Any, SimpleNamespace(row=row)))  # out of force: due at once
-    await sink.save_async()
+                          sequence=3, in_force=False)
+    tick = cast(Any, SimpleNamespace(row=row, cfg=cfg, mono_s=0.0))
+    assert sink.note(tick)  # out of force: due at once
+    await sink.save_async(cfg)
     assert [e for e, _ in log.errors] == ["checkpoint_failed"]
     assert "gone" in str(log.errors[0][1]["error"])
     row.sequence = 4
-    assert sink.note(cast(Any, SimpleNamespace(row=row)))  # still due: nothing was saved
+    assert sink.note(tick)  # still due: nothing was saved
     (tmp_path / "gone").mkdir(mode=0o700)
-    await sink.save_async()
+    await sink.save_async(cfg)
     assert len(log.errors) == 1
     doc = load_checkpoint(tmp_path / "gone" / CHECKPOINT_NAME)
     assert doc is not None and doc["last_cause"] == "at_limit"
     row.sequence = 5
-    assert not sink.note(cast(Any, SimpleNamespace(row=row)))  # saved unhealthy: not again
+    assert not sink.note(tick)  # saved unhealthy: not again
     writer.shutdown()
 
 

@@ -615,7 +615,7 @@ async def test_g_code_permits_offset_changes_and_re_zeroes_by_m_code(
         await rig.start()
         await rig.step(30)
         assert _pin(f"{lcnc.component}.update-permitted") == 1.0
-        assert last().cause is Cause.IN_FORCE and last().offset_um > 3.0
+        assert last().cause is Cause.IN_FORCE and last().stage_um > 3.0
 
         await mcode(False, PERMIT_DOUT)  # a cut starts: no change until it ends
         await rig.step()

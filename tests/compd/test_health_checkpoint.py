@@ -119,15 +119,14 @@ def test_an_offset_flapping_in_and_out_of_force_saves_once_a_window_and_stays_re
     cfg = SimpleNamespace(raw=SimpleNamespace(state=SimpleNamespace(checkpoint_every=every)),
                           state_dir=tmp_path, model_sha256="m", config_sha256="c")
     saved: list[object] = []
-    sink = CheckpointSink(cast(Any, cfg), dry_run=False, clock=Clock(mono=FakeClock()),
-                          journal=cast(Any, None), export=lambda: {"sequence": len(saved)},
-                          last_complete=lambda: None)
+    sink = CheckpointSink(dry_run=False, clock=Clock(mono=FakeClock()),
+                          journal=cast(Any, None), export=lambda: {"sequence": len(saved)})
 
     def cycle(seq: int, cause: Cause) -> None:
         row = SimpleNamespace(state=FaultState.OK, cause=cause, healthy=cause.healthy,
-                              sequence=seq)
-        if sink.note(cast(Any, SimpleNamespace(row=row))):
-            sink.save()
+                              sequence=seq, in_force=False)
+        if sink.note(cast(Any, SimpleNamespace(row=row, cfg=cfg, mono_s=0.0))):
+            sink.save(cast(Any, cfg))
             doc = load_checkpoint(tmp_path / CHECKPOINT_NAME)
             assert doc is not None
             saved.append(doc["last_cause"])

@@ -64,7 +64,7 @@ async def test_the_daemon_runs_one_cycle_per_tick_on_the_clocks_it_was_given(
     assert await task == 0
     assert daemon.overruns == 0
     # the health evidence and the records: the given clocks, not time.time()/monotonic()
-    assert daemon.telemetry.last_complete == (EPOCH + 39 * cfg.period_s, 39 * cfg.period_s)
+    assert daemon.checkpoint.last_complete == (EPOCH + 39 * cfg.period_s, 39 * cfg.period_s)
     rows = read_samples(tmp_path / "state" / "samples.sqlite")
     assert rows["seq"].size == daemon.cycles
     assert np.array_equal(rows["wall_s"], EPOCH + rows["mono_s"])

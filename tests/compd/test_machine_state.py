@@ -98,15 +98,15 @@ def test_rezero_takes_the_prediction_as_zero_and_ramps_with_no_step() -> None:
     cycle = Cycle(params(), _model(REF))
     rows = _run(cycle, clock, 60, bearing=22.0)  # warm from the start: ≈ 35 µm
     before = rows[-1]
-    assert before.offset_um > 30.0
+    assert before.stage_um > 30.0
     event = cycle.rezero("test", wall_s=1.0)
     assert event.name is EventName.REZERO and event.fields["zero_um"] == pytest.approx(
         cycle.models.last_raw_um)
     rows = _run(cycle, clock, 60, bearing=22.0)
-    offsets = [before.offset_um] + [r.offset_um for r in rows]
+    offsets = [before.stage_um] + [r.stage_um for r in rows]
     steps = [abs(b - a) for a, b in pairwise(offsets)]
     assert max(steps) <= SLEW_UM_S * 1.0 + 1e-12  # never more than the slew limit
-    assert abs(rows[-1].model_um or 0.0) < 1.0 and abs(rows[-1].offset_um) < 1.0
+    assert abs(rows[-1].model_um or 0.0) < 1.0 and abs(rows[-1].stage_um) < 1.0
     # the re-zero survives a restart, fresh or not, and goes with another model
     state = cycle.export_state()
     assert state["zero"]["by"] == "test"
@@ -150,19 +150,19 @@ def test_no_permission_holds_the_offset_while_the_model_steps_then_ramps() -> No
     _run(cycle, clock, 5, bearing=20.0)
     held = _run(cycle, clock, 60, bearing=20.3, permitted=False)
     assert "permission_waiting" in _names(held[0].events)
-    assert all(r.offset_um == held[0].offset_um for r in held)
+    assert all(r.stage_um == held[0].stage_um for r in held)
     last = held[-1]
     assert last.cause is Cause.WAITING_FOR_PERMISSION and last.cause.healthy
     assert last.status & Status.HOLDING and not last.status & (Status.OK | Status.ALARM)
     assert last.model_um is not None and last.model_um > 4.0  # the model kept stepping
-    assert last.snapshot.pending_um == pytest.approx(last.model_um - last.offset_um)
+    assert last.snapshot.pending_um == pytest.approx(last.model_um - last.stage_um)
     assert last.in_force  # what is wanted is held on purpose: complete, like an operator hold
     go = _run(cycle, clock, 10, bearing=20.3, permitted=True)
     assert "permission_granted" in _names(go[0].events)
-    offsets = [last.offset_um] + [r.offset_um for r in go]
+    offsets = [last.stage_um] + [r.stage_um for r in go]
     assert max(abs(b - a) for a, b in pairwise(offsets)) \
         <= SLEW_UM_S + 1e-12
-    assert go[-1].offset_um == pytest.approx(go[-1].model_um, abs=0.5)
+    assert go[-1].stage_um == pytest.approx(go[-1].model_um, abs=0.5)
     assert go[-1].snapshot.pending_um is None
 
 
@@ -172,7 +172,7 @@ def test_an_unreadable_permit_is_not_permitted_and_unhealthy() -> None:
     _run(cycle, clock, 5, bearing=20.0)
     rows = _run(cycle, clock, 10, bearing=20.3, permitted=None)
     assert "permit_unreadable" in _names(rows[0].events)
-    assert all(r.offset_um == rows[0].offset_um for r in rows)
+    assert all(r.stage_um == rows[0].stage_um for r in rows)
     assert rows[-1].cause is Cause.PERMIT_UNREADABLE and not rows[-1].cause.healthy
     assert not rows[-1].in_force
 
@@ -181,12 +181,12 @@ def test_a_fault_ramps_to_zero_whatever_the_permit() -> None:
     clock = FakeClock()
     cycle = Cycle(params(hold_s=5.0), _model(REF))
     rows = _run(cycle, clock, 40, bearing=20.3)
-    start = rows[-1].offset_um
+    start = rows[-1].stage_um
     for _ in range(20):  # the bearing opens: hold 5 s, then ramp to zero
         t = clock.tick()
         cycle.plan(t, samples(t, 900.0), permitted=False)
         row = cycle.commit()
-    assert str(row.state) == "ramp" and row.offset_um < start
+    assert str(row.state) == "ramp" and row.stage_um < start
 
 
 # -- the config -----------------------------------------------------------------------

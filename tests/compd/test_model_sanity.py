@@ -146,7 +146,7 @@ def test_model_output_far_beyond_the_limit_is_a_fault_not_a_clamp() -> None:
     assert "model_out_of_range" in [e.name for e in faulted[0].events]
     for r in faulted:
         assert r.status & Status.MODEL_RANGE and r.status & Status.ALARM
-        assert not r.complete and r.state in ("hold", "ramp")
+        assert not r.inputs_valid and r.state in ("hold", "ramp")
     # held where it was, then ramped to zero: not left clamped at the limit
-    assert seen[first].offset_um == seen[first - 1].offset_um
-    assert seen[-1].state == "ramp" and seen[-1].offset_um == 0.0
+    assert seen[first].stage_um == seen[first - 1].stage_um
+    assert seen[-1].state == "ramp" and seen[-1].stage_um == 0.0

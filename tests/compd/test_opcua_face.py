@@ -149,7 +149,7 @@ async def test_the_namespace_follows_the_cycle_and_is_read_only(
                         and daemon.last_result.state.value == "hold")
             await _becomes(machine, idx, ("FaultStateName",), "hold")
             await _becomes(machine, idx, ("Channels", "bearing", "Valid"), False)
-        assert daemon.cycle is not None and daemon.cycle.operator_hold is False
+        assert daemon.cycle is not None and daemon.cycle.health.operator_hold is False
 
 
 async def test_each_face_has_a_copy_of_the_standard_space_built_once(
@@ -202,7 +202,7 @@ async def test_sethold_is_the_operators_and_holds_then_slews_back(
             audit = [e for e in logs if e["event"] == "opcua_set_hold"]
             assert audit and audit[0]["user"] == OPERATOR and audit[0]["hold"] is True
             assert audit[0]["peer"].startswith("('127.0.0.1'")  # who, from where, what
-            assert daemon.cycle is not None and daemon.cycle.operator_hold
+            assert daemon.cycle is not None and daemon.cycle.health.operator_hold
             held = daemon.cycle.output.current_um
             await sim.publish({"bearing": 30.0, "ambient": 20.0})  # the model moves away
             await until(lambda: daemon.last_result is not None
@@ -220,7 +220,7 @@ async def test_sethold_is_the_operators_and_holds_then_slews_back(
                 await until(lambda: daemon.last_result is not None
                             and daemon.last_result.sequence not in [q for q, _ in seen[-1:]])
                 assert daemon.last_result is not None
-                seen.append((daemon.last_result.sequence, daemon.last_result.offset_um))
+                seen.append((daemon.last_result.sequence, daemon.last_result.stage_um))
             for (qa, a), (qb, b) in itertools.pairwise(seen):
                 # 2 µm/s over a cycle's machine time: at most 2 periods (the output
                 # stage's bound on a late cycle's dt), so 4 µm a cycle; a jump is ~10
@@ -265,7 +265,7 @@ async def test_rezero_is_the_operators_audited_and_ramps_without_a_step(
                 await until(lambda: daemon.last_result is not None
                             and daemon.last_result.sequence not in [q for q, _ in seen[-1:]])
                 assert daemon.last_result is not None
-                seen.append((daemon.last_result.sequence, daemon.last_result.offset_um))
+                seen.append((daemon.last_result.sequence, daemon.last_result.stage_um))
             # down at most the slew limit a cycle (2 µm/s, ≤ 2 periods a cycle); once at
             # the new zero it follows the model's small drift (either way, as small)
             for (qa, a), (qb, b) in itertools.pairwise(seen):
@@ -345,7 +345,7 @@ async def test_a_second_stack_node_opcua_reads_and_holds(
         assert answer["state"] == "ok" and answer["heartbeat"] >= 1
         assert answer["call"] == "Good" and answer["output"] == [True]
         assert answer["hold"] is True
-        assert daemon.cycle is not None and daemon.cycle.operator_hold
+        assert daemon.cycle is not None and daemon.cycle.health.operator_hold
 
 
 def test_a_reload_that_changes_the_face_is_refused_by_name(tmp_path: Path) -> None:

@@ -167,7 +167,7 @@ def test_the_issue_chatter_on_the_pure_cycle() -> None:
     for k in range(4000):
         t = clock.tick()
         bearing = round(20.0 + 2.0 * k / 4000 + rng.gauss(0.0, 0.03), 1)
-        ys.append(cycle.plan(t, samples(t, bearing)).offset_um)
+        ys.append(cycle.plan(t, samples(t, bearing)).stage_um)
         cycle.commit()
     moves = [(k, b - a) for k, (a, b) in enumerate(itertools.pairwise(ys)) if b != a]
     flips = [(i, j) for (i, a), (j, b) in itertools.pairwise(moves) if a * b < 0]

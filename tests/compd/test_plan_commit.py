@@ -4,14 +4,14 @@ the recorded state are pure functions of one frozen health view."""
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 
 import pytest
 
 from compd.core.cycle import WRITTEN, Cycle, Outcome
 from compd.core.faults import FaultState
-from compd.core.health import Cause, HealthView, output_cause, recorded_state, status_word
+from compd.core.health import Cause
+from compd.core.health_view import HealthView, output_cause, recorded_state, status_word
 from compd.core.output import Status
 from compd.testing import FakeClock
 
@@ -28,14 +28,17 @@ def test_a_failed_write_is_in_the_row_and_leaves_the_plan_as_it_was() -> None:
     cycle, clock = _warm()
     t = clock.tick()
     plan = cycle.plan(t, samples(t, 20.5))
-    before = plan.record
+    before = plan._replace()
     row = cycle.commit(Outcome.failed("offset", reason="timeout"))
-    assert plan.record == before and plan.record.offset_um == plan.offset_um
-    assert row.record.offset_um is None and row.record.attempted_um == plan.offset_um
+    assert plan == before and plan.sent_um == plan.stage_um
+    assert row.sent_um == plan.stage_um and not row.write_ok
+    assert row.record.offset_um is None and row.record.attempted_um == plan.stage_um
     assert [e.name for e in row.write_events] == ["write_failed"]
     assert row.events == plan.events
-    with pytest.raises(dataclasses.FrozenInstanceError):
-        row.record = plan.record  # type: ignore[misc]
+    with pytest.raises(AttributeError):
+        row.stage_um = 0.0  # type: ignore[misc]
+    with pytest.raises(TypeError):  # read-only all the way down
+        row.writes["offset"] = 0.0  # type: ignore[index]
 
 
 def test_a_confirmed_write_completes_the_row_and_the_snapshot_says_what_is_in_force() -> None:
@@ -43,8 +46,8 @@ def test_a_confirmed_write_completes_the_row_and_the_snapshot_says_what_is_in_fo
     t = clock.tick()
     plan = cycle.plan(t, samples(t, 20.5))
     row = cycle.commit(WRITTEN)
-    assert not plan.record.complete and row.record.complete and row.in_force
-    assert row.snapshot.confirmed_um == plan.offset_um
+    assert row.record.complete and row.in_force
+    assert row.confirmed_um == plan.stage_um
     assert row.snapshot.operator_hold is False and row.snapshot.adaptation is None
 
 

@@ -63,7 +63,7 @@ def test_the_replay_and_the_daemons_cycle_give_the_same_corrections(gains: bool)
             rows.pop(0)
         cycle.plan(t, {n: Sample(row[n], t) for n in cycle_params.channels}, wall_s=t,
                    probe=probe)
-        offset[k] = cycle.commit(WRITTEN).offset_um
+        offset[k] = cycle.commit(WRITTEN).stage_um
         assert cycle.probes is not None
         daemon[k] = cycle.probes.correction_um
 

@@ -57,14 +57,14 @@ def test_unchanged_model_carries_its_filters_over(tmp_path: Path) -> None:
     new_cfg = load_config(path)
     changes = diff(old_cfg, new_cfg)
     assert not changes.model and not changes.controller
-    state = old.model.export_state()
+    state = old.models.model.export_state()
     new = handover(old, new_cfg, params_from_config(new_cfg), changes)
-    assert new.model is not old.model and new.model.export_state() == state
+    assert new.models.model is not old.models.model and new.models.model.export_state() == state
     assert new.output.current_um == old.output.current_um
     assert new.sequence == old.sequence and new.heartbeat == old.heartbeat
     r = _step(new, clock)
     assert not any(e.name == "model_initialised" for e in r.events)  # no restart
-    assert r.complete
+    assert r.inputs_valid
 
 
 def test_the_controller_state_inputs_are_a_new_driver(tmp_path: Path) -> None:
@@ -92,7 +92,7 @@ def test_another_model_restarts_at_steady_state_and_slews(tmp_path: Path) -> Non
     (init,) = [e for e in r.events if e.name == "model_initialised"]
     assert init.fields["mode"] == "steady_state"
     assert r.model_um is not None and abs(r.model_um - held) > 1.0  # another value...
-    assert abs(r.offset_um - held) <= 1.0 * 1.0 + 1e-9  # ...reached at the slew limit
+    assert abs(r.stage_um - held) <= 1.0 * 1.0 + 1e-9  # ...reached at the slew limit
 
 
 def test_a_reload_keeps_the_fault_hold_timer(tmp_path: Path) -> None:

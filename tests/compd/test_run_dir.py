@@ -294,7 +294,7 @@ async def test_a_restart_after_a_reload_runs_the_reloaded_config_with_fresh_mode
         await fs.step()
         assert daemon.reloads == 1 and daemon.cfg.model_sha256 == reloaded.model_sha256
         assert daemon.cycle is not None
-        dead_model = daemon.cycle.model
+        dead_model = daemon.cycle.models.model
         daemon.running.driver = _CrashingDriver()  # its next read is a bug: a crash
         await fs.step()  # the crash, the backoff (real time), the new daemon's first cycle
         assert fleet.restarts == {"mill-a": 1}
@@ -302,8 +302,8 @@ async def test_a_restart_after_a_reload_runs_the_reloaded_config_with_fresh_mode
         assert again is not daemon and again.cycle is not None
         assert again.cfg.model_sha256 == reloaded.model_sha256
         assert again.cfg.model.name == "SP1 per-spindle"
-        assert again.cycle.model is not dead_model
-        assert again.cycle.model is not again.cfg.model  # the config stays a description
+        assert again.cycle.models.model is not dead_model
+        assert again.cycle.models.model is not again.cfg.model  # the config stays a description
         assert again.cfg.model.references == {}  # never stepped: no reference state set
         await fs.step(2)
         assert again.complete_cycles >= 2

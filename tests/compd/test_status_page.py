@@ -405,14 +405,14 @@ def test_the_page_says_the_offset_sent_and_the_one_the_controller_holds(
         cycle.plan(t, samples(t, 20.0 + 0.4 * k), controller)
         row = cycle.commit()
         controller = row.writes.get("offset", controller)
-    held = row.snapshot.confirmed_um
+    held = row.confirmed_um
     t += 1.0
     cycle.plan(t, samples(t, 28.0), controller)
     row = cycle.commit(Outcome.failed("offset", reason="timed out"))
     board.publish(row, cfg)
     doc = board.snapshot
     assert held is not None and doc["confirmed_um"] == pytest.approx(held)
-    assert doc["offset_um"] == pytest.approx(row.offset_um)
+    assert doc["offset_um"] == pytest.approx(row.stage_um)
     assert doc["offset_um"] != doc["confirmed_um"]
     page = render_page(doc, 5.0)
     assert "m.confirmed_um" in page and "offset confirmed" in page

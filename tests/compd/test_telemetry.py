@@ -335,7 +335,7 @@ async def test_daemon_exports_model_output_and_channel_validity(
         await sim.publish({"bearing": 200.0})  # beyond the channel's range [-20, 150]
         await step(1)
         last = daemon.last_result
-        assert last is not None and last.record.validity.get("bearing") is not None
+        assert last is not None and last.validity.get("bearing") is not None
         text = generate_latest(daemon.metrics.registry).decode()
         assert _value(text, 'compd_channel_valid{channel="bearing"}') == 0
         assert _value(text, 'compd_channel_valid{channel="ambient"}') == 1
@@ -382,10 +382,8 @@ def test_the_confirmed_offset_has_its_own_gauge_apart_from_the_one_sent(
     metrics = Metrics()
     board = StatusBoard(wall=lambda: 1000.0)
     clock = Clock(mono=lambda: 0.0, wall=lambda: 1000.0)
-    sink = TelemetrySink(cfg, metrics=metrics, notifier=Notifier(None), board=board,
-                         clock=clock, journal=Journal(logging.getLogger("t"), board,
-                                                      clock.mono),
-                         serve=False)
+    sink = TelemetrySink(metrics=metrics, notifier=Notifier(None), board=board,
+                         journal=Journal(logging.getLogger("t"), board, clock), serve=False)
     cycle = Cycle(params_from_config(cfg), cfg.model)
 
     def gauges() -> tuple[float, float]:
@@ -396,22 +394,22 @@ def test_the_confirmed_offset_has_its_own_gauge_apart_from_the_one_sent(
     controller, t = 0.0, 0.0
     cycle.plan(t, samples(t, 20.0), None)
     row = cycle.commit(Outcome.failed("offset", reason="timed out"))
-    sink.feed(Tick(cfg, row, None, False, False))
+    sink.feed(Tick(cfg, row, 0.0, None, False, False))
     assert math.isnan(gauges()[1])
     for k in range(20):
         t += 1.0
         cycle.plan(t, samples(t, 20.0 + 0.4 * k), controller)
         row = cycle.commit()
         controller = row.writes.get("offset", controller)
-    sink.feed(Tick(cfg, row, None, True, True))
+    sink.feed(Tick(cfg, row, 0.0, None, True, True))
     sent, confirmed = gauges()
     assert sent == pytest.approx(confirmed) == pytest.approx(controller)
     t += 1.0
     cycle.plan(t, samples(t, 28.0), controller)
     row = cycle.commit(Outcome.failed("offset", reason="timed out"))
-    sink.feed(Tick(cfg, row, None, False, True))
+    sink.feed(Tick(cfg, row, 0.0, None, False, True))
     sent, confirmed = gauges()
-    assert sent == pytest.approx(row.offset_um) and sent != pytest.approx(controller)
+    assert sent == pytest.approx(row.stage_um) and sent != pytest.approx(controller)
     assert confirmed == pytest.approx(controller)
 
 

@@ -28,7 +28,7 @@ def test_repeated_write_failures_are_a_fault_until_a_write_succeeds() -> None:
     for i in range(WRITE_FAULT_AFTER + 2):
         t = clock.tick()
         plan = cycle.plan(t, samples(t, 20.5))
-        assert plan.record.attempted_um == plan.offset_um
+        assert plan.sent_um == plan.stage_um
         r = cycle.commit(Outcome.failed("offset", permanent=False, reason="out of range"))
         ev = r.write_events
         # not confirmed: the row keeps it as attempted only
@@ -40,7 +40,7 @@ def test_repeated_write_failures_are_a_fault_until_a_write_succeeds() -> None:
     t = clock.tick()
     cycle.plan(t, samples(t, 20.5))
     r = cycle.commit()
-    assert r.record.offset_um == r.record.attempted_um == r.offset_um
+    assert r.record.offset_um == r.record.attempted_um == r.stage_um
     t = clock.tick()
     plan = cycle.plan(t, samples(t, 20.5))
     assert "write_recovered" in [e.name for e in plan.events]
@@ -59,7 +59,7 @@ def test_a_few_failures_are_no_fault() -> None:
         t = clock.tick()
         r = cycle.plan(t, samples(t, 20.5))
         cycle.commit(Outcome.failed("offset", permanent=False, reason="busy"))
-    assert not cycle.write_fault and r.status & Status.OK
+    assert not cycle.health.write_fault and r.status & Status.OK
 
 
 async def test_daemon_records_only_confirmed_offsets_and_reports_the_write_fault(
@@ -70,14 +70,14 @@ async def test_daemon_records_only_confirmed_offsets_and_reports_the_write_fault
     await _until(lambda: daemon.complete_cycles >= 3)
     await sim.publish({"bearing": 22.0})
     sim.inject_exception("holding", 0, 6, count=4, on="write")  # busy, for a while
-    await _until(lambda: daemon.cycle is not None and daemon.cycle.write_fault)
+    await _until(lambda: daemon.cycle is not None and daemon.cycle.health.write_fault)
     await _until(lambda: daemon.last_result is not None
                  and daemon.last_result.state == "write_fault")
     assert daemon.last_result is not None
     assert daemon.last_result.status & Status.WRITE_FAULT
     assert daemon.metrics.fault_state._value.get() == 3  # the gauge
     sim.clear_faults()
-    await _until(lambda: daemon.cycle is not None and not daemon.cycle.write_fault)
+    await _until(lambda: daemon.cycle is not None and not daemon.cycle.health.write_fault)
     n = daemon.cycles
     await _until(lambda: daemon.cycles >= n + 3)
     daemon.request_stop()

@@ -96,14 +96,14 @@ class Invariants:
         held_um = abs(readback) / scale if readback is not None and math.isfinite(readback) \
             else (abs(tr.held) / scale if tr.held is not None else 0.0)
         bound = max(p.limit_um, held_um)
-        if not math.isfinite(result.offset_um) or abs(result.offset_um) > bound + EPS_UM:
-            self._fail(f"seq {seq}: offset {result.offset_um} µm beyond ±{bound} "
+        if not math.isfinite(result.stage_um) or abs(result.stage_um) > bound + EPS_UM:
+            self._fail(f"seq {seq}: offset {result.stage_um} µm beyond ±{bound} "
                        f"(limit {p.limit_um}, held {held_um})")
-        expected_hb = (heartbeat_before + 1) % HEARTBEAT_MODULO if result.complete \
+        expected_hb = (heartbeat_before + 1) % HEARTBEAT_MODULO if result.inputs_valid \
             else heartbeat_before
         if result.heartbeat != expected_hb:
             self._fail(f"seq {seq}: heartbeat {heartbeat_before} -> {result.heartbeat} "
-                       f"on a {'complete' if result.complete else 'incomplete'} cycle")
+                       f"on a {'complete' if result.inputs_valid else 'incomplete'} cycle")
         if readback is not None and math.isfinite(readback):
             tr.held = readback
         dt = p.period_s if tr.last_now_s is None else now_s - tr.last_now_s

@@ -68,12 +68,12 @@ async def test_restart_forgets_offset_ramps_back(protocol: str, tmp_path: Path,
     finally:
         await sim.stop()
     log = invariants.log()
-    before = log[forget_at - 1].result.offset_um
+    before = log[forget_at - 1].result.stage_um
     assert log[forget_at].readback == 0.0
     first = log[forget_at].written["offset"]
     dt = log[forget_at].now_s - log[forget_at - 1].now_s
     back = next(i for i in range(forget_at, len(log))
-                if abs(log[i].result.offset_um - before) <= 0.1) - forget_at
+                if abs(log[i].result.stage_um - before) <= 0.1) - forget_at
     print(f"{protocol}: offset {before:.3f} µm forgotten; first write {first:.3f} µm "
           f"(R·Δt = {SLEW * dt:.3f}); back within 0.1 µm after {back} cycles")
     assert before > 20.0 and 0.0 < first <= SLEW * min(dt, 2.0) + 1e-3
@@ -103,12 +103,12 @@ async def test_modbus_busy_is_transient_and_retried(tmp_path: Path,
     assert failed == list(range(busy_at, busy_at + busy_cycles))
     # retried: an offset write on every one of those cycles, and the next
     assert all("offset" in log[i].written for i in range(busy_at, busy_at + busy_cycles + 1))
-    assert rig.daemon.cycle is not None and not rig.daemon.cycle.write_stopped
+    assert rig.daemon.cycle is not None and not rig.daemon.cycle.health.write_stopped
     assert log[busy_at + busy_cycles].write_ok is True
     assert int((await sim.outputs())["status"]) & Status.OK
-    assert log[-1].result.offset_um > 30.0
+    assert log[-1].result.stage_um > 30.0
     print(f"modbus busy: {len(failed)} cycles refused, retried each next cycle, "
-          f"offset {log[-1].result.offset_um:.3f} µm at the end")
+          f"offset {log[-1].result.stage_um:.3f} µm at the end")
 
 
 def _touches_offset(sim: ModbusSimController, start: int) -> int:
@@ -129,7 +129,8 @@ async def test_modbus_permanent_refusal_stops_offset_writes(
     sim, rig = await _rig("modbus", tmp_path, invariants, {refuse_at: refuse})
     try:
         await rig.start()
-        await rig.until(lambda: rig.daemon.cycle is not None and rig.daemon.cycle.write_stopped)
+        await rig.until(lambda: rig.daemon.cycle is not None
+                        and rig.daemon.cycle.health.write_stopped)
         mark["requests"] = len(sim.requests)
         n = rig.daemon.cycles
         await rig.until(lambda: rig.daemon.cycles >= n + 20)
@@ -165,7 +166,8 @@ async def test_opcua_read_only_offset_node_is_permanent(tmp_path: Path,
 
         rig = DaemonRig(sim, cfg, invariants, plant, stepped=True)
         await rig.start()
-        await rig.until(lambda: rig.daemon.cycle is not None and rig.daemon.cycle.write_stopped)
+        await rig.until(lambda: rig.daemon.cycle is not None
+                        and rig.daemon.cycle.health.write_stopped)
         writes = sim.write_requests  # type: ignore[attr-defined]
         n = rig.daemon.cycles
         await rig.until(lambda: rig.daemon.cycles >= n + 10)
@@ -201,7 +203,8 @@ async def test_focas_ew_prot_is_permanent(tmp_path: Path, invariants: Invariants
 
         rig = DaemonRig(sim, cfg, invariants, plant, stepped=True)
         await rig.start()
-        await rig.until(lambda: rig.daemon.cycle is not None and rig.daemon.cycle.write_stopped)
+        await rig.until(lambda: rig.daemon.cycle is not None
+                        and rig.daemon.cycle.health.write_stopped)
         n = rig.daemon.cycles
         await rig.until(lambda: rig.daemon.cycles >= n + 10)
         assert await rig.stop() == 0
@@ -246,13 +249,13 @@ async def test_focas_ew_busy_is_transient_and_retried(tmp_path: Path,
     assert log[busy_at + busy_writes].write_ok is True
     reasons = [f.get("reason", "") for _, e, f in rig.log.events if e == "write_failed"]
     assert reasons and all("EW_BUSY" in r for r in reasons), reasons
-    assert rig.daemon.cycle is not None and not rig.daemon.cycle.write_stopped
+    assert rig.daemon.cycle is not None and not rig.daemon.cycle.health.write_stopped
     assert "offset_write_stopped" not in rig.log.names()
     assert status & Status.OK and not status & Status.ALARM
-    assert log[-1].result.offset_um > 30.0
-    assert written == pytest.approx(log[-1].result.offset_um, abs=0.1)  # ×0.1 µm long
+    assert log[-1].result.stage_um > 30.0
+    assert written == pytest.approx(log[-1].result.stage_um, abs=0.1)  # ×0.1 µm long
     print(f"focas EW_BUSY: {len(failed)} cycles refused, retried each next cycle, "
-          f"offset {log[-1].result.offset_um:.3f} µm at the end")
+          f"offset {log[-1].result.stage_um:.3f} µm at the end")
 
 
 @pytest.mark.parametrize(("access", "code"), [
@@ -271,7 +274,8 @@ async def test_opcua_offset_made_read_only_is_permanent(
     sim, rig = await _rig("opcua", tmp_path, invariants, {refuse_at: refuse})
     try:
         await rig.start()
-        await rig.until(lambda: rig.daemon.cycle is not None and rig.daemon.cycle.write_stopped)
+        await rig.until(lambda: rig.daemon.cycle is not None
+                        and rig.daemon.cycle.health.write_stopped)
         held = await sim.value("offset")
         n = rig.daemon.cycles
         await rig.until(lambda: rig.daemon.cycles >= n + 10)
@@ -317,9 +321,9 @@ async def test_opcua_offset_node_retyped_is_transient(tmp_path: Path,
     reasons = [f.get("reason", "") for _, e, f in rig.log.events if e == "write_failed"]
     assert len(reasons) == 1 and "BadTypeMismatch" in reasons[0] \
         and "Double" in reasons[0], reasons
-    assert rig.daemon.cycle is not None and not rig.daemon.cycle.write_stopped
+    assert rig.daemon.cycle is not None and not rig.daemon.cycle.health.write_stopped
     assert "offset_write_stopped" not in rig.log.names()
-    assert written == pytest.approx(log[-1].result.offset_um, abs=1e-3)
-    assert log[-1].result.offset_um > 30.0
+    assert written == pytest.approx(log[-1].result.stage_um, abs=1e-3)
+    assert log[-1].result.stage_um > 30.0
     print(f"opcua retyped offset node: 1 cycle refused ({reasons[0]}), "
           f"offset {written:.3f} µm at the end")

@@ -85,7 +85,7 @@ OPEN, SHORT = 32767, -32768  # the analog card's Pt100 sentinels (int16, 0.1 °C
 
 def _offset(rig: DaemonRig) -> float:
     r = rig.daemon.last_result
-    return r.offset_um if r is not None else float("nan")
+    return r.stage_um if r is not None else float("nan")
 
 
 def _cause(rig: DaemonRig) -> Cause | None:
@@ -95,7 +95,7 @@ def _cause(rig: DaemonRig) -> Cause | None:
 
 def _settled(rig: DaemonRig) -> bool:
     r = rig.daemon.last_result
-    return r is not None and r.model_um is not None and abs(r.offset_um - r.model_um) < 0.05
+    return r is not None and r.model_um is not None and abs(r.stage_um - r.model_um) < 0.05
 
 
 def _steps(inv: Invariants, since: int = 0) -> list[float]:
@@ -155,7 +155,7 @@ async def test_sensor_lost_degraded_fallback_ramped_and_back_to_the_main_model(
         since = len(invariants.log())
         raw["ambient"] = OPEN
         await rig.until(lambda: rig.daemon.last_result is not None
-                        and rig.daemon.last_result.record.validity.get("ambient") is not None)
+                        and rig.daemon.last_result.validity.get("ambient") is not None)
         first = rig.daemon.last_result
         assert first is not None and first.cause is Cause.DEGRADED
         assert first.snapshot.fallback_for == "ambient"
@@ -166,7 +166,7 @@ async def test_sensor_lost_degraded_fallback_ramped_and_back_to_the_main_model(
         await rig.until(lambda: rig.daemon.cycles >= n + int(3 * HOLD_S))  # well past hold_s
         r = rig.daemon.last_result
         assert r is not None and r.cause is Cause.DEGRADED and r.healthy and r.in_force
-        assert abs(r.offset_um - 22.0) < 0.3  # the fallback's offset is in force
+        assert abs(r.stage_um - 22.0) < 0.3  # the fallback's offset is in force
         degraded = invariants.log()[since:]
         assert all(c.result.cause is Cause.DEGRADED for c in degraded)
         assert all(c.result.status & Status.OK for c in degraded)
@@ -212,7 +212,7 @@ async def test_sensor_lost_degraded_fallback_ramped_and_back_to_the_main_model(
         await rig.until(lambda: _cause(rig) is Cause.DEGRADED and _settled(rig))
         r = rig.daemon.last_result
         assert r is not None and r.snapshot.fallback_for == "bearing"
-        assert abs(r.offset_um) < 0.3  # the ambient at its reference: no growth
+        assert abs(r.stage_um) < 0.3  # the ambient at its reference: no growth
         assert all(c.result.cause is Cause.DEGRADED for c in invariants.log()[since:])
         steps = _steps(invariants, since - 1)
         assert max(steps) <= SLEW * 1.0 + 1e-3

@@ -57,7 +57,7 @@ async def _rig(tmp_path: Path, inv: Invariants, bearing: list[float]) -> tuple[
 
 def _offset(rig: DaemonRig) -> float:
     r = rig.daemon.last_result
-    return r.offset_um if r is not None else float("nan")
+    return r.stage_um if r is not None else float("nan")
 
 
 def _steps(inv: Invariants, since: int = 0) -> float:
@@ -85,7 +85,7 @@ async def test_permit_holds_the_offset_then_the_change_ramps_in(
         n = rig.daemon.cycles
         await rig.until(lambda: rig.daemon.cycles >= n + 60)
         r = rig.daemon.last_result
-        assert r is not None and r.offset_um == held_at
+        assert r is not None and r.stage_um == held_at
         assert r.snapshot.pending_um is not None and r.snapshot.pending_um > 5.0
         assert r.model_um is not None and r.model_um > held_at + 5.0
         assert (await sim.outputs())["offset"] == held_at

@@ -80,12 +80,12 @@ class Watch(ClockedDriver):
         self.probes: list[tuple[int, bool, float, float]] = []
 
     def note(self, result: Any) -> None:
-        probe = result.record.probe
+        probe = result.probe
         if probe is not None and probe["measured_um"] is not None:
             with_um = probe["value_um"]  # the residual: the error at the tool with it
             self.probes.append((len(self.offsets), probe["accepted"], with_um,
                                 probe["measured_um"]))
-        self.offsets.append(result.offset_um)
+        self.offsets.append(result.stage_um)
         self.statuses.append(result.status)
         self.causes.append(result.cause)
 

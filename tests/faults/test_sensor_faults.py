@@ -44,7 +44,7 @@ def fault_figures(log: list[CycleLog], fault_index: int, hold_s: float, slew_um_
     """From the cycle at `fault_index` (the first sample carrying the fault):
     the offset's max deviation from the hold-last-value reference, and when
     the ramp and the alarm started after the fault."""
-    held = log[fault_index - 1].result.offset_um
+    held = log[fault_index - 1].result.stage_um
     t0 = log[fault_index].now_s
     ramp_i = next(i for i in range(fault_index, len(log))
                   if log[i].result.state == "ramp")
@@ -57,7 +57,7 @@ def fault_figures(log: list[CycleLog], fault_index: int, hold_s: float, slew_um_
         if i >= ramp_i:
             dt = min(log[i].now_s - log[i - 1].now_s, 2.0 * period_s)
             ref = math.copysign(max(abs(ref) - slew_um_s * dt, 0.0), held)
-        dev = max(dev, abs(r.offset_um - ref))
+        dev = max(dev, abs(r.stage_um - ref))
     return {"held_um": held, "max_dev_um": dev,
             "ramp_after_s": log[ramp_i].now_s - t0, "alarm_after_s": log[alarm_i].now_s - t0,
             "ramp_cycles": float(len(log) - ramp_i)}
@@ -89,15 +89,15 @@ def test_open_sensor_pure_holds_then_ramps(fault: str, invariants: Invariants) -
             s["bearing"] = Sample(bad.value, t, bad.quality)
         r = run_pure(invariants, cycle, t, s)
         if k == k0:  # invalid within one sample: the very sample that carries it
-            assert r.record is not None and r.record.validity["bearing"] is not None
-            assert not r.complete and r.state == "hold"
+            assert r.validity["bearing"] is not None
+            assert not r.inputs_valid and r.state == "hold"
     log = invariants.log(cycle)
     f = fault_figures(log, k0, p.hold_s, p.slew_um_s, p.period_s)
     assert abs(f["held_um"]) > 10.0
     assert f["max_dev_um"] <= TOL_UM, f
     assert p.hold_s - p.period_s <= f["ramp_after_s"] <= p.hold_s + p.period_s, f
     assert f["alarm_after_s"] == f["ramp_after_s"], f
-    assert log[-1].result.offset_um == 0.0
+    assert log[-1].result.stage_um == 0.0
 
 
 def _quantised_heating(k: int, phase_s: float) -> float:
@@ -134,9 +134,8 @@ def test_stuck_no_false_alarm_over_8h_of_slow_quantised_heating(
         s = samples(t, _quantised_heating(k, 0.0), _quantised_heating(k, 360.0), speed=0.0)
         s["motor"] = Sample(_quantised_heating(k, 180.0), t)
         r = run_pure(invariants, cycle, t, s)
-        assert r.record is not None
-        if not r.complete or any(v is not None for v in r.record.validity.values()):
-            raise AssertionError(f"false alarm at {t} s: {r.record.validity}")
+        if not r.inputs_valid or any(v is not None for v in r.validity.values()):
+            raise AssertionError(f"false alarm at {t} s: {r.validity}")
     assert r.heartbeat == 8 * 3600
 
 
@@ -160,12 +159,11 @@ def test_stuck_sensor_flagged_after_warm_up_starts(frozen_before_s: float,
         s = samples(t, 20.0, amb, speed=8000.0 if warm > 0 else 0.0)
         s["motor"] = Sample(round(20.0 + 8.0 * (1.0 - math.exp(-warm / 900.0)), 1), t)
         r = run_pure(invariants, cycle, t, s)
-        assert r.record is not None
-        assert r.record.validity["ambient"] is None and r.record.validity["motor"] is None
-        if r.record.validity["bearing"] == "stuck":
+        assert r.validity["ambient"] is None and r.validity["motor"] is None
+        if r.validity["bearing"] == "stuck":
             flagged = float(warm)
             break
-        assert warm > 0 or r.record.validity["bearing"] is None  # at rest: not stuck
+        assert warm > 0 or r.validity["bearing"] is None  # at rest: not stuck
     assert flagged is not None
     print(f"stuck flagged {flagged:.0f} s after warm-up start "
           f"(frozen {frozen_before_s:.0f} s before)")
@@ -185,8 +183,8 @@ def test_one_sample_spike_matches_a_spike_free_run(spike_k: float,
         ra = run_pure(invariants, ref, t, samples(t, b))
         rb = run_pure(invariants, spiked, t, samples(t, b + (spike_k if k == 700 else 0.0)))
         if k == 700:
-            assert rb.record is not None and rb.record.validity["bearing"] is not None
-        dev = max(dev, abs(ra.offset_um - rb.offset_um))
+            assert rb.validity["bearing"] is not None
+        dev = max(dev, abs(ra.stage_um - rb.stage_um))
     print(f"spike {spike_k:+.0f} K: max |offset - spike-free| = {dev:.4f} µm")
     assert dev <= TOL_UM
 
@@ -232,15 +230,14 @@ async def _open_sensor_run(protocol: str, inject: object, tmp_path: Path,
             nonlocal ramp_cycles
             r = rig.daemon.last_result
             ramp_cycles += r is not None and r.state == "ramp"
-            return r is not None and r.state == "ramp" and r.offset_um == 0.0
+            return r is not None and r.state == "ramp" and r.stage_um == 0.0
 
         assert await rig.run_until(done) == 0
         log = inv.log()
         # the first cycle whose sample carries the fault (the read after the injection)
         fi = FAULT_READ
-        assert log[fi - 1].result.complete
-        rec = log[fi].result.record
-        assert rec is not None and rec.validity["bearing"] is not None, \
+        assert log[fi - 1].result.inputs_valid
+        assert log[fi].result.validity["bearing"] is not None, \
             "invalid within 1 sample"
         f = fault_figures(log, fi, hold_s, SLEW, 1.0)
         f["written_offset_um"] = (await sim.outputs())["offset"]
@@ -326,18 +323,17 @@ async def test_stuck_sensor_modbus(tmp_path: Path, invariants: Invariants) -> No
     def stuck(rig: DaemonRig) -> bool:
         r = rig.daemon.last_result
         return r is not None and r.record is not None \
-            and r.record.validity["bearing"] == "stuck"
+            and r.validity["bearing"] == "stuck"
 
     rig = await _modbus_run(tmp_path, invariants, values, stuck, {
         "channels": {"bearing": {"stuck_after_s": 60.0},
                      "ambient": {"stuck_after_s": 60.0}}})
     log = invariants.log()
-    first = next(c for c in log if c.result.record is not None
-                 and c.result.record.validity["bearing"] == "stuck")
+    first = next(c for c in log if c.result.validity["bearing"] == "stuck")
     after = first.now_s - warm_s
     print(f"wire: stuck flagged {after:.1f} s after warm-up start")
     assert 0.0 <= after <= 600.0
-    assert all(c.result.record is not None and c.result.record.validity["bearing"] is None
+    assert all(c.result.validity["bearing"] is None
                for c in log if c.now_s < warm_s)  # no false alarm while at rest
     assert rig.daemon.last_result is not None and rig.daemon.last_result.state == "hold"
 
@@ -356,10 +352,9 @@ async def test_spike_modbus(spike_k: float, tmp_path: Path, invariants: Invarian
     await _modbus_run(tmp_path, invariants, values,
                       lambda rig: rig.daemon.cycles >= spike_read + 10, {})
     log = invariants.log()
-    rec = log[spike_read].result.record
-    assert rec is not None and rec.validity["bearing"] is not None
-    before = log[spike_read - 1].result.offset_um
-    dev = max(abs(c.result.offset_um - before) for c in log[spike_read:])
+    assert log[spike_read].result.validity["bearing"] is not None
+    before = log[spike_read - 1].result.stage_um
+    dev = max(abs(c.result.stage_um - before) for c in log[spike_read:])
     print(f"wire: spike {spike_k:+.0f} K: max |offset - spike-free| = {dev:.4f} µm "
           f"(offset {before:.3f} µm)")
     assert abs(before) > 10.0 and dev <= TOL_UM

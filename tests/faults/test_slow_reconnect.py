@@ -120,10 +120,10 @@ async def test_slow_reconnect_after_link_loss_resumes(protocol: str, tmp_path: P
     # by every cycle's deadline, there were 4 to 26 here, each one lost
     assert proxy.connections_accepted - 1 <= 2, "each cycle started the handshake again"
     held = [c.result for c in log[first_held:resumed]]
-    before = log[lost_at - 1].result.offset_um
-    assert all(r.offset_um == pytest.approx(before, abs=1e-9) for r in held)
+    before = log[lost_at - 1].result.stage_um
+    assert all(r.stage_um == pytest.approx(before, abs=1e-9) for r in held)
     assert all(c.result.status & Status.OK for c in log[resumed:])
     # never a jump: every step within R·Δt (the invariants check each write too)
     for prev, cur in zip(log[lost_at - 1:], log[lost_at:], strict=False):
-        assert abs(cur.result.offset_um - prev.result.offset_um) <= \
+        assert abs(cur.result.stage_um - prev.result.stage_um) <= \
             SLEW * min(cur.now_s - prev.now_s, 2.0) + 1e-6

@@ -1,10 +1,12 @@
 """The loop's side of a sink: `Tick`, what one cycle left, and `CycleSink`.
 
-A sink is opened before the first cycle (`open`), fed every cycle's `Tick`
+A sink is opened before the first cycle (`open`, with the config at start), fed every cycle's `Tick`
 in the loop's thread (`feed`: cheap, never waits; an exception is logged as a
 ``cycle_error`` of its `stage` and the cycle goes on), told when a SIGHUP
 reload swapped a new config in (`reload`), and closed when the loop ends
-(`close`). The config in force is read from the tick, never kept from `open`.
+(`close`). The config in force is read from the tick, never kept from `open`:
+a sink keeps only its resources (a file, a server) and what it counts. Sinks
+do not know each other: what one needs of the cycle is in the report.
 """
 
 from __future__ import annotations
@@ -30,6 +32,9 @@ class Tick:
     #: `snapshot` the faces read (the confirmed offset, the operator's hold,
     #: the adaptation estimator)
     row: Row
+    #: the cycle's monotonic time (`compd.runtime.clock.Instant.mono_s`; its machine
+    #: and wall-clock time are the row's `machine_s` and `wall_s`)
+    mono_s: float
     #: the channels as read (None: the read failed)
     samples: dict[str, Sample] | None
     #: the controller confirmed this cycle's writes (a dry run: always)
@@ -44,7 +49,7 @@ class CycleSink(Protocol):
     #: the stage named in its ``cycle_error`` lines
     stage: str
 
-    async def open(self) -> None:
+    async def open(self, cfg: LoadedConfig) -> None:
         return None
 
     def feed(self, tick: Tick) -> None: ...

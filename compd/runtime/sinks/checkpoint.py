@@ -7,10 +7,13 @@ one not in force since the last save (else the last cycle's): an offset
 flapping in and out of force saves at most once a ``checkpoint_every`` window
 out of turn, and `--state-dir` stays red until a window passes in force.
 
-Beside the cycle's state it holds what `compd health --state-dir` judges:
-the last complete cycle's wall and monotonic time, the boot it happened in,
-and the last cycle's state and cause (an alarm, or an offset not in force, is
-unhealthy however recent the rest).
+Beside the cycle's state it holds what `compd health --state-dir` judges, all
+read from the reports it is fed: the last complete cycle's (`Row.in_force`)
+wall and monotonic time (the cycle's own, read once by the loop), the boot it
+happened in, and the last cycle's state and cause (an alarm, or an offset not
+in force, is unhealthy however recent the rest). The config (the file's path,
+``checkpoint_every``, the hashes saved) is the tick's, or the caller's for a
+save outside a cycle.
 A failed save is logged (``checkpoint_failed``) and never stops the loop. A
 dry run saves nothing.
 
@@ -41,7 +44,6 @@ if TYPE_CHECKING:
     from compd.config.loader import LoadedConfig
     from compd.runtime.clock import Clock
     from compd.runtime.journal import Journal
-    from compd.runtime.reload import Changes
     from compd.runtime.statedir import StateDir
 
 __all__ = ["CheckpointSink"]
@@ -50,18 +52,17 @@ __all__ = ["CheckpointSink"]
 class CheckpointSink(CycleSink):
     stage = "checkpoint"
 
-    def __init__(self, cfg: LoadedConfig, *, dry_run: bool, clock: Clock, journal: Journal,
+    def __init__(self, *, dry_run: bool, clock: Clock, journal: Journal,
                  export: Callable[[], dict[str, Any]],
-                 last_complete: Callable[[], tuple[float, float] | None],
                  writer: DiskWriter = PROCESS_DISK) -> None:
-        self._cfg = cfg
         #: the thread that writes the files (`compd.runtime.diskwriter`)
         self.writer = writer
         self._dry_run = dry_run
         self._clock = clock
         self._journal = journal
         self._export = export
-        self._last_complete = last_complete
+        #: (wall, monotonic) time of the last complete cycle: the health evidence
+        self.last_complete: tuple[float, float] | None = None
         #: the state directory the lock holds open (None without a lock: a dry run)
         self.directory: StateDir | None = None
         self._last_state: str | None = None
@@ -74,11 +75,13 @@ class CheckpointSink(CycleSink):
 
     def feed(self, tick: Tick) -> None:
         if self.note(tick):
-            self.save()
+            self.save(tick.cfg)
 
     def note(self, tick: Tick) -> bool:
         """Take the cycle's state; whether a checkpoint is due."""
         result = tick.row
+        if result.in_force:
+            self.last_complete = (result.wall_s, tick.mono_s)
         self._last_state = str(result.state)
         if not self._unhealthy_since_save:
             self._last_cause = str(result.cause)
@@ -89,15 +92,12 @@ class CheckpointSink(CycleSink):
             return True
         if not result.healthy and self._saved_healthy:
             return True
-        return result.sequence % self._cfg.raw.state.checkpoint_every == 0
+        return result.sequence % tick.cfg.raw.state.checkpoint_every == 0
 
-    def reload(self, cfg: LoadedConfig, changes: Changes) -> None:
-        self._cfg = cfg
-
-    def save(self) -> None:
-        """Save now: the file is written when this returns (after every save asked
-        for before it)."""
-        job = self._submit()
+    def save(self, cfg: LoadedConfig) -> None:
+        """Save now under `cfg` (the one in force): the file is written when this
+        returns (after every save asked for before it)."""
+        job = self._submit(cfg)
         if job is not None:
             try:
                 job.result()
@@ -106,10 +106,10 @@ class CheckpointSink(CycleSink):
             else:
                 self._saved()
 
-    async def save_async(self) -> None:
+    async def save_async(self, cfg: LoadedConfig) -> None:
         """Save; the caller's task resumes once the file is written, the loop's
         thread free meanwhile."""
-        job = self._submit()
+        job = self._submit(cfg)
         if job is not None:
             try:
                 await asyncio.wrap_future(job)
@@ -118,19 +118,18 @@ class CheckpointSink(CycleSink):
             else:
                 self._saved()
 
-    def _submit(self) -> Future[None] | None:
+    def _submit(self, cfg: LoadedConfig) -> Future[None] | None:
         """The state encoded now and handed to the disk thread (None: nothing to
         write, a dry run or a state that cannot be stored, logged)."""
         if self._dry_run:
             return None
         from compd.runtime.checkpoint import encode_checkpoint, write_checkpoint
 
-        cfg = self._cfg
         try:
             state = self._export()
             state.update(saved_mono_s=self._clock.mono(), model_sha256=cfg.model_sha256,
                          config_sha256=cfg.config_sha256)
-            last = self._last_complete()
+            last = self.last_complete
             if last is not None:  # what `compd health --state-dir` judges
                 wall_s, mono_s = last
                 state.update(last_complete_wall_s=wall_s, last_complete_mono_s=mono_s,

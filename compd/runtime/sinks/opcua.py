@@ -29,12 +29,8 @@ __all__ = ["OpcUaSink"]
 class OpcUaSink(CycleSink):
     stage = "opcua_face"
 
-    def __init__(self, cfg: LoadedConfig, *, metrics: Metrics,
-                 operator_hold: Callable[[bool, str], bool],
+    def __init__(self, *, metrics: Metrics, operator_hold: Callable[[bool, str], bool],
                  rezero: Callable[[str], bool] | None = None) -> None:
-        #: the config at start: whether the face runs, and its server (a reload may not
-        #: change them); every cycle's config is the tick's
-        self._cfg = cfg
         self._metrics = metrics
         self._operator_hold = operator_hold
         self._rezero = rezero
@@ -43,12 +39,14 @@ class OpcUaSink(CycleSink):
         #: its start, while under way
         self.starting: asyncio.Task[None] | None = None
 
-    async def open(self) -> None:
-        if not self._cfg.raw.faces.opcua.enabled:
+    async def open(self, cfg: LoadedConfig) -> None:
+        """The face at start, if the config has one (a reload may not change whether
+        it runs, nor its server); every cycle's config is the tick's."""
+        if not cfg.raw.faces.opcua.enabled:
             return
         from compd.faces.opcua_face import OpcUaFace
 
-        face = OpcUaFace(self._cfg, self._operator_hold, self._metrics.registry,
+        face = OpcUaFace(cfg, self._operator_hold, self._metrics.registry,
                          rezero=self._rezero)
 
         async def start() -> None:

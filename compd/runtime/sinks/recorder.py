@@ -1,5 +1,5 @@
-"""The recorder as a sink: each cycle's row into SQLite (`compd.runtime.recorder`),
-stamped with the wall-clock time of recording.
+"""The recorder as a sink: each cycle's report into SQLite (`compd.runtime.recorder`)
+as its `compd.core.plan.Row.record` (the wall-clock time is the cycle's).
 
 Compensation never stops for the recorder: one that cannot open is logged
 (``recorder_unavailable``) and the daemon runs without it; one that fails
@@ -15,7 +15,6 @@ counted and alarmed at the next cycle's feed.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import TYPE_CHECKING, Any
 
@@ -24,7 +23,6 @@ from compd.runtime.sinks.base import CycleSink, Tick
 if TYPE_CHECKING:
     from compd.config.loader import LoadedConfig
     from compd.faces.telemetry import Metrics
-    from compd.runtime.clock import Clock
     from compd.runtime.journal import Journal
     from compd.runtime.recorder import Recorder
     from compd.runtime.reload import Changes
@@ -35,12 +33,9 @@ __all__ = ["RecorderSink"]
 class RecorderSink(CycleSink):
     stage = "record"
 
-    def __init__(self, cfg: LoadedConfig, *, dry_run: bool, metrics: Metrics, clock: Clock,
-                 journal: Journal) -> None:
-        self._cfg = cfg
+    def __init__(self, *, dry_run: bool, metrics: Metrics, journal: Journal) -> None:
         self._dry_run = dry_run
         self._metrics = metrics
-        self._clock = clock
         self._journal = journal
         #: the open recorder (None: none configured, a dry run, or it could not open)
         self.recorder: Recorder | None = None
@@ -52,18 +47,18 @@ class RecorderSink(CycleSink):
     def log(self) -> Any:
         return self._journal.log
 
-    async def open(self) -> None:
-        self.open_now()
+    async def open(self, cfg: LoadedConfig) -> None:
+        self.open_now(cfg)
 
-    def open_now(self) -> None:
-        path = self._cfg.recorder_path
+    def open_now(self, cfg: LoadedConfig) -> None:
+        path = cfg.recorder_path
         if self._dry_run or path is None:
             return
         from compd.runtime.diskwriter import PROCESS_DISK
         from compd.runtime.recorder import Recorder
 
-        rc = self._cfg.raw.recorder
-        keep_rows = (max(1, math.ceil(rc.retention_days * 86400.0 / self._cfg.period_s))
+        rc = cfg.raw.recorder
+        keep_rows = (max(1, math.ceil(rc.retention_days * 86400.0 / cfg.period_s))
                      if rc.retention_days else None)
         recorder = Recorder(path, commit_every=rc.commit_every, keep_rows=keep_rows,
                             writer=PROCESS_DISK)
@@ -79,7 +74,7 @@ class RecorderSink(CycleSink):
         recorder = self.recorder
         if recorder is None:
             return
-        recorder.record(dataclasses.replace(tick.row.record, wall_s=self._clock.wall()))
+        recorder.record(tick.row.record)
         dropped = recorder.dropped  # this cycle's, or a commit's on the disk thread
         if dropped > self._dropped:
             self._metrics.records_dropped.inc(dropped - self._dropped)
@@ -96,10 +91,9 @@ class RecorderSink(CycleSink):
                 self.log.info("recorder_recovered", dropped=recorder.dropped)
 
     def reload(self, cfg: LoadedConfig, changes: Changes) -> None:
-        self._cfg = cfg
         if changes.recorder:
             self.close_now()
-            self.open_now()
+            self.open_now(cfg)
 
     async def close(self) -> None:
         self.close_now()

@@ -1,21 +1,20 @@
 """Telemetry as a sink: the cycle's Prometheus metrics, systemd's sd_notify,
 and the count of complete cycles (the health evidence).
 
-Each cycle: the offset, the fault state and the cause (why the offset
-compd wants is not in force, or that it is: `compd.core.health.Cause`,
-what `compd health --url` judges), the model's output, each channel's
-value, invalid channels counted as read errors, the adaptation estimator's
-state; a complete cycle (`compd.core.cycle.offset_in_force`) is counted and
-its (wall, monotonic) time kept for the checkpoint that `compd health
---state-dir` judges. READY=1 after the loop's first cycle, whatever that cycle
-read: the daemon is up, connected or retrying with its backoff (a controller
-that is off when the PC boots, or a broken sensor at start, is a state the
-fault policy and health report, not a start failure: waiting for the
-controller before READY ended in systemd's start timeout and a restart loop);
-WATCHDOG=1 every cycle from then on; STATUS= on a state change or every
-`STATUS_EVERY` cycles, naming why nothing is in force while it is not
-(`compd.core.health.Cause`: ``controller_not_answering`` for a controller
-that is off).
+Each cycle: the offset, the fault state and the cause (why the offset compd
+wants is not in force, or that it is: `compd.core.health.Cause`, what `compd
+health --url` judges), the model's output, each channel's value, invalid
+channels counted as read errors, the adaptation estimator's state; a complete
+cycle (the report's `in_force`) is counted, at the cycle's own time (its wall-
+clock and monotonic seconds, read once by the loop). READY=1 after the loop's
+first cycle, whatever that cycle read: the daemon is up, connected or retrying
+with its backoff (a controller that is off when the PC boots, or a broken
+sensor at start, is a state the fault policy and health report, not a start
+failure: waiting for the controller before READY ended in systemd's start
+timeout and a restart loop); WATCHDOG=1 every cycle from then on; STATUS= on a
+state change or every `STATUS_EVERY` cycles, naming why nothing is in force
+while it is not (`compd.core.health.Cause`: ``controller_not_answering`` for a
+controller that is off).
 
 `open` labels the metrics for the config and, when this daemon serves its own
 endpoint (`serve`; `compd run DIR` serves every machine's registry on one),
@@ -38,7 +37,6 @@ if TYPE_CHECKING:
     from compd.config.loader import LoadedConfig
     from compd.faces.status import StatusBoard
     from compd.faces.telemetry import Metrics, WSGIApp
-    from compd.runtime.clock import Clock
     from compd.runtime.journal import Journal
     from compd.runtime.reload import Changes
     from compd.runtime.sdnotify import Notifier
@@ -52,45 +50,40 @@ STATUS_EVERY = 10
 class TelemetrySink(CycleSink):
     stage = "telemetry"
 
-    def __init__(self, cfg: LoadedConfig, *, metrics: Metrics, notifier: Notifier,
-                 board: StatusBoard, clock: Clock, journal: Journal, serve: bool) -> None:
-        self._cfg = cfg
+    def __init__(self, *, metrics: Metrics, notifier: Notifier, board: StatusBoard,
+                 journal: Journal, serve: bool) -> None:
         self.metrics = metrics
         self.notifier = notifier
         self._board = board
-        self._clock = clock
         self._journal = journal
         self._serve = serve
         self.complete_cycles = 0
-        #: (wall, monotonic) time of the last complete cycle: the health evidence
-        self.last_complete: tuple[float, float] | None = None
         self._ready_sent = False
         self._last_status = ""
 
-    async def open(self) -> None:
-        self.configure()
-        self.start_http()
+    async def open(self, cfg: LoadedConfig) -> None:
+        self.configure(cfg)
+        self.start_http(cfg)
 
-    def configure(self) -> None:
-        cfg = self._cfg
+    def configure(self, cfg: LoadedConfig) -> None:
         self.metrics.configure({n: ch.unit for n, ch in cfg.raw.channels.items()},
                                list(cfg.outputs), version=__version__,
                                model_sha256=cfg.model_sha256, config_sha256=cfg.config_sha256)
         self.metrics.period_seconds.set(cfg.real_period_s)
 
-    def start_http(self) -> None:
+    def start_http(self, cfg: LoadedConfig) -> None:
         if not self._serve:
             return
-        tel = self._cfg.raw.telemetry
+        tel = cfg.raw.telemetry
         if tel.metrics_port is None:
-            if self._cfg.raw.faces.http.enabled:
+            if cfg.raw.faces.http.enabled:
                 self._journal.log.warning(
                     "status_page_unavailable",
                     reason="[faces.http] is served beside /metrics: it needs [telemetry] "
                            "metrics_port")
             return
         try:
-            self.metrics.start_http(tel.metrics_port, tel.metrics_host, self._status_pages(),
+            self.metrics.start_http(tel.metrics_port, tel.metrics_host, self._status_pages(cfg),
                                     limits_from(tel))
         except OSError as exc:  # a port in use: compensation never stops for telemetry
             self._journal.log.error(
@@ -98,9 +91,9 @@ class TelemetrySink(CycleSink):
                 error=str(exc), hint="compd health --url will report unhealthy; free the "
                                      "port or change telemetry.metrics_port")
 
-    def _status_pages(self) -> Callable[[WSGIApp], WSGIApp] | None:
+    def _status_pages(self, cfg: LoadedConfig) -> Callable[[WSGIApp], WSGIApp] | None:
         """The operator page's wrapper of the metrics app, None without [faces.http]."""
-        http = self._cfg.raw.faces.http
+        http = cfg.raw.faces.http
         if not http.enabled:
             return None
         from compd.faces.status_http import daemon_document, with_status
@@ -111,11 +104,10 @@ class TelemetrySink(CycleSink):
                            lambda: board.refresh_s)
 
     def reload(self, cfg: LoadedConfig, changes: Changes) -> None:
-        self._cfg = cfg
         if changes.metrics:
             self.metrics.stop()
-            self.start_http()
-        self.configure()
+            self.start_http(cfg)
+        self.configure(cfg)
 
     async def close(self) -> None:
         self.notifier.stopping()
@@ -123,34 +115,32 @@ class TelemetrySink(CycleSink):
 
     def feed(self, tick: Tick) -> None:
         result, m = tick.row, self.metrics
-        m.offset_um.set(result.offset_um)
-        confirmed = result.snapshot.confirmed_um
+        m.offset_um.set(result.stage_um)
+        confirmed = result.confirmed_um
         m.confirmed_um.set(math.nan if confirmed is None else confirmed)
         m.fault_state.set(result.state.gauge)
         m.cause(result.cause)
         m.fallback(result.snapshot.fallback_for)
-        m.model_output(result.model_um, result.record.validity)
+        m.model_output(result.model_um, result.validity)
         if tick.samples:
             for name, s in tick.samples.items():
                 if math.isfinite(s.value):
                     m.channel(name, s.value)
-        for name, reason in result.record.validity.items():
+        for name, reason in result.validity.items():
             if reason is not None and reason != "read_failed":
                 m.read_errors.labels(channel=name).inc()
         self._journal.log.debug("cycle", sequence=result.sequence, state=result.state,
-                                offset_um=round(result.offset_um, 4), model_um=result.model_um,
+                                offset_um=round(result.stage_um, 4), model_um=result.model_um,
                                 shadow_um=result.shadow_um, status=result.status)
         if result.in_force:  # complete (compd.core.cycle.offset_in_force): what the
             # model asks for is in force (never a held, faulted or unconfirmed offset)
             self.complete_cycles += 1
-            wall_s = self._clock.wall()
-            m.cycle_complete(wall_s)
-            self.last_complete = (wall_s, self._clock.mono())
+            m.cycle_complete(result.wall_s, tick.mono_s)
         self._notify(tick)
         est = result.snapshot.adaptation
         if est is not None:
             m.adaptation(est.bias_um, est.bias_sigma_um, est.correction_um,
-                         result.record.probe, est.standing_down, est.model_worse,
+                         result.probe, est.standing_down, est.model_worse,
                          est.guard_worse)
 
     def _notify(self, tick: Tick) -> None:
@@ -160,8 +150,8 @@ class TelemetrySink(CycleSink):
             self.notifier.ready()
             self._ready_sent = True
             self._journal.log.info("ready", sequence=result.sequence,
-                                   offset_um=round(result.offset_um, 4),
-                                   complete=result.complete,
+                                   offset_um=round(result.stage_um, 4),
+                                   inputs_valid=result.inputs_valid,
                                    controller_answers=bool(tick.read_ok),
                                    cause=str(result.cause))
         if self._ready_sent:  # always, from the first cycle
@@ -179,6 +169,6 @@ class TelemetrySink(CycleSink):
         if state != self._last_status or result.sequence % STATUS_EVERY == 0:
             start = f", model {snap.model_start}, reference {snap.reference}" \
                 if snap.model_start else ""
-            self.notifier.status(f"offset {result.offset_um:.2f} um, state {state}{start}")
+            self.notifier.status(f"offset {result.stage_um:.2f} um, state {state}{start}")
             self._last_status = state
 
