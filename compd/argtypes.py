@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 
 
 def number(lo: float, hi: float, *, lo_open: bool = False,
@@ -52,6 +53,45 @@ def count(lo: int, hi: int) -> Callable[[str], int]:
 
     parse.__name__ = "count"
     return parse
+
+
+@dataclass(frozen=True)
+class Wholes:
+    """How `distinct_wholes` names a list and its values in its messages."""
+
+    one: str       #: one value, with its article: "a spindle speed"
+    whole: str     #: what a valid value is: "whole number of rpm"
+    unit: str      #: as written after a value: "rpm", "%"
+    each: str      #: one value, bare: "speed"
+    many: str      #: several values: "speeds"
+    listing: str   #: the whole list: "spindle speeds in rpm"
+    example: str   #: a valid list: "1250,2500,5000"
+
+
+def distinct_wholes(text: str, hi: int, most: int, words: Wholes) -> list[int]:
+    """Comma-separated whole numbers, distinct, each 1 … `hi`, at most `most` of them:
+    a list a plan visits in turn (spindle speeds, axis duties)."""
+    parts = [p.strip() for p in text.split(",")]
+    if not text.strip() or any(not p for p in parts):
+        raise argparse.ArgumentTypeError(f"a comma-separated list of {words.listing}, "
+                                         f"e.g. {words.example}; got {text!r}")
+    values: list[int] = []
+    for part in parts:
+        try:
+            value = float(part)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not {words.one}: {part!r}") from None
+        if not math.isfinite(value) or value != int(value) or not 1 <= value <= hi:
+            raise argparse.ArgumentTypeError(f"{words.one} is a {words.whole}, "
+                                             f"1 … {hi}: {part!r}")
+        if int(value) in values:
+            raise argparse.ArgumentTypeError(f"{part} {words.unit} is given twice; each "
+                                             f"{words.each} once (the plan visits each "
+                                             f"twice by itself)")
+        values.append(int(value))
+    if len(values) > most:
+        raise argparse.ArgumentTypeError(f"at most {most} {words.many}, got {len(values)}")
+    return values
 
 
 def port(text: str) -> int:

@@ -21,8 +21,9 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from collections.abc import AsyncIterator, Mapping, Sequence
+from collections.abc import AsyncIterator, Awaitable, Callable, Mapping, Sequence
 from functools import partial
+from typing import TypeVar
 
 from asyncua import ua
 from asyncua.client.client import Client
@@ -50,6 +51,7 @@ from drivers.opcua_security import OpcUaSecurity, SecurityRejected, apply_securi
 __all__ = ["OpcUaDriver", "OpcUaSecurity", "SecurityRejected"]
 
 _log = logging.getLogger(__name__)
+_T = TypeVar("_T")
 _SC = StatusCodes
 #: the requested session lifetime: a dropped client's session ends soon on the server
 _SESSION_TIMEOUT_MS = 60_000
@@ -224,17 +226,26 @@ class OpcUaDriver(LinkedDriver):
 
     async def _read(self, params: ua.ReadParameters, where: tuple[str, ...],
                     client: Client) -> list[ua.DataValue]:
+        return await self._service("Read", partial(client.uaclient.read, params), where)
+
+    async def _service(self, service: str, request: Callable[[], Awaitable[_T]],
+                       where: tuple[str, ...], timeout_note: str = "") -> _T:
+        """One request within timeout_s: no answer is a ControllerTimeout (with
+        `timeout_note`, e.g. that a Write may have been applied), a lost socket a
+        ConnectionLost, a status that ends the session too; another refused status is
+        raised as it is, for the caller to judge."""
         try:
             async with _deadline(self.timeout_s):
-                return await client.uaclient.read(params)
+                return await request()
         except TimeoutError:
-            raise ControllerTimeout(f"Read did not answer within {self.timeout_s} s",
-                                    channel=where, address=self.endpoint) from None
+            raise ControllerTimeout(f"{service} did not answer within {self.timeout_s} s"
+                                    f"{timeout_note}", channel=where,
+                                    address=self.endpoint) from None
         except UaStatusCodeError as exc:
             self._session_fault(exc, where)
             raise
         except _CONNECTION_ERRORS as exc:
-            raise ConnectionLost(f"Read failed: {type(exc).__name__}: {exc}",
+            raise ConnectionLost(f"{service} failed: {type(exc).__name__}: {exc}",
                                  channel=where, address=self.endpoint) from None
 
     def _session_fault(self, exc: UaStatusCodeError, where: tuple[str, ...]) -> None:
@@ -290,19 +301,8 @@ class OpcUaDriver(LinkedDriver):
     async def _write(self, values: Mapping[str, float], where: tuple[str, ...],
                      client: Client) -> None:
         params = self._write_params(values)
-        try:
-            async with _deadline(self.timeout_s):
-                results = await client.uaclient.write(params)
-        except TimeoutError:
-            raise ControllerTimeout(f"Write did not answer within {self.timeout_s} s "
-                                    "(it may have been applied)", channel=where,
-                                    address=self.endpoint) from None
-        except UaStatusCodeError as exc:
-            self._session_fault(exc, where)
-            raise
-        except _CONNECTION_ERRORS as exc:
-            raise ConnectionLost(f"Write failed: {type(exc).__name__}: {exc}",
-                                 channel=where, address=self.endpoint) from None
+        results = await self._service("Write", partial(client.uaclient.write, params), where,
+                                      " (it may have been applied)")
         for name, status in zip(values, results, strict=True):
             if status.is_good():
                 continue

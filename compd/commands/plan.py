@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from compd.argtypes import count, number
+from compd.argtypes import Wholes, count, distinct_wholes, number
 from compd.commands import plan_traverse
 from compd.sysexits import EX_USAGE
 
@@ -47,28 +47,14 @@ MAX_SPEEDS = 12
 MAX_POSITION_MM = 10_000.0
 
 
+_SPEEDS = Wholes(one="a spindle speed", whole="whole number of rpm", unit="rpm",
+                 each="speed", many="speeds", listing="spindle speeds in rpm",
+                 example="1250,2500,5000")
+
+
 def speeds(text: str) -> list[int]:
     """An argparse type: comma-separated whole rpm, distinct, each 1 … MAX_RPM."""
-    parts = [p.strip() for p in text.split(",")]
-    if not text.strip() or any(not p for p in parts):
-        raise argparse.ArgumentTypeError(f"a comma-separated list of spindle speeds in rpm, "
-                                         f"e.g. 1250,2500,5000; got {text!r}")
-    values: list[int] = []
-    for part in parts:
-        try:
-            value = float(part)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not a spindle speed: {part!r}") from None
-        if not math.isfinite(value) or value != int(value) or not 1 <= value <= MAX_RPM:
-            raise argparse.ArgumentTypeError(f"a spindle speed is a whole number of rpm, "
-                                             f"1 … {MAX_RPM}: {part!r}")
-        if int(value) in values:
-            raise argparse.ArgumentTypeError(f"{part} rpm is given twice; each speed once "
-                                             f"(the plan visits each twice by itself)")
-        values.append(int(value))
-    if len(values) > MAX_SPEEDS:
-        raise argparse.ArgumentTypeError(f"at most {MAX_SPEEDS} speeds, got {len(values)}")
-    return values
+    return distinct_wholes(text, MAX_RPM, MAX_SPEEDS, _SPEEDS)
 
 
 def position(text: str) -> dict[str, float]:

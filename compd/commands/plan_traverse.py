@@ -9,11 +9,10 @@ program, one line on stderr and exit 64 for a bad argument.
 from __future__ import annotations
 
 import argparse
-import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from compd.argtypes import number
+from compd.argtypes import Wholes, distinct_wholes, number
 
 if TYPE_CHECKING:
     from compd.offline.plan.calls import ProbeCall
@@ -28,27 +27,13 @@ FEED_MM_MIN = number(0.0, 60_000.0, lo_open=True)
 STOP_S = number(0.0, 600.0)
 
 
+_DUTIES = Wholes(one="a duty", whole="whole percent", unit="%", each="duty",
+                 many="duties", listing="axis duties in percent", example="25,50,90")
+
+
 def duties(text: str) -> list[int]:
     """An argparse type: comma-separated whole percent, distinct, each 1 … 100."""
-    parts = [p.strip() for p in text.split(",")]
-    if not text.strip() or any(not p for p in parts):
-        raise argparse.ArgumentTypeError(f"a comma-separated list of axis duties in percent, "
-                                         f"e.g. 25,50,90; got {text!r}")
-    values: list[int] = []
-    for part in parts:
-        try:
-            value = float(part)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not a duty: {part!r}") from None
-        if not math.isfinite(value) or value != int(value) or not 1 <= value <= 100:
-            raise argparse.ArgumentTypeError(f"a duty is a whole percent, 1 … 100: {part!r}")
-        if int(value) in values:
-            raise argparse.ArgumentTypeError(f"{part} % is given twice; each duty once "
-                                             f"(the plan visits each twice by itself)")
-        values.append(int(value))
-    if len(values) > MAX_DUTIES:
-        raise argparse.ArgumentTypeError(f"at most {MAX_DUTIES} duties, got {len(values)}")
-    return values
+    return distinct_wholes(text, 100, MAX_DUTIES, _DUTIES)
 
 
 def positions(max_mm: float) -> Callable[[str], tuple[float, ...]]:

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import dataclasses
 import json
 import signal
 import sys
@@ -36,8 +35,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from compd.argtypes import number, port, seed
-from compd.commands import sim_drive
-from compd.sysexits import EX_DATAERR, EX_TEMPFAIL, EX_USAGE
+from compd.commands import sim_drive, sim_record
+from compd.sysexits import EX_TEMPFAIL, EX_USAGE
 from drivers.protocols import NAMES
 
 if TYPE_CHECKING:
@@ -62,8 +61,6 @@ CHANGE_AT_H = number(0.0, 8784.0)
 #: positions (each one more column of every row)
 MAX_POSITION_MM = 100_000.0
 MAX_POSITIONS = 100
-#: an offline record longer than this many rows is refused (~0.6 GB of CSV)
-MAX_RECORD_ROWS = 10_000_000
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -175,35 +172,6 @@ def _library_path(controller: SimController) -> str | None:
     return str(path) if path is not None else None
 
 
-def _record(args: argparse.Namespace) -> int:
-    from compd.outfiles import check_output, write_atomically
-    from drivers.sim.offline import record_program
-    from drivers.sim.programs import make_program
-
-    check_output(args.record, "record", force=args.force)
-    if args.machine == "shop":
-        return _record_shop(args)
-    if args.machine == "ballscrew":
-        return _record_ballscrew(args)
-    program = make_program(args.program, seed=args.seed, hours=args.hours)
-    if program.duration_s / args.period_s > MAX_RECORD_ROWS:
-        print(f"compd sim: {program.duration_s / 3600:g} h every {args.period_s:g} s is "
-              f"{program.duration_s / args.period_s:.3g} rows; at most {MAX_RECORD_ROWS:,}",
-              file=sys.stderr)
-        return EX_DATAERR
-    rows = 0
-
-    def write(tmp: Path) -> None:
-        nonlocal rows
-        rows = record_program(tmp, program, seed=args.seed, period_s=args.period_s,
-                              probe_noise_um=args.probe_noise_um)
-
-    write_atomically(args.record, write, "record", force=args.force)
-    print(f"compd sim: wrote {rows} rows ({program.name}, {program.duration_s / 3600:g} h, "
-          f"period {args.period_s:g} s, seed {args.seed}) to {args.record}")
-    return 0
-
-
 def _port_in_use(port: int) -> str:
     """Why 127.0.0.1:`port` cannot be served ("" when it can): asked before the
     protocol library tries, whose own failure is a traceback in its log."""
@@ -233,57 +201,6 @@ def _write_config(args: argparse.Namespace, controller: SimController,
                       _library_path(controller), command, rest_c)
     write_atomically(args.write_config, lambda tmp: tmp.write_text(text, encoding="utf-8"),
                      "config", force=args.force)
-
-
-def _record_shop(args: argparse.Namespace) -> int:
-    from compd.outfiles import write_atomically
-    from drivers.sim.shop import simulate_shop, write_shop_record
-
-    hours = args.hours if args.hours is not None else 24.0
-    if hours * 3600.0 / args.period_s > MAX_RECORD_ROWS:
-        print(f"compd sim: {hours:g} h every {args.period_s:g} s is "
-              f"{hours * 3600.0 / args.period_s:.3g} rows; at most {MAX_RECORD_ROWS:,}",
-              file=sys.stderr)
-        return EX_DATAERR
-    change = None
-    if args.change is not None:
-        change = dataclasses.replace(args.change, at_h=args.change_at_h)
-    columns = simulate_shop(hours, period_s=args.period_s, seed=args.seed, change=change)
-    rows = len(columns["time_s"])
-    write_atomically(args.record, lambda tmp: write_shop_record(str(tmp), columns), "record",
-                     force=args.force)
-    what = "" if change is None else (f", change ambient {change.ambient_k:+g} K and heat "
-                                      f"x{change.heat_factor:g} from {change.at_h:g} h")
-    print(f"compd sim: wrote {rows} rows (shop machine, workday program, {hours:g} h, period "
-          f"{args.period_s:g} s, seed {args.seed}{what}) to {args.record}")
-    return 0
-
-
-def _record_ballscrew(args: argparse.Namespace) -> int:
-    from compd.outfiles import write_atomically
-    from drivers.sim.ballscrew import (
-        DEFAULT_POSITIONS_MM,
-        simulate_ballscrew,
-        write_ballscrew_record,
-    )
-
-    hours = args.hours if args.hours is not None else 24.0
-    positions = args.positions if args.positions is not None else DEFAULT_POSITIONS_MM
-    if hours * 3600.0 / args.period_s > MAX_RECORD_ROWS:
-        print(f"compd sim: {hours:g} h every {args.period_s:g} s is "
-              f"{hours * 3600.0 / args.period_s:.3g} rows; at most {MAX_RECORD_ROWS:,}",
-              file=sys.stderr)
-        return EX_DATAERR
-    columns = simulate_ballscrew(hours, period_s=args.period_s, seed=args.seed,
-                                 positions_mm=positions, probe_noise_um=args.probe_noise_um)
-    rows = len(columns["time_s"])
-    write_atomically(args.record,
-                     lambda tmp: write_ballscrew_record(str(tmp), columns, positions),
-                     "record", force=args.force)
-    print(f"compd sim: wrote {rows} rows (ball-screw machine, axis workday, {hours:g} h, "
-          f"period {args.period_s:g} s, seed {args.seed}, displacement at "
-          f"{','.join(f'{x:g}' for x in positions)} mm) to {args.record}")
-    return 0
 
 
 async def _serve(args: argparse.Namespace) -> int:
@@ -418,7 +335,7 @@ def run(args: argparse.Namespace) -> int:
         if args.protocol is not None:
             print("compd sim: --record runs offline; drop --protocol", file=sys.stderr)
             return EX_USAGE
-        return _record(args)
+        return sim_record.record(args)
     if args.protocol is None:
         print("compd sim: --protocol is required (or --record CSV for an offline record)",
               file=sys.stderr)

@@ -7,7 +7,8 @@ timeout against the period, every address against the protocol's address
 model and against the others (`compd.config.overlaps`: no written address
 overlaps another), the model (file or inline terms: stable, its channels
 configured, its period equal to the machine's) and the shadow model. Nothing
-here connects to anything.
+here connects to anything. ``[adaptation]``'s checks are `compd.config.adaptation_check`,
+the state directory and password files `compd.config.paths`.
 """
 
 from __future__ import annotations
@@ -16,7 +17,6 @@ import dataclasses
 import hashlib
 import json
 import math
-import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,17 +24,17 @@ from typing import Any
 
 from pydantic import ValidationError
 
+from compd.config.adaptation_check import PROBE_NAMES, adaptation_settings
 from compd.config.address_check import config_error
 from compd.config.address_check import quantum as _quantum_um
 from compd.config.address_check import validate_address as _validate_address
 from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX, check_outputs
 from compd.config.overlaps import check_overlaps
+from compd.config.paths import credential_path, read_password, resolve_state_dir
 from compd.config.schema import (
-    AdaptationSection,
     ControllerSection,
     DaemonConfig,
     ModelSection,
-    SecuritySection,
 )
 from compd.core.adaptation import AdaptationSettings
 from compd.errors import ConfigError
@@ -42,12 +42,14 @@ from compd.infiles import MAX_CONFIG_BYTES, InputError, load_model, read_toml_do
 from drivers.addresses import Address
 from drivers.linuxcnc_options import LinuxCncOptions, long_hal_name
 from drivers.protocols import PROTOCOLS
-from models.adaptation import AdaptationParams, mark_unproven
 from models.compensation import CompensationModel, Term
 from models.errors import ModelError
 from models.modelfile import model_document, parse_model
 from models.sanity import check_model
 from models.tf import TransferFunction
+
+#: the names other modules import from here that live in the modules beside it
+__all__ = ["PROBE_NAMES", "credential_path", "read_password", "resolve_state_dir"]
 
 #: output names as the driver sees them
 OUTPUT_NAMES: tuple[str, ...] = ("offset", "heartbeat", "status")
@@ -281,7 +283,7 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
             base / rp if raw.recorder.path is not None else state_dir / rp)
         if recorder_path.is_dir():
             raise ConfigError("recorder.path", f"{recorder_path} is a directory, not a file")
-    adaptation, probes = _adaptation(raw, channels, model.adaptation)
+    adaptation, probes = adaptation_settings(raw, channels, model.adaptation)
     check_overlaps(outputs, channels, probes, states)
     if ctl.protocol == "linuxcnc":
         _check_hal_names(ctl.linuxcnc or LinuxCncOptions(), channels, probes, outputs)
@@ -337,86 +339,6 @@ def recorder_model(channels: Mapping[str, Address], period_s: float) -> Compensa
     return CompensationModel(terms, period_s, name=RECORDER_MODEL_NAME)
 
 
-def _adaptation(raw: DaemonConfig, channels: dict[str, Address],
-                learnt: dict[str, Any] | None = None
-                ) -> tuple[AdaptationSettings | None, dict[str, Address]]:
-    """[adaptation] checked: both probe addresses, the estimator's settings: the
-    config's over the model file's [adaptation] table (`learnt`: what `compd fit
-    --adaptation` learnt), each within the config's bounds."""
-    a = raw.adaptation
-    if not a.enabled:
-        return None, {}
-    probes: dict[str, Address] = {}
-    for key, name in zip(("probe_value", "probe_counter"), PROBE_NAMES, strict=True):
-        doc = getattr(a, key)
-        if doc is None:
-            raise ConfigError(f"adaptation.{key}", "required when adaptation is enabled: the "
-                              "controller address the measuring cycle writes")
-        if name in channels:
-            raise ConfigError(f"channels.{name}", "this name is reserved for the probe")
-        probes[name] = _validate_address(raw.controller.protocol, doc, f"adaptation.{key}")
-    limit = raw.output.limit_um
-    table = _learnt_settings(learnt or {}, limit)
-    for key in ("max_step_um", "max_total_um"):
-        value = getattr(a, key)
-        if value is not None and value > limit:
-            raise ConfigError(f"adaptation.{key}", f"{value:g} µm is beyond output.limit_um "
-                              f"({limit:g} µm): the output stage clamps there, a larger "
-                              "bound only hides a runaway estimate")
-    try:
-        # settings not learnt for this model start stood down (models.adaptation.mark_unproven)
-        params = AdaptationParams(**{**mark_unproven(table), **a.estimator_settings()})
-    except (ValueError, TypeError) as exc:  # "name: why; …" (AdaptationParams.problems)
-        first = str(exc).split("; ")[0]
-        name, _, why = first.partition(": ")
-        raise ConfigError(f"adaptation.{name}" if why else "adaptation", why or first) from None
-    return AdaptationSettings(mode=a.mode, measures=a.measures, params=params,
-                              guard_window=a.guard_window,
-                              guard_action=a.guard_action), probes
-
-
-def _learnt_settings(table: dict[str, Any], limit_um: float) -> dict[str, Any]:
-    """The model file's [adaptation] table held to the config's bounds: a key the config
-    has is validated as the config would (ConfigError naming it), and the step and total
-    bounds are at most output.limit_um (the output stage clamps there)."""
-    table = {k: min(v, limit_um) if k in ("max_step_um", "max_total_um") else v
-             for k, v in table.items()}  # numbers: models.modelfile checked them
-    keys = set(AdaptationSection.model_fields) & set(table)
-    try:
-        AdaptationSection.model_validate({k: table[k] for k in keys})
-    except ValidationError as exc:
-        raise config_error(exc, prefix="model [adaptation]") from None
-    return table
-
-
-#: the names the probe's addresses are read under (beside the channels)
-PROBE_NAMES = ("probe_value", "probe_counter")
-
-
-def resolve_state_dir(given: Path | None, base: Path) -> Path:
-    """state.dir as given (relative: to the config's folder); not given, the first
-    of systemd's $STATE_DIRECTORY (StateDirectory=; writable under
-    ProtectSystem=strict, where <config dir>/state is not), else <config dir>/state."""
-    if given is not None:
-        return given if given.is_absolute() else base / given
-    systemd = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
-    if systemd:
-        return Path(systemd)
-    return base / "state"
-
-
-def credential_path(given: Path, base: Path) -> Path:
-    """A password file: absolute as given; relative, in systemd's
-    $CREDENTIALS_DIRECTORY (LoadCredential=) when set and the file is there,
-    else relative to the config's folder."""
-    if given.is_absolute():
-        return given
-    creds = os.environ.get("CREDENTIALS_DIRECTORY")
-    if creds and (Path(creds) / given).is_file():
-        return Path(creds) / given
-    return base / given
-
-
 def load_config(path: str | Path) -> LoadedConfig:
     """Read and validate a daemon config file; raises ConfigError."""
     p = Path(path)
@@ -425,21 +347,3 @@ def load_config(path: str | Path) -> LoadedConfig:
     except InputError as exc:
         raise ConfigError("", str(exc)) from None
     return parse_config(doc, p.resolve(), text)
-
-
-def read_password(security: SecuritySection, base: Path) -> str | None:
-    """The OPC UA password from its file or environment variable (run time)."""
-    if security.password_file is not None:
-        pf = credential_path(security.password_file, base)
-        try:
-            return pf.read_text(encoding="utf-8").strip("\r\n")
-        except OSError as exc:
-            raise ConfigError("controller.security.password_file",
-                              f"cannot read {pf} ({exc.strerror})") from None
-    if security.password_env is not None:
-        value = os.environ.get(security.password_env)
-        if value is None:
-            raise ConfigError("controller.security.password_env",
-                              f"environment variable {security.password_env} is not set")
-        return value
-    return None

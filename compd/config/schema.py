@@ -1,5 +1,10 @@
 """The daemon config's sections as pydantic models (extra keys refused).
 
+The building blocks are in `compd.config.section`, ``[telemetry]`` and ``[faces]`` in
+`compd.config.face_sections`, ``[adaptation]`` and its bounds in
+`compd.config.adaptation_section`, ``[channels.NAME]`` in
+`compd.config.channel_section`; every name stays importable from here.
+
 Only the shape of each section and the checks that need no other section
 live here; `compd.config.loader` loads the file, runs the cross-section checks
 (timeout vs period, addresses against the protocol, the model) and turns
@@ -38,78 +43,64 @@ Example (the full set of sections; `compd/examples/*.toml` are complete)::
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import (
-    AfterValidator,
-    BaseModel,
-    ConfigDict,
-    Field,
-    Strict,
-    ValidationInfo,
-    field_validator,
-    model_validator,
-)
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 
+from compd.config.adaptation_section import ADAPTATION_BOUNDS, AdaptationSection, learnt_bounds
+from compd.config.channel_section import (
+    DEFAULT_STUCK_DELTA_K,
+    TEMPERATURE_UNITS,
+    UNITS,
+    ChannelSection,
+)
+from compd.config.face_sections import (
+    FacesSection,
+    HttpFaceSection,
+    OpcUaFaceSection,
+    TelemetrySection,
+)
+from compd.config.section import (
+    MAX_LIMIT_UM,
+    LaxPath,
+    PeriodS,
+    PositiveS,
+    Section,
+    bounded,
+)
 from compd.config.urls import url_credentials
-from drivers.endpoint import endpoint_of, numeric_host_reason
+from drivers.endpoint import endpoint_of
 from drivers.linuxcnc_options import LinuxCncOptions
 from drivers.opcua_policy import OpcUaSecurityRules
 from drivers.protocol_options import FocasOptions, S7Options
 from drivers.protocols import ProtocolName
 
+#: the sections and bounds that live in the modules beside this one, named here too
+__all__ = [
+    "ADAPTATION_BOUNDS",
+    "DEFAULT_STUCK_DELTA_K",
+    "MAX_LIMIT_UM",
+    "TEMPERATURE_UNITS",
+    "UNITS",
+    "AdaptationSection",
+    "ChannelSection",
+    "FacesSection",
+    "HttpFaceSection",
+    "OpcUaFaceSection",
+    "TelemetrySection",
+    "learnt_bounds",
+]
+
 #: the protocol names, from the one registry (`drivers.protocols`)
 Protocol = ProtocolName
-
-#: channel units the daemon knows (what a value in a channel means)
-UNITS: tuple[str, ...] = ("degC", "K", "rpm", "kW", "W", "um", "mm", "ratio", "percent",
-                          "A", "Nm")
 
 #: output units and their controller units per µm
 OUTPUT_UNITS: dict[str, float | None] = {"um": 1.0, "mm": 1e-3, "nm": 1e3, "inch": 1.0 / 25400.0,
                                          "count": None}
 
 
-#: channel units that are temperatures (their moves count for stuck_delta_k)
-TEMPERATURE_UNITS: tuple[str, ...] = ("degC", "K")
 
-#: stuck_delta_k of a temperature channel with stuck_after_s and no stuck_delta_k
-DEFAULT_STUCK_DELTA_K = 2.0
-
-
-class _Section(BaseModel):
-    # strict: a TOML string is never silently read as a number or a boolean
-    # ("100" for limit_um, "yes" for readback): wrong types are refused
-    model_config = ConfigDict(extra="forbid", frozen=True, hide_input_in_errors=True,
-                              strict=True)
-
-
-#: a path given as a TOML string (strict mode alone would want a Path object)
-LaxPath = Annotated[Path, Field(strict=False)]
-StrictFloat = Annotated[float, Strict()]
-PositiveS = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
-
-
-def _listen_host(v: str) -> str:
-    """A host compd listens on, held to the endpoints' rule for numbers
-    (`drivers.endpoint.numeric_host_reason`): ``0`` or ``0x0`` would listen on every
-    interface, ``127.1`` where it reads as loopback; one spelling, the dotted quad."""
-    why = numeric_host_reason(v)
-    if why is not None:
-        raise ValueError(why)
-    return v
-
-
-#: the address a face listens on: a name, an IPv6 address, or an IPv4 dotted quad
-ListenHost = Annotated[str, Field(min_length=1), AfterValidator(_listen_host)]
-
-
-#: a sample period within models.sanity's MIN_PERIOD_S ... MAX_PERIOD_S (10 ms ... 1 h)
-PeriodS = Annotated[float, Field(ge=0.01, le=3600.0, allow_inf_nan=False)]
-
-
-class MachineSection(_Section):
+class MachineSection(Section):
     name: str = "machine"
     period_s: PeriodS = 1.0
     #: machine seconds per real second: 1.0 in production, > 1 for the demo/bench
@@ -121,7 +112,7 @@ class MachineSection(_Section):
 MAX_BACKOFF_CAP_S = 10.0
 
 
-class BackoffSection(_Section):
+class BackoffSection(Section):
     """Waits between reconnect attempts (real seconds), doubling from
     `initial_s` up to `cap_s`."""
 
@@ -152,7 +143,7 @@ class SecuritySection(OpcUaSecurityRules):
     and where the password comes from: a file or an environment variable,
     never the config itself."""
 
-    model_config = _Section.model_config
+    model_config = Section.model_config
     password_file: LaxPath | None = None
     password_env: str | None = None
     #: must be true to run with policy "None" (a deliberate choice, not a default)
@@ -188,7 +179,7 @@ FocasSection = FocasOptions
 LinuxCncSection = LinuxCncOptions
 
 
-class ControllerSection(_Section):
+class ControllerSection(Section):
     protocol: Protocol
     endpoint: Annotated[str, Field(min_length=1)]
     timeout_s: PositiveS = 0.5
@@ -214,139 +205,12 @@ class ControllerSection(_Section):
         return v
 
 
-class ChannelSection(_Section):
-    #: validated against the protocol's address model by `compd.config.loader`
-    address: dict[str, Any]
-    unit: str
-    range: Annotated[tuple[StrictFloat, StrictFloat], Field(strict=False)]
-    max_rate_per_s: PositiveS | None = None
-    stale_after_s: PositiveS | None = None
-    stuck_after_s: PositiveS | None = None
-    #: stuck when unchanged while another temperature channel moved by more than
-    #: this (K) since it last changed; default DEFAULT_STUCK_DELTA_K for a
-    #: temperature channel with stuck_after_s; inf turns it off. Not for a
-    #: sensor that may rightly stay put while the machine heats (the hall's
-    #: ambient): see compd.core.validation
-    stuck_delta_k: Annotated[float, Field(gt=0.0)] | None = None
-
-    @field_validator("stuck_delta_k")
-    @classmethod
-    def _stuck_delta(cls, v: float | None, info: ValidationInfo) -> float | None:
-        if v is not None and info.data.get("unit", TEMPERATURE_UNITS[0]) not in TEMPERATURE_UNITS:
-            raise ValueError("applies to temperature channels only (unit degC or K): "
-                             "it compares how far other temperatures moved")
-        return v
-
-    @property
-    def temperature(self) -> bool:
-        return self.unit in TEMPERATURE_UNITS
-
-    @property
-    def effective_stuck_delta_k(self) -> float | None:
-        """The heat criterion's threshold in K, None when off."""
-        v = self.stuck_delta_k
-        if v is None and self.stuck_after_s is not None and self.temperature:
-            v = DEFAULT_STUCK_DELTA_K
-        return v if v is not None and math.isfinite(v) else None
-
-    @field_validator("unit")
-    @classmethod
-    def _unit(cls, v: str) -> str:
-        if v not in UNITS:
-            raise ValueError(f"unknown unit {v!r}; known: {', '.join(UNITS)}")
-        return v
-
-    @field_validator("range")
-    @classmethod
-    def _range(cls, v: tuple[float, float]) -> tuple[float, float]:
-        lo, hi = v
-        if not (math.isfinite(lo) and math.isfinite(hi)):
-            raise ValueError("bounds must be finite numbers")
-        if not lo < hi:
-            raise ValueError("lower bound must be below upper bound")
-        return v
-
-
-def _field(lo: float, hi: float, why: str) -> Any:
-    """A finite float's Field: its range in the JSON schema (`compd schema`), `why` as
-    the description."""
-    return Field(allow_inf_nan=False, description=why,
-                 json_schema_extra={"minimum": lo, "maximum": hi})
-
-
-def _within(lo: float, hi: float, unit: str, why: str) -> AfterValidator:
-    """Refuse a value outside [lo, hi] with the range and the reason."""
-    def check(v: float) -> float:
-        if not lo <= v <= hi:
-            raise ValueError(f"must be within {lo:g} ... {hi:g}{unit}, got {v:g} ({why})")
-        return v
-
-    return AfterValidator(check)
-
-
-#: [adaptation]'s physical bounds. The estimator (models.adaptation.DOMAIN) stays finite
-#: far beyond them; these are what a machine tool makes sensible, and a value outside is a
-#: typo or an attack, refused by name at check, run and reload alike. The reasons:
-_WHY_BIAS_RW = ("the model's error wanders some 0.1 ... 2 µm/√h on a machine; beyond "
-                "100 µm/√h is more than a machine's whole thermal growth in an hour")
-_WHY_PROBE_NOISE = ("a touch probe repeats within 1 µm, a tool setter within a few: no "
-                    "probe repeats better than 10 nm, and one scattering over 100 µm "
-                    "measures nothing a thermal correction can use")
-_WHY_GATE = ("below 1 σ the gate refuses a third of the good probes; no good probe "
-             "reaches 10 σ (p ≈ 1e-23), a wider gate only lets chips and wrong tools in")
-_WHY_CORRECTION = ("1 nm ... 10 mm and at most output.limit_um: the output stage clamps "
-                   "there, a larger bound only hides a runaway estimate")
-_WHY_GAIN_RW = ("a term's gain that may wander by its whole size within an hour is not "
-                "a slow drift but a wrong model")
-_WHY_MAX_GAIN = ("a relative gain correction of ±1 removes or doubles a term: beyond "
-                 "that the model is wrong, recalibrate")
-#: the largest output.limit_um (10 mm): no correction, step or gain goes beyond it
-MAX_LIMIT_UM = 10000.0
-#: the bounds (low, high) of [adaptation]'s estimator settings, by name: what `compd check`
-#: and `run` hold the config's settings and a model file's [adaptation] table to
-#: (`learnt_bounds`)
-ADAPTATION_BOUNDS: dict[str, tuple[float, float]] = {
-    "bias_rw_um_per_sqrt_h": (0.0, 100.0),
-    "probe_noise_um": (0.01, 100.0),
-    "gate_sigma": (1.0, 10.0),
-    "max_step_um": (0.001, MAX_LIMIT_UM),
-    "max_total_um": (0.001, MAX_LIMIT_UM),
-    "gain_rw_per_sqrt_h": (0.0, 1.0),
-    "max_gain": (0.0, 1.0),
-    "score_window": (0, 100),
-    "reacquire_after": (0, 100),
-}
-_B = ADAPTATION_BOUNDS
-BiasRw = Annotated[float, _field(*_B["bias_rw_um_per_sqrt_h"], _WHY_BIAS_RW),
-                   _within(*_B["bias_rw_um_per_sqrt_h"], " µm/√h", _WHY_BIAS_RW)]
-ProbeNoise = Annotated[float, _field(*_B["probe_noise_um"], _WHY_PROBE_NOISE),
-                       _within(*_B["probe_noise_um"], " µm", _WHY_PROBE_NOISE)]
-GateSigma = Annotated[float, _field(*_B["gate_sigma"], _WHY_GATE),
-                      _within(*_B["gate_sigma"], " σ", _WHY_GATE)]
-Correction = Annotated[float, _field(*_B["max_step_um"], _WHY_CORRECTION),
-                       _within(*_B["max_step_um"], " µm", _WHY_CORRECTION)]
-GainRw = Annotated[float, _field(*_B["gain_rw_per_sqrt_h"], _WHY_GAIN_RW),
-                   _within(*_B["gain_rw_per_sqrt_h"], " per √h", _WHY_GAIN_RW)]
-MaxGain = Annotated[float, _field(*_B["max_gain"], _WHY_MAX_GAIN),
-                    _within(*_B["max_gain"], "", _WHY_MAX_GAIN)]
-_WHY_SCORE_WINDOW = ("probes the estimator scores itself over: 0 never stands down; beyond "
-                     "100 probes a machine's error has long changed, the score only lags")
-ScoreWindow = Annotated[int, _field(*_B["score_window"], _WHY_SCORE_WINDOW),
-                        _within(*_B["score_window"], " probes", _WHY_SCORE_WINDOW)]
-_WHY_REACQUIRE = ("refusals in a row, agreeing in direction, after which the estimator "
-                  "re-acquires: 0 never; beyond 100 probes a real change has long been "
-                  "missed")
-ReacquireAfter = Annotated[int, _field(*_B["reacquire_after"], _WHY_REACQUIRE),
-                           _within(*_B["reacquire_after"], " probes", _WHY_REACQUIRE)]
-_WHY_GUARD = ("probes in a row showing the model worse than none before the alarm: 0 no "
-              "guard; beyond 100 probes a wrong model would run for days")
-GuardWindow = Annotated[int, _field(0, 100, _WHY_GUARD), _within(0, 100, " probes", _WHY_GUARD)]
 #: µm per unit of an input: one unit never warrants more than the largest output.limit_um
 _WHY_DC_GAIN = ("one unit of an input never warrants more than the largest "
                 "output.limit_um, 10 mm")
 
 
-class ModelSection(_Section):
+class ModelSection(Section):
     #: a model file (relative to the config file) or a bundled model name (e.g. "sp2")
     file: str | None = None
     #: inline terms, same format as a model file's [[terms]]
@@ -361,8 +225,8 @@ class ModelSection(_Section):
     reference: dict[str, float] | None = None
     #: refuse a model whose DC gain exceeds this (µm per unit of an input; models.sanity):
     #: at most 10 mm, the largest output.limit_um (one unit of an input never warrants more)
-    max_dc_gain_um: Annotated[float, Field(gt=0.0), _field(0.0, MAX_LIMIT_UM, _WHY_DC_GAIN),
-                              _within(0.0, MAX_LIMIT_UM, " µm per unit", _WHY_DC_GAIN)
+    max_dc_gain_um: Annotated[float, Field(gt=0.0),
+                              *bounded(0.0, MAX_LIMIT_UM, " µm per unit", _WHY_DC_GAIN)
                               ] = 1000.0
     #: refuse a model whose slowest time constant exceeds this (models.sanity)
     max_time_constant_s: PositiveS = 7 * 86400.0
@@ -383,7 +247,7 @@ _RECORDER_ONLY_OUTPUT: dict[str, Any] = {"offset": {}, "limit_um": MAX_LIMIT_UM,
                                          "slew_um_s": 1000.0, "readback": False}
 
 
-class OutputSection(_Section):
+class OutputSection(Section):
     #: false: recorder only (read, validate, record; nothing at all written to the
     #: controller: no offset, heartbeat or status); its addresses are then not needed
     enabled: bool = True
@@ -444,20 +308,20 @@ class OutputSection(_Section):
         return 1.0 if derived is None else derived
 
 
-class FaultsSection(_Section):
+class FaultsSection(Section):
     hold_s: Annotated[float, Field(ge=0.0, allow_inf_nan=False)] = 60.0
     shutdown: Literal["hold", "ramp_to_zero"] = "hold"
     checkpoint_max_age_s: PositiveS = 3600.0
 
 
-class StateSection(_Section):
+class StateSection(Section):
     #: not given: $STATE_DIRECTORY when systemd sets it (StateDirectory=), else
     #: ``<config dir>/state`` (compd.config.loader)
     dir: LaxPath | None = None
     checkpoint_every: Annotated[int, Field(ge=1)] = 60
 
 
-class RecorderSection(_Section):
+class RecorderSection(Section):
     enabled: bool = True
     path: LaxPath | None = None
     commit_every: Annotated[int, Field(ge=1)] = 10
@@ -466,187 +330,8 @@ class RecorderSection(_Section):
     retention_days: Annotated[float, Field(ge=0.0, allow_inf_nan=False)] = 30.0
 
 
-class TelemetrySection(_Section):
-    metrics_port: Annotated[int, Field(ge=1, le=65535)] | None = None
-    #: the address /metrics listens on: loopback by default; "0.0.0.0" or "::" in a
-    #: container whose port is published, or for a Prometheus on another host
-    metrics_host: ListenHost = "127.0.0.1"
-    #: the HTTP server's bounds (/metrics and [faces.http]): open connections at most
-    #: (beyond: the one waiting longest for a request is closed), seconds for a whole
-    #: request head, seconds a kept-alive connection may sit idle
-    metrics_max_connections: Annotated[int, Field(ge=1, le=1000)] = 64
-    metrics_header_timeout_s: Annotated[float, Field(gt=0.0, le=300.0,
-                                                     allow_inf_nan=False)] = 5.0
-    metrics_idle_timeout_s: Annotated[float, Field(gt=0.0, le=3600.0,
-                                                   allow_inf_nan=False)] = 30.0
-    #: the least level of the protocol libraries' own loggers (asyncua, snap7,
-    #: pymodbus); "default": WARNING, pymodbus CRITICAL (it logs every failed
-    #: frame as an ERROR hex dump that our read_failed/write_failed already tell)
-    library_log_level: Literal["default", "debug", "info", "warning", "error",
-                               "critical"] = "default"
-    log_format: Literal["auto", "json", "console"] = "auto"
-    log_level: Literal["debug", "info", "warning", "error"] = "info"
 
-
-class HttpFaceSection(_Section):
-    """``[faces.http]``: the operator status page (``/`` and ``/status.json``) served
-    beside ``/metrics`` (``[telemetry] metrics_port`` and ``metrics_host``)."""
-
-    enabled: bool = False
-    #: hours of offset and model output the page plots (from the recorder)
-    history_h: Annotated[float, Field(gt=0.0, le=168.0, allow_inf_nan=False)] = 4.0
-    #: how often the page fetches /status.json (real seconds)
-    refresh_s: Annotated[float, Field(ge=1.0, le=3600.0, allow_inf_nan=False)] = 5.0
-
-
-class OpcUaFaceSection(_Section):
-    """``[faces.opcua]``: compd's own OPC UA server (`compd.faces.opcua_face`):
-    read-only for every client; SetHold only for `operator`."""
-
-    enabled: bool = False
-    host: ListenHost = "127.0.0.1"
-    port: Annotated[int, Field(ge=1, le=65535)] = 4841
-    policy: Literal["Basic256Sha256", "Aes128_Sha256_RsaOaep", "Aes256_Sha256_RsaPss",
-                    "None"] = "Basic256Sha256"
-    #: the server's application instance certificate and key (PEM or DER)
-    certificate: LaxPath | None = None
-    private_key: LaxPath | None = None
-    #: must be true for policy "None", and only on a loopback host
-    insecure: bool = False
-    #: clients may read without a user name (with policy None: always)
-    anonymous_read: bool = False
-    #: the one user who may call SetHold (and read)
-    operator: Annotated[str, Field(min_length=1)] | None = None
-    #: the operator's password: a file (relative: $CREDENTIALS_DIRECTORY or the
-    #: config's folder), never the config itself
-    operator_password_file: LaxPath | None = None
-    #: TCP connections served at once (fewer when RLIMIT_NOFILE leaves less); one
-    #: more is closed at once
-    max_connections: Annotated[int, Field(ge=1, le=1000)] = 32
-    #: sessions at once; one more is refused (BadTooManySessions)
-    max_sessions: Annotated[int, Field(ge=1, le=1000)] = 16
-    #: sessions anonymous readers never take (with an operator): the operator's
-    reserved_sessions: Annotated[int, Field(ge=1, le=1000)] = 1
-    #: a connection without a session this long after it was accepted is closed
-    handshake_timeout_s: Annotated[float, Field(gt=0.0, le=300.0, allow_inf_nan=False)] = 10.0
-
-    @model_validator(mode="before")
-    @classmethod
-    def _no_inline_password(cls, data: Any) -> Any:
-        if isinstance(data, dict) and any("password" in k and not k.endswith("_file")
-                                          for k in data):
-            raise ValueError("a password is never written in the config: use "
-                             "operator_password_file")
-        return data
-
-    @model_validator(mode="after")
-    def _secure_by_default(self) -> OpcUaFaceSection:
-        if not self.enabled:
-            return self
-        if self.policy == "None":
-            if not self.insecure:
-                raise ValueError("policy None sends everything readable and unauthenticated: "
-                                 "set insecure = true to accept that (loopback only)")
-            if not _loopback(self.host):
-                raise ValueError(f"policy None is only for a loopback host, not {self.host!r}: "
-                                 "use Basic256Sha256 with a certificate")
-        elif self.certificate is None or self.private_key is None:
-            raise ValueError(f"policy {self.policy} needs certificate and private_key "
-                             "(the server's application instance certificate)")
-        if (self.operator is None) != (self.operator_password_file is None):
-            raise ValueError("operator and operator_password_file go together")
-        if self.policy == "None" and self.operator is not None:
-            raise ValueError("an operator password with policy None would cross the wire "
-                             "readable: use a secure policy for SetHold")
-        # the face's anonymous share (compd.faces.opcua_limits.Guard.anonymous_limit)
-        share = min(self.max_sessions - self.reserved_sessions, self.max_connections // 2)
-        if self.anonymous_read and self.operator is not None and share < 1:
-            raise ValueError(
-                f"reserved_sessions = {self.reserved_sessions} with max_sessions = "
-                f"{self.max_sessions} and max_connections = {self.max_connections} leaves "
-                "anonymous readers no session (they take at most max_sessions - "
-                "reserved_sessions, and half the connections): raise the limits, or turn "
-                "anonymous_read off")
-        return self
-
-
-def _loopback(host: str) -> bool:
-    import ipaddress
-
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
-
-
-class FacesSection(_Section):
-    """``[faces]``: what compd shows the shop floor besides logs and metrics."""
-
-    http: HttpFaceSection = HttpFaceSection()
-    opcua: OpcUaFaceSection = OpcUaFaceSection()
-class AdaptationSection(_Section):
-    """``[adaptation]``: learn from the machine's probe measurements
-    (`compd.core.adaptation`; the estimator's settings default to
-    `models.adaptation.AdaptationParams`). Every numeric setting has a physical
-    bound (above); `max_step_um` and `max_total_um` are also at most
-    `output.limit_um` (the loader)."""
-
-    enabled: bool = False
-    #: "shadow": the estimator's correction is estimated and recorded, not applied;
-    #: "apply": added to the model output (the guard acts in both: guard_action)
-    mode: Literal["shadow", "apply"] = "shadow"
-    #: what the measuring cycle leaves: "residual" (the probe on a compensating
-    #: machine: growth minus the offset in force) or "displacement"
-    measures: Literal["residual", "displacement"] = "residual"
-    #: controller address of the measured Z deviation (µm)
-    probe_value: dict[str, Any] | None = None
-    #: controller address of a counter (or timestamp) that changes with each measurement
-    probe_counter: dict[str, Any] | None = None
-    bias_rw_um_per_sqrt_h: BiasRw | None = None
-    probe_noise_um: ProbeNoise | None = None
-    gate_sigma: GateSigma | None = None
-    max_step_um: Correction | None = None
-    max_total_um: Correction | None = None
-    gains: bool | None = None
-    gain_rw_per_sqrt_h: GainRw | None = None
-    max_gain: MaxGain | None = None
-    #: accepted probes the estimator keeps score over; it stands down (applies nothing)
-    #: while adapting loses to the plain model over them (models.adaptation)
-    score_window: ScoreWindow | None = None
-    #: gate refusals in a row agreeing in direction after which the estimator
-    #: re-acquires (a real change, within max_total_um); 0: never
-    reacquire_after: ReacquireAfter | None = None
-    #: the guard "no model worse than none" (compd.core.adaptation): this many probes
-    #: in a row each showing the compensation making the error larger than none would
-    #: (by more than twice probe_noise_um) are an alarm and a fault (hold, then ramp
-    #: to zero per [faults]) until another model is loaded; 0: no guard
-    guard_window: GuardWindow = 3
-    #: what the guard's verdict does, in either mode (it judges the compensation in
-    #: force, which "shadow" does not change): "fault" holds, then ramps to zero;
-    #: "report" raises the event, the status page's line and the metric only
-    guard_action: Literal["fault", "report"] = "fault"
-
-    def estimator_settings(self) -> dict[str, Any]:
-        """The estimator settings given (the others keep their defaults)."""
-        names = ("bias_rw_um_per_sqrt_h", "probe_noise_um", "gate_sigma", "max_step_um",
-                 "max_total_um", "gains", "gain_rw_per_sqrt_h", "max_gain", "score_window",
-                 "reacquire_after")
-        return {n: getattr(self, n) for n in names if getattr(self, n) is not None}
-
-
-def learnt_bounds() -> dict[str, tuple[float, float]]:
-    """(low, high) of every numeric setting a model file's [adaptation] table may hold, as
-    `compd check` and `run` hold it there: [adaptation]'s bound where the section has the
-    setting (the loader validates the table's keys as the section's), else the
-    estimator's domain (`models.adaptation.DOMAIN`, checked by `models.modelfile`)."""
-    from models.adaptation import DOMAIN
-
-    return {name: ADAPTATION_BOUNDS.get(name, domain) for name, domain in DOMAIN.items()}
-
-
-class DaemonConfig(_Section):
+class DaemonConfig(Section):
     machine: MachineSection = MachineSection()
     controller: ControllerSection
     channels: dict[str, ChannelSection]

@@ -57,282 +57,37 @@ anonymous readers leave ``reserved_sessions`` to the operator; a connection
 without a session after ``handshake_timeout_s`` closed; failed logins logged
 with the user and the peer, rate-limited, and counted in metrics. So sockets
 that say nothing, or anonymous readers, never keep the operator from SetHold.
+
+The shared server is `compd.faces.opcua_shared`, who may do what
+`compd.faces.opcua_access`; this module is one machine's object and what it publishes.
 """
 
 from __future__ import annotations
 
 import asyncio
-import concurrent.futures
 import contextlib
 import math
-import threading
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import structlog
 from asyncua import ua
-from asyncua.crypto.permission_rules import PermissionRuleset, User, UserRole
-from asyncua.server.server import Server
-from asyncua.server.user_managers import UserManager
-from asyncua.ua.object_ids import ObjectIds
 
-from compd.config.loader import credential_path
 from compd.core.faults import FaultState
-from compd.errors import ConfigError
-from compd.faces.opcua_limits import (
-    ACCEPT_BURST,
-    FaceLoop,
-    Guard,
-    GuardCollector,
-    quiet_asyncua_faults,
-)
+from compd.faces.opcua_guard_report import GuardCollector
 from compd.faces.opcua_shape import MachineNodes
-from drivers.opcua_space import CopiedSpaceInternalServer
+from compd.faces.opcua_shared import FAULT_STATES, NAMESPACE, FaceMachine, SharedServer, url_host
 
 if TYPE_CHECKING:
-    from asyncua.common.node import Node
-    from asyncua.server.internal_server import InternalServer
     from prometheus_client import CollectorRegistry
 
     from compd.config.loader import LoadedConfig
-    from compd.config.schema import OpcUaFaceSection
     from compd.core.plan import Row
 
 __all__ = ["NAMESPACE", "OpcUaFace", "published_values", "release_all"]
 
-NAMESPACE = "urn:compd"
-#: the FaultState enumeration's values, in this order
-FAULT_STATES: tuple[FaultState, ...] = tuple(FaultState)
-
-_POLICIES = {
-    "Basic256Sha256": ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
-    "Aes128_Sha256_RsaOaep": ua.SecurityPolicyType.Aes128Sha256RsaOaep_SignAndEncrypt,
-    "Aes256_Sha256_RsaPss": ua.SecurityPolicyType.Aes256Sha256RsaPss_SignAndEncrypt,
-    "None": ua.SecurityPolicyType.NoSecurity,
-}
-#: requests any client may make once its session is up (reading, browsing, subscribing)
-_READ_REQUESTS = frozenset(ua.NodeId(ua.Int32(i)) for i in (
-    ObjectIds.CreateSessionRequest_Encoding_DefaultBinary,
-    ObjectIds.CloseSessionRequest_Encoding_DefaultBinary,
-    ObjectIds.ActivateSessionRequest_Encoding_DefaultBinary,
-    ObjectIds.ReadRequest_Encoding_DefaultBinary,
-    ObjectIds.BrowseRequest_Encoding_DefaultBinary,
-    ObjectIds.BrowseNextRequest_Encoding_DefaultBinary,
-    ObjectIds.GetEndpointsRequest_Encoding_DefaultBinary,
-    ObjectIds.FindServersRequest_Encoding_DefaultBinary,
-    ObjectIds.TranslateBrowsePathsToNodeIdsRequest_Encoding_DefaultBinary,
-    ObjectIds.RegisterNodesRequest_Encoding_DefaultBinary,
-    ObjectIds.UnregisterNodesRequest_Encoding_DefaultBinary,
-    ObjectIds.CreateSubscriptionRequest_Encoding_DefaultBinary,
-    ObjectIds.ModifySubscriptionRequest_Encoding_DefaultBinary,
-    ObjectIds.DeleteSubscriptionsRequest_Encoding_DefaultBinary,
-    ObjectIds.SetPublishingModeRequest_Encoding_DefaultBinary,
-    ObjectIds.CreateMonitoredItemsRequest_Encoding_DefaultBinary,
-    ObjectIds.ModifyMonitoredItemsRequest_Encoding_DefaultBinary,
-    ObjectIds.DeleteMonitoredItemsRequest_Encoding_DefaultBinary,
-    ObjectIds.SetMonitoringModeRequest_Encoding_DefaultBinary,
-    ObjectIds.PublishRequest_Encoding_DefaultBinary,
-    ObjectIds.RepublishRequest_Encoding_DefaultBinary,
-    ObjectIds.TransferSubscriptionsRequest_Encoding_DefaultBinary,
-))
-_CALL_REQUEST = ua.NodeId(ua.Int32(ObjectIds.CallRequest_Encoding_DefaultBinary))
-
 #: running servers of this process by (host, port): machines of one process share one
-_SERVERS: dict[tuple[str, int], _SharedServer] = {}
-
-
-class _Users(UserManager):
-    """The operator with its password; anonymous readers when allowed. Failed
-    logins and sessions over the limit go to the guard (it knows the peer)."""
-
-    def __init__(self, operator: str | None, password: str | None, anonymous: bool,
-                 guard: Guard) -> None:
-        self.operator, self._password, self.anonymous = operator, password, anonymous
-        self.guard = guard
-
-    def get_user(self, iserver: InternalServer, username: str | None = None,
-                 password: str | None = None, certificate: Any = None) -> User | None:
-        user: User | None = None
-        if username is None:
-            user = User(role=UserRole.Anonymous) if self.anonymous else None
-        elif self.operator is not None and username == self.operator \
-                and password is not None and password == self._password:
-            user = User(role=UserRole.User, name=username)
-        if user is None:
-            self.guard.login_failed("anonymous" if username is None else username)
-        else:  # BadTooManySessions over the limit (the anonymous share, for anonymous)
-            self.guard.login_ok(username or "anonymous", anonymous=username is None)
-        return user
-
-
-class _ReadOnlyRules(PermissionRuleset):
-    """Reading for every session; a Call only for the operator; nothing else."""
-
-    def __init__(self, shared: _SharedServer) -> None:
-        self.shared = shared
-
-    def check_validity(self, user: Any, action_type_id: Any, body: Any) -> bool:
-        if action_type_id in _READ_REQUESTS:
-            return True
-        if action_type_id == _CALL_REQUEST:
-            allowed = user is not None and self.shared.operator is not None \
-                and user.name == self.shared.operator
-            self.shared.note_call(user, allowed)
-            return allowed
-        return False
-
-
-@dataclass
-class _Machine:
-    """One machine's object and the nodes the face writes."""
-
-    name: str
-    obj: Node
-    nodes: dict[str, Node] = field(default_factory=dict)
-    hold: Callable[[bool, str], bool] | None = None
-    #: the config's part of the object (terms, channels, model, adaptation)
-    shape: MachineNodes | None = None
-
-
-class _SharedServer:
-    """One asyncua server on (host, port), with one object per machine."""
-
-    def __init__(self, section: OpcUaFaceSection, base: Path) -> None:
-        self.section = section
-        self.base = base
-        self.operator = section.operator
-        self.server: Server | None = None
-        # sessions are kept back from anonymous readers only for an operator to use
-        self.guard = Guard(max_connections=section.max_connections,
-                           max_sessions=section.max_sessions,
-                           reserved_sessions=section.reserved_sessions
-                           if section.operator is not None else 0,
-                           handshake_timeout_s=section.handshake_timeout_s)
-        self._summaries: asyncio.Task[None] | None = None
-        #: the face's own event loop, on its own thread (see the module docstring);
-        #: the servers it starts accept through the guard
-        self.loop: asyncio.AbstractEventLoop = FaceLoop(self.guard)
-        self._thread = threading.Thread(target=self._run_loop, name="compd-opcua-face",
-                                        daemon=True)
-        self._closing = False
-        self._thread.start()
-        #: done when the server is up (or failed): machines starting meanwhile wait on it
-        self.started: concurrent.futures.Future[None] = self.submit(self.start())
-        self.idx = 0
-        self.machines: dict[str, _Machine] = {}
-        self.fault_type: ua.NodeId | None = None
-        #: who the last Call came from (set by the permission check just before it runs)
-        self.caller: tuple[str, str] = ("anonymous", "unknown")
-        self.log = structlog.get_logger("compd")
-
-    def _run_loop(self) -> None:
-        asyncio.set_event_loop(self.loop)
-        self.loop.run_forever()
-
-    def submit(self, coro: Any) -> concurrent.futures.Future[Any]:
-        """Run `coro` on the face's loop (from any thread)."""
-        return asyncio.run_coroutine_threadsafe(coro, self.loop)
-
-    def close(self) -> None:
-        """Stop the server and the face's loop and thread (from another thread); once."""
-        if self._closing:
-            return
-        self._closing = True
-        with contextlib.suppress(Exception):
-            self.submit(self.stop()).result(timeout=10.0)
-        self.loop.call_soon_threadsafe(self.loop.stop)
-        self._thread.join(timeout=10.0)
-        if not self._thread.is_alive():
-            self.loop.close()
-
-    def note_call(self, user: Any, allowed: bool) -> None:
-        name = getattr(user, "name", None) or "anonymous"
-        peer = "unknown"
-        server = self.server
-        if server is not None:
-            for session in list(getattr(server.iserver, "_external_sessions", {}).values()):
-                if session.user is user:
-                    peer = str(session.name)
-        self.caller = (name, peer)
-        if not allowed:
-            self.log.warning("opcua_call_refused", user=name, peer=peer,
-                             reason="only the configured operator may call methods")
-
-    async def start(self) -> None:
-        sec = self.section
-        password = None
-        if sec.operator_password_file is not None:
-            pf = credential_path(sec.operator_password_file, self.base)
-            try:
-                password = pf.read_text(encoding="utf-8").strip("\r\n")
-            except OSError as exc:
-                raise ConfigError("faces.opcua.operator_password_file",
-                                  f"cannot read {pf} ({exc.strerror})") from None
-        anonymous = sec.anonymous_read or sec.policy == "None"
-        self.guard.fit_to_descriptors()  # ValueError: not one descriptor to spare
-        quiet_asyncua_faults()
-        # the standard address space is a copy of the one this process built first
-        # (drivers.opcua_space), not filled node by node again for every server
-        users = _Users(sec.operator, password, anonymous, self.guard)
-        server = Server(iserver=CopiedSpaceInternalServer(user_manager=users))
-        await server.init()
-        # the guard limits connections; asyncua's own cap is only a backstop above it (an
-        # evicted connection leaves asyncua's list just after its place is given to the
-        # new one), and its watchdog would log each idle connection
-        server.iserver.max_connections = self.guard.limit + ACCEPT_BURST
-        server.iserver.max_pending_activation_seconds = 0
-        server.disable_clock()
-        server.set_endpoint(f"opc.tcp://{_url_host(sec.host)}:{sec.port}")
-        server.set_server_name("compd")
-        await server.set_application_uri("urn:compd:server")
-        if sec.policy != "None":
-            assert sec.certificate is not None and sec.private_key is not None
-            await server.load_certificate(str(self._path(sec.certificate)))
-            await server.load_private_key(str(self._path(sec.private_key)))
-        # asyncua annotates the ruleset as its SimpleRoleRuleset class, though it only calls
-        # check_validity (the PermissionRuleset interface) that _ReadOnlyRules implements
-        server.set_security_policy([_POLICIES[sec.policy]],
-                                   permission_ruleset=_ReadOnlyRules(self))  # type: ignore[arg-type]
-        # no user name over an unencrypted channel: policy None is anonymous only
-        tokens: list[type] = [] if sec.policy == "None" else [ua.UserNameIdentityToken]
-        if anonymous:
-            tokens.append(ua.AnonymousIdentityToken)
-        server.set_identity_tokens(tokens)
-        self.idx = await server.register_namespace(NAMESPACE)
-        self.fault_type = await _fault_state_type(server, self.idx)
-        await server.start()
-        self.server = server
-        self._summaries = asyncio.get_running_loop().create_task(self.guard.summarise(),
-                                                                 name="opcua-face-summaries")
-
-    def _path(self, p: Path) -> Path:
-        return p if p.is_absolute() else self.base / p
-
-    async def stop(self) -> None:
-        summaries, self._summaries = self._summaries, None
-        if summaries is not None:
-            summaries.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await summaries
-        self.guard.flush(force=True)  # what the last minute did not tell yet
-        server, self.server = self.server, None
-        if server is not None:
-            await server.stop()
-
-
-def _url_host(host: str) -> str:
-    return f"[{host}]" if ":" in host else host
-
-
-async def _fault_state_type(server: Server, idx: int) -> ua.NodeId:
-    """The CompdFaultState enumeration data type (names for FaultState's values)."""
-    from asyncua.common.structures104 import new_enum
-
-    node = await new_enum(server, idx, "CompdFaultState", [s.value for s in FAULT_STATES])
-    await server.load_data_type_definitions()
-    return node.nodeid
+_SERVERS: dict[tuple[str, int], SharedServer] = {}
 
 
 class OpcUaFace:
@@ -349,8 +104,8 @@ class OpcUaFace:
         self.section = cfg.raw.faces.opcua
         self.name = cfg.raw.machine.name
         self._hold = hold
-        self._shared: _SharedServer | None = None
-        self._machine: _Machine | None = None
+        self._shared: SharedServer | None = None
+        self._machine: FaceMachine | None = None
         self._pending: dict[str, Any] | None = None
         self._wake: asyncio.Event | None = None  # on the face's loop
         self._task: asyncio.Task[None] | None = None
@@ -363,7 +118,7 @@ class OpcUaFace:
 
     @property
     def endpoint(self) -> str:
-        return f"opc.tcp://{_url_host(self.section.host)}:{self.section.port}"
+        return f"opc.tcp://{url_host(self.section.host)}:{self.section.port}"
 
     async def start(self) -> bool:
         """Start (or join) the server and add this machine's object; False (logged)
@@ -372,7 +127,7 @@ class OpcUaFace:
         self._daemon_loop = asyncio.get_running_loop()
         shared = _SERVERS.get(key)
         if shared is None:
-            shared = _SERVERS[key] = _SharedServer(self.section, self.cfg.path.parent)
+            shared = _SERVERS[key] = SharedServer(self.section, self.cfg.path.parent)
         elif shared.section != self.section:
             self.log.warning("opcua_face_shared", endpoint=self.endpoint,
                              reason="another machine's [faces.opcua] settings serve it")
@@ -395,7 +150,7 @@ class OpcUaFace:
                       machine=self.name, max_connections=shared.guard.limit)
         return True
 
-    async def _add_machine(self, shared: _SharedServer) -> _Machine:
+    async def _add_machine(self, shared: SharedServer) -> FaceMachine:
         server, idx = shared.server, shared.idx
         assert server is not None
         if self.name in shared.machines:
@@ -404,7 +159,7 @@ class OpcUaFace:
         obj = await server.nodes.objects.add_object(
             ua.NodeId(ua.String(f"{self.name}.Machine"), ua.Int16(idx)),
             ua.QualifiedName(self.name, idx))
-        m = _Machine(self.name, obj, hold=self._hold)
+        m = FaceMachine(self.name, obj, hold=self._hold)
         at = MachineNodes(server, idx, self.name, obj, m.nodes)
         var = at.var
         nan = math.nan
@@ -438,7 +193,7 @@ class OpcUaFace:
         return asyncio.get_running_loop().create_task(self._publisher(),
                                                       name=f"opcua-face:{self.name}")
 
-    def _set_hold(self, shared: _SharedServer) -> Callable[..., Any]:
+    def _set_hold(self, shared: SharedServer) -> Callable[..., Any]:
         async def on_daemon_loop(on: bool, user: str) -> bool:
             return self._hold(on, user)
 
@@ -455,7 +210,7 @@ class OpcUaFace:
             return [ua.Variant(done, ua.VariantType.Boolean)]
         return call
 
-    def _rezero_call(self, shared: _SharedServer) -> Callable[..., Any]:
+    def _rezero_call(self, shared: SharedServer) -> Callable[..., Any]:
         async def on_daemon_loop(user: str, peer: str) -> bool:
             return self._rezero is not None and self._rezero(f"opcua: {user} from {peer}")
 
@@ -527,7 +282,7 @@ class OpcUaFace:
             _SERVERS.pop((shared.section.host, shared.section.port), None)
             await asyncio.to_thread(shared.close)
 
-    async def _leave(self, shared: _SharedServer) -> None:
+    async def _leave(self, shared: SharedServer) -> None:
         """On the face's loop: this machine's task and object go."""
         task, self._task = self._task, None
         if task is not None:

@@ -43,6 +43,9 @@ asyncua's server calls to listen) wraps asyncua's protocol factory in
 `Guard.factory`; each connection's protocol is asyncua's behind `_Tracked`,
 which sets `CONNECTION` for the connection's tasks, so that the user manager
 knows whose login it judges.
+
+The descriptor budget is `compd.faces.fd_budget`, `Tally` `compd.faces.log_tally`, the
+guard's metrics and asyncua's quieted line `compd.faces.opcua_guard_report`.
 """
 
 from __future__ import annotations
@@ -51,35 +54,24 @@ import asyncio
 import contextlib
 import contextvars
 import fcntl
-import logging
-import os
-import resource
 import struct
 import termios
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import structlog
 from asyncua.common.utils import ServiceError
 from asyncua.ua.status_codes import StatusCodes
-from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
-from prometheus_client.registry import Collector
+
+from compd.faces.fd_budget import ACCEPT_BURST, FD_RESERVE, fd_budget, nofile_soft_limit, open_fds
+from compd.faces.log_tally import BURST, WINDOW_S, Tally
 
 __all__ = ["ACCEPT_BURST", "BURST", "CONNECTION", "FD_RESERVE", "FaceLoop", "Guard", "Tally",
            "fd_budget", "pending_bytes"]
 
-#: descriptors kept for everything but the face (cycle, checkpoints, recorder,
-#: /metrics and the status page, controller reconnects, other machines of `run DIR`)
-FD_RESERVE = 256
-#: connections the listener accepts per wake (asyncio's backlog), and its listen queue
-ACCEPT_BURST = 16
-#: refusals of one kind logged one line each per window; the rest summarised
-BURST = 5
-#: the summary window (s)
-WINDOW_S = 60.0
 #: longest user name put in a log line
 _USER_CHARS = 64
 
@@ -107,88 +99,7 @@ CONNECTION: contextvars.ContextVar[Connection | None] = contextvars.ContextVar(
     "compd_opcua_connection", default=None)
 
 
-def open_fds() -> int:
-    """Descriptors open in this process now (0 where /proc is not there)."""
-    try:
-        return len(os.listdir("/proc/self/fd"))
-    except OSError:
-        return 0
 
-
-def fd_budget(soft_limit: int, open_now: int, reserve: int = FD_RESERVE,
-              burst: int = ACCEPT_BURST) -> int:
-    """Connections the face may hold: `soft_limit` (RLIMIT_NOFILE; negative:
-    unlimited) minus what is open, the reserve and one accept burst. Example:
-    1024 - 40 - 256 - 16 = 712."""
-    if soft_limit < 0:
-        return 1 << 30
-    return soft_limit - open_now - reserve - burst
-
-
-def nofile_soft_limit() -> int:
-    soft, _hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-    return -1 if soft == resource.RLIM_INFINITY else int(soft)
-
-
-@dataclass
-class Tally:
-    """Rate-limited log lines of one kind: `BURST` a window one each, then a count.
-
-    `note` logs (or counts) one event; `flush` logs the summary of a window
-    that is over (`note` calls it; the face's loop calls it once per window).
-    """
-
-    event: str
-    log: Any
-    clock: Callable[[], float] = time.monotonic
-    burst: int = BURST
-    window_s: float = WINDOW_S
-    total: int = 0
-    _start: float | None = None
-    _logged: int = 0
-    _suppressed: int = 0
-    _users: Counter[str] = field(default_factory=Counter)
-    _peers: Counter[str] = field(default_factory=Counter)
-
-    def note(self, **fields: Any) -> None:
-        now = self.clock()
-        self.flush(now)
-        self.total += 1
-        if self._start is None:
-            self._start = now
-        if self._logged < self.burst:
-            self._logged += 1
-            self.log.warning(self.event, **fields)
-            return
-        self._suppressed += 1
-        if "user" in fields:
-            self._users[str(fields["user"])] += 1
-        if "peer" in fields:
-            self._peers[_host(str(fields["peer"]))] += 1
-
-    def flush(self, now: float | None = None, *, force: bool = False) -> None:
-        """Log the summary of a window that has ended (`force`: of this one, at
-        the face's stop); start the next."""
-        now = self.clock() if now is None else now
-        if self._start is None or (now - self._start < self.window_s and not force):
-            return
-        if self._suppressed:
-            extra: dict[str, Any] = {}
-            if self._users:
-                extra["users"] = dict(self._users.most_common(5))
-            if self._peers:
-                extra["peers"] = dict(self._peers.most_common(5))
-            self.log.warning(f"{self.event}_summary", suppressed=self._suppressed,
-                             window_s=self.window_s, total=self.total, **extra)
-        self._start, self._logged, self._suppressed = None, 0, 0
-        self._users.clear()
-        self._peers.clear()
-
-
-def _host(peer: str) -> str:
-    """"('10.0.0.7', 50123)" -> "10.0.0.7" (summaries count hosts, not ports)."""
-    text = peer.strip("()")
-    return text.split(",")[0].strip("'\" ") if "," in text else text
 
 
 def safe_user(name: str) -> str:
@@ -445,63 +356,6 @@ class FaceLoop(asyncio.SelectorEventLoop):
         kwargs["backlog"] = ACCEPT_BURST
         return await super().create_server(self.guard.factory(protocol_factory), *args,
                                            **kwargs)
-
-
-class QuietFaults(logging.Filter):
-    """Drops asyncua's "sending service fault response" line for a refusal the
-    face has logged itself (a failed login, a session over the limit)."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        conn = CONNECTION.get()
-        if conn is None or not conn.quiet_fault:
-            return True
-        if str(record.msg).startswith("sending service fault"):
-            conn.quiet_fault = False
-            return False
-        return True
-
-
-_QUIET = QuietFaults()
-
-
-def quiet_asyncua_faults() -> None:
-    """Install `QuietFaults` on asyncua's server processor logger (once)."""
-    logger = logging.getLogger("asyncua.server.uaprocessor")
-    if _QUIET not in logger.filters:
-        logger.addFilter(_QUIET)
-
-
-class GuardCollector(Collector):
-    """The face's counts as Prometheus metrics."""
-
-    def __init__(self, guard: Guard) -> None:
-        self.guard = guard
-
-    def collect(self) -> Iterator[Metric]:
-        g = self.guard
-        yield GaugeMetricFamily("compd_opcua_face_connections",
-                                "TCP connections the OPC UA face holds now",
-                                value=len(g.connections))
-        yield GaugeMetricFamily("compd_opcua_face_connection_limit",
-                                "Connections the OPC UA face accepts at most (max_connections, "
-                                "lowered to the file descriptors there are)", value=g.limit)
-        refused = CounterMetricFamily(
-            "compd_opcua_face_connections_refused",
-            "Connections the OPC UA face closed: over the limit (the new one), evicted "
-            "to make room for a new one, or no session in time", labels=["reason"])
-        for reason, n in sorted(g.refused.items()):
-            refused.add_metric([reason], n)
-        yield refused
-        yield CounterMetricFamily("compd_opcua_face_logins_failed",
-                                  "Logins refused by the OPC UA face (wrong user or password)",
-                                  value=g.tallies["opcua_login_failed"].total)
-        sessions = CounterMetricFamily(
-            "compd_opcua_face_sessions_refused",
-            "Sessions refused by the OPC UA face: max_sessions reached, or the anonymous "
-            "share (max_sessions minus reserved_sessions) full", labels=["reason"])
-        for reason, n in sorted(g.sessions_refused.items()):
-            sessions.add_metric([reason], n)
-        yield sessions
 
 
 @contextlib.contextmanager

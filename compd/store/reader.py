@@ -26,18 +26,9 @@ batches is simply not read. A row the daemon cannot have written (JSON that is
 not an object or nests without end, a text where a number belongs) raises
 `RecorderError` naming its ``seq``.
 
-Columns of a batch (all of equal length): ``seq`` and ``cycle`` (int64; cycle
--1 when the daemon gave none), ``time_s`` (float64: the daemon's sample clock,
-the same as ``mono_s``), ``mono_s``, ``wall_s``, ``offset_um`` (written),
-``model_um``, ``valid`` (bool), ``state`` (str), then one float64 column per
-channel named as the channel (NaN where missing or not finite),
-``valid.<channel>`` (bool: a finite value and no reason recorded against it)
-and ``contribution.<term>`` (float64) per model term. With ``detail=False``
-(what a calibration record needs) only ``cycle``, ``mono_s``, ``offset_um``,
-``model_um`` and the channels.
-
 `read(since, until)` is the same rows as whole columns, counted first and
-filled a batch at a time: memory is the numbers' 8 bytes each and one batch.
+filled a batch at a time: memory is the numbers' 8 bytes each and one batch. The
+columns of a batch are `compd.store.columns`'s.
 
 `history(since, max_points)` is the status page's plot: at most `max_points`
 rows of (wall_s, offset_um, model_um) picked by stride on ``seq``.
@@ -46,18 +37,17 @@ rows of (wall_s, offset_um, model_um) picked by stride on ``seq``.
 from __future__ import annotations
 
 import contextlib
-import json
 import math
 import sqlite3
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from compd.infiles import MAX_FIELD_CHARS, open_input
+from compd.store.columns import CORRUPT, Columns, bounded_fields, build_columns, floats
 from compd.store.schema import (
     CHANNELS_KEY,
     FIXED_COLUMNS,
@@ -70,7 +60,9 @@ from compd.store.schema import (
 
 __all__ = ["BATCH_ROWS", "Columns", "RecorderReader", "read_samples"]
 
-Columns = dict[str, npt.NDArray[Any]]
+#: the batch builder, called by this name (tests wrap it to watch the batches)
+_build = build_columns
+
 
 #: rows per batch: a few hundred kB of numbers, one short read of SQLite
 BATCH_ROWS = 4096
@@ -85,8 +77,6 @@ _PROGRESS_STEPS = 10_000
 _MAGIC = b"SQLite format 3\x00"
 #: the file is streamed: any size is read in the same memory
 _ANY_SIZE = 1 << 62
-#: what a corrupt row raises while its columns are built
-_CORRUPT = (ValueError, TypeError, AttributeError, KeyError, OverflowError, RecursionError)
 
 _PICK = """
 WITH RECURSIVE pick(s) AS (SELECT ? UNION ALL SELECT s - ? FROM pick WHERE s - ? >= ?)
@@ -97,27 +87,6 @@ _TABLES = ("samples", "meta", "probes")
 #: what `RecorderReader.probes` reads of a probe
 _PROBE_FIELDS = ("probes.seq", "samples.mono_s", "probes.measured_um", "probes.model_um",
                  "probes.accepted", "probes.reason")
-#: the text columns of the recorder's layout (`compd.store.schema`): their length is
-#: measured as it is; any other column holds numbers
-_TEXT_COLUMNS = frozenset({"samples.state", "samples.channels", "samples.validity",
-                           "samples.contributions", "probes.reason"})
-
-
-def _fields(columns: Sequence[str]) -> str:
-    """`columns` ("table.column") for a SELECT, each NULL when longer than
-    MAX_FIELD_CHARS, then one more: the name of the first such column (NULL when none),
-    so that a 100 MB cell never reaches Python (SQLite reads it once to measure it).
-    A number column is measured only when it holds a text or a blob: SQLite orders
-    every number before any text or blob, so ``c >= ''`` is false for a number, which
-    is never formatted to be measured (that, or typeof(), cost a third of a batch's
-    read)."""
-    def long(c: str) -> str:
-        measured = f"length({c}) > {MAX_FIELD_CHARS}"
-        return measured if c in _TEXT_COLUMNS else f"({c} >= '' AND {measured})"
-
-    bounded = [f"CASE WHEN {long(c)} THEN NULL ELSE {c} END" for c in columns]
-    first = " ".join(f"WHEN {long(c)} THEN '{c.partition('.')[2]}'" for c in columns)
-    return ", ".join([*bounded, f"CASE {first} END"])
 
 
 class _Window:
@@ -309,7 +278,7 @@ class RecorderReader:
                  detail: bool) -> Iterator[Columns]:
         columns = ["seq", "cycle", "mono_s", "wall_s", "offset_um", "model_um", "valid",
                    "state", "channels", *(["validity", "contributions"] if detail else [])]
-        select = (f"SELECT rowid, {_fields([f'samples.{c}' for c in columns])} FROM samples"
+        select = (f"SELECT rowid, {bounded_fields([f'samples.{c}' for c in columns])} FROM samples"
                   f" WHERE rowid > ? AND rowid <= ?{window.sql.replace('wall_s', '+wall_s')}"
                   " ORDER BY rowid LIMIT ?")
         conn = self._connection()
@@ -351,7 +320,7 @@ class RecorderReader:
                 rows = conn.execute(_PICK, (int(last), stride, stride, lo)
                                     ).fetchmany(max_points)
             return [(float(w), o, m) for w, o, m in rows]
-        except _CORRUPT as exc:
+        except CORRUPT as exc:
             raise RecorderError(self.path, f"corrupt rows ({type(exc).__name__})") from None
 
     def probes(self) -> Columns:
@@ -367,20 +336,20 @@ class RecorderReader:
                     rows: list[Any] = []
                 else:
                     rows = conn.execute(
-                        f"SELECT probes.rowid, {_fields(_PROBE_FIELDS)} FROM probes"
+                        f"SELECT probes.rowid, {bounded_fields(_PROBE_FIELDS)} FROM probes"
                         " JOIN samples ON samples.seq = probes.seq ORDER BY probes.seq"
                         ).fetchall()
             self._refuse_long(rows, "probe seq")
             rows = [r[1:-1] for r in rows]
             return {
                 "seq": np.array([r[0] for r in rows], dtype=np.int64),
-                "mono_s": _floats(r[1] for r in rows),
-                "measured_um": _floats(r[2] for r in rows),
-                "model_um": _floats(r[3] for r in rows),
+                "mono_s": floats(r[1] for r in rows),
+                "measured_um": floats(r[2] for r in rows),
+                "model_um": floats(r[3] for r in rows),
                 "reason": np.array(["" if r[4] else str(r[5] or "refused") for r in rows],
                                    dtype=str),
             }
-        except _CORRUPT as exc:
+        except CORRUPT as exc:
             raise RecorderError(self.path, f"corrupt probe rows ({type(exc).__name__}); "
                                 "not a recorder compd wrote") from None
 
@@ -400,62 +369,16 @@ class RecorderReader:
     def _columns(self, rows: list[Any], terms: tuple[str, ...], detail: bool) -> Columns:
         try:
             return _build(rows, self.channels, terms, detail)
-        except _CORRUPT as exc:
+        except CORRUPT as exc:
             error, bad = exc, rows[0]
         for row in rows:  # which one: the batch again, a row at a time
             try:
                 _build([row], self.channels, terms, detail)
-            except _CORRUPT as exc:
+            except CORRUPT as exc:
                 error, bad = exc, row
                 break
         raise RecorderError(self.path, f"corrupt row, seq {bad[1]!r} ({type(error).__name__}: "
                             f"{str(error)[:80]}); not a recorder compd wrote")
-
-
-def _floats(values: Iterable[Any]) -> npt.NDArray[np.float64]:
-    return np.array([math.nan if v is None else v for v in values], dtype=np.float64)
-
-
-def _object(text: Any) -> dict[str, Any]:
-    value = json.loads(text)
-    if not isinstance(value, dict):
-        raise TypeError(f"{type(value).__name__}, not a JSON object")
-    return value
-
-
-def _build(rows: list[Any], channels: tuple[str, ...], terms: tuple[str, ...],
-           detail: bool) -> Columns:
-    """One batch's columns from its rows (rowid, seq, cycle, mono_s, wall_s,
-    offset_um, model_um, valid, state, channels[, validity, contributions])."""
-    mono = _floats(r[3] for r in rows)
-    out: Columns = {}
-    if detail:
-        out["seq"] = np.array([r[1] for r in rows], dtype=np.int64)
-    out["cycle"] = np.array([-1 if r[2] is None else r[2] for r in rows], dtype=np.int64)
-    if detail:
-        out["time_s"] = mono.copy()
-    out["mono_s"] = mono
-    if detail:
-        out["wall_s"] = _floats(r[4] for r in rows)
-    out["offset_um"] = _floats(r[5] for r in rows)
-    out["model_um"] = _floats(r[6] for r in rows)
-    if detail:
-        out["valid"] = np.array([bool(r[7]) for r in rows], dtype=bool)
-        out["state"] = np.array([str(r[8]) for r in rows], dtype=str)
-    values = [_object(r[9]) for r in rows]
-    for name in channels:
-        out[name] = _floats(v.get(name) for v in values)
-    if not detail:
-        return out
-    validity = [_object(r[10]) for r in rows]
-    for name in channels:
-        out[f"valid.{name}"] = np.array(
-            [v.get(name) is not None and w.get(name) is None
-             for v, w in zip(values, validity, strict=True)], dtype=bool)
-    contributions = [_object(r[11]) for r in rows]
-    for term in terms:
-        out[f"contribution.{term}"] = _floats(c.get(term) for c in contributions)
-    return out
 
 
 def read_samples(path: str | Path, since: float | None = None,

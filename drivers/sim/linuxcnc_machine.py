@@ -11,7 +11,8 @@ LinuxCNC's (``spindle-speed-cmd`` <- ``spindle.0.speed-out``, set by the
 G-code program that runs); the offset the plant sees is what motion applies
 (``axis.z.eoffset``, µm).
 
-The HAL file a user adds for compd is `hal_lines` with the prefix ``compd``
+The configuration is `drivers.sim.linuxcnc_config`. The HAL file a user adds for compd
+is `hal_lines` with the prefix ``compd``
 (`HAL_LINES`), less the plant's signals: `docs/protocols.md`. A controller here
 names its signals and components with a prefix of its own (`LinuxCncSimController.
 prefix`, ``compd-t<pid>``): a compd left running by a test finds none of them in
@@ -44,6 +45,16 @@ from typing import Any
 from drivers.addresses import LinuxCncEoffset, LinuxCncGet, LinuxCncPin
 from drivers.linuxcnc import LinuxCncDriver
 from drivers.sim import linuxcnc_host
+from drivers.sim.linuxcnc_config import (
+    COUNT_UM,
+    HAL_LINES,
+    PERMIT_DOUT,
+    REZERO_DOUT,
+    SENSORS,
+    hal_lines,
+    mcode_hal_lines,
+    write_config,
+)
 from drivers.sim.linuxcnc_host import ForeignLinuxCnc, LinuxCncBusy
 
 #: the Python LinuxCNC's modules were built for (Debian's)
@@ -55,101 +66,8 @@ START_DEADLINE_S = 120.0
 END_DEADLINE_S = 30.0
 #: seconds the plant waits for motion to apply a requested offset
 SETTLE_DEADLINE_S = 10.0
-#: µm per count of axis.z.eoffset-counts (axis.z.eoffset-scale 0.0001 mm)
-COUNT_UM = 0.1
-#: the sensor channels the plant drives (signals compd-<name>)
-SENSORS: tuple[str, ...] = ("bearing", "motor", "column", "table", "ambient", "power_kw",
-                            "growth_um", "error_um")
-
 #: the address fields that name a HAL signal
 NETS = frozenset({"net", "counts_net", "enable_net"})
-
-
-def hal_lines(prefix: str = "compd") -> str:
-    """The HAL file's lines for compd, its signals named ``<prefix>-...``."""
-    return f"""\
-# compd: external offset of Z in counts of {COUNT_UM} µm
-setp axis.z.eoffset-scale {COUNT_UM / 1000.0:g}
-net {prefix}-eoffset-counts => axis.z.eoffset-counts
-net {prefix}-eoffset-enable => axis.z.eoffset-enable
-# compd's heartbeat and status word, for a ladder or HAL logic to watch
-newsig {prefix}-heartbeat s32
-newsig {prefix}-status s32
-# the sensors (here the simulated plant's component drives them)
-""" + "".join(f"newsig {prefix}-{name} float\n" for name in SENSORS)
-
-
-#: the HAL file of docs/protocols.md
-HAL_LINES = hal_lines()
-
-#: motion's digital outputs G-code sets (``M64 P<n>`` on, ``M65 P<n>`` off) that the
-#: test machine's HAL joins to compd's ``[output] update_permitted`` and ``rezero``
-PERMIT_DOUT = 0
-REZERO_DOUT = 1
-
-
-def mcode_hal_lines(prefix: str = "compd") -> str:
-    """The HAL lines that let G-code permit offset changes and re-zero (docs/protocols.md)."""
-    return f"""\
-# compd's update_permitted and rezero, set by G-code: M64/M65 P{PERMIT_DOUT} permits
-# offset changes, an M64 P{REZERO_DOUT} ... M65 P{REZERO_DOUT} pulse re-zeroes at touch-off
-net {prefix}-permit <= motion.digital-out-{PERMIT_DOUT:02d}
-net {prefix}-rezero <= motion.digital-out-{REZERO_DOUT:02d}
-"""
-
-INI = """\
-[EMC]
-MACHINE = compd-test-mill
-VERSION = 1.1
-
-[DISPLAY]
-DISPLAY = dummy
-POSITION_OFFSET = RELATIVE
-POSITION_FEEDBACK = ACTUAL
-
-[HAL]
-HALFILE = LIB:basic_sim.tcl -no_use_hal_manualtoolchange
-HALFILE = compd.hal
-
-[TASK]
-TASK = milltask
-CYCLE_TIME = 0.010
-
-[RS274NGC]
-PARAMETER_FILE = sim.var
-
-[EMCIO]
-TOOL_TABLE = tool.tbl
-EMCIO = io
-CYCLE_TIME = 0.100
-
-[EMCMOT]
-EMCMOT = motmod
-SERVO_PERIOD = 1000000
-
-[TRAJ]
-COORDINATES = XYZ
-LINEAR_UNITS = mm
-ANGULAR_UNITS = degree
-MAX_LINEAR_VELOCITY = 50
-
-[KINS]
-JOINTS = 3
-KINEMATICS = trivkins coordinates=XYZ
-""" + "".join(f"""
-[AXIS_{a}]
-{"OFFSET_AV_RATIO = 0.2" if a == "Z" else ""}
-MAX_VELOCITY = 50
-MAX_ACCELERATION = 500
-MIN_LIMIT = -100
-MAX_LIMIT = 100
-
-[JOINT_{j}]
-TYPE = LINEAR
-HOME_SEQUENCE = 0
-MAX_VELOCITY = 50
-MAX_ACCELERATION = 500
-""" for j, a in enumerate("XYZ"))
 
 
 def unavailable() -> str | None:
@@ -163,18 +81,6 @@ def unavailable() -> str | None:
     if probe.returncode != 0:
         return f"LinuxCNC's hal/linuxcnc modules do not import under {SYSTEM_PYTHON}"
     return None
-
-
-def write_config(folder: Path, prefix: str = "compd") -> Path:
-    """The machine's configuration in `folder` (compd's signals ``<prefix>-...``);
-    returns the INI file."""
-    (folder / "compd.hal").write_text(hal_lines(prefix) + mcode_hal_lines(prefix),
-                                      encoding="utf-8")
-    (folder / "tool.tbl").write_text("T1 P1 D6.0 Z0 ;\n", encoding="utf-8")
-    (folder / "sim.var").write_text("", encoding="utf-8")
-    ini = folder / "compd-test.ini"
-    ini.write_text(INI, encoding="utf-8")
-    return ini
 
 
 def _cleanup(env: dict[str, str]) -> None:
@@ -417,6 +323,6 @@ class LinuxCncSimController:
         await self.control("on")
 
 
-__all__ = ["HAL_LINES", "PERMIT_DOUT", "REZERO_DOUT", "ForeignLinuxCnc", "LinuxCncBusy",
-           "LinuxCncSimController", "hal_lines", "mcode_hal_lines", "unavailable",
-           "write_config"]
+__all__ = ["COUNT_UM", "HAL_LINES", "PERMIT_DOUT", "REZERO_DOUT", "SENSORS", "ForeignLinuxCnc",
+           "LinuxCncBusy", "LinuxCncSimController", "hal_lines", "mcode_hal_lines",
+           "unavailable", "write_config"]

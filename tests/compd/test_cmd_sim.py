@@ -151,6 +151,18 @@ def test_record_defaults_to_the_spectrum_at_one_second(tmp_path: Path) -> None:
     assert rec["spindle_rpm"][1] >= 500.0
 
 
+@pytest.mark.parametrize("machine", [[], ["--machine", "shop"], ["--machine", "ballscrew"]])
+def test_a_record_too_long_is_refused_in_hours_and_rows(
+        machine: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "long.csv"
+    rc = main(["sim", "--record", str(out), "--hours", "8000", "--period-s", "0.001",
+               *machine])
+    assert rc == 65
+    err = capsys.readouterr().err
+    assert err == "compd sim: 8000 h every 0.001 s is 2.88e+10 rows; at most 10,000,000\n"
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("argv", [["sim"], ["sim", "--record", "x.csv", "--protocol", "s7"],
                                   ["sim", "--record", "x.csv", "--probe-noise-um", "-1"]])
 def test_usage_errors_exit_64(argv: list[str], tmp_path: Path,

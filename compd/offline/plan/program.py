@@ -126,11 +126,17 @@ def _header(exp: Experiment, dialect: Dialect, probing: Probing | None, dwell_to
         *(_measuring_lines(exp, dialect, probing, recorder)),
         "Schedule:",
     ]
+    return wrapped_with_schedule(paragraphs, exp, "rpm")
+
+
+def wrapped_with_schedule(paragraphs: list[str], exp: Experiment, unit: str) -> list[str]:
+    """The header's paragraphs wrapped to WIDTH, then one line a step of the schedule:
+    its span, its level in `unit` (spindle rpm, axis percent duty) or rest, its entry."""
     lines: list[str] = []
     for p in paragraphs:
         lines += textwrap.wrap(p, WIDTH, break_on_hyphens=False) or [""]
     for k, step in enumerate(exp.steps, 1):
-        what = f"{step.speed_rpm} rpm" if step.speed_rpm else "rest"
+        what = f"{step.speed_rpm} {unit}" if step.speed_rpm else "rest"
         lines.append(f"  {k:2d}. {_h(step.start_ms)} - {_h(step.start_ms + step.duration_ms)}"
                      f"  {what}, {step.entry}")
     return lines

@@ -35,12 +35,11 @@ set, positions and feeds through `num`, comments through `plain`.
 
 from __future__ import annotations
 
-import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 from compd.offline.plan.dialects import Dialect, num
-from compd.offline.plan.program import WIDTH, Program, _h, _hm
+from compd.offline.plan.program import Program, _h, _hm, wrapped_with_schedule
 from compd.offline.plan.schedule import (
     MIN_STEP_WARN_MS,
     Dwell,
@@ -183,14 +182,7 @@ def _header(exp: Experiment, dialect: Dialect, t: Traverse, summary: str,
         "Start with the machine at rest and in equilibrium with its room.",
         "Schedule:",
     ]
-    lines: list[str] = []
-    for p in paragraphs:
-        lines += textwrap.wrap(p, WIDTH, break_on_hyphens=False) or [""]
-    for k, step in enumerate(exp.steps, 1):
-        what = f"{step.speed_rpm} percent duty" if step.speed_rpm else "rest"
-        lines.append(f"  {k:2d}. {_h(step.start_ms)} - {_h(step.start_ms + step.duration_ms)}"
-                     f"  {what}, {step.entry}")
-    return lines
+    return wrapped_with_schedule(paragraphs, exp, "percent duty")
 
 
 def make_traverse_program(exp: Experiment, dialect: Dialect, t: Traverse, *,
