@@ -114,6 +114,26 @@ class Choice:
     what: str
     seconds: float
     stability: float
+    #: compd's choice before the verdict of the inner held-out blocks
+    #: (`compd.offline.fit_judge`), run from rest; `sim` when it wrote that
+    before: FloatArray | None = None
+    #: what the verdict wrote: compd's choice, the textbook, or no model
+    verdict: str = ""
+
+
+def _unjudged(args: object, n: int) -> FloatArray | None:
+    """The sum of compd's choice's terms before the verdict, from rest."""
+    from models.identify.segments import Segments
+    from models.identify.validate import forced_response
+
+    terms = getattr(args, "unjudged_terms", None)
+    if not terms:
+        return None
+    seg = Segments.single(n)
+    total = np.zeros(n)
+    for t in terms:
+        total += forced_response([t.num], [t.den], [(0,)], [t.u], seg)
+    return total
 
 
 def compd_choice(record: Path, out: str, held: BoolArray, model: Path) -> Choice:
@@ -123,8 +143,11 @@ def compd_choice(record: Path, out: str, held: BoolArray, model: Path) -> Choice
     from compd.offline.model_replay import replay_model
     from compd.offline.records import read_record
 
+    # no --force: a model fit refuses is not written, and the daemon then
+    # compensates nothing (scored as no compensation)
     argv = ["fit", str(record), "--column", out, "--candidates", "t*_degC", "--candidates",
-            "spindle_rpm", "--max-terms", "3", "-o", str(model), "--force", "--json", *FIT_ARGS]
+            "spindle_rpm", "--max-terms", "3", "-o", str(model), "--json", *FIT_ARGS]
+    model.unlink(missing_ok=True)
     args = build_parser().parse_args(argv)
     args.exclude_rows = held
     buf, err = io.StringIO(), io.StringIO()
@@ -132,16 +155,24 @@ def compd_choice(record: Path, out: str, held: BoolArray, model: Path) -> Choice
     with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(err):
         code = args._run(args)
     took = time.perf_counter() - t0
+    rows = read_record(str(record))
+    before = _unjudged(args, held.size)
     if code != 0:
+        said = err.getvalue().strip().splitlines()
+        if "nothing written" in err.getvalue() or "not written" in err.getvalue():
+            none = np.full(held.size, rows.column(out)[0])
+            return Choice(none, f"no model: {said[-1] if said else ''}", took, math.nan,
+                          before, "no model")
         return Choice(np.full(held.size, math.nan), f"fit failed (exit {code}): "
-                      f"{err.getvalue().strip()}", took, math.nan)
+                      f"{err.getvalue().strip()}", took, math.nan, before)
     fit = json.loads(buf.getvalue().strip().splitlines()[-1])
     sel = fit["terms"][0]["selection"]
     what = f"{' + '.join(fit.get('inputs_chosen', [t['name'] for t in fit['terms']]))} " \
         f"({sel['structure']})"
     stab = sel.get("stability", {}).get("share", math.nan)
-    sim = replay_model(load_model(str(model)), read_record(str(record)))
-    return Choice(np.asarray(sim, dtype=np.float64), what, took, float(stab))
+    verdict = sel.get("judge", {}).get("chosen", "")
+    sim = replay_model(load_model(str(model)), rows)
+    return Choice(np.asarray(sim, dtype=np.float64), what, took, float(stab), before, verdict)
 
 
 # --- the textbook baseline, plain numpy --------------------------------------------
@@ -221,10 +252,16 @@ class Cell:
     pair: str
     #: MAE of each of MIXES
     mixed: tuple[float, ...] = ()
+    #: MAE and RMS of compd's choice before the inner blocks' verdict
+    before: tuple[float, float] = (math.nan, math.nan)
 
     @property
     def ratio(self) -> float:
         return self.compd[0] / self.base[0]
+
+    @property
+    def ratio_before(self) -> float:
+        return self.before[0] / self.base[0]
 
 
 def run(record: Path, d: dict[str, FloatArray], blocks: list[tuple[str, str, float, float]],
@@ -239,12 +276,16 @@ def run(record: Path, d: dict[str, FloatArray], blocks: list[tuple[str, str, flo
             base, pair = textbook(d, out, held)
             mixed = tuple(figures(y[held], ((1 - w) * choice.sim + w * base)[held])[0]
                           for w in MIXES)
-            cell = Cell(name, out, figures(y[held], choice.sim[held]),
+            after = figures(y[held], choice.sim[held])
+            before = after if choice.before is None else figures(y[held], choice.before[held])
+            cell = Cell(name, out, after,
                         figures(y[held], base[held]), float(np.mean(np.abs(y[held] - y[0]))),
-                        choice, pair, mixed)
+                        choice, pair, mixed, before)
             cells.append(cell)
             print(f"{name} {out}: compd {choice.what}, stability {choice.stability:.2f}, "
-                  f"{choice.seconds:.1f} s: MAE {cell.compd[0]:.2f} µm; textbook {pair}: "
+                  f"{choice.seconds:.1f} s: MAE {cell.compd[0]:.2f} µm (written: "
+                  f"{choice.verdict or '?'}; compd's choice before the verdict "
+                  f"{cell.before[0]:.2f}); textbook {pair}: "
                   f"{cell.base[0]:.2f} µm (ratio {cell.ratio:.2f}); no compensation "
                   f"{cell.none_mae:.2f} µm", flush=True)
     return cells
@@ -285,6 +326,21 @@ def print_table(cells: list[Cell], blocks: list[str], channels: list[str]) -> No
               f"{sum(x <= 1.0 for x in r)} of {len(r)} | "
               f"{(float(np.mean(stab)) if stab else math.nan):.2f} | "
               f"{float(np.mean([c.choice.seconds for c in mine])):.1f} |")
+    print("\nbefore / after the verdict of the inner held-out blocks (compd.offline."
+          "fit_judge): ratio of MAE to the textbook's, and cells worse than no compensation")
+    print("| channel | geometric mean before | after | worst before | after | "
+          "worse than none before | after | written: choice / textbook / none |")
+    print("|---|---|---|---|---|---|---|---|")
+    for ch, s in zip(channels, short, strict=True):
+        mine = [c for c in cells if c.channel == ch]
+        rb, ra = [c.ratio_before for c in mine], [c.ratio for c in mine]
+        wb = sum(c.before[0] > c.none_mae for c in mine)
+        wa = sum(c.compd[0] > c.none_mae for c in mine)
+        kinds = [sum(c.choice.verdict == v for c in mine)
+                 for v in ("compd's choice", "textbook", "no model")]
+        print(f"| {s} | {geo(rb):.2f} | {geo(ra):.2f} | {worst(rb):.2f} | {worst(ra):.2f} | "
+              f"{wb} of {len(mine)} | {wa} of {len(mine)} | "
+              f"{' / '.join(str(k) for k in kinds)} |")
     print("\nmixed with the textbook, (1 - w) · compd + w · textbook: ratio of MAE to the "
           "textbook's, geometric mean / worst")
     print("| channel | " + " | ".join(f"w = {w:g}" for w in MIXES) + " |")
@@ -300,7 +356,12 @@ def print_table(cells: list[Cell], blocks: list[str], channels: list[str]) -> No
     print(f"{sum(not math.isfinite(x) for x in every)} blocks without a stable textbook "
           "model (left out of the ratios)")
     print(f"all: geometric mean {geo(every):.3f}, worst {worst(every):.2f}, "
-          f"{sum(x <= 1.0 for x in every)} of {len(every)} at or below the textbook")
+          f"{sum(x <= 1.0 for x in every)} of {len(every)} at or below the textbook, "
+          f"{sum(c.compd[0] > c.none_mae for c in cells)} worse than no compensation")
+    prior = [c.ratio_before for c in cells]
+    print(f"before the verdict: geometric mean {geo(prior):.3f}, worst {worst(prior):.2f}, "
+          f"{sum(x <= 1.0 for x in prior)} of {len(prior)} at or below the textbook, "
+          f"{sum(c.before[0] > c.none_mae for c in cells)} worse than no compensation")
 
 
 def main() -> None:

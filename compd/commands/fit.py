@@ -315,8 +315,10 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
                   den, rl in zip(specs, us, fit.oe.nums, fit.oe.dens, rel, strict=True)]
     else:
         from compd.commands.fit_checks import CheckVeto, fallback_line
+        from compd.offline.fit_blocks import judge_rows
         from compd.offline.fit_select import select_for_fit, worse_than_none
 
+        args.judge_rows = judge_rows(records)  # the inner blocks are cut from the speed
         veto = CheckVeto(specs, rel, [float(np.ptp(u)) for u in us], y_span, period)
         pool = getattr(args, "search_pool", None)
         try:
@@ -335,6 +337,19 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
             line = fallback_line(summary, veto)
             if line is not None:
                 print(line, file=sys.stderr)
+        from compd.offline.fit_judge import fallback_line as judge_line
+        from compd.offline.fit_select import refused
+
+        said = judge_line(summary)
+        if said is not None:
+            print(said, file=sys.stderr)
+        unsafe = refused(summary)
+        if unsafe is not None and not args.force:
+            raise ModelError(f"{unsafe}; nothing written (--force writes compd's choice "
+                             "anyway)")
+        if unsafe is not None:
+            print(f"compd fit: warning: {unsafe}; compd's choice written all the same "
+                  "(--force)", file=sys.stderr)
         # for the adaptation settings: how fast the error moves on rows not calibrated on
         args.heldout_residuals = summary.pop("_heldout_residuals")
         worse = worse_than_none(summary)
@@ -796,10 +811,12 @@ def run(args: argparse.Namespace) -> int:
         print("\n".join(table_lines(args.search_table, args.search_chosen)))
     if info and info[0]["kind"] == "tf" and "candidates" in info[0]["selection"]:
         from compd.offline.fit_hedge import stability_lines
+        from compd.offline.fit_judge import verdict_lines
         from compd.offline.fit_select import selection_lines
 
         print("\n".join(selection_lines(info[0]["selection"])
-                        + stability_lines(info[0]["selection"])))
+                        + stability_lines(info[0]["selection"])
+                        + verdict_lines(info[0]["selection"])))
     elif info and info[0]["kind"] == "tf":
         head = info[0]
         print(f"  ARX fit {head['arx_fit_percent']:.2f} %, output-error fit "
