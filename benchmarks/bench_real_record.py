@@ -57,6 +57,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -119,14 +120,19 @@ class Choice:
     before: FloatArray | None = None
     #: what the verdict wrote: compd's choice, the textbook, or no model
     verdict: str = ""
+    #: the fit's own textbook ARX(2,3) from rest (None: none it could write)
+    fit_textbook: FloatArray | None = None
+    #: the verdict as fit said it (`compd.offline.fit_judge.Verdict.as_dict`)
+    judge: dict[str, Any] | None = None
 
 
-def _unjudged(args: object, n: int) -> FloatArray | None:
-    """The sum of compd's choice's terms before the verdict, from rest."""
+def _unjudged(args: object, n: int, key: str = "unjudged_terms") -> FloatArray | None:
+    """The sum of compd's choice's terms before the verdict (`key`: or the
+    fit's textbook's), from rest."""
     from models.identify.segments import Segments
     from models.identify.validate import forced_response
 
-    terms = getattr(args, "unjudged_terms", None)
+    terms = getattr(args, key, None)
     if not terms:
         return None
     seg = Segments.single(n)
@@ -146,7 +152,8 @@ def compd_choice(record: Path, out: str, held: BoolArray, model: Path) -> Choice
     # no --force: a model fit refuses is not written, and the daemon then
     # compensates nothing (scored as no compensation)
     argv = ["fit", str(record), "--column", out, "--candidates", "t*_degC", "--candidates",
-            "spindle_rpm", "--max-terms", "3", "-o", str(model), "--json", *FIT_ARGS]
+            "spindle_rpm", "--max-terms", "3", "-o", str(model), "--json", "--no-fallbacks",
+            *FIT_ARGS]
     model.unlink(missing_ok=True)
     args = build_parser().parse_args(argv)
     args.exclude_rows = held
@@ -157,14 +164,16 @@ def compd_choice(record: Path, out: str, held: BoolArray, model: Path) -> Choice
     took = time.perf_counter() - t0
     rows = read_record(str(record))
     before = _unjudged(args, held.size)
+    extra = {"fit_textbook": _unjudged(args, held.size, "judged_textbook_terms"),
+             "judge": getattr(args, "judge_verdict", None)}
     if code != 0:
         said = err.getvalue().strip().splitlines()
         if "nothing written" in err.getvalue() or "not written" in err.getvalue():
             none = np.full(held.size, rows.column(out)[0])
             return Choice(none, f"no model: {said[-1] if said else ''}", took, math.nan,
-                          before, "no model")
+                          before, "no model", **extra)
         return Choice(np.full(held.size, math.nan), f"fit failed (exit {code}): "
-                      f"{err.getvalue().strip()}", took, math.nan, before)
+                      f"{err.getvalue().strip()}", took, math.nan, before, **extra)
     fit = json.loads(buf.getvalue().strip().splitlines()[-1])
     sel = fit["terms"][0]["selection"]
     what = f"{' + '.join(fit.get('inputs_chosen', [t['name'] for t in fit['terms']]))} " \
@@ -172,7 +181,8 @@ def compd_choice(record: Path, out: str, held: BoolArray, model: Path) -> Choice
     stab = sel.get("stability", {}).get("share", math.nan)
     verdict = sel.get("judge", {}).get("chosen", "")
     sim = replay_model(load_model(str(model)), rows)
-    return Choice(np.asarray(sim, dtype=np.float64), what, took, float(stab), before, verdict)
+    return Choice(np.asarray(sim, dtype=np.float64), what, took, float(stab), before, verdict,
+                  **extra)
 
 
 # --- the textbook baseline, plain numpy --------------------------------------------
@@ -254,6 +264,8 @@ class Cell:
     mixed: tuple[float, ...] = ()
     #: MAE and RMS of compd's choice before the inner blocks' verdict
     before: tuple[float, float] = (math.nan, math.nan)
+    #: MAE of the fit's own textbook (nan: none it could write)
+    fit_tb: float = math.nan
 
     @property
     def ratio(self) -> float:
@@ -278,9 +290,11 @@ def run(record: Path, d: dict[str, FloatArray], blocks: list[tuple[str, str, flo
                           for w in MIXES)
             after = figures(y[held], choice.sim[held])
             before = after if choice.before is None else figures(y[held], choice.before[held])
+            fit_tb = math.nan if choice.fit_textbook is None else \
+                figures(y[held], choice.fit_textbook[held])[0]
             cell = Cell(name, out, after,
                         figures(y[held], base[held]), float(np.mean(np.abs(y[held] - y[0]))),
-                        choice, pair, mixed, before)
+                        choice, pair, mixed, before, fit_tb)
             cells.append(cell)
             print(f"{name} {out}: compd {choice.what}, stability {choice.stability:.2f}, "
                   f"{choice.seconds:.1f} s: MAE {cell.compd[0]:.2f} µm (written: "
@@ -341,6 +355,7 @@ def print_table(cells: list[Cell], blocks: list[str], channels: list[str]) -> No
         print(f"| {s} | {geo(rb):.2f} | {geo(ra):.2f} | {worst(rb):.2f} | {worst(ra):.2f} | "
               f"{wb} of {len(mine)} | {wa} of {len(mine)} | "
               f"{' / '.join(str(k) for k in kinds)} |")
+    variants(cells, channels)
     print("\nmixed with the textbook, (1 - w) · compd + w · textbook: ratio of MAE to the "
           "textbook's, geometric mean / worst")
     print("| channel | " + " | ".join(f"w = {w:g}" for w in MIXES) + " |")
@@ -362,6 +377,51 @@ def print_table(cells: list[Cell], blocks: list[str], channels: list[str]) -> No
     print(f"before the verdict: geometric mean {geo(prior):.3f}, worst {worst(prior):.2f}, "
           f"{sum(x <= 1.0 for x in prior)} of {len(prior)} at or below the textbook, "
           f"{sum(c.before[0] > c.none_mae for c in cells)} worse than no compensation")
+
+
+#: the verdict's settings judged on the whole table: (tie, worse ratio) of
+#: `compd.offline.fit_judge.decide`; inf tie: compd's choice unless unsafe
+#: and the inner blocks it is judged on: every kind, or all but the end
+RULES: tuple[tuple[float, float, bool], ...] = (
+    (1.05, 1.1, True), (1.5, 1.1, True), (math.inf, 1.1, True), (math.inf, 1.5, True),
+    (math.inf, 2.0, True), (1.05, 1.1, False), (math.inf, 1.1, False), (1.5, 1.5, False))
+
+
+def variants(cells: list[Cell], channels: list[str]) -> None:
+    """The verdict again with other settings, from the MAE per inner block
+    that fit said: what would have been written (compd's choice before the
+    verdict, the fit's own textbook, or nothing) scored on the held-out rows."""
+    from compd.offline.fit_judge import COMPD, TEXTBOOK, decide
+
+    print("\nthe verdict's settings (tie, worse-than-none ratio): ratio of MAE to the "
+          "textbook's, geometric mean / worst, and cells worse than no compensation")
+    print("| channel | " + " | ".join(f"{t:g}, {w:g}{'' if e else ', no end'}"
+                                      for t, w, e in RULES) + " |")
+    print("|---|" + "---|" * len(RULES))
+    for ch in [*channels, "all"]:
+        mine = [c for c in cells if ch in ("all", c.channel)]
+        out = []
+        for tie, worse_r, with_end in RULES:
+            r: list[float] = []
+            bad = 0
+            for c in mine:
+                j = c.choice.judge
+                mae = c.before[0]
+                if j is not None:
+                    keep = [i for i, b in enumerate(j["blocks"])
+                            if with_end or not b.startswith("end")]
+                    table = {k: [math.nan if vs[i] is None else vs[i] for i in keep]
+                             for k, vs in j["mae_um"].items()}
+                    pick = decide(table, [j["blocks"][i] for i in keep], j["floor_um"],
+                                  tie=tie, worse_ratio=worse_r).chosen if keep else COMPD
+                    if pick == TEXTBOOK and math.isfinite(c.fit_tb):
+                        mae = c.fit_tb
+                    elif pick not in (COMPD, TEXTBOOK):
+                        mae = c.none_mae
+                r.append(mae / c.base[0])
+                bad += mae > c.none_mae
+            out.append(f"{geo(r):.2f} / {worst(r):.2f} / {bad}")
+        print(f"| {ch.removesuffix('_um')} | " + " | ".join(out) + " |")
 
 
 def main() -> None:

@@ -338,8 +338,10 @@ def _fit_tf(args: argparse.Namespace, records: list[Record], ys: list[Any],
             if line is not None:
                 print(line, file=sys.stderr)
         from compd.offline.fit_judge import fallback_line as judge_line
-        from compd.offline.fit_select import refused
+        from compd.offline.fit_select import judged, refused
 
+        if holdout is None:  # the last word: inner held-out blocks of the calibration rows
+            fitted, summary = judged(args, y, seg, radius, fitted, summary)
         said = judge_line(summary)
         if said is not None:
             print(said, file=sys.stderr)

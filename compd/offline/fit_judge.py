@@ -84,6 +84,8 @@ class Verdict:
     worst: dict[str, float]
     #: why the choice is not compd's (empty when it is)
     reasons: list[str] = field(default_factory=list)
+    #: the least yardstick of a block, µm (`FLOOR_SHARE` of the displacement's span)
+    floor: float = 0.0
 
     def as_dict(self) -> dict[str, object]:
         return {"chosen": self.chosen, "blocks": self.blocks,
@@ -91,7 +93,7 @@ class Verdict:
                            for k, vs in self.mae.items()},
                 "worst_ratio": {k: v if math.isfinite(v) else None
                                 for k, v in self.worst.items()},
-                "reasons": self.reasons}
+                "reasons": self.reasons, "floor_um": self.floor}
 
 
 def refit(y: FloatArray, seg: Segments, radius: float, usable: BoolArray | None,
@@ -181,6 +183,14 @@ def judge(y: FloatArray, seg: Segments, radius: float, usable: BoolArray | None,
             mae[TEXTBOOK].append(_mae(y, refit(y, seg, radius, usable, textbook, train),
                                       b.rows))
         mae[NONE].append(_mae(y, start, b.rows))
+    return decide(mae, [b.name for b in blocks], floor, forced)
+
+
+def decide(mae: dict[str, list[float]], blocks: list[str], floor: float, forced: bool = False,
+           tie: float = TIE, worse_ratio: float = WORSE_RATIO) -> Verdict:
+    """The verdict from each candidate's MAE per block (module docstring);
+    `floor`: the least yardstick of a block, µm."""
+    names = list(mae)
     worst: dict[str, float] = {}
     for n in names:
         ratios = []
@@ -189,20 +199,20 @@ def judge(y: FloatArray, seg: Segments, radius: float, usable: BoolArray | None,
             ref = max(best, floor, 1e-12)
             ratios.append(mae[n][k] / ref if math.isfinite(mae[n][k]) else math.inf)
         worst[n] = max(ratios)
-    verdict = Verdict(COMPD, [b.name for b in blocks], mae, worst)
+    verdict = Verdict(COMPD, list(blocks), mae, worst, floor=floor)
     lead = min(worst.values())
-    order = [COMPD] if forced else [n for n in names if worst[n] <= lead * TIE]
+    order = [COMPD] if forced else [n for n in names if worst[n] <= lead * tie]
     pick = order[0]
     if pick != COMPD:
         verdict.reasons.append(
             f"{pick} has the smallest worst ratio to the best on each block "
             f"({worst[pick]:.2f}, compd's choice {worst[COMPD]:.2f})")
-    for cand in ([pick, TEXTBOOK] if pick == COMPD and not forced and textbook is not None
+    for cand in ([pick, TEXTBOOK] if pick == COMPD and not forced and TEXTBOOK in mae
                  else [pick]):
         if cand == NONE:
             pick = NONE
             break
-        bad = _worse_than_none(mae[cand], mae[NONE], floor, verdict.blocks)
+        bad = _worse_than_none(mae[cand], mae[NONE], floor, verdict.blocks, worse_ratio)
         if bad is None:
             pick = cand
             break
@@ -213,11 +223,11 @@ def judge(y: FloatArray, seg: Segments, radius: float, usable: BoolArray | None,
 
 
 def _worse_than_none(mine: list[float], none: list[float], floor: float,
-                     names: list[str]) -> str | None:
+                     names: list[str], worse_ratio: float = WORSE_RATIO) -> str | None:
     """The first block where `mine` exceeds no compensation by `WORSE_RATIO`
     (and by more than the floor), said with both figures; None when there is none."""
     for m, n, name in zip(mine, none, names, strict=True):
-        if not math.isfinite(m) or (m > WORSE_RATIO * n and m - n > floor):
+        if not math.isfinite(m) or (m > worse_ratio * n and m - n > floor):
             fig = f"MAE {m:.3g} µm" if math.isfinite(m) else "no stable estimate"
             return f"the inner block {name} ({fig} against {n:.3g} µm uncompensated)"
     return None

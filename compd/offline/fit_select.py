@@ -135,9 +135,7 @@ def select_for_fit(args: argparse.Namespace, y: FloatArray, us: list[FloatArray]
     if pool is None:  # the textbook's pair among the single sensors given, by channel
         pool = {next(iter(inputs)): u for (_, inputs), u, r in zip(specs, us, rel, strict=True)
                 if r and list(inputs.values()) == [1.0]}
-    terms, summary = hedge_choice(args, y, seg, radius, sel, specs, us, rel, pool, terms,
-                                  summary, check)
-    return judged(args, y, seg, radius, terms, summary)
+    return hedge_choice(args, y, seg, radius, sel, specs, us, rel, pool, terms, summary, check)
 
 
 def judged(args: argparse.Namespace, y: FloatArray, seg: Segments, radius: float,
@@ -153,9 +151,10 @@ def judged(args: argparse.Namespace, y: FloatArray, seg: Segments, radius: float
     plan = summary.pop("_judge", None)
     if plan is None:
         return terms, summary
-    # compd's choice before the verdict, for a caller that measures what the
-    # verdict changed (benchmarks/bench_real_record.py)
+    # compd's choice before the verdict and the textbook, for a caller that
+    # measures what the verdict changed (benchmarks/bench_real_record.py)
     args.unjudged_terms = terms
+    args.judged_textbook_terms = plan["textbook"]["terms"] if plan["textbook"] else None
     usable = usable_rows(args)
     speed, time_s = getattr(args, "judge_rows", (None, None))
     blocks = inner_blocks(seg, usable, speed, time_s)
@@ -166,6 +165,7 @@ def judged(args: argparse.Namespace, y: FloatArray, seg: Segments, radius: float
     if verdict is None:
         return terms, summary
     summary["judge"] = verdict.as_dict()
+    args.judge_verdict = summary["judge"]
     if verdict.chosen != TEXTBOOK or tb is None:
         return terms, summary
     blocks_r = tb["residuals"]
