@@ -186,8 +186,8 @@ def refused(summary: dict[str, Any]) -> str | None:
     v = summary.get("judge")
     if not v or v["chosen"] != NONE:
         return None
-    return ("neither compd's choice nor the textbook ARX(2,3) is safe on the calibration's "
-            "inner held-out blocks: " + "; ".join(v["reasons"]))
+    return ("no model is safer than no compensation on the calibration's inner held-out "
+            "blocks: " + "; ".join(v["reasons"]))
 
 
 def selection_lines(summary: dict[str, Any]) -> list[str]:

@@ -15,7 +15,7 @@ import pytest
 
 from compd.cli import main
 from compd.offline import fit_judge
-from compd.offline.fit_blocks import inner_blocks
+from compd.offline.fit_blocks import InnerBlock, inner_blocks
 from compd.offline.fit_judge import COMPD, NONE, TEXTBOOK, Member, judge
 from compd.sysexits import EX_DATAERR
 from models.identify.output_error import OeModel
@@ -47,8 +47,8 @@ def _record(path: Path, spoilt_stretch: int | None) -> None:
 
 
 def test_blocks_of_every_kind_are_cut_from_the_speed() -> None:
-    speed = np.repeat(SPEEDS, STRETCH)
-    time_s = 60.0 * np.arange(speed.size)
+    speed = np.asarray(np.repeat(SPEEDS, STRETCH), dtype=np.float64)
+    time_s = 60.0 * np.arange(speed.size, dtype=np.float64)
     blocks = inner_blocks(Segments.single(speed.size), None, speed, time_s)
     assert [(b.kind, b.name) for b in blocks] == [
         ("cycle", "cycle 8.0-16.0 h (2000 rpm)"), ("cycle", "cycle 16.0-24.0 h (3000 rpm)"),
@@ -77,7 +77,7 @@ def test_a_model_worse_than_none_on_an_inner_cool_down_is_not_written(
     assert main(argv) == EX_DATAERR
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err
-    assert "inner held-out blocks" in err and "nothing written" in err
+    assert "no model is safer than no compensation" in err and "nothing written" in err
     assert "worse than no compensation on the inner block cool-down 12.0-16.0 h" in err
     assert not out.exists()
     # --force writes compd's choice, and says the verdict
@@ -112,7 +112,7 @@ def _verdict(monkeypatch: pytest.MonkeyPatch, compd_err: list[float],
     for k in range(3):
         r = np.zeros(n, dtype=bool)
         r[10 * (k + 1):10 * (k + 2)] = True
-        rows.append(fit_judge.InnerBlock(f"block {k}", "interior", r))
+        rows.append(InnerBlock(f"block {k}", "interior", r))
 
     def refit(y_: object, seg: object, radius: object, usable: object, member: Member,
               train: np.ndarray) -> np.ndarray:
