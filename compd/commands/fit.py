@@ -30,6 +30,12 @@ gain absurd for the data is refused (`models.identify.checks`).
   speed and power channels enter absolute, temperatures relative.
 - ``--kind greybox --term power_kw [--switch moving]`` and
   ``--kind mbotv --term bearing-column``: bounded least squares (one term).
+- the last word (`compd.offline.fit_judge`): compd's choice, the textbook
+  ARX(2,3) and no model judged on inner held-out blocks of the calibration
+  rows cut by the spindle speed (interior cycles, cool-downs, the end:
+  `compd.offline.fit_blocks`); a choice worse than no compensation on one
+  of them gives way to the textbook, and nothing is written when the
+  textbook is worse too (exit 65, unless ``--force``).
 - fallbacks: for each input, a model on the others fitted the same way
   (`compd.commands.fit_fallback`), written as the model file's
   ``[[fallback]]`` tables; ``--no-fallbacks`` writes none.
