@@ -383,8 +383,8 @@ def print_table(cells: list[Cell], blocks: list[str], channels: list[str]) -> No
 #: `compd.offline.fit_judge.decide`; inf tie: compd's choice unless unsafe
 #: and the inner blocks it is judged on: every kind, or all but the end
 RULES: tuple[tuple[float, float, bool], ...] = (
-    (1.05, 1.1, True), (1.5, 1.1, True), (math.inf, 1.1, True), (math.inf, 1.5, True),
-    (math.inf, 2.0, True), (1.05, 1.1, False), (math.inf, 1.1, False), (1.5, 1.5, False))
+    (math.inf, 1.5, True), (1.05, 1.1, True), (2.0, 1.5, True), (math.inf, 1.1, True),
+    (math.inf, 1.25, True), (math.inf, 2.0, True), (math.inf, 1.5, False))
 
 
 def variants(cells: list[Cell], channels: list[str]) -> None:
@@ -438,6 +438,8 @@ def main() -> None:
     parser.add_argument("--textbook-share", type=float, default=None, metavar="W",
                         help="the textbook ARX's share of compd's model "
                              "(compd.offline.fit_hedge.TEXTBOOK_SHARE; default: its own)")
+    parser.add_argument("--save", default="", metavar="JSON",
+                        help="write each cell's figures and fit's verdict to this file")
     parser.add_argument("--fit-args", default="", metavar="ARGS",
                         help="more compd fit arguments, e.g. '--orders 1-4' (another default "
                              "judged on the whole table)")
@@ -464,6 +466,12 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         cells = run(RECORD, d, blocks, channels, Path(tmp))
     print_table(cells, [b[0] for b in blocks], channels)
+    if args.save:  # each cell's figures and fit's verdict, to judge other settings later
+        Path(args.save).write_text(json.dumps([
+            {"block": c.block, "channel": c.channel, "compd": c.compd, "base": c.base,
+             "none_mae": c.none_mae, "before": c.before, "fit_tb": c.fit_tb,
+             "written": c.choice.verdict, "what": c.choice.what, "judge": c.choice.judge}
+            for c in cells], indent=1))
 
 
 def shop(seeds: list[int]) -> None:

@@ -8,6 +8,7 @@ nothing is written when that is worse too (`compd.offline.fit_judge`)."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -102,7 +103,8 @@ def test_a_good_model_is_written_and_says_the_blocks_that_judged_it(
 
 
 def _verdict(monkeypatch: pytest.MonkeyPatch, compd_err: list[float],
-             textbook_err: list[float], forced: bool = False) -> fit_judge.Verdict:
+             textbook_err: list[float], forced: bool = False, tie: float = 1.05,
+             worse_ratio: float = 1.1) -> fit_judge.Verdict:
     """The verdict on three blocks of 10 rows whose displacement is 1 µm (no
     compensation's error 1 µm), each candidate's prediction off by its error."""
     n = 40
@@ -121,6 +123,8 @@ def _verdict(monkeypatch: pytest.MonkeyPatch, compd_err: list[float],
         return y - err
 
     monkeypatch.setattr(fit_judge, "refit", refit)
+    monkeypatch.setattr(fit_judge, "TIE", tie)
+    monkeypatch.setattr(fit_judge, "WORSE_RATIO", worse_ratio)
     model = OeModel(nums=((1.0,),), dens=((1.0,),), groups=((0,),))
     verdict = judge(y, Segments.single(n), 1.0, None, rows,
                     [(Member("arx", (np.zeros(n),), model), 1.0)],
@@ -140,7 +144,12 @@ def test_the_verdict_falls_back_to_the_textbook_then_to_nothing(
     # both worse than none somewhere: nothing
     v = _verdict(monkeypatch, [0.2, 0.2, 1.2], [0.9, 1.3, 0.9])
     assert v.chosen == NONE and len(v.reasons) == 2
-    # never much worse beats best on one block: the smaller worst ratio wins
+    # the default: compd's choice unless a candidate is 1.5x no compensation
+    v = _verdict(monkeypatch, [0.25, 0.9, 0.3], [0.3, 0.3, 0.3], tie=math.inf, worse_ratio=1.5)
+    assert v.chosen == COMPD and v.reasons == []
+    v = _verdict(monkeypatch, [0.2, 0.2, 1.6], [0.9, 0.9, 0.9], tie=math.inf, worse_ratio=1.5)
+    assert v.chosen == TEXTBOOK
+    # with a tie set, never much worse beats best on one block: the smaller worst ratio wins
     v = _verdict(monkeypatch, [0.25, 0.9, 0.3], [0.3, 0.3, 0.3])
     assert v.chosen == TEXTBOOK and v.worst[COMPD] == pytest.approx(3.0)
     # close worst ratios: compd's choice
