@@ -32,6 +32,13 @@ scored only on the held-out rows. Per block and channel, in one run:
   on the four fifths before), then refitted on every calibration row and
   run from rest.
 
+compd's model is what `compd fit` writes without ``--force``: a model its
+last word refuses (`compd.offline.fit_judge`, inner held-out blocks of the
+calibration rows) counts as no compensation, and compd's choice before that
+word is scored beside it, with each setting of the word (`RULES`) computed
+from the inner blocks' table fit reports, all in the same run (``--save``
+keeps every cell).
+
 Printed: MAE and RMS (µm) of each on the held-out rows, the ratio of compd's
 MAE to the baseline's, and per channel the geometric mean and the worst of
 that ratio over every block (the goals: worst ≤ 1, geometric mean ≤ 0.7),
