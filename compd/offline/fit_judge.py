@@ -19,13 +19,14 @@ Each is run from the record's start, as the daemon runs it, and scored
 (mean absolute error) only on the block's rows. On each block the best of the
 three sets the yardstick (at least `FLOOR_SHARE` of the displacement's span,
 so that a flat block does not decide everything); a candidate's figure is its
-*worst* ratio to that over the blocks, and the smallest worst wins ("never
-much worse" beats "best on one block"); within `TIE` of it the first of
-compd's choice, the textbook, no model. Then the one safety rule: a model
-whose error exceeds no compensation's by `WORSE_RATIO` on any block is not
-written; the textbook takes its place, and when the textbook does too,
-nothing is written. A structure forced with ``--structure`` is not replaced
-by the textbook: it is written or refused.
+*worst* ratio to that over the blocks. With a finite `TIE` the smallest worst
+wins ("never much worse" beats "best on one block"; within `TIE` of it the
+first of compd's choice, the textbook, no model); by default (`TIE` infinite,
+see there) compd's choice stands. Then the one safety rule: a model whose
+error exceeds no compensation's by `WORSE_RATIO` (and by more than the floor)
+on any block is not written; the textbook takes its place, and when the
+textbook does too, nothing is written. A structure forced with
+``--structure`` is not replaced by the textbook: it is written or refused.
 """
 
 from __future__ import annotations
