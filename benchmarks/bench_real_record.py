@@ -32,6 +32,13 @@ scored only on the held-out rows. Per block and channel, in one run:
   on the four fifths before), then refitted on every calibration row and
   run from rest.
 
+compd's model is what `compd fit` writes without ``--force``: a model its
+last word refuses (`compd.offline.fit_judge`, inner held-out blocks of the
+calibration rows) counts as no compensation, and compd's choice before that
+word is scored beside it, with each setting of the word (`RULES`) computed
+from the inner blocks' table fit reports, all in the same run (``--save``
+keeps every cell).
+
 Printed: MAE and RMS (µm) of each on the held-out rows, the ratio of compd's
 MAE to the baseline's, and per channel the geometric mean and the worst of
 that ratio over every block (the goals: worst ≤ 1, geometric mean ≤ 0.7),
@@ -50,12 +57,14 @@ from __future__ import annotations
 import contextlib
 import io
 import itertools
+import json
 import math
 import os
 import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -113,6 +122,31 @@ class Choice:
     what: str
     seconds: float
     stability: float
+    #: compd's choice before the verdict of the inner held-out blocks
+    #: (`compd.offline.fit_judge`), run from rest; `sim` when it wrote that
+    before: FloatArray | None = None
+    #: what the verdict wrote: compd's choice, the textbook, or no model
+    verdict: str = ""
+    #: the fit's own textbook ARX(2,3) from rest (None: none it could write)
+    fit_textbook: FloatArray | None = None
+    #: the verdict as fit said it (`compd.offline.fit_judge.Verdict.as_dict`)
+    judge: dict[str, Any] | None = None
+
+
+def _unjudged(args: object, n: int, key: str = "unjudged_terms") -> FloatArray | None:
+    """The sum of compd's choice's terms before the verdict (`key`: or the
+    fit's textbook's), from rest."""
+    from models.identify.segments import Segments
+    from models.identify.validate import forced_response
+
+    terms = getattr(args, key, None)
+    if not terms:
+        return None
+    seg = Segments.single(n)
+    total = np.zeros(n)
+    for t in terms:
+        total += forced_response([t.num], [t.den], [(0,)], [t.u], seg)
+    return total
 
 
 def compd_choice(record: Path, out: str, held: BoolArray, model: Path) -> Choice:
@@ -124,29 +158,49 @@ def compd_choice(record: Path, out: str, held: BoolArray, model: Path) -> Choice
     from compd.errors import CompdError
     from compd.infiles import load_model
     from compd.offline.fit import fit_model, save_model
+    from compd.offline.fit_request import FitRun
     from compd.offline.model_replay import replay_model
     from compd.offline.records import read_record
     from models.errors import ModelError
 
+    # no --force: a model fit refuses is not written, and the daemon then
+    # compensates nothing (scored as no compensation)
     argv = ["fit", str(record), "--column", out, "--candidates", "t*_degC", "--candidates",
-            "spindle_rpm", "--max-terms", "3", "-o", str(model), "--force", "--json", *FIT_ARGS]
+            "spindle_rpm", "--max-terms", "3", "-o", str(model), "--json", "--no-fallbacks",
+            *FIT_ARGS]
+    model.unlink(missing_ok=True)
     request = dataclasses.replace(fit_request(build_parser().parse_args(argv)),
                                   exclude_rows=held)
+    run = FitRun.of(request)
     err = io.StringIO()
     t0 = time.perf_counter()
+    failed: str | None = None
     try:
         with contextlib.redirect_stderr(err):
-            fit = fit_model(request)
+            fit = fit_model(request, run)
     except (CompdError, ModelError) as exc:
-        return Choice(np.full(held.size, math.nan), f"fit failed: {exc}",
-                      time.perf_counter() - t0, math.nan)
+        failed = str(exc)
     took = time.perf_counter() - t0
+    rows = read_record(str(record))
+    before = _unjudged(run, held.size)
+    extra = {"fit_textbook": _unjudged(run, held.size, "judged_textbook_terms"),
+             "judge": run.judge_verdict}
+    if failed is not None:
+        if "nothing written" in failed or "not written" in failed:
+            none = np.full(held.size, rows.column(out)[0])
+            return Choice(none, f"no model: {failed}", took, math.nan, before, "no model",
+                          **extra)
+        return Choice(np.full(held.size, math.nan), f"fit failed: {failed}", took, math.nan,
+                      before, **extra)
     save_model(fit.model, model, record.name)
     sel = fit.info[0]["selection"]
-    what = f"{' + '.join(t['name'] for t in fit.info)} ({sel['structure']})"
+    what = f"{' + '.join(fit.search_chosen or [t['name'] for t in fit.info])} " \
+        f"({sel['structure']})"
     stab = sel.get("stability", {}).get("share", math.nan)
-    sim = replay_model(load_model(str(model)), read_record(str(record)))
-    return Choice(np.asarray(sim, dtype=np.float64), what, took, float(stab))
+    verdict = sel.get("judge", {}).get("chosen", "")
+    sim = replay_model(load_model(str(model)), rows)
+    return Choice(np.asarray(sim, dtype=np.float64), what, took, float(stab), before, verdict,
+                  **extra)
 
 
 # --- the textbook baseline, plain numpy --------------------------------------------
@@ -226,10 +280,18 @@ class Cell:
     pair: str
     #: MAE of each of MIXES
     mixed: tuple[float, ...] = ()
+    #: MAE and RMS of compd's choice before the inner blocks' verdict
+    before: tuple[float, float] = (math.nan, math.nan)
+    #: MAE of the fit's own textbook (nan: none it could write)
+    fit_tb: float = math.nan
 
     @property
     def ratio(self) -> float:
         return self.compd[0] / self.base[0]
+
+    @property
+    def ratio_before(self) -> float:
+        return self.before[0] / self.base[0]
 
 
 def run(record: Path, d: dict[str, FloatArray], blocks: list[tuple[str, str, float, float]],
@@ -244,12 +306,18 @@ def run(record: Path, d: dict[str, FloatArray], blocks: list[tuple[str, str, flo
             base, pair = textbook(d, out, held)
             mixed = tuple(figures(y[held], ((1 - w) * choice.sim + w * base)[held])[0]
                           for w in MIXES)
-            cell = Cell(name, out, figures(y[held], choice.sim[held]),
+            after = figures(y[held], choice.sim[held])
+            before = after if choice.before is None else figures(y[held], choice.before[held])
+            fit_tb = math.nan if choice.fit_textbook is None else \
+                figures(y[held], choice.fit_textbook[held])[0]
+            cell = Cell(name, out, after,
                         figures(y[held], base[held]), float(np.mean(np.abs(y[held] - y[0]))),
-                        choice, pair, mixed)
+                        choice, pair, mixed, before, fit_tb)
             cells.append(cell)
             print(f"{name} {out}: compd {choice.what}, stability {choice.stability:.2f}, "
-                  f"{choice.seconds:.1f} s: MAE {cell.compd[0]:.2f} µm; textbook {pair}: "
+                  f"{choice.seconds:.1f} s: MAE {cell.compd[0]:.2f} µm (written: "
+                  f"{choice.verdict or '?'}; compd's choice before the verdict "
+                  f"{cell.before[0]:.2f}); textbook {pair}: "
                   f"{cell.base[0]:.2f} µm (ratio {cell.ratio:.2f}); no compensation "
                   f"{cell.none_mae:.2f} µm", flush=True)
     return cells
@@ -290,6 +358,22 @@ def print_table(cells: list[Cell], blocks: list[str], channels: list[str]) -> No
               f"{sum(x <= 1.0 for x in r)} of {len(r)} | "
               f"{(float(np.mean(stab)) if stab else math.nan):.2f} | "
               f"{float(np.mean([c.choice.seconds for c in mine])):.1f} |")
+    print("\nbefore / after the verdict of the inner held-out blocks (compd.offline."
+          "fit_judge): ratio of MAE to the textbook's, and cells worse than no compensation")
+    print("| channel | geometric mean before | after | worst before | after | "
+          "worse than none before | after | written: choice / textbook / none |")
+    print("|---|---|---|---|---|---|---|---|")
+    for ch, s in zip(channels, short, strict=True):
+        mine = [c for c in cells if c.channel == ch]
+        rb, ra = [c.ratio_before for c in mine], [c.ratio for c in mine]
+        wb = sum(c.before[0] > c.none_mae for c in mine)
+        wa = sum(c.compd[0] > c.none_mae for c in mine)
+        kinds = [sum(c.choice.verdict == v for c in mine)
+                 for v in ("compd's choice", "textbook", "no model")]
+        print(f"| {s} | {geo(rb):.2f} | {geo(ra):.2f} | {worst(rb):.2f} | {worst(ra):.2f} | "
+              f"{wb} of {len(mine)} | {wa} of {len(mine)} | "
+              f"{' / '.join(str(k) for k in kinds)} |")
+    variants(cells, channels)
     print("\nmixed with the textbook, (1 - w) · compd + w · textbook: ratio of MAE to the "
           "textbook's, geometric mean / worst")
     print("| channel | " + " | ".join(f"w = {w:g}" for w in MIXES) + " |")
@@ -305,7 +389,57 @@ def print_table(cells: list[Cell], blocks: list[str], channels: list[str]) -> No
     print(f"{sum(not math.isfinite(x) for x in every)} blocks without a stable textbook "
           "model (left out of the ratios)")
     print(f"all: geometric mean {geo(every):.3f}, worst {worst(every):.2f}, "
-          f"{sum(x <= 1.0 for x in every)} of {len(every)} at or below the textbook")
+          f"{sum(x <= 1.0 for x in every)} of {len(every)} at or below the textbook, "
+          f"{sum(c.compd[0] > c.none_mae for c in cells)} worse than no compensation")
+    prior = [c.ratio_before for c in cells]
+    print(f"before the verdict: geometric mean {geo(prior):.3f}, worst {worst(prior):.2f}, "
+          f"{sum(x <= 1.0 for x in prior)} of {len(prior)} at or below the textbook, "
+          f"{sum(c.before[0] > c.none_mae for c in cells)} worse than no compensation")
+
+
+#: the verdict's settings judged on the whole table: (tie, worse ratio) of
+#: `compd.offline.fit_judge.decide`; inf tie: compd's choice unless unsafe
+#: and the inner blocks it is judged on: every kind, or all but the end
+RULES: tuple[tuple[float, float, bool], ...] = (
+    (math.inf, 1.5, True), (1.05, 1.1, True), (2.0, 1.5, True), (math.inf, 1.1, True),
+    (math.inf, 1.25, True), (math.inf, 2.0, True), (math.inf, 1.5, False))
+
+
+def variants(cells: list[Cell], channels: list[str]) -> None:
+    """The verdict again with other settings, from the MAE per inner block
+    that fit said: what would have been written (compd's choice before the
+    verdict, the fit's own textbook, or nothing) scored on the held-out rows."""
+    from compd.offline.fit_judge import COMPD, TEXTBOOK, decide
+
+    print("\nthe verdict's settings (tie, worse-than-none ratio): ratio of MAE to the "
+          "textbook's, geometric mean / worst, and cells worse than no compensation")
+    print("| channel | " + " | ".join(f"{t:g}, {w:g}{'' if e else ', no end'}"
+                                      for t, w, e in RULES) + " |")
+    print("|---|" + "---|" * len(RULES))
+    for ch in [*channels, "all"]:
+        mine = [c for c in cells if ch in ("all", c.channel)]
+        out = []
+        for tie, worse_r, with_end in RULES:
+            r: list[float] = []
+            bad = 0
+            for c in mine:
+                j = c.choice.judge
+                mae = c.before[0]
+                if j is not None:
+                    keep = [i for i, b in enumerate(j["blocks"])
+                            if with_end or not b.startswith("end")]
+                    table = {k: [math.nan if vs[i] is None else vs[i] for i in keep]
+                             for k, vs in j["mae_um"].items()}
+                    pick = decide(table, [j["blocks"][i] for i in keep], j["floor_um"],
+                                  tie=tie, worse_ratio=worse_r).chosen if keep else COMPD
+                    if pick == TEXTBOOK and math.isfinite(c.fit_tb):
+                        mae = c.fit_tb
+                    elif pick not in (COMPD, TEXTBOOK):
+                        mae = c.none_mae
+                r.append(mae / c.base[0])
+                bad += mae > c.none_mae
+            out.append(f"{geo(r):.2f} / {worst(r):.2f} / {bad}")
+        print(f"| {ch.removesuffix('_um')} | " + " | ".join(out) + " |")
 
 
 def main() -> None:
@@ -322,6 +456,8 @@ def main() -> None:
     parser.add_argument("--textbook-share", type=float, default=None, metavar="W",
                         help="the textbook ARX's share of compd's model "
                              "(compd.offline.fit_hedge.TEXTBOOK_SHARE; default: its own)")
+    parser.add_argument("--save", default="", metavar="JSON",
+                        help="write each cell's figures and fit's verdict to this file")
     parser.add_argument("--fit-args", default="", metavar="ARGS",
                         help="more compd fit arguments, e.g. '--orders 1-4' (another default "
                              "judged on the whole table)")
@@ -348,6 +484,12 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         cells = run(RECORD, d, blocks, channels, Path(tmp))
     print_table(cells, [b[0] for b in blocks], channels)
+    if args.save:  # each cell's figures and fit's verdict, to judge other settings later
+        Path(args.save).write_text(json.dumps([
+            {"block": c.block, "channel": c.channel, "compd": c.compd, "base": c.base,
+             "none_mae": c.none_mae, "before": c.before, "fit_tb": c.fit_tb,
+             "written": c.choice.verdict, "what": c.choice.what, "judge": c.choice.judge}
+            for c in cells], indent=1))
 
 
 def shop(seeds: list[int]) -> None:

@@ -30,6 +30,12 @@ gain absurd for the data is refused (`models.identify.checks`).
   speed and power channels enter absolute, temperatures relative.
 - ``--kind greybox --term power_kw [--switch moving]`` and
   ``--kind mbotv --term bearing-column``: bounded least squares (one term).
+- the last word (`compd.offline.fit_judge`): compd's choice, the textbook
+  ARX(2,3) and no model judged on inner held-out blocks of the calibration
+  rows cut by the spindle speed (interior cycles, cool-downs, the end:
+  `compd.offline.fit_blocks`); a choice worse than no compensation on one
+  of them gives way to the textbook, and nothing is written when the
+  textbook is worse too (exit 65, unless ``--force``).
 - fallbacks: for each input, a model on the others fitted the same way
   (`compd.commands.fit_fallback`), written as the model file's
   ``[[fallback]]`` tables; ``--no-fallbacks`` writes none.
@@ -299,10 +305,12 @@ def run(args: argparse.Namespace) -> int:
         print("\n".join(table_lines(fit.search_table, fit.search_chosen)))
     if info and info[0]["kind"] == "tf" and "candidates" in info[0]["selection"]:
         from compd.offline.fit_hedge import stability_lines
+        from compd.offline.fit_judge import verdict_lines
         from compd.offline.fit_select import selection_lines
 
         print("\n".join(selection_lines(info[0]["selection"])
-                        + stability_lines(info[0]["selection"])))
+                        + stability_lines(info[0]["selection"])
+                        + verdict_lines(info[0]["selection"])))
     elif info and info[0]["kind"] == "tf":
         head = info[0]
         print(f"  ARX fit {head['arx_fit_percent']:.2f} %, output-error fit "

@@ -250,13 +250,15 @@ class FitResult:
     heldout_residuals: Any
 
 
-def fit_model(request: FitRequest) -> FitResult:
+def fit_model(request: FitRequest, run: FitRun | None = None) -> FitResult:
     """The model `request` asks for, identified from its records (warnings on
-    stderr); ModelError, RecordError or InputError when it cannot be."""
+    stderr); ModelError, RecordError or InputError when it cannot be. `run`: the
+    working state to fill (`FitRun.of(request)`), for a caller that reads what the
+    selection and the last word saw, also when the fit is refused."""
     from compd.offline.records import speed_warnings
     from models.compensation import CompensationModel
 
-    run = FitRun.of(request)
+    run = run if run is not None else FitRun.of(request)
     specs = term_specs(request)
     data = list(request.data)
     channels = {ch for _, inputs in specs for ch in inputs}

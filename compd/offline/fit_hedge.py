@@ -104,9 +104,16 @@ def hedge_choice(args: FitRun, y: FloatArray, seg: Segments, radius: float,
         chosen = next((c for c in sel.candidates if c.structure == args.request.structure), chosen)
     cands = [c for c in sel.candidates if c.heldout_residuals and (
         c is chosen or (not c.rejected and math.isfinite(c.validation_fit_pct)))]
+    from compd.offline.fit_judge import Member
+
+    sel_member = [Member(c.structure, tuple(us), c.model, sel.initial, c.detail) for c in cands]
     if chosen not in cands:
+        summary["_judge"] = {"choice": [(Member(chosen.structure, tuple(us), chosen.model,
+                                                sel.initial, chosen.detail), 1.0)],
+                             "textbook": None}
         return terms, summary
     left_out: list[str] = []
+    judge_tb: dict[str, Any] | None = None
 
     def refused(label: str, member: list[FitTerm]) -> str:
         """Why `check` refuses a candidate ("" when it may be a member)."""
@@ -138,6 +145,8 @@ def hedge_choice(args: FitRun, y: FloatArray, seg: Segments, radius: float,
             if refused(_label(c, alt_names), member):
                 continue
             labels.append(_label(c, alt_names))
+            sel_member.append(Member(c.structure, tuple(alt_us), c.model, alt.initial,
+                                     c.detail))
             errors.append(block_errors(c.heldout_residuals))
             residuals.append(c.heldout_residuals)
             members.append(member)
@@ -155,6 +164,10 @@ def hedge_choice(args: FitRun, y: FloatArray, seg: Segments, radius: float,
             label = f"textbook ARX(2,3) on {' + '.join(pair)}"
             why = refused(label, member)
             if not why:
+                tb_member = Member("textbook", tuple(pool[n] for n in pair), tb.model)
+                judge_tb = {"member": tb_member, "terms": member, "label": label,
+                            "residuals": tb.residuals}
+                sel_member.append(tb_member)
                 members.append(member)
                 labels.append(label)
                 errors.append(block_errors(tb.residuals))
@@ -168,6 +181,19 @@ def hedge_choice(args: FitRun, y: FloatArray, seg: Segments, radius: float,
                 "parameters": tb.model.n_params,
                 "detail": f"ARX(2,3) on {' + '.join(pair)}, no level, from rest",
                 **({"rejected": why} if why else {})})
+        else:  # no textbook on the folds (one unstable): still one for the verdict
+            from compd.offline.fit_judge import lone_textbook
+
+            lone = lone_textbook(d, [pool[n] for n in pool_names])
+            if lone is not None:
+                pair = [pool_names[i] for i in lone[0]]
+                member = [FitTerm(n, {n: 1.0}, pool[n], num, den, True) for n, num, den
+                          in zip(pair, lone[1].nums, lone[1].term_dens(), strict=True)]
+                label = f"textbook ARX(2,3) on {' + '.join(pair)}"
+                if not refused(label, member):
+                    judge_tb = {"member": Member("textbook", tuple(pool[n] for n in pair),
+                                                 lone[1]),
+                                "terms": member, "label": label, "residuals": ()}
     st = stability(errors)
     at = cands.index(chosen)
     weights = hedge(st.shares, at) if args.request.structure == "auto" else [(at, 1.0)]
@@ -190,6 +216,7 @@ def hedge_choice(args: FitRun, y: FloatArray, seg: Segments, radius: float,
         info["reasons"].append("inputs searched: the textbook takes "
                                f"{TEXTBOOK_SHARE * 100:.0f} %")
     summary["stability"] = info
+    summary["_judge"] = {"choice": [(sel_member[at], 1.0)], "textbook": judge_tb}
     if not info["hedge"]:
         return terms, summary
     out = _merge([FitTerm(t.name, t.inputs, t.u, tuple(w * v for v in t.num), t.den,
@@ -206,7 +233,21 @@ def hedge_choice(args: FitRun, y: FloatArray, seg: Segments, radius: float,
     summary["heldout_rms_um"] = math.sqrt(sum(float(np.sum(r ** 2)) for r in blocks) / count)
     summary["structure"] = "average of " + ", ".join(
         f"{labels[i]} ×{w:.2f}" for i, w in weights)
+    summary["orders"] = term_orders(out)
+    summary["_judge"]["choice"] = [(sel_member[i], w) for i, w in weights]
     return out, summary
+
+
+def term_orders(terms: list[FitTerm]) -> dict[str, Any]:
+    """The orders of a model of `terms`, as the summary says them: one number
+    each when every term shares it, else the range ("1-2"): an average's
+    members keep their own orders."""
+    def said(values: list[int]) -> int | str:
+        lo, hi = min(values), max(values)
+        return lo if lo == hi else f"{lo}-{hi}"
+
+    return {"denominator_order": said([len(t.den) - 1 for t in terms]),
+            "numerator_length": said([len(t.num) for t in terms])}
 
 
 def stability_lines(summary: dict[str, Any]) -> list[str]:

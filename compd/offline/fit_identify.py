@@ -78,9 +78,11 @@ def _fit_tf(run: FitRun, records: list[Record], ys: list[Any],
         fitted = [FitTerm(n, inputs, u, tuple(num), tuple(den), rl) for (n, inputs), u, num,
                   den, rl in zip(specs, us, fit.oe.nums, fit.oe.dens, rel, strict=True)]
     else:
+        from compd.offline.fit_blocks import judge_rows
         from compd.offline.fit_checks import CheckVeto, fallback_line
         from compd.offline.fit_select import select_for_fit, worse_than_none
 
+        run.judge_rows = judge_rows(records)  # the inner blocks are cut from the speed
         veto = CheckVeto(specs, rel, [float(np.ptp(u)) for u in us], y_span, period)
         pool = run.search_pool
         try:
@@ -99,6 +101,21 @@ def _fit_tf(run: FitRun, records: list[Record], ys: list[Any],
             line = fallback_line(summary, veto)
             if line is not None:
                 print(line, file=sys.stderr)
+        from compd.offline.fit_judge import fallback_line as judge_line
+        from compd.offline.fit_select import judged, refused
+
+        if holdout is None:  # the last word: inner held-out blocks of the calibration rows
+            fitted, summary = judged(run, y, seg, radius, fitted, summary)
+        said = judge_line(summary)
+        if said is not None:
+            print(said, file=sys.stderr)
+        unsafe = refused(summary)
+        if unsafe is not None and not run.force:
+            raise ModelError(f"{unsafe}; nothing written (--force writes compd's choice "
+                             "anyway)")
+        if unsafe is not None:
+            print(f"compd fit: warning: {unsafe}; compd's choice written all the same "
+                  "(--force)", file=sys.stderr)
         # for the adaptation settings: how fast the error moves on rows not calibrated on
         run.heldout_residuals = summary.pop("_heldout_residuals")
         worse = worse_than_none(summary)

@@ -150,6 +150,13 @@ class FitRun:
     search_chosen: list[str] = field(default_factory=list)
     #: the chosen model's residuals on rows it was not calibrated on
     heldout_residuals: Any = ()
+    #: the speed and time columns the inner held-out blocks are cut from
+    #: (`compd.offline.fit_blocks.judge_rows`), and what the last word saw: the
+    #: terms before it, the textbook's terms, its verdict (`compd.offline.fit_judge`)
+    judge_rows: tuple[FloatArray | None, FloatArray] | None = None
+    unjudged_terms: Any = None
+    judged_textbook_terms: Any = None
+    judge_verdict: Any = None
 
     @classmethod
     def of(cls, request: FitRequest) -> FitRun:

@@ -140,6 +140,58 @@ def select_for_fit(args: FitRun, y: FloatArray, us: list[FloatArray],
     return hedge_choice(args, y, seg, radius, sel, specs, us, rel, pool, terms, summary, check)
 
 
+def judged(args: FitRun, y: FloatArray, seg: Segments, radius: float,
+           terms: list[FitTerm], summary: dict[str, Any]) -> tuple[list[FitTerm], dict[str, Any]]:
+    """(terms, summary) after the inner held-out blocks' verdict
+    (`compd.offline.fit_judge`): compd's choice, or the textbook in its place
+    (its forward-fold residue then the summary's), or compd's choice with the
+    summary's ``judge`` saying that nothing may be written (`refused`)."""
+    from compd.offline.fit_blocks import inner_blocks
+    from compd.offline.fit_hedge import term_orders
+    from compd.offline.fit_judge import TEXTBOOK, judge
+
+    plan = summary.pop("_judge", None)
+    if plan is None:
+        return terms, summary
+    # compd's choice before the verdict and the textbook, for a caller that
+    # measures what the verdict changed (benchmarks/bench_real_record.py)
+    args.unjudged_terms = terms
+    args.judged_textbook_terms = plan["textbook"]["terms"] if plan["textbook"] else None
+    usable = usable_rows(args)
+    speed, time_s = args.judge_rows or (None, None)
+    blocks = inner_blocks(seg, usable, speed, time_s)
+    tb = plan["textbook"]
+    verdict = judge(y, seg, radius, usable, blocks, plan["choice"],
+                    tb["member"] if tb is not None else None,
+                    forced=args.request.structure != "auto")
+    if verdict is None:
+        return terms, summary
+    summary["judge"] = verdict.as_dict()
+    args.judge_verdict = summary["judge"]
+    if verdict.chosen != TEXTBOOK or tb is None:
+        return terms, summary
+    blocks_r = tb["residuals"]
+    count = sum(r.size for r in blocks_r)
+    summary["_heldout_residuals"] = blocks_r
+    summary["heldout_rms_um"] = math.sqrt(sum(float(np.sum(r ** 2)) for r in blocks_r)
+                                          / count) if count else None
+    summary["structure"] = tb["label"]
+    summary["orders"] = term_orders(tb["terms"])
+    summary["initial_conditions"] = "rest"
+    return list(tb["terms"]), summary
+
+
+def refused(summary: dict[str, Any]) -> str | None:
+    """Why nothing may be written after the inner blocks' verdict, or None."""
+    from compd.offline.fit_judge import NONE
+
+    v = summary.get("judge")
+    if not v or v["chosen"] != NONE:
+        return None
+    return ("no model is safer than no compensation on the calibration's inner held-out "
+            "blocks: " + "; ".join(v["reasons"]))
+
+
 def selection_lines(summary: dict[str, Any]) -> list[str]:
     """The lines `compd fit` prints about the choice."""
     out = [f"  structure {summary['structure']} (validation {summary['validation_fit_percent']:.2f}"

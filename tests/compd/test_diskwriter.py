@@ -274,9 +274,8 @@ async def test_the_recorder_opens_on_its_disk_thread_while_the_loop_runs(
         raw=SimpleNamespace(recorder=SimpleNamespace(commit_every=2, retention_days=0)))
     log: list[tuple[Any, ...]] = []
     journal = SimpleNamespace(log=SimpleNamespace(error=lambda *a, **k: log.append(a)))
-    sink = RecorderSink(cast(Any, cfg), dry_run=False, metrics=cast(Any, None),
-                        clock=cast(Any, None), journal=cast(Any, journal))
-    opening = asyncio.create_task(sink.open())
+    sink = RecorderSink(dry_run=False, metrics=cast(Any, None), journal=cast(Any, journal))
+    opening = asyncio.create_task(sink.open(cast(Any, cfg)))
     await asyncio.sleep(0)  # the open has started
     loop_ran.set()
     await opening

@@ -27,6 +27,26 @@ def test_terms_on_one_input_and_denominator_merge_and_names_stay_unique() -> Non
     assert out[1].den == (1.0, -0.9)
 
 
+def test_an_average_says_the_orders_of_its_terms() -> None:
+    """After an average of a static and a second-order member, the fallback
+    line says the orders the written terms have, not the static stage's 0."""
+    from compd.offline.fit_checks import CheckVeto, fallback_line
+    from compd.offline.fit_hedge import term_orders
+
+    u = np.arange(5.0)
+    terms = [FitTerm("t1", {"t1": 1.0}, u, (0.2,), (1.0,), True),
+             FitTerm("t1.2", {"t1": 1.0}, u, (0.2, 0.1, 0.0), (1.0, -0.5, 0.1), True)]
+    assert term_orders(terms) == {"denominator_order": "0-2", "numerator_length": "1-3"}
+    assert term_orders(terms[1:]) == {"denominator_order": 2, "numerator_length": 3}
+    veto = CheckVeto([("t1", {"t1": 1.0})], [True], [1.0], 1.0, 60.0)
+    veto.vetoed.append("a negative real pole")
+    summary = {"structure": "average of static on t1 ×0.5, arx on t1 ×0.5",
+               "orders": term_orders(terms), "candidates": [],
+               "notes": ["failed: denominator orders 2-4: compd check would warn: …"]}
+    line = fallback_line(summary, veto)
+    assert line is not None and "(denominator order 0-2, numerator length 1-3)" in line
+
+
 def _record(path: Path, noise: float, seed: int) -> npt.NDArray[np.float64]:
     """Two first-order sensors the tool follows, a third that wanders; `noise` µm on
     the displacement."""
@@ -118,6 +138,11 @@ def test_an_average_check_warns_about_is_not_written(
         return "test: an average" if len(fitted) > 2 else real(self, fitted)
 
     monkeypatch.setattr(CheckVeto, "terms", no_averages)
+    # the hedge's own choice, without the inner blocks' verdict after it (which
+    # writes the textbook here: tests/compd/test_fit_inner_blocks.py)
+    from compd.offline import fit_judge
+
+    monkeypatch.setattr(fit_judge, "judge", lambda *a, **k: None)
     data, out = tmp_path / "rec.csv", tmp_path / "m.toml"
     _record(data, 0.1, 8)
     _fit_searched(data, out)

@@ -40,7 +40,10 @@ def test_a_model_worse_than_none_is_not_written(tmp_path: Path,
     assert main(argv) == EX_DATAERR
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err
-    assert "exceeds the displacement itself there" in err and "--force" in err
+    # refused by the forward folds, or first by the inner held-out blocks (an
+    # equal part of the rows where t1 climbs and the tool does not move)
+    assert ("exceeds the displacement itself there" in err
+            or "no model is safer than no compensation" in err) and "--force" in err
     assert not out.exists()
     assert main([*argv, "--force", "--json"]) == 0
     captured = capsys.readouterr()

@@ -1,0 +1,159 @@
+"""`compd fit` judges the model it writes on inner held-out blocks of every
+kind cut from the calibration's speed (`compd.offline.fit_blocks`: interior
+heat/cool cycles, cool-downs, the end), each left out of the calibration in
+turn, the model run from the record's start: a model worse than no
+compensation on one of them is replaced by the textbook ARX(2,3), and
+nothing is written when that is worse too (`compd.offline.fit_judge`)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from compd.cli import main
+from compd.offline import fit_judge
+from compd.offline.fit_blocks import InnerBlock, inner_blocks
+from compd.offline.fit_judge import COMPD, NONE, TEXTBOOK, Member, judge
+from compd.sysexits import EX_DATAERR
+from models.identify.output_error import OeModel
+from models.identify.segments import Segments
+
+#: the fl_thermal program: 1000 … 4000 rpm for 4 h each, each followed by 4 h at rest
+SPEEDS = (1000.0, 0.0, 2000.0, 0.0, 3000.0, 0.0, 4000.0)
+STRETCH = 240  # rows of 60 s: 4 h
+
+
+def _record(path: Path, spoilt_stretch: int | None) -> None:
+    """t1 heats with the speed (first order, 1 h); the displacement is 2 µm/K
+    of t1, except in `spoilt_stretch`, where the tool feels nothing (back at
+    its start) while t1 cools slowly: a cool-down the sensor mispredicts."""
+    rng = np.random.default_rng(11)
+    speed = np.repeat(SPEEDS, STRETCH)
+    n = speed.size
+    t1 = np.empty(n)
+    t1[0] = 20.0
+    for k in range(1, n):
+        t1[k] = t1[k - 1] + (20.0 + speed[k] / 500.0 - t1[k - 1]) / 60.0
+    y = 2.0 * (t1 - t1[0])
+    if spoilt_stretch is not None:
+        y[spoilt_stretch * STRETCH:(spoilt_stretch + 1) * STRETCH] = 0.0
+    y = y + 0.03 * rng.standard_normal(n)
+    path.write_text("time_s,spindle_rpm,t1_degC,dz_um\n" + "".join(
+        f"{60 * i},{s:g},{a:.5f},{b:.5f}\n"
+        for i, (s, a, b) in enumerate(zip(speed, t1, y, strict=True))))
+
+
+def test_blocks_of_every_kind_are_cut_from_the_speed() -> None:
+    speed = np.asarray(np.repeat(SPEEDS, STRETCH), dtype=np.float64)
+    time_s = 60.0 * np.arange(speed.size, dtype=np.float64)
+    blocks = inner_blocks(Segments.single(speed.size), None, speed, time_s)
+    assert [(b.kind, b.name) for b in blocks] == [
+        ("cycle", "cycle 8.0-16.0 h (2000 rpm)"), ("cycle", "cycle 16.0-24.0 h (3000 rpm)"),
+        ("cool-down", "cool-down 4.0-8.0 h (from 1000 rpm)"),
+        ("cool-down", "cool-down 12.0-16.0 h (from 2000 rpm)"),
+        ("cool-down", "cool-down 20.0-24.0 h (from 3000 rpm)"),
+        ("end", "end 24.0-28.0 h (4000 rpm)")]
+    assert blocks[2].rows.sum() == STRETCH and blocks[0].rows.sum() == 2 * STRETCH
+    # rows held out of the calibration are never scored: that cycle's blocks go
+    held = np.zeros(speed.size, dtype=bool)
+    held[2 * STRETCH:4 * STRETCH] = True
+    names = [b.name for b in inner_blocks(Segments.single(speed.size), ~held, speed, time_s)]
+    assert "cycle 8.0-16.0 h (2000 rpm)" not in names
+    assert "cool-down 12.0-16.0 h (from 2000 rpm)" not in names
+    # without a speed: equal parts, the interior ones and the end
+    plain = inner_blocks(Segments.single(1000), None)
+    assert [b.kind for b in plain] == ["interior"] * 3 + ["end"]
+
+
+def test_a_model_worse_than_none_on_an_inner_cool_down_is_not_written(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    data, out = tmp_path / "rec.csv", tmp_path / "m.toml"
+    _record(data, spoilt_stretch=3)  # the cool-down from 2000 rpm
+    argv = ["fit", str(data), "--column", "dz_um", "--term", "t1_degC", "-o", str(out),
+            "--no-fallbacks"]
+    assert main(argv) == EX_DATAERR
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert "no model is safer than no compensation" in err and "nothing written" in err
+    assert "worse than no compensation on the inner block cool-down 12.0-16.0 h" in err
+    assert not out.exists()
+    # --force writes compd's choice, and says the verdict
+    assert main([*argv, "--force"]) == 0
+    captured = capsys.readouterr()
+    assert "compd's choice written all the same (--force)" in captured.err
+    assert "judged on 6 inner held-out blocks" in captured.out
+    assert "written: nothing (" in captured.out and out.exists()
+
+
+def test_a_good_model_is_written_and_says_the_blocks_that_judged_it(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    data, out = tmp_path / "rec.csv", tmp_path / "m.toml"
+    _record(data, spoilt_stretch=None)
+    assert main(["fit", str(data), "--column", "dz_um", "--term", "t1_degC", "-o", str(out),
+                 "--no-fallbacks", "--json"]) == 0
+    verdict = json.loads(capsys.readouterr().out)["terms"][0]["selection"]["judge"]
+    assert verdict["chosen"] == COMPD and len(verdict["blocks"]) == 6
+    # the model predicts every inner block far better than no compensation
+    for mine, none in zip(verdict["mae_um"][COMPD], verdict["mae_um"][NONE], strict=True):
+        assert mine < 0.2 * none
+
+
+def _verdict(monkeypatch: pytest.MonkeyPatch, compd_err: list[float],
+             textbook_err: list[float], forced: bool = False, tie: float = 1.05,
+             worse_ratio: float = 1.1) -> fit_judge.Verdict:
+    """The verdict on three blocks of 10 rows whose displacement is 1 µm (no
+    compensation's error 1 µm), each candidate's prediction off by its error."""
+    n = 40
+    y = np.ones(n)
+    y[0] = 0.0
+    rows = []
+    for k in range(3):
+        r = np.zeros(n, dtype=bool)
+        r[10 * (k + 1):10 * (k + 2)] = True
+        rows.append(InnerBlock(f"block {k}", "interior", r))
+
+    def refit(y_: object, seg: object, radius: object, usable: object, member: Member,
+              train: np.ndarray) -> np.ndarray:
+        k = next(i for i, b in enumerate(rows) if not train[b.rows].any())
+        err = (textbook_err if member.structure == "textbook" else compd_err)[k]
+        return y - err
+
+    monkeypatch.setattr(fit_judge, "refit", refit)
+    monkeypatch.setattr(fit_judge, "TIE", tie)
+    monkeypatch.setattr(fit_judge, "WORSE_RATIO", worse_ratio)
+    model = OeModel(nums=((1.0,),), dens=((1.0,),), groups=((0,),))
+    verdict = judge(y, Segments.single(n), 1.0, None, rows,
+                    [(Member("arx", (np.zeros(n),), model), 1.0)],
+                    Member("textbook", (np.zeros(n),), model), forced=forced)
+    assert verdict is not None
+    return verdict
+
+
+def test_the_verdict_falls_back_to_the_textbook_then_to_nothing(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # the smallest worst ratio (1.33 against 4.5), but 1.2x no compensation on the
+    # third block: the textbook takes its place
+    v = _verdict(monkeypatch, [0.2, 0.2, 1.2], [0.9, 0.9, 0.9])
+    assert v.worst[COMPD] < v.worst[TEXTBOOK] and v.chosen == TEXTBOOK
+    assert v.reasons == ["compd's choice is worse than no compensation on the inner block "
+                         "block 2 (MAE 1.2 µm against 1 µm uncompensated)"]
+    # both worse than none somewhere: nothing
+    v = _verdict(monkeypatch, [0.2, 0.2, 1.2], [0.9, 1.3, 0.9])
+    assert v.chosen == NONE and len(v.reasons) == 2
+    # the default: compd's choice unless a candidate is 1.5x no compensation
+    v = _verdict(monkeypatch, [0.25, 0.9, 0.3], [0.3, 0.3, 0.3], tie=math.inf, worse_ratio=1.5)
+    assert v.chosen == COMPD and v.reasons == []
+    v = _verdict(monkeypatch, [0.2, 0.2, 1.6], [0.9, 0.9, 0.9], tie=math.inf, worse_ratio=1.5)
+    assert v.chosen == TEXTBOOK
+    # with a tie set, never much worse beats best on one block: the smaller worst ratio wins
+    v = _verdict(monkeypatch, [0.25, 0.9, 0.3], [0.3, 0.3, 0.3])
+    assert v.chosen == TEXTBOOK and v.worst[COMPD] == pytest.approx(3.0)
+    # close worst ratios: compd's choice
+    assert _verdict(monkeypatch, [0.1, 0.31, 0.1], [0.3, 0.3, 0.3]).chosen == COMPD
+    # a structure forced by the user is written or refused, never replaced
+    assert _verdict(monkeypatch, [0.25, 0.9, 0.3], [0.3, 0.3, 0.3], forced=True).chosen == COMPD
+    assert _verdict(monkeypatch, [0.1, 0.1, 1.5], [0.3, 0.3, 0.4], forced=True).chosen == NONE
