@@ -10,6 +10,7 @@ import pytest
 from asyncua import ua
 from asyncua.server.address_space import NodeData
 from asyncua.server.server import Server
+from asyncua.ua.attribute_ids import AttributeIds
 from asyncua.ua.object_ids import ObjectIds
 
 from drivers import opcua_space
@@ -155,11 +156,12 @@ async def test_what_the_face_does_to_its_server_leaves_the_template_as_built() -
     idx = await server.register_namespace("urn:compd:test:face")
     enum = await new_enum(server, idx, "TemplateTestState", ["a", "b"])
     await server.load_data_type_definitions()
-    obj = await server.nodes.objects.add_object(ua.NodeId("face.Machine", idx), f"{idx}:face")
+    obj = await server.nodes.objects.add_object(
+        ua.NodeId(ua.String("face.Machine"), ua.Int16(idx)), f"{idx}:face")
     var = await obj.add_variable(idx, "State", ua.Variant(0, ua.VariantType.Int32),
                                  datatype=enum.nodeid)
     await var.write_value(ua.Variant(1, ua.VariantType.Int32))
-    await obj.write_attribute(ua.AttributeIds.DisplayName, ua.DataValue(
+    await obj.write_attribute(AttributeIds.DisplayName, ua.DataValue(
         ua.Variant(ua.LocalizedText("renamed"), ua.VariantType.LocalizedText)))
     await server.write_attribute_value(_node("Server_ServiceLevel"),
                                        ua.DataValue(ua.Variant(9, ua.VariantType.Byte)))
