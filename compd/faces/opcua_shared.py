@@ -70,15 +70,17 @@ class SharedServer:
         self._thread = threading.Thread(target=self._run_loop, name="compd-opcua-face",
                                         daemon=True)
         self._closing = False
-        self._thread.start()
-        #: done when the server is up (or failed): machines starting meanwhile wait on it
-        self.started: concurrent.futures.Future[None] = self.submit(self.start())
         self.idx = 0
         self.machines: dict[str, FaceMachine] = {}
         self.fault_type: ua.NodeId | None = None
         #: who the last Call came from (set by the permission check just before it runs)
         self.caller: tuple[str, str] = ("anonymous", "unknown")
         self.log = structlog.get_logger("compd")
+        self._thread.start()
+        # start() runs on the face's thread and sets idx and fault_type: it is
+        # submitted last, once nothing here can overwrite what it sets
+        #: done when the server is up (or failed): machines starting meanwhile wait on it
+        self.started: concurrent.futures.Future[None] = self.submit(self.start())
 
     def _run_loop(self) -> None:
         asyncio.set_event_loop(self.loop)

@@ -7,12 +7,14 @@ and a user, the config's refusals, and a face that cannot start."""
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import contextlib
 import itertools
 import math
 import socket
 from collections.abc import AsyncIterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import structlog
@@ -27,6 +29,7 @@ from compd.cli import main
 from compd.config.loader import load_config
 from compd.core.faults import FaultState
 from compd.errors import EX_CONFIG, ConfigError
+from compd.faces import opcua_shared
 from compd.faces.opcua_face import NAMESPACE, release_all
 from compd.runtime.daemon import Daemon
 from compd.runtime.sdnotify import Notifier
@@ -177,6 +180,35 @@ async def test_each_face_has_a_copy_of_the_standard_space_built_once(
                 _, machine = await _machine(client)
                 assert (await machine.read_browse_name()).Name == "test"
         assert len(builds) == 1, run
+
+
+async def test_a_server_that_starts_before_its_constructor_returns_keeps_its_namespace(
+        sim: ModbusSimController, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The face's server starts on its own thread while the daemon's thread is
+    still in `SharedServer.__init__`; with the standard space already built the
+    start can finish first, and it must keep the namespace index and fault type
+    it set (the machine's object is in the face's namespace, not in OPC UA's 0).
+    Here the submit of the start waits for it: the start always wins that race."""
+    submit = opcua_shared.SharedServer.submit
+
+    def start_first(self: opcua_shared.SharedServer,
+                    coro: Any) -> concurrent.futures.Future[Any]:
+        name = coro.__qualname__
+        future = submit(self, coro)
+        if name == "SharedServer.start":
+            with contextlib.suppress(Exception):
+                future.result(timeout=120.0)
+        return future
+
+    monkeypatch.setattr(opcua_shared.SharedServer, "submit", start_first)
+    port = free_tcp_port("127.0.0.1")
+    async with face_daemon(tmp_path, sim, _face(port)):
+        client = await _client(port)
+        async with client:
+            idx, machine = await _machine(client)
+            assert idx == 2 and machine.nodeid.NamespaceIndex == idx
+            state = await machine.get_child(f"{idx}:FaultState")
+            assert (await state.read_data_type()).NamespaceIndex == idx
 
 
 async def test_sethold_is_the_operators_and_holds_then_slews_back(

@@ -10,6 +10,7 @@ import pytest
 from asyncua import ua
 from asyncua.server.address_space import NodeData
 from asyncua.server.server import Server
+from asyncua.ua.attribute_ids import AttributeIds
 from asyncua.ua.object_ids import ObjectIds
 
 from drivers import opcua_space
@@ -128,3 +129,41 @@ async def test_servers_do_not_share_what_they_change() -> None:
         assert "urn:compd:test:one" in await server.get_namespace_array()
     finally:
         await one.stop()
+
+
+def _template_state() -> dict[ua.NodeId, tuple[object, ...]]:
+    """The template as values (reprs, so a list changed in place shows)."""
+    template = opcua_space._template
+    assert template is not None
+    return {nodeid: (id(node), repr(node.references), node.call,
+                     {attr: (repr(av.value), av.value_callback, av.value_setter,
+                             len(av.datachange_callbacks))
+                      for attr, av in node.attributes.items()})
+            for nodeid, node in template.items()}
+
+
+async def test_what_the_face_does_to_its_server_leaves_the_template_as_built() -> None:
+    """What the daemon's face does to its server (its start, a namespace, an
+    enumeration data type, an object renamed and written, then deleted with the
+    references to it) changes this server's copies only: the template, what the
+    next server starts from, is as it was built."""
+    from asyncua.common.structures104 import new_enum
+
+    await standard_nodes()  # the template built
+    before = _template_state()
+    server = Server(iserver=opcua_space.CopiedSpaceInternalServer())
+    await server.init()
+    idx = await server.register_namespace("urn:compd:test:face")
+    enum = await new_enum(server, idx, "TemplateTestState", ["a", "b"])
+    await server.load_data_type_definitions()
+    obj = await server.nodes.objects.add_object(
+        ua.NodeId(ua.String("face.Machine"), ua.Int16(idx)), f"{idx}:face")
+    var = await obj.add_variable(idx, "State", ua.Variant(0, ua.VariantType.Int32),
+                                 datatype=enum.nodeid)
+    await var.write_value(ua.Variant(1, ua.VariantType.Int32))
+    await obj.write_attribute(AttributeIds.DisplayName, ua.DataValue(
+        ua.Variant(ua.LocalizedText("renamed"), ua.VariantType.LocalizedText)))
+    await server.write_attribute_value(_node("Server_ServiceLevel"),
+                                       ua.DataValue(ua.Variant(9, ua.VariantType.Byte)))
+    await server.delete_nodes([obj], recursive=True)
+    assert _template_state() == before
