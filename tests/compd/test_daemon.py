@@ -15,7 +15,7 @@ from compd.runtime.daemon import Daemon
 from compd.runtime.driver_setup import build_driver
 from compd.runtime.recorder import read_samples
 from compd.runtime.sdnotify import Notifier
-from compd.testing import RecordingDriver
+from compd.testing import RecordingDriver, SteppedClock
 from drivers.sim.modbus_server import ModbusSimController
 from tests.shipped import LIBRARY
 
@@ -23,12 +23,28 @@ from .daemon_helpers import until as _until
 from .daemon_helpers import write_config
 
 
+async def _pace(clock: SteppedClock) -> None:
+    """Each time the daemon sleeps, move the clock to its next deadline: its cycles
+    follow each other as fast as the machine allows, one period apart on its clock."""
+    while True:
+        await clock.cycle_done(clock.ticks + 1)
+        clock.tick()
+
+
 async def test_daemon_compensates_for_a_few_hundred_cycles(
         sim: ModbusSimController, tmp_path: Path) -> None:
-    cfg = load_config(write_config(tmp_path, sim.endpoint, checkpoint_every=50))
+    """Hundreds of cycles against the real controller on a stepped clock (nothing
+    in this test is about the real clock: the reads and writes are real, the wait
+    for the next deadline is not). Time scale 1, so that a request may take the
+    0.4 s a loaded machine needs: the clock, not the time scale, sets the pace."""
+    cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0,
+                                   checkpoint_every=50))
     driver = RecordingDriver(build_driver(cfg))
-    daemon = Daemon(cfg, driver=driver, notifier=Notifier(None))
+    clock = SteppedClock(period_s=cfg.real_period_s)
+    daemon = Daemon(cfg, driver=driver, notifier=Notifier(None), clock=clock,
+                    sleep=clock.sleep)
     task = asyncio.create_task(daemon.run())
+    pacer = asyncio.create_task(_pace(clock))
     await _until(lambda: daemon.complete_cycles >= 5)
     await sim.publish({"bearing": 22.0})  # +2 K on the bearing: ≈ +32 µm at once
     await _until(lambda: daemon.cycles >= 300)
@@ -41,6 +57,8 @@ async def test_daemon_compensates_for_a_few_hundred_cycles(
             break
     daemon.request_stop()
     assert await task == 0
+    pacer.cancel()
+    await asyncio.gather(pacer, return_exceptions=True)
 
     out = await sim.outputs()
     assert out["heartbeat"] >= 250

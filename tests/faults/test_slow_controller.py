@@ -335,7 +335,7 @@ async def cycle_loop(driver: Driver, periods: int, period_s: float,
 
 async def test_failed_cycles_are_skipped_and_counted_never_queued(rig: Rig) -> None:
     period_s, timeout_s = 0.2, 0.1
-    outage = range(5, 15)
+    outage = range(5, 10)
     # after the outage: until a cycle completes again, bounded only generously
     # (30 s: the backoff's retry and a loaded machine's late answers take their time)
     periods = outage.stop + 150
