@@ -19,6 +19,11 @@ after k bytes. What must hold (issue 7):
 - after `close()`, the asyncio task count and this process's open file
   descriptors are back to what they were before the driver was created.
 
+The reconnect backoff of the link tests runs on a `compd.testing.FakeClock`
+(`Rig.clock`): a call inside the backoff delay fails fast however slow the
+machine, and the test moves the clock past the delay instead of sleeping it
+out. The requests' timeouts are real seconds, as on a shop floor.
+
 OPC UA drivers get ``connect_timeout_s = timeout_s`` here (a reconnect runs
 in the link's own task, started by `read`/`write`; each of its requests is
 bounded by timeout_s anyway, the whole handshake by connect_timeout_s, by
@@ -41,6 +46,7 @@ from urllib.parse import urlsplit
 import pytest
 import pytest_asyncio
 
+from compd.testing import FakeClock
 from drivers.backoff import Backoff
 from drivers.base import Driver
 from drivers.errors import ConnectionLost, ControllerTimeout, DriverError
@@ -78,6 +84,8 @@ class Rig:
     protocol: str
     sim: SimController
     proxy: FaultProxy
+    #: the backoff's clock for `driver(fake_backoff=True)`: moved by the test
+    clock: FakeClock = field(default_factory=FakeClock)
 
     @property
     def endpoint(self) -> str:
@@ -86,14 +94,17 @@ class Rig:
             netloc=f"{self.proxy.host}:{self.proxy.port}").geturl()
 
     def driver(self, timeout_s: float = TIMEOUT_S, backoff: tuple[float, float] = BACKOFF,
-               opcua_connect_timeout_s: float | None = None) -> Driver:
-        """`opcua_connect_timeout_s`: None = timeout_s (OPC UA only)."""
+               opcua_connect_timeout_s: float | None = None,
+               fake_backoff: bool = False) -> Driver:
+        """`opcua_connect_timeout_s`: None = timeout_s (OPC UA only);
+        `fake_backoff`: the backoff delay on `clock` (real seconds otherwise)."""
         options: dict[str, Any] = {}
         if self.protocol == "opcua":
             options["connect_timeout_s"] = opcua_connect_timeout_s or timeout_s
+        delays = Backoff(*backoff, clock=self.clock) if fake_backoff else Backoff(*backoff)
         return open_driver(self.protocol, self.endpoint, self.sim.channels,
-                           self.sim.outputs_map, timeout_s=timeout_s,
-                           backoff=Backoff(*backoff), **options)
+                           self.sim.outputs_map, timeout_s=timeout_s, backoff=delays,
+                           **options)
 
     def writes_sent(self) -> int:
         """Write requests the proxy received from the client."""
@@ -172,12 +183,17 @@ async def read_and_write(driver: Driver) -> None:
     await bounded(driver.write(WRITES))
 
 
-async def until_recovered(driver: Driver, period_s: float = TS_S) -> int:
+async def until_recovered(driver: Driver, period_s: float = TS_S,
+                          clock: FakeClock | None = None) -> int:
     """Read and write as the daemon would, once per period, until both work;
-    returns the failed attempts. Fails the test past 10 s + 2·Ts."""
+    returns the failed attempts. Fails the test past 10 s + 2·Ts. With the
+    driver's backoff on `clock`: the backoff delay has passed when the link
+    returns (the clock moves past its cap), and each period moves it too."""
     loop = asyncio.get_running_loop()
     start = loop.time()
     failures = 0
+    if clock is not None:
+        clock.advance(BACKOFF[1])
     for k in range(math.ceil(RECOVER_WITHIN_S / period_s) + 1):
         try:
             await read_and_write(driver)
@@ -185,6 +201,8 @@ async def until_recovered(driver: Driver, period_s: float = TS_S) -> int:
         except DriverError:
             failures += 1
         await asyncio.sleep(max(0.0, start + (k + 1) * period_s - loop.time()))
+        if clock is not None:
+            clock.advance(period_s)
     pytest.fail(f"no complete read+write within {RECOVER_WITHIN_S} s after the link returned")
 
 
@@ -216,7 +234,7 @@ def _make_unresponsive(rig: Rig, mode: str) -> None:
 async def test_unresponsive_link(rig: Rig, mode: str) -> None:
     """Timeouts within timeout_s, fail fast while backing off, the timed-out
     write sent once, the same driver back after the link returns."""
-    driver = rig.driver()
+    driver = rig.driver(fake_backoff=True)
     try:
         await connect_up(driver)
         await read_and_write(driver)
@@ -233,7 +251,7 @@ async def test_unresponsive_link(rig: Rig, mode: str) -> None:
             await bounded(driver.write(WRITES))
         assert rig.traffic() == before, "a call inside the backoff delay touched the network"
         # after the delay: one reconnect attempt, again bounded by the timeout
-        await asyncio.sleep(BACKOFF[0])
+        rig.clock.advance(BACKOFF[0])
         with pytest.raises(ControllerTimeout):
             await bounded(driver.read(READ_NAMES))
         with pytest.raises(ConnectionLost):
@@ -248,7 +266,7 @@ async def test_unresponsive_link(rig: Rig, mode: str) -> None:
             assert rig.writes_served() - served == 1
 
         rig.proxy.pass_through()
-        await until_recovered(driver)
+        await until_recovered(driver, clock=rig.clock)
         assert (await rig.sim.outputs())["offset"] == pytest.approx(WRITES["offset"])
     finally:
         await finish(rig, driver)
@@ -258,7 +276,7 @@ async def test_unresponsive_link(rig: Rig, mode: str) -> None:
 async def test_broken_link(rig: Rig, mode: str) -> None:
     """A reset, or a connection cut halfway through a read's response: a
     driver error (not a hang), on new connections too; then back."""
-    driver = rig.driver()
+    driver = rig.driver(fake_backoff=True)
     try:
         await connect_up(driver)
         await bounded(driver.write({**WRITES, "offset": 0.0}))
@@ -274,11 +292,11 @@ async def test_broken_link(rig: Rig, mode: str) -> None:
             rig.proxy.cut_after(0, "down")
         with pytest.raises(DriverError):
             await bounded(driver.read(READ_NAMES))
-        await asyncio.sleep(BACKOFF[0])
+        rig.clock.advance(BACKOFF[0])
         with pytest.raises(DriverError):  # the reconnect meets the same fault
             await read_and_write(driver)
         rig.proxy.pass_through()
-        await until_recovered(driver)
+        await until_recovered(driver, clock=rig.clock)
         assert (await rig.sim.outputs())["offset"] == pytest.approx(WRITES["offset"])
     finally:
         await finish(rig, driver)
@@ -375,7 +393,7 @@ async def test_tasks_and_fds_back_to_baseline_after_close(rig: Rig) -> None:
     sim and the proxy were already running then)."""
     tasks_before = len(asyncio.all_tasks())
     fds_before = open_fds()
-    driver = rig.driver(backoff=(0.1, 0.2))
+    driver = rig.driver(backoff=(0.1, 0.2), fake_backoff=True)
     try:
         await connect_up(driver)
         await read_and_write(driver)
@@ -387,7 +405,7 @@ async def test_tasks_and_fds_back_to_baseline_after_close(rig: Rig) -> None:
             with pytest.raises(DriverError):
                 await read_and_write(driver)
             rig.proxy.pass_through()
-            await until_recovered(driver)
+            await until_recovered(driver, clock=rig.clock)
     finally:
         await finish(rig, driver)
     tasks_after = await settle(lambda: len(asyncio.all_tasks()), tasks_before)
