@@ -424,7 +424,7 @@ async def test_opcua_reconnect_outlives_a_read_that_gave_up(rig: Rig) -> None:
     task), and a later read takes its session. One new connection, never a
     handshake started again on every read (which kept the link down for good)."""
     connect_s = max(2 * TIMEOUT_S, 1.0)  # the driver's default
-    driver = rig.driver(opcua_connect_timeout_s=connect_s)
+    driver = rig.driver(opcua_connect_timeout_s=connect_s, fake_backoff=True)
     one_way_s = 0.4 * TIMEOUT_S
     try:
         await connect_up(driver, connect_s)
@@ -433,10 +433,9 @@ async def test_opcua_reconnect_outlives_a_read_that_gave_up(rig: Rig) -> None:
             await bounded(driver.read(READ_NAMES))
         rig.proxy.latency(one_way_s, one_way_s)
         backoff: Backoff = driver.backoff  # type: ignore[attr-defined]
-        for _ in range(int(BACKOFF[1] / 0.02) + 1):  # until a reconnect attempt is due
-            if backoff.ready():
-                break
-            await asyncio.sleep(0.02)
+        assert not backoff.ready()
+        rig.clock.advance(backoff.delay_s)  # a reconnect attempt is due
+        assert backoff.ready()
         connections = rig.proxy.connections_accepted
         with pytest.raises(TimeoutError):  # the daemon's deadline, as cycle_io sets it
             await asyncio.wait_for(driver.read(READ_NAMES), max(TS_S, 2 * TIMEOUT_S))
