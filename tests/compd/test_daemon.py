@@ -19,16 +19,8 @@ from compd.testing import RecordingDriver, SteppedClock
 from drivers.sim.modbus_server import ModbusSimController
 from tests.shipped import LIBRARY
 
+from .daemon_helpers import pace, write_config
 from .daemon_helpers import until as _until
-from .daemon_helpers import write_config
-
-
-async def _pace(clock: SteppedClock) -> None:
-    """Each time the daemon sleeps, move the clock to its next deadline: its cycles
-    follow each other as fast as the machine allows, one period apart on its clock."""
-    while True:
-        await clock.cycle_done(clock.ticks + 1)
-        clock.tick()
 
 
 async def test_daemon_compensates_for_a_few_hundred_cycles(
@@ -44,7 +36,7 @@ async def test_daemon_compensates_for_a_few_hundred_cycles(
     daemon = Daemon(cfg, driver=driver, notifier=Notifier(None), clock=clock,
                     sleep=clock.sleep)
     task = asyncio.create_task(daemon.run())
-    pacer = asyncio.create_task(_pace(clock))
+    pacer = asyncio.create_task(pace(clock))
     await _until(lambda: daemon.complete_cycles >= 5)
     await sim.publish({"bearing": 22.0})  # +2 K on the bearing: ≈ +32 µm at once
     await _until(lambda: daemon.cycles >= 300)
