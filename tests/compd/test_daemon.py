@@ -212,15 +212,19 @@ async def test_sensor_broken_from_the_start_is_up_watched_and_ramps_with_the_ala
     """An open bearing sensor from the first sample: the daemon is up (READY),
     feeds the watchdog while its loop runs (systemd restarting it would reset
     the hold timer and the offset would be held forever), and ramps to zero with
-    the alarm after hold_s (30 machine s)."""
+    the alarm after hold_s (30 machine s). Its cycles paced on a stepped clock."""
     await sim.publish({"bearing": 900.0})
-    cfg = load_config(write_config(tmp_path, sim.endpoint))
+    cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
     notes = _Notes()
-    daemon = Daemon(cfg, notifier=notes)
+    clock = SteppedClock(period_s=cfg.real_period_s)
+    pacer = asyncio.create_task(pace(clock))
+    daemon = Daemon(cfg, notifier=notes, clock=clock, sleep=clock.sleep)
     task = asyncio.create_task(daemon.run())
     await _until(lambda: daemon.cycles >= 45)
     daemon.request_stop()
     assert await task == 0
+    pacer.cancel()
+    await asyncio.gather(pacer, return_exceptions=True)
     assert daemon.complete_cycles == 0
     ready = next(i for i, m in enumerate(notes.messages) if m.startswith("READY=1"))
     assert notes.messages[ready:].count("WATCHDOG=1") >= 40
