@@ -76,14 +76,20 @@ async def test_daemon_compensates_for_a_few_hundred_cycles(
 
 
 async def test_dry_run_writes_nothing(sim: ModbusSimController, tmp_path: Path) -> None:
-    cfg = load_config(write_config(tmp_path, sim.endpoint))
-    daemon = Daemon(cfg, dry_run=True, notifier=Notifier(None))
+    cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
+    clock = SteppedClock(period_s=cfg.real_period_s)
+    pacer = asyncio.create_task(pace(clock))
+    daemon = Daemon(cfg, dry_run=True, notifier=Notifier(None), clock=clock,
+                    sleep=clock.sleep)
     task = asyncio.create_task(daemon.run())
     await _until(lambda: daemon.complete_cycles >= 3)
     await sim.publish({"bearing": 21.0})
-    await _until(lambda: daemon.complete_cycles >= 30)
+    after = daemon.complete_cycles + 27  # cycles that read the warmer bearing
+    await _until(lambda: daemon.complete_cycles >= after)
     daemon.request_stop()
     assert await task == 0
+    pacer.cancel()
+    await asyncio.gather(pacer, return_exceptions=True)
     assert daemon.last_result is not None and daemon.last_result.offset_um > 0.0
     assert await sim.outputs() == {"offset": 0.0, "heartbeat": 0.0, "status": 0.0}
     assert not (cfg.state_dir / "checkpoint.json").exists()
