@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from compd.testing import SteppedClock
     from drivers.sim.modbus_server import ModbusSimController
 
 CONFIG = """
@@ -81,6 +82,15 @@ async def until(predicate: object, limit: int = 24_000) -> None:
             return
         await asyncio.sleep(0.005)
     raise AssertionError("condition not reached")
+
+
+async def pace(clock: SteppedClock) -> None:
+    """Each time the daemon sleeps on `clock`, move the clock to its next deadline:
+    its cycles follow each other as fast as the machine allows, one period apart
+    on its clock (a task the test cancels once the daemon has stopped)."""
+    while True:
+        await clock.cycle_done(clock.ticks + 1)
+        clock.tick()
 
 
 @contextlib.asynccontextmanager

@@ -125,8 +125,9 @@ async def test_the_daemon_closes_the_loop_through_the_controller(tmp_path: Path)
     text = (HIL / "modbus.toml").read_text()
     text = text.replace("modbus://127.0.0.1:15020", sim.endpoint)
     text = text.replace('dir = "/tmp/compd-hil-modbus"', f'dir = "{tmp_path / "state"}"')
-    # the bench config as shipped (10x, a 40 ms request timeout): a late answer
-    # on a loaded machine holds a cycle, it does not break the loop
+    # the bench config as shipped (60x, a real period of 1 s, a 0.4 s request
+    # timeout): a late answer on a loaded machine holds a cycle, it does not break
+    # the loop
     config = tmp_path / "modbus.toml"
     config.write_text(text)
     drive_map = load_drive_map(MAPS / "modbus.toml")
@@ -135,7 +136,7 @@ async def test_the_daemon_closes_the_loop_through_the_controller(tmp_path: Path)
     daemon = await _compd(tmp_path, "run", str(config), name="run")
     try:
         drive.start()
-        await _loop_closed(drive, daemon, beats=10)
+        await _loop_closed(drive, daemon, beats=3)
     finally:
         await drive.stop()
         if daemon.returncode is None:

@@ -22,10 +22,10 @@ from compd.runtime.daemon import Daemon
 from compd.runtime.driver_setup import build_driver
 from compd.runtime.sdnotify import Notifier
 from compd.sysexits import EX_SOFTWARE
-from compd.testing import RecordingDriver
+from compd.testing import RecordingDriver, SteppedClock
 from drivers.sim.modbus_server import ModbusSimController
 
-from .daemon_helpers import until, write_config
+from .daemon_helpers import pace, until, write_config
 
 ADAPTATION = """
 [adaptation]
@@ -53,11 +53,16 @@ async def test_a_model_step_that_raises_every_cycle_is_held_then_ramped(
         sim: ModbusSimController, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The cycle raises on every complete sample (as the estimator's OverflowError did
     at each probe): each cycle is stepped again as a failed read, so the fault policy
-    holds (hold_s), then ramps to 0 at the slew limit with the alarm; one log line."""
-    cfg = load_config(write_config(tmp_path, sim.endpoint))
+    holds (hold_s), then ramps to 0 at the slew limit with the alarm; one log line.
+    On a stepped clock (time scale 1, a 0.4 s request timeout), paced as fast as the
+    daemon sleeps: the hold and the ramp are counted in cycles, not waited out."""
+    cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
     driver = RecordingDriver(build_driver(cfg))
+    clock = SteppedClock(period_s=cfg.real_period_s)
+    pacer = asyncio.create_task(pace(clock))
     with structlog.testing.capture_logs() as logs:
-        daemon = Daemon(cfg, driver=driver, notifier=Notifier(None))
+        daemon = Daemon(cfg, driver=driver, notifier=Notifier(None), clock=clock,
+                        sleep=clock.sleep)
         task = asyncio.create_task(daemon.run())
         cycle = await _warm(sim, daemon)
 
@@ -73,6 +78,8 @@ async def test_a_model_step_that_raises_every_cycle_is_held_then_ramped(
         status = int((await sim.outputs())["status"])
         daemon.request_stop()
         assert await task == 0
+    pacer.cancel()
+    await asyncio.gather(pacer, return_exceptions=True)
     errors = _named(logs, "cycle_error")
     assert len(errors) == 1 and errors[0]["stage"] == "step"
     assert "OverflowError" in errors[0]["error"] and errors[0]["log_level"] == "error"

@@ -15,20 +15,28 @@ from compd.runtime.daemon import Daemon
 from compd.runtime.driver_setup import build_driver
 from compd.runtime.recorder import read_samples
 from compd.runtime.sdnotify import Notifier
-from compd.testing import RecordingDriver
+from compd.testing import RecordingDriver, SteppedClock
 from drivers.sim.modbus_server import ModbusSimController
 from tests.shipped import LIBRARY
 
+from .daemon_helpers import pace, write_config
 from .daemon_helpers import until as _until
-from .daemon_helpers import write_config
 
 
 async def test_daemon_compensates_for_a_few_hundred_cycles(
         sim: ModbusSimController, tmp_path: Path) -> None:
-    cfg = load_config(write_config(tmp_path, sim.endpoint, checkpoint_every=50))
+    """Hundreds of cycles against the real controller on a stepped clock (nothing
+    in this test is about the real clock: the reads and writes are real, the wait
+    for the next deadline is not). Time scale 1, so that a request may take the
+    0.4 s a loaded machine needs: the clock, not the time scale, sets the pace."""
+    cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0,
+                                   checkpoint_every=50))
     driver = RecordingDriver(build_driver(cfg))
-    daemon = Daemon(cfg, driver=driver, notifier=Notifier(None))
+    clock = SteppedClock(period_s=cfg.real_period_s)
+    daemon = Daemon(cfg, driver=driver, notifier=Notifier(None), clock=clock,
+                    sleep=clock.sleep)
     task = asyncio.create_task(daemon.run())
+    pacer = asyncio.create_task(pace(clock))
     await _until(lambda: daemon.complete_cycles >= 5)
     await sim.publish({"bearing": 22.0})  # +2 K on the bearing: ≈ +32 µm at once
     await _until(lambda: daemon.cycles >= 300)
@@ -41,6 +49,8 @@ async def test_daemon_compensates_for_a_few_hundred_cycles(
             break
     daemon.request_stop()
     assert await task == 0
+    pacer.cancel()
+    await asyncio.gather(pacer, return_exceptions=True)
 
     out = await sim.outputs()
     assert out["heartbeat"] >= 250
@@ -66,14 +76,20 @@ async def test_daemon_compensates_for_a_few_hundred_cycles(
 
 
 async def test_dry_run_writes_nothing(sim: ModbusSimController, tmp_path: Path) -> None:
-    cfg = load_config(write_config(tmp_path, sim.endpoint))
-    daemon = Daemon(cfg, dry_run=True, notifier=Notifier(None))
+    cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
+    clock = SteppedClock(period_s=cfg.real_period_s)
+    pacer = asyncio.create_task(pace(clock))
+    daemon = Daemon(cfg, dry_run=True, notifier=Notifier(None), clock=clock,
+                    sleep=clock.sleep)
     task = asyncio.create_task(daemon.run())
     await _until(lambda: daemon.complete_cycles >= 3)
     await sim.publish({"bearing": 21.0})
-    await _until(lambda: daemon.complete_cycles >= 30)
+    after = daemon.complete_cycles + 27  # cycles that read the warmer bearing
+    await _until(lambda: daemon.complete_cycles >= after)
     daemon.request_stop()
     assert await task == 0
+    pacer.cancel()
+    await asyncio.gather(pacer, return_exceptions=True)
     assert daemon.last_result is not None and daemon.last_result.stage_um > 0.0
     assert await sim.outputs() == {"offset": 0.0, "heartbeat": 0.0, "status": 0.0}
     assert not (cfg.state_dir / "checkpoint.json").exists()
@@ -202,15 +218,19 @@ async def test_sensor_broken_from_the_start_is_up_watched_and_ramps_with_the_ala
     """An open bearing sensor from the first sample: the daemon is up (READY),
     feeds the watchdog while its loop runs (systemd restarting it would reset
     the hold timer and the offset would be held forever), and ramps to zero with
-    the alarm after hold_s (30 machine s)."""
+    the alarm after hold_s (30 machine s). Its cycles paced on a stepped clock."""
     await sim.publish({"bearing": 900.0})
-    cfg = load_config(write_config(tmp_path, sim.endpoint))
+    cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
     notes = _Notes()
-    daemon = Daemon(cfg, notifier=notes)
+    clock = SteppedClock(period_s=cfg.real_period_s)
+    pacer = asyncio.create_task(pace(clock))
+    daemon = Daemon(cfg, notifier=notes, clock=clock, sleep=clock.sleep)
     task = asyncio.create_task(daemon.run())
     await _until(lambda: daemon.cycles >= 45)
     daemon.request_stop()
     assert await task == 0
+    pacer.cancel()
+    await asyncio.gather(pacer, return_exceptions=True)
     assert daemon.complete_cycles == 0
     ready = next(i for i, m in enumerate(notes.messages) if m.startswith("READY=1"))
     assert notes.messages[ready:].count("WATCHDOG=1") >= 40

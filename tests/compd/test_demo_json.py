@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def test_demo_json_stdout_is_one_json_object() -> None:
     r = subprocess.run([sys.executable, "-m", "compd", "demo", "--json", "--protocol", "modbus",
-                        "--hours", "1", "--seconds", "4"], cwd=ROOT, capture_output=True,
+                        "--hours", "0.25", "--seconds", "1"], cwd=ROOT, capture_output=True,
                        text=True, timeout=180, check=False)
     assert r.returncode == 0, r.stderr
     doc = json.loads(r.stdout)  # nothing else on stdout

@@ -275,11 +275,15 @@ async def test_a_flood_of_idle_connections_leaves_the_cycle_its_descriptors(
         started = json.loads(next(ln for ln in lines if "opcua_face_started" in ln))
         cap = started["max_connections"]
         assert 0 < cap < NOFILE - FD_RESERVE  # lowered to the descriptors there are
-        for _ in range(500):
+        async def connect() -> None:
             with contextlib.suppress(OSError, TimeoutError):
                 _, writer = await asyncio.wait_for(
                     asyncio.open_connection("127.0.0.1", port), 10.0)
                 held.append(writer)
+
+        # all at once, as a flood comes: one after the other, each connect beyond the
+        # face's accept backlog waited out a SYN retransmit (1 s) on its own
+        await asyncio.gather(*(connect() for _ in range(500)))
         await until(lambda: sum('"opcua_connection_refused' in ln for ln in lines) >= BURST,
                     limit=12_000)
         assert checkpoint.exists()

@@ -169,7 +169,9 @@ async def test_hup_with_another_endpoint_reconnects(
         proc.send_signal(signal.SIGHUP)
         await _until(other, "heartbeat", lambda v: v >= 5, proc, log)
         beat = (await rec.sim.outputs())["heartbeat"]
-        await asyncio.sleep(0.2)  # ten real periods: the old controller hears no more
+        # ten more cycles, counted by the new controller: the old one hears none of them
+        new_beat = (await other.outputs())["heartbeat"]
+        await _until(other, "heartbeat", lambda v: v >= new_beat + 10, proc, log)
         assert (await rec.sim.outputs())["heartbeat"] == beat
         assert await _stop(proc) == 0
     finally:

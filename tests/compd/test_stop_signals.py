@@ -22,7 +22,9 @@ from compd.runtime.checkpoint import load_checkpoint
 from compd.runtime.daemon import Daemon
 from compd.runtime.fleet import Fleet, load_machines
 from compd.runtime.sdnotify import Notifier
+from compd.testing import SteppedClock
 from drivers.sim.modbus_server import ModbusSimController
+from tests.lockstep import Fleetstep
 
 from .daemon_helpers import until, write_config
 from .test_run_dir import _complete, _machines_dir, sims  # noqa: F401 - the fixture
@@ -132,11 +134,17 @@ async def test_a_real_daemon_stops_on_it_with_its_shutdown_policy(
 
 async def test_run_dir_stops_every_machine_on_sigxcpu(
         sims: list[ModbusSimController], tmp_path: Path) -> None:  # noqa: F811
-    """`compd run DIR` installed only TERM, INT and HUP: XCPU ended every machine at once."""
-    fleet = Fleet(load_machines(_machines_dir(tmp_path, sims)), notifier=Notifier(None))
+    """`compd run DIR` installed only TERM, INT and HUP: XCPU ended every machine at once.
+    The machines in lockstep (their files' 1 s period is one tick of the clock)."""
+    clock = SteppedClock(period_s=1.0)
+    fleet = Fleet(load_machines(_machines_dir(tmp_path, sims)), notifier=Notifier(None),
+                  clock=clock, sleep=clock.sleep)
     with structlog.testing.capture_logs() as logs:
         task = asyncio.get_running_loop().create_task(fleet.run())
-        await until(lambda: min(_complete(fleet).values()) >= 3)
+        steps = Fleetstep(clock, task)
+        await steps.until_asleep(len(sims))  # every machine ran its first cycle
+        await steps.step(2)
+        assert min(_complete(fleet).values()) >= 3
         assert _installed(signal.SIGXCPU) and _installed(signal.SIGUSR1)
         os.kill(os.getpid(), signal.SIGUSR1)  # logged, nothing else
         os.kill(os.getpid(), signal.SIGXCPU)

@@ -86,7 +86,9 @@ async def test_disk_full_for_recorder_and_logs(rec: RecordingSim, small_fs: Path
         hb = await heartbeat(rec.sim)
         await until(lambda: _hb_past(rec, hb + 20), proc, log, "cycling after recovery")
         dropped_after = await _metric(port, "compd_records_dropped_total")
-        await asyncio.sleep(0.3)
+        # fifteen more cycles (three commits of 5) counted by the controller: none dropped
+        hb = await heartbeat(rec.sim)
+        await until(lambda: _hb_past(rec, hb + 15), proc, log, "commits after recovery")
         assert await _metric(port, "compd_records_dropped_total") == dropped_after
         assert dropped_after >= dropped_full > 0
         proc.terminate()

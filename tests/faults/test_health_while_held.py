@@ -59,7 +59,8 @@ async def test_a_held_output_is_unhealthy_by_every_source(rec: RecordingSim,
                                                           tmp_path: Path) -> None:
     # 10x with a 50 ms request timeout: a loaded machine's late answer is not a
     # failed read that turns "healthy while ok" into a held cycle at the instant read
-    config = write_config(tmp_path, rec.sim.endpoint, time_scale=10.0, slew_um_s=2.0,
+    # a slew of 4 µm/s: the ramp back to about 80 µm after the clear takes 20 cycles
+    config = write_config(tmp_path, rec.sim.endpoint, time_scale=10.0, slew_um_s=4.0,
                           timeout_s=0.05)
     port = free_tcp_port("127.0.0.1")
     config.write_text(config.read_text() + f"metrics_port = {port}\n")

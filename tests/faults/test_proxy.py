@@ -98,7 +98,9 @@ async def test_latency_holds_data_then_delivers_in_order() -> None:
 
 async def test_slow_start_holds_the_first_chunks_of_new_connections_only() -> None:
     async with echo_proxy() as proxy, client(proxy) as (r_old, w_old):
-        proxy.slow_start(1.0, 1)
+        # held 0.3 s: the 0.05 s wait below begins before the proxy even reads the
+        # chunk (one event loop), so it always ends first
+        proxy.slow_start(0.3, 1)
         async with client(proxy) as (reader, writer):
             w_old.write(b"\x01o")  # a connection open before the switch: not held
             assert await asyncio.wait_for(r_old.readexactly(2), SOON_S) == b"\x01o"

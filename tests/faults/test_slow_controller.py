@@ -19,6 +19,11 @@ after k bytes. What must hold (issue 7):
 - after `close()`, the asyncio task count and this process's open file
   descriptors are back to what they were before the driver was created.
 
+The reconnect backoff of the link tests runs on a `compd.testing.FakeClock`
+(`Rig.clock`): a call inside the backoff delay fails fast however slow the
+machine, and the test moves the clock past the delay instead of sleeping it
+out. The requests' timeouts are real seconds, as on a shop floor.
+
 OPC UA drivers get ``connect_timeout_s = timeout_s`` here (a reconnect runs
 in the link's own task, started by `read`/`write`; each of its requests is
 bounded by timeout_s anyway, the whole handshake by connect_timeout_s, by
@@ -41,6 +46,7 @@ from urllib.parse import urlsplit
 import pytest
 import pytest_asyncio
 
+from compd.testing import FakeClock
 from drivers.backoff import Backoff
 from drivers.base import Driver
 from drivers.errors import ConnectionLost, ControllerTimeout, DriverError
@@ -78,6 +84,8 @@ class Rig:
     protocol: str
     sim: SimController
     proxy: FaultProxy
+    #: the backoff's clock for `driver(fake_backoff=True)`: moved by the test
+    clock: FakeClock = field(default_factory=FakeClock)
 
     @property
     def endpoint(self) -> str:
@@ -86,14 +94,17 @@ class Rig:
             netloc=f"{self.proxy.host}:{self.proxy.port}").geturl()
 
     def driver(self, timeout_s: float = TIMEOUT_S, backoff: tuple[float, float] = BACKOFF,
-               opcua_connect_timeout_s: float | None = None) -> Driver:
-        """`opcua_connect_timeout_s`: None = timeout_s (OPC UA only)."""
+               opcua_connect_timeout_s: float | None = None,
+               fake_backoff: bool = False) -> Driver:
+        """`opcua_connect_timeout_s`: None = timeout_s (OPC UA only);
+        `fake_backoff`: the backoff delay on `clock` (real seconds otherwise)."""
         options: dict[str, Any] = {}
         if self.protocol == "opcua":
             options["connect_timeout_s"] = opcua_connect_timeout_s or timeout_s
+        delays = Backoff(*backoff, clock=self.clock) if fake_backoff else Backoff(*backoff)
         return open_driver(self.protocol, self.endpoint, self.sim.channels,
-                           self.sim.outputs_map, timeout_s=timeout_s,
-                           backoff=Backoff(*backoff), **options)
+                           self.sim.outputs_map, timeout_s=timeout_s, backoff=delays,
+                           **options)
 
     def writes_sent(self) -> int:
         """Write requests the proxy received from the client."""
@@ -156,14 +167,18 @@ async def bounded(call: Awaitable[T], timeout_s: float = TIMEOUT_S) -> T:
         pytest.fail(f"a driver call hung past {timeout_s} s + {MARGIN_S} s margin")
 
 
-async def connect_up(driver: Driver, timeout_s: float = TIMEOUT_S) -> None:
-    """The first connect (a few tries: not what these tests are about)."""
+async def connect_up(driver: Driver, timeout_s: float = TIMEOUT_S,
+                     clock: FakeClock | None = None) -> None:
+    """The first connect (a few tries: not what these tests are about). With the
+    driver's backoff on `clock`, each try moves it past the backoff's cap too."""
     for _ in range(4):
         try:
             await bounded(driver.connect(), timeout_s)
             return
         except DriverError:
             await asyncio.sleep(BACKOFF[1])
+            if clock is not None:
+                clock.advance(BACKOFF[1])
     await bounded(driver.connect(), timeout_s)
 
 
@@ -172,12 +187,17 @@ async def read_and_write(driver: Driver) -> None:
     await bounded(driver.write(WRITES))
 
 
-async def until_recovered(driver: Driver, period_s: float = TS_S) -> int:
+async def until_recovered(driver: Driver, period_s: float = TS_S,
+                          clock: FakeClock | None = None) -> int:
     """Read and write as the daemon would, once per period, until both work;
-    returns the failed attempts. Fails the test past 10 s + 2·Ts."""
+    returns the failed attempts. Fails the test past 10 s + 2·Ts. With the
+    driver's backoff on `clock`: the backoff delay has passed when the link
+    returns (the clock moves past its cap), and each period moves it too."""
     loop = asyncio.get_running_loop()
     start = loop.time()
     failures = 0
+    if clock is not None:
+        clock.advance(BACKOFF[1])
     for k in range(math.ceil(RECOVER_WITHIN_S / period_s) + 1):
         try:
             await read_and_write(driver)
@@ -185,6 +205,8 @@ async def until_recovered(driver: Driver, period_s: float = TS_S) -> int:
         except DriverError:
             failures += 1
         await asyncio.sleep(max(0.0, start + (k + 1) * period_s - loop.time()))
+        if clock is not None:
+            clock.advance(period_s)
     pytest.fail(f"no complete read+write within {RECOVER_WITHIN_S} s after the link returned")
 
 
@@ -216,9 +238,9 @@ def _make_unresponsive(rig: Rig, mode: str) -> None:
 async def test_unresponsive_link(rig: Rig, mode: str) -> None:
     """Timeouts within timeout_s, fail fast while backing off, the timed-out
     write sent once, the same driver back after the link returns."""
-    driver = rig.driver()
+    driver = rig.driver(fake_backoff=True)
     try:
-        await connect_up(driver)
+        await connect_up(driver, clock=rig.clock)
         await read_and_write(driver)
         sent, served = rig.writes_sent(), rig.writes_served()
         _make_unresponsive(rig, mode)
@@ -233,7 +255,7 @@ async def test_unresponsive_link(rig: Rig, mode: str) -> None:
             await bounded(driver.write(WRITES))
         assert rig.traffic() == before, "a call inside the backoff delay touched the network"
         # after the delay: one reconnect attempt, again bounded by the timeout
-        await asyncio.sleep(BACKOFF[0])
+        rig.clock.advance(BACKOFF[0])
         with pytest.raises(ControllerTimeout):
             await bounded(driver.read(READ_NAMES))
         with pytest.raises(ConnectionLost):
@@ -248,7 +270,7 @@ async def test_unresponsive_link(rig: Rig, mode: str) -> None:
             assert rig.writes_served() - served == 1
 
         rig.proxy.pass_through()
-        await until_recovered(driver)
+        await until_recovered(driver, clock=rig.clock)
         assert (await rig.sim.outputs())["offset"] == pytest.approx(WRITES["offset"])
     finally:
         await finish(rig, driver)
@@ -258,9 +280,9 @@ async def test_unresponsive_link(rig: Rig, mode: str) -> None:
 async def test_broken_link(rig: Rig, mode: str) -> None:
     """A reset, or a connection cut halfway through a read's response: a
     driver error (not a hang), on new connections too; then back."""
-    driver = rig.driver()
+    driver = rig.driver(fake_backoff=True)
     try:
-        await connect_up(driver)
+        await connect_up(driver, clock=rig.clock)
         await bounded(driver.write({**WRITES, "offset": 0.0}))
         down = rig.proxy.bytes_forwarded["down"]
         await bounded(driver.read(READ_NAMES))
@@ -274,11 +296,11 @@ async def test_broken_link(rig: Rig, mode: str) -> None:
             rig.proxy.cut_after(0, "down")
         with pytest.raises(DriverError):
             await bounded(driver.read(READ_NAMES))
-        await asyncio.sleep(BACKOFF[0])
+        rig.clock.advance(BACKOFF[0])
         with pytest.raises(DriverError):  # the reconnect meets the same fault
             await read_and_write(driver)
         rig.proxy.pass_through()
-        await until_recovered(driver)
+        await until_recovered(driver, clock=rig.clock)
         assert (await rig.sim.outputs())["offset"] == pytest.approx(WRITES["offset"])
     finally:
         await finish(rig, driver)
@@ -335,7 +357,7 @@ async def cycle_loop(driver: Driver, periods: int, period_s: float,
 
 async def test_failed_cycles_are_skipped_and_counted_never_queued(rig: Rig) -> None:
     period_s, timeout_s = 0.2, 0.1
-    outage = range(5, 15)
+    outage = range(5, 10)
     # after the outage: until a cycle completes again, bounded only generously
     # (30 s: the backoff's retry and a loaded machine's late answers take their time)
     periods = outage.stop + 150
@@ -375,9 +397,9 @@ async def test_tasks_and_fds_back_to_baseline_after_close(rig: Rig) -> None:
     sim and the proxy were already running then)."""
     tasks_before = len(asyncio.all_tasks())
     fds_before = open_fds()
-    driver = rig.driver(backoff=(0.1, 0.2))
+    driver = rig.driver(backoff=(0.1, 0.2), fake_backoff=True)
     try:
-        await connect_up(driver)
+        await connect_up(driver, clock=rig.clock)
         await read_and_write(driver)
         faults: list[Callable[[], None]] = [
             lambda: rig.proxy.latency(LATENCY_S), rig.proxy.blackhole, rig.proxy.reset,
@@ -387,7 +409,7 @@ async def test_tasks_and_fds_back_to_baseline_after_close(rig: Rig) -> None:
             with pytest.raises(DriverError):
                 await read_and_write(driver)
             rig.proxy.pass_through()
-            await until_recovered(driver)
+            await until_recovered(driver, clock=rig.clock)
     finally:
         await finish(rig, driver)
     tasks_after = await settle(lambda: len(asyncio.all_tasks()), tasks_before)
@@ -406,19 +428,18 @@ async def test_opcua_reconnect_outlives_a_read_that_gave_up(rig: Rig) -> None:
     task), and a later read takes its session. One new connection, never a
     handshake started again on every read (which kept the link down for good)."""
     connect_s = max(2 * TIMEOUT_S, 1.0)  # the driver's default
-    driver = rig.driver(opcua_connect_timeout_s=connect_s)
+    driver = rig.driver(opcua_connect_timeout_s=connect_s, fake_backoff=True)
     one_way_s = 0.4 * TIMEOUT_S
     try:
-        await connect_up(driver, connect_s)
+        await connect_up(driver, connect_s, rig.clock)
         rig.proxy.reset()
         with pytest.raises(DriverError):
             await bounded(driver.read(READ_NAMES))
         rig.proxy.latency(one_way_s, one_way_s)
         backoff: Backoff = driver.backoff  # type: ignore[attr-defined]
-        for _ in range(int(BACKOFF[1] / 0.02) + 1):  # until a reconnect attempt is due
-            if backoff.ready():
-                break
-            await asyncio.sleep(0.02)
+        assert not backoff.ready()
+        rig.clock.advance(backoff.delay_s)  # a reconnect attempt is due
+        assert backoff.ready()
         connections = rig.proxy.connections_accepted
         with pytest.raises(TimeoutError):  # the daemon's deadline, as cycle_io sets it
             await asyncio.wait_for(driver.read(READ_NAMES), max(TS_S, 2 * TIMEOUT_S))
