@@ -37,6 +37,7 @@ a level per record) are tried, and the failures are kept as notes.
 from __future__ import annotations
 
 import functools
+import hashlib
 import itertools
 import math
 from collections.abc import Callable, Iterator, Sequence
@@ -153,6 +154,11 @@ class _Data:
     #: why a final estimate is refused besides `implausible` (the caller's own
     #: diagnostics: `compd fit` vetoes a model `compd check` would warn about)
     veto: Callable[[OeModel], str | None] | None = None
+    #: `arx_fit`'s estimates by (na, nb, iterations, initial, digest of the
+    #: training rows): the order searches and the fold models ask for the same
+    #: least squares on the same rows again (a deterministic function of them)
+    arx_memo: dict[tuple[int, int, int, bool, bytes], OeModel | None] = field(
+        default_factory=dict, repr=False)
 
     @property
     def every(self) -> BoolArray:
@@ -212,7 +218,17 @@ def arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int = 0
     least squares again: it converges towards the output-error estimate, so
     orders chosen with it are not those of the noise-biased ARX). With the
     initial conditions estimated, shifts of a record indicator (filtered the
-    same way) join the regressors. None if unstable."""
+    same way) join the regressors. None if unstable. Memoised on `d`
+    (`_Data.arx_memo`)."""
+    key = (na, nb, iterations, d.initial,
+           hashlib.blake2b(np.ascontiguousarray(train).view(np.uint8), digest_size=16).digest())
+    if key not in d.arx_memo:
+        d.arx_memo[key] = _arx_fit(d, na, nb, train, iterations)
+    return d.arx_memo[key]
+
+
+def _arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int
+             ) -> OeModel | None:
     seg = d.seg
     lag = max(na, nb - 1)
     rows = _lag_ok(train, seg, lag)
@@ -560,21 +576,23 @@ def arx_orders(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int]
 
 
 def _fold_models(d: _Data, na: int, nb: int, train: BoolArray, structures: Sequence[str],
-                 max_iter: int, arx_at: tuple[int, int] | None = None
+                 max_iter: int, arx_at: tuple[int, int] | None = None, per_term: bool = True
                  ) -> dict[str, OeModel | None]:
     """Every structure (ridge: every λ) trained on `train`; the ARX least
-    squares at `arx_at` (default the same orders)."""
+    squares at `arx_at` (default the same orders). Without `per_term`,
+    per-term-oe is left out and shared-oe is kept (its start) even when not
+    asked for."""
     out: dict[str, OeModel | None] = {}
     arx = arx_fit(d, *(arx_at or (na, nb)), train)
     out["arx"] = arx
     sm = arx_fit(d, na, nb, train, SM_ITERATIONS) if set(structures) - {"arx"} else None
     shared = _oe(d, sm, train, False, max_iter)
-    if "shared-oe" in structures:
+    if "shared-oe" in structures or not per_term:
         out["shared-oe"] = shared
     if "ridge" in structures:
         for lam in RIDGE_GRID:
             out[f"ridge:{lam:g}"] = _ridge(d, shared, train, lam)
-    if "per-term-oe" in structures:
+    if "per-term-oe" in structures and per_term:
         # from the shared-oe estimate: the same output, a far better basin than
         # the ARX start (a day at 1 s: 23,600 µm² instead of 270,000 at the start)
         out["per-term-oe"] = _oe(d, shared, train, True, max_iter)
@@ -712,13 +730,13 @@ def _candidates_at(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int
                            heldout_residuals=held.residuals)], (0, 1), True)
     na, nb, initial = choose_orders(d, na_range, nb_range)
     arx_at = arx_orders(d, na_range, nb_range)
-    per_fold = [_fold_models(d, na, nb, train, structures, max_iter, arx_at)
+    per_fold = [_fold_models(d, na, nb, train, structures, max_iter, arx_at, per_term=False)
                 for train, _ in d.splits]
+    finals = _fold_models(d, na, nb, every, structures, max_iter, arx_at)
     keys = list(per_fold[0])
     scores: dict[str, tuple[float, list[float]]] = {}
     for key in keys:
         scores[key] = _score(d, _Replay([pf[key] for pf in per_fold]))
-    finals = _fold_models(d, na, nb, every, structures, max_iter, arx_at)
     ridge_keys = [k for k in keys if k.startswith("ridge:")]
     if ridge_keys:
         best_lam = max(ridge_keys, key=lambda k: scores[k][0])
@@ -726,16 +744,24 @@ def _candidates_at(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int
         finals["ridge"] = finals[best_lam]
         for pf in per_fold:
             pf["ridge"] = pf[best_lam]
+    # the diagnostics in the table's order (a veto may count what it refuses)
+    refused = {n: d.refused(m, labels) for n in ("arx", "shared-oe", "ridge", "per-term-oe")
+               if (n in structures or n == "arx") and (m := finals.get(n)) is not None}
+    names = list(refused)
+    if "per-term-oe" in refused and not all(refused.values()):
+        # per-term-oe's folds start from shared-oe's: fitted only when a
+        # candidate is accepted (else the stage fails whatever they validate)
+        for (train, _), pf in zip(d.splits, per_fold, strict=True):
+            pf["per-term-oe"] = _oe(d, pf["shared-oe"], train, True, max_iter)
+        scores["per-term-oe"] = _score(d, _Replay([pf["per-term-oe"] for pf in per_fold]))
     cands: list[Candidate] = []
-    for name in ("arx", "shared-oe", "ridge", "per-term-oe"):
-        if name not in structures and name != "arx":
-            continue
+    for name in names:
         m = finals.get(name)
         val, per = scores.get(name, (-math.inf, []))
         if m is None:
             continue
         detail = f"λ = {best_lam.partition(':')[2]}" if name == "ridge" else ""
-        why = d.refused(m, labels)
+        why = refused[name]
         held = _heldout(d, [pf.get(name) for pf in per_fold])
         cands.append(Candidate(name, m, val, tuple(per), _final_fit(d, m), detail, why,
                                held.rms, held.displacement_rms, held.residuals))
