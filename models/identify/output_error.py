@@ -50,6 +50,9 @@ FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 _KAPPA_LIM = 1.0 - 1e-12
+#: the most a cached simulation (inputs with their levels, each group's output,
+#: the output level) may hold, in bytes
+CACHE_BYTES = 64 << 20
 
 
 @dataclass(frozen=True)
@@ -88,6 +91,12 @@ class _Problem:
         self.per_record = 1 + len(self.us)
         self.n_init = len(seg.bounds) * self.per_record if initial else 0
         self.group_of = {t: g for g, m in enumerate(self.groups) for t in m}
+        #: the blocks of the last θ simulated (`residual`), kept when the record is
+        #: one block: `normal_equations` at the same θ reuses them (each
+        #: Levenberg–Marquardt iteration linearises where the last accepted step
+        #: was simulated)
+        self._cached: tuple[bytes, list[tuple[int, int, list[FloatArray],
+                                              list[FloatArray], FloatArray]]] | None = None
 
     def unpack(self, th: FloatArray) -> tuple[list[FloatArray], list[FloatArray],
                                                list[FloatArray], FloatArray]:
@@ -138,6 +147,24 @@ class _Problem:
                 outs.append(iirs[g](v, lo))
             yield lo, hi, us, outs, level
 
+    def _blocks_cached(self, th: FloatArray) -> Iterator[tuple[int, int, list[FloatArray],
+                                                              list[FloatArray], FloatArray]]:
+        """`blocks(th)`, from the cache when θ is the one simulated last. A
+        simulation is cached up to `CACHE_BYTES` (a week at 1 s, four inputs);
+        past that each block is dropped once used, so the memory stays that
+        of a block."""
+        key = th.tobytes()
+        if self._cached is not None and self._cached[0] == key:
+            yield from self._cached[1]
+            return
+        if self.y.size * (len(self.us) + len(self.groups) + 1) * 8 > CACHE_BYTES:
+            yield from self.blocks(th)
+            return
+        self._cached = None  # the last one dropped before the next is built
+        kept = list(self.blocks(th))
+        self._cached = (key, kept)
+        yield from kept
+
     def simulate(self, th: FloatArray) -> FloatArray:
         out = np.empty(self.y.size)
         for lo, hi, _, outs, level in self.blocks(th):
@@ -148,7 +175,7 @@ class _Problem:
         """(y - ŷ) · weight, the weight 1 on the rows of `mask` and 0 elsewhere,
         made block by block (neither ŷ nor the weights of every row held)."""
         out = np.empty(self.y.size)
-        for lo, hi, _, outs, level in self.blocks(th):
+        for lo, hi, _, outs, level in self._blocks_cached(th):
             out[lo:hi] = (self.y[lo:hi] - (sum(outs) + level)) * mask[lo:hi].astype(np.float64)
         return out
 
@@ -180,7 +207,7 @@ class _Problem:
         p = self.n_num + self.n_den + self.n_init
         jtj: FloatArray | None = None
         jtr: FloatArray | None = None
-        for lo, hi, us, outs, _ in self.blocks(th):
+        for lo, hi, us, outs, _ in self._blocks_cached(th):
             wb = mask[lo:hi].astype(np.float64)
             jt = np.empty((p, hi - lo))
             i = 0
