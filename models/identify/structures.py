@@ -287,11 +287,11 @@ def _arx_blocks(d: _Data, y: FloatArray, na: int, nb: int, lag: int,
                 fy = fb
             lg.feed(fb, lo)
         for i in range(1, na + 1):
-            x[i - 1] = -lags[0].shift(i)
+            np.negative(lags[0].shift(i, x[i - 1]), out=x[i - 1])
         col = na
         for lg in lags[1:]:
             for j in range(nb):
-                x[col] = lg.shift(j)
+                lg.shift(j, x[col])
                 col += 1
         for r, (s, e) in enumerate(seg.bounds[:n_init]):
             ind = np.zeros(hi - lo)
@@ -299,10 +299,13 @@ def _arx_blocks(d: _Data, y: FloatArray, na: int, nb: int, lag: int,
             f = ind_filters[r]
             ind_lags[r].feed(ind if f is None else f(ind, lo), lo)
             for j in range(lag + 1):
-                x[col] = ind_lags[r].shift(j)
+                ind_lags[r].shift(j, x[col])
                 col += 1
         keep = rows[lo:hi]
-        yield x[:, keep].T, fy[keep]
+        if keep.all():  # every row: the regressors themselves, not a copy
+            yield x.T, fy
+        else:
+            yield x[:, keep].T, fy[keep]
 
 
 def _simulate(d: _Data, m: OeModel, train: BoolArray, y: FloatArray, us: Sequence[FloatArray],
@@ -541,7 +544,10 @@ def _ridge_blocks(d: _Data, den: Sequence[float], nb: int, train: BoolArray
                 x[col + 1 + j] = ind_lags[r].shift(j)
             col += nb + 1
         keep = train[lo:hi]
-        yield x[:, keep].T, d.y[lo:hi][keep]
+        if keep.all():  # every row: the regressors themselves, not a copy
+            yield x.T, d.y[lo:hi]
+        else:
+            yield x[:, keep].T, d.y[lo:hi][keep]
 
 
 def _final_fit(d: _Data, m: OeModel) -> float:
