@@ -517,16 +517,19 @@ def _read_records(paths: list[str], args: argparse.Namespace, channels: set[str]
     import math
 
     from compd.offline.channel_kind import ChannelKind, channel_kind, is_rate_channel
-    from compd.offline.records import RecordError, check_units, read_record
+    from compd.offline.records import RecordError, check_units, columns_named, read_record
 
     records: list[Record] = []
+    wanted = [args.output, *sorted(channels), *([args.switch] if args.switch else [])]
+    only = (channels and not getattr(args, "fixed", None) and not args.candidates
+            and not getattr(args, "positions", False))
     for p in paths:
-        r = read_record(p)
+        # the reader holds only what fit reads (every cell still checked)
+        r = read_record(p, columns_named(wanted, speeds=True) if only else None)
         if getattr(args, "positions", False):  # the line through the positions: value or slope
             from compd.offline.position_record import line_record
 
             r = line_record(r, args.reference_position_mm, args.output)
-        wanted = [args.output, *sorted(channels), *([args.switch] if args.switch else [])]
         r.require(wanted)
         temps = sorted(c for c in channels if not is_rate_channel(c))
         check_units(r, temps if args.kind != "greybox" else [], args.output)
@@ -551,6 +554,8 @@ def _only_columns(record: Record, names: set[str]) -> Record:
     of the block the reader parsed is freed: a month at 1 s is 21 MB a column."""
     import dataclasses
 
+    if set(record.columns) <= names:  # nothing to drop (the reader kept only these)
+        return record
     return dataclasses.replace(record, time_s=record.time_s.copy(),
                                columns={k: v.copy() for k, v in record.columns.items()
                                         if k in names})

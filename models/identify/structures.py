@@ -220,8 +220,8 @@ def arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int = 0
     initial conditions estimated, shifts of a record indicator (filtered the
     same way) join the regressors. None if unstable. Memoised on `d`
     (`_Data.arx_memo`)."""
-    key = (na, nb, iterations, d.initial,
-           hashlib.blake2b(np.ascontiguousarray(train).view(np.uint8), digest_size=16).digest())
+    rows = hashlib.blake2b(np.packbits(train).tobytes(), digest_size=16).digest()
+    key = (na, nb, iterations, d.initial, rows)
     if key not in d.arx_memo:
         d.arx_memo[key] = _arx_fit(d, na, nb, train, iterations)
     return d.arx_memo[key]
