@@ -42,7 +42,7 @@ def test_a_column_fit_does_not_read_is_still_checked(tmp_path: Path) -> None:
     rows[30] = "30,20.3,oops,0.6"
     path.write_text("time_s,bearing,table,dz_um\n" + "\n".join(rows) + "\n")
     args = argparse.Namespace(output="dz_um", switch=None, kind="tf", candidates=[], fixed=[])
-    with pytest.raises(RecordError, match="row 32.*table"):
+    with pytest.raises(RecordError, match=r"row 32.*table"):
         _read_records([str(path)], args, {"bearing"})
 
 
