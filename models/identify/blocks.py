@@ -100,8 +100,13 @@ class SegFilter:
 
     def __call__(self, x: FloatArray, lo: int) -> FloatArray:
         """The filtered block x (rows lo … lo + len(x) - 1)."""
+        pieces = list(_pieces(self.seg, lo, lo + x.size))
+        if len(pieces) == 1 and pieces[0][:2] == (lo, lo + x.size):  # one record's rows
+            zi = np.zeros_like(self.zi) if pieces[0][2] else self.zi
+            out, self.zi = filter_zi(self.b, self.a, x, zi)  # the filter's own output
+            return out
         out = np.empty_like(x, dtype=np.float64)
-        for a, b, first in _pieces(self.seg, lo, lo + x.size):
+        for a, b, first in pieces:
             zi = np.zeros_like(self.zi) if first else self.zi
             out[a - lo:b - lo], self.zi = filter_zi(self.b, self.a, x[a - lo:b - lo], zi)
         return out
