@@ -219,36 +219,52 @@ def arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int = 0
     orders chosen with it are not those of the noise-biased ARX). With the
     initial conditions estimated, shifts of a record indicator (filtered the
     same way) join the regressors. None if unstable. Memoised on `d`
-    (`_Data.arx_memo`)."""
+    (`_Data.arx_memo`); Steiglitz–McBride starts from the memoised ARX
+    estimate (its first iteration, the same least squares), and leaves it
+    there for the ARX candidate."""
     rows = hashlib.blake2b(np.packbits(train).tobytes(), digest_size=16).digest()
     key = (na, nb, iterations, d.initial, rows)
-    if key not in d.arx_memo:
-        d.arx_memo[key] = _arx_fit(d, na, nb, train, iterations)
-    return d.arx_memo[key]
+    if key in d.arx_memo:
+        return d.arx_memo[key]
+    first = (na, nb, 0, d.initial, rows)
+    if first in d.arx_memo and d.arx_memo[first] is None:  # no ARX: no refinement either
+        d.arx_memo[key] = None
+        return None
+    result, arx = _arx_fit(d, na, nb, train, iterations, d.arx_memo.get(first))
+    d.arx_memo[key] = result
+    d.arx_memo[first] = arx
+    return result
 
 
-def _arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int
-             ) -> OeModel | None:
+def _arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int,
+             arx: OeModel | None = None) -> tuple[OeModel | None, OeModel | None]:
+    """(`arx_fit`'s estimate, the ARX least squares it started from), the
+    latter taken from `arx` when given (then not computed again)."""
     seg = d.seg
     lag = max(na, nb - 1)
     rows = _lag_ok(train, seg, lag)
     den: tuple[float, ...] = (1.0,)
     nums: tuple[tuple[float, ...], ...] = ()
     n_cols = na + len(d.us) * nb + (len(seg.bounds) * (lag + 1) if d.initial else 0)
-    for it in range(iterations + 1):
+    start = 0
+    if arx is not None:
+        den, nums, start = arx.dens[0], arx.nums, 1
+    for it in range(start, iterations + 1):
         if int(rows.sum()) <= n_cols:  # fewer rows than parameters: nothing determined
-            return None
+            return None, None
         y = d.y if it == 0 else _known(d, nums, den)
         theta = solve_blocks(_arx_blocks(d, y, na, nb, lag, den if it else None, rows))
         new_den = (1.0, *(float(v) for v in theta[:na]))
         if not is_stable(new_den, d.radius):
             if it == 0:
-                return None
+                return None, None
             break
         den = new_den
         nums = tuple(tuple(float(v) for v in theta[na + t * nb:na + (t + 1) * nb])
                      for t in range(len(d.us)))
-    return OeModel(nums=nums, dens=(den,), groups=(tuple(range(len(d.us))),))
+        if it == 0:
+            arx = OeModel(nums=nums, dens=(den,), groups=(tuple(range(len(d.us))),))
+    return OeModel(nums=nums, dens=(den,), groups=(tuple(range(len(d.us))),)), arx
 
 
 def _known(d: _Data, nums: tuple[tuple[float, ...], ...], den: tuple[float, ...]

@@ -54,7 +54,7 @@ def _plain(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(output_error, "CACHE_BYTES", -1)
     monkeypatch.setattr(structures, "arx_fit",
                         lambda d, na, nb, train, iterations=0:
-                        structures._arx_fit(d, na, nb, train, iterations))
+                        structures._arx_fit(d, na, nb, train, iterations)[0])
 
 
 def test_filter_zi_is_lfilter_to_the_bit() -> None:
