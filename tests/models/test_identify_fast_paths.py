@@ -117,3 +117,29 @@ def test_per_term_folds_are_left_out_of_a_stage_that_fails(
     folds = structures.DEFAULT_FOLDS
     assert per_term.count(False) == 2 * folds
     assert per_term.count(True) == 3
+
+
+def test_the_textbook_model_keeps_no_simulation_of_every_row_per_fold() -> None:
+    """The textbook ARX's folds are pooled from their held-out rows: its
+    peak (9 arrays of the record's length here, 12 when each fold kept its
+    simulation) has no simulation of every row per fold."""
+    import tracemalloc
+
+    from models.identify.structures import make_data
+    from models.identify.textbook import textbook
+
+    rng = np.random.default_rng(5)
+    n = 200_000
+    us = [np.repeat(rng.uniform(-2.0, 2.0, n // h + 1), h)[:n] for h in (900, 1300, 1700)]
+    y = sum(lfilter([0.02 * (t + 1)], [1.0, -0.99], u) for t, u in enumerate(us))
+    y = np.asarray(y) + 0.05 * rng.standard_normal(n)
+    d = make_data(y, us, Segments.single(n), 1.0, 4, "forward")
+    tracemalloc.start()
+    try:
+        got = textbook(d, us)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert got is not None
+    row_arrays = peak / (8 * n)
+    assert row_arrays < 11, f"peak {peak / 1e6:.0f} MB: {row_arrays:.1f} arrays of every row"
