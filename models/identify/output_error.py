@@ -149,6 +149,12 @@ class _Problem:
                 outs.append(iirs[g](v, lo))
             yield lo, hi, us, outs, level
 
+    def _cacheable(self) -> bool:
+        """Whether a simulation (inputs with their levels, each group's output,
+        the output level) fits within `CACHE_BYTES`; the row weights are kept
+        only then too (a longer record streams with a block's memory)."""
+        return self.y.size * (len(self.us) + len(self.groups) + 1) * 8 <= CACHE_BYTES
+
     def _blocks_cached(self, th: FloatArray) -> Iterator[tuple[int, int, list[FloatArray],
                                                               list[FloatArray], FloatArray]]:
         """`blocks(th)`, from the cache when θ is the one simulated last. A
@@ -159,7 +165,7 @@ class _Problem:
         if self._cached is not None and self._cached[0] == key:
             yield from self._cached[1]
             return
-        if self.y.size * (len(self.us) + len(self.groups) + 1) * 8 > CACHE_BYTES:
+        if not self._cacheable():
             yield from self.blocks(th)
             return
         self._cached = None  # the last one dropped before the next is built
@@ -194,7 +200,7 @@ class _Problem:
         if mask.all():
             self._mask = (mask, None)
             return lambda lo, hi: None
-        if self.y.size * 8 <= CACHE_BYTES:
+        if self._cacheable():
             self._mask = (mask, mask.astype(np.float64))
             return self._weights(mask)
         return lambda lo, hi: mask[lo:hi].astype(np.float64)
