@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Callable, Iterator
+import operator
+from collections.abc import Callable, Iterator, Sequence
 from typing import TextIO
 
 import numpy as np
@@ -25,6 +26,9 @@ TimeColumn = Callable[[list[str], str], tuple[int, bool]]
 #: (columns not parsed: text the caller drops, stored as 0.0; columns whose empty
 #: cell is a missing number, stored as NaN) by header
 TextColumns = Callable[[list[str]], tuple[frozenset[int], frozenset[int]]]
+#: the columns stored, by (header, index of the time column): every cell is still
+#: parsed and checked, only these are kept (None: every column)
+Stored = Callable[[list[str], int], list[int]]
 
 
 def _no_text(header: list[str]) -> tuple[frozenset[int], frozenset[int]]:
@@ -38,7 +42,7 @@ class _Grower:
         self.data: FloatArray = np.empty((ncols, max(16, capacity)), dtype=np.float64)
         self.n = 0
 
-    def append(self, values: list[float]) -> None:
+    def append(self, values: Sequence[float]) -> None:
         if self.n == self.data.shape[1]:
             bigger = np.empty((self.data.shape[0], self.n + self.n // 2 + 16), np.float64)
             bigger[:, :self.n] = self.data
@@ -75,14 +79,17 @@ def _slow_row(row: list[str], header: list[str], t_idx: int, is_iso: bool, where
 
 
 def parse_csv(text: TextIO, where: str, size: int, time_column: TimeColumn,
-              text_columns: TextColumns = _no_text) -> tuple[list[str], int, FloatArray]:
+              text_columns: TextColumns = _no_text, stored: Stored | None = None
+              ) -> tuple[list[str], int, FloatArray]:
     """(header, index of the time column, data[column, row]) of a CSV stream
-    of `size` bytes; times as read (ISO 8601 as POSIX seconds). What the csv
-    module cannot split (a field over its limit of 128 KiB) is a RecordError
+    of `size` bytes; times as read (ISO 8601 as POSIX seconds). With `stored`,
+    only those columns are kept (the header and the time column's index are
+    then of the columns kept), each cell of the others still checked. What the
+    csv module cannot split (a field over its limit of 128 KiB) is a RecordError
     naming the line."""
     reader = csv.reader(text)
     try:
-        return _parse(reader, where, size, time_column, text_columns)
+        return _parse(reader, where, size, time_column, text_columns, stored)
     except csv.Error as exc:
         reason = str(exc)
         if "field larger than field limit" in reason:
@@ -92,7 +99,8 @@ def parse_csv(text: TextIO, where: str, size: int, time_column: TimeColumn,
 
 
 def _parse(reader: Iterator[list[str]], where: str, size: int, time_column: TimeColumn,
-           text_columns: TextColumns) -> tuple[list[str], int, FloatArray]:
+           text_columns: TextColumns, stored: Stored | None
+           ) -> tuple[list[str], int, FloatArray]:
     header = next(reader, None)
     if not header or not any(h.strip() for h in header):
         raise RecordError(f"{where}: empty file (a header line is required)")
@@ -104,8 +112,12 @@ def _parse(reader: Iterator[list[str]], where: str, size: int, time_column: Time
     skip, blank = text_columns(header)
     numbers = [i for i in range(len(header)) if i not in skip and i not in blank]
     ncols = len(header)
+    kept = sorted(set(stored(header, t_idx)) | {t_idx}) if stored is not None else None
+    if kept is not None and len(kept) == ncols:
+        kept = None
+    pick = _picker(kept)
     buf: _Grower | None = None
-    head: list[list[float]] = []  # the first rows, to size the buffer from their length
+    head: list[Sequence[float]] = []  # the first rows, to size the buffer from their length
     head_bytes = 0
     for line_no, row in enumerate(reader, start=2):
         values: list[float] | None
@@ -131,23 +143,36 @@ def _parse(reader: Iterator[list[str]], where: str, size: int, time_column: Time
             if values is None:
                 continue
         if buf is None:
-            head.append(values)
+            head.append(pick(values))
             head_bytes += sum(len(c) for c in row) + ncols
             if len(head) < HEAD_ROWS:
                 continue
-            buf = _start(ncols, size, head, head_bytes)
+            buf = _start(len(head[0]), size, head, head_bytes)
         else:
-            buf.append(values)
+            buf.append(pick(values))
     if buf is None:
-        buf = _start(ncols, size, head, head_bytes)
-    return header, t_idx, buf.result()
+        buf = _start(ncols if kept is None else len(kept), size, head, head_bytes)
+    if kept is None:
+        return header, t_idx, buf.result()
+    return [header[i] for i in kept], kept.index(t_idx), buf.result()
+
+
+def _picker(kept: list[int] | None) -> Callable[[list[float]], Sequence[float]]:
+    """The values of the columns `kept` out of a row's (None: all of them)."""
+    if kept is None:
+        return lambda values: values
+    if len(kept) == 1:
+        only = kept[0]
+        return lambda values: (values[only],)
+    get = operator.itemgetter(*kept)  # one C call per row
+    return get
 
 
 #: rows read before the buffer is sized from their mean length
 HEAD_ROWS = 256
 
 
-def _start(ncols: int, size: int, head: list[list[float]], head_bytes: int) -> _Grower:
+def _start(ncols: int, size: int, head: list[Sequence[float]], head_bytes: int) -> _Grower:
     mean = head_bytes / max(1, len(head))
     buf = _Grower(ncols, int(1.05 * size / max(mean, 1.0)) + 16)
     for values in head:

@@ -22,6 +22,7 @@ from compd.offline.fit_records import (
     LONG_RECORD_ROWS,
     calibration_rows,
     check_folds,
+    keep_freed_arrays,
     read_records,
     return_freed_arrays,
 )
@@ -266,6 +267,8 @@ def fit_model(request: FitRequest, run: FitRun | None = None) -> FitResult:
     check_folds(run, records)
     if sum(len(r) for r in records) > LONG_RECORD_ROWS:
         return_freed_arrays()
+    else:
+        keep_freed_arrays()
     if request.candidates:
         specs = _search_specs(run, records)
         channels = {ch for _, inputs in specs for ch in inputs}

@@ -33,7 +33,7 @@ from __future__ import annotations
 import hashlib
 import io
 import os
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -184,11 +184,14 @@ def _time_column(header: list[str], path: str) -> tuple[int, bool]:
                       f"column named one of {list(_ISO_TIME_NAMES)}; header is {header}")
 
 
-def read_csv_columns(path: str | Path, what: str) -> tuple[list[str], int, FloatArray]:
+def read_csv_columns(path: str | Path, what: str, keep: Callable[[str], bool] | None = None
+                     ) -> tuple[list[str], int, FloatArray]:
     """(header, index of the time column, data[column, row]) of a CSV file of numbers
     with a time column, streamed (`compd.offline.csvstream`); RecordError naming the
     file (and the row and column) on anything else. The one CSV reader of records and
-    probe logs: the checks of what the rows mean are the caller's."""
+    probe logs: the checks of what the rows mean are the caller's. `keep`: the
+    only columns stored besides the time (every cell is still checked; an export's
+    columns are all kept, its reading needs them)."""
     from compd.offline.csvstream import parse_csv
 
     where = str(path)
@@ -196,19 +199,23 @@ def read_csv_columns(path: str | Path, what: str) -> tuple[list[str], int, Float
         size = os.fstat(raw.fileno()).st_size
         text = io.TextIOWrapper(raw, encoding="utf-8-sig", newline="")
         try:
-            return parse_csv(text, where, size, _time_column, _export_text_columns)
+            stored = None if keep is None else (
+                lambda header, t: list(range(len(header))) if is_export(header) else
+                [i for i, h in enumerate(header) if i == t or keep(h)])
+            return parse_csv(text, where, size, _time_column, _export_text_columns, stored)
         except UnicodeDecodeError:
             raise RecordError(f"{where}: not a text (UTF-8) CSV file") from None
         except OSError as exc:
             raise RecordError(f"{where}: cannot read the {what} ({exc.strerror})") from None
 
 
-def read_csv_record(path: str | Path) -> Record:
+def read_csv_record(path: str | Path, keep: Callable[[str], bool] | None = None) -> Record:
     """Read and check a CSV calibration record (see the module docstring),
     streamed row by row into float64 columns (`compd.offline.csvstream`): memory is
-    the numbers' 8 bytes per cell, whatever the text's size."""
+    the numbers' 8 bytes per cell, whatever the text's size. `keep`: the only
+    columns held (`read_csv_columns`; the others are checked all the same)."""
     where = str(path)
-    header, t_idx, data = read_csv_columns(path, "record")
+    header, t_idx, data = read_csv_columns(path, "record", keep)
     if is_export(header):
         return _export_record(path, header, data)
     if data.shape[1] < 3:
@@ -248,11 +255,23 @@ def _export_record(path: str | Path, header: list[str], data: FloatArray) -> Rec
 RECORDER_SUFFIXES = (".db", ".sqlite", ".sqlite3")
 
 
-def read_record(path: str | Path) -> Record:
-    """A calibration record from a CSV file or a recorder database (by suffix)."""
+def read_record(path: str | Path, keep: Callable[[str], bool] | None = None) -> Record:
+    """A calibration record from a CSV file or a recorder database (by suffix);
+    `keep`: the only columns a CSV file's record holds (`read_csv_record`)."""
     if Path(path).suffix.lower() in RECORDER_SUFFIXES:
         return read_recorder_record(path)
-    return read_csv_record(path)
+    return read_csv_record(path, keep)
+
+
+def columns_named(names: Iterable[str], speeds: bool = False) -> Callable[[str], bool]:
+    """A `keep` for `read_record`: the columns `names` (under a renamed simulator
+    channel's other spelling too, `Record.require` files it under the name
+    asked for), with `speeds` every speed column besides."""
+    from drivers.sim.renamed import counterpart
+
+    wanted = set(names)
+    return lambda c: (c in wanted or counterpart(c) in wanted
+                      or (speeds and channel_kind(c) is ChannelKind.SPEED))
 
 
 def read_recorder_record(path: str | Path) -> Record:

@@ -37,6 +37,11 @@ from scipy.signal import lfilter
 
 from models.identify.segments import Segments
 
+try:  # lfilter's own kernel: the identification calls it thousands of times per fit
+    from scipy.signal._sigtools import _linear_filter
+except ImportError:  # pragma: no cover - another scipy layout: lfilter itself
+    _linear_filter = None
+
 FloatArray = npt.NDArray[np.float64]
 
 #: a record of at most this many rows is one block (a day at 1 s: the numbers of
@@ -63,6 +68,24 @@ def _pieces(seg: Segments, lo: int, hi: int) -> Iterator[tuple[int, int, bool]]:
             yield a, b, a == s
 
 
+def filter_zi(b: FloatArray, a: FloatArray, x: FloatArray, zi: FloatArray
+              ) -> tuple[FloatArray, FloatArray]:
+    """``lfilter(b, a, x, zi=zi)`` for float64 1-D arrays with a[0] = 1 and zi
+    of max(len(a), len(b)) - 1 values, by the very arithmetic `lfilter` runs
+    (its recursive kernel; a FIR filter its convolution) without its checks
+    and conversions of every argument, which cost as much as the filtering on
+    a block of a few thousand rows."""
+    if _linear_filter is None or a[0] != 1.0 or zi.size != max(a.size, b.size) - 1:
+        out, zf = lfilter(b, a, x, zi=zi)
+        return np.asarray(out, dtype=np.float64), np.asarray(zf, dtype=np.float64)
+    if a.size == 1:  # lfilter's FIR path: the full convolution, zi added to its head
+        full = np.convolve(b, x)
+        full[:zi.size] += zi
+        return full[:x.size], full[x.size:]
+    out, zf = _linear_filter(b, a, x, -1, zi)
+    return out, zf
+
+
 class SegFilter:
     """``lfilter(b, a, x)`` over consecutive blocks of the concatenated records,
     restarted from rest at each record's start (`Segments.filter`, block by
@@ -77,10 +100,15 @@ class SegFilter:
 
     def __call__(self, x: FloatArray, lo: int) -> FloatArray:
         """The filtered block x (rows lo … lo + len(x) - 1)."""
+        pieces = list(_pieces(self.seg, lo, lo + x.size))
+        if len(pieces) == 1 and pieces[0][:2] == (lo, lo + x.size):  # one record's rows
+            zi = np.zeros_like(self.zi) if pieces[0][2] else self.zi
+            out, self.zi = filter_zi(self.b, self.a, x, zi)  # the filter's own output
+            return out
         out = np.empty_like(x, dtype=np.float64)
-        for a, b, first in _pieces(self.seg, lo, lo + x.size):
+        for a, b, first in pieces:
             zi = np.zeros_like(self.zi) if first else self.zi
-            out[a - lo:b - lo], self.zi = lfilter(self.b, self.a, x[a - lo:b - lo], zi=zi)
+            out[a - lo:b - lo], self.zi = filter_zi(self.b, self.a, x[a - lo:b - lo], zi)
         return out
 
 
@@ -98,10 +126,13 @@ class SegLags:
         self._ext = np.concatenate([self._ext[self._ext.size - self.lags:], x])
         self._lo = lo
 
-    def shift(self, d: int) -> FloatArray:
-        """x(k - d) over the block fed last."""
+    def shift(self, d: int, out: FloatArray | None = None) -> FloatArray:
+        """x(k - d) over the block fed last (written into `out` when given)."""
         m = self._ext.size - self.lags
-        out = self._ext[self.lags - d:self.lags - d + m].copy()
+        if out is None:
+            out = self._ext[self.lags - d:self.lags - d + m].copy()
+        else:
+            out[:] = self._ext[self.lags - d:self.lags - d + m]
         lo = self._lo
         for s, _ in self.seg.bounds:  # zero within d rows of a record's start
             a, b = max(s, lo), min(s + d, lo + m)

@@ -35,7 +35,7 @@ iteration is a few filter runs over the record.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,6 +50,9 @@ FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 _KAPPA_LIM = 1.0 - 1e-12
+#: the most a cached simulation (inputs with their levels, each group's output,
+#: the output level) may hold, in bytes
+CACHE_BYTES = 64 << 20
 
 
 @dataclass(frozen=True)
@@ -88,6 +91,14 @@ class _Problem:
         self.per_record = 1 + len(self.us)
         self.n_init = len(seg.bounds) * self.per_record if initial else 0
         self.group_of = {t: g for g, m in enumerate(self.groups) for t in m}
+        #: the blocks of the last θ simulated (`residual`), kept when the record is
+        #: one block: `normal_equations` at the same θ reuses them (each
+        #: Levenberg–Marquardt iteration linearises where the last accepted step
+        #: was simulated)
+        #: the mask last weighed and its weights of every row (None: all 1)
+        self._mask: tuple[BoolArray, FloatArray | None] | None = None
+        self._cached: tuple[bytes, list[tuple[int, int, list[FloatArray],
+                                              list[FloatArray], FloatArray]]] | None = None
 
     def unpack(self, th: FloatArray) -> tuple[list[FloatArray], list[FloatArray],
                                                list[FloatArray], FloatArray]:
@@ -138,6 +149,30 @@ class _Problem:
                 outs.append(iirs[g](v, lo))
             yield lo, hi, us, outs, level
 
+    def _cacheable(self) -> bool:
+        """Whether a simulation (inputs with their levels, each group's output,
+        the output level) fits within `CACHE_BYTES`; the row weights are kept
+        only then too (a longer record streams with a block's memory)."""
+        return self.y.size * (len(self.us) + len(self.groups) + 1) * 8 <= CACHE_BYTES
+
+    def _blocks_cached(self, th: FloatArray) -> Iterator[tuple[int, int, list[FloatArray],
+                                                              list[FloatArray], FloatArray]]:
+        """`blocks(th)`, from the cache when θ is the one simulated last. A
+        simulation is cached up to `CACHE_BYTES` (a week at 1 s, four inputs);
+        past that each block is dropped once used, so the memory stays that
+        of a block."""
+        key = th.tobytes()
+        if self._cached is not None and self._cached[0] == key:
+            yield from self._cached[1]
+            return
+        if not self._cacheable():
+            yield from self.blocks(th)
+            return
+        self._cached = None  # the last one dropped before the next is built
+        kept = list(self.blocks(th))
+        self._cached = (key, kept)
+        yield from kept
+
     def simulate(self, th: FloatArray) -> FloatArray:
         out = np.empty(self.y.size)
         for lo, hi, _, outs, level in self.blocks(th):
@@ -148,9 +183,27 @@ class _Problem:
         """(y - ŷ) · weight, the weight 1 on the rows of `mask` and 0 elsewhere,
         made block by block (neither ŷ nor the weights of every row held)."""
         out = np.empty(self.y.size)
-        for lo, hi, _, outs, level in self.blocks(th):
-            out[lo:hi] = (self.y[lo:hi] - (sum(outs) + level)) * mask[lo:hi].astype(np.float64)
+        weight = self._weights(mask)
+        for lo, hi, _, outs, level in self._blocks_cached(th):
+            out[lo:hi] = self.y[lo:hi] - (sum(outs) + level)
+            w = weight(lo, hi)
+            if w is not None:
+                out[lo:hi] *= w
         return out
+
+    def _weights(self, mask: BoolArray) -> Callable[[int, int], FloatArray | None]:
+        """The weight of rows lo … hi-1 (None: every one is 1, nothing to
+        multiply), made once per mask when it is small enough to keep."""
+        if self._mask is not None and self._mask[0] is mask:
+            whole = self._mask[1]
+            return lambda lo, hi: None if whole is None else whole[lo:hi]
+        if mask.all():
+            self._mask = (mask, None)
+            return lambda lo, hi: None
+        if self._cacheable():
+            self._mask = (mask, mask.astype(np.float64))
+            return self._weights(mask)
+        return lambda lo, hi: mask[lo:hi].astype(np.float64)
 
     def normal_equations(self, th: FloatArray, mask: BoolArray, resid: FloatArray
                          ) -> tuple[FloatArray, FloatArray]:
@@ -180,30 +233,34 @@ class _Problem:
         p = self.n_num + self.n_den + self.n_init
         jtj: FloatArray | None = None
         jtr: FloatArray | None = None
-        for lo, hi, us, outs, _ in self.blocks(th):
-            wb = mask[lo:hi].astype(np.float64)
+        weight = self._weights(mask)
+        for lo, hi, us, outs, _ in self._blocks_cached(th):
+            wb = weight(lo, hi)  # None: every row weighs 1 (x · 1.0 is x)
             jt = np.empty((p, hi - lo))
             i = 0
             for t, nb in enumerate(self.nbs):
-                w = w_filt[t](us[t], lo) * wb
-                w_lags[t].feed(w, lo)
-                jt[i] = w
+                w = w_filt[t](us[t], lo)
+                jt[i] = w if wb is None else w * wb
+                if nb > 1:
+                    w_lags[t].feed(jt[i], lo)
                 for j in range(1, nb):
-                    jt[i + j] = w_lags[t].shift(j)
+                    w_lags[t].shift(j, jt[i + j])
                 i += nb
             for g, na in enumerate(self.nas):
                 v_lags[g].feed(v_filt[g](outs[g], lo), lo)
                 d_den = np.stack([-v_lags[g].shift(m) for m in range(1, na + 1)], axis=0)
                 for m in range(na):
-                    np.multiply(dpolys[g][m] @ d_den, dks[g][m] * wb, out=jt[i])
+                    np.multiply(dpolys[g][m] @ d_den, dks[g][m] if wb is None else dks[g][m] * wb,
+                                out=jt[i])
                     i += 1
             for r, (s, e) in enumerate(seg.bounds if self.initial else ()):
                 ind = np.zeros(hi - lo)
                 ind[max(s, lo) - lo:max(min(e, hi) - lo, 0)] = 1.0
-                jt[i] = ind * wb
+                jt[i] = ind if wb is None else ind * wb
                 i += 1
                 for t in range(len(self.us)):
-                    jt[i] = i_filt[r][t](ind, lo) * wb
+                    f = i_filt[r][t](ind, lo)
+                    jt[i] = f if wb is None else f * wb
                     i += 1
             g_blk, r_blk = jt @ jt.T, jt @ resid[lo:hi]
             jtj = g_blk if jtj is None else jtj + g_blk

@@ -37,6 +37,7 @@ a level per record) are tried, and the failures are kept as notes.
 from __future__ import annotations
 
 import functools
+import hashlib
 import itertools
 import math
 from collections.abc import Callable, Iterator, Sequence
@@ -153,6 +154,11 @@ class _Data:
     #: why a final estimate is refused besides `implausible` (the caller's own
     #: diagnostics: `compd fit` vetoes a model `compd check` would warn about)
     veto: Callable[[OeModel], str | None] | None = None
+    #: `arx_fit`'s estimates by (na, nb, iterations, initial, digest of the
+    #: training rows): the order searches and the fold models ask for the same
+    #: least squares on the same rows again (a deterministic function of them)
+    arx_memo: dict[tuple[int, int, int, bool, bytes], OeModel | None] = field(
+        default_factory=dict, repr=False)
 
     @property
     def every(self) -> BoolArray:
@@ -212,27 +218,53 @@ def arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int = 0
     least squares again: it converges towards the output-error estimate, so
     orders chosen with it are not those of the noise-biased ARX). With the
     initial conditions estimated, shifts of a record indicator (filtered the
-    same way) join the regressors. None if unstable."""
+    same way) join the regressors. None if unstable. Memoised on `d`
+    (`_Data.arx_memo`); Steiglitz–McBride starts from the memoised ARX
+    estimate (its first iteration, the same least squares), and leaves it
+    there for the ARX candidate."""
+    rows = hashlib.blake2b(np.packbits(train).tobytes(), digest_size=16).digest()
+    key = (na, nb, iterations, d.initial, rows)
+    if key in d.arx_memo:
+        return d.arx_memo[key]
+    first = (na, nb, 0, d.initial, rows)
+    if first in d.arx_memo and d.arx_memo[first] is None:  # no ARX: no refinement either
+        d.arx_memo[key] = None
+        return None
+    result, arx = _arx_fit(d, na, nb, train, iterations, d.arx_memo.get(first))
+    d.arx_memo[key] = result
+    d.arx_memo[first] = arx
+    return result
+
+
+def _arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int,
+             arx: OeModel | None = None) -> tuple[OeModel | None, OeModel | None]:
+    """(`arx_fit`'s estimate, the ARX least squares it started from), the
+    latter taken from `arx` when given (then not computed again)."""
     seg = d.seg
     lag = max(na, nb - 1)
     rows = _lag_ok(train, seg, lag)
     den: tuple[float, ...] = (1.0,)
     nums: tuple[tuple[float, ...], ...] = ()
     n_cols = na + len(d.us) * nb + (len(seg.bounds) * (lag + 1) if d.initial else 0)
-    for it in range(iterations + 1):
+    start = 0
+    if arx is not None:
+        den, nums, start = arx.dens[0], arx.nums, 1
+    for it in range(start, iterations + 1):
         if int(rows.sum()) <= n_cols:  # fewer rows than parameters: nothing determined
-            return None
+            return None, None
         y = d.y if it == 0 else _known(d, nums, den)
         theta = solve_blocks(_arx_blocks(d, y, na, nb, lag, den if it else None, rows))
         new_den = (1.0, *(float(v) for v in theta[:na]))
         if not is_stable(new_den, d.radius):
             if it == 0:
-                return None
+                return None, None
             break
         den = new_den
         nums = tuple(tuple(float(v) for v in theta[na + t * nb:na + (t + 1) * nb])
                      for t in range(len(d.us)))
-    return OeModel(nums=nums, dens=(den,), groups=(tuple(range(len(d.us))),))
+        if it == 0:
+            arx = OeModel(nums=nums, dens=(den,), groups=(tuple(range(len(d.us))),))
+    return OeModel(nums=nums, dens=(den,), groups=(tuple(range(len(d.us))),)), arx
 
 
 def _known(d: _Data, nums: tuple[tuple[float, ...], ...], den: tuple[float, ...]
@@ -271,11 +303,11 @@ def _arx_blocks(d: _Data, y: FloatArray, na: int, nb: int, lag: int,
                 fy = fb
             lg.feed(fb, lo)
         for i in range(1, na + 1):
-            x[i - 1] = -lags[0].shift(i)
+            np.negative(lags[0].shift(i, x[i - 1]), out=x[i - 1])
         col = na
         for lg in lags[1:]:
             for j in range(nb):
-                x[col] = lg.shift(j)
+                lg.shift(j, x[col])
                 col += 1
         for r, (s, e) in enumerate(seg.bounds[:n_init]):
             ind = np.zeros(hi - lo)
@@ -283,10 +315,13 @@ def _arx_blocks(d: _Data, y: FloatArray, na: int, nb: int, lag: int,
             f = ind_filters[r]
             ind_lags[r].feed(ind if f is None else f(ind, lo), lo)
             for j in range(lag + 1):
-                x[col] = ind_lags[r].shift(j)
+                ind_lags[r].shift(j, x[col])
                 col += 1
         keep = rows[lo:hi]
-        yield x[:, keep].T, fy[keep]
+        if keep.all():  # every row: the regressors themselves, not a copy
+            yield x.T, fy
+        else:
+            yield x[:, keep].T, fy[keep]
 
 
 def _simulate(d: _Data, m: OeModel, train: BoolArray, y: FloatArray, us: Sequence[FloatArray],
@@ -525,7 +560,10 @@ def _ridge_blocks(d: _Data, den: Sequence[float], nb: int, train: BoolArray
                 x[col + 1 + j] = ind_lags[r].shift(j)
             col += nb + 1
         keep = train[lo:hi]
-        yield x[:, keep].T, d.y[lo:hi][keep]
+        if keep.all():  # every row: the regressors themselves, not a copy
+            yield x.T, d.y[lo:hi]
+        else:
+            yield x[:, keep].T, d.y[lo:hi][keep]
 
 
 def _final_fit(d: _Data, m: OeModel) -> float:
@@ -560,21 +598,23 @@ def arx_orders(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int]
 
 
 def _fold_models(d: _Data, na: int, nb: int, train: BoolArray, structures: Sequence[str],
-                 max_iter: int, arx_at: tuple[int, int] | None = None
+                 max_iter: int, arx_at: tuple[int, int] | None = None, per_term: bool = True
                  ) -> dict[str, OeModel | None]:
     """Every structure (ridge: every λ) trained on `train`; the ARX least
-    squares at `arx_at` (default the same orders)."""
+    squares at `arx_at` (default the same orders). Without `per_term`,
+    per-term-oe is left out and shared-oe is kept (its start) even when not
+    asked for."""
     out: dict[str, OeModel | None] = {}
     arx = arx_fit(d, *(arx_at or (na, nb)), train)
     out["arx"] = arx
     sm = arx_fit(d, na, nb, train, SM_ITERATIONS) if set(structures) - {"arx"} else None
     shared = _oe(d, sm, train, False, max_iter)
-    if "shared-oe" in structures:
+    if "shared-oe" in structures or not per_term:
         out["shared-oe"] = shared
     if "ridge" in structures:
         for lam in RIDGE_GRID:
             out[f"ridge:{lam:g}"] = _ridge(d, shared, train, lam)
-    if "per-term-oe" in structures:
+    if "per-term-oe" in structures and per_term:
         # from the shared-oe estimate: the same output, a far better basin than
         # the ARX start (a day at 1 s: 23,600 µm² instead of 270,000 at the start)
         out["per-term-oe"] = _oe(d, shared, train, True, max_iter)
@@ -712,13 +752,13 @@ def _candidates_at(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int
                            heldout_residuals=held.residuals)], (0, 1), True)
     na, nb, initial = choose_orders(d, na_range, nb_range)
     arx_at = arx_orders(d, na_range, nb_range)
-    per_fold = [_fold_models(d, na, nb, train, structures, max_iter, arx_at)
+    per_fold = [_fold_models(d, na, nb, train, structures, max_iter, arx_at, per_term=False)
                 for train, _ in d.splits]
+    finals = _fold_models(d, na, nb, every, structures, max_iter, arx_at)
     keys = list(per_fold[0])
     scores: dict[str, tuple[float, list[float]]] = {}
     for key in keys:
         scores[key] = _score(d, _Replay([pf[key] for pf in per_fold]))
-    finals = _fold_models(d, na, nb, every, structures, max_iter, arx_at)
     ridge_keys = [k for k in keys if k.startswith("ridge:")]
     if ridge_keys:
         best_lam = max(ridge_keys, key=lambda k: scores[k][0])
@@ -726,16 +766,24 @@ def _candidates_at(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int
         finals["ridge"] = finals[best_lam]
         for pf in per_fold:
             pf["ridge"] = pf[best_lam]
+    # the diagnostics in the table's order (a veto may count what it refuses)
+    refused = {n: d.refused(m, labels) for n in ("arx", "shared-oe", "ridge", "per-term-oe")
+               if (n in structures or n == "arx") and (m := finals.get(n)) is not None}
+    names = list(refused)
+    if "per-term-oe" in refused and not all(refused.values()):
+        # per-term-oe's folds start from shared-oe's: fitted only when a
+        # candidate is accepted (else the stage fails whatever they validate)
+        for (train, _), pf in zip(d.splits, per_fold, strict=True):
+            pf["per-term-oe"] = _oe(d, pf["shared-oe"], train, True, max_iter)
+        scores["per-term-oe"] = _score(d, _Replay([pf["per-term-oe"] for pf in per_fold]))
     cands: list[Candidate] = []
-    for name in ("arx", "shared-oe", "ridge", "per-term-oe"):
-        if name not in structures and name != "arx":
-            continue
+    for name in names:
         m = finals.get(name)
         val, per = scores.get(name, (-math.inf, []))
         if m is None:
             continue
         detail = f"λ = {best_lam.partition(':')[2]}" if name == "ridge" else ""
-        why = d.refused(m, labels)
+        why = refused[name]
         held = _heldout(d, [pf.get(name) for pf in per_fold])
         cands.append(Candidate(name, m, val, tuple(per), _final_fit(d, m), detail, why,
                                held.rms, held.displacement_rms, held.residuals))

@@ -1,0 +1,145 @@
+"""The identification's shortcuts give the model of the plain computation, to
+the bit: lfilter's kernel called directly (`blocks.filter_zi`), the
+output-error fit reusing the simulation it just made and its row weights
+(`output_error.CACHE_BYTES`), `arx_fit` memoised on the data, and per-term-oe's
+fold fits left out of a stage whose every final estimate is refused."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+from scipy.signal import lfilter
+
+from models.identify import blocks, output_error, structures
+from models.identify.blocks import filter_zi
+from models.identify.output_error import OeModel
+from models.identify.segments import Segments
+from models.identify.structures import Selection, select_structure
+
+
+def _record(seed: int = 4) -> tuple[np.ndarray, list[np.ndarray], Segments]:
+    """Two records (the second starting warm) of three inputs through first-
+    and second-order terms, plus noise."""
+    rng = np.random.default_rng(seed)
+    seg = Segments.from_lengths([1500, 1100])
+    n = seg.total
+    us = [np.repeat(rng.uniform(-2.0, 2.0, n // h + 1), h)[:n] for h in (120, 170, 260)]
+    y = (seg.filter([0.2], [1.0, -0.95], us[0]) + seg.filter([-0.1], [1.0, -0.9], us[1])
+         + seg.filter([0.01, 0.02], [1.0, -1.6, 0.64], us[2]))
+    s, e = seg.bounds[1]
+    y[s:e] += 1.5 * 0.97 ** np.arange(1, e - s + 1)
+    return y + 0.03 * rng.standard_normal(n), us, seg
+
+
+def _select(**kw: Any) -> Selection:
+    y, us, seg = _record()
+    return select_structure(y, us, na_range=(1, 2), nb_range=(1, 2), segments=seg,
+                            radius=0.9999, **kw)
+
+
+def _same(a: Selection, b: Selection) -> None:
+    assert a.chosen.structure == b.chosen.structure and a.orders == b.orders
+    assert a.notes == b.notes and a.initial == b.initial
+    for x, y in zip(a.candidates, b.candidates, strict=True):
+        assert x == y  # every field, the model's coefficients to the bit
+        for r, q in zip(x.heldout_residuals, y.heldout_residuals, strict=True):
+            assert np.array_equal(r, q)
+
+
+def _plain(monkeypatch: pytest.MonkeyPatch) -> None:
+    """lfilter itself, no cached simulation or weights, no memo of arx_fit."""
+    monkeypatch.setattr(blocks, "_linear_filter", None)
+    monkeypatch.setattr(output_error, "CACHE_BYTES", -1)
+    monkeypatch.setattr(structures, "arx_fit",
+                        lambda d, na, nb, train, iterations=0:
+                        structures._arx_fit(d, na, nb, train, iterations)[0])
+
+
+def test_filter_zi_is_lfilter_to_the_bit() -> None:
+    rng = np.random.default_rng(1)
+    for b, a in (([0.3], [1.0]), ([0.3, -0.2, 0.1], [1.0]), ([1.0], [1.0, -0.9]),
+                 ([0.2, 0.1], [1.0, -1.5, 0.56]), ([0.5, 0.1, 0.3, 0.2], [1.0, -0.5])):
+        bb, aa = np.array(b), np.array(a)
+        x = rng.standard_normal(777)
+        zi = rng.standard_normal(max(len(a), len(b)) - 1)
+        want, zf_want = lfilter(bb, aa, x, zi=zi)
+        got, zf = filter_zi(bb, aa, x, zi)
+        assert np.array_equal(got, want) and np.array_equal(zf, zf_want)
+
+
+@pytest.mark.parametrize("streamed", [False, True])
+def test_the_shortcuts_choose_the_model_of_the_plain_computation(
+        monkeypatch: pytest.MonkeyPatch, streamed: bool) -> None:
+    if streamed:  # several blocks, straddling the records
+        monkeypatch.setattr(blocks, "BLOCK_ROWS", 700)
+        monkeypatch.setattr(blocks, "STREAM_ROWS", 700)
+    usable = np.ones(2600, dtype=bool)
+    usable[:200] = False  # a --from window: a mask on every fit
+    fast = _select(usable=usable)
+    fast_every = _select()
+    _plain(monkeypatch)
+    _same(fast, _select(usable=usable))
+    _same(fast_every, _select())
+
+
+def test_per_term_folds_are_left_out_of_a_stage_that_fails(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every model of order 2 or numerator length 2 refused: the stage at orders 1-2 fails
+    whatever its folds validate, so per-term-oe is fitted there only on
+    every row; the first-order stage is then that of a search at order 1."""
+    calls: list[tuple[int, bool]] = []
+    fit = output_error.fit_output_error
+
+    def counted(*a: Any, **kw: Any) -> Any:
+        mask = kw.get("mask")
+        calls.append((len(kw["groups"] if "groups" in kw else a[4]),
+                      mask is None or bool(np.all(mask))))
+        return fit(*a, **kw)
+
+    monkeypatch.setattr(structures, "fit_output_error", counted)
+
+    def veto(m: OeModel) -> str | None:
+        return "order 2" if any(len(b) > 2 for b in m.dens) or any(
+            len(a) > 1 for a in m.nums) else None
+
+    sel = _select(veto=veto)
+    assert sel.fallback and sel.orders == (1, 1)
+    y, us, seg = _record()
+    direct = select_structure(y, us, na_range=(1, 1), nb_range=(1, 1), segments=seg,
+                              radius=0.9999, veto=veto)
+    assert sel.chosen.model == direct.chosen.model
+    assert sel.chosen.validation_fit_pct == direct.chosen.validation_fit_pct
+    per_term = [every for groups, every in calls if groups == 3]
+    # the failed stage: one per-term fit (every row); the first-order stage and the
+    # direct search: one per fold and one on every row each
+    folds = structures.DEFAULT_FOLDS
+    assert per_term.count(False) == 2 * folds
+    assert per_term.count(True) == 3
+
+
+def test_the_textbook_model_keeps_no_simulation_of_every_row_per_fold() -> None:
+    """The textbook ARX's folds are pooled from their held-out rows: its
+    peak (9 arrays of the record's length here, 12 when each fold kept its
+    simulation) has no simulation of every row per fold."""
+    import tracemalloc
+
+    from models.identify.structures import make_data
+    from models.identify.textbook import textbook
+
+    rng = np.random.default_rng(5)
+    n = 200_000
+    us = [np.repeat(rng.uniform(-2.0, 2.0, n // h + 1), h)[:n] for h in (900, 1300, 1700)]
+    y = sum(lfilter([0.02 * (t + 1)], [1.0, -0.99], u) for t, u in enumerate(us))
+    y = np.asarray(y) + 0.05 * rng.standard_normal(n)
+    d = make_data(y, us, Segments.single(n), 1.0, 4, "forward")
+    tracemalloc.start()
+    try:
+        got = textbook(d, us)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert got is not None
+    row_arrays = peak / (8 * n)
+    assert row_arrays < 11, f"peak {peak / 1e6:.0f} MB: {row_arrays:.1f} arrays of every row"
