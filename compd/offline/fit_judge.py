@@ -60,7 +60,7 @@ BoolArray = npt.NDArray[np.bool_]
 #: benchmarks/bench_real_record.py (docs/calibration.md §7): at 1.1 as at 1.5
 #: two held-out cells are left worse than no compensation (three before the
 #: verdict), at 2 three; 1.5 refused fewer models that were better than none
-#: on the later rows (ch5's geometric mean ratio to the textbook 1.16, 1.34
+#: on the later rows (ch5's geometric mean ratio to the textbook 1.10, 1.27
 #: at 1.1)
 WORSE_RATIO = 1.5
 #: the kinds of inner block (`compd.offline.fit_blocks.InnerBlock.kind`) that
