@@ -397,41 +397,46 @@ def print_table(cells: list[Cell], blocks: list[str], channels: list[str]) -> No
           f"{sum(c.before[0] > c.none_mae for c in cells)} worse than no compensation")
 
 
-#: the verdict's settings judged on the whole table: (tie, worse ratio) of
-#: `compd.offline.fit_judge.decide`; inf tie: compd's choice unless unsafe
-#: and the inner blocks it is judged on: every kind, or all but the end
-RULES: tuple[tuple[float, float, bool], ...] = (
-    (math.inf, 1.5, True), (1.05, 1.1, True), (2.0, 1.5, True), (math.inf, 1.1, True),
-    (math.inf, 1.25, True), (math.inf, 2.0, True), (math.inf, 1.5, False))
+#: the verdict's settings judged on the whole table: (tie, worse ratio, end) of
+#: `compd.offline.fit_judge.decide`; inf tie: compd's choice unless unsafe; end:
+#: the inner end block judges only the textbook in compd's choice's place
+#: ("textbook", `compd.offline.fit_judge.FORWARD_KINDS`), every candidate
+#: ("every"), or is left out ("none")
+RULES: tuple[tuple[float, float, str], ...] = (
+    (math.inf, 1.5, "textbook"), (math.inf, 1.5, "every"), (1.05, 1.1, "every"),
+    (2.0, 1.5, "every"), (math.inf, 1.1, "textbook"), (math.inf, 1.25, "textbook"),
+    (math.inf, 2.0, "textbook"), (math.inf, 1.5, "none"))
 
 
 def variants(cells: list[Cell], channels: list[str]) -> None:
     """The verdict again with other settings, from the MAE per inner block
     that fit said: what would have been written (compd's choice before the
     verdict, the fit's own textbook, or nothing) scored on the held-out rows."""
-    from compd.offline.fit_judge import COMPD, TEXTBOOK, decide
+    from compd.offline.fit_judge import COMPD, FORWARD_KINDS, TEXTBOOK, decide
 
     print("\nthe verdict's settings (tie, worse-than-none ratio): ratio of MAE to the "
           "textbook's, geometric mean / worst, and cells worse than no compensation")
-    print("| channel | " + " | ".join(f"{t:g}, {w:g}{'' if e else ', no end'}"
-                                      for t, w, e in RULES) + " |")
+    print("| channel | " + " | ".join(f"{t:g}, {w:g}, end: {e}" for t, w, e in RULES) + " |")
     print("|---|" + "---|" * len(RULES))
     for ch in [*channels, "all"]:
         mine = [c for c in cells if ch in ("all", c.channel)]
         out = []
-        for tie, worse_r, with_end in RULES:
+        for tie, worse_r, ends in RULES:
             r: list[float] = []
             bad = 0
             for c in mine:
                 j = c.choice.judge
                 mae = c.before[0]
                 if j is not None:
-                    keep = [i for i, b in enumerate(j["blocks"])
-                            if with_end or not b.startswith("end")]
+                    kinds = j.get("kinds") or [b.split()[0] for b in j["blocks"]]
+                    keep = [i for i, k in enumerate(kinds) if ends != "none" or k != "end"]
                     table = {k: [math.nan if vs[i] is None else vs[i] for i in keep]
                              for k, vs in j["mae_um"].items()}
                     pick = decide(table, [j["blocks"][i] for i in keep], j["floor_um"],
-                                  tie=tie, worse_ratio=worse_r).chosen if keep else COMPD
+                                  tie=tie, worse_ratio=worse_r,
+                                  kinds=[kinds[i] for i in keep],
+                                  forward=FORWARD_KINDS if ends == "textbook" else frozenset()
+                                  ).chosen if keep else COMPD
                     if pick == TEXTBOOK and math.isfinite(c.fit_tb):
                         mae = c.fit_tb
                     elif pick not in (COMPD, TEXTBOOK):

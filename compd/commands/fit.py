@@ -33,9 +33,10 @@ gain absurd for the data is refused (`models.identify.checks`).
 - the last word (`compd.offline.fit_judge`): compd's choice, the textbook
   ARX(2,3) and no model judged on inner held-out blocks of the calibration
   rows cut by the spindle speed (interior cycles, cool-downs, the end:
-  `compd.offline.fit_blocks`); a choice worse than no compensation on one
-  of them gives way to the textbook, and nothing is written when the
-  textbook is worse too (exit 65, unless ``--force``).
+  `compd.offline.fit_blocks`); a choice worse than no compensation on an
+  interior cycle or cool-down gives way to the textbook (the end judges only
+  the textbook), and nothing is written when the textbook is worse too
+  (exit 65, unless ``--force``).
 - fallbacks: for each input, a model on the others fitted the same way
   (`compd.commands.fit_fallback`), written as the model file's
   ``[[fallback]]`` tables; ``--no-fallbacks`` writes none.

@@ -104,9 +104,10 @@ def test_a_good_model_is_written_and_says_the_blocks_that_judged_it(
 
 def _verdict(monkeypatch: pytest.MonkeyPatch, compd_err: list[float],
              textbook_err: list[float], forced: bool = False, tie: float = 1.05,
-             worse_ratio: float = 1.1) -> fit_judge.Verdict:
+             worse_ratio: float = 1.1, last: str = "interior") -> fit_judge.Verdict:
     """The verdict on three blocks of 10 rows whose displacement is 1 µm (no
-    compensation's error 1 µm), each candidate's prediction off by its error."""
+    compensation's error 1 µm), each candidate's prediction off by its error;
+    the third block of kind `last`."""
     n = 40
     y = np.ones(n)
     y[0] = 0.0
@@ -114,7 +115,7 @@ def _verdict(monkeypatch: pytest.MonkeyPatch, compd_err: list[float],
     for k in range(3):
         r = np.zeros(n, dtype=bool)
         r[10 * (k + 1):10 * (k + 2)] = True
-        rows.append(InnerBlock(f"block {k}", "interior", r))
+        rows.append(InnerBlock(f"block {k}", last if k == 2 else "interior", r))
 
     def refit(y_: object, seg: object, radius: object, usable: object, member: Member,
               train: np.ndarray) -> np.ndarray:
@@ -157,3 +158,24 @@ def test_the_verdict_falls_back_to_the_textbook_then_to_nothing(
     # a structure forced by the user is written or refused, never replaced
     assert _verdict(monkeypatch, [0.25, 0.9, 0.3], [0.3, 0.3, 0.3], forced=True).chosen == COMPD
     assert _verdict(monkeypatch, [0.1, 0.1, 1.5], [0.3, 0.3, 0.4], forced=True).chosen == NONE
+
+
+def test_the_end_judges_only_the_textbook_in_compds_choices_place(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # 1.6x no compensation on the end alone: compd's choice, a later stretch at a
+    # faster speed being what it was chosen on; on an interior block it would go
+    v = _verdict(monkeypatch, [0.2, 0.2, 1.6], [0.9, 0.9, 0.9], tie=math.inf,
+                 worse_ratio=1.5, last="end")
+    assert v.chosen == COMPD and v.reasons == [] and v.kinds == ["interior"] * 2 + ["end"]
+    assert v.as_dict()["kinds"] == v.kinds
+    assert _verdict(monkeypatch, [0.2, 0.2, 1.6], [0.9, 0.9, 0.9], tie=math.inf,
+                    worse_ratio=1.5).chosen == TEXTBOOK
+    # refused on an interior block, its textbook is judged on the end too
+    v = _verdict(monkeypatch, [1.6, 0.2, 0.2], [0.9, 0.9, 1.6], tie=math.inf,
+                 worse_ratio=1.5, last="end")
+    assert v.chosen == NONE
+    assert v.reasons[-1] == ("textbook is worse than no compensation on the inner block "
+                             "block 2 (MAE 1.6 µm against 1 µm uncompensated)")
+    # a structure forced by the user: the same, written or refused on the interior ones
+    assert _verdict(monkeypatch, [0.2, 0.2, 1.6], [0.9, 0.9, 0.9], forced=True,
+                    tie=math.inf, worse_ratio=1.5, last="end").chosen == COMPD
