@@ -33,8 +33,8 @@ the daemon processes wrote to disk per cycle (`/proc/self/io` write_bytes over
 the window: recorder, checkpoints, logs) and the requests per cycle (socket
 sends of the drivers' asyncio transports over the window / cycles).
 
-To find what a step's time goes to, FLEET_ABLATE=disk1,norecorder,nogc (any of
-them) runs the daemons with one disk thread, without the recorder, or with
+To find what a step's time goes to, FLEET_ABLATE=disk4,norecorder,nogc (any of
+them) runs the daemons with four disk threads (the former default), without the recorder, or with
 CPython's own collector thresholds instead of `compd.runtime.gcpolicy`;
 FLEET_DEBUG=1 prints each worker's figures (own time, collections per
 generation) and when its window opens (to attach a profiler) on stderr.
@@ -272,9 +272,9 @@ async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> d
 
 
 #: what FLEET_ABLATE (a comma-separated list) may take out of the daemons, to find
-#: what a step's time goes to: one disk thread instead of `diskwriter.THREADS`, the
+#: what a step's time goes to: four disk threads instead of `diskwriter.THREADS`, the
 #: recorder, or the garbage-collection policy (CPython's own thresholds instead)
-ABLATIONS = ("disk1", "norecorder", "nogc")
+ABLATIONS = ("disk4", "norecorder", "nogc")
 
 
 def ablations() -> set[str]:
@@ -287,9 +287,9 @@ def ablations() -> set[str]:
 def _ablate(asked: set[str]) -> None:
     from compd.runtime import diskwriter, gcpolicy
 
-    if "disk1" in asked:
+    if "disk4" in asked:
         diskwriter.PROCESS_DISK.shutdown()
-        diskwriter.PROCESS_DISK._threads = 1
+        diskwriter.PROCESS_DISK._threads = 4
     if "nogc" in asked:
         gcpolicy.PROCESS_GC.install = lambda: None  # type: ignore[method-assign]
 
