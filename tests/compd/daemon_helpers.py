@@ -1,6 +1,7 @@
 """Configs for the daemon tests (the recording driver is
-`compd.testing.RecordingDriver`), and a set of simulated Modbus controllers
-for the tests of a fleet."""
+`compd.testing.RecordingDriver`), the daemon in lockstep over an in-memory
+controller (`memory_daemon`), and a set of simulated Modbus controllers for
+the tests of a fleet."""
 
 from __future__ import annotations
 
@@ -8,10 +9,12 @@ import asyncio
 import contextlib
 from collections.abc import AsyncIterator
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from compd.testing import SteppedClock
+    from compd.config.loader import LoadedConfig
+    from compd.runtime.daemon import Daemon
+    from compd.testing import MemoryDriver, SteppedClock
     from drivers.sim.modbus_server import ModbusSimController
 
 CONFIG = """
@@ -108,3 +111,30 @@ async def modbus_sims(count: int) -> AsyncIterator[list[ModbusSimController]]:
     finally:
         for c in controllers:
             await c.stop()
+
+
+def memory_daemon(cfg: LoadedConfig, *, epoch: float | None = None,
+                  **daemon_args: Any) -> tuple[Daemon, SteppedClock, MemoryDriver]:
+    """The real daemon in-process over an in-memory controller (bearing and
+    ambient at 20 °C; offset, heartbeat and status written), driven by one
+    `SteppedClock`: a cycle per `clock.tick()`, awaited with `clock.cycle_done`.
+    `epoch`: the wall clock's reading at the stepped clock's 0, for the driver's
+    sample stamps and the daemon (None: the daemon's own wall clock)."""
+    from compd.runtime.daemon import Daemon
+    from compd.runtime.sdnotify import Notifier
+    from compd.testing import MemoryDriver, SteppedClock
+
+    clock = SteppedClock(period_s=cfg.period_s)
+    stamped: dict[str, Any] = {}
+    if epoch is not None:
+        start = epoch
+
+        def wall() -> float:
+            return start + clock()
+
+        stamped["wall"] = wall
+    driver = MemoryDriver({"bearing": 20.0, "ambient": 20.0},
+                          ("offset", "heartbeat", "status"), **stamped)
+    daemon = Daemon(cfg, driver=driver, notifier=Notifier(None), clock=clock,
+                    sleep=clock.sleep, **stamped, **daemon_args)
+    return daemon, clock, driver

@@ -26,11 +26,9 @@ from compd.core.plan import Row
 from compd.faces.opcua_face import published_values
 from compd.runtime.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from compd.runtime.daemon import Daemon
-from compd.runtime.sdnotify import Notifier
 from compd.runtime.sinks.base import CycleSink, Tick
-from compd.testing import MemoryDriver, SteppedClock
 from drivers.errors import ControllerTimeout
-from tests.compd.daemon_helpers import write_config
+from tests.compd.daemon_helpers import memory_daemon, write_config
 
 EPOCH = 1_700_000_000.0
 CYCLES = 200
@@ -82,15 +80,7 @@ async def _run(tmp_path: Path) -> tuple[LoadedConfig, _Probe]:
                         slew_um_s=0.5)
     path.write_text(path.read_text() + "\n[faces.http]\nenabled = true\n")
     cfg = load_config(path)
-    clock = SteppedClock(period_s=cfg.period_s)
-
-    def wall() -> float:
-        return EPOCH + clock()
-
-    driver = MemoryDriver({"bearing": 20.0, "ambient": 20.0},
-                          ("offset", "heartbeat", "status"), wall=wall)
-    daemon = Daemon(cfg, driver=driver, notifier=Notifier(None), clock=clock, wall=wall,
-                    sleep=clock.sleep)
+    daemon, clock, driver = memory_daemon(cfg, epoch=EPOCH)
     probe = _Probe(daemon)
     daemon.sinks.append(probe)
     task = asyncio.create_task(daemon.run())

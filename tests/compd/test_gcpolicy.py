@@ -11,12 +11,9 @@ from pathlib import Path
 import pytest
 
 from compd.config.loader import load_config
-from compd.runtime.daemon import Daemon
 from compd.runtime.gcpolicy import NEVER, GcPolicy
-from compd.runtime.sdnotify import Notifier
-from compd.testing import MemoryDriver, SteppedClock
 
-from .daemon_helpers import write_config
+from .daemon_helpers import memory_daemon, write_config
 
 
 class Clock:
@@ -99,11 +96,7 @@ async def test_the_daemon_collects_between_cycles_once_per_interval(
     """The daemon installs the policy for its run (no automatic full collection
     while it cycles), asks it after every cycle, and gives the thresholds back."""
     cfg = load_config(write_config(tmp_path, "127.0.0.1:1", time_scale=1.0, timeout_s=0.4))
-    clock = SteppedClock(period_s=cfg.period_s)
-    driver = MemoryDriver({"bearing": 20.0, "ambient": 20.0},
-                          ("offset", "heartbeat", "status"), wall=lambda: 1.7e9 + clock())
-    daemon = Daemon(cfg, driver=driver, notifier=Notifier(None), clock=clock,
-                    wall=lambda: 1.7e9 + clock(), sleep=clock.sleep)
+    daemon, clock, _driver = memory_daemon(cfg, epoch=1.7e9)
     collected: list[tuple[int, float]] = []
     daemon.loop.gc_policy = GcPolicy(full_every_s=60.0, clock=clock,
                                      collect=lambda gen: collected.append((gen, clock())))

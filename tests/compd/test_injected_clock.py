@@ -9,12 +9,9 @@ from pathlib import Path
 
 from compd.config.loader import load_config
 from compd.runtime.clock import Clock, pause
-from compd.runtime.daemon import Daemon
-from compd.runtime.sdnotify import Notifier
-from compd.testing import MemoryDriver, SteppedClock
 from drivers.base import Quality
 
-from .daemon_helpers import write_config
+from .daemon_helpers import memory_daemon, write_config
 
 EPOCH = 1.0e9  # 2001: far from today, so a real reading could not pass for it
 
@@ -23,15 +20,7 @@ async def test_the_sinks_stamp_with_the_daemons_wall_clock(tmp_path: Path) -> No
     p = write_config(tmp_path, "127.0.0.1:1", time_scale=1.0, timeout_s=0.4)
     p.write_text(p.read_text() + "\n[faces.http]\nenabled = true\n", encoding="utf-8")
     cfg = load_config(p)
-    clock = SteppedClock(period_s=cfg.period_s)
-
-    def wall() -> float:
-        return EPOCH + clock()
-
-    driver = MemoryDriver({"bearing": 20.0, "ambient": 20.0},
-                          ("offset", "heartbeat", "status"), wall=wall)
-    daemon = Daemon(cfg, driver=driver, notifier=Notifier(None), clock=clock, wall=wall,
-                    sleep=clock.sleep, serve_metrics=False)
+    daemon, clock, driver = memory_daemon(cfg, epoch=EPOCH, serve_metrics=False)
     task = asyncio.create_task(daemon.run())
     try:
         await clock.cycle_done(1)

@@ -13,12 +13,10 @@ import numpy as np
 import pytest
 
 from compd.config.loader import load_config
-from compd.runtime.daemon import Daemon
 from compd.runtime.recorder import read_samples
-from compd.runtime.sdnotify import Notifier
-from compd.testing import MemoryDriver, SteppedClock
+from compd.testing import SteppedClock
 
-from .daemon_helpers import write_config
+from .daemon_helpers import memory_daemon, write_config
 
 EPOCH = 1.7e9  # the fake wall clock's reading at monotonic 0
 
@@ -44,15 +42,7 @@ async def test_stepped_clock_wakes_a_sleeper_only_at_its_deadline() -> None:
 async def test_the_daemon_runs_one_cycle_per_tick_on_the_clocks_it_was_given(
         tmp_path: Path) -> None:
     cfg = load_config(write_config(tmp_path, "127.0.0.1:1", time_scale=1.0, timeout_s=0.4))
-    clock = SteppedClock(period_s=cfg.period_s)
-
-    def wall() -> float:
-        return EPOCH + clock()
-
-    driver = MemoryDriver({"bearing": 20.0, "ambient": 20.0},
-                          ("offset", "heartbeat", "status"), wall=wall)
-    daemon = Daemon(cfg, driver=driver, notifier=Notifier(None), clock=clock, wall=wall,
-                    sleep=clock.sleep)
+    daemon, clock, driver = memory_daemon(cfg, epoch=EPOCH)
     task = asyncio.create_task(daemon.run())
     await clock.cycle_done(1)
     for k in range(1, 40):

@@ -7,19 +7,14 @@ import asyncio
 from pathlib import Path
 
 from compd.config.loader import load_config
-from compd.runtime.daemon import Daemon
-from compd.runtime.sdnotify import Notifier
-from compd.testing import MemoryDriver, SteppedClock
 from drivers.errors import WriteRejected
 
-from .daemon_helpers import write_config
+from .daemon_helpers import memory_daemon, write_config
 
 
 async def test_each_output_of_a_refused_write_is_its_own_label(tmp_path: Path) -> None:
     cfg = load_config(write_config(tmp_path, "127.0.0.1:1", time_scale=1.0, timeout_s=0.4))
-    clock = SteppedClock(period_s=cfg.period_s)
-    driver = MemoryDriver({"bearing": 20.0, "ambient": 20.0}, ("offset", "heartbeat", "status"))
-    daemon = Daemon(cfg, driver=driver, notifier=Notifier(None), clock=clock, sleep=clock.sleep)
+    daemon, clock, driver = memory_daemon(cfg)
     task = asyncio.create_task(daemon.run())
     try:
         await clock.cycle_done(1)
