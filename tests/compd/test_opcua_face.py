@@ -22,7 +22,6 @@ from asyncua import ua
 from asyncua.client.client import Client
 from asyncua.common.node import Node
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
-from asyncua.server.address_space import NodeData
 from asyncua.ua.uaerrors import BadUserAccessDenied, UaStatusCodeError
 
 from compd.cli import main
@@ -33,10 +32,10 @@ from compd.faces import opcua_shared
 from compd.faces.opcua_face import NAMESPACE, release_all
 from compd.runtime.daemon import Daemon
 from compd.runtime.sdnotify import Notifier
-from drivers import opcua_space
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
 from tests.compd.daemon_helpers import until, write_config
+from tests.drivers.test_opcua_space import count_builds
 from tests.pki import Pki, server_and_client
 
 OPERATOR, PASSWORD = "setter", "h0ld-Pa55word"
@@ -160,15 +159,7 @@ async def test_each_face_has_a_copy_of_the_standard_space_built_once(
     """The face's server takes the standard address space from the process's
     template (`drivers.opcua_space`): built by the first face, copied for the
     next; each has its own namespace array."""
-    builds: list[int] = []
-    build = opcua_space._build
-
-    def counting() -> dict[ua.NodeId, NodeData]:
-        builds.append(1)
-        return build()
-
-    monkeypatch.setattr(opcua_space, "_template", None)
-    monkeypatch.setattr(opcua_space, "_build", counting)
+    builds = count_builds(monkeypatch)
     for run in ("one", "two"):
         port = free_tcp_port("127.0.0.1")
         (tmp_path / run).mkdir()

@@ -23,8 +23,9 @@ def _node(name: str) -> ua.NodeId:
     return ua.NodeId.from_string(f"i={getattr(ObjectIds, name)}")
 
 
-async def test_the_standard_space_is_built_once_and_copied(
-        monkeypatch: pytest.MonkeyPatch) -> None:
+def count_builds(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """Forget the process's template and count the builds from here on (an entry
+    per build of the standard address space)."""
     builds: list[int] = []
     build = opcua_space._build
 
@@ -34,6 +35,12 @@ async def test_the_standard_space_is_built_once_and_copied(
 
     monkeypatch.setattr(opcua_space, "_template", None)
     monkeypatch.setattr(opcua_space, "_build", counting)
+    return builds
+
+
+async def test_the_standard_space_is_built_once_and_copied(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    builds = count_builds(monkeypatch)
     first, second = await standard_nodes(), await standard_nodes()
     assert len(builds) == 1
     assert first.keys() == second.keys()
@@ -45,15 +52,7 @@ async def test_the_standard_space_is_built_once_and_copied(
 async def test_servers_started_together_build_the_space_once(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """A farm starts its servers at once: they wait for one build, not one each."""
-    builds: list[int] = []
-    build = opcua_space._build
-
-    def counting() -> dict[ua.NodeId, NodeData]:
-        builds.append(1)
-        return build()
-
-    monkeypatch.setattr(opcua_space, "_template", None)
-    monkeypatch.setattr(opcua_space, "_build", counting)
+    builds = count_builds(monkeypatch)
     spaces = await asyncio.gather(*(standard_nodes() for _ in range(4)))
     assert len(builds) == 1
     assert all(s.keys() == spaces[0].keys() for s in spaces)
