@@ -65,6 +65,10 @@ class CycleIO:
         self.journal = journal
         #: whether the last read heard the controller (None: none yet, or a new driver)
         self.read_ok: bool | None = None
+        #: the endpoint whose connect failed (at start or for a reload): the first
+        #: read that hears it logs ``controller_connected`` with it, so the log
+        #: always says which controller the daemon is talking to
+        self.unannounced: str | None = None
         #: who asked for a re-zero since the last cycle (`compd rezero`, OPC UA Rezero):
         #: applied at the start of the next one, on the daemon's loop
         self.rezero_requests: list[str] = []
@@ -133,7 +137,11 @@ class CycleIO:
             for name in getattr(exc, "channels", None) or ("*",):
                 self.metrics.read_errors.labels(channel=name).inc()
             return None, None, None, None, {}
-        if self.read_ok is False:
+        if self.unannounced is not None:
+            self.journal.log.info("controller_connected", endpoint=self.unannounced,
+                                  after="connect_failed")
+            self.unannounced = None
+        elif self.read_ok is False:
             self.journal.log.info("controller_reconnected")
         self.read_ok = True
         readback: float | None = None
