@@ -281,6 +281,9 @@ class OutputSection(Section):
     #: a re-zero request (optional; a PLC bit or an M-code pulse at tool touch-off): its
     #: rising edge takes the present prediction as the new zero (compd.core.cycle)
     rezero: dict[str, Any] | None = None
+    #: [output.axes.<axis>]: per-axis compensation lines (`compd.config.axis_outputs`,
+    #: checked by the loader)
+    axes: dict[str, Any] | None = None
 
     @model_validator(mode="before")
     @classmethod
