@@ -105,6 +105,8 @@ class AxisOutputSet:
     quanta: Mapping[str, tuple[float, float]]
     #: axis -> its output stage's rates and deadbands
     stages: Mapping[str, AxisStage] = field(default_factory=dict)
+    #: axis -> the step the controller holds its reference position in (mm; 0: a float)
+    reference_quantum_mm: Mapping[str, float] = field(default_factory=dict)
     #: axis -> its models (set by `compd.config.loader`; empty from `parse_axis_outputs`)
     models: Mapping[str, AxisModels] = field(default_factory=dict)
 
@@ -193,7 +195,8 @@ def parse_axis_outputs(protocol: str, table: Mapping[str, Any], *,
     clash = first_clash(uses)
     if clash is not None:
         raise ConfigError(clash.second.key, clash.reason())
-    return AxisOutputSet(AxisOutputs(addresses, limits, key=key), refs, quanta, stages)
+    return AxisOutputSet(AxisOutputs(addresses, limits, key=key), refs, quanta, stages,
+                         {a: quantum(addresses[a].reference) for a in addresses})
 
 
 def _stage(at: str, doc: Mapping[str, Any], lim: AxisLimits) -> AxisStage:
