@@ -4,6 +4,7 @@ fault policy, read-back and write health; the offset's behaviour unchanged."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
@@ -11,7 +12,7 @@ import pytest
 
 from compd.core.axes import AxisParams
 from compd.core.cycle import Cycle, Outcome
-from compd.core.events import EventName
+from compd.core.events import Event, EventName
 from compd.core.faults import FaultState
 from compd.core.health import Cause
 from compd.core.validation import ChannelLimits
@@ -65,7 +66,7 @@ def test_value_and_slope_each_through_their_own_stage() -> None:
     assert sent[0] == (1.0, 0.5)
     assert sent[9] == (10.0, 5.0)
     assert sent[-1] == (10.0, 12.0)
-    steps = [abs(b[1] - a[1]) for a, b in zip(sent, sent[1:], strict=False)]
+    steps = [abs(b[1] - a[1]) for a, b in itertools.pairwise(sent)]
     assert max(steps) <= 0.5 + 1e-12
     x = row.axes["x"]
     assert x.state == FaultState.OK and x.cause == Cause.AT_LIMIT
@@ -83,7 +84,7 @@ def test_an_invalid_axis_input_holds_that_axis_while_z_goes_on() -> None:
         row = cycle.commit()
     held = row.axes["x"].value.stage, row.axes["x"].slope.stage
     z_before = row.stage_um
-    events = []
+    events: list[Event] = []
     for _ in range(30):
         t = clock.tick()
         plan = cycle.plan(t, inputs(t, nut=math.nan, bearing=25.5))
