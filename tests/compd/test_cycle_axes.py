@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -213,3 +214,30 @@ def test_no_axes_no_axis_report() -> None:
     row = cycle.commit()
     assert dict(row.axes) == {} and not any("comp" in n for n in plan.writes)
     assert "axes" not in cycle.export_state()
+
+
+def test_the_status_document_says_which_axes_are_in_force(tmp_path: Path) -> None:
+    from compd.config.loader import load_config
+    from compd.core.params import params_from_config
+    from compd.faces.status import StatusBoard
+    from tests.compd.axes_helpers import write_axes_config
+
+    cfg = load_config(write_axes_config(tmp_path, period_s=1.0, time_scale=1.0,
+                                        timeout_s=0.2))
+    cycle, board = Cycle(params_from_config(cfg), cfg.model), StatusBoard()
+    clock = FakeClock(period_s=1.0)
+    temps = {"nut": 20.0, "screw_bearing": 20.0, "column": 20.0, "ambient": 20.0}
+    for nut in (20.0, math.nan):
+        t = clock.tick()
+        back = {n: 0.0 for n in cycle.axes.names}
+        cycle.plan(t, {k: Sample(v, t) for k, v in {**temps, "nut": nut}.items()}, 0.0,
+                   axes_readback=back)
+        board.publish(cycle.commit(), cfg)
+        x = board.snapshot["axes"]["x"]
+        if nut == 20.0:
+            assert x["in_force"] and x["cause"] == "in_force"
+            assert "axes in force: x" in board.snapshot["why"]
+        else:
+            assert not x["in_force"] and x["state"] == "hold"
+            assert x["cause"] == "inputs_invalid" and x["status_word"] & 2
+            assert "axes in force: none" in board.snapshot["why"]
