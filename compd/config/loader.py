@@ -53,7 +53,7 @@ from models.tf import TransferFunction
 __all__ = ["PROBE_NAMES", "credential_path", "read_password", "resolve_state_dir"]
 
 #: output names as the driver sees them
-OUTPUT_NAMES: tuple[str, ...] = ("offset", "heartbeat", "status")
+OUTPUT_NAMES: tuple[str, ...] = ("offset", "heartbeat", "status", "axes_status")
 #: the controller's state read beside the channels ([output] machine_on, estop, homed,
 #: update_permitted, rezero)
 STATE_NAMES: tuple[str, ...] = ("machine_on", "estop", "homed", "update_permitted", "rezero")
@@ -298,6 +298,9 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
     adaptation, probes = adaptation_settings(raw, channels, model.adaptation)
     check_overlaps(outputs, channels, probes, states)
     axes = _axes(raw, base, channels, outputs, probes, states)
+    if axes is None and "axes_status" in outputs:
+        raise ConfigError("output.axes_status", "the axes word needs [output.axes.<axis>] "
+                          "(it says which axes are in force)")
     if axes is not None:
         outputs = {**outputs, **axes.outputs.outputs()}
     if ctl.protocol == "linuxcnc":
@@ -368,7 +371,7 @@ def _outputs(raw: DaemonConfig, channels: dict[str, Address]
         return {}, {}
     outputs: dict[str, Address] = {"offset": _validate_address(protocol, out.offset,
                                                                "output.offset")}
-    for name in ("heartbeat", "status"):
+    for name in ("heartbeat", "status", "axes_status"):
         doc_addr = getattr(out, name)
         if doc_addr is not None:
             outputs[name] = _validate_address(protocol, doc_addr, f"output.{name}")

@@ -254,6 +254,9 @@ class OutputSection(Section):
     offset: dict[str, Any]
     heartbeat: dict[str, Any] | None = None
     status: dict[str, Any] | None = None
+    #: the axes word (`compd.core.output.AxesStatus`: each [output.axes] axis in force,
+    #: alarm, holding, ramping, and a life bit), written beside the status word
+    axes_status: dict[str, Any] | None = None
     unit: Literal["um", "mm", "nm", "inch", "count"] = "um"
     #: controller units per µm; derived from `unit` unless unit = "count"
     scale: float | None = None

@@ -43,7 +43,7 @@ from compd.core.faults import FaultState
 from compd.core.health import WRITE_FAULT_AFTER, Cause, OutputHealth
 from compd.core.health_view import HealthView, output_cause, recorded_state, status_word
 from compd.core.modelstep import ModelStepper, finite_or_none
-from compd.core.output import OutputStage
+from compd.core.output import AXES_NIBBLE, AXIS_INDEX, AxesStatus, OutputStage, Status
 from compd.core.readback import ReadBack
 from models.compensation import CompensationModel
 from models.errors import ModelError
@@ -194,6 +194,13 @@ class _Axis:
         self._planned: tuple[float | None, float | None, bool] = (None, None, False)
         self._models: tuple[float | None, float | None] = (None, None)
         self._valid = False
+        #: the controller confirmed the line compd wants last cycle (`AxisRow.in_force`)
+        self.in_force = False
+
+    @property
+    def writing(self) -> bool:
+        """This cycle's plan writes the axis's line."""
+        return self._planned[2]
 
     def export_state(self) -> dict[str, Any]:
         out: dict[str, Any] = {"value": self.value.stage.confirmed_um,
@@ -307,6 +314,7 @@ class _Axis:
     def row(self, view: HealthView, confirmed: bool, failed: bool) -> AxisRow:
         v_sent, s_sent, _ = self._planned
         cause = self.health.committed_cause(output_cause(view), offset_failed=failed)
+        self.in_force = confirmed and v_sent is not None and cause.healthy
         return AxisRow(
             axis=self.p.axis, state=recorded_state(view), cause=cause,
             status=int(status_word(view)),
@@ -315,8 +323,7 @@ class _Axis:
             slope=ParamRow(self._models[1], self.slope.stage.current_um, s_sent,
                            self.slope.stage.confirmed_um),
             reference_mm=self.p.reference_mm,
-            in_force=confirmed and v_sent is not None and cause.healthy,
-            inputs_valid=self._valid)
+            in_force=self.in_force, inputs_valid=self._valid)
 
     # -- commit ----------------------------------------------------------------------
 
@@ -359,6 +366,8 @@ class AxisBank:
                      for p in axes]
         self._views: list[HealthView] = []
         self._events: list[Event] = []
+        #: the axes word's LIFE bit, toggled in every word planned
+        self._life = False
 
     def __bool__(self) -> bool:
         return bool(self.axes)
@@ -390,6 +399,27 @@ class AxisBank:
             if write:
                 writes.update(a.writes(full, self.readback, events))
         return writes
+
+    def status_word(self) -> int:
+        """This cycle's axes word (`compd.core.output.AxesStatus`), after `plan`: per
+        axis IN_FORCE (the line the controller confirmed last cycle is what the
+        models want, and is written again in this write), ALARM, HOLDING and
+        RAMPING (or shutting down) from the axis's own status word; LIFE toggles
+        on every call, so a PLC sees the cycle run whatever the inputs."""
+        self._life = not self._life
+        word = int(AxesStatus.LIFE) if self._life else 0
+        for a, view in zip(self.axes, self._views, strict=True):
+            bit = 1 << AXIS_INDEX[a.p.axis]
+            status = status_word(view)
+            if a.in_force and a.writing and output_cause(view).healthy:
+                word |= bit << AXES_NIBBLE["in_force"]
+            if status & Status.ALARM:
+                word |= bit << AXES_NIBBLE["alarm"]
+            if status & Status.HOLDING:
+                word |= bit << AXES_NIBBLE["holding"]
+            if status & (Status.RAMPING | Status.SHUTDOWN):
+                word |= bit << AXES_NIBBLE["ramping"]
+        return word
 
     def settled(self) -> bool:
         """A ramp-to-zero shutdown is done for every axis (or cannot write any more)."""

@@ -30,7 +30,10 @@ controller confirmed the offset is in it). `plan`:
    (in controller units; omitted once the controller
    refused it permanently, and while read-back is configured but the read
    failed, since then the controller's state is unknown), the heartbeat
-   (advanced only on a complete valid cycle) and the status word.
+   (advanced only on a complete valid cycle of the offset's model: it says
+   nothing about the per-axis lines), the status word and, with per-axis
+   lines, the axes word (`compd.core.axes.AxisBank.status_word`: which axes
+   are in force, and a life bit that toggles every cycle).
 
 Each cycle names why the offset compd wants is not in force, or that it is
 (`compd.core.health.Cause`, `Plan.cause` and after the write `Row.cause`):
@@ -267,6 +270,10 @@ class Cycle:
                 readback=axes_readback, off=controller_off,
                 hold=self.health.operator_hold or permit is not None,
                 write=not self.params.recorder_only, events=events))
+            name = self.params.axes_status_name
+            if name and not self.params.recorder_only \
+                    and name not in self.health.stopped_outputs:
+                writes[name] = float(self.axes.status_word())
         self._planned = self._plan(now_s, wall_s, writes, offset_um, inputs, stepped, view,
                                    status, events)
         return self._planned

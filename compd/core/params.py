@@ -35,6 +35,8 @@ class CycleParams:
     offset_name: str = "offset"
     heartbeat_name: str | None = "heartbeat"
     status_name: str | None = "status"
+    #: the axes word (`compd.core.output.AxesStatus`), None: not written
+    axes_status_name: str | None = None
     #: probe-assisted adaptation (`compd.core.adaptation`), None when off
     adaptation: AdaptationSettings | None = None
     #: read, validate, record; write nothing at all (`compd.core.cycle`)
@@ -63,6 +65,7 @@ def params_from_config(cfg: LoadedConfig, *, dry_run: bool = False) -> CyclePara
         time_scale=raw.machine.time_scale,
         heartbeat_name="heartbeat" if "heartbeat" in cfg.outputs else None,
         status_name="status" if "status" in cfg.outputs else None,
+        axes_status_name="axes_status" if "axes_status" in cfg.outputs else None,
         adaptation=cfg.adaptation, recorder_only=cfg.recorder_only,
         record_model=cfg.model_given, axes=axis_params(cfg))
 

@@ -54,6 +54,7 @@ b = ["1"]
 offset = {{ kind = "holding", address = 0, type = "float32" }}
 heartbeat = {{ kind = "holding", address = 2, type = "uint16" }}
 status = {{ kind = "holding", address = 3, type = "uint16" }}
+axes_status = {{ kind = "holding", address = 4, type = "uint16" }}
 limit_um = 100.0
 slew_um_s = 1.0
 

@@ -8,6 +8,7 @@ import asyncio
 from pathlib import Path
 
 from compd.config.loader import load_config
+from compd.core.output import AxesStatus
 from compd.runtime.checkpoint import load_checkpoint
 from compd.runtime.daemon import Daemon
 from compd.runtime.sdnotify import Notifier
@@ -16,7 +17,7 @@ from tests.compd.axes_helpers import write_axes_config
 
 from .daemon_helpers import pace, until
 
-OUTPUTS = ("offset", "heartbeat", "status", "x_comp_value", "x_comp_slope",
+OUTPUTS = ("offset", "heartbeat", "status", "axes_status", "x_comp_value", "x_comp_slope",
            "x_comp_reference")
 
 
@@ -45,6 +46,10 @@ async def test_the_daemon_writes_the_axis_and_resumes_it_after_a_restart(
     value, slope = driver.outputs["x_comp_value"], driver.outputs["x_comp_slope"]
     assert 3.0 <= value < 12.0 and 1.5 <= slope < 46.0
     assert driver.outputs["x_comp_reference"] == 0.0
+    # the axes word beside them: X in force, the life bit toggling from write to write
+    words = [int(w["axes_status"]) for w in driver.writes if "axes_status" in w]
+    assert words[-1] & AxesStatus.X_IN_FORCE
+    assert {w & AxesStatus.LIFE for w in words[-2:]} == {0, AxesStatus.LIFE}
     saved = load_checkpoint(cfg.state_dir / "checkpoint.json")
     assert saved is not None
     axis = saved["state"]["axes"]["x"] if "state" in saved else saved["axes"]["x"]
