@@ -25,11 +25,12 @@ from compd.core.output import AxesStatus
 from compd.core.params import params_from_config
 from compd.core.plan import Plan, Row
 from compd.runtime.driver_setup import build_driver
+from drivers.addresses import S7Address
 from drivers.base import Driver, Quality
 from drivers.sim.ballscrew import TEMPERATURES
 from drivers.sim.ballscrew_machine import BallscrewMachine
 from drivers.sim.opcua_server import OpcUaSimController
-from drivers.sim.s7_server import S7Address, S7SimController
+from drivers.sim.s7_server import S7SimController
 from tests.compd.axes_helpers import SENSOR_CHANNELS, axes_config_text
 from tests.compd.test_axes_ballscrew import HOURS, PERIOD_S, PROGRAM, _slope_gains
 
@@ -131,6 +132,7 @@ async def test_the_line_another_writer_and_a_power_cycle(protocol: str,
         assert worst_comp < 0.1 * worst_none, (worst_comp, worst_none)
 
         # another client writes the axis's value: found, alarmed, ramped from
+        assert x.value.confirmed is not None
         foreign = x.value.confirmed + 100.0
         await sim.publish({"x_comp_value": foreign})
         t += PERIOD_S
