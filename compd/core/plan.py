@@ -204,4 +204,5 @@ class Row(NamedTuple):
             offset_um=self.sent_um if self.write_ok else None, model_um=self.model_um,
             state=self.state, valid=self.inputs_valid, channels=self.channels,
             validity=self.validity, contributions=self.contributions,
-            attempted_um=self.sent_um, probe=self.probe, complete=self.in_force)
+            attempted_um=self.sent_um, probe=self.probe, complete=self.in_force,
+            axes=self.axes)
