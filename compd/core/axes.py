@@ -421,6 +421,23 @@ class AxisBank:
                 word |= bit << AXES_NIBBLE["ramping"]
         return word
 
+    def carry_over(self, old: AxisBank, *, same_outputs: bool) -> None:
+        """Continue `old`'s axes across a reload (this bank built from its exported
+        state): each axis still configured keeps its fault policy's timer and state
+        (a hold goes on toward its ramp), and while the outputs are the same its
+        stopped writes, whether its line was in force and its reference position
+        written; the axes word's LIFE bit toggles on from where it was."""
+        before = {a.p.axis: a for a in old.axes}
+        self._life = old._life
+        for a in self.axes:
+            was = before.get(a.p.axis)
+            if was is None:
+                continue
+            a.health.carry_over(was.health, outputs_same=same_outputs)
+            if same_outputs:
+                a.in_force = was.in_force
+                a.reference_written = was.reference_written
+
     def settled(self) -> bool:
         """A ramp-to-zero shutdown is done for every axis (or cannot write any more)."""
         return all(a.health.write_stopped or a.health.controller_off is not None

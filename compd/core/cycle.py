@@ -166,8 +166,10 @@ class Cycle:
         `old.export_state()`): the fault policy's timer and state go on (a hold
         still ramps on time), so does the validator's history while the
         channels are the same, and the stopped outputs while the outputs
-        (`same_outputs`: their addresses too) are."""
+        (`same_outputs`: their addresses too) are; each axis's likewise
+        (`compd.core.axes.AxisBank.carry_over`)."""
         self.health.carry_over(old.health, outputs_same=same_outputs)
+        self.axes.carry_over(old.axes, same_outputs=same_outputs)
         if self.params.channels == old.params.channels:
             self.stepping.validator = old.stepping.validator
 
