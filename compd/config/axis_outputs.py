@@ -87,6 +87,10 @@ class AxisModels:
 
     value: CompensationModel
     slope: CompensationModel | None = None
+    #: each model's identity (`compd.config.loader.model_sha256`; "" for none): a
+    #: checkpoint's or reload's model state is taken only by the same model
+    value_sha256: str = ""
+    slope_sha256: str = ""
 #: protocols whose controllers have no such parameters (their axes take an offset
 #: evaluated at the axis position instead)
 NO_PARAMETERS: frozenset[str] = frozenset({"linuxcnc"})

@@ -344,7 +344,8 @@ def _axes(raw: DaemonConfig, base: Path, channels: dict[str, Address],
         if slope is not None and stage.slope_slew_um_m_s is None:
             raise ConfigError(f"{at}.slope_slew_um_m_s", "required key is missing with "
                               "slope_model (the slope's rate limit, µm/m per s)")
-        models[axis] = AxisModels(value, slope)
+        models[axis] = AxisModels(value, slope, model_sha256(value),
+                                  model_sha256(slope) if slope is not None else "")
     return dataclasses.replace(found, models=models)
 
 

@@ -83,6 +83,10 @@ class AxisParams:
     value_quantum_um: float = 0.0
     slope_quantum_um_m: float = 0.0
     reference_quantum_mm: float = 0.0
+    #: each model's identity (a sha256 of its description; "" unknown): a model state
+    #: saved by another model is not imported (the model starts at the steady state)
+    value_sha256: str = ""
+    slope_sha256: str = ""
 
     def name(self, parameter: str) -> str:
         """The driver output of one of this axis's parameters (`drivers.temp_comp`)."""
@@ -135,7 +139,8 @@ class _Param:
             refs = state.get("references") if state is not None else None
             refs = refs if isinstance(refs, Mapping) and refs else None
             try:
-                self.models = ModelStepper(model, None, model_state=state if fresh else None,
+                usable = fresh and state is not None and "terms" in state
+                self.models = ModelStepper(model, None, model_state=state if usable else None,
                                            references=refs)
             except (ModelError, TypeError, ValueError, KeyError):
                 self.models = ModelStepper(model, None, references=refs)
@@ -172,20 +177,24 @@ class _Axis:
             v = st.get(key)
             return float(v) if isinstance(v, int | float) and math.isfinite(v) else None
 
-        def model_state(key: str) -> Mapping[str, Any] | None:
+        def model_state(key: str, sha256: str) -> Mapping[str, Any] | None:
             v = st.get(key)
-            return v if isinstance(v, Mapping) else None
+            if not isinstance(v, Mapping):
+                return None
+            if st.get(f"{key}_sha256", "") != sha256:  # another model's: its references only
+                return {"references": v.get("references")}
+            return v
 
         self.value = _Param(p.name("value"), p.value_model, self.health,
                             limit=p.value_limit_um, slew=p.value_slew_um_s,
                             deadband=p.value_deadband_um, quantum=p.value_quantum_um,
                             max_dt_s=dt, initial=initial("value"), readback=readback,
-                            state=model_state("value_model"), fresh=fresh)
+                            state=model_state("value_model", p.value_sha256), fresh=fresh)
         self.slope = _Param(p.name("slope"), p.slope_model, self.health,
                             limit=p.slope_limit_um_m, slew=p.slope_slew_um_m_s,
                             deadband=p.slope_deadband_um_m, quantum=p.slope_quantum_um_m,
                             max_dt_s=dt, initial=initial("slope"), readback=readback,
-                            state=model_state("slope_model"), fresh=fresh)
+                            state=model_state("slope_model", p.slope_sha256), fresh=fresh)
         self.params = (self.value, self.slope)
         self.gate = sorted(p.value_model.channels
                            | (p.slope_model.channels if p.slope_model is not None else set()))
@@ -205,10 +214,12 @@ class _Axis:
     def export_state(self) -> dict[str, Any]:
         out: dict[str, Any] = {"value": self.value.stage.confirmed_um,
                                "slope": self.slope.stage.confirmed_um}
-        for key, param in (("value_model", self.value), ("slope_model", self.slope)):
+        for key, param, sha in (("value_model", self.value, self.p.value_sha256),
+                                ("slope_model", self.slope, self.p.slope_sha256)):
             m = param.models
             if m is not None and m.model_ready:
                 out[key] = m.model.export_state()
+                out[f"{key}_sha256"] = sha
         return out
 
     # -- plan ------------------------------------------------------------------------

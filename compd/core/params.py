@@ -88,5 +88,6 @@ def axis_params(cfg: LoadedConfig) -> tuple[AxisParams, ...]:
                                if stage.slope_slew_um_m_s is not None else 1.0),
             value_deadband_um=stage.deadband_um, slope_deadband_um_m=stage.slope_deadband_um_m,
             value_quantum_um=vq, slope_quantum_um_m=sq,
-            reference_quantum_mm=found.reference_quantum_mm.get(axis, 0.0)))
+            reference_quantum_mm=found.reference_quantum_mm.get(axis, 0.0),
+            value_sha256=models.value_sha256, slope_sha256=models.slope_sha256))
     return tuple(out)

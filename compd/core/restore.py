@@ -75,7 +75,8 @@ def _axes_state(axes: Mapping[str, Any] | None, *, usable: bool
     (as the offset's model does)."""
     if axes is None:
         return None
-    keep = ("value", "slope", "value_model", "slope_model")
+    keep = ("value", "slope", "value_model", "slope_model", "value_model_sha256",
+            "slope_model_sha256")
     return {axis: {**{k: v for k, v in doc.items() if k in keep}, "fresh": usable}
             for axis, doc in axes.items() if isinstance(doc, Mapping)}
 
