@@ -83,6 +83,7 @@ class CycleIO:
         now_s, wall_s = at.machine_s, at.wall_s
         assert driver is not None and cycle is not None
         samples, readback, probe, off, got = await self._read(driver, cfg)
+        axes = _axes_readback(got, cycle) if cycle.axes and samples is not None else None
         permitted, rezero = _permit(got, cfg), _bit(got, "rezero")
         if self.rezero_requests:
             for who in self.rezero_requests:
@@ -92,7 +93,12 @@ class CycleIO:
         try:
             if probe is not None:
                 plan = cycle.plan(now_s, samples, readback, wall_s=wall_s, probe=probe,
-                                  controller_off=off, permitted=permitted, rezero_bit=rezero)
+                                  controller_off=off, permitted=permitted, rezero_bit=rezero,
+                                  axes_readback=axes)
+            elif axes is not None:
+                plan = cycle.plan(now_s, samples, readback, wall_s=wall_s,
+                                  controller_off=off, permitted=permitted, rezero_bit=rezero,
+                                  axes_readback=axes)
             else:
                 plan = cycle.plan(now_s, samples, readback, wall_s=wall_s,
                                   controller_off=off, permitted=permitted, rezero_bit=rezero)
@@ -124,6 +130,7 @@ class CycleIO:
         names = list(cfg.channels)
         if params.readback:
             names.append(params.offset_name)
+            names.extend(n for a in params.axes for n in a.names)
         names.extend(cfg.probes)
         names.extend(cfg.states)
         limit_s = max(cfg.real_period_s, 2.0 * cfg.raw.controller.timeout_s)
@@ -220,6 +227,12 @@ def _probe_reading(got: dict[str, Sample]) -> ProbeReading:
         return float(s.value) if s is not None and s.quality is not Quality.BAD else math.nan
 
     return ProbeReading(value_um=value(PROBE_NAMES[0]), counter=value(PROBE_NAMES[1]))
+
+
+def _axes_readback(got: Mapping[str, Sample], cycle: Cycle) -> dict[str, float | None]:
+    """Each axis parameter as read back (None: missing or of bad quality)."""
+    return {n: (float(s.value) if (s := got.get(n)) is not None and s.quality is not Quality.BAD
+                else None) for n in cycle.axes.names}
 
 
 def _bit(got: Mapping[str, Sample], name: str) -> bool | None:

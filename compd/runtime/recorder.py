@@ -29,8 +29,11 @@ the controller and ``attempted_um`` as sent, ``model_um``, ``state``,
 ``valid``, ``complete``, and the JSON objects ``channels``, ``validity`` and
 ``contributions``; non-finite floats stored as null). Each channel value is
 stored once, in the JSON column; the ``channel_values`` view shows them as
-numbers. Opening a file an older compd wrote upgrades it
-(`compd.store.schema.upgrade`); it then reads and is appended to as before.
+numbers. With ``[output.axes]`` each sample has one row per axis in table
+``axes`` (its state, cause, in force, and its value's and slope's stage,
+sent, confirmed and model values), purged with its sample. Opening a file
+an older compd wrote upgrades it (`compd.store.schema.upgrade`); it then
+reads and is appended to as before.
 
 Retention (`keep_rows`) keeps the newest rows by ``seq``, the recorder's own
 numbering: `recorder.retention_days` (30 by default, 0 keeps everything)
@@ -72,6 +75,7 @@ from compd.store.reader import read_samples
 from compd.store.schema import (
     CHANNELS_KEY,
     FIXED_COLUMNS,
+    INSERT_AXIS,
     INSERT_PROBE,
     INSERT_SAMPLE,
     PROBE_COLUMNS,
@@ -125,6 +129,19 @@ def _tuple(seq: int, row: RecordRow) -> tuple[Any, ...]:
             1 if row.complete else 0)
 
 
+def _axis_tuples(seq: int, row: RecordRow) -> list[tuple[Any, ...]]:
+    """The ``axes`` rows of one sample (`compd.store.schema.AXIS_COLUMNS`), one per
+    axis (a `compd.core.axes.AxisRow` each)."""
+    out = []
+    for axis, a in row.axes.items():
+        v, s = a.value, a.slope
+        out.append((seq, str(axis), str(a.state), str(a.cause), 1 if a.in_force else 0,
+                    _num(v.stage), _num(v.sent), _num(v.confirmed), _num(v.model),
+                    _num(s.stage), _num(s.sent), _num(s.confirmed), _num(s.model),
+                    _num(a.reference_mm)))
+    return out
+
+
 @dataclass(frozen=True, slots=True)
 class _Batch:
     """One commit's rows, formatted: the ``samples`` and ``probe`` rows and the
@@ -134,6 +151,7 @@ class _Batch:
     count: int
     samples: list[tuple[Any, ...]]
     probes: list[tuple[Any, ...]]
+    axes: list[tuple[Any, ...]]
     channels: list[str]
     terms: list[str]
 
@@ -303,14 +321,15 @@ class Recorder:
         first = self._next_seq
         try:
             samples = [_tuple(first + i, r) for i, r in enumerate(rows)]
-        except (ValueError, TypeError) as exc:
+            axes = [t for i, r in enumerate(rows) if r.axes for t in _axis_tuples(first + i, r)]
+        except (ValueError, TypeError, AttributeError) as exc:
             self._fail(len(rows), f"{type(exc).__name__}: {exc}")
             return None
         probes = [(first + i, *(r.probe.get(c) for c in PROBE_COLUMNS))
                   for i, r in enumerate(rows) if r.probe is not None]
         channels = self._channels + _new_names(self._channels, (r.channels for r in rows))
         terms = self._terms + _new_names(self._terms, (r.contributions for r in rows))
-        return _Batch(first, len(rows), samples, probes, channels, terms)
+        return _Batch(first, len(rows), samples, probes, axes, channels, terms)
 
     def _commit(self, batch: _Batch) -> None:
         """One transaction of `batch` (on the writer's thread when there is one)."""
@@ -327,6 +346,8 @@ class Recorder:
             conn.execute("BEGIN IMMEDIATE")
             conn.executemany(INSERT_SAMPLE, batch.samples)
             conn.executemany(INSERT_PROBE, batch.probes)
+            if batch.axes:
+                conn.executemany(INSERT_AXIS, batch.axes)
             for key, names, known in ((CHANNELS_KEY, batch.channels, self._channels),
                                       (TERMS_KEY, batch.terms, self._terms)):
                 if len(names) > len(known):
@@ -363,6 +384,9 @@ class Recorder:
                 " (SELECT seq FROM samples WHERE seq <= ? ORDER BY seq LIMIT ?)",
                 (last_dropped_seq, limit))
             self.purged += max(cur.rowcount, 0)
+            # the axes' rows of the samples gone (the primary key's range)
+            conn.execute("DELETE FROM axes WHERE seq < "
+                         "(SELECT COALESCE(MIN(seq), ?) FROM samples)", (last_dropped_seq + 1,))
         except sqlite3.Error as exc:
             self._rollback(conn)
             self.last_error = f"retention: {type(exc).__name__}: {exc}"
