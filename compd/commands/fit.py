@@ -175,16 +175,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", default=None, help="model name (default: from DATA)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON line")
     parser.add_argument("--adaptation", action="store_true",
-                        help="also learn the probe estimator's settings from the fitted model's "
-                             "residual (compd.offline.probes) and write them into the model "
-                             "file's [adaptation] table (without them, adaptation starts "
-                             "stood down: docs/adaptation.md §2)")
+                        help="kept for scripts: compd fit always learns the probe estimator's "
+                             "settings from the fitted model's residual on rows it was not "
+                             "calibrated on (compd.offline.probes) and writes them into the "
+                             "model file's [adaptation] table; where it cannot, the file says "
+                             "why and adaptation starts stood down (docs/adaptation.md §2)")
     parser.add_argument("--no-fallbacks", action="store_true",
                         help="write no fallback models (by default one per input, fitted "
                              "the same way without it, used while that sensor is invalid)")
     parser.add_argument("--adaptation-lag-s", type=number(0.0, 1e7, lo_open=True),
                         default=7200.0, metavar="SECONDS",
-                        help="with --adaptation: the probe interval the drift is measured over "
+                        help="the probe interval the adaptation's drift is measured over "
                              "(default 7200: give your probe spacing)")
 
 
@@ -200,7 +201,7 @@ def fit_request(args: argparse.Namespace) -> FitRequest:
         max_time_constant_days=args.max_time_constant_days, fit_from=args.fit_from,
         fit_until=args.fit_until, positions=args.positions,
         reference_position_mm=args.reference_position_mm, force=args.force, name=args.name,
-        json=args.json, adaptation=args.adaptation, adaptation_lag_s=args.adaptation_lag_s,
+        json=args.json, adaptation_lag_s=args.adaptation_lag_s,
         no_fallbacks=args.no_fallbacks,
         command_line=shlex.join(["compd", *sys.argv[1:]]) if argv_is_fit else None)
 
@@ -227,7 +228,13 @@ def run(args: argparse.Namespace) -> int:
         return EX_USAGE
 
     from compd.infiles import load_model
-    from compd.offline.fit import fit_model, save_model, suggest_adaptation, term_specs
+    from compd.offline.fit import (
+        adaptation_provenance,
+        fit_model,
+        save_model,
+        suggest_adaptation,
+        term_specs,
+    )
     from compd.offline.model_replay import replay_with_init
     from compd.offline.records import RecordError
     from compd.outfiles import check_output, write_atomically
@@ -264,14 +271,19 @@ def run(args: argparse.Namespace) -> int:
         keep = [r.time_s >= request.fit_from - 1e-9 for r in records]
         measured = [r.column(request.output)[k] for r, k in zip(records, keep, strict=True)]
         simulated = [s[k] for s, k in zip(simulated, keep, strict=True)]
-    adapt = suggest_adaptation(fit, request, measured, simulated, records[0].period_s)
-    if adapt:  # the suggestion travels with the model: its [adaptation] table
-        from compd.offline.probes import Suggestion
+    # the probe estimator's settings are learnt for every model written; where they
+    # cannot be, the file says why and its adaptation starts stood down
+    adapt, why_not = suggest_adaptation(fit, request, measured, simulated,
+                                        records[0].period_s)
+    from compd.offline.probes import Suggestion
 
-        model.adaptation = Suggestion(**adapt).settings()
-        write_atomically(out, lambda tmp: save_model(model, tmp, Path(records[0].path).name),
-                         "model file", force=True,
-                         inputs=[r.path for r in records])
+    model.adaptation = Suggestion(**adapt).settings() if adapt else {"unproven": True}
+    model.provenance = {**model.provenance, **adaptation_provenance(adapt, why_not)}
+    write_atomically(out, lambda tmp: save_model(model, tmp, Path(records[0].path).name),
+                     "model file", force=True, inputs=[r.path for r in records])
+    if why_not is not None:
+        print(f"compd fit: warning: adaptation settings not learnt: {why_not}; the model "
+              "file says so, and adaptation starts stood down on it", file=sys.stderr)
     per = [quality(m, s) for m, s in zip(measured, simulated, strict=True)]
     q = per[0] if len(records) == 1 else quality(np.concatenate(measured),
                                                  np.concatenate(simulated))
@@ -282,7 +294,8 @@ def run(args: argparse.Namespace) -> int:
     if request.json:
         extra = {"subsets": fit.search_table} if fit.search_table else {}
         print(json.dumps({"terms": info, "fit_percent": q.fit_percent, "dpk_um": q.dpk_um, **extra,
-                          **({"adaptation": adapt} if adapt else {}),
+                          **({"adaptation": adapt} if adapt else
+                             {"adaptation_not_learnt": why_not}),
                           "model_file": str(out),
                           "fallbacks": fallback_figures,
                           "records": [{"path": r.path, **pq.as_dict()}

@@ -301,19 +301,27 @@ def fit_model(request: FitRequest, run: FitRun | None = None) -> FitResult:
 
 
 def suggest_adaptation(fit: FitResult, request: FitRequest, measured: list[Any],
-                       simulated: list[Any], period_s: float) -> dict[str, Any]:
-    """`request.adaptation`'s learnt settings from the residual of `measured` less
-    `simulated` and `fit`'s held-out residuals ({} without it, or with a warning
-    when the records are too short for the lag: the model is written all the same)."""
+                       simulated: list[Any], period_s: float
+                       ) -> tuple[dict[str, Any], str | None]:
+    """(the learnt settings, None) from the residual of `measured` less `simulated` and
+    `fit`'s held-out residuals; or ({}, why none were learnt: the records shorter than
+    the lag, or not asked), for the model file to say (`not_learnt_table`)."""
     if not request.adaptation:
-        return {}
+        return {}, "not asked for (FitRequest.adaptation is false)"
     from compd.offline.probes import suggest_settings
 
     residuals = [m - s for m, s in zip(measured, simulated, strict=True)]
     try:
         return suggest_settings(residuals, period_s, request.adaptation_lag_s,
-                                fit.heldout_residuals).as_dict()
+                                fit.heldout_residuals).as_dict(), None
     except ValueError as exc:
-        print(f"compd fit: warning: --adaptation: {exc}; no settings suggested",
-              file=sys.stderr)
-        return {}
+        return {}, str(exc)
+
+
+def adaptation_provenance(adapt: dict[str, Any], why_not: str | None) -> dict[str, Any]:
+    """What a model file's provenance says of its [adaptation] table: what the settings
+    were learnt on and over which lag, or why none were (the estimator then starts stood
+    down on it, `models.adaptation_params.mark_unproven`)."""
+    if why_not is not None:
+        return {"adaptation_not_learnt": _text(why_not)}
+    return {"adaptation_learnt_on": adapt["drift_from"], "adaptation_lag_s": adapt["lag_s"]}
