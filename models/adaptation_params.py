@@ -110,3 +110,21 @@ def mark_unproven(table: Mapping[str, Any]) -> dict[str, Any]:
     if all(k in table for k in LEARNT_KEYS):
         return dict(table)
     return {**table, "unproven": True}
+
+
+def with_probe_noise(table: Mapping[str, Any], probe_noise_um: float) -> dict[str, Any]:
+    """`table` (a model file's [adaptation] settings) for a probe of `probe_noise_um`
+    instead of the noise the table was learnt with: a correction held from a noisier
+    probe errs by the extra noise too, so a learnt prior's `score_prior_adapted_um`
+    grows by it (√(prior² + σ_new² − σ_learnt²)); a quieter probe leaves the prior as
+    learnt. Without a learnt prior only the noise changes."""
+    out = {**table, "probe_noise_um": probe_noise_um}
+    learnt = table.get("probe_noise_um")
+    if not all(k in table for k in LEARNT_KEYS) or not isinstance(learnt, int | float):
+        return out
+    extra = probe_noise_um ** 2 - float(learnt) ** 2
+    if extra > 0:
+        out["score_prior_adapted_um"] = math.sqrt(
+            float(table["score_prior_adapted_um"]) ** 2 + extra)
+    return out
+
