@@ -49,7 +49,8 @@ def adaptation_settings(raw: DaemonConfig, channels: dict[str, Address],
     try:
         # settings not learnt for this model start stood down (models.adaptation.mark_unproven)
         given = a.estimator_settings()
-        if "probe_noise_um" in given:  # the machine's probe, not the record's noise
+        if "probe_noise_um" in given:  # the machine's probe, not the record's noise (the
+            # probe spacing taken as compd fit's default lag: the config does not say it)
             table = with_probe_noise(table, given["probe_noise_um"])
         params = AdaptationParams(**{**mark_unproven(table), **given})
     except (ValueError, TypeError) as exc:  # "name: why; …" (AdaptationParams.problems)

@@ -58,11 +58,12 @@ def probe_params(request: ProbeRequest,
     table = {} if request.defaults_only or learnt is None else dict(learnt)
     changes: dict[str, Any] = dict(request.settings)
     if "probe_noise_um" in changes:
-        table = with_probe_noise(table, float(changes["probe_noise_um"]))
+        table = with_probe_noise(table, float(changes["probe_noise_um"]),
+                                 request.every_min * 60.0)
     elif request.noise_um > 0:
         # the probe's added noise, on top of what the model's own residual does fast
         table = with_probe_noise(table, math.hypot(float(table.get("probe_noise_um", 0.0)),
-                                                   request.noise_um))
+                                                   request.noise_um), request.every_min * 60.0)
     gains = {"gains": True} if request.gains else {}
     # as the daemon: settings not learnt for the model start stood down
     return dataclasses.replace(AdaptationParams(),

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import tomllib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -110,7 +111,10 @@ def test_replay_reports_adapted_and_crude_beside_the_plain_figures(
     assert keys <= set(adapted) and keys <= set(crude)
     assert adapted["probes"] == 24 and adapted["probes_scored"] == 13  # 24 h … 48 h
     assert adapted["probes_used"] + adapted["probes_refused"] == 24
-    assert both["adaptation"]["probe_noise_um"] == 0.5  # type: ignore[index]
+    # the added noise on top of the noise fit learnt for the model's own residual
+    learnt = tomllib.loads(shop_run["model"].read_text())["adaptation"]["probe_noise_um"]
+    assert both["adaptation"]["probe_noise_um"] == pytest.approx(  # type: ignore[index]
+        math.hypot(learnt, 0.5))
     # the same seed gives the same figures; another seed other probe noise
     again = _replay(capsys, shop_run["model"], shop_run["changed"], "--probe-every-min", "120",
                     "--probe-noise-um", "0.5")

@@ -9,12 +9,19 @@ import csv
 import json
 import tomllib
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from compd.cli import main
 from compd.config.loader import load_config
-from models.adaptation import AdaptationParams, Adapter, mark_unproven, with_probe_noise
+from models.adaptation import (
+    LEARNT_KEYS,
+    AdaptationParams,
+    Adapter,
+    mark_unproven,
+    with_probe_noise,
+)
 from models.modelfile import library_path
 
 from .test_adaptation_config import ADAPTATION
@@ -105,7 +112,7 @@ def test_a_noisier_probe_than_the_record_weighs_on_the_learnt_prior() -> None:
     """A correction held from a probe noisier than the record's rows errs by the extra
     noise: the learnt prior of the adapted error grows by it, so a prior that barely
     favoured adapting (the shop machine's 1.151 against 1.18 µm) no longer does."""
-    learnt = {"probe_noise_um": 0.3, "score_prior_plain_um": 1.18,
+    learnt: dict[str, Any] = {"probe_noise_um": 0.3, "score_prior_plain_um": 1.18,
               "score_prior_adapted_um": 1.151, "score_prior_probes": 12.0}
     noisy = with_probe_noise(learnt, 0.6)
     assert noisy["probe_noise_um"] == 0.6
@@ -118,24 +125,34 @@ def test_a_noisier_probe_than_the_record_weighs_on_the_learnt_prior() -> None:
         "bias_rw_um_per_sqrt_h": 2.0, "probe_noise_um": 0.6}
 
 
-def test_a_model_fit_without_adaptation_says_why_and_check_names_it(
+def test_fit_learns_the_settings_or_says_why_not_and_check_names_it(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """The model file says its adaptation settings were not learnt (and why), its
-    [adaptation] table marks them unproven, and check's line on apply says the same."""
+    """compd fit learns the settings without being asked; where it cannot (records
+    shorter than the lag), the model file says so and why, its [adaptation] table
+    marks them unproven, and check's line on apply says the same."""
     first = tmp_path / "first.csv"
     with RECORD.open(newline="") as src, first.open("w", newline="") as dst:
         rows = csv.reader(src)
         w = csv.writer(dst)
         w.writerow(next(rows))
         w.writerows(r for r in rows if float(r[0]) <= SPLIT_S)
-    model = tmp_path / "ch3.toml"
-    assert main(["fit", str(first), "--column", "ch3_um", "--term", "t4_degC", "--term",
-                 "t6_degC", "-o", str(model), "--no-fallbacks", "--json"]) == 0
+    fit = ["fit", str(first), "--column", "ch3_um", "--term", "t4_degC", "--term", "t6_degC",
+           "--no-fallbacks", "--json"]
+    assert main([*fit, "-o", str(tmp_path / "learnt.toml")]) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert "adaptation" not in out and "--adaptation" in out["adaptation_not_learnt"]
+    doc = tomllib.loads((tmp_path / "learnt.toml").read_text(encoding="utf-8"))
+    assert "adaptation_not_learnt" not in out and "adaptation_not_learnt" not in doc["provenance"]
+    assert all(k in doc["adaptation"] for k in LEARNT_KEYS)
+    assert doc["provenance"]["adaptation_learnt_on"] == out["adaptation"]["drift_from"]
+    model = tmp_path / "ch3.toml"
+    assert main([*fit, "-o", str(model), "--adaptation-lag-s", "1e6"]) == 0
+    captured = capsys.readouterr()
+    out = json.loads(captured.out.strip().splitlines()[-1])
+    assert "adaptation" not in out and "shorter than the lag" in out["adaptation_not_learnt"]
+    assert "adaptation settings not learnt: the records are shorter" in captured.err
     doc = tomllib.loads(model.read_text(encoding="utf-8"))
     assert doc["adaptation"] == {"unproven": True}
-    assert "--adaptation" in doc["provenance"]["adaptation_not_learnt"]
+    assert doc["provenance"]["adaptation_not_learnt"] == out["adaptation_not_learnt"]
     # the bundled sp2 (the config's channels) with what fit wrote of its adaptation
     sp2 = tmp_path / "sp2-fitted.toml"
     sp2.write_text(Path(str(library_path("sp2"))).read_text(encoding="utf-8")
@@ -146,4 +163,4 @@ def test_a_model_fit_without_adaptation_says_why_and_check_names_it(
     assert load_config(cfg).adaptation.params.unproven  # type: ignore[union-attr]
     assert main(["check", str(cfg)]) == 0
     lines = [ln for ln in capsys.readouterr().err.splitlines() if "adaptation.mode" in ln]
-    assert len(lines) == 1 and "did not learn them: not asked for" in lines[0]
+    assert len(lines) == 1 and "did not learn them: the records are shorter" in lines[0]
