@@ -96,7 +96,7 @@ def _adaptation_warnings(cfg: LoadedConfig) -> list[str]:
             "machine's drift (on the real record of docs/adaptation.md §6 they made it worse "
             "than the plain model: RMS 7.17 against 6.26 µm); the estimator starts stood "
             "down and applies nothing until its probes show adapting pays. Refit the model "
-            "(compd fit learns them) or refine them from the machine's probes "
+            "(compd fit --adaptation learns them) or refine them from the machine's probes "
             "(compd refine)"]
 
 

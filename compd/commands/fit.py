@@ -175,17 +175,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", default=None, help="model name (default: from DATA)")
     parser.add_argument("--json", action="store_true", help="print the result as one JSON line")
     parser.add_argument("--adaptation", action="store_true",
-                        help="kept for scripts: compd fit always learns the probe estimator's "
-                             "settings from the fitted model's residual (compd.offline.probes) "
-                             "and writes them into the model file's [adaptation] table; where "
-                             "it cannot, the file says why and adaptation starts stood down "
-                             "(docs/adaptation.md §2)")
+                        help="also learn the probe estimator's settings from the fitted model's "
+                             "residual (compd.offline.probes) and write them into the model "
+                             "file's [adaptation] table (without them, the file says why and "
+                             "adaptation starts stood down: docs/adaptation.md §2)")
     parser.add_argument("--no-fallbacks", action="store_true",
                         help="write no fallback models (by default one per input, fitted "
                              "the same way without it, used while that sensor is invalid)")
     parser.add_argument("--adaptation-lag-s", type=number(0.0, 1e7, lo_open=True),
                         default=7200.0, metavar="SECONDS",
-                        help="the probe interval the adaptation's drift is measured over "
+                        help="with --adaptation: the probe interval the drift is measured over "
                              "(default 7200: give your probe spacing)")
 
 
@@ -201,7 +200,7 @@ def fit_request(args: argparse.Namespace) -> FitRequest:
         max_time_constant_days=args.max_time_constant_days, fit_from=args.fit_from,
         fit_until=args.fit_until, positions=args.positions,
         reference_position_mm=args.reference_position_mm, force=args.force, name=args.name,
-        json=args.json, adaptation_lag_s=args.adaptation_lag_s,
+        json=args.json, adaptation=args.adaptation, adaptation_lag_s=args.adaptation_lag_s,
         no_fallbacks=args.no_fallbacks,
         command_line=shlex.join(["compd", *sys.argv[1:]]) if argv_is_fit else None)
 
@@ -271,8 +270,8 @@ def run(args: argparse.Namespace) -> int:
         keep = [r.time_s >= request.fit_from - 1e-9 for r in records]
         measured = [r.column(request.output)[k] for r, k in zip(records, keep, strict=True)]
         simulated = [s[k] for s, k in zip(simulated, keep, strict=True)]
-    # the probe estimator's settings, learnt for every model written; where they
-    # cannot be, the file says why and its adaptation starts stood down
+    # the probe estimator's settings (--adaptation); without them the file says why
+    # and its adaptation starts stood down
     adapt, why_not = suggest_adaptation(fit, request, measured, simulated,
                                         records[0].period_s)
     from compd.offline.probes import Suggestion
@@ -281,7 +280,7 @@ def run(args: argparse.Namespace) -> int:
     model.provenance = {**model.provenance, **adaptation_provenance(adapt, why_not)}
     write_atomically(out, lambda tmp: save_model(model, tmp, Path(records[0].path).name),
                      "model file", force=True, inputs=[r.path for r in records])
-    if why_not is not None:
+    if why_not is not None and request.adaptation:
         print(f"compd fit: warning: adaptation settings not learnt: {why_not}; the model "
               "file says so, and adaptation starts stood down on it", file=sys.stderr)
     per = [quality(m, s) for m, s in zip(measured, simulated, strict=True)]

@@ -307,7 +307,7 @@ def suggest_adaptation(fit: FitResult, request: FitRequest, measured: list[Any],
     `fit`'s held-out residuals; or ({}, why none were learnt: the records shorter than
     the lag, or not asked), for the model file to say (`not_learnt_table`)."""
     if not request.adaptation:
-        return {}, "not asked for (FitRequest.adaptation is false)"
+        return {}, "not asked for (compd fit without --adaptation)"
     from compd.offline.probes import suggest_settings
 
     residuals = [m - s for m, s in zip(measured, simulated, strict=True)]

@@ -93,10 +93,9 @@ class FitRequest:
     name: str | None = None
     #: the result goes out as one JSON line: no progress bar on the terminal
     json: bool = False
-    #: learn the probe estimator's settings from the residual, over this lag (s):
-    #: always by `compd fit` (without them the model file says why, and its
-    #: adaptation starts stood down)
-    adaptation: bool = True
+    #: learn the probe estimator's settings from the residual, over this lag (s)
+    #: (without them the model file says why, and its adaptation starts stood down)
+    adaptation: bool = False
     adaptation_lag_s: float = 7200.0
     no_fallbacks: bool = False
     #: rows (of the records end to end) masked from every loss: no option sets

@@ -127,9 +127,9 @@ def test_a_noisier_probe_than_the_record_weighs_on_the_learnt_prior() -> None:
 
 def test_fit_learns_the_settings_or_says_why_not_and_check_names_it(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """compd fit learns the settings without being asked; where it cannot (records
-    shorter than the lag), the model file says so and why, its [adaptation] table
-    marks them unproven, and check's line on apply says the same."""
+    """compd fit --adaptation learns the settings; where it cannot (records shorter
+    than the lag) or is not asked to, the model file says so and why, its [adaptation]
+    table marks them unproven, and check's line on apply says the same."""
     first = tmp_path / "first.csv"
     with RECORD.open(newline="") as src, first.open("w", newline="") as dst:
         rows = csv.reader(src)
@@ -138,6 +138,13 @@ def test_fit_learns_the_settings_or_says_why_not_and_check_names_it(
         w.writerows(r for r in rows if float(r[0]) <= SPLIT_S)
     fit = ["fit", str(first), "--column", "ch3_um", "--term", "t4_degC", "--term", "t6_degC",
            "--no-fallbacks", "--json"]
+    assert main([*fit, "-o", str(tmp_path / "plain.toml")]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert "--adaptation" in out["adaptation_not_learnt"]
+    doc = tomllib.loads((tmp_path / "plain.toml").read_text(encoding="utf-8"))
+    assert doc["adaptation"] == {"unproven": True}
+    assert doc["provenance"]["adaptation_not_learnt"] == out["adaptation_not_learnt"]
+    fit.append("--adaptation")
     assert main([*fit, "-o", str(tmp_path / "learnt.toml")]) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     doc = tomllib.loads((tmp_path / "learnt.toml").read_text(encoding="utf-8"))
