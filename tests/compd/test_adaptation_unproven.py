@@ -121,6 +121,12 @@ def test_a_noisier_probe_than_the_record_weighs_on_the_learnt_prior() -> None:
     assert Adapter(AdaptationParams(**noisy), 1).standing_down
     assert not Adapter(AdaptationParams(**learnt), 1).standing_down
     assert with_probe_noise(learnt, 0.1)["score_prior_adapted_um"] == 1.151  # quieter
+    # the band decided again with the probe's noise: a drift of 1.467 µm/√h moves 2.07 µm
+    # over 2 h, beyond 4 σ of the record's 0.3 µm, within 4 σ of a 0.6 µm probe
+    follow = {**learnt, "bias_rw_um_per_sqrt_h": 1.467, "apply_sigma": 0.0}
+    assert with_probe_noise(follow, 0.6)["apply_sigma"] == AdaptationParams.apply_sigma
+    assert with_probe_noise(follow, 0.6, spacing_s=4 * 3600.0)["apply_sigma"] == 0.0
+    assert with_probe_noise({**follow, "bias_rw_um_per_sqrt_h": 8.0}, 0.6)["apply_sigma"] == 0.0
     assert with_probe_noise({"bias_rw_um_per_sqrt_h": 2.0}, 0.6) == {
         "bias_rw_um_per_sqrt_h": 2.0, "probe_noise_um": 0.6}
 
