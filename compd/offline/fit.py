@@ -305,7 +305,7 @@ def suggest_adaptation(fit: FitResult, request: FitRequest, measured: list[Any],
                        ) -> tuple[dict[str, Any], str | None]:
     """(the learnt settings, None) from the residual of `measured` less `simulated` and
     `fit`'s held-out residuals; or ({}, why none were learnt: the records shorter than
-    the lag, or not asked), for the model file to say (`not_learnt_table`)."""
+    the lag, or not asked), for the model file to say (`adaptation_provenance`)."""
     if not request.adaptation:
         return {}, "not asked for (compd fit without --adaptation)"
     from compd.offline.probes import suggest_settings

@@ -11,6 +11,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from compd.cli import main
@@ -26,6 +27,7 @@ from models.modelfile import library_path
 
 from .test_adaptation_config import ADAPTATION
 from .test_config import BASE
+from .test_refine import _MODEL, _log, _walk
 
 RECORD = Path(__file__).resolve().parents[1] / "data" / "fl_thermal" / "calibration.csv"
 SPLIT_S = 72360.0  # 20.1 h: calibrate before, score after
@@ -177,3 +179,20 @@ def test_fit_learns_the_settings_or_says_why_not_and_check_names_it(
     assert main(["check", str(cfg)]) == 0
     lines = [ln for ln in capsys.readouterr().err.splitlines() if "adaptation.mode" in ln]
     assert len(lines) == 1 and "did not learn them: the records are shorter" in lines[0]
+
+
+def test_refine_proves_a_table_fit_could_not_learn(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A model file whose [adaptation] table compd fit marked unproven, refined from a
+    running machine's probes, carries a learnt prior and no longer starts stood down."""
+    model = tmp_path / "m.toml"
+    model.write_text(_MODEL.split("[adaptation]")[0] + "[adaptation]\nunproven = true\n",
+                     encoding="utf-8")
+    t = np.arange(200) * 7200.0
+    log = _log(tmp_path / "probes.csv", t, _walk(3, t, 4.0, 0.2))
+    out = tmp_path / "refined.toml"
+    assert main(["refine", str(model), str(log), "-o", str(out)]) == 0
+    capsys.readouterr()
+    table = tomllib.loads(out.read_text(encoding="utf-8"))["adaptation"]
+    assert "unproven" not in table and all(k in table for k in LEARNT_KEYS)
+    assert not AdaptationParams(**mark_unproven(table)).unproven
