@@ -58,7 +58,7 @@ import json
 import shlex
 import sys
 from pathlib import Path
-from typing import get_args
+from typing import Any, get_args
 
 from compd.argtypes import RenamedOption, count, number
 from compd.offline.fit_request import (
@@ -270,17 +270,21 @@ def run(args: argparse.Namespace) -> int:
         keep = [r.time_s >= request.fit_from - 1e-9 for r in records]
         measured = [r.column(request.output)[k] for r, k in zip(records, keep, strict=True)]
         simulated = [s[k] for s, k in zip(simulated, keep, strict=True)]
-    # the probe estimator's settings (--adaptation); without them the file says why
-    # and its adaptation starts stood down
-    adapt, why_not = suggest_adaptation(fit, request, measured, simulated,
-                                        records[0].period_s)
-    from compd.offline.probes import Suggestion
+    # the probe estimator's settings (--adaptation; without it fit_model marked the
+    # model's table unproven and said why): where they cannot be learnt, the file says
+    # why and its adaptation starts stood down
+    adapt: dict[str, Any] = {}
+    why_not: str | None = None
+    if request.adaptation:
+        from compd.offline.probes import Suggestion
 
-    model.adaptation = Suggestion(**adapt).settings() if adapt else {"unproven": True}
-    model.provenance = {**model.provenance, **adaptation_provenance(adapt, why_not)}
-    write_atomically(out, lambda tmp: save_model(model, tmp, Path(records[0].path).name),
-                     "model file", force=True, inputs=[r.path for r in records])
-    if why_not is not None and request.adaptation:
+        adapt, why_not = suggest_adaptation(fit, request, measured, simulated,
+                                            records[0].period_s)
+        model.adaptation = Suggestion(**adapt).settings() if adapt else {"unproven": True}
+        model.provenance = {**model.provenance, **adaptation_provenance(adapt, why_not)}
+        write_atomically(out, lambda tmp: save_model(model, tmp, Path(records[0].path).name),
+                         "model file", force=True, inputs=[r.path for r in records])
+    if why_not is not None:
         print(f"compd fit: warning: adaptation settings not learnt: {why_not}; the model "
               "file says so, and adaptation starts stood down on it", file=sys.stderr)
     per = [quality(m, s) for m, s in zip(measured, simulated, strict=True)]
@@ -294,7 +298,7 @@ def run(args: argparse.Namespace) -> int:
         extra = {"subsets": fit.search_table} if fit.search_table else {}
         print(json.dumps({"terms": info, "fit_percent": q.fit_percent, "dpk_um": q.dpk_um, **extra,
                           **({"adaptation": adapt} if adapt else
-                             {"adaptation_not_learnt": why_not}),
+                             {"adaptation_not_learnt": why_not} if why_not else {}),
                           "model_file": str(out),
                           "fallbacks": fallback_figures,
                           "records": [{"path": r.path, **pq.as_dict()}
