@@ -196,3 +196,19 @@ def test_refine_proves_a_table_fit_could_not_learn(
     table = tomllib.loads(out.read_text(encoding="utf-8"))["adaptation"]
     assert "unproven" not in table and all(k in table for k in LEARNT_KEYS)
     assert not AdaptationParams(**mark_unproven(table)).unproven
+
+
+def test_a_configs_noisier_probe_weighs_on_the_models_learnt_table(tmp_path: Path) -> None:
+    """The config's probe_noise_um (0.8 µm) over a table learnt with the record's 0.3:
+    the held correction's prior grows by the extra noise and the band is decided again."""
+    learnt = tmp_path / "sp2-learnt.toml"
+    learnt.write_text(Path(str(library_path("sp2"))).read_text(encoding="utf-8")
+                      + "\n[adaptation]\nprobe_noise_um = 0.3\nbias_rw_um_per_sqrt_h = 1.467\n"
+                      "apply_sigma = 0.0\nscore_prior_plain_um = 1.18\n"
+                      "score_prior_adapted_um = 1.151\nscore_prior_probes = 12.0\n",
+                      encoding="utf-8")
+    params = load_config(_config(tmp_path, str(learnt))).adaptation.params  # type: ignore[union-attr]
+    assert params.probe_noise_um == 0.8 and not params.unproven
+    assert params.apply_sigma == AdaptationParams.apply_sigma
+    assert params.score_prior_adapted_um == pytest.approx((1.151 ** 2 + 0.8 ** 2 - 0.09) ** 0.5)
+    assert Adapter(params, 1).standing_down
