@@ -140,10 +140,12 @@ from models.adaptation_params import (
     UNPROVEN_WINDOW,
     AdaptationParams,
     mark_unproven,
+    with_probe_noise,
 )
 
 __all__ = ["DOMAIN", "LEARNT_KEYS", "MAX_INPUT_UM", "PRECISE_PROBE", "STATE_VERSION",
-           "UNPROVEN_WINDOW", "AdaptationParams", "Adapter", "ProbeOutcome", "mark_unproven"]
+           "UNPROVEN_WINDOW", "AdaptationParams", "Adapter", "ProbeOutcome", "mark_unproven",
+           "with_probe_noise"]
 
 FloatArray = npt.NDArray[np.float64]
 

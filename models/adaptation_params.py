@@ -110,3 +110,31 @@ def mark_unproven(table: Mapping[str, Any]) -> dict[str, Any]:
     if all(k in table for k in LEARNT_KEYS):
         return dict(table)
     return {**table, "unproven": True}
+
+
+def with_probe_noise(table: Mapping[str, Any], probe_noise_um: float,
+                     spacing_s: float = 7200.0) -> dict[str, Any]:
+    """`table` (a model file's [adaptation] settings) for a probe of `probe_noise_um`
+    noisier than the noise the table was learnt with (the record's rows): a correction
+    held from it errs by the extra noise too, so a learnt prior's
+    `score_prior_adapted_um` grows by it (√(prior² + σ_new² − σ_learnt²)); and the
+    learnt band is decided again as `compd fit` decides it, with this probe's noise:
+    follow every probe (`apply_sigma` 0) only where the drift over the probe spacing
+    `spacing_s`, bias_rw·√(spacing in h), exceeds 4 σ of it, else the default band. A
+    quieter probe leaves the table as learnt. Without a learnt prior only the noise
+    changes."""
+    out = {**table, "probe_noise_um": probe_noise_um}
+    learnt = table.get("probe_noise_um")
+    if not all(k in table for k in LEARNT_KEYS) or not isinstance(learnt, int | float):
+        return out
+    extra = probe_noise_um ** 2 - float(learnt) ** 2
+    if extra <= 0:
+        return out
+    out["score_prior_adapted_um"] = math.sqrt(float(table["score_prior_adapted_um"]) ** 2
+                                              + extra)
+    rw = table.get("bias_rw_um_per_sqrt_h")
+    if "apply_sigma" in table and isinstance(rw, int | float):
+        band = AdaptationParams.apply_sigma
+        drift = float(rw) * math.sqrt(spacing_s / 3600.0)
+        out["apply_sigma"] = 0.0 if drift > band * probe_noise_um else band
+    return out

@@ -89,12 +89,15 @@ def _adaptation_warnings(cfg: LoadedConfig) -> list[str]:
     a = cfg.adaptation
     if a is None or a.mode != "apply" or not a.params.unproven:
         return []
+    why = cfg.model.provenance.get("adaptation_not_learnt")
+    said = f" (compd fit did not learn them: {why})" if isinstance(why, str) else ""
     return [f"adaptation.mode = \"apply\" with model {cfg.model.name!r}, whose file carries "
-            "no [adaptation] settings learnt for it: the library's defaults lag a real "
+            f"no [adaptation] settings learnt for it{said}: the library's defaults lag a real "
             "machine's drift (on the real record of docs/adaptation.md §6 they made it worse "
             "than the plain model: RMS 7.17 against 6.26 µm); the estimator starts stood "
             "down and applies nothing until its probes show adapting pays. Refit the model "
-            "(compd fit learns them) or refine them from the machine's probes (compd refine)"]
+            "(compd fit --adaptation learns them) or refine them from the machine's probes "
+            "(compd refine)"]
 
 
 async def _read_once(cfg: LoadedConfig) -> dict[str, Any]:

@@ -58,7 +58,7 @@ import json
 import shlex
 import sys
 from pathlib import Path
-from typing import get_args
+from typing import Any, get_args
 
 from compd.argtypes import RenamedOption, count, number
 from compd.offline.fit_request import (
@@ -177,8 +177,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--adaptation", action="store_true",
                         help="also learn the probe estimator's settings from the fitted model's "
                              "residual (compd.offline.probes) and write them into the model "
-                             "file's [adaptation] table (without them, adaptation starts "
-                             "stood down: docs/adaptation.md §2)")
+                             "file's [adaptation] table (without them, the file says why and "
+                             "adaptation starts stood down: docs/adaptation.md §2)")
     parser.add_argument("--no-fallbacks", action="store_true",
                         help="write no fallback models (by default one per input, fitted "
                              "the same way without it, used while that sensor is invalid)")
@@ -227,7 +227,13 @@ def run(args: argparse.Namespace) -> int:
         return EX_USAGE
 
     from compd.infiles import load_model
-    from compd.offline.fit import fit_model, save_model, suggest_adaptation, term_specs
+    from compd.offline.fit import (
+        adaptation_provenance,
+        fit_model,
+        save_model,
+        suggest_adaptation,
+        term_specs,
+    )
     from compd.offline.model_replay import replay_with_init
     from compd.offline.records import RecordError
     from compd.outfiles import check_output, write_atomically
@@ -264,14 +270,23 @@ def run(args: argparse.Namespace) -> int:
         keep = [r.time_s >= request.fit_from - 1e-9 for r in records]
         measured = [r.column(request.output)[k] for r, k in zip(records, keep, strict=True)]
         simulated = [s[k] for s, k in zip(simulated, keep, strict=True)]
-    adapt = suggest_adaptation(fit, request, measured, simulated, records[0].period_s)
-    if adapt:  # the suggestion travels with the model: its [adaptation] table
+    # the probe estimator's settings (--adaptation; without it fit_model marked the
+    # model's table unproven and said why): where they cannot be learnt, the file says
+    # why and its adaptation starts stood down
+    adapt: dict[str, Any] = {}
+    why_not: str | None = None
+    if request.adaptation:
         from compd.offline.probes import Suggestion
 
-        model.adaptation = Suggestion(**adapt).settings()
+        adapt, why_not = suggest_adaptation(fit, request, measured, simulated,
+                                            records[0].period_s)
+        model.adaptation = Suggestion(**adapt).settings() if adapt else {"unproven": True}
+        model.provenance = {**model.provenance, **adaptation_provenance(adapt, why_not)}
         write_atomically(out, lambda tmp: save_model(model, tmp, Path(records[0].path).name),
-                         "model file", force=True,
-                         inputs=[r.path for r in records])
+                         "model file", force=True, inputs=[r.path for r in records])
+    if why_not is not None:
+        print(f"compd fit: warning: adaptation settings not learnt: {why_not}; the model "
+              "file says so, and adaptation starts stood down on it", file=sys.stderr)
     per = [quality(m, s) for m, s in zip(measured, simulated, strict=True)]
     q = per[0] if len(records) == 1 else quality(np.concatenate(measured),
                                                  np.concatenate(simulated))
@@ -282,7 +297,8 @@ def run(args: argparse.Namespace) -> int:
     if request.json:
         extra = {"subsets": fit.search_table} if fit.search_table else {}
         print(json.dumps({"terms": info, "fit_percent": q.fit_percent, "dpk_um": q.dpk_um, **extra,
-                          **({"adaptation": adapt} if adapt else {}),
+                          **({"adaptation": adapt} if adapt else
+                             {"adaptation_not_learnt": why_not} if why_not else {}),
                           "model_file": str(out),
                           "fallbacks": fallback_figures,
                           "records": [{"path": r.path, **pq.as_dict()}

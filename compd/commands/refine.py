@@ -53,7 +53,9 @@ def run(args: argparse.Namespace) -> int:
         _, doc = read_toml_document(args.model, "model file", MAX_CONFIG_BYTES)
         model = parse_model(doc, str(args.model))
         log = read_probe_log(args.probes)
-        before = {**_defaults(AdaptationParams()), **model.adaptation}
+        # the probes prove the settings: a table compd fit could not learn was unproven
+        learnt = {k: v for k, v in model.adaptation.items() if k != "unproven"}
+        before = {**_defaults(AdaptationParams()), **learnt}
         refined = refine_from_probes(log.time_s, log.residual_um,
                                      float(before["probe_noise_um"]))
     except (RecordError, ModelError) as exc:
@@ -64,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         return EX_DATAERR
     table, at_bound = refined.suggestion.bounded()
     doc = dict(doc)
-    doc["adaptation"] = {**model.adaptation, **table}
+    doc["adaptation"] = {**learnt, **table}
     provenance = dict(model.provenance)
     provenance["adaptation_refined"] = {
         "tool": "compd refine", "date": datetime.now(UTC).isoformat(timespec="seconds"),

@@ -14,7 +14,7 @@ from compd.config.schema import AdaptationSection, DaemonConfig
 from compd.core.adaptation import AdaptationSettings
 from compd.errors import ConfigError
 from drivers.addresses import Address
-from models.adaptation import AdaptationParams, mark_unproven
+from models.adaptation import AdaptationParams, mark_unproven, with_probe_noise
 
 #: the names the probe's addresses are read under (beside the channels)
 PROBE_NAMES = ("probe_value", "probe_counter")
@@ -48,7 +48,11 @@ def adaptation_settings(raw: DaemonConfig, channels: dict[str, Address],
                               "bound only hides a runaway estimate")
     try:
         # settings not learnt for this model start stood down (models.adaptation.mark_unproven)
-        params = AdaptationParams(**{**mark_unproven(table), **a.estimator_settings()})
+        given = a.estimator_settings()
+        if "probe_noise_um" in given:  # the machine's probe, not the record's noise (the
+            # probe spacing taken as compd fit's default lag: the config does not say it)
+            table = with_probe_noise(table, given["probe_noise_um"])
+        params = AdaptationParams(**{**mark_unproven(table), **given})
     except (ValueError, TypeError) as exc:  # "name: why; …" (AdaptationParams.problems)
         first = str(exc).split("; ")[0]
         name, _, why = first.partition(": ")

@@ -131,6 +131,8 @@ def _provenance(run: FitRun, records: list[Record],
         prov["calibrated_from_s"] = run.request.fit_from
     if run.request.fit_until is not None:
         prov["calibrated_until_s"] = run.request.fit_until
+    if not run.request.adaptation:  # the command learns them after the fit, when asked
+        prov["adaptation_not_learnt"] = NOT_ASKED
     if run.search_table:
         prov["candidates"] = list(run.request.candidates)
         prov["inputs_chosen"] = list(run.search_chosen)
@@ -288,6 +290,8 @@ def fit_model(request: FitRequest, run: FitRun | None = None) -> FitResult:
     from compd.offline.fit_checks import gate
 
     model.calibration_reference = calibration_reference(model, records[0])
+    if not request.adaptation:  # settings whose worth is unknown start stood down
+        model.adaptation = {"unproven": True}
     gate(model, request.force)  # compd check's warnings: nothing written without --force
     fallbacks = None
     if not request.no_fallbacks:  # a model for the loss of each input, in the same file
@@ -300,20 +304,32 @@ def fit_model(request: FitRequest, run: FitRun | None = None) -> FitResult:
                      run.heldout_residuals)
 
 
+#: why a model fitted without `--adaptation` carries no learnt [adaptation] settings
+NOT_ASKED = "not asked for (compd fit without --adaptation)"
+
+
 def suggest_adaptation(fit: FitResult, request: FitRequest, measured: list[Any],
-                       simulated: list[Any], period_s: float) -> dict[str, Any]:
-    """`request.adaptation`'s learnt settings from the residual of `measured` less
-    `simulated` and `fit`'s held-out residuals ({} without it, or with a warning
-    when the records are too short for the lag: the model is written all the same)."""
+                       simulated: list[Any], period_s: float
+                       ) -> tuple[dict[str, Any], str | None]:
+    """(the learnt settings, None) from the residual of `measured` less `simulated` and
+    `fit`'s held-out residuals; or ({}, why none were learnt: the records shorter than
+    the lag, or not asked), for the model file to say (`adaptation_provenance`)."""
     if not request.adaptation:
-        return {}
+        return {}, NOT_ASKED
     from compd.offline.probes import suggest_settings
 
     residuals = [m - s for m, s in zip(measured, simulated, strict=True)]
     try:
         return suggest_settings(residuals, period_s, request.adaptation_lag_s,
-                                fit.heldout_residuals).as_dict()
+                                fit.heldout_residuals).as_dict(), None
     except ValueError as exc:
-        print(f"compd fit: warning: --adaptation: {exc}; no settings suggested",
-              file=sys.stderr)
-        return {}
+        return {}, str(exc)
+
+
+def adaptation_provenance(adapt: dict[str, Any], why_not: str | None) -> dict[str, Any]:
+    """What a model file's provenance says of its [adaptation] table: what the settings
+    were learnt on and over which lag, or why none were (the estimator then starts stood
+    down on it, `models.adaptation_params.mark_unproven`)."""
+    if why_not is not None:
+        return {"adaptation_not_learnt": _text(why_not)}
+    return {"adaptation_learnt_on": adapt["drift_from"], "adaptation_lag_s": adapt["lag_s"]}

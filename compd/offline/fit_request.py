@@ -94,6 +94,7 @@ class FitRequest:
     #: the result goes out as one JSON line: no progress bar on the terminal
     json: bool = False
     #: learn the probe estimator's settings from the residual, over this lag (s)
+    #: (without them the model file says why, and its adaptation starts stood down)
     adaptation: bool = False
     adaptation_lag_s: float = 7200.0
     no_fallbacks: bool = False

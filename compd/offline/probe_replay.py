@@ -53,14 +53,17 @@ def probe_params(request: ProbeRequest,
                  learnt: Mapping[str, Any] | None = None) -> AdaptationParams:
     """The estimator's settings: the request's over the model's learnt table (unless
     `defaults_only`) over the defaults (ValueError when bad)."""
-    from models.adaptation import AdaptationParams, mark_unproven
+    from models.adaptation import AdaptationParams, mark_unproven, with_probe_noise
 
     table = {} if request.defaults_only or learnt is None else dict(learnt)
     changes: dict[str, Any] = dict(request.settings)
-    if "probe_noise_um" not in changes and request.noise_um > 0:
+    if "probe_noise_um" in changes:
+        table = with_probe_noise(table, float(changes["probe_noise_um"]),
+                                 request.every_min * 60.0)
+    elif request.noise_um > 0:
         # the probe's added noise, on top of what the model's own residual does fast
-        changes["probe_noise_um"] = math.hypot(float(table.get("probe_noise_um", 0.0)),
-                                               request.noise_um)
+        table = with_probe_noise(table, math.hypot(float(table.get("probe_noise_um", 0.0)),
+                                                   request.noise_um), request.every_min * 60.0)
     gains = {"gains": True} if request.gains else {}
     # as the daemon: settings not learnt for the model start stood down
     return dataclasses.replace(AdaptationParams(),

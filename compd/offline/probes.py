@@ -38,7 +38,8 @@ model over a record sampled every T seconds:
   one probe spacing): what the plain model and a correction held since the
   last probe would have done on the calibration record (`score_prior_probes`),
   weighted as the number of probe spacings the records span (the evidence
-  it rests on, at most 100). On the real machine holding pays at 1 h and
+  it rests on, at most 100). Always the written model's own residual, never
+  the held-out blocks' (see `suggest_settings`). On the real machine holding pays at 1 h and
   2 h (ch3: 1.6 and 2.5 µm against 3.0) and loses at 4 h and 8 h (3.6 and
   4.0): the estimator there starts stood down;
 - the step bound (`max_step_um`): 4 σ of the residual's change over the lag,
@@ -46,7 +47,7 @@ model over a record sampled every T seconds:
   own moves between probes stay within, a wrong probe's not.
 Each setting written is held within the bounds `compd check` holds a model
 file's [adaptation] table to (`Suggestion.bounded` says which met one).
-The drift, the step bound and the prior are measured on the residue of rows
+The drift and the step bound are measured on the residue of rows
 the model was not calibrated on when `compd fit` has them (its forward folds,
 `suggest_settings`' `heldout`): a residual on the calibration rows themselves
 understates how fast a deployed model's error moves. `compd fit
@@ -214,9 +215,13 @@ def suggest_settings(residuals: list[FloatArray], period_s: float,
     does there, not as the residual on its own calibration rows does: on the real
     machine of tests/data/fl_thermal (ch3, the first 20.1 h) the calibration residual
     drifts 2.9 µm/√h at 2 h, the held-out blocks 8.1, and the probes of a running
-    machine said 10.1. So the drift, the step bound and the score's prior come from the
-    blocks at least `MIN_BLOCK_LAGS` lags long, when there are any; the probe noise
-    always from `residuals` (the model written, row to row)."""
+    machine said 10.1. So the drift and the step bound come from the blocks at least
+    `MIN_BLOCK_LAGS` lags long, when there are any. The probe noise and the score's prior
+    always come from `residuals` (the model written): the blocks' fold models, each
+    calibrated on the rows before its block only, err several times more than the model
+    written (the shop machine: 2.3 ... 3.8 µm RMS against 0.34 ... 0.37 on its own rows),
+    and a prior measured there started the estimator applying on days where the plain
+    model was better (docs/adaptation.md §3, chosen on held-out seeds)."""
     lag = max(1, round(lag_s / period_s))
     diffs = [np.diff(r) for r in residuals if r.size >= 2]
     if not diffs:
@@ -233,8 +238,10 @@ def suggest_settings(residuals: list[FloatArray], period_s: float,
     dl = np.concatenate(far)
     moved = float(np.mean(dl ** 2))
     q = max(0.0, (moved - 2.0 * sigma_v ** 2) / (lag * period_s))
-    plain, held = _held_rms(source, lag)
-    spacings = min(sum(r.size for r in source) / lag, MAX_PRIOR_PROBES)
+    # the prior: what this model and a correction held over the lag did on its own
+    # calibration rows (the blocks' fold models, calibrated on fewer rows, err more)
+    plain, held = _held_rms(residuals, lag)
+    spacings = min(sum(r.size for r in residuals) / lag, MAX_PRIOR_PROBES)
     return _suggestion(sigma_v, q, lag * period_s, moved, plain, held, spacings, drift_from)
 
 
