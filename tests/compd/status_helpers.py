@@ -16,7 +16,8 @@ from compd.runtime.sdnotify import Notifier
 from compd.testing import SteppedClock
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
-from tests.compd.daemon_helpers import until, write_config
+from tests.configs import write_config
+from tests.harness import asleep, until
 
 FACES_HTTP = "\n[faces.http]\nenabled = true\nrefresh_s = {refresh_s}\n"
 
@@ -34,13 +35,12 @@ async def page_daemon(tmp_path: Path, sim: ModbusSimController, *, time_scale: f
     clock: SteppedClock | None = None
     if stepped:
         time_scale, clock = 1.0, SteppedClock(period_s=1.0)
-    path = write_config(tmp_path, sim.endpoint, time_scale=time_scale,
-                        timeout_s=0.5 if stepped else None)
-    if not recorder:
-        path.write_text(path.read_text().replace("[recorder]\n", "[recorder]\nenabled = false\n"))
     port = free_tcp_port("127.0.0.1")
-    path.write_text(path.read_text() + f"metrics_port = {port}\n"
-                    + FACES_HTTP.format(refresh_s=refresh_s), encoding="utf-8")
+    path = write_config(tmp_path, sim.endpoint, time_scale=time_scale,
+                        timeout_s=0.5 if stepped else None,
+                        swap=() if recorder else [("[recorder]\n",
+                                                   "[recorder]\nenabled = false\n")],
+                        extra=f"metrics_port = {port}\n" + FACES_HTTP.format(refresh_s=refresh_s))
     if clock is None:
         daemon = Daemon(load_config(path), notifier=Notifier(None))
     else:
@@ -51,22 +51,13 @@ async def page_daemon(tmp_path: Path, sim: ModbusSimController, *, time_scale: f
         if clock is None:
             await until(lambda: daemon.complete_cycles >= 3 or task.done())
         else:
-            await _asleep(clock, 1, task)
+            await asleep(clock, 1, task)
             await step(daemon, 2)
         assert not task.done(), "the daemon ended early"
         yield daemon, f"http://127.0.0.1:{port}/"
     finally:
         daemon.request_stop()
         assert await asyncio.wait_for(task, 120.0) == 0
-
-
-async def _asleep(clock: SteppedClock, n: int, task: asyncio.Task[int]) -> None:
-    waiter = asyncio.ensure_future(clock.cycle_done(n))
-    await asyncio.wait({waiter, task}, return_when=asyncio.FIRST_COMPLETED)
-    if not waiter.done():
-        waiter.cancel()
-        await asyncio.gather(waiter, return_exceptions=True)
-        raise AssertionError(f"the daemon ended ({task.result()}) during a cycle")
 
 
 async def step(daemon: Daemon, periods: int = 1) -> None:

@@ -13,11 +13,11 @@ from compd.cli import main
 from compd.config.loader import load_config
 from compd.core.cycle import params_from_config
 from compd.errors import EX_CONFIG, ConfigError
+from tests.configs import MINIMAL, write_config
 
 from .test_adaptation_config import ADAPTATION
-from .test_config import BASE
 
-#: the issue's cases, and each bound's other side (BASE has output.limit_um = 100)
+#: the issue's cases, and each bound's other side (MINIMAL has output.limit_um = 100)
 REFUSED = [
     ("max_total_um = 1e308", "adaptation.max_total_um"),
     ("probe_noise_um = 1e160", "adaptation.probe_noise_um"),
@@ -39,11 +39,9 @@ REFUSED = [
 
 
 def _config(tmp_path: Path, settings: str, model: str = "") -> Path:
-    text = (BASE.replace('file = "sp2"', f'file = "sp2"\n{model}')
-            + ADAPTATION.replace("probe_noise_um = 0.8", settings))
-    p = tmp_path / "compd.toml"
-    p.write_text(text, encoding="utf-8")
-    return p
+    return write_config(tmp_path, base=MINIMAL + ADAPTATION,
+                        swap=[('file = "sp2"', f'file = "sp2"\n{model}'),
+                              ("probe_noise_um = 0.8", settings)])
 
 
 @pytest.mark.parametrize(("settings", "key"), REFUSED)

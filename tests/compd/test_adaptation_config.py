@@ -10,8 +10,7 @@ from compd.cli import main
 from compd.config.loader import PROBE_NAMES, load_config
 from compd.core.cycle import params_from_config
 from compd.errors import EX_CONFIG, ConfigError
-
-from .test_config import BASE
+from tests.configs import MINIMAL
 
 ADAPTATION = """
 [adaptation]
@@ -30,7 +29,7 @@ def _load(tmp_path: Path, text: str) -> object:
 
 
 def test_adaptation_loads_its_addresses_and_settings(tmp_path: Path) -> None:
-    cfg = _load(tmp_path, BASE + ADAPTATION)
+    cfg = _load(tmp_path, MINIMAL + ADAPTATION)
     assert set(cfg.probes) == set(PROBE_NAMES)  # type: ignore[attr-defined]
     params = params_from_config(cfg)  # type: ignore[arg-type]
     assert params.adaptation is not None and params.adaptation.mode == "apply"
@@ -40,7 +39,7 @@ def test_adaptation_loads_its_addresses_and_settings(tmp_path: Path) -> None:
 
 
 def test_adaptation_off_reads_no_probe(tmp_path: Path) -> None:
-    cfg = _load(tmp_path, BASE + ADAPTATION.replace("enabled = true", "enabled = false"))
+    cfg = _load(tmp_path, MINIMAL + ADAPTATION.replace("enabled = true", "enabled = false"))
     assert cfg.probes == {}  # type: ignore[attr-defined]
     assert params_from_config(cfg).adaptation is None  # type: ignore[arg-type]
 
@@ -57,7 +56,7 @@ def test_adaptation_off_reads_no_probe(tmp_path: Path) -> None:
 ])
 def test_a_bad_adaptation_setting_is_refused_by_name(tmp_path: Path, change: tuple[str, str],
                                                      key: str, words: str) -> None:
-    text = BASE + ADAPTATION.replace(*change)
+    text = MINIMAL + ADAPTATION.replace(*change)
     with pytest.raises(ConfigError) as info:
         _load(tmp_path, text)
     assert key in str(info.value) and words in str(info.value)
@@ -66,7 +65,7 @@ def test_a_bad_adaptation_setting_is_refused_by_name(tmp_path: Path, change: tup
 def test_check_exits_78_on_a_bad_adaptation_setting(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     p = tmp_path / "compd.toml"
-    p.write_text(BASE + ADAPTATION.replace("probe_noise_um = 0.8", "max_step_um = nan"),
+    p.write_text(MINIMAL + ADAPTATION.replace("probe_noise_um = 0.8", "max_step_um = nan"),
                  encoding="utf-8")
     assert main(["check", str(p)]) == EX_CONFIG
     err = capsys.readouterr().err.strip().splitlines()

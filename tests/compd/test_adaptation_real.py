@@ -24,10 +24,10 @@ from compd.errors import EX_CONFIG, ConfigError
 from models.adaptation import AdaptationParams, Adapter
 from models.errors import ModelError
 from models.modelfile import parse_model
+from tests.configs import MINIMAL
 from tests.shipped import LIBRARY
 
 from .test_adaptation_config import ADAPTATION
-from .test_config import BASE
 
 RECORD = Path(__file__).resolve().parents[1] / "data" / "fl_thermal" / "calibration.csv"
 SPLIT_S = 72360.0  # 20.1 h: calibrate before, score after
@@ -294,7 +294,7 @@ def _model_with(tmp_path: Path, table: str) -> str:
     src = LIBRARY / "sp2.toml"
     p = tmp_path / "learnt.toml"
     p.write_text(src.read_text() + "\n[adaptation]\n" + table, encoding="utf-8")
-    return BASE.replace('file = "sp2"', f'file = "{p}"')
+    return MINIMAL.replace('file = "sp2"', f'file = "{p}"')
 
 
 def test_the_daemon_uses_the_model_files_table_unless_the_config_overrides_it(
@@ -349,7 +349,7 @@ def test_a_reacquisition_in_the_cycle_is_an_event() -> None:
 def test_the_new_adaptation_keys_are_bounded_by_name(tmp_path: Path, line: str,
                                                      key: str) -> None:
     cfg_path = tmp_path / "compd.toml"
-    cfg_path.write_text(BASE + ADAPTATION + line + "\n", encoding="utf-8")
+    cfg_path.write_text(MINIMAL + ADAPTATION + line + "\n", encoding="utf-8")
     with pytest.raises(ConfigError) as exc:
         load_config(cfg_path)
     assert exc.value.key == key
@@ -357,7 +357,7 @@ def test_the_new_adaptation_keys_are_bounded_by_name(tmp_path: Path, line: str,
 
 def test_the_guard_and_reacquire_keys_reach_the_cycle(tmp_path: Path) -> None:
     cfg_path = tmp_path / "compd.toml"
-    cfg_path.write_text(BASE + ADAPTATION + "guard_window = 5\nreacquire_after = 4\n",
+    cfg_path.write_text(MINIMAL + ADAPTATION + "guard_window = 5\nreacquire_after = 4\n",
                         encoding="utf-8")
     p = params_from_config(load_config(cfg_path)).adaptation
     assert p is not None and p.guard_window == 5 and p.params.reacquire_after == 4

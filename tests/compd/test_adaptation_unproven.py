@@ -15,9 +15,9 @@ from compd.cli import main
 from compd.config.loader import load_config
 from models.adaptation import AdaptationParams, Adapter, mark_unproven
 from models.modelfile import library_path
+from tests.configs import MINIMAL, write_config
 
 from .test_adaptation_config import ADAPTATION
-from .test_config import BASE
 
 RECORD = Path(__file__).resolve().parents[1] / "data" / "fl_thermal" / "calibration.csv"
 SPLIT_S = 72360.0  # 20.1 h: calibrate before, score after
@@ -52,10 +52,7 @@ def test_unproven_settings_start_stood_down_and_weigh_all_their_probes() -> None
 
 
 def _config(tmp_path: Path, model: str, mode: str = "apply") -> Path:
-    p = tmp_path / "compd.toml"
-    p.write_text((BASE + ADAPTATION).replace('file = "sp2"', f'file = "{model}"')
-                 .replace('mode = "apply"', f'mode = "{mode}"'), encoding="utf-8")
-    return p
+    return write_config(tmp_path, base=MINIMAL + ADAPTATION, file=model, mode=mode)
 
 
 def test_check_says_when_apply_runs_on_settings_not_learnt_for_the_model(

@@ -6,7 +6,6 @@ library a daemon config needs."""
 from __future__ import annotations
 
 import asyncio
-import re
 import signal
 import sys
 from pathlib import Path
@@ -18,6 +17,7 @@ from compd.commands.sim import describe
 from compd.sysexits import EX_CONFIG
 from drivers.sim.fwlib_build import build_standin
 from drivers.sim.registry import make_sim_controller
+from tests.configs import write_config
 from tests.shipped import EXAMPLES
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -25,13 +25,7 @@ FOCAS = EXAMPLES / "focas.toml"
 
 
 def _focas_config(tmp_path: Path, library: str) -> Path:
-    text = FOCAS.read_text(encoding="utf-8")
-    text, n = re.subn(r'(?m)^library_path = ".*"$', f'library_path = "{library}"', text)
-    assert n == 1
-    text = re.sub(r'(?m)^dir = ".*"$', f'dir = "{tmp_path / "state"}"', text)
-    p = tmp_path / "focas.toml"
-    p.write_text(text, encoding="utf-8")
-    return p
+    return write_config(tmp_path, base="focas", filename="focas.toml", library_path=library)
 
 
 @pytest.mark.parametrize("command", ["check", "run"])

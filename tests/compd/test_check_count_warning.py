@@ -6,14 +6,13 @@ chattered at run time); a fine or float encoding gets no warning."""
 from __future__ import annotations
 
 import json
-import re
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from tests.shipped import EXAMPLES
+from tests.configs import Toml, write_config
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -21,13 +20,8 @@ COARSE = '{ unit = 1, kind = "holding", address = 20, type = "int16", scale = 10
 
 
 def _config(tmp_path: Path, offset: str, limit_um: float = 200.0) -> Path:
-    text = (EXAMPLES / "modbus.toml").read_text(encoding="utf-8")
-    text = re.sub(r"(?m)^offset = .*$", f"offset = {offset}", text, count=1)
-    text = re.sub(r"(?m)^limit_um = .*$", f"limit_um = {limit_um}", text, count=1)
-    text = re.sub(r"(?m)^slew_um_s = .*$", "slew_um_s = 0.1", text, count=1)
-    p = tmp_path / "modbus.toml"
-    p.write_text(text, encoding="utf-8")
-    return p
+    return write_config(tmp_path, base="modbus", filename="modbus.toml", offset=Toml(offset),
+                        limit_um=limit_um, slew_um_s=0.1)
 
 
 def _check(path: Path, *extra: str) -> subprocess.CompletedProcess[str]:

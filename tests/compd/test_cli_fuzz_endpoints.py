@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import socket
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -22,8 +21,8 @@ import pytest
 from compd.cli import main
 from compd.sysexits import EX_CONFIG, EX_USAGE
 from drivers.protocols import PROTOCOLS
+from tests.faults.daemon_run import forget_daemon_logging
 
-from ..faults.daemon_run import forget_daemon_logging
 from ..faults.test_bad_configs import BASES
 from .test_cli_fuzz import _check, _real, root  # noqa: F401 - the fixture
 
@@ -65,19 +64,6 @@ def _cases() -> list[list[str]]:
 
 CASES = _cases()
 print(f"\ncompd CLI fuzzer, hostile endpoints: {len(CASES)} in-process cases")
-
-
-@pytest.fixture(scope="module")
-def listener() -> Iterator[socket.socket]:
-    """The endpoints' port: it listens and must never see a connection."""
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    sock.listen(16)
-    sock.setblocking(False)
-    try:
-        yield sock
-    finally:
-        sock.close()
 
 
 @pytest.fixture(scope="module")

@@ -20,9 +20,8 @@ from compd.runtime.daemon import Daemon
 from compd.runtime.sdnotify import Notifier
 from compd.sysexits import EX_CONFIG, EX_DATAERR, EX_NOINPUT, EX_USAGE
 from drivers.sim.modbus_server import ModbusSimController
+from tests.configs import write_config
 from tests.shipped import EXAMPLES, LIBRARY, PACKAGES_ROOT
-
-from .daemon_helpers import write_config
 
 
 def _subparsers() -> dict[str, argparse.ArgumentParser]:

@@ -281,7 +281,7 @@ async def test_running_daemon_is_healthy_by_both_sources(tmp_path: Path) -> None
     from compd.runtime.daemon import Daemon
     from compd.runtime.sdnotify import Notifier
     from drivers.sim.modbus_server import ModbusSimController
-    from tests.compd.daemon_helpers import write_config
+    from tests.configs import write_config
 
     sim = ModbusSimController()
     await sim.start()
@@ -320,7 +320,7 @@ async def test_daemon_without_a_controller_is_unhealthy_by_both_sources(
     from compd.config.loader import load_config
     from compd.runtime.daemon import Daemon
     from compd.runtime.sdnotify import Notifier
-    from tests.compd.daemon_helpers import write_config
+    from tests.configs import write_config
 
     dead = free_tcp_port("127.0.0.1")
     path = write_config(tmp_path, f"modbus://127.0.0.1:{dead}", checkpoint_every=2)

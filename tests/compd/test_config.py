@@ -11,52 +11,18 @@ from compd.config.loader import load_config
 from compd.config.schema import DEFAULT_STUCK_DELTA_K
 from compd.core.cycle import params_from_config
 from compd.errors import EX_CONFIG, ConfigError
+from tests.configs import MINIMAL, write_config
 from tests.shipped import EXAMPLES, LIBRARY
-
-BASE = """
-[machine]
-name = "m"
-period_s = 1.0
-
-[controller]
-protocol = "modbus"
-endpoint = "modbus://127.0.0.1:5020"
-timeout_s = 0.2
-
-[channels.bearing]
-address = { kind = "input", address = 0, type = "int16", scale = 0.1 }
-unit = "degC"
-range = [-20.0, 150.0]
-
-[channels.ambient]
-address = { kind = "input", address = 4, type = "int16", scale = 0.1 }
-unit = "degC"
-range = [-10.0, 60.0]
-
-[model]
-file = "sp2"
-
-[output]
-offset = { kind = "holding", address = 0, type = "float32" }
-limit_um = 100.0
-slew_um_s = 1.0
-"""
-
-
-def _write(tmp_path: Path, text: str) -> Path:
-    p = tmp_path / "compd.toml"
-    p.write_text(text, encoding="utf-8")
-    return p
 
 
 def _error(tmp_path: Path, text: str) -> ConfigError:
     with pytest.raises(ConfigError) as info:
-        load_config(_write(tmp_path, text))
+        load_config(write_config(tmp_path, base=text))
     return info.value
 
 
 def test_base_config_loads(tmp_path: Path) -> None:
-    cfg = load_config(_write(tmp_path, BASE))
+    cfg = load_config(write_config(tmp_path, base=MINIMAL))
     assert set(cfg.channels) == {"bearing", "ambient"}
     assert cfg.model.name == "SP2 per-spindle"
     assert cfg.state_dir == tmp_path / "state"
@@ -99,17 +65,17 @@ def test_base_config_loads(tmp_path: Path) -> None:
 def test_refusals_name_the_key(tmp_path: Path, change: tuple[str, str], key: str,
                                words: str) -> None:
     old, new = change
-    assert old in BASE
-    text = BASE.replace(old, new, 1)
+    assert old in MINIMAL
+    text = MINIMAL.replace(old, new, 1)
     err = _error(tmp_path, text)
     assert err.key == key, str(err)
     assert words.lower() in err.reason.lower(), str(err)
 
 
 def test_backoff_cap_of_10_s_is_accepted(tmp_path: Path) -> None:
-    text = BASE.replace('timeout_s = 0.2',
+    text = MINIMAL.replace('timeout_s = 0.2',
                         'timeout_s = 0.2\nbackoff = { initial_s = 10.0, cap_s = 10.0 }')
-    assert load_config(_write(tmp_path, text)).raw.controller.backoff.cap_s == 10.0
+    assert load_config(write_config(tmp_path, base=text)).raw.controller.backoff.cap_s == 10.0
 
 
 def test_stuck_delta_k_default_explicit_and_off(tmp_path: Path) -> None:
@@ -117,9 +83,9 @@ def test_stuck_delta_k_default_explicit_and_off(tmp_path: Path) -> None:
     2 K unless it says otherwise (inf: off); without stuck_after_s, only when
     given."""
     def limits(bearing: str, ambient: str) -> tuple[float | None, float | None]:
-        text = BASE.replace('range = [-20.0, 150.0]', 'range = [-20.0, 150.0]\n' + bearing)
+        text = MINIMAL.replace('range = [-20.0, 150.0]', 'range = [-20.0, 150.0]\n' + bearing)
         text = text.replace('range = [-10.0, 60.0]', 'range = [-10.0, 60.0]\n' + ambient)
-        ch = params_from_config(load_config(_write(tmp_path, text))).channels
+        ch = params_from_config(load_config(write_config(tmp_path, base=text))).channels
         assert ch["bearing"].temperature and ch["ambient"].temperature
         return ch["bearing"].stuck_delta_k, ch["ambient"].stuck_delta_k
 
@@ -131,7 +97,7 @@ def test_stuck_delta_k_default_explicit_and_off(tmp_path: Path) -> None:
 
 
 def test_unstable_inline_model_is_refused_naming_the_term(tmp_path: Path) -> None:
-    text = BASE.replace('file = "sp2"', """
+    text = MINIMAL.replace('file = "sp2"', """
 [[model.terms]]
 name = "runaway"
 inputs = { bearing = 1.0 }
@@ -144,14 +110,14 @@ b = ["1", "-1.5"]
 
 
 def test_inline_model_terms_load(tmp_path: Path) -> None:
-    text = BASE.replace('file = "sp2"', """
+    text = MINIMAL.replace('file = "sp2"', """
 [[model.terms]]
 name = "spindle"
 inputs = { bearing = 1.0 }
 a = ["16.0005", "-15.9975", "0"]
 b = ["1", "-0.99983", "0", "0"]
 """)
-    cfg = load_config(_write(tmp_path, text))
+    cfg = load_config(write_config(tmp_path, base=text))
     assert [t.name for t in cfg.model.terms] == ["spindle"]
     assert cfg.model.period_s == 1.0
 
@@ -160,7 +126,7 @@ def test_model_file_relative_to_the_config(tmp_path: Path) -> None:
     (tmp_path / "models").mkdir()
     src = LIBRARY / "sp2.toml"
     (tmp_path / "models" / "mine.toml").write_text(src.read_text())
-    cfg = load_config(_write(tmp_path, BASE.replace('file = "sp2"',
+    cfg = load_config(write_config(tmp_path, base=MINIMAL.replace('file = "sp2"',
                                                     'file = "models/mine.toml"')))
     assert cfg.model.name == "SP2 per-spindle"
 
@@ -214,19 +180,19 @@ def test_opcua_security_refusals(tmp_path: Path, security: str, key: str, words:
 
 
 def test_opcua_insecure_explicit_is_accepted(tmp_path: Path) -> None:
-    cfg = load_config(_write(tmp_path, OPCUA.format(security='policy = "None"\n'
+    cfg = load_config(write_config(tmp_path, base=OPCUA.format(security='policy = "None"\n'
                                                             'insecure = true')))
     assert cfg.raw.controller.security is not None
 
 
 def test_protocol_section_for_another_protocol_is_refused(tmp_path: Path) -> None:
     # a dotted table header belongs to [controller] wherever it stands
-    err = _error(tmp_path, BASE + "\n[controller.s7]\nrack = 0\n")
+    err = _error(tmp_path, MINIMAL + "\n[controller.s7]\nrack = 0\n")
     assert err.key == "controller.s7"
 
 
 def test_focas_library_path_must_be_absolute(tmp_path: Path) -> None:
-    text = BASE.replace('protocol = "modbus"', 'protocol = "focas"').replace(
+    text = MINIMAL.replace('protocol = "modbus"', 'protocol = "focas"').replace(
         "modbus://", "focas://").replace(
         "[channels.bearing]", '[controller.focas]\nlibrary_path = "lib/libfwlib32.so"\n\n'
                               "[channels.bearing]")
@@ -239,12 +205,12 @@ def test_unreadable_and_bad_toml(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="cannot read"):
         load_config(tmp_path / "missing.toml")
     with pytest.raises(ConfigError, match="not valid TOML"):
-        load_config(_write(tmp_path, "[machine\nname="))
+        load_config(write_config(tmp_path, base="[machine\nname="))
 
 
 def test_check_exits_78_naming_the_key(tmp_path: Path,
                                        capsys: pytest.CaptureFixture[str]) -> None:
-    p = _write(tmp_path, BASE.replace("limit_um = 100.0", "limit_um = 0.0"))
+    p = write_config(tmp_path, base=MINIMAL.replace("limit_um = 100.0", "limit_um = 0.0"))
     assert main(["check", str(p)]) == EX_CONFIG
     err = capsys.readouterr().err
     assert "output.limit_um" in err
@@ -252,7 +218,8 @@ def test_check_exits_78_naming_the_key(tmp_path: Path,
 
 def test_run_exits_78_before_connecting(tmp_path: Path,
                                         capsys: pytest.CaptureFixture[str]) -> None:
-    p = _write(tmp_path, BASE.replace('range = [-20.0, 150.0]', 'range = [150.0, -20.0]'))
+    p = write_config(tmp_path, base=MINIMAL.replace('range = [-20.0, 150.0]',
+                                                    'range = [150.0, -20.0]'))
     assert main(["run", str(p)]) == EX_CONFIG
     err = capsys.readouterr().err
     assert "channels.bearing.range: lower bound must be below upper bound" in err

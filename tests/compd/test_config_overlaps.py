@@ -15,6 +15,7 @@ from compd.cli import main
 from compd.config.loader import load_config
 from compd.errors import ConfigError
 from compd.sysexits import EX_CONFIG
+from tests.configs import write_config
 from tests.shipped import EXAMPLES
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -30,13 +31,8 @@ probe_counter = {probe_counter}
 
 def _config(tmp_path: Path, protocol: str, *changes: tuple[str, str], extra: str = "") -> Path:
     """The shipped example of `protocol` with each (old line, new line) swapped in."""
-    text = (EXAMPLES / f"{protocol}.toml").read_text(encoding="utf-8")
-    for old, new in changes:
-        assert text.count(old) == 1, old
-        text = text.replace(old, new)
-    p = tmp_path / f"{protocol}.toml"
-    p.write_text(text + extra, encoding="utf-8")
-    return p
+    return write_config(tmp_path, base=protocol, filename=f"{protocol}.toml", swap=changes,
+                        extra=extra)
 
 
 MB_HEARTBEAT = 'heartbeat = { unit = 1, kind = "holding", address = 2, type = "uint16" }'

@@ -87,11 +87,10 @@ def test_the_status_page_says_the_machine_is_off(tmp_path: Path) -> None:
     from compd.config.loader import load_config
     from compd.core.cycle import params_from_config
     from compd.faces.status import StatusBoard
-
-    from .test_config import BASE
+    from tests.configs import MINIMAL
 
     path = tmp_path / "compd.toml"
-    path.write_text(BASE, encoding="utf-8")
+    path.write_text(MINIMAL, encoding="utf-8")
     cfg = load_config(path)
     cycle, clock = Cycle(params_from_config(cfg), cfg.model), FakeClock()
     board = StatusBoard()

@@ -78,7 +78,7 @@ def _csv_and_config(tmp_path: Path, *, slew_um_s: float, spike_at: int | None = 
                     ) -> tuple[Path, Path]:
     import csv
 
-    from .daemon_helpers import write_config
+    from tests.configs import write_config
 
     record = _record(1.0)
     bare = replay_model(load_model("sp2"), record)
@@ -176,8 +176,7 @@ def test_replay_of_a_model_the_config_has_no_channel_for_is_one_line(
     import csv
 
     from compd.cli import main
-
-    from .daemon_helpers import write_config
+    from tests.configs import write_config
 
     record = _record(0.1)
     data = tmp_path / "lathe.csv"

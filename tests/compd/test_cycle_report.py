@@ -28,7 +28,8 @@ from compd.runtime.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from compd.runtime.daemon import Daemon
 from compd.runtime.sinks.base import CycleSink, Tick
 from drivers.errors import ControllerTimeout
-from tests.compd.daemon_helpers import memory_daemon, write_config
+from tests.configs import write_config
+from tests.harness import memory_daemon
 
 EPOCH = 1_700_000_000.0
 CYCLES = 200

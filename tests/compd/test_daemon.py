@@ -17,10 +17,10 @@ from compd.runtime.recorder import read_samples
 from compd.runtime.sdnotify import Notifier
 from compd.testing import RecordingDriver, SteppedClock
 from drivers.sim.modbus_server import ModbusSimController
+from tests.configs import write_config
+from tests.harness import Notes, pace
+from tests.harness import until as _until
 from tests.shipped import LIBRARY
-
-from .daemon_helpers import pace, write_config
-from .daemon_helpers import until as _until
 
 
 async def test_daemon_compensates_for_a_few_hundred_cycles(
@@ -201,18 +201,6 @@ async def test_shadow_model_is_recorded_never_written(sim: ModbusSimController,
     assert r.stage_um == pytest.approx(r.model_um, abs=1e-3)
 
 
-class _Notes(Notifier):
-    """A notifier that keeps what it would send (a datagram queue holds only 10)."""
-
-    def __init__(self) -> None:
-        super().__init__(None)
-        self.messages: list[str] = []  # Notifier.sent counts them
-
-    def notify(self, message: str) -> bool:
-        self.messages.append(message)
-        return True
-
-
 async def test_sensor_broken_from_the_start_is_up_watched_and_ramps_with_the_alarm(
         sim: ModbusSimController, tmp_path: Path) -> None:
     """An open bearing sensor from the first sample: the daemon is up (READY),
@@ -221,7 +209,7 @@ async def test_sensor_broken_from_the_start_is_up_watched_and_ramps_with_the_ala
     the alarm after hold_s (30 machine s). Its cycles paced on a stepped clock."""
     await sim.publish({"bearing": 900.0})
     cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
-    notes = _Notes()
+    notes = Notes()
     clock = SteppedClock(period_s=cfg.real_period_s)
     pacer = asyncio.create_task(pace(clock))
     daemon = Daemon(cfg, notifier=notes, clock=clock, sleep=clock.sleep)

@@ -32,7 +32,8 @@ from drivers.sim.machine import SimMachine
 from drivers.sim.programs import make_program
 from drivers.sim.registry import make_sim_controller
 from models.modelfile import library_path
-from tests.lockstep import Lockstep, lockstep_config, write_config
+from tests.configs import lockstep_config, write_doc
+from tests.harness import Lockstep
 
 PROTOCOLS = ["opcua", "s7", "modbus", "focas"]
 HOURS = 7.0
@@ -73,7 +74,7 @@ async def _run(protocol: str, work: Path) -> dict[str, Any]:
                          "bias_rw_um_per_sqrt_h": 2.0,
                          "probe_value": sim.probes["probe_value"].model_dump(),
                          "probe_counter": sim.probes["probe_counter"].model_dump()}
-    rig = Lockstep(machine, write_config(doc, work / "compd.toml"))
+    rig = Lockstep(machine, write_doc(doc, work / "compd.toml"))
     try:
         await rig.start()
         await rig.run_until(SPOILED_AT_S - PERIOD_S)

@@ -24,7 +24,7 @@ import json
 import signal
 import subprocess
 import tomllib
-from collections.abc import AsyncIterator, Awaitable, Callable
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
 
@@ -47,8 +47,9 @@ from drivers.sim.linuxcnc_machine import (
 )
 from drivers.sim.machine import SimMachine
 from drivers.sim.programs import constant
+from tests.configs import lockstep_config, write_doc
 from tests.faults.invariants import watch
-from tests.lockstep import Lockstep, lockstep_config, write_config
+from tests.harness import Lockstep, until
 
 WHY_NOT = unavailable()
 pytestmark = [pytest.mark.skipif(WHY_NOT is not None, reason=str(WHY_NOT)),
@@ -103,7 +104,7 @@ def _config(sim: LinuxCncSimController, tmp_path: Path, **faults: Any) -> Path:
     for state in ("machine_on", "estop", "homed"):
         doc["output"][state] = sim.states[state].model_dump()
     doc["faults"].update(faults)
-    return write_config(doc, tmp_path / "compd.toml")
+    return write_doc(doc, tmp_path / "compd.toml")
 
 
 def _rig(sim: LinuxCncSimController, tmp_path: Path, **faults: Any) -> Lockstep:
@@ -278,7 +279,6 @@ async def test_death_holds_the_offset_and_a_restart_resumes_without_a_jump(
         await rig.close()
 
 
-
 async def test_the_shipped_example_runs_against_the_machines_hal_file(
         lcnc: LinuxCncSimController, tmp_path: Path) -> None:
     """`compd/examples/linuxcnc.toml` joins the signals the HAL file of
@@ -289,7 +289,7 @@ async def test_the_shipped_example_runs_against_the_machines_hal_file(
     doc["state"]["dir"] = str(tmp_path / "state")
     machine = SimMachine(lcnc, program=constant(SPEED_RPM, heat_h=10.0, cool_h=1.0),
                          seed=5, period_s=float(doc["machine"]["period_s"]), repeat=False)
-    rig = Lockstep(machine, write_config(doc, tmp_path / "compd.toml"))
+    rig = Lockstep(machine, write_doc(doc, tmp_path / "compd.toml"))
     try:
         await rig.start()
         await rig.step(10)
@@ -301,16 +301,6 @@ async def test_the_shipped_example_runs_against_the_machines_hal_file(
         await rig.close()
 
 
-async def _until(what: str, check: Callable[[], Awaitable[bool]],
-                 deadline_s: float = 120.0) -> None:
-    """Wait on a condition (polled), failing after a generous deadline."""
-    end = asyncio.get_running_loop().time() + deadline_s
-    while not await check():
-        if asyncio.get_running_loop().time() > end:
-            pytest.fail(f"not within {deadline_s:g} s: {what}")
-        await asyncio.sleep(0.05)
-
-
 async def test_compd_run_process_killed_leaves_the_offset_held(
         lcnc: LinuxCncSimController, tmp_path: Path) -> None:
     """`compd run` as a process, in real time: kill -9 closes its pipe, its HAL side
@@ -320,7 +310,7 @@ async def test_compd_run_process_killed_leaves_the_offset_held(
     doc["machine"]["time_scale"] = PERIOD_S / 0.5  # a cycle every half second
     doc["controller"]["timeout_s"] = 0.25
     doc["controller"]["connect_timeout_s"] = 60.0
-    config = write_config(doc, tmp_path / "compd.toml")
+    config = write_doc(doc, tmp_path / "compd.toml")
     await lcnc.publish({"bearing": 35.0, "motor": 40.0, "column": 22.0, "ambient": 20.0})
 
     async def offset_in_counts() -> float:
@@ -333,13 +323,13 @@ async def test_compd_run_process_killed_leaves_the_offset_held(
     try:
         async def moved() -> bool:
             return abs((await lcnc.settled())["offset_um"] - start) > 1.0
-        await _until("compd run moved LinuxCNC's offset", moved)
+        await until(moved, what="compd run moved LinuxCNC's offset", every_s=0.05)
         proc.kill()
         await proc.wait()
 
         async def gone() -> bool:
             return not _component_exists(lcnc.component)
-        await _until("the HAL side of a killed compd ended", gone)
+        await until(gone, what="the HAL side of a killed compd ended", every_s=0.05)
         counts = await offset_in_counts()
         held = (await lcnc.settled())["offset_um"]
         await lcnc.control("stat")  # LinuxCNC runs on meanwhile; nobody drives the counts
@@ -352,10 +342,10 @@ async def test_compd_run_process_killed_leaves_the_offset_held(
 
         async def beating() -> bool:
             return _signal(f"{lcnc.prefix}-heartbeat") != beats
-        await _until("a restarted compd run's heartbeat reached HAL", beating)
+        await until(beating, what="a restarted compd run's heartbeat reached HAL", every_s=0.05)
         proc.send_signal(signal.SIGTERM)
         assert await proc.wait() == 0
-        await _until("the HAL side of a stopped compd ended", gone)
+        await until(gone, what="the HAL side of a stopped compd ended", every_s=0.05)
         last = (await lcnc.settled())["offset_um"]
         assert abs(last - held) <= 2 * STEP_UM  # ramped, never jumped; then held
     finally:
@@ -600,7 +590,7 @@ async def test_g_code_permits_offset_changes_and_re_zeroes_by_m_code(
         doc["output"][name] = address.model_dump()
     machine = SimMachine(lcnc, program=constant(SPEED_RPM, heat_h=10.0, cool_h=1.0),
                          seed=7, period_s=PERIOD_S, repeat=False)
-    rig = Lockstep(machine, write_config(doc, tmp_path / "compd.toml"))
+    rig = Lockstep(machine, write_doc(doc, tmp_path / "compd.toml"))
 
     async def mcode(on: bool, dout: int) -> None:
         await lcnc.control("mdi", f"M{64 if on else 65} P{dout}")

@@ -44,7 +44,8 @@ from drivers.sim.programs import make_program
 from drivers.sim.registry import make_sim_controller
 from models import tomltext
 from models.quality import fit_percent
-from tests.lockstep import Lockstep, lockstep_config, write_config
+from tests.configs import lockstep_config, write_doc
+from tests.harness import Lockstep
 
 PROTOCOLS = ["opcua", "s7", "modbus", "focas"]
 HOURS = 8.0
@@ -75,7 +76,7 @@ async def test_compensation_reduces_the_error_range_14x_in_lockstep(
                          period_s=period_s, repeat=False, record=True)
     doc = lockstep_config(sim, tmp_path, model="sim_machine", period_s=period_s,
                           limit_um=LIMIT_UM, slew_um_s=SLEW_UM_S)
-    rig = Lockstep(machine, write_config(doc, tmp_path / "compd.toml"))
+    rig = Lockstep(machine, write_doc(doc, tmp_path / "compd.toml"))
     try:
         await rig.start()
         await rig.run_until(HOURS * 3600.0)
@@ -241,7 +242,7 @@ async def _lockstep_with_faults(protocol: str, work: Path) -> dict[str, Any]:
                          period_s=period_s, repeat=False, record=True)
     doc = lockstep_config(inner, work, model="sim_machine", period_s=period_s,
                           limit_um=LIMIT_UM, slew_um_s=SLEW_UM_S)
-    rig = Lockstep(machine, write_config(doc, work / "compd.toml"))
+    rig = Lockstep(machine, write_doc(doc, work / "compd.toml"))
     events: dict[str, float] = {}
     try:
         await rig.start()

@@ -25,7 +25,8 @@ import pytest
 from drivers.sim.machine import SimMachine
 from drivers.sim.programs import make_program
 from drivers.sim.registry import make_sim_controller
-from tests.lockstep import CONNECT_TIMEOUT_S, REQUEST_TIMEOUT_S, Lockstep, write_config
+from tests.configs import CONNECT_TIMEOUT_S, REQUEST_TIMEOUT_S, write_doc
+from tests.harness import Lockstep
 from tests.shipped import EXAMPLES
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -59,7 +60,7 @@ async def test_the_shipped_example_reduces_the_error_in_lockstep(
     period_s = float(doc["machine"]["period_s"])
     machine = SimMachine(sim, program=make_program("spectrum", seed=3), seed=3,
                          period_s=period_s, repeat=False, record=True)
-    rig = Lockstep(machine, write_config(doc, tmp_path / "compd.toml"))
+    rig = Lockstep(machine, write_doc(doc, tmp_path / "compd.toml"))
     try:
         await rig.start()
         await rig.run_until(HOURS * 3600.0)

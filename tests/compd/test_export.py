@@ -23,8 +23,7 @@ from compd.runtime.sdnotify import Notifier
 from compd.sysexits import EX_DATAERR, EX_USAGE
 from compd.testing import SteppedClock
 from drivers.sim.modbus_server import ModbusSimController
-
-from .daemon_helpers import write_config
+from tests.configs import write_config
 
 T0 = 1_795_000_000.0  # 2026-11-18T11:06:40Z
 

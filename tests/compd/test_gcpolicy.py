@@ -12,8 +12,8 @@ import pytest
 
 from compd.config.loader import load_config
 from compd.runtime.gcpolicy import NEVER, GcPolicy
-
-from .daemon_helpers import memory_daemon, write_config
+from tests.configs import write_config
+from tests.harness import memory_daemon
 
 
 class Clock:

@@ -14,8 +14,8 @@ from compd.cli import main
 from compd.commands.health import metrics_url
 from compd.commands.status import status_url
 from drivers.sim.modbus_server import ModbusSimController
-from tests.compd.daemon_helpers import until
 from tests.compd.status_helpers import page_daemon
+from tests.harness import until
 
 
 def test_the_base_url_and_each_path_name_the_right_document() -> None:

@@ -254,7 +254,7 @@ def test_the_limits_come_from_the_telemetry_section(tmp_path: Path) -> None:
     from compd.config.loader import load_config
     from compd.errors import ConfigError
     from compd.runtime.reload import diff
-    from tests.compd.daemon_helpers import write_config
+    from tests.configs import write_config
 
     path = write_config(tmp_path, "modbus://127.0.0.1:1502")
     old = load_config(path)
@@ -334,8 +334,9 @@ async def test_a_daemon_at_its_connection_cap_is_still_healthy_by_url(
     from compd.runtime.daemon import Daemon
     from compd.runtime.sdnotify import Notifier
     from drivers.sim.ports import free_tcp_port
-    from tests.compd.daemon_helpers import until, write_config
     from tests.compd.status_helpers import get
+    from tests.configs import write_config
+    from tests.harness import until
 
     path = write_config(tmp_path, sim.endpoint, time_scale=10.0)
     port = free_tcp_port("127.0.0.1")

@@ -10,8 +10,8 @@ from pathlib import Path
 from compd.config.loader import load_config
 from compd.runtime.clock import Clock, pause
 from drivers.base import Quality
-
-from .daemon_helpers import memory_daemon, write_config
+from tests.configs import write_config
+from tests.harness import memory_daemon
 
 EPOCH = 1.0e9  # 2001: far from today, so a real reading could not pass for it
 

@@ -15,8 +15,8 @@ import pytest
 from compd.config.loader import load_config
 from compd.runtime.recorder import read_samples
 from compd.testing import SteppedClock
-
-from .daemon_helpers import memory_daemon, write_config
+from tests.configs import write_config
+from tests.harness import memory_daemon
 
 EPOCH = 1.7e9  # the fake wall clock's reading at monotonic 0
 

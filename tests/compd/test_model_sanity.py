@@ -6,7 +6,6 @@ ramp-to-zero shutdown is a finite number of cycles whatever the numbers."""
 
 from __future__ import annotations
 
-import re
 import subprocess
 import sys
 from pathlib import Path
@@ -22,7 +21,7 @@ from compd.errors import ConfigError
 from compd.testing import FakeClock
 from models.compensation import CompensationModel
 from models.modelfile import parse_model
-from tests.shipped import EXAMPLES
+from tests.configs import Toml, write_config
 
 from .cycle_helpers import LIMIT_UM, params, samples
 
@@ -76,16 +75,9 @@ def test_check_step_replay_refuse_with_one_line(tmp_path: Path, case: str) -> No
 
 def _config(tmp_path: Path, *, model: str = 'file = "sp2"', period: str = "1.0",
             limit: str = "200.0", slew: str = "1.0", extra: str = "") -> Path:
-    text = (EXAMPLES / "modbus.toml").read_text(encoding="utf-8")
-    text = re.sub(r'(?m)^file = ".*$', model, text, count=1)
-    text = re.sub(r"(?m)^period_s = .*$", f"period_s = {period}", text, count=1)
-    text = re.sub(r"(?m)^time_scale = .*$", "time_scale = 1.0", text, count=1)
-    text = re.sub(r"(?m)^limit_um = .*$", f"limit_um = {limit}", text, count=1)
-    text = re.sub(r"(?m)^slew_um_s = .*$", f"slew_um_s = {slew}", text, count=1)
-    text = text.replace("[model]\n", f"[model]\n{extra}", 1)
-    p = tmp_path / "compd.toml"
-    p.write_text(text, encoding="utf-8")
-    return p
+    return write_config(tmp_path, base="modbus", file=Toml(model.removeprefix("file = ")),
+                        period_s=Toml(period), time_scale=1.0, limit_um=Toml(limit),
+                        slew_um_s=Toml(slew), swap=[("[model]\n", f"[model]\n{extra}")])
 
 
 def test_run_refuses_an_absurd_model_with_78(tmp_path: Path) -> None:

@@ -34,8 +34,9 @@ from compd.runtime.daemon import Daemon
 from compd.runtime.sdnotify import Notifier
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
-from tests.compd.daemon_helpers import until, write_config
+from tests.configs import write_config
 from tests.drivers.test_opcua_space import count_builds
+from tests.harness import until
 from tests.pki import Pki, server_and_client
 
 OPERATOR, PASSWORD = "setter", "h0ld-Pa55word"

@@ -34,8 +34,9 @@ from compd.runtime.daemon import Daemon
 from compd.testing import FakeClock
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
-from tests.compd.daemon_helpers import until, write_config
 from tests.compd.test_opcua_face import OPERATOR, PASSWORD, _client, _face, _machine, face_daemon
+from tests.configs import write_config
+from tests.harness import until
 from tests.pki import Pki, server_and_client
 
 

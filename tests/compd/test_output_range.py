@@ -4,7 +4,6 @@ not the ±200 µm of limit_um, and every write would fail at run time."""
 
 from __future__ import annotations
 
-import re
 import subprocess
 import sys
 from pathlib import Path
@@ -16,20 +15,16 @@ from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX
 from compd.core.cycle import HEARTBEAT_MODULO
 from compd.core.output import Status
 from compd.errors import ConfigError
-from tests.shipped import EXAMPLES
+from tests.configs import Toml, write_config
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def _config(tmp_path: Path, protocol: str, offset: str, limit_um: float = 200.0,
             extra: str = "") -> Path:
-    text = (EXAMPLES / f"{protocol}.toml").read_text(encoding="utf-8")
-    text = re.sub(r"(?m)^offset = .*$", f"offset = {offset}", text, count=1)
-    text = re.sub(r"(?m)^limit_um = .*$", f"limit_um = {limit_um}", text, count=1)
-    text = text.replace("\nunit = \"um\"\n", f"\nunit = \"um\"\n{extra}", 1)
-    p = tmp_path / f"{protocol}.toml"
-    p.write_text(text, encoding="utf-8")
-    return p
+    return write_config(tmp_path, base=protocol, filename=f"{protocol}.toml",
+                        offset=Toml(offset), limit_um=limit_um,
+                        swap=[('\nunit = "um"\n', f'\nunit = "um"\n{extra}')])
 
 
 REFUSED = [

@@ -17,8 +17,7 @@ from compd.config.schema import RecorderSection
 from compd.offline.plan.schedule import Measure, PlanError, Spin, design
 from compd.sysexits import EX_CANTCREAT, EX_USAGE
 from models import tomltext
-
-from .daemon_helpers import write_config
+from tests.configs import write_config
 
 # -- the design -------------------------------------------------------------------------
 

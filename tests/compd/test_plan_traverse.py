@@ -12,8 +12,8 @@ import pytest
 from compd.cli import main
 from compd.config.loader import load_config
 from compd.sysexits import EX_USAGE
+from tests.configs import write_config
 
-from .daemon_helpers import write_config
 from .plan_grammar import check_fanuc, check_sinumerik
 from .plan_hostile import RS274, calls_of, run_rs274
 

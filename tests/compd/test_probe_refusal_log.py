@@ -14,8 +14,8 @@ from compd.config.loader import load_config
 from compd.runtime.daemon import Daemon
 from compd.runtime.sdnotify import Notifier
 from drivers.sim.modbus_server import ModbusSimController
-
-from .daemon_helpers import until, write_config
+from tests.configs import write_config
+from tests.harness import until
 
 ADAPTATION = """
 [adaptation]
@@ -46,10 +46,10 @@ async def test_a_counter_stepping_every_cycle_logs_once_then_a_recovery(
         bumper = asyncio.create_task(step_the_counter())
         try:
             await until(lambda: daemon.cycle is not None and daemon.cycle.probes is not None
-                        and daemon.cycle.probes.adapter.refused >= 30, limit=4000)
+                        and daemon.cycle.probes.adapter.refused >= 30, limit_s=20.0)
             await sim.publish({"probe_value": 0.0})  # a good one (residual ≈ 0)
             await until(lambda: daemon.cycle is not None and daemon.cycle.probes is not None
-                        and daemon.cycle.probes.adapter.accepted >= 1, limit=4000)
+                        and daemon.cycle.probes.adapter.accepted >= 1, limit_s=20.0)
         finally:
             bumper.cancel()
             with contextlib.suppress(asyncio.CancelledError):

@@ -16,6 +16,7 @@ import numpy as np
 
 from compd.config.loader import load_config
 from compd.runtime.recorder import Recorder, RecordRow, read_samples
+from tests.configs import MINIMAL
 
 from .recorder_layouts import (
     PREVIOUS,
@@ -26,7 +27,6 @@ from .recorder_layouts import (
     write_first,
     write_previous,
 )
-from .test_config import BASE
 from .test_recorder import _row
 
 
@@ -153,7 +153,7 @@ def test_values_are_stored_once(tmp_path: Path) -> None:
 
 def test_default_retention_is_bounded(tmp_path: Path) -> None:
     p = tmp_path / "compd.toml"
-    p.write_text(BASE, encoding="utf-8")
+    p.write_text(MINIMAL, encoding="utf-8")
     assert load_config(p).raw.recorder.retention_days == 30.0
     from compd.runtime.daemon import Daemon
 
@@ -164,7 +164,7 @@ def test_default_retention_is_bounded(tmp_path: Path) -> None:
         assert daemon.recorder.recorder.keep_rows == math.ceil(30 * 86400 / 1.0)
     finally:
         daemon.recorder.close_now()
-    p.write_text(BASE + "\n[recorder]\nretention_days = 0\n", encoding="utf-8")
+    p.write_text(MINIMAL + "\n[recorder]\nretention_days = 0\n", encoding="utf-8")
     keep_all = Daemon(load_config(p))
     keep_all.recorder.open_now(keep_all.cfg)
     try:

@@ -18,8 +18,11 @@ import signal
 from pathlib import Path
 from typing import Any
 
-from .daemon_helpers import write_config
-from .test_run_restart import _Recorded, _start, _until, rec  # noqa: F401 - the fixture
+from tests.configs import write_config
+from tests.faults.daemon_run import RecordingSim
+from tests.harness import until, until_output
+
+from .test_run_restart import _start
 
 SLEW_UM_S = 1.0
 
@@ -36,14 +39,11 @@ async def _until_logged(log: Path, name: str, proc: asyncio.subprocess.Process,
                         count: int = 1, limit_s: float = 120.0) -> None:
     """Until the daemon logged `name` `count` times: polled on a condition, bounded
     only by a generous limit (a loaded machine makes this slower, never red)."""
-    for _ in range(int(limit_s / 0.01)):
-        if len(await asyncio.to_thread(_events, log, name)) >= count:
-            return
-        if proc.returncode is not None:
-            break
-        await asyncio.sleep(0.01)
-    text = await asyncio.to_thread(log.read_text)
-    raise AssertionError(f"{name} not logged {count} time(s); log:\n{text}")
+    async def logged() -> bool:
+        return len(await asyncio.to_thread(_events, log, name)) >= count
+
+    await until(logged, proc, log, f"{name} logged {count} time(s)", limit_s=limit_s,
+                every_s=0.01)
 
 
 async def _stop(proc: asyncio.subprocess.Process) -> int:
@@ -52,7 +52,7 @@ async def _stop(proc: asyncio.subprocess.Process) -> int:
 
 
 async def test_hup_swaps_in_another_model_under_the_slew_limit(
-        rec: _Recorded, tmp_path: Path) -> None:  # noqa: F811
+        rec: RecordingSim, tmp_path: Path) -> None:
     # a 100 ms real period and a 50 ms request timeout: a loaded machine's late
     # answers are not read failures (which would hold the offset)
     config = write_config(tmp_path, rec.sim.endpoint, slew_um_s=SLEW_UM_S, time_scale=10.0,
@@ -60,9 +60,9 @@ async def test_hup_swaps_in_another_model_under_the_slew_limit(
     log = tmp_path / "daemon.log"
     proc = await _start(config, log)
     try:
-        await _until(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
+        await until_output(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
         await rec.sim.publish({"bearing": 22.5})  # sp2 wants ≈ +40 µm
-        await _until(rec.sim, "offset", lambda v: v >= 4.0, proc, log)
+        await until_output(rec.sim, "offset", lambda v: v >= 4.0, proc, log)
         # another model: sp3 (same channels), and a slower slew limit
         config.write_text(config.read_text().replace('file = "sp2"', 'file = "sp3"')
                           .replace(f"slew_um_s = {SLEW_UM_S}", "slew_um_s = 0.5"))
@@ -70,7 +70,7 @@ async def test_hup_swaps_in_another_model_under_the_slew_limit(
         await _until_logged(log, "reload_succeeded", proc)
         swapped = len(rec.offsets)  # every write from here on is the new config's
         beat = (await rec.sim.outputs())["heartbeat"]
-        await _until(rec.sim, "heartbeat", lambda v: v >= beat + 6, proc, log)
+        await until_output(rec.sim, "heartbeat", lambda v: v >= beat + 6, proc, log)
         assert await _stop(proc) == 0
     finally:
         if proc.returncode is None:
@@ -90,18 +90,18 @@ async def test_hup_swaps_in_another_model_under_the_slew_limit(
 
 
 async def test_hup_with_a_broken_config_keeps_the_old_one(
-        rec: _Recorded, tmp_path: Path) -> None:  # noqa: F811
+        rec: RecordingSim, tmp_path: Path) -> None:
     config = write_config(tmp_path, rec.sim.endpoint)
     good = config.read_text()
     log = tmp_path / "daemon.log"
     proc = await _start(config, log)
     try:
-        await _until(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
+        await until_output(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
         config.write_text(good.replace("limit_um = 100.0", "limit_um = 0"))
         proc.send_signal(signal.SIGHUP)
         await _until_logged(log, "reload_failed", proc)
         beat = (await rec.sim.outputs())["heartbeat"]
-        await _until(rec.sim, "heartbeat", lambda v: v >= beat + 5, proc, log)
+        await until_output(rec.sim, "heartbeat", lambda v: v >= beat + 5, proc, log)
         # a change that needs a restart is refused the same way
         config.write_text(good.replace("time_scale = 50.0", "time_scale = 40.0"))
         proc.send_signal(signal.SIGHUP)
@@ -121,7 +121,7 @@ async def test_hup_with_a_broken_config_keeps_the_old_one(
 
 
 async def test_hup_storm_during_cycles_misses_no_cycle(
-        rec: _Recorded, tmp_path: Path) -> None:  # noqa: F811
+        rec: RecordingSim, tmp_path: Path) -> None:
     """HUPs sent at random points of the cycle (mid-read, mid-write): every one
     is served and the unchanged model carries its filters over (the cycles
     kept are checked in lockstep: test_reload_lockstep.py)."""
@@ -129,7 +129,7 @@ async def test_hup_storm_during_cycles_misses_no_cycle(
     log = tmp_path / "daemon.log"
     proc = await _start(config, log)
     try:
-        await _until(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
+        await until_output(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
         for i in range(10):
             # a harmless change each time (checkpoint cadence): a real swap every time
             text = config.read_text()
@@ -152,7 +152,7 @@ async def test_hup_storm_during_cycles_misses_no_cycle(
 
 
 async def test_hup_with_another_endpoint_reconnects(
-        rec: _Recorded, tmp_path: Path) -> None:  # noqa: F811
+        rec: RecordingSim, tmp_path: Path) -> None:
     """The controller's endpoint changes (a replaced PLC): the new link is made
     before the swap, the writes go to it, and the old link is closed."""
     from drivers.sim.modbus_server import ModbusSimController
@@ -164,14 +164,14 @@ async def test_hup_with_another_endpoint_reconnects(
     log = tmp_path / "daemon.log"
     proc = await _start(config, log)
     try:
-        await _until(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
+        await until_output(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
         config.write_text(config.read_text().replace(rec.sim.endpoint, other.endpoint))
         proc.send_signal(signal.SIGHUP)
-        await _until(other, "heartbeat", lambda v: v >= 5, proc, log)
+        await until_output(other, "heartbeat", lambda v: v >= 5, proc, log)
         beat = (await rec.sim.outputs())["heartbeat"]
         # ten more cycles, counted by the new controller: the old one hears none of them
         new_beat = (await other.outputs())["heartbeat"]
-        await _until(other, "heartbeat", lambda v: v >= new_beat + 10, proc, log)
+        await until_output(other, "heartbeat", lambda v: v >= new_beat + 10, proc, log)
         assert (await rec.sim.outputs())["heartbeat"] == beat
         assert await _stop(proc) == 0
     finally:

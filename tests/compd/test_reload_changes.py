@@ -7,8 +7,7 @@ from pathlib import Path
 
 from compd.config.loader import load_config
 from compd.runtime.reload import prepare
-
-from .daemon_helpers import write_config
+from tests.configs import write_config
 
 
 def test_a_changed_slew_limit_is_named_though_nothing_restarts(tmp_path: Path) -> None:

@@ -17,19 +17,13 @@ from compd.core.output import Status
 from compd.errors import ConfigError
 from compd.runtime.reload import diff, handover, prepare
 from compd.testing import FakeClock
+from tests.configs import MINIMAL, write_config
 
 from .cycle_helpers import samples
-from .test_config import BASE
-
-
-def _cfg(tmp_path: Path, text: str) -> Path:
-    p = tmp_path / "compd.toml"
-    p.write_text(text, encoding="utf-8")
-    return p
 
 
 def _warm(tmp_path: Path) -> tuple[Cycle, FakeClock, Path]:
-    path = _cfg(tmp_path, BASE.replace("[output]", "[output]\nreadback = false"))
+    path = write_config(tmp_path, base=MINIMAL.replace("[output]", "[output]\nreadback = false"))
     cfg = load_config(path)
     cycle = Cycle(params_from_config(cfg), cfg.model)
     clock = FakeClock()
@@ -111,7 +105,7 @@ def test_a_lowered_limit_ramps_the_offset_written_into_it(tmp_path: Path) -> Non
     """21.55 µm or so written (read back), then a reload to limit_um = 20: the
     read-back is compd's own (no hold, no alarm), the offset ramps down to 20 at
     the slew limit, told by offset_beyond_limit and offset_within_limit."""
-    path = _cfg(tmp_path, BASE)  # read-back on
+    path = write_config(tmp_path, base=MINIMAL)  # read-back on
     cfg = load_config(path)
     old, clock = Cycle(params_from_config(cfg), cfg.model), FakeClock()
     controller = 0.0
@@ -150,9 +144,9 @@ def test_moving_the_offset_on_the_same_controller_is_refused_by_name(tmp_path: P
     heartbeat (the old one stops counting: compd gone for a PLC reading it), a
     rescaled offset at the same address (read-back judges it) and another endpoint
     (another controller) are reloads like any other."""
-    text = BASE.replace("[output]", '[output]\nheartbeat = { kind = "holding", address = 2, '
+    text = MINIMAL.replace("[output]", '[output]\nheartbeat = { kind = "holding", address = 2, '
                         'type = "uint16" }')
-    path = _cfg(tmp_path, text)
+    path = write_config(tmp_path, base=text)
     old = load_config(path)
     path.write_text(text.replace('offset = { kind = "holding", address = 0,',
                                  'offset = { kind = "holding", address = 20,'))
@@ -176,9 +170,9 @@ def test_a_reload_never_switches_recorder_only_on_or_off(
         tmp_path: Path, start_recording: bool) -> None:
     """Recorder only writes nothing: a reload that would start writing (or stop, leaving
     the last offset in the controller) is refused; a restart decides it."""
-    writing = BASE
-    recording = BASE.replace("[output]", "[output]\nenabled = false")
-    path = _cfg(tmp_path, recording if start_recording else writing)
+    writing = MINIMAL
+    recording = MINIMAL.replace("[output]", "[output]\nenabled = false")
+    path = write_config(tmp_path, base=recording if start_recording else writing)
     old = load_config(path)
     assert old.recorder_only is start_recording
     path.write_text(writing if start_recording else recording)

@@ -31,7 +31,8 @@ from compd.runtime.reload import Changes
 from drivers.sim.machine import SimMachine
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.programs import constant
-from tests.lockstep import Lockstep, lockstep_config, write_config
+from tests.configs import lockstep_config, write_doc
+from tests.harness import Lockstep
 
 PERIOD_S = 1.0         # the period sp2 and sp3 were identified at
 OLD_SLEW_UM_S = 1.0
@@ -91,7 +92,7 @@ async def rig(tmp_path: Path) -> AsyncIterator[Lockstep]:
     doc = lockstep_config(sim, tmp_path, model="sp2", period_s=PERIOD_S, limit_um=100.0,
                           slew_um_s=OLD_SLEW_UM_S)
     doc["state"]["checkpoint_every"] = 20
-    r = Lockstep(machine, write_config(doc, tmp_path / "compd.toml"))
+    r = Lockstep(machine, write_doc(doc, tmp_path / "compd.toml"))
     try:
         yield r
     finally:

@@ -30,8 +30,8 @@ from compd.testing import SteppedClock
 from drivers.base import Sample
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
-from tests.compd.daemon_helpers import CONFIG, modbus_sims
-from tests.lockstep import Fleetstep
+from tests.configs import write_config
+from tests.harness import Fleetstep, modbus_sims
 
 NAMES = ("mill-a", "mill-b", "mill-c")
 
@@ -41,15 +41,11 @@ def _write_machine(directory: Path, name: str, endpoint: str, *, checkpoint_ever
                    timeout_s: float = 0.5) -> Path:
     """One machine's file; by default for lockstep (the stepped clock counts
     machine seconds, a request may take half a period of real time)."""
-    text = CONFIG.format(endpoint=endpoint, time_scale=time_scale, timeout_s=timeout_s,
-                         slew_um_s=1.0, shutdown="hold", checkpoint_every=checkpoint_every)
-    text = text.replace('name = "test"', f'name = "{name}"')
-    text = text.replace('dir = "state"', f'dir = "state-{name}"')
-    if metrics_port is not None:
-        text = text.replace("[telemetry]", f"[telemetry]\nmetrics_port = {metrics_port}")
-    path = directory / f"{name}.toml"
-    path.write_text(text, encoding="utf-8")
-    return path
+    metrics = () if metrics_port is None else [
+        ("[telemetry]", f"[telemetry]\nmetrics_port = {metrics_port}")]
+    return write_config(directory, endpoint, filename=f"{name}.toml", name=name,
+                        dir=f"state-{name}", time_scale=time_scale, timeout_s=timeout_s,
+                        checkpoint_every=checkpoint_every, swap=metrics)
 
 
 @pytest.fixture

@@ -10,19 +10,15 @@ import os
 import signal
 import socket
 import sys
-from collections.abc import AsyncIterator
 from pathlib import Path
-from typing import Any
 
 import pytest
-from pymodbus.constants import ExcCodes
 
 from compd.core.output import Status
 from compd.runtime.checkpoint import load_checkpoint
-from drivers.modbus_codec import decode
-from drivers.sim.modbus_server import OUTPUTS, ModbusSimController
-
-from .daemon_helpers import write_config
+from tests.configs import write_config
+from tests.faults.daemon_run import RecordingSim
+from tests.harness import until_output
 
 SLEW_UM_S = 1.0
 PERIOD_S = 1.0
@@ -34,35 +30,6 @@ TIMEOUT_S = 0.05
 ROOT = Path(__file__).resolve().parents[2]
 
 
-class _Recorded:
-    def __init__(self) -> None:
-        self.sim = ModbusSimController()
-        #: every offset value the daemon wrote, in order
-        self.offsets: list[float] = []
-        original = self.sim._action
-
-        async def action(function_code: int, _start: int, address: int, count: int,
-                         _registers: list[int], set_values: list[int] | list[bool] | None
-                         ) -> ExcCodes | None:
-            if set_values is not None and address == 0 and count >= 2:
-                self.offsets.append(decode(OUTPUTS["offset"], [int(v) for v in set_values[:2]]))
-            return await original(function_code, _start, address, count, _registers,
-                                  set_values)
-
-        self.sim._action = action  # type: ignore[method-assign]  # watch the writes
-
-
-@pytest.fixture
-async def rec() -> AsyncIterator[_Recorded]:
-    r = _Recorded()
-    await r.sim.start()
-    await r.sim.publish({"bearing": 20.0, "ambient": 20.0})
-    try:
-        yield r
-    finally:
-        await r.sim.stop()
-
-
 async def _start(config: Path, log: Path) -> asyncio.subprocess.Process:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     env.pop("NOTIFY_SOCKET", None)
@@ -72,42 +39,28 @@ async def _start(config: Path, log: Path) -> asyncio.subprocess.Process:
             stdout=asyncio.subprocess.DEVNULL, stderr=f, env=env, cwd=str(ROOT))
 
 
-async def _until(sim: ModbusSimController, key: str, predicate: Any,
-                 proc: asyncio.subprocess.Process, log: Path, limit_s: float = 120.0) -> None:
-    """Until the controller's `key` satisfies `predicate`: a condition polled with
-    a generous bound (a slow start on a loaded machine is slower, never red)."""
-    for _ in range(int(limit_s / 0.01)):
-        if predicate((await sim.outputs())[key]):
-            return
-        if proc.returncode is not None:
-            break
-        await asyncio.sleep(0.01)
-    text = await asyncio.to_thread(log.read_text)
-    raise AssertionError(f"{key} never satisfied the condition; log:\n{text}")
-
-
 def _assert_slew_limited(offsets: list[float]) -> None:
     steps = [abs(b - a) for a, b in itertools.pairwise(offsets)]
     # per cycle the output moves at most slew·Δt, Δt capped at two periods
     assert max(steps) <= 2 * SLEW_UM_S * PERIOD_S + 1e-3, max(steps)
 
 
-async def test_kill_9_and_restart_resume_without_a_jump(rec: _Recorded, tmp_path: Path) -> None:
+async def test_kill_9_and_restart_resume_without_a_jump(rec: RecordingSim, tmp_path: Path) -> None:
     config = write_config(tmp_path, rec.sim.endpoint, checkpoint_every=5,
                           time_scale=TIME_SCALE, timeout_s=TIMEOUT_S)
     log = tmp_path / "daemon.log"
     proc = await _start(config, log)
     try:
-        await _until(rec.sim, "heartbeat", lambda v: v >= 5, proc, log)
+        await until_output(rec.sim, "heartbeat", lambda v: v >= 5, proc, log)
         await rec.sim.publish({"bearing": 22.5})  # the model wants ≈ +40 µm
-        await _until(rec.sim, "offset", lambda v: v >= 6.0, proc, log)
+        await until_output(rec.sim, "offset", lambda v: v >= 6.0, proc, log)
         proc.send_signal(signal.SIGKILL)
         assert await proc.wait() == -signal.SIGKILL
         killed_at = rec.offsets[-1]
         await asyncio.sleep(0.2)  # the controller keeps the offset meanwhile
 
         proc = await _start(config, log)
-        await _until(rec.sim, "offset", lambda v: v >= killed_at + 4.0, proc, log)
+        await until_output(rec.sim, "offset", lambda v: v >= killed_at + 4.0, proc, log)
         proc.send_signal(signal.SIGTERM)
         assert await asyncio.wait_for(proc.wait(), 120.0) == 0
     finally:
@@ -122,15 +75,15 @@ async def test_kill_9_and_restart_resume_without_a_jump(rec: _Recorded, tmp_path
     assert state["offset_um"] == pytest.approx((await rec.sim.outputs())["offset"], abs=1e-3)
 
 
-async def test_sigterm_ramp_to_zero_then_exit_0(rec: _Recorded, tmp_path: Path) -> None:
+async def test_sigterm_ramp_to_zero_then_exit_0(rec: RecordingSim, tmp_path: Path) -> None:
     config = write_config(tmp_path, rec.sim.endpoint, shutdown="ramp_to_zero",
                           time_scale=TIME_SCALE, timeout_s=TIMEOUT_S)
     log = tmp_path / "daemon.log"
     proc = await _start(config, log)
     try:
-        await _until(rec.sim, "heartbeat", lambda v: v >= 5, proc, log)
+        await until_output(rec.sim, "heartbeat", lambda v: v >= 5, proc, log)
         await rec.sim.publish({"bearing": 21.0})
-        await _until(rec.sim, "offset", lambda v: v >= 8.0, proc, log)
+        await until_output(rec.sim, "offset", lambda v: v >= 8.0, proc, log)
         proc.send_signal(signal.SIGTERM)
         assert await asyncio.wait_for(proc.wait(), 120.0) == 0
     finally:
@@ -169,17 +122,17 @@ async def test_bad_config_exits_78_naming_the_key_without_connecting(tmp_path: P
         listener.close()
 
 
-async def test_usr1_usr2_are_logged_not_fatal(rec: _Recorded, tmp_path: Path) -> None:
+async def test_usr1_usr2_are_logged_not_fatal(rec: RecordingSim, tmp_path: Path) -> None:
     """SIGUSR1 used to end the daemon at once (no checkpoint)."""
     config = write_config(tmp_path, rec.sim.endpoint, checkpoint_every=5)
     log = tmp_path / "daemon.log"
     proc = await _start(config, log)
     try:
-        await _until(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
+        await until_output(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
         for sig in (signal.SIGUSR1, signal.SIGUSR2):
             proc.send_signal(sig)
         beat = (await rec.sim.outputs())["heartbeat"]
-        await _until(rec.sim, "heartbeat", lambda v: v >= beat + 5, proc, log)
+        await until_output(rec.sim, "heartbeat", lambda v: v >= beat + 5, proc, log)
         assert proc.returncode is None
         proc.send_signal(signal.SIGTERM)
         assert await proc.wait() == 0
@@ -195,7 +148,7 @@ async def test_usr1_usr2_are_logged_not_fatal(rec: _Recorded, tmp_path: Path) ->
 
 
 async def test_closed_stderr_and_a_taken_metrics_port_do_not_stop_compensation(
-        rec: _Recorded, tmp_path: Path) -> None:
+        rec: RecordingSim, tmp_path: Path) -> None:
     """`compd run 2>&-` exited 1 silently; a metrics port in use was a traceback."""
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
@@ -213,9 +166,9 @@ async def test_closed_stderr_and_a_taken_metrics_port_do_not_stop_compensation(
         log = tmp_path / "none.log"
         log.write_text("(stderr closed: no log)")
         try:
-            await _until(rec.sim, "heartbeat", lambda v: v >= 5, proc, log)
+            await until_output(rec.sim, "heartbeat", lambda v: v >= 5, proc, log)
             # compensating: a cycle with status OK (one late answer holds a cycle)
-            await _until(rec.sim, "status", lambda v: int(v) & Status.OK, proc, log)
+            await until_output(rec.sim, "status", lambda v: int(v) & Status.OK, proc, log)
             proc.send_signal(signal.SIGTERM)
             assert await proc.wait() == 0
         finally:

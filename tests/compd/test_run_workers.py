@@ -20,7 +20,7 @@ import signal
 import socket
 import sys
 import urllib.request
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
@@ -35,8 +35,8 @@ from compd.runtime.startup import checkpoint_path
 from compd.runtime.workers import assign
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
-from tests.compd.daemon_helpers import modbus_sims
 from tests.compd.test_run_dir import _write_machine
+from tests.harness import modbus_sims, until
 
 NAMES = ("mill-a", "mill-b", "mill-c", "mill-d")
 #: real seconds any one condition may take on a loaded machine
@@ -47,17 +47,6 @@ BOUND_S = 120.0
 async def sims4() -> AsyncIterator[list[ModbusSimController]]:
     async with modbus_sims(len(NAMES)) as controllers:
         yield controllers
-
-
-async def _until(what: str, predicate: Callable[[], Any], bound_s: float = BOUND_S) -> None:
-    loop = asyncio.get_running_loop()
-    end = loop.time() + bound_s
-    while True:
-        if await predicate():
-            return
-        if loop.time() > end:
-            raise AssertionError(f"not reached within {bound_s:g} s: {what}")
-        await asyncio.sleep(0.02)
 
 
 def _events(log: Path) -> list[dict[str, Any]]:
@@ -119,7 +108,8 @@ async def test_two_workers_share_the_fleet_and_each_is_a_failure_domain(
             return all(now[n] >= since[n] + by for n in since)
 
         start = dict.fromkeys(NAMES, 0.0)
-        await _until("every machine writes its heartbeat", lambda: all_beating(start))
+        await until(lambda: all_beating(start), what="every machine writes its heartbeat",
+                    every_s=0.02)
         # warm every machine: each one's own model moves its own offset
         before = {n: (await s.outputs())["offset"] for n, s in sim_of.items()}
         for s in sims4:
@@ -129,14 +119,14 @@ async def test_two_workers_share_the_fleet_and_each_is_a_failure_domain(
             now = {n: (await sim_of[n].outputs())["offset"] for n in NAMES}
             return all(abs(now[n] - before[n]) > 0.05 for n in NAMES)
 
-        await _until("every machine writes its offset", offsets_moved)
+        await until(offsets_moved, what="every machine writes its offset", every_s=0.02)
 
         async def every_machine_cycled() -> bool:
             body = await asyncio.to_thread(_scrape, port)
             return all(f'compd_cycles_complete_total{{machine="{n}"}}' in body
                        for n in NAMES)
 
-        await _until("one /metrics with every machine", every_machine_cycled)
+        await until(every_machine_cycled, what="one /metrics with every machine", every_s=0.02)
         body = await asyncio.to_thread(_scrape, port)
         for n in NAMES:  # each machine's series once
             assert body.count(f'compd_cycles_complete_total{{machine="{n}"}}') == 1
@@ -153,19 +143,19 @@ async def test_two_workers_share_the_fleet_and_each_is_a_failure_domain(
         # SIGKILL worker 0: it is started again; worker 1's machines never stop
         os.kill(pid_of[0], signal.SIGKILL)
         others = await beats(shares[1])
-        await _until("the other worker's machines keep cycling",
-                     lambda: all_beating(others, by=5))
+        await until(lambda: all_beating(others, by=5),
+                    what="the other worker's machines keep cycling", every_s=0.02)
 
         async def restarted() -> bool:
             again = [e for e in _events(log) if e.get("event") == "worker_ready"
                      and e.get("worker") == 0 and e.get("pid") != pid_of[0]]
             return bool(again)
 
-        await _until("worker 0 started again", restarted)
+        await until(restarted, what="worker 0 started again", every_s=0.02)
         exited = [e for e in _events(log) if e.get("event") == "worker_exited"]
         assert [(e["worker"], e["signal"]) for e in exited] == [(0, "SIGKILL")]
         mine = await beats(shares[0])
-        await _until("its machines cycle again", lambda: all_beating(mine))
+        await until(lambda: all_beating(mine), what="its machines cycle again", every_s=0.02)
         body = await asyncio.to_thread(_scrape, port)
         assert 'compd_worker_restarts_total{worker="0"} 1.0' in body
         assert 'compd_worker_restarts_total{worker="1"} 0.0' in body
@@ -179,7 +169,7 @@ async def test_two_workers_share_the_fleet_and_each_is_a_failure_domain(
                     if e.get("event") == "reload_succeeded"}
             return done >= set(NAMES)
 
-        await _until("every machine reloaded its file", reloaded)
+        await until(reloaded, what="every machine reloaded its file", every_s=0.02)
         written = {n: p.stat().st_mtime_ns if p.exists() else 0 for n, p in paths.items()}
 
         # SIGTERM stops every machine with its checkpoint, and the parent exits 0

@@ -26,10 +26,11 @@ from compd.faces.telemetry import (
     configure_logging,
     is_journal_stream,
 )
+from tests.configs import write_config
+from tests.faults.daemon_run import RecordingSim
+from tests.harness import until_output
 
-from .daemon_helpers import write_config
-from .test_config import BASE
-from .test_run_restart import ROOT, _Recorded, _until, rec  # noqa: F401 - the fixture
+from .test_run_restart import ROOT
 
 
 @pytest.fixture(autouse=True)
@@ -86,32 +87,28 @@ def test_library_loggers_floor_by_default_and_configurable(tmp_path: Path) -> No
     logging.getLogger("asyncua.client").info("6 KB of endpoints")
     logging.getLogger("pymodbus.logging").error("frame hex dump")
     assert buf.getvalue() == ""
-    cfg = load_config(tmp_path / _cfg(tmp_path, "[telemetry]\nlibrary_log_level = \"info\"\n"))
+    cfg = load_config(write_config(tmp_path, base="minimal",
+                                   extra='[telemetry]\nlibrary_log_level = "info"\n'))
     assert cfg.raw.telemetry.library_log_level == "info"
     configure_logging(json=True, stream=buf, library_level=cfg.raw.telemetry.library_log_level)
     logging.getLogger("asyncua.client").info("endpoints")
     logging.getLogger("pymodbus.logging").error("frame")
     assert "endpoints" in buf.getvalue() and "frame" in buf.getvalue()
     with pytest.raises(Exception, match="library_log_level"):
-        load_config(tmp_path / _cfg(tmp_path, "[telemetry]\nlibrary_log_level = \"chatty\"\n"))
-
-
-def _cfg(tmp_path: Path, extra: str) -> Path:
-    p = tmp_path / "compd.toml"
-    p.write_text(BASE + extra, encoding="utf-8")
-    return p
+        load_config(write_config(tmp_path, base="minimal",
+                                 extra='[telemetry]\nlibrary_log_level = "chatty"\n'))
 
 
 def test_state_directory_from_systemd_unless_the_config_names_one(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     systemd = tmp_path / "var-lib-compd"
     monkeypatch.delenv("STATE_DIRECTORY", raising=False)
-    assert load_config(_cfg(tmp_path, "")).state_dir == tmp_path / "state"
+    assert load_config(write_config(tmp_path, base="minimal")).state_dir == tmp_path / "state"
     monkeypatch.setenv("STATE_DIRECTORY", f"{systemd}:/var/lib/other")
-    cfg = load_config(_cfg(tmp_path, ""))
+    cfg = load_config(write_config(tmp_path, base="minimal"))
     assert cfg.state_dir == systemd
     assert cfg.recorder_path == systemd / "samples.sqlite"
-    given = load_config(_cfg(tmp_path, '[state]\ndir = "mine"\n'))
+    given = load_config(write_config(tmp_path, base="minimal", extra='[state]\ndir = "mine"\n'))
     assert given.state_dir == tmp_path / "mine"  # explicit wins
 
 
@@ -134,8 +131,10 @@ def test_relative_password_file_from_the_credentials_directory(
 
 
 def test_metrics_host_is_configurable(tmp_path: Path) -> None:
-    assert load_config(_cfg(tmp_path, "")).raw.telemetry.metrics_host == "127.0.0.1"
-    cfg = load_config(_cfg(tmp_path, '[telemetry]\nmetrics_host = "::1"\nmetrics_port = 9105\n'))
+    default = load_config(write_config(tmp_path, base="minimal"))
+    assert default.raw.telemetry.metrics_host == "127.0.0.1"
+    cfg = load_config(write_config(tmp_path, base="minimal", extra='[telemetry]\nmetrics_host'
+                                   ' = "::1"\nmetrics_port = 9105\n'))
     assert cfg.raw.telemetry.metrics_host == "::1"
     m = Metrics()
     m.start_http(0, "127.0.0.1")
@@ -146,7 +145,7 @@ def test_metrics_host_is_configurable(tmp_path: Path) -> None:
 
 
 async def test_compd_run_under_journald_prefixes_every_line(
-        rec: _Recorded, tmp_path: Path) -> None:  # noqa: F811
+        rec: RecordingSim, tmp_path: Path) -> None:
     """`compd run` with $JOURNAL_STREAM naming its stderr, as systemd starts it."""
     config = write_config(tmp_path, rec.sim.endpoint)
     log = tmp_path / "daemon.log"
@@ -159,10 +158,10 @@ async def test_compd_run_under_journald_prefixes_every_line(
             sys.executable, "-m", "compd", "run", str(config),
             stdout=asyncio.subprocess.DEVNULL, stderr=f, env=env, cwd=str(ROOT))
     try:
-        await _until(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
+        await until_output(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
         proc.send_signal(signal.SIGUSR1)  # a warning line
         beat = (await rec.sim.outputs())["heartbeat"]
-        await _until(rec.sim, "heartbeat", lambda v: v >= beat + 2, proc, log)
+        await until_output(rec.sim, "heartbeat", lambda v: v >= beat + 2, proc, log)
         proc.send_signal(signal.SIGTERM)
         assert await asyncio.wait_for(proc.wait(), 20.0) == 0
     finally:

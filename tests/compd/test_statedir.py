@@ -24,8 +24,7 @@ from compd.runtime.checkpoint import (
 from compd.runtime.recorder import Recorder, RecorderError
 from compd.runtime.statedir import StateDirError, prepare_state_dir
 from compd.runtime.statelock import LOCK_NAME, StateLock
-
-from .daemon_helpers import write_config
+from tests.configs import write_config
 
 ROOT = Path(__file__).resolve().parents[2]
 

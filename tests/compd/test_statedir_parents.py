@@ -30,8 +30,7 @@ from compd.runtime.recorder import Recorder, RecorderError
 from compd.runtime.statedir import StateDir, StateDirError, UnsafeParent
 from compd.runtime.statelock import LOCK_NAME, StateLock
 from compd.sysexits import EX_CONFIG
-
-from .daemon_helpers import write_config
+from tests.configs import write_config
 
 ROOT = Path(__file__).resolve().parents[2]
 PRECIOUS = '{"precious": true}\n'

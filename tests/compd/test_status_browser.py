@@ -16,9 +16,9 @@ from typing import Any
 import pytest
 
 from drivers.sim.modbus_server import ModbusSimController
-from tests.compd.daemon_helpers import until
 from tests.compd.status_helpers import page_daemon
 from tests.compd.webdriver import browser_missing, headless_chromium
+from tests.harness import until
 
 pytestmark = pytest.mark.skipif(browser_missing() is not None,
                                 reason=str(browser_missing()))

@@ -20,8 +20,9 @@ from compd.runtime.daemon import Daemon
 from compd.runtime.sdnotify import Notifier
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
-from tests.compd.daemon_helpers import until, write_config
 from tests.compd.status_helpers import FACES_HTTP, get
+from tests.configs import write_config
+from tests.harness import until
 
 
 def test_a_dry_run_that_would_compensate_is_not_on() -> None:

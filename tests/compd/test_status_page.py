@@ -224,7 +224,7 @@ async def test_without_a_recorder_the_page_says_so(
 def test_a_reload_that_changes_the_page_restarts_the_server(tmp_path: Path) -> None:
     from compd.config.loader import load_config
     from compd.runtime.reload import diff
-    from tests.compd.daemon_helpers import write_config
+    from tests.configs import write_config
 
     path = write_config(tmp_path, "modbus://127.0.0.1:1502")
     old = load_config(path)
@@ -292,8 +292,8 @@ async def test_a_fleet_page_lists_every_machine(tmp_path: Path,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
     from compd.runtime.fleet import Fleet, load_machines
     from compd.testing import SteppedClock
-    from tests.compd.daemon_helpers import CONFIG
-    from tests.lockstep import Fleetstep
+    from tests.configs import write_config
+    from tests.harness import Fleetstep
 
     sims = [ModbusSimController() for _ in range(2)]
     port = free_tcp_port("127.0.0.1")
@@ -304,13 +304,10 @@ async def test_a_fleet_page_lists_every_machine(tmp_path: Path,
         await sim.publish({"bearing": 20.0, "ambient": 20.0})
         # in lockstep (one stepped clock for both machines): machine seconds, and a
         # request may take half a period of real time
-        text = CONFIG.format(endpoint=sim.endpoint, time_scale=1.0, timeout_s=0.5,
-                             slew_um_s=1.0, shutdown="hold", checkpoint_every=20)
-        text = (text.replace('name = "test"', f'name = "{name}"')
-                .replace('dir = "state"', f'dir = "state-{name}"')
-                .replace("[telemetry]", f"[telemetry]\nmetrics_port = {port}")
-                + "\n[faces.http]\nenabled = true\n")
-        (machines / f"{name}.toml").write_text(text, encoding="utf-8")
+        write_config(machines, sim.endpoint, filename=f"{name}.toml", name=name,
+                     dir=f"state-{name}", time_scale=1.0, timeout_s=0.5,
+                     swap=[("[telemetry]", f"[telemetry]\nmetrics_port = {port}")],
+                     extra="\n[faces.http]\nenabled = true\n")
     clock = SteppedClock(period_s=1.0)
     fleet = Fleet(load_machines(machines), clock=clock, sleep=clock.sleep)
     task = asyncio.get_running_loop().create_task(fleet.run())
@@ -347,7 +344,7 @@ def test_the_page_and_compd_status_say_the_pending_change_the_start_and_the_refe
     from compd.config.loader import load_config
     from compd.core.cycle import Cycle, params_from_config
     from tests.compd.cycle_helpers import samples
-    from tests.compd.daemon_helpers import write_config
+    from tests.configs import write_config
 
     cfg = load_config(write_config(tmp_path, "modbus://127.0.0.1:5020"))
     cycle = Cycle(params_from_config(cfg), cfg.model)
@@ -394,7 +391,7 @@ def test_the_page_says_the_offset_sent_and_the_one_the_controller_holds(
     from compd.core.cycle import Cycle, params_from_config
     from compd.core.plan import Outcome
     from tests.compd.cycle_helpers import samples
-    from tests.compd.daemon_helpers import write_config
+    from tests.configs import write_config
 
     cfg = load_config(write_config(tmp_path, "modbus://127.0.0.1:5020"))
     cycle = Cycle(params_from_config(cfg), cfg.model)

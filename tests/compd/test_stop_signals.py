@@ -24,11 +24,12 @@ from compd.runtime.fleet import Fleet, load_machines
 from compd.runtime.sdnotify import Notifier
 from compd.testing import SteppedClock
 from drivers.sim.modbus_server import ModbusSimController
-from tests.lockstep import Fleetstep
+from tests.configs import write_config
+from tests.faults.daemon_run import RecordingSim
+from tests.harness import Fleetstep, until, until_output
 
-from .daemon_helpers import until, write_config
 from .test_run_dir import _complete, _machines_dir, sims  # noqa: F401 - the fixture
-from .test_run_restart import _Recorded, _start, _until, rec  # noqa: F401 - the fixture
+from .test_run_restart import _start
 
 #: the issue's list, and the two SIGTERM always stopped on
 STOPPING = ["SIGALRM", "SIGPWR", "SIGVTALRM", "SIGPROF", "SIGIO", "SIGXCPU", "SIGSTKFLT",
@@ -103,14 +104,14 @@ def _events(log: Path, name: str) -> list[dict[str, object]]:
 @pytest.mark.parametrize(("name", "shutdown"), [("SIGXCPU", "ramp_to_zero"),
                                                 ("SIGPWR", "hold")])
 async def test_a_real_daemon_stops_on_it_with_its_shutdown_policy(
-        rec: _Recorded, tmp_path: Path, name: str, shutdown: str) -> None:  # noqa: F811
+        rec: RecordingSim, tmp_path: Path, name: str, shutdown: str) -> None:
     config = write_config(tmp_path, rec.sim.endpoint, shutdown=shutdown)
     log = tmp_path / "daemon.log"
     proc = await _start(config, log)
     try:
-        await _until(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
+        await until_output(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
         await rec.sim.publish({"bearing": 21.0})  # sp2 wants ≈ +16 µm
-        await _until(rec.sim, "offset", lambda v: v >= 8.0, proc, log)
+        await until_output(rec.sim, "offset", lambda v: v >= 8.0, proc, log)
         proc.send_signal(signal.Signals[name])
         assert await asyncio.wait_for(proc.wait(), 30.0) == 0  # not 128 + n
     finally:

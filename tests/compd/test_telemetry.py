@@ -302,8 +302,7 @@ async def test_daemon_exports_model_output_and_channel_validity(
     from compd.runtime.daemon import Daemon
     from compd.runtime.sdnotify import Notifier
     from compd.testing import SteppedClock
-
-    from .daemon_helpers import write_config
+    from tests.configs import write_config
 
     # in lockstep: the daemon cycles only when the clock is stepped (machine
     # seconds, time_scale 1, a request may take half a second of real time), so
@@ -376,7 +375,7 @@ def test_the_confirmed_offset_has_its_own_gauge_apart_from_the_one_sent(
     from compd.runtime.sinks.base import Tick
     from compd.runtime.sinks.telemetry import TelemetrySink
     from tests.compd.cycle_helpers import samples
-    from tests.compd.daemon_helpers import write_config
+    from tests.configs import write_config
 
     cfg = load_config(write_config(tmp_path, "modbus://127.0.0.1:5020"))
     metrics = Metrics()

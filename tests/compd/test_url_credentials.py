@@ -16,8 +16,7 @@ import structlog
 from compd.cli import main
 from compd.config.urls import redact_urls, url_credentials
 from compd.faces.telemetry import configure_logging
-
-from .daemon_helpers import write_config
+from tests.configs import write_config
 
 ROOT = Path(__file__).resolve().parents[2]
 SECRET = "s3cr3t-Pa55"

@@ -8,8 +8,8 @@ from pathlib import Path
 
 from compd.config.loader import load_config
 from drivers.errors import WriteRejected
-
-from .daemon_helpers import memory_daemon, write_config
+from tests.configs import write_config
+from tests.harness import memory_daemon
 
 
 async def test_each_output_of_a_refused_write_is_its_own_label(tmp_path: Path) -> None:

@@ -15,10 +15,10 @@ from compd.runtime.daemon import Daemon
 from compd.runtime.sdnotify import Notifier
 from compd.testing import FakeClock
 from drivers.sim.modbus_server import ModbusSimController
+from tests.configs import write_config
+from tests.harness import until as _until
 
 from .cycle_helpers import params, run_warm, samples, sp2
-from .daemon_helpers import until as _until
-from .daemon_helpers import write_config
 
 
 def test_repeated_write_failures_are_a_fault_until_a_write_succeeds() -> None:

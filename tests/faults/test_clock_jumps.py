@@ -29,7 +29,8 @@ from compd.core.plan import Row
 from compd.core.validation import ChannelLimits, Validator
 from drivers.base import Sample
 from drivers.sim.registry import make_sim_controller
-from tests.faults.daemon_rig import DaemonRig, make_config
+from tests.configs import make_config
+from tests.faults.daemon_rig import DaemonRig
 from tests.faults.invariants import Invariants, invariants
 
 __all__ = ["invariants"]  # the autouse fixture, imported to be active here

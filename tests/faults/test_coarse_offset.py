@@ -27,8 +27,9 @@ from compd.runtime.sdnotify import Notifier
 from compd.testing import FakeClock
 from drivers.base import Driver
 from drivers.sim.modbus_server import UNIT, ModbusSimController
+from tests.configs import make_config
 from tests.faults.clocked_driver import ClockedDriver
-from tests.faults.daemon_rig import EventLog, make_config
+from tests.harness import EventLog
 
 COUNT_UM = 10.0
 ADDRESS = 20

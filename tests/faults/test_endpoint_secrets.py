@@ -28,9 +28,9 @@ from compd.cli import main
 from compd.sysexits import EX_CONFIG, EX_USAGE
 from drivers.protocols import PROTOCOLS
 from drivers.sim.ports import free_tcp_port
+from tests.configs import write_config
+from tests.faults.daemon_run import ROOT, daemon_env, forget_daemon_logging
 
-from ..compd.daemon_helpers import write_config
-from .daemon_run import ROOT, daemon_env, forget_daemon_logging
 from .test_bad_configs import BASES
 
 MARKS = ("Qx7", "Zk9")
@@ -55,19 +55,6 @@ FORMS = ("{s}://operator:{pw}@127.0.0.1:{port}", "{s}:///operator:{pw}@127.0.0.1
 def workdir() -> Iterator[Path]:
     with tempfile.TemporaryDirectory(prefix="compd-secrets-") as d:
         yield Path(d)
-
-
-@pytest.fixture(scope="module")
-def listener() -> Iterator[socket.socket]:
-    """Where every endpoint points: it listens and must never see a connection."""
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    sock.listen(16)
-    sock.setblocking(False)
-    try:
-        yield sock
-    finally:
-        sock.close()
 
 
 def _config(workdir: Path, protocol: str, endpoint: str) -> Path:

@@ -20,9 +20,9 @@ from pymodbus.client import AsyncModbusTcpClient
 from compd.core.output import Status
 from drivers.modbus_codec import encode
 from drivers.sim.modbus_server import OUTPUTS, UNIT
-from tests.compd.daemon_helpers import write_config
-
-from .daemon_run import RecordingSim, heartbeat, kill_and_wait, start_daemon, tail, until
+from tests.configs import write_config
+from tests.faults.daemon_run import RecordingSim, heartbeat, kill_and_wait, start_daemon
+from tests.harness import tail, until
 
 SLEW_UM_S = 2.0
 PERIOD_S = 1.0

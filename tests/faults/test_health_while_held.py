@@ -19,17 +19,17 @@ from pathlib import Path
 
 from compd.core.output import Status
 from drivers.sim.ports import free_tcp_port
-from tests.compd.daemon_helpers import write_config
-
-from .daemon_run import (
+from tests.configs import write_config
+from tests.faults.daemon_run import (
     ROOT,
     RecordingSim,
     daemon_env,
     heartbeat,
     kill_and_wait,
     start_daemon,
-    until,
 )
+from tests.harness import until
+
 from .test_foreign_offset import _foreign_write, _status, _write_until_held
 
 

@@ -28,7 +28,8 @@ from drivers.base import Quality, Sample
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.registry import make_sim_controller
 from tests.compd.cycle_helpers import params, samples, sp2
-from tests.faults.daemon_rig import DaemonRig, make_config
+from tests.configs import make_config
+from tests.faults.daemon_rig import DaemonRig
 from tests.faults.invariants import CycleLog, Invariants, invariants, run_pure
 
 __all__ = ["invariants"]  # the autouse fixture, imported to be active here
