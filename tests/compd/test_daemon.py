@@ -176,10 +176,8 @@ def _shadow_config(tmp_path: Path, endpoint: str) -> Path:
     (tmp_path / "candidate.toml").write_text(
         src.read_text().replace('name = "SP2 per-spindle"', 'name = "candidate"').replace(
             'a = ["16.0005", "-15.9975", "0"]', 'a = ["32.001", "-31.995", "0"]'))
-    path = write_config(tmp_path, endpoint, slew_um_s=1000.0)
-    path.write_text(path.read_text().replace('file = "sp2"',
-                                             'file = "sp2"\nshadow = "candidate.toml"'))
-    return path
+    return write_config(tmp_path, endpoint, slew_um_s=1000.0,
+                        swap=[('file = "sp2"', 'file = "sp2"\nshadow = "candidate.toml"')])
 
 
 async def test_shadow_model_is_recorded_never_written(sim: ModbusSimController,

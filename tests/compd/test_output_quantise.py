@@ -19,12 +19,13 @@ from pathlib import Path
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from compd.config.loader import parse_config
+from compd.config.loader import load_config
 from compd.core.cycle import Cycle, params_from_config
 from compd.core.output import OutputStage, Readback, count_warnings
 from compd.testing import FakeClock
 from drivers.base import Sample
 from tests.compd.cycle_helpers import params, samples, sp2
+from tests.configs import write_config
 
 #: relative slack of the float comparisons (k counts are k·q to a few ulps)
 SLACK = 1e-9
@@ -180,22 +181,9 @@ def test_the_issue_chatter_on_the_pure_cycle() -> None:
 
 
 def _coarse_config(tmp_path: Path, slew: float = 1.0) -> Cycle:
-    doc = {
-        "machine": {"name": "coarse", "period_s": 1.0},
-        "controller": {"protocol": "modbus", "endpoint": "modbus://127.0.0.1:5020",
-                       "timeout_s": 0.2},
-        "channels": {
-            "bearing": {"address": {"kind": "input", "address": 0, "type": "int16",
-                                    "scale": 0.1}, "unit": "degC", "range": [-20.0, 150.0]},
-            "ambient": {"address": {"kind": "input", "address": 4, "type": "int16",
-                                    "scale": 0.1}, "unit": "degC", "range": [-10.0, 60.0]}},
-        "model": {"file": "sp2"},
-        "output": {"offset": {"unit": 1, "kind": "holding", "address": 20, "type": "int16",
-                              "scale": 10.0},
-                   "limit_um": 100.0, "slew_um_s": slew},
-        "state": {"dir": str(tmp_path / "state")},
-    }
-    cfg = parse_config(doc, tmp_path / "compd.toml")
+    offset = {"unit": 1, "kind": "holding", "address": 20, "type": "int16", "scale": 10.0}
+    cfg = load_config(write_config(tmp_path, base="minimal", offset=offset, slew_um_s=slew,
+                                   extra=f'[state]\ndir = "{tmp_path / "state"}"\n'))
     assert cfg.offset_quantum_um == 10.0
     return Cycle(params_from_config(cfg), sp2(), offset_um=20.0)
 

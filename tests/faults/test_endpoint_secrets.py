@@ -28,7 +28,7 @@ from compd.cli import main
 from compd.sysexits import EX_CONFIG, EX_USAGE
 from drivers.protocols import PROTOCOLS
 from drivers.sim.ports import free_tcp_port
-from tests.configs import write_config
+from tests.configs import Toml, write_config
 from tests.faults.daemon_run import ROOT, daemon_env, forget_daemon_logging
 
 from .test_bad_configs import BASES
@@ -60,11 +60,8 @@ def workdir() -> Iterator[Path]:
 def _config(workdir: Path, protocol: str, endpoint: str) -> Path:
     """The protocol's base config (tests/faults/test_bad_configs) with `endpoint`
     (a TOML basic string takes JSON's escapes for ASCII text)."""
-    lines = [f"endpoint = {json.dumps(endpoint)}" if ln.startswith("endpoint = ") else ln
-             for ln in BASES[protocol].splitlines()]
-    path = workdir / f"{protocol}.toml"
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return path
+    return write_config(workdir, Toml(json.dumps(endpoint)), base=BASES[protocol],
+                        filename=f"{protocol}.toml")
 
 
 def _assert_hidden(text: str, what: object) -> None:
