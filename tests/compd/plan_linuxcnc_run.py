@@ -1,6 +1,6 @@
 """A `compd plan` program run end to end in a real, headless LinuxCNC: what
 benchmarks/bench_plan_linuxcnc.py prints and tests/compd/test_plan_linuxcnc.py
-checks (issue 23's third figure).
+checks (the plan's figure in LinuxCNC).
 
 1. ``compd plan --hours H --speeds 3000,6000,9000 --dialect linuxcnc
    --time-scale N`` writes the program (the speeds of benchmarks/bench_plan.py)

@@ -1,7 +1,7 @@
 """Every numeric [adaptation] setting and [model] max_dc_gain_um has a physical bound,
-refused by name with exit 78 by `compd check` and `compd run` (issue 24 item 1: these
-passed check, then the daemon died of an OverflowError at start, at the first probe or
-at a reload; 1e6 bounds let six probes push the correction to 192 µm)."""
+refused by name with exit 78 by `compd check` and `compd run` (beyond it the daemon
+would die of an OverflowError at start, at the first probe or at a reload; 1e6 bounds
+would let six probes push the correction to 192 µm)."""
 
 from __future__ import annotations
 
@@ -59,7 +59,8 @@ def test_check_refuses_a_setting_beyond_its_bound_by_name(
 @pytest.mark.parametrize(("settings", "key"), [REFUSED[2], REFUSED[3], REFUSED[0]])
 def test_run_refuses_it_with_78_before_it_starts(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], settings: str, key: str) -> None:
-    """On main, bias_rw 1e160 and max_gain 1e200 made `run` exit 1 with a traceback."""
+    """bias_rw 1e160 and max_gain 1e200: `run` exits 78 with one line, never 1 with a
+    traceback."""
     path = _config(tmp_path, settings)
     assert main(["run", str(path)]) == EX_CONFIG
     err = capsys.readouterr().err.strip().splitlines()

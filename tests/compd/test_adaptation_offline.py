@@ -1,4 +1,4 @@
-"""Adaptation offline (issue 13): the shop's day with a change, `compd replay
+"""Adaptation offline: the shop's day with a change, `compd replay
 --probe-every-min` (the estimator beside the plain model and the crude baseline),
 `compd fit --adaptation`, and the figures on the shop machine."""
 
@@ -81,7 +81,7 @@ def shop_run(tmp_path_factory: pytest.TempPathFactory,
     lines = plain.read_text().splitlines()
     (d / "day1.csv").write_text("\n".join(lines[:len(lines) // 2 + 1]) + "\n")
     # shared-oe pinned: the model these figures were measured with (t3 and t5
-    # cancel in it, so the changed day shows a mismatch to learn); since issue 19
+    # cancel in it, so the changed day shows a mismatch to learn); left to choose,
     # the fit rejects that one and chooses ridge, 88.5 % on the changed day unadapted
     assert main(["fit", str(d / "day1.csv"), "--column", "dz_um", "--term", "t3_degC",
                  "--term", "t5_degC", "--term", "t11_degC", "--structure", "shared-oe",

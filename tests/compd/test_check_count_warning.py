@@ -1,7 +1,7 @@
 """`compd check` warns (exit 0, one line on stderr, and in --json) when one
 count of an integer offset address is more than the slew limit allows per
-period (issue 24 item 5: the int16 ×10 µm encoding passed silently, then
-chattered at run time); a fine or float encoding gets no warning."""
+period (an int16 ×10 µm encoding would chatter at run time); a fine or float
+encoding gets no warning."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The command-line fuzzer's hostile endpoints (issue 24 items 2 and 9), beside
+"""The command-line fuzzer's hostile endpoints, beside
 `test_cli_fuzz` and judged as it judges (a sysexits code, no traceback, one
 line): each protocol's config with an endpoint that carries a raw password
 (``/``, ``?``, ``#``, ``@``, ``%``, the ``///`` typo, a password where the user

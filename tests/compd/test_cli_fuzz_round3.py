@@ -1,6 +1,6 @@
-"""The command-line fuzzer, round 3 (issue 24, item 9): the hostile inputs
-that still ended a command in a traceback, each with the exit code it must
-end with now (and one line on stderr, as `test_cli_fuzz` checks every case).
+"""The command-line fuzzer's deep and oversized inputs: hostile inputs that end
+a command in a traceback unless handled, each with the exit code it must end
+with (and one line on stderr, as `test_cli_fuzz` checks every case).
 
 - TOML arrays and tables nested ~900 levels (RecursionError in tomllib): as a
   config, a model, a model a config names, a fixed term, a drive map;
@@ -115,7 +115,8 @@ _add(0, ["fit", "@/micro.csv", "--column", "dz_um", "--candidates", "b*", "-o",
 # a recorder row whose wall time is 1e308 s (OverflowError formatting the date)
 _add(0, ["export", "@/far_future.sqlite"])
 
-print(f"\ncompd CLI fuzzer, round 3: {len(CASES)} in-process cases + 3 subprocess cases")
+print(f"\ncompd CLI fuzzer, deep and oversized inputs: {len(CASES)} in-process cases"
+      " + 3 subprocess cases")
 
 
 def _deep_files(root: Path) -> None:
@@ -206,7 +207,7 @@ def _real(argv: list[str], root: Path) -> list[str]:
 
 @pytest.mark.parametrize(("argv", "code"), CASES,
                          ids=[ascii(" ".join(c))[1:-1][:90] for c, _ in CASES])
-def test_hostile_command_line_round3(argv: list[str], code: int, root: Path,
+def test_hostile_deep_or_oversized_input(argv: list[str], code: int, root: Path,
                                      capsys: pytest.CaptureFixture[str]) -> None:
     try:
         rc: object = main(_real(argv, root))

@@ -1,4 +1,4 @@
-"""What every `compd` command shows a person (issue 14, "Command line"): the
+"""What every `compd` command shows a person: the
 version, help text on every option and an examples section, one exit-code
 table, and one reader for config and model files in `run` and `check`."""
 

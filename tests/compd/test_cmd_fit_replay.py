@@ -140,7 +140,7 @@ def test_fit_refuses_records_with_different_periods_and_a_too_slow_pole(
                  "--term", "bearing", "-o", str(tmp_path / "m.toml")]) == 65
     assert "need one sample period" in capsys.readouterr().err
     # SP3's spindle pole (0.9984 at 1 s, τ ≈ 10 min) is slower than a 1-minute bound:
-    # every dynamic order fails, said, and the static model is what fits (issue 19)
+    # every dynamic order fails, said, and the static model is what fits
     assert main(["fit", str(sp3_records[0]), "--column", "dz_um", "--term", "spindle=bearing",
                  "--fixed", "sp3:ambient", "--orders", "1-2", "--max-time-constant-days",
                  str(60 / 86400), "-o", str(tmp_path / "x.toml")]) == 0

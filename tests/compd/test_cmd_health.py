@@ -202,7 +202,7 @@ def test_old_complete_cycle_is_unhealthy_even_with_a_fresh_record(
 def test_a_stamp_in_the_future_is_no_evidence(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Another boot (the monotonic clock is not comparable) and a wall stamp a day
-    ahead: a clock stepped back. It used to read healthy forever."""
+    ahead: a clock stepped back. Neither reads healthy (it would, forever)."""
     stamp = _stamp(boot_id="another-boot", last_complete_wall_s=time.time() + 86400.0)
     save_checkpoint(tmp_path / "checkpoint.json", stamp)
     rc, line = _health(capsys, "--state-dir", str(tmp_path))

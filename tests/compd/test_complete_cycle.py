@@ -1,4 +1,4 @@
-"""One definition of a complete cycle (issue 24, item 3): the offset compd
+"""One definition of a complete cycle: the offset compd
 wants is the offset in force. Valid inputs are not enough: a held output (a
 foreign offset beyond the limit), a write fault, stopped writes or an
 unconfirmed write make a cycle that ran, never one that completed."""

@@ -1,7 +1,7 @@
-"""Config check: no written address may share controller memory with another
-(issue 22, item 6). Before, only the HIL drive map checked this: `compd check`
-accepted a float32 offset at holding registers 0-1 with the heartbeat at
-holding register 1, which overwrites half the offset every cycle."""
+"""Config check: no written address may share controller memory with another,
+checked by `compd check` as by the HIL drive map: a float32 offset at holding
+registers 0-1 with the heartbeat at holding register 1 would overwrite half the
+offset every cycle."""
 
 from __future__ import annotations
 

@@ -136,8 +136,8 @@ def test_read_failure_holds_then_ramps_to_zero() -> None:
 
 def test_invalid_from_the_start_holds_then_ramps_with_the_alarm() -> None:
     """A sensor broken across a restart: the restored offset is held (status
-    HOLDING, not 0), then ramped to zero with the alarm after hold_s. It used to
-    stay in init, holding a stale offset forever with no alarm."""
+    HOLDING, not 0), then ramped to zero with the alarm after hold_s, never held
+    stale in init forever with no alarm."""
     warm, clock = Cycle(params(), sp2()), FakeClock()
     run_warm(warm, clock, 10, bearing=20.0)
     run_warm(warm, clock, 60, bearing=22.0)

@@ -1,7 +1,7 @@
 """No exception in the cycle ends the daemon without its fault or shutdown policy
-(issue 24 item 1: an OverflowError in the estimator at a probe or in a reload's
-handover ended `compd run` with exit 1, the offset frozen, no checkpoint). In-process
-against the real simulated Modbus controller."""
+(an OverflowError in the estimator at a probe or in a reload's handover must not end
+`compd run` with exit 1, the offset frozen, no checkpoint). In-process against the
+real simulated Modbus controller."""
 
 from __future__ import annotations
 

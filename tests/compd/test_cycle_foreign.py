@@ -1,4 +1,4 @@
-"""A value in the offset register that compd did not write (issue 10, item 1):
+"""A value in the offset register that compd did not write:
 an alarm, and never a step at the tool: within ±limit the output ramps from
 it; beyond, no offset is written until the controller's value is back."""
 

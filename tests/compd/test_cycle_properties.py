@@ -100,8 +100,8 @@ def _run(actions: list[Action], readback: bool) -> None:
           ("good", 15.0, "ok", None, 1.0, 1.0, None),
           ("good", 15.0, "ok", None, 1.0, -1.0, None),
           ("good", 15.0, "ok", "controller_restart", 1.0, 1.0, None)])
-# issue 10: another client writes 1000.0 into the offset register (limit 25):
-# main clamped it and took 25 as held, a step of 975 µm at the tool
+# another client writes 1000.0 into the offset register (limit 25): taking the
+# clamped 25 as held would be a step of 975 µm at the tool
 @example([("good", 15.0, "ok", None, 1.0, 1.0, None)] * 3
          + [("good", 15.0, "ok", None, 1.0, 1.0, 1000.0)]
          + [("good", 15.0, "ok", None, 1.0, 1.0, None)] * 3)

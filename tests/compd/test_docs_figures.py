@@ -1,5 +1,5 @@
 """Figures quoted in README.md and docs/ are the ones the quoted commands
-print (issue 21, docs drift): checked here where it is cheap.
+print (the docs do not drift): checked here where it is cheap.
 
 - calibration.md §3: `compd replay sim_machine spectrum.csv --column dz_um`
   (the recipe's spectrum record, seed 7) prints the fit % and range reduction

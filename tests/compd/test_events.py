@@ -1,5 +1,5 @@
-"""Events carry their level (issue 22 item 8): one declaration per name, the
-levels the daemon used to decide in its own sets, and no undeclared name."""
+"""Events carry their level: one declaration per name, each at the level the
+daemon logs it at, and no undeclared name."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ WAS_WARNING = {"channel_invalid", "fault_hold", "readback_mismatch", "write_fail
                "offset_write_skipped", "checkpoint_unusable", "checkpoint_state_refused",
                "model_non_finite", "probe_refused", "adaptation_state_refused",
                "adaptation_stood_down",
-               # issue 23's LinuxCNC: a machine off or in E-stop (h1 added it to _WARNINGS)
+               # LinuxCNC: a machine off or in E-stop
                "controller_off",
                # the offset compd wrote beyond a limit lowered since: it ramps in
                "offset_beyond_limit",

@@ -52,7 +52,7 @@ def test_a_forced_structure_and_held_out_records(sp3: tuple[Path, Path], tmp_pat
     assert model.provenance["validation_records"] == [str(sp3[1])]
     dens = [t.dynamics.den for t in model.terms]  # type: ignore[union-attr]
     assert dens[0] != dens[1]  # one denominator per term
-    with pytest.raises(SystemExit) as refused:  # bounded by the parser (issue 24)
+    with pytest.raises(SystemExit) as refused:  # bounded by the parser
         main(["fit", str(sp3[0]), "--column", "dz_um", "--term", "bearing", "--folds", "1"])
     assert refused.value.code == 64
     assert "--folds: must be 2" in capsys.readouterr().err

@@ -1,7 +1,6 @@
 """`compd health` reads the checkpoint with the daemon's own reader
 (`load_checkpoint`): what the daemon would refuse to restore is no evidence
-of a healthy daemon either (issue 22: health had a reader of its own that
-skipped the checksum)."""
+of a healthy daemon either (a checkpoint whose checksum fails is none)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""`compd health` given hostile input (issue 24, item 9): a URL whose port is not
+"""`compd health` given hostile input: a URL whose port is not
 a number, a checkpoint nested thousands of levels deep. One line and a sysexits
 code, never a traceback."""
 

@@ -1,4 +1,4 @@
-"""The HTTP faces' bounded server (issue 24 item 7): a fixed number of threads
+"""The HTTP faces' bounded server: a fixed number of threads
 whatever the clients do, slow request heads closed after the header timeout,
 idle kept-alive connections after the idle timeout, a cap on connections that
 still lets a scrape in, a cap on the request head, and no traceback ever.

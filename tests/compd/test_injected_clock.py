@@ -1,4 +1,4 @@
-"""One injected clock for the loop and its sinks (issue 22 item 3): with a fake
+"""One injected clock for the loop and its sinks: with a fake
 wall clock, the status page's snapshot and alarms, the last-complete-cycle
 metric and the recorder's rows carry its readings, never time.time()'s."""
 

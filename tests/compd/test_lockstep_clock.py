@@ -1,8 +1,8 @@
-"""The injected clock drives the daemon (issue 21 item 1, issue 22's "the
-injected clock is bypassed"): with `compd.testing.SteppedClock` as its clock
-and its sleep, and a fake wall clock, the real `Daemon` runs exactly one cycle
-per tick, stamps its records and its health evidence with the clocks it was
-given, and never reads the real ones for them."""
+"""The injected clock drives the daemon and is never bypassed: with
+`compd.testing.SteppedClock` as its clock and its sleep, and a fake wall
+clock, the real `Daemon` runs exactly one cycle per tick, stamps its records
+and its health evidence with the clocks it was given, and never reads the
+real ones for them."""
 
 from __future__ import annotations
 

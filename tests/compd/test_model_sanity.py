@@ -1,5 +1,5 @@
-"""Absurd models and numbers in compd's own commands (issue 10, item 8 and the
-model content of the bad-input list): refused by `compd check`, `step`,
+"""Absurd models and numbers in compd's own commands (and the model content
+of the bad-input list): refused by `compd check`, `step`,
 `replay` and `compd run` with one line and a sysexits code; a model output
 far beyond the limit is a fault, not something to clamp quietly; a
 ramp-to-zero shutdown is a finite number of cycles whatever the numbers."""

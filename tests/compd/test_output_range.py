@@ -1,5 +1,5 @@
 """Config check: an output address whose encoding cannot hold what compd
-writes is refused (issue 10, item 4): Int16 at 0.0001 units/µm holds ±3.28 µm,
+writes is refused: Int16 at 0.0001 units/µm holds ±3.28 µm,
 not the ±200 µm of limit_um, and every write would fail at run time."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The cycle as plan and commit (issue 22, items 1-2): what a cycle returns is
+"""The cycle as plan and commit: what a cycle returns is
 never changed afterwards, one commit closes one plan, and the status word and
 the recorded state are pure functions of one frozen health view."""
 

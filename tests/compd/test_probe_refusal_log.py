@@ -1,6 +1,6 @@
-"""A refused probe is logged once, then summarised, as write failures are (issue 24
-item 9: a probe counter stepping every cycle with every probe refused wrote one
-warning per cycle). The metrics and the recorder still count every one."""
+"""A refused probe is logged once, then summarised, as write failures are (a probe
+counter stepping every cycle with every probe refused writes no warning per cycle).
+The metrics and the recorder still count every one."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """`compd refine`: a model's [adaptation] settings from the probes a running machine took
-(issue 20: "a record with probes refines them")."""
+(a record with probes refines them)."""
 
 from __future__ import annotations
 

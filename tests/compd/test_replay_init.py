@@ -1,7 +1,7 @@
 """`compd replay --init` on a record that starts warm: the second half of a
 48 h spectrum run of the simulated machine, replayed with a model fitted on
-the first half (issue 11's figure: from rest it scored -320 %), with the
-papers' per-term structure the issue used (the default choice, shared-oe,
+the first half (from rest it scores -320 %), with the papers' per-term
+structure (the default choice, shared-oe,
 gives 85.10 % estimated and 85.08 % continuous: this 4-sensor setup's
 ceiling is about 85 %)."""
 

@@ -123,7 +123,8 @@ async def test_bad_config_exits_78_naming_the_key_without_connecting(tmp_path: P
 
 
 async def test_usr1_usr2_are_logged_not_fatal(rec: RecordingSim, tmp_path: Path) -> None:
-    """SIGUSR1 used to end the daemon at once (no checkpoint)."""
+    """SIGUSR1 and SIGUSR2 are logged and the daemon runs on (their default would end
+    it at once, with no checkpoint)."""
     config = write_config(tmp_path, rec.sim.endpoint, checkpoint_every=5)
     log = tmp_path / "daemon.log"
     proc = await _start(config, log)

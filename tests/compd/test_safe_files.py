@@ -1,4 +1,4 @@
-"""Files a command writes or reads (issue 10, items 5, 6, 9 and the bad-input list).
+"""Files a command writes or reads (and the bad-input list).
 
 Outputs are checked before the work starts and written atomically: never over
 an input (also through a symbolic or hard link), never over an existing file

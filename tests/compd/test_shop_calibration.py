@@ -1,5 +1,5 @@
-"""The whole calibration recipe on the shop variant of the simulated machine
-(issue 11): sixteen sensors and the spindle speed as candidates, calibrate
+"""The whole calibration recipe on the shop variant of the simulated machine:
+sixteen sensors and the spindle speed as candidates, calibrate
 on day 1, verify on day 2 (which starts warm), against the shared-denominator
 ARX least squares on the best pair of the same search, in the same run."""
 

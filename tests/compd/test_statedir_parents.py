@@ -1,9 +1,9 @@
-"""The state directory's parents from a local attacker's side (issue 24, item 4).
+"""The state directory's parents from a local attacker's side.
 
-Under ``umask 000`` compd created the parents of ``[state] dir`` 0777; another
-user could then rename the state directory away and put a link in its place,
-and the root daemon replaced the link target's ``checkpoint.json``. A hard link
-planted at ``samples.sqlite-shm`` had its target overwritten by SQLite. Now:
+Parents created 0777 under ``umask 000`` would let another user rename the
+state directory away and put a link in its place, and the root daemon would
+replace the link target's ``checkpoint.json``; a hard link planted at
+``samples.sqlite-shm`` would have its target overwritten by SQLite. So:
 parents are created 0755 whatever the umask, a parent another user could
 rename entries in is refused (78, naming it), the state directory is opened
 once and everything in it is done relative to that descriptor, and every
@@ -109,7 +109,7 @@ def test_a_parent_others_can_write_is_refused_naming_it(tmp_path: Path) -> None:
     base = _base(tmp_path)
     state = base / "n" / "x" / "y" / "state"
     StateDir.open(state).close()
-    os.chmod(state.parent, 0o777)  # what compd itself created under umask 000 on main
+    os.chmod(state.parent, 0o777)  # what a parent created 0777 under umask 000 would be
     with pytest.raises(UnsafeParent) as info:
         StateLock(state).acquire()
     assert info.value.path == state.parent and info.value.code == EX_CONFIG

@@ -1,4 +1,4 @@
-"""What the status page shows (issue 21): °C rather than degC, rpm without
+"""What the status page shows: °C rather than degC, rpm without
 decimals, y-axis ticks at nice numbers labelled with the step's decimals, the
 last time label inside the canvas, times on the 24-hour clock, the ± limit in
 the legend only as drawn (else its value, off scale), rounded numbers in the

@@ -1,7 +1,7 @@
-"""Every signal whose default action would end compd is handled (issue 24 item 8):
-SIGALRM, SIGPWR, SIGVTALRM, SIGPROF, SIGIO, SIGXCPU, SIGSTKFLT ended the daemon at
-once (exit 128+n) with no log line, no checkpoint and no shutdown policy. Now they
-stop it as SIGTERM does, naming the signal; SIGXFSZ (like SIGUSR1/2) is logged and
+"""Every signal whose default action would end compd is handled: SIGALRM, SIGPWR,
+SIGVTALRM, SIGPROF, SIGIO, SIGXCPU, SIGSTKFLT stop it as SIGTERM does, naming the
+signal (their default would end it at once, exit 128+n, with no log line, no
+checkpoint and no shutdown policy); SIGXFSZ (like SIGUSR1/2) is logged and
 ignored."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""A refused combined write is counted once per output it carried (issue 22
-item 8): the label values are output names, never the names joined."""
+"""A refused combined write is counted once per output it carried: the label
+values are output names, never the names joined."""
 
 from __future__ import annotations
 

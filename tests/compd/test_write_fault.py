@@ -1,4 +1,4 @@
-"""Offset writes that keep failing (issue 10, item 4): a write fault with its
+"""Offset writes that keep failing: a write fault with its
 status bit and state, and a recorder that keeps what the controller confirmed
 apart from what was sent."""
 

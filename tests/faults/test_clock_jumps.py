@@ -1,4 +1,4 @@
-"""Wall-clock jumps of ±1 h (issue 7): the daemon runs in-process against a
+"""Wall-clock jumps of ±1 h: the daemon runs in-process against a
 simulated controller and the wall clock jumps by ±3600 s mid-run, for the
 whole process: the daemon's own wall clock (given to it, as its default
 `time.time` is bound when the module loads) and `time.time` for the drivers

@@ -1,4 +1,4 @@
-"""Controller faults (issue 7), through the wire against simulated controllers:
+"""Controller faults, through the wire against simulated controllers:
 
 - a controller restart that forgets the offset (the sim zeroes its outputs):
   the daemon notices by read-back and ramps back from 0 at the slew limit,

@@ -1,8 +1,8 @@
 """A controller that is off when the shop PC boots (systemd ``Type=notify``).
 
-READY=1 used to wait for a read that answered: with the controller off the
-daemon never said READY and systemd's start timeout killed it, over and
-over. Now READY follows the loop's first cycle: the daemon is up and
+READY=1 follows the loop's first cycle, not a read that answered (with the
+controller off, systemd's start timeout would kill the daemon over and over):
+the daemon is up and
 retrying, the watchdog is fed, nothing is written, health (the cycle's cause,
 the STATUS= line) says why nothing is in force, and compensation starts on the
 first cycle the controller answers. Every cycle passes the output invariants;

@@ -1,8 +1,7 @@
-"""A foreign offset of 1000.0 µm makes the daemon hold its output (issue 24,
-item 3): every source of health must then say unhealthy, together. On main
-the metrics said fault state 3 (`health --url` red) while `health --state-dir`
-(the container's HEALTHCHECK) said "healthy: last complete cycle 2 s ago" and
-the recorder kept counting the held cycles as complete.
+"""A foreign offset of 1000.0 µm makes the daemon hold its output: every source
+of health must then say unhealthy, together: the metrics (fault state 3,
+`health --url` red), `health --state-dir` (the container's HEALTHCHECK) and the
+recorder, which counts no held cycle as complete.
 
 A complete cycle is one whose offset is the one compd wants, in force
 (`compd.core.cycle.offset_in_force`); the daemon writes a checkpoint as soon

@@ -1,4 +1,4 @@
-"""Sensor faults (issue 7): open / shorted Pt100, a Bad OPC UA status, a
+"""Sensor faults: open / shorted Pt100, a Bad OPC UA status, a
 stuck sensor, a one-sample spike. Each figure is measured on the pure cycle
 with a fake clock (exact) and through the wire: the in-process daemon against
 a simulated controller whose memory holds the fault (Modbus, S7, OPC UA), on

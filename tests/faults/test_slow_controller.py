@@ -2,7 +2,7 @@
 
 Each driver talks to its simulated controller through `FaultProxy` on
 127.0.0.1, which adds latency, blackholes, resets (RST) or cuts a connection
-after k bytes. What must hold (issue 7):
+after k bytes. What must hold:
 
 - a request fails with `ControllerTimeout` (or another `DriverError`) within
   its timeout, timeout_s = 0.5·Ts: bounded here by `asyncio.wait_for(timeout

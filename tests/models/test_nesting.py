@@ -1,4 +1,4 @@
-"""Bounded TOML and JSON nesting (issue 24 item 9): a file nested hundreds of
+"""Bounded TOML and JSON nesting: a file nested hundreds of
 levels deep is one NestingError, never a RecursionError; brackets inside
 strings and comments do not count; real files are read as tomllib reads them."""
 
