@@ -19,10 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from tests.configs import write_config
-from tests.faults.daemon_run import RecordingSim
+from tests.faults.daemon_run import RecordingSim, start_daemon
 from tests.harness import until, until_output
-
-from .test_run_restart import _start
 
 SLEW_UM_S = 1.0
 
@@ -58,7 +56,7 @@ async def test_hup_swaps_in_another_model_under_the_slew_limit(
     config = write_config(tmp_path, rec.sim.endpoint, slew_um_s=SLEW_UM_S, time_scale=10.0,
                           timeout_s=0.05)
     log = tmp_path / "daemon.log"
-    proc = await _start(config, log)
+    proc = await start_daemon(config, log)
     try:
         await until_output(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
         await rec.sim.publish({"bearing": 22.5})  # sp2 wants ≈ +40 µm
@@ -94,7 +92,7 @@ async def test_hup_with_a_broken_config_keeps_the_old_one(
     config = write_config(tmp_path, rec.sim.endpoint)
     good = config.read_text()
     log = tmp_path / "daemon.log"
-    proc = await _start(config, log)
+    proc = await start_daemon(config, log)
     try:
         await until_output(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
         config.write_text(good.replace("limit_um = 100.0", "limit_um = 0"))
@@ -127,7 +125,7 @@ async def test_hup_storm_during_cycles_misses_no_cycle(
     kept are checked in lockstep: test_reload_lockstep.py)."""
     config = write_config(tmp_path, rec.sim.endpoint)
     log = tmp_path / "daemon.log"
-    proc = await _start(config, log)
+    proc = await start_daemon(config, log)
     try:
         await until_output(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
         for i in range(10):
@@ -162,7 +160,7 @@ async def test_hup_with_another_endpoint_reconnects(
     await other.publish({"bearing": 20.0, "ambient": 20.0})
     config = write_config(tmp_path, rec.sim.endpoint)
     log = tmp_path / "daemon.log"
-    proc = await _start(config, log)
+    proc = await start_daemon(config, log)
     try:
         await until_output(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
         config.write_text(config.read_text().replace(rec.sim.endpoint, other.endpoint))

@@ -17,7 +17,7 @@ import pytest
 from compd.core.output import Status
 from compd.runtime.checkpoint import load_checkpoint
 from tests.configs import write_config
-from tests.faults.daemon_run import RecordingSim
+from tests.faults.daemon_run import ROOT, RecordingSim, start_daemon
 from tests.harness import until_output
 
 SLEW_UM_S = 1.0
@@ -27,16 +27,6 @@ PERIOD_S = 1.0
 #: offset, and a long run of them ends in the fault policy)
 TIME_SCALE = 10.0
 TIMEOUT_S = 0.05
-ROOT = Path(__file__).resolve().parents[2]
-
-
-async def _start(config: Path, log: Path) -> asyncio.subprocess.Process:
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    env.pop("NOTIFY_SOCKET", None)
-    with log.open("ab") as f:
-        return await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "compd", "run", str(config),
-            stdout=asyncio.subprocess.DEVNULL, stderr=f, env=env, cwd=str(ROOT))
 
 
 def _assert_slew_limited(offsets: list[float]) -> None:
@@ -49,7 +39,7 @@ async def test_kill_9_and_restart_resume_without_a_jump(rec: RecordingSim, tmp_p
     config = write_config(tmp_path, rec.sim.endpoint, checkpoint_every=5,
                           time_scale=TIME_SCALE, timeout_s=TIMEOUT_S)
     log = tmp_path / "daemon.log"
-    proc = await _start(config, log)
+    proc = await start_daemon(config, log)
     try:
         await until_output(rec.sim, "heartbeat", lambda v: v >= 5, proc, log)
         await rec.sim.publish({"bearing": 22.5})  # the model wants ≈ +40 µm
@@ -59,7 +49,7 @@ async def test_kill_9_and_restart_resume_without_a_jump(rec: RecordingSim, tmp_p
         killed_at = rec.offsets[-1]
         await asyncio.sleep(0.2)  # the controller keeps the offset meanwhile
 
-        proc = await _start(config, log)
+        proc = await start_daemon(config, log)
         await until_output(rec.sim, "offset", lambda v: v >= killed_at + 4.0, proc, log)
         proc.send_signal(signal.SIGTERM)
         assert await asyncio.wait_for(proc.wait(), 120.0) == 0
@@ -79,7 +69,7 @@ async def test_sigterm_ramp_to_zero_then_exit_0(rec: RecordingSim, tmp_path: Pat
     config = write_config(tmp_path, rec.sim.endpoint, shutdown="ramp_to_zero",
                           time_scale=TIME_SCALE, timeout_s=TIMEOUT_S)
     log = tmp_path / "daemon.log"
-    proc = await _start(config, log)
+    proc = await start_daemon(config, log)
     try:
         await until_output(rec.sim, "heartbeat", lambda v: v >= 5, proc, log)
         await rec.sim.publish({"bearing": 21.0})
@@ -127,7 +117,7 @@ async def test_usr1_usr2_are_logged_not_fatal(rec: RecordingSim, tmp_path: Path)
     it at once, with no checkpoint)."""
     config = write_config(tmp_path, rec.sim.endpoint, checkpoint_every=5)
     log = tmp_path / "daemon.log"
-    proc = await _start(config, log)
+    proc = await start_daemon(config, log)
     try:
         await until_output(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
         for sig in (signal.SIGUSR1, signal.SIGUSR2):

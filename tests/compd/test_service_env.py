@@ -27,10 +27,8 @@ from compd.faces.telemetry import (
     is_journal_stream,
 )
 from tests.configs import write_config
-from tests.faults.daemon_run import RecordingSim
+from tests.faults.daemon_run import ROOT, RecordingSim
 from tests.harness import until_output
-
-from .test_run_restart import ROOT
 
 
 @pytest.fixture(autouse=True)
