@@ -17,7 +17,7 @@ from tests.configs import MINIMAL, write_config
 
 from .test_adaptation_config import ADAPTATION
 
-#: the issue's cases, and each bound's other side (MINIMAL has output.limit_um = 100)
+#: settings beyond a bound, and each bound's other side (MINIMAL has output.limit_um = 100)
 REFUSED = [
     ("max_total_um = 1e308", "adaptation.max_total_um"),
     ("probe_noise_um = 1e160", "adaptation.probe_noise_um"),

@@ -164,7 +164,7 @@ def test_never_worse_than_the_plain_model_on_a_day_without_change(
         shop_run: dict[str, Path], shop_record: Callable[[int], Path],
         capsys: pytest.CaptureFixture[str], seed: int, probe_seed: str,
         gains: tuple[str, ...]) -> None:
-    """The issue's "never worse without change": other days of the same machine (seeds),
+    """Never worse without change: other days of the same machine (seeds),
     other probe noise; the always-following filter (--apply-sigma 0, no score) is worse on
     these."""
     data = shop_record(seed)

@@ -1,4 +1,4 @@
-"""Issue 20: adaptation learnt from the machine, keeping score of itself, on the real record.
+"""Adaptation learnt from the machine, keeping score of itself, on the real record.
 
 `compd fit --adaptation` writes what it learnt into the model file ([adaptation]);
 `compd replay --probe-every-min` and the daemon's config use it unless told otherwise; the

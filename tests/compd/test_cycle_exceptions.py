@@ -171,7 +171,7 @@ async def test_an_exception_in_the_reload_handover_keeps_the_old_config(
 
 async def test_a_reload_beyond_a_bound_is_refused_by_name(
         sim: ModbusSimController, tmp_path: Path) -> None:
-    """The issue's first case: max_total_um = 1e308 then kill -HUP ended the daemon."""
+    """max_total_um = 1e308 then kill -HUP: the reload is refused, the daemon runs on."""
     path = write_config(tmp_path, sim.endpoint)
     path.write_text(path.read_text() + ADAPTATION)
     cfg = load_config(path)

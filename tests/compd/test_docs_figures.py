@@ -8,7 +8,7 @@ print (the docs do not drift): checked here where it is cheap.
   are the lockstep run's (`test_e2e_protocols`, deterministic).
 - protocols.md's status table: the value the pure cycle sends when it finds
   a foreign offset in the controller.
-- adaptation.md speaks to users, not of the issue that asked for it.
+- adaptation.md speaks to users, not of the request that asked for it.
 """
 
 from __future__ import annotations

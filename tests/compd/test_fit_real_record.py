@@ -1,7 +1,7 @@
-"""Issue 19 on the real record (tests/data/fl_thermal), through the command
+"""`compd fit` on the real record (tests/data/fl_thermal), through the command
 line, kept short: the forward split's calibration rows at 1 min (a quarter
 of the rows: the search decimates to about this anyway), one channel, the
-issue's own troublesome inputs, low orders. The benchmark does the full run
+troublesome inputs, low orders. The benchmark does the full run
 (benchmarks/bench_real_record.py)."""
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ def calibration(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_ch4_never_gets_the_cancelling_model(calibration: Path, tmp_path: Path,
                                              capsys: pytest.CaptureFixture[str]) -> None:
-    """The inputs whose DC gains were -36 and +213 µm/K in the issue: the
+    """The inputs whose DC gains come out at -36 and +213 µm/K unchecked: the
     search may offer them, the fit never writes a model its own diagnostics
     reject, and `compd check` finds nothing implausible in what it wrote."""
     model = tmp_path / "ch4.toml"

@@ -1,4 +1,4 @@
-"""Issue 19 (c): no model worse than none. `compd fit` scores the chosen
+"""No model worse than none: `compd fit` scores the chosen
 model on rows it was not calibrated on and refuses (exit 65, one line) to
 write one whose error there exceeds the displacement itself, unless
 --force; `compd check` flags implausible models."""

@@ -1,6 +1,6 @@
-"""Issue 24 item 5: an integer offset address whose count is coarse (an int16
-at scale 10: 10 µm per count) made the offset chatter 1→2→1→2 on
-consecutive cycles. The output stage quantises: the count in force changes
+"""An integer offset address whose count is coarse (an int16 at scale 10:
+10 µm per count) must not make the offset chatter 1→2→1→2 on consecutive
+cycles. The output stage quantises: the count in force changes
 only when the wanted (slew-limited) value is a whole count away from it, by
 whole counts toward it, never past it; at most one count per cycle when a
 count is more than R·Δt, else within R·Δt; always within ±limit_um.

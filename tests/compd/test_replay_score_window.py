@@ -1,4 +1,4 @@
-"""Issue 19 (d): `compd replay` reports the field's figures (MAE and RMS of
+"""`compd replay` reports the field's figures (MAE and RMS of
 the residue, µm) beside fit % and range reduction, and scores a block inside
 a record (--score-from … --score-until)."""
 

@@ -196,7 +196,7 @@ def test_a_checkpoint_after_the_swap_lands_in_the_directory_opened(tmp_path: Pat
 
 async def test_the_running_daemon_never_writes_through_a_swapped_state_dir(
         tmp_path: Path) -> None:
-    """The issue's attack on the real daemon: the swap while it runs; its
+    """The attack on the real daemon: the swap while it runs; its
     checkpoints (every 5 cycles and at shutdown) and its records go on in the
     directory it opened, never into the link's target."""
     from compd.config.loader import load_config

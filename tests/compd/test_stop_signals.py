@@ -25,13 +25,12 @@ from compd.runtime.sdnotify import Notifier
 from compd.testing import SteppedClock
 from drivers.sim.modbus_server import ModbusSimController
 from tests.configs import write_config
-from tests.faults.daemon_run import RecordingSim
+from tests.faults.daemon_run import RecordingSim, start_daemon
 from tests.harness import Fleetstep, until, until_output
 
 from .test_run_dir import _complete, _machines_dir, sims  # noqa: F401 - the fixture
-from .test_run_restart import _start
 
-#: the issue's list, and the two SIGTERM always stopped on
+#: the signals whose default ends the process, and the two SIGTERM always stopped on
 STOPPING = ["SIGALRM", "SIGPWR", "SIGVTALRM", "SIGPROF", "SIGIO", "SIGXCPU", "SIGSTKFLT",
             "SIGTERM", "SIGINT"]
 
@@ -107,7 +106,7 @@ async def test_a_real_daemon_stops_on_it_with_its_shutdown_policy(
         rec: RecordingSim, tmp_path: Path, name: str, shutdown: str) -> None:
     config = write_config(tmp_path, rec.sim.endpoint, shutdown=shutdown)
     log = tmp_path / "daemon.log"
-    proc = await _start(config, log)
+    proc = await start_daemon(config, log)
     try:
         await until_output(rec.sim, "heartbeat", lambda v: v >= 3, proc, log)
         await rec.sim.publish({"bearing": 21.0})  # sp2 wants ≈ +16 µm

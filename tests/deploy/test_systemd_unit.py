@@ -1,5 +1,5 @@
 """deploy/systemd/compd.service: systemd's own analyser accepts and scores it,
-it says what the issue asks, and compd still works inside its system call
+it holds the sandbox the design asks for, and compd still works inside its system call
 filter (applied here with libseccomp, since this machine runs no systemd)."""
 
 from __future__ import annotations

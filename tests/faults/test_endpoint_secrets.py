@@ -1,5 +1,5 @@
-"""Issue 24 item 2: a password written raw in the endpoint URL, with "/", "?",
-"#", "@", ":" or "%" in it (which hid it from urlsplit), is refused by
+"""A password written raw in the endpoint URL, with "/", "?", "#", "@", ":" or
+"%" in it (which would hide it from urlsplit), is refused by
 ``compd check`` (text and --json), ``compd run`` and ``compd sim --drive``
 and never printed; a running daemon told to reload such a config logs
 ``reload_failed`` without it and keeps its old endpoint.

@@ -1,4 +1,4 @@
-"""Issue 20 item 3, through the wire: a model worse than none is caught by the probes.
+"""Through the wire: a model worse than none is caught by the probes.
 
 The simulated Modbus controller, the in-process daemon on the fake clock (one
 machine second a cycle, exactly), a bearing that warms the machine, and a model

@@ -61,7 +61,7 @@ T = TypeVar("T")
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 
 PROTOCOLS = ("opcua", "modbus", "s7")
-#: sample period and request timeout (timeout = 0.5·Ts, as the issue allows at most)
+#: sample period and request timeout (timeout = 0.5·Ts, the most a request may take)
 TS_S = 0.4
 TIMEOUT_S = 0.5 * TS_S
 #: scheduling slack on a loaded 2-core machine: the bound is timeout + this

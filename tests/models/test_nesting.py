@@ -26,7 +26,7 @@ from models.nesting import (
 from tests.shipped import EXAMPLES, LIBRARY
 
 ROOT = Path(__file__).resolve().parents[2]
-DEEP = 900  # the file: tomllib and json recurse past Python's limit
+DEEP = 900  # deep enough that tomllib and json recurse past Python's limit
 
 
 @pytest.mark.parametrize("text", [
