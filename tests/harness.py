@@ -43,8 +43,8 @@ What stays elsewhere, being different: `tests.faults.daemon_rig.DaemonRig`
 checks every write against the fault invariants and calls the test's plant
 before each read; `tests.faults.daemon_run` runs `compd run` as a process (kill
 -9, a second instance, a full disk); `tests.faults.clocked_driver` moves a
-`FakeClock` from inside the driver's read; `tests.compd.status_helpers` serves
-the operator page; `tests.compd.cycle_helpers` feeds the pure cycle (no daemon).
+`FakeClock` from inside the driver's read; `tests.compd.faces.status_helpers` serves
+the operator page; `tests.compd.core.cycle_helpers` feeds the pure cycle (no daemon).
 The configs are `tests.configs`.
 
 It lives in tests/ rather than `compd.testing` because it composes the shell

@@ -22,9 +22,9 @@ import pytest
 from compd.cli import main
 from compd.core.output import Status
 from tests.compd.conftest import RecipePlant
-from tests.compd.cycle_helpers import samples
-from tests.compd.test_cycle_foreign import _heated
-from tests.compd.test_e2e_protocols import RANGE_REDUCTION
+from tests.compd.core.cycle_helpers import samples
+from tests.compd.core.test_cycle_foreign import _heated
+from tests.compd.runtime.test_e2e_protocols import RANGE_REDUCTION
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / "docs"

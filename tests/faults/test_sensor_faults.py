@@ -27,7 +27,7 @@ from compd.testing import FakeClock
 from drivers.base import Quality, Sample
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.registry import make_sim_controller
-from tests.compd.cycle_helpers import params, samples, sp2
+from tests.compd.core.cycle_helpers import params, samples, sp2
 from tests.configs import make_config
 from tests.faults.daemon_rig import DaemonRig
 from tests.faults.invariants import CycleLog, Invariants, invariants, run_pure
