@@ -46,7 +46,7 @@ async def _cycles(cycles: int, tmp: Path) -> float:
     from compd.runtime.daemon import Daemon
     from compd.runtime.sdnotify import Notifier
     from compd.testing import MemoryDriver, SteppedClock
-    from tests.compd.daemon_helpers import write_config
+    from tests.configs import write_config
 
     cfg = load_config(write_config(tmp, "127.0.0.1:1", time_scale=1.0, timeout_s=0.4))
     clock = SteppedClock(period_s=cfg.period_s)

@@ -9,7 +9,7 @@ dwells are divided), LinuxCNC runs it with the plant turning at LinuxCNC's
 and the plant's true growth (``dz_um``) with the plan's recorder settings,
 ``compd fit`` fits the database and ``compd replay`` scores the model on a
 2 h spindle-speed spectrum it has never seen. The steps are in
-`tests.compd.plan_linuxcnc_run`.
+`tests.compd.offline.plan.plan_linuxcnc_run`.
 
 Peer, same run: the same plan played on the same plant without LinuxCNC or
 the daemon (the schedule as the plant's own spindle program, recorded
@@ -54,7 +54,7 @@ from drivers.sim.linuxcnc_machine import (  # noqa: E402
 )
 from drivers.sim.offline import record_program  # noqa: E402
 from drivers.sim.programs import Program  # noqa: E402
-from tests.compd.plan_linuxcnc_run import (  # noqa: E402
+from tests.compd.offline.plan.plan_linuxcnc_run import (  # noqa: E402
     PERIOD_S,
     SPEEDS,
     fit_and_replay,

@@ -34,7 +34,7 @@ from compd.runtime.recorder import Recorder, RecordRow
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from tests.compd.recorder_layouts import write_previous  # noqa: E402
+from tests.compd.store.recorder_layouts import write_previous  # noqa: E402
 
 CHANNELS = ("bearing", "motor", "column", "ambient", "spindle_rpm")
 TERMS = ("spindle", "motor", "column", "ambient")

@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from drivers.sim.modbus_server import ModbusSimController  # noqa: E402
-from tests.compd.daemon_helpers import write_config  # noqa: E402
+from tests.configs import write_config  # noqa: E402
 
 
 async def _heartbeat(sim: ModbusSimController) -> float:

@@ -1,5 +1,9 @@
 """Project-wide test rules: warnings are errors (pyproject), and an async test
-that leaves asyncio tasks behind fails."""
+that leaves asyncio tasks behind fails. And `listener`, a socket on 127.0.0.1
+that listens and must never see a connection (the endpoint of configs that
+must be refused before anything connects), and `rec`, a simulated Modbus
+controller on 127.0.0.1 that records every offset the daemon writes
+(`tests.faults.daemon_run.RecordingSim`)."""
 
 from __future__ import annotations
 
@@ -7,11 +11,15 @@ import asyncio
 import functools
 import inspect
 import os
-from collections.abc import Callable, Coroutine
-from typing import Any
+import socket
+from collections.abc import AsyncIterator, Callable, Coroutine, Iterator
+from typing import TYPE_CHECKING, Any
 
 import pytest
 from hypothesis import settings
+
+if TYPE_CHECKING:
+    from tests.faults.daemon_run import RecordingSim
 
 # Property tests search the same examples on every run (a fixed seed per test):
 # a new counterexample is found when a test or its code changes, not at random
@@ -42,3 +50,31 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
         if obj is not None and inspect.iscoroutinefunction(obj) and not getattr(
                 item.get_closest_marker("allow_leaked_tasks"), "name", None):
             item.obj = _guard(obj)  # type: ignore[attr-defined]
+
+
+@pytest.fixture(scope="module")
+def listener() -> Iterator[socket.socket]:
+    """A socket on a free 127.0.0.1 port that listens and must never see a connection
+    (non-blocking: `accept()` raising BlockingIOError says nobody came)."""
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    sock.listen(16)
+    sock.setblocking(False)
+    try:
+        yield sock
+    finally:
+        sock.close()
+
+
+@pytest.fixture
+async def rec() -> AsyncIterator[RecordingSim]:
+    """A simulated Modbus controller (bearing and ambient at 20 °C) that records
+    every offset written to it, stopped after the test."""
+    from tests.faults.daemon_run import RecordingSim
+
+    r = RecordingSim()
+    await r.start()
+    try:
+        yield r
+    finally:
+        await r.stop()

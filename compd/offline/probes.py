@@ -11,7 +11,7 @@ runs it (one period at the first row). At each row the adapted prediction uses
 the correction known BEFORE that row's probe: the probe is the row's own
 measurement, so it changes the correction of the rows after it; the daemon,
 whose probe is a measuring cycle read later, applies it in the cycle that
-reads it (tests/compd/test_probe_replay_stage.py holds the two together).
+reads it (tests/compd/offline/test_probe_replay_stage.py holds the two together).
 
 Beside it, in the same run, the crude correction a textbook would start from:
 the residual measured at each probe (probe - model) held until the next one.

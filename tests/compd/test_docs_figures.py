@@ -1,5 +1,5 @@
 """Figures quoted in README.md and docs/ are the ones the quoted commands
-print (issue 21, docs drift): checked here where it is cheap.
+print (the docs do not drift): checked here where it is cheap.
 
 - calibration.md §3: `compd replay sim_machine spectrum.csv --column dz_um`
   (the recipe's spectrum record, seed 7) prints the fit % and range reduction
@@ -8,7 +8,7 @@ print (issue 21, docs drift): checked here where it is cheap.
   are the lockstep run's (`test_e2e_protocols`, deterministic).
 - protocols.md's status table: the value the pure cycle sends when it finds
   a foreign offset in the controller.
-- adaptation.md speaks to users, not of the issue that asked for it.
+- adaptation.md speaks to users, not of the request that asked for it.
 """
 
 from __future__ import annotations
@@ -22,9 +22,9 @@ import pytest
 from compd.cli import main
 from compd.core.output import Status
 from tests.compd.conftest import RecipePlant
-from tests.compd.cycle_helpers import samples
-from tests.compd.test_cycle_foreign import _heated
-from tests.compd.test_e2e_protocols import RANGE_REDUCTION
+from tests.compd.core.cycle_helpers import samples
+from tests.compd.core.test_cycle_foreign import _heated
+from tests.compd.runtime.test_e2e_protocols import RANGE_REDUCTION
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / "docs"

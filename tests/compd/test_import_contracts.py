@@ -1,5 +1,5 @@
-"""Every module of compd is placed by the import contracts (issue 22: seven
-modules sat outside them, so nothing stopped them importing anything)."""
+"""Every module of compd is placed by the import contracts (a module outside
+them could import anything)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """`SteppedClock.due`: how many sleepers a move of the clock wakes (what
-`tests.lockstep.Fleetstep` waits for when several daemons share one clock)."""
+`tests.harness.Fleetstep` waits for when several daemons share one clock)."""
 
 from __future__ import annotations
 

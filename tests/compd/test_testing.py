@@ -15,8 +15,7 @@ from compd.runtime.sdnotify import Notifier
 from compd.testing import FakeClock, MemoryDriver, RecordingDriver
 from drivers.base import Driver, Quality
 from drivers.errors import BadAddress, ConnectionLost, ControllerTimeout
-
-from .daemon_helpers import write_config
+from tests.configs import write_config
 
 OUTPUTS = ("offset", "heartbeat", "status")
 

@@ -79,7 +79,7 @@ def test_dashboard_parses_and_uses_only_exported_metrics() -> None:
     exprs = dashboard_exprs(dashboard)
     used = {name for e in exprs for name in _NAME.findall(e)}
     assert used - exported_names() == set()
-    # what the issue asks of it, one row per machine through the `machine` variable
+    # what the dashboard is for: one row per machine through the `machine` variable
     variables = {v["name"]: v for v in dashboard["templating"]["list"]}
     assert variables["machine"]["multi"] and variables["machine"]["includeAll"]
     rows = [p for p in dashboard["panels"] if p["type"] == "row"]

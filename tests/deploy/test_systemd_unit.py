@@ -1,5 +1,5 @@
 """deploy/systemd/compd.service: systemd's own analyser accepts and scores it,
-it says what the issue asks, and compd still works inside its system call
+it holds the sandbox the design asks for, and compd still works inside its system call
 filter (applied here with libseccomp, since this machine runs no systemd)."""
 
 from __future__ import annotations
@@ -100,7 +100,7 @@ def test_service_type_watchdog_and_restart_policy(service: dict[str, list[str]])
     # a bad config exits EX_CONFIG and must not restart-loop
     assert str(EX_CONFIG) in _one(service, "RestartPreventExitStatus").split()
     assert _one(service, "ExecStart") == "/usr/local/bin/compd run /etc/compd/compd.toml"
-    # systemctl reload: SIGHUP, which compd serves as a reload (tests/compd/test_reload.py)
+    # systemctl reload: SIGHUP, which compd serves as a reload (tests/compd/runtime/test_reload.py)
     assert _one(service, "ExecReload") == "/bin/kill -HUP $MAINPID"
 
 

@@ -1,5 +1,5 @@
 """`drivers.endpoint`: the one check of a controller endpoint that the config,
-the drivers and ``compd sim --drive`` share (issue 24 items 2 and 9): every
+the drivers and ``compd sim --drive`` share: every
 form accepted or refused with its reason, a userinfo found however the
 password is written and never shown."""
 

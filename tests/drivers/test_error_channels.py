@@ -1,4 +1,4 @@
-"""Driver errors name their channels as a tuple (issue 22 item 8): a string is
+"""Driver errors name their channels as a tuple: a string is
 one name, never split; a combined request names each of its channels."""
 
 from __future__ import annotations

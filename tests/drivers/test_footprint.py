@@ -49,7 +49,7 @@ def overlaps(a: Address, b: Address) -> bool:
 
 @pytest.mark.parametrize(("a", "b", "expected"), [
     # Modbus: registers by the type's width, per unit and table
-    (mb(0), mb(1, "uint16"), True),            # float32 0-1 and register 1: the case
+    (mb(0), mb(1, "uint16"), True),            # float32 0-1 and register 1: an overlap
     (mb(0), mb(2, "uint16"), False),           # edge-adjacent: 0-1 and 2
     (mb(1, "int32"), mb(0, "int16"), False),   # 1-2 and 0
     (mb(1, "int32"), mb(2, "int16"), True),

@@ -1,7 +1,7 @@
 """The in-process daemon against a simulated controller, for the fault tests.
 
-`DaemonRig` builds a daemon config for the sim (`compd.offline.demo.daemon_config`,
-then the test's overrides), wraps the real driver in `InvariantDriver` (every
+`DaemonRig` takes a daemon config for the sim (`tests.configs.make_config`: the
+sim's own addresses, then the test's overrides), wraps the real driver in `InvariantDriver` (every
 write checked) and runs `Daemon.run()` as a task at a fast time scale. The
 test's plant callback runs before every read with the read's index and the
 machine time of that sample (estimated from the daemon's last cycle), and
@@ -18,58 +18,18 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Awaitable, Callable
-from pathlib import Path
 from typing import Any
 
-from compd.config.loader import LoadedConfig, parse_config
-from compd.offline.demo import daemon_config
+from compd.config.loader import LoadedConfig
 from compd.runtime.daemon import Daemon
 from compd.runtime.driver_setup import build_driver
 from compd.runtime.sdnotify import Notifier
 from compd.testing import SteppedClock
 from drivers.sim.base import SimController
 from tests.faults.invariants import InvariantDriver, Invariants
+from tests.harness import EventLog, pace, until
 
 Plant = Callable[[int, float], Awaitable[None]]
-
-
-class EventLog:
-    """Stands in for the daemon's structlog logger: keeps (level, event, fields)."""
-
-    def __init__(self) -> None:
-        self.events: list[tuple[str, str, dict[str, Any]]] = []
-
-    def _at(self, level: str) -> Callable[..., None]:
-        def log(event: str, **fields: Any) -> None:
-            if level != "debug":
-                self.events.append((level, event, fields))
-        return log
-
-    def __getattr__(self, level: str) -> Callable[..., None]:
-        return self._at(level)
-
-    def names(self) -> list[str]:
-        return [e for _, e, _ in self.events]
-
-
-def merge(doc: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
-    for key, value in overrides.items():
-        if isinstance(value, dict) and isinstance(doc.get(key), dict):
-            merge(doc[key], value)
-        else:
-            doc[key] = value
-    return doc
-
-
-def make_config(sim: SimController, tmp_path: Path, *, time_scale: float,
-                overrides: dict[str, Any] | None = None, model: str = "sp2",
-                slew_um_s: float = 1.0, limit_um: float = 100.0) -> LoadedConfig:
-    doc = daemon_config(sim, model=model, period_s=1.0, time_scale=time_scale,
-                        state_dir=tmp_path / "state", limit_um=limit_um,
-                        slew_um_s=slew_um_s, extra_channels=())
-    doc["recorder"] = {"enabled": False}
-    merge(doc, overrides or {})
-    return parse_config(doc, tmp_path / "compd.toml")
 
 
 class DaemonRig:
@@ -108,16 +68,6 @@ class DaemonRig:
         if self.plant is not None:
             await self.plant(index, self.machine_s)
 
-    async def _pace(self, clock: SteppedClock, goal: Callable[[], bool]) -> None:
-        """Each time the daemon sleeps, move the clock to its next deadline, until
-        `goal` holds after a cycle: then the clock stays, and so does the daemon (a
-        condition on the cycles is met at that cycle, however late the test looks)."""
-        while True:
-            await clock.cycle_done(clock.ticks + 1)
-            if goal():
-                return
-            clock.tick()
-
     async def start(self) -> None:
         self._task = asyncio.create_task(self.daemon.run())
 
@@ -128,7 +78,7 @@ class DaemonRig:
         loop = asyncio.get_running_loop()
         end = loop.time() + limit_s
         if self.clock is not None and self._task is not None and not predicate():
-            pacer = self._pacer = asyncio.create_task(self._pace(self.clock, predicate))
+            pacer = self._pacer = asyncio.create_task(pace(self.clock, predicate))
             done, _ = await asyncio.wait({pacer, self._task}, timeout=limit_s,
                                          return_when=asyncio.FIRST_COMPLETED)
             if self._task in done:
@@ -139,14 +89,8 @@ class DaemonRig:
                                      f"({self.daemon.cycles} cycles)")
             pacer.result()
             return
-        while not predicate():
-            if self._task is not None and self._task.done():
-                self._task.result()  # raises what the daemon raised
-                raise AssertionError("the daemon stopped before the condition")
-            if loop.time() > end:
-                raise AssertionError(f"condition not reached in {limit_s} s "
-                                     f"({self.daemon.cycles} cycles)")
-            await asyncio.sleep(0.002)
+        await until(predicate, what=f"condition ({self.daemon.cycles} cycles)",
+                    limit_s=max(0.0, end - loop.time()), task=self._task, every_s=0.002)
 
     async def stop(self) -> int:
         if self._task is None:

@@ -9,7 +9,6 @@ import itertools
 import os
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -64,28 +63,6 @@ async def start_daemon(config: Path, stderr_path: Path) -> asyncio.subprocess.Pr
             sys.executable, "-m", "compd", "run", str(config),
             stdin=asyncio.subprocess.DEVNULL, stdout=f, stderr=f, env=daemon_env(),
             cwd=str(ROOT))
-
-
-async def until(predicate: Callable[[], Any], proc: asyncio.subprocess.Process, log: Path,
-                what: str, limit_s: float = 120.0) -> None:
-    """Poll `predicate` (sync or async) until true; fail with the log when the
-    daemon exits or the limit passes."""
-    deadline = time.monotonic() + limit_s
-    while time.monotonic() < deadline:
-        got = predicate()
-        if asyncio.iscoroutine(got):
-            got = await got
-        if got:
-            return
-        if proc.returncode is not None:
-            break
-        await asyncio.sleep(0.005)
-    text = await asyncio.to_thread(tail, log)
-    raise AssertionError(f"{what}: never happened (daemon rc {proc.returncode}); log:\n{text}")
-
-
-def tail(log: Path, chars: int = 4000) -> str:
-    return log.read_text(errors="replace")[-chars:] if log.exists() else ""
 
 
 async def heartbeat(sim: ModbusSimController) -> float:

@@ -1,4 +1,4 @@
-"""The invariants every fault test checks on EVERY cycle (issue 7).
+"""The invariants every fault test checks on EVERY cycle.
 
 - the written offset is finite and |u| ≤ Umax, or, beyond a limit lowered
   since compd wrote what the controller holds (a reload), nearer to it than

@@ -15,7 +15,6 @@ from __future__ import annotations
 import socket
 import subprocess
 import sys
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,8 +23,7 @@ import pytest
 from compd.cli import main
 from compd.config.loader import load_config
 from compd.errors import EX_CONFIG, ConfigError
-
-from .daemon_run import ROOT, daemon_env, forget_daemon_logging
+from tests.faults.daemon_run import ROOT, daemon_env, forget_daemon_logging
 
 MODBUS = """
 [machine]
@@ -450,19 +448,6 @@ CASES: list[Case] = [
        '[[model.terms]]\nname = "t"\ninputs = { spindle_nose = 1.0 }\na = ["0.5"]\n'
        'b = ["1", "-0.5"]', "model.terms", "spindle_nose"),
 ]
-
-
-@pytest.fixture(scope="module")
-def listener() -> Iterator[socket.socket]:
-    """The configs' endpoint: a socket that listens and must never see a connection."""
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    sock.listen(16)
-    sock.setblocking(False)
-    try:
-        yield sock
-    finally:
-        sock.close()
 
 
 def _no_connection(sock: socket.socket) -> None:

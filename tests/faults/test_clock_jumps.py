@@ -1,4 +1,4 @@
-"""Wall-clock jumps of ±1 h (issue 7): the daemon runs in-process against a
+"""Wall-clock jumps of ±1 h: the daemon runs in-process against a
 simulated controller and the wall clock jumps by ±3600 s mid-run, for the
 whole process: the daemon's own wall clock (given to it, as its default
 `time.time` is bound when the module loads) and `time.time` for the drivers
@@ -29,7 +29,8 @@ from compd.core.plan import Row
 from compd.core.validation import ChannelLimits, Validator
 from drivers.base import Sample
 from drivers.sim.registry import make_sim_controller
-from tests.faults.daemon_rig import DaemonRig, make_config
+from tests.configs import make_config
+from tests.faults.daemon_rig import DaemonRig
 from tests.faults.invariants import Invariants, invariants
 
 __all__ = ["invariants"]  # the autouse fixture, imported to be active here

@@ -1,10 +1,10 @@
-"""Issue 24 item 5, through the wire: the offset in an int16 holding register
+"""A coarse offset encoding, through the wire: the offset in an int16 holding register
 at scale 10 (1 count = 10 µm) of the simulated Modbus controller, the
 in-process daemon on the fake clock (one machine second a cycle, exactly)
 and the sp2 model on a bearing that drifts slowly up and back down, read
-through its 0.1 K register with sensor noise. On main the register went
-1→2→1→2 on consecutive cycles; now a count is written only when the model
-is a whole count from the one in force.
+through its 0.1 K register with sensor noise. A count is written only when
+the model is a whole count from the one in force, so the register never
+goes 1→2→1→2 on consecutive cycles.
 
 Figures (printed): the largest step at the tool (one count, 10 µm), how
 often the register changed, how often it turned straight back, and the
@@ -27,8 +27,9 @@ from compd.runtime.sdnotify import Notifier
 from compd.testing import FakeClock
 from drivers.base import Driver
 from drivers.sim.modbus_server import UNIT, ModbusSimController
+from tests.configs import make_config
 from tests.faults.clocked_driver import ClockedDriver
-from tests.faults.daemon_rig import EventLog, make_config
+from tests.harness import EventLog
 
 COUNT_UM = 10.0
 ADDRESS = 20

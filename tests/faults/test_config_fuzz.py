@@ -3,8 +3,8 @@ mutations of a valid config per protocol (drop, replace, retype keys, add
 unknown ones, random TOML values), random bytes and text as a config file,
 and random inline model terms. Whatever comes in, `parse_config` /
 `load_config` either accept it or raise the project's `ConfigError`, never
-another exception, and each example takes under 1 s (a robustness bound
-the issue sets, measured per example)."""
+another exception, and each example takes under 1 s (a robustness
+bound, measured per example)."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ from compd.errors import ConfigError
 
 from .test_bad_configs import BASES
 
-#: the issue's bound for one config or model table
+#: the bound for one config or model table
 PER_EXAMPLE_S = 1.0
 SETTINGS = settings(max_examples=int(os.environ.get("COMPD_FUZZ_EXAMPLES", "150")),
                     deadline=None, derandomize=os.environ.get("COMPD_FUZZ_EXAMPLES") is None,

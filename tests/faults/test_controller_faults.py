@@ -1,4 +1,4 @@
-"""Controller faults (issue 7), through the wire against simulated controllers:
+"""Controller faults, through the wire against simulated controllers:
 
 - a controller restart that forgets the offset (the sim zeroes its outputs):
   the daemon notices by read-back and ramps back from 0 at the slew limit,
@@ -26,7 +26,8 @@ from compd.core.output import Status
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.opcua_server import node_id
 from drivers.sim.registry import make_sim_controller
-from tests.faults.daemon_rig import DaemonRig, make_config
+from tests.configs import make_config
+from tests.faults.daemon_rig import DaemonRig
 from tests.faults.invariants import Invariants, invariants
 
 __all__ = ["invariants"]  # the autouse fixture, imported to be active here

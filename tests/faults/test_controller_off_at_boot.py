@@ -1,8 +1,8 @@
 """A controller that is off when the shop PC boots (systemd ``Type=notify``).
 
-READY=1 used to wait for a read that answered: with the controller off the
-daemon never said READY and systemd's start timeout killed it, over and
-over. Now READY follows the loop's first cycle: the daemon is up and
+READY=1 follows the loop's first cycle, not a read that answered (with the
+controller off, systemd's start timeout would kill the daemon over and over):
+the daemon is up and
 retrying, the watchdog is fed, nothing is written, health (the cycle's cause,
 the STATUS= line) says why nothing is in force, and compensation starts on the
 first cycle the controller answers. Every cycle passes the output invariants;
@@ -15,24 +15,13 @@ from __future__ import annotations
 from pathlib import Path
 
 from compd.core.health import Cause
-from compd.runtime.sdnotify import Notifier
 from drivers.sim.modbus_server import ModbusSimController
-from tests.faults.daemon_rig import DaemonRig, make_config
+from tests.configs import make_config
+from tests.faults.daemon_rig import DaemonRig
 from tests.faults.invariants import Invariants, invariants
+from tests.harness import Notes
 
 __all__ = ["invariants"]  # the autouse fixture, imported to be active here
-
-
-class _Notes(Notifier):
-    """Keeps what it would send to systemd."""
-
-    def __init__(self) -> None:
-        super().__init__(None)
-        self.messages: list[str] = []
-
-    def notify(self, message: str) -> bool:
-        self.messages.append(message)
-        return True
 
 
 async def test_ready_while_the_controller_is_off_then_compensates(
@@ -40,7 +29,7 @@ async def test_ready_while_the_controller_is_off_then_compensates(
     sim = ModbusSimController()  # its port chosen, nobody listening yet: the machine is off
     cfg = make_config(sim, tmp_path, time_scale=1.0, slew_um_s=4.0)
     rig = DaemonRig(sim, cfg, invariants, stepped=True)
-    notes = _Notes()
+    notes = Notes()
     rig.daemon.telemetry.notifier = notes
     await rig.start()
     try:

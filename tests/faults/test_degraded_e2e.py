@@ -31,7 +31,8 @@ from compd.core.output import Status
 from compd.core.plan import Row
 from drivers.sim.modbus_server import CHANNELS, ModbusSimController
 from drivers.sim.ports import free_tcp_port
-from tests.faults.daemon_rig import DaemonRig, make_config
+from tests.configs import make_config
+from tests.faults.daemon_rig import DaemonRig
 from tests.faults.invariants import Invariants, invariants
 
 __all__ = ["invariants"]  # the autouse fixture, imported to be active here

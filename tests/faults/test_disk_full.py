@@ -18,10 +18,10 @@ import pytest
 
 from compd.runtime.recorder import read_samples
 from drivers.sim.ports import free_tcp_port
-from tests.compd.daemon_helpers import write_config
+from tests.configs import write_config
+from tests.faults.daemon_run import RecordingSim, heartbeat, kill_and_wait, start_daemon
+from tests.harness import tail, until
 from tests.tmpfs import fill, small_tmpfs
-
-from .daemon_run import RecordingSim, heartbeat, kill_and_wait, start_daemon, tail, until
 
 
 @pytest.fixture

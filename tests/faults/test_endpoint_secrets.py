@@ -1,5 +1,5 @@
-"""Issue 24 item 2: a password written raw in the endpoint URL, with "/", "?",
-"#", "@", ":" or "%" in it (which hid it from urlsplit), is refused by
+"""A password written raw in the endpoint URL, with "/", "?", "#", "@", ":" or
+"%" in it (which would hide it from urlsplit), is refused by
 ``compd check`` (text and --json), ``compd run`` and ``compd sim --drive``
 and never printed; a running daemon told to reload such a config logs
 ``reload_failed`` without it and keeps its old endpoint.
@@ -28,9 +28,9 @@ from compd.cli import main
 from compd.sysexits import EX_CONFIG, EX_USAGE
 from drivers.protocols import PROTOCOLS
 from drivers.sim.ports import free_tcp_port
+from tests.configs import Toml, write_config
+from tests.faults.daemon_run import ROOT, daemon_env, forget_daemon_logging
 
-from ..compd.daemon_helpers import write_config
-from .daemon_run import ROOT, daemon_env, forget_daemon_logging
 from .test_bad_configs import BASES
 
 MARKS = ("Qx7", "Zk9")
@@ -57,27 +57,11 @@ def workdir() -> Iterator[Path]:
         yield Path(d)
 
 
-@pytest.fixture(scope="module")
-def listener() -> Iterator[socket.socket]:
-    """Where every endpoint points: it listens and must never see a connection."""
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    sock.listen(16)
-    sock.setblocking(False)
-    try:
-        yield sock
-    finally:
-        sock.close()
-
-
 def _config(workdir: Path, protocol: str, endpoint: str) -> Path:
     """The protocol's base config (tests/faults/test_bad_configs) with `endpoint`
     (a TOML basic string takes JSON's escapes for ASCII text)."""
-    lines = [f"endpoint = {json.dumps(endpoint)}" if ln.startswith("endpoint = ") else ln
-             for ln in BASES[protocol].splitlines()]
-    path = workdir / f"{protocol}.toml"
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return path
+    return write_config(workdir, Toml(json.dumps(endpoint)), base=BASES[protocol],
+                        filename=f"{protocol}.toml")
 
 
 def _assert_hidden(text: str, what: object) -> None:

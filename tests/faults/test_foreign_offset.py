@@ -1,11 +1,12 @@
 """A second Modbus client writes into the offset register while `compd run`
-is compensating (issue 10, item 1).
+is compensating: an alarm, and never a step at the tool.
 
 1000.0 (limit 100 µm) is beyond anything compd may write: the daemon raises
 the alarm and writes no offset at all (heartbeat and status go on, the
 status word says OFFSET_HELD + ALARM) while the register holds it; once a
 client clears the register to 0 the daemon ramps from 0 at the slew limit.
-On main, the next cycle wrote 99 µm: a step of 901 µm at the tool.
+Writing the clamped 99 µm on the next cycle would be a step of 901 µm at
+the tool.
 """
 
 from __future__ import annotations
@@ -20,9 +21,9 @@ from pymodbus.client import AsyncModbusTcpClient
 from compd.core.output import Status
 from drivers.modbus_codec import encode
 from drivers.sim.modbus_server import OUTPUTS, UNIT
-from tests.compd.daemon_helpers import write_config
-
-from .daemon_run import RecordingSim, heartbeat, kill_and_wait, start_daemon, tail, until
+from tests.configs import write_config
+from tests.faults.daemon_run import RecordingSim, heartbeat, kill_and_wait, start_daemon
+from tests.harness import tail, until
 
 SLEW_UM_S = 2.0
 PERIOD_S = 1.0

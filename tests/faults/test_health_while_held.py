@@ -1,8 +1,7 @@
-"""A foreign offset of 1000.0 µm makes the daemon hold its output (issue 24,
-item 3): every source of health must then say unhealthy, together. On main
-the metrics said fault state 3 (`health --url` red) while `health --state-dir`
-(the container's HEALTHCHECK) said "healthy: last complete cycle 2 s ago" and
-the recorder kept counting the held cycles as complete.
+"""A foreign offset of 1000.0 µm makes the daemon hold its output: every source
+of health must then say unhealthy, together: the metrics (fault state 3,
+`health --url` red), `health --state-dir` (the container's HEALTHCHECK) and the
+recorder, which counts no held cycle as complete.
 
 A complete cycle is one whose offset is the one compd wants, in force
 (`compd.core.cycle.offset_in_force`); the daemon writes a checkpoint as soon
@@ -19,17 +18,17 @@ from pathlib import Path
 
 from compd.core.output import Status
 from drivers.sim.ports import free_tcp_port
-from tests.compd.daemon_helpers import write_config
-
-from .daemon_run import (
+from tests.configs import write_config
+from tests.faults.daemon_run import (
     ROOT,
     RecordingSim,
     daemon_env,
     heartbeat,
     kill_and_wait,
     start_daemon,
-    until,
 )
+from tests.harness import until
+
 from .test_foreign_offset import _foreign_write, _status, _write_until_held
 
 

@@ -36,9 +36,9 @@ import pytest
 
 from compd.runtime.checkpoint import load_checkpoint
 from compd.runtime.recorder import read_samples
-from tests.compd.daemon_helpers import write_config
-
-from .daemon_run import RecordingSim, heartbeat, kill_and_wait, start_daemon, tail, until
+from tests.configs import write_config
+from tests.faults.daemon_run import RecordingSim, heartbeat, kill_and_wait, start_daemon
+from tests.harness import tail, until
 
 SLEW_UM_S = 1.0
 PERIOD_S = 1.0
@@ -84,7 +84,7 @@ async def _kill9_runs(rec: RecordingSim, tmp_path: Path, count: int, seed: int) 
         try:
             if i % 2:  # half the kills land after the first write, half anywhere
                 n = len(rec.writes)
-                await until(lambda n=n: len(rec.writes) > n, proc, log,  # type: ignore[misc]
+                await until(lambda n=n: len(rec.writes) > n, proc, log,
                             f"run {i} writing")
             await asyncio.sleep(rng.uniform(0.0, 0.5))
         finally:

@@ -24,7 +24,8 @@ from typing import Any
 from compd.cli import main as cli
 from compd.core.health import Cause
 from drivers.sim.modbus_server import PLC, ModbusSimController
-from tests.faults.daemon_rig import DaemonRig, make_config
+from tests.configs import make_config
+from tests.faults.daemon_rig import DaemonRig
 from tests.faults.invariants import Invariants, invariants
 
 __all__ = ["invariants"]  # the autouse fixture, imported to be active here

@@ -1,4 +1,4 @@
-"""Issue 20 item 3, through the wire: a model worse than none is caught by the probes.
+"""Through the wire: a model worse than none is caught by the probes.
 
 The simulated Modbus controller, the in-process daemon on the fake clock (one
 machine second a cycle, exactly), a bearing that warms the machine, and a model
@@ -45,8 +45,9 @@ from drivers.base import Driver
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
 from models.adaptation import AdaptationParams
+from tests.configs import make_config
 from tests.faults.clocked_driver import ClockedDriver
-from tests.faults.daemon_rig import EventLog, make_config
+from tests.harness import EventLog
 from tests.shipped import LIBRARY
 
 SLEW_UM_S = 1.0

@@ -1,5 +1,5 @@
 """A reload that changes where or how far the offset may go, end to end: the
-daemon in lockstep (`tests.lockstep`, the fake clock) against the real
+daemon in lockstep (`tests.harness`, the fake clock) against the real
 simulated controller servers on 127.0.0.1, the invariants (`invariants`:
 never a step faster than the slew limit from what the controller holds)
 checked on every cycle.
@@ -27,7 +27,8 @@ from drivers.sim.base import SimController
 from drivers.sim.machine import SimMachine
 from drivers.sim.programs import constant
 from drivers.sim.registry import make_sim_controller
-from tests.lockstep import Lockstep, lockstep_config, write_config
+from tests.configs import lockstep_config, write_doc
+from tests.harness import Lockstep
 
 PERIOD_S = 1.0
 SLEW_UM_S = 0.5
@@ -57,7 +58,7 @@ class Rig:
         """Write the config with `output` changed, SIGHUP, and run one period (the
         prepared reload, if any, is swapped in before that period's cycle)."""
         self.doc["output"].update(output)
-        write_config(self.doc, self.lockstep.config_path)
+        write_doc(self.doc, self.lockstep.config_path)
         daemon = self.lockstep.daemon
         assert daemon is not None
         daemon.request_reload()
@@ -77,7 +78,7 @@ async def _rig(protocol: str, tmp_path: Path) -> AsyncIterator[Rig]:
     doc = lockstep_config(sim, tmp_path, model="sp2", period_s=PERIOD_S, limit_um=LIMIT_UM,
                           slew_um_s=SLEW_UM_S)
     doc["faces"] = {"http": {"enabled": True}}  # the status page's snapshot, not served
-    lockstep = Lockstep(machine, write_config(doc, tmp_path / "compd.toml"))
+    lockstep = Lockstep(machine, write_doc(doc, tmp_path / "compd.toml"))
     try:
         yield Rig(lockstep, doc)
     finally:
@@ -190,7 +191,7 @@ async def test_a_restart_with_a_lowered_limit_ramps_the_register_into_it(
     before = await _warm_to(rig, monkeypatch, WRITTEN_UM)
     assert await rig.lockstep.stop() == 0  # shutdown "hold": the register keeps it
     rig.doc["output"]["limit_um"] = LOWERED_UM
-    write_config(rig.doc, rig.lockstep.config_path)
+    write_doc(rig.doc, rig.lockstep.config_path)
     await rig.lockstep.start()  # its first cycle (READY) already ramps
     offsets = [before, (await rig.outputs())["offset"]]
     for _ in range(8):

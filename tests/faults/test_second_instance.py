@@ -18,9 +18,8 @@ import pytest
 from compd.cli import main
 from compd.runtime.checkpoint import load_checkpoint
 from compd.sysexits import EX_TEMPFAIL
-from tests.compd.daemon_helpers import write_config
-
-from .daemon_run import (
+from tests.configs import write_config
+from tests.faults.daemon_run import (
     ROOT,
     RecordingSim,
     daemon_env,
@@ -28,8 +27,8 @@ from .daemon_run import (
     heartbeat,
     kill_and_wait,
     start_daemon,
-    until,
 )
+from tests.harness import until
 
 #: far beyond a start-up on a busy machine; a second instance that queued for
 #: the lock would still be waiting (the first daemon runs until the test ends)

@@ -32,10 +32,11 @@ import pytest
 from drivers.sim.opcua_server import OpcUaSimController, OpcUaSimSecurity
 from drivers.sim.ports import free_tcp_port
 from models import tomltext
-from tests.compd.daemon_helpers import write_config
+from tests.configs import write_config
+from tests.faults.daemon_run import ROOT, RecordingSim, daemon_env, heartbeat, kill_and_wait
+from tests.harness import tail, until
 from tests.pki import Pki, server_and_client
 
-from .daemon_run import ROOT, RecordingSim, daemon_env, heartbeat, kill_and_wait, tail, until
 from .test_disk_full import _metrics
 
 USER = "operator"

@@ -1,4 +1,4 @@
-"""Sensor faults (issue 7): open / shorted Pt100, a Bad OPC UA status, a
+"""Sensor faults: open / shorted Pt100, a Bad OPC UA status, a
 stuck sensor, a one-sample spike. Each figure is measured on the pure cycle
 with a fake clock (exact) and through the wire: the in-process daemon against
 a simulated controller whose memory holds the fault (Modbus, S7, OPC UA), on
@@ -27,8 +27,9 @@ from compd.testing import FakeClock
 from drivers.base import Quality, Sample
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.registry import make_sim_controller
-from tests.compd.cycle_helpers import params, samples, sp2
-from tests.faults.daemon_rig import DaemonRig, make_config
+from tests.compd.core.cycle_helpers import params, samples, sp2
+from tests.configs import make_config
+from tests.faults.daemon_rig import DaemonRig
 from tests.faults.invariants import CycleLog, Invariants, invariants, run_pure
 
 __all__ = ["invariants"]  # the autouse fixture, imported to be active here

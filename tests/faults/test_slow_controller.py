@@ -2,7 +2,7 @@
 
 Each driver talks to its simulated controller through `FaultProxy` on
 127.0.0.1, which adds latency, blackholes, resets (RST) or cuts a connection
-after k bytes. What must hold (issue 7):
+after k bytes. What must hold:
 
 - a request fails with `ControllerTimeout` (or another `DriverError`) within
   its timeout, timeout_s = 0.5·Ts: bounded here by `asyncio.wait_for(timeout
@@ -61,7 +61,7 @@ T = TypeVar("T")
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 
 PROTOCOLS = ("opcua", "modbus", "s7")
-#: sample period and request timeout (timeout = 0.5·Ts, as the issue allows at most)
+#: sample period and request timeout (timeout = 0.5·Ts, the most a request may take)
 TS_S = 0.4
 TIMEOUT_S = 0.5 * TS_S
 #: scheduling slack on a loaded 2-core machine: the bound is timeout + this

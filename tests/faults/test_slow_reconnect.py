@@ -35,7 +35,8 @@ import pytest
 
 from compd.core.output import Status
 from drivers.sim.registry import make_sim_controller
-from tests.faults.daemon_rig import DaemonRig, make_config
+from tests.configs import make_config
+from tests.faults.daemon_rig import DaemonRig
 from tests.faults.frames import FRAME_LENGTH
 from tests.faults.invariants import Invariants, invariants
 from tests.faults.proxy import FaultProxy

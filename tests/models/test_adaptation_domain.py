@@ -1,4 +1,4 @@
-"""The estimator's numerical domain (issue 24 item 1): no OverflowError or ValueError
+"""The estimator's numerical domain: no OverflowError or ValueError
 comes out of `update`, `refuse` or a restore for any finite input, and a setting
 beyond the domain is refused by name, never with an OverflowError later."""
 
@@ -110,8 +110,8 @@ def test_a_restore_from_any_finite_state_is_an_estimator_or_a_named_refusal(
     ("max_step_um", 1e300), ("initial_bias_sigma_um", 1e200), ("probe_noise_um", 1e-300),
 ])
 def test_a_setting_beyond_the_domain_is_refused_by_name(name: str, value: float) -> None:
-    """On main these passed and the estimator raised OverflowError (at its start, or at
-    the first probe)."""
+    """Refused by name where the estimator would raise OverflowError (at its start,
+    or at the first probe)."""
     settings: dict[str, Any] = {name: value, "gains": True}
     with pytest.raises(ValueError, match=f"^{name}: must be"):
         AdaptationParams(**settings)

@@ -1,4 +1,4 @@
-"""Issue 20 item 4: refusals that agree in direction re-acquire (models.adaptation)."""
+"""Refusals that agree in direction re-acquire (models.adaptation)."""
 
 from __future__ import annotations
 

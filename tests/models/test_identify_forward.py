@@ -1,4 +1,4 @@
-"""Issue 19 (b): selection by what comes next, never a model its own
+"""Selection by what comes next, never a model its own
 diagnostics reject, and a model for every channel (a first-order or static
 fallback, the failures said). On the real record (tests/data/fl_thermal),
 short: one channel, a few inputs, low orders."""

@@ -9,7 +9,7 @@ import pytest
 
 from models.errors import ModelError
 from models.modelfile import dumps_model, model_document, parse_model
-from tests.compd.fallback_helpers import SP2_WITH_FALLBACKS, sp2_with_fallbacks
+from tests.compd.core.fallback_helpers import SP2_WITH_FALLBACKS, sp2_with_fallbacks
 
 
 def test_fallbacks_read_and_round_trip() -> None:

@@ -1,4 +1,4 @@
-"""Bounded TOML and JSON nesting (issue 24 item 9): a file nested hundreds of
+"""Bounded TOML and JSON nesting: a file nested hundreds of
 levels deep is one NestingError, never a RecursionError; brackets inside
 strings and comments do not count; real files are read as tomllib reads them."""
 
@@ -26,7 +26,7 @@ from models.nesting import (
 from tests.shipped import EXAMPLES, LIBRARY
 
 ROOT = Path(__file__).resolve().parents[2]
-DEEP = 900  # the issue's file: tomllib and json recurse past Python's limit
+DEEP = 900  # deep enough that tomllib and json recurse past Python's limit
 
 
 @pytest.mark.parametrize("text", [

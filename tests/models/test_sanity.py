@@ -1,5 +1,5 @@
-"""Physically absurd models are refused (issue 10, item 8 and the model
-content of the bad-input list)."""
+"""Physically absurd models are refused (and the model content of the
+bad-input list)."""
 
 from __future__ import annotations
 
