@@ -189,7 +189,7 @@ class Fleet:
 
         def document(history: bool) -> dict[str, Any]:
             boards = {name: d.status_board for name, d in list(self.daemons.items())
-                      if d.cfg.raw.faces.http.enabled}
+                      if d.running.cfg.raw.faces.http.enabled}
             return fleet_document(boards, refresh_s, history=history)
 
         return with_status(document, lambda: refresh_s)
@@ -286,7 +286,7 @@ class Fleet:
                                exc_info=True)
             # the restart runs the config the machine ran (a reload's), not the file as
             # read at start; its cycle builds fresh model state from it and the checkpoint
-            self.configs[name] = daemon.cfg
+            self.configs[name] = daemon.running.cfg
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self.stopping.wait(), backoff)
             backoff = min(backoff * 2.0, BACKOFF_CAP_S)
@@ -302,7 +302,7 @@ class Fleet:
         interval = self.notifier.watchdog_interval_s()
         every = interval / 2.0 if interval else 10.0
         while True:
-            ready = sum(1 for d in list(self.daemons.values()) if d.complete_cycles)
+            ready = sum(1 for d in list(self.daemons.values()) if d.telemetry.complete_cycles)
             self.notifier.watchdog()
             self.notifier.status(f"{len(self.configs)} machines, {ready} compensating")
             await asyncio.sleep(every)

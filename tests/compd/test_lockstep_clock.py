@@ -49,13 +49,13 @@ async def test_the_daemon_runs_one_cycle_per_tick_on_the_clocks_it_was_given(
         driver.set("bearing", 20.0 + 0.05 * k)
         clock.tick()
         await clock.cycle_done(k + 1)
-        assert daemon.cycles == k + 1  # one cycle per tick, however slow the machine
+        assert daemon.loop.cycles == k + 1  # one cycle per tick, however slow the machine
     daemon.request_stop()
     assert await task == 0
-    assert daemon.overruns == 0
+    assert daemon.loop.overruns == 0
     # the health evidence and the records: the given clocks, not time.time()/monotonic()
     assert daemon.checkpoint.last_complete == (EPOCH + 39 * cfg.period_s, 39 * cfg.period_s)
     rows = read_samples(tmp_path / "state" / "samples.sqlite")
-    assert rows["seq"].size == daemon.cycles
+    assert rows["seq"].size == daemon.loop.cycles
     assert np.array_equal(rows["wall_s"], EPOCH + rows["mono_s"])
     assert np.array_equal(rows["mono_s"][:40], np.arange(40) * cfg.period_s)

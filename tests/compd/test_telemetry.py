@@ -323,9 +323,9 @@ async def test_daemon_exports_model_output_and_channel_validity(
     try:
         await clock.cycle_done(1)
         await step(2)
-        assert daemon.complete_cycles == 3
+        assert daemon.telemetry.complete_cycles == 3
         text = generate_latest(daemon.metrics.registry).decode()
-        last = daemon.last_result
+        last = daemon.loop.last_result
         assert last is not None and last.model_um is not None
         assert _value(text, 'compd_channel_valid{channel="bearing"}') == 1
         assert _value(text, 'compd_channel_valid{channel="ambient"}') == 1
@@ -334,7 +334,7 @@ async def test_daemon_exports_model_output_and_channel_validity(
         assert _value(text, "compd_period_seconds") == pytest.approx(1.0)
         await sim.publish({"bearing": 200.0})  # beyond the channel's range [-20, 150]
         await step(1)
-        last = daemon.last_result
+        last = daemon.loop.last_result
         assert last is not None and last.validity.get("bearing") is not None
         text = generate_latest(daemon.metrics.registry).decode()
         assert _value(text, 'compd_channel_valid{channel="bearing"}') == 0
