@@ -45,13 +45,14 @@ class Journal:
             name = EventName(ev.name)
             limiter = self._limiters.get(name)
             if limiter is not None:  # once, then a summary a minute
-                self.repeat(limiter.failed(self._mono(), dict(ev.fields)))
+                self.repeat(limiter.failed(self._mono(), ev.plain()))
                 continue
             if name is EventName.PROBE_ACCEPTED:  # ends a run of refusals
                 self.repeat(self._limiters[EventName.PROBE_REFUSED].succeeded(self._mono()))
-            getattr(self.log, name.level)(name.value, **ev.fields)
+            fields = ev.plain()
+            getattr(self.log, name.level)(name.value, **fields)
             if alarms and name.level is not Level.INFO:
-                self.board.alarm(name.value, name.level.value, ev.fields)
+                self.board.alarm(name.value, name.level.value, fields)
 
     def write_ok(self) -> None:
         """A write went through: ends a run of ``write_failed``."""
