@@ -100,8 +100,7 @@ class Daemon:
         self.metrics = metrics if metrics is not None else Metrics(mono=clock)
         #: what the operator page shows ([faces.http]), and the alarms listed on it
         http = cfg.raw.faces.http
-        self.status_board = StatusBoard(history_h=http.history_h, refresh_s=http.refresh_s,
-                                        wall=wall)
+        self.status_board = StatusBoard(history_h=http.history_h, refresh_s=http.refresh_s)
         self.journal = Journal(log if log is not None else structlog.get_logger("compd"),
                                self.status_board, self.clock)
         self.running = Running(cfg, params_from_config(cfg, dry_run=dry_run), driver)

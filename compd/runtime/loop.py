@@ -101,7 +101,7 @@ class CycleLoop:
         self.journal.log.error("cycle_broken", error=error, sequence=self.io.sequence,
                                offset_um=self.io.offset_um, shutdown=cfg.raw.faults.shutdown,
                                exc_info=True)
-        self.journal.board.alarm("cycle_broken", "error", {"error": error})
+        self.journal.alarm("cycle_broken", "error", {"error": error})
         if again or self.once:
             return None  # the ramp cannot go on either: what is left is the checkpoint
         if cfg.raw.faults.shutdown != "ramp_to_zero" or self.io.dry_run or cfg.recorder_only:

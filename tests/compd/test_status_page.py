@@ -351,7 +351,7 @@ def test_the_page_and_compd_status_say_the_pending_change_the_start_and_the_refe
 
     cfg = load_config(write_config(tmp_path, "modbus://127.0.0.1:5020"))
     cycle = Cycle(params_from_config(cfg), cfg.model)
-    board = StatusBoard(wall=lambda: 1000.0)
+    board = StatusBoard()
     controller, t = 0.0, 0.0
     for k in range(40):
         t += 1.0
@@ -398,7 +398,7 @@ def test_the_page_says_the_offset_sent_and_the_one_the_controller_holds(
 
     cfg = load_config(write_config(tmp_path, "modbus://127.0.0.1:5020"))
     cycle = Cycle(params_from_config(cfg), cfg.model)
-    board = StatusBoard(wall=lambda: 1000.0)
+    board = StatusBoard()
     controller, t = 0.0, 0.0  # what the controller holds, as read back
     for k in range(20):
         t += 1.0

@@ -380,7 +380,7 @@ def test_the_confirmed_offset_has_its_own_gauge_apart_from_the_one_sent(
 
     cfg = load_config(write_config(tmp_path, "modbus://127.0.0.1:5020"))
     metrics = Metrics()
-    board = StatusBoard(wall=lambda: 1000.0)
+    board = StatusBoard()
     clock = Clock(mono=lambda: 0.0, wall=lambda: 1000.0)
     sink = TelemetrySink(metrics=metrics, notifier=Notifier(None), board=board,
                          journal=Journal(logging.getLogger("t"), board, clock), serve=False)
