@@ -113,8 +113,7 @@ class Daemon:
                                        serve=serve_metrics)
         self.opcua = OpcUaSink(metrics=self.metrics, operator_hold=self.operator_hold,
                                rezero=self.rezero)
-        self.checkpoint = CheckpointSink(dry_run=dry_run, clock=self.clock,
-                                         journal=self.journal, export=self.io.export_state)
+        self.checkpoint = CheckpointSink(dry_run=dry_run, journal=self.journal)
         #: fed in this order every cycle; the checkpoint last, by the loop
         self.sinks: list[CycleSink] = [self.recorder, self.telemetry,
                                        StatusSink(self.status_board, dry_run=dry_run),
@@ -152,13 +151,14 @@ class Daemon:
     def operator_hold(self, on: bool, who: str) -> bool:
         """An operator's hold (or its release) of the running cycle (OPC UA SetHold);
         checkpointed at once so that a restart keeps it. False before the cycle exists."""
+        cycle = self.running.cycle
         try:
             event = self.io.operator_hold(on, who)
         except LookupError:
             return False
-        if event is not None:
+        if event is not None and cycle is not None:
             self.journal.events([event], alarms=False)
-            self.checkpoint.save(self.running.cfg)
+            self.checkpoint.save(self.running.cfg, cycle)
         return True
 
     def rezero(self, who: str) -> bool:

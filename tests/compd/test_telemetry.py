@@ -394,20 +394,20 @@ def test_the_confirmed_offset_has_its_own_gauge_apart_from_the_one_sent(
     controller, t = 0.0, 0.0
     cycle.plan(t, samples(t, 20.0), None)
     row = cycle.commit(Outcome.failed("offset", reason="timed out"))
-    sink.feed(Tick(cfg, row, 0.0, None, False, False))
+    sink.feed(Tick(cfg, row, 0.0, None, False, False, cycle))
     assert math.isnan(gauges()[1])
     for k in range(20):
         t += 1.0
         cycle.plan(t, samples(t, 20.0 + 0.4 * k), controller)
         row = cycle.commit()
         controller = row.writes.get("offset", controller)
-    sink.feed(Tick(cfg, row, 0.0, None, True, True))
+    sink.feed(Tick(cfg, row, 0.0, None, True, True, cycle))
     sent, confirmed = gauges()
     assert sent == pytest.approx(confirmed) == pytest.approx(controller)
     t += 1.0
     cycle.plan(t, samples(t, 28.0), controller)
     row = cycle.commit(Outcome.failed("offset", reason="timed out"))
-    sink.feed(Tick(cfg, row, 0.0, None, False, True))
+    sink.feed(Tick(cfg, row, 0.0, None, False, True, cycle))
     sent, confirmed = gauges()
     assert sent == pytest.approx(row.stage_um) and sent != pytest.approx(controller)
     assert confirmed == pytest.approx(controller)
