@@ -57,6 +57,7 @@ from compd.runtime import signals
 from compd.runtime.daemon import Daemon
 from compd.runtime.heap import pin_mmap_threshold
 from compd.runtime.sdnotify import Notifier
+from compd.runtime.tasks import gather_with
 from drivers.base import Driver
 
 __all__ = ["Fleet", "build_drivers", "load_machines", "machine_daemon"]
@@ -234,16 +235,9 @@ class Fleet:
                                                   for c in self.configs.values()))
         tasks = [loop.create_task(self._supervise(name, delay), name=f"compd:{name}")
                  for name, delay in zip(names, delays, strict=True)]
-        watchdog = loop.create_task(self._notify())
         try:
-            await asyncio.gather(*tasks)
+            await gather_with(tasks, loop.create_task(self._notify()))
         finally:
-            watchdog.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await watchdog
-            for task in tasks:
-                task.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
             self.notifier.stopping()
             self.metrics.stop()
             signals.remove(loop, installed)
