@@ -182,7 +182,8 @@ class MemoryDriver:
         self.outputs: dict[str, float] = dict.fromkeys(outputs, 0.0)
         #: every successful write, in order
         self.writes: list[dict[str, float]] = []
-        #: raised (once) by the next read / write, then cleared
+        #: raised (once) by the next connect / read / write, then cleared
+        self.fail_next_connect: DriverError | None = None
         self.fail_next_read: DriverError | None = None
         self.fail_next_write: DriverError | None = None
         self.reads = 0
@@ -200,6 +201,9 @@ class MemoryDriver:
         return self._connected
 
     async def connect(self) -> None:
+        if self.fail_next_connect is not None:
+            exc, self.fail_next_connect = self.fail_next_connect, None
+            raise exc
         self._connected = True
 
     async def read(self, names: Sequence[str]) -> dict[str, Sample]:

@@ -12,6 +12,12 @@ live, the reference position compd writes, and what compd may send::
     reference_mm = 0.0          # the line's reference position (the fixed bearing)
     value_limit_um = 100.0      # |value| ≤ this
     slope_limit_um_m = 50.0     # |slope| ≤ this
+    slew_um_s = 1.0             # the value's rate limit (µm/s)
+    slope_slew_um_m_s = 0.5     # the slope's rate limit (µm/m per s)
+    deadband_um = 0.0           # optional, as [output] deadband_um
+    slope_deadband_um_m = 0.0   # optional
+    model = { file = "x_value.toml" }        # the value's model, as [model]
+    slope_model = { file = "x_slope.toml" }  # optional: without it the slope is 0
 
 Each address is the protocol's own address model with ``scale`` turning the
 controller's unit into µm, µm/m and mm (engineering value = raw · scale). The
@@ -22,15 +28,19 @@ memory with another output (`drivers.footprint.first_clash`). Every refusal
 is a `ConfigError` naming the key (``output.axes.x.slope``).
 
 `parse_axis_outputs` returns `AxisOutputSet`: the drivers' `AxisOutputs`
-(names, writes, read-back) and each axis's reference position.
+(names, writes, read-back), each axis's reference position and its output
+stage's rates and deadbands (`AxisStage`). The two models (``model``,
+``slope_model``: a model file or inline terms, the ``[model]`` table's form)
+are built and checked by `compd.config.loader` (they need the config's
+channels and period), which puts them in `AxisOutputSet.models`.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 from compd.config.address_check import quantum, validate_address
 from compd.config.output_range import check_range
@@ -47,8 +57,40 @@ from drivers.temp_comp import (
     AxisOutputs,
 )
 
-#: the keys of one axis's table besides its three addresses
-SETTINGS: tuple[str, ...] = ("reference_mm", "value_limit_um", "slope_limit_um_m")
+if TYPE_CHECKING:
+    from models.compensation import CompensationModel
+
+#: the keys of one axis's table besides its three addresses and its models
+SETTINGS: tuple[str, ...] = ("reference_mm", "value_limit_um", "slope_limit_um_m",
+                             "slew_um_s", "slope_slew_um_m_s", "deadband_um",
+                             "slope_deadband_um_m")
+#: an axis's models (built by `compd.config.loader`: a file or inline terms)
+MODEL_KEYS: tuple[str, ...] = ("model", "slope_model")
+
+
+@dataclass(frozen=True, slots=True)
+class AxisStage:
+    """One axis's output stage settings: the rate limit and deadband of its
+    value (µm/s, µm) and of its slope (µm/m per s, µm/m); None: not given
+    (the loader requires a rate for each parameter a model drives)."""
+
+    slew_um_s: float | None = None
+    slope_slew_um_m_s: float | None = None
+    deadband_um: float = 0.0
+    slope_deadband_um_m: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class AxisModels:
+    """The models of one axis: its value's (µm at the reference position) and
+    its slope's (µm/m; None: the slope is held at 0)."""
+
+    value: CompensationModel
+    slope: CompensationModel | None = None
+    #: each model's identity (`compd.config.loader.model_sha256`; "" for none): a
+    #: checkpoint's or reload's model state is taken only by the same model
+    value_sha256: str = ""
+    slope_sha256: str = ""
 #: protocols whose controllers have no such parameters (their axes take an offset
 #: evaluated at the axis position instead)
 NO_PARAMETERS: frozenset[str] = frozenset({"linuxcnc"})
@@ -65,6 +107,17 @@ class AxisOutputSet:
     #: (0: a float, no grid; TwinCAT: 0.1 µm and 1 µm/m), for the output stage to
     #: put each on the controller's grid as it does the offset
     quanta: Mapping[str, tuple[float, float]]
+    #: axis -> its output stage's rates and deadbands
+    stages: Mapping[str, AxisStage] = field(default_factory=dict)
+    #: axis -> the step the controller holds its reference position in (mm; 0: a float)
+    reference_quantum_mm: Mapping[str, float] = field(default_factory=dict)
+    #: axis -> its models (set by `compd.config.loader`; empty from `parse_axis_outputs`)
+    models: Mapping[str, AxisModels] = field(default_factory=dict)
+
+    @property
+    def axes(self) -> tuple[str, ...]:
+        """The configured axes, in X, Y, Z order."""
+        return self.outputs.axes
 
     def line(self, axis: str, value_um: float, slope_um_m: float) -> AxisCompensation:
         """The line to write for `axis` at its configured reference position."""
@@ -101,6 +154,7 @@ def parse_axis_outputs(protocol: str, table: Mapping[str, Any], *,
     limits: dict[str, AxisLimits] = {}
     refs: dict[str, float] = {}
     quanta: dict[str, tuple[float, float]] = {}
+    stages: dict[str, AxisStage] = {}
     uses = [u for k, a in (others or {}).items()
             for u in a.uses(k, written=k.startswith("output."))]
     for axis, doc in table.items():
@@ -109,10 +163,10 @@ def parse_axis_outputs(protocol: str, table: Mapping[str, Any], *,
             raise ConfigError(at, f"unknown axis; known: {', '.join(AXES)}")
         if not isinstance(doc, Mapping):
             raise ConfigError(at, "must be a table")
-        unknown = sorted(set(doc) - set(PARAMETERS) - set(SETTINGS))
+        unknown = sorted(set(doc) - set(PARAMETERS) - set(SETTINGS) - set(MODEL_KEYS))
         if unknown:
             raise ConfigError(f"{at}.{unknown[0]}", "unknown key; known: "
-                              + ", ".join((*PARAMETERS, *SETTINGS)))
+                              + ", ".join((*PARAMETERS, *SETTINGS, *MODEL_KEYS)))
         missing = [k for k in (*PARAMETERS, "value_limit_um", "slope_limit_um_m")
                    if k not in doc]
         if missing:
@@ -121,6 +175,7 @@ def parse_axis_outputs(protocol: str, table: Mapping[str, Any], *,
                          _number(f"{at}.slope_limit_um_m", doc["slope_limit_um_m"],
                                  positive=True))
         ref = _number(f"{at}.reference_mm", doc.get("reference_mm", 0.0), positive=False)
+        stages[axis] = _stage(at, doc, lim)
         typed: dict[str, Address] = {}
         for p in PARAMETERS:
             given = doc[p]
@@ -144,7 +199,24 @@ def parse_axis_outputs(protocol: str, table: Mapping[str, Any], *,
     clash = first_clash(uses)
     if clash is not None:
         raise ConfigError(clash.second.key, clash.reason())
-    return AxisOutputSet(AxisOutputs(addresses, limits, key=key), refs, quanta)
+    return AxisOutputSet(AxisOutputs(addresses, limits, key=key), refs, quanta, stages,
+                         {a: quantum(addresses[a].reference) for a in addresses})
 
 
-__all__ = ["NO_PARAMETERS", "SETTINGS", "AxisOutputSet", "parse_axis_outputs"]
+def _stage(at: str, doc: Mapping[str, Any], lim: AxisLimits) -> AxisStage:
+    """An axis's rates (> 0 when given) and deadbands (>= 0, below the limit)."""
+    rates = {k: _number(f"{at}.{k}", doc[k], positive=True)
+             for k in ("slew_um_s", "slope_slew_um_m_s") if k in doc}
+    bands: dict[str, float] = {}
+    for k, limit in (("deadband_um", lim.value_limit_um),
+                     ("slope_deadband_um_m", lim.slope_limit_um_m)):
+        v = _number(f"{at}.{k}", doc.get(k, 0.0), positive=False)
+        if v < 0.0 or v >= limit:
+            raise ConfigError(f"{at}.{k}", f"must be >= 0 and below the limit ({limit:g}), "
+                                           f"got {v:g}")
+        bands[k] = v
+    return AxisStage(**rates, **bands)
+
+
+__all__ = ["MODEL_KEYS", "NO_PARAMETERS", "SETTINGS", "AxisModels", "AxisOutputSet",
+           "AxisStage", "parse_axis_outputs"]

@@ -29,6 +29,7 @@ from compd.config.adaptation_check import PROBE_NAMES, adaptation_settings
 from compd.config.address_check import config_error
 from compd.config.address_check import quantum as _quantum_um
 from compd.config.address_check import validate_address as _validate_address
+from compd.config.axis_outputs import MODEL_KEYS, AxisModels, AxisOutputSet, parse_axis_outputs
 from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX, check_outputs
 from compd.config.overlaps import check_overlaps
 from compd.config.paths import credential_path, read_password, resolve_state_dir
@@ -53,7 +54,7 @@ from models.tf import TransferFunction
 __all__ = ["PROBE_NAMES", "credential_path", "read_password", "resolve_state_dir"]
 
 #: output names as the driver sees them
-OUTPUT_NAMES: tuple[str, ...] = ("offset", "heartbeat", "status")
+OUTPUT_NAMES: tuple[str, ...] = ("offset", "heartbeat", "status", "axes_status")
 #: the controller's state read beside the channels ([output] machine_on, estop, homed,
 #: update_permitted, rezero)
 STATE_NAMES: tuple[str, ...] = ("machine_on", "estop", "homed", "update_permitted", "rezero")
@@ -86,6 +87,9 @@ class LoadedConfig:
     probes: Mapping[str, Address] = field(default_factory=dict)
     #: the controller's state ([output] machine_on, estop, homed), read under STATE_NAMES
     states: Mapping[str, Address] = field(default_factory=dict)
+    #: [output.axes.<axis>]: the per-axis compensation lines and their models (their
+    #: parameters are in `outputs` too, by `drivers.temp_comp.output_name`); None: none
+    axes: AxisOutputSet | None = None
 
     def __post_init__(self) -> None:
         for name in ("channels", "outputs", "probes", "states"):
@@ -119,7 +123,8 @@ def _numeric_reason(exc: Exception) -> str:
     return f"the model's coefficients cannot be evaluated ({type(exc).__name__}: {exc})"
 
 
-def _set_reference(model: CompensationModel, reference: dict[str, float]) -> None:
+def _set_reference(model: CompensationModel, reference: dict[str, float],
+                   key: str = "model.reference") -> None:
     """[model] reference: the reference state for `model` (its relative input channels;
     a channel it does not read is refused only when no model reads it)."""
     from models.modelfile import parse_reference
@@ -127,13 +132,36 @@ def _set_reference(model: CompensationModel, reference: dict[str, float]) -> Non
     mine = {ch: v for ch, v in reference.items() if ch in model.reference_channels}
     unknown = sorted(set(reference) - model.channels)
     if unknown:
-        raise ConfigError("model.reference", f"the model reads no channel {unknown[0]!r}; "
+        raise ConfigError(key, f"the model reads no channel {unknown[0]!r}; "
                           f"its reference channels: {sorted(model.reference_channels)}")
     try:
-        model.calibration_reference = parse_reference(model, mine, "model.reference")
+        model.calibration_reference = parse_reference(model, mine, key)
     except ModelError as exc:
-        raise ConfigError("model.reference", str(exc).removeprefix("model.reference: ")) \
-            from None
+        raise ConfigError(key, str(exc).removeprefix(f"{key}: ")) from None
+
+
+def _section_model(m: ModelSection, base: Path, channels: dict[str, Address],
+                   period_s: float, key: str) -> CompensationModel:
+    """The model a ``[model]``-form table describes (a file or inline terms; `key`
+    the table's dotted key), checked against the config (`_check_model`), with its
+    ``reference`` set."""
+    if m.file is not None:
+        model = _load_model(m.file, base, f"{key}.file")
+        model_key = f"{key}.file"
+    else:
+        head: dict[str, Any] = {"name": m.name or "inline",
+                                "period_s": m.period_s or period_s}
+        try:
+            model = parse_model({"model": head, "terms": m.terms or []}, where=key)
+        except ModelError as exc:
+            raise ConfigError(f"{key}.terms", str(exc)) from None
+        except _NUMERIC_ERRORS as exc:
+            raise ConfigError(f"{key}.terms", _numeric_reason(exc)) from None
+        model_key = f"{key}.terms"
+    _check_model(model, channels, period_s, model_key, m)
+    if m.reference is not None:
+        _set_reference(model, m.reference, f"{key}.reference")
+    return model
 
 
 def _load_model(ref: str, base: Path, key: str) -> CompensationModel:
@@ -255,30 +283,14 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
                           "records: say so with [output] enabled = false)")
     if m is None:  # recorder only
         model = recorder_model(channels, machine.period_s)
-        model_key = "model"
-    elif m.file is not None:
-        model = _load_model(m.file, base, "model.file")
-        model_key = "model.file"
     else:
-        head: dict[str, Any] = {"name": m.name or "inline",
-                                "period_s": m.period_s or machine.period_s}
-        try:
-            model = parse_model({"model": head, "terms": m.terms or []}, where="model")
-        except ModelError as exc:
-            raise ConfigError("model.terms", str(exc)) from None
-        except _NUMERIC_ERRORS as exc:
-            raise ConfigError("model.terms", _numeric_reason(exc)) from None
-        model_key = "model.terms"
-    if m is not None:
-        _check_model(model, channels, machine.period_s, model_key, m)
+        model = _section_model(m, base, channels, machine.period_s, "model")
     shadow = None
     if m is not None and m.shadow is not None:
         shadow = _load_model(m.shadow, base, "model.shadow")
         _check_model(shadow, channels, machine.period_s, "model.shadow", m)
-    if m is not None and m.reference is not None:
-        for target in (model, shadow):
-            if target is not None:
-                _set_reference(target, m.reference)
+    if m is not None and m.reference is not None and shadow is not None:
+        _set_reference(shadow, m.reference)
 
     state_dir = resolve_state_dir(raw.state.dir, base)
     if state_dir.exists() and not state_dir.is_dir():
@@ -292,6 +304,12 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
             raise ConfigError("recorder.path", f"{recorder_path} is a directory, not a file")
     adaptation, probes = adaptation_settings(raw, channels, model.adaptation)
     check_overlaps(outputs, channels, probes, states)
+    axes = _axes(raw, base, channels, outputs, probes, states)
+    if axes is None and "axes_status" in outputs:
+        raise ConfigError("output.axes_status", "the axes word needs [output.axes.<axis>] "
+                          "(it says which axes are in force)")
+    if axes is not None:
+        outputs = {**outputs, **axes.outputs.outputs()}
     if ctl.protocol == "linuxcnc":
         _check_hal_names(ctl.linuxcnc or LinuxCncOptions(), channels, probes, outputs)
     return LoadedConfig(
@@ -300,7 +318,56 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         config_sha256=hashlib.sha256(text).hexdigest(), model_sha256=model_sha256(model),
         offset_quantum_um=(_quantum_um(outputs["offset"], raw.output.units_per_um)
                            if "offset" in outputs else 0.0),
-        adaptation=adaptation, probes=probes, states=states)
+        adaptation=adaptation, probes=probes, states=states, axes=axes)
+
+
+def _axes(raw: DaemonConfig, base: Path, channels: dict[str, Address],
+          outputs: Mapping[str, Address], probes: Mapping[str, Address],
+          states: Mapping[str, Address]) -> AxisOutputSet | None:
+    """``[output.axes.<axis>]``: each axis's addresses and limits
+    (`compd.config.axis_outputs`), its models built and checked as ``[model]``'s
+    are (`_section_model`), a rate for each parameter a model drives."""
+    table = raw.output.axes
+    if raw.recorder_only or not table:
+        return None
+    others = {**{f"output.{n}": a for n, a in outputs.items()},
+              **{f"channels.{n}.address": a for n, a in channels.items()},
+              **{f"adaptation.{n}": a for n, a in probes.items()},
+              **{f"output.{n}": a for n, a in states.items()}}
+    found = parse_axis_outputs(raw.controller.protocol, table, others=others)
+    models: dict[str, AxisModels] = {}
+    for axis in found.axes:
+        at, doc, stage = f"output.axes.{axis}", table[axis], found.stages[axis]
+        if "model" not in doc:
+            raise ConfigError(f"{at}.model", "required key is missing (the value's model: "
+                              "file = \"...\" or inline terms, as [model])")
+        built = [_axis_model(doc[k], base, channels, raw.machine.period_s, f"{at}.{k}")
+                 if k in doc else None for k in MODEL_KEYS]
+        value, slope = built
+        assert value is not None  # checked above
+        if stage.slew_um_s is None:
+            raise ConfigError(f"{at}.slew_um_s", "required key is missing (the value's "
+                              "rate limit, µm/s)")
+        if slope is not None and stage.slope_slew_um_m_s is None:
+            raise ConfigError(f"{at}.slope_slew_um_m_s", "required key is missing with "
+                              "slope_model (the slope's rate limit, µm/m per s)")
+        models[axis] = AxisModels(value, slope, model_sha256(value),
+                                  model_sha256(slope) if slope is not None else "")
+    return dataclasses.replace(found, models=models)
+
+
+def _axis_model(doc: Any, base: Path, channels: dict[str, Address], period_s: float,
+                key: str) -> CompensationModel:
+    """One axis model: a table of the ``[model]`` form (no shadow)."""
+    if not isinstance(doc, Mapping):
+        raise ConfigError(key, "must be a table, as [model] (file = \"...\" or terms)")
+    if "shadow" in doc:
+        raise ConfigError(f"{key}.shadow", "an axis model has no shadow")
+    try:
+        section = ModelSection.model_validate(dict(doc))
+    except ValidationError as exc:
+        raise config_error(exc, key) from None
+    return _section_model(section, base, channels, period_s, key)
 
 
 def _outputs(raw: DaemonConfig, channels: dict[str, Address]
@@ -312,7 +379,7 @@ def _outputs(raw: DaemonConfig, channels: dict[str, Address]
         return {}, {}
     outputs: dict[str, Address] = {"offset": _validate_address(protocol, out.offset,
                                                                "output.offset")}
-    for name in ("heartbeat", "status"):
+    for name in ("heartbeat", "status", "axes_status"):
         doc_addr = getattr(out, name)
         if doc_addr is not None:
             outputs[name] = _validate_address(protocol, doc_addr, f"output.{name}")

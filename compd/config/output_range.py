@@ -3,7 +3,8 @@
 The offset is written as raw = sign·units_per_um·µm / scale in the address's
 encoding; ±limit_um must fit, or every write near the limit fails at run
 time (Int16 at 0.0001 mm/count holds only ±3.2767 µm). The heartbeat counts
-to HEARTBEAT_MODULO - 1 and the status word carries every `Status` bit.
+to HEARTBEAT_MODULO - 1, the status word carries every `Status` bit and the
+axes word every `AxesStatus` bit.
 
 The raw ranges are the addresses' own (`Address.encoding`, from the one
 table in `drivers.encodings`; the float types by their largest finite
@@ -19,7 +20,7 @@ import math
 import operator
 
 from compd.core.cycle import HEARTBEAT_MODULO
-from compd.core.output import Status
+from compd.core.output import AxesStatus, Status
 from compd.errors import ConfigError
 from drivers.addresses import Address
 
@@ -28,6 +29,8 @@ from drivers.addresses import Address
 HEARTBEAT_MAX = HEARTBEAT_MODULO - 1
 #: the largest status word: every `compd.core.output.Status` bit
 STATUS_MAX = int(functools.reduce(operator.or_, Status))
+#: the largest axes word: every `compd.core.output.AxesStatus` bit
+AXES_STATUS_MAX = int(functools.reduce(operator.or_, AxesStatus))
 
 
 def _fmt(x: float) -> str:
@@ -67,3 +70,6 @@ def check_outputs(outputs: dict[str, Address], *, limit_um: float,
     if "status" in outputs:
         check_range("output.status", outputs["status"], 0, status_max,
                     "the status word")
+    if "axes_status" in outputs:
+        check_range("output.axes_status", outputs["axes_status"], 0, AXES_STATUS_MAX,
+                    "the axes word")

@@ -254,6 +254,9 @@ class OutputSection(Section):
     offset: dict[str, Any]
     heartbeat: dict[str, Any] | None = None
     status: dict[str, Any] | None = None
+    #: the axes word (`compd.core.output.AxesStatus`: each [output.axes] axis in force,
+    #: alarm, holding, ramping, and a life bit), written beside the status word
+    axes_status: dict[str, Any] | None = None
     unit: Literal["um", "mm", "nm", "inch", "count"] = "um"
     #: controller units per µm; derived from `unit` unless unit = "count"
     scale: float | None = None
@@ -281,6 +284,9 @@ class OutputSection(Section):
     #: a re-zero request (optional; a PLC bit or an M-code pulse at tool touch-off): its
     #: rising edge takes the present prediction as the new zero (compd.core.cycle)
     rezero: dict[str, Any] | None = None
+    #: [output.axes.<axis>]: per-axis compensation lines (`compd.config.axis_outputs`,
+    #: checked by the loader)
+    axes: dict[str, Any] | None = None
 
     @model_validator(mode="before")
     @classmethod

@@ -30,7 +30,10 @@ controller confirmed the offset is in it). `plan`:
    (in controller units; omitted once the controller
    refused it permanently, and while read-back is configured but the read
    failed, since then the controller's state is unknown), the heartbeat
-   (advanced only on a complete valid cycle) and the status word.
+   (advanced only on a complete valid cycle of the offset's model: it says
+   nothing about the per-axis lines), the status word and, with per-axis
+   lines, the axes word (`compd.core.axes.AxisBank.status_word`: which axes
+   are in force, and a life bit that toggles every cycle).
 
 Each cycle names why the offset compd wants is not in force, or that it is
 (`compd.core.health.Cause`, `Plan.cause` and after the write `Row.cause`):
@@ -60,6 +63,7 @@ from types import MappingProxyType
 from typing import Any
 
 from compd.core.adaptation import ProbeReading
+from compd.core.axes import AxisBank, AxisRow
 from compd.core.events import Event, EventName
 from compd.core.faults import FaultState
 from compd.core.health import WRITE_FAULT_AFTER, Cause, Decision, OutputHealth
@@ -67,7 +71,7 @@ from compd.core.health_view import HealthView, output_cause, recorded_state, sta
 from compd.core.modelstep import ModelStepper, finite_or_none
 from compd.core.params import CycleParams, params_from_config
 from compd.core.permit import Permit, RezeroEdge
-from compd.core.plan import WRITTEN, Outcome, Plan, Row
+from compd.core.plan import NO_AXES, WRITTEN, Outcome, Plan, Row
 from compd.core.readback import ReadBack
 from compd.core.restore import output_stage, probe_stage, restore_arguments
 from compd.core.snapshot import probe_record, recorded_contributions, take_snapshot
@@ -110,7 +114,8 @@ class Cycle:
                  stale_state: Mapping[str, Any] | None = None,
                  stale_age_s: float | None = None,
                  zero: Mapping[str, Any] | None = None,
-                 fallback_states: Mapping[str, Any] | None = None) -> None:
+                 fallback_states: Mapping[str, Any] | None = None,
+                 axes_state: Mapping[str, Any] | None = None) -> None:
         self.params = params
         self.health = OutputHealth(params.hold_s, operator_hold=operator_hold)
         self.output = output_stage(params, offset_um)
@@ -134,6 +139,9 @@ class Cycle:
         self.rezero_edge = RezeroEdge()
         #: the target a permit holds back, minus the offset in force (µm), None: none
         self.pending_um: float | None = None
+        #: [output.axes]: each axis's line, a separate output of this cycle
+        self.axes = AxisBank(params.axes, hold_s=params.hold_s, period_s=params.period_s,
+                             readback=params.readback, state=axes_state)
 
     # -- construction from a checkpoint, and across a reload ------------------------------
 
@@ -158,8 +166,10 @@ class Cycle:
         `old.export_state()`): the fault policy's timer and state go on (a hold
         still ramps on time), so does the validator's history while the
         channels are the same, and the stopped outputs while the outputs
-        (`same_outputs`: their addresses too) are."""
+        (`same_outputs`: their addresses too) are; each axis's likewise
+        (`compd.core.axes.AxisBank.carry_over`)."""
         self.health.carry_over(old.health, outputs_same=same_outputs)
+        self.axes.carry_over(old.axes, same_outputs=same_outputs)
         if self.params.channels == old.params.channels:
             self.stepping.validator = old.stepping.validator
 
@@ -178,6 +188,8 @@ class Cycle:
             out["adaptation"] = self.probes.export_state()
         if self.health.operator_hold:
             out["operator_hold"] = True
+        if self.axes:
+            out["axes"] = self.axes.export_state()
         return out
 
     # -- commands -------------------------------------------------------------------------
@@ -201,6 +213,7 @@ class Cycle:
     def begin_shutdown(self) -> None:
         """Ramp-to-zero shutdown: from now on the target is 0."""
         self.health.begin_shutdown()
+        self.axes.begin_shutdown()
 
     # -- the cycle: plan ------------------------------------------------------------------
 
@@ -208,13 +221,16 @@ class Cycle:
              readback_offset_um: float | None = None, *,
              wall_s: float | None = None, probe: ProbeReading | None = None,
              controller_off: str | None = None, permitted: bool | None = True,
-             rezero_bit: bool | None = None) -> Plan:
+             rezero_bit: bool | None = None,
+             axes_readback: Mapping[str, float | None] | None = None) -> Plan:
         """Decide one cycle at machine time `now_s`. `samples` None: the read failed.
         `readback_offset_um`: the controller's offset as read (controller units).
         `probe`: the measuring cycle's values as read (`compd.core.adaptation`).
         `controller_off`: why the controller takes no offset now (module, step 4).
         `permitted`: the controller lets the offset change (None: unreadable, not
-        permitted); `rezero_bit`: the re-zero input as read (None: unreadable)."""
+        permitted); `rezero_bit`: the re-zero input as read (None: unreadable).
+        `axes_readback`: each axis parameter as read (`compd.core.axes`; None: not
+        read, a value None: that one not read)."""
         self.sequence += 1
         events, self._later = self._later, []
         dt = self.params.period_s if self._last_now is None else now_s - self._last_now
@@ -250,6 +266,16 @@ class Cycle:
         self.health.foreign_settled(moving=self.output.slewing or self.output.held)
         status = int(status_word(view))
         writes, offset_um = self._writes(readback_offset_um, offset_um, status, events)
+        if self.axes:
+            writes.update(self.axes.plan(
+                now_s, dt, inputs.values, inputs.validity, answered=answered,
+                readback=axes_readback, off=controller_off,
+                hold=self.health.operator_hold or permit is not None,
+                write=not self.params.recorder_only, events=events))
+            name = self.params.axes_status_name
+            if name and not self.params.recorder_only \
+                    and name not in self.health.stopped_outputs:
+                writes[name] = float(self.axes.status_word())
         self._planned = self._plan(now_s, wall_s, writes, offset_um, inputs, stepped, view,
                                    status, events)
         return self._planned
@@ -273,7 +299,7 @@ class Cycle:
             contributions=MappingProxyType(recorded_contributions(
                 self.models, self.probes, stepped, valid=valid, recorded=recorded)),
             probe=probe_record(self.probes), events=tuple(events),
-            shutdown_done=self._shutdown_done(offset_um))
+            shutdown_done=self._shutdown_done(offset_um) and self.axes.settled())
 
     def _move_output(self, decision: Decision, dt: float, *, held_for_permit: bool) -> float:
         target = self.output.current_um if decision.target_um is None else decision.target_um
@@ -361,6 +387,11 @@ class Cycle:
                 offset_um=self.output.current_um))
         cause = self.health.committed_cause(plan.cause,
                                             offset_failed=offset_sent and not outcome.ok)
+        axes: Mapping[str, AxisRow] = NO_AXES
+        axis_events: tuple[Event, ...] = ()
+        if self.axes:
+            axes, axis_events = self.axes.commit(outcome.ok, outcome.outputs, outcome.permanent,
+                                                 outcome.reason, self._later)
         return Row(
             sequence=plan.sequence, machine_s=plan.machine_s, wall_s=plan.wall_s,
             writes=plan.writes, stage_um=plan.stage_um, sent_um=plan.sent_um,
@@ -371,7 +402,8 @@ class Cycle:
             contributions=plan.contributions, probe=plan.probe, snapshot=take_snapshot(
                 operator_hold=self.health.operator_hold, probes=self.probes, models=self.models,
                 fallback_for=self.stepping.fallback_for, pending_um=self.pending_um),
-            events=plan.events, write_events=events, shutdown_done=plan.shutdown_done)
+            events=plan.events, write_events=events + axis_events,
+            shutdown_done=plan.shutdown_done, axes=axes)
 
     # -- internals ------------------------------------------------------------------------
 

@@ -84,8 +84,38 @@ class Status(enum.IntFlag):
     CONTROLLER_OFF = 1 << 14  #: the controller takes no offset (machine off, E-stop): held
 
 
+class AxesStatus(enum.IntFlag):
+    """The axes word (uint16, ``[output] axes_status``; bit 15 unused so an INT
+    holds it): one nibble per kind, one bit per axis in it (X, Y, Z), so a PLC
+    reads axis i of a kind as bit 4·kind + i. LIFE toggles in every word compd
+    writes (the cycle ran), whatever the inputs; an axis's IN_FORCE bit says its
+    line the controller confirmed last cycle is the line its models want and is
+    written again beside this word (`compd.core.axes.AxisBank.status_word`)."""
+
+    X_IN_FORCE = 1 << 0
+    Y_IN_FORCE = 1 << 1
+    Z_IN_FORCE = 1 << 2
+    LIFE = 1 << 3             #: toggles every cycle compd writes this word
+    X_ALARM = 1 << 4          #: the axis's own status word has ALARM
+    Y_ALARM = 1 << 5
+    Z_ALARM = 1 << 6
+    X_HOLDING = 1 << 8        #: the axis's line is held (an invalid input, hold, off)
+    Y_HOLDING = 1 << 9
+    Z_HOLDING = 1 << 10
+    X_RAMPING = 1 << 12       #: the axis's line ramps to 0 (a fault past hold_s, shutdown)
+    Y_RAMPING = 1 << 13
+    Z_RAMPING = 1 << 14
+
+
+#: an axis's bit of a kind in `AxesStatus`: ``1 << (AXES_NIBBLE[kind] + AXIS_INDEX[axis])``
+AXIS_INDEX: dict[str, int] = {"x": 0, "y": 1, "z": 2}
+AXES_NIBBLE: dict[str, int] = {"in_force": 0, "alarm": 4, "holding": 8, "ramping": 12}
+
+
 __doc__ = (__doc__ or "") + "\n".join(
-    f"    bit {int(b).bit_length() - 1:2d}  {b.name}" for b in Status) + "\n"
+    f"    bit {int(b).bit_length() - 1:2d}  {b.name}" for b in Status) + "\n" + (
+    "\nAxes word (``[output] axes_status``, `AxesStatus`):\n") + "\n".join(
+    f"    bit {int(b).bit_length() - 1:2d}  {b.name}" for b in AxesStatus) + "\n"
 
 
 class Readback(enum.Enum):

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from compd.core.adaptation import AdaptationSettings
+from compd.core.axes import AxisParams
 from compd.core.validation import ChannelLimits
 
 if TYPE_CHECKING:
@@ -34,12 +35,16 @@ class CycleParams:
     offset_name: str = "offset"
     heartbeat_name: str | None = "heartbeat"
     status_name: str | None = "status"
+    #: the axes word (`compd.core.output.AxesStatus`), None: not written
+    axes_status_name: str | None = None
     #: probe-assisted adaptation (`compd.core.adaptation`), None when off
     adaptation: AdaptationSettings | None = None
     #: read, validate, record; write nothing at all (`compd.core.cycle`)
     recorder_only: bool = False
     #: the model's output goes into the record (False: a recorder-only stand-in's)
     record_model: bool = True
+    #: [output.axes.<axis>]: the per-axis compensation lines (`compd.core.axes`)
+    axes: tuple[AxisParams, ...] = ()
 
 
 def params_from_config(cfg: LoadedConfig, *, dry_run: bool = False) -> CycleParams:
@@ -60,5 +65,29 @@ def params_from_config(cfg: LoadedConfig, *, dry_run: bool = False) -> CyclePara
         time_scale=raw.machine.time_scale,
         heartbeat_name="heartbeat" if "heartbeat" in cfg.outputs else None,
         status_name="status" if "status" in cfg.outputs else None,
+        axes_status_name="axes_status" if "axes_status" in cfg.outputs else None,
         adaptation=cfg.adaptation, recorder_only=cfg.recorder_only,
-        record_model=cfg.model_given)
+        record_model=cfg.model_given, axes=axis_params(cfg))
+
+
+def axis_params(cfg: LoadedConfig) -> tuple[AxisParams, ...]:
+    """Each ``[output.axes.<axis>]`` of `cfg` as the cycle takes it."""
+    found = cfg.axes
+    if found is None:
+        return ()
+    out = []
+    for axis in found.axes:
+        lim, stage, models = found.outputs.limits[axis], found.stages[axis], found.models[axis]
+        vq, sq = found.quanta[axis]
+        out.append(AxisParams(
+            axis=axis, value_model=models.value, slope_model=models.slope,
+            reference_mm=found.reference_mm[axis], value_limit_um=lim.value_limit_um,
+            slope_limit_um_m=lim.slope_limit_um_m,
+            value_slew_um_s=stage.slew_um_s if stage.slew_um_s is not None else 1.0,
+            slope_slew_um_m_s=(stage.slope_slew_um_m_s
+                               if stage.slope_slew_um_m_s is not None else 1.0),
+            value_deadband_um=stage.deadband_um, slope_deadband_um_m=stage.slope_deadband_um_m,
+            value_quantum_um=vq, slope_quantum_um_m=sq,
+            reference_quantum_mm=found.reference_quantum_mm.get(axis, 0.0),
+            value_sha256=models.value_sha256, slope_sha256=models.slope_sha256))
+    return tuple(out)

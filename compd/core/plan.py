@@ -15,14 +15,19 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any, NamedTuple
 
+from compd.core.axes import AxisRow
 from compd.core.events import Event
 from compd.core.faults import FaultState
 from compd.core.health import Cause
 from compd.core.record import RecordRow
 
-__all__ = ["WRITTEN", "AdaptationView", "Outcome", "Plan", "Row", "Snapshot"]
+#: a cycle without per-axis outputs
+NO_AXES: Mapping[str, AxisRow] = MappingProxyType({})
+
+__all__ = ["NO_AXES", "WRITTEN", "AdaptationView", "Outcome", "Plan", "Row", "Snapshot"]
 
 
 class Plan(NamedTuple):
@@ -179,6 +184,10 @@ class Row(NamedTuple):
     events: tuple[Event, ...] = ()
     write_events: tuple[Event, ...] = ()
     shutdown_done: bool = False
+    #: axis -> its part of the cycle (``[output.axes]``: the line's value and slope,
+    #: the axis's state, cause and status word; `compd.core.axes.AxisRow`), read-only;
+    #: empty without per-axis outputs
+    axes: Mapping[str, AxisRow] = NO_AXES
 
     @property
     def healthy(self) -> bool:
@@ -195,4 +204,5 @@ class Row(NamedTuple):
             offset_um=self.sent_um if self.write_ok else None, model_um=self.model_um,
             state=self.state, valid=self.inputs_valid, channels=self.channels,
             validity=self.validity, contributions=self.contributions,
-            attempted_um=self.sent_um, probe=self.probe, complete=self.in_force)
+            attempted_um=self.sent_um, probe=self.probe, complete=self.in_force,
+            axes=self.axes)

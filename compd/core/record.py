@@ -44,3 +44,6 @@ class RecordRow:
     #: a COMPLETE cycle (`compd.core.cycle.offset_in_force`): the offset compd
     #: wants is the offset in force. False until the controller confirmed it.
     complete: bool = False
+    #: [output.axes]: axis -> its part of the cycle (`compd.core.axes.AxisRow`),
+    #: stored in table ``axes``; empty without per-axis outputs
+    axes: Mapping[str, Any] = field(default_factory=dict)

@@ -63,7 +63,22 @@ def restore_arguments(state: Mapping[str, Any], *, fresh: bool, same_model: bool
         "stale_state": model_state if (not usable and same_model and has_terms) else None,
         "stale_age_s": age_s,
         "zero": _mapping(state.get("zero")),
+        "axes_state": _axes_state(_mapping(state.get("axes")), usable=usable),
     }
+
+
+def _axes_state(axes: Mapping[str, Any] | None, *, usable: bool
+                ) -> dict[str, Any] | None:
+    """Each axis's confirmed value and slope, and its models' state: resumed when
+    the checkpoint is fresh and of the same model (``fresh``), else only their
+    reference state kept, and they start at the steady state of today's inputs
+    (as the offset's model does)."""
+    if axes is None:
+        return None
+    keep = ("value", "slope", "value_model", "slope_model", "value_model_sha256",
+            "slope_model_sha256")
+    return {axis: {**{k: v for k, v in doc.items() if k in keep}, "fresh": usable}
+            for axis, doc in axes.items() if isinstance(doc, Mapping)}
 
 
 def output_stage(params: CycleParams, offset_um: float | None) -> OutputStage:

@@ -15,7 +15,12 @@ Namespace ``urn:compd``; under Objects one object per machine, named after
   ``StatusWord`` (the status bits written to the controller), ``Heartbeat``,
   ``OperatorHold``, ``Channels/<name>/Value`` and ``/Valid``, ``Model/Name``
   and ``Model/Sha256``, and with ``[adaptation]`` ``Adaptation/Bias_um``,
-  ``Adaptation/BiasSigma_um``, ``Adaptation/Correction_um``;
+  ``Adaptation/BiasSigma_um``, ``Adaptation/Correction_um``; with
+  ``[output.axes]`` one folder per axis, ``Axes/X`` (``Y``, ``Z``):
+  ``Value_um`` and ``Slope_um_m`` (the line the controller confirmed),
+  ``ValueModel_um`` and ``SlopeModel_um_m`` (what the axis's models ask),
+  ``InForce``, ``FaultStateName``, ``Cause``, ``StatusWord`` (the axis's own
+  bits, as ``StatusWord``'s) and ``ReferencePosition_mm``;
 - the method ``SetHold(Boolean)``: true switches compensation to hold (the
   offset stays where it is; faults still hold and ramp as always), false
   releases it (the offset slews back to the model at the slew limit);
@@ -75,7 +80,7 @@ from asyncua import ua
 
 from compd.core.faults import FaultState
 from compd.faces.opcua_guard_report import GuardCollector
-from compd.faces.opcua_shape import MachineNodes
+from compd.faces.opcua_shape import AXIS_VARIABLES, MachineNodes, axis_path
 from compd.faces.opcua_shared import FAULT_STATES, NAMESPACE, FaceMachine, SharedServer, url_host
 
 if TYPE_CHECKING:
@@ -335,4 +340,13 @@ def published_values(result: Row, cfg: LoadedConfig) -> dict[str, tuple[Any, ua.
         values["Adaptation.Bias_um"] = (est.bias_um, ua.VariantType.Double)
         values["Adaptation.BiasSigma_um"] = (est.bias_sigma_um, ua.VariantType.Double)
         values["Adaptation.Correction_um"] = (est.correction_um, ua.VariantType.Double)
+    for axis, line in result.axes.items():
+        axis_values = {
+            "Value_um": _num(line.value.confirmed), "Slope_um_m": _num(line.slope.confirmed),
+            "ValueModel_um": _num(line.value.model), "SlopeModel_um_m": _num(line.slope.model),
+            "InForce": bool(line.in_force), "FaultStateName": line.state.value,
+            "Cause": line.cause.value, "StatusWord": int(line.status),
+            "ReferencePosition_mm": _num(line.reference_mm)}
+        for name, value in axis_values.items():
+            values[axis_path(axis, name)] = (value, AXIS_VARIABLES[name])
     return values

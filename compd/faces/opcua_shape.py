@@ -1,11 +1,14 @@
 """The part of a machine's object in the OPC UA face (`compd.faces.opcua_face`)
 that its config decides: ``Terms/<term>_um``, ``Channels/<name>/Value`` and
-``/Valid``, ``Model/Name`` and ``Model/Sha256``, and the ``Adaptation`` folder.
+``/Valid``, ``Model/Name`` and ``Model/Sha256``, the ``Adaptation`` folder, and
+with ``[output.axes]`` the ``Axes`` folder, one object per axis (``Axes/X``,
+its variables `AXIS_VARIABLES`).
 
 `shape` builds them when the machine's object is added, and makes them match
 a reloaded config: the nodes of a term or channel no longer there are
 deleted, new ones added (NaN, invalid, until the next cycle is published),
-the model's name and sha256 written, the Adaptation folder added or deleted.
+the model's name and sha256 written, the Adaptation folder and each axis's
+folder added or deleted.
 Every other node (``Offset_um``, ``FaultState``, the methods...) stays as it
 is, so a client's subscription to it goes on across a reload. It runs on the
 face's own loop, in the task that writes the values.
@@ -25,10 +28,27 @@ if TYPE_CHECKING:
 
     from compd.config.loader import LoadedConfig
 
-__all__ = ["ADAPTATION_NAMES", "MachineNodes"]
+__all__ = ["ADAPTATION_NAMES", "AXIS_VARIABLES", "MachineNodes", "axis_path"]
 
 #: the adaptation estimator's variables, under Adaptation/
 ADAPTATION_NAMES: tuple[str, ...] = ("Bias_um", "BiasSigma_um", "Correction_um")
+
+_D, _B, _S, _U = (ua.VariantType.Double, ua.VariantType.Boolean, ua.VariantType.String,
+                  ua.VariantType.UInt32)
+#: each axis's variables under Axes/<AXIS>/ and their types: the line the controller
+#: holds (its value at the reference position and its slope, as confirmed), what the
+#: axis's models ask, whether the line compd wants is in force, the axis's state,
+#: cause and status word (the bits of ``StatusWord``), its reference position
+AXIS_VARIABLES: dict[str, ua.VariantType] = {
+    "Value_um": _D, "Slope_um_m": _D, "ValueModel_um": _D, "SlopeModel_um_m": _D,
+    "InForce": _B, "FaultStateName": _S, "Cause": _S, "StatusWord": _U,
+    "ReferencePosition_mm": _D}
+_INITIAL: dict[ua.VariantType, Any] = {_D: math.nan, _B: False, _S: "starting", _U: 0}
+
+
+def axis_path(axis: str, name: str = "") -> str:
+    """The path of an axis's folder ("Axes.X") or of one of its variables."""
+    return f"Axes.{axis.upper()}" + (f".{name}" if name else "")
 
 
 class MachineNodes:
@@ -41,6 +61,8 @@ class MachineNodes:
         self.name = name
         self.obj = obj
         self.nodes = nodes
+        #: the Axes folder while the config has [output.axes]
+        self.axes_folder: Node | None = None
 
     def nid(self, path: str) -> ua.NodeId:
         return ua.NodeId(ua.String(f"{self.name}.{path}"), ua.Int16(self.idx))
@@ -99,6 +121,7 @@ class MachineNodes:
             else:
                 await node.write_value(ua.DataValue(ua.Variant(value, ua.VariantType.String)))
 
+        await self._shape_axes(cfg)
         adapting = f"Adaptation.{ADAPTATION_NAMES[0]}" in self.nodes
         if adapting and cfg.adaptation is None:
             await self._delete("Adaptation", *(f"Adaptation.{n}" for n in ADAPTATION_NAMES))
@@ -106,3 +129,24 @@ class MachineNodes:
             ad = await self.folder(self.obj, "Adaptation", "Adaptation")
             for name in ADAPTATION_NAMES:
                 await self.var(ad, f"Adaptation.{name}", name, nan, double)
+
+    async def _shape_axes(self, cfg: LoadedConfig) -> None:
+        """The Axes folder and one folder per ``[output.axes]`` axis, as `cfg` has them."""
+        wanted = set(cfg.axes.axes) if cfg.axes is not None else set()
+        first = next(iter(AXIS_VARIABLES))
+        have = {p.split(".")[1].lower() for p in self.nodes
+                if p.startswith("Axes.") and p.endswith(f".{first}")}
+        for axis in sorted(have - wanted):
+            await self._delete(axis_path(axis), *(axis_path(axis, n) for n in AXIS_VARIABLES))
+        if not wanted:
+            if self.axes_folder is not None:
+                await self._delete("Axes")
+                self.axes_folder = None
+            return
+        folder = self.axes_folder
+        if folder is None:
+            folder = self.axes_folder = await self.folder(self.obj, "Axes", "Axes")
+        for axis in sorted(wanted - have):
+            sub = await self.folder(folder, axis_path(axis), axis.upper())
+            for name, vtype in AXIS_VARIABLES.items():
+                await self.var(sub, axis_path(axis, name), name, _INITIAL[vtype], vtype)

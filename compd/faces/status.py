@@ -210,6 +210,9 @@ class StatusBoard:
                      "unit": ch.unit, "valid": rec.validity.get(name) is None,
                      "reason": rec.validity.get(name)}
                     for name, ch in raw.channels.items()]
+        if result.axes:
+            why += "; axes in force: " + (", ".join(
+                a for a, line in result.axes.items() if line.in_force) or "none")
         doc = {"machine": raw.machine.name, "state": word, "fault_state": str(result.state),
                 "cause": str(result.cause), "healthy": result.healthy,
                 # the output stage's value (sent this cycle, confirmed or not) and what
@@ -243,6 +246,18 @@ class StatusBoard:
                              "guard_probes": est.guard_probes, "guard_worse": est.guard_worse,
                              "model_worse": est.model_worse,
                              "gate_refusals": est.gate_refusals}
+        if result.axes:  # [output.axes]: each axis's line, state and whether it is in force
+            doc["axes"] = {axis: {
+                "in_force": line.in_force, "state": str(line.state), "cause": str(line.cause),
+                "status_word": line.status, "inputs_valid": line.inputs_valid,
+                "reference_mm": line.reference_mm,
+                "value_um": _num(line.value.stage),
+                "value_confirmed_um": _num(line.value.confirmed),
+                "value_model_um": _num(line.value.model),
+                "slope_um_m": _num(line.slope.stage),
+                "slope_confirmed_um_m": _num(line.slope.confirmed),
+                "slope_model_um_m": _num(line.slope.model)}
+                for axis, line in result.axes.items()}
         return doc
 
     def history(self) -> dict[str, Any]:

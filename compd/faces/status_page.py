@@ -6,8 +6,10 @@ inlined as JSON so that the page shows the state before its first fetch;
 the script then fetches /status.json every ``refresh_s`` and redraws. A
 fetch that fails marks the page "no answer from compd" instead of showing
 old values as live; so does a snapshot older than three periods (a stalled
-loop). A fleet's document (``machines``: `compd run DIR`)
-shows one section per machine, the same as one machine's.
+loop). With ``[output.axes]`` a table shows each axis's line: in force or
+not (and why), its value and slope (and what the controller holds when it
+differs) at its reference position. A fleet's document (``machines``:
+`compd run DIR`) shows one section per machine, the same as one machine's.
 """
 
 from __future__ import annotations
@@ -67,12 +69,14 @@ function section(i){ let s = document.getElementById("m" + i); if (s) return s;
   s = add(document.getElementById("machines"), "section"); s.id = "m" + i;
   for (const [tag, cls] of [["h1", "machine"], ["div", "state"], ["div", "why"],
       ["div", "out"], ["div", "small modelref"],
-      ["h2", ""], ["table", "channels"], ["h2", "plotlabel"],
+      ["h2", ""], ["table", "channels"], ["h2", "axeslabel"], ["table", "axes"],
+      ["h2", "plotlabel"],
       ["canvas", "plot"], ["h2", ""], ["table", "alarms"], ["p", "small updated"]])
     add(s, tag, cls);
   const h = s.querySelectorAll("h2"); h[0].textContent = "Channels";
-  h[1].textContent = "Offset and model output"; h[2].textContent = "Last alarms";
-  add(s.querySelector("table.channels"), "tbody"); add(s.querySelector("table.alarms"), "tbody");
+  h[1].textContent = "Axes"; h[2].textContent = "Offset and model output";
+  h[3].textContent = "Last alarms";
+  for (const t of ["channels", "axes", "alarms"]) add(s.querySelector("table." + t), "tbody");
   return s; }
 function showMachine(s, m){
   const q = c => s.querySelector(c);
@@ -103,6 +107,17 @@ function showMachine(s, m){
   for (const c of m.channels || []) row(tb, [[c.name, "name"],
     [fmt(c.value, digits(c.unit)) + " " + unit(c.unit), "value"],
     [c.valid ? "valid" : ("invalid: " + c.reason), c.valid ? "good valid" : "bad valid"]]);
+  const axes = Object.entries(m.axes || {}), ax = q("table.axes tbody");
+  ax.textContent = "";
+  q("table.axes").style.display = q(".axeslabel").style.display = axes.length ? "" : "none";
+  for (const [name, a] of axes) row(ax, [[name.toUpperCase(), "name"],
+    [a.in_force ? "in force" : "not in force", a.in_force ? "good inforce" : "bad inforce"],
+    [a.state + (a.in_force ? "" : " [" + a.cause + "]"), "axisstate"],
+    [fmt(a.value_um, 2) + " \u00b5m" + (a.value_confirmed_um !== a.value_um ?
+      " (holds " + fmt(a.value_confirmed_um, 2) + ")" : ""), "value"],
+    [fmt(a.slope_um_m, 2) + " \u00b5m/m" + (a.slope_confirmed_um_m !== a.slope_um_m ?
+      " (holds " + fmt(a.slope_confirmed_um_m, 2) + ")" : ""), "slope"],
+    ["at " + fmt(a.reference_mm, 1) + " mm", "reference"]]);
   const al = q("table.alarms tbody"); al.textContent = "";
   const alarms = (m.alarms || []).slice().reverse();
   if (!alarms.length) row(al, [["none"]]);

@@ -228,6 +228,19 @@ class Metrics(MetricsServer):
             "compd_fallback_in_force", "1 for the input whose fallback model is in force "
             "(degraded: that sensor is invalid), 0 for the others; all 0: the main model",
             ["lost"], registry=r)
+        self.axis_value_um = Gauge(
+            "compd_axis_value_micrometres", "Each [output.axes] axis's compensation value at "
+            "its reference position, the output stage's (µm)", ["axis"], registry=r)
+        self.axis_slope_um_m = Gauge(
+            "compd_axis_slope_micrometres_per_metre", "Each [output.axes] axis's "
+            "compensation slope, the output stage's (µm/m)", ["axis"], registry=r)
+        self.axis_in_force = Gauge(
+            "compd_axis_in_force", "1 while the axis's line compd wants is the line in "
+            "force (confirmed this cycle), 0 otherwise (compd_axis_fault_state says how)",
+            ["axis"], registry=r)
+        self.axis_fault_state = Gauge(
+            "compd_axis_fault_state", "Each axis's state, as compd_fault_state: 0 ok, "
+            "1 hold, 2 ramp, 3 alarm/stopped", ["axis"], registry=r)
         self._fallback: str | None = None
         self._cause: Cause | None = None
         self._init_server()

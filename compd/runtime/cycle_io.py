@@ -65,6 +65,10 @@ class CycleIO:
         self.journal = journal
         #: whether the last read heard the controller (None: none yet, or a new driver)
         self.read_ok: bool | None = None
+        #: the endpoint whose connect failed (at start or for a reload): the first
+        #: read that hears it logs ``controller_connected`` with it, so the log
+        #: always says which controller the daemon is talking to
+        self.unannounced: str | None = None
         #: who asked for a re-zero since the last cycle (`compd rezero`, OPC UA Rezero):
         #: applied at the start of the next one, on the daemon's loop
         self.rezero_requests: list[str] = []
@@ -79,6 +83,7 @@ class CycleIO:
         now_s, wall_s = at.machine_s, at.wall_s
         assert driver is not None and cycle is not None
         samples, readback, probe, off, got = await self._read(driver, cfg)
+        axes = _axes_readback(got, cycle) if cycle.axes and samples is not None else None
         permitted, rezero = _permit(got, cfg), _bit(got, "rezero")
         if self.rezero_requests:
             for who in self.rezero_requests:
@@ -88,7 +93,12 @@ class CycleIO:
         try:
             if probe is not None:
                 plan = cycle.plan(now_s, samples, readback, wall_s=wall_s, probe=probe,
-                                  controller_off=off, permitted=permitted, rezero_bit=rezero)
+                                  controller_off=off, permitted=permitted, rezero_bit=rezero,
+                                  axes_readback=axes)
+            elif axes is not None:
+                plan = cycle.plan(now_s, samples, readback, wall_s=wall_s,
+                                  controller_off=off, permitted=permitted, rezero_bit=rezero,
+                                  axes_readback=axes)
             else:
                 plan = cycle.plan(now_s, samples, readback, wall_s=wall_s,
                                   controller_off=off, permitted=permitted, rezero_bit=rezero)
@@ -120,6 +130,7 @@ class CycleIO:
         names = list(cfg.channels)
         if params.readback:
             names.append(params.offset_name)
+            names.extend(n for a in params.axes for n in a.names)
         names.extend(cfg.probes)
         names.extend(cfg.states)
         limit_s = max(cfg.real_period_s, 2.0 * cfg.raw.controller.timeout_s)
@@ -133,7 +144,11 @@ class CycleIO:
             for name in getattr(exc, "channels", None) or ("*",):
                 self.metrics.read_errors.labels(channel=name).inc()
             return None, None, None, None, {}
-        if self.read_ok is False:
+        if self.unannounced is not None:
+            self.journal.log.info("controller_connected", endpoint=self.unannounced,
+                                  after="connect_failed")
+            self.unannounced = None
+        elif self.read_ok is False:
             self.journal.log.info("controller_reconnected")
         self.read_ok = True
         readback: float | None = None
@@ -208,6 +223,12 @@ def _probe_reading(got: dict[str, Sample]) -> ProbeReading:
         return float(s.value) if s is not None and s.quality is not Quality.BAD else math.nan
 
     return ProbeReading(value_um=value(PROBE_NAMES[0]), counter=value(PROBE_NAMES[1]))
+
+
+def _axes_readback(got: Mapping[str, Sample], cycle: Cycle) -> dict[str, float | None]:
+    """Each axis parameter as read back (None: missing or of bad quality)."""
+    return {n: (float(s.value) if (s := got.get(n)) is not None and s.quality is not Quality.BAD
+                else None) for n in cycle.axes.names}
 
 
 def _bit(got: Mapping[str, Sample], name: str) -> bool | None:

@@ -219,7 +219,8 @@ class Daemon:
                 self.running.driver = build_driver(cfg)
             await self.opcua.open(cfg)
             try:
-                await connect(self.running.driver, cfg, self.journal.log)
+                if not await connect(self.running.driver, cfg, self.journal.log):
+                    self.io.unannounced = cfg.raw.controller.endpoint
                 # full GC pauses stall every machine's loop (gcfreeze.py): the objects
                 # made so far (driver connected) are frozen before the first deadline
                 freeze_long_lived()

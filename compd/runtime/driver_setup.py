@@ -85,12 +85,16 @@ def check_driver(cfg: LoadedConfig) -> None:
     asyncio.run(driver.close())
 
 
-async def connect(driver: Driver, cfg: LoadedConfig, log: Any) -> None:
+async def connect(driver: Driver, cfg: LoadedConfig, log: Any) -> bool:
     """Connect within ``connect_timeout_s``; a failure is logged, not raised: the
-    reads fail (the cycle holds) and the driver retries with its backoff."""
+    reads fail (the cycle holds) and the driver retries with its backoff. False:
+    the link is not up yet, and its coming up is for the cycle to log
+    (`CycleIO.unannounced`)."""
     ctl = cfg.raw.controller
     try:
         await asyncio.wait_for(driver.connect(), ctl.connect_timeout_s)
-        log.info("controller_connected", endpoint=ctl.endpoint)
     except (DriverError, TimeoutError, OSError) as exc:
-        log.warning("controller_connect_failed", error=str(exc))
+        log.warning("controller_connect_failed", endpoint=ctl.endpoint, error=str(exc))
+        return False
+    log.info("controller_connected", endpoint=ctl.endpoint)
+    return True

@@ -30,8 +30,11 @@ the controller and ``attempted_um`` as sent, ``model_um``, ``state``,
 ``valid``, ``complete``, and the JSON objects ``channels``, ``validity`` and
 ``contributions``; non-finite floats stored as null). Each channel value is
 stored once, in the JSON column; the ``channel_values`` view shows them as
-numbers. Opening a file an older compd wrote upgrades it
-(`compd.store.schema.upgrade`); it then reads and is appended to as before.
+numbers. With ``[output.axes]`` each sample has one row per axis in table
+``axes`` (its state, cause, in force, and its value's and slope's stage,
+sent, confirmed and model values), purged with its sample. Opening a file
+an older compd wrote upgrades it (`compd.store.schema.upgrade`); it then
+reads and is appended to as before.
 
 Retention (`keep_rows`) keeps the newest rows by ``seq``, the recorder's own
 numbering: `recorder.retention_days` (30 by default, 0 keeps everything)
@@ -72,6 +75,7 @@ from compd.store.reader import read_samples
 from compd.store.schema import (
     CHANNELS_KEY,
     FIXED_COLUMNS,
+    INSERT_AXIS,
     INSERT_PROBE,
     INSERT_SAMPLE,
     TERMS_KEY,
@@ -259,7 +263,7 @@ class Recorder:
             return None
         try:
             return Batch.of(self._next_seq, rows, self._channels, self._terms)
-        except (ValueError, TypeError) as exc:
+        except (ValueError, TypeError, AttributeError) as exc:
             self._fail(len(rows), f"{type(exc).__name__}: {exc}")
             return None
 
@@ -278,6 +282,8 @@ class Recorder:
             conn.execute("BEGIN IMMEDIATE")
             conn.executemany(INSERT_SAMPLE, batch.samples)
             conn.executemany(INSERT_PROBE, batch.probes)
+            if batch.axes:
+                conn.executemany(INSERT_AXIS, batch.axes)
             for key, names, known in ((CHANNELS_KEY, batch.channels, self._channels),
                                       (TERMS_KEY, batch.terms, self._terms)):
                 if len(names) > len(known):
@@ -314,6 +320,9 @@ class Recorder:
                 " (SELECT seq FROM samples WHERE seq <= ? ORDER BY seq LIMIT ?)",
                 (last_dropped_seq, limit))
             self.purged += max(cur.rowcount, 0)
+            # the axes' rows of the samples gone (the primary key's range)
+            conn.execute("DELETE FROM axes WHERE seq < "
+                         "(SELECT COALESCE(MIN(seq), ?) FROM samples)", (last_dropped_seq + 1,))
         except sqlite3.Error as exc:
             self._rollback(conn)
             self.last_error = f"retention: {type(exc).__name__}: {exc}"

@@ -2,7 +2,7 @@
 commit's `Batch`, formatted on the caller's thread (no I/O) before the writer
 commits it. Non-finite floats become NULL (JSON null); each channel value, its
 validity and each term's contribution go into the JSON columns of
-`compd.store.schema`'s layout.
+`compd.store.schema`'s layout, each axis's part of the cycle into table ``axes``.
 """
 
 from __future__ import annotations
@@ -42,15 +42,29 @@ def _tuple(seq: int, row: RecordRow) -> tuple[Any, ...]:
             1 if row.complete else 0)
 
 
+def _axis_tuples(seq: int, row: RecordRow) -> list[tuple[Any, ...]]:
+    """The ``axes`` rows of one sample (`compd.store.schema.AXIS_COLUMNS`), one per
+    axis (a `compd.core.axes.AxisRow` each)."""
+    out = []
+    for axis, a in row.axes.items():
+        v, s = a.value, a.slope
+        out.append((seq, str(axis), str(a.state), str(a.cause), 1 if a.in_force else 0,
+                    _num(v.stage), _num(v.sent), _num(v.confirmed), _num(v.model),
+                    _num(s.stage), _num(s.sent), _num(s.confirmed), _num(s.model),
+                    _num(a.reference_mm)))
+    return out
+
+
 @dataclass(frozen=True, slots=True)
 class Batch:
-    """One commit's rows, formatted: the ``samples`` and ``probe`` rows and the
-    names lists they extend (written to ``meta`` when they grew)."""
+    """One commit's rows, formatted: the ``samples``, ``probe`` and ``axes`` rows
+    and the names lists they extend (written to ``meta`` when they grew)."""
 
     first: int
     count: int
     samples: list[tuple[Any, ...]]
     probes: list[tuple[Any, ...]]
+    axes: list[tuple[Any, ...]]
     channels: list[str]
     terms: list[str]
 
@@ -58,11 +72,13 @@ class Batch:
     def of(cls, first: int, rows: Sequence[RecordRow], channels: list[str],
            terms: list[str]) -> Batch:
         """`rows` numbered from `first`, with the channel and term names known so
-        far (`channels`, `terms`); ValueError or TypeError: a row that cannot be stored."""
+        far (`channels`, `terms`); ValueError, TypeError or AttributeError: a row
+        that cannot be stored."""
         samples = [_tuple(first + i, r) for i, r in enumerate(rows)]
+        axes = [t for i, r in enumerate(rows) if r.axes for t in _axis_tuples(first + i, r)]
         probes = [(first + i, *(r.probe.get(c) for c in PROBE_COLUMNS))
                   for i, r in enumerate(rows) if r.probe is not None]
-        return cls(first, len(rows), samples, probes,
+        return cls(first, len(rows), samples, probes, axes,
                    channels + _new_names(channels, (r.channels for r in rows)),
                    terms + _new_names(terms, (r.contributions for r in rows)))
 

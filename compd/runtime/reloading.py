@@ -52,7 +52,8 @@ class Reloader:
         #: the reload being prepared, and what it produced for the loop to swap in
         self.task: asyncio.Task[None] | None = None
         self._again = False
-        self._pending: tuple[LoadedConfig, Changes, Driver | None] | None = None
+        #: (config, changes, new driver or None, whether the new driver connected)
+        self._pending: tuple[LoadedConfig, Changes, Driver | None, bool] | None = None
         self.reloads = 0
 
     def request(self) -> None:
@@ -72,9 +73,10 @@ class Reloader:
             try:
                 new, changes = await asyncio.to_thread(prepare, cfg)
                 driver: Driver | None = None
+                connected = False
                 if changes.controller:
                     driver = self._new_driver(new)
-                    await connect(driver, new, self.journal.log)
+                    connected = await connect(driver, new, self.journal.log)
             except ConfigError as exc:
                 self.journal.log.error("reload_failed", key=exc.key, reason=exc.reason,
                                        config=str(cfg.path), kept=cfg.config_sha256)
@@ -85,7 +87,7 @@ class Reloader:
             else:
                 if self._pending is not None and self._pending[2] is not None:
                     await self._pending[2].close()  # superseded before it was swapped in
-                self._pending = (new, changes, driver)
+                self._pending = (new, changes, driver, connected)
             if not self._again:
                 return
 
@@ -110,7 +112,7 @@ class Reloader:
         """Put the prepared config (if any) in place of the running one."""
         if self._pending is None:
             return
-        new, changes, driver = self._pending
+        new, changes, driver, connected = self._pending
         self._pending = None
         running, log = self.io.running, self.journal.log
         old_cfg, old_driver = running.cfg, running.driver
@@ -128,6 +130,7 @@ class Reloader:
         if driver is not None:
             running.driver = driver
             self.io.read_ok = None
+            self.io.unannounced = None if connected else new.raw.controller.endpoint
             if old_driver is not None:
                 await old_driver.close()
         self.reloads += 1

@@ -7,7 +7,7 @@ exception: not a readable regular file (a FIFO, a device, a directory, missing:
 not the recorder's tables, a corrupt ``meta`` (`RecorderError`, exit 65 in the
 commands). There is no size cap: the rows are streamed.
 
-A file is data, never code: each table read (``samples``, ``meta``, ``probes``)
+A file is data, never code: each table read (``samples``, ``meta``, ``probes``, ``axes``)
 must be an ordinary table, not a view (whose query may recurse without end,
 and read-only mode does not stop a view) nor a virtual table; each statement
 is aborted after `query_s` seconds (SQLite's progress handler), and a field
@@ -49,6 +49,7 @@ import numpy as np
 from compd.infiles import MAX_FIELD_CHARS, open_input
 from compd.store.columns import CORRUPT, Columns, bounded_fields, build_columns, floats
 from compd.store.schema import (
+    AXIS_COLUMNS,
     CHANNELS_KEY,
     FIXED_COLUMNS,
     SAMPLE_COLUMNS,
@@ -83,7 +84,7 @@ WITH RECURSIVE pick(s) AS (SELECT ? UNION ALL SELECT s - ? FROM pick WHERE s - ?
 SELECT wall_s, offset_um, model_um FROM pick JOIN samples ON samples.seq = pick.s
 ORDER BY pick.s"""
 #: the tables a reader reads: each must be an ordinary table (`_check_tables`)
-_TABLES = ("samples", "meta", "probes")
+_TABLES = ("samples", "meta", "probes", "axes")
 #: what `RecorderReader.probes` reads of a probe
 _PROBE_FIELDS = ("probes.seq", "samples.mono_s", "probes.measured_um", "probes.model_um",
                  "probes.accepted", "probes.reason")
@@ -169,9 +170,10 @@ class RecorderReader:
 
     def _check_tables(self, conn: sqlite3.Connection) -> None:
         """Each table read is an ordinary table (``samples`` and ``meta`` there, ``probes``
-        there or absent), never a view or a virtual table: data, not a query."""
+        and ``axes`` there or absent), never a view or a virtual table: data, not a query."""
         kinds = {str(name): (str(kind), str(sql or "")) for name, kind, sql in conn.execute(
-            "SELECT name, type, sql FROM sqlite_schema WHERE name IN (?, ?, ?)", _TABLES)}
+            "SELECT name, type, sql FROM sqlite_schema WHERE name IN "
+            f"({', '.join('?' * len(_TABLES))})", _TABLES)}
         if "samples" not in kinds:
             raise RecorderError(self.path, "not a recorder database (no table samples)")
         for name, (kind, sql) in kinds.items():
@@ -351,6 +353,40 @@ class RecorderReader:
             }
         except CORRUPT as exc:
             raise RecorderError(self.path, f"corrupt probe rows ({type(exc).__name__}); "
+                                "not a recorder compd wrote") from None
+
+    def axes(self) -> Columns:
+        """Every ``[output.axes]`` axis's row (the ``axes`` table), oldest first, with its
+        sample's clock: ``seq`` (int64), ``mono_s``, ``axis``, ``state``, ``cause`` (str),
+        ``in_force`` (bool) and the value's and slope's stage, sent, confirmed and model
+        values (float64, NaN where none: `compd.store.schema.AXIS_COLUMNS`). A file
+        without per-axis outputs, or from before they were recorded: empty columns."""
+        conn = self._connection()
+        fields = ("axes.seq", "samples.mono_s", *(f"axes.{c}" for c in AXIS_COLUMNS))
+        try:
+            with self._timed("cannot read its axes"):
+                if conn.execute("SELECT 1 FROM sqlite_schema WHERE name = 'axes'"
+                                ).fetchone() is None:
+                    rows: list[Any] = []
+                else:
+                    rows = conn.execute(
+                        f"SELECT axes.rowid, {bounded_fields(fields)} FROM axes"
+                        " JOIN samples ON samples.seq = axes.seq ORDER BY axes.seq, axes.axis"
+                        ).fetchall()
+            self._refuse_long(rows, "axis seq")
+            rows = [r[1:-1] for r in rows]
+            out: Columns = {"seq": np.array([r[0] for r in rows], dtype=np.int64),
+                            "mono_s": floats(r[1] for r in rows)}
+            for i, name in enumerate(AXIS_COLUMNS, start=2):
+                if name in ("axis", "state", "cause"):
+                    out[name] = np.array([str(r[i]) for r in rows], dtype=str)
+                elif name == "in_force":
+                    out[name] = np.array([bool(r[i]) for r in rows], dtype=bool)
+                else:
+                    out[name] = floats(r[i] for r in rows)
+            return out
+        except CORRUPT as exc:
+            raise RecorderError(self.path, f"corrupt axis rows ({type(exc).__name__}); "
                                 "not a recorder compd wrote") from None
 
     def _connection(self) -> sqlite3.Connection:

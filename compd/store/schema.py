@@ -10,6 +10,10 @@ an older compd list every channel, null when valid), ``contributions`` (JSON
 {term: µm}), ``attempted_um``, ``complete``. Table ``meta`` (key, value):
 ``channels`` and ``terms``, JSON lists of every channel and term name seen, in
 the order first seen. Table ``probes``: one row per probe ([adaptation]).
+Table ``axes``: one row per sample and ``[output.axes]`` axis (`AXIS_COLUMNS`:
+its state, cause, whether its line is in force, and its value's and slope's
+stage, sent, confirmed and model values); a file of an older compd gets the
+empty table.
 
 Channel values are stored once, in the JSON column. ``channel_values`` (seq,
 channel, value, validity) is a view over it for a SQL client or Grafana (one
@@ -27,9 +31,9 @@ import sqlite3
 
 from compd.errors import CompdError
 
-__all__ = ["CHANNELS_KEY", "FIXED_COLUMNS", "INSERT_PROBE", "INSERT_SAMPLE", "PROBE_COLUMNS",
-           "SAMPLE_COLUMNS", "SCHEMA", "TERMS_KEY", "RecorderError", "meta_names", "scan_terms",
-           "upgrade"]
+__all__ = ["AXIS_COLUMNS", "CHANNELS_KEY", "FIXED_COLUMNS", "INSERT_AXIS", "INSERT_PROBE",
+           "INSERT_SAMPLE", "PROBE_COLUMNS", "SAMPLE_COLUMNS", "SCHEMA", "TERMS_KEY",
+           "RecorderError", "meta_names", "scan_terms", "upgrade"]
 
 
 class RecorderError(CompdError):
@@ -73,6 +77,23 @@ CREATE TABLE IF NOT EXISTS probes (
     bias_sigma_um REAL,
     mode TEXT
 );
+CREATE TABLE IF NOT EXISTS axes (
+    seq INTEGER NOT NULL,
+    axis TEXT NOT NULL,
+    state TEXT NOT NULL,
+    cause TEXT NOT NULL,
+    in_force INTEGER NOT NULL,
+    value_um REAL,
+    value_sent_um REAL,
+    value_confirmed_um REAL,
+    value_model_um REAL,
+    slope_um_m REAL,
+    slope_sent_um_m REAL,
+    slope_confirmed_um_m REAL,
+    slope_model_um_m REAL,
+    reference_mm REAL,
+    PRIMARY KEY (seq, axis)
+);
 """
 
 _VIEW = (
@@ -98,6 +119,13 @@ PROBE_COLUMNS = ("counter", "value_um", "measured_um", "model_um", "innovation_u
                  "innovation_sigma_um", "accepted", "reason", "bias_um", "bias_sigma_um", "mode")
 INSERT_PROBE = (f"INSERT INTO probes (seq, {', '.join(PROBE_COLUMNS)})"
                 f" VALUES ({', '.join('?' * (len(PROBE_COLUMNS) + 1))})")
+
+#: an axis's columns ([output.axes]): the sample's seq, then these
+AXIS_COLUMNS = ("axis", "state", "cause", "in_force", "value_um", "value_sent_um",
+                "value_confirmed_um", "value_model_um", "slope_um_m", "slope_sent_um_m",
+                "slope_confirmed_um_m", "slope_model_um_m", "reference_mm")
+INSERT_AXIS = (f"INSERT INTO axes (seq, {', '.join(AXIS_COLUMNS)})"
+               f" VALUES ({', '.join('?' * (len(AXIS_COLUMNS) + 1))})")
 
 #: columns the reader always returns; channel names may not collide with them
 FIXED_COLUMNS = ("seq", "cycle", "time_s", "mono_s", "wall_s", "offset_um", "model_um", "valid",

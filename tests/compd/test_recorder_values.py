@@ -146,7 +146,7 @@ def test_values_are_stored_once(tmp_path: Path) -> None:
         for i in range(4):
             rec.record(_row(i))
     assert _rows(path, "SELECT name FROM sqlite_schema WHERE type = 'table' ORDER BY name") \
-        == [("meta",), ("probes",), ("samples",)]
+        == [("axes",), ("meta",), ("probes",), ("samples",)]
     # validity names only refused channels (none here); the values are in the JSON alone
     assert _rows(path, "SELECT DISTINCT validity FROM samples") == [("{}",)]
 

@@ -91,11 +91,13 @@ async def _kill9_runs(rec: RecordingSim, tmp_path: Path, count: int, seed: int) 
             await kill_and_wait(proc)
         runs_that_wrote += len(rec.writes) > rec.run_starts[-1]
         load_checkpoint(checkpoint)  # CheckpointError here is a torn state file
-    # a last run that ends cleanly
+    # a last run that ends cleanly, long enough that its own rows give more steps
+    # than there were kills: a loaded PC may kill every earlier run before its
+    # recorder committed a row
     proc = await start_daemon(config, log)
     try:
         hb = await heartbeat(rec.sim)
-        await until(lambda: _hb_past(rec, hb + 5), proc, log, "final run cycling")
+        await until(lambda: _hb_past(rec, hb + count + 5), proc, log, "final run cycling")
         proc.terminate()
         assert await asyncio.wait_for(proc.wait(), 120.0) == 0, await asyncio.to_thread(
             tail, log)

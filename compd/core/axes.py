@@ -1,0 +1,468 @@
+"""The per-axis compensation lines, as the cycle drives them (pure).
+
+For a controller that takes each axis's compensation as its own parameters
+(a value at a reference position and a slope: `drivers.temp_comp`), each
+configured axis (``[output.axes.<axis>]``) is a separate output of the one
+cycle: the same read, the same validated inputs, its writes in the same
+`Driver.write` as the offset, heartbeat and status. Per axis:
+
+- its value model and its slope model (none: the slope stays 0) step on the
+  cycle's inputs, each a `compd.core.modelstep.ModelStepper` of its own;
+- the value and the slope each pass their own `compd.core.output.OutputStage`
+  (clamp to the axis's limit, rate limit, deadband, the controller's grid),
+  and their read-back is judged as the offset's is (`compd.core.readback`): a
+  value compd did not write (a second writer, a restarted controller back at 0)
+  is an alarm and the stage ramps from it, one beyond the limit holds the
+  axis's writes; the reference position is written every cycle and a
+  read-back that differs from it is such an alarm too;
+- its own `compd.core.health.OutputHealth`: an invalid input of its models, a
+  non-finite output or one beyond `MODEL_RANGE_FACTOR` times its limit holds
+  that axis, then ramps value and slope to 0 at their rates after
+  ``[faults] hold_s`` (the alarm), while the offset and every other axis go on;
+  a write refused for one of its parameters counts against that axis alone
+  (a permanent refusal stops that axis's writes);
+- its state, cause and status word are pure functions of a `HealthView`, as
+  the offset's (`compd.core.health_view`): `AxisRow` in the cycle's report.
+
+The operator's hold, the controller's permission and the controller's own
+state (machine off, E-stop) hold the axes as they hold the offset; a
+ramp-to-zero shutdown ramps them too. A re-zero and the fallback models are
+the offset's alone.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any
+
+from compd.core.events import Event, EventName
+from compd.core.faults import FaultState
+from compd.core.health import WRITE_FAULT_AFTER, Cause, OutputHealth
+from compd.core.health_view import HealthView, output_cause, recorded_state, status_word
+from compd.core.modelstep import ModelStepper, finite_or_none
+from compd.core.output import AXES_NIBBLE, AXIS_INDEX, AxesStatus, OutputStage, Status
+from compd.core.readback import ReadBack
+from models.compensation import CompensationModel
+from models.errors import ModelError
+
+__all__ = [
+    "AXIS_RANGE_FACTOR",
+    "WRITE_FAULT_AFTER",
+    "AxisBank",
+    "AxisParams",
+    "AxisRow",
+    "ParamRow",
+]
+
+#: an axis model's output beyond this many times its limit is a fault (as the offset's)
+AXIS_RANGE_FACTOR = 5.0
+#: a float parameter's read-back tolerance (float32 rounding of what was written), in
+#: its unit (µm, µm/m, mm)
+FLOAT_TOLERANCE = 0.01
+
+
+@dataclass(frozen=True)
+class AxisParams:
+    """One axis as the cycle is built with it (from ``[output.axes.<axis>]``)."""
+
+    axis: str
+    value_model: CompensationModel
+    slope_model: CompensationModel | None
+    reference_mm: float
+    value_limit_um: float
+    slope_limit_um_m: float
+    value_slew_um_s: float
+    #: without a slope model the slope stays 0; its rate is then immaterial
+    slope_slew_um_m_s: float = 1.0
+    value_deadband_um: float = 0.0
+    slope_deadband_um_m: float = 0.0
+    #: the controller's grid for value (µm) and slope (µm/m); 0: a float
+    value_quantum_um: float = 0.0
+    slope_quantum_um_m: float = 0.0
+    reference_quantum_mm: float = 0.0
+    #: each model's identity (a sha256 of its description; "" unknown): a model state
+    #: saved by another model is not imported (the model starts at the steady state)
+    value_sha256: str = ""
+    slope_sha256: str = ""
+
+    def name(self, parameter: str) -> str:
+        """The driver output of one of this axis's parameters (`drivers.temp_comp`)."""
+        return f"{self.axis}_comp_{parameter}"
+
+    @property
+    def names(self) -> tuple[str, str, str]:
+        return self.name("value"), self.name("slope"), self.name("reference")
+
+
+@dataclass(frozen=True, slots=True)
+class ParamRow:
+    """One parameter of an axis after the cycle: the model's output, the stage's
+    value, what was sent (None: nothing) and what the controller last confirmed
+    (None: unknown), in µm (value) or µm/m (slope)."""
+
+    model: float | None
+    stage: float
+    sent: float | None
+    confirmed: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class AxisRow:
+    """One axis's part of the cycle's report (`compd.core.plan.Row.axes`)."""
+
+    axis: str
+    state: FaultState
+    cause: Cause
+    status: int
+    value: ParamRow
+    slope: ParamRow
+    reference_mm: float
+    #: the axis's line compd wants is the line in force (confirmed this cycle)
+    in_force: bool
+    #: every input the axis's models read valid and the models stepped
+    inputs_valid: bool
+
+
+class _Param:
+    """One parameter (value or slope): its model, its stage and its read-back."""
+
+    def __init__(self, name: str, model: CompensationModel | None, health: OutputHealth, *,
+                 limit: float, slew: float, deadband: float, quantum: float, max_dt_s: float,
+                 initial: float | None, readback: bool,
+                 state: Mapping[str, Any] | None, fresh: bool) -> None:
+        self.name = name
+        self.models: ModelStepper | None = None
+        if model is not None:
+            refs = state.get("references") if state is not None else None
+            refs = refs if isinstance(refs, Mapping) and refs else None
+            try:
+                usable = fresh and state is not None and "terms" in state
+                self.models = ModelStepper(model, None, model_state=state if usable else None,
+                                           references=refs)
+            except (ModelError, TypeError, ValueError, KeyError):
+                self.models = ModelStepper(model, None, references=refs)
+        self.stage = OutputStage(limit_um=limit, slew_um_s=slew, deadband_um=deadband,
+                                 max_dt_s=max_dt_s, quantum_um=quantum,
+                                 initial_um=initial if initial is not None else 0.0)
+        if initial is not None or not readback:
+            self.stage.confirm()
+        self.readback = ReadBack(self.stage, health, FLOAT_TOLERANCE)
+        self.bound = AXIS_RANGE_FACTOR * limit
+
+    def step(self, values: Mapping[str, float], events: list[Event]) -> float | None:
+        if self.models is None:
+            return 0.0
+        return self.models.step(values, events)
+
+
+def _tagged(events: list[Event], **tags: Any) -> list[Event]:
+    return [Event(e.name, {**tags, **e.fields}) for e in events]
+
+
+class _Axis:
+    """One axis's models, stages and health (module docstring)."""
+
+    def __init__(self, p: AxisParams, hold_s: float, period_s: float, readback: bool,
+                 state: Mapping[str, Any] | None) -> None:
+        self.p = p
+        self.health = OutputHealth(hold_s)
+        st = state or {}
+        dt = 2.0 * period_s
+        fresh = st.get("fresh", True) is True
+
+        def initial(key: str) -> float | None:
+            v = st.get(key)
+            return float(v) if isinstance(v, int | float) and math.isfinite(v) else None
+
+        def model_state(key: str, sha256: str) -> Mapping[str, Any] | None:
+            v = st.get(key)
+            if not isinstance(v, Mapping):
+                return None
+            if st.get(f"{key}_sha256", "") != sha256:  # another model's: its references only
+                return {"references": v.get("references")}
+            return v
+
+        self.value = _Param(p.name("value"), p.value_model, self.health,
+                            limit=p.value_limit_um, slew=p.value_slew_um_s,
+                            deadband=p.value_deadband_um, quantum=p.value_quantum_um,
+                            max_dt_s=dt, initial=initial("value"), readback=readback,
+                            state=model_state("value_model", p.value_sha256), fresh=fresh)
+        self.slope = _Param(p.name("slope"), p.slope_model, self.health,
+                            limit=p.slope_limit_um_m, slew=p.slope_slew_um_m_s,
+                            deadband=p.slope_deadband_um_m, quantum=p.slope_quantum_um_m,
+                            max_dt_s=dt, initial=initial("slope"), readback=readback,
+                            state=model_state("slope_model", p.slope_sha256), fresh=fresh)
+        self.params = (self.value, self.slope)
+        self.gate = sorted(p.value_model.channels
+                           | (p.slope_model.channels if p.slope_model is not None else set()))
+        #: the reference position was written and confirmed once (its read-back judged)
+        self.reference_written = False
+        self._planned: tuple[float | None, float | None, bool] = (None, None, False)
+        self._models: tuple[float | None, float | None] = (None, None)
+        self._valid = False
+        #: the controller confirmed the line compd wants last cycle (`AxisRow.in_force`)
+        self.in_force = False
+
+    @property
+    def writing(self) -> bool:
+        """This cycle's plan writes the axis's line."""
+        return self._planned[2]
+
+    def export_state(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"value": self.value.stage.confirmed_um,
+                               "slope": self.slope.stage.confirmed_um}
+        for key, param, sha in (("value_model", self.value, self.p.value_sha256),
+                                ("slope_model", self.slope, self.p.slope_sha256)):
+            m = param.models
+            if m is not None and m.model_ready:
+                out[key] = m.model.export_state()
+                out[f"{key}_sha256"] = sha
+        return out
+
+    # -- plan ------------------------------------------------------------------------
+
+    def judge(self, got: Mapping[str, float | None] | None, *, off: str | None,
+              events: list[Event]) -> bool:
+        """The read-back of this axis's parameters; whether it was read in full."""
+        was_off = self.health.controller(off, self.value.stage.current_um, events)
+        full = got is not None and all(got.get(n) is not None for n in self.p.names)
+        for param in self.params:
+            v = got.get(param.name) if got is not None else None
+            mine: list[Event] = []
+            param.readback.judge(v, off=off, was_off=was_off, events=mine)
+            events.extend(_tagged(mine, axis=self.p.axis, output=param.name))
+        ref = got.get(self.p.name("reference")) if got is not None else None
+        if off is None and ref is not None and self.reference_written:
+            tol = max(0.5 * self.p.reference_quantum_mm, FLOAT_TOLERANCE)
+            if not (math.isfinite(ref) and abs(ref - self.p.reference_mm) <= tol):
+                events.append(Event(EventName.READBACK_MISMATCH, {
+                    "axis": self.p.axis, "output": self.p.name("reference"),
+                    "expected_um": self.p.reference_mm, "readback_um": finite_or_none(ref),
+                    "action": "rewritten"}))
+                self.health.foreign_seen()
+        return full
+
+    def plan(self, now_s: float, dt: float, values: Mapping[str, float],
+             validity: Mapping[str, str | None], answered: bool, *, hold: bool,
+             events: list[Event]) -> HealthView:
+        """Step the models, decide, move both stages; the axis's health view."""
+        valid_inputs = answered and all(validity.get(ch) is None for ch in self.gate)
+        why: Cause | None = None
+        model_invalid = model_range = False
+        value_um = slope_um = None
+        if valid_inputs:
+            mine: list[Event] = []
+            value_um = self.value.step(values, mine)
+            slope_um = self.slope.step(values, mine)
+            if value_um is None or slope_um is None:
+                model_invalid = True
+                why = Cause.MODEL_NON_FINITE
+            else:
+                in_range = (self.health.model_in_range(value_um, self.value.bound, mine)
+                            and abs(slope_um) <= self.slope.bound)
+                if not in_range:
+                    model_range = True
+                    why = Cause.MODEL_OUT_OF_RANGE
+            events.extend(_tagged(mine, axis=self.p.axis))
+        else:
+            why = Cause.INPUTS_INVALID if answered else Cause.CONTROLLER_NOT_ANSWERING
+        self._models = (value_um, slope_um)
+        self._valid = why is None
+        mine = []
+        decision = self.health.decide(now_s, why, value_um if why is None else None, mine)
+        events.extend(_tagged(mine, axis=self.p.axis))
+        tracking = decision.state == FaultState.OK
+        for param, model in ((self.value, value_um), (self.slope, slope_um)):
+            stage = param.stage
+            if self.health.controller_off is not None:
+                stage.slewing = False
+                continue
+            if tracking and not hold and model is not None:
+                target = model
+            elif decision.target_um is not None and not tracking:
+                target = 0.0  # ramping to zero (a fault, or the shutdown)
+            else:
+                target = stage.current_um
+            stage.step(target, dt, deadband=tracking)
+        held = self.value.stage.held or self.slope.stage.held
+        moving = any(p.stage.slewing for p in self.params) or held
+        self.health.foreign_settled(moving=moving)
+        return HealthView(
+            policy=decision.state, alarm=decision.alarm, write_stopped=self.health.write_stopped,
+            write_fault=self.health.write_fault, held=held, foreign=self.health.foreign,
+            slewing=any(p.stage.slewing for p in self.params), model_invalid=model_invalid,
+            model_range=model_range, controller_off=self.health.controller_off is not None,
+            invalid=why, operator_hold=hold and tracking,
+            at_limit=tracking and value_um is not None and slope_um is not None and (
+                abs(value_um) > self.p.value_limit_um
+                or abs(slope_um) > self.p.slope_limit_um_m))
+
+    def writes(self, full_readback: bool, readback: bool, events: list[Event]
+               ) -> dict[str, float]:
+        """This axis's writes (value, slope, reference), none when it cannot write."""
+        h = self.health
+        held = self.value.stage.held or self.slope.stage.held
+        if h.write_stopped or held or h.controller_off is not None:
+            self._planned = (None, None, False)
+            return {}
+        if readback and not full_readback:
+            mine: list[Event] = []
+            for param in self.params:
+                param.readback.skip_write(mine)
+            events.extend(_tagged(mine, axis=self.p.axis))
+            self._planned = (None, None, False)
+            return {}
+        for param in self.params:
+            param.readback.written()
+        v, s = self.value.stage.current_um, self.slope.stage.current_um
+        self._planned = (v, s, True)
+        return {self.p.name("value"): v, self.p.name("slope"): s,
+                self.p.name("reference"): self.p.reference_mm}
+
+    def row(self, view: HealthView, confirmed: bool, failed: bool) -> AxisRow:
+        v_sent, s_sent, _ = self._planned
+        cause = self.health.committed_cause(output_cause(view), offset_failed=failed)
+        self.in_force = confirmed and v_sent is not None and cause.healthy
+        return AxisRow(
+            axis=self.p.axis, state=recorded_state(view), cause=cause,
+            status=int(status_word(view)),
+            value=ParamRow(self._models[0], self.value.stage.current_um, v_sent,
+                           self.value.stage.confirmed_um),
+            slope=ParamRow(self._models[1], self.slope.stage.current_um, s_sent,
+                           self.slope.stage.confirmed_um),
+            reference_mm=self.p.reference_mm,
+            in_force=self.in_force, inputs_valid=self._valid)
+
+    # -- commit ----------------------------------------------------------------------
+
+    def commit(self, ok: bool, outputs: tuple[str, ...], permanent: bool, reason: str,
+               later: list[Event]) -> tuple[bool, bool, list[Event]]:
+        """How this cycle's writes went for this axis: (confirmed, failed, events).
+        A failed write that named only other outputs confirms nothing here either
+        (whether this axis's parameters arrived is unknown: the stages fall back to
+        what the controller last confirmed, and the next read-back tells), but is
+        no failure of this axis."""
+        if not self._planned[2]:
+            return False, False, []
+        if ok:
+            for param in self.params:
+                param.stage.confirm()
+            self.reference_written = True
+            self.health.write_succeeded(later)
+            return True, False, []
+        for param in self.params:
+            param.stage.revert()
+        if outputs and not set(outputs) & set(self.p.names):
+            return False, False, []
+        failed = tuple(n for n in outputs if n in self.p.names)
+        events = self.health.write_failed(
+            failed, permanent=permanent, reason=reason, offset_failed=True,
+            offset_name=failed[0] if failed else self.p.name("value"),
+            offset_um=self.value.stage.current_um)
+        return False, True, _tagged(events, axis=self.p.axis)
+
+
+class AxisBank:
+    """Every configured axis of a cycle (module docstring)."""
+
+    def __init__(self, axes: tuple[AxisParams, ...], *, hold_s: float, period_s: float,
+                 readback: bool, state: Mapping[str, Any] | None = None) -> None:
+        st = state if isinstance(state, Mapping) else {}
+        self.readback = readback
+        self.axes = [_Axis(p, hold_s, period_s, readback,
+                           s if isinstance(s := st.get(p.axis), Mapping) else None)
+                     for p in axes]
+        self._views: list[HealthView] = []
+        self._events: list[Event] = []
+        #: the axes word's LIFE bit, toggled in every word planned
+        self._life = False
+
+    def __bool__(self) -> bool:
+        return bool(self.axes)
+
+    @property
+    def names(self) -> list[str]:
+        """Every parameter's output name (read back beside the offset)."""
+        return [n for a in self.axes for n in a.p.names]
+
+    def export_state(self) -> dict[str, Any]:
+        return {a.p.axis: a.export_state() for a in self.axes}
+
+    def begin_shutdown(self) -> None:
+        for a in self.axes:
+            a.health.begin_shutdown()
+
+    def plan(self, now_s: float, dt: float, values: Mapping[str, float],
+             validity: Mapping[str, str | None], *, answered: bool,
+             readback: Mapping[str, float | None] | None, off: str | None, hold: bool,
+             write: bool, events: list[Event]) -> dict[str, float]:
+        """Every axis's part of the cycle's plan: its writes (none when `write` is
+        false: a recorder-only or dry run)."""
+        writes: dict[str, float] = {}
+        self._views = []
+        for a in self.axes:
+            full = a.judge(readback if self.readback else None, off=off, events=events)
+            self._views.append(a.plan(now_s, dt, values, validity, answered, hold=hold,
+                                      events=events))
+            if write:
+                writes.update(a.writes(full, self.readback, events))
+        return writes
+
+    def status_word(self) -> int:
+        """This cycle's axes word (`compd.core.output.AxesStatus`), after `plan`: per
+        axis IN_FORCE (the line the controller confirmed last cycle is what the
+        models want, and is written again in this write), ALARM, HOLDING and
+        RAMPING (or shutting down) from the axis's own status word; LIFE toggles
+        on every call, so a PLC sees the cycle run whatever the inputs."""
+        self._life = not self._life
+        word = int(AxesStatus.LIFE) if self._life else 0
+        for a, view in zip(self.axes, self._views, strict=True):
+            bit = 1 << AXIS_INDEX[a.p.axis]
+            status = status_word(view)
+            if a.in_force and a.writing and output_cause(view).healthy:
+                word |= bit << AXES_NIBBLE["in_force"]
+            if status & Status.ALARM:
+                word |= bit << AXES_NIBBLE["alarm"]
+            if status & Status.HOLDING:
+                word |= bit << AXES_NIBBLE["holding"]
+            if status & (Status.RAMPING | Status.SHUTDOWN):
+                word |= bit << AXES_NIBBLE["ramping"]
+        return word
+
+    def carry_over(self, old: AxisBank, *, same_outputs: bool) -> None:
+        """Continue `old`'s axes across a reload (this bank built from its exported
+        state): each axis still configured keeps its fault policy's timer and state
+        (a hold goes on toward its ramp), and while the outputs are the same its
+        stopped writes, whether its line was in force and its reference position
+        written; the axes word's LIFE bit toggles on from where it was."""
+        before = {a.p.axis: a for a in old.axes}
+        self._life = old._life
+        for a in self.axes:
+            was = before.get(a.p.axis)
+            if was is None:
+                continue
+            a.health.carry_over(was.health, outputs_same=same_outputs)
+            if same_outputs:
+                a.in_force = was.in_force
+                a.reference_written = was.reference_written
+
+    def settled(self) -> bool:
+        """A ramp-to-zero shutdown is done for every axis (or cannot write any more)."""
+        return all(a.health.write_stopped or a.health.controller_off is not None
+                   or a.value.stage.held or a.slope.stage.held
+                   or (a.value.stage.current_um == 0.0 and a.slope.stage.current_um == 0.0)
+                   for a in self.axes)
+
+    def commit(self, ok: bool, outputs: tuple[str, ...], permanent: bool, reason: str,
+               later: list[Event]) -> tuple[Mapping[str, AxisRow], tuple[Event, ...]]:
+        """Close every axis's part of the cycle; the axes' rows and write events."""
+        rows: dict[str, AxisRow] = {}
+        events: list[Event] = []
+        for a, view in zip(self.axes, self._views, strict=True):
+            confirmed, failed, evs = a.commit(ok, outputs, permanent, reason, later)
+            events.extend(evs)
+            rows[a.p.axis] = a.row(view, confirmed, failed)
+        return MappingProxyType(rows), tuple(events)
