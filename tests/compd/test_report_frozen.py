@@ -104,3 +104,12 @@ def test_the_loaded_config_holds_read_only_mappings(tmp_path: Path) -> None:
     # a replaced config (a reload's, a test's) is as read-only as a loaded one
     again = dataclasses.replace(cfg, channels={"bearing": cfg.channels["bearing"]})
     assert isinstance(again.channels, MappingProxyType)
+
+
+def test_the_axes_of_a_loaded_config_are_read_only(tmp_path: Path) -> None:
+    from tests.compd.axes_helpers import write_axes_config
+
+    cfg = load_config(write_axes_config(tmp_path))
+    assert cfg.axes is not None and cfg.axes.models
+    for name in ("reference_mm", "quanta", "stages", "reference_quantum_mm", "models"):
+        assert isinstance(getattr(cfg.axes, name), MappingProxyType), name
