@@ -144,7 +144,7 @@ def measure(protocol: str, rate_hz: float, seconds: float, work: Path) -> Figure
     step = [a - b - c - d for a, b, c, d in zip(total, io, rec, tel, strict=True)]
     late = t.lateness(cfg.real_period_s)[w:]
     ms = 1e3
-    writes = len(daemon.last_result.writes) if daemon.last_result else 0
+    writes = len(daemon.loop.last_result.writes) if daemon.loop.last_result else 0
     return Figures(
         protocol=protocol, rate_hz=rate_hz, cycles=len(total),
         bare_med_ms=statistics.median(bare) * ms, bare_p99_ms=percentile(bare, 0.99) * ms,
@@ -154,8 +154,8 @@ def measure(protocol: str, rate_hz: float, seconds: float, work: Path) -> Figure
         telemetry_med_ms=statistics.median(tel) * ms, checkpoint_amort_ms=ckpt_amort * ms,
         checkpoint_call_ms=ckpt_call_s * ms,
         late_p50_ms=percentile(late, 0.5) * ms, late_p99_ms=percentile(late, 0.99) * ms,
-        overruns=daemon.overruns, writes=writes, bare_errors=errors[0],
-        incomplete=daemon.cycles - daemon.complete_cycles)
+        overruns=daemon.loop.overruns, writes=writes, bare_errors=errors[0],
+        incomplete=daemon.loop.cycles - daemon.telemetry.complete_cycles)
 
 
 def report(rows: list[Figures]) -> None:

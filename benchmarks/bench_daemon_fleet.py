@@ -232,8 +232,8 @@ async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> d
             d.request_stop()
 
     def troubles() -> tuple[int, int]:
-        return (sum(d.overruns for d in daemons),
-                sum(d.cycles - d.complete_cycles for d in daemons))
+        return (sum(d.loop.overruns for d in daemons),
+                sum(d.loop.cycles - d.telemetry.complete_cycles for d in daemons))
 
     counts: list[tuple[int, int]] = []  # (overruns, incomplete) at window open, close
     io: list[int] = []  # (write_bytes, sends) at window open, then at close
@@ -241,7 +241,7 @@ async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> d
     rcs = await asyncio.gather(conductor(), *tasks, return_exceptions=True)
     late: list[float] = []
     for d in daemons:
-        late.extend(d.times.lateness(d.cfg.real_period_s, since=window[0], until=window[2]))
+        late.extend(d.times.lateness(d.running.cfg.real_period_s, since=window[0], until=window[2]))
     cycles = sum(1 for d in daemons for s in d.times.start if window[0] <= s < window[2])
     return {
         "late_s": late,

@@ -261,7 +261,7 @@ class TimedDaemon(Daemon):
             self.times.total.append(time.perf_counter() - tp)
             self.times.io.append((driver.io_s - io0) if isinstance(driver, TimedDriver)
                                  else 0.0)
-            if self.stop_after is not None and self.cycles >= self.stop_after:
+            if self.stop_after is not None and self.loop.cycles >= self.stop_after:
                 self.request_stop()
             return result
 

@@ -72,9 +72,10 @@ def _patch_fleet() -> None:
 
 
 def _dump(out: Path) -> None:
-    doc = {d.cfg.raw.machine.name: {"start": d.times.start, "period_s": d.cfg.real_period_s,
-                                    "overruns": d.overruns, "cycles": d.cycles,
-                                    "incomplete": d.cycles - d.complete_cycles}
+    doc = {d.running.cfg.raw.machine.name: {
+        "start": d.times.start, "period_s": d.running.cfg.real_period_s,
+        "overruns": d.loop.overruns, "cycles": d.loop.cycles,
+        "incomplete": d.loop.cycles - d.telemetry.complete_cycles}
            for d in _timed}
     (out / f"times-{os.getpid()}.json").write_text(json.dumps(doc))
 

@@ -265,7 +265,7 @@ class Lockstep:
         daemon = Daemon(load_config(self.config_path), clock=self.clock,
                         sleep=self.clock.sleep, notifier=notes)
         log = EventLog()
-        daemon.log = log
+        daemon.journal.log = log
         self.logs.append(log)
         self.daemon = daemon
         n = self.clock.sleeps + 1

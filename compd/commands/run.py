@@ -73,10 +73,10 @@ def run(args: argparse.Namespace) -> int:
     except StateDirError as exc:  # 73, or 78 for a parent another user could swap
         print(f"compd: state directory refused: {exc}", file=sys.stderr)
         return exc.code
-    if args.once and daemon.last_result is not None:
+    if args.once and daemon.loop.last_result is not None:
         import json
 
-        r = daemon.last_result
+        r = daemon.loop.last_result
         print(json.dumps({"sequence": r.sequence, "state": r.state, "complete": r.in_force,
                           "inputs_valid": r.inputs_valid, "offset_um": r.stage_um,
                           "confirmed_um": r.confirmed_um, "model_um": r.model_um,

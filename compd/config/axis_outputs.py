@@ -40,6 +40,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 from compd.config.address_check import quantum, validate_address
@@ -113,6 +114,11 @@ class AxisOutputSet:
     reference_quantum_mm: Mapping[str, float] = field(default_factory=dict)
     #: axis -> its models (set by `compd.config.loader`; empty from `parse_axis_outputs`)
     models: Mapping[str, AxisModels] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # read-only views of copies: the config is one value every sink reads
+        for name in ("reference_mm", "quanta", "stages", "reference_quantum_mm", "models"):
+            object.__setattr__(self, name, MappingProxyType(dict(getattr(self, name))))
 
     @property
     def axes(self) -> tuple[str, ...]:

@@ -20,6 +20,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 from pydantic import ValidationError
@@ -68,8 +69,10 @@ class LoadedConfig:
 
     path: Path
     raw: DaemonConfig
-    channels: dict[str, Address]
-    outputs: dict[str, Address]
+    #: these four are read-only views (a copy made here): every sink and face reads
+    #: the one config, none may change what another reads
+    channels: Mapping[str, Address]
+    outputs: Mapping[str, Address]
     model: CompensationModel
     shadow: CompensationModel | None
     state_dir: Path
@@ -81,12 +84,16 @@ class LoadedConfig:
     #: [adaptation] when enabled: the cycle's settings and the probe's two addresses
     #: (read under PROBE_NAMES beside the channels)
     adaptation: AdaptationSettings | None = None
-    probes: dict[str, Address] = field(default_factory=dict)
+    probes: Mapping[str, Address] = field(default_factory=dict)
     #: the controller's state ([output] machine_on, estop, homed), read under STATE_NAMES
-    states: dict[str, Address] = field(default_factory=dict)
+    states: Mapping[str, Address] = field(default_factory=dict)
     #: [output.axes.<axis>]: the per-axis compensation lines and their models (their
     #: parameters are in `outputs` too, by `drivers.temp_comp.output_name`); None: none
     axes: AxisOutputSet | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("channels", "outputs", "probes", "states"):
+            object.__setattr__(self, name, MappingProxyType(dict(getattr(self, name))))
 
     @property
     def recorder_only(self) -> bool:

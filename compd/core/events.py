@@ -22,7 +22,9 @@ shell's start-up (`compd.runtime.startup`) makes the checkpoint's.
 from __future__ import annotations
 
 import enum
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any
 
 __all__ = ["Event", "EventName", "Level"]
@@ -112,16 +114,40 @@ class EventName(enum.StrEnum):
     CHECKPOINT_STATE_REFUSED = "checkpoint_state_refused", _W
 
 
+def _frozen(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return MappingProxyType({k: _frozen(v) for k, v in value.items()})
+    if isinstance(value, list | tuple):
+        return tuple(_frozen(v) for v in value)
+    return value
+
+
+def _thawed(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return {k: _thawed(v) for k, v in value.items()}
+    if isinstance(value, tuple):
+        return tuple(_thawed(v) for v in value)
+    return value
+
+
 @dataclass(frozen=True, slots=True)
 class Event:
-    """Something the shell logs: an event name (its level with it) and its fields."""
+    """Something the shell logs: an event name (its level with it) and its fields,
+    deep-frozen (a copy, its mappings read-only views, its lists tuples: the report
+    reaches every sink, none may change what the next one reads); `plain` is
+    the fields with plain dicts, for a log line."""
 
     name: EventName
-    fields: dict[str, Any] = field(default_factory=dict)
+    fields: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, EventName):  # a bare string: checked, never logged as info
             object.__setattr__(self, "name", EventName(self.name))
+        object.__setattr__(self, "fields", _frozen(self.fields))
+
+    def plain(self) -> dict[str, Any]:
+        thawed: dict[str, Any] = _thawed(self.fields)
+        return thawed
 
     @property
     def level(self) -> Level:

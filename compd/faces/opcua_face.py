@@ -198,34 +198,33 @@ class OpcUaFace:
         return asyncio.get_running_loop().create_task(self._publisher(),
                                                       name=f"opcua-face:{self.name}")
 
-    def _set_hold(self, shared: SharedServer) -> Callable[..., Any]:
-        async def on_daemon_loop(on: bool, user: str) -> bool:
-            return self._hold(on, user)
+    async def _on_daemon_loop(self, request: Callable[[], bool]) -> bool:
+        """`request()` run on the daemon's loop, where the cycle lives (the server
+        may run on another thread's); False when that loop is gone."""
+        async def run() -> bool:
+            return request()
 
+        loop = self._daemon_loop
+        if loop is None or loop.is_closed():
+            return False
+        return await asyncio.wrap_future(asyncio.run_coroutine_threadsafe(run(), loop))
+
+    def _set_hold(self, shared: SharedServer) -> Callable[..., Any]:
         async def call(parent: ua.NodeId, hold: ua.Variant | bool) -> list[ua.Variant]:
             on = bool(hold.Value if isinstance(hold, ua.Variant) else hold)
             user, peer = shared.caller
-            loop = self._daemon_loop
-            done = False
-            if loop is not None and not loop.is_closed():  # the cycle lives on that loop
-                done = await asyncio.wrap_future(asyncio.run_coroutine_threadsafe(
-                    on_daemon_loop(on, user), loop))
+            done = await self._on_daemon_loop(lambda: self._hold(on, user))
             self.log.warning("opcua_set_hold", machine=self.name, hold=on, user=user,
                              peer=peer, applied=done)
             return [ua.Variant(done, ua.VariantType.Boolean)]
         return call
 
     def _rezero_call(self, shared: SharedServer) -> Callable[..., Any]:
-        async def on_daemon_loop(user: str, peer: str) -> bool:
-            return self._rezero is not None and self._rezero(f"opcua: {user} from {peer}")
-
         async def call(parent: ua.NodeId) -> list[ua.Variant]:
             user, peer = shared.caller
-            loop = self._daemon_loop
-            done = False
-            if loop is not None and not loop.is_closed():  # the cycle lives on that loop
-                done = await asyncio.wrap_future(asyncio.run_coroutine_threadsafe(
-                    on_daemon_loop(user, peer), loop))
+            rezero = self._rezero
+            done = rezero is not None and await self._on_daemon_loop(
+                lambda: rezero(f"opcua: {user} from {peer}"))
             self.log.warning("opcua_rezero", machine=self.name, user=user, peer=peer,
                              applied=done)
             return [ua.Variant(done, ua.VariantType.Boolean)]

@@ -21,7 +21,7 @@ import collections
 import math
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -162,11 +162,8 @@ def _num(x: float | None) -> float | None:
 class StatusBoard:
     """The last snapshot and alarms, written by the loop, read by the HTTP threads."""
 
-    def __init__(self, *, history_h: float = 4.0, refresh_s: float = 5.0,
-                 wall: Callable[[], float] = time.time) -> None:
+    def __init__(self, *, history_h: float = 4.0, refresh_s: float = 5.0) -> None:
         self.history_h = history_h
-        #: the wall clock that stamps snapshots and alarms (the daemon's injected one)
-        self._wall = wall
         self.refresh_s = refresh_s
         self.snapshot: dict[str, Any] = {"state": "starting", "why": "no cycle yet",
                                          "channels": [], "alarms": []}
@@ -177,9 +174,11 @@ class StatusBoard:
         self._dry_run = False
         self._history_lock = threading.Lock()
 
-    def alarm(self, name: str, level: str, fields: Mapping[str, Any]) -> None:
-        """A warning or error event of the cycle, for the page's list."""
-        self._alarms.append({"wall_s": self._wall(), "event": name, "level": level,
+    def alarm(self, name: str, level: str, fields: Mapping[str, Any], *,
+              wall_s: float) -> None:
+        """A warning or error event of the cycle at `wall_s` (the caller's time: the
+        daemon's clock, as the snapshot's is the report's), for the page's list."""
+        self._alarms.append({"wall_s": wall_s, "event": name, "level": level,
                              "detail": {k: _detail(v) for k, v in fields.items()}})
 
     def publish(self, result: Row, cfg: LoadedConfig, *, dry_run: bool = False) -> None:

@@ -2,7 +2,8 @@
 offset, cycle number) so that a restart resumes without a jump.
 
 File format: one JSON object, the caller's state plus three keys added here:
-``version`` (the format, 1), ``saved_wall_s`` (time.time() at save) and
+``version`` (the format, 1), ``saved_wall_s`` (the caller's wall-clock time of
+the state: the daemon's cycle's; time.time() at save when none is given) and
 ``checksum`` (sha256 hex of the canonical JSON of everything else: sorted keys,
 compact separators). A checkpoint is either the old one or the new one, never
 a mixture: it is written to a temp file in the same directory, flushed and
@@ -91,7 +92,8 @@ def save_checkpoint(path: Path, state: dict[str, Any], *,
     write_checkpoint(path, encode_checkpoint(path, state), directory=directory)
 
 
-def encode_checkpoint(path: Path, state: dict[str, Any]) -> bytes:
+def encode_checkpoint(path: Path, state: dict[str, Any], *,
+                      wall_s: float | None = None) -> bytes:
     """The file's bytes for `state` (the first half of `save_checkpoint`: no I/O,
     so the caller may write them later or on another thread); CheckpointError as
     `save_checkpoint` raises it."""
@@ -100,7 +102,7 @@ def encode_checkpoint(path: Path, state: dict[str, Any]) -> bytes:
         raise CheckpointError(path, f"state uses reserved key(s) {sorted(clash)}")
     payload: dict[str, Any] = dict(state)
     payload["version"] = FORMAT_VERSION
-    payload["saved_wall_s"] = time.time()
+    payload["saved_wall_s"] = time.time() if wall_s is None else wall_s
     try:
         checksum = _checksum(payload)
     except ValueError as exc:  # allow_nan=False: NaN/inf; also circular references

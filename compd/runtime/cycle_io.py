@@ -27,7 +27,7 @@ import asyncio
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from compd.config.loader import PROBE_NAMES, LoadedConfig
 from compd.core.adaptation import ProbeReading
@@ -118,7 +118,7 @@ class CycleIO:
         confirmed = self.dry_run or self.running.params.recorder_only or (
             bool(plan.writes) and outcome.ok)
         return Tick(cfg=cfg, row=row, mono_s=at.mono_s, samples=samples,
-                    confirmed=confirmed, read_ok=self.read_ok)
+                    confirmed=confirmed, read_ok=self.read_ok, state=cycle)
 
     async def _read(self, driver: Driver, cfg: LoadedConfig
                     ) -> tuple[dict[str, Sample] | None, float | None, ProbeReading | None,
@@ -178,10 +178,6 @@ class CycleIO:
         return WRITTEN
 
     # -- the cycle outside plan and commit ----------------------------------------------------
-
-    def export_state(self) -> dict[str, Any]:
-        assert self.running.cycle is not None
-        return self.running.cycle.export_state()
 
     def request_rezero(self, who: str) -> bool:
         """A re-zero asked for by `who`, applied at the start of the next cycle on

@@ -46,14 +46,13 @@ import asyncio
 import signal
 import time
 from collections.abc import Awaitable, Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import structlog
 
 from compd import __version__
 from compd.config.loader import LoadedConfig
-from compd.core.cycle import Cycle, params_from_config
-from compd.core.plan import Row
+from compd.core.cycle import params_from_config
 from compd.faces.status import StatusBoard
 from compd.faces.telemetry import Metrics
 from compd.runtime import signals
@@ -78,9 +77,6 @@ from compd.runtime.sinks.telemetry import TelemetrySink
 from compd.runtime.startup import start_cycle
 from drivers.base import Driver
 
-if TYPE_CHECKING:
-    from compd.faces.opcua_face import OpcUaFace
-
 __all__ = ["Daemon"]
 
 
@@ -104,8 +100,7 @@ class Daemon:
         self.metrics = metrics if metrics is not None else Metrics(mono=clock)
         #: what the operator page shows ([faces.http]), and the alarms listed on it
         http = cfg.raw.faces.http
-        self.status_board = StatusBoard(history_h=http.history_h, refresh_s=http.refresh_s,
-                                        wall=wall)
+        self.status_board = StatusBoard(history_h=http.history_h, refresh_s=http.refresh_s)
         self.journal = Journal(log if log is not None else structlog.get_logger("compd"),
                                self.status_board, self.clock)
         self.running = Running(cfg, params_from_config(cfg, dry_run=dry_run), driver)
@@ -118,8 +113,7 @@ class Daemon:
                                        serve=serve_metrics)
         self.opcua = OpcUaSink(metrics=self.metrics, operator_hold=self.operator_hold,
                                rezero=self.rezero)
-        self.checkpoint = CheckpointSink(dry_run=dry_run, clock=self.clock,
-                                         journal=self.journal, export=self.io.export_state)
+        self.checkpoint = CheckpointSink(dry_run=dry_run, journal=self.journal)
         #: fed in this order every cycle; the checkpoint last, by the loop
         self.sinks: list[CycleSink] = [self.recorder, self.telemetry,
                                        StatusSink(self.status_board, dry_run=dry_run),
@@ -134,48 +128,6 @@ class Daemon:
         self.rezero_requests = RezeroRequests(None)
         self._lock: Any = None
 
-    # -- what tests, benchmarks and the fleet read -------------------------------------
-
-    @property
-    def log(self) -> Any:
-        return self.journal.log
-
-    @log.setter
-    def log(self, log: Any) -> None:  # a test's own logger, before the run
-        self.journal.log = log
-
-    @property
-    def cfg(self) -> LoadedConfig:
-        return self.running.cfg
-
-    @property
-    def cycle(self) -> Cycle | None:
-        return self.running.cycle
-
-    @property
-    def cycles(self) -> int:
-        return self.loop.cycles
-
-    @property
-    def overruns(self) -> int:
-        return self.loop.overruns
-
-    @property
-    def last_result(self) -> Row | None:
-        return self.loop.last_result
-
-    @property
-    def complete_cycles(self) -> int:
-        return self.telemetry.complete_cycles
-
-    @property
-    def reloads(self) -> int:
-        return self.reloader.reloads
-
-    @property
-    def opcua_face(self) -> OpcUaFace | None:
-        return self.opcua.face
-
     # -- requests (signals, the OPC UA face) -------------------------------------------
 
     def request_stop(self, sig: signal.Signals | None = None) -> None:
@@ -183,7 +135,8 @@ class Daemon:
         if sig is not None:
             self.loop.stop_signal = sig.name
             level = "info" if sig in (signal.SIGTERM, signal.SIGINT) else "warning"
-            getattr(self.log, level)("signal_received", signal=sig.name, action="stop")
+            getattr(self.journal.log, level)("signal_received", signal=sig.name,
+                                             action="stop")
         self.loop.stop_requested.set()
 
     def request_reload(self) -> None:
@@ -192,19 +145,20 @@ class Daemon:
             self.reloader.request()
 
     def signal_ignored(self, sig: signal.Signals) -> None:
-        self.log.warning("signal_ignored", signal=sig.name,
+        self.journal.log.warning("signal_ignored", signal=sig.name,
                          reason="SIGHUP reloads, SIGTERM stops compd cleanly")
 
     def operator_hold(self, on: bool, who: str) -> bool:
         """An operator's hold (or its release) of the running cycle (OPC UA SetHold);
         checkpointed at once so that a restart keeps it. False before the cycle exists."""
+        cycle = self.running.cycle
         try:
             event = self.io.operator_hold(on, who)
         except LookupError:
             return False
-        if event is not None:
+        if event is not None and cycle is not None:
             self.journal.events([event], alarms=False)
-            self.checkpoint.save(self.cfg)
+            self.checkpoint.save(self.running.cfg, cycle)
         return True
 
     def rezero(self, who: str) -> bool:
@@ -221,7 +175,7 @@ class Daemon:
         if who is not None:
             self.rezero(who)
         elif box.refused is not None:
-            self.log.warning("rezero_request_refused", reason=box.refused)
+            self.journal.log.warning("rezero_request_refused", reason=box.refused)
             box.refused = None
 
     # -- running -------------------------------------------------------------------------
@@ -241,7 +195,7 @@ class Daemon:
     async def serve(self) -> int:
         """The machine alone: `run` without the process's signal handlers and heap
         setting (`compd run DIR` runs several machines so, `compd.runtime.fleet`)."""
-        cfg = self.cfg
+        cfg = self.running.cfg
         if not self.dry_run:
             from compd.runtime.statelock import StateLock
 
@@ -256,7 +210,7 @@ class Daemon:
             self.running.cycle = startup.cycle
             self.journal.events(startup.events)
             self._log_start(startup.mode)
-            check_certificates(cfg, self.metrics, self.log, wall_s=self.clock.wall())
+            check_certificates(cfg, self.metrics, self.journal.log, wall_s=self.clock.wall())
             await self.recorder.open(cfg)
             await self.telemetry.open(cfg)
             if self.running.driver is None:
@@ -265,7 +219,7 @@ class Daemon:
                 self.running.driver = build_driver(cfg)
             await self.opcua.open(cfg)
             try:
-                if not await connect(self.running.driver, cfg, self.log):
+                if not await connect(self.running.driver, cfg, self.journal.log):
                     self.io.unannounced = cfg.raw.controller.endpoint
                 # full GC pauses stall every machine's loop (gcfreeze.py): the objects
                 # made so far (driver connected) are frozen before the first deadline
@@ -292,19 +246,19 @@ class Daemon:
                 self._lock.release()
 
     def _log_start(self, mode: str) -> None:
-        cfg = self.cfg
-        self.log.info("daemon_starting", version=__version__, machine=cfg.raw.machine.name,
-                      protocol=cfg.raw.controller.protocol,
-                      endpoint=cfg.raw.controller.endpoint, model=cfg.model.name,
-                      shadow=cfg.shadow.name if cfg.shadow else None, start=mode,
-                      dry_run=self.dry_run, period_s=cfg.period_s,
-                      time_scale=cfg.raw.machine.time_scale)
+        cfg, log = self.running.cfg, self.journal.log
+        log.info("daemon_starting", version=__version__, machine=cfg.raw.machine.name,
+                 protocol=cfg.raw.controller.protocol,
+                 endpoint=cfg.raw.controller.endpoint, model=cfg.model.name,
+                 shadow=cfg.shadow.name if cfg.shadow else None, start=mode,
+                 dry_run=self.dry_run, period_s=cfg.period_s,
+                 time_scale=cfg.raw.machine.time_scale)
         # what this daemon may write, and which config says so (an audit line)
-        self.log.info("outputs_configured",
-                      outputs={n: a.describe() for n, a in cfg.outputs.items()},
-                      config_sha256=cfg.config_sha256, model_sha256=cfg.model_sha256,
-                      dry_run=self.dry_run)
+        log.info("outputs_configured",
+                 outputs={n: a.describe() for n, a in cfg.outputs.items()},
+                 config_sha256=cfg.config_sha256, model_sha256=cfg.model_sha256,
+                 dry_run=self.dry_run)
         if cfg.recorder_only:
-            self.log.warning("recorder_only", model=cfg.model.name if cfg.model_given else None,
-                             action="reading, validating and recording; nothing is "
-                                    "written to the controller")
+            log.warning("recorder_only", model=cfg.model.name if cfg.model_given else None,
+                        action="reading, validating and recording; nothing is "
+                               "written to the controller")

@@ -57,6 +57,7 @@ from compd.runtime import signals
 from compd.runtime.daemon import Daemon
 from compd.runtime.heap import pin_mmap_threshold
 from compd.runtime.sdnotify import Notifier
+from compd.runtime.tasks import gather_with
 from drivers.base import Driver
 
 __all__ = ["Fleet", "build_drivers", "load_machines", "machine_daemon"]
@@ -189,7 +190,7 @@ class Fleet:
 
         def document(history: bool) -> dict[str, Any]:
             boards = {name: d.status_board for name, d in list(self.daemons.items())
-                      if d.cfg.raw.faces.http.enabled}
+                      if d.running.cfg.raw.faces.http.enabled}
             return fleet_document(boards, refresh_s, history=history)
 
         return with_status(document, lambda: refresh_s)
@@ -234,16 +235,9 @@ class Fleet:
                                                   for c in self.configs.values()))
         tasks = [loop.create_task(self._supervise(name, delay), name=f"compd:{name}")
                  for name, delay in zip(names, delays, strict=True)]
-        watchdog = loop.create_task(self._notify())
         try:
-            await asyncio.gather(*tasks)
+            await gather_with(tasks, loop.create_task(self._notify()))
         finally:
-            watchdog.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await watchdog
-            for task in tasks:
-                task.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
             self.notifier.stopping()
             self.metrics.stop()
             signals.remove(loop, installed)
@@ -286,7 +280,7 @@ class Fleet:
                                exc_info=True)
             # the restart runs the config the machine ran (a reload's), not the file as
             # read at start; its cycle builds fresh model state from it and the checkpoint
-            self.configs[name] = daemon.cfg
+            self.configs[name] = daemon.running.cfg
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self.stopping.wait(), backoff)
             backoff = min(backoff * 2.0, BACKOFF_CAP_S)
@@ -302,7 +296,7 @@ class Fleet:
         interval = self.notifier.watchdog_interval_s()
         every = interval / 2.0 if interval else 10.0
         while True:
-            ready = sum(1 for d in list(self.daemons.values()) if d.complete_cycles)
+            ready = sum(1 for d in list(self.daemons.values()) if d.telemetry.complete_cycles)
             self.notifier.watchdog()
             self.notifier.status(f"{len(self.configs)} machines, {ready} compensating")
             await asyncio.sleep(every)

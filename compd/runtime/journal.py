@@ -18,7 +18,7 @@ come from the injected monotonic clock (`compd.runtime.clock`).
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from compd.core.events import Event, EventName, Level
@@ -36,6 +36,7 @@ class Journal:
         self.log = log
         self.board = board
         self._mono = clock.mono
+        self._wall = clock.wall
         self._limiters = {name: RepeatLimiter(name.value) for name in _LIMITED}
         #: exceptions where none is expected, per stage of the cycle
         self._cycle_errors: dict[str, RepeatLimiter] = {}
@@ -45,13 +46,18 @@ class Journal:
             name = EventName(ev.name)
             limiter = self._limiters.get(name)
             if limiter is not None:  # once, then a summary a minute
-                self.repeat(limiter.failed(self._mono(), dict(ev.fields)))
+                self.repeat(limiter.failed(self._mono(), ev.plain()))
                 continue
             if name is EventName.PROBE_ACCEPTED:  # ends a run of refusals
                 self.repeat(self._limiters[EventName.PROBE_REFUSED].succeeded(self._mono()))
-            getattr(self.log, name.level)(name.value, **ev.fields)
+            fields = ev.plain()
+            getattr(self.log, name.level)(name.value, **fields)
             if alarms and name.level is not Level.INFO:
-                self.board.alarm(name.value, name.level.value, ev.fields)
+                self.alarm(name.value, name.level.value, fields)
+
+    def alarm(self, name: str, level: str, fields: Mapping[str, Any]) -> None:
+        """A warning or error on the status page, stamped with the daemon's wall clock."""
+        self.board.alarm(name, level, fields, wall_s=self._wall())
 
     def write_ok(self) -> None:
         """A write went through: ends a run of ``write_failed``."""
@@ -64,7 +70,7 @@ class Journal:
             level = "info" if name.endswith("_recovered") else "warning"
             getattr(self.log, level)(name, **fields)
             if level == "warning":
-                self.board.alarm(name, level, fields)
+                self.alarm(name, level, fields)
 
     def guard(self, stage: str, fn: Callable[..., object], *args: Any) -> None:
         """`fn(*args)`; an exception is a ``cycle_error`` of `stage`, never raised."""
@@ -87,4 +93,4 @@ class Journal:
             name, fields = line
             self.log.error(name, **fields, exc_info=exc if name == "cycle_error" else None)
             with contextlib.suppress(Exception):
-                self.board.alarm(name, "error", fields)
+                self.alarm(name, "error", fields)

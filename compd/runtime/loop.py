@@ -35,6 +35,7 @@ from compd.runtime.clock import pause
 from compd.sysexits import EX_SOFTWARE
 
 if TYPE_CHECKING:
+    from compd.core.cycle import Cycle
     from compd.core.plan import Row
     from compd.faces.telemetry import Metrics
     from compd.runtime.clock import Clock, Instant
@@ -84,6 +85,15 @@ class CycleLoop:
             self._checkpoint_due = True
         return tick.row
 
+    def _cycle(self) -> Cycle:
+        cycle = self.io.running.cycle
+        assert cycle is not None  # the loop runs once the cycle exists
+        return cycle
+
+    def _save(self) -> None:
+        """The checkpoint of the running cycle, written when this returns."""
+        self.checkpoint.save(self.io.running.cfg, self._cycle())
+
     def _ramp_budget(self) -> int:
         """Begin the ramp-to-zero shutdown; the cycles it may take."""
         self.io.begin_shutdown()
@@ -101,7 +111,7 @@ class CycleLoop:
         self.journal.log.error("cycle_broken", error=error, sequence=self.io.sequence,
                                offset_um=self.io.offset_um, shutdown=cfg.raw.faults.shutdown,
                                exc_info=True)
-        self.journal.board.alarm("cycle_broken", "error", {"error": error})
+        self.journal.alarm("cycle_broken", "error", {"error": error})
         if again or self.once:
             return None  # the ramp cannot go on either: what is left is the checkpoint
         if cfg.raw.faults.shutdown != "ramp_to_zero" or self.io.dry_run or cfg.recorder_only:
@@ -152,10 +162,10 @@ class CycleLoop:
                 continue
             self.metrics.cycle_seconds.observe(clock.mono() - started)
             if self.once:
-                self.checkpoint.save(self.io.running.cfg)
+                self._save()
                 return 0 if result.in_force else 1
             if self._checkpoint_due:
-                await self.checkpoint.save_async(self.io.running.cfg)
+                await self.checkpoint.save_async(self.io.running.cfg, self._cycle())
             if ramp_left is not None:
                 ramp_left -= 1
                 if result.shutdown_done or ramp_left <= 0:
@@ -182,7 +192,7 @@ class CycleLoop:
             if ramp_left is not None and self.stop_requested.is_set():
                 log.warning("shutdown_ramp_interrupted", offset_um=self.io.offset_um)
                 break
-        self.checkpoint.save(self.io.running.cfg)
+        self._save()
         log.info("daemon_stopped", cycles=self.cycles, overruns=self.overruns,
                  offset_um=self.io.offset_um, reloads=self.reloads(), signal=self.stop_signal,
                  broken=broken)

@@ -8,8 +8,9 @@ the last commit interval; the database is always readable (SQLite's WAL
 recovery). A power cut may lose the last commits as well, never consistency.
 
 With a `writer` (`compd.runtime.diskwriter`; the daemon gives the process's),
-a batch of `commit_every` rows is formatted on the caller's thread and
-committed on the writer's, so the loop does not wait for SQLite; the next row
+a batch of `commit_every` rows is formatted on the caller's thread
+(`compd.runtime.recorder_rows`) and committed on the writer's, so the loop
+does not wait for SQLite; the next row
 is buffered only once that batch is committed (the caller waits for it then,
 which happens only on a disk slower than a cycle), so no more rows are ever
 uncommitted than without a writer: a crash still loses at most the last
@@ -60,16 +61,15 @@ from __future__ import annotations
 
 import contextlib
 import json
-import math
 import os
 import sqlite3
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable
 from concurrent.futures import Future
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 from compd.core.record import RecordRow
+from compd.runtime.recorder_rows import Batch
 from compd.runtime.statedir import StateDir, StateDirError
 from compd.store.reader import read_samples
 from compd.store.schema import (
@@ -78,7 +78,6 @@ from compd.store.schema import (
     INSERT_AXIS,
     INSERT_PROBE,
     INSERT_SAMPLE,
-    PROBE_COLUMNS,
     TERMS_KEY,
     RecorderError,
     meta_names,
@@ -104,62 +103,6 @@ CACHE_KIB = 256
 #: wrote 2.0 KB per row, with 1 KiB pages 1.15 KB (the file 9 % larger, read as
 #: fast: benchmarks/bench_daemon_fleet.py reports the bytes per cycle).
 PAGE_BYTES = 1024
-
-
-def _num(value: float | None) -> float | None:
-    """A float for SQLite/JSON; non-finite and missing become NULL/null."""
-    if value is None:
-        return None
-    v = float(value)
-    return v if math.isfinite(v) else None
-
-
-def _json_numbers(values: Mapping[str, float | None]) -> str:
-    return json.dumps({str(k): _num(v) for k, v in values.items()}, allow_nan=False,
-                      separators=(",", ":"))
-
-
-def _tuple(seq: int, row: RecordRow) -> tuple[Any, ...]:
-    return (seq, row.seq, float(row.mono_s), float(row.wall_s), _num(row.offset_um),
-            _num(row.model_um), str(row.state), 1 if row.valid else 0,
-            _json_numbers(row.channels),
-            json.dumps({str(k): str(v) for k, v in row.validity.items() if v is not None},
-                       separators=(",", ":")),
-            _json_numbers(row.contributions), _num(row.attempted_um),
-            1 if row.complete else 0)
-
-
-def _axis_tuples(seq: int, row: RecordRow) -> list[tuple[Any, ...]]:
-    """The ``axes`` rows of one sample (`compd.store.schema.AXIS_COLUMNS`), one per
-    axis (a `compd.core.axes.AxisRow` each)."""
-    out = []
-    for axis, a in row.axes.items():
-        v, s = a.value, a.slope
-        out.append((seq, str(axis), str(a.state), str(a.cause), 1 if a.in_force else 0,
-                    _num(v.stage), _num(v.sent), _num(v.confirmed), _num(v.model),
-                    _num(s.stage), _num(s.sent), _num(s.confirmed), _num(s.model),
-                    _num(a.reference_mm)))
-    return out
-
-
-@dataclass(frozen=True, slots=True)
-class _Batch:
-    """One commit's rows, formatted: the ``samples`` and ``probe`` rows and the
-    names lists they extend (written to ``meta`` when they grew)."""
-
-    first: int
-    count: int
-    samples: list[tuple[Any, ...]]
-    probes: list[tuple[Any, ...]]
-    axes: list[tuple[Any, ...]]
-    channels: list[str]
-    terms: list[str]
-
-
-def _new_names(known: list[str], groups: Iterable[Mapping[str, Any]]) -> list[str]:
-    """The names in `groups` not in `known`, in the order first seen."""
-    seen = set(known)
-    return list(dict.fromkeys(str(n) for g in groups for n in g if n not in seen))
 
 
 class Recorder:
@@ -310,7 +253,7 @@ class Recorder:
                 self.alarm = True
                 self.last_error = f"{type(exc).__name__}: {exc}"
 
-    def _batch(self) -> _Batch | None:
+    def _batch(self) -> Batch | None:
         """The buffered rows formatted for one commit (None: none, or not open)."""
         rows, self._buffer = self._buffer, []
         if not rows:
@@ -318,20 +261,13 @@ class Recorder:
         if self._conn is None:
             self._fail(len(rows), "recorder is not open")
             return None
-        first = self._next_seq
         try:
-            samples = [_tuple(first + i, r) for i, r in enumerate(rows)]
-            axes = [t for i, r in enumerate(rows) if r.axes for t in _axis_tuples(first + i, r)]
+            return Batch.of(self._next_seq, rows, self._channels, self._terms)
         except (ValueError, TypeError, AttributeError) as exc:
             self._fail(len(rows), f"{type(exc).__name__}: {exc}")
             return None
-        probes = [(first + i, *(r.probe.get(c) for c in PROBE_COLUMNS))
-                  for i, r in enumerate(rows) if r.probe is not None]
-        channels = self._channels + _new_names(self._channels, (r.channels for r in rows))
-        terms = self._terms + _new_names(self._terms, (r.contributions for r in rows))
-        return _Batch(first, len(rows), samples, probes, axes, channels, terms)
 
-    def _commit(self, batch: _Batch) -> None:
+    def _commit(self, batch: Batch) -> None:
         """One transaction of `batch` (on the writer's thread when there is one)."""
         conn = self._conn
         if conn is None:

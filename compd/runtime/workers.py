@@ -69,6 +69,7 @@ from compd.runtime.fleet import (
     metrics_limits,
 )
 from compd.runtime.sdnotify import Notifier, watchdog_interval_s
+from compd.runtime.tasks import gather_with
 from compd.sysexits import EX_CONFIG, EX_SOFTWARE
 
 __all__ = ["WORKER_SILENT_S", "WorkerPool", "assign", "default_workers"]
@@ -264,16 +265,9 @@ class WorkerPool:
                       dry_run=self.dry_run)
         tasks = [loop.create_task(self._supervise(w, endpoint is not None),
                                   name=f"compd-worker-{w.index}") for w in self.workers]
-        watch = loop.create_task(self._watch())
         try:
-            await asyncio.gather(*tasks)
+            await gather_with(tasks, loop.create_task(self._watch()))
         finally:
-            watch.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await watch
-            for task in tasks:
-                task.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
             self.notifier.stopping()
             self.metrics.stop()
             for w in self.workers:

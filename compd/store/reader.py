@@ -40,7 +40,7 @@ import contextlib
 import math
 import sqlite3
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -332,17 +332,7 @@ class RecorderReader:
         refused). A file from before probes were recorded has none: empty columns."""
         conn = self._connection()
         try:
-            with self._timed("cannot read its probes"):
-                if conn.execute("SELECT 1 FROM sqlite_schema WHERE name = 'probes'"
-                                ).fetchone() is None:
-                    rows: list[Any] = []
-                else:
-                    rows = conn.execute(
-                        f"SELECT probes.rowid, {bounded_fields(_PROBE_FIELDS)} FROM probes"
-                        " JOIN samples ON samples.seq = probes.seq ORDER BY probes.seq"
-                        ).fetchall()
-            self._refuse_long(rows, "probe seq")
-            rows = [r[1:-1] for r in rows]
+            rows = self._joined(conn, "probes", _PROBE_FIELDS, "probes.seq", "probe")
             return {
                 "seq": np.array([r[0] for r in rows], dtype=np.int64),
                 "mono_s": floats(r[1] for r in rows),
@@ -364,17 +354,7 @@ class RecorderReader:
         conn = self._connection()
         fields = ("axes.seq", "samples.mono_s", *(f"axes.{c}" for c in AXIS_COLUMNS))
         try:
-            with self._timed("cannot read its axes"):
-                if conn.execute("SELECT 1 FROM sqlite_schema WHERE name = 'axes'"
-                                ).fetchone() is None:
-                    rows: list[Any] = []
-                else:
-                    rows = conn.execute(
-                        f"SELECT axes.rowid, {bounded_fields(fields)} FROM axes"
-                        " JOIN samples ON samples.seq = axes.seq ORDER BY axes.seq, axes.axis"
-                        ).fetchall()
-            self._refuse_long(rows, "axis seq")
-            rows = [r[1:-1] for r in rows]
+            rows = self._joined(conn, "axes", fields, "axes.seq, axes.axis", "axis")
             out: Columns = {"seq": np.array([r[0] for r in rows], dtype=np.int64),
                             "mono_s": floats(r[1] for r in rows)}
             for i, name in enumerate(AXIS_COLUMNS, start=2):
@@ -388,6 +368,21 @@ class RecorderReader:
         except CORRUPT as exc:
             raise RecorderError(self.path, f"corrupt axis rows ({type(exc).__name__}); "
                                 "not a recorder compd wrote") from None
+
+    def _joined(self, conn: sqlite3.Connection, table: str, fields: Sequence[str],
+                order_by: str, what: str) -> list[Any]:
+        """`fields` of every row of `table` joined to its sample, ordered by `order_by`,
+        each field within MAX_FIELD_CHARS (`_refuse_long`); none when the file has no
+        such table (written before it was recorded)."""
+        with self._timed(f"cannot read its {table}"):
+            if conn.execute("SELECT 1 FROM sqlite_schema WHERE name = ?",
+                            (table,)).fetchone() is None:
+                return []
+            rows: list[Any] = conn.execute(
+                f"SELECT {table}.rowid, {bounded_fields(fields)} FROM {table}"
+                f" JOIN samples ON samples.seq = {table}.seq ORDER BY {order_by}").fetchall()
+        self._refuse_long(rows, f"{what} seq")
+        return [r[1:-1] for r in rows]
 
     def _connection(self) -> sqlite3.Connection:
         if self._conn is None:

@@ -34,6 +34,9 @@ UserAccessLevel lacks CurrentWrite; the spec's answer for a node that is not
 writable at all is BadNotWritable, so this sim's PostWrite hook rewrites that
 case to BadNotWritable (what a conforming controller sends).
 
+Security (certificate, policies, user names; `OpcUaSimSecurity`):
+`drivers.sim.opcua_security`.
+
 The first start in a process costs about a second (asyncua builds the
 standard address space), later ones about 10 ms of CPU and 0.6 MB: each server
 shares the standard nodes it never looks up with the others of its process
@@ -46,17 +49,12 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from datetime import UTC
-from pathlib import Path
 from typing import Any
 
 from asyncua import ua
 from asyncua.common.callback import CallbackType, ServerItemCallback
-from asyncua.crypto.permission_rules import User, UserRole
-from asyncua.server.internal_server import InternalServer
 from asyncua.server.server import Server
-from asyncua.server.user_managers import UserManager
 from asyncua.ua.attribute_ids import AttributeIds
 from asyncua.ua.status_codes import StatusCodes
 
@@ -64,10 +62,15 @@ from drivers.addresses import Address, OpcUaAddress
 from drivers.opcua_codec import INT_RANGES
 from drivers.opcua_space import CopiedSpaceInternalServer
 from drivers.sim import CHANNELS, OUTPUTS, PROBES
+from drivers.sim.opcua_security import POLICY_TYPES, OpcUaSimSecurity, secure, user_manager
 from drivers.sim.ports import free_tcp_port
 from drivers.sim.renamed import FORMER_NAMES, warn_former
 from drivers.sim.temp_comp import SINUMERIK_DATA, SINUMERIK_SCALES, line_of
 from drivers.temp_comp import AXES, PARAMETERS, AxisCompensation, output_name
+
+__all__ = ["CHANNEL_TYPES", "ENCODING_NODES", "FORMER_NODES", "NAMESPACE", "NAMESPACE_INDEX",
+           "OUTPUT_TYPES", "POLICY_TYPES", "TEMP_COMP_NODES", "OpcUaSimController",
+           "OpcUaSimSecurity", "node_id"]
 
 NAMESPACE = "urn:compd:sim"
 #: asyncua gives the first registered namespace index 2 (0: OPC UA, 1: the server)
@@ -97,19 +100,6 @@ TEMP_COMP_NODES: dict[str, tuple[str, float]] = {
     output_name(axis, p): (f"{axis.upper()}.{SINUMERIK_DATA[p]}", SINUMERIK_SCALES[p])
     for axis in AXES for p in PARAMETERS}
 
-#: name -> asyncua policy types for the sim's `policies` option
-POLICY_TYPES: dict[str, ua.SecurityPolicyType] = {
-    "None": ua.SecurityPolicyType.NoSecurity,
-    "Basic256Sha256_Sign": ua.SecurityPolicyType.Basic256Sha256_Sign,
-    "Basic256Sha256_SignAndEncrypt": ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
-    "Aes128_Sha256_RsaOaep_Sign": ua.SecurityPolicyType.Aes128Sha256RsaOaep_Sign,
-    "Aes128_Sha256_RsaOaep_SignAndEncrypt":
-        ua.SecurityPolicyType.Aes128Sha256RsaOaep_SignAndEncrypt,
-    "Aes256_Sha256_RsaPss_Sign": ua.SecurityPolicyType.Aes256Sha256RsaPss_Sign,
-    "Aes256_Sha256_RsaPss_SignAndEncrypt":
-        ua.SecurityPolicyType.Aes256Sha256RsaPss_SignAndEncrypt,
-}
-
 _log = logging.getLogger(__name__)
 
 
@@ -121,34 +111,6 @@ def node_id(name: str) -> str:
     """The NodeId string of a sim variable."""
     path = TEMP_COMP_NODES[name][0] if name in TEMP_COMP_NODES else name
     return f"ns={NAMESPACE_INDEX};s=Machine.{path}"
-
-
-@dataclass(frozen=True)
-class OpcUaSimSecurity:
-    """Security of the simulated server.
-
-    `policies` are keys of `POLICY_TYPES`; `users` maps user name to password
-    (when given, only user name tokens are accepted, no anonymous clients).
-    """
-
-    certificate: Path
-    private_key: Path
-    policies: Sequence[str] = ("Basic256Sha256_SignAndEncrypt",)
-    users: Mapping[str, str] = field(default_factory=dict)
-    application_uri: str = "urn:compd:sim:server"
-
-
-class _PasswordUserManager(UserManager):
-    """Accepts exactly the configured user name / password pairs."""
-
-    def __init__(self, users: Mapping[str, str]) -> None:
-        self._users = dict(users)
-
-    def get_user(self, iserver: InternalServer, username: str | None = None,
-                 password: str | None = None, certificate: Any = None) -> User | None:
-        if username is not None and self._users.get(username) == password:
-            return User(role=UserRole.User, name=username)
-        return None
 
 
 def _coerce(value: float, vtype: ua.VariantType) -> Any:
@@ -205,25 +167,13 @@ class OpcUaSimController:
     async def start(self) -> None:
         if self._server is not None:
             return
-        sec = self.security
-        user_manager = _PasswordUserManager(sec.users) if sec and sec.users else None
-        server = Server(iserver=CopiedSpaceInternalServer(user_manager=user_manager))
+        server = Server(iserver=CopiedSpaceInternalServer(
+            user_manager=user_manager(self.security)))
         await server.init()
         server.disable_clock()  # its 1 s loop would make stop() take a second
         server.set_endpoint(self.endpoint)
         server.set_server_name("compd simulated controller")
-        if sec is not None:
-            await server.set_application_uri(sec.application_uri)
-            await server.load_certificate(str(sec.certificate))
-            await server.load_private_key(str(sec.private_key))
-            server.set_security_policy([POLICY_TYPES[p] for p in sec.policies])
-            if sec.users:
-                server.set_identity_tokens([ua.UserNameIdentityToken])
-        else:
-            server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
-            # anonymous only: offering certificate and user-name tokens on an
-            # unsecured endpoint made asyncua warn at every start
-            server.set_identity_tokens([ua.AnonymousIdentityToken])
+        await secure(server, self.security)
         idx = await server.register_namespace(NAMESPACE)
         if idx != NAMESPACE_INDEX:
             raise RuntimeError(f"sim namespace got index {idx}, expected {NAMESPACE_INDEX}")

@@ -63,7 +63,7 @@ async def test_the_daemon_runs_a_cycle_against_memory(tmp_path: Path) -> None:
     driver = RecordingDriver(memory)
     daemon = Daemon(cfg, driver=driver, once=True, notifier=Notifier(None))
     assert await daemon.run() == 0
-    assert daemon.last_result is not None and daemon.last_result.inputs_valid
+    assert daemon.loop.last_result is not None and daemon.loop.last_result.inputs_valid
     assert memory.outputs["heartbeat"] == 1.0
     assert int(memory.outputs["status"]) & Status.OK
     # read back (0.0 from a fresh controller), then written
@@ -77,7 +77,7 @@ async def test_an_injected_read_failure_holds_the_cycle(tmp_path: Path) -> None:
     memory.fail_next_read = ConnectionLost("injected")
     daemon = Daemon(cfg, driver=memory, once=True, notifier=Notifier(None))
     assert await daemon.run() == 1  # the one cycle was not complete
-    assert daemon.last_result is not None and not daemon.last_result.inputs_valid
+    assert daemon.loop.last_result is not None and not daemon.loop.last_result.inputs_valid
     assert memory.reads == 1 and memory.fail_next_read is None
     # no offset written without a read-back, and the heartbeat did not advance
     assert all("offset" not in w for w in memory.writes)

@@ -37,7 +37,7 @@ class ClockedDriver:
 
     async def read(self, names: Sequence[str]) -> dict[str, Sample]:
         self.clock.tick()
-        r = self.daemon.last_result if self.daemon is not None else None
+        r = self.daemon.loop.last_result if self.daemon is not None else None
         if r is not None:
             self.note(r)
         await self.plant(self.reads)

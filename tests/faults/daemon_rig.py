@@ -53,13 +53,13 @@ class DaemonRig:
             self.daemon = Daemon(cfg, driver=self.driver, notifier=Notifier(None), **walls)
         self._pacer: asyncio.Task[None] | None = None
         self.log = EventLog()
-        self.daemon.log = self.log
+        self.daemon.journal.log = self.log
         self._task: asyncio.Task[int] | None = None
 
     @property
     def machine_s(self) -> float:
         """Machine time of the next sample (the last cycle's + one period)."""
-        r = self.daemon.last_result
+        r = self.daemon.loop.last_result
         if r is None or r.record is None:
             return 0.0
         return r.record.mono_s + self.cfg.period_s
@@ -86,10 +86,10 @@ class DaemonRig:
                 raise AssertionError("the daemon stopped before the condition")
             if pacer not in done:
                 raise AssertionError(f"condition not reached in {limit_s} s "
-                                     f"({self.daemon.cycles} cycles)")
+                                     f"({self.daemon.loop.cycles} cycles)")
             pacer.result()
             return
-        await until(predicate, what=f"condition ({self.daemon.cycles} cycles)",
+        await until(predicate, what=f"condition ({self.daemon.loop.cycles} cycles)",
                     limit_s=max(0.0, end - loop.time()), task=self._task, every_s=0.002)
 
     async def stop(self) -> int:

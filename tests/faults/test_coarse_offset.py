@@ -88,11 +88,11 @@ async def test_int16_x10_offset_never_chatters(tmp_path: Path) -> None:
         watch = Watch(build_driver(cfg), sim, clock, plant)
         daemon = Daemon(cfg, driver=watch, notifier=Notifier(None), clock=clock)
         watch.daemon = daemon
-        daemon.log = EventLog()
+        daemon.journal.log = EventLog()
         assert await asyncio.wait_for(daemon.run(), 300.0) == 0
     finally:
         await sim.stop()
-    log = daemon.log
+    log = daemon.journal.log
     assert isinstance(log, EventLog)
     names = log.names()
     counts, models = watch.counts, watch.models

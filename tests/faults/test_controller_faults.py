@@ -64,7 +64,7 @@ async def test_restart_forgets_offset_ramps_back(protocol: str, tmp_path: Path,
 
     sim, rig = await _rig(protocol, tmp_path, invariants, {forget_at: forget})
     try:
-        assert await rig.run_until(lambda: rig.daemon.cycles >= forget_at + 14) == 0
+        assert await rig.run_until(lambda: rig.daemon.loop.cycles >= forget_at + 14) == 0
         final = (await sim.outputs())["offset"]
     finally:
         await sim.stop()
@@ -96,7 +96,7 @@ async def test_modbus_busy_is_transient_and_retried(tmp_path: Path,
     sim, rig = await _rig("modbus", tmp_path, invariants,
                           {busy_at: busy, busy_at + busy_cycles: clear})
     try:
-        assert await rig.run_until(lambda: rig.daemon.cycles >= 30) == 0
+        assert await rig.run_until(lambda: rig.daemon.loop.cycles >= 30) == 0
     finally:
         await sim.stop()
     log = invariants.log()
@@ -104,7 +104,8 @@ async def test_modbus_busy_is_transient_and_retried(tmp_path: Path,
     assert failed == list(range(busy_at, busy_at + busy_cycles))
     # retried: an offset write on every one of those cycles, and the next
     assert all("offset" in log[i].written for i in range(busy_at, busy_at + busy_cycles + 1))
-    assert rig.daemon.cycle is not None and not rig.daemon.cycle.health.write_stopped
+    assert rig.daemon.running.cycle is not None
+    assert not rig.daemon.running.cycle.health.write_stopped
     assert log[busy_at + busy_cycles].write_ok is True
     assert int((await sim.outputs())["status"]) & Status.OK
     assert log[-1].result.stage_um > 30.0
@@ -130,11 +131,11 @@ async def test_modbus_permanent_refusal_stops_offset_writes(
     sim, rig = await _rig("modbus", tmp_path, invariants, {refuse_at: refuse})
     try:
         await rig.start()
-        await rig.until(lambda: rig.daemon.cycle is not None
-                        and rig.daemon.cycle.health.write_stopped)
+        await rig.until(lambda: rig.daemon.running.cycle is not None
+                        and rig.daemon.running.cycle.health.write_stopped)
         mark["requests"] = len(sim.requests)
-        n = rig.daemon.cycles
-        await rig.until(lambda: rig.daemon.cycles >= n + 20)
+        n = rig.daemon.loop.cycles
+        await rig.until(lambda: rig.daemon.loop.cycles >= n + 20)
         assert await rig.stop() == 0
         status = int((await sim.outputs())["status"])
         after = _touches_offset(sim, mark["requests"])
@@ -167,11 +168,11 @@ async def test_opcua_read_only_offset_node_is_permanent(tmp_path: Path,
 
         rig = DaemonRig(sim, cfg, invariants, plant, stepped=True)
         await rig.start()
-        await rig.until(lambda: rig.daemon.cycle is not None
-                        and rig.daemon.cycle.health.write_stopped)
+        await rig.until(lambda: rig.daemon.running.cycle is not None
+                        and rig.daemon.running.cycle.health.write_stopped)
         writes = sim.write_requests  # type: ignore[attr-defined]
-        n = rig.daemon.cycles
-        await rig.until(lambda: rig.daemon.cycles >= n + 10)
+        n = rig.daemon.loop.cycles
+        await rig.until(lambda: rig.daemon.loop.cycles >= n + 10)
         assert await rig.stop() == 0
         table = await sim.value("table")  # type: ignore[attr-defined]
         status = int((await sim.outputs())["status"])
@@ -204,10 +205,10 @@ async def test_focas_ew_prot_is_permanent(tmp_path: Path, invariants: Invariants
 
         rig = DaemonRig(sim, cfg, invariants, plant, stepped=True)
         await rig.start()
-        await rig.until(lambda: rig.daemon.cycle is not None
-                        and rig.daemon.cycle.health.write_stopped)
-        n = rig.daemon.cycles
-        await rig.until(lambda: rig.daemon.cycles >= n + 10)
+        await rig.until(lambda: rig.daemon.running.cycle is not None
+                        and rig.daemon.running.cycle.health.write_stopped)
+        n = rig.daemon.loop.cycles
+        await rig.until(lambda: rig.daemon.loop.cycles >= n + 10)
         assert await rig.stop() == 0
         status = int((await sim.outputs())["status"])
     finally:
@@ -234,7 +235,7 @@ async def test_focas_ew_busy_is_transient_and_retried(tmp_path: Path,
 
     sim, rig = await _rig("focas", tmp_path, invariants, {busy_at: busy})
     try:
-        assert await rig.run_until(lambda: rig.daemon.cycles >= 30) == 0
+        assert await rig.run_until(lambda: rig.daemon.loop.cycles >= 30) == 0
         left = sim.busy_writes
         status = int((await sim.outputs())["status"])
         written = (await sim.outputs())["offset"]
@@ -250,7 +251,8 @@ async def test_focas_ew_busy_is_transient_and_retried(tmp_path: Path,
     assert log[busy_at + busy_writes].write_ok is True
     reasons = [f.get("reason", "") for _, e, f in rig.log.events if e == "write_failed"]
     assert reasons and all("EW_BUSY" in r for r in reasons), reasons
-    assert rig.daemon.cycle is not None and not rig.daemon.cycle.health.write_stopped
+    assert rig.daemon.running.cycle is not None
+    assert not rig.daemon.running.cycle.health.write_stopped
     assert "offset_write_stopped" not in rig.log.names()
     assert status & Status.OK and not status & Status.ALARM
     assert log[-1].result.stage_um > 30.0
@@ -275,11 +277,11 @@ async def test_opcua_offset_made_read_only_is_permanent(
     sim, rig = await _rig("opcua", tmp_path, invariants, {refuse_at: refuse})
     try:
         await rig.start()
-        await rig.until(lambda: rig.daemon.cycle is not None
-                        and rig.daemon.cycle.health.write_stopped)
+        await rig.until(lambda: rig.daemon.running.cycle is not None
+                        and rig.daemon.running.cycle.health.write_stopped)
         held = await sim.value("offset")
-        n = rig.daemon.cycles
-        await rig.until(lambda: rig.daemon.cycles >= n + 10)
+        n = rig.daemon.loop.cycles
+        await rig.until(lambda: rig.daemon.loop.cycles >= n + 10)
         assert await rig.stop() == 0
         outputs = await sim.outputs()
     finally:
@@ -311,7 +313,7 @@ async def test_opcua_offset_node_retyped_is_transient(tmp_path: Path,
 
     sim, rig = await _rig("opcua", tmp_path, invariants, {retype_at: retype})
     try:
-        assert await rig.run_until(lambda: rig.daemon.cycles >= retype_at + 30) == 0
+        assert await rig.run_until(lambda: rig.daemon.loop.cycles >= retype_at + 30) == 0
         written = await sim.value("offset")
     finally:
         await sim.stop()
@@ -322,7 +324,8 @@ async def test_opcua_offset_node_retyped_is_transient(tmp_path: Path,
     reasons = [f.get("reason", "") for _, e, f in rig.log.events if e == "write_failed"]
     assert len(reasons) == 1 and "BadTypeMismatch" in reasons[0] \
         and "Double" in reasons[0], reasons
-    assert rig.daemon.cycle is not None and not rig.daemon.cycle.health.write_stopped
+    assert rig.daemon.running.cycle is not None
+    assert not rig.daemon.running.cycle.health.write_stopped
     assert "offset_write_stopped" not in rig.log.names()
     assert written == pytest.approx(log[-1].result.stage_um, abs=1e-3)
     assert log[-1].result.stage_um > 30.0

@@ -33,10 +33,10 @@ async def test_ready_while_the_controller_is_off_then_compensates(
     rig.daemon.telemetry.notifier = notes
     await rig.start()
     try:
-        await rig.until(lambda: rig.daemon.cycles >= 5)
-        off = rig.daemon.last_result
+        await rig.until(lambda: rig.daemon.loop.cycles >= 5)
+        off = rig.daemon.loop.last_result
         assert off is not None and off.cause is Cause.CONTROLLER_NOT_ANSWERING
-        assert not off.writes.get("offset") and rig.daemon.complete_cycles == 0
+        assert not off.writes.get("offset") and rig.daemon.telemetry.complete_cycles == 0
         assert notes.messages[0].startswith("READY=1"), notes.messages[:3]
         assert notes.messages.count("WATCHDOG=1") >= 5
         assert any(m.startswith("STATUS=") and "controller_not_answering" in m
@@ -47,8 +47,8 @@ async def test_ready_while_the_controller_is_off_then_compensates(
 
         await sim.start()  # the machine is switched on
         await sim.publish({"bearing": 20.0, "ambient": 20.0})
-        await rig.until(lambda: rig.daemon.complete_cycles >= 3)
-        on = rig.daemon.last_result
+        await rig.until(lambda: rig.daemon.telemetry.complete_cycles >= 3)
+        on = rig.daemon.loop.last_result
         assert on is not None and on.cause is Cause.IN_FORCE
         assert sum(m.startswith("READY=1") for m in notes.messages) == 1
     finally:

@@ -85,17 +85,17 @@ OPEN, SHORT = 32767, -32768  # the analog card's Pt100 sentinels (int16, 0.1 °C
 
 
 def _offset(rig: DaemonRig) -> float:
-    r = rig.daemon.last_result
+    r = rig.daemon.loop.last_result
     return r.stage_um if r is not None else float("nan")
 
 
 def _cause(rig: DaemonRig) -> Cause | None:
-    r = rig.daemon.last_result
+    r = rig.daemon.loop.last_result
     return r.cause if r is not None else None
 
 
 def _settled(rig: DaemonRig) -> bool:
-    r = rig.daemon.last_result
+    r = rig.daemon.loop.last_result
     return r is not None and r.model_um is not None and abs(r.stage_um - r.model_um) < 0.05
 
 
@@ -155,17 +155,17 @@ async def test_sensor_lost_degraded_fallback_ramped_and_back_to_the_main_model(
         # the ambient's Pt100 opens: the fallback without it, at that very sample
         since = len(invariants.log())
         raw["ambient"] = OPEN
-        await rig.until(lambda: rig.daemon.last_result is not None
-                        and rig.daemon.last_result.validity.get("ambient") is not None)
-        first = rig.daemon.last_result
+        await rig.until(lambda: rig.daemon.loop.last_result is not None
+                        and rig.daemon.loop.last_result.validity.get("ambient") is not None)
+        first = rig.daemon.loop.last_result
         assert first is not None and first.cause is Cause.DEGRADED
         assert first.snapshot.fallback_for == "ambient"
         assert first.model_um is not None and abs(first.model_um - 22.0) < 0.3
         assert first.model_um - main_um > 2.0 * SLEW  # a step the output stage must ramp
         assert "fallback_in_force" in rig.log.names()
-        n = rig.daemon.cycles
-        await rig.until(lambda: rig.daemon.cycles >= n + int(3 * HOLD_S))  # well past hold_s
-        r = rig.daemon.last_result
+        n = rig.daemon.loop.cycles
+        await rig.until(lambda: rig.daemon.loop.cycles >= n + int(3 * HOLD_S))  # well past hold_s
+        r = rig.daemon.loop.last_result
         assert r is not None and r.cause is Cause.DEGRADED and r.healthy and r.in_force
         assert abs(r.stage_um - 22.0) < 0.3  # the fallback's offset is in force
         degraded = invariants.log()[since:]
@@ -211,7 +211,7 @@ async def test_sensor_lost_degraded_fallback_ramped_and_back_to_the_main_model(
         since = len(invariants.log())
         raw["bearing"] = SHORT
         await rig.until(lambda: _cause(rig) is Cause.DEGRADED and _settled(rig))
-        r = rig.daemon.last_result
+        r = rig.daemon.loop.last_result
         assert r is not None and r.snapshot.fallback_for == "bearing"
         assert abs(r.stage_um) < 0.3  # the ambient at its reference: no growth
         assert all(c.result.cause is Cause.DEGRADED for c in invariants.log()[since:])

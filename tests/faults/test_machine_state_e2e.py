@@ -57,7 +57,7 @@ async def _rig(tmp_path: Path, inv: Invariants, bearing: list[float]) -> tuple[
 
 
 def _offset(rig: DaemonRig) -> float:
-    r = rig.daemon.last_result
+    r = rig.daemon.loop.last_result
     return r.stage_um if r is not None else float("nan")
 
 
@@ -79,13 +79,13 @@ async def test_permit_holds_the_offset_then_the_change_ramps_in(
         assert init[0]["mode"] == "steady_state" and init[0]["reference"] == "calibration"
         assert _steps(invariants) <= SLEW * 1.0 + 1e-3  # ramped up from 0, no step
         await sim.publish({"plc_update_permitted": 0})  # a cut starts
-        await rig.until(lambda: rig.daemon.last_result is not None
-                        and rig.daemon.last_result.cause is Cause.WAITING_FOR_PERMISSION)
+        await rig.until(lambda: rig.daemon.loop.last_result is not None
+                        and rig.daemon.loop.last_result.cause is Cause.WAITING_FOR_PERMISSION)
         held_at = _offset(rig)
         bearing[0] = 21.5  # the machine warms on during the cut
-        n = rig.daemon.cycles
-        await rig.until(lambda: rig.daemon.cycles >= n + 60)
-        r = rig.daemon.last_result
+        n = rig.daemon.loop.cycles
+        await rig.until(lambda: rig.daemon.loop.cycles >= n + 60)
+        r = rig.daemon.loop.last_result
         assert r is not None and r.stage_um == held_at
         assert r.snapshot.pending_um is not None and r.snapshot.pending_um > 5.0
         assert r.model_um is not None and r.model_um > held_at + 5.0
@@ -94,9 +94,9 @@ async def test_permit_holds_the_offset_then_the_change_ramps_in(
         assert "waiting_for_permission" in status and "um pending" in status
         since = len(invariants.log())
         await sim.publish({"plc_update_permitted": 1})  # between cuts
-        await rig.until(lambda: rig.daemon.last_result is not None
-                        and rig.daemon.last_result.cause is Cause.IN_FORCE
-                        and abs(_offset(rig) - (rig.daemon.last_result.model_um or 0)) < 0.2)
+        await rig.until(lambda: rig.daemon.loop.last_result is not None
+                        and rig.daemon.loop.last_result.cause is Cause.IN_FORCE
+                        and abs(_offset(rig) - (rig.daemon.loop.last_result.model_um or 0)) < 0.2)
         assert _steps(invariants, since) <= SLEW * 1.0 + 1e-3
         names = rig.log.names()
         assert "permission_waiting" in names and "permission_granted" in names
@@ -116,8 +116,8 @@ async def test_rezero_by_plc_pulse_and_by_compd_rezero_ramps_and_survives_a_rest
         await rig.until(lambda: abs(_offset(rig) - 17.6) < 0.5)
         since = len(invariants.log())
         await sim.publish({"plc_rezero": 1})  # the M-code's pulse at touch-off
-        await rig.until(lambda: rig.daemon.cycle is not None
-                        and rig.daemon.cycle.models.zero_by is not None)
+        await rig.until(lambda: rig.daemon.running.cycle is not None
+                        and rig.daemon.running.cycle.models.zero_by is not None)
         await sim.publish({"plc_rezero": 0})
         await rig.until(lambda: abs(_offset(rig)) < 0.3)
         assert _steps(invariants, since) <= SLEW * 1.0 + 1e-3
@@ -129,9 +129,9 @@ async def test_rezero_by_plc_pulse_and_by_compd_rezero_ramps_and_survives_a_rest
         done = asyncio.create_task(asyncio.to_thread(
             cli, ["rezero", "--state-dir", str(state_dir), "--wait-s", "60"]))
         await rig.until(lambda: done.done() or "compd rezero" in str(
-            rig.daemon.cycle.models.zero_by if rig.daemon.cycle else ""))
-        n = rig.daemon.cycles  # let the checkpoint be read while the clock moves on
-        await rig.until(lambda: done.done() or rig.daemon.cycles > n + 200)
+            rig.daemon.running.cycle.models.zero_by if rig.daemon.running.cycle else ""))
+        n = rig.daemon.loop.cycles  # let the checkpoint be read while the clock moves on
+        await rig.until(lambda: done.done() or rig.daemon.loop.cycles > n + 200)
         assert await done == 0
         await rig.until(lambda: abs(_offset(rig)) < 0.3)
         saved = json.loads((state_dir / "checkpoint.json").read_text())
@@ -142,8 +142,8 @@ async def test_rezero_by_plc_pulse_and_by_compd_rezero_ramps_and_survives_a_rest
     rig2 = DaemonRig(sim, rig.cfg, invariants, rig.plant, stepped=True)
     await rig2.start()
     try:
-        await rig2.until(lambda: rig2.daemon.complete_cycles >= 3)
-        r = rig2.daemon.last_result
+        await rig2.until(lambda: rig2.daemon.telemetry.complete_cycles >= 3)
+        r = rig2.daemon.loop.last_result
         assert r is not None and r.model_um is not None and abs(r.model_um) < 1.0
         assert r.snapshot.zero_um is not None
     finally:
@@ -161,8 +161,9 @@ async def test_a_stale_rezero_request_is_refused(tmp_path: Path,
         {"user": "someone", "id": "abc123", "wall_s": 1.0}))  # left behind long ago
     await rig.start()
     try:
-        await rig.until(lambda: rig.daemon.complete_cycles >= 5)
-        assert rig.daemon.cycle is not None and rig.daemon.cycle.models.zero_by is None
+        await rig.until(lambda: rig.daemon.telemetry.complete_cycles >= 5)
+        assert rig.daemon.running.cycle is not None
+        assert rig.daemon.running.cycle.models.zero_by is None
         refused = [f for _, e, f in rig.log.events if e == "rezero_request_refused"]
         assert refused and "older than" in refused[0]["reason"]
         assert not (state_dir / "rezero.request").exists()

@@ -141,7 +141,7 @@ async def test_a_model_worse_than_none_is_caught_within_three_probes_and_ramped_
             assert daemon is not None
             if index >= CYCLES:
                 daemon.request_stop()
-            last = daemon.last_result
+            last = daemon.loop.last_result
             if last is not None and "before" not in seen and last.cause is Cause.IN_FORCE \
                     and index > 25:
                 await ask("before")
@@ -164,11 +164,11 @@ async def test_a_model_worse_than_none_is_caught_within_three_probes_and_ramped_
         watch = Watch(build_driver(cfg), clock, plant)
         daemon = Daemon(cfg, driver=watch, notifier=Notifier(None), clock=clock)
         watch.daemon = daemon
-        daemon.log = EventLog()
+        daemon.journal.log = EventLog()
         assert await asyncio.wait_for(daemon.run(), 300.0) == 0
     finally:
         await sim.stop()
-    log = daemon.log
+    log = daemon.journal.log
     assert isinstance(log, EventLog)
     tripped = [(lvl, f) for lvl, e, f in log.events if e == "model_worse_than_none"]
     assert len(tripped) == 1, log.names()

@@ -71,8 +71,8 @@ async def test_recorder_only_records_what_fit_reads_and_writes_nothing(
     rig = DaemonRig(sim, cfg, invariants, plant, stepped=True)
     await rig.start()
     try:
-        await rig.until(lambda: rig.daemon.cycles >= 2400, limit_s=300.0)
-        r = rig.daemon.last_result
+        await rig.until(lambda: rig.daemon.loop.cycles >= 2400, limit_s=300.0)
+        r = rig.daemon.loop.last_result
         assert r is not None and r.cause is Cause.RECORDER_ONLY and r.healthy
         assert r.writes == {} and r.model_um is None and r.record.complete
         assert await sim.outputs() == pytest.approx(sentinel)

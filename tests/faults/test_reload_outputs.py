@@ -118,7 +118,7 @@ async def test_a_lowered_limit_ramps_the_register_into_it_at_the_slew_limit(
     daemon = await rig.lockstep.start()
     before = await _warm_to(rig, monkeypatch, WRITTEN_UM)
     await rig.reload(limit_um=LOWERED_UM)
-    assert daemon.reloads == 1 and daemon.cfg.raw.output.limit_um == LOWERED_UM
+    assert daemon.reloader.reloads == 1 and daemon.running.cfg.raw.output.limit_um == LOWERED_UM
     offsets, words = [before], []
     page = daemon.status_board.snapshot
     # the model still asks for more than the lowered limit: "limited" (not in force)
@@ -163,7 +163,7 @@ async def test_a_reload_moving_the_offset_is_refused_and_the_old_address_kept(
     await rig.reload(offset=moved)
     (failed,) = rig.events("reload_failed")
     assert failed["key"] == "output.offset" and "restart compd" in failed["reason"]
-    assert daemon.reloads == 0 and not rig.events("reload_succeeded")
+    assert daemon.reloader.reloads == 0 and not rig.events("reload_succeeded")
     # the old address stays in force and written: the offset follows the model up at
     # the slew limit, the heartbeat counts every cycle; the other address is untouched
     seen = [await rig.outputs()]

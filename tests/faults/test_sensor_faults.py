@@ -229,7 +229,7 @@ async def _open_sensor_run(protocol: str, inject: object, tmp_path: Path,
 
         def done() -> bool:
             nonlocal ramp_cycles
-            r = rig.daemon.last_result
+            r = rig.daemon.loop.last_result
             ramp_cycles += r is not None and r.state == "ramp"
             return r is not None and r.state == "ramp" and r.stage_um == 0.0
 
@@ -322,7 +322,7 @@ async def test_stuck_sensor_modbus(tmp_path: Path, invariants: Invariants) -> No
                 "ambient": round(20.0 + max(0.0, t - warm_s) * 0.01, 1)}
 
     def stuck(rig: DaemonRig) -> bool:
-        r = rig.daemon.last_result
+        r = rig.daemon.loop.last_result
         return r is not None and r.record is not None \
             and r.validity["bearing"] == "stuck"
 
@@ -336,7 +336,7 @@ async def test_stuck_sensor_modbus(tmp_path: Path, invariants: Invariants) -> No
     assert 0.0 <= after <= 600.0
     assert all(c.result.validity["bearing"] is None
                for c in log if c.now_s < warm_s)  # no false alarm while at rest
-    assert rig.daemon.last_result is not None and rig.daemon.last_result.state == "hold"
+    assert rig.daemon.loop.last_result is not None and rig.daemon.loop.last_result.state == "hold"
 
 
 @pytest.mark.parametrize("spike_k", [50.0, -50.0])
@@ -351,7 +351,7 @@ async def test_spike_modbus(spike_k: float, tmp_path: Path, invariants: Invarian
         return {"bearing": round(b * 10), "ambient": 20.0}  # an int: a raw register
 
     await _modbus_run(tmp_path, invariants, values,
-                      lambda rig: rig.daemon.cycles >= spike_read + 10, {})
+                      lambda rig: rig.daemon.loop.cycles >= spike_read + 10, {})
     log = invariants.log()
     assert log[spike_read].result.validity["bearing"] is not None
     before = log[spike_read - 1].result.stage_um

@@ -88,17 +88,17 @@ async def test_slow_reconnect_after_link_loss_resumes(protocol: str, tmp_path: P
         await rig.start()
         try:
             # the bearing heated at cycle 3: compensating (the offset ramping) from then
-            await rig.until(lambda: rig.daemon.cycles >= 6 and io.read_ok is True)
-            lost_at = rig.daemon.cycles
+            await rig.until(lambda: rig.daemon.loop.cycles >= 6 and io.read_ok is True)
+            lost_at = rig.daemon.loop.cycles
             proxy.reset()  # the controller restarted: every connection is gone
             await rig.until(lambda: io.read_ok is False)
             proxy.slow_start(HOLD_S, HELD_CHUNKS[protocol])  # and it answers slowly
-            failed_at = rig.daemon.cycles
+            failed_at = rig.daemon.loop.cycles
             await rig.until(lambda: io.read_ok is True
-                            or rig.daemon.cycles > failed_at + RESUME_WITHIN)
-            resumed_at = rig.daemon.cycles
+                            or rig.daemon.loop.cycles > failed_at + RESUME_WITHIN)
+            resumed_at = rig.daemon.loop.cycles
             # a few complete cycles after the reconnect: compensating again
-            await rig.until(lambda: rig.daemon.cycles >= resumed_at + 5)
+            await rig.until(lambda: rig.daemon.loop.cycles >= resumed_at + 5)
         finally:
             assert await rig.stop() == 0
     finally:

@@ -12,7 +12,7 @@ do not know each other: what one needs of the cycle is in the report.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
     from compd.config.loader import LoadedConfig
@@ -20,7 +20,14 @@ if TYPE_CHECKING:
     from compd.runtime.reload import Changes
     from drivers.base import Sample
 
-__all__ = ["CycleSink", "Tick"]
+__all__ = ["CycleSink", "StateSource", "Tick"]
+
+
+class StateSource(Protocol):
+    """What the checkpoint saves: the cycle's state, exported when a save is due
+    (`compd.core.cycle.Cycle.export_state`, a new dict each call)."""
+
+    def export_state(self) -> dict[str, Any]: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,6 +48,8 @@ class Tick:
     confirmed: bool
     #: whether the last read heard the controller (None: no read yet)
     read_ok: bool | None
+    #: the cycle that committed the row, whose state the checkpoint saves
+    state: StateSource
 
 
 class CycleSink(Protocol):

@@ -12,8 +12,12 @@ read from the reports it is fed: the last complete cycle's (`Row.in_force`)
 wall and monotonic time (the cycle's own, read once by the loop), the boot it
 happened in, and the last cycle's state and cause (an alarm, or an offset not
 in force, is unhealthy however recent the rest). The config (the file's path,
-``checkpoint_every``, the hashes saved) is the tick's, or the caller's for a
-save outside a cycle.
+``checkpoint_every``, the hashes saved) and the cycle whose state is saved
+(`Tick.state`) are the tick's, or the caller's for a save outside a cycle. The
+save's time (``saved_wall_s``, which a restart judges the state's age by, and
+``saved_mono_s``) is the last cycle's noted: the time the state was stepped
+to, on the daemon's clock; before any cycle nothing is saved (the checkpoint
+on disk, if any, is still the state's).
 A failed save is logged (``checkpoint_failed``) and never stops the loop. A
 dry run saves nothing.
 
@@ -30,19 +34,17 @@ on once the file is there).
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable
 from concurrent.futures import Future
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from compd.core.faults import GAUGE_ALARM
 from compd.runtime.diskwriter import PROCESS_DISK, DiskWriter
 from compd.runtime.liveness import boot_id
-from compd.runtime.sinks.base import CycleSink, Tick
+from compd.runtime.sinks.base import CycleSink, StateSource, Tick
 from compd.runtime.startup import checkpoint_path
 
 if TYPE_CHECKING:
     from compd.config.loader import LoadedConfig
-    from compd.runtime.clock import Clock
     from compd.runtime.journal import Journal
     from compd.runtime.statedir import StateDir
 
@@ -52,17 +54,16 @@ __all__ = ["CheckpointSink"]
 class CheckpointSink(CycleSink):
     stage = "checkpoint"
 
-    def __init__(self, *, dry_run: bool, clock: Clock, journal: Journal,
-                 export: Callable[[], dict[str, Any]],
+    def __init__(self, *, dry_run: bool, journal: Journal,
                  writer: DiskWriter = PROCESS_DISK) -> None:
         #: the thread that writes the files (`compd.runtime.diskwriter`)
         self.writer = writer
         self._dry_run = dry_run
-        self._clock = clock
         self._journal = journal
-        self._export = export
         #: (wall, monotonic) time of the last complete cycle: the health evidence
         self.last_complete: tuple[float, float] | None = None
+        #: (wall, monotonic) time of the last cycle noted: the saves' time
+        self._last_cycle: tuple[float, float] | None = None
         #: the state directory the lock holds open (None without a lock: a dry run)
         self.directory: StateDir | None = None
         self._last_state: str | None = None
@@ -75,11 +76,12 @@ class CheckpointSink(CycleSink):
 
     def feed(self, tick: Tick) -> None:
         if self.note(tick):
-            self.save(tick.cfg)
+            self.save(tick.cfg, tick.state)
 
     def note(self, tick: Tick) -> bool:
         """Take the cycle's state; whether a checkpoint is due."""
         result = tick.row
+        self._last_cycle = (result.wall_s, tick.mono_s)
         if result.in_force:
             self.last_complete = (result.wall_s, tick.mono_s)
         self._last_state = str(result.state)
@@ -94,10 +96,10 @@ class CheckpointSink(CycleSink):
             return True
         return result.sequence % tick.cfg.raw.state.checkpoint_every == 0
 
-    def save(self, cfg: LoadedConfig) -> None:
-        """Save now under `cfg` (the one in force): the file is written when this
-        returns (after every save asked for before it)."""
-        job = self._submit(cfg)
+    def save(self, cfg: LoadedConfig, state: StateSource) -> None:
+        """Save `state` (the running cycle) now under `cfg` (the one in force): the
+        file is written when this returns (after every save asked for before it)."""
+        job = self._submit(cfg, state)
         if job is not None:
             try:
                 job.result()
@@ -106,10 +108,10 @@ class CheckpointSink(CycleSink):
             else:
                 self._saved()
 
-    async def save_async(self, cfg: LoadedConfig) -> None:
+    async def save_async(self, cfg: LoadedConfig, state: StateSource) -> None:
         """Save; the caller's task resumes once the file is written, the loop's
         thread free meanwhile."""
-        job = self._submit(cfg)
+        job = self._submit(cfg, state)
         if job is not None:
             try:
                 await asyncio.wrap_future(job)
@@ -118,16 +120,17 @@ class CheckpointSink(CycleSink):
             else:
                 self._saved()
 
-    def _submit(self, cfg: LoadedConfig) -> Future[None] | None:
+    def _submit(self, cfg: LoadedConfig, source: StateSource) -> Future[None] | None:
         """The state encoded now and handed to the disk thread (None: nothing to
-        write, a dry run or a state that cannot be stored, logged)."""
-        if self._dry_run:
+        write, a dry run, no cycle yet, or a state that cannot be stored, logged)."""
+        if self._dry_run or self._last_cycle is None:
             return None
         from compd.runtime.checkpoint import encode_checkpoint, write_checkpoint
 
         try:
-            state = self._export()
-            state.update(saved_mono_s=self._clock.mono(), model_sha256=cfg.model_sha256,
+            saved_wall_s, saved_mono_s = self._last_cycle
+            state = source.export_state()
+            state.update(saved_mono_s=saved_mono_s, model_sha256=cfg.model_sha256,
                          config_sha256=cfg.config_sha256)
             last = self.last_complete
             if last is not None:  # what `compd health --state-dir` judges
@@ -139,7 +142,7 @@ class CheckpointSink(CycleSink):
             if self._last_cause is not None:  # so is an offset not in force
                 state["last_cause"] = self._last_cause
             path = checkpoint_path(cfg)
-            data = encode_checkpoint(path, state)
+            data = encode_checkpoint(path, state, wall_s=saved_wall_s)
         except Exception as exc:
             self._failed(exc)
             return None

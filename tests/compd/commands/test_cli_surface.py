@@ -129,7 +129,7 @@ async def test_the_start_log_line_names_the_version(tmp_path: Path) -> None:
         with structlog.testing.capture_logs() as logs:
             task = asyncio.create_task(daemon.run())
             for _ in range(2000):
-                if daemon.cycles >= 2:
+                if daemon.loop.cycles >= 2:
                     break
                 await asyncio.sleep(0.005)
             daemon.request_stop()

@@ -299,7 +299,7 @@ async def test_running_daemon_is_healthy_by_both_sources(tmp_path: Path) -> None
                                         timeout_s=2.0)
         try:
             for _ in range(400):
-                if daemon.complete_cycles >= 10:
+                if daemon.telemetry.complete_cycles >= 10:
                     break
                 await asyncio.sleep(0.01)
             assert await asyncio.to_thread(health.run, args) == 0
@@ -335,10 +335,10 @@ async def test_daemon_without_a_controller_is_unhealthy_by_both_sources(
                                     timeout_s=2.0)
     try:
         for _ in range(1000):
-            if daemon.cycles >= 12:
+            if daemon.loop.cycles >= 12:
                 break
             await asyncio.sleep(0.01)
-        assert daemon.cycles >= 12 and daemon.complete_cycles == 0
+        assert daemon.loop.cycles >= 12 and daemon.telemetry.complete_cycles == 0
         assert (cfg.state_dir / "checkpoint.json").exists()
         assert await asyncio.to_thread(health.run, args) == 1
         assert await asyncio.to_thread(health.run, state_args) == 1

@@ -110,22 +110,20 @@ def test_an_offset_flapping_in_and_out_of_force_saves_once_a_window_and_stays_re
 
     from compd.core.faults import FaultState
     from compd.core.health import Cause
-    from compd.runtime.clock import Clock
     from compd.runtime.sinks.checkpoint import CheckpointSink
-    from compd.testing import FakeClock
 
     every = 10
     cfg = SimpleNamespace(raw=SimpleNamespace(state=SimpleNamespace(checkpoint_every=every)),
                           state_dir=tmp_path, model_sha256="m", config_sha256="c")
     saved: list[object] = []
-    sink = CheckpointSink(dry_run=False, clock=Clock(mono=FakeClock()),
-                          journal=cast(Any, None), export=lambda: {"sequence": len(saved)})
+    sink = CheckpointSink(dry_run=False, journal=cast(Any, None))
+    state = cast(Any, SimpleNamespace(export_state=lambda: {"sequence": len(saved)}))
 
     def cycle(seq: int, cause: Cause) -> None:
         row = SimpleNamespace(state=FaultState.OK, cause=cause, healthy=cause.healthy,
-                              sequence=seq, in_force=False)
+                              sequence=seq, in_force=False, wall_s=1000.0 + seq)
         if sink.note(cast(Any, SimpleNamespace(row=row, cfg=cfg, mono_s=0.0))):
-            sink.save(cast(Any, cfg))
+            sink.save(cast(Any, cfg), state)
             doc = load_checkpoint(tmp_path / CHECKPOINT_NAME)
             assert doc is not None
             saved.append(doc["last_cause"])

@@ -31,7 +31,7 @@ def test_the_base_url_and_each_path_name_the_right_document() -> None:
 async def test_health_and_status_both_take_the_daemon_base_url(
         sim: ModbusSimController, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     async with page_daemon(tmp_path, sim) as (daemon, base):
-        await until(lambda: daemon.complete_cycles >= 3)
+        await until(lambda: daemon.telemetry.complete_cycles >= 3)
         for url in (base, base.rstrip("/"), base + "metrics", base + "status.json"):
             capsys.readouterr()
             rc = await asyncio.to_thread(main, ["health", "--url", url, "--max-age-s", "600"])

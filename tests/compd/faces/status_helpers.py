@@ -49,7 +49,7 @@ async def page_daemon(tmp_path: Path, sim: ModbusSimController, *, time_scale: f
     task = asyncio.create_task(daemon.run())
     try:
         if clock is None:
-            await until(lambda: daemon.complete_cycles >= 3 or task.done())
+            await until(lambda: daemon.telemetry.complete_cycles >= 3 or task.done())
         else:
             await asleep(clock, 1, task)
             await step(daemon, 2)

@@ -345,7 +345,7 @@ async def test_a_daemon_at_its_connection_cap_is_still_healthy_by_url(
     daemon = Daemon(load_config(path), notifier=Notifier(None))
     task = asyncio.create_task(daemon.run())
     try:
-        await until(lambda: daemon.complete_cycles >= 3 or task.done())
+        await until(lambda: daemon.telemetry.complete_cycles >= 3 or task.done())
         server = daemon.metrics.http_server
         assert server is not None and server.limits.max_connections == 3
         with ExitStack() as stack:
@@ -358,8 +358,8 @@ async def test_a_daemon_at_its_connection_cap_is_still_healthy_by_url(
             assert await asyncio.to_thread(health.run, args) == 0
             code, _, _ = await asyncio.to_thread(get, f"http://127.0.0.1:{port}/")
             assert code == 200
-            before = daemon.complete_cycles
-            await until(lambda: daemon.complete_cycles >= before + 3)
+            before = daemon.telemetry.complete_cycles
+            await until(lambda: daemon.telemetry.complete_cycles >= before + 3)
     finally:
         daemon.request_stop()
         assert await asyncio.wait_for(task, 20.0) == 0

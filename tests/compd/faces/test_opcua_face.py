@@ -39,7 +39,6 @@ from tests.drivers.test_opcua_space import count_builds
 from tests.harness import until
 from tests.pki import Pki, server_and_client
 
-
 #: generous: a request that outlasts it makes asyncua drop the session ("client is
 #: disconnected"), and a loaded PC makes a request slower, never a test red
 REQUEST_TIMEOUT_S = 60.0
@@ -72,7 +71,7 @@ async def face_daemon(tmp_path: Path, sim: ModbusSimController, face: str,
     daemon = Daemon(load_config(path), notifier=Notifier(None))
     task = asyncio.create_task(daemon.run())
     try:
-        await until(lambda: daemon.complete_cycles >= 3 or task.done())
+        await until(lambda: daemon.telemetry.complete_cycles >= 3 or task.done())
         assert not task.done(), "the daemon ended early"
         # the face starts beside the loop (seconds): compensation did not wait for it
         await until(lambda: daemon.opcua.starting is None or daemon.opcua.starting.done())
@@ -135,9 +134,9 @@ async def test_the_namespace_follows_the_cycle_and_is_read_only(
                     break
                 await asyncio.sleep(0.01)
             assert await _value(machine, idx, "Heartbeat") != beat
-            assert await _value(machine, idx, "Model", "Sha256") == daemon.cfg.model_sha256
+            assert await _value(machine, idx, "Model", "Sha256") == daemon.running.cfg.model_sha256
             terms = await (await machine.get_child(f"{idx}:Terms")).get_children()
-            assert len(terms) == len(daemon.cfg.model.terms)
+            assert len(terms) == len(daemon.running.cfg.model.terms)
             # the FaultState variable's data type is an enumeration with names
             state = await machine.get_child(f"{idx}:FaultState")
             dtype = await state.read_data_type()
@@ -153,11 +152,12 @@ async def test_the_namespace_follows_the_cycle_and_is_read_only(
                 await machine.call_method(f"{idx}:SetHold", True)
             # a fault shows by name
             await sim.publish({"bearing": 500.0, "ambient": 20.0})
-            await until(lambda: daemon.last_result is not None
-                        and daemon.last_result.state.value == "hold")
+            await until(lambda: daemon.loop.last_result is not None
+                        and daemon.loop.last_result.state.value == "hold")
             await _becomes(machine, idx, ("FaultStateName",), "hold")
             await _becomes(machine, idx, ("Channels", "bearing", "Valid"), False)
-        assert daemon.cycle is not None and daemon.cycle.health.operator_hold is False
+        assert daemon.running.cycle is not None
+        assert daemon.running.cycle.health.operator_hold is False
 
 
 async def test_each_face_has_a_copy_of_the_standard_space_built_once(
@@ -231,29 +231,31 @@ async def test_sethold_is_the_operators_and_holds_then_slews_back(
             audit = [e for e in logs if e["event"] == "opcua_set_hold"]
             assert audit and audit[0]["user"] == OPERATOR and audit[0]["hold"] is True
             assert audit[0]["peer"].startswith("('127.0.0.1'")  # who, from where, what
-            assert daemon.cycle is not None and daemon.cycle.health.operator_hold
-            held = daemon.cycle.output.current_um
+            assert daemon.running.cycle is not None and daemon.running.cycle.health.operator_hold
+            held = daemon.running.cycle.output.current_um
             await sim.publish({"bearing": 30.0, "ambient": 20.0})  # the model moves away
-            await until(lambda: daemon.last_result is not None
-                        and daemon.last_result.model_um is not None
-                        and daemon.last_result.model_um > held + 5.0)
-            assert daemon.cycle.output.current_um == held  # held where it was
-            assert daemon.last_result is not None and daemon.last_result.status & (1 << 12)
+            await until(lambda: daemon.loop.last_result is not None
+                        and daemon.loop.last_result.model_um is not None
+                        and daemon.loop.last_result.model_um > held + 5.0)
+            assert daemon.running.cycle.output.current_um == held  # held where it was
+            assert daemon.loop.last_result is not None
+            assert daemon.loop.last_result.status & (1 << 12)
             await _becomes(machine, idx, ("OperatorHold",), True)
             assert await machine.call_method(f"{idx}:SetHold", False) is True
-            await until(lambda: daemon.cycle is not None
-                        and daemon.cycle.output.current_um > held + 1.0)
+            await until(lambda: daemon.running.cycle is not None
+                        and daemon.running.cycle.output.current_um > held + 1.0)
             # released: back to the model at the slew limit (2 µm/s, 1 s machine period)
             seen: list[tuple[int, float]] = []  # (cycle, offset) as the test sees them
             for _ in range(5):
-                await until(lambda: daemon.last_result is not None
-                            and daemon.last_result.sequence not in [q for q, _ in seen[-1:]])
-                assert daemon.last_result is not None
-                seen.append((daemon.last_result.sequence, daemon.last_result.stage_um))
+                await until(lambda: daemon.loop.last_result is not None
+                            and daemon.loop.last_result.sequence not in [q for q, _ in seen[-1:]])
+                assert daemon.loop.last_result is not None
+                seen.append((daemon.loop.last_result.sequence, daemon.loop.last_result.stage_um))
             for (qa, a), (qb, b) in itertools.pairwise(seen):
                 # 2 µm/s over a cycle's machine time: at most 2 periods (the output
                 # stage's bound on a late cycle's dt), so 4 µm a cycle; a jump is ~10
-                assert 0.0 <= b - a <= 4.0 * (qb - qa) + 1e-9
+                # (1e-6: each step starts from the float32 the controller holds)
+                assert 0.0 <= b - a <= 4.0 * (qb - qa) + 1e-6
 
 
 async def test_rezero_is_the_operators_audited_and_ramps_without_a_step(
@@ -262,9 +264,9 @@ async def test_rezero_is_the_operators_audited_and_ramps_without_a_step(
     async with face_daemon(tmp_path, sim, _face(port, secure=pki, anonymous=True),
                            slew_um_s=2.0) as daemon:
         await sim.publish({"bearing": 22.0, "ambient": 20.0})  # warm: a prediction
-        await until(lambda: daemon.last_result is not None
-                    and daemon.last_result.model_um is not None
-                    and daemon.last_result.model_um > 5.0)
+        await until(lambda: daemon.loop.last_result is not None
+                    and daemon.loop.last_result.model_um is not None
+                    and daemon.loop.last_result.model_um > 5.0)
         # anonymous reads, but may not re-zero: refused, audited nowhere, nothing changed
         async with await _client(port, pki) as anon:
             idx, machine = await _machine(anon)
@@ -272,29 +274,29 @@ async def test_rezero_is_the_operators_audited_and_ramps_without_a_step(
                     pytest.raises(UaStatusCodeError):
                 await machine.call_method(f"{idx}:Rezero")
             assert not [e for e in logs if e["event"] == "opcua_rezero"]
-        assert daemon.cycle is not None and daemon.cycle.models.zero_by is None
+        assert daemon.running.cycle is not None and daemon.running.cycle.models.zero_by is None
         async with await _client(port, pki, OPERATOR, PASSWORD) as op:
             idx, machine = await _machine(op)
-            before = daemon.cycle.output.current_um
+            before = daemon.running.cycle.output.current_um
             with structlog.testing.capture_logs() as logs:
                 assert await machine.call_method(f"{idx}:Rezero") is True
             audit = [e for e in logs if e["event"] == "opcua_rezero"]
             assert audit and audit[0]["user"] == OPERATOR and audit[0]["applied"] is True
             assert audit[0]["peer"].startswith("('127.0.0.1'")  # who, from where, what
-            await until(lambda: daemon.cycle is not None
-                        and daemon.cycle.models.zero_by is not None)
-            by = daemon.cycle.models.zero_by
+            await until(lambda: daemon.running.cycle is not None
+                        and daemon.running.cycle.models.zero_by is not None)
+            by = daemon.running.cycle.models.zero_by
             assert by is not None and by.startswith(f"opcua: {OPERATOR} from ")
-            assert daemon.cycle.models.zero_um > 5.0  # the prediction taken as zero
+            assert daemon.running.cycle.models.zero_um > 5.0  # the prediction taken as zero
             # the target is now ~0: the offset ramps down at the slew limit, never a step
-            await until(lambda: daemon.cycle is not None
-                        and daemon.cycle.output.current_um < before - 3.0)
+            await until(lambda: daemon.running.cycle is not None
+                        and daemon.running.cycle.output.current_um < before - 3.0)
             seen: list[tuple[int, float]] = []
             for _ in range(4):
-                await until(lambda: daemon.last_result is not None
-                            and daemon.last_result.sequence not in [q for q, _ in seen[-1:]])
-                assert daemon.last_result is not None
-                seen.append((daemon.last_result.sequence, daemon.last_result.stage_um))
+                await until(lambda: daemon.loop.last_result is not None
+                            and daemon.loop.last_result.sequence not in [q for q, _ in seen[-1:]])
+                assert daemon.loop.last_result is not None
+                seen.append((daemon.loop.last_result.sequence, daemon.loop.last_result.stage_um))
             # down at most the slew limit a cycle (2 µm/s, ≤ 2 periods a cycle); once at
             # the new zero it follows the model's small drift (either way, as small)
             for (qa, a), (qb, b) in itertools.pairwise(seen):
@@ -311,7 +313,7 @@ async def test_rezero_on_a_face_without_an_operator_is_refused(
             idx, machine = await _machine(client)
             with pytest.raises(UaStatusCodeError):
                 await machine.call_method(f"{idx}:Rezero")
-        assert daemon.cycle is not None and daemon.cycle.models.zero_by is None
+        assert daemon.running.cycle is not None and daemon.running.cycle.models.zero_by is None
 
 
 async def test_a_face_that_cannot_start_leaves_compensation_running(
@@ -322,9 +324,9 @@ async def test_a_face_that_cannot_start_leaves_compensation_running(
         port = taken.getsockname()[1]
         with structlog.testing.capture_logs() as logs:
             async with face_daemon(tmp_path, sim, _face(port)) as daemon:
-                before = daemon.complete_cycles
-                await until(lambda: daemon.complete_cycles >= before + 5)
-                assert daemon.opcua_face is None
+                before = daemon.telemetry.complete_cycles
+                await until(lambda: daemon.telemetry.complete_cycles >= before + 5)
+                assert daemon.opcua.face is None
         assert "opcua_face_unavailable" in [e["event"] for e in logs]
 
 
@@ -374,7 +376,7 @@ async def test_a_second_stack_node_opcua_reads_and_holds(
         assert answer["state"] == "ok" and answer["heartbeat"] >= 1
         assert answer["call"] == "Good" and answer["output"] == [True]
         assert answer["hold"] is True
-        assert daemon.cycle is not None and daemon.cycle.health.operator_hold
+        assert daemon.running.cycle is not None and daemon.running.cycle.health.operator_hold
 
 
 def test_a_reload_that_changes_the_face_is_refused_by_name(tmp_path: Path) -> None:
@@ -408,7 +410,7 @@ async def test_machines_of_one_process_share_one_server(tmp_path: Path) -> None:
     fleet = Fleet(load_machines(d))
     task = asyncio.get_running_loop().create_task(fleet.run())
     try:
-        await until(lambda: all(m in fleet.daemons and fleet.daemons[m].opcua_face is not None
+        await until(lambda: all(m in fleet.daemons and fleet.daemons[m].opcua.face is not None
                                 for m in ("mill-a", "mill-b")))
         async with await _client(port) as client:
             idx = await client.get_namespace_index(NAMESPACE)
@@ -418,7 +420,7 @@ async def test_machines_of_one_process_share_one_server(tmp_path: Path) -> None:
                 # with an 8 ms timeout a machine may well be holding now)
                 assert await _value(machine, idx, "FaultStateName") in set(FaultState)
                 assert await _value(machine, idx, "Model", "Sha256") \
-                    == fleet.daemons[name].cfg.model_sha256
+                    == fleet.daemons[name].running.cfg.model_sha256
     finally:
         fleet.request_stop()
         assert await asyncio.wait_for(task, 120.0) == 0
@@ -472,15 +474,15 @@ async def test_a_reload_that_changes_the_model_is_published_by_the_face(
             channels = await machine.get_child(f"{idx}:Channels")
             assert await _names(terms) == {"spindle_um", "ambient_um"}
             (tmp_path / "column.toml").write_text(_COLUMN_MODEL, encoding="utf-8")
-            path = daemon.cfg.path
+            path = daemon.running.cfg.path
             text = path.read_text(encoding="utf-8")
             path.write_text(text.replace('file = "sp2"', 'file = "column.toml"')
                             .replace("[model]", _COLUMN_CHANNEL), encoding="utf-8")
             daemon.request_reload()
-            await until(lambda: daemon.reloads >= 1)
-            assert daemon.cfg.model.name == "spindle and column"
+            await until(lambda: daemon.reloader.reloads >= 1)
+            assert daemon.running.cfg.model.name == "spindle and column"
             await _becomes(machine, idx, ("Model", "Name"), "spindle and column")
-            assert await _value(machine, idx, "Model", "Sha256") == daemon.cfg.model_sha256
+            assert await _value(machine, idx, "Model", "Sha256") == daemon.running.cfg.model_sha256
             assert await _names(terms) == {"spindle_um", "column_um"}
             assert await _names(channels) == {"bearing", "ambient", "column"}
             await sim.publish({"column": 21.0})

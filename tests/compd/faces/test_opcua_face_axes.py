@@ -27,7 +27,6 @@ from drivers.sim.ports import free_tcp_port
 from tests.compd.axes_helpers import SENSOR_CHANNELS, axes_config_text
 from tests.harness import until
 
-
 #: generous: a request that outlasts it makes asyncua drop the session ("client is
 #: disconnected"), and a loaded PC makes a request slower, never a test red
 REQUEST_TIMEOUT_S = 60.0
@@ -46,7 +45,7 @@ async def _daemon(tmp_path: Path, sim: ModbusSimController, port: int
     daemon = Daemon(load_config(path), notifier=Notifier(None))
     task = asyncio.create_task(daemon.run())
     try:
-        await until(lambda: daemon.complete_cycles >= 3 or task.done())
+        await until(lambda: daemon.telemetry.complete_cycles >= 3 or task.done())
         assert not task.done(), "the daemon ended early"
         await until(lambda: daemon.opcua.starting is None or daemon.opcua.starting.done())
         yield daemon
@@ -102,7 +101,7 @@ async def test_each_axis_has_its_nodes_and_follows_the_cycle(tmp_path: Path) -> 
                 assert await _value(machine, idx, "OffsetInForce") is True
 
                 # a reload without [output.axes]: their folder goes
-                path = daemon.cfg.path
+                path = daemon.running.cfg.path
                 text = path.read_text(encoding="utf-8")
                 path.write_text(text[:text.index("[output.axes.x]")]
                                 + text[text.index("[faults]"):], encoding="utf-8")
@@ -110,8 +109,8 @@ async def test_each_axis_has_its_nodes_and_follows_the_cycle(tmp_path: Path) -> 
                     'axes_status = { kind = "holding", address = 4, type = "uint16" }\n', ""),
                     encoding="utf-8")
                 daemon.request_reload()
-                await until(lambda: daemon.reloads >= 1)
-                assert daemon.cfg.axes is None
+                await until(lambda: daemon.reloader.reloads >= 1)
+                assert daemon.running.cfg.axes is None
                 names: set[str] = {"Axes"}
                 for _ in range(12_000):
                     with contextlib.suppress(UaStatusCodeError):  # deleted while browsed

@@ -114,7 +114,7 @@ async def test_silent_sockets_at_the_cap_are_evicted_for_the_operator(
             await _operator_holds(port, pki)
             assert _sample(daemon, "compd_opcua_face_connections_refused_total",
                            reason="evicted") > evicted
-        assert daemon.cycle is not None and daemon.cycle.health.operator_hold
+        assert daemon.running.cycle is not None and daemon.running.cycle.health.operator_hold
         # the evicted sockets came back: the cap was full while the operator got in
         await until(lambda: opened[0] > 8 + 3)
         await until(lambda: _sample(daemon, "compd_opcua_face_connections") == 8)
@@ -137,7 +137,7 @@ async def test_anonymous_sessions_leave_the_operator_a_session(
         assert _sample(daemon, "compd_opcua_face_sessions_refused_total",
                        reason="anonymous_share") == 1
         await _operator_holds(port, pki)
-        assert daemon.cycle is not None and daemon.cycle.health.operator_hold
+        assert daemon.running.cycle is not None and daemon.running.cycle.health.operator_hold
         assert _sample(daemon, "compd_opcua_face_sessions_refused_total",
                        reason="max_sessions") == 0
 
@@ -159,7 +159,7 @@ async def test_both_floods_at_once_still_leave_the_operator_sethold(
         async with _silent_flood(port, 4):
             await until(lambda: _sample(daemon, "compd_opcua_face_connections") == 8)
             await _operator_holds(port, pki)
-        assert daemon.cycle is not None and daemon.cycle.health.operator_hold
+        assert daemon.running.cycle is not None and daemon.running.cycle.health.operator_hold
 
 
 class _FakeTransport:

@@ -80,7 +80,7 @@ async def test_the_page_shows_the_daemon_and_follows_a_fault(
     out = _artifacts(tmp_path)
     async with page_daemon(tmp_path, sim) as (daemon, base):
         await sim.publish({"bearing": 24.0, "ambient": 21.0})  # the offset moves
-        await until(lambda: daemon.complete_cycles >= 20)  # two recorder commits (of 10)
+        await until(lambda: daemon.telemetry.complete_cycles >= 20)  # two recorder commits (of 10)
 
         async def bearing_out_of_range() -> None:
             await sim.publish({"bearing": 500.0, "ambient": 21.0})

@@ -164,7 +164,7 @@ async def test_page_and_status_json_follow_the_daemon(
         sim: ModbusSimController, tmp_path: Path) -> None:
     async with page_daemon(tmp_path, sim, stepped=True) as (daemon, base):
         await step(daemon, 10)  # the recorder commits every 10
-        assert daemon.complete_cycles == 13
+        assert daemon.telemetry.complete_cycles == 13
         code, ctype, body = await asyncio.to_thread(get, base)
         assert code == 200 and ctype.startswith("text/html")
         assert b'"state": "on"' in body and b'getContext("2d")' in body  # inline plot
@@ -207,9 +207,9 @@ async def test_hostile_requests_are_refused_and_the_cycle_runs_on(
         port = int(base.rsplit(":", 1)[1].strip("/"))
         with socket.create_connection(("127.0.0.1", port), timeout=5.0) as silent:
             silent.sendall(b"GET /status.json HTTP/1.1\r\n")
-            before = daemon.complete_cycles
+            before = daemon.telemetry.complete_cycles
             await step(daemon, 5)  # the loop is not held up: every cycle runs
-            assert daemon.complete_cycles == before + 5
+            assert daemon.telemetry.complete_cycles == before + 5
             assert (await asyncio.to_thread(get, base + "status.json"))[0] == 200
 
 
@@ -316,7 +316,7 @@ async def test_a_fleet_page_lists_every_machine(tmp_path: Path,
     try:
         await fs.until_asleep(2)  # both machines ran their first cycle
         await fs.step(2)
-        assert [d.complete_cycles for d in fleet.daemons.values()] == [3, 3]
+        assert [d.telemetry.complete_cycles for d in fleet.daemons.values()] == [3, 3]
         await sims[1].publish({"bearing": 500.0, "ambient": 20.0})
         await fs.step()
         assert fleet.daemons["mill-b"].status_board.snapshot["state"] == "holding"
@@ -348,7 +348,7 @@ def test_the_page_and_compd_status_say_the_pending_change_the_start_and_the_refe
 
     cfg = load_config(write_config(tmp_path, "modbus://127.0.0.1:5020"))
     cycle = Cycle(params_from_config(cfg), cfg.model)
-    board = StatusBoard(wall=lambda: 1000.0)
+    board = StatusBoard()
     controller, t = 0.0, 0.0
     for k in range(40):
         t += 1.0
@@ -395,7 +395,7 @@ def test_the_page_says_the_offset_sent_and_the_one_the_controller_holds(
 
     cfg = load_config(write_config(tmp_path, "modbus://127.0.0.1:5020"))
     cycle = Cycle(params_from_config(cfg), cfg.model)
-    board = StatusBoard(wall=lambda: 1000.0)
+    board = StatusBoard()
     controller, t = 0.0, 0.0  # what the controller holds, as read back
     for k in range(20):
         t += 1.0

@@ -33,7 +33,7 @@ def _documents(tmp_path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     cfg = load_config(write_axes_config(tmp_path, period_s=1.0, time_scale=1.0,
                                         value_slew=5.0, slope_slew=5.0))
     cycle = Cycle(dataclasses.replace(params_from_config(cfg), readback=False), cfg.model)
-    board, clock = StatusBoard(wall=lambda: 1000.0), FakeClock(period_s=1.0)
+    board, clock = StatusBoard(), FakeClock(period_s=1.0)
     docs = []
     for nut in (24.0, math.nan):
         for _ in range(12):

@@ -92,9 +92,28 @@ def test_the_last_time_label_ends_inside_the_canvas() -> None:
 def test_alarm_details_are_rounded() -> None:
     board = StatusBoard()
     board.alarm("channel_invalid", "warning", {"invalid_for_s": 60.997285639999745,
-                                               "channel": "bearing", "count": 3})
+                                               "channel": "bearing", "count": 3},
+                wall_s=1000.0)
     [alarm] = board._alarms
     assert alarm["detail"] == {"invalid_for_s": "61", "channel": "bearing", "count": "3"}
+
+
+def test_an_alarm_is_stamped_with_the_daemons_clock_not_the_boards() -> None:
+    """The board keeps no clock: the journal (the runtime's, with the daemon's
+    injected clock) says when a warning happened."""
+    import structlog
+
+    from compd.core.events import Event, EventName
+    from compd.runtime.clock import Clock
+    from compd.runtime.journal import Journal
+
+    board = StatusBoard()
+    journal = Journal(structlog.get_logger("t"), board,
+                      Clock(mono=lambda: 5.0, wall=lambda: 1234.5))
+    journal.events([Event(EventName.CHANNEL_INVALID, {"channel": "bearing"})])
+    journal.alarm("cycle_broken", "error", {"error": "x"})
+    assert [(a["event"], a["wall_s"]) for a in board._alarms] == [
+        ("channel_invalid", 1234.5), ("cycle_broken", 1234.5)]
 
 
 @pytest.mark.parametrize("state", [FaultState.HOLD, FaultState.RAMP])

@@ -322,9 +322,9 @@ async def test_daemon_exports_model_output_and_channel_validity(
     try:
         await clock.cycle_done(1)
         await step(2)
-        assert daemon.complete_cycles == 3
+        assert daemon.telemetry.complete_cycles == 3
         text = generate_latest(daemon.metrics.registry).decode()
-        last = daemon.last_result
+        last = daemon.loop.last_result
         assert last is not None and last.model_um is not None
         assert _value(text, 'compd_channel_valid{channel="bearing"}') == 1
         assert _value(text, 'compd_channel_valid{channel="ambient"}') == 1
@@ -333,7 +333,7 @@ async def test_daemon_exports_model_output_and_channel_validity(
         assert _value(text, "compd_period_seconds") == pytest.approx(1.0)
         await sim.publish({"bearing": 200.0})  # beyond the channel's range [-20, 150]
         await step(1)
-        last = daemon.last_result
+        last = daemon.loop.last_result
         assert last is not None and last.validity.get("bearing") is not None
         text = generate_latest(daemon.metrics.registry).decode()
         assert _value(text, 'compd_channel_valid{channel="bearing"}') == 0
@@ -379,7 +379,7 @@ def test_the_confirmed_offset_has_its_own_gauge_apart_from_the_one_sent(
 
     cfg = load_config(write_config(tmp_path, "modbus://127.0.0.1:5020"))
     metrics = Metrics()
-    board = StatusBoard(wall=lambda: 1000.0)
+    board = StatusBoard()
     clock = Clock(mono=lambda: 0.0, wall=lambda: 1000.0)
     sink = TelemetrySink(metrics=metrics, notifier=Notifier(None), board=board,
                          journal=Journal(logging.getLogger("t"), board, clock), serve=False)
@@ -393,20 +393,20 @@ def test_the_confirmed_offset_has_its_own_gauge_apart_from_the_one_sent(
     controller, t = 0.0, 0.0
     cycle.plan(t, samples(t, 20.0), None)
     row = cycle.commit(Outcome.failed("offset", reason="timed out"))
-    sink.feed(Tick(cfg, row, 0.0, None, False, False))
+    sink.feed(Tick(cfg, row, 0.0, None, False, False, cycle))
     assert math.isnan(gauges()[1])
     for k in range(20):
         t += 1.0
         cycle.plan(t, samples(t, 20.0 + 0.4 * k), controller)
         row = cycle.commit()
         controller = row.writes.get("offset", controller)
-    sink.feed(Tick(cfg, row, 0.0, None, True, True))
+    sink.feed(Tick(cfg, row, 0.0, None, True, True, cycle))
     sent, confirmed = gauges()
     assert sent == pytest.approx(confirmed) == pytest.approx(controller)
     t += 1.0
     cycle.plan(t, samples(t, 28.0), controller)
     row = cycle.commit(Outcome.failed("offset", reason="timed out"))
-    sink.feed(Tick(cfg, row, 0.0, None, False, True))
+    sink.feed(Tick(cfg, row, 0.0, None, False, True, cycle))
     sent, confirmed = gauges()
     assert sent == pytest.approx(row.stage_um) and sent != pytest.approx(controller)
     assert confirmed == pytest.approx(controller)

@@ -136,7 +136,7 @@ async def _recorder_at_time_scale(tmp_path: Path, time_scale: float) -> Path:
         task = asyncio.create_task(daemon.run())
         await clock.cycle_done(1)  # connected, the first cycle done, asleep
         for target, bearing in ((20, 23.0), (60, 21.5), (100, None)):
-            while daemon.cycles < target:
+            while daemon.loop.cycles < target:
                 begun = clock.sleeps
                 clock.tick()
                 await clock.cycle_done(begun + 1)

@@ -42,11 +42,12 @@ def _named(logs: Sequence[Mapping[str, Any]], name: str) -> list[Mapping[str, An
 
 
 async def _warm(sim: ModbusSimController, daemon: Daemon) -> Cycle:
-    await until(lambda: daemon.complete_cycles >= 3)
+    await until(lambda: daemon.telemetry.complete_cycles >= 3)
     await sim.publish({"bearing": 21.5})  # sp2 wants ≈ +25 µm
-    await until(lambda: daemon.last_result is not None and daemon.last_result.stage_um > 15.0)
-    assert daemon.cycle is not None
-    return daemon.cycle
+    await until(lambda: daemon.loop.last_result is not None
+                and daemon.loop.last_result.stage_um > 15.0)
+    assert daemon.running.cycle is not None
+    return daemon.running.cycle
 
 
 async def test_a_model_step_that_raises_every_cycle_is_held_then_ramped(
@@ -71,8 +72,8 @@ async def test_a_model_step_that_raises_every_cycle_is_held_then_ramped(
 
         monkeypatch.setattr(cycle.models, "step", overflow)
         at = len(driver.cycles)
-        await until(lambda: daemon.last_result is not None and daemon.last_result.stage_um
-                    == 0.0, limit_s=20.0)
+        await until(lambda: daemon.loop.last_result is not None and daemon.loop.last_result.stage_um
+                    == 0.0)
         assert not task.done()  # still cycling: heartbeat and status go on
         beat = (await sim.outputs())["heartbeat"]
         status = int((await sim.outputs())["status"])
@@ -125,16 +126,16 @@ async def test_a_sink_that_raises_never_stops_the_cycle(
     with structlog.testing.capture_logs() as logs:
         daemon = Daemon(cfg, notifier=Notifier(None))
         task = asyncio.create_task(daemon.run())
-        await until(lambda: daemon.complete_cycles >= 3)
+        await until(lambda: daemon.telemetry.complete_cycles >= 3)
 
         def full(*_: object) -> None:
             raise RuntimeError("recorder exploded")
 
         monkeypatch.setattr(daemon.recorder, "feed", full)
-        done = daemon.complete_cycles
-        await until(lambda: daemon.complete_cycles >= done + 20)
+        done = daemon.telemetry.complete_cycles
+        await until(lambda: daemon.telemetry.complete_cycles >= done + 20)
         monkeypatch.undo()
-        await until(lambda: daemon.complete_cycles >= done + 25)
+        await until(lambda: daemon.telemetry.complete_cycles >= done + 25)
         daemon.request_stop()
         assert await task == 0
     (error,) = _named(logs, "cycle_error")
@@ -150,19 +151,20 @@ async def test_an_exception_in_the_reload_handover_keeps_the_old_config(
     with structlog.testing.capture_logs() as logs:
         daemon = Daemon(cfg, notifier=Notifier(None))
         task = asyncio.create_task(daemon.run())
-        await until(lambda: daemon.complete_cycles >= 3)
+        await until(lambda: daemon.telemetry.complete_cycles >= 3)
 
         def overflow(*_: object, **__: object) -> Cycle:
             raise OverflowError("int too large to convert to float")
 
         monkeypatch.setattr("compd.runtime.reload.handover", overflow)
         path.write_text(path.read_text().replace("slew_um_s = 1.0", "slew_um_s = 0.5"))
-        kept = daemon.cycle
+        kept = daemon.running.cycle
         daemon.request_reload()
         await until(lambda: bool(_named(logs, "reload_failed")))
-        done = daemon.complete_cycles
-        await until(lambda: daemon.complete_cycles >= done + 5)
-        assert daemon.cycle is kept and daemon.cfg is cfg and daemon.reloads == 0
+        done = daemon.telemetry.complete_cycles
+        await until(lambda: daemon.telemetry.complete_cycles >= done + 5)
+        assert daemon.running.cycle is kept and daemon.running.cfg is cfg
+        assert daemon.reloader.reloads == 0
         daemon.request_stop()
         assert await task == 0
     (failed,) = _named(logs, "reload_failed")
@@ -178,12 +180,12 @@ async def test_a_reload_beyond_a_bound_is_refused_by_name(
     with structlog.testing.capture_logs() as logs:
         daemon = Daemon(cfg, notifier=Notifier(None))
         task = asyncio.create_task(daemon.run())
-        await until(lambda: daemon.complete_cycles >= 3)
+        await until(lambda: daemon.telemetry.complete_cycles >= 3)
         path.write_text(path.read_text().replace("max_total_um = 20.0", "max_total_um = 1e308"))
         daemon.request_reload()
         await until(lambda: bool(_named(logs, "reload_failed")))
-        done = daemon.complete_cycles
-        await until(lambda: daemon.complete_cycles >= done + 5)
+        done = daemon.telemetry.complete_cycles
+        await until(lambda: daemon.telemetry.complete_cycles >= done + 5)
         daemon.request_stop()
         assert await task == 0
     (failed,) = _named(logs, "reload_failed")

@@ -37,14 +37,14 @@ async def test_daemon_compensates_for_a_few_hundred_cycles(
                     sleep=clock.sleep)
     task = asyncio.create_task(daemon.run())
     pacer = asyncio.create_task(pace(clock))
-    await _until(lambda: daemon.complete_cycles >= 5)
+    await _until(lambda: daemon.telemetry.complete_cycles >= 5)
     await sim.publish({"bearing": 22.0})  # +2 K on the bearing: ≈ +32 µm at once
-    await _until(lambda: daemon.cycles >= 300)
+    await _until(lambda: daemon.loop.cycles >= 300)
     for _ in range(5):  # a controller restart that lost the offset; a forget that lands
         seen = len(driver.cycles)  # between a cycle's read and its write is overwritten
         await sim.forget_outputs()  # unseen, so forget again until a read saw it
-        target = daemon.cycles + 30
-        await _until(lambda t=target: daemon.cycles >= t)
+        target = daemon.loop.cycles + 30
+        await _until(lambda t=target: daemon.loop.cycles >= t)
         if any(rb == 0.0 for rb, _ in driver.cycles[seen:]):
             break
     daemon.request_stop()
@@ -68,11 +68,11 @@ async def test_daemon_compensates_for_a_few_hundred_cycles(
     assert forgotten and writes[forgotten[0]][1] <= 2.0
     # the checkpoint and the recorder were written
     state = load_checkpoint(cfg.state_dir / "checkpoint.json")
-    assert state is not None and state["sequence"] == daemon.cycles
+    assert state is not None and state["sequence"] == daemon.loop.cycles
     assert state["offset_um"] == pytest.approx(out["offset"], abs=1e-3)
     assert cfg.recorder_path is not None
     rows = read_samples(cfg.recorder_path)
-    assert len(rows["offset_um"]) == daemon.cycles
+    assert len(rows["offset_um"]) == daemon.loop.cycles
 
 
 async def test_dry_run_writes_nothing(sim: ModbusSimController, tmp_path: Path) -> None:
@@ -82,15 +82,15 @@ async def test_dry_run_writes_nothing(sim: ModbusSimController, tmp_path: Path) 
     daemon = Daemon(cfg, dry_run=True, notifier=Notifier(None), clock=clock,
                     sleep=clock.sleep)
     task = asyncio.create_task(daemon.run())
-    await _until(lambda: daemon.complete_cycles >= 3)
+    await _until(lambda: daemon.telemetry.complete_cycles >= 3)
     await sim.publish({"bearing": 21.0})
-    after = daemon.complete_cycles + 27  # cycles that read the warmer bearing
-    await _until(lambda: daemon.complete_cycles >= after)
+    after = daemon.telemetry.complete_cycles + 27  # cycles that read the warmer bearing
+    await _until(lambda: daemon.telemetry.complete_cycles >= after)
     daemon.request_stop()
     assert await task == 0
     pacer.cancel()
     await asyncio.gather(pacer, return_exceptions=True)
-    assert daemon.last_result is not None and daemon.last_result.stage_um > 0.0
+    assert daemon.loop.last_result is not None and daemon.loop.last_result.stage_um > 0.0
     assert await sim.outputs() == {"offset": 0.0, "heartbeat": 0.0, "status": 0.0}
     assert not (cfg.state_dir / "checkpoint.json").exists()
     assert not any(r.function_code in (6, 16) for r in sim.requests)
@@ -101,10 +101,11 @@ async def test_permanent_rejection_stops_offset_writes_and_raises_alarm(
     cfg = load_config(write_config(tmp_path, sim.endpoint))
     daemon = Daemon(cfg, notifier=Notifier(None))
     task = asyncio.create_task(daemon.run())
-    await _until(lambda: daemon.complete_cycles >= 3)
+    await _until(lambda: daemon.telemetry.complete_cycles >= 3)
     sim.inject_exception("holding", 0, 2, count=2, on="write")  # illegal address
-    await _until(lambda: daemon.cycle is not None and daemon.cycle.health.write_stopped)
-    await _until(lambda: daemon.cycles >= 20)
+    await _until(lambda: daemon.running.cycle is not None
+                 and daemon.running.cycle.health.write_stopped)
+    await _until(lambda: daemon.loop.cycles >= 20)
     daemon.request_stop()
     assert await task == 0
     status = int((await sim.outputs())["status"])
@@ -122,7 +123,7 @@ async def test_sd_notify_ready_watchdog_status(sim: ModbusSimController,
         notifier = Notifier(str(path))
         daemon = Daemon(cfg, notifier=notifier)
         task = asyncio.create_task(daemon.run())
-        await _until(lambda: daemon.complete_cycles >= 5)
+        await _until(lambda: daemon.telemetry.complete_cycles >= 5)
         daemon.request_stop()
         assert await task == 0
         notifier.close()
@@ -149,11 +150,11 @@ async def test_unreachable_controller_holds_and_completes_nothing(tmp_path: Path
     cfg = load_config(write_config(tmp_path, f"modbus://127.0.0.1:{port}"))
     daemon = Daemon(cfg, notifier=Notifier(None))
     task = asyncio.create_task(daemon.run())
-    await _until(lambda: daemon.cycles >= 10)
+    await _until(lambda: daemon.loop.cycles >= 10)
     daemon.request_stop()
     assert await task == 0
-    assert daemon.complete_cycles == 0
-    assert daemon.last_result is not None and daemon.last_result.state == "init"
+    assert daemon.telemetry.complete_cycles == 0
+    assert daemon.loop.last_result is not None and daemon.loop.last_result.state == "init"
 
 
 async def test_second_daemon_on_the_same_state_dir_is_refused(
@@ -163,7 +164,7 @@ async def test_second_daemon_on_the_same_state_dir_is_refused(
     cfg = load_config(write_config(tmp_path, sim.endpoint))
     first = Daemon(cfg, notifier=Notifier(None))
     task = asyncio.create_task(first.run())
-    await _until(lambda: first.complete_cycles >= 2)
+    await _until(lambda: first.telemetry.complete_cycles >= 2)
     second = Daemon(load_config(cfg.path), notifier=Notifier(None))
     with pytest.raises(StateLocked):
         await second.run()
@@ -186,13 +187,13 @@ async def test_shadow_model_is_recorded_never_written(sim: ModbusSimController,
     assert cfg.shadow is not None and cfg.shadow.name == "candidate"
     daemon = Daemon(cfg, notifier=Notifier(None))
     task = asyncio.create_task(daemon.run())
-    await _until(lambda: daemon.complete_cycles >= 3)
+    await _until(lambda: daemon.telemetry.complete_cycles >= 3)
     await sim.publish({"bearing": 21.0})
-    await _until(lambda: daemon.last_result is not None
-                 and (daemon.last_result.model_um or 0.0) > 10.0)
+    await _until(lambda: daemon.loop.last_result is not None
+                 and (daemon.loop.last_result.model_um or 0.0) > 10.0)
     daemon.request_stop()
     assert await task == 0
-    r = daemon.last_result
+    r = daemon.loop.last_result
     assert r is not None and r.shadow_um is not None and r.model_um is not None
     assert r.shadow_um == pytest.approx(2 * r.model_um, rel=0.01)
     assert (await sim.outputs())["offset"] == pytest.approx(r.stage_um, abs=1e-3)
@@ -212,14 +213,20 @@ async def test_sensor_broken_from_the_start_is_up_watched_and_ramps_with_the_ala
     pacer = asyncio.create_task(pace(clock))
     daemon = Daemon(cfg, notifier=notes, clock=clock, sleep=clock.sleep)
     task = asyncio.create_task(daemon.run())
-    await _until(lambda: daemon.cycles >= 45)
+    await _until(lambda: daemon.loop.cycles >= 45)
     daemon.request_stop()
     assert await task == 0
     pacer.cancel()
     await asyncio.gather(pacer, return_exceptions=True)
-    assert daemon.complete_cycles == 0
+    assert daemon.telemetry.complete_cycles == 0
     ready = next(i for i, m in enumerate(notes.messages) if m.startswith("READY=1"))
     assert notes.messages[ready:].count("WATCHDOG=1") >= 40
-    assert daemon.last_result is not None and daemon.last_result.state == "ramp"
+    assert daemon.loop.last_result is not None and daemon.loop.last_result.state == "ramp"
     status = int((await sim.outputs())["status"])
     assert status & Status.ALARM and status & Status.RAMPING
+
+
+def test_daemon_has_no_pass_through_properties() -> None:
+    # each value has one owner (the loop's counts, the running config and cycle,
+    # the journal's log, the sinks' own state): a caller reads it there
+    assert [n for n, v in vars(Daemon).items() if isinstance(v, property)] == []

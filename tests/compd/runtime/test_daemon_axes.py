@@ -26,7 +26,7 @@ async def _run(cfg, driver: MemoryDriver, cycles: int) -> Daemon:  # type: ignor
                     sleep=clock.sleep)
     task = asyncio.create_task(daemon.run())
     pacer = asyncio.create_task(pace(clock))
-    await until(lambda: daemon.cycles >= cycles)
+    await until(lambda: daemon.loop.cycles >= cycles)
     daemon.request_stop()
     assert await task == 0
     pacer.cancel()

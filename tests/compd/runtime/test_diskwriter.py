@@ -16,13 +16,11 @@ import pytest
 
 from compd.core.record import RecordRow
 from compd.runtime.checkpoint import CHECKPOINT_NAME, load_checkpoint
-from compd.runtime.clock import Clock
 from compd.runtime.diskwriter import DiskWriter
 from compd.runtime.recorder import Recorder
 from compd.runtime.sinks.checkpoint import CheckpointSink
 from compd.runtime.sinks.recorder import RecorderSink
 from compd.runtime.statedir import StateDirError
-from compd.testing import FakeClock
 
 
 def test_jobs_run_in_order_on_one_thread_and_drain_waits_for_them() -> None:
@@ -163,13 +161,22 @@ class Log:
 
 
 def checkpoint_sink(state_dir: Path, writer: DiskWriter, export: Callable[[], dict[str, Any]],
-                    log: Log) -> tuple[CheckpointSink, Any]:
+                    log: Log) -> tuple[CheckpointSink, Any, Any]:
+    """The sink, its config, and the cycle whose state it saves (`export`)."""
     cfg = SimpleNamespace(raw=SimpleNamespace(state=SimpleNamespace(checkpoint_every=10)),
                           state_dir=state_dir, model_sha256="m", config_sha256="c")
-    sink = CheckpointSink(dry_run=False, clock=Clock(mono=FakeClock()),
-                          journal=cast(Any, SimpleNamespace(log=log)), export=export,
+    sink = CheckpointSink(dry_run=False, journal=cast(Any, SimpleNamespace(log=log)),
                           writer=writer)
-    return sink, cast(Any, cfg)
+    return sink, cast(Any, cfg), cast(Any, SimpleNamespace(export_state=export))
+
+
+def _row(sequence: int, *, healthy: bool = True) -> Any:
+    from compd.core.faults import FaultState
+    from compd.core.health import Cause
+
+    return SimpleNamespace(state=FaultState.OK, healthy=healthy, sequence=sequence,
+                           cause=Cause.IN_FORCE if healthy else Cause.AT_LIMIT,
+                           in_force=healthy, wall_s=1000.0 + sequence)
 
 
 async def test_checkpoint_saves_run_on_the_writer_in_the_order_asked(tmp_path: Path) -> None:
@@ -178,12 +185,13 @@ async def test_checkpoint_saves_run_on_the_writer_in_the_order_asked(tmp_path: P
     writer = DiskWriter()
     gate = threading.Event()
     state = {"sequence": 0}
-    sink, cfg = checkpoint_sink(tmp_path, writer, lambda: dict(state), Log())
+    sink, cfg, cycle = checkpoint_sink(tmp_path, writer, lambda: dict(state), Log())
+    sink.note(cast(Any, SimpleNamespace(row=_row(1), cfg=cfg, mono_s=1.0)))
     writer.submit(gate.wait, key=str(tmp_path))  # the state directory's thread
-    first = asyncio.ensure_future(sink.save_async(cfg))
+    first = asyncio.ensure_future(sink.save_async(cfg, cycle))
     await asyncio.sleep(0)
     state["sequence"] = 1  # the cycle goes on: the first save keeps what it took
-    second = asyncio.ensure_future(sink.save_async(cfg))
+    second = asyncio.ensure_future(sink.save_async(cfg, cycle))
     await asyncio.sleep(0)
     assert load_checkpoint(tmp_path / CHECKPOINT_NAME) is None  # nothing written yet
     gate.set()
@@ -191,7 +199,7 @@ async def test_checkpoint_saves_run_on_the_writer_in_the_order_asked(tmp_path: P
     doc = load_checkpoint(tmp_path / CHECKPOINT_NAME)
     assert doc is not None and doc["sequence"] == 1
     state["sequence"] = 2
-    sink.save(cfg)  # shutdown, --once, a hold: written when it returns
+    sink.save(cfg, cycle)  # shutdown, --once, a hold: written when it returns
     doc = load_checkpoint(tmp_path / CHECKPOINT_NAME)
     assert doc is not None and doc["sequence"] == 2
     writer.shutdown()
@@ -206,18 +214,18 @@ async def test_a_checkpoint_failing_on_the_writer_is_logged_and_tried_again(
     from compd.core.health import Cause
 
     writer, log = DiskWriter(), Log()
-    sink, cfg = checkpoint_sink(tmp_path / "gone", writer, lambda: {"sequence": 1}, log)
+    sink, cfg, cycle = checkpoint_sink(tmp_path / "gone", writer, lambda: {"sequence": 1}, log)
     row = SimpleNamespace(state=FaultState.OK, cause=Cause.AT_LIMIT, healthy=False,
-                          sequence=3, in_force=False)
+                          sequence=3, in_force=False, wall_s=1000.0)
     tick = cast(Any, SimpleNamespace(row=row, cfg=cfg, mono_s=0.0))
     assert sink.note(tick)  # out of force: due at once
-    await sink.save_async(cfg)
+    await sink.save_async(cfg, cycle)
     assert [e for e, _ in log.errors] == ["checkpoint_failed"]
     assert "gone" in str(log.errors[0][1]["error"])
     row.sequence = 4
     assert sink.note(tick)  # still due: nothing was saved
     (tmp_path / "gone").mkdir(mode=0o700)
-    await sink.save_async(cfg)
+    await sink.save_async(cfg, cycle)
     assert len(log.errors) == 1
     doc = load_checkpoint(tmp_path / "gone" / CHECKPOINT_NAME)
     assert doc is not None and doc["last_cause"] == "at_limit"

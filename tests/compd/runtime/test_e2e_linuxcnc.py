@@ -115,8 +115,8 @@ def _rig(sim: LinuxCncSimController, tmp_path: Path, **faults: Any) -> Lockstep:
 
 def _written(rig: Lockstep) -> float | None:
     """The offset the daemon's last cycle wrote (µm), None when it wrote none."""
-    assert rig.daemon is not None and rig.daemon.last_result is not None
-    return rig.daemon.last_result.writes.get("offset")
+    assert rig.daemon is not None and rig.daemon.loop.last_result is not None
+    return rig.daemon.loop.last_result.writes.get("offset")
 
 
 def _signal(name: str) -> float:
@@ -178,7 +178,7 @@ async def test_z_offset_follows_the_model_under_the_slew_limit(
             hal = await lcnc.settled()
             written = _written(rig)
             assert written is not None and rig.daemon is not None
-            result = rig.daemon.last_result
+            result = rig.daemon.loop.last_result
             assert result is not None and result.model_um is not None
             rows.append((written, hal["offset_um"], result.model_um))
             seen.append(hal["offset_um"])
@@ -566,8 +566,8 @@ async def _settled_steps(rig: Lockstep, lcnc: LinuxCncSimController, start_um: f
     seen = [start_um]
     for _ in range(limit):
         await rig.step()
-        assert rig.daemon is not None and rig.daemon.last_result is not None
-        model = rig.daemon.last_result.model_um
+        assert rig.daemon is not None and rig.daemon.loop.last_result is not None
+        model = rig.daemon.loop.last_result.model_um
         assert model is not None
         seen.append((await lcnc.settled())["offset_um"])
         if until(seen[-1], model):
@@ -596,8 +596,8 @@ async def test_g_code_permits_offset_changes_and_re_zeroes_by_m_code(
         await lcnc.control("mdi", f"M{64 if on else 65} P{dout}")
 
     def last() -> Any:
-        assert rig.daemon is not None and rig.daemon.last_result is not None
-        return rig.daemon.last_result
+        assert rig.daemon is not None and rig.daemon.loop.last_result is not None
+        return rig.daemon.loop.last_result
 
     try:
         await mcode(True, PERMIT_DOUT)  # between cuts: changes permitted
@@ -635,8 +635,8 @@ async def test_g_code_permits_offset_changes_and_re_zeroes_by_m_code(
         before = seen[-1]
         await mcode(True, REZERO_DOUT)  # the touch-off's pulse
         await rig.step()
-        assert rig.daemon is not None and rig.daemon.cycle is not None
-        assert rig.daemon.cycle.models.zero_by == "controller input [output] rezero"
+        assert rig.daemon is not None and rig.daemon.running.cycle is not None
+        assert rig.daemon.running.cycle.models.zero_by == "controller input [output] rezero"
         await mcode(False, REZERO_DOUT)
         after = (await lcnc.settled())["offset_um"]
         seen = await _settled_steps(rig, lcnc, after,

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from compd.config.loader import load_config
+from compd.runtime.checkpoint import CHECKPOINT_NAME, load_checkpoint
 from compd.runtime.recorder import read_samples
 from compd.testing import SteppedClock
 from tests.configs import write_config
@@ -49,13 +50,19 @@ async def test_the_daemon_runs_one_cycle_per_tick_on_the_clocks_it_was_given(
         driver.set("bearing", 20.0 + 0.05 * k)
         clock.tick()
         await clock.cycle_done(k + 1)
-        assert daemon.cycles == k + 1  # one cycle per tick, however slow the machine
+        assert daemon.loop.cycles == k + 1  # one cycle per tick, however slow the machine
     daemon.request_stop()
     assert await task == 0
-    assert daemon.overruns == 0
+    assert daemon.loop.overruns == 0
     # the health evidence and the records: the given clocks, not time.time()/monotonic()
     assert daemon.checkpoint.last_complete == (EPOCH + 39 * cfg.period_s, 39 * cfg.period_s)
+    # the checkpoint's time is its last cycle's, on the daemon's clocks: a restart
+    # judges the state's age by it
+    saved = load_checkpoint(tmp_path / "state" / CHECKPOINT_NAME)
+    last = daemon.loop.last_result
+    assert saved is not None and last is not None and saved["sequence"] == last.sequence
+    assert (saved["saved_wall_s"], saved["saved_mono_s"]) == (last.wall_s, last.wall_s - EPOCH)
     rows = read_samples(tmp_path / "state" / "samples.sqlite")
-    assert rows["seq"].size == daemon.cycles
+    assert rows["seq"].size == daemon.loop.cycles
     assert np.array_equal(rows["wall_s"], EPOCH + rows["mono_s"])
     assert np.array_equal(rows["mono_s"][:40], np.arange(40) * cfg.period_s)

@@ -45,19 +45,21 @@ async def test_a_counter_stepping_every_cycle_logs_once_then_a_recovery(
 
         bumper = asyncio.create_task(step_the_counter())
         try:
-            await until(lambda: daemon.cycle is not None and daemon.cycle.probes is not None
-                        and daemon.cycle.probes.adapter.refused >= 30, limit_s=20.0)
+            await until(lambda: daemon.running.cycle is not None
+                        and daemon.running.cycle.probes is not None
+                        and daemon.running.cycle.probes.adapter.refused >= 30)
             await sim.publish({"probe_value": 0.0})  # a good one (residual ≈ 0)
-            await until(lambda: daemon.cycle is not None and daemon.cycle.probes is not None
-                        and daemon.cycle.probes.adapter.accepted >= 1, limit_s=20.0)
+            await until(lambda: daemon.running.cycle is not None
+                        and daemon.running.cycle.probes is not None
+                        and daemon.running.cycle.probes.adapter.accepted >= 1)
         finally:
             bumper.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await bumper
         daemon.request_stop()
         assert await task == 0
-    assert daemon.cycle is not None and daemon.cycle.probes is not None
-    refused = daemon.cycle.probes.adapter.refused
+    assert daemon.running.cycle is not None and daemon.running.cycle.probes is not None
+    refused = daemon.running.cycle.probes.adapter.refused
     lines = [e for e in logs if e["event"].startswith("probe_refused")]
     # the first refusal in full; then (well within a minute) only the recovery's count
     assert lines[0]["event"] == "probe_refused" and lines[0]["reason"] == "gate"

@@ -157,7 +157,7 @@ def test_default_retention_is_bounded(tmp_path: Path) -> None:
     from compd.runtime.daemon import Daemon
 
     daemon = Daemon(load_config(p))
-    daemon.recorder.open_now(daemon.cfg)
+    daemon.recorder.open_now(daemon.running.cfg)
     try:
         assert daemon.recorder.recorder is not None
         assert daemon.recorder.recorder.keep_rows == math.ceil(30 * 86400 / 1.0)
@@ -165,7 +165,7 @@ def test_default_retention_is_bounded(tmp_path: Path) -> None:
         daemon.recorder.close_now()
     p.write_text(MINIMAL + "\n[recorder]\nretention_days = 0\n", encoding="utf-8")
     keep_all = Daemon(load_config(p))
-    keep_all.recorder.open_now(keep_all.cfg)
+    keep_all.recorder.open_now(keep_all.running.cfg)
     try:
         kept = keep_all.recorder.recorder
         assert kept is not None and kept.keep_rows is None

@@ -115,7 +115,7 @@ async def _prepared(daemon: Daemon) -> None:
 
 
 def _model_file(daemon: Daemon) -> str | None:
-    section = daemon.cfg.raw.model
+    section = daemon.running.cfg.raw.model
     return None if section is None else section.file
 
 
@@ -141,26 +141,26 @@ async def test_a_reload_being_prepared_costs_no_cycle_and_swaps_under_the_slew_l
     daemon.request_reload()
     await gate.wait_entered()
 
-    cycles, at_hup = daemon.cycles, len(offsets)
+    cycles, at_hup = daemon.loop.cycles, len(offsets)
     await _offsets(rig, HELD_PERIODS, offsets)
     # every period stepped ran its cycle, on the old config, on time
-    assert daemon.cycles == cycles + HELD_PERIODS
-    assert daemon.reloads == 0 and _model_file(daemon) == "sp2"
-    assert daemon.overruns == 0
+    assert daemon.loop.cycles == cycles + HELD_PERIODS
+    assert daemon.reloader.reloads == 0 and _model_file(daemon) == "sp2"
+    assert daemon.loop.overruns == 0
     assert offsets[-1] - offsets[at_hup - 1] == pytest.approx(
         HELD_PERIODS * OLD_SLEW_UM_S * PERIOD_S, abs=1e-3)  # still slewing at the old limit
 
     gate.open()
     await _prepared(daemon)
-    assert daemon.reloads == 0  # prepared, not yet swapped: the loop swaps
+    assert daemon.reloader.reloads == 0  # prepared, not yet swapped: the loop swaps
     swapped_at = len(offsets)
     await _offsets(rig, 1, offsets)
     # the swap came between two cycles: one period, one cycle, and that cycle ran
     # on the new config
-    assert daemon.cycles == cycles + HELD_PERIODS + 1
-    assert daemon.reloads == 1 and _model_file(daemon) == "sp3"
+    assert daemon.loop.cycles == cycles + HELD_PERIODS + 1
+    assert daemon.reloader.reloads == 1 and _model_file(daemon) == "sp3"
     await _offsets(rig, 20, offsets)
-    assert daemon.overruns == 0
+    assert daemon.loop.overruns == 0
 
     (done,) = _events(rig, "reload_succeeded")
     assert "model.file" in done["changed"] and "output.slew_um_s" in done["changed"]
@@ -181,7 +181,7 @@ async def test_a_storm_of_reloads_misses_no_cycle(
     carries its filters over."""
     daemon = await rig.start()
     await rig.step(5)
-    cycles, stepped = daemon.cycles, 0
+    cycles, stepped = daemon.loop.cycles, 0
     for i in range(10):
         gate.close()
         text = rig.config_path.read_text()
@@ -191,14 +191,14 @@ async def test_a_storm_of_reloads_misses_no_cycle(
         await gate.wait_entered()
         await rig.step(i % 4)
         stepped += i % 4
-        assert daemon.reloads == i
+        assert daemon.reloader.reloads == i
         gate.open()
         await _prepared(daemon)
         await rig.step()
         stepped += 1
-        assert daemon.reloads == i + 1
-        assert daemon.cfg.raw.state.checkpoint_every == 21 + i
-    assert daemon.cycles == cycles + stepped and daemon.overruns == 0
+        assert daemon.reloader.reloads == i + 1
+        assert daemon.running.cfg.raw.state.checkpoint_every == 21 + i
+    assert daemon.loop.cycles == cycles + stepped and daemon.loop.overruns == 0
     done = _events(rig, "reload_succeeded")
     assert len(done) == 10 and gate.calls == 10
     assert all(d["filters"] == "carried_over" and d["restarted"] == []
@@ -222,13 +222,13 @@ async def test_a_reload_asked_for_during_another_reads_the_file_again(
     rig.config_path.write_text(original.replace("checkpoint_every = 20",
                                                 "checkpoint_every = 22"))
     daemon.request_reload()  # served after the first
-    cycles = daemon.cycles
+    cycles = daemon.loop.cycles
     await rig.step(3)
-    assert daemon.cycles == cycles + 3 and daemon.reloads == 0
+    assert daemon.loop.cycles == cycles + 3 and daemon.reloader.reloads == 0
     gate.open()
     await _prepared(daemon)
     await rig.step()
-    assert gate.calls == 2 and daemon.reloads == 1
-    assert daemon.cfg.raw.state.checkpoint_every == 22
-    assert daemon.cycles == cycles + 4 and daemon.overruns == 0
+    assert gate.calls == 2 and daemon.reloader.reloads == 1
+    assert daemon.running.cfg.raw.state.checkpoint_every == 22
+    assert daemon.loop.cycles == cycles + 4 and daemon.loop.overruns == 0
     assert await rig.stop() == 0

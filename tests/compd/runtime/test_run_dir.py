@@ -63,7 +63,7 @@ def _machines_dir(tmp_path: Path, sims: Sequence[ModbusSimController], **kw: Any
 
 
 def _complete(fleet: Fleet) -> dict[str, int]:
-    return {n: (d.complete_cycles if (d := fleet.daemons.get(n)) else 0) for n in NAMES}
+    return {n: (d.telemetry.complete_cycles if (d := fleet.daemons.get(n)) else 0) for n in NAMES}
 
 
 async def _stop(fleet: Fleet, task: asyncio.Task[int]) -> int:
@@ -245,7 +245,7 @@ async def test_machines_start_one_after_the_other_with_their_cycles_spread(
     serve = Daemon.serve
 
     async def timed(self: Daemon) -> int:
-        started[self.cfg.raw.machine.name] = time.monotonic()
+        started[self.running.cfg.raw.machine.name] = time.monotonic()
         return await serve(self)
 
     monkeypatch.setattr(Daemon, "serve", timed)
@@ -288,21 +288,23 @@ async def test_a_restart_after_a_reload_runs_the_reloaded_config_with_fresh_mode
         assert daemon.reloader.task is not None
         await daemon.reloader.task  # prepared beside the loop; swapped in at the next cycle
         await fs.step()
-        assert daemon.reloads == 1 and daemon.cfg.model_sha256 == reloaded.model_sha256
-        assert daemon.cycle is not None
-        dead_model = daemon.cycle.models.model
+        assert daemon.reloader.reloads == 1
+        assert daemon.running.cfg.model_sha256 == reloaded.model_sha256
+        assert daemon.running.cycle is not None
+        dead_model = daemon.running.cycle.models.model
         daemon.running.driver = _CrashingDriver()  # its next read is a bug: a crash
         await fs.step()  # the crash, the backoff (real time), the new daemon's first cycle
         assert fleet.restarts == {"mill-a": 1}
         again = fleet.daemons["mill-a"]
-        assert again is not daemon and again.cycle is not None
-        assert again.cfg.model_sha256 == reloaded.model_sha256
-        assert again.cfg.model.name == "SP1 per-spindle"
-        assert again.cycle.models.model is not dead_model
-        assert again.cycle.models.model is not again.cfg.model  # the config stays a description
-        assert again.cfg.model.references == {}  # never stepped: no reference state set
+        assert again is not daemon and again.running.cycle is not None
+        assert again.running.cfg.model_sha256 == reloaded.model_sha256
+        assert again.running.cfg.model.name == "SP1 per-spindle"
+        assert again.running.cycle.models.model is not dead_model
+        # the config stays a description
+        assert again.running.cycle.models.model is not again.running.cfg.model
+        assert again.running.cfg.model.references == {}  # never stepped: no reference state set
         await fs.step(2)
-        assert again.complete_cycles >= 2
+        assert again.telemetry.complete_cycles >= 2
         assert await _stop(fleet, task) == 0
     finally:
         if not task.done():

@@ -217,17 +217,17 @@ async def test_the_running_daemon_never_writes_through_a_swapped_state_dir(
         task = asyncio.create_task(daemon.run())
         try:
             for _ in range(2000):
-                if daemon.complete_cycles >= 6 or task.done():
+                if daemon.telemetry.complete_cycles >= 6 or task.done():
                     break
                 await asyncio.sleep(0.005)
-            assert daemon.complete_cycles >= 6
+            assert daemon.telemetry.complete_cycles >= 6
             stolen = _swap(state, vict)
-            swapped_at = daemon.cycles
+            swapped_at = daemon.loop.cycles
             for _ in range(2000):
-                if daemon.cycles >= swapped_at + 12 or task.done():
+                if daemon.loop.cycles >= swapped_at + 12 or task.done():
                     break
                 await asyncio.sleep(0.005)
-            assert daemon.cycles >= swapped_at + 12
+            assert daemon.loop.cycles >= swapped_at + 12
             recorder = daemon.recorder.recorder
             assert recorder is not None and recorder.alarm
             assert "no longer names the directory" in str(recorder.last_error)
@@ -239,7 +239,7 @@ async def test_the_running_daemon_never_writes_through_a_swapped_state_dir(
     assert (vict / "checkpoint.json").read_text() == PRECIOUS
     assert sorted(p.name for p in vict.iterdir()) == ["checkpoint.json"]
     final = json.loads((stolen / "checkpoint.json").read_text())
-    assert final["sequence"] == daemon.cycles
+    assert final["sequence"] == daemon.loop.cycles
 
 
 # -- hard links at SQLite's names -------------------------------------------------------

@@ -48,7 +48,7 @@ async def test_each_terminating_signal_stops_like_sigterm(
     with structlog.testing.capture_logs() as logs:
         daemon = Daemon(cfg, notifier=Notifier(None))
         task = asyncio.create_task(daemon.run())
-        await until(lambda: daemon.complete_cycles >= 3)
+        await until(lambda: daemon.telemetry.complete_cycles >= 3)
         assert _installed(sig), f"{name} would end compd at once"
         os.kill(os.getpid(), sig)
         assert await asyncio.wait_for(task, 20.0) == 0
@@ -61,7 +61,7 @@ async def test_each_terminating_signal_stops_like_sigterm(
     (stopped,) = [e for e in logs if e["event"] == "daemon_stopped"]
     assert stopped["signal"] == name
     state = load_checkpoint(cfg.state_dir / "checkpoint.json")  # written at the stop
-    assert state is not None and state["sequence"] == daemon.cycles
+    assert state is not None and state["sequence"] == daemon.loop.cycles
 
 
 async def test_sigxfsz_is_logged_and_ignored(sim: ModbusSimController, tmp_path: Path) -> None:
@@ -69,11 +69,11 @@ async def test_sigxfsz_is_logged_and_ignored(sim: ModbusSimController, tmp_path:
     with structlog.testing.capture_logs() as logs:
         daemon = Daemon(cfg, notifier=Notifier(None))
         task = asyncio.create_task(daemon.run())
-        await until(lambda: daemon.complete_cycles >= 3)
+        await until(lambda: daemon.telemetry.complete_cycles >= 3)
         assert _installed(signal.SIGXFSZ)
         os.kill(os.getpid(), signal.SIGXFSZ)
-        done = daemon.complete_cycles
-        await until(lambda: daemon.complete_cycles >= done + 5)
+        done = daemon.telemetry.complete_cycles
+        await until(lambda: daemon.telemetry.complete_cycles >= done + 5)
         assert not task.done()
         daemon.request_stop()
         assert await task == 0

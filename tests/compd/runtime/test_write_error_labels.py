@@ -32,4 +32,4 @@ async def test_each_output_of_a_refused_write_is_its_own_label(tmp_path: Path) -
     assert [count(o) for o in ("offset", "heartbeat", "status")] == [1.0, 1.0, 1.0]
     assert count("offset,heartbeat,status") is None
     # the offset did not arrive: a transient failure, retried (not stopped)
-    assert daemon.cycle is not None and not daemon.cycle.health.write_stopped
+    assert daemon.running.cycle is not None and not daemon.running.cycle.health.write_stopped

@@ -66,19 +66,21 @@ async def test_daemon_records_only_confirmed_offsets_and_reports_the_write_fault
     cfg = load_config(write_config(tmp_path, sim.endpoint))
     daemon = Daemon(cfg, notifier=Notifier(None))
     task = asyncio.create_task(daemon.run())
-    await _until(lambda: daemon.complete_cycles >= 3)
+    await _until(lambda: daemon.telemetry.complete_cycles >= 3)
     await sim.publish({"bearing": 22.0})
     sim.inject_exception("holding", 0, 6, count=4, on="write")  # busy, for a while
-    await _until(lambda: daemon.cycle is not None and daemon.cycle.health.write_fault)
-    await _until(lambda: daemon.last_result is not None
-                 and daemon.last_result.state == "write_fault")
-    assert daemon.last_result is not None
-    assert daemon.last_result.status & Status.WRITE_FAULT
+    await _until(lambda: daemon.running.cycle is not None
+                 and daemon.running.cycle.health.write_fault)
+    await _until(lambda: daemon.loop.last_result is not None
+                 and daemon.loop.last_result.state == "write_fault")
+    assert daemon.loop.last_result is not None
+    assert daemon.loop.last_result.status & Status.WRITE_FAULT
     assert daemon.metrics.fault_state._value.get() == 3  # the gauge
     sim.clear_faults()
-    await _until(lambda: daemon.cycle is not None and not daemon.cycle.health.write_fault)
-    n = daemon.cycles
-    await _until(lambda: daemon.cycles >= n + 3)
+    await _until(lambda: daemon.running.cycle is not None
+                 and not daemon.running.cycle.health.write_fault)
+    n = daemon.loop.cycles
+    await _until(lambda: daemon.loop.cycles >= n + 3)
     daemon.request_stop()
     assert await task == 0
     assert cfg.recorder_path is not None

@@ -1,0 +1,89 @@
+"""The recorder's rows as SQLite stores them (`compd.runtime.recorder`): one
+commit's `Batch`, formatted on the caller's thread (no I/O) before the writer
+commits it. Non-finite floats become NULL (JSON null); each channel value, its
+validity and each term's contribution go into the JSON columns of
+`compd.store.schema`'s layout, each axis's part of the cycle into table ``axes``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from compd.core.record import RecordRow
+from compd.store.schema import PROBE_COLUMNS
+
+__all__ = ["Batch"]
+
+
+def _num(value: float | None) -> float | None:
+    """A float for SQLite/JSON; non-finite and missing become NULL/null."""
+    if value is None:
+        return None
+    v = float(value)
+    return v if math.isfinite(v) else None
+
+
+def _json_numbers(values: Mapping[str, float | None]) -> str:
+    return json.dumps({str(k): _num(v) for k, v in values.items()}, allow_nan=False,
+                      separators=(",", ":"))
+
+
+def _tuple(seq: int, row: RecordRow) -> tuple[Any, ...]:
+    return (seq, row.seq, float(row.mono_s), float(row.wall_s), _num(row.offset_um),
+            _num(row.model_um), str(row.state), 1 if row.valid else 0,
+            _json_numbers(row.channels),
+            json.dumps({str(k): str(v) for k, v in row.validity.items() if v is not None},
+                       separators=(",", ":")),
+            _json_numbers(row.contributions), _num(row.attempted_um),
+            1 if row.complete else 0)
+
+
+def _axis_tuples(seq: int, row: RecordRow) -> list[tuple[Any, ...]]:
+    """The ``axes`` rows of one sample (`compd.store.schema.AXIS_COLUMNS`), one per
+    axis (a `compd.core.axes.AxisRow` each)."""
+    out = []
+    for axis, a in row.axes.items():
+        v, s = a.value, a.slope
+        out.append((seq, str(axis), str(a.state), str(a.cause), 1 if a.in_force else 0,
+                    _num(v.stage), _num(v.sent), _num(v.confirmed), _num(v.model),
+                    _num(s.stage), _num(s.sent), _num(s.confirmed), _num(s.model),
+                    _num(a.reference_mm)))
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class Batch:
+    """One commit's rows, formatted: the ``samples``, ``probe`` and ``axes`` rows
+    and the names lists they extend (written to ``meta`` when they grew)."""
+
+    first: int
+    count: int
+    samples: list[tuple[Any, ...]]
+    probes: list[tuple[Any, ...]]
+    axes: list[tuple[Any, ...]]
+    channels: list[str]
+    terms: list[str]
+
+    @classmethod
+    def of(cls, first: int, rows: Sequence[RecordRow], channels: list[str],
+           terms: list[str]) -> Batch:
+        """`rows` numbered from `first`, with the channel and term names known so
+        far (`channels`, `terms`); ValueError, TypeError or AttributeError: a row
+        that cannot be stored."""
+        samples = [_tuple(first + i, r) for i, r in enumerate(rows)]
+        axes = [t for i, r in enumerate(rows) if r.axes for t in _axis_tuples(first + i, r)]
+        probes = [(first + i, *(r.probe.get(c) for c in PROBE_COLUMNS))
+                  for i, r in enumerate(rows) if r.probe is not None]
+        return cls(first, len(rows), samples, probes, axes,
+                   channels + _new_names(channels, (r.channels for r in rows)),
+                   terms + _new_names(terms, (r.contributions for r in rows)))
+
+
+def _new_names(known: list[str], groups: Iterable[Mapping[str, Any]]) -> list[str]:
+    """The names in `groups` not in `known`, in the order first seen."""
+    seen = set(known)
+    return list(dict.fromkeys(str(n) for g in groups for n in g if n not in seen))
