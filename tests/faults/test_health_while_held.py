@@ -40,6 +40,18 @@ def _health(*argv: str) -> tuple[int, str]:
     return proc.returncode, proc.stdout.strip()
 
 
+async def _healthy_again(proc: asyncio.subprocess.Process, *argv: str) -> tuple[int, str]:
+    """`compd health` while the daemon is healthy. On a loaded PC one read may time
+    out (50 ms) and make one instant rightly unhealthy (controller_not_answering),
+    so the check is asked again, a bounded number of times, while the daemon runs
+    on; the last answer is returned for the test to judge."""
+    for _ in range(30):
+        got = await asyncio.to_thread(_health, *argv)
+        if got[0] == 0 or proc.returncode is not None:
+            break
+    return got
+
+
 def _last_cause(state_dir: Path) -> object:
     try:
         return json.loads((state_dir / "checkpoint.json").read_text()).get("last_cause")
@@ -75,8 +87,8 @@ async def test_a_held_output_is_unhealthy_by_every_source(rec: RecordingSim,
         await rec.sim.publish({"bearing": 25.0})
         await until(lambda: rec.offsets and rec.offsets[-1] > 5.0, proc, log, "compensating")
         await until(lambda: _last_state(state) == "ok", proc, log, "a checkpoint while ok")
-        before = await asyncio.to_thread(_health, "--state-dir", str(state))
-        before_url = await asyncio.to_thread(_health, "--url", url)
+        before = await _healthy_again(proc, "--state-dir", str(state))
+        before_url = await _healthy_again(proc, "--url", url)
 
         await _write_until_held(rec, modbus_port, 1000.0, proc, log)
         await until(lambda: _last_state(state) == "held", proc, log, "the alarm checkpointed")
@@ -93,14 +105,7 @@ async def test_a_held_output_is_unhealthy_by_every_source(rec: RecordingSim,
         # ramping back from the cleared value is an alarm (READBACK_MISMATCH): the offset
         # compd wants is in force, and healthy, once the ramp is done
         await until(lambda: _last_cause(state) == "in_force", proc, log, "the ramp back done")
-        # healthy again, read as the HEALTHCHECK reads it; on a loaded PC a read may
-        # time out (50 ms) between the two lines and make one instant rightly
-        # unhealthy (controller_not_answering), so the check is asked again, a
-        # bounded number of times, while the daemon runs on
-        for _ in range(30):
-            after = await asyncio.to_thread(_health, "--state-dir", str(state))
-            if after[0] == 0 or proc.returncode is not None:
-                break
+        after = await _healthy_again(proc, "--state-dir", str(state))
         proc.terminate()
         assert await asyncio.wait_for(proc.wait(), 120.0) == 0
     finally:

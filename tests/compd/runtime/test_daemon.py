@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import socket
 from pathlib import Path
 
@@ -118,6 +119,14 @@ async def test_sd_notify_ready_watchdog_status(sim: ModbusSimController,
     listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     listener.bind(str(path))
     listener.setblocking(False)
+    messages: list[str] = []
+
+    async def receive() -> None:  # as systemd does: the socket's queue holds only
+        loop = asyncio.get_running_loop()  # a few datagrams (net.unix.max_dgram_qlen)
+        while True:
+            messages.append((await loop.sock_recv(listener, 4096)).decode())
+
+    reader = asyncio.create_task(receive())
     try:
         cfg = load_config(write_config(tmp_path, sim.endpoint))
         notifier = Notifier(str(path))
@@ -127,13 +136,16 @@ async def test_sd_notify_ready_watchdog_status(sim: ModbusSimController,
         daemon.request_stop()
         assert await task == 0
         notifier.close()
-        messages = []
+        reader.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await reader
         while True:
             try:
                 messages.append(listener.recv(4096).decode())
             except BlockingIOError:
                 break
     finally:
+        reader.cancel()
         listener.close()
     assert any(m.startswith("READY=1") for m in messages)
     assert "WATCHDOG=1" in messages
