@@ -135,7 +135,9 @@ class CycleIO:
         names.extend(cfg.states)
         limit_s = max(cfg.real_period_s, 2.0 * cfg.raw.controller.timeout_s)
         try:
-            got = await asyncio.wait_for(driver.read(names), limit_s)
+            # a timeout scope, not wait_for: no task started for every cycle's read
+            async with asyncio.timeout(limit_s):
+                got = await driver.read(names)
         except (DriverError, TimeoutError) as exc:  # anything else is a driver's bug
             if self.read_ok is not False:
                 self.journal.log.warning("read_failed", error=str(exc),
