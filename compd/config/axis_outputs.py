@@ -42,6 +42,16 @@ FOCAS) takes an axis as one offset evaluated at the axis's present position
 The offset address is checked as the others, against the most the line can
 reach over the position channel's range (`PositionalAxis.offset_limit_um`).
 
+On a SINUMERIK (OPC UA, S7) the tool direction takes a value alone, the
+per-channel SD42960 ``$SC_TOOL_TEMP_COMP`` (mm) that the controller applies
+along the tool's orientation (MD20390 ``$MC_TOOL_TEMP_COMP_ON``)::
+
+    [output.axes.tool]
+    value = { node = "ns=2;s=Machine.Channel.$SC_TOOL_TEMP_COMP", scale = 1000.0 }
+    value_limit_um = 100.0
+    slew_um_s = 1.0
+    model = { file = "tool.toml" }
+
 `parse_axis_outputs` returns `AxisOutputSet`: the drivers' `AxisOutputs`
 (names, writes, read-back), each axis's reference position and its output
 stage's rates and deadbands (`AxisStage`). The two models (``model``,
@@ -84,6 +94,19 @@ SETTINGS: tuple[str, ...] = ("reference_mm", "value_limit_um", "slope_limit_um_m
 MODEL_KEYS: tuple[str, ...] = ("model", "slope_model")
 #: an axis written as an offset at its position: the channel and the offset address
 POSITIONAL: tuple[str, ...] = ("position", "offset")
+#: the tool direction's table name, its keys, and the protocols that have it
+TOOL = "tool"
+TOOL_KEYS: tuple[str, ...] = ("value", "value_limit_um", "slew_um_s", "deadband_um", "model")
+TOOL_PROTOCOLS: frozenset[str] = frozenset({"opcua", "s7"})
+
+
+@dataclass(frozen=True, slots=True)
+class ToolOutput:
+    """The tool direction's value (SD42960) and its limit."""
+
+    value: Address
+    limits: AxisLimits
+    quantum_um: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -155,20 +178,27 @@ class AxisOutputSet:
     models: Mapping[str, AxisModels] = field(default_factory=dict)
     #: axis -> the axes written as one offset at their position
     positional: Mapping[str, PositionalAxis] = field(default_factory=dict)
+    #: the tool direction (a value alone), None: not configured
+    tool: ToolOutput | None = None
 
     @property
     def axes(self) -> tuple[str, ...]:
-        """The configured axes, in X, Y, Z order."""
-        return tuple(a for a in AXES if a in self.outputs.addresses or a in self.positional)
+        """The configured axes, in X, Y, Z order, then the tool direction."""
+        found = tuple(a for a in AXES if a in self.outputs.addresses or a in self.positional)
+        return (*found, TOOL) if self.tool is not None else found
 
     def limits(self, axis: str) -> AxisLimits:
+        if axis == TOOL and self.tool is not None:
+            return self.tool.limits
         p = self.positional.get(axis)
         return p.limits if p is not None else self.outputs.limits[axis]
 
     def driver_outputs(self) -> dict[str, Address]:
         """Output name -> address of every axis, for the driver's outputs table."""
+        tool = {output_name(TOOL, "value"): self.tool.value} if self.tool is not None else {}
         return {**self.outputs.outputs(),
-                **{output_name(a, "offset"): p.offset for a, p in self.positional.items()}}
+                **{output_name(a, "offset"): p.offset for a, p in self.positional.items()},
+                **tool}
 
     def line(self, axis: str, value_um: float, slope_um_m: float) -> AxisCompensation:
         """The line to write for `axis` at its configured reference position."""
@@ -209,14 +239,21 @@ def parse_axis_outputs(protocol: str, table: Mapping[str, Any], *,
     quanta: dict[str, tuple[float, float]] = {}
     stages: dict[str, AxisStage] = {}
     positional: dict[str, PositionalAxis] = {}
+    tool: ToolOutput | None = None
     uses = [u for k, a in (others or {}).items()
             for u in a.uses(k, written=k.startswith("output."))]
     for axis, doc in table.items():
         at = f"{key}.{axis}"
-        if axis not in AXES:
-            raise ConfigError(at, f"unknown axis; known: {', '.join(AXES)}")
+        if axis not in (*AXES, TOOL):
+            raise ConfigError(at, f"unknown axis; known: {', '.join((*AXES, TOOL))}")
         if not isinstance(doc, Mapping):
             raise ConfigError(at, "must be a table")
+        if axis == TOOL:
+            tool = _tool(protocol, at, doc, uses)
+            stages[axis] = _stage(at, doc, tool.limits)
+            refs[axis] = 0.0
+            quanta[axis] = (tool.quantum_um, 0.0)
+            continue
         if "position" in doc:
             positional[axis] = _positional(protocol, at, doc, positions or {}, uses)
             stages[axis] = _stage(at, doc, positional[axis].limits)
@@ -261,7 +298,31 @@ def parse_axis_outputs(protocol: str, table: Mapping[str, Any], *,
         raise ConfigError(clash.second.key, clash.reason())
     return AxisOutputSet(AxisOutputs(addresses, limits, key=key), refs, quanta, stages,
                          {a: quantum(addresses[a].reference) for a in addresses},
-                         positional=positional)
+                         positional=positional, tool=tool)
+
+
+def _tool(protocol: str, at: str, doc: Mapping[str, Any], uses: list[Any]) -> ToolOutput:
+    """The tool direction: a SINUMERIK's SD42960, a value alone (see the module)."""
+    if protocol not in TOOL_PROTOCOLS:
+        raise ConfigError(at, "the tool direction is a SINUMERIK setting (SD42960 "
+                              "$SC_TOOL_TEMP_COMP): protocol opcua or s7")
+    unknown = sorted(set(doc) - set(TOOL_KEYS))
+    if unknown:
+        raise ConfigError(f"{at}.{unknown[0]}", "unknown key; the tool direction takes: "
+                          + ", ".join(TOOL_KEYS))
+    missing = [k for k in ("value", "value_limit_um") if k not in doc]
+    if missing:
+        raise ConfigError(f"{at}.{missing[0]}", "required key is missing")
+    limit = _number(f"{at}.value_limit_um", doc["value_limit_um"], positive=True)
+    given = doc["value"]
+    if not isinstance(given, Mapping):
+        raise ConfigError(f"{at}.value", "must be an address table")
+    addr = validate_address(protocol, dict(given), f"{at}.value")
+    _writable(f"{at}.value", addr)
+    check_range(f"{at}.value", addr, -limit, limit, f"value_limit_um = {limit:g}", unit=" µm")
+    uses.extend(addr.uses(f"{at}.value", written=True))
+    # the slope's limit is immaterial: the tool direction has none (it stays 0)
+    return ToolOutput(addr, AxisLimits(limit, 1.0), quantum(addr))
 
 
 def _limits(at: str, doc: Mapping[str, Any]) -> AxisLimits:
@@ -324,6 +385,17 @@ def _stage(at: str, doc: Mapping[str, Any], lim: AxisLimits) -> AxisStage:
     return AxisStage(**rates, **bands)
 
 
-__all__ = ["MODEL_KEYS", "NO_PARAMETERS", "POSITIONAL", "SETTINGS", "AxisModels",
-           "AxisOutputSet", "AxisStage", "PositionChannel", "PositionalAxis",
-           "parse_axis_outputs"]
+__all__ = [
+    "MODEL_KEYS",
+    "NO_PARAMETERS",
+    "POSITIONAL",
+    "SETTINGS",
+    "TOOL",
+    "AxisModels",
+    "AxisOutputSet",
+    "AxisStage",
+    "PositionChannel",
+    "PositionalAxis",
+    "ToolOutput",
+    "parse_axis_outputs",
+]

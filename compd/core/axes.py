@@ -37,6 +37,11 @@ quality, not finite, out of range or older than its ``stale_after_s`` holds the
 axis at its last written offset (then the alarm's ramp, at the last valid
 position). The offset's read-back is judged as the value's (`_Axis.judge`).
 
+The tool direction (``[output.axes.tool]``: SINUMERIK SD42960
+``$SC_TOOL_TEMP_COMP``, applied along the tool's orientation) is an axis with a
+value only (`AxisParams.value_only`): its model, stage, read-back and health as
+any axis's, no slope or reference written; it has no bits in the axes word.
+
 The operator's hold, the controller's permission and the controller's own
 state (machine off, E-stop) hold the axes as they hold the offset; a
 ramp-to-zero shutdown ramps them too. A re-zero and the fallback models are
@@ -107,6 +112,8 @@ class AxisParams:
     #: over the position channel's range), with the offset address's grid (0: a float)
     offset_limit_um: float = 0.0
     offset_quantum_um: float = 0.0
+    #: a value alone is written (the tool direction), no slope or reference
+    value_only: bool = False
 
     def name(self, parameter: str) -> str:
         """The driver output of one of this axis's parameters (`drivers.temp_comp`)."""
@@ -118,6 +125,8 @@ class AxisParams:
         three parameters."""
         if self.position is not None:
             return (self.name("offset"),)
+        if self.value_only:
+            return (self.name("value"),)
         return self.name("value"), self.name("slope"), self.name("reference")
 
     def offset_at(self, value_um: float, slope_um_m: float, x_mm: float) -> float:
@@ -411,6 +420,8 @@ class _Axis:
         for param in self.params:
             param.readback.written()
         self._planned = (v, s, True)
+        if self.p.value_only:
+            return {self.p.name("value"): v}
         return {self.p.name("value"): v, self.p.name("slope"): s,
                 self.p.name("reference"): self.p.reference_mm}
 
@@ -517,6 +528,8 @@ class AxisBank:
         self._life = not self._life
         word = int(AxesStatus.LIFE) if self._life else 0
         for a, view in zip(self.axes, self._views, strict=True):
+            if a.p.axis not in AXIS_INDEX:  # the tool direction: no bits of its own
+                continue
             bit = 1 << AXIS_INDEX[a.p.axis]
             status = status_word(view)
             if a.in_force and a.writing and output_cause(view).healthy:

@@ -93,5 +93,6 @@ def axis_params(cfg: LoadedConfig) -> tuple[AxisParams, ...]:
             value_sha256=models.value_sha256, slope_sha256=models.slope_sha256,
             position=at.position if at is not None else None,
             offset_limit_um=at.offset_limit_um if at is not None else 0.0,
-            offset_quantum_um=at.offset_quantum_um if at is not None else 0.0))
+            offset_quantum_um=at.offset_quantum_um if at is not None else 0.0,
+            value_only=axis == "tool"))
     return tuple(out)
