@@ -99,7 +99,7 @@ async def test_the_offset_at_the_moving_position_brings_its_error_down(
             # the controller applies its offset register at the axis's position
             held = (await sim.read_values(["x_comp_offset"]))["x_comp_offset"]
             errors.append((machine.growth_um(x), machine.growth_um(x) - held))
-            await machine.tick()
+            machine.step()
         a = row.axes["x"]
         assert a.cause == Cause.IN_FORCE and a.in_force
         assert a.position_mm == pytest.approx(x) and a.offset_um == pytest.approx(held, abs=1e-3)
