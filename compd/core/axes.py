@@ -35,7 +35,9 @@ position channel's range (`AxisParams.offset_limit_um`). The position is a
 channel like the temperatures and gates the axis as they do: missing, of bad
 quality, not finite, out of range or older than its ``stale_after_s`` holds the
 axis at its last written offset (then the alarm's ramp, at the last valid
-position). The offset's read-back is judged as the value's (`_Axis.judge`).
+position). The operator's hold and a controller that does not permit a change
+hold the whole offset, the motion's part too. The offset's read-back is judged
+as the value's (`_Axis.judge`).
 
 The tool direction (``[output.axes.tool]``: SINUMERIK SD42960
 ``$SC_TOOL_TEMP_COMP``, applied along the tool's orientation) is an axis with a
@@ -339,8 +341,11 @@ class _Axis:
         """Step the models, decide, move both stages; the axis's health view."""
         valid_inputs = answered and all(validity.get(ch) is None for ch in self.gate)
         pos = self.p.position
-        if answered and pos is not None and validity.get(pos) is None:
-            self._x = values[pos]  # the axis's present position, valid and recent
+        if answered and pos is not None and validity.get(pos) is None and not hold:
+            # the axis's present position, valid and recent; under a hold (the
+            # operator's, or the controller not permitting a change) the offset stays
+            # as written, the position it was evaluated at with it
+            self._x = values[pos]
         why: Cause | None = None
         model_invalid = model_range = False
         value_um = slope_um = None

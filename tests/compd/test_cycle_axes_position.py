@@ -116,3 +116,26 @@ def test_a_restarted_controller_is_ramped_from_at_the_value_rate() -> None:
     assert row.axes["x"].cause == Cause.FOREIGN_OFFSET
     # from 0, one second at 1 µm/s: the value's step, the slope unchanged
     assert plan.writes["x_comp_offset"] == pytest.approx(1.0)
+
+
+def test_a_hold_keeps_the_offset_as_written_while_the_axis_moves() -> None:
+    """The operator's hold (and a controller not permitting a change) keeps the whole
+    offset, the motion's part too: released, the line at the present position."""
+    cycle = Cycle(positional(), sp2())
+    clock = FakeClock(period_s=1.0)
+    for _ in range(3):
+        t = clock.tick()
+        cycle.plan(t, at(t, 525.0), wall_s=WALL0 + t)
+        cycle.commit()
+    assert cycle.set_operator_hold(True, "test") is not None
+    for x in (600.0, 900.0):
+        t = clock.tick()
+        plan = cycle.plan(t, at(t, x), wall_s=WALL0 + t)
+        row = cycle.commit()
+        assert plan.writes["x_comp_offset"] == pytest.approx(line(525.0))
+        assert row.axes["x"].position_mm == 525.0
+    cycle.set_operator_hold(False, "test")
+    t = clock.tick()
+    plan = cycle.plan(t, at(t, 900.0), wall_s=WALL0 + t)
+    cycle.commit()
+    assert plan.writes["x_comp_offset"] == pytest.approx(line(900.0))
