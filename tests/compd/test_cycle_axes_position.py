@@ -25,10 +25,11 @@ WALL0 = 0.0
 REF_MM = 25.0
 
 
-def positional(readback: bool = False, **over: Any) -> Any:
+def positional(readback: bool = False, rapid_mm_s: float | None = None, **over: Any) -> Any:
     chans = dict(params().channels)
     chans["nut"] = ChannelLimits(-20.0, 150.0, max_rate_per_s=0.5, stale_after_s=30.0)
-    chans["x_pos"] = ChannelLimits(-10.0, 1010.0, stale_after_s=5.0)
+    chans["x_pos"] = ChannelLimits(-10.0, 1010.0, max_rate_per_s=rapid_mm_s,
+                                   stale_after_s=5.0)
     rates: dict[str, Any] = {"value_slew_um_s": 100.0, "slope_slew_um_m_s": 100.0, **over}
     axis = x_axis(position="x_pos", offset_limit_um=50.0 + 12.0 * 1.035, **rates)
     return params(channels=chans, axes=(axis,), readback=readback)
@@ -138,4 +139,22 @@ def test_a_hold_keeps_the_offset_as_written_while_the_axis_moves() -> None:
     t = clock.tick()
     plan = cycle.plan(t, at(t, 900.0), wall_s=WALL0 + t)
     cycle.commit()
+    assert plan.writes["x_comp_offset"] == pytest.approx(line(900.0))
+
+
+def test_a_position_faster_than_the_rapid_traverse_holds_the_axis() -> None:
+    """With max_rate_per_s at the rapid traverse (500 mm/s), a traverse of 375 mm in
+    a second is motion; 900 mm in a second is a glitch, refused, the axis held."""
+    cycle = Cycle(positional(rapid_mm_s=500.0), sp2())
+    clock = FakeClock(period_s=1.0)
+    for x in (525.0, 525.0, 900.0):
+        t = clock.tick()
+        plan = cycle.plan(t, at(t, x), wall_s=WALL0 + t)
+        row = cycle.commit()
+    assert plan.writes["x_comp_offset"] == pytest.approx(line(900.0))
+    t = clock.tick()
+    plan = cycle.plan(t, at(t, 0.0), wall_s=WALL0 + t)
+    row = cycle.commit()
+    assert plan.validity["x_pos"] == "rate"
+    assert row.axes["x"].cause == Cause.INPUTS_INVALID
     assert plan.writes["x_comp_offset"] == pytest.approx(line(900.0))
