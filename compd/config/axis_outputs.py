@@ -27,6 +27,31 @@ limit (`compd.config.output_range.check_range`), and sharing no controller
 memory with another output (`drivers.footprint.first_clash`). Every refusal
 is a `ConfigError` naming the key (``output.axes.x.slope``).
 
+A controller without such parameters (a plain offset register over Modbus,
+FOCAS) takes an axis as one offset evaluated at the axis's present position
+(`compd.core.axes`)::
+
+    [output.axes.x]
+    position = "x_pos"          # a [channels] channel, unit "mm", with stale_after_s
+    offset = { kind = "holding", address = 50, type = "float32" }
+    reference_mm = 0.0
+    value_limit_um = 100.0
+    slope_limit_um_m = 50.0
+    ...                         # rates, deadbands and models as above
+
+The offset address is checked as the others, against the most the line can
+reach over the position channel's range (`PositionalAxis.offset_limit_um`).
+
+On a SINUMERIK (OPC UA, S7) the tool direction takes a value alone, the
+per-channel SD42960 ``$SC_TOOL_TEMP_COMP`` (mm) that the controller applies
+along the tool's orientation (MD20390 ``$MC_TOOL_TEMP_COMP_ON``)::
+
+    [output.axes.tool]
+    value = { node = "ns=2;s=Machine.Channel.$SC_TOOL_TEMP_COMP", scale = 1000.0 }
+    value_limit_um = 100.0
+    slew_um_s = 1.0
+    model = { file = "tool.toml" }
+
 `parse_axis_outputs` returns `AxisOutputSet`: the drivers' `AxisOutputs`
 (names, writes, read-back), each axis's reference position and its output
 stage's rates and deadbands (`AxisStage`). The two models (``model``,
@@ -56,6 +81,7 @@ from drivers.temp_comp import (
     AxisCompensation,
     AxisLimits,
     AxisOutputs,
+    output_name,
 )
 
 if TYPE_CHECKING:
@@ -67,6 +93,43 @@ SETTINGS: tuple[str, ...] = ("reference_mm", "value_limit_um", "slope_limit_um_m
                              "slope_deadband_um_m")
 #: an axis's models (built by `compd.config.loader`: a file or inline terms)
 MODEL_KEYS: tuple[str, ...] = ("model", "slope_model")
+#: an axis written as an offset at its position: the channel and the offset address
+POSITIONAL: tuple[str, ...] = ("position", "offset")
+#: the tool direction's table name, its keys, and the protocols that have it
+TOOL = "tool"
+TOOL_KEYS: tuple[str, ...] = ("value", "value_limit_um", "slew_um_s", "deadband_um", "model")
+TOOL_PROTOCOLS: frozenset[str] = frozenset({"opcua", "s7"})
+
+
+@dataclass(frozen=True, slots=True)
+class ToolOutput:
+    """The tool direction's value (SD42960) and its limit."""
+
+    value: Address
+    limits: AxisLimits
+    quantum_um: float
+
+
+@dataclass(frozen=True, slots=True)
+class PositionChannel:
+    """What an axis's position channel must give (`parse_axis_outputs`): its range (mm)
+    and whether it has an age bound (``stale_after_s``)."""
+
+    range_mm: tuple[float, float]
+    stale_after_s: float | None
+
+
+@dataclass(frozen=True, slots=True)
+class PositionalAxis:
+    """An axis written as one offset at its position (see the module)."""
+
+    offset: Address
+    position: str
+    limits: AxisLimits
+    #: the most |value + slope·(x - reference)/1000| reaches over the position's range
+    offset_limit_um: float
+    #: the offset address's grid (µm; 0: a float)
+    offset_quantum_um: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -114,6 +177,10 @@ class AxisOutputSet:
     reference_quantum_mm: Mapping[str, float] = field(default_factory=dict)
     #: axis -> its models (set by `compd.config.loader`; empty from `parse_axis_outputs`)
     models: Mapping[str, AxisModels] = field(default_factory=dict)
+    #: axis -> the axes written as one offset at their position
+    positional: Mapping[str, PositionalAxis] = field(default_factory=dict)
+    #: the tool direction (a value alone), None: not configured
+    tool: ToolOutput | None = None
 
     def __post_init__(self) -> None:
         # read-only views of copies: the config is one value every sink reads
@@ -122,8 +189,22 @@ class AxisOutputSet:
 
     @property
     def axes(self) -> tuple[str, ...]:
-        """The configured axes, in X, Y, Z order."""
-        return self.outputs.axes
+        """The configured axes, in X, Y, Z order, then the tool direction."""
+        found = tuple(a for a in AXES if a in self.outputs.addresses or a in self.positional)
+        return (*found, TOOL) if self.tool is not None else found
+
+    def limits(self, axis: str) -> AxisLimits:
+        if axis == TOOL and self.tool is not None:
+            return self.tool.limits
+        p = self.positional.get(axis)
+        return p.limits if p is not None else self.outputs.limits[axis]
+
+    def driver_outputs(self) -> dict[str, Address]:
+        """Output name -> address of every axis, for the driver's outputs table."""
+        tool = {output_name(TOOL, "value"): self.tool.value} if self.tool is not None else {}
+        return {**self.outputs.outputs(),
+                **{output_name(a, "offset"): p.offset for a, p in self.positional.items()},
+                **tool}
 
     def line(self, axis: str, value_um: float, slope_um_m: float) -> AxisCompensation:
         """The line to write for `axis` at its configured reference position."""
@@ -148,11 +229,13 @@ def _writable(key: str, addr: Address) -> None:
 
 def parse_axis_outputs(protocol: str, table: Mapping[str, Any], *,
                        others: Mapping[str, Address] | None = None,
+                       positions: Mapping[str, PositionChannel] | None = None,
                        key: str = "output.axes") -> AxisOutputSet:
     """``[output.axes]`` of a config whose controller speaks `protocol`, checked
     (see the module); `others` are the config's other addresses by key
     (``output.offset``, ``channels.bearing.address``), which no axis parameter
-    may overlap. `ConfigError` names the key."""
+    may overlap; `positions` the channels in mm an axis may read its position
+    from. `ConfigError` names the key."""
     if protocol in NO_PARAMETERS and table:
         raise ConfigError(key, f"a {protocol} controller has no temperature-compensation "
                                "parameters per axis")
@@ -161,14 +244,28 @@ def parse_axis_outputs(protocol: str, table: Mapping[str, Any], *,
     refs: dict[str, float] = {}
     quanta: dict[str, tuple[float, float]] = {}
     stages: dict[str, AxisStage] = {}
+    positional: dict[str, PositionalAxis] = {}
+    tool: ToolOutput | None = None
     uses = [u for k, a in (others or {}).items()
             for u in a.uses(k, written=k.startswith("output."))]
     for axis, doc in table.items():
         at = f"{key}.{axis}"
-        if axis not in AXES:
-            raise ConfigError(at, f"unknown axis; known: {', '.join(AXES)}")
+        if axis not in (*AXES, TOOL):
+            raise ConfigError(at, f"unknown axis; known: {', '.join((*AXES, TOOL))}")
         if not isinstance(doc, Mapping):
             raise ConfigError(at, "must be a table")
+        if axis == TOOL:
+            tool = _tool(protocol, at, doc, uses)
+            stages[axis] = _stage(at, doc, tool.limits)
+            refs[axis] = 0.0
+            quanta[axis] = (tool.quantum_um, 0.0)
+            continue
+        if "position" in doc:
+            positional[axis] = _positional(protocol, at, doc, positions or {}, uses)
+            stages[axis] = _stage(at, doc, positional[axis].limits)
+            refs[axis] = _number(f"{at}.reference_mm", doc.get("reference_mm", 0.0),
+                                 positive=False)
+            continue
         unknown = sorted(set(doc) - set(PARAMETERS) - set(SETTINGS) - set(MODEL_KEYS))
         if unknown:
             raise ConfigError(f"{at}.{unknown[0]}", "unknown key; known: "
@@ -206,7 +303,77 @@ def parse_axis_outputs(protocol: str, table: Mapping[str, Any], *,
     if clash is not None:
         raise ConfigError(clash.second.key, clash.reason())
     return AxisOutputSet(AxisOutputs(addresses, limits, key=key), refs, quanta, stages,
-                         {a: quantum(addresses[a].reference) for a in addresses})
+                         {a: quantum(addresses[a].reference) for a in addresses},
+                         positional=positional, tool=tool)
+
+
+def _tool(protocol: str, at: str, doc: Mapping[str, Any], uses: list[Any]) -> ToolOutput:
+    """The tool direction: a SINUMERIK's SD42960, a value alone (see the module)."""
+    if protocol not in TOOL_PROTOCOLS:
+        raise ConfigError(at, "the tool direction is a SINUMERIK setting (SD42960 "
+                              "$SC_TOOL_TEMP_COMP): protocol opcua or s7")
+    unknown = sorted(set(doc) - set(TOOL_KEYS))
+    if unknown:
+        raise ConfigError(f"{at}.{unknown[0]}", "unknown key; the tool direction takes: "
+                          + ", ".join(TOOL_KEYS))
+    missing = [k for k in ("value", "value_limit_um") if k not in doc]
+    if missing:
+        raise ConfigError(f"{at}.{missing[0]}", "required key is missing")
+    limit = _number(f"{at}.value_limit_um", doc["value_limit_um"], positive=True)
+    given = doc["value"]
+    if not isinstance(given, Mapping):
+        raise ConfigError(f"{at}.value", "must be an address table")
+    addr = validate_address(protocol, dict(given), f"{at}.value")
+    _writable(f"{at}.value", addr)
+    check_range(f"{at}.value", addr, -limit, limit, f"value_limit_um = {limit:g}", unit=" µm")
+    uses.extend(addr.uses(f"{at}.value", written=True))
+    # the slope's limit is immaterial: the tool direction has none (it stays 0)
+    return ToolOutput(addr, AxisLimits(limit, 1.0), quantum(addr))
+
+
+def _limits(at: str, doc: Mapping[str, Any]) -> AxisLimits:
+    return AxisLimits(_number(f"{at}.value_limit_um", doc["value_limit_um"], positive=True),
+                      _number(f"{at}.slope_limit_um_m", doc["slope_limit_um_m"],
+                              positive=True))
+
+
+def _positional(protocol: str, at: str, doc: Mapping[str, Any],
+                positions: Mapping[str, PositionChannel], uses: list[Any]) -> PositionalAxis:
+    """An axis written as one offset at its position: its channel (unit mm, an age
+    bound), its offset address (writable, able to hold the line over the channel's
+    range, overlapping nothing: `uses` gets its footprint)."""
+    known = (*POSITIONAL, *SETTINGS, *MODEL_KEYS)
+    unknown = sorted(set(doc) - set(known))
+    if unknown:
+        what = "an axis with a position takes an offset, not the line's parameters" \
+            if unknown[0] in PARAMETERS else "unknown key; known: " + ", ".join(known)
+        raise ConfigError(f"{at}.{unknown[0]}", what)
+    missing = [k for k in (*POSITIONAL, "value_limit_um", "slope_limit_um_m") if k not in doc]
+    if missing:
+        raise ConfigError(f"{at}.{missing[0]}", "required key is missing")
+    name = doc["position"]
+    channel = positions.get(name) if isinstance(name, str) else None
+    if channel is None:
+        raise ConfigError(f"{at}.position", f"must name a [channels] channel with unit "
+                          f"\"mm\" (the axis's position), got {name!r}")
+    if channel.stale_after_s is None:
+        raise ConfigError(f"channels.{name}.stale_after_s", "required for an axis position "
+                          f"({at}.position): the offset is only as good as the position "
+                          "is recent")
+    lim = _limits(at, doc)
+    ref = _number(f"{at}.reference_mm", doc.get("reference_mm", 0.0), positive=False)
+    lo, hi = channel.range_mm
+    bound = lim.value_limit_um + lim.slope_limit_um_m * max(abs(lo - ref), abs(hi - ref)) / 1000.0
+    given = doc["offset"]
+    if not isinstance(given, Mapping):
+        raise ConfigError(f"{at}.offset", "must be an address table")
+    addr = validate_address(protocol, dict(given), f"{at}.offset")
+    _writable(f"{at}.offset", addr)
+    check_range(f"{at}.offset", addr, -bound, bound,
+                f"value_limit_um + slope_limit_um_m over channels.{name}.range = {bound:g}",
+                unit=" µm")
+    uses.extend(addr.uses(f"{at}.offset", written=True))
+    return PositionalAxis(addr, name, lim, bound, quantum(addr))
 
 
 def _stage(at: str, doc: Mapping[str, Any], lim: AxisLimits) -> AxisStage:
@@ -224,5 +391,17 @@ def _stage(at: str, doc: Mapping[str, Any], lim: AxisLimits) -> AxisStage:
     return AxisStage(**rates, **bands)
 
 
-__all__ = ["MODEL_KEYS", "NO_PARAMETERS", "SETTINGS", "AxisModels", "AxisOutputSet",
-           "AxisStage", "parse_axis_outputs"]
+__all__ = [
+    "MODEL_KEYS",
+    "NO_PARAMETERS",
+    "POSITIONAL",
+    "SETTINGS",
+    "TOOL",
+    "AxisModels",
+    "AxisOutputSet",
+    "AxisStage",
+    "PositionChannel",
+    "PositionalAxis",
+    "ToolOutput",
+    "parse_axis_outputs",
+]

@@ -29,7 +29,13 @@ from compd.config.adaptation_check import PROBE_NAMES, adaptation_settings
 from compd.config.address_check import config_error
 from compd.config.address_check import quantum as _quantum_um
 from compd.config.address_check import validate_address as _validate_address
-from compd.config.axis_outputs import MODEL_KEYS, AxisModels, AxisOutputSet, parse_axis_outputs
+from compd.config.axis_outputs import (
+    MODEL_KEYS,
+    AxisModels,
+    AxisOutputSet,
+    PositionChannel,
+    parse_axis_outputs,
+)
 from compd.config.output_range import HEARTBEAT_MAX, STATUS_MAX, check_outputs
 from compd.config.overlaps import check_overlaps
 from compd.config.paths import credential_path, read_password, resolve_state_dir
@@ -309,7 +315,7 @@ def parse_config(doc: dict[str, Any], path: Path, text: bytes = b"") -> LoadedCo
         raise ConfigError("output.axes_status", "the axes word needs [output.axes.<axis>] "
                           "(it says which axes are in force)")
     if axes is not None:
-        outputs = {**outputs, **axes.outputs.outputs()}
+        outputs = {**outputs, **axes.driver_outputs()}
     if ctl.protocol == "linuxcnc":
         _check_hal_names(ctl.linuxcnc or LinuxCncOptions(), channels, probes, outputs)
     return LoadedConfig(
@@ -334,7 +340,10 @@ def _axes(raw: DaemonConfig, base: Path, channels: dict[str, Address],
               **{f"channels.{n}.address": a for n, a in channels.items()},
               **{f"adaptation.{n}": a for n, a in probes.items()},
               **{f"output.{n}": a for n, a in states.items()}}
-    found = parse_axis_outputs(raw.controller.protocol, table, others=others)
+    positions = {n: PositionChannel((ch.range[0], ch.range[1]), ch.stale_after_s)
+                 for n, ch in raw.channels.items() if ch.unit == "mm"}
+    found = parse_axis_outputs(raw.controller.protocol, table, others=others,
+                               positions=positions)
     models: dict[str, AxisModels] = {}
     for axis in found.axes:
         at, doc, stage = f"output.axes.{axis}", table[axis], found.stages[axis]

@@ -24,6 +24,26 @@ cycle: the same read, the same validated inputs, its writes in the same
 - its state, cause and status word are pure functions of a `HealthView`, as
   the offset's (`compd.core.health_view`): `AxisRow` in the cycle's report.
 
+For a controller without such parameters (a plain offset register over
+Modbus, FOCAS), an axis names a position channel instead (`AxisParams.position`)
+and the cycle writes one offset per axis, the line evaluated at the position
+read this cycle: ``value + slope·(x - reference)/1000`` (µm). Value and slope
+still pass their own stages (their changes from the models are rate limited);
+the change the axis's motion makes (slope·Δx) passes unlimited, as a
+controller applying its own line would, bounded by the slope's limit over the
+position channel's range (`AxisParams.offset_limit_um`). The position is a
+channel like the temperatures and gates the axis as they do: missing, of bad
+quality, not finite, out of range or older than its ``stale_after_s`` holds the
+axis at its last written offset (then the alarm's ramp, at the last valid
+position). The operator's hold and a controller that does not permit a change
+hold the whole offset, the motion's part too. The offset's read-back is judged
+as the value's (`_Axis.judge`).
+
+The tool direction (``[output.axes.tool]``: SINUMERIK SD42960
+``$SC_TOOL_TEMP_COMP``, applied along the tool's orientation) is an axis with a
+value only (`AxisParams.value_only`): its model, stage, read-back and health as
+any axis's, no slope or reference written; it has no bits in the axes word.
+
 The operator's hold, the controller's permission and the controller's own
 state (machine off, E-stop) hold the axes as they hold the offset; a
 ramp-to-zero shutdown ramps them too. A re-zero and the fallback models are
@@ -87,14 +107,41 @@ class AxisParams:
     #: saved by another model is not imported (the model starts at the steady state)
     value_sha256: str = ""
     slope_sha256: str = ""
+    #: the channel holding the axis's present position (mm): set, the axis writes one
+    #: offset evaluated there (``<axis>_comp_offset``) instead of its three parameters
+    position: str | None = None
+    #: |offset| written at a position ≤ this (µm; the value's and the slope's limits
+    #: over the position channel's range), with the offset address's grid (0: a float)
+    offset_limit_um: float = 0.0
+    offset_quantum_um: float = 0.0
+    #: a value alone is written (the tool direction), no slope or reference
+    value_only: bool = False
 
     def name(self, parameter: str) -> str:
         """The driver output of one of this axis's parameters (`drivers.temp_comp`)."""
         return f"{self.axis}_comp_{parameter}"
 
     @property
-    def names(self) -> tuple[str, str, str]:
+    def names(self) -> tuple[str, ...]:
+        """The outputs written (and read back): the offset at the position, or the
+        three parameters."""
+        if self.position is not None:
+            return (self.name("offset"),)
+        if self.value_only:
+            return (self.name("value"),)
         return self.name("value"), self.name("slope"), self.name("reference")
+
+    def offset_at(self, value_um: float, slope_um_m: float, x_mm: float) -> float:
+        """The offset written at position `x_mm`: the line there, within
+        ±`offset_limit_um`, on the offset address's grid."""
+        y = value_um + slope_um_m * (x_mm - self.reference_mm) / 1000.0
+        y = max(-self.offset_limit_um, min(self.offset_limit_um, y))
+        q = self.offset_quantum_um
+        if q > 0.0:
+            y = round(y / q) * q
+            if abs(y) > self.offset_limit_um:  # the nearest count inside the limit
+                y -= math.copysign(q, y)
+        return y
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,6 +171,10 @@ class AxisRow:
     in_force: bool
     #: every input the axis's models read valid and the models stepped
     inputs_valid: bool
+    #: an axis written as an offset at its position: the position the offset was
+    #: evaluated at (the last valid one, mm) and the offset sent (µm); None otherwise
+    position_mm: float | None = None
+    offset_um: float | None = None
 
 
 class _Param:
@@ -197,7 +248,16 @@ class _Axis:
                             state=model_state("slope_model", p.slope_sha256), fresh=fresh)
         self.params = (self.value, self.slope)
         self.gate = sorted(p.value_model.channels
-                           | (p.slope_model.channels if p.slope_model is not None else set()))
+                           | (p.slope_model.channels if p.slope_model is not None else set())
+                           | ({p.position} if p.position is not None else set()))
+        #: an offset at the position: the last valid position (mm), and the offset
+        #: and position of the last write the controller confirmed
+        self._x: float | None = initial("position_mm")
+        self._confirmed_at: tuple[float, float] | None = None
+        if p.position is not None and self._x is not None \
+                and (total := initial("offset_um")) is not None:
+            self._confirmed_at = (total, self._x)
+        self._offset_sent: tuple[float, float] | None = None
         #: the reference position was written and confirmed once (its read-back judged)
         self.reference_written = False
         self._planned: tuple[float | None, float | None, bool] = (None, None, False)
@@ -214,6 +274,8 @@ class _Axis:
     def export_state(self) -> dict[str, Any]:
         out: dict[str, Any] = {"value": self.value.stage.confirmed_um,
                                "slope": self.slope.stage.confirmed_um}
+        if self._confirmed_at is not None:
+            out["offset_um"], out["position_mm"] = self._confirmed_at
         for key, param, sha in (("value_model", self.value, self.p.value_sha256),
                                 ("slope_model", self.slope, self.p.slope_sha256)):
             m = param.models
@@ -229,8 +291,9 @@ class _Axis:
         """The read-back of this axis's parameters; whether it was read in full."""
         was_off = self.health.controller(off, self.value.stage.current_um, events)
         full = got is not None and all(got.get(n) is not None for n in self.p.names)
+        seen = self._as_parameters(got) if self.p.position is not None else got
         for param in self.params:
-            v = got.get(param.name) if got is not None else None
+            v = seen.get(param.name) if seen is not None else None
             mine: list[Event] = []
             param.readback.judge(v, off=off, was_off=was_off, events=mine)
             events.extend(_tagged(mine, axis=self.p.axis, output=param.name))
@@ -245,11 +308,44 @@ class _Axis:
                 self.health.foreign_seen()
         return full
 
+    def _as_parameters(self, got: Mapping[str, float | None] | None
+                       ) -> dict[str, float | None] | None:
+        """The offset read back at the position, as the value and slope it stands for,
+        so it is judged as the value's read-back: the offset compd last wrote (within
+        half a count) is the value and slope confirmed; another (a second writer, a
+        restarted controller at 0) is a value of the read-back less the slope's part
+        at the position it was written at, so the value stage ramps from what the
+        controller holds and the slope goes on."""
+        if got is None:
+            return None
+        rb = got.get(self.p.name("offset"))
+        slope = self.slope.stage.confirmed_um
+        value = self.value.stage.confirmed_um
+        out: dict[str, float | None] = {self.slope.name: slope if slope is not None else 0.0}
+        if rb is None or not math.isfinite(rb):
+            out[self.value.name] = rb
+            return out
+        tol = max(0.5 * self.p.offset_quantum_um, FLOAT_TOLERANCE)
+        at = self._confirmed_at
+        if at is not None and value is not None and abs(rb - at[0]) <= tol:
+            out[self.value.name] = value
+            return out
+        x = at[1] if at is not None else (self._x if self._x is not None
+                                          else self.p.reference_mm)
+        out[self.value.name] = rb - (slope or 0.0) * (x - self.p.reference_mm) / 1000.0
+        return out
+
     def plan(self, now_s: float, dt: float, values: Mapping[str, float],
              validity: Mapping[str, str | None], answered: bool, *, hold: bool,
              events: list[Event]) -> HealthView:
         """Step the models, decide, move both stages; the axis's health view."""
         valid_inputs = answered and all(validity.get(ch) is None for ch in self.gate)
+        pos = self.p.position
+        if answered and pos is not None and validity.get(pos) is None and not hold:
+            # the axis's present position, valid and recent; under a hold (the
+            # operator's, or the controller not permitting a change) the offset stays
+            # as written, the position it was evaluated at with it
+            self._x = values[pos]
         why: Cause | None = None
         model_invalid = model_range = False
         value_um = slope_um = None
@@ -315,10 +411,22 @@ class _Axis:
             events.extend(_tagged(mine, axis=self.p.axis))
             self._planned = (None, None, False)
             return {}
+        v, s = self.value.stage.current_um, self.slope.stage.current_um
+        if self.p.position is not None:
+            if self._x is None:  # no valid position yet: nothing to evaluate the line at
+                self._planned = (None, None, False)
+                return {}
+            total = self.p.offset_at(v, s, self._x)
+            self._offset_sent = (total, self._x)
+            for param in self.params:
+                param.readback.written()
+            self._planned = (v, s, True)
+            return {self.p.name("offset"): total}
         for param in self.params:
             param.readback.written()
-        v, s = self.value.stage.current_um, self.slope.stage.current_um
         self._planned = (v, s, True)
+        if self.p.value_only:
+            return {self.p.name("value"): v}
         return {self.p.name("value"): v, self.p.name("slope"): s,
                 self.p.name("reference"): self.p.reference_mm}
 
@@ -334,7 +442,10 @@ class _Axis:
             slope=ParamRow(self._models[1], self.slope.stage.current_um, s_sent,
                            self.slope.stage.confirmed_um),
             reference_mm=self.p.reference_mm,
-            in_force=self.in_force, inputs_valid=self._valid)
+            in_force=self.in_force, inputs_valid=self._valid,
+            position_mm=self._x if self.p.position is not None else None,
+            offset_um=(self._offset_sent[0] if self._offset_sent is not None
+                       and v_sent is not None else None))
 
     # -- commit ----------------------------------------------------------------------
 
@@ -350,6 +461,8 @@ class _Axis:
         if ok:
             for param in self.params:
                 param.stage.confirm()
+            if self._offset_sent is not None:
+                self._confirmed_at = self._offset_sent
             self.reference_written = True
             self.health.write_succeeded(later)
             return True, False, []
@@ -420,6 +533,8 @@ class AxisBank:
         self._life = not self._life
         word = int(AxesStatus.LIFE) if self._life else 0
         for a, view in zip(self.axes, self._views, strict=True):
+            if a.p.axis not in AXIS_INDEX:  # the tool direction: no bits of its own
+                continue
             bit = 1 << AXIS_INDEX[a.p.axis]
             status = status_word(view)
             if a.in_force and a.writing and output_cause(view).healthy:

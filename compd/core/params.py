@@ -77,8 +77,9 @@ def axis_params(cfg: LoadedConfig) -> tuple[AxisParams, ...]:
         return ()
     out = []
     for axis in found.axes:
-        lim, stage, models = found.outputs.limits[axis], found.stages[axis], found.models[axis]
-        vq, sq = found.quanta[axis]
+        lim, stage, models = found.limits(axis), found.stages[axis], found.models[axis]
+        vq, sq = found.quanta.get(axis, (0.0, 0.0))
+        at = found.positional.get(axis)
         out.append(AxisParams(
             axis=axis, value_model=models.value, slope_model=models.slope,
             reference_mm=found.reference_mm[axis], value_limit_um=lim.value_limit_um,
@@ -89,5 +90,9 @@ def axis_params(cfg: LoadedConfig) -> tuple[AxisParams, ...]:
             value_deadband_um=stage.deadband_um, slope_deadband_um_m=stage.slope_deadband_um_m,
             value_quantum_um=vq, slope_quantum_um_m=sq,
             reference_quantum_mm=found.reference_quantum_mm.get(axis, 0.0),
-            value_sha256=models.value_sha256, slope_sha256=models.slope_sha256))
+            value_sha256=models.value_sha256, slope_sha256=models.slope_sha256,
+            position=at.position if at is not None else None,
+            offset_limit_um=at.offset_limit_um if at is not None else 0.0,
+            offset_quantum_um=at.offset_quantum_um if at is not None else 0.0,
+            value_only=axis == "tool"))
     return tuple(out)

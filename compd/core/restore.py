@@ -69,14 +69,16 @@ def restore_arguments(state: Mapping[str, Any], *, fresh: bool, same_model: bool
 
 def _axes_state(axes: Mapping[str, Any] | None, *, usable: bool
                 ) -> dict[str, Any] | None:
-    """Each axis's confirmed value and slope, and its models' state: resumed when
+    """Each axis's confirmed value and slope (and for an axis at its position the
+    offset last confirmed and the position it was written at), and its models' state:
+    resumed when
     the checkpoint is fresh and of the same model (``fresh``), else only their
     reference state kept, and they start at the steady state of today's inputs
     (as the offset's model does)."""
     if axes is None:
         return None
     keep = ("value", "slope", "value_model", "slope_model", "value_model_sha256",
-            "slope_model_sha256")
+            "slope_model_sha256", "offset_um", "position_mm")
     return {axis: {**{k: v for k, v in doc.items() if k in keep}, "fresh": usable}
             for axis, doc in axes.items() if isinstance(doc, Mapping)}
 

@@ -256,7 +256,10 @@ class StatusBoard:
                 "value_model_um": _num(line.value.model),
                 "slope_um_m": _num(line.slope.stage),
                 "slope_confirmed_um_m": _num(line.slope.confirmed),
-                "slope_model_um_m": _num(line.slope.model)}
+                "slope_model_um_m": _num(line.slope.model),
+                # an axis written as one offset at its position: where, and what
+                **({"position_mm": _num(line.position_mm), "offset_um": _num(line.offset_um)}
+                   if line.position_mm is not None else {})}
                 for axis, line in result.axes.items()}
         return doc
 

@@ -85,11 +85,17 @@ class BallscrewMachine:
         line = await self.controller.compensation(self.axis)
         return {x: self.growth_um(x) - line.at(x) for x in self.positions_mm}
 
-    async def tick(self) -> dict[float, float]:
-        """Move one period on, then `measure()`; `RuntimeError` past the last row."""
+    def step(self) -> None:
+        """Move one period on, measuring nothing (a controller without the line's
+        parameters: the caller judges its offset at `growth_um`); `RuntimeError`
+        past the last row."""
         if self.row + 1 >= self.rows:
             raise RuntimeError(f"the simulated record ends at {self.time_s:g} s")
         self.row += 1
+
+    async def tick(self) -> dict[float, float]:
+        """Move one period on, then `measure()`; `RuntimeError` past the last row."""
+        self.step()
         return await self.measure()
 
 

@@ -84,6 +84,14 @@ OUTPUTS: dict[str, FocasPmcAddress] = {
     "heartbeat": _d(104, "long"),
     "status": _d(108, "word"),
 }
+#: each axis's present position (mm, PMC floats the ladder keeps current) and a plain
+#: offset per axis (0.1 µm, PMC longs) for compd to write: the ladder applies it as it
+#: is wherever the axis stands
+POSITIONS: dict[str, FocasPmcAddress] = {
+    f"{axis}_position": _d(300 + 4 * i, "float") for i, axis in enumerate(("x", "y", "z"))}
+AXIS_OFFSETS: dict[str, FocasPmcAddress] = {
+    f"{axis}_comp_offset": _d(320 + 4 * i, "long", 0.1)
+    for i, axis in enumerate(("x", "y", "z"))}
 ENCODINGS: dict[str, FocasPmcAddress] = {
     "enc_byte": _d(200, "byte"),
     "enc_word": _d(202, "word", 0.1),
@@ -126,8 +134,10 @@ class FocasSimController:
         self.extras: dict[str, Address] = dict(EXTRAS)
         self.encodings: dict[str, Address] = dict(ENCODINGS)
         self.probes: dict[str, Address] = dict(PROBES)
+        self.positions: dict[str, Address] = dict(POSITIONS)
+        self.axis_offsets: dict[str, Address] = dict(AXIS_OFFSETS)
         self._table: dict[str, FocasAddr] = {**CHANNELS, **EXTRAS, **OUTPUTS, **ENCODINGS,
-                                             **PROBES}
+                                             **PROBES, **POSITIONS, **AXIS_OFFSETS}
         self.shm_path = sim_dir() / f"{host}-{self.port}.shm"
         self.shm_path.parent.mkdir(parents=True, exist_ok=True)
         with open(self.shm_path, "wb") as f:
@@ -221,6 +231,6 @@ class FocasSimController:
         return {name: await self.read_back(name) for name in OUTPUTS}
 
     async def forget_outputs(self) -> None:
-        for a in OUTPUTS.values():
+        for a in (*OUTPUTS.values(), *AXIS_OFFSETS.values()):
             off = self._pmc_off(a)
             self._mm[off:off + pmc_size(a)] = bytes(pmc_size(a))

@@ -108,6 +108,17 @@ TEMP_COMP: dict[str, ModbusAddress] = {
                                         address=AXIS_REGISTERS[axis] + 2 * i, type="int32",
                                         scale=TWINCAT_SCALES[p])
     for axis in AXES for i, p in enumerate(_TWINCAT_ORDER)}
+#: each axis's present position (mm, float32 input registers the PLC keeps current) and
+#: a plain offset per axis (µm, float32 holding registers) for a controller without
+#: compensation parameters: it applies the offset as it is at whatever position
+POSITIONS: dict[str, ModbusAddress] = {
+    f"{axis}_position": ModbusAddress(unit=UNIT, kind="input", address=16 + 2 * i,
+                                      type="float32")
+    for i, axis in enumerate(AXES)}
+AXIS_OFFSETS: dict[str, ModbusAddress] = {
+    output_name(axis, "offset"): ModbusAddress(unit=UNIT, kind="holding",
+                                               address=50 + 2 * i, type="float32")
+    for i, axis in enumerate(AXES)}
 #: valid for the protocol, absent on this server
 BAD_ADDRESS = ModbusAddress(unit=UNIT, kind="holding", address=5000, type="float32")
 
@@ -224,8 +235,9 @@ class ModbusSimController:
                 for a in [self._address(name)]}
 
     async def forget_outputs(self) -> None:
-        """Outputs and every axis's compensation parameters back at 0 (a restart)."""
-        for addr in (*OUTPUTS.values(), *TEMP_COMP.values()):
+        """Outputs, every axis's compensation parameters and offset back at 0 (a
+        restart)."""
+        for addr in (*OUTPUTS.values(), *TEMP_COMP.values(), *AXIS_OFFSETS.values()):
             self._poke(addr, [0] * addr.count)
 
     async def compensation(self, axis: str) -> AxisCompensation:
@@ -266,7 +278,8 @@ class ModbusSimController:
     # -- internals ----------------------------------------------------------------
 
     def _address(self, name: str) -> ModbusAddress:
-        for table in (CHANNELS, OUTPUTS, ENCODINGS, PROBES, PLC, TEMP_COMP):
+        for table in (CHANNELS, OUTPUTS, ENCODINGS, PROBES, PLC, TEMP_COMP, POSITIONS,
+                      AXIS_OFFSETS):
             if name in table:
                 return table[name]
         raise KeyError(f"the Modbus sim has no channel or output {name!r}")

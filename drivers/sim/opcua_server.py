@@ -65,7 +65,7 @@ from drivers.sim import CHANNELS, OUTPUTS, PROBES
 from drivers.sim.opcua_security import POLICY_TYPES, OpcUaSimSecurity, secure, user_manager
 from drivers.sim.ports import free_tcp_port
 from drivers.sim.renamed import FORMER_NAMES, warn_former
-from drivers.sim.temp_comp import SINUMERIK_DATA, SINUMERIK_SCALES, line_of
+from drivers.sim.temp_comp import SINUMERIK_DATA, SINUMERIK_SCALES, TOOL_DATA, line_of
 from drivers.temp_comp import AXES, PARAMETERS, AxisCompensation, output_name
 
 __all__ = ["CHANNEL_TYPES", "ENCODING_NODES", "FORMER_NODES", "NAMESPACE", "NAMESPACE_INDEX",
@@ -99,6 +99,9 @@ ENCODING_NODES: dict[str, tuple[ua.VariantType, float]] = {
 TEMP_COMP_NODES: dict[str, tuple[str, float]] = {
     output_name(axis, p): (f"{axis.upper()}.{SINUMERIK_DATA[p]}", SINUMERIK_SCALES[p])
     for axis in AXES for p in PARAMETERS}
+#: the channel's tool temperature compensation (SD42960, mm), along the tool
+TOOL_NODES: dict[str, tuple[str, float]] = {
+    output_name("tool", "value"): (f"Channel.{TOOL_DATA}", SINUMERIK_SCALES["value"])}
 
 _log = logging.getLogger(__name__)
 
@@ -109,7 +112,8 @@ def _now() -> ua.DateTime:
 
 def node_id(name: str) -> str:
     """The NodeId string of a sim variable."""
-    path = TEMP_COMP_NODES[name][0] if name in TEMP_COMP_NODES else name
+    nodes = {**TEMP_COMP_NODES, **TOOL_NODES}
+    path = nodes[name][0] if name in nodes else name
     return f"ns={NAMESPACE_INDEX};s=Machine.{path}"
 
 
@@ -147,10 +151,13 @@ class OpcUaSimController:
         self.temp_comp: dict[str, OpcUaAddress] = {
             name: OpcUaAddress(node=node_id(name), scale=scale)
             for name, (_, scale) in TEMP_COMP_NODES.items()}
+        self.tool_comp: dict[str, OpcUaAddress] = {
+            name: OpcUaAddress(node=node_id(name), scale=scale)
+            for name, (_, scale) in TOOL_NODES.items()}
         self.types: dict[str, ua.VariantType] = {
             **CHANNEL_TYPES, **OUTPUT_TYPES,
             **{name: vt for name, (vt, _) in ENCODING_NODES.items()},
-            **dict.fromkeys(TEMP_COMP_NODES, _VT.Double),
+            **dict.fromkeys((*TEMP_COMP_NODES, *TOOL_NODES), _VT.Double),
             **{old: CHANNEL_TYPES[new] for old, new in FORMER_NODES.items()}}
         #: client Read requests that touched this namespace (server-side count)
         self.read_requests = 0
@@ -260,7 +267,7 @@ class OpcUaSimController:
     async def forget_outputs(self) -> None:
         """Outputs, encoding nodes and every axis's compensation back at 0 (a restart)."""
         now = _now()
-        for name in (*OUTPUTS, *ENCODING_NODES, *TEMP_COMP_NODES):
+        for name in (*OUTPUTS, *ENCODING_NODES, *TEMP_COMP_NODES, *TOOL_NODES):
             await self._write(name, 0.0, now)
 
     async def set_write_access(self, name: str, *, writable: bool = True,
@@ -295,7 +302,8 @@ class OpcUaSimController:
         """Engineering value per raw unit of a sim node."""
         if name in self.encodings:
             return self.encodings[name].scale
-        return self.temp_comp[name].scale if name in self.temp_comp else 1.0
+        scaled = {**self.temp_comp, **self.tool_comp}
+        return scaled[name].scale if name in scaled else 1.0
 
     def _require(self) -> Server:
         if self._server is None:

@@ -46,7 +46,10 @@ from drivers.temp_comp import AXES, PARAMETERS, AxisCompensation, output_name
 INPUT_DB, OUTPUT_DB, ENCODING_DB = 1, 2, 3
 #: one data block per axis for its temperature-compensation parameters
 AXIS_DBS: dict[str, int] = {"x": 10, "y": 11, "z": 12}
-_SIZES = {INPUT_DB: 40, OUTPUT_DB: 16, ENCODING_DB: 16, **dict.fromkeys(AXIS_DBS.values(), 12)}
+#: the channel's tool temperature compensation (SD42960, mm) as a REAL at byte 0
+TOOL_DB = 13
+_SIZES = {INPUT_DB: 40, OUTPUT_DB: 16, ENCODING_DB: 16, **dict.fromkeys(AXIS_DBS.values(), 12),
+          TOOL_DB: 4}
 
 CHANNELS: dict[str, S7Address] = {
     "bearing": S7Address(db=1, offset=0, type="INT", scale=0.1),
@@ -80,6 +83,9 @@ TEMP_COMP: dict[str, S7Address] = {
     output_name(axis, p): S7Address(db=AXIS_DBS[axis], offset=4 * i, type="REAL",
                                     scale=SINUMERIK_SCALES[p])
     for axis in AXES for i, p in enumerate(PARAMETERS)}
+TOOL_COMP: dict[str, S7Address] = {
+    output_name("tool", "value"): S7Address(db=TOOL_DB, offset=0, type="REAL",
+                                            scale=SINUMERIK_SCALES["value"])}
 
 
 class _Server(Server):
@@ -146,8 +152,9 @@ class S7SimController:
         self.encodings: dict[str, S7Address] = dict(ENCODINGS)
         self.probes: dict[str, Address] = dict(PROBES)
         self.temp_comp: dict[str, S7Address] = dict(TEMP_COMP)
+        self.tool_comp: dict[str, S7Address] = dict(TOOL_COMP)
         self._table: dict[str, S7Address] = {**CHANNELS, **OUTPUTS, **ENCODINGS, **PROBES,
-                                             **TEMP_COMP}
+                                             **TEMP_COMP, **TOOL_COMP}
         self._dbs = {db: bytearray(size) for db, size in _SIZES.items()}
         self._server: _Server | None = None
 
@@ -226,7 +233,7 @@ class S7SimController:
 
     async def forget_outputs(self) -> None:
         """Outputs and every axis's compensation parameters back at 0 (a restart)."""
-        for db in (OUTPUT_DB, *AXIS_DBS.values()):
+        for db in (OUTPUT_DB, *AXIS_DBS.values(), TOOL_DB):
             buf = self._dbs[db]
             with self._lock(db):
                 buf[:] = bytes(len(buf))

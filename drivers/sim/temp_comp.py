@@ -34,6 +34,10 @@ SINUMERIK_DATA: dict[str, str] = {"value": "$SA_TEMP_COMP_ABS_VALUE",
                                   "slope": "$SA_TEMP_COMP_SLOPE",
                                   "reference": "$SA_TEMP_COMP_REF_POSITION"}
 
+#: the channel's tool temperature compensation (SD42960, mm), applied along the tool's
+#: orientation (MD20390 $MC_TOOL_TEMP_COMP_ON): the OPC UA sim's node, the S7 sim's DB
+TOOL_DATA = "$SC_TOOL_TEMP_COMP"
+
 #: every parameter's output name, per axis
 NAMES: tuple[str, ...] = tuple(output_name(axis, p) for axis in AXES for p in PARAMETERS)
 
@@ -44,4 +48,4 @@ def line_of(values: Mapping[str, float], axis: str) -> AxisCompensation:
     return AxisCompensation(*(float(values[output_name(axis, p)]) for p in PARAMETERS))
 
 
-__all__ = ["NAMES", "SINUMERIK_DATA", "SINUMERIK_SCALES", "TWINCAT_SCALES", "line_of"]
+__all__ = ["NAMES", "SINUMERIK_DATA", "SINUMERIK_SCALES", "TOOL_DATA", "TWINCAT_SCALES", "line_of"]
