@@ -24,7 +24,7 @@ from drivers.sim.ballscrew import TEMPERATURES
 from drivers.sim.ballscrew_machine import BallscrewMachine
 from drivers.sim.modbus_server import ModbusSimController
 from tests.compd.axes_helpers import SENSOR_CHANNELS, axes_config_text
-from tests.compd.test_axes_ballscrew import HOURS, PERIOD_S, PROGRAM, _slope_gains
+from tests.compd.runtime.test_axes_ballscrew import HOURS, PERIOD_S, PROGRAM, _slope_gains
 
 POSITION = """
 [channels.x_pos]

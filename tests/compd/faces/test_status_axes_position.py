@@ -16,13 +16,13 @@ from compd.faces.status import StatusBoard
 from compd.testing import FakeClock
 from drivers.base import Sample
 from tests.compd.axes_helpers import write_axes_config
-from tests.compd.test_axes_position_modbus import positional_config
+from tests.compd.runtime.test_axes_position_modbus import positional_config
 
 
 def _axis(cfg_path: Path, position: float | None) -> dict[str, object]:
     cfg = load_config(cfg_path)
     cycle = Cycle(dataclasses.replace(params_from_config(cfg), readback=False), cfg.model)
-    board, clock = StatusBoard(wall=lambda: 1000.0), FakeClock(period_s=1.0)
+    board, clock = StatusBoard(), FakeClock(period_s=1.0)
     for _ in range(3):
         t = clock.tick()
         temps = {"nut": 24.0, "screw_bearing": 24.0, "column": 22.0, "ambient": 20.0}

@@ -16,8 +16,8 @@ from compd.core.health import Cause
 from compd.core.validation import ChannelLimits
 from compd.testing import FakeClock
 from drivers.base import Sample
-from tests.compd.cycle_helpers import params, sp2
-from tests.compd.test_cycle_axes import inputs, x_axis
+from tests.compd.core.cycle_helpers import params, sp2
+from tests.compd.core.test_cycle_axes import inputs, x_axis
 
 #: the wall clock at machine time 0 (the temperatures are stamped on it: `inputs`)
 WALL0 = 0.0

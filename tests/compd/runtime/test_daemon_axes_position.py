@@ -10,8 +10,8 @@ from pathlib import Path
 from compd.config.loader import load_config
 from compd.runtime.checkpoint import load_checkpoint
 from compd.testing import MemoryDriver
-from tests.compd.test_axes_position_modbus import positional_config
-from tests.compd.test_daemon_axes import _run
+from tests.compd.runtime.test_axes_position_modbus import positional_config
+from tests.compd.runtime.test_daemon_axes import _run
 
 OUTPUTS = ("offset", "heartbeat", "status", "axes_status", "x_comp_offset")
 

@@ -22,8 +22,8 @@ from drivers.sim.ballscrew import TEMPERATURES
 from drivers.sim.ballscrew_machine import BallscrewMachine
 from drivers.sim.focas_server import FocasSimController
 from tests.compd.axes_helpers import SENSOR_CHANNELS
-from tests.compd.test_axes_ballscrew import HOURS, PERIOD_S, PROGRAM, _slope_gains
-from tests.compd.test_axes_position_modbus import _cycle, positional_config_text, travel
+from tests.compd.runtime.test_axes_ballscrew import HOURS, PERIOD_S, PROGRAM, _slope_gains
+from tests.compd.runtime.test_axes_position_modbus import _cycle, positional_config_text, travel
 
 
 def _doc(sim: FocasSimController, **over: float) -> dict[str, Any]:

@@ -22,7 +22,7 @@ from compd.runtime.driver_setup import build_driver
 from drivers.sim.opcua_server import OpcUaSimController
 from drivers.sim.s7_server import S7SimController
 from tests.compd.axes_helpers import axes_config_text
-from tests.compd.test_axes_opcua_s7 import SIMS, SLEW, Sim, _cycle, _doc
+from tests.compd.runtime.test_axes_opcua_s7 import SIMS, SLEW, Sim, _cycle, _doc
 
 #: the tool grows 2 µm per K of the column above 20 °C
 TOOL_GAIN = 2.0
