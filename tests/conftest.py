@@ -9,8 +9,8 @@ import inspect
 import os
 import shutil
 import sys
-import tempfile
 from collections.abc import Callable, Coroutine
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -24,34 +24,40 @@ settings.register_profile("explore", derandomize=False)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
+#: the folders whose bytecode a run that writes none leaves as it found them
+_OWN = ("compd", "drivers", "models", "tests", "benchmarks")
+
+
+def _caches(root: Path) -> set[Path]:
+    return {d for top in _OWN for d in (root / top).rglob("__pycache__")}
+
+
 def pytest_configure(config: pytest.Config) -> None:
-    """With PYTHONDONTWRITEBYTECODE set (no .pyc beside the sources), every
-    process of the run would compile every module it imports again: each xdist
-    worker rewrites and compiles every test module (about 7 of the 11 CPU-s of a
-    collection), each `compd` process a test starts its 150 modules (about 0.1
-    CPU-s of its 0.4). The run writes its bytecode to a directory of its own
-    instead (PYTHONPYCACHEPREFIX, inherited by the workers and every process
-    they start), removed at the end: the tree stays as clean as the setting
-    asks, and each module is compiled once a run."""
-    if not sys.dont_write_bytecode or sys.pycache_prefix is not None:
+    """With PYTHONDONTWRITEBYTECODE set, every process of the run would compile
+    every module of the project it imports again: each xdist worker rewrites
+    and compiles every test module (about 7 of the 11 CPU-s of a collection),
+    each `compd` process a test starts its 150 modules (about 0.1 CPU-s of its
+    0.4). The run writes bytecode as CI's default does, beside the sources, and
+    removes at the end the ``__pycache__`` folders it made: the tree is left as
+    the setting asks, and each module is compiled once a run. (A cache prefix
+    would not do: Python then ignores the bytecode installed with numpy,
+    pydantic and the standard library, and compiles those again.)"""
+    if not sys.dont_write_bytecode:
         return
-    prefix = tempfile.mkdtemp(prefix="compd-tests-pyc-")
-    before = {name: os.environ.get(name)
-              for name in ("PYTHONDONTWRITEBYTECODE", "PYTHONPYCACHEPREFIX")}
+    root = Path(__file__).resolve().parents[1]
+    before = _caches(root)
+    setting = os.environ.get("PYTHONDONTWRITEBYTECODE")
 
     def restore() -> None:
-        for name, value in before.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
-        sys.dont_write_bytecode, sys.pycache_prefix = True, None
-        shutil.rmtree(prefix, ignore_errors=True)
+        if setting is not None:
+            os.environ["PYTHONDONTWRITEBYTECODE"] = setting
+        sys.dont_write_bytecode = True
+        for made in _caches(root) - before:
+            shutil.rmtree(made, ignore_errors=True)
 
     config.add_cleanup(restore)
     os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
-    os.environ["PYTHONPYCACHEPREFIX"] = prefix
-    sys.dont_write_bytecode, sys.pycache_prefix = False, prefix
+    sys.dont_write_bytecode = False
 
 
 def _guard(fn: Callable[..., Coroutine[Any, Any, Any]]) -> Callable[..., Coroutine[Any, Any, Any]]:
