@@ -29,7 +29,14 @@ _OWN = ("compd", "drivers", "models", "tests", "benchmarks")
 
 
 def _caches(root: Path) -> set[Path]:
-    return {d for top in _OWN for d in (root / top).rglob("__pycache__")}
+    found: set[Path] = set()
+    for top in _OWN:
+        for folder, subfolders, _ in os.walk(root / top):
+            if "__pycache__" in subfolders:
+                found.add(Path(folder, "__pycache__"))
+            # node's packages (tests/interop) hold no Python
+            subfolders[:] = [d for d in subfolders if d not in ("__pycache__", "node_modules")]
+    return found
 
 
 def pytest_configure(config: pytest.Config) -> None:
