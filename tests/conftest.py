@@ -25,7 +25,7 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
 #: the folders whose bytecode a run that writes none leaves as it found them
-_OWN = ("compd", "drivers", "models", "tests", "benchmarks")
+_OWN = ("compd", "drivers", "models", "tests", "benchmarks", "deploy")
 
 
 def _caches(root: Path) -> set[Path]:
