@@ -40,6 +40,17 @@ COMMANDS: dict[str, str] = {
 }
 
 
+def command_named(argv: Sequence[str]) -> str | None:
+    """The subcommand ``argv`` names, when its first word that is not an option
+    is one of ``COMMANDS`` (the top level's only options, --help and --version,
+    take no value); else None."""
+    for word in argv:
+        if word.startswith("-") and word not in ("-", "--"):
+            continue
+        return word if word in COMMANDS else None
+    return None
+
+
 def _load(module: str) -> ModuleType | None:
     try:
         return importlib.import_module(f"compd.commands.{module}")
@@ -56,7 +67,14 @@ class Parser(argparse.ArgumentParser):
         self.exit(EX_USAGE, f"{self.prog}: {message} (see {self.prog} --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every command, or of the one command ``only`` names.
+
+    A process runs one command: ``compd run`` then imports neither ``fit``'s
+    nor ``sim``'s module (and what they import at the top) just to build
+    parsers it never uses. The top-level help and a wrong command name need
+    them all (their one-line helps, the list of choices).
+    """
     from compd import __version__
     from compd.examples_help import EXAMPLES
 
@@ -66,8 +84,12 @@ def build_parser() -> argparse.ArgumentParser:
                         help="print compd's version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, module_name in COMMANDS.items():
+        if only is not None and name != only:
+            continue
         module = _load(module_name)
         if module is None:
+            if only is not None:  # not installed: the full parser says "invalid choice"
+                return build_parser()
             continue
         # argparse %-formats help strings but prints description and epilog as they are
         p = sub.add_parser(name, help=module.HELP.replace("%", "%%"), description=module.HELP,
@@ -136,7 +158,8 @@ def _flush_stdout() -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     _ensure_std_streams()
     _tolerant_std_streams()
-    args = build_parser().parse_args(argv)
+    words = sys.argv[1:] if argv is None else argv
+    args = build_parser(command_named(words)).parse_args(words)
     try:
         rc: int = args._run(args)
         _flush_stdout()

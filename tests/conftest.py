@@ -1,9 +1,9 @@
-"""Project-wide test rules: warnings are errors (pyproject), and an async test
-that leaves asyncio tasks behind fails. And `listener`, a socket on 127.0.0.1
-that listens and must never see a connection (the endpoint of configs that
-must be refused before anything connects), and `rec`, a simulated Modbus
-controller on 127.0.0.1 that records every offset the daemon writes
-(`tests.faults.daemon_run.RecordingSim`)."""
+"""Project-wide test rules: warnings are errors (pyproject), an async test
+that leaves asyncio tasks behind fails, and bytecode is compiled once a run.
+And `listener`, a socket on 127.0.0.1 that listens and must never see a
+connection (the endpoint of configs that must be refused before anything
+connects), and `rec`, a simulated Modbus controller on 127.0.0.1 that records
+every offset the daemon writes (`tests.faults.daemon_run.RecordingSim`)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,11 @@ import asyncio
 import functools
 import inspect
 import os
+import shutil
 import socket
+import sys
 from collections.abc import AsyncIterator, Callable, Coroutine, Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import pytest
@@ -27,6 +30,49 @@ if TYPE_CHECKING:
 settings.register_profile("ci", derandomize=True, print_blob=True)
 settings.register_profile("explore", derandomize=False)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+#: the folders whose bytecode a run that writes none leaves as it found them
+_OWN = ("compd", "drivers", "models", "tests", "benchmarks", "deploy")
+
+
+def _caches(root: Path) -> set[Path]:
+    found: set[Path] = set()
+    for top in _OWN:
+        for folder, subfolders, _ in os.walk(root / top):
+            if "__pycache__" in subfolders:
+                found.add(Path(folder, "__pycache__"))
+            # node's packages (tests/interop) hold no Python
+            subfolders[:] = [d for d in subfolders if d not in ("__pycache__", "node_modules")]
+    return found
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """With PYTHONDONTWRITEBYTECODE set, every process of the run would compile
+    every module of the project it imports again: each xdist worker rewrites
+    and compiles every test module (about 7 of the 11 CPU-s of a collection),
+    each `compd` process a test starts its 150 modules (about 0.1 CPU-s of its
+    0.4). The run writes bytecode as CI's default does, beside the sources, and
+    removes at the end the ``__pycache__`` folders it made: the tree is left as
+    the setting asks, and each module is compiled once a run. (A cache prefix
+    would not do: Python then ignores the bytecode installed with numpy,
+    pydantic and the standard library, and compiles those again.)"""
+    if not sys.dont_write_bytecode:
+        return
+    root = Path(__file__).resolve().parents[1]
+    before = _caches(root)
+    setting = os.environ.get("PYTHONDONTWRITEBYTECODE")
+
+    def restore() -> None:
+        if setting is not None:
+            os.environ["PYTHONDONTWRITEBYTECODE"] = setting
+        sys.dont_write_bytecode = True
+        for made in _caches(root) - before:
+            shutil.rmtree(made, ignore_errors=True)
+
+    config.add_cleanup(restore)
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+    sys.dont_write_bytecode = False
 
 
 def _guard(fn: Callable[..., Coroutine[Any, Any, Any]]) -> Callable[..., Coroutine[Any, Any, Any]]:
