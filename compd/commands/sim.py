@@ -5,9 +5,11 @@ Serving: ``compd sim --protocol modbus [--port N] [--speedup X] [--program P]
 thermal plant behind it and serves until SIGINT/SIGTERM (exit 0). With
 ``--json`` the first stdout line is one JSON object
 ``{"protocol", "endpoint", "channels": {name: address}, "outputs": {...}}``,
-plus ``"temp_comp"`` where the controller holds per-axis compensation
-parameters (addresses as the pydantic models of `drivers.addresses` dump them), so a
-bench script can configure the daemon from it.
+plus, where the controller has them, ``"temp_comp"`` (per-axis compensation
+parameters), ``"positions"`` and ``"axis_offsets"`` (each axis's present position
+and a plain offset written at it) and ``"tool_comp"`` (the tool direction's value)
+(addresses as the pydantic models of `drivers.addresses` dump them), so a bench
+script can configure the daemon from it.
 
 With ``--no-plant`` only the controller is served (no plant publishes into
 it; OPC UA channel nodes are then client-writable): a stand-in PLC for trying
@@ -157,9 +159,14 @@ def describe(controller: SimController) -> dict[str, object]:
         "outputs": {n: a.model_dump() for n, a in controller.outputs_map.items()},
         "probes": {n: a.model_dump() for n, a in controller.probes.items()},
     }
-    temp_comp = getattr(controller, "temp_comp", None)
-    if temp_comp:  # each axis's temperature-compensation parameters (docs/protocols.md §11)
-        doc["temp_comp"] = {n: a.model_dump() for n, a in temp_comp.items()}
+    # per axis (docs/protocols.md §11): the temperature-compensation parameters, each
+    # axis's position and plain offset (an offset written at the position read), the
+    # tool direction's value (SINUMERIK), where the controller has them
+    for key, attr in (("temp_comp", "temp_comp"), ("positions", "positions"),
+                      ("axis_offsets", "axis_offsets"), ("tool_comp", "tool_comp")):
+        table = getattr(controller, attr, None)
+        if table:
+            doc[key] = {n: a.model_dump() for n, a in table.items()}
     library = _library_path(controller)
     if library is not None:  # what a daemon config's [controller.focas] needs
         doc["focas"] = {"library_path": library}

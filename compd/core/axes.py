@@ -287,11 +287,14 @@ class _Axis:
     # -- plan ------------------------------------------------------------------------
 
     def judge(self, got: Mapping[str, float | None] | None, *, off: str | None,
-              events: list[Event]) -> bool:
-        """The read-back of this axis's parameters; whether it was read in full."""
+              events: list[Event], position_mm: float | None = None) -> bool:
+        """The read-back of this axis's parameters; whether it was read in full.
+        `position_mm`: an axis at its position, the position read valid this cycle
+        (None: none)."""
         was_off = self.health.controller(off, self.value.stage.current_um, events)
         full = got is not None and all(got.get(n) is not None for n in self.p.names)
-        seen = self._as_parameters(got) if self.p.position is not None else got
+        seen = (self._as_parameters(got, position_mm) if self.p.position is not None
+                else got)
         for param in self.params:
             v = seen.get(param.name) if seen is not None else None
             mine: list[Event] = []
@@ -308,16 +311,27 @@ class _Axis:
                 self.health.foreign_seen()
         return full
 
-    def _as_parameters(self, got: Mapping[str, float | None] | None
-                       ) -> dict[str, float | None] | None:
+    def _as_parameters(self, got: Mapping[str, float | None] | None,
+                       position_mm: float | None) -> dict[str, float | None] | None:
         """The offset read back at the position, as the value and slope it stands for,
         so it is judged as the value's read-back: the offset compd last wrote (within
         half a count) is the value and slope confirmed; another (a second writer, a
         restarted controller at 0) is a value of the read-back less the slope's part
         at the position it was written at, so the value stage ramps from what the
-        controller holds and the slope goes on."""
+        controller holds and the slope goes on. With no write confirmed yet (a start
+        without a checkpoint of the offset, or with a checkpoint of the line's
+        parameters alone) the controller applies its offset where the axis is now:
+        the slope's part is taken at the position read this cycle (`position_mm`),
+        else at the last valid one; with neither, nothing is judged (no value, no
+        slope), and the axis, having no position to write at, holds until one is
+        read."""
         if got is None:
             return None
+        at = self._confirmed_at
+        x = at[1] if at is not None else (position_mm if position_mm is not None
+                                          else self._x)
+        if x is None:
+            return {self.value.name: None, self.slope.name: None}
         rb = got.get(self.p.name("offset"))
         slope = self.slope.stage.confirmed_um
         value = self.value.stage.confirmed_um
@@ -326,12 +340,9 @@ class _Axis:
             out[self.value.name] = rb
             return out
         tol = max(0.5 * self.p.offset_quantum_um, FLOAT_TOLERANCE)
-        at = self._confirmed_at
         if at is not None and value is not None and abs(rb - at[0]) <= tol:
             out[self.value.name] = value
             return out
-        x = at[1] if at is not None else (self._x if self._x is not None
-                                          else self.p.reference_mm)
         out[self.value.name] = rb - (slope or 0.0) * (x - self.p.reference_mm) / 1000.0
         return out
 
@@ -517,7 +528,11 @@ class AxisBank:
         writes: dict[str, float] = {}
         self._views = []
         for a in self.axes:
-            full = a.judge(readback if self.readback else None, off=off, events=events)
+            pos = a.p.position
+            present = (values[pos] if answered and pos is not None
+                       and validity.get(pos) is None and pos in values else None)
+            full = a.judge(readback if self.readback else None, off=off, events=events,
+                           position_mm=present)
             self._views.append(a.plan(now_s, dt, values, validity, answered, hold=hold,
                                       events=events))
             if write:

@@ -20,7 +20,9 @@ Namespace ``urn:compd``; under Objects one object per machine, named after
   ``Value_um`` and ``Slope_um_m`` (the line the controller confirmed),
   ``ValueModel_um`` and ``SlopeModel_um_m`` (what the axis's models ask),
   ``InForce``, ``FaultStateName``, ``Cause``, ``StatusWord`` (the axis's own
-  bits, as ``StatusWord``'s) and ``ReferencePosition_mm``;
+  bits, as ``StatusWord``'s), ``ReferencePosition_mm``, and ``Position_mm`` and
+  ``Offset_um`` (an axis written as one offset at its read position: that
+  position and the offset sent at it; NaN otherwise);
 - the method ``SetHold(Boolean)``: true switches compensation to hold (the
   offset stays where it is; faults still hold and ramp as always), false
   releases it (the offset slews back to the model at the slew limit);
@@ -346,7 +348,8 @@ def published_values(result: Row, cfg: LoadedConfig) -> dict[str, tuple[Any, ua.
             "ValueModel_um": _num(line.value.model), "SlopeModel_um_m": _num(line.slope.model),
             "InForce": bool(line.in_force), "FaultStateName": line.state.value,
             "Cause": line.cause.value, "StatusWord": int(line.status),
-            "ReferencePosition_mm": _num(line.reference_mm)}
+            "ReferencePosition_mm": _num(line.reference_mm),
+            "Position_mm": _num(line.position_mm), "Offset_um": _num(line.offset_um)}
         for name, value in axis_values.items():
             values[axis_path(axis, name)] = (value, AXIS_VARIABLES[name])
     return values

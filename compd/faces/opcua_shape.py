@@ -38,11 +38,13 @@ _D, _B, _S, _U = (ua.VariantType.Double, ua.VariantType.Boolean, ua.VariantType.
 #: each axis's variables under Axes/<AXIS>/ and their types: the line the controller
 #: holds (its value at the reference position and its slope, as confirmed), what the
 #: axis's models ask, whether the line compd wants is in force, the axis's state,
-#: cause and status word (the bits of ``StatusWord``), its reference position
+#: cause and status word (the bits of ``StatusWord``), its reference position, and
+#: for an axis written as one offset at its read position that position and the
+#: offset sent at it (NaN for an axis written as the line's parameters)
 AXIS_VARIABLES: dict[str, ua.VariantType] = {
     "Value_um": _D, "Slope_um_m": _D, "ValueModel_um": _D, "SlopeModel_um_m": _D,
     "InForce": _B, "FaultStateName": _S, "Cause": _S, "StatusWord": _U,
-    "ReferencePosition_mm": _D}
+    "ReferencePosition_mm": _D, "Position_mm": _D, "Offset_um": _D}
 _INITIAL: dict[ua.VariantType, Any] = {_D: math.nan, _B: False, _S: "starting", _U: 0}
 
 

@@ -8,8 +8,10 @@ fetch that fails marks the page "no answer from compd" instead of showing
 old values as live; so does a snapshot older than three periods (a stalled
 loop). With ``[output.axes]`` a table shows each axis's line: in force or
 not (and why), its value and slope (and what the controller holds when it
-differs) at its reference position. A fleet's document (``machines``:
-`compd run DIR`) shows one section per machine, the same as one machine's.
+differs) at its reference position, and for an axis written as one offset at
+its read position the offset sent and the position it was evaluated at. A
+fleet's document (``machines``: `compd run DIR`) shows one section per machine,
+the same as one machine's.
 """
 
 from __future__ import annotations
@@ -117,7 +119,9 @@ function showMachine(s, m){
       " (holds " + fmt(a.value_confirmed_um, 2) + ")" : ""), "value"],
     [fmt(a.slope_um_m, 2) + " \u00b5m/m" + (a.slope_confirmed_um_m !== a.slope_um_m ?
       " (holds " + fmt(a.slope_confirmed_um_m, 2) + ")" : ""), "slope"],
-    ["at " + fmt(a.reference_mm, 1) + " mm", "reference"]]);
+    ["at " + fmt(a.reference_mm, 1) + " mm", "reference"],
+    ...(a.position_mm === undefined ? [] : [[fmt(a.offset_um, 2) + " \u00b5m at " +
+      fmt(a.position_mm, 1) + " mm", "position"]])]);
   const al = q("table.alarms tbody"); al.textContent = "";
   const alarms = (m.alarms || []).slice().reverse();
   if (!alarms.length) row(al, [["none"]]);

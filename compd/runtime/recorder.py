@@ -32,7 +32,8 @@ the controller and ``attempted_um`` as sent, ``model_um``, ``state``,
 stored once, in the JSON column; the ``channel_values`` view shows them as
 numbers. With ``[output.axes]`` each sample has one row per axis in table
 ``axes`` (its state, cause, in force, and its value's and slope's stage,
-sent, confirmed and model values), purged with its sample. Opening a file
+sent, confirmed and model values; an axis written at its read position adds
+that position and the offset written at it), purged with its sample. Opening a file
 an older compd wrote upgrades it (`compd.store.schema.upgrade`); it then
 reads and is appended to as before.
 

@@ -51,7 +51,7 @@ def _axis_tuples(seq: int, row: RecordRow) -> list[tuple[Any, ...]]:
         out.append((seq, str(axis), str(a.state), str(a.cause), 1 if a.in_force else 0,
                     _num(v.stage), _num(v.sent), _num(v.confirmed), _num(v.model),
                     _num(s.stage), _num(s.sent), _num(s.confirmed), _num(s.model),
-                    _num(a.reference_mm)))
+                    _num(a.reference_mm), _num(a.position_mm), _num(a.offset_um)))
     return out
 
 

@@ -49,6 +49,7 @@ import numpy as np
 from compd.infiles import MAX_FIELD_CHARS, open_input
 from compd.store.columns import CORRUPT, Columns, bounded_fields, build_columns, floats
 from compd.store.schema import (
+    AXIS_ADDED_COLUMNS,
     AXIS_COLUMNS,
     CHANNELS_KEY,
     FIXED_COLUMNS,
@@ -348,11 +349,19 @@ class RecorderReader:
     def axes(self) -> Columns:
         """Every ``[output.axes]`` axis's row (the ``axes`` table), oldest first, with its
         sample's clock: ``seq`` (int64), ``mono_s``, ``axis``, ``state``, ``cause`` (str),
-        ``in_force`` (bool) and the value's and slope's stage, sent, confirmed and model
-        values (float64, NaN where none: `compd.store.schema.AXIS_COLUMNS`). A file
+        ``in_force`` (bool), the value's and slope's stage, sent, confirmed and model
+        values, the reference, and for an axis written at its read position the
+        ``position_mm`` and the ``offset_um`` written at it (float64, NaN where none:
+        `compd.store.schema.AXIS_COLUMNS`). A file
         without per-axis outputs, or from before they were recorded: empty columns."""
         conn = self._connection()
-        fields = ("axes.seq", "samples.mono_s", *(f"axes.{c}" for c in AXIS_COLUMNS))
+        with self._timed("cannot read its axes"):
+            have = {str(r[1]) for r in conn.execute("PRAGMA table_info(axes)")}
+        # a file an older compd wrote (not upgraded: read only) lacks the columns added
+        # since; they read as NULL
+        fields = ("axes.seq", "samples.mono_s",
+                  *(f"axes.{c}" if c in have or c not in AXIS_ADDED_COLUMNS else "NULL"
+                    for c in AXIS_COLUMNS))
         try:
             rows = self._joined(conn, "axes", fields, "axes.seq, axes.axis", "axis")
             out: Columns = {"seq": np.array([r[0] for r in rows], dtype=np.int64),

@@ -12,8 +12,9 @@ an older compd list every channel, null when valid), ``contributions`` (JSON
 the order first seen. Table ``probes``: one row per probe ([adaptation]).
 Table ``axes``: one row per sample and ``[output.axes]`` axis (`AXIS_COLUMNS`:
 its state, cause, whether its line is in force, and its value's and slope's
-stage, sent, confirmed and model values); a file of an older compd gets the
-empty table.
+stage, sent, confirmed and model values, its reference, and for an axis written
+as one offset at its read position that position and the offset written at it);
+a file of an older compd gets the empty table, or the columns added since.
 
 Channel values are stored once, in the JSON column. ``channel_values`` (seq,
 channel, value, validity) is a view over it for a SQL client or Grafana (one
@@ -31,7 +32,8 @@ import sqlite3
 
 from compd.errors import CompdError
 
-__all__ = ["AXIS_COLUMNS", "CHANNELS_KEY", "FIXED_COLUMNS", "INSERT_AXIS", "INSERT_PROBE",
+__all__ = ["AXIS_ADDED_COLUMNS", "AXIS_COLUMNS", "CHANNELS_KEY", "FIXED_COLUMNS",
+           "INSERT_AXIS", "INSERT_PROBE",
            "INSERT_SAMPLE", "PROBE_COLUMNS", "SAMPLE_COLUMNS", "SCHEMA", "TERMS_KEY",
            "RecorderError", "meta_names", "scan_terms", "upgrade"]
 
@@ -92,6 +94,8 @@ CREATE TABLE IF NOT EXISTS axes (
     slope_confirmed_um_m REAL,
     slope_model_um_m REAL,
     reference_mm REAL,
+    position_mm REAL,
+    offset_um REAL,
     PRIMARY KEY (seq, axis)
 );
 """
@@ -123,7 +127,11 @@ INSERT_PROBE = (f"INSERT INTO probes (seq, {', '.join(PROBE_COLUMNS)})"
 #: an axis's columns ([output.axes]): the sample's seq, then these
 AXIS_COLUMNS = ("axis", "state", "cause", "in_force", "value_um", "value_sent_um",
                 "value_confirmed_um", "value_model_um", "slope_um_m", "slope_sent_um_m",
-                "slope_confirmed_um_m", "slope_model_um_m", "reference_mm")
+                "slope_confirmed_um_m", "slope_model_um_m", "reference_mm", "position_mm",
+                "offset_um")
+#: the ``axes`` columns a file of an older compd lacks (added by `upgrade`; NULL in
+#: its older rows, and read as NaN from a file not yet upgraded)
+AXIS_ADDED_COLUMNS = ("position_mm", "offset_um")
 INSERT_AXIS = (f"INSERT INTO axes (seq, {', '.join(AXIS_COLUMNS)})"
                f" VALUES ({', '.join('?' * (len(AXIS_COLUMNS) + 1))})")
 
@@ -183,6 +191,10 @@ def upgrade(conn: sqlite3.Connection) -> None:
             conn.execute("ALTER TABLE samples ADD COLUMN attempted_um REAL")
         if "complete" not in columns:  # older rows: NULL (not known)
             conn.execute("ALTER TABLE samples ADD COLUMN complete INTEGER")
+        axis_columns = {r[1] for r in conn.execute("PRAGMA table_info(axes)")}
+        for name in AXIS_ADDED_COLUMNS:  # older rows: NULL (no position read)
+            if name not in axis_columns:
+                conn.execute(f"ALTER TABLE axes ADD COLUMN {name} REAL")
         kind = conn.execute("SELECT type FROM sqlite_schema WHERE name = 'channel_values'"
                             ).fetchone()
         if kind is not None and kind[0] == "table":  # the values twice: the JSON has them

@@ -170,6 +170,8 @@ class ModbusSimController:
         self.encodings: dict[str, ModbusAddress] = dict(ENCODINGS)
         self.probes: dict[str, Address] = dict(PROBES)
         self.temp_comp: dict[str, ModbusAddress] = dict(TEMP_COMP)
+        self.positions: dict[str, ModbusAddress] = dict(POSITIONS)
+        self.axis_offsets: dict[str, ModbusAddress] = dict(AXIS_OFFSETS)
         self.requests: list[Request] = []
         self.faults: list[Fault] = []
         self._input = [0] * input_registers

@@ -68,6 +68,23 @@ async def _finish(proc: asyncio.subprocess.Process, sig: signal.Signals) -> int:
     return proc.returncode
 
 
+#: each axis's position (mm) and plain offset (µm) as ``--json`` lists them, per protocol
+#: that has them: Modbus input 16–21 and holding 50–55 (float32), FOCAS PMC D300–D308
+#: (float) and D320–D328 (long, 0.1 µm)
+POSITIONS: dict[str, dict[str, Any]] = {
+    "modbus": {f"{a}_position": {"unit": 1, "kind": "input", "address": 16 + 2 * i,
+                                 "type": "float32", "word_order": "big", "scale": 1.0}
+               for i, a in enumerate("xyz")},
+    "focas": {f"{a}_position": {"kind": "pmc", "area": "D", "address": 300 + 4 * i,
+                                "type": "float", "scale": 1.0} for i, a in enumerate("xyz")}}
+AXIS_OFFSETS: dict[str, dict[str, Any]] = {
+    "modbus": {f"{a}_comp_offset": {"unit": 1, "kind": "holding", "address": 50 + 2 * i,
+                                    "type": "float32", "word_order": "big", "scale": 1.0}
+               for i, a in enumerate("xyz")},
+    "focas": {f"{a}_comp_offset": {"kind": "pmc", "area": "D", "address": 320 + 4 * i,
+                                   "type": "long", "scale": 0.1} for i, a in enumerate("xyz")}}
+
+
 @pytest.mark.parametrize("protocol", list(SIM_CONTROLLERS))
 async def test_json_first_line_describes_a_live_machine(protocol: str, tmp_path: Path) -> None:
     if not _sim_exists(protocol):
@@ -82,11 +99,24 @@ async def test_json_first_line_describes_a_live_machine(protocol: str, tmp_path:
         line = await asyncio.wait_for(proc.stdout.readline(), 30.0)
         assert line, (tmp_path / "stderr.txt").read_text()
         info = json.loads(line)
-        assert set(info) - {"focas", "temp_comp"} == {"protocol", "endpoint", "channels",
-                                                      "outputs", "probes"}
+        assert set(info) - {"focas", "temp_comp", "positions", "axis_offsets",
+                            "tool_comp"} == {"protocol", "endpoint", "channels", "outputs",
+                                             "probes"}
         # the per-axis compensation parameters where the controller has them
         assert set(info.get("temp_comp", AXIS_OUTPUTS)) == set(AXIS_OUTPUTS)
         assert ("temp_comp" in info) == (protocol in ("opcua", "s7", "modbus"))
+        # each axis's position and plain offset (an offset written at the position read)
+        # and the SINUMERIK tool direction, where the controller has them
+        assert info.get("positions") == POSITIONS.get(protocol)
+        assert info.get("axis_offsets") == AXIS_OFFSETS.get(protocol)
+        assert set(info.get("tool_comp", ())) == (
+            {"tool_comp_value"} if protocol in ("opcua", "s7") else set())
+        if protocol == "opcua":
+            assert info["tool_comp"]["tool_comp_value"]["node"] == \
+                "ns=2;s=Machine.Channel.$SC_TOOL_TEMP_COMP"
+        if protocol == "s7":
+            assert (info["tool_comp"]["tool_comp_value"]["db"],
+                    info["tool_comp"]["tool_comp_value"]["offset"]) == (13, 0)
         assert info["protocol"] == protocol
         assert "127.0.0.1" in info["endpoint"]
         assert set(CHANNELS) <= set(info["channels"])

@@ -3,28 +3,36 @@ the line the controller holds, what the axis's models ask, whether it is in
 force, its state, cause, status word and reference position, following the
 daemon on the simulated Modbus controller; an axis's failed sensor takes that
 axis out of force while the offset stays in force; a reload without the axes
-takes their folder away."""
+takes their folder away; an axis written as one offset at its read position
+publishes that position and the offset (``Position_mm``, ``Offset_um``)."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import math
 from collections.abc import AsyncIterator
 from pathlib import Path
 
+from asyncua import ua
 from asyncua.client.client import Client
 from asyncua.common.node import Node
 from asyncua.ua.uaerrors import UaStatusCodeError
 
 from compd.config.loader import load_config
+from compd.core.cycle import Cycle
 from compd.core.output import Status
-from compd.faces.opcua_face import NAMESPACE, release_all
+from compd.core.params import params_from_config
+from compd.faces.opcua_face import NAMESPACE, published_values, release_all
 from compd.runtime.daemon import Daemon
 from compd.runtime.sdnotify import Notifier
+from compd.testing import FakeClock
+from drivers.base import Sample
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
 from tests.compd.axes_helpers import SENSOR_CHANNELS, axes_config_text
+from tests.compd.runtime.test_axes_position_modbus import positional_config
 from tests.harness import until
 
 #: generous: a request that outlasts it makes asyncua drop the session ("client is
@@ -92,6 +100,9 @@ async def test_each_axis_has_its_nodes_and_follows_the_cycle(tmp_path: Path) -> 
                 await _becomes(machine, idx, (*x, "Cause"), "in_force")
                 assert int(await _value(machine, idx, *x, "StatusWord")) & Status.OK  # type: ignore[call-overload]
                 assert await _value(machine, idx, *x, "ReferencePosition_mm") == 0.0
+                # a line's parameters: no position read, no offset at it
+                assert math.isnan(await _value(machine, idx, *x, "Position_mm"))  # type: ignore[arg-type]
+                assert math.isnan(await _value(machine, idx, *x, "Offset_um"))  # type: ignore[arg-type]
 
                 # the nut's sensor fails (beyond its range): X holds, the offset goes on
                 await sim.publish({SENSOR_CHANNELS["nut"]: 500.0})
@@ -122,3 +133,22 @@ async def test_each_axis_has_its_nodes_and_follows_the_cycle(tmp_path: Path) -> 
                 assert "Axes" not in names and "OffsetInForce" in names
     finally:
         await sim.stop()
+
+
+def test_an_axis_at_its_position_publishes_the_position_and_the_offset(
+        tmp_path: Path) -> None:
+    cfg = load_config(positional_config(tmp_path, "modbus://127.0.0.1:5020", period_s=1.0,
+                                        time_scale=1.0, value_slew=5.0, slope_slew=5.0))
+    cycle = Cycle(dataclasses.replace(params_from_config(cfg), readback=False), cfg.model)
+    clock = FakeClock(period_s=1.0)
+    for _ in range(3):
+        t = clock.tick()
+        temps = {"nut": 24.0, "screw_bearing": 24.0, "column": 22.0, "ambient": 20.0,
+                 "x_pos": 800.0}
+        cycle.plan(t, {n: Sample(v, t) for n, v in temps.items()})
+        row = cycle.commit()
+    values = published_values(row, cfg)
+    x = row.axes["x"]
+    assert x.offset_um is not None
+    assert values["Axes.X.Position_mm"] == (800.0, ua.VariantType.Double)
+    assert values["Axes.X.Offset_um"] == (x.offset_um, ua.VariantType.Double)

@@ -22,6 +22,7 @@ from compd.store.schema import AXIS_COLUMNS
 from compd.testing import FakeClock
 from tests.compd.core.cycle_helpers import sp2
 from tests.compd.core.test_cycle_axes import axis_params, inputs
+from tests.compd.core.test_cycle_axes_position import at, positional
 
 T0 = 1_790_000_000.0
 
@@ -103,3 +104,57 @@ def test_a_file_of_an_older_compd_has_no_axes(tmp_path: Path) -> None:
         rec.record(_rows(1)[0].record)
     with RecorderReader(path) as reader:
         assert list(reader.axes()["axis"]) == ["x"]
+
+
+def _positional_rows(n: int) -> list[Row]:
+    """`n` cycles of an X axis written as one offset at its read position, the axis
+    moving 100 mm a cycle."""
+    cycle, clock = Cycle(positional(), sp2()), FakeClock(period_s=1.0)
+    rows = []
+    for k in range(n):
+        t = clock.tick()
+        cycle.plan(t, at(t, 100.0 + 100.0 * k), wall_s=t)  # `at` stamps on wall 0
+        rows.append(cycle.commit())
+    return rows
+
+
+def test_an_axis_at_its_position_records_the_position_and_the_offset(tmp_path: Path) -> None:
+    path, rows = tmp_path / "samples.sqlite", _positional_rows(5)
+    with Recorder(path, commit_every=2) as rec:
+        for row in rows:
+            rec.record(row.record)
+    with RecorderReader(path) as reader:
+        axes = reader.axes()
+    for k, row in enumerate(rows):
+        x = row.axes["x"]
+        assert x.position_mm == 100.0 + 100.0 * k and x.offset_um is not None, k
+        assert axes["position_mm"][k] == x.position_mm
+        assert axes["offset_um"][k] == x.offset_um
+    # the slope's part moves with the axis: the offsets differ from cycle to cycle
+    assert len(set(axes["offset_um"].tolist())) == len(rows)
+    # an axis written as parameters has no position
+    plain = _rows(1)
+    with Recorder(tmp_path / "plain.sqlite", commit_every=1) as rec:
+        rec.record(plain[0].record)
+    with RecorderReader(tmp_path / "plain.sqlite") as reader:
+        got = reader.axes()
+    assert np.isnan(got["position_mm"][0]) and np.isnan(got["offset_um"][0])
+
+
+def test_a_file_of_an_older_compd_gets_the_position_columns(tmp_path: Path) -> None:
+    path = tmp_path / "old.sqlite"
+    with Recorder(path, commit_every=1) as rec:
+        rec.record(_rows(1)[0].record)
+    with sqlite3.connect(path) as conn:  # the axes table as an older compd made it
+        conn.execute("ALTER TABLE axes DROP COLUMN position_mm")
+        conn.execute("ALTER TABLE axes DROP COLUMN offset_um")
+    conn.close()
+    with RecorderReader(path) as reader:  # read only: the columns missing read as NaN
+        old = reader.axes()
+    assert list(old["axis"]) == ["x"] and np.isnan(old["position_mm"][0])
+    with Recorder(path, commit_every=1) as rec:  # upgraded on open: the columns are back
+        rec.record(_positional_rows(1)[0].record)
+    with RecorderReader(path) as reader:
+        axes = reader.axes()
+    assert np.isnan(axes["position_mm"][0]) and axes["position_mm"][1] == 100.0
+    assert axes["offset_um"][1] == _positional_rows(1)[0].axes["x"].offset_um
