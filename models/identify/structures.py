@@ -493,33 +493,6 @@ def _oe(d: _Data, start: OeModel | None, train: BoolArray, per_term: bool,
     return m
 
 
-#: relative cost gain below which a warm-started output-error refit stops
-#: (`refit_from`): tighter than `OE_TOL`, so that the estimate leaves the
-#: full-data start for the optimum of the training rows rather than stopping
-#: next to a start that has seen the rows held out (the simulated plant's day,
-#: four inner blocks: MAE per block equal to 4 digits at 1e-6 and 1e-9, within
-#: 0.5 % at 1e-4; the cold chain, stopped by its iteration bound, 0.3-3 % above)
-WARM_TOL = 1e-6
-
-
-def refit_from(d: _Data, start: OeModel, train: BoolArray, max_iter: int = 40,
-               groups: Sequence[Sequence[int]] | None = None) -> OeModel | None:
-    """`start` (an output-error estimate on more rows: its numerators,
-    denominators and initial conditions) re-estimated by output error on the
-    `train` rows of `d`, from `start` itself, on its own groups (or
-    `groups`: every denominator then `start`'s first). A nearby start
-    converges in a few iterations where the order search, Steiglitz–McBride
-    and shared-oe chain costs dozens; it is run to `WARM_TOL`."""
-    grp = [tuple(g) for g in (groups if groups is not None else start.groups)]
-    dens = list(start.dens) if groups is None else [start.dens[0]] * len(grp)
-    if int(train.sum()) <= start.n_params:
-        return None
-    m, _ = fit_output_error(d.y, d.us, start.nums, dens, grp, mask=train, segments=d.seg,
-                            radius=d.radius, max_iter=max_iter, init0=start.init or None,
-                            tol=WARM_TOL, initial=d.initial)
-    return m
-
-
 def _ridge(d: _Data, shared: OeModel | None, train: BoolArray, lam: float) -> OeModel | None:
     """Numerators by ridge on u_t/B over `shared`'s denominator. Only each
     input's gain Σ_j a_tj is penalised (the direction in which correlated
