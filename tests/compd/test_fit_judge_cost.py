@@ -117,3 +117,22 @@ def test_held_out_rows_pooled_fold_by_fold_give_the_same_figure() -> None:
     assert pool.value == pooled_parts(held)
     pool.add(np.ones(3), np.array([1.0, math.nan, 1.0]))
     assert pool.value == -math.inf
+
+
+def test_held_out_residues_are_slices_of_one_array_per_fold() -> None:
+    y, us = _plant(1200)
+    seg = Segments.from_lengths([500, 700])
+    d = make_data(y, us, seg, 1.0, 4, "forward")
+    d.initial = False
+    models = [structures.arx_fit(d, 1, 1, train) for train, _ in d.splits]
+    held = structures._heldout(d, models)
+    assert len(held.residuals) == 2 * len(d.splits)  # a block per fold and record
+    for k, ((train, val), m) in enumerate(zip(d.splits, models, strict=True)):
+        assert m is not None
+        sim = structures._simulate(d, m, train, y, d.us, seg)
+        first, second = held.residuals[2 * k], held.residuals[2 * k + 1]
+        for r, (s, e) in zip((first, second), seg.bounds, strict=True):
+            rows = np.flatnonzero(val[s:e]) + s
+            assert np.array_equal(r, y[rows] - sim[rows])  # the residue, to the bit
+        # one array of the fold's held-out rows, not a copy per record
+        assert first.base is not None and first.base is second.base
