@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -29,7 +30,7 @@ from models.identify.arx import fit_pct
 from models.identify.segments import Segments
 from models.identify.stability import DRAWS, block_errors, hedge, stability
 from models.identify.structures import DEFAULT_VALIDATION, Candidate, Selection, make_data
-from models.identify.textbook import textbook
+from models.identify.textbook import Textbook, textbook
 from models.identify.validate import forced_response
 
 if TYPE_CHECKING:
@@ -84,14 +85,53 @@ def _merge(terms: list[FitTerm]) -> list[FitTerm]:
     return out
 
 
+@dataclass(frozen=True)
+class PoolTextbook:
+    """The textbook ARX on a pair of the pool (`models.identify.textbook`)
+    with its residue on the folds, and its fit % on every usable row."""
+
+    #: the pool's channels it may read (a fallback's hedge reads fewer)
+    names: list[str]
+    #: None: no stable pair, or a fold without a stable model
+    textbook: Textbook | None
+    fit_pct: float = math.nan
+
+
+def pool_textbook(args: FitRun, y: FloatArray, seg: Segments, radius: float,
+                  pool: dict[str, FloatArray]) -> PoolTextbook | None:
+    """The textbook on the channels of `pool` the hedge may read (None: none).
+    It depends on neither the selection nor its candidates: `compd fit` fits
+    it before them, so that its arrays and the candidates' held-out residues
+    (a month at 1 s: 17 MB each) are never held at once."""
+    from compd.offline.fit_terms import usable_rows
+
+    allowed = getattr(args, "hedge_channels", None)
+    names = [n for n in pool if allowed is None or n in allowed]
+    if not names:
+        return None
+    d = make_data(y, [pool[n] for n in names], seg, radius, args.folds, DEFAULT_VALIDATION,
+                  usable_rows(args), blocked=False)
+    tb = textbook(d, [pool[n] for n in names])
+    if tb is None:
+        return PoolTextbook(names, None)
+    sim = forced_response(tb.model.nums, tb.model.dens, tb.model.groups,
+                          [pool[names[i]] for i in tb.inputs], seg)
+    # every row: the arrays themselves, not copies (a month at 1 s: 21 MB each)
+    fit = fit_pct(y, sim) if d.usable is None else fit_pct(y[d.usable], sim[d.usable])
+    return PoolTextbook(names, tb, fit)
+
+
 def hedge_choice(args: FitRun, y: FloatArray, seg: Segments, radius: float,
                  sel: Selection, specs: list[tuple[str, dict[str, float]]],
                  us: list[FloatArray], rel: list[bool], pool: dict[str, FloatArray],
                  terms: list[FitTerm], summary: dict[str, Any],
-                 check: Callable[[list[FitTerm]], str | None] | None = None
+                 check: Callable[[list[FitTerm]], str | None] | None = None,
+                 pooled: PoolTextbook | None = None
                  ) -> tuple[list[FitTerm], dict[str, Any]]:
     """(terms, summary) with the stability said and, when the choice is not
-    stable and the structure was not forced, the hedge written. `check(terms)`:
+    stable and the structure was not forced, the hedge written. `pooled`: the
+    textbook on `pool` (`pool_textbook`) when the caller fitted it already
+    (None: fitted here). `check(terms)`:
     why a model must not be written (`compd fit`: `compd check`'s warnings); a
     candidate it refuses is no member of the hedge (the chosen one passed it in
     the selection), and an average it refuses is not written: the choice alone is."""
@@ -150,11 +190,9 @@ def hedge_choice(args: FitRun, y: FloatArray, seg: Segments, radius: float,
             errors.append(block_errors(c.heldout_residuals))
             residuals.append(c.heldout_residuals)
             members.append(member)
-    pool_names = [n for n in pool if allowed is None or n in allowed]
-    if pool_names:
-        d = make_data(y, [pool[n] for n in pool_names], seg, radius, args.folds,
-                      DEFAULT_VALIDATION, usable_rows(args))
-        tb = textbook(d, [pool[n] for n in pool_names])
+    pre = pooled if pooled is not None else pool_textbook(args, y, seg, radius, pool)
+    if pre is not None:
+        pool_names, tb = pre.names, pre.textbook
         if tb is not None and len(tb.residuals) == len(residuals[0]):
             pair = [pool_names[i] for i in tb.inputs]
             dens = tb.model.term_dens()
@@ -172,18 +210,17 @@ def hedge_choice(args: FitRun, y: FloatArray, seg: Segments, radius: float,
                 labels.append(label)
                 errors.append(block_errors(tb.residuals))
                 residuals.append(tb.residuals)
-            every = d.every
-            sim = forced_response(tb.model.nums, tb.model.dens, tb.model.groups,
-                                  [pool[n] for n in pair], seg)
             summary["candidates"].append({
                 "structure": "textbook", "validation_fit_percent": tb.validation_fit_pct,
-                "fit_percent": fit_pct(y[every], sim[every]),
+                "fit_percent": pre.fit_pct,
                 "parameters": tb.model.n_params,
                 "detail": f"ARX(2,3) on {' + '.join(pair)}, no level, from rest",
                 **({"rejected": why} if why else {})})
         else:  # no textbook on the folds (one unstable): still one for the verdict
             from compd.offline.fit_judge import lone_textbook
 
+            d = make_data(y, [pool[n] for n in pool_names], seg, radius, args.folds,
+                          DEFAULT_VALIDATION, usable_rows(args), blocked=False)
             lone = lone_textbook(d, [pool[n] for n in pool_names])
             if lone is not None:
                 pair = [pool_names[i] for i in lone[0]]

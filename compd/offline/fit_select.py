@@ -122,9 +122,15 @@ def select_for_fit(args: FitRun, y: FloatArray, us: list[FloatArray],
     ``_heldout_residuals`` (the residue on the rows each fold's model was not
     calibrated on, arrays) is for the caller to take out before the summary is
     written anywhere."""
-    from compd.offline.fit_hedge import hedge_choice
+    from compd.offline.fit_hedge import hedge_choice, pool_textbook
 
     names = [n for n, _ in specs]
+    if pool is None:  # the textbook's pair among the single sensors given, by channel
+        pool = {next(iter(inputs)): u for (_, inputs), u, r in zip(specs, us, rel, strict=True)
+                if r and list(inputs.values()) == [1.0]}
+    # the textbook before the selection: its arrays are let go before the
+    # candidates' held-out residues are made (`compd.offline.fit_hedge.pool_textbook`)
+    pooled = pool_textbook(args, y, seg, radius, pool) if holdout is None else None
     sel = run_selection(args, y, us, seg, radius, holdout, names, veto)
     how = "held-out records" if holdout is not None else \
         f"{VALIDATION_WORDS[DEFAULT_VALIDATION]}, {args.folds} folds"
@@ -134,10 +140,8 @@ def select_for_fit(args: FitRun, y: FloatArray, us: list[FloatArray],
              in zip(specs, us, model.nums, model.term_dens(), rel, strict=True)]
     if holdout is not None:
         return terms, summary
-    if pool is None:  # the textbook's pair among the single sensors given, by channel
-        pool = {next(iter(inputs)): u for (_, inputs), u, r in zip(specs, us, rel, strict=True)
-                if r and list(inputs.values()) == [1.0]}
-    return hedge_choice(args, y, seg, radius, sel, specs, us, rel, pool, terms, summary, check)
+    return hedge_choice(args, y, seg, radius, sel, specs, us, rel, pool, terms, summary, check,
+                        pooled)
 
 
 def judged(args: FitRun, y: FloatArray, seg: Segments, radius: float,

@@ -29,7 +29,7 @@ import numpy.typing as npt
 
 from models.identify.output_error import OeModel
 from models.identify.structures import _Data, arx_fit
-from models.identify.validate import forced_response, pooled_parts
+from models.identify.validate import Pooled, forced_response
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -96,15 +96,15 @@ def textbook(d: _Data, candidates: Sequence[FloatArray]) -> Textbook | None:
     dp = _data(d, [candidates[i] for i in pair])
     na, nb = TEXTBOOK_ORDERS
     blocks: list[FloatArray] = []
-    # each fold's held-out rows only (measured, simulated), not its simulation of
-    # every row: a month at 1 s is 21 MB a fold
-    held: list[tuple[FloatArray, FloatArray]] = []
+    # each fold's held-out rows pooled and let go, not its simulation of every
+    # row: a month at 1 s is 21 MB a fold
+    pool = Pooled()
     for train, val in d.splits:
         m = arx_fit(dp, na, nb, train)
         if m is None:
             return None
         sim = _sim(dp, m)
-        held.append((d.y[val], sim[val]))
+        pool.add(d.y[val], sim[val])
         for s, e in d.seg.bounds:
             rows = np.flatnonzero(val[s:e]) + s
             if rows.size:
@@ -113,4 +113,4 @@ def textbook(d: _Data, candidates: Sequence[FloatArray]) -> Textbook | None:
     final = arx_fit(dp, na, nb, d.every)
     if final is None:
         return None
-    return Textbook(pair, final, tuple(blocks), pooled_parts(held))
+    return Textbook(pair, final, tuple(blocks), pool.value)

@@ -203,13 +203,34 @@ def pooled_fit(y: FloatArray, sims: Sequence[FloatArray], masks: Sequence[BoolAr
 
 def pooled_parts(held: Sequence[tuple[FloatArray, FloatArray]]) -> float:
     """`pooled_fit` of the (measured, simulated) held-out rows of each fold."""
-    err = 0.0
-    spread = 0.0
+    pool = Pooled()
     for y_m, sim_m in held:
+        pool.add(y_m, sim_m)
+    return pool.value
+
+
+class Pooled:
+    """`pooled_parts` summed fold by fold: each fold's held-out rows are
+    added and can be let go (a month at 1 s holds four fifths of its rows
+    out, 33 MB of measured and simulated rows kept to the end otherwise)."""
+
+    def __init__(self) -> None:
+        self.err = 0.0
+        self.spread = 0.0
+        self.finite = True
+
+    def add(self, y_m: FloatArray, sim_m: FloatArray) -> None:
+        if not self.finite:
+            return
         if not np.all(np.isfinite(sim_m)):
+            self.finite = False
+            return
+        self.err += float(np.sum((y_m - sim_m) ** 2))
+        self.spread += float(np.sum((y_m - y_m.mean()) ** 2))
+
+    @property
+    def value(self) -> float:
+        """The pooled fit %; -inf when a fold was not finite or nothing varies."""
+        if not self.finite or self.spread == 0.0:
             return -math.inf
-        err += float(np.sum((y_m - sim_m) ** 2))
-        spread += float(np.sum((y_m - y_m.mean()) ** 2))
-    if spread == 0.0:
-        return -math.inf
-    return (1.0 - math.sqrt(err / spread)) * 100.0
+        return (1.0 - math.sqrt(self.err / self.spread)) * 100.0
