@@ -31,6 +31,7 @@ from compd.core.output import Status
 from compd.core.plan import Row
 from drivers.sim.modbus_server import CHANNELS, ModbusSimController
 from drivers.sim.ports import free_tcp_port
+from tests.compd.core.fallback_helpers import SP2_MAIN
 from tests.configs import make_config
 from tests.faults.daemon_rig import DaemonRig
 from tests.faults.invariants import Invariants, invariants
@@ -45,23 +46,7 @@ REF = {"bearing": 20.0, "ambient": 20.0}
 #: without the ambient, a first-order spindle term of 22 µm/K (the fit's gain on
 #: the bearing alone differs from the main model's); without the bearing, -5 µm/K
 #: of ambient
-MODEL = """
-[model]
-name = "SP2 with fallbacks"
-period_s = 1.0
-
-[[terms]]
-name = "spindle"
-inputs = { bearing = 1.0 }
-a = ["16.0005", "-15.9975", "0"]
-b = ["1", "-0.99983", "0", "0"]
-
-[[terms]]
-name = "ambient"
-inputs = { ambient = 1.0 }
-a = ["-0.0251", "0.0251", "0"]
-b = ["1", "-1.9985", "0.9985", "0"]
-
+MODEL = SP2_MAIN + """
 [[fallback]]
 lost = "ambient"
 model = { name = "without ambient", period_s = 1.0 }

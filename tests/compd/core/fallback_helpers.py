@@ -8,7 +8,9 @@ import tomllib
 from models.compensation import CompensationModel
 from models.modelfile import parse_model
 
-SP2_WITH_FALLBACKS = """
+#: SP2's two terms as the library has them (17.6 µm/K of bearing), under a model
+#: table named for its fallbacks: the fallbacks are appended by each user
+SP2_MAIN = """
 [model]
 name = "SP2 with fallbacks"
 period_s = 1.0
@@ -24,7 +26,9 @@ name = "ambient"
 inputs = { ambient = 1.0 }
 a = ["-0.0251", "0.0251", "0"]
 b = ["1", "-1.9985", "0.9985", "0"]
+"""
 
+SP2_WITH_FALLBACKS = SP2_MAIN + """
 [[fallback]]
 lost = "ambient"
 model = { name = "without ambient", period_s = 1.0 }
