@@ -39,6 +39,9 @@ from drivers.sim.linuxcnc_machine import (
     LinuxCncSimController,
     unavailable,
 )
+from drivers.sim.machine import SimMachine
+from drivers.sim.programs import constant
+from tests.harness import Lockstep
 
 WHY_NOT = unavailable()
 pytestmark = [pytest.mark.skipif(WHY_NOT is not None, reason=str(WHY_NOT)),
@@ -297,3 +300,39 @@ async def test_x_at_its_position_and_z_compensated_at_once(
                       "x_max_um": max(abs(r["x_um"]) for r in rows),
                       "worst_x_vs_model_um": worst_x, "worst_z_vs_model_um": worst_z,
                       "nan_bearing": nan_figure}))
+
+
+async def test_the_daemon_writes_x_and_z_on_linuxcnc(lcnc: LinuxCncSimController,
+                                                     tmp_path: Path) -> None:
+    """The whole daemon (lockstep, `tests.harness`) on the same config, the plant
+    heating: each cycle's X and Z writes are what LinuxCNC applies, X's at X's
+    position as MDI moves it."""
+    cfg = _config(lcnc, tmp_path)
+    machine = SimMachine(lcnc, program=constant(9000.0, heat_h=10.0, cool_h=1.0),
+                         seed=3, period_s=PERIOD_S, repeat=False)
+    rig = Lockstep(machine, cfg.path)
+    seen: list[tuple[float, float, float]] = []  # (x mm, X's offset, Z's offset) in µm
+    try:
+        await rig.start()
+        for i in range(6):
+            await lcnc.control("mdi", f"G90 G0 X{60.0 * math.cos(1.1 * i):.3f}")
+            await rig.step()
+            assert rig.daemon is not None
+            result = rig.daemon.loop.last_result
+            assert result is not None
+            hal = await lcnc.settled_axes()
+            assert result.axes["x"].cause == Cause.IN_FORCE
+            assert result.axes["x"].position_mm == pytest.approx(hal["x_pos_mm"], abs=1e-6)
+            assert hal["x_offset_um"] == pytest.approx(result.writes["x_comp_offset"],
+                                                       abs=SETTLED_UM)
+            assert hal["offset_um"] == pytest.approx(result.writes["offset"], abs=SETTLED_UM)
+            seen.append((hal["x_pos_mm"], hal["x_offset_um"], hal["offset_um"]))
+        assert await rig.stop() == 0
+    finally:
+        await rig.close()
+        await lcnc.control("mdi", "G90 G0 X0")
+    print(json.dumps({"figure": "linuxcnc_daemon_x_and_z", "cycles": seen}))
+    # X's offset moves with X (the slope's part, several µm over the travel) while Z's,
+    # with no position in it, stays within a count or two
+    xs, zs = [x for _, x, _ in seen], [z for *_, z in seen]
+    assert max(xs) - min(xs) > 2.0 and max(zs) - min(zs) < 0.5
