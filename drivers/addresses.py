@@ -345,18 +345,28 @@ class LinuxCncEoffset(_Address):
     def encoding(self) -> Encoding:
         return HAL_TYPES[self.type]
 
+    @property
+    def pins(self) -> tuple[str, str]:
+        """compd's two pins for this axis's offset (counts, enable): Z's keep their
+        first names, ``eoffset-counts`` and ``eoffset-enable``; another axis's carry
+        its letter (``eoffset-x-counts``), so that one component holds an offset per
+        axis."""
+        if self.axis == "z":
+            return "eoffset-counts", "eoffset-enable"
+        return f"eoffset-{self.axis}-counts", f"eoffset-{self.axis}-enable"
+
     def footprint(self) -> Footprint:
         """The counts signal (the value written)."""
         return _hal_signal(self.counts_net)
 
     def uses(self, key: str, *, written: bool) -> tuple[Use, ...]:
         """Both signals it drives and compd's two pins that drive them
-        (`drivers.linuxcnc`: ``eoffset-counts``, ``eoffset-enable``)."""
+        (`pins`)."""
         return (Use(key, self.footprint(), written, ("signal", self.counts_net, "s32")),
                 Use(key, _hal_signal(self.enable_net), written,
                     ("signal", self.enable_net, "bit")),
-                _pin_use(key, "eoffset-counts", written),
-                _pin_use(key, "eoffset-enable", written))
+                _pin_use(key, self.pins[0], written),
+                _pin_use(key, self.pins[1], written))
 
     def describe(self) -> str:
         return f"axis.{self.axis}.eoffset-counts<-{self.counts_net}"

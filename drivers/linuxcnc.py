@@ -13,10 +13,10 @@ not answered within ``timeout_s`` drops it, and the next call after the
 backoff delay starts a new one. The endpoint is ``linuxcnc://localhost``:
 HAL is shared memory on this machine.
 
-Every value is GOOD, stamped with the time its answer arrived. The offset
-(address kind ``eoffset``) is written in counts against what LinuxCNC holds
-and refused while LinuxCNC takes no offset (machine off, E-stop, not
-homed): `drivers.linuxcnc_hal`.
+Every value is GOOD, stamped with the time its answer arrived. An external
+offset (address kind ``eoffset``, one output per axis: X, Y and Z at once) is
+written in counts against what LinuxCNC holds and refused while LinuxCNC
+takes no offset (machine off, E-stop, not homed): `drivers.linuxcnc_hal`.
 """
 
 from __future__ import annotations
@@ -61,6 +61,25 @@ def _check(role: str, table: Mapping[str, object]) -> dict[str, LinuxCncAddress]
                              "the eoffset)", channel=name, address=addr.describe())
         out[name] = addr
     return out
+
+
+def _one_eoffset_per_axis(channels: Mapping[str, LinuxCncAddress],
+                          outputs: Mapping[str, LinuxCncAddress]) -> None:
+    """An external offset is an output, one per axis: two writers of one axis's
+    offset would each count against the other's changes."""
+    for name, a in channels.items():
+        if isinstance(a, LinuxCncEoffset):
+            raise BadAddress("an eoffset address is an output only, not a channel",
+                             channel=name, address=a.describe())
+    taken: dict[str, str] = {}
+    for name, a in outputs.items():
+        if not isinstance(a, LinuxCncEoffset):
+            continue
+        first = taken.setdefault(a.axis, name)
+        if first != name:
+            raise BadAddress(f"one eoffset address per axis: {name!r} and {first!r} both "
+                             f"write axis {a.axis.upper()}'s external offset",
+                             channel=name, address=a.describe())
 
 
 class _Session:
@@ -154,11 +173,7 @@ class LinuxCncDriver(LinkedDriver):
         self.endpoint = endpoint
         self.channels = _check("channel", channels)
         self.outputs = _check("output", outputs)
-        offsets = [n for n, a in {**self.channels, **self.outputs}.items()
-                   if isinstance(a, LinuxCncEoffset)]
-        if len(offsets) > 1 or any(n in self.channels for n in offsets):
-            raise BadAddress("one eoffset address at most, and only as an output",
-                             channel=offsets[-1])
+        _one_eoffset_per_axis(self.channels, self.outputs)
         long = long_hal_name(component, {**self.channels, **self.outputs})
         if long is not None:
             raise BadAddress(long[1], channel=long[0])
@@ -166,8 +181,9 @@ class LinuxCncDriver(LinkedDriver):
         self.connect_timeout_s = connect_timeout_s
         self.component = component
         self.python = python
-        #: axis.L.eoffset-scale as LinuxCNC reported it at the last connect
-        self.eoffset_scale: float | None = None
+        #: axis.L.eoffset-scale of each eoffset output (by its name) as LinuxCNC
+        #: reported it at the last connect
+        self.eoffset_scales: dict[str, float] = {}
         self._lock = asyncio.Lock()
         #: a lost HAL side still ending (`_drop`)
         self._ending: asyncio.Future[None] | None = None
@@ -181,7 +197,7 @@ class LinuxCncDriver(LinkedDriver):
     def _spec(self) -> dict[str, Any]:
         pins: list[dict[str, Any]] = []
         gets: list[dict[str, Any]] = []
-        eoffset: dict[str, Any] | None = None
+        eoffsets: list[dict[str, Any]] = []
         for role, table in (("in", self.channels), ("out", self.outputs)):
             for name, a in table.items():
                 if isinstance(a, LinuxCncGet):
@@ -191,13 +207,13 @@ class LinuxCncDriver(LinkedDriver):
                     pins.append({"name": name, "pin": a.pin, "net": a.net, "type": a.type,
                                  "dir": role, "invert": a.invert})
                 else:
-                    eoffset = {"name": name, "axis": a.axis, "counts_pin": "eoffset-counts",
-                               "counts_net": a.counts_net, "enable_pin": "eoffset-enable",
-                               "enable_net": a.enable_net, "scale": a.scale,
-                               "eoffset_scale": a.eoffset_scale,
-                               "wait_s": 0.5 * self.timeout_s}
-        return {"component": self.component, "pins": pins, "eoffset": eoffset, "gets": gets,
-                "max_left": MAX_LEFT_BEHIND}
+                    counts_pin, enable_pin = a.pins
+                    eoffsets.append({"name": name, "axis": a.axis, "counts_pin": counts_pin,
+                                     "counts_net": a.counts_net, "enable_pin": enable_pin,
+                                     "enable_net": a.enable_net, "scale": a.scale,
+                                     "eoffset_scale": a.eoffset_scale})
+        return {"component": self.component, "pins": pins, "eoffsets": eoffsets,
+                "gets": gets, "wait_s": 0.5 * self.timeout_s, "max_left": MAX_LEFT_BEHIND}
 
     async def _start(self) -> _Session:
         """The HAL side (the link runs this in a task of its own: starting a Python
@@ -222,7 +238,8 @@ class LinuxCncDriver(LinkedDriver):
         if "ready" not in hello:
             await session.end()
             raise _error(hello, f"connect to LinuxCNC HAL as {self.component!r}")
-        self.eoffset_scale = hello.get("eoffset_scale") or None
+        self.eoffset_scales = {str(n): float(v)
+                               for n, v in (hello.get("eoffset_scales") or {}).items()}
         return session
 
     async def _drop(self, session: _Session, closing: bool) -> None:

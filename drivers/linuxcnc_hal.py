@@ -15,10 +15,10 @@ version) does not have to load LinuxCNC's extension module. Why a process:
   signal's value when its writer goes): the offset is held.
 
 SPEC (JSON, one argument): ``{"component": "compd", "pins": [{"name",
-"pin", "net", "type", "dir", "invert"}], "eoffset": {"name", "axis",
+"pin", "net", "type", "dir", "invert"}], "eoffsets": [{"name", "axis",
 "counts_pin", "counts_net", "enable_pin", "enable_net", "scale",
-"eoffset_scale", "wait_s"} | null, "gets": [{"name", "hal", "scale", "invert"}],
-"max_left": n}`` (``max_left``: how many components of killed HAL sides it steps
+"eoffset_scale"}] (one per axis), "gets": [{"name", "hal", "scale", "invert"}],
+"wait_s": s, "max_left": n}`` (``max_left``: how many components of killed HAL sides it steps
 around, `Component._create`)
 (``gets``: read-only, any HAL pin or signal by name, as ``halcmd getp``). Each pin is created as
 ``<component>.<pin>`` and joined to the signal ``net`` (which the machine's
@@ -28,9 +28,9 @@ Requests, one JSON line each on stdin, one JSON line answers on stdout:
 ``{"r": [names]}`` -> ``{"v": {name: value}}``; ``{"w": {name: value}}`` ->
 ``{"ok": 1}``. A failure answers ``{"e": message, "k": kind, "n": name}``
 with kind ``bad_address`` | ``rejected`` | ``timeout`` | ``lost``.
-The first line written is ``{"ready": 1, "eoffset_scale": s}`` or a failure.
+The first line written is ``{"ready": 1, "eoffset_scales": {name: s}}`` or a failure.
 
-The external offset (``eoffset``) is incremental in LinuxCNC:
+An external offset (``eoffset``, one per axis) is incremental in LinuxCNC:
 ``axis.L.eoffset-counts`` is read like a hand wheel, each change times
 ``axis.L.eoffset-scale`` is added to the offset while the machine is on,
 homed and ``eoffset-enable`` is true, and LinuxCNC zeroes the offset at
@@ -41,7 +41,9 @@ took it; a servo thread later than ``wait_s`` is a transient refusal, and the
 next write counts from what LinuxCNC will hold once it takes the change. While
 LinuxCNC does not take changes (machine off, E-stop, not homed) the counts are
 left alone and the write is refused (``rejected``): no change is queued that
-would jump the offset at machine on. The offset
+would jump the offset at machine on. The offsets of one write (X and Z) are
+changed together and waited for together: the servo thread takes them in
+the same period. The offset
 read back is ``axis.L.eoffset`` (what motion applies) in counts, or the offset
 requested while motion clips it at a soft limit (`Component._offset`).
 """
@@ -94,28 +96,32 @@ class Component:
         self.gets: dict[str, tuple[str, float, bool]] = {
             g["name"]: (g["hal"], float(g.get("scale", 1.0)), bool(g.get("invert")))
             for g in spec.get("gets", [])}
-        self.eo: dict[str, Any] | None = spec.get("eoffset")
-        if self.eo is not None:
-            self.comp.newpin(self.eo["counts_pin"], hal.HAL_S32, hal.HAL_OUT)
-            self.comp.newpin(self.eo["enable_pin"], hal.HAL_BIT, hal.HAL_OUT)
+        #: the external offsets by name, one per axis
+        self.eos: dict[str, dict[str, Any]] = {e["name"]: e for e in spec.get("eoffsets", [])}
+        self.wait_s = float(spec.get("wait_s", 0.25))
+        for eo in self.eos.values():
+            self.comp.newpin(eo["counts_pin"], hal.HAL_S32, hal.HAL_OUT)
+            self.comp.newpin(eo["enable_pin"], hal.HAL_BIT, hal.HAL_OUT)
         self.comp.ready()
         for p in spec["pins"]:
             self._join(p["pin"], p["net"], p["name"], drives=p["dir"] == "out")
-        self.eoffset_scale = 0.0
-        #: counts LinuxCNC will hold once its servo thread takes our last change (a
-        #: write that returned before it did), None when it holds what we wrote
-        self.expect: int | None = None
-        if self.eo is not None:
-            eo = self.eo
-            self.axis = f"axis.{eo['axis']}"
-            self.eoffset_scale = float(hal.get_value(f"{self.axis}.eoffset-scale"))
+        #: per offset name: axis.L.eoffset-scale as LinuxCNC holds it
+        self.eoffset_scales: dict[str, float] = {}
+        #: per offset name: the counts LinuxCNC will hold once its servo thread takes
+        #: our last change (a write that returned before it did); absent when it
+        #: holds what we wrote
+        self.expect: dict[str, int] = {}
+        for eo in self.eos.values():
+            axis = f"axis.{eo['axis']}"
+            scale = float(hal.get_value(f"{axis}.eoffset-scale"))
             want = eo.get("eoffset_scale")
-            if not self.eoffset_scale:
-                raise Refused(f"{self.axis}.eoffset-scale is 0: set it in the HAL file "
-                              f"(setp {self.axis}.eoffset-scale ...)", "bad_address", eo["name"])
-            if want is not None and abs(want - self.eoffset_scale) > 1e-9 * abs(want):
-                raise Refused(f"{self.axis}.eoffset-scale is {self.eoffset_scale:g}, the "
+            if not scale:
+                raise Refused(f"{axis}.eoffset-scale is 0: set it in the HAL file "
+                              f"(setp {axis}.eoffset-scale ...)", "bad_address", eo["name"])
+            if want is not None and abs(want - scale) > 1e-9 * abs(want):
+                raise Refused(f"{axis}.eoffset-scale is {scale:g}, the "
                               f"config says {want:g}", "bad_address", eo["name"])
+            self.eoffset_scales[eo["name"]] = scale
             # start from what the counts signal holds (a restart: the last counts written)
             counts = hal.get_value(eo["counts_net"]) if self._has_signal(eo["counts_net"]) else 0
             self.comp[eo["counts_pin"]] = int(counts)
@@ -211,13 +217,15 @@ class Component:
                     out[name] = float((not raw) if invert else raw) * scale
                 except Exception as exc:
                     raise Refused(f"no HAL item {what!r}: {exc}", "bad_address", name) from exc
-            elif self.eo is not None and name == self.eo["name"]:
-                out[name] = self._offset() / self.eoffset_scale * self.eo["scale"]
+            elif name in self.eos:
+                eo = self.eos[name]
+                out[name] = (self._offset(eo["axis"]) / self.eoffset_scales[name]
+                             * eo["scale"])
             else:
                 raise Refused("unknown channel or output name", "bad_address", name)
         return out
 
-    def _offset(self) -> float:
+    def _offset(self, axis: str) -> float:
         """The offset LinuxCNC holds (machine units): what motion applies
         (``axis.L.eoffset``), or, while motion clips it at a soft limit
         (``motion.eoffset-limited``), what it was asked for (``eoffset-request``):
@@ -227,15 +235,15 @@ class Component:
         except Exception:  # a LinuxCNC without the pin: what motion applies
             limited = False
         what = "eoffset-request" if limited else "eoffset"
-        return float(self.hal.get_value(f"{self.axis}.{what}"))
+        return float(self.hal.get_value(f"axis.{axis}.{what}"))
 
     # -- write ------------------------------------------------------------------
 
     def write(self, values: dict[str, float]) -> None:
         # the pins first: a refused offset (machine off) still lets the heartbeat
         # and the status word through
-        eo_name = self.eo["name"] if self.eo is not None else None
-        for name, value in sorted(values.items(), key=lambda kv: kv[0] == eo_name):
+        offsets: dict[str, float] = {}
+        for name, value in values.items():
             p = self.pins.get(name)
             if p is not None:
                 if p["dir"] != "out":
@@ -243,10 +251,12 @@ class Component:
                 t = p["type"]
                 self.comp[p["pin"]] = (bool(value) != bool(p.get("invert")) if t == "bit"
                                        else float(value) if t == "float" else round(value))
-            elif self.eo is not None and name == self.eo["name"]:
-                self._write_offset(float(value))
+            elif name in self.eos:
+                offsets[name] = float(value)
             else:
                 raise Refused("unknown output name (not writable)", "bad_address", name)
+        if offsets:
+            self._write_offsets(offsets)
 
     def _accepting(self) -> str | None:
         """Why LinuxCNC takes no offset change now, None when it does."""
@@ -257,43 +267,52 @@ class Component:
             return "machine not homed"
         return None
 
-    def _write_offset(self, value: float) -> None:
-        eo = self.eo
-        assert eo is not None
-        want = round(value / eo["scale"])
+    def _requested(self, name: str) -> int:
+        """The counts axis.L.eoffset-request of offset `name` holds now."""
+        axis = self.eos[name]["axis"]
+        now = float(self.hal.get_value(f"axis.{axis}.eoffset-request"))
+        return round(now / self.eoffset_scales[name])
+
+    def _write_offsets(self, values: dict[str, float]) -> None:
+        """Each offset's change of counts, made together, then waited for together."""
+        first = min(values)
         why = self._accepting()
         if why is not None:
-            self.expect = None  # a change not taken before the machine went off is lost
-            raise Refused(f"LinuxCNC takes no external offset now: {why}", "rejected",
-                          eo["name"])
-        q = self.eoffset_scale
-        held = round(float(self.hal.get_value(f"{self.axis}.eoffset-request")) / q)
-        if self.expect is not None and held != self.expect:
-            held = self.expect  # our last change is still on its way: LinuxCNC will hold it
-        self.expect = None
-        delta = want - held
-        if delta == 0:
-            return
-        pin = eo["counts_pin"]
-        self.comp[pin] = int(self.comp[pin]) + delta
-        self.expect = want
-        # the servo thread adds the change within a period: wait until it has, so
+            self.expect.clear()  # a change not taken before the machine went off is lost
+            raise Refused(f"LinuxCNC takes no external offset now: {why}", "rejected", first)
+        wanted: dict[str, int] = {}
+        for name, value in sorted(values.items()):
+            eo = self.eos[name]
+            want = round(value / eo["scale"])
+            held = self._requested(name)
+            expect = self.expect.pop(name, None)
+            if expect is not None and held != expect:
+                held = expect  # our last change is still on its way: LinuxCNC will hold it
+            delta = want - held
+            if delta == 0:
+                continue
+            pin = eo["counts_pin"]
+            self.comp[pin] = int(self.comp[pin]) + delta
+            self.expect[name] = want
+            wanted[name] = want
+        # the servo thread adds the changes within a period: wait until it has, so
         # that the write reports what LinuxCNC took
-        deadline = time.monotonic() + eo["wait_s"]
-        while True:
-            now = float(self.hal.get_value(f"{self.axis}.eoffset-request"))
-            if round(now / q) == want:
-                self.expect = None
+        deadline = time.monotonic() + self.wait_s
+        while wanted:
+            for name in [n for n, w in wanted.items() if self._requested(n) == w]:
+                del wanted[name]
+                del self.expect[name]
+            if not wanted:
                 return
             if self._accepting() is not None:
-                self.expect = None
+                self.expect.clear()
                 raise Refused("LinuxCNC stopped taking the external offset during the write",
-                              "rejected", eo["name"])
+                              "rejected", min(wanted))
             if time.monotonic() > deadline:
                 # a servo thread late (a loaded machine without a realtime kernel): a
                 # transient refusal, the link stays; the next write counts from `expect`
                 raise Refused(f"LinuxCNC's servo thread did not take the offset within "
-                              f"{eo['wait_s']:g} s", "rejected", eo["name"])
+                              f"{self.wait_s:g} s", "rejected", min(wanted))
             time.sleep(0.0002)
 
 
@@ -381,7 +400,7 @@ def main() -> int:
     except Exception as exc:  # HAL refused a pin (its stderr says why), or went away
         _answer({"e": f"{type(exc).__name__}: {exc}", "k": "lost", "n": None})
         return 2
-    _answer({"ready": 1, "eoffset_scale": comp.eoffset_scale})
+    _answer({"ready": 1, "eoffset_scales": comp.eoffset_scales})
     with contextlib.suppress(KeyboardInterrupt):
         _serve(comp)
     return 0

@@ -15,6 +15,7 @@ compd is a HAL user-space component (`drivers.linuxcnc`), named
   ``axis.L.eoffset-enable``) and reads back ``axis.L.eoffset``; the value is
   counts × ``scale`` (controller units per count), and ``eoffset_scale``,
   when given, must equal ``axis.L.eoffset-scale`` (machine units per count).
+  One per axis (X, Y, Z... each with signals of its own), outputs only.
 - ``get`` (read only): any HAL pin or signal by name (``motion.motion-enabled``),
   read as ``halcmd getp`` does, without a ``net`` line.
 """
@@ -45,7 +46,8 @@ HAL_NAME_LEN = 47
 MAX_LEFT_BEHIND = 20
 #: the longest suffix a restarted HAL side adds to the component's name
 RESTART_SUFFIX = f"-{MAX_LEFT_BEHIND + 1}"
-#: the pins compd makes for an external offset (`drivers.linuxcnc`)
+#: the pins compd makes for Z's external offset (`drivers.linuxcnc`; another axis's:
+#: `LinuxCncEoffset.pins`)
 EOFFSET_PINS = ("eoffset-counts", "eoffset-enable")
 #: names of LinuxCNC's own components and of the pins it makes (motion's
 #: ``spindle.0.speed-out``, ``axis.z.eoffset``...): a compd component of such a name
@@ -76,7 +78,7 @@ def pin_names(addresses: Mapping[str, object]) -> dict[str, str]:
         if isinstance(a, LinuxCncPin):
             pins[name] = a.pin
         elif isinstance(a, LinuxCncEoffset):
-            pins[name] = max(EOFFSET_PINS, key=len)
+            pins[name] = max(a.pins, key=len)
     return pins
 
 

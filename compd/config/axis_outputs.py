@@ -41,6 +41,19 @@ FOCAS) takes an axis as one offset evaluated at the axis's present position
 
 The offset address is checked as the others, against the most the line can
 reach over the position channel's range (`PositionalAxis.offset_limit_um`).
+On LinuxCNC (no such parameters: `NO_PARAMETERS`, the parameter form is
+refused) the offset is the axis's own external offset, one writer per axis::
+
+    [channels.x_pos]
+    address = { kind = "get", hal = "axis.x.pos-cmd" }
+    unit = "mm"
+    range = [-100.0, 100.0]
+    stale_after_s = 5.0
+
+    [output.axes.x]
+    position = "x_pos"
+    offset = { kind = "eoffset", axis = "x", counts_net = "compd-x-eoffset-counts",
+               enable_net = "compd-x-eoffset-enable", scale = 0.1 }
 
 On a SINUMERIK (OPC UA, S7) the tool direction takes a value alone, the
 per-channel SD42960 ``$SC_TOOL_TEMP_COMP`` (mm) that the controller applies
@@ -71,7 +84,7 @@ from typing import TYPE_CHECKING, Any
 from compd.config.address_check import quantum, validate_address
 from compd.config.output_range import check_range
 from compd.errors import ConfigError
-from drivers.addresses import Address, ModbusAddress
+from drivers.addresses import Address, LinuxCncEoffset, ModbusAddress
 from drivers.footprint import first_clash
 from drivers.temp_comp import (
     AXES,
@@ -236,9 +249,6 @@ def parse_axis_outputs(protocol: str, table: Mapping[str, Any], *,
     (``output.offset``, ``channels.bearing.address``), which no axis parameter
     may overlap; `positions` the channels in mm an axis may read its position
     from. `ConfigError` names the key."""
-    if protocol in NO_PARAMETERS and table:
-        raise ConfigError(key, f"a {protocol} controller has no temperature-compensation "
-                               "parameters per axis")
     addresses: dict[str, AxisAddresses] = {}
     limits: dict[str, AxisLimits] = {}
     refs: dict[str, float] = {}
@@ -260,8 +270,15 @@ def parse_axis_outputs(protocol: str, table: Mapping[str, Any], *,
             refs[axis] = 0.0
             quanta[axis] = (tool.quantum_um, 0.0)
             continue
+        if "position" not in doc and protocol in NO_PARAMETERS:
+            raise ConfigError(at, f"a {protocol} controller has no temperature-compensation "
+                                  "parameters per axis: write the axis as an offset at its "
+                                  "position (position = a channel, offset = an eoffset "
+                                  f"address with axis = \"{axis}\")")
         if "position" in doc:
             positional[axis] = _positional(protocol, at, doc, positions or {}, uses)
+            if protocol == "linuxcnc":
+                _own_eoffset(at, axis, positional[axis].offset, others or {})
             stages[axis] = _stage(at, doc, positional[axis].limits)
             refs[axis] = _number(f"{at}.reference_mm", doc.get("reference_mm", 0.0),
                                  positive=False)
@@ -374,6 +391,23 @@ def _positional(protocol: str, at: str, doc: Mapping[str, Any],
                 unit=" µm")
     uses.extend(addr.uses(f"{at}.offset", written=True))
     return PositionalAxis(addr, name, lim, bound, quantum(addr))
+
+
+def _own_eoffset(at: str, axis: str, addr: Address, others: Mapping[str, Address]) -> None:
+    """On LinuxCNC an axis's offset is that axis's external offset, and no other
+    output (``output.offset``) writes it: two writers would each count against the
+    other's changes. (Two axes cannot share one: each names its own axis.)"""
+    if not isinstance(addr, LinuxCncEoffset):
+        raise ConfigError(f"{at}.offset", f"on LinuxCNC an axis's offset is its external "
+                          f"offset: kind = \"eoffset\", axis = \"{axis}\"")
+    if addr.axis != axis:
+        raise ConfigError(f"{at}.offset.axis", f"must be {axis!r} (the external offset of "
+                          f"the axis it compensates), got {addr.axis!r}")
+    for key, other in others.items():
+        if (key.startswith("output.") and isinstance(other, LinuxCncEoffset)
+                and other.axis == axis):
+            raise ConfigError(f"{at}.offset", f"axis {axis.upper()}'s external offset is "
+                              f"written by {key} already: one eoffset per axis")
 
 
 def _stage(at: str, doc: Mapping[str, Any], lim: AxisLimits) -> AxisStage:

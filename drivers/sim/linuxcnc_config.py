@@ -1,7 +1,8 @@
 """The test mill's LinuxCNC configuration, as text and as files: compd's HAL lines
 (`hal_lines`, `HAL_LINES`: the file a user adds, docs/protocols.md), the HAL lines that
 let G-code permit offset changes and re-zero (`mcode_hal_lines`), and the INI of a small
-XYZ mill with simulated joints and Z external offsets (`write_config` writes them all).
+XYZ mill with simulated joints and X and Z external offsets (`write_config` writes
+them all; `x_eoffset_hal_lines`: X's).
 The machine that runs it is `drivers.sim.linuxcnc_machine`."""
 
 from __future__ import annotations
@@ -32,6 +33,18 @@ newsig {prefix}-status s32
 
 #: the HAL file of docs/protocols.md
 HAL_LINES = hal_lines()
+
+
+def x_eoffset_hal_lines(prefix: str = "compd") -> str:
+    """The HAL lines for an external offset of X too (an ``[output.axes.x]`` at its
+    position, docs/protocols.md): its own signals, in the counts of Z's."""
+    return f"""\
+# compd: external offset of X in counts of {COUNT_UM} µm
+setp axis.x.eoffset-scale {COUNT_UM / 1000.0:g}
+net {prefix}-x-eoffset-counts => axis.x.eoffset-counts
+net {prefix}-x-eoffset-enable => axis.x.eoffset-enable
+"""
+
 
 #: motion's digital outputs G-code sets (``M64 P<n>`` on, ``M65 P<n>`` off) that the
 #: test machine's HAL joins to compd's ``[output] update_permitted`` and ``rezero``
@@ -89,7 +102,7 @@ JOINTS = 3
 KINEMATICS = trivkins coordinates=XYZ
 """ + "".join(f"""
 [AXIS_{a}]
-{"OFFSET_AV_RATIO = 0.2" if a == "Z" else ""}
+{"OFFSET_AV_RATIO = 0.2" if a in "XZ" else ""}
 MAX_VELOCITY = 50
 MAX_ACCELERATION = 500
 MIN_LIMIT = -100
@@ -106,8 +119,9 @@ MAX_ACCELERATION = 500
 def write_config(folder: Path, prefix: str = "compd") -> Path:
     """The machine's configuration in `folder` (compd's signals ``<prefix>-...``);
     returns the INI file."""
-    (folder / "compd.hal").write_text(hal_lines(prefix) + mcode_hal_lines(prefix),
-                                      encoding="utf-8")
+    (folder / "compd.hal").write_text(
+        hal_lines(prefix) + x_eoffset_hal_lines(prefix) + mcode_hal_lines(prefix),
+        encoding="utf-8")
     (folder / "tool.tbl").write_text("T1 P1 D6.0 Z0 ;\n", encoding="utf-8")
     (folder / "sim.var").write_text("", encoding="utf-8")
     ini = folder / "compd-test.ini"

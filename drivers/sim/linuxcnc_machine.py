@@ -1,8 +1,8 @@
 """A real LinuxCNC, headless, as the simulated machine's controller.
 
 Not a stand-in: LinuxCNC itself (Debian's ``linuxcnc-uspace``) runs a small
-mill (XYZ, mm, trivkins, simulated joints, Z external offsets at
-``OFFSET_AV_RATIO`` 0.2) from a configuration written to a work folder, with
+mill (XYZ, mm, trivkins, simulated joints, X and Z external offsets at
+``OFFSET_AV_RATIO`` 0.2; X's: `x_offset`) from a configuration written to a work folder, with
 the ``dummy`` display (it waits on its stdin: closing it shuts LinuxCNC
 down). The plant's side is a second HAL component, ``<prefix>-plant``
 (`drivers.linuxcnc.LinuxCncDriver` with output pins), driving the sensor
@@ -139,6 +139,13 @@ class LinuxCncSimController:
                                       enable_net=f"{p}-eoffset-enable"),
             "heartbeat": LinuxCncPin(pin="heartbeat", net=f"{p}-heartbeat", type="s32"),
             "status": LinuxCncPin(pin="status", net=f"{p}-status", type="s32")}
+        #: X's external offset, on signals of its own (`x_eoffset_hal_lines`), and X's
+        #: position as LinuxCNC reports it (mm): an [output.axes.x] at its position
+        self.x_offset = LinuxCncEoffset(kind="eoffset", axis="x", scale=COUNT_UM,
+                                        eoffset_scale=COUNT_UM / 1000.0,
+                                        counts_net=f"{p}-x-eoffset-counts",
+                                        enable_net=f"{p}-x-eoffset-enable")
+        self.x_position = LinuxCncGet(kind="get", hal="axis.x.pos-cmd")
         #: the controller's state for [output] machine_on / estop / homed
         self.states: dict[str, Any] = {
             "machine_on": LinuxCncGet(kind="get", hal="motion.motion-enabled"),
@@ -172,6 +179,10 @@ class LinuxCncSimController:
                     "offset_um": LinuxCncGet(kind="get", hal="axis.z.eoffset", scale=1000.0),
                     "request_um": LinuxCncGet(kind="get", hal="axis.z.eoffset-request",
                                               scale=1000.0),
+                    "x_offset_um": LinuxCncGet(kind="get", hal="axis.x.eoffset", scale=1000.0),
+                    "x_request_um": LinuxCncGet(kind="get", hal="axis.x.eoffset-request",
+                                                scale=1000.0),
+                    "x_pos_mm": LinuxCncGet(kind="get", hal="axis.x.pos-cmd"),
                     "spindle_rpm": LinuxCncGet(kind="get", hal="spindle.0.speed-out"),
                     "heartbeat": LinuxCncPin(pin="heartbeat", net=f"{self.prefix}-heartbeat",
                                              type="s32"),
@@ -310,6 +321,21 @@ class LinuxCncSimController:
             v = {n: s.value for n, s in got.items()}
             if abs(v["offset_um"] - v["request_um"]) < 1e-3 or time.monotonic() > end:
                 return {n: v[n] for n in ("offset_um", "heartbeat", "status")}
+            await asyncio.sleep(0.001)
+
+    async def settled_axes(self, deadline_s: float = SETTLE_DEADLINE_S) -> dict[str, float]:
+        """Once motion has applied both external offsets compd requested: X's and
+        Z's offsets applied (µm, ``x_offset_um``, ``offset_um``) and X's position
+        (mm, ``x_pos_mm``); a condition, bounded by `deadline_s`."""
+        assert self._plant is not None
+        end = time.monotonic() + deadline_s
+        names = ["offset_um", "request_um", "x_offset_um", "x_request_um", "x_pos_mm"]
+        while True:
+            v = {n: s.value for n, s in (await self._plant.read(names)).items()}
+            if ((abs(v["offset_um"] - v["request_um"]) < 1e-3
+                    and abs(v["x_offset_um"] - v["x_request_um"]) < 1e-3)
+                    or time.monotonic() > end):
+                return {n: v[n] for n in ("offset_um", "x_offset_um", "x_pos_mm")}
             await asyncio.sleep(0.001)
 
     async def outputs(self) -> dict[str, float]:

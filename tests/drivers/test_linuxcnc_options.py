@@ -57,10 +57,24 @@ def test_gets_are_read_only() -> None:
                        {"offset": LinuxCncGet(kind="get", hal="axis.z.eoffset")})
 
 
-def test_one_eoffset_and_only_as_an_output() -> None:
+def test_one_eoffset_per_axis_and_only_as_an_output() -> None:
     eo = LinuxCncEoffset(kind="eoffset")
-    with pytest.raises(BadAddress, match="one eoffset"):
+    with pytest.raises(BadAddress, match="output only"):
         LinuxCncDriver("linuxcnc://localhost", {"x": eo}, {})
+    x = LinuxCncEoffset(kind="eoffset", axis="x", counts_net="x-counts", enable_net="x-en")
+    y = LinuxCncEoffset(kind="eoffset", axis="y", counts_net="y-counts", enable_net="y-en")
+    driver = LinuxCncDriver("linuxcnc://localhost", {}, {"z_off": eo, "x_off": x, "y_off": y})
+    spec = driver._spec()
+    assert [(e["name"], e["axis"], e["counts_pin"], e["counts_net"])
+            for e in spec["eoffsets"]] == [
+        ("z_off", "z", "eoffset-counts", "compd-eoffset-counts"),
+        ("x_off", "x", "eoffset-x-counts", "x-counts"),
+        ("y_off", "y", "eoffset-y-counts", "y-counts")]
+    # two writers of X's offset: refused, naming the second and the first
+    x2 = LinuxCncEoffset(kind="eoffset", axis="x", counts_net="x2-counts", enable_net="x2-en")
+    with pytest.raises(BadAddress, match=r"'x_again' and 'x_off'.*axis X") as info:
+        LinuxCncDriver("linuxcnc://localhost", {}, {"x_off": x, "x_again": x2})
+    assert info.value.channels == ("x_again",)
 
 
 def test_hal_is_local() -> None:

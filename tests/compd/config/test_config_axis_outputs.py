@@ -9,9 +9,9 @@ from typing import Any
 
 import pytest
 
-from compd.config.axis_outputs import parse_axis_outputs
+from compd.config.axis_outputs import PositionChannel, parse_axis_outputs
 from compd.errors import ConfigError
-from drivers.addresses import ModbusAddress
+from drivers.addresses import LinuxCncEoffset, ModbusAddress
 from drivers.sim.modbus_server import TEMP_COMP as MODBUS_SIM
 from drivers.sim.opcua_server import OpcUaSimController
 from drivers.temp_comp import AxisCompensation, CompensationRefused
@@ -97,5 +97,42 @@ def test_no_parameter_may_overlap_the_offset() -> None:
 
 
 def test_linuxcnc_has_no_parameters() -> None:
-    with pytest.raises(ConfigError, match=r"^output\.axes: a linuxcnc controller has no"):
+    with pytest.raises(ConfigError, match=r"^output\.axes\.x: a linuxcnc controller has no"):
         parse_axis_outputs("linuxcnc", {"x": {}})
+
+
+def _linuxcnc_x(**offset: object) -> dict[str, object]:
+    return {"position": "x_pos", "value_limit_um": 50.0, "slope_limit_um_m": 20.0,
+            "offset": {"kind": "eoffset", "axis": "x", "counts_net": "compd-x-counts",
+                       "enable_net": "compd-x-enable", "scale": 0.1, **offset}}
+
+
+LINUXCNC_POSITIONS = {"x_pos": PositionChannel((-100.0, 100.0), 5.0)}
+
+
+def test_linuxcnc_takes_an_axis_at_its_position_as_its_eoffset() -> None:
+    z = LinuxCncEoffset(kind="eoffset", axis="z")
+    found = parse_axis_outputs("linuxcnc", {"x": _linuxcnc_x()}, others={"output.offset": z},
+                               positions=LINUXCNC_POSITIONS)
+    offset = found.positional["x"].offset
+    assert isinstance(offset, LinuxCncEoffset) and offset.axis == "x"
+    assert found.driver_outputs()["x_comp_offset"] is offset
+    # the parameter form is refused, naming the axis
+    with pytest.raises(ConfigError, match=r"^output\.axes\.x: a linuxcnc controller"):
+        parse_axis_outputs("linuxcnc", {"x": {k: v for k, v in _linuxcnc_x().items()
+                                              if k != "position"}})
+    # another axis's external offset, or not an external offset at all
+    with pytest.raises(ConfigError, match=r"^output\.axes\.x\.offset\.axis: must be 'x'"):
+        parse_axis_outputs("linuxcnc", {"x": _linuxcnc_x(axis="y")},
+                           positions=LINUXCNC_POSITIONS)
+    pin = {"position": "x_pos", "value_limit_um": 50.0, "slope_limit_um_m": 20.0,
+           "offset": {"pin": "x-off", "net": "compd-x-off"}}
+    with pytest.raises(ConfigError, match=r"^output\.axes\.x\.offset: on LinuxCNC"):
+        parse_axis_outputs("linuxcnc", {"x": pin}, positions=LINUXCNC_POSITIONS)
+    # Z's external offset already written by [output] offset: one writer per axis
+    z_axis = {**_linuxcnc_x(axis="z", counts_net="compd-z2-counts",
+                            enable_net="compd-z2-enable"), "position": "x_pos"}
+    with pytest.raises(ConfigError, match=r"^output\.axes\.z\.offset: axis Z's external "
+                                          r"offset is written by output\.offset"):
+        parse_axis_outputs("linuxcnc", {"z": z_axis}, others={"output.offset": z},
+                           positions=LINUXCNC_POSITIONS)

@@ -1,0 +1,338 @@
+"""X and Z compensated at once on a real, headless LinuxCNC
+(`drivers.sim.linuxcnc_machine`): each axis's external offset (``axis.x.eoffset``,
+``axis.z.eoffset``) driven by compd's HAL component in the same write, X's offset
+evaluated at X's position as LinuxCNC reports it (``axis.x.pos-cmd``).
+
+The cycle is built from a config (``[output] offset`` Z's external offset,
+``[output.axes.x]`` at the position channel ``x_pos`` with X's external offset) and
+runs over the real driver, as `tests.compd.runtime.test_axes_position_modbus` does on
+Modbus; everything is checked on LinuxCNC's side (``axis.L.eoffset``).
+
+One LinuxCNC for the module, held under the machine's LinuxCNC lock
+(`drivers.sim.linuxcnc_host`); skipped with the reason where ``linuxcnc-uspace``
+is absent or a LinuxCNC this run did not start runs. X is moved by MDI lines (each
+runs to its end before the cycle reads). The figures are printed: ``-s`` shows them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import AsyncIterator
+from pathlib import Path
+
+import pytest
+import pytest_asyncio
+
+from compd.config.loader import LoadedConfig, load_config
+from compd.core.cycle import WRITTEN, Cycle
+from compd.core.health import Cause
+from compd.core.params import params_from_config
+from compd.core.plan import Plan, Row
+from compd.runtime.driver_setup import build_driver
+from drivers.base import Driver, Quality
+from drivers.linuxcnc import LinuxCncDriver
+from drivers.sim.linuxcnc_machine import (
+    COUNT_UM,
+    ForeignLinuxCnc,
+    LinuxCncBusy,
+    LinuxCncSimController,
+    unavailable,
+)
+from drivers.sim.machine import SimMachine
+from drivers.sim.programs import constant
+from tests.harness import Lockstep
+
+WHY_NOT = unavailable()
+pytestmark = [pytest.mark.skipif(WHY_NOT is not None, reason=str(WHY_NOT)),
+              pytest.mark.asyncio(loop_scope="module"),
+              pytest.mark.timeout(300, func_only=True)]
+
+#: how close motion's external offset planner comes to the request before it stops
+SETTLED_UM = 1e-3
+PERIOD_S = 60.0
+#: the models: Z 2 µm/K of the column; X's value 1.5 µm/K of the column, its slope
+#: 20 µm/m per K of the bearing, each from 20 °C, reference position 0 mm
+KZ, KX, KS, T0 = 2.0, 1.5, 20.0, 20.0
+
+CONFIG = """
+[machine]
+name = "xz"
+period_s = {period_s}
+time_scale = 1.0
+
+[controller]
+protocol = "linuxcnc"
+endpoint = "linuxcnc://localhost"
+timeout_s = 10.0
+connect_timeout_s = 60.0
+
+[controller.linuxcnc]
+component = "{component}"
+
+[channels.column]
+address = {{ pin = "column", net = "{p}-column" }}
+unit = "degC"
+range = [-20.0, 150.0]
+
+[channels.bearing]
+address = {{ pin = "bearing", net = "{p}-bearing" }}
+unit = "degC"
+range = [-20.0, 150.0]
+
+[channels.x_pos]
+address = {{ kind = "get", hal = "axis.x.pos-cmd" }}
+unit = "mm"
+range = [-100.0, 100.0]
+stale_after_s = 600.0
+
+[model]
+reference = {{ column = {t0} }}
+[[model.terms]]
+name = "z"
+inputs = {{ column = {kz} }}
+a = ["1"]
+b = ["1"]
+
+[output]
+heartbeat = {{ pin = "heartbeat", net = "{p}-heartbeat", type = "s32" }}
+status = {{ pin = "status", net = "{p}-status", type = "s32" }}
+limit_um = 100.0
+slew_um_s = 10.0
+
+[output.offset]
+kind = "eoffset"
+axis = "z"
+scale = {count}
+counts_net = "{p}-eoffset-counts"
+enable_net = "{p}-eoffset-enable"
+
+[output.axes.x]
+position = "x_pos"
+reference_mm = 0.0
+value_limit_um = 100.0
+slope_limit_um_m = 200.0
+slew_um_s = 10.0
+slope_slew_um_m_s = 10.0
+
+[output.axes.x.offset]
+kind = "eoffset"
+axis = "x"
+scale = {count}
+counts_net = "{p}-x-eoffset-counts"
+enable_net = "{p}-x-eoffset-enable"
+
+[output.axes.x.model]
+reference = {{ column = {t0} }}
+[[output.axes.x.model.terms]]
+name = "value"
+inputs = {{ column = {kx} }}
+a = ["1"]
+b = ["1"]
+
+[output.axes.x.slope_model]
+reference = {{ bearing = {t0} }}
+[[output.axes.x.slope_model.terms]]
+name = "slope"
+inputs = {{ bearing = {ks} }}
+a = ["1"]
+b = ["1"]
+
+[faults]
+hold_s = 600.0
+
+[state]
+dir = "state"
+checkpoint_every = 1
+
+[recorder]
+enabled = false
+"""
+
+
+def _config(sim: LinuxCncSimController, tmp_path: Path) -> LoadedConfig:
+    p = tmp_path / "compd.toml"
+    p.write_text(CONFIG.format(period_s=PERIOD_S, component=sim.component, p=sim.prefix,
+                               t0=T0, kz=KZ, kx=KX, ks=KS, count=COUNT_UM), encoding="utf-8")
+    return load_config(p)
+
+
+async def _cycle(driver: Driver, cycle: Cycle, cfg: LoadedConfig,
+                 t: float) -> tuple[Plan, Row]:
+    names = [*cfg.channels, "offset", *cycle.axes.names]
+    got = await driver.read(names)
+    samples = {n: got[n] for n in cfg.channels}
+    rb = {n: (s.value if (s := got.get(n)) is not None and s.quality is not Quality.BAD
+              else None) for n in cycle.axes.names}
+    plan = cycle.plan(t, samples, got["offset"].value, axes_readback=rb)
+    await driver.write(plan.writes)
+    return plan, cycle.commit(WRITTEN)
+
+
+@pytest_asyncio.fixture(scope="module", loop_scope="module")
+async def lcnc() -> AsyncIterator[LinuxCncSimController]:
+    sim = LinuxCncSimController()
+    try:
+        await sim.start()
+    except (ForeignLinuxCnc, LinuxCncBusy) as exc:
+        pytest.skip(str(exc))
+    try:
+        yield sim
+    finally:
+        await sim.stop()
+
+
+async def test_x_and_z_eoffsets_are_written_together(lcnc: LinuxCncSimController) -> None:
+    """One driver, one write: X's and Z's external offsets both applied, each on its
+    own signals and counts, and each read back on its own axis."""
+    outputs = {"offset": lcnc.outputs_map["offset"], "x_offset": lcnc.x_offset}
+    driver = LinuxCncDriver(lcnc.endpoint, {"x_pos": lcnc.x_position}, outputs,
+                            timeout_s=10.0, connect_timeout_s=60.0, component=lcnc.component)
+    try:
+        await driver.connect()
+        assert driver.eoffset_scales == pytest.approx({"offset": 1e-4, "x_offset": 1e-4})
+        await driver.write({"offset": 4.2, "x_offset": -7.3})
+        hal = await lcnc.settled_axes()
+        assert hal["offset_um"] == pytest.approx(4.2, abs=SETTLED_UM)
+        assert hal["x_offset_um"] == pytest.approx(-7.3, abs=SETTLED_UM)
+        got = await driver.read(["offset", "x_offset", "x_pos"])
+        assert got["offset"].value == pytest.approx(4.2, abs=SETTLED_UM)
+        assert got["x_offset"].value == pytest.approx(-7.3, abs=SETTLED_UM)
+        # X alone: Z keeps its offset
+        await driver.write({"x_offset": 2.5})
+        hal = await lcnc.settled_axes()
+        assert (hal["x_offset_um"], hal["offset_um"]) == pytest.approx((2.5, 4.2),
+                                                                      abs=SETTLED_UM)
+        await driver.write({"offset": 0.0, "x_offset": 0.0})
+        hal = await lcnc.settled_axes()
+        assert (hal["x_offset_um"], hal["offset_um"]) == pytest.approx((0.0, 0.0),
+                                                                      abs=SETTLED_UM)
+    finally:
+        await driver.close()
+
+
+async def test_x_at_its_position_and_z_compensated_at_once(
+        lcnc: LinuxCncSimController, tmp_path: Path) -> None:
+    """X's offset follows X as it moves (value + slope · x, at the position LinuxCNC
+    reports), Z's follows its model, both applied by LinuxCNC each cycle; a bearing
+    that reads NaN (X's slope model's input) holds X's line, and its offset with it,
+    while Z goes on."""
+    cfg = _config(lcnc, tmp_path)
+    cycle = Cycle(params_from_config(cfg), cfg.model)
+    assert set(cycle.axes.names) == {"x_comp_offset"}
+    driver = build_driver(cfg)
+    rows: list[dict[str, float]] = []
+    try:
+        await driver.connect()
+        t = 0.0
+        for i in range(12):
+            column, bearing = T0 + 0.8 * i, T0 + 0.5 * i
+            x = round(80.0 * math.sin(1.3 * i), 3)
+            await lcnc.control("mdi", f"G90 G0 X{x:.3f}")
+            await lcnc.publish({"column": column, "bearing": bearing})
+            t += PERIOD_S
+            plan, row = await _cycle(driver, cycle, cfg, t)
+            hal = await lcnc.settled_axes()
+            want_x = KX * (column - T0) + KS * (bearing - T0) * hal["x_pos_mm"] / 1000.0
+            want_z = KZ * (column - T0)
+            a = row.axes["x"]
+            assert a.cause == Cause.IN_FORCE, a
+            assert a.position_mm == pytest.approx(hal["x_pos_mm"], abs=1e-6)
+            assert plan.writes["x_comp_offset"] == pytest.approx(want_x, abs=COUNT_UM / 2 + 1e-9)
+            assert plan.writes["offset"] == pytest.approx(want_z, abs=COUNT_UM / 2 + 1e-9)
+            # LinuxCNC applies both, each on its own axis
+            assert hal["x_offset_um"] == pytest.approx(plan.writes["x_comp_offset"],
+                                                       abs=SETTLED_UM)
+            assert hal["offset_um"] == pytest.approx(plan.writes["offset"], abs=SETTLED_UM)
+            rows.append({"x_mm": hal["x_pos_mm"], "x_um": hal["x_offset_um"],
+                         "x_model_um": want_x, "z_um": hal["offset_um"],
+                         "z_model_um": want_z})
+        held_x = rows[-1]["x_um"]
+        z_before = rows[-1]["z_um"]
+        line = (row.axes["x"].value.stage, row.axes["x"].slope.stage)
+
+        # NaN on the bearing (X's slope input): X's line holds, its offset stays where
+        # it is, while Z goes on
+        await lcnc.publish({"column": T0 + 12.0, "bearing": math.nan})
+        t += PERIOD_S
+        plan, row = await _cycle(driver, cycle, cfg, t)
+        hal = await lcnc.settled_axes()
+        assert row.axes["x"].cause == Cause.INPUTS_INVALID and row.cause.healthy
+        assert hal["x_offset_um"] == pytest.approx(held_x, abs=SETTLED_UM)
+        assert plan.writes["offset"] == pytest.approx(KZ * 12.0, abs=COUNT_UM / 2 + 1e-9)
+        assert hal["offset_um"] == pytest.approx(plan.writes["offset"], abs=SETTLED_UM)
+        assert abs(hal["offset_um"] - z_before) > 1.0
+        # X moves under the held line: its offset is that line at the new position,
+        # as a controller applying its own line would; Z goes on
+        await lcnc.control("mdi", "G90 G0 X-30")
+        await lcnc.publish({"column": T0 + 13.0})
+        t += PERIOD_S
+        plan, row = await _cycle(driver, cycle, cfg, t)
+        hal = await lcnc.settled_axes()
+        a = row.axes["x"]
+        assert a.cause == Cause.INPUTS_INVALID
+        assert (a.value.stage, a.slope.stage) == line
+        assert hal["x_pos_mm"] == pytest.approx(-30.0, abs=1e-6)
+        assert hal["x_offset_um"] == pytest.approx(line[0] + line[1] * -30.0 / 1000.0,
+                                                   abs=COUNT_UM / 2 + SETTLED_UM)
+        assert hal["offset_um"] == pytest.approx(KZ * 13.0, abs=COUNT_UM / 2 + SETTLED_UM)
+        nan_figure = {"x_held_um": held_x, "x_at_minus_30_mm_um": hal["x_offset_um"],
+                      "z_um": [z_before, KZ * 12.0, hal["offset_um"]]}
+        # the bearing back: X's line follows its models again at its present position
+        await lcnc.publish({"bearing": T0 + 6.0})
+        t += PERIOD_S
+        plan, row = await _cycle(driver, cycle, cfg, t)
+        hal = await lcnc.settled_axes()
+        want_x = KX * 13.0 + KS * 6.0 * hal["x_pos_mm"] / 1000.0
+        assert row.axes["x"].cause == Cause.IN_FORCE
+        assert hal["x_offset_um"] == pytest.approx(want_x, abs=COUNT_UM / 2 + SETTLED_UM)
+        # back to zero for the next test
+        await driver.write({"offset": 0.0, "x_comp_offset": 0.0})
+        await lcnc.settled_axes()
+    finally:
+        await driver.close()
+        await lcnc.control("mdi", "G90 G0 X0")
+    worst_x = max(abs(r["x_um"] - r["x_model_um"]) for r in rows)
+    worst_z = max(abs(r["z_um"] - r["z_model_um"]) for r in rows)
+    print(json.dumps({"figure": "linuxcnc_x_and_z", "cycles": len(rows),
+                      "x_travel_mm": [min(r["x_mm"] for r in rows),
+                                      max(r["x_mm"] for r in rows)],
+                      "x_max_um": max(abs(r["x_um"]) for r in rows),
+                      "worst_x_vs_model_um": worst_x, "worst_z_vs_model_um": worst_z,
+                      "nan_bearing": nan_figure}))
+
+
+async def test_the_daemon_writes_x_and_z_on_linuxcnc(lcnc: LinuxCncSimController,
+                                                     tmp_path: Path) -> None:
+    """The whole daemon (lockstep, `tests.harness`) on the same config, the plant
+    heating: each cycle's X and Z writes are what LinuxCNC applies, X's at X's
+    position as MDI moves it."""
+    cfg = _config(lcnc, tmp_path)
+    machine = SimMachine(lcnc, program=constant(9000.0, heat_h=10.0, cool_h=1.0),
+                         seed=3, period_s=PERIOD_S, repeat=False)
+    rig = Lockstep(machine, cfg.path)
+    seen: list[tuple[float, float, float]] = []  # (x mm, X's offset, Z's offset) in µm
+    try:
+        await rig.start()
+        for i in range(6):
+            await lcnc.control("mdi", f"G90 G0 X{60.0 * math.cos(1.1 * i):.3f}")
+            await rig.step()
+            assert rig.daemon is not None
+            result = rig.daemon.loop.last_result
+            assert result is not None
+            hal = await lcnc.settled_axes()
+            assert result.axes["x"].cause == Cause.IN_FORCE
+            assert result.axes["x"].position_mm == pytest.approx(hal["x_pos_mm"], abs=1e-6)
+            assert hal["x_offset_um"] == pytest.approx(result.writes["x_comp_offset"],
+                                                       abs=SETTLED_UM)
+            assert hal["offset_um"] == pytest.approx(result.writes["offset"], abs=SETTLED_UM)
+            seen.append((hal["x_pos_mm"], hal["x_offset_um"], hal["offset_um"]))
+        assert await rig.stop() == 0
+    finally:
+        await rig.close()
+        await lcnc.control("mdi", "G90 G0 X0")
+    print(json.dumps({"figure": "linuxcnc_daemon_x_and_z", "cycles": seen}))
+    # X's offset moves with X (the slope's part, several µm over the travel) while Z's,
+    # with no position in it, stays within a count or two
+    xs, zs = [x for _, x, _ in seen], [z for *_, z in seen]
+    assert max(xs) - min(xs) > 2.0 and max(zs) - min(zs) < 0.5
