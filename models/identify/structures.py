@@ -165,6 +165,10 @@ class _Data:
         """The rows a final estimate is fitted on: every usable row."""
         return self.usable if self.usable is not None else np.ones(self.y.size, dtype=bool)
 
+    def labels(self, names: Sequence[str] | None) -> list[str]:
+        """The inputs' names in messages: `names`, else "input 1", "input 2", …"""
+        return list(names) if names is not None else [f"input {i + 1}" for i in range(len(self.us))]
+
     def refused(self, m: OeModel, labels: Sequence[str]) -> str:
         """Why the final estimate `m` is never chosen ("" when it may be); the
         output span is that of the rows it was fitted on."""
@@ -436,6 +440,23 @@ class _Replay:
         return next(self._it)
 
 
+def _scan_orders(d: _Data, fit: Callable[[_Data, int, int, BoolArray], OeModel | None],
+                 na_range: tuple[int, int], nb_range: tuple[int, int]
+                 ) -> list[tuple[float, int, int]]:
+    """(validated fit %, na, nb) of `fit` at every order of the ranges, in
+    grid order (na outer)."""
+    return [(_score(d, functools.partial(fit, d, na, nb))[0], na, nb)
+            for na in range(na_range[0], na_range[1] + 1)
+            for nb in range(nb_range[0], nb_range[1] + 1)]
+
+
+def _simplest(scored: Sequence[tuple[float, int, int]]) -> tuple[float, int, int]:
+    """Of the orders validated within 0.1 point of the best, those with the
+    fewest coefficients (na + nb), the better validated among as many."""
+    top = max(v for v, _, _ in scored)
+    return min((s for s in scored if s[0] >= top - 0.1), key=lambda s: (s[1] + s[2], -s[0]))
+
+
 def choose_orders(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int]
                   ) -> tuple[int, int, bool]:
     """(na, nb, initial) of the best cross-validated Steiglitz–McBride
@@ -445,14 +466,7 @@ def choose_orders(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int]
     starts cold, free levels let the slow modes be mis-identified (the 48 h
     split's first half: 73.9 % run continuously instead of 85.1 %)."""
     d.initial = False
-    scored: list[tuple[float, int, int]] = []
-    for na in range(na_range[0], na_range[1] + 1):
-        for nb in range(nb_range[0], nb_range[1] + 1):
-            v, _ = _score(d, functools.partial(_sm, d, na, nb))
-            scored.append((v, na, nb))
-    top = max(v for v, _, _ in scored)
-    best = {False: min((s for s in scored if s[0] >= top - 0.1),
-                       key=lambda s: (s[1] + s[2], -s[0]))}
+    best = {False: _simplest(_scan_orders(d, _sm, na_range, nb_range))}
     d.initial = True  # at the orders found, then over the grid if it helps
     na0, nb0 = best[False][1:]
     v_init, _ = _score(d, functools.partial(_sm, d, na0, nb0))
@@ -472,14 +486,7 @@ def choose_orders(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int]
     else:
         d.initial = v_init > best[False][0] + INITIAL_MARGIN_PCT
     if d.initial:
-        scored = []
-        for na in range(na_range[0], na_range[1] + 1):
-            for nb in range(nb_range[0], nb_range[1] + 1):
-                v, _ = _score(d, functools.partial(_sm, d, na, nb))
-                scored.append((v, na, nb))
-        top = max(v for v, _, _ in scored)
-        best[True] = min((s for s in scored if s[0] >= top - 0.1),
-                         key=lambda s: (s[1] + s[2], -s[0]))
+        best[True] = _simplest(_scan_orders(d, _sm, na_range, nb_range))
     v, na, nb = best[d.initial]
     d.best_order_fit = v
     if not math.isfinite(v):
@@ -600,15 +607,10 @@ def arx_orders(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int]
     those were first order, where ARX validated at 69.2 % and then left
     5.51 µm MAE on the unseen 5000 rpm step; at its own orders (2, 2) it
     validates at 70.8 % and leaves 3.83 µm."""
-    scored: list[tuple[float, int, int]] = []
-    for na in range(na_range[0], na_range[1] + 1):
-        for nb in range(nb_range[0], nb_range[1] + 1):
-            v, _ = _score(d, functools.partial(arx_fit, d, na, nb))
-            scored.append((v, na, nb))
-    top = max(v for v, _, _ in scored)
-    if not math.isfinite(top):
+    scored = _scan_orders(d, arx_fit, na_range, nb_range)
+    if not math.isfinite(max(v for v, _, _ in scored)):
         return None
-    _, na, nb = min((s for s in scored if s[0] >= top - 0.1), key=lambda s: (s[1] + s[2], -s[0]))
+    _, na, nb = _simplest(scored)
     return na, nb
 
 
@@ -655,9 +657,8 @@ def order_search_result(y: FloatArray, inputs: Sequence[FloatArray], *,
     m = _sm(d, na, nb, d.every)
     if m is None:
         return d.best_order_fit, "unstable on every row"
-    labels = list(names) if names is not None else [f"input {i + 1}" for i in range(len(d.us))]
-    why = implausible(m.nums, m.term_dens(), d.us, labels, float(np.ptp(d.y[d.every])), d.y.size)
-    return d.best_order_fit, why
+    labels = d.labels(names)
+    return d.best_order_fit, d.refused(m, labels) or None
 
 
 def order_search_score(y: FloatArray, inputs: Sequence[FloatArray], *,
@@ -698,7 +699,7 @@ def select_structure(y: FloatArray, inputs: Sequence[FloatArray], *,
                      [np.asarray(u, dtype=np.float64) for u in holdout[1]], holdout[2])
         d.splits = [(d.every, np.zeros(d.y.size, dtype=bool))]
         d.blocked = None
-    labels = list(names) if names is not None else [f"input {i + 1}" for i in range(len(d.us))]
+    labels = d.labels(names)
     failed: list[str] = []
     # the orders asked for, then first order, then static: every channel gets
     # the best model its diagnostics accept, and the ones that failed are said
