@@ -33,17 +33,12 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import numpy.typing as npt
 
+from models.identify.estimators import arx_fit
+from models.identify.fold_data import DEFAULT_FOLDS, DEFAULT_VALIDATION, _Data, make_data
+from models.identify.fold_scores import _score
+from models.identify.orders import INITIAL_MARGIN_PCT
 from models.identify.output_error import OeModel
 from models.identify.segments import Segments
-from models.identify.structures import (
-    DEFAULT_FOLDS,
-    DEFAULT_VALIDATION,
-    INITIAL_MARGIN_PCT,
-    _Data,
-    _score,
-    arx_fit,
-    make_data,
-)
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
