@@ -36,6 +36,15 @@ def _simulate(d: _Data, m: OeModel, train: BoolArray, y: FloatArray, us: Sequenc
     return with_initial(y, forced, m.nums, m.dens, m.groups, seg, train)
 
 
+def _heads(seg: Segments, size: int) -> BoolArray:
+    """The rows of each held-out record's first part (`DEFAULT_WINDOW_FRACTION`,
+    one row at least), on which its initial conditions are estimated."""
+    head = np.zeros(size, dtype=bool)
+    for s, e in seg.bounds:
+        head[s:s + max(1, round((e - s) * DEFAULT_WINDOW_FRACTION))] = True
+    return head
+
+
 def _score_holdout(d: _Data, m: OeModel | None) -> tuple[float, list[float]]:
     """Held-out records: initial conditions from each one's first half,
     the rest scored."""
@@ -43,9 +52,7 @@ def _score_holdout(d: _Data, m: OeModel | None) -> tuple[float, list[float]]:
     if m is None:
         return -math.inf, []
     y, us, seg = d.holdout
-    head = np.zeros(y.size, dtype=bool)
-    for s, e in seg.bounds:
-        head[s:s + max(1, round((e - s) * DEFAULT_WINDOW_FRACTION))] = True
+    head = _heads(seg, y.size)
     sim = _simulate(d, m, head, y, us, seg)
     return pooled_fit(y, [sim], [~head]), [fit_pct(y[~head], sim[~head])]
 
@@ -84,9 +91,7 @@ def _heldout(d: _Data, models: Sequence[OeModel | None]) -> _Heldout:
         return _Heldout()
     if d.holdout is not None:
         y, us, seg = d.holdout
-        head = np.zeros(y.size, dtype=bool)
-        for s, e in seg.bounds:
-            head[s:s + max(1, round((e - s) * DEFAULT_WINDOW_FRACTION))] = True
+        head = _heads(seg, y.size)
         pairs = [(models[0], head, ~head)]
     else:
         y, us, seg = d.y, d.us, d.seg
