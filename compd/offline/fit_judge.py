@@ -142,14 +142,9 @@ def refit(y: FloatArray, seg: Segments, radius: float, usable: BoolArray | None,
     3750 rpm cycle better than the chain's (it was written, 33.6 µm MAE on
     the held-out cycle against 25.5 µm uncompensated, where the chain's
     verdict refused it)."""
-    from models.identify.structures import (
-        _Data,
-        _fold_models,
-        _ridge,
-        _simulate,
-        _static_fit,
-        arx_fit,
-    )
+    from models.identify.estimators import _fold_models, _ridge, _static_fit, arx_fit
+    from models.identify.fold_data import _Data
+    from models.identify.fold_scores import _simulate
     from models.identify.textbook import TEXTBOOK_ORDERS
     from models.identify.validate import forced_response
 
@@ -181,7 +176,7 @@ def lone_textbook(d: Any, candidates: Sequence[FloatArray]
     """(pair, estimate on every usable row) of the textbook ARX(2,3)
     (`models.identify.textbook`) where its forward folds gave none: the
     verdict re-estimates it on each calibration less a block itself."""
-    from models.identify.structures import arx_fit
+    from models.identify.estimators import arx_fit
     from models.identify.textbook import TEXTBOOK_ORDERS, _data, pick_pair
 
     pair = pick_pair(d, candidates)

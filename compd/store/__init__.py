@@ -6,6 +6,8 @@ status page (`compd.faces.status`), `compd export`, `fit` and `replay`
 (`compd.offline`) read through `reader.RecorderReader`.
 
 - `schema`  the tables, the statements the writer uses, the upgrade of an older file
-- `reader`  the file checked (regular, SQLite, the recorder's tables), then its rows
-            streamed a bounded batch at a time, cut to a wall-clock window
+- `opening` the file checked (regular, SQLite, the recorder's tables, never a view)
+            and opened read-only
+- `reader`  the file opened through `opening`, then its rows streamed a bounded
+            batch at a time, cut to a wall-clock window
 """

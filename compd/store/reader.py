@@ -1,15 +1,11 @@
 """The one reader of a recorder database: `compd export`, `fit`, `replay` and the
 status page read the daemon's recorder through `RecorderReader`.
 
-Opening checks the file before SQLite sees it, and ends each refusal in one
-exception: not a readable regular file (a FIFO, a device, a directory, missing:
-`compd.infiles.InputError`, exit 66), not an SQLite file (its first 16 bytes),
-not the recorder's tables, a corrupt ``meta`` (`RecorderError`, exit 65 in the
-commands). There is no size cap: the rows are streamed.
-
-A file is data, never code: each table read (``samples``, ``meta``, ``probes``, ``axes``)
-must be an ordinary table, not a view (whose query may recurse without end,
-and read-only mode does not stop a view) nor a virtual table; each statement
+Opening checks the file before SQLite sees it and ends each refusal in one
+exception (`compd.store.opening`: not a readable regular file, `InputError`, exit
+66; not an SQLite file, not the recorder's tables, each an ordinary table and never
+a view; a corrupt ``meta``: `RecorderError`, exit 65 in the commands). There is no
+size cap: the rows are streamed. A file is data, never code: each statement
 is aborted after `query_s` seconds (SQLite's progress handler), and a field
 longer than `compd.infiles.MAX_FIELD_CHARS` (as a CSV cell) is refused naming
 its row and column before it reaches Python, so a 100 MB cell costs SQLite's
@@ -46,8 +42,9 @@ from typing import Any
 
 import numpy as np
 
-from compd.infiles import MAX_FIELD_CHARS, open_input
+from compd.infiles import MAX_FIELD_CHARS
 from compd.store.columns import CORRUPT, Columns, bounded_fields, build_columns, floats
+from compd.store.opening import check_tables, connect_readonly
 from compd.store.schema import (
     AXIS_ADDED_COLUMNS,
     AXIS_COLUMNS,
@@ -76,16 +73,11 @@ LOCK_WAIT_S = 5.0
 QUERY_S = 60.0
 #: SQLite virtual-machine steps between two looks at the clock
 _PROGRESS_STEPS = 10_000
-_MAGIC = b"SQLite format 3\x00"
-#: the file is streamed: any size is read in the same memory
-_ANY_SIZE = 1 << 62
 
 _PICK = """
 WITH RECURSIVE pick(s) AS (SELECT ? UNION ALL SELECT s - ? FROM pick WHERE s - ? >= ?)
 SELECT wall_s, offset_um, model_um FROM pick JOIN samples ON samples.seq = pick.s
 ORDER BY pick.s"""
-#: the tables a reader reads: each must be an ordinary table (`_check_tables`)
-_TABLES = ("samples", "meta", "probes", "axes")
 #: what `RecorderReader.probes` reads of a probe
 _PROBE_FIELDS = ("probes.seq", "samples.mono_s", "probes.measured_um", "probes.model_um",
                  "probes.accepted", "probes.reason")
@@ -139,20 +131,11 @@ class RecorderReader:
 
     def open(self) -> None:
         """Check the file and open it. Raises InputError or RecorderError."""
-        with open_input(self.path, "recorder database", _ANY_SIZE) as f:
-            head = f.read(len(_MAGIC))
-        if head != _MAGIC:
-            raise RecorderError(self.path, "not an SQLite database, so not a recorder "
-                                "compd wrote")
-        try:
-            conn = sqlite3.connect(f"{self.path.resolve().as_uri()}?mode=ro", uri=True,
-                                   timeout=self.timeout_s, check_same_thread=False)
-        except sqlite3.Error as exc:
-            raise RecorderError(self.path, f"cannot open: {exc}") from None
+        conn = connect_readonly(self.path, self.timeout_s)
         conn.set_progress_handler(self._too_late, _PROGRESS_STEPS)
         try:
             with self._timed("not a recorder database"):
-                self._check_tables(conn)
+                check_tables(conn, self.path)
                 columns = {str(r[1]) for r in conn.execute("PRAGMA table_info(samples)")}
             missing = [c for c in SAMPLE_COLUMNS if c not in columns]
             if missing:
@@ -168,21 +151,6 @@ class RecorderReader:
             conn.close()
             raise
         self._conn = conn
-
-    def _check_tables(self, conn: sqlite3.Connection) -> None:
-        """Each table read is an ordinary table (``samples`` and ``meta`` there, ``probes``
-        and ``axes`` there or absent), never a view or a virtual table: data, not a query."""
-        kinds = {str(name): (str(kind), str(sql or "")) for name, kind, sql in conn.execute(
-            "SELECT name, type, sql FROM sqlite_schema WHERE name IN "
-            f"({', '.join('?' * len(_TABLES))})", _TABLES)}
-        if "samples" not in kinds:
-            raise RecorderError(self.path, "not a recorder database (no table samples)")
-        for name, (kind, sql) in kinds.items():
-            virtual = sql.lstrip().upper().startswith("CREATE VIRTUAL")
-            if kind != "table" or virtual:
-                what = "a virtual table" if virtual else f"a {kind}"
-                raise RecorderError(self.path, f"not a recorder database ({name} is {what}, "
-                                    "not a table: compd reads data, never a query)")
 
     def _too_late(self) -> int:
         """SQLite's progress handler: nonzero (abort the statement) past the deadline."""

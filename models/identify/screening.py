@@ -33,18 +33,12 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import numpy.typing as npt
 
-from models.identify.checks import implausible
+from models.identify.estimators import arx_fit
+from models.identify.fold_data import DEFAULT_FOLDS, DEFAULT_VALIDATION, _Data, make_data
+from models.identify.fold_scores import _score
+from models.identify.orders import INITIAL_MARGIN_PCT
 from models.identify.output_error import OeModel
 from models.identify.segments import Segments
-from models.identify.structures import (
-    DEFAULT_FOLDS,
-    DEFAULT_VALIDATION,
-    INITIAL_MARGIN_PCT,
-    _Data,
-    _score,
-    arx_fit,
-    make_data,
-)
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -78,9 +72,7 @@ def screen_subset(y: FloatArray, inputs: Sequence[FloatArray], *,
     m = fit(d.every)
     if m is None:
         return val, "unstable on every row"
-    labels = list(names) if names is not None else [f"input {i + 1}" for i in range(len(d.us))]
-    span = float(np.ptp(d.y[d.every]))
-    return val, implausible(m.nums, m.term_dens(), d.us, labels, span, d.y.size)
+    return val, d.refused(m, d.labels(names)) or None
 
 
 def _initial_helps(d: _Data, fit: Callable[[BoolArray], OeModel | None]) -> bool:

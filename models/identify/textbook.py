@@ -47,7 +47,7 @@ class Textbook:
     #: estimated on every usable row
     model: OeModel
     #: residue on each fold's held-out rows, one array per fold and record, in
-    #: the order of `models.identify.structures._heldout`
+    #: the order of `models.identify.fold_scores._heldout`
     residuals: tuple[FloatArray, ...]
     #: pooled fit % on the folds' held-out rows (`models.identify.validate.pooled_parts`)
     validation_fit_pct: float

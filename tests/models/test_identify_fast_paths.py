@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from models.identify import blocks, output_error, structures
+from models.identify import blocks, estimators, orders, output_error, structures
 from models.identify.blocks import filter_zi
 from models.identify.output_error import OeModel
 from models.identify.segments import Segments
@@ -52,9 +52,10 @@ def _plain(monkeypatch: pytest.MonkeyPatch) -> None:
     """lfilter itself, no cached simulation or weights, no memo of arx_fit."""
     monkeypatch.setattr(blocks, "_linear_filter", None)
     monkeypatch.setattr(output_error, "CACHE_BYTES", -1)
-    monkeypatch.setattr(structures, "arx_fit",
-                        lambda d, na, nb, train, iterations=0:
-                        structures._arx_fit(d, na, nb, train, iterations)[0])
+    for module in (estimators, orders):  # the fold models and the ARX order search
+        monkeypatch.setattr(module, "arx_fit",
+                            lambda d, na, nb, train, iterations=0:
+                            estimators._arx_fit(d, na, nb, train, iterations)[0])
 
 
 def test_filter_zi_is_lfilter_to_the_bit() -> None:
@@ -98,7 +99,7 @@ def test_per_term_folds_are_left_out_of_a_stage_that_fails(
                       mask is None or bool(np.all(mask))))
         return fit(*a, **kw)
 
-    monkeypatch.setattr(structures, "fit_output_error", counted)
+    monkeypatch.setattr(estimators, "fit_output_error", counted)
 
     def veto(m: OeModel) -> str | None:
         return "order 2" if any(len(b) > 2 for b in m.dens) or any(

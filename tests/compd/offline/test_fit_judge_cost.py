@@ -15,7 +15,7 @@ import pytest
 from compd.offline import fit_hedge, fit_judge, fit_select
 from compd.offline.fit_judge import Member
 from compd.offline.fit_request import FitRequest, FitRun
-from models.identify import structures
+from models.identify import estimators, structures
 from models.identify import textbook as textbook_mod
 from models.identify.segments import Segments
 from models.identify.structures import make_data, select_structure
@@ -57,7 +57,7 @@ def test_a_ridge_member_is_refitted_at_its_own_penalty_alone(
         lams.append(lam)
         return real(d, shared, rows, lam)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(structures, "_ridge", ridge)
+    monkeypatch.setattr(estimators, "_ridge", ridge)
     again = fit_judge.refit(y, seg, 1.0, None, member, train)
     assert lams == [float(cand.detail.rpartition("= ")[2])]  # not every λ of the grid
     assert again is not None and np.array_equal(again, chain)  # the same estimate, to the bit
