@@ -22,4 +22,8 @@ machine time are tested in milliseconds.
 - `output`      the output stage: clamp, deadband, slew limit, the status bits
 - `record`      the row a cycle leaves for the recorder
 - `schedule`    absolute deadlines, skipped periods, the shutdown ramp's budget
+- `axes`        one per-axis output ([output.axes.<axis>]): its models, stages,
+                read-back and health
+- `axis_bank`   every axis of a cycle together, and the axes word
+- `axis_params` what an axis is built with, and its part of the report
 """

@@ -37,7 +37,7 @@ quality, not finite, out of range or older than its ``stale_after_s`` holds the
 axis at its last written offset (then the alarm's ramp, at the last valid
 position). The operator's hold and a controller that does not permit a change
 hold the whole offset, the motion's part too. The offset's read-back is judged
-as the value's (`_Axis.judge`).
+as the value's (`AxisOutput.judge`).
 
 The tool direction (``[output.axes.tool]``: SINUMERIK SD42960
 ``$SC_TOOL_TEMP_COMP``, applied along the tool's orientation) is an axis with a
@@ -54,16 +54,21 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
-from types import MappingProxyType
 from typing import Any
 
+from compd.core.axis_params import (
+    AXIS_RANGE_FACTOR,
+    FLOAT_TOLERANCE,
+    AxisParams,
+    AxisRow,
+    ParamRow,
+)
 from compd.core.events import Event, EventName
 from compd.core.faults import FaultState
 from compd.core.health import WRITE_FAULT_AFTER, Cause, OutputHealth
 from compd.core.health_view import HealthView, output_cause, recorded_state, status_word
 from compd.core.modelstep import ModelStepper, finite_or_none
-from compd.core.output import AXES_NIBBLE, AXIS_INDEX, AxesStatus, OutputStage, Status
+from compd.core.output import OutputStage
 from compd.core.readback import ReadBack
 from models.compensation import CompensationModel
 from models.errors import ModelError
@@ -71,111 +76,11 @@ from models.errors import ModelError
 __all__ = [
     "AXIS_RANGE_FACTOR",
     "WRITE_FAULT_AFTER",
-    "AxisBank",
+    "AxisOutput",
     "AxisParams",
     "AxisRow",
     "ParamRow",
 ]
-
-#: an axis model's output beyond this many times its limit is a fault (as the offset's)
-AXIS_RANGE_FACTOR = 5.0
-#: a float parameter's read-back tolerance (float32 rounding of what was written), in
-#: its unit (µm, µm/m, mm)
-FLOAT_TOLERANCE = 0.01
-
-
-@dataclass(frozen=True)
-class AxisParams:
-    """One axis as the cycle is built with it (from ``[output.axes.<axis>]``)."""
-
-    axis: str
-    value_model: CompensationModel
-    slope_model: CompensationModel | None
-    reference_mm: float
-    value_limit_um: float
-    slope_limit_um_m: float
-    value_slew_um_s: float
-    #: without a slope model the slope stays 0; its rate is then immaterial
-    slope_slew_um_m_s: float = 1.0
-    value_deadband_um: float = 0.0
-    slope_deadband_um_m: float = 0.0
-    #: the controller's grid for value (µm) and slope (µm/m); 0: a float
-    value_quantum_um: float = 0.0
-    slope_quantum_um_m: float = 0.0
-    reference_quantum_mm: float = 0.0
-    #: each model's identity (a sha256 of its description; "" unknown): a model state
-    #: saved by another model is not imported (the model starts at the steady state)
-    value_sha256: str = ""
-    slope_sha256: str = ""
-    #: the channel holding the axis's present position (mm): set, the axis writes one
-    #: offset evaluated there (``<axis>_comp_offset``) instead of its three parameters
-    position: str | None = None
-    #: |offset| written at a position ≤ this (µm; the value's and the slope's limits
-    #: over the position channel's range), with the offset address's grid (0: a float)
-    offset_limit_um: float = 0.0
-    offset_quantum_um: float = 0.0
-    #: a value alone is written (the tool direction), no slope or reference
-    value_only: bool = False
-
-    def name(self, parameter: str) -> str:
-        """The driver output of one of this axis's parameters (`drivers.temp_comp`)."""
-        return f"{self.axis}_comp_{parameter}"
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        """The outputs written (and read back): the offset at the position, or the
-        three parameters."""
-        if self.position is not None:
-            return (self.name("offset"),)
-        if self.value_only:
-            return (self.name("value"),)
-        return self.name("value"), self.name("slope"), self.name("reference")
-
-    def offset_at(self, value_um: float, slope_um_m: float, x_mm: float) -> float:
-        """The offset written at position `x_mm`: the line there, within
-        ±`offset_limit_um`, on the offset address's grid."""
-        y = value_um + slope_um_m * (x_mm - self.reference_mm) / 1000.0
-        y = max(-self.offset_limit_um, min(self.offset_limit_um, y))
-        q = self.offset_quantum_um
-        if q > 0.0:
-            y = round(y / q) * q
-            if abs(y) > self.offset_limit_um:  # the nearest count inside the limit
-                y -= math.copysign(q, y)
-        return y
-
-
-@dataclass(frozen=True, slots=True)
-class ParamRow:
-    """One parameter of an axis after the cycle: the model's output, the stage's
-    value, what was sent (None: nothing) and what the controller last confirmed
-    (None: unknown), in µm (value) or µm/m (slope)."""
-
-    model: float | None
-    stage: float
-    sent: float | None
-    confirmed: float | None
-
-
-@dataclass(frozen=True, slots=True)
-class AxisRow:
-    """One axis's part of the cycle's report (`compd.core.plan.Row.axes`)."""
-
-    axis: str
-    state: FaultState
-    cause: Cause
-    status: int
-    value: ParamRow
-    slope: ParamRow
-    reference_mm: float
-    #: the axis's line compd wants is the line in force (confirmed this cycle)
-    in_force: bool
-    #: every input the axis's models read valid and the models stepped
-    inputs_valid: bool
-    #: an axis written as an offset at its position: the position the offset was
-    #: evaluated at (the last valid one, mm) and the offset sent (µm); None otherwise
-    position_mm: float | None = None
-    offset_um: float | None = None
-
 
 class _Param:
     """One parameter (value or slope): its model, its stage and its read-back."""
@@ -213,7 +118,7 @@ def _tagged(events: list[Event], **tags: Any) -> list[Event]:
     return [Event(e.name, {**tags, **e.fields}) for e in events]
 
 
-class _Axis:
+class AxisOutput:
     """One axis's models, stages and health (module docstring)."""
 
     def __init__(self, p: AxisParams, hold_s: float, period_s: float, readback: bool,
@@ -487,112 +392,3 @@ class _Axis:
             offset_name=failed[0] if failed else self.p.name("value"),
             offset_um=self.value.stage.current_um)
         return False, True, _tagged(events, axis=self.p.axis)
-
-
-class AxisBank:
-    """Every configured axis of a cycle (module docstring)."""
-
-    def __init__(self, axes: tuple[AxisParams, ...], *, hold_s: float, period_s: float,
-                 readback: bool, state: Mapping[str, Any] | None = None) -> None:
-        st = state if isinstance(state, Mapping) else {}
-        self.readback = readback
-        self.axes = [_Axis(p, hold_s, period_s, readback,
-                           s if isinstance(s := st.get(p.axis), Mapping) else None)
-                     for p in axes]
-        self._views: list[HealthView] = []
-        self._events: list[Event] = []
-        #: the axes word's LIFE bit, toggled in every word planned
-        self._life = False
-
-    def __bool__(self) -> bool:
-        return bool(self.axes)
-
-    @property
-    def names(self) -> list[str]:
-        """Every parameter's output name (read back beside the offset)."""
-        return [n for a in self.axes for n in a.p.names]
-
-    def export_state(self) -> dict[str, Any]:
-        return {a.p.axis: a.export_state() for a in self.axes}
-
-    def begin_shutdown(self) -> None:
-        for a in self.axes:
-            a.health.begin_shutdown()
-
-    def plan(self, now_s: float, dt: float, values: Mapping[str, float],
-             validity: Mapping[str, str | None], *, answered: bool,
-             readback: Mapping[str, float | None] | None, off: str | None, hold: bool,
-             write: bool, events: list[Event]) -> dict[str, float]:
-        """Every axis's part of the cycle's plan: its writes (none when `write` is
-        false: a recorder-only or dry run)."""
-        writes: dict[str, float] = {}
-        self._views = []
-        for a in self.axes:
-            pos = a.p.position
-            present = (values[pos] if answered and pos is not None
-                       and validity.get(pos) is None and pos in values else None)
-            full = a.judge(readback if self.readback else None, off=off, events=events,
-                           position_mm=present)
-            self._views.append(a.plan(now_s, dt, values, validity, answered, hold=hold,
-                                      events=events))
-            if write:
-                writes.update(a.writes(full, self.readback, events))
-        return writes
-
-    def status_word(self) -> int:
-        """This cycle's axes word (`compd.core.output.AxesStatus`), after `plan`: per
-        axis IN_FORCE (the line the controller confirmed last cycle is what the
-        models want, and is written again in this write), ALARM, HOLDING and
-        RAMPING (or shutting down) from the axis's own status word; LIFE toggles
-        on every call, so a PLC sees the cycle run whatever the inputs."""
-        self._life = not self._life
-        word = int(AxesStatus.LIFE) if self._life else 0
-        for a, view in zip(self.axes, self._views, strict=True):
-            if a.p.axis not in AXIS_INDEX:  # the tool direction: no bits of its own
-                continue
-            bit = 1 << AXIS_INDEX[a.p.axis]
-            status = status_word(view)
-            if a.in_force and a.writing and output_cause(view).healthy:
-                word |= bit << AXES_NIBBLE["in_force"]
-            if status & Status.ALARM:
-                word |= bit << AXES_NIBBLE["alarm"]
-            if status & Status.HOLDING:
-                word |= bit << AXES_NIBBLE["holding"]
-            if status & (Status.RAMPING | Status.SHUTDOWN):
-                word |= bit << AXES_NIBBLE["ramping"]
-        return word
-
-    def carry_over(self, old: AxisBank, *, same_outputs: bool) -> None:
-        """Continue `old`'s axes across a reload (this bank built from its exported
-        state): each axis still configured keeps its fault policy's timer and state
-        (a hold goes on toward its ramp), and while the outputs are the same its
-        stopped writes, whether its line was in force and its reference position
-        written; the axes word's LIFE bit toggles on from where it was."""
-        before = {a.p.axis: a for a in old.axes}
-        self._life = old._life
-        for a in self.axes:
-            was = before.get(a.p.axis)
-            if was is None:
-                continue
-            a.health.carry_over(was.health, outputs_same=same_outputs)
-            if same_outputs:
-                a.in_force = was.in_force
-                a.reference_written = was.reference_written
-
-    def settled(self) -> bool:
-        """A ramp-to-zero shutdown is done for every axis (or cannot write any more)."""
-        return all(a.health.write_stopped or a.health.controller_off is not None
-                   or a.value.stage.held or a.slope.stage.held
-                   or (a.value.stage.current_um == 0.0 and a.slope.stage.current_um == 0.0)
-                   for a in self.axes)
-
-    def commit(self, ok: bool, outputs: tuple[str, ...], permanent: bool, reason: str,
-               later: list[Event]) -> tuple[Mapping[str, AxisRow], tuple[Event, ...]]:
-        """Close every axis's part of the cycle; the axes' rows and write events."""
-        rows: dict[str, AxisRow] = {}
-        events: list[Event] = []
-        for a, view in zip(self.axes, self._views, strict=True):
-            confirmed, failed, evs = a.commit(ok, outputs, permanent, reason, later)
-            events.extend(evs)
-            rows[a.p.axis] = a.row(view, confirmed, failed)
-        return MappingProxyType(rows), tuple(events)

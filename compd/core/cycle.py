@@ -32,7 +32,7 @@ controller confirmed the offset is in it). `plan`:
    failed, since then the controller's state is unknown), the heartbeat
    (advanced only on a complete valid cycle of the offset's model: it says
    nothing about the per-axis lines), the status word and, with per-axis
-   lines, the axes word (`compd.core.axes.AxisBank.status_word`: which axes
+   lines, the axes word (`compd.core.axis_bank.AxisBank.status_word`: which axes
    are in force, and a life bit that toggles every cycle).
 
 Each cycle names why the offset compd wants is not in force, or that it is
@@ -63,7 +63,8 @@ from types import MappingProxyType
 from typing import Any
 
 from compd.core.adaptation import ProbeReading
-from compd.core.axes import AxisBank, AxisRow
+from compd.core.axis_bank import AxisBank
+from compd.core.axis_params import AxisRow
 from compd.core.events import Event, EventName
 from compd.core.faults import FaultState
 from compd.core.health import WRITE_FAULT_AFTER, Cause, Decision, OutputHealth
@@ -167,7 +168,7 @@ class Cycle:
         still ramps on time), so does the validator's history while the
         channels are the same, and the stopped outputs while the outputs
         (`same_outputs`: their addresses too) are; each axis's likewise
-        (`compd.core.axes.AxisBank.carry_over`)."""
+        (`compd.core.axis_bank.AxisBank.carry_over`)."""
         self.health.carry_over(old.health, outputs_same=same_outputs)
         self.axes.carry_over(old.axes, same_outputs=same_outputs)
         if self.params.channels == old.params.channels:

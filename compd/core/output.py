@@ -90,7 +90,7 @@ class AxesStatus(enum.IntFlag):
     reads axis i of a kind as bit 4·kind + i. LIFE toggles in every word compd
     writes (the cycle ran), whatever the inputs; an axis's IN_FORCE bit says its
     line the controller confirmed last cycle is the line its models want and is
-    written again beside this word (`compd.core.axes.AxisBank.status_word`)."""
+    written again beside this word (`compd.core.axis_bank.AxisBank.status_word`)."""
 
     X_IN_FORCE = 1 << 0
     Y_IN_FORCE = 1 << 1
