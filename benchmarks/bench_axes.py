@@ -30,8 +30,9 @@ The issue's other figures, from the same script:
 
     .venv/bin/python benchmarks/bench_axes.py --real [--blocks …] [ch1 …]
         the real record's five channels fitted as five axes (`bench_axes_real`)
-    .venv/bin/python benchmarks/bench_axes.py --cost [--cycles N]
-        three axes (value + slope each) against one per cycle (`bench_axes_cost`)
+    .venv/bin/python benchmarks/bench_axes.py --cost [--cycles N] [--repeats N]
+        X, Y, Z written as value + slope against the Z offset alone, CPU per cycle
+        of the model step, the pure cycle and the whole daemon (`bench_axes_cost`)
 """
 
 from __future__ import annotations
