@@ -1,10 +1,10 @@
 """A real LinuxCNC, headless, as the simulated machine's controller.
 
 Not a stand-in: LinuxCNC itself (Debian's ``linuxcnc-uspace``) runs a small
-mill (XYZ, mm, trivkins, simulated joints, X and Z external offsets at
-``OFFSET_AV_RATIO`` 0.2; X's: `x_offset`) from a configuration written to a work folder, with
-the ``dummy`` display (it waits on its stdin: closing it shuts LinuxCNC
-down). The plant's side is a second HAL component, ``<prefix>-plant``
+mill (XYZ, mm, trivkins, simulated joints, external offsets on X, Y and Z at
+``OFFSET_AV_RATIO`` 0.2; X's: `x_offset`, Y's: `y_offset`) from a configuration
+written to a work folder, with the ``dummy`` display (it waits on its stdin:
+closing it shuts LinuxCNC down). The plant's side is a second HAL component, ``<prefix>-plant``
 (`drivers.linuxcnc.LinuxCncDriver` with output pins), driving the sensor
 signals ``<prefix>-<channel>`` that compd's own pins join; the spindle speed is
 LinuxCNC's (``spindle-speed-cmd`` <- ``spindle.0.speed-out``, set by the
@@ -146,6 +146,12 @@ class LinuxCncSimController:
                                         counts_net=f"{p}-x-eoffset-counts",
                                         enable_net=f"{p}-x-eoffset-enable")
         self.x_position = LinuxCncGet(kind="get", hal="axis.x.pos-cmd")
+        #: Y's external offset, on signals of its own, as X's
+        self.y_offset = LinuxCncEoffset(kind="eoffset", axis="y", scale=COUNT_UM,
+                                        eoffset_scale=COUNT_UM / 1000.0,
+                                        counts_net=f"{p}-y-eoffset-counts",
+                                        enable_net=f"{p}-y-eoffset-enable")
+        self.y_position = LinuxCncGet(kind="get", hal="axis.y.pos-cmd")
         #: the controller's state for [output] machine_on / estop / homed
         self.states: dict[str, Any] = {
             "machine_on": LinuxCncGet(kind="get", hal="motion.motion-enabled"),
