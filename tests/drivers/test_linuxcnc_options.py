@@ -217,3 +217,17 @@ def test_the_examples_commented_x_axis_checks_and_joins_the_test_machines_signal
         assert f"net compd-{axis}-eoffset-enable => axis.{axis}.eoffset-enable" in hal
         assert f'counts_net = "compd-{axis}-eoffset-counts"' in example
     assert ini.read_text("utf-8").count("OFFSET_AV_RATIO = 0.2") == 3
+
+
+def test_sim_write_config_for_linuxcnc_names_the_example(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`compd sim --protocol linuxcnc --write-config` writes nothing (LinuxCNC runs
+    itself) and says, on one line, where to start: the example with its X axis."""
+    from compd.cli import main
+    from compd.sysexits import EX_USAGE
+
+    out = tmp_path / "c.toml"
+    assert main(["sim", "--protocol", "linuxcnc", "--write-config", str(out)]) == EX_USAGE
+    err = capsys.readouterr().err
+    assert "compd/examples/linuxcnc.toml" in err and "X and Y" in err
+    assert err.count("\n") == 1 and not out.exists()
