@@ -189,21 +189,26 @@ async def lcnc() -> AsyncIterator[LinuxCncSimController]:
 
 
 async def test_x_and_z_eoffsets_are_written_together(lcnc: LinuxCncSimController) -> None:
-    """One driver, one write: X's and Z's external offsets both applied, each on its
-    own signals and counts, and each read back on its own axis."""
-    outputs = {"offset": lcnc.outputs_map["offset"], "x_offset": lcnc.x_offset}
+    """One driver, one write: X's, Y's and Z's external offsets all applied, each on
+    its own signals and counts, and each read back on its own axis."""
+    outputs = {"offset": lcnc.outputs_map["offset"], "x_offset": lcnc.x_offset,
+               "y_offset": lcnc.y_offset}
     driver = LinuxCncDriver(lcnc.endpoint, {"x_pos": lcnc.x_position}, outputs,
                             timeout_s=10.0, connect_timeout_s=60.0, component=lcnc.component)
     try:
         await driver.connect()
-        assert driver.eoffset_scales == pytest.approx({"offset": 1e-4, "x_offset": 1e-4})
-        await driver.write({"offset": 4.2, "x_offset": -7.3})
+        assert driver.eoffset_scales == pytest.approx({"offset": 1e-4, "x_offset": 1e-4,
+                                                      "y_offset": 1e-4})
+        await driver.write({"offset": 4.2, "x_offset": -7.3, "y_offset": 3.1})
         hal = await lcnc.settled_axes()
         assert hal["offset_um"] == pytest.approx(4.2, abs=SETTLED_UM)
         assert hal["x_offset_um"] == pytest.approx(-7.3, abs=SETTLED_UM)
-        got = await driver.read(["offset", "x_offset", "x_pos"])
+        assert hal["y_offset_um"] == pytest.approx(3.1, abs=SETTLED_UM)
+        got = await driver.read(["offset", "x_offset", "y_offset", "x_pos"])
         assert got["offset"].value == pytest.approx(4.2, abs=SETTLED_UM)
         assert got["x_offset"].value == pytest.approx(-7.3, abs=SETTLED_UM)
+        assert got["y_offset"].value == pytest.approx(3.1, abs=SETTLED_UM)
+        await driver.write({"y_offset": 0.0})
         # X alone: Z keeps its offset
         await driver.write({"x_offset": 2.5})
         hal = await lcnc.settled_axes()
