@@ -333,7 +333,9 @@ def run(args: argparse.Namespace) -> int:
             return EX_USAGE
         if args.protocol == "linuxcnc":
             print("compd sim: --write-config: the linuxcnc example runs against LinuxCNC "
-                  "itself (docs/protocols.md), not a server of compd sim", file=sys.stderr)
+                  "itself (docs/protocols.md), not a server of compd sim: start from "
+                  "compd/examples/linuxcnc.toml (its commented X axis shows how to add "
+                  "X and Y)", file=sys.stderr)
             return EX_USAGE
         from compd.outfiles import check_output
 

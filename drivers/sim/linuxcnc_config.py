@@ -1,8 +1,8 @@
 """The test mill's LinuxCNC configuration, as text and as files: compd's HAL lines
 (`hal_lines`, `HAL_LINES`: the file a user adds, docs/protocols.md), the HAL lines that
 let G-code permit offset changes and re-zero (`mcode_hal_lines`), and the INI of a small
-XYZ mill with simulated joints and X and Z external offsets (`write_config` writes
-them all; `x_eoffset_hal_lines`: X's).
+XYZ mill with simulated joints and external offsets on X, Y and Z (`write_config` writes
+them all; `axis_eoffset_hal_lines`: X's or Y's).
 The machine that runs it is `drivers.sim.linuxcnc_machine`."""
 
 from __future__ import annotations
@@ -35,15 +35,21 @@ newsig {prefix}-status s32
 HAL_LINES = hal_lines()
 
 
-def x_eoffset_hal_lines(prefix: str = "compd") -> str:
-    """The HAL lines for an external offset of X too (an ``[output.axes.x]`` at its
-    position, docs/protocols.md): its own signals, in the counts of Z's."""
+def axis_eoffset_hal_lines(axis: str, prefix: str = "compd") -> str:
+    """The HAL lines for an external offset of `axis` (``x`` or ``y``) too (an
+    ``[output.axes.<axis>]``, docs/protocols.md): its own signals
+    ``<prefix>-<axis>-eoffset-...``, in the counts of Z's."""
     return f"""\
-# compd: external offset of X in counts of {COUNT_UM} µm
-setp axis.x.eoffset-scale {COUNT_UM / 1000.0:g}
-net {prefix}-x-eoffset-counts => axis.x.eoffset-counts
-net {prefix}-x-eoffset-enable => axis.x.eoffset-enable
+# compd: external offset of {axis.upper()} in counts of {COUNT_UM} µm
+setp axis.{axis}.eoffset-scale {COUNT_UM / 1000.0:g}
+net {prefix}-{axis}-eoffset-counts => axis.{axis}.eoffset-counts
+net {prefix}-{axis}-eoffset-enable => axis.{axis}.eoffset-enable
 """
+
+
+def x_eoffset_hal_lines(prefix: str = "compd") -> str:
+    """The HAL lines for an external offset of X (`axis_eoffset_hal_lines`)."""
+    return axis_eoffset_hal_lines("x", prefix)
 
 
 #: motion's digital outputs G-code sets (``M64 P<n>`` on, ``M65 P<n>`` off) that the
@@ -102,7 +108,7 @@ JOINTS = 3
 KINEMATICS = trivkins coordinates=XYZ
 """ + "".join(f"""
 [AXIS_{a}]
-{"OFFSET_AV_RATIO = 0.2" if a in "XZ" else ""}
+OFFSET_AV_RATIO = 0.2
 MAX_VELOCITY = 50
 MAX_ACCELERATION = 500
 MIN_LIMIT = -100
@@ -120,7 +126,8 @@ def write_config(folder: Path, prefix: str = "compd") -> Path:
     """The machine's configuration in `folder` (compd's signals ``<prefix>-...``);
     returns the INI file."""
     (folder / "compd.hal").write_text(
-        hal_lines(prefix) + x_eoffset_hal_lines(prefix) + mcode_hal_lines(prefix),
+        hal_lines(prefix) + axis_eoffset_hal_lines("x", prefix)
+        + axis_eoffset_hal_lines("y", prefix) + mcode_hal_lines(prefix),
         encoding="utf-8")
     (folder / "tool.tbl").write_text("T1 P1 D6.0 Z0 ;\n", encoding="utf-8")
     (folder / "sim.var").write_text("", encoding="utf-8")

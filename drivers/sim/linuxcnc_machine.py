@@ -1,10 +1,10 @@
 """A real LinuxCNC, headless, as the simulated machine's controller.
 
 Not a stand-in: LinuxCNC itself (Debian's ``linuxcnc-uspace``) runs a small
-mill (XYZ, mm, trivkins, simulated joints, X and Z external offsets at
-``OFFSET_AV_RATIO`` 0.2; X's: `x_offset`) from a configuration written to a work folder, with
-the ``dummy`` display (it waits on its stdin: closing it shuts LinuxCNC
-down). The plant's side is a second HAL component, ``<prefix>-plant``
+mill (XYZ, mm, trivkins, simulated joints, external offsets on X, Y and Z at
+``OFFSET_AV_RATIO`` 0.2; X's: `x_offset`, Y's: `y_offset`) from a configuration
+written to a work folder, with the ``dummy`` display (it waits on its stdin:
+closing it shuts LinuxCNC down). The plant's side is a second HAL component, ``<prefix>-plant``
 (`drivers.linuxcnc.LinuxCncDriver` with output pins), driving the sensor
 signals ``<prefix>-<channel>`` that compd's own pins join; the spindle speed is
 LinuxCNC's (``spindle-speed-cmd`` <- ``spindle.0.speed-out``, set by the
@@ -146,6 +146,12 @@ class LinuxCncSimController:
                                         counts_net=f"{p}-x-eoffset-counts",
                                         enable_net=f"{p}-x-eoffset-enable")
         self.x_position = LinuxCncGet(kind="get", hal="axis.x.pos-cmd")
+        #: Y's external offset, on signals of its own, as X's
+        self.y_offset = LinuxCncEoffset(kind="eoffset", axis="y", scale=COUNT_UM,
+                                        eoffset_scale=COUNT_UM / 1000.0,
+                                        counts_net=f"{p}-y-eoffset-counts",
+                                        enable_net=f"{p}-y-eoffset-enable")
+        self.y_position = LinuxCncGet(kind="get", hal="axis.y.pos-cmd")
         #: the controller's state for [output] machine_on / estop / homed
         self.states: dict[str, Any] = {
             "machine_on": LinuxCncGet(kind="get", hal="motion.motion-enabled"),
@@ -183,6 +189,9 @@ class LinuxCncSimController:
                     "x_request_um": LinuxCncGet(kind="get", hal="axis.x.eoffset-request",
                                                 scale=1000.0),
                     "x_pos_mm": LinuxCncGet(kind="get", hal="axis.x.pos-cmd"),
+                    "y_offset_um": LinuxCncGet(kind="get", hal="axis.y.eoffset", scale=1000.0),
+                    "y_request_um": LinuxCncGet(kind="get", hal="axis.y.eoffset-request",
+                                                scale=1000.0),
                     "spindle_rpm": LinuxCncGet(kind="get", hal="spindle.0.speed-out"),
                     "heartbeat": LinuxCncPin(pin="heartbeat", net=f"{self.prefix}-heartbeat",
                                              type="s32"),
@@ -324,18 +333,20 @@ class LinuxCncSimController:
             await asyncio.sleep(0.001)
 
     async def settled_axes(self, deadline_s: float = SETTLE_DEADLINE_S) -> dict[str, float]:
-        """Once motion has applied both external offsets compd requested: X's and
-        Z's offsets applied (µm, ``x_offset_um``, ``offset_um``) and X's position
-        (mm, ``x_pos_mm``); a condition, bounded by `deadline_s`."""
+        """Once motion has applied every external offset compd requested: X's, Y's
+        and Z's offsets applied (µm, ``x_offset_um``, ``y_offset_um``,
+        ``offset_um``) and X's position (mm, ``x_pos_mm``); a condition, bounded by
+        `deadline_s`."""
         assert self._plant is not None
         end = time.monotonic() + deadline_s
-        names = ["offset_um", "request_um", "x_offset_um", "x_request_um", "x_pos_mm"]
+        names = ["offset_um", "request_um", "x_offset_um", "x_request_um", "y_offset_um",
+                 "y_request_um", "x_pos_mm"]
         while True:
             v = {n: s.value for n, s in (await self._plant.read(names)).items()}
-            if ((abs(v["offset_um"] - v["request_um"]) < 1e-3
-                    and abs(v["x_offset_um"] - v["x_request_um"]) < 1e-3)
-                    or time.monotonic() > end):
-                return {n: v[n] for n in ("offset_um", "x_offset_um", "x_pos_mm")}
+            if (all(abs(v[f"{a}offset_um"] - v[f"{a}request_um"]) < 1e-3
+                    for a in ("", "x_", "y_")) or time.monotonic() > end):
+                return {n: v[n] for n in ("offset_um", "x_offset_um", "y_offset_um",
+                                          "x_pos_mm")}
             await asyncio.sleep(0.001)
 
     async def outputs(self) -> dict[str, float]:

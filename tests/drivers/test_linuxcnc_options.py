@@ -189,3 +189,45 @@ def test_check_warns_of_a_linuxcnc_config_without_homed(
     assert main(["check", str(path)]) == 0
     err = capsys.readouterr().err
     assert "output.homed is not set" in err and err.count("\n") == 1
+
+
+def test_the_examples_commented_x_axis_checks_and_joins_the_test_machines_signals(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The shipped example compensates Z alone; its commented-out X axis, uncommented,
+    passes `compd check`, and the signals it names (X's, and Y's likewise) are those the
+    test machine's HAL file makes, with X's and Y's external offsets on in its INI."""
+    from compd.cli import main
+    from drivers.sim.linuxcnc_config import write_config
+
+    example = (ROOT / "compd" / "examples" / "linuxcnc.toml").read_text("utf-8")
+    lines, on = [], False
+    for line in example.splitlines():
+        on = (on or line.startswith("# [channels.x_pos]")) \
+            and not line.startswith("# [output.axes.y]")
+        lines.append(line.removeprefix("# ").removeprefix("#") if on else line)
+    path = tmp_path / "compd.toml"
+    path.write_text("\n".join(lines), encoding="utf-8")
+    assert main(["check", str(path)]) == 0
+    assert "output.axes.x" in "\n".join(lines)
+    capsys.readouterr()
+    ini = write_config(tmp_path)
+    hal = (tmp_path / "compd.hal").read_text("utf-8")
+    for axis in "xy":
+        assert f"net compd-{axis}-eoffset-counts => axis.{axis}.eoffset-counts" in hal
+        assert f"net compd-{axis}-eoffset-enable => axis.{axis}.eoffset-enable" in hal
+        assert f'counts_net = "compd-{axis}-eoffset-counts"' in example
+    assert ini.read_text("utf-8").count("OFFSET_AV_RATIO = 0.2") == 3
+
+
+def test_sim_write_config_for_linuxcnc_names_the_example(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`compd sim --protocol linuxcnc --write-config` writes nothing (LinuxCNC runs
+    itself) and says, on one line, where to start: the example with its X axis."""
+    from compd.cli import main
+    from compd.sysexits import EX_USAGE
+
+    out = tmp_path / "c.toml"
+    assert main(["sim", "--protocol", "linuxcnc", "--write-config", str(out)]) == EX_USAGE
+    err = capsys.readouterr().err
+    assert "compd/examples/linuxcnc.toml" in err and "X and Y" in err
+    assert err.count("\n") == 1 and not out.exists()

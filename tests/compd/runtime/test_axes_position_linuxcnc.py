@@ -11,13 +11,16 @@ Modbus; everything is checked on LinuxCNC's side (``axis.L.eoffset``).
 One LinuxCNC for the module, held under the machine's LinuxCNC lock
 (`drivers.sim.linuxcnc_host`); skipped with the reason where ``linuxcnc-uspace``
 is absent or a LinuxCNC this run did not start runs. X is moved by MDI lines (each
-runs to its end before the cycle reads). The figures are printed: ``-s`` shows them.
+runs to its end before the cycle reads), or by one G-code program run in AUTO mode
+while the daemon compensates. The figures are printed: ``-s`` shows them.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
+import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -98,7 +101,7 @@ b = ["1"]
 heartbeat = {{ pin = "heartbeat", net = "{p}-heartbeat", type = "s32" }}
 status = {{ pin = "status", net = "{p}-status", type = "s32" }}
 limit_um = 100.0
-slew_um_s = 10.0
+slew_um_s = {zslew}
 
 [output.offset]
 kind = "eoffset"
@@ -112,8 +115,8 @@ position = "x_pos"
 reference_mm = 0.0
 value_limit_um = 100.0
 slope_limit_um_m = 200.0
-slew_um_s = 10.0
-slope_slew_um_m_s = 10.0
+slew_um_s = {xslew}
+slope_slew_um_m_s = {sslew}
 
 [output.axes.x.offset]
 kind = "eoffset"
@@ -150,10 +153,13 @@ enabled = false
 """
 
 
-def _config(sim: LinuxCncSimController, tmp_path: Path) -> LoadedConfig:
+def _config(sim: LinuxCncSimController, tmp_path: Path, *, zslew: float = 10.0,
+            xslew: float = 10.0, sslew: float = 10.0) -> LoadedConfig:
+    """The module's config; the slews (µm/s, X's slope µm/m per s) as given."""
     p = tmp_path / "compd.toml"
     p.write_text(CONFIG.format(period_s=PERIOD_S, component=sim.component, p=sim.prefix,
-                               t0=T0, kz=KZ, kx=KX, ks=KS, count=COUNT_UM), encoding="utf-8")
+                               t0=T0, kz=KZ, kx=KX, ks=KS, count=COUNT_UM, zslew=zslew,
+                               xslew=xslew, sslew=sslew), encoding="utf-8")
     return load_config(p)
 
 
@@ -183,21 +189,26 @@ async def lcnc() -> AsyncIterator[LinuxCncSimController]:
 
 
 async def test_x_and_z_eoffsets_are_written_together(lcnc: LinuxCncSimController) -> None:
-    """One driver, one write: X's and Z's external offsets both applied, each on its
-    own signals and counts, and each read back on its own axis."""
-    outputs = {"offset": lcnc.outputs_map["offset"], "x_offset": lcnc.x_offset}
+    """One driver, one write: X's, Y's and Z's external offsets all applied, each on
+    its own signals and counts, and each read back on its own axis."""
+    outputs = {"offset": lcnc.outputs_map["offset"], "x_offset": lcnc.x_offset,
+               "y_offset": lcnc.y_offset}
     driver = LinuxCncDriver(lcnc.endpoint, {"x_pos": lcnc.x_position}, outputs,
                             timeout_s=10.0, connect_timeout_s=60.0, component=lcnc.component)
     try:
         await driver.connect()
-        assert driver.eoffset_scales == pytest.approx({"offset": 1e-4, "x_offset": 1e-4})
-        await driver.write({"offset": 4.2, "x_offset": -7.3})
+        assert driver.eoffset_scales == pytest.approx({"offset": 1e-4, "x_offset": 1e-4,
+                                                      "y_offset": 1e-4})
+        await driver.write({"offset": 4.2, "x_offset": -7.3, "y_offset": 3.1})
         hal = await lcnc.settled_axes()
         assert hal["offset_um"] == pytest.approx(4.2, abs=SETTLED_UM)
         assert hal["x_offset_um"] == pytest.approx(-7.3, abs=SETTLED_UM)
-        got = await driver.read(["offset", "x_offset", "x_pos"])
+        assert hal["y_offset_um"] == pytest.approx(3.1, abs=SETTLED_UM)
+        got = await driver.read(["offset", "x_offset", "y_offset", "x_pos"])
         assert got["offset"].value == pytest.approx(4.2, abs=SETTLED_UM)
         assert got["x_offset"].value == pytest.approx(-7.3, abs=SETTLED_UM)
+        assert got["y_offset"].value == pytest.approx(3.1, abs=SETTLED_UM)
+        await driver.write({"y_offset": 0.0})
         # X alone: Z keeps its offset
         await driver.write({"x_offset": 2.5})
         hal = await lcnc.settled_axes()
@@ -336,3 +347,95 @@ async def test_the_daemon_writes_x_and_z_on_linuxcnc(lcnc: LinuxCncSimController
     # with no position in it, stays within a count or two
     xs, zs = [x for _, x, _ in seen], [z for *_, z in seen]
     assert max(xs) - min(xs) > 2.0 and max(zs) - min(zs) < 0.5
+
+
+#: the slews of the program's test (Z and X's value µm/s, X's slope µm/m per s): slow
+#: enough that they bind against the warming plant within a 60 s period
+Z_SLEW, X_SLEW, SLOPE_SLEW = 0.01, 0.01, 0.2
+#: X's travel back and forth (mm) and how far X must have moved between two cycles
+TRAVEL_MM, MOVED_MM = 60.0, 10.0
+#: seconds X may take to move MOVED_MM on a loaded machine (it moves 50 mm/s)
+MOVE_DEADLINE_S = 60.0
+#: one G-code program: X back and forth and Z with it, long enough for the test
+SWEEP = f"""%
+G21 G90 G17
+G1 X{TRAVEL_MM:g} Z-5 F3000
+o100 repeat [1000]
+  G1 X-{TRAVEL_MM:g} Z0 F3000
+  G1 X{TRAVEL_MM:g} Z-5 F3000
+o100 endrepeat
+M2
+%
+"""
+#: linuxcnc's MODE_AUTO and INTERP_IDLE
+MODE_AUTO, INTERP_IDLE = 2, 1
+
+
+async def _moved_from(lcnc: LinuxCncSimController, x_mm: float) -> None:
+    """Until X (as LinuxCNC commands it) is MOVED_MM from `x_mm`; bounded."""
+    end = time.monotonic() + MOVE_DEADLINE_S
+    while abs((await lcnc.settled_axes())["x_pos_mm"] - x_mm) < MOVED_MM:
+        assert time.monotonic() < end, f"X did not move {MOVED_MM} mm from {x_mm} mm"
+
+
+async def test_one_gcode_program_moves_x_and_z_while_the_daemon_compensates_both(
+        lcnc: LinuxCncSimController, tmp_path: Path) -> None:
+    """One G-code program, run in AUTO mode, sweeps X (and Z) while the whole daemon
+    (lockstep) compensates X at its position and Z at once: each cycle LinuxCNC applies
+    what compd wrote on each axis, and every applied step is within that axis's bound:
+    Z's slew over the cycle's Δt; X's value slew plus its slope's slew at X's position
+    over Δt, plus the slope times the distance X moved (docs/protocols.md)."""
+    cfg = _config(lcnc, tmp_path, zslew=Z_SLEW, xslew=X_SLEW, sslew=SLOPE_SLEW)
+    machine = SimMachine(lcnc, program=constant(9000.0, heat_h=2.0, cool_h=1.0),
+                         seed=5, period_s=PERIOD_S, repeat=False)
+    rig = Lockstep(machine, cfg.path)
+    assert lcnc.folder is not None
+    ngc = lcnc.folder / "sweep.ngc"
+    ngc.write_text(SWEEP, encoding="ascii")
+    # (x mm, slope µm/m, X's offset, Z's offset) of each cycle, offsets as applied (µm)
+    seen: list[tuple[float, float, float, float]] = []
+    try:
+        await rig.start()
+        await lcnc.control("run", str(ngc))
+        for i in range(13):
+            if i:  # the first: the cycles of the start, X standing at 0
+                await _moved_from(lcnc, seen[-1][0])
+                await rig.step()
+            assert rig.daemon is not None
+            result = rig.daemon.loop.last_result
+            assert result is not None
+            a = result.axes["x"]
+            assert a.cause == Cause.IN_FORCE and a.position_mm is not None, a
+            hal = await lcnc.settled_axes()
+            # what LinuxCNC applies is what compd wrote, on each axis
+            assert hal["x_offset_um"] == pytest.approx(result.writes["x_comp_offset"],
+                                                       abs=SETTLED_UM)
+            assert hal["offset_um"] == pytest.approx(result.writes["offset"], abs=SETTLED_UM)
+            seen.append((a.position_mm, a.slope.stage, hal["x_offset_um"], hal["offset_um"]))
+        stat = await lcnc.control("stat")
+        assert stat["task_mode"] == MODE_AUTO and stat["interp_state"] != INTERP_IDLE, stat
+        assert await rig.stop() == 0
+    finally:
+        await rig.close()
+        await lcnc.control("mdi", "G90 G0 X0 Z0")
+    steps: dict[str, list[tuple[float, float]]] = {"x": [], "z": []}  # (|step|, bound)
+    for (x0, s0, ox0, oz0), (x1, _, ox1, oz1) in itertools.pairwise(seen):
+        motion = abs(s0) * abs(x1 - x0) / 1000.0
+        steps["x"].append((abs(ox1 - ox0), X_SLEW * PERIOD_S
+                           + SLOPE_SLEW * PERIOD_S * abs(x1) / 1000.0 + motion))
+        steps["z"].append((abs(oz1 - oz0), Z_SLEW * PERIOD_S))
+    figure: dict[str, object] = {"figure": "linuxcnc_program_x_and_z_slew",
+                                 "cycles": len(seen),
+                                 "x_mm": [round(x, 3) for x, *_ in seen]}
+    for axis, got in steps.items():
+        worst = max(got, key=lambda sb: sb[0] - sb[1])
+        figure[axis] = {"max_step_um": max(s for s, _ in got),
+                        "worst_step_vs_bound_um": list(worst),
+                        "max_bound_um": max(b for _, b in got)}
+        # a count's rounding on either side of a step
+        assert all(s <= b + COUNT_UM + 1e-9 for s, b in got), (axis, got)
+    print(json.dumps(figure))
+    # X moved back and forth across its travel, and the offsets moved with it
+    xs = [x for x, *_ in seen]
+    assert min(xs) < -MOVED_MM / 2 and max(xs) > MOVED_MM / 2
+    assert max(o for *_, o, _ in seen) - min(o for *_, o, _ in seen) > 0.5
