@@ -24,6 +24,7 @@ from typing import Any
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, Info
 from prometheus_client.exposition import make_wsgi_app
 
+from compd.core.axis_params import AxisRow
 from compd.core.health import Cause
 from compd.faces.http_server import REASONS, HttpLimits, HttpServer, WSGIApp
 from compd.faces.logs import (
@@ -152,6 +153,8 @@ class Metrics(MetricsServer):
         #: (`labels()` hashes and locks on every call: twice a channel a cycle before)
         self._value_series: dict[str, Gauge] = {}
         self._valid_series: dict[str, Gauge] = {}
+        #: axis -> its value, slope, in-force and fault-state series, looked up once
+        self._axis_series: dict[str, tuple[Gauge, Gauge, Gauge, Gauge]] = {}
         self.build_info = Info("compd_build", "compd's version and the sha256 of the model "
                                "and config it runs", registry=r)
         self.fault_state = Gauge("compd_fault_state",
@@ -266,6 +269,29 @@ class Metrics(MetricsServer):
             self.write_errors.labels(output=name)
         self.build_info.info({"version": version, "model_sha256": model_sha256,
                               "config_sha256": config_sha256})
+
+    def axes(self, rows: Mapping[str, AxisRow]) -> None:
+        """Each configured axis's line, in force and state this cycle. An axis no
+        longer in the report (a reload without it) loses its series: a stale
+        ``compd_axis_in_force`` of 1 would claim a line compd no longer keeps."""
+        series = self._axis_series
+        if series.keys() != rows.keys():
+            for axis in [a for a in series if a not in rows]:
+                for metric in (self.axis_value_um, self.axis_slope_um_m, self.axis_in_force,
+                               self.axis_fault_state):
+                    self._remove(metric, axis)
+                del series[axis]
+        for axis, row in rows.items():
+            got = series.get(axis)
+            if got is None:
+                got = series[axis] = (
+                    self.axis_value_um.labels(axis=axis), self.axis_slope_um_m.labels(axis=axis),
+                    self.axis_in_force.labels(axis=axis), self.axis_fault_state.labels(axis=axis))
+            value, slope, in_force, state = got
+            value.set(row.value.stage)
+            slope.set(row.slope.stage)
+            in_force.set(1.0 if row.in_force else 0.0)
+            state.set(row.state.gauge)
 
     @staticmethod
     def _remove(metric: Gauge, *labels: str) -> None:

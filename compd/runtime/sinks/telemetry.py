@@ -122,11 +122,7 @@ class TelemetrySink(CycleSink):
         m.cause(result.cause)
         m.fallback(result.snapshot.fallback_for)
         m.model_output(result.model_um, result.validity)
-        for axis, line in result.axes.items():
-            m.axis_value_um.labels(axis=axis).set(line.value.stage)
-            m.axis_slope_um_m.labels(axis=axis).set(line.slope.stage)
-            m.axis_in_force.labels(axis=axis).set(1.0 if line.in_force else 0.0)
-            m.axis_fault_state.labels(axis=axis).set(line.state.gauge)
+        m.axes(result.axes)
         if tick.samples:
             for name, s in tick.samples.items():
                 if math.isfinite(s.value):

@@ -440,3 +440,35 @@ def test_processes_sharing_one_stderr_never_splice_their_log_lines(tmp_path: Pat
     docs = [json.loads(line) for line in lines]  # a spliced line is no JSON
     assert sorted((d["machine"], d["i"]) for d in docs) == sorted(
         (m, i) for m in ("mill-a", "mill-b") for i in range(2000))
+
+
+def test_axis_series_follow_the_report_and_go_with_a_reloaded_away_axis() -> None:
+    """An axis's gauges carry its line; an axis gone from the report (a reload
+    without it) loses them, so no stale ``compd_axis_in_force`` 1 claims it."""
+    from compd.core.axis_params import AxisRow, ParamRow
+    from compd.core.faults import FaultState
+    from compd.core.health import Cause
+
+    def row(axis: str, value: float) -> AxisRow:
+        return AxisRow(axis=axis, state=FaultState.OK, cause=Cause.IN_FORCE, status=0,
+                       value=ParamRow(value, value, value, value),
+                       slope=ParamRow(2.0, 2.0, 2.0, 2.0), reference_mm=0.0,
+                       in_force=True, inputs_valid=True)
+
+    m = Metrics()
+
+    def sample(name: str, axis: str) -> float | None:
+        return m.registry.get_sample_value(name, {"axis": axis})
+
+    m.axes({"x": row("x", 12.0), "y": row("y", -3.0)})
+    m.axes({"x": row("x", 12.5), "y": row("y", -3.0)})
+    assert sample("compd_axis_value_micrometres", "x") == 12.5
+    assert sample("compd_axis_slope_micrometres_per_metre", "y") == 2.0
+    assert sample("compd_axis_in_force", "y") == 1.0
+    m.axes({"x": row("x", 13.0)})  # y reloaded away
+    assert sample("compd_axis_value_micrometres", "x") == 13.0
+    for name in ("compd_axis_value_micrometres", "compd_axis_slope_micrometres_per_metre",
+                 "compd_axis_in_force", "compd_axis_fault_state"):
+        assert sample(name, "y") is None
+    m.axes({})  # a reload without [output.axes]
+    assert sample("compd_axis_in_force", "x") is None
