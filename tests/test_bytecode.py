@@ -12,6 +12,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import compd
+
 ROOT = Path(__file__).resolve().parents[1]
 
 _PROBE = """
@@ -38,10 +40,15 @@ print(json.dumps({"made": made, "left": sorted(str(p) for p in Path().rglob("*.p
 def test_a_run_that_writes_no_bytecode_compiles_once_and_leaves_the_tree_as_it_was(
         tmp_path: Path) -> None:
     tag = sys.implementation.cache_tag
-    for name in ("tests/__init__.py", "tests/conftest.py", "compd/__init__.py",
-                 "compd/sysexits.py"):
+    # the package's files from wherever it is imported from (the checkout, or the
+    # installed wheel, whose test run has no compd/ in its tree)
+    package = Path(compd.__file__).resolve().parent
+    for name, src in (("tests/__init__.py", ROOT / "tests" / "__init__.py"),
+                      ("tests/conftest.py", ROOT / "tests" / "conftest.py"),
+                      ("compd/__init__.py", package / "__init__.py"),
+                      ("compd/sysexits.py", package / "sysexits.py")):
         (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy(ROOT / name, tmp_path / name)
+        shutil.copy(src, tmp_path / name)
     (tmp_path / "models").mkdir()
     (tmp_path / "models" / "__init__.py").write_text("")
     (tmp_path / "models" / "kept.py").write_text("")
