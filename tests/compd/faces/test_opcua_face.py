@@ -68,6 +68,14 @@ async def face_daemon(tmp_path: Path, sim: ModbusSimController, face: str,
     path = write_config(tmp_path, sim.endpoint, time_scale=20.0, slew_um_s=slew_um_s)
     (tmp_path / "operator.pw").write_text(PASSWORD + "\n", encoding="utf-8")
     path.write_text(path.read_text(encoding="utf-8") + face, encoding="utf-8")
+    async with running_daemon(path) as daemon:
+        yield daemon
+
+
+@contextlib.asynccontextmanager
+async def running_daemon(path: Path) -> AsyncIterator[Daemon]:
+    """The daemon of the config at `path`, once it completed 3 cycles and its OPC UA
+    face has started; stopped (exit 0) and the face's servers released after."""
     daemon = Daemon(load_config(path), notifier=Notifier(None))
     task = asyncio.create_task(daemon.run())
     try:

@@ -24,20 +24,16 @@ from compd.config.loader import load_config
 from compd.core.cycle import Cycle
 from compd.core.output import Status
 from compd.core.params import params_from_config
-from compd.faces.opcua_face import NAMESPACE, published_values, release_all
+from compd.faces.opcua_face import NAMESPACE, published_values
 from compd.runtime.daemon import Daemon
-from compd.runtime.sdnotify import Notifier
 from compd.testing import FakeClock
 from drivers.base import Sample
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
 from tests.compd.axes_helpers import SENSOR_CHANNELS, axes_config_text
+from tests.compd.faces.test_opcua_face import REQUEST_TIMEOUT_S, running_daemon
 from tests.compd.runtime.test_axes_position_modbus import positional_config
 from tests.harness import until
-
-#: generous: a request that outlasts it makes asyncua drop the session ("client is
-#: disconnected"), and a loaded PC makes a request slower, never a test red
-REQUEST_TIMEOUT_S = 60.0
 
 TEMPS = {"nut": 24.0, "screw_bearing": 24.0, "column": 22.0, "ambient": 20.0}
 
@@ -50,17 +46,8 @@ async def _daemon(tmp_path: Path, sim: ModbusSimController, port: int
                                      value_slew=50.0, slope_slew=50.0)
                     + f'\n[faces.opcua]\nenabled = true\nport = {port}\npolicy = "None"\n'
                     "insecure = true\n", encoding="utf-8")
-    daemon = Daemon(load_config(path), notifier=Notifier(None))
-    task = asyncio.create_task(daemon.run())
-    try:
-        await until(lambda: daemon.telemetry.complete_cycles >= 3 or task.done())
-        assert not task.done(), "the daemon ended early"
-        await until(lambda: daemon.opcua.starting is None or daemon.opcua.starting.done())
+    async with running_daemon(path) as daemon:
         yield daemon
-    finally:
-        daemon.request_stop()
-        assert await asyncio.wait_for(task, 120.0) == 0
-        await release_all()
 
 
 async def _value(machine: Node, idx: int, *path: str) -> object:
