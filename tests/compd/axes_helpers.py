@@ -1,10 +1,18 @@
 """A Modbus config with per-axis outputs (``[output.axes.x]``, the TwinCAT layout of
 the simulated Modbus controller) and its channels named for the ball-screw machine
-(`drivers.sim.ballscrew_machine`): nut, screw_bearing, column, ambient."""
+(`drivers.sim.ballscrew_machine`): nut, screw_bearing, column, ambient; and one
+cycle driven by hand over a real driver (`drive_cycle`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from compd.config.loader import LoadedConfig
+    from compd.core.cycle import Cycle
+    from compd.core.plan import Plan, Row
+    from drivers.base import Driver
 
 #: the ball-screw sensors on the simulated Modbus controller's input registers
 SENSOR_CHANNELS: dict[str, str] = {"nut": "motor", "screw_bearing": "bearing",
@@ -114,3 +122,21 @@ def write_axes_config(tmp_path: Path, endpoint: str = "modbus://127.0.0.1:5020",
     p = tmp_path / "compd.toml"
     p.write_text(axes_config_text(endpoint, **over), encoding="utf-8")
     return p
+
+
+async def drive_cycle(driver: Driver, cycle: Cycle, cfg: LoadedConfig,
+                      t: float) -> tuple[Plan, Row]:
+    """One cycle as the daemon runs it, over `driver`: the channels, the offset and
+    every axis output read (a bad read-back as None), planned at `t`, written, and
+    committed as written."""
+    from compd.core.plan import WRITTEN
+    from drivers.base import Quality
+
+    names = [*cfg.channels, "offset", *cycle.axes.names]
+    got = await driver.read(names)
+    samples = {n: got[n] for n in cfg.channels}
+    rb = {n: (s.value if (s := got.get(n)) is not None and s.quality is not Quality.BAD
+              else None) for n in cycle.axes.names}
+    plan = cycle.plan(t, samples, got["offset"].value, axes_readback=rb)
+    await driver.write(plan.writes)
+    return plan, cycle.commit(WRITTEN)

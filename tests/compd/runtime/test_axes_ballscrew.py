@@ -13,15 +13,14 @@ import numpy as np
 import pytest
 
 from compd.config.loader import load_config
-from compd.core.cycle import WRITTEN, Cycle
+from compd.core.cycle import Cycle
 from compd.core.health import Cause
 from compd.core.params import params_from_config
 from compd.runtime.driver_setup import build_driver
-from drivers.base import Quality
 from drivers.sim.ballscrew import TEMPERATURES, constant_program, simulate_ballscrew
 from drivers.sim.ballscrew_machine import BallscrewMachine
 from drivers.sim.modbus_server import ModbusSimController
-from tests.compd.axes_helpers import SENSOR_CHANNELS, write_axes_config
+from tests.compd.axes_helpers import SENSOR_CHANNELS, drive_cycle, write_axes_config
 
 HOURS, PERIOD_S = 8.0, 600.0
 PROGRAM = constant_program(6_000.0, 0.8, 15_000.0)
@@ -37,15 +36,6 @@ def _slope_gains() -> tuple[float, float, float]:
     return float(sn), float(sb), float(t0)
 
 
-async def _cycle(driver, cycle: Cycle, cfg, t: float):  # type: ignore[no-untyped-def]
-    names = [*cfg.channels, "offset", *cycle.axes.names]
-    got = await driver.read(names)
-    samples = {n: got[n] for n in cfg.channels}
-    rb = {n: (s.value if (s := got.get(n)) is not None and s.quality is not Quality.BAD
-              else None) for n in cycle.axes.names}
-    plan = cycle.plan(t, samples, got["offset"].value, axes_readback=rb)
-    await driver.write(plan.writes)
-    return plan, cycle.commit(WRITTEN)
 
 
 async def test_value_and_slope_bring_the_error_down_along_the_travel(tmp_path: Path) -> None:
@@ -66,7 +56,7 @@ async def test_value_and_slope_bring_the_error_down_along_the_travel(tmp_path: P
             temps = machine.temperatures()
             await sim.publish({SENSOR_CHANNELS[n]: temps[n] for n in TEMPERATURES})
             t += PERIOD_S
-            plan, row = await _cycle(driver, cycle, cfg, t)
+            plan, row = await drive_cycle(driver, cycle, cfg, t)
             errors = await machine.tick()
         growth = {x: machine.growth_um(x) for x in machine.positions_mm}
         worst_none = max(abs(g) for g in growth.values())
@@ -81,7 +71,7 @@ async def test_value_and_slope_bring_the_error_down_along_the_travel(tmp_path: P
         # the controller restarts: its parameters are 0; compd ramps from there
         await sim.forget_outputs()
         t += PERIOD_S
-        plan, row = await _cycle(driver, cycle, cfg, t)
+        plan, row = await drive_cycle(driver, cycle, cfg, t)
         step = 0.05 * PERIOD_S
         assert 0.0 < plan.writes["x_comp_value"] <= step + 0.1
         assert 0.0 < plan.writes["x_comp_slope"] <= step + 1.0

@@ -17,21 +17,19 @@ from typing import Any
 
 import pytest
 
-from compd.config.loader import LoadedConfig, parse_config
-from compd.core.cycle import WRITTEN, Cycle
+from compd.config.loader import parse_config
+from compd.core.cycle import Cycle
 from compd.core.events import EventName
 from compd.core.health import Cause
 from compd.core.output import AxesStatus
 from compd.core.params import params_from_config
-from compd.core.plan import Plan, Row
 from compd.runtime.driver_setup import build_driver
 from drivers.addresses import S7Address
-from drivers.base import Driver, Quality
 from drivers.sim.ballscrew import TEMPERATURES
 from drivers.sim.ballscrew_machine import BallscrewMachine
 from drivers.sim.opcua_server import OpcUaSimController
 from drivers.sim.s7_server import S7SimController
-from tests.compd.axes_helpers import SENSOR_CHANNELS, axes_config_text
+from tests.compd.axes_helpers import SENSOR_CHANNELS, axes_config_text, drive_cycle
 from tests.compd.runtime.test_axes_ballscrew import HOURS, PERIOD_S, PROGRAM, _slope_gains
 
 #: the value's and slope's rate limits (µm/s, µm/m per s): one cycle moves them this
@@ -66,16 +64,6 @@ def _doc(sim: Sim, t0: float, sn: float, sb: float) -> dict[str, Any]:
     return doc
 
 
-async def _cycle(driver: Driver, cycle: Cycle, cfg: LoadedConfig, t: float
-                 ) -> tuple[Plan, Row]:
-    names = [*cfg.channels, "offset", *cycle.axes.names]
-    got = await driver.read(names)
-    samples = {n: got[n] for n in cfg.channels}
-    rb = {n: (s.value if (s := got.get(n)) is not None and s.quality is not Quality.BAD
-              else None) for n in cycle.axes.names}
-    plan = cycle.plan(t, samples, got["offset"].value, axes_readback=rb)
-    await driver.write(plan.writes)
-    return plan, cycle.commit(WRITTEN)
 
 
 async def _opcua_power_cycle(sim: Sim) -> None:
@@ -113,7 +101,7 @@ async def test_the_line_another_writer_and_a_power_cycle(protocol: str,
             temps = machine.temperatures()
             await sim.publish({SENSOR_CHANNELS[n]: temps[n] for n in TEMPERATURES})
             t += PERIOD_S
-            plan, row = await _cycle(driver, cycle, cfg, t)
+            plan, row = await drive_cycle(driver, cycle, cfg, t)
             errors = await machine.tick()
         worst_none = max(abs(machine.growth_um(x)) for x in machine.positions_mm)
         worst_comp = max(abs(e) for e in errors.values())
@@ -136,7 +124,7 @@ async def test_the_line_another_writer_and_a_power_cycle(protocol: str,
         foreign = x.value.confirmed + 100.0
         await sim.publish({"x_comp_value": foreign})
         t += PERIOD_S
-        plan, row = await _cycle(driver, cycle, cfg, t)
+        plan, row = await drive_cycle(driver, cycle, cfg, t)
         found = [e for e in plan.events if e.name is EventName.READBACK_MISMATCH]
         assert [e.fields["output"] for e in found] == ["x_comp_value"]
         assert row.axes["x"].cause == Cause.FOREIGN_OFFSET
@@ -152,7 +140,7 @@ async def test_the_line_another_writer_and_a_power_cycle(protocol: str,
         driver = build_driver(cfg)
         await driver.connect()
         t += PERIOD_S
-        plan, row = await _cycle(driver, cycle, cfg, t)
+        plan, row = await drive_cycle(driver, cycle, cfg, t)
         assert 0.0 < plan.writes["x_comp_value"] <= STEP + 1e-6
         assert 0.0 < plan.writes["x_comp_slope"] <= STEP + 1e-6
         assert row.axes["x"].cause == Cause.FOREIGN_OFFSET
@@ -163,7 +151,7 @@ async def test_the_line_another_writer_and_a_power_cycle(protocol: str,
         last = plan.writes["x_comp_value"]
         for _ in range(12):
             t += PERIOD_S
-            plan, row = await _cycle(driver, cycle, cfg, t)
+            plan, row = await drive_cycle(driver, cycle, cfg, t)
             assert abs(plan.writes["x_comp_value"] - last) <= STEP + 1e-6
             last = plan.writes["x_comp_value"]
         assert row.axes["x"].in_force

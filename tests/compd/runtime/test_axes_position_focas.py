@@ -21,9 +21,9 @@ from drivers.addresses import FocasPmcAddress
 from drivers.sim.ballscrew import TEMPERATURES
 from drivers.sim.ballscrew_machine import BallscrewMachine
 from drivers.sim.focas_server import FocasSimController
-from tests.compd.axes_helpers import SENSOR_CHANNELS
+from tests.compd.axes_helpers import SENSOR_CHANNELS, drive_cycle
 from tests.compd.runtime.test_axes_ballscrew import HOURS, PERIOD_S, PROGRAM, _slope_gains
-from tests.compd.runtime.test_axes_position_modbus import _cycle, positional_config_text, travel
+from tests.compd.runtime.test_axes_position_modbus import positional_config_text, travel
 
 
 def _doc(sim: FocasSimController, **over: float) -> dict[str, Any]:
@@ -63,7 +63,7 @@ async def test_the_offset_at_the_moving_position_over_focas(tmp_path: Path) -> N
             await sim.publish({**{SENSOR_CHANNELS[n]: temps[n] for n in TEMPERATURES},
                                "x_position": x})
             t += PERIOD_S
-            plan, row = await _cycle(driver, cycle, cfg, t)
+            plan, row = await drive_cycle(driver, cycle, cfg, t)
             held = await sim.read_back("x_comp_offset")
             errors.append((machine.growth_um(x), machine.growth_um(x) - held))
             machine.step()

@@ -28,12 +28,10 @@ import pytest
 import pytest_asyncio
 
 from compd.config.loader import LoadedConfig, load_config
-from compd.core.cycle import WRITTEN, Cycle
+from compd.core.cycle import Cycle
 from compd.core.health import Cause
 from compd.core.params import params_from_config
-from compd.core.plan import Plan, Row
 from compd.runtime.driver_setup import build_driver
-from drivers.base import Driver, Quality
 from drivers.linuxcnc import LinuxCncDriver
 from drivers.sim.linuxcnc_machine import (
     COUNT_UM,
@@ -44,6 +42,7 @@ from drivers.sim.linuxcnc_machine import (
 )
 from drivers.sim.machine import SimMachine
 from drivers.sim.programs import constant
+from tests.compd.axes_helpers import drive_cycle
 from tests.harness import Lockstep
 
 WHY_NOT = unavailable()
@@ -163,16 +162,6 @@ def _config(sim: LinuxCncSimController, tmp_path: Path, *, zslew: float = 10.0,
     return load_config(p)
 
 
-async def _cycle(driver: Driver, cycle: Cycle, cfg: LoadedConfig,
-                 t: float) -> tuple[Plan, Row]:
-    names = [*cfg.channels, "offset", *cycle.axes.names]
-    got = await driver.read(names)
-    samples = {n: got[n] for n in cfg.channels}
-    rb = {n: (s.value if (s := got.get(n)) is not None and s.quality is not Quality.BAD
-              else None) for n in cycle.axes.names}
-    plan = cycle.plan(t, samples, got["offset"].value, axes_readback=rb)
-    await driver.write(plan.writes)
-    return plan, cycle.commit(WRITTEN)
 
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
@@ -242,7 +231,7 @@ async def test_x_at_its_position_and_z_compensated_at_once(
             await lcnc.control("mdi", f"G90 G0 X{x:.3f}")
             await lcnc.publish({"column": column, "bearing": bearing})
             t += PERIOD_S
-            plan, row = await _cycle(driver, cycle, cfg, t)
+            plan, row = await drive_cycle(driver, cycle, cfg, t)
             hal = await lcnc.settled_axes()
             want_x = KX * (column - T0) + KS * (bearing - T0) * hal["x_pos_mm"] / 1000.0
             want_z = KZ * (column - T0)
@@ -266,7 +255,7 @@ async def test_x_at_its_position_and_z_compensated_at_once(
         # it is, while Z goes on
         await lcnc.publish({"column": T0 + 12.0, "bearing": math.nan})
         t += PERIOD_S
-        plan, row = await _cycle(driver, cycle, cfg, t)
+        plan, row = await drive_cycle(driver, cycle, cfg, t)
         hal = await lcnc.settled_axes()
         assert row.axes["x"].cause == Cause.INPUTS_INVALID and row.cause.healthy
         assert hal["x_offset_um"] == pytest.approx(held_x, abs=SETTLED_UM)
@@ -278,7 +267,7 @@ async def test_x_at_its_position_and_z_compensated_at_once(
         await lcnc.control("mdi", "G90 G0 X-30")
         await lcnc.publish({"column": T0 + 13.0})
         t += PERIOD_S
-        plan, row = await _cycle(driver, cycle, cfg, t)
+        plan, row = await drive_cycle(driver, cycle, cfg, t)
         hal = await lcnc.settled_axes()
         a = row.axes["x"]
         assert a.cause == Cause.INPUTS_INVALID
@@ -292,7 +281,7 @@ async def test_x_at_its_position_and_z_compensated_at_once(
         # the bearing back: X's line follows its models again at its present position
         await lcnc.publish({"bearing": T0 + 6.0})
         t += PERIOD_S
-        plan, row = await _cycle(driver, cycle, cfg, t)
+        plan, row = await drive_cycle(driver, cycle, cfg, t)
         hal = await lcnc.settled_axes()
         want_x = KX * 13.0 + KS * 6.0 * hal["x_pos_mm"] / 1000.0
         assert row.axes["x"].cause == Cause.IN_FORCE

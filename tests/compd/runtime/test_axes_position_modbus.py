@@ -14,16 +14,15 @@ from pathlib import Path
 import pytest
 
 from compd.config.loader import load_config
-from compd.core.cycle import WRITTEN, Cycle
+from compd.core.cycle import Cycle
 from compd.core.health import Cause
 from compd.core.params import params_from_config
 from compd.errors import ConfigError
 from compd.runtime.driver_setup import build_driver
-from drivers.base import Quality
 from drivers.sim.ballscrew import TEMPERATURES
 from drivers.sim.ballscrew_machine import BallscrewMachine
 from drivers.sim.modbus_server import ModbusSimController
-from tests.compd.axes_helpers import SENSOR_CHANNELS, axes_config_text
+from tests.compd.axes_helpers import SENSOR_CHANNELS, axes_config_text, drive_cycle
 from tests.compd.runtime.test_axes_ballscrew import HOURS, PERIOD_S, PROGRAM, _slope_gains
 
 POSITION = """
@@ -63,15 +62,6 @@ def travel(row: int) -> float:
     return 500.0 + 480.0 * math.sin(0.9 * row)
 
 
-async def _cycle(driver, cycle: Cycle, cfg, t: float):  # type: ignore[no-untyped-def]
-    names = [*cfg.channels, "offset", *cycle.axes.names]
-    got = await driver.read(names)
-    samples = {n: got[n] for n in cfg.channels}
-    rb = {n: (s.value if (s := got.get(n)) is not None and s.quality is not Quality.BAD
-              else None) for n in cycle.axes.names}
-    plan = cycle.plan(t, samples, got["offset"].value, axes_readback=rb)
-    await driver.write(plan.writes)
-    return plan, cycle.commit(WRITTEN)
 
 
 async def test_the_offset_at_the_moving_position_brings_its_error_down(
@@ -95,7 +85,7 @@ async def test_the_offset_at_the_moving_position_brings_its_error_down(
             await sim.publish({**{SENSOR_CHANNELS[n]: temps[n] for n in TEMPERATURES},
                                "x_position": x})
             t += PERIOD_S
-            plan, row = await _cycle(driver, cycle, cfg, t)
+            plan, row = await drive_cycle(driver, cycle, cfg, t)
             # the controller applies its offset register at the axis's position
             held = (await sim.read_values(["x_comp_offset"]))["x_comp_offset"]
             errors.append((machine.growth_um(x), machine.growth_um(x) - held))
@@ -109,7 +99,7 @@ async def test_the_offset_at_the_moving_position_brings_its_error_down(
         # NaN in the position register: the axis holds its offset, the others go on
         await sim.publish({"x_position": math.nan})
         t += PERIOD_S
-        plan, row = await _cycle(driver, cycle, cfg, t)
+        plan, row = await drive_cycle(driver, cycle, cfg, t)
         assert row.axes["x"].cause == Cause.INPUTS_INVALID
         assert plan.writes["x_comp_offset"] == pytest.approx(held, abs=1e-3)
         assert row.cause.healthy
@@ -147,14 +137,15 @@ async def test_a_traverse_moves_the_offset_by_the_slope_at_once(tmp_path: Path) 
         await sim.publish({**temps, "x_position": 100.0})
         for _ in range(5):
             t += 60.0
-            plan, row = await _cycle(driver, cycle, cfg, t)
+            plan, row = await drive_cycle(driver, cycle, cfg, t)
         before = row.axes["x"]
         assert before.in_force and before.slope.confirmed == pytest.approx(115.0)
         # the traverse: 800 mm in one cycle
         await sim.publish({"x_position": 900.0})
         t += 60.0
-        plan, row = await _cycle(driver, cycle, cfg, t)
+        plan, row = await drive_cycle(driver, cycle, cfg, t)
         after = row.axes["x"]
+        assert before.offset_um is not None
         step = plan.writes["x_comp_offset"] - before.offset_um
         assert step == pytest.approx(115.0 * 0.8, abs=1e-3)  # 92 µm at once
         assert after.value.sent == before.value.sent and after.slope.sent == before.slope.sent

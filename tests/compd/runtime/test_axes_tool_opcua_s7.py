@@ -21,8 +21,8 @@ from compd.errors import ConfigError
 from compd.runtime.driver_setup import build_driver
 from drivers.sim.opcua_server import OpcUaSimController
 from drivers.sim.s7_server import S7SimController
-from tests.compd.axes_helpers import axes_config_text
-from tests.compd.runtime.test_axes_opcua_s7 import SIMS, SLEW, Sim, _cycle, _doc
+from tests.compd.axes_helpers import axes_config_text, drive_cycle
+from tests.compd.runtime.test_axes_opcua_s7 import SIMS, SLEW, Sim, _doc
 
 #: the tool grows 2 µm per K of the column above 20 °C
 TOOL_GAIN = 2.0
@@ -60,7 +60,7 @@ async def test_the_tool_direction_takes_its_value(protocol: str, tmp_path: Path)
         t = 0.0
         for _ in range(3):
             t += 600.0
-            plan, row = await _cycle(driver, cycle, cfg, t)
+            plan, row = await drive_cycle(driver, cycle, cfg, t)
         tool = row.axes["tool"]
         assert tool.cause == Cause.IN_FORCE and tool.in_force
         assert tool.value.confirmed == pytest.approx(20.0)  # 2 µm/K · 10 K
