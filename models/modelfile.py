@@ -159,10 +159,14 @@ def parse_term(doc: Any, period_s: float, where: str) -> Term:
                 switch_channel=switch_channel)
 
 
+#: the top-level tables a model file may hold
+MODEL_FILE_KEYS = frozenset({"model", "terms", "provenance", "adaptation", "reference",
+                             "fallback"})
+
+
 def parse_model(doc: Mapping[str, Any], where: str = "model") -> CompensationModel:
     """Build a model from a parsed TOML document (the file, or a config's inline model)."""
-    _check_keys(doc, {"model", "terms", "provenance", "adaptation", "reference", "fallback"},
-                where)
+    _check_keys(doc, set(MODEL_FILE_KEYS), where)
     head = doc.get("model", {})
     if not isinstance(head, Mapping):
         raise ModelError(f"{where}.model: must be a table")

@@ -104,15 +104,18 @@ def run(args: argparse.Namespace) -> int:
 def _load(path: str) -> tuple[str, Any]:
     """("config", LoadedConfig) or ("model", CompensationModel): the file read
     once by the reader `compd run` uses (`compd.infiles.read_toml_document`);
-    a daemon config is one with [controller] or [machine]."""
+    a daemon config is one with any table a config has and a model file has not
+    ([controller], [machine], [output], [channels], ...), so a config missing its
+    [controller] is told so rather than read as a model."""
     import os
     from pathlib import Path
 
     from compd.config.loader import parse_config
+    from compd.config.schema import DaemonConfig
     from compd.errors import ConfigError
     from compd.infiles import load_model, read_toml_document
     from models.errors import ModelError
-    from models.modelfile import library_names, library_path, parse_model
+    from models.modelfile import MODEL_FILE_KEYS, library_names, library_path, parse_model
 
     p = Path(path)
     try:
@@ -124,7 +127,8 @@ def _load(path: str) -> tuple[str, Any]:
             raise InputError(f"{path}: no such file, nor a bundled model (bundled: "
                              f"{', '.join(library_names())})")
         text, doc = read_toml_document(p, "model or config file")
-        if "controller" in doc or "machine" in doc:
+        if any(key in DaemonConfig.model_fields and key not in MODEL_FILE_KEYS
+               for key in doc):
             return "config", parse_config(doc, p.resolve(), text)
         return "model", parse_model(doc)
     except ModelError as exc:
