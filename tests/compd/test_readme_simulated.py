@@ -22,8 +22,6 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 PROTOCOLS = ["opcua", "s7", "modbus", "focas"]
 
-pytestmark = pytest.mark.timeout(300)
-
 
 def _readme_commands() -> list[list[str]]:
     """The commands of the first sh block under "## Against a simulated machine"."""

@@ -83,7 +83,8 @@ async def test_float_and_double_nodes_written_with_their_own_type(
 async def test_plain_float_to_float_node_is_the_trap_we_avoid(
         sim: OpcUaSimController) -> None:
     """The bare client sends a Python float as Double: BadTypeMismatch."""
-    client = Client(sim.endpoint, timeout=1)
+    # generous request and liveness-probe times: a loaded PC answers late, never wrong
+    client = Client(sim.endpoint, timeout=60, watchdog_intervall=60)
     await client.connect()
     try:
         with pytest.raises(BadTypeMismatch):

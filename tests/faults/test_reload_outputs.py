@@ -39,8 +39,6 @@ LOWERED_UM = 20.0
 #: per protocol: a writable address of its simulated controller, not the offset's
 ELSEWHERE = {"modbus": "enc_f32_little", "s7": "enc_real"}
 
-pytestmark = pytest.mark.timeout(300)
-
 
 class Rig:
     def __init__(self, lockstep: Lockstep, doc: dict[str, Any]) -> None:

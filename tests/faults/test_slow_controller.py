@@ -427,27 +427,36 @@ async def test_opcua_reconnect_outlives_a_read_that_gave_up(rig: Rig) -> None:
     the handshake goes on (`drivers.link.Link`: the connect is the link's own
     task), and a later read takes its session. One new connection, never a
     handshake started again on every read (which kept the link down for good)."""
-    connect_s = max(2 * TIMEOUT_S, 1.0)  # the driver's default
-    driver = rig.driver(opcua_connect_timeout_s=connect_s, fake_backoff=True)
-    one_way_s = 0.4 * TIMEOUT_S
+    # Real-time margins a loaded PC keeps: a round trip of half the request timeout
+    # (0.5 s of slack per request, where 0.2·timeout = 40 ms was once too little),
+    # a handshake of several round trips (> 2 s) past the read's deadline, and a
+    # connect timeout far above both: the test is about the connect outliving the
+    # read that started it, not about the connect's time limit.
+    timeout_s = 1.0
+    one_way_s = 0.25 * timeout_s
+    connect_s = 30.0
+    deadline_s = max(TS_S, 2 * timeout_s)  # as cycle_io sets it
+    driver = rig.driver(timeout_s=timeout_s, opcua_connect_timeout_s=connect_s,
+                        fake_backoff=True)
     try:
         await connect_up(driver, connect_s, rig.clock)
         rig.proxy.reset()
         with pytest.raises(DriverError):
-            await bounded(driver.read(READ_NAMES))
+            await bounded(driver.read(READ_NAMES), timeout_s)
         rig.proxy.latency(one_way_s, one_way_s)
         backoff: Backoff = driver.backoff  # type: ignore[attr-defined]
         assert not backoff.ready()
         rig.clock.advance(backoff.delay_s)  # a reconnect attempt is due
         assert backoff.ready()
         connections = rig.proxy.connections_accepted
-        with pytest.raises(TimeoutError):  # the daemon's deadline, as cycle_io sets it
-            await asyncio.wait_for(driver.read(READ_NAMES), max(TS_S, 2 * TIMEOUT_S))
+        with pytest.raises(TimeoutError):  # the daemon's deadline
+            await asyncio.wait_for(driver.read(READ_NAMES), deadline_s)
         # the connect goes on; a read meanwhile fails fast, putting nothing new on the wire
         with pytest.raises(ConnectionLost, match="in progress"):
-            await bounded(driver.read(READ_NAMES))
+            await bounded(driver.read(READ_NAMES), timeout_s)
         await bounded(driver.connect(), connect_s)  # the same handshake, not a new one
-        await read_and_write(driver)
+        await bounded(driver.read(READ_NAMES), 2 * timeout_s)
+        await bounded(driver.write(WRITES), 2 * timeout_s)
         assert rig.proxy.connections_accepted == connections + 1, \
             "the handshake a read gave up on was started again"
         rig.proxy.pass_through()

@@ -40,7 +40,9 @@ from tests.harness import until
 from tests.pki import Pki, server_and_client
 
 #: generous: a request that outlasts it makes asyncua drop the session ("client is
-#: disconnected"), and a loaded PC makes a request slower, never a test red
+#: disconnected"), and a loaded PC makes a request slower, never a test red; also the
+#: period of asyncua's own liveness probe, which waits at most that period for the
+#: server's answer (1 s by default: a busy loop's late answer dropped the session)
 REQUEST_TIMEOUT_S = 60.0
 
 OPERATOR, PASSWORD = "setter", "h0ld-Pa55word"
@@ -92,7 +94,8 @@ async def running_daemon(path: Path) -> AsyncIterator[Daemon]:
 
 async def _client(port: int, pki: Pki | None = None, user: str | None = None,
                   password: str | None = None) -> Client:
-    client = Client(f"opc.tcp://127.0.0.1:{port}", timeout=REQUEST_TIMEOUT_S)
+    client = Client(f"opc.tcp://127.0.0.1:{port}", timeout=REQUEST_TIMEOUT_S,
+                    watchdog_intervall=REQUEST_TIMEOUT_S)
     if pki is not None:
         await client.set_security(SecurityPolicyBasic256Sha256, str(pki.client_cert),
                                   str(pki.client_key), server_certificate=str(pki.server_cert),

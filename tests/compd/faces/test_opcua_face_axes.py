@@ -16,7 +16,6 @@ from collections.abc import AsyncIterator
 from pathlib import Path
 
 from asyncua import ua
-from asyncua.client.client import Client
 from asyncua.common.node import Node
 from asyncua.ua.uaerrors import UaStatusCodeError
 
@@ -31,7 +30,7 @@ from drivers.base import Sample
 from drivers.sim.modbus_server import ModbusSimController
 from drivers.sim.ports import free_tcp_port
 from tests.compd.axes_helpers import SENSOR_CHANNELS, axes_config_text
-from tests.compd.faces.test_opcua_face import REQUEST_TIMEOUT_S, running_daemon
+from tests.compd.faces.test_opcua_face import _client, running_daemon
 from tests.compd.runtime.test_axes_position_modbus import positional_config
 from tests.harness import until
 
@@ -70,54 +69,52 @@ async def test_each_axis_has_its_nodes_and_follows_the_cycle(tmp_path: Path) -> 
     await sim.publish({SENSOR_CHANNELS[n]: v for n, v in TEMPS.items()})
     port = free_tcp_port("127.0.0.1")
     try:
-        async with _daemon(tmp_path, sim, port) as daemon:
-            client = Client(f"opc.tcp://127.0.0.1:{port}", timeout=REQUEST_TIMEOUT_S)
-            async with client:
-                idx = await client.get_namespace_index(NAMESPACE)
-                machine = await client.nodes.objects.get_child(f"{idx}:axes")
-                x = ("Axes", "X")
-                await _becomes(machine, idx, (*x, "InForce"), True)
-                # 3·2 + 1.5·4 = 12 µm; 5·4 + 6.5·4 = 46 µm/m (TwinCAT's grid: 0.1 µm, 1 µm/m)
-                assert math.isclose(float(await _value(machine, idx, *x, "Value_um")),  # type: ignore[arg-type]
-                                    12.0, abs_tol=0.05)
-                assert math.isclose(float(await _value(machine, idx, *x, "Slope_um_m")),  # type: ignore[arg-type]
-                                    46.0, abs_tol=0.5)
-                assert await _value(machine, idx, *x, "ValueModel_um") == 12.0
-                assert await _value(machine, idx, *x, "FaultStateName") == "ok"
-                await _becomes(machine, idx, (*x, "Cause"), "in_force")
-                assert int(await _value(machine, idx, *x, "StatusWord")) & Status.OK  # type: ignore[call-overload]
-                assert await _value(machine, idx, *x, "ReferencePosition_mm") == 0.0
-                # a line's parameters: no position read, no offset at it
-                assert math.isnan(await _value(machine, idx, *x, "Position_mm"))  # type: ignore[arg-type]
-                assert math.isnan(await _value(machine, idx, *x, "Offset_um"))  # type: ignore[arg-type]
+        async with _daemon(tmp_path, sim, port) as daemon, await _client(port) as client:
+            idx = await client.get_namespace_index(NAMESPACE)
+            machine = await client.nodes.objects.get_child(f"{idx}:axes")
+            x = ("Axes", "X")
+            await _becomes(machine, idx, (*x, "InForce"), True)
+            # 3·2 + 1.5·4 = 12 µm; 5·4 + 6.5·4 = 46 µm/m (TwinCAT's grid: 0.1 µm, 1 µm/m)
+            assert math.isclose(float(await _value(machine, idx, *x, "Value_um")),  # type: ignore[arg-type]
+                                12.0, abs_tol=0.05)
+            assert math.isclose(float(await _value(machine, idx, *x, "Slope_um_m")),  # type: ignore[arg-type]
+                                46.0, abs_tol=0.5)
+            assert await _value(machine, idx, *x, "ValueModel_um") == 12.0
+            assert await _value(machine, idx, *x, "FaultStateName") == "ok"
+            await _becomes(machine, idx, (*x, "Cause"), "in_force")
+            assert int(await _value(machine, idx, *x, "StatusWord")) & Status.OK  # type: ignore[call-overload]
+            assert await _value(machine, idx, *x, "ReferencePosition_mm") == 0.0
+            # a line's parameters: no position read, no offset at it
+            assert math.isnan(await _value(machine, idx, *x, "Position_mm"))  # type: ignore[arg-type]
+            assert math.isnan(await _value(machine, idx, *x, "Offset_um"))  # type: ignore[arg-type]
 
-                # the nut's sensor fails (beyond its range): X holds, the offset goes on
-                await sim.publish({SENSOR_CHANNELS["nut"]: 500.0})
-                await _becomes(machine, idx, (*x, "Cause"), "inputs_invalid")
-                assert await _value(machine, idx, *x, "InForce") is False
-                assert await _value(machine, idx, *x, "FaultStateName") == "hold"
-                assert await _value(machine, idx, "OffsetInForce") is True
+            # the nut's sensor fails (beyond its range): X holds, the offset goes on
+            await sim.publish({SENSOR_CHANNELS["nut"]: 500.0})
+            await _becomes(machine, idx, (*x, "Cause"), "inputs_invalid")
+            assert await _value(machine, idx, *x, "InForce") is False
+            assert await _value(machine, idx, *x, "FaultStateName") == "hold"
+            assert await _value(machine, idx, "OffsetInForce") is True
 
-                # a reload without [output.axes]: their folder goes
-                path = daemon.running.cfg.path
-                text = path.read_text(encoding="utf-8")
-                path.write_text(text[:text.index("[output.axes.x]")]
-                                + text[text.index("[faults]"):], encoding="utf-8")
-                path.write_text(path.read_text(encoding="utf-8").replace(
-                    'axes_status = { kind = "holding", address = 4, type = "uint16" }\n', ""),
-                    encoding="utf-8")
-                daemon.request_reload()
-                await until(lambda: daemon.reloader.reloads >= 1)
-                assert daemon.running.cfg.axes is None
-                names: set[str] = {"Axes"}
-                for _ in range(12_000):
-                    with contextlib.suppress(UaStatusCodeError):  # deleted while browsed
-                        names = {(await n.read_browse_name()).Name
-                                 for n in await machine.get_children()}
-                        if "Axes" not in names:
-                            break
-                    await asyncio.sleep(0.01)
-                assert "Axes" not in names and "OffsetInForce" in names
+            # a reload without [output.axes]: their folder goes
+            path = daemon.running.cfg.path
+            text = path.read_text(encoding="utf-8")
+            path.write_text(text[:text.index("[output.axes.x]")]
+                            + text[text.index("[faults]"):], encoding="utf-8")
+            path.write_text(path.read_text(encoding="utf-8").replace(
+                'axes_status = { kind = "holding", address = 4, type = "uint16" }\n', ""),
+                encoding="utf-8")
+            daemon.request_reload()
+            await until(lambda: daemon.reloader.reloads >= 1)
+            assert daemon.running.cfg.axes is None
+            names: set[str] = {"Axes"}
+            for _ in range(12_000):
+                with contextlib.suppress(UaStatusCodeError):  # deleted while browsed
+                    names = {(await n.read_browse_name()).Name
+                             for n in await machine.get_children()}
+                    if "Axes" not in names:
+                        break
+                await asyncio.sleep(0.01)
+            assert "Axes" not in names and "OffsetInForce" in names
     finally:
         await sim.stop()
 

@@ -48,7 +48,7 @@ from tests.harness import Lockstep
 WHY_NOT = unavailable()
 pytestmark = [pytest.mark.skipif(WHY_NOT is not None, reason=str(WHY_NOT)),
               pytest.mark.asyncio(loop_scope="module"),
-              pytest.mark.timeout(300, func_only=True)]
+              pytest.mark.timeout(600, func_only=True)]
 
 #: how close motion's external offset planner comes to the request before it stops
 SETTLED_UM = 1e-3

@@ -44,8 +44,6 @@ PROBE_EVERY_S = 1800.0
 SPOILED_AT_S = 3 * 3600.0     # the 3 h probe
 KILLED_AT_S = 4.25 * 3600.0   # between the 4 h and the 4.5 h probes
 
-pytestmark = pytest.mark.timeout(300)
-
 
 def _aged_model(work: Path) -> Path:
     """The plant's model with the bearing term's gain at 0.8 (an aged calibration)."""

@@ -55,7 +55,7 @@ WHY_NOT = unavailable()
 pytestmark = [pytest.mark.skipif(WHY_NOT is not None, reason=str(WHY_NOT)),
               pytest.mark.asyncio(loop_scope="module"),
               # the test alone: the module's setup may wait for another run's LinuxCNC
-              pytest.mark.timeout(300, func_only=True)]
+              pytest.mark.timeout(600, func_only=True)]
 
 ROOT = Path(__file__).resolve().parents[3]
 PERIOD_S = 60.0

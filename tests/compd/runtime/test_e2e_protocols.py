@@ -63,8 +63,6 @@ SMOKE_WALL_S = 2.5
 #: FOCAS (its own quantisation); asserted within 5 %
 RANGE_REDUCTION = 14.3
 
-pytestmark = pytest.mark.timeout(240)
-
 
 @pytest.mark.parametrize("protocol", PROTOCOLS)
 async def test_compensation_reduces_the_error_range_14x_in_lockstep(

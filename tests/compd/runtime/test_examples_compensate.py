@@ -34,8 +34,6 @@ HIL = ROOT / "deploy" / "hil"
 PROTOCOLS = ["opcua", "s7", "modbus", "focas"]
 HOURS = 4.0
 
-pytestmark = pytest.mark.timeout(240)
-
 
 def _example(protocol: str, endpoint: str, work: Path, library: str | None) -> dict[str, Any]:
     doc = tomllib.loads((EXAMPLES / f"{protocol}.toml").read_text(encoding="utf-8"))

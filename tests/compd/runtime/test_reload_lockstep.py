@@ -39,8 +39,6 @@ OLD_SLEW_UM_S = 1.0
 NEW_SLEW_UM_S = 0.5
 HELD_PERIODS = 7       # periods stepped while the reload is being prepared
 
-pytestmark = pytest.mark.timeout(300)
-
 
 class Gate:
     """Wraps `compd.runtime.reload.prepare`: each call says it entered, then
