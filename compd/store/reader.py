@@ -28,6 +28,9 @@ columns of a batch are `compd.store.columns`'s.
 
 `history(since, max_points)` is the status page's plot: at most `max_points`
 rows of (wall_s, offset_um, model_um) picked by stride on ``seq``.
+
+The per-axis rows (table ``axes``) are read by `compd.store.axis_reads.AxisReads`'s
+methods: all at once (`axes`), or a batch of samples' at a time (`axis_batch`).
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ from typing import Any
 import numpy as np
 
 from compd.infiles import MAX_FIELD_CHARS
-from compd.store.axis_columns import axis_columns, axis_fields, known_axes
+from compd.store.axis_reads import AxisReads
 from compd.store.columns import CORRUPT, Columns, bounded_fields, build_columns, floats
 from compd.store.opening import check_tables, connect_readonly
 from compd.store.schema import (
@@ -96,7 +99,7 @@ class _Window:
             self.bounds.append(until)
 
 
-class RecorderReader:
+class RecorderReader(AxisReads):
     """A recorder database opened read-only (see the module docstring).
 
     Use as a context manager, or `open()` and `close()`. `channels` and `terms`
@@ -237,6 +240,9 @@ class RecorderReader:
             ).fetchone()
         return None if first is None else (int(first), int(last))
 
+    def _seq_span(self, since: float | None, until: float | None) -> tuple[int, int] | None:
+        return self._span(_Window(since, until))
+
     def _count(self, window: _Window, span: tuple[int, int]) -> int:
         conn = self._connection()
         with self._timed("cannot read"):
@@ -264,8 +270,8 @@ class RecorderReader:
             yield self._columns([r[:-1] for r in rows], terms, detail)
 
     def _refuse_long(self, rows: list[Any], which: str) -> None:
-        """Refuse the first row with a field past MAX_FIELD_CHARS, naming it by its rowid
-        (the recorder's ``seq``) and the column (a row's last value, `_fields`)."""
+        """Refuse the first row with a field past MAX_FIELD_CHARS, naming it by its first
+        value (the recorder's ``seq``) and the column (a row's last value, `_fields`)."""
         for row in rows:
             if row[-1] is not None:
                 raise RecorderError(self.path, f"{which} {row[0]!r}, column {row[-1]}: a field "
@@ -313,85 +319,18 @@ class RecorderReader:
             raise RecorderError(self.path, f"corrupt probe rows ({type(exc).__name__}); "
                                 "not a recorder compd wrote") from None
 
-    def axes(self) -> Columns:
-        """Every ``[output.axes]`` axis's row (the ``axes`` table), oldest first, with its
-        sample's clock: ``seq`` (int64), ``mono_s``, ``axis``, ``state``, ``cause`` (str),
-        ``in_force`` (bool), the value's and slope's stage, sent, confirmed and model
-        values, the reference, and for an axis written at its read position the
-        ``position_mm`` and the ``offset_um`` written at it (float64, NaN where none:
-        `compd.store.schema.AXIS_COLUMNS`). A file
-        without per-axis outputs, or from before they were recorded: empty columns."""
-        conn = self._connection()
-        fields = ("axes.seq", "samples.mono_s", *axis_fields(self._axis_table(conn)))
-        try:
-            rows = self._joined(conn, "axes", fields, "axes.seq, axes.axis", "axis")
-            return {"seq": np.array([r[0] for r in rows], dtype=np.int64),
-                    "mono_s": floats(r[1] for r in rows), **axis_columns(rows, 2)}
-        except CORRUPT as exc:
-            raise RecorderError(self.path, f"corrupt axis rows ({type(exc).__name__}); "
-                                "not a recorder compd wrote") from None
-
-    def _axis_table(self, conn: sqlite3.Connection) -> set[str]:
-        """The ``axes`` table's columns (none when the file has no such table)."""
-        with self._timed("cannot read its axes"):
-            return {str(r[1]) for r in conn.execute("PRAGMA table_info(axes)")}
-
-    def axis_names(self, since: float | None = None, until: float | None = None
-                   ) -> tuple[str, ...]:
-        """The axes with a row among the samples stamped in [since, until), in
-        `known_axes` order: one pass over the ``axes`` key's index inside SQLite.
-        RecorderError naming the first name that is no axis (a file compd did not
-        write); none when the file has no ``axes`` table."""
-        conn = self._connection()
-        if not self._axis_table(conn):
-            return ()
-        span = self._span(_Window(since, until))
-        if span is None:
-            return ()
-        known = known_axes()
-        with self._timed("cannot read its axes"):  # a few names, each cut short
-            found = [r[0] for r in conn.execute(
-                "SELECT DISTINCT substr(axis, 1, 41) FROM axes WHERE seq BETWEEN ? AND ?"
-                " LIMIT ?", (*span, len(known) + 1))]
-        bad = sorted((n for n in found if n not in known), key=str)
-        if bad:
-            shown = repr(bad[0]) if len(str(bad[0])) <= 40 else f"{str(bad[0])[:40]!r}…"
-            raise RecorderError(self.path, f"axis rows name {shown}, not an axis (one of "
-                                f"{', '.join(known)}); not a recorder compd wrote")
-        return tuple(a for a in known if a in found)
-
-    def axis_batch(self, first_seq: int, last_seq: int, axes: Sequence[str]) -> Columns:
-        """The rows of `axes` of the samples ``seq`` `first_seq` … `last_seq` (one
-        export batch's), ordered by seq and axis: ``seq`` (int64) and `AXIS_COLUMNS`
-        (`compd.store.axis_columns`). A key range of the ``axes`` index: memory is the
-        batch's rows."""
-        conn = self._connection()
-        fields = ("axes.seq", *axis_fields(self._axis_table(conn)))
-        marks = ", ".join("?" * len(axes))
-        with self._timed("cannot read its axes"):
-            rows: list[Any] = conn.execute(
-                f"SELECT axes.rowid, {bounded_fields(fields)} FROM axes WHERE axes.seq"
-                f" BETWEEN ? AND ? AND axes.axis IN ({marks}) ORDER BY axes.seq, axes.axis",
-                (first_seq, last_seq, *axes)).fetchall()
-        self._refuse_long(rows, "axis seq")
-        try:
-            return {"seq": np.array([r[1] for r in rows], dtype=np.int64),
-                    **axis_columns([r[1:-1] for r in rows], 1)}
-        except CORRUPT as exc:
-            raise RecorderError(self.path, f"corrupt axis rows near seq {first_seq} "
-                                f"({type(exc).__name__}); not a recorder compd wrote") from None
-
     def _joined(self, conn: sqlite3.Connection, table: str, fields: Sequence[str],
                 order_by: str, what: str) -> list[Any]:
         """`fields` of every row of `table` joined to its sample, ordered by `order_by`,
-        each field within MAX_FIELD_CHARS (`_refuse_long`); none when the file has no
+        each field within MAX_FIELD_CHARS (`_refuse_long`, naming the row by its
+        ``seq``: an axis row's rowid is not its sample's); none when the file has no
         such table (written before it was recorded)."""
         with self._timed(f"cannot read its {table}"):
             if conn.execute("SELECT 1 FROM sqlite_schema WHERE name = ?",
                             (table,)).fetchone() is None:
                 return []
             rows: list[Any] = conn.execute(
-                f"SELECT {table}.rowid, {bounded_fields(fields)} FROM {table}"
+                f"SELECT {table}.seq, {bounded_fields(fields)} FROM {table}"
                 f" JOIN samples ON samples.seq = {table}.seq ORDER BY {order_by}").fetchall()
         self._refuse_long(rows, f"{what} seq")
         return [r[1:-1] for r in rows]

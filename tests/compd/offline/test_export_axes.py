@@ -222,8 +222,9 @@ def _corrupt(tmp_path: Path, sql: str) -> Path:
 @pytest.mark.parametrize(("sql", "said"), [
     ("UPDATE axes SET axis = 'w' WHERE seq = 3", "'w', not an axis"),
     ("UPDATE axes SET axis = 'x,\n' || hex(randomblob(500)) WHERE seq = 4", "not an axis"),
-    ("UPDATE axes SET value_um = 'twelve' WHERE seq = 8", "corrupt axis rows"),
-    ("UPDATE axes SET value_um = zeroblob(200000) WHERE seq = 8", "longer than"),
+    ("UPDATE axes SET value_um = 'twelve' WHERE seq = 8", "corrupt axis rows near seq"),
+    ("UPDATE axes SET value_um = zeroblob(200000) WHERE seq = 8", "axis seq 8, column "
+                                                                  "value_um: a field longer"),
 ])
 def test_a_corrupt_axis_row_ends_in_one_line(tmp_path: Path, sql: str, said: str,
                                              capsys: pytest.CaptureFixture[str]) -> None:
@@ -243,3 +244,12 @@ def test_a_channel_named_as_an_axis_column_is_refused(
     assert main(["export", str(db)]) == EX_DATAERR
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "'x.state'" in err
+
+
+def test_an_over_long_field_of_an_axis_row_is_named_by_its_sample(tmp_path: Path) -> None:
+    """`RecorderReader.axes` names the row by its sample's ``seq``, not the rowid of
+    the axis row (with two axes they part from the third sample on)."""
+    db = _corrupt(tmp_path, "UPDATE axes SET cause = hex(zeroblob(200000)) WHERE seq = 10"
+                            " AND axis = 'z'")
+    with RecorderReader(db) as reader, pytest.raises(Exception, match=r"axis seq 10, column cause"):
+        reader.axes()
