@@ -65,8 +65,9 @@ class AxisReads:
                    ) -> tuple[str, ...]:
         """The axes with a row among the samples stamped in [since, until), in
         `known_axes` order: one pass over the ``axes`` key's index inside SQLite.
-        RecorderError naming the first name that is no axis (a file compd did not
-        write); none when the file has no ``axes`` table."""
+        RecorderError naming the first name that is no axis, or when the table has
+        no index on ``seq`` (a file compd did not write: `axis_batch` would scan
+        it whole for every batch); none when the file has no ``axes`` table."""
         conn = self._connection()
         if not self._axis_table(conn):
             return ()
@@ -75,6 +76,11 @@ class AxisReads:
             return ()
         known = known_axes()
         with self._timed("cannot read its axes"):  # a few names, each cut short
+            if not any(_first_column(conn, str(index[1])) == "seq"
+                       for index in conn.execute("PRAGMA index_list(axes)")):
+                # each batch's rows would be a scan of the whole table
+                raise RecorderError(self.path, "its axes table has no key on seq; not a "
+                                    "recorder compd wrote")
             found = [r[0] for r in conn.execute(
                 "SELECT DISTINCT substr(axis, 1, 41) FROM axes WHERE seq BETWEEN ? AND ?"
                 " LIMIT ?", (*span, len(known) + 1))]
@@ -105,3 +111,10 @@ class AxisReads:
         except CORRUPT as exc:
             raise RecorderError(self.path, f"corrupt axis rows near seq {first_seq} "
                                 f"({type(exc).__name__}); not a recorder compd wrote") from None
+
+
+def _first_column(conn: sqlite3.Connection, index: str) -> str | None:
+    """The first column of the index named `index` (None: an expression)."""
+    row = conn.execute("SELECT name FROM pragma_index_info(?) WHERE seqno = 0",
+                       (index,)).fetchone()
+    return None if row is None or row[0] is None else str(row[0])

@@ -253,3 +253,18 @@ def test_an_over_long_field_of_an_axis_row_is_named_by_its_sample(tmp_path: Path
                             " AND axis = 'z'")
     with RecorderReader(db) as reader, pytest.raises(Exception, match=r"axis seq 10, column cause"):
         reader.axes()
+
+
+def test_an_axes_table_without_its_key_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Each batch's axis rows are a key range; without the key every batch would
+    scan the whole table (a month's rows, once per 8192 samples)."""
+    db = _record(tmp_path / "samples.sqlite", _with_axes(12))
+    with sqlite3.connect(db) as conn:
+        conn.execute("ALTER TABLE axes RENAME TO keyed")
+        conn.execute("CREATE TABLE axes AS SELECT * FROM keyed")
+        conn.execute("DROP TABLE keyed")
+    conn.close()
+    assert main(["export", str(db)]) == EX_DATAERR
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no key on seq" in err
