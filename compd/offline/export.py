@@ -134,7 +134,6 @@ class Export:
         except RecorderError as exc:
             raise ExportError(f"{self.reader.path}: {exc.reason}") from None
 
-
     def _axis_cells(self, seq: npt.NDArray[np.int64]) -> dict[str, npt.NDArray[Any]]:
         """Every axis's columns of the samples `seq` (a batch: ascending, not empty),
         joined on ``seq``: a sample without a row for an axis has NaN (a number) or
@@ -189,7 +188,7 @@ def _arrow_type(name: str, axes: tuple[str, ...]) -> Any:
     import pyarrow as pa
 
     axis, _, column = name.partition(".")
-    if axis in axes:  # an axis's column (a channel or term never takes such a name)
+    if axis in axes and column in EXPORT_AXIS_COLUMNS:  # a channel is never named so (Export)
         return (pa.string() if column in AXIS_TEXT_COLUMNS else
                 pa.bool_() if column in AXIS_FLAG_COLUMNS else pa.float64())
     if name in ("time", "state"):

@@ -22,7 +22,7 @@ import pytest
 from compd.cli import main
 from compd.core.record import RecordRow
 from compd.offline.export import Export, write_csv
-from compd.offline.records import read_record
+from compd.offline.records import read_csv_columns, read_record
 from compd.runtime.recorder import Recorder
 from compd.store.axis_columns import EXPORT_AXIS_COLUMNS
 from compd.store.reader import RecorderReader
@@ -187,6 +187,9 @@ def test_fit_replay_and_refine_take_an_export_with_axes(
     export = tmp_path / "run.csv"
     assert main(["export", str(db), "-o", str(export)]) == 0
     assert "x.state" in export.read_text(encoding="utf-8").splitlines()[0]
+    # the axes' columns are not held: 1440 rows × 28 columns of nothing
+    header, _, data = read_csv_columns(export, "record")
+    assert data.shape[0] == len(header) and not any(h.startswith(("x.", "z.")) for h in header)
     from_db, from_csv = read_record(db), read_record(export)
     assert sorted(from_csv.columns) == sorted(from_db.columns)
     for name, col in from_db.columns.items():
