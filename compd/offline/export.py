@@ -7,7 +7,17 @@ Columns, in this order: ``time`` (ISO 8601 UTC of the wall clock), ``wall_s``
 (Unix seconds), ``mono_s`` (machine seconds since the daemon started), ``seq``,
 ``cycle``, ``state``, ``valid``, ``offset_um`` (written and confirmed),
 ``model_um``, one column per channel, ``valid.<channel>`` and
-``contribution.<term>``. Missing numbers are empty CSV cells and Parquet nulls.
+``contribution.<term>``, then for each axis the recorder holds in the window
+(``[output.axes]``: x, y, z, then tool) one column per column of its row in the
+recorder's ``axes`` table, named ``<axis>.<column>``
+(`compd.store.axis_columns.EXPORT_AXIS_COLUMNS`): ``x.state``, ``x.cause``,
+``x.in_force``, ``x.value_um``, ``x.value_sent_um``, ``x.value_confirmed_um``,
+``x.value_model_um``, ``x.slope_um_m``, ``x.slope_sent_um_m``,
+``x.slope_confirmed_um_m``, ``x.slope_model_um_m``, ``x.reference_mm``,
+``x.position_mm``, ``x.offset_um``. Each batch's axis rows are read with it (a key
+range of the ``axes`` index) and joined on ``seq``. Missing numbers, and every
+cell of an axis in a sample without that axis's row, are empty CSV cells and
+Parquet nulls. A recorder without axes exports without those columns.
 
 `write_csv` writes RFC 4180 CSV; `write_parquet` needs pyarrow
 (``pip install 'compd[parquet]'``), one row group per batch.
@@ -26,6 +36,7 @@ from typing import IO, Any
 import numpy as np
 import numpy.typing as npt
 
+from compd.store.axis_columns import AXIS_FLAG_COLUMNS, AXIS_TEXT_COLUMNS, EXPORT_AXIS_COLUMNS
 from compd.store.reader import RecorderReader
 from compd.store.schema import RecorderError
 
@@ -84,16 +95,27 @@ class Export:
         self.since = since
         self.until = until
         self.names: list[str] = []
+        self.axes: tuple[str, ...] = ()
+        self._sample_names: list[str] = []
         self.rows = 0
 
     def __enter__(self) -> Export:
         try:
             self.reader.open()
             names = self.reader.names()
+            self.axes = self.reader.axis_names(self.since, self.until)
         except RecorderError as exc:
             self.reader.close()
             raise ExportError(f"{self.reader.path}: {exc.reason}") from None
         self.names = ["time", *_FIRST, *(n for n in names if n not in _FIRST and n not in _DROP)]
+        axis_names = [f"{a}.{c}" for a in self.axes for c in EXPORT_AXIS_COLUMNS]
+        clash = sorted(set(axis_names).intersection(self.names))
+        if clash:
+            self.reader.close()
+            raise ExportError(f"{self.reader.path}: channel or term column(s) {clash} "
+                              "take the names of axis columns; not a recorder compd wrote")
+        self._sample_names = self.names[1:]
+        self.names += axis_names
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -104,11 +126,37 @@ class Export:
             for cols in self.reader.batches(self.since, self.until):
                 out = {"time": np.array([_iso(w) for w in cols["wall_s"].tolist()],
                                         dtype=object)}
-                out.update((name, cols[name]) for name in self.names[1:])
+                out.update((name, cols[name]) for name in self._sample_names)
+                if self.axes:
+                    out.update(self._axis_cells(cols["seq"]))
                 self.rows += len(out["time"])
                 yield Table(out)
         except RecorderError as exc:
             raise ExportError(f"{self.reader.path}: {exc.reason}") from None
+
+    def _axis_cells(self, seq: npt.NDArray[np.int64]) -> dict[str, npt.NDArray[Any]]:
+        """Every axis's columns of the samples `seq` (a batch: ascending, not empty),
+        joined on ``seq``: a sample without a row for an axis has NaN (a number) or
+        None (a text or flag) in that axis's columns."""
+        rows = self.reader.axis_batch(int(seq[0]), int(seq[-1]), self.axes)
+        last = seq.size - 1
+        out: dict[str, npt.NDArray[Any]] = {}
+        for axis in self.axes:
+            mine = np.flatnonzero(rows["axis"] == axis)
+            at = np.minimum(np.searchsorted(seq, rows["seq"][mine]), last)
+            # a row of a sample inside the batch's seq range but stamped outside the window
+            inside = seq[at] == rows["seq"][mine]
+            at, mine = at[inside], mine[inside]
+            for name in EXPORT_AXIS_COLUMNS:
+                col = np.full(seq.size, np.nan) if _is_number(name) \
+                    else np.full(seq.size, None, dtype=object)
+                col[at] = rows[name][mine]
+                out[f"{axis}.{name}"] = col
+        return out
+
+
+def _is_number(axis_column: str) -> bool:
+    return axis_column not in AXIS_TEXT_COLUMNS and axis_column not in AXIS_FLAG_COLUMNS
 
 
 def _cells(col: npt.NDArray[Any]) -> list[str]:
@@ -118,6 +166,9 @@ def _cells(col: npt.NDArray[Any]) -> list[str]:
         return ["1" if v else "0" for v in col.tolist()]
     if col.dtype.kind == "f":
         return [repr(v) if math.isfinite(v) else "" for v in col.tolist()]
+    if col.dtype.kind == "O":  # an axis's text or flag: None where it has no row
+        return ["" if v is None else "1" if v is True else "0" if v is False else str(v)
+                for v in col.tolist()]
     return [str(v) for v in col.tolist()]
 
 
@@ -133,9 +184,13 @@ def write_csv_file(export: Export, path: Path) -> None:
         write_csv(export, f)
 
 
-def _arrow_type(name: str) -> Any:
+def _arrow_type(name: str, axes: tuple[str, ...]) -> Any:
     import pyarrow as pa
 
+    axis, _, column = name.partition(".")
+    if axis in axes and column in EXPORT_AXIS_COLUMNS:  # a channel is never named so (Export)
+        return (pa.string() if column in AXIS_TEXT_COLUMNS else
+                pa.bool_() if column in AXIS_FLAG_COLUMNS else pa.float64())
     if name in ("time", "state"):
         return pa.string()
     if name in ("seq", "cycle"):
@@ -149,7 +204,7 @@ def write_parquet(export: Export, path: Path) -> None:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    schema = pa.schema([(name, _arrow_type(name)) for name in export.names])
+    schema = pa.schema([(name, _arrow_type(name, export.axes)) for name in export.names])
     with pq.ParquetWriter(path, schema) as writer:
         for table in export.batches():
             arrays = []

@@ -22,8 +22,12 @@ the first sample). `read_record` picks the reader by the file's suffix. A CSV
 that `compd export` wrote (known by its columns, `is_export`) reads as its
 database: ``mono_s`` by ``cycle`` is the time (machine seconds; ``time`` and
 ``wall_s`` are the wall clock), ``time``, ``wall_s``, ``seq``, ``state``,
-``valid``, ``valid.<channel>`` and ``contribution.<term>`` are not channels,
-and ``offset_um``/``model_um`` are kept when no cell of theirs is empty.
+``valid``, ``valid.<channel>``, ``contribution.<term>`` and each axis's
+``<axis>.<column>`` (``x.state``, ``x.value_um``…: the recorder's ``axes`` rows,
+which its database does not read as channels either) are not channels, and
+``offset_um``/``model_um`` are kept when no cell of theirs is empty. An axis's
+columns are neither parsed nor held (a text, a flag, or a number empty where the
+sample has no row for the axis).
 
 The sampling checks are `compd.offline.sampling`; their names are importable from here.
 """
@@ -44,6 +48,7 @@ from compd.infiles import MAX_RECORD_BYTES, open_input
 from compd.offline.channel_kind import ChannelKind, channel_kind
 from compd.offline.record_cells import RecordError as RecordError  # noqa: PLC0414  (callers' import)
 from compd.offline.sampling import GAP_FACTOR, JITTER_TOLERANCE, check_sampling, recorder_time
+from compd.store.axis_columns import is_axis_column
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -164,7 +169,8 @@ def _export_text_columns(header: list[str]) -> tuple[frozenset[int], frozenset[i
     if not is_export(header):
         return frozenset(), frozenset()
     skip = frozenset(i for i, h in enumerate(header)
-                     if h in _EXPORT_SKIP or h.startswith(_EXPORT_SKIP_PREFIXES))
+                     if h in _EXPORT_SKIP or h.startswith(_EXPORT_SKIP_PREFIXES)
+                     or is_axis_column(h))
     return skip, frozenset(i for i, h in enumerate(header) if h in _EXPORT_BLANK)
 
 
@@ -190,18 +196,22 @@ def read_csv_columns(path: str | Path, what: str, keep: Callable[[str], bool] | 
     with a time column, streamed (`compd.offline.csvstream`); RecordError naming the
     file (and the row and column) on anything else. The one CSV reader of records and
     probe logs: the checks of what the rows mean are the caller's. `keep`: the
-    only columns stored besides the time (every cell is still checked; an export's
-    columns are all kept, its reading needs them)."""
+    only columns stored besides the time (every cell is still checked); an export's
+    columns are all stored, its reading needs them, but for its axes' columns, which
+    are neither parsed nor stored (four axes would be 56 columns of nothing held)."""
     from compd.offline.csvstream import parse_csv
 
     where = str(path)
+
+    def stored(header: list[str], t: int) -> list[int]:
+        if is_export(header):  # all but the axes' columns, which are no channels
+            return [i for i, h in enumerate(header) if not is_axis_column(h)]
+        return [i for i, h in enumerate(header) if i == t or keep is None or keep(h)]
+
     with open_input(path, what, MAX_RECORD_BYTES) as raw:
         size = os.fstat(raw.fileno()).st_size
         text = io.TextIOWrapper(raw, encoding="utf-8-sig", newline="")
         try:
-            stored = None if keep is None else (
-                lambda header, t: list(range(len(header))) if is_export(header) else
-                [i for i, h in enumerate(header) if i == t or keep(h)])
             return parse_csv(text, where, size, _time_column, _export_text_columns, stored)
         except UnicodeDecodeError:
             raise RecordError(f"{where}: not a text (UTF-8) CSV file") from None

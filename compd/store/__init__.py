@@ -10,4 +10,7 @@ status page (`compd.faces.status`), `compd export`, `fit` and `replay`
             and opened read-only
 - `reader`  the file opened through `opening`, then its rows streamed a bounded
             batch at a time, cut to a wall-clock window
+- `columns` a batch's rows as numpy columns; `axis_columns` the per-axis rows'
+            columns and their ``<axis>.<column>`` names in an export; `axis_reads`
+            the reader's reads of those rows (all at once, or a batch's)
 """

@@ -28,6 +28,9 @@ columns of a batch are `compd.store.columns`'s.
 
 `history(since, max_points)` is the status page's plot: at most `max_points`
 rows of (wall_s, offset_um, model_um) picked by stride on ``seq``.
+
+The per-axis rows (table ``axes``) are read by `compd.store.axis_reads.AxisReads`'s
+methods: all at once (`axes`), or a batch of samples' at a time (`axis_batch`).
 """
 
 from __future__ import annotations
@@ -43,11 +46,10 @@ from typing import Any
 import numpy as np
 
 from compd.infiles import MAX_FIELD_CHARS
+from compd.store.axis_reads import AxisReads
 from compd.store.columns import CORRUPT, Columns, bounded_fields, build_columns, floats
 from compd.store.opening import check_tables, connect_readonly
 from compd.store.schema import (
-    AXIS_ADDED_COLUMNS,
-    AXIS_COLUMNS,
     CHANNELS_KEY,
     FIXED_COLUMNS,
     SAMPLE_COLUMNS,
@@ -97,7 +99,7 @@ class _Window:
             self.bounds.append(until)
 
 
-class RecorderReader:
+class RecorderReader(AxisReads):
     """A recorder database opened read-only (see the module docstring).
 
     Use as a context manager, or `open()` and `close()`. `channels` and `terms`
@@ -238,6 +240,9 @@ class RecorderReader:
             ).fetchone()
         return None if first is None else (int(first), int(last))
 
+    def _seq_span(self, since: float | None, until: float | None) -> tuple[int, int] | None:
+        return self._span(_Window(since, until))
+
     def _count(self, window: _Window, span: tuple[int, int]) -> int:
         conn = self._connection()
         with self._timed("cannot read"):
@@ -265,8 +270,8 @@ class RecorderReader:
             yield self._columns([r[:-1] for r in rows], terms, detail)
 
     def _refuse_long(self, rows: list[Any], which: str) -> None:
-        """Refuse the first row with a field past MAX_FIELD_CHARS, naming it by its rowid
-        (the recorder's ``seq``) and the column (a row's last value, `_fields`)."""
+        """Refuse the first row with a field past MAX_FIELD_CHARS, naming it by its first
+        value (the recorder's ``seq``) and the column (a row's last value, `_fields`)."""
         for row in rows:
             if row[-1] is not None:
                 raise RecorderError(self.path, f"{which} {row[0]!r}, column {row[-1]}: a field "
@@ -314,49 +319,18 @@ class RecorderReader:
             raise RecorderError(self.path, f"corrupt probe rows ({type(exc).__name__}); "
                                 "not a recorder compd wrote") from None
 
-    def axes(self) -> Columns:
-        """Every ``[output.axes]`` axis's row (the ``axes`` table), oldest first, with its
-        sample's clock: ``seq`` (int64), ``mono_s``, ``axis``, ``state``, ``cause`` (str),
-        ``in_force`` (bool), the value's and slope's stage, sent, confirmed and model
-        values, the reference, and for an axis written at its read position the
-        ``position_mm`` and the ``offset_um`` written at it (float64, NaN where none:
-        `compd.store.schema.AXIS_COLUMNS`). A file
-        without per-axis outputs, or from before they were recorded: empty columns."""
-        conn = self._connection()
-        with self._timed("cannot read its axes"):
-            have = {str(r[1]) for r in conn.execute("PRAGMA table_info(axes)")}
-        # a file an older compd wrote (not upgraded: read only) lacks the columns added
-        # since; they read as NULL
-        fields = ("axes.seq", "samples.mono_s",
-                  *(f"axes.{c}" if c in have or c not in AXIS_ADDED_COLUMNS else "NULL"
-                    for c in AXIS_COLUMNS))
-        try:
-            rows = self._joined(conn, "axes", fields, "axes.seq, axes.axis", "axis")
-            out: Columns = {"seq": np.array([r[0] for r in rows], dtype=np.int64),
-                            "mono_s": floats(r[1] for r in rows)}
-            for i, name in enumerate(AXIS_COLUMNS, start=2):
-                if name in ("axis", "state", "cause"):
-                    out[name] = np.array([str(r[i]) for r in rows], dtype=str)
-                elif name == "in_force":
-                    out[name] = np.array([bool(r[i]) for r in rows], dtype=bool)
-                else:
-                    out[name] = floats(r[i] for r in rows)
-            return out
-        except CORRUPT as exc:
-            raise RecorderError(self.path, f"corrupt axis rows ({type(exc).__name__}); "
-                                "not a recorder compd wrote") from None
-
     def _joined(self, conn: sqlite3.Connection, table: str, fields: Sequence[str],
                 order_by: str, what: str) -> list[Any]:
         """`fields` of every row of `table` joined to its sample, ordered by `order_by`,
-        each field within MAX_FIELD_CHARS (`_refuse_long`); none when the file has no
+        each field within MAX_FIELD_CHARS (`_refuse_long`, naming the row by its
+        ``seq``: an axis row's rowid is not its sample's); none when the file has no
         such table (written before it was recorded)."""
         with self._timed(f"cannot read its {table}"):
             if conn.execute("SELECT 1 FROM sqlite_schema WHERE name = ?",
                             (table,)).fetchone() is None:
                 return []
             rows: list[Any] = conn.execute(
-                f"SELECT {table}.rowid, {bounded_fields(fields)} FROM {table}"
+                f"SELECT {table}.seq, {bounded_fields(fields)} FROM {table}"
                 f" JOIN samples ON samples.seq = {table}.seq ORDER BY {order_by}").fetchall()
         self._refuse_long(rows, f"{what} seq")
         return [r[1:-1] for r in rows]
