@@ -43,6 +43,7 @@ Example (the full set of sections; `compd/examples/*.toml` are complete)::
 from __future__ import annotations
 
 import math
+import re
 from typing import Annotated, Any, Literal
 
 from pydantic import Field, ValidationInfo, field_validator, model_validator
@@ -337,6 +338,11 @@ class RecorderSection(Section):
 
 
 
+#: what a channel may be called: an identifier, so that it is one column of a record
+#: and never collides with the columns built from it (``valid.<channel>``)
+CHANNEL_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,63}")
+
+
 class DaemonConfig(Section):
     machine: MachineSection = MachineSection()
     controller: ControllerSection
@@ -363,4 +369,11 @@ class DaemonConfig(Section):
     def _some(cls, v: dict[str, ChannelSection]) -> dict[str, ChannelSection]:
         if not v:
             raise ValueError("at least one [channels.NAME] table is required")
+        for name in v:
+            if not CHANNEL_NAME.fullmatch(name):
+                raise ValueError(
+                    f"channel name {name[:80]!r}: letters, digits and underscores, starting "
+                    "with a letter or underscore, at most 64 (it names a record's column, a "
+                    "metric's label and an OPC UA node; a dot would read as another column's "
+                    "prefix, e.g. valid.<channel> or x.state)")
         return v
