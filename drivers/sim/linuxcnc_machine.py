@@ -189,6 +189,7 @@ class LinuxCncSimController:
                     "x_request_um": LinuxCncGet(kind="get", hal="axis.x.eoffset-request",
                                                 scale=1000.0),
                     "x_pos_mm": LinuxCncGet(kind="get", hal="axis.x.pos-cmd"),
+                    "y_pos_mm": LinuxCncGet(kind="get", hal="axis.y.pos-cmd"),
                     "y_offset_um": LinuxCncGet(kind="get", hal="axis.y.eoffset", scale=1000.0),
                     "y_request_um": LinuxCncGet(kind="get", hal="axis.y.eoffset-request",
                                                 scale=1000.0),
@@ -335,18 +336,18 @@ class LinuxCncSimController:
     async def settled_axes(self, deadline_s: float = SETTLE_DEADLINE_S) -> dict[str, float]:
         """Once motion has applied every external offset compd requested: X's, Y's
         and Z's offsets applied (µm, ``x_offset_um``, ``y_offset_um``,
-        ``offset_um``) and X's position (mm, ``x_pos_mm``); a condition, bounded by
-        `deadline_s`."""
+        ``offset_um``) and X's and Y's positions (mm, ``x_pos_mm``, ``y_pos_mm``); a
+        condition, bounded by `deadline_s`."""
         assert self._plant is not None
         end = time.monotonic() + deadline_s
         names = ["offset_um", "request_um", "x_offset_um", "x_request_um", "y_offset_um",
-                 "y_request_um", "x_pos_mm"]
+                 "y_request_um", "x_pos_mm", "y_pos_mm"]
         while True:
             v = {n: s.value for n, s in (await self._plant.read(names)).items()}
             if (all(abs(v[f"{a}offset_um"] - v[f"{a}request_um"]) < 1e-3
                     for a in ("", "x_", "y_")) or time.monotonic() > end):
                 return {n: v[n] for n in ("offset_um", "x_offset_um", "y_offset_um",
-                                          "x_pos_mm")}
+                                          "x_pos_mm", "y_pos_mm")}
             await asyncio.sleep(0.001)
 
     async def outputs(self) -> dict[str, float]:

@@ -139,7 +139,7 @@ name = "slope"
 inputs = {{ bearing = {ks} }}
 a = ["1"]
 b = ["1"]
-
+{y_axis}
 [faults]
 hold_s = 600.0
 
@@ -152,13 +152,58 @@ enabled = false
 """
 
 
+#: Y, when asked for: its value 0.5 µm/K of the column (the opposite way to X's), its
+#: slope 10 µm/m per K of the bearing, at Y's position as LinuxCNC reports it
+KY, KSY = -0.5, 10.0
+Y_AXIS = """
+[channels.y_pos]
+address = {{ kind = "get", hal = "axis.y.pos-cmd" }}
+unit = "mm"
+range = [-100.0, 100.0]
+stale_after_s = 600.0
+
+[output.axes.y]
+position = "y_pos"
+reference_mm = 0.0
+value_limit_um = 100.0
+slope_limit_um_m = 200.0
+slew_um_s = 10.0
+slope_slew_um_m_s = 10.0
+
+[output.axes.y.offset]
+kind = "eoffset"
+axis = "y"
+scale = {count}
+counts_net = "{p}-y-eoffset-counts"
+enable_net = "{p}-y-eoffset-enable"
+
+[output.axes.y.model]
+reference = {{ column = {t0} }}
+[[output.axes.y.model.terms]]
+name = "value"
+inputs = {{ column = {ky} }}
+a = ["1"]
+b = ["1"]
+
+[output.axes.y.slope_model]
+reference = {{ bearing = {t0} }}
+[[output.axes.y.slope_model.terms]]
+name = "slope"
+inputs = {{ bearing = {ksy} }}
+a = ["1"]
+b = ["1"]
+"""
+
+
 def _config(sim: LinuxCncSimController, tmp_path: Path, *, zslew: float = 10.0,
-            xslew: float = 10.0, sslew: float = 10.0) -> LoadedConfig:
-    """The module's config; the slews (µm/s, X's slope µm/m per s) as given."""
+            xslew: float = 10.0, sslew: float = 10.0, y: bool = False) -> LoadedConfig:
+    """The module's config; the slews (µm/s, X's slope µm/m per s) as given; with `y`,
+    Y compensated at its position too."""
     p = tmp_path / "compd.toml"
+    y_axis = Y_AXIS.format(count=COUNT_UM, p=sim.prefix, t0=T0, ky=KY, ksy=KSY) if y else ""
     p.write_text(CONFIG.format(period_s=PERIOD_S, component=sim.component, p=sim.prefix,
                                t0=T0, kz=KZ, kx=KX, ks=KS, count=COUNT_UM, zslew=zslew,
-                               xslew=xslew, sslew=sslew), encoding="utf-8")
+                               xslew=xslew, sslew=sslew, y_axis=y_axis), encoding="utf-8")
     return load_config(p)
 
 
@@ -336,6 +381,58 @@ async def test_the_daemon_writes_x_and_z_on_linuxcnc(lcnc: LinuxCncSimController
     # with no position in it, stays within a count or two
     xs, zs = [x for _, x, _ in seen], [z for *_, z in seen]
     assert max(xs) - min(xs) > 2.0 and max(zs) - min(zs) < 0.5
+
+
+async def test_the_daemon_writes_x_y_and_z_on_linuxcnc(lcnc: LinuxCncSimController,
+                                                       tmp_path: Path) -> None:
+    """Three axes at once from one daemon (lockstep) on a warming plant: X and Y each
+    at its own position as MDI moves both, Z without one; every cycle's three writes
+    are what LinuxCNC applies, each on its own axis, and each axis's offset is its own
+    line at its own position (Y's slope from the bearing, its value against X's)."""
+    cfg = _config(lcnc, tmp_path, y=True)
+    assert cfg.axes is not None
+    machine = SimMachine(lcnc, program=constant(9000.0, heat_h=10.0, cool_h=1.0),
+                         seed=4, period_s=PERIOD_S, repeat=False)
+    rig = Lockstep(machine, cfg.path)
+    seen: list[dict[str, float]] = []
+    try:
+        await rig.start()
+        for i in range(6):
+            x, y = 60.0 * math.cos(1.1 * i), -50.0 * math.sin(0.9 * i + 0.3)
+            await lcnc.control("mdi", f"G90 G0 X{x:.3f} Y{y:.3f}")
+            await rig.step()
+            assert rig.daemon is not None
+            result = rig.daemon.loop.last_result
+            assert result is not None
+            hal = await lcnc.settled_axes()
+            for axis, pos in (("x", "x_pos_mm"), ("y", "y_pos_mm")):
+                a = result.axes[axis]
+                assert a.cause == Cause.IN_FORCE, a
+                assert a.position_mm == pytest.approx(hal[pos], abs=1e-6)
+                # the offset written is the axis's own line at its own position
+                line = a.value.stage + a.slope.stage * (hal[pos] - 0.0) / 1000.0
+                assert result.writes[f"{axis}_comp_offset"] == pytest.approx(
+                    line, abs=COUNT_UM / 2 + 1e-9)
+                assert hal[f"{axis}_offset_um"] == pytest.approx(
+                    result.writes[f"{axis}_comp_offset"], abs=SETTLED_UM)
+            assert hal["offset_um"] == pytest.approx(result.writes["offset"], abs=SETTLED_UM)
+            seen.append({"x_mm": hal["x_pos_mm"], "y_mm": hal["y_pos_mm"],
+                         "x_um": hal["x_offset_um"], "y_um": hal["y_offset_um"],
+                         "z_um": hal["offset_um"],
+                         "x_value_um": result.axes["x"].value.stage,
+                         "y_value_um": result.axes["y"].value.stage})
+        assert await rig.stop() == 0
+    finally:
+        await rig.close()
+        await lcnc.control("mdi", "G90 G0 X0 Y0")
+    print(json.dumps({"figure": "linuxcnc_daemon_x_y_and_z", "cycles": seen}))
+    # X's and Y's values are each their own model of the same column (KX against KY:
+    # opposite signs), and Y's offset moved with Y
+    for r in seen:
+        assert abs(r["x_value_um"]) > 0.5
+        assert r["x_value_um"] == pytest.approx(KX / KY * r["y_value_um"], abs=0.05)
+    ys = [r["y_um"] for r in seen]
+    assert max(ys) - min(ys) > 0.2
 
 
 #: the slews of the program's test (Z and X's value µm/s, X's slope µm/m per s): slow
