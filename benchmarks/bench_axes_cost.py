@@ -341,9 +341,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cycles", type=int, default=5_000,
                         help="cycles per measurement (default 5000)")
-    parser.add_argument("--repeats", type=int, default=5,
+    parser.add_argument("--repeats", type=int, default=7,
                         help="rounds, each measuring everything once in turn; the median "
-                             "of each is printed (default 5)")
+                             "of each is printed (default 7)")
     args = parser.parse_args(argv)
     if args.cycles < 2 * WARMUP or args.repeats < 1:
         parser.error(f"--cycles at least {2 * WARMUP}, --repeats at least 1")
@@ -383,8 +383,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return med[f"{key} 3"] / med[f"{key} 1"]
 
     def spread(key: str) -> str:
+        # each round's own ratio (its two runs back to back, under the same load)
         r = [b / a for a, b in zip(got[f"{key} 1"], got[f"{key} 3"], strict=True)]
-        return f"rounds {min(r):.2f}-{max(r):.2f}x"
+        return f"rounds {min(r):.2f}-{max(r):.2f}x, their median {statistics.median(r):.2f}x"
 
     print(f"{args.cycles} cycles, CPU time, median of {args.repeats} interleaved rounds; "
           f"one axis: the Z offset (value model); three axes: the Z offset and X, Y, Z "

@@ -53,7 +53,7 @@ the offset's alone.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from typing import Any
 
 from compd.core.axis_params import (
@@ -66,7 +66,7 @@ from compd.core.axis_params import (
 from compd.core.events import Event, EventName
 from compd.core.faults import FaultState
 from compd.core.health import WRITE_FAULT_AFTER, Cause, OutputHealth
-from compd.core.health_view import HealthView, output_cause, recorded_state, status_word
+from compd.core.health_view import HealthView, output_cause, recorded_state, status_bits
 from compd.core.modelstep import ModelStepper, finite_or_none
 from compd.core.output import OutputStage
 from compd.core.readback import ReadBack
@@ -118,6 +118,11 @@ def _tagged(events: list[Event], **tags: Any) -> list[Event]:
     return [Event(e.name, {**tags, **e.fields}) for e in events]
 
 
+def _invalid_channels(validity: Mapping[str, str | None]) -> list[str]:
+    """The channels invalid this cycle (`AxisOutput.plan`'s `invalid`)."""
+    return [ch for ch, why in validity.items() if why is not None]
+
+
 class AxisOutput:
     """One axis's models, stages and health (module docstring)."""
 
@@ -155,6 +160,10 @@ class AxisOutput:
         self.gate = sorted(p.value_model.channels
                            | (p.slope_model.channels if p.slope_model is not None else set())
                            | ({p.position} if p.position is not None else set()))
+        self._gate = frozenset(self.gate)
+        #: the outputs' names, made once (the cycle uses them every cycle)
+        self.names = p.names
+        self._reference_name, self._offset_name = p.name("reference"), p.name("offset")
         #: an offset at the position: the last valid position (mm), and the offset
         #: and position of the last write the controller confirmed
         self._x: float | None = initial("position_mm")
@@ -168,6 +177,11 @@ class AxisOutput:
         self._planned: tuple[float | None, float | None, bool] = (None, None, False)
         self._models: tuple[float | None, float | None] = (None, None)
         self._valid = False
+        #: this cycle's status word (int), cause and recorded state: functions of its
+        #: `HealthView`, worked out once in `plan` for the axes word and the row
+        self.status = 0
+        self.cause = Cause.INPUTS_INVALID
+        self._state = FaultState.INIT
         #: the controller confirmed the line compd wants last cycle (`AxisRow.in_force`)
         self.in_force = False
 
@@ -197,20 +211,22 @@ class AxisOutput:
         `position_mm`: an axis at its position, the position read valid this cycle
         (None: none)."""
         was_off = self.health.controller(off, self.value.stage.current_um, events)
-        full = got is not None and all(got.get(n) is not None for n in self.p.names)
+        # every name read (a value None: that one not read)
+        full = got is not None and None not in map(got.get, self.names)
         seen = (self._as_parameters(got, position_mm) if self.p.position is not None
                 else got)
         for param in self.params:
             v = seen.get(param.name) if seen is not None else None
             mine: list[Event] = []
             param.readback.judge(v, off=off, was_off=was_off, events=mine)
-            events.extend(_tagged(mine, axis=self.p.axis, output=param.name))
-        ref = got.get(self.p.name("reference")) if got is not None else None
+            if mine:
+                events.extend(_tagged(mine, axis=self.p.axis, output=param.name))
+        ref = got.get(self._reference_name) if got is not None else None
         if off is None and ref is not None and self.reference_written:
             tol = max(0.5 * self.p.reference_quantum_mm, FLOAT_TOLERANCE)
             if not (math.isfinite(ref) and abs(ref - self.p.reference_mm) <= tol):
                 events.append(Event(EventName.READBACK_MISMATCH, {
-                    "axis": self.p.axis, "output": self.p.name("reference"),
+                    "axis": self.p.axis, "output": self._reference_name,
                     "expected_um": self.p.reference_mm, "readback_um": finite_or_none(ref),
                     "action": "rewritten"}))
                 self.health.foreign_seen()
@@ -237,7 +253,7 @@ class AxisOutput:
                                           else self._x)
         if x is None:
             return {self.value.name: None, self.slope.name: None}
-        rb = got.get(self.p.name("offset"))
+        rb = got.get(self._offset_name)
         slope = self.slope.stage.confirmed_um
         value = self.value.stage.confirmed_um
         out: dict[str, float | None] = {self.slope.name: slope if slope is not None else 0.0}
@@ -253,9 +269,14 @@ class AxisOutput:
 
     def plan(self, now_s: float, dt: float, values: Mapping[str, float],
              validity: Mapping[str, str | None], answered: bool, *, hold: bool,
-             events: list[Event]) -> HealthView:
-        """Step the models, decide, move both stages; the axis's health view."""
-        valid_inputs = answered and all(validity.get(ch) is None for ch in self.gate)
+             events: list[Event], invalid: Collection[str] | None = None) -> HealthView:
+        """Step the models, decide, move both stages; the axis's health view (its
+        status word, cause and state kept for the axes word and the row).
+        `invalid`: the channels invalid in `validity` (worked out once for every
+        axis, `AxisBank.plan`; None: from `validity`)."""
+        if invalid is None:
+            invalid = _invalid_channels(validity)
+        valid_inputs = answered and (not invalid or self._gate.isdisjoint(invalid))
         pos = self.p.position
         if answered and pos is not None and validity.get(pos) is None and not hold:
             # the axis's present position, valid and recent; under a hold (the
@@ -278,14 +299,16 @@ class AxisOutput:
                 if not in_range:
                     model_range = True
                     why = Cause.MODEL_OUT_OF_RANGE
-            events.extend(_tagged(mine, axis=self.p.axis))
+            if mine:
+                events.extend(_tagged(mine, axis=self.p.axis))
         else:
             why = Cause.INPUTS_INVALID if answered else Cause.CONTROLLER_NOT_ANSWERING
         self._models = (value_um, slope_um)
         self._valid = why is None
         mine = []
         decision = self.health.decide(now_s, why, value_um if why is None else None, mine)
-        events.extend(_tagged(mine, axis=self.p.axis))
+        if mine:
+            events.extend(_tagged(mine, axis=self.p.axis))
         tracking = decision.state == FaultState.OK
         for param, model in ((self.value, value_um), (self.slope, slope_um)):
             stage = param.stage
@@ -300,17 +323,21 @@ class AxisOutput:
                 target = stage.current_um
             stage.step(target, dt, deadband=tracking)
         held = self.value.stage.held or self.slope.stage.held
-        moving = any(p.stage.slewing for p in self.params) or held
-        self.health.foreign_settled(moving=moving)
-        return HealthView(
+        slewing = self.value.stage.slewing or self.slope.stage.slewing
+        self.health.foreign_settled(moving=slewing or held)
+        view = HealthView(
             policy=decision.state, alarm=decision.alarm, write_stopped=self.health.write_stopped,
             write_fault=self.health.write_fault, held=held, foreign=self.health.foreign,
-            slewing=any(p.stage.slewing for p in self.params), model_invalid=model_invalid,
+            slewing=slewing, model_invalid=model_invalid,
             model_range=model_range, controller_off=self.health.controller_off is not None,
             invalid=why, operator_hold=hold and tracking,
             at_limit=tracking and value_um is not None and slope_um is not None and (
                 abs(value_um) > self.p.value_limit_um
                 or abs(slope_um) > self.p.slope_limit_um_m))
+        self.status = status_bits(view)
+        self.cause = output_cause(view)
+        self._state = recorded_state(view)
+        return view
 
     def writes(self, full_readback: bool, readback: bool, events: list[Event]
                ) -> dict[str, float]:
@@ -324,7 +351,8 @@ class AxisOutput:
             mine: list[Event] = []
             for param in self.params:
                 param.readback.skip_write(mine)
-            events.extend(_tagged(mine, axis=self.p.axis))
+            if mine:
+                events.extend(_tagged(mine, axis=self.p.axis))
             self._planned = (None, None, False)
             return {}
         v, s = self.value.stage.current_um, self.slope.stage.current_um
@@ -337,22 +365,23 @@ class AxisOutput:
             for param in self.params:
                 param.readback.written()
             self._planned = (v, s, True)
-            return {self.p.name("offset"): total}
+            return {self._offset_name: total}
         for param in self.params:
             param.readback.written()
         self._planned = (v, s, True)
         if self.p.value_only:
-            return {self.p.name("value"): v}
-        return {self.p.name("value"): v, self.p.name("slope"): s,
-                self.p.name("reference"): self.p.reference_mm}
+            return {self.value.name: v}
+        return {self.value.name: v, self.slope.name: s,
+                self._reference_name: self.p.reference_mm}
 
-    def row(self, view: HealthView, confirmed: bool, failed: bool) -> AxisRow:
+    def row(self, confirmed: bool, failed: bool) -> AxisRow:
+        """This cycle's row (after `plan` and `commit`)."""
         v_sent, s_sent, _ = self._planned
-        cause = self.health.committed_cause(output_cause(view), offset_failed=failed)
+        cause = self.health.committed_cause(self.cause, offset_failed=failed)
         self.in_force = confirmed and v_sent is not None and cause.healthy
         return AxisRow(
-            axis=self.p.axis, state=recorded_state(view), cause=cause,
-            status=int(status_word(view)),
+            axis=self.p.axis, state=self._state, cause=cause,
+            status=self.status,
             value=ParamRow(self._models[0], self.value.stage.current_um, v_sent,
                            self.value.stage.confirmed_um),
             slope=ParamRow(self._models[1], self.slope.stage.current_um, s_sent,
@@ -384,11 +413,11 @@ class AxisOutput:
             return True, False, []
         for param in self.params:
             param.stage.revert()
-        if outputs and not set(outputs) & set(self.p.names):
+        if outputs and not set(outputs) & set(self.names):
             return False, False, []
-        failed = tuple(n for n in outputs if n in self.p.names)
+        failed = tuple(n for n in outputs if n in self.names)
         events = self.health.write_failed(
             failed, permanent=permanent, reason=reason, offset_failed=True,
-            offset_name=failed[0] if failed else self.p.name("value"),
+            offset_name=failed[0] if failed else self.value.name,
             offset_um=self.value.stage.current_um)
         return False, True, _tagged(events, axis=self.p.axis)

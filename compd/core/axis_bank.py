@@ -15,10 +15,23 @@ from typing import Any
 from compd.core.axes import AxisOutput
 from compd.core.axis_params import AxisParams, AxisRow
 from compd.core.events import Event
-from compd.core.health_view import HealthView, output_cause, status_word
 from compd.core.output import AXES_NIBBLE, AXIS_INDEX, AxesStatus, Status
 
 __all__ = ["AxisBank"]
+
+_LIFE = int(AxesStatus.LIFE)
+_ALARM, _HOLDING = int(Status.ALARM), int(Status.HOLDING)
+_RAMPING = int(Status.RAMPING) | int(Status.SHUTDOWN)
+
+
+def _word_bits(axis: str) -> tuple[int, int, int, int] | None:
+    """An axis's IN_FORCE, ALARM, HOLDING and RAMPING bits in the axes word; None:
+    the tool direction, no bits of its own."""
+    if axis not in AXIS_INDEX:
+        return None
+    bit = 1 << AXIS_INDEX[axis]
+    return (bit << AXES_NIBBLE["in_force"], bit << AXES_NIBBLE["alarm"],
+            bit << AXES_NIBBLE["holding"], bit << AXES_NIBBLE["ramping"])
 
 
 class AxisBank:
@@ -31,8 +44,10 @@ class AxisBank:
         self.axes = [AxisOutput(p, hold_s, period_s, readback,
                                 s if isinstance(s := st.get(p.axis), Mapping) else None)
                      for p in axes]
-        self._views: list[HealthView] = []
-        self._events: list[Event] = []
+        #: every parameter's output name (read back beside the offset), made once
+        self._names = tuple(n for a in self.axes for n in a.names)
+        #: each axis and its bits in the axes word (`status_word`), made once
+        self._word = [(a, bits) for a in self.axes if (bits := _word_bits(a.p.axis))]
         #: the axes word's LIFE bit, toggled in every word planned
         self._life = False
 
@@ -40,9 +55,9 @@ class AxisBank:
         return bool(self.axes)
 
     @property
-    def names(self) -> list[str]:
+    def names(self) -> tuple[str, ...]:
         """Every parameter's output name (read back beside the offset)."""
-        return [n for a in self.axes for n in a.p.names]
+        return self._names
 
     def export_state(self) -> dict[str, Any]:
         return {a.p.axis: a.export_state() for a in self.axes}
@@ -58,15 +73,16 @@ class AxisBank:
         """Every axis's part of the cycle's plan: its writes (none when `write` is
         false: a recorder-only or dry run)."""
         writes: dict[str, float] = {}
-        self._views = []
+        # the channels invalid this cycle, once for every axis's gate
+        invalid = [ch for ch, why in validity.items() if why is not None]
         for a in self.axes:
             pos = a.p.position
             present = (values[pos] if answered and pos is not None
                        and validity.get(pos) is None and pos in values else None)
             full = a.judge(readback if self.readback else None, off=off, events=events,
                            position_mm=present)
-            self._views.append(a.plan(now_s, dt, values, validity, answered, hold=hold,
-                                      events=events))
+            a.plan(now_s, dt, values, validity, answered, hold=hold, events=events,
+                   invalid=invalid)
             if write:
                 writes.update(a.writes(full, self.readback, events))
         return writes
@@ -78,20 +94,18 @@ class AxisBank:
         RAMPING (or shutting down) from the axis's own status word; LIFE toggles
         on every call, so a PLC sees the cycle run whatever the inputs."""
         self._life = not self._life
-        word = int(AxesStatus.LIFE) if self._life else 0
-        for a, view in zip(self.axes, self._views, strict=True):
-            if a.p.axis not in AXIS_INDEX:  # the tool direction: no bits of its own
-                continue
-            bit = 1 << AXIS_INDEX[a.p.axis]
-            status = status_word(view)
-            if a.in_force and a.writing and output_cause(view).healthy:
-                word |= bit << AXES_NIBBLE["in_force"]
-            if status & Status.ALARM:
-                word |= bit << AXES_NIBBLE["alarm"]
-            if status & Status.HOLDING:
-                word |= bit << AXES_NIBBLE["holding"]
-            if status & (Status.RAMPING | Status.SHUTDOWN):
-                word |= bit << AXES_NIBBLE["ramping"]
+        word = _LIFE if self._life else 0
+        # the tool direction has no bits of its own (not in `_word`)
+        for a, (in_force, alarm, holding, ramping) in self._word:
+            status = a.status
+            if a.in_force and a.writing and a.cause.healthy:
+                word |= in_force
+            if status & _ALARM:
+                word |= alarm
+            if status & _HOLDING:
+                word |= holding
+            if status & _RAMPING:
+                word |= ramping
         return word
 
     def carry_over(self, old: AxisBank, *, same_outputs: bool) -> None:
@@ -123,8 +137,8 @@ class AxisBank:
         """Close every axis's part of the cycle; the axes' rows and write events."""
         rows: dict[str, AxisRow] = {}
         events: list[Event] = []
-        for a, view in zip(self.axes, self._views, strict=True):
+        for a in self.axes:
             confirmed, failed, evs = a.commit(ok, outputs, permanent, reason, later)
             events.extend(evs)
-            rows[a.p.axis] = a.row(view, confirmed, failed)
+            rows[a.p.axis] = a.row(confirmed, failed)
         return MappingProxyType(rows), tuple(events)

@@ -3,12 +3,17 @@
 `AxisParams` is one ``[output.axes.<axis>]`` as the cycle is built with it;
 `AxisRow` and `ParamRow` are that axis's part of the cycle's report
 (`compd.core.plan.Row.axes`). The cycle's work on them is `compd.core.axes`.
+The rows are made every cycle for every axis, so they are named tuples (as
+`compd.core.plan.Row` is): as immutable as a frozen dataclass, and built
+several times faster.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
+from typing import NamedTuple
 
 from compd.core.faults import FaultState
 from compd.core.health import Cause
@@ -60,10 +65,10 @@ class AxisParams:
         """The driver output of one of this axis's parameters (`drivers.temp_comp`)."""
         return f"{self.axis}_comp_{parameter}"
 
-    @property
+    @cached_property
     def names(self) -> tuple[str, ...]:
         """The outputs written (and read back): the offset at the position, or the
-        three parameters."""
+        three parameters (worked out once: the cycle asks every cycle)."""
         if self.position is not None:
             return (self.name("offset"),)
         if self.value_only:
@@ -83,8 +88,7 @@ class AxisParams:
         return y
 
 
-@dataclass(frozen=True, slots=True)
-class ParamRow:
+class ParamRow(NamedTuple):
     """One parameter of an axis after the cycle: the model's output, the stage's
     value, what was sent (None: nothing) and what the controller last confirmed
     (None: unknown), in µm (value) or µm/m (slope)."""
@@ -95,8 +99,7 @@ class ParamRow:
     confirmed: float | None
 
 
-@dataclass(frozen=True, slots=True)
-class AxisRow:
+class AxisRow(NamedTuple):
     """One axis's part of the cycle's report (`compd.core.plan.Row.axes`)."""
 
     axis: str

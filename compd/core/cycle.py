@@ -68,7 +68,7 @@ from compd.core.axis_params import AxisRow
 from compd.core.events import Event, EventName
 from compd.core.faults import FaultState
 from compd.core.health import WRITE_FAULT_AFTER, Cause, Decision, OutputHealth
-from compd.core.health_view import HealthView, output_cause, recorded_state, status_word
+from compd.core.health_view import HealthView, output_cause, recorded_state, status_bits
 from compd.core.modelstep import ModelStepper, finite_or_none
 from compd.core.params import CycleParams, params_from_config
 from compd.core.permit import Permit, RezeroEdge
@@ -265,7 +265,7 @@ class Cycle:
                           no_readback=self.params.readback and readback_offset_um is None)
         # a foreign read-back's alarm lasts until the output has ramped to its target
         self.health.foreign_settled(moving=self.output.slewing or self.output.held)
-        status = int(status_word(view))
+        status = status_bits(view)
         writes, offset_um = self._writes(readback_offset_um, offset_um, status, events)
         if self.axes:
             writes.update(self.axes.plan(

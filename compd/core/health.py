@@ -41,7 +41,7 @@ commit may turn a planned cause into a write's (`committed_cause`).
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from compd.core.events import Event, EventName
 from compd.core.faults import FaultState
@@ -110,12 +110,18 @@ class Cause(enum.StrEnum):
     def healthy(self) -> bool:
         """The offset compd wants is in force, or is held on purpose (an operator's
         hold, the controller's permission not given)."""
-        return self in (Cause.IN_FORCE, Cause.OPERATOR_HOLD, Cause.WAITING_FOR_PERMISSION,
-                        Cause.RECORDER_ONLY, Cause.DEGRADED)
+        return self in _HEALTHY
 
 
-@dataclass(frozen=True, slots=True)
-class Decision:
+#: the healthy causes (`Cause.healthy`), built once: it is asked several times a cycle
+_HEALTHY = (Cause.IN_FORCE, Cause.OPERATOR_HOLD, Cause.WAITING_FOR_PERMISSION,
+            Cause.RECORDER_ONLY, Cause.DEGRADED)
+
+
+class Decision(NamedTuple):
+    """The fault policy's decision of one cycle (made once a cycle for the offset
+    and for each axis: a named tuple, cheap to build)."""
+
     state: FaultState
     #: None: hold the current output
     target_um: float | None

@@ -3,26 +3,30 @@
 three functions of it alone, so none can disagree with another:
 `recorded_state(view)` the state a cycle records (``stopped``, ``held`` and
 ``write_fault`` over the policy's), `status_word(view)` its status word (bits
-in `compd.core.output.Status`), `output_cause(view)` why the offset compd
-wants is not in force (`compd.core.health.Cause`, in its order).
+in `compd.core.output.Status`; `status_bits(view)` the same as a plain int),
+`output_cause(view)` why the offset compd wants is not in force
+(`compd.core.health.Cause`, in its order).
+
+A view is made once a cycle for the offset and once for each axis
+(``[output.axes]``), so it is a named tuple: built several times faster than a
+frozen dataclass of twenty fields, and as immutable.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from compd.core.faults import FaultState
 from compd.core.health import Cause
 from compd.core.output import Status
 
-__all__ = ["HealthView", "output_cause", "recorded_state", "status_word"]
+__all__ = ["HealthView", "output_cause", "recorded_state", "status_bits", "status_word"]
 
 #: the policy's states that hold the output where it is
 _HOLDING = (FaultState.HOLD, FaultState.INIT)
 
 
-@dataclass(frozen=True, slots=True)
-class HealthView:
+class HealthView(NamedTuple):
     """One cycle's health, frozen: all `status_word`, `recorded_state` and `output_cause` read."""
 
     #: the fault policy's state this cycle (init, ok, hold, ramp, shutdown)
@@ -112,39 +116,56 @@ def _state_bits(v: HealthView) -> int:
     if v.policy in _HOLDING:
         return _HOLDING_BIT
     if v.policy == FaultState.RAMP:
-        return int(Status.RAMPING)
+        return _RAMPING
     if v.policy == FaultState.SHUTDOWN:
-        return int(Status.SHUTDOWN)
+        return _SHUTDOWN
     return 0
 
 
+# the bits as plain ints: `status_bits` runs once a cycle per output
 _OK_BIT, _HOLDING_BIT, _ALARM = int(Status.OK), int(Status.HOLDING), int(Status.ALARM)
+_RAMPING, _SHUTDOWN = int(Status.RAMPING), int(Status.SHUTDOWN)
+_MODEL_INVALID = int(Status.MODEL_INVALID)
+_MODEL_RANGE = int(Status.MODEL_RANGE) | _ALARM
+_MODEL_WORSE = int(Status.MODEL_WORSE) | _ALARM
+_MISMATCH = int(Status.READBACK_MISMATCH) | _ALARM
+_WRITE_STOPPED = int(Status.WRITE_STOPPED) | _ALARM
+_OFFSET_HELD = int(Status.OFFSET_HELD) | _ALARM
+_WRITE_FAULT = int(Status.WRITE_FAULT) | _ALARM
+_OPERATOR_HOLD = int(Status.OPERATOR_HOLD)
+_SLEWING = int(Status.SLEWING)
+_CONTROLLER_OFF = int(Status.CONTROLLER_OFF)
 
 
-def status_word(v: HealthView) -> Status:
-    """The status word a cycle writes (bits in `compd.core.output.Status`);
-    plain int arithmetic, one `Status` at the end (it runs every cycle)."""
+def status_bits(v: HealthView) -> int:
+    """The status word a cycle writes as a plain int (bits in
+    `compd.core.output.Status`): `status_word` without building the flag."""
     s = _state_bits(v)
     if v.model_invalid:
-        s |= Status.MODEL_INVALID.value
+        s |= _MODEL_INVALID
     if v.model_range:
-        s |= Status.MODEL_RANGE.value | _ALARM
+        s |= _MODEL_RANGE
     if v.model_worse:
-        s |= Status.MODEL_WORSE.value | _ALARM
+        s |= _MODEL_WORSE
     if v.foreign:
-        s |= Status.READBACK_MISMATCH.value | _ALARM
+        s |= _MISMATCH
     if v.alarm:
         s |= _ALARM
     if v.write_stopped:
-        s |= Status.WRITE_STOPPED.value | _ALARM
+        s |= _WRITE_STOPPED
     if v.held:
-        s |= Status.OFFSET_HELD.value | _ALARM
+        s |= _OFFSET_HELD
     if v.write_fault:
-        s |= Status.WRITE_FAULT.value | _ALARM
+        s |= _WRITE_FAULT
     if v.operator_hold:
-        s |= Status.OPERATOR_HOLD.value
+        s |= _OPERATOR_HOLD
     if v.slewing:
-        s |= Status.SLEWING.value
+        s |= _SLEWING
     if v.controller_off:
-        s |= Status.CONTROLLER_OFF.value
-    return Status(s)
+        s |= _CONTROLLER_OFF
+    return s
+
+
+def status_word(v: HealthView) -> Status:
+    """The status word a cycle writes (bits in `compd.core.output.Status`)."""
+    return Status(status_bits(v))

@@ -235,23 +235,26 @@ class OutputStage:
         if self.held:
             self.slewing = False
             return self.current_um
-        bound = self._bound()
+        # the arithmetic of `_bound`, `_clamp` and `beyond_limit` inline: it runs for
+        # the offset and for each axis's value and slope every cycle
+        current, limit = self.current_um, self.limit_um
+        beyond = abs(current) > limit
+        bound = abs(current) if beyond else limit
         if not math.isfinite(target_um):
-            target_um = self.current_um
-        target = _clamp(target_um, self.limit_um)
+            target_um = current
+        target = max(-limit, min(limit, target_um))
         # beyond a lowered limit the output comes in, however close the target is
-        if (deadband and not self.beyond_limit
-                and abs(target - self.current_um) <= self.deadband_um):
-            target = self.current_um
+        if deadband and not beyond and abs(target - current) <= self.deadband_um:
+            target = current
         dt = min(max(dt_s, 0.0), self.max_dt_s) if math.isfinite(dt_s) else 0.0
         max_step = self.slew_um_s * dt
         if self.quantum_um:
             self.current_um = self._quantise(target, max_step, bound)
             return self.current_um
-        delta = target - self.current_um
+        delta = target - current
         self.slewing = abs(delta) > max_step
         delta = max(-max_step, min(max_step, delta))
-        self.current_um = _clamp(self.current_um + delta, bound)
+        self.current_um = max(-bound, min(bound, current + delta))
         self._exact_um = self.current_um
         return self.current_um
 
@@ -265,7 +268,7 @@ class OutputStage:
         exact = self._exact_um
         delta = target - exact
         behind = abs(delta) > max_step
-        exact = _clamp(exact + max(-max_step, min(max_step, delta)), bound)
+        exact = max(-bound, min(bound, exact + max(-max_step, min(max_step, delta))))
         new = held
         if max_step > 0.0 and abs(exact - held) >= q * (1.0 - COUNT_SLACK):
             k_held = round(held / q)

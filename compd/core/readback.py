@@ -64,6 +64,10 @@ class ReadBack:
         out = self.output
         rb_um = out.from_controller(value) if math.isfinite(value) else math.nan
         was_held, expected = out.held, out.confirmed_um
+        if rb_um == expected and not was_held:
+            # exactly what the controller last confirmed (every cycle, as a rule): a
+            # match with nothing to align, tell or release (`OutputStage.observe`)
+            return
         seen = out.observe(rb_um, self.tolerance_um)
         if seen is Readback.OUT_OF_RANGE:
             if not was_held:

@@ -55,6 +55,26 @@ CONFIRMED_HELP = ("Offset the controller last confirmed holding (the cycle repor
                   "unknown (before the first confirmed write)")
 
 
+class _AxisSeries:
+    """One axis's four series (value, slope, in force, fault state) and the values
+    they were last set to: a series is set when its value changes (a set takes the
+    series' lock; an axis's state and in-force flag stay put for hours)."""
+
+    __slots__ = ("gauges", "last")
+
+    def __init__(self, gauges: tuple[Gauge, Gauge, Gauge, Gauge]) -> None:
+        self.gauges = gauges
+        self.last: tuple[float, ...] = (math.nan,) * len(gauges)  # NaN: never set
+
+    def set(self, values: tuple[float, float, float, float]) -> None:
+        if values == self.last:
+            return
+        for gauge, value, was in zip(self.gauges, values, self.last, strict=True):
+            if value != was:
+                gauge.set(value)
+        self.last = values
+
+
 class MetricsServer:
     """`registry` served as /metrics by a bounded server (`compd.faces.http_server`):
     `start_http`, `port`, `stop` (for one daemon's `Metrics` and for a fleet
@@ -153,8 +173,9 @@ class Metrics(MetricsServer):
         #: (`labels()` hashes and locks on every call: twice a channel a cycle before)
         self._value_series: dict[str, Gauge] = {}
         self._valid_series: dict[str, Gauge] = {}
-        #: axis -> its value, slope, in-force and fault-state series, looked up once
-        self._axis_series: dict[str, tuple[Gauge, Gauge, Gauge, Gauge]] = {}
+        #: axis -> its value, slope, in-force and fault-state series, looked up once,
+        #: and the values they were last set to
+        self._axis_series: dict[str, _AxisSeries] = {}
         self.build_info = Info("compd_build", "compd's version and the sha256 of the model "
                                "and config it runs", registry=r)
         self.fault_state = Gauge("compd_fault_state",
@@ -284,14 +305,11 @@ class Metrics(MetricsServer):
         for axis, row in rows.items():
             got = series.get(axis)
             if got is None:
-                got = series[axis] = (
+                got = series[axis] = _AxisSeries((
                     self.axis_value_um.labels(axis=axis), self.axis_slope_um_m.labels(axis=axis),
-                    self.axis_in_force.labels(axis=axis), self.axis_fault_state.labels(axis=axis))
-            value, slope, in_force, state = got
-            value.set(row.value.stage)
-            slope.set(row.slope.stage)
-            in_force.set(1.0 if row.in_force else 0.0)
-            state.set(row.state.gauge)
+                    self.axis_in_force.labels(axis=axis), self.axis_fault_state.labels(axis=axis)))
+            got.set((row.value.stage, row.slope.stage, 1.0 if row.in_force else 0.0,
+                     float(row.state.gauge)))
 
     @staticmethod
     def _remove(metric: Gauge, *labels: str) -> None:

@@ -1,7 +1,8 @@
 """Atomic checkpoints of the daemon's state (model delay lines, last written
 offset, cycle number) so that a restart resumes without a jump.
 
-File format: one JSON object, the caller's state plus three keys added here:
+File format: one JSON object (one top-level key a line), the caller's state
+plus three keys added here:
 ``version`` (the format, 1), ``saved_wall_s`` (the caller's wall-clock time of
 the state: the daemon's cycle's; time.time() at save when none is given) and
 ``checksum`` (sha256 hex of the canonical JSON of everything else: sorted keys,
@@ -104,14 +105,31 @@ def encode_checkpoint(path: Path, state: dict[str, Any], *,
     payload["version"] = FORMAT_VERSION
     payload["saved_wall_s"] = time.time() if wall_s is None else wall_s
     try:
-        checksum = _checksum(payload)
+        members = _members(payload)
     except ValueError as exc:  # allow_nan=False: NaN/inf; also circular references
         raise CheckpointError(
             path, f"state is not storable: {exc} (non-finite floats are refused)") from exc
     except TypeError as exc:
         raise CheckpointError(path, f"state is not storable as JSON: {exc}") from exc
-    payload["checksum"] = checksum
-    return json.dumps(payload, sort_keys=True, indent=1, allow_nan=False).encode("utf-8")
+    # the canonical JSON (`_canonical`) is the members in key order, joined
+    checksum = hashlib.sha256(
+        ("{" + ",".join(m for _, m in members) + "}").encode("ascii")).hexdigest()
+    members += _members({"checksum": checksum})
+    members.sort(key=lambda km: km[0])
+    return ("{\n" + ",\n".join(m for _, m in members) + "\n}").encode("ascii")
+
+
+def _members(payload: dict[str, Any]) -> list[tuple[str, str]]:
+    """Each top-level key and its member (``"key":value``) as `_canonical` writes
+    it (compact, sorted keys, finite numbers only, ASCII), in key order. The
+    canonical JSON is these joined; the file is these one a line, so both come of
+    one encoding by json's C encoder (``indent`` takes its pure-Python one, several
+    times slower on a checkpoint of each axis's value and slope models' delay
+    lines, saved every ``checkpoint_every`` cycles). Each member is dumped as a
+    one-key object, so a key is written as json writes any key."""
+    return [(k, json.dumps({k: v}, sort_keys=True, separators=(",", ":"), allow_nan=False,
+                           ensure_ascii=True)[1:-1])
+            for k, v in sorted(payload.items())]
 
 
 def write_checkpoint(path: Path, data: bytes, *, directory: StateDir | None = None) -> None:

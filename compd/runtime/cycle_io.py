@@ -74,6 +74,8 @@ class CycleIO:
         self.rezero_requests: list[str] = []
         #: a re-zero happened (any source): the loop checkpoints at once and clears it
         self.rezeroed = False
+        #: the names a read asks for, and the config and parameters they are of
+        self._read_names: tuple[LoadedConfig, CycleParams, tuple[str, ...]] | None = None
 
     # -- the cycle, read to write ----------------------------------------------------
 
@@ -127,12 +129,7 @@ class CycleIO:
         no offset now ([output] estop / machine_on / homed; None when it does or cannot
         say)."""
         params = self.running.params
-        names = list(cfg.channels)
-        if params.readback:
-            names.append(params.offset_name)
-            names.extend(n for a in params.axes for n in a.names)
-        names.extend(cfg.probes)
-        names.extend(cfg.states)
+        names = self._names(cfg, params)
         limit_s = max(cfg.real_period_s, 2.0 * cfg.raw.controller.timeout_s)
         try:
             # a timeout scope, not wait_for: no task started for every cycle's read
@@ -161,6 +158,22 @@ class CycleIO:
         probe = _probe_reading(got) if cfg.probes else None
         off = _controller_off(got) if cfg.states else None
         return {n: got[n] for n in cfg.channels if n in got}, readback, probe, off, got
+
+    def _names(self, cfg: LoadedConfig, params: CycleParams) -> tuple[str, ...]:
+        """Every name a read asks for: the channels, the offset and each axis's
+        parameters read back, the probe and the controller's states; worked out
+        once for a config (a reload brings another)."""
+        known = self._read_names
+        if known is not None and known[0] is cfg and known[1] is params:
+            return known[2]
+        names = list(cfg.channels)
+        if params.readback:
+            names.append(params.offset_name)
+            names.extend(n for a in params.axes for n in a.names)
+        names.extend(cfg.probes)
+        names.extend(cfg.states)
+        self._read_names = (cfg, params, tuple(names))
+        return self._read_names[2]
 
     async def _write(self, driver: Driver, plan: Plan) -> Outcome:
         """The plan's writes (none in a dry run), and how they went."""

@@ -42,6 +42,12 @@ def _tuple(seq: int, row: RecordRow) -> tuple[Any, ...]:
             1 if row.complete else 0)
 
 
+def _nums(values: Iterable[float | None]) -> list[float | None]:
+    """`_num` of each of `values` (one call for an axis's eleven numbers)."""
+    isfinite = math.isfinite
+    return [None if x is None or not isfinite(v := float(x)) else v for x in values]
+
+
 def _axis_tuples(seq: int, row: RecordRow) -> list[tuple[Any, ...]]:
     """The ``axes`` rows of one sample (`compd.store.schema.AXIS_COLUMNS`), one per
     axis (a `compd.core.axes.AxisRow` each)."""
@@ -49,9 +55,9 @@ def _axis_tuples(seq: int, row: RecordRow) -> list[tuple[Any, ...]]:
     for axis, a in row.axes.items():
         v, s = a.value, a.slope
         out.append((seq, str(axis), str(a.state), str(a.cause), 1 if a.in_force else 0,
-                    _num(v.stage), _num(v.sent), _num(v.confirmed), _num(v.model),
-                    _num(s.stage), _num(s.sent), _num(s.confirmed), _num(s.model),
-                    _num(a.reference_mm), _num(a.position_mm), _num(a.offset_um)))
+                    *_nums((v.stage, v.sent, v.confirmed, v.model,
+                            s.stage, s.sent, s.confirmed, s.model,
+                            a.reference_mm, a.position_mm, a.offset_um))))
     return out
 
 

@@ -472,3 +472,39 @@ def test_axis_series_follow_the_report_and_go_with_a_reloaded_away_axis() -> Non
         assert sample(name, "y") is None
     m.axes({})  # a reload without [output.axes]
     assert sample("compd_axis_in_force", "x") is None
+
+
+def test_an_axis_series_is_set_only_when_its_value_changes(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every cycle reports every axis; a series whose value is the same as last
+    cycle's is not set again (a set takes its lock), and one that changed is."""
+    import prometheus_client
+
+    from compd.core.axis_params import AxisRow, ParamRow
+    from compd.core.faults import FaultState
+    from compd.core.health import Cause
+
+    def row(value: float, state: FaultState = FaultState.OK) -> AxisRow:
+        return AxisRow(axis="x", state=state, cause=Cause.IN_FORCE, status=0,
+                       value=ParamRow(value, value, value, value),
+                       slope=ParamRow(2.0, 2.0, 2.0, 2.0), reference_mm=0.0,
+                       in_force=True, inputs_valid=True)
+
+    m = Metrics()
+    m.axes({"x": row(12.0)})
+    sets: list[float] = []
+    real = prometheus_client.Gauge.set
+
+    def counted(self: prometheus_client.Gauge, value: float) -> None:
+        sets.append(value)
+        real(self, value)
+
+    monkeypatch.setattr(prometheus_client.Gauge, "set", counted)
+    m.axes({"x": row(12.0)})
+    assert sets == []
+    m.axes({"x": row(12.5, FaultState.HOLD)})
+    assert sorted(sets) == [float(FaultState.HOLD.gauge), 12.5]
+    assert m.registry.get_sample_value("compd_axis_value_micrometres", {"axis": "x"}) == 12.5
+    assert m.registry.get_sample_value("compd_axis_slope_micrometres_per_metre",
+                                       {"axis": "x"}) == 2.0
+    assert m.registry.get_sample_value("compd_axis_fault_state", {"axis": "x"}) == 1.0

@@ -46,6 +46,21 @@ def test_round_trip_adds_version_time_and_checksum(tmp_path: Path) -> None:
     assert not list(tmp_path.glob(".*.tmp"))  # no temp file left behind
 
 
+def test_one_top_level_key_a_line_in_sorted_order(tmp_path: Path) -> None:
+    # written by json's C encoder (an indented dump takes its pure-Python one, several
+    # times slower on a checkpoint of several models' delay lines), still one key a line
+    path = tmp_path / "state.json"
+    state = {**_state(7), "axes": {"x": {"value": 1.5, "value_model": {"x": [0.25] * 40}}},
+             "note": "naïve"}
+    save_checkpoint(path, state)
+    lines = path.read_text(encoding="ascii").splitlines()
+    assert lines[0] == "{" and lines[-1] == "}"
+    keys = [json.loads("{" + line.rstrip(",") + "}").popitem() for line in lines[1:-1]]
+    assert [k for k, _ in keys] == sorted(state.keys() | {"version", "saved_wall_s", "checksum"})
+    assert dict(keys)["axes"] == state["axes"] and dict(keys)["note"] == "naïve"
+    assert load_checkpoint(path) == dict(keys)
+
+
 def test_missing_is_none(tmp_path: Path) -> None:
     assert load_checkpoint(tmp_path / "none.json") is None
 
