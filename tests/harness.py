@@ -105,6 +105,23 @@ async def until(predicate: Callable[..., Any], proc: asyncio.subprocess.Process 
     raise AssertionError(f"{what}: not reached within {limit_s:g} s{rc}{text}")
 
 
+async def healthy_within(ask: Callable[[], int], cycles: Callable[[], int],
+                         tries: int = 30) -> int:
+    """A health check of a daemon that runs in real time, asked until it answers
+    healthy (0), at most `tries` times, waiting for the daemon's next complete cycle
+    (`cycles`: its count) between two asks. On a loaded PC one read or write may
+    time out and make one instant rightly unhealthy; the check asked once at that
+    instant would turn a slow machine into a red test. Returns the last answer."""
+    rc = await asyncio.to_thread(ask)
+    for _ in range(tries - 1):
+        if rc == 0:
+            break
+        seen = cycles()
+        await until(lambda seen=seen: cycles() > seen, what="the next complete cycle")
+        rc = await asyncio.to_thread(ask)
+    return rc
+
+
 async def until_output(sim: SimController, key: str, predicate: Callable[[float], Any],
                        proc: asyncio.subprocess.Process | None = None,
                        log: Path | None = None, limit_s: float = 120.0) -> None:

@@ -336,7 +336,7 @@ async def test_a_daemon_at_its_connection_cap_is_still_healthy_by_url(
     from drivers.sim.ports import free_tcp_port
     from tests.compd.faces.status_helpers import get
     from tests.configs import write_config
-    from tests.harness import until
+    from tests.harness import healthy_within, until
 
     path = write_config(tmp_path, sim.endpoint, time_scale=10.0)
     port = free_tcp_port("127.0.0.1")
@@ -355,7 +355,8 @@ async def test_a_daemon_at_its_connection_cap_is_still_healthy_by_url(
             assert server.open_connections == 3
             args = argparse.Namespace(url=f"http://127.0.0.1:{port}/metrics", state_dir=None,
                                       max_age_s=60.0, timeout_s=5.0)
-            assert await asyncio.to_thread(health.run, args) == 0
+            assert await healthy_within(lambda: health.run(args),
+                                        lambda: daemon.telemetry.complete_cycles) == 0
             code, _, _ = await asyncio.to_thread(get, f"http://127.0.0.1:{port}/")
             assert code == 200
             before = daemon.telemetry.complete_cycles
