@@ -1,19 +1,22 @@
 """The identification's shortcuts give the model of the plain computation, to
-the bit: lfilter's kernel called directly (`blocks.filter_zi`), the
+the bit: lfilter's kernel called directly (`filter_kernel.filter_zi`,
+`filter_kernel.lfilter_rest`, the kernel loaded without `scipy.signal`), the
 output-error fit reusing the simulation it just made and its row weights
 (`output_error.CACHE_BYTES`), `arx_fit` memoised on the data, and per-term-oe's
 fold fits left out of a stage whose every final estimate is refused."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from typing import Any
 
 import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from models.identify import blocks, estimators, orders, output_error, structures
-from models.identify.blocks import filter_zi
+from models.identify import blocks, estimators, filter_kernel, orders, output_error, structures
+from models.identify.filter_kernel import filter_zi, lfilter_rest
 from models.identify.output_error import OeModel
 from models.identify.segments import Segments
 from models.identify.structures import Selection, select_structure
@@ -50,7 +53,7 @@ def _same(a: Selection, b: Selection) -> None:
 
 def _plain(monkeypatch: pytest.MonkeyPatch) -> None:
     """lfilter itself, no cached simulation or weights, no memo of arx_fit."""
-    monkeypatch.setattr(blocks, "_linear_filter", None)
+    monkeypatch.setattr(filter_kernel, "_linear_filter", None)
     monkeypatch.setattr(output_error, "CACHE_BYTES", -1)
     for module in (estimators, orders):  # the fold models and the ARX order search
         monkeypatch.setattr(module, "arx_fit",
@@ -68,6 +71,18 @@ def test_filter_zi_is_lfilter_to_the_bit() -> None:
         want, zf_want = lfilter(bb, aa, x, zi=zi)
         got, zf = filter_zi(bb, aa, x, zi)
         assert np.array_equal(got, want) and np.array_equal(zf, zf_want)
+        assert np.array_equal(lfilter_rest(bb, aa, x), lfilter(bb, aa, x))
+
+
+def test_the_kernel_is_loaded_without_scipy_signal() -> None:
+    """A fit loads lfilter's kernel from its extension file alone: importing all
+    of `scipy.signal` costs about a second of CPU at every `compd fit`."""
+    code = ("import sys; import models.identify.blocks, models.identify.segments, "
+            "models.identify.structures; from models.identify import filter_kernel as k; "
+            "print(k._linear_filter is not None, 'scipy.signal' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, timeout=120).stdout.split()
+    assert out == ["True", "False"]
 
 
 @pytest.mark.parametrize("streamed", [False, True])
