@@ -7,7 +7,6 @@ structure asked for at once (`_fold_models`).
 
 from __future__ import annotations
 
-import hashlib
 import itertools
 from collections.abc import Iterator, Sequence
 
@@ -16,7 +15,7 @@ import numpy.typing as npt
 
 from models.identify.arx import is_stable
 from models.identify.blocks import SegFilter, SegLags, normal_sums, row_blocks, solve_blocks
-from models.identify.fold_data import _Data
+from models.identify.fold_data import _Data, rows_key
 from models.identify.output_error import OeModel, fit_output_error
 from models.identify.segments import Segments
 from models.identify.validate import forced_response
@@ -54,7 +53,7 @@ def arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int = 0
     (`_Data.arx_memo`); Steiglitz–McBride starts from the memoised ARX
     estimate (its first iteration, the same least squares), and leaves it
     there for the ARX candidate."""
-    rows = hashlib.blake2b(np.packbits(train).tobytes(), digest_size=16).digest()
+    rows = rows_key(train)
     key = (na, nb, iterations, d.initial, rows)
     if key in d.arx_memo:
         return d.arx_memo[key]

@@ -6,6 +6,7 @@ asked for again; `make_data` lays them out.
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -32,6 +33,12 @@ DEFAULT_FOLDS = 4
 #: MAE on the unseen 5000 rpm step), forward ones 7.8 µm; pooling both 7.1 µm
 #: but ch5 14.5 µm instead of 2.9
 DEFAULT_VALIDATION = "forward"
+
+
+def rows_key(rows: BoolArray) -> bytes:
+    """A digest of a mask of rows: equal masks, equal keys (the memo of `arx_fit`,
+    the fold models a verdict may take again: `models.identify.structures.Candidate`)."""
+    return hashlib.blake2b(np.packbits(rows).tobytes(), digest_size=16).digest()
 
 
 @dataclass

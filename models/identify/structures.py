@@ -60,7 +60,13 @@ from models.identify.estimators import (
     _static_fit,
     arx_fit,
 )
-from models.identify.fold_data import DEFAULT_FOLDS, DEFAULT_VALIDATION, _Data, make_data
+from models.identify.fold_data import (
+    DEFAULT_FOLDS,
+    DEFAULT_VALIDATION,
+    _Data,
+    make_data,
+    rows_key,
+)
 from models.identify.fold_scores import _final_fit, _heldout, _Replay, _score, _simulate
 from models.identify.orders import (
     INITIAL_MARGIN_PCT,
@@ -107,6 +113,11 @@ class Candidate:
     #: what it was not calibrated on, from which `compd fit --adaptation`
     #: learns how fast that error moves
     heldout_residuals: tuple[FloatArray, ...] = field(default=(), compare=False, repr=False)
+    #: (`rows_key` of a fold's training rows, the estimate the selection's chain
+    #: made on them) per fold: a verdict that asks for the same chain on the
+    #: same rows takes it (`compd.offline.fit_judge.refit`) instead of fitting again
+    fold_models: tuple[tuple[bytes, OeModel | None], ...] = field(default=(), compare=False,
+                                                                   repr=False)
 
     @property
     def n_params(self) -> int:
@@ -205,10 +216,12 @@ def _candidates_at(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int
         if m is None:
             raise ValueError("fewer rows than parameters")
         why = d.refused(m, labels)
-        held = _heldout(d, [_static_fit(d, t) for t, _ in d.splits])
+        static = [_static_fit(d, t) for t, _ in d.splits]
+        held = _heldout(d, static)
         return ([Candidate("static", m, val, tuple(per), _final_fit(d, m), rejected=why,
                            heldout_rms=held.rms, displacement_rms=held.displacement_rms,
-                           heldout_residuals=held.residuals)], (0, 1), True)
+                           heldout_residuals=held.residuals,
+                           fold_models=_keyed(d, static))], (0, 1), True)
     na, nb, initial = choose_orders(d, na_range, nb_range)
     arx_at = arx_orders(d, na_range, nb_range)
     per_fold = [_fold_models(d, na, nb, train, structures, max_iter, arx_at, per_term=False)
@@ -244,11 +257,19 @@ def _candidates_at(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int
         detail = f"λ = {best_lam.partition(':')[2]}" if name == "ridge" else ""
         why = refused[name]
         held = _heldout(d, [pf.get(name) for pf in per_fold])
+        folds = _keyed(d, [pf[name] for pf in per_fold]) if all(
+            name in pf for pf in per_fold) else ()
         cands.append(Candidate(name, m, val, tuple(per), _final_fit(d, m), detail, why,
-                               held.rms, held.displacement_rms, held.residuals))
+                               held.rms, held.displacement_rms, held.residuals, folds))
     if not cands:
         raise ValueError("every structure gave an unstable model")
     return cands, (na, nb), initial
+
+
+def _keyed(d: _Data, models: Sequence[OeModel | None]
+           ) -> tuple[tuple[bytes, OeModel | None], ...]:
+    """Each fold's estimate with the key of its training rows (`Candidate.fold_models`)."""
+    return tuple((rows_key(t), m) for (t, _), m in zip(d.splits, models, strict=True))
 
 
 def _choose(cands: list[Candidate], orders: tuple[int, int], margin_pct: float,
