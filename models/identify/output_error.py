@@ -313,6 +313,31 @@ def fit_output_error(y: FloatArray, inputs: Sequence[FloatArray],
     """Refine (nums per input, dens per group) by output error over the rows
     of `mask` (default all); returns the model and its simulation over the
     whole record (initial conditions included)."""
+    prob, th, model = _refined(y, inputs, nums, dens, groups, mask, segments, radius, initial,
+                               init0, max_iter, tol)
+    return model, prob.simulate(th)
+
+
+def output_error_model(y: FloatArray, inputs: Sequence[FloatArray],
+                       nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]],
+                       groups: Sequence[Sequence[int]], *, mask: BoolArray | None = None,
+                       segments: Segments | None = None, radius: float = 1.0,
+                       initial: bool = True, init0: Sequence[float] | None = None,
+                       max_iter: int = 40, tol: float = 1e-7) -> OeModel:
+    """`fit_output_error`'s model alone: no simulation over every record made
+    after the fit (a caller that scores the model itself: the structure search,
+    its folds and the verdict's refits; one pass over the record and an array
+    of every row each)."""
+    return _refined(y, inputs, nums, dens, groups, mask, segments, radius, initial, init0,
+                    max_iter, tol)[2]
+
+
+def _refined(y: FloatArray, inputs: Sequence[FloatArray], nums: Sequence[Sequence[float]],
+             dens: Sequence[Sequence[float]], groups: Sequence[Sequence[int]],
+             mask: BoolArray | None, segments: Segments | None, radius: float, initial: bool,
+             init0: Sequence[float] | None, max_iter: int, tol: float
+             ) -> tuple[_Problem, FloatArray, OeModel]:
+    """(the problem, its refined θ, the model of θ)."""
     y = np.asarray(y, dtype=np.float64)
     us = [np.asarray(u, dtype=np.float64) for u in inputs]
     seg = segments if segments is not None else Segments.single(y.size)
@@ -337,7 +362,7 @@ def fit_output_error(y: FloatArray, inputs: Sequence[FloatArray],
                     dens=tuple(tuple(float(v) for v in b) for b in n_dens),
                     groups=tuple(tuple(g) for g in groups),
                     init=tuple(float(v) for v in init))
-    return model, prob.simulate(th)
+    return prob, th, model
 
 
 @dataclass(frozen=True)

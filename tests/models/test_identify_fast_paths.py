@@ -61,6 +61,19 @@ def _plain(monkeypatch: pytest.MonkeyPatch) -> None:
                             estimators._arx_fit(d, na, nb, train, iterations)[0])
 
 
+def test_the_model_alone_is_the_fits_model() -> None:
+    """`output_error_model` (the structure search's fits: no simulation after
+    the fit) gives `fit_output_error`'s model, to the bit."""
+    y, us, seg = _record()
+    mask = np.ones(y.size, dtype=bool)
+    mask[900:1400] = False
+    for groups in ([(0, 1, 2)], [(0,), (1,), (2,)]):
+        args = (y, us, [(0.1,), (0.0, 0.05), (0.02,)], [(1.0, -0.9)] * len(groups), groups)
+        kw: dict[str, Any] = {"mask": mask, "segments": seg, "radius": 0.9999, "tol": 1e-4}
+        model, _ = output_error.fit_output_error(*args, **kw)
+        assert output_error.output_error_model(*args, **kw) == model
+
+
 def test_filter_zi_is_lfilter_to_the_bit() -> None:
     rng = np.random.default_rng(1)
     for b, a in (([0.3], [1.0]), ([0.3, -0.2, 0.1], [1.0]), ([1.0], [1.0, -0.9]),
@@ -106,7 +119,7 @@ def test_per_term_folds_are_left_out_of_a_stage_that_fails(
     whatever its folds validate, so per-term-oe is fitted there only on
     every row; the first-order stage is then that of a search at order 1."""
     calls: list[tuple[int, bool]] = []
-    fit = output_error.fit_output_error
+    fit = output_error.output_error_model
 
     def counted(*a: Any, **kw: Any) -> Any:
         mask = kw.get("mask")
@@ -114,7 +127,7 @@ def test_per_term_folds_are_left_out_of_a_stage_that_fails(
                       mask is None or bool(np.all(mask))))
         return fit(*a, **kw)
 
-    monkeypatch.setattr(estimators, "fit_output_error", counted)
+    monkeypatch.setattr(estimators, "output_error_model", counted)
 
     def veto(m: OeModel) -> str | None:
         return "order 2" if any(len(b) > 2 for b in m.dens) or any(
