@@ -172,3 +172,35 @@ def test_the_textbook_model_keeps_no_simulation_of_every_row_per_fold() -> None:
     assert got is not None
     row_arrays = peak / (8 * n)
     assert row_arrays < 11, f"peak {peak / 1e6:.0f} MB: {row_arrays:.1f} arrays of every row"
+
+
+def test_the_heldout_residue_is_made_in_place_to_the_bit() -> None:
+    """`_heldout` makes the residue in the simulation's own array and the
+    displacement in the held-out rows' copy: the figures and arrays of the
+    plain computation (y[val] - sim[val], a first-row array beside it), to the bit."""
+    from models.identify.fold_scores import _heldout, _simulate
+    from models.identify.structures import make_data
+
+    y, us, seg = _record()
+    d = make_data(y, us, seg, 0.9999, 4, "forward")
+    models = [estimators.arx_fit(d, 1, 1, train) for train, _ in d.splits]
+    held = _heldout(d, models)
+    err = disp = 0.0
+    blocks: list[np.ndarray] = []
+    for m, (train, val) in zip(models, d.splits, strict=True):
+        assert m is not None
+        sim = _simulate(d, m, train, y, us, seg)
+        resid = y[val] - sim[val]
+        err += float(np.sum(resid ** 2))
+        start = np.concatenate([np.full(int(val[s:e].sum()), y[s]) for s, e in seg.bounds])
+        disp += float(np.sum((y[val] - start) ** 2))
+        at = 0
+        for s, e in seg.bounds:
+            k = int(val[s:e].sum())
+            if k:
+                blocks.append(resid[at:at + k])
+            at += k
+    count = sum(int(v.sum()) for _, v in d.splits)
+    assert held.rms == np.sqrt(err / count) and held.displacement_rms == np.sqrt(disp / count)
+    assert len(held.residuals) == len(blocks)
+    assert all(np.array_equal(a, b) for a, b in zip(held.residuals, blocks, strict=True))
