@@ -239,8 +239,7 @@ class _Problem:
             jt = np.empty((p, hi - lo))
             i = 0
             for t, nb in enumerate(self.nbs):
-                w = w_filt[t](us[t], lo)
-                jt[i] = w if wb is None else w * wb
+                _weighed(w_filt[t](us[t], lo), wb, jt[i])
                 if nb > 1:
                     w_lags[t].feed(jt[i], lo)
                 for j in range(1, nb):
@@ -248,7 +247,9 @@ class _Problem:
                 i += nb
             for g, na in enumerate(self.nas):
                 v_lags[g].feed(v_filt[g](outs[g], lo), lo)
-                d_den = np.stack([-v_lags[g].shift(m) for m in range(1, na + 1)], axis=0)
+                d_den = np.empty((na, hi - lo))  # -v(k - m), m = 1 … na, a row each
+                for m in range(1, na + 1):
+                    np.negative(v_lags[g].shift(m, d_den[m - 1]), out=d_den[m - 1])
                 for m in range(na):
                     np.multiply(dpolys[g][m] @ d_den, dks[g][m] if wb is None else dks[g][m] * wb,
                                 out=jt[i])
@@ -256,17 +257,25 @@ class _Problem:
             for r, (s, e) in enumerate(seg.bounds if self.initial else ()):
                 ind = np.zeros(hi - lo)
                 ind[max(s, lo) - lo:max(min(e, hi) - lo, 0)] = 1.0
-                jt[i] = ind if wb is None else ind * wb
+                _weighed(ind, wb, jt[i])
                 i += 1
                 for t in range(len(self.us)):
-                    f = i_filt[r][t](ind, lo)
-                    jt[i] = f if wb is None else f * wb
+                    _weighed(i_filt[r][t](ind, lo), wb, jt[i])
                     i += 1
             g_blk, r_blk = jt @ jt.T, jt @ resid[lo:hi]
             jtj = g_blk if jtj is None else jtj + g_blk
             jtr = r_blk if jtr is None else jtr + r_blk
         assert jtj is not None and jtr is not None
         return jtj, jtr
+
+
+def _weighed(x: FloatArray, wb: FloatArray | None, out: FloatArray) -> None:
+    """x · wb (x itself when wb is None) written into `out`, a row of the
+    Jacobian's block: no temporary array of the block between."""
+    if wb is None:
+        out[:] = x
+    else:
+        np.multiply(x, wb, out=out)
 
 
 def _levenberg_marquardt(prob: _Problem, th0: FloatArray, mask: BoolArray, max_iter: int,
