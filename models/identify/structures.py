@@ -224,9 +224,13 @@ def _candidates_at(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int
                            fold_models=_keyed(d, static))], (0, 1), True)
     na, nb, initial = choose_orders(d, na_range, nb_range)
     arx_at = arx_orders(d, na_range, nb_range)
+    # the final estimates first: the folds are fitted only when one may be chosen
+    finals = _fold_models(d, na, nb, every, structures, max_iter, arx_at)
+    hopeless = _every_final_refused(d, finals, labels, structures)
+    if hopeless is not None:
+        return hopeless, (na, nb), initial
     per_fold = [_fold_models(d, na, nb, train, structures, max_iter, arx_at, per_term=False)
                 for train, _ in d.splits]
-    finals = _fold_models(d, na, nb, every, structures, max_iter, arx_at)
     keys = list(per_fold[0])
     scores: dict[str, tuple[float, list[float]]] = {}
     for key in keys:
@@ -264,6 +268,36 @@ def _candidates_at(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int
     if not cands:
         raise ValueError("every structure gave an unstable model")
     return cands, (na, nb), initial
+
+
+def _every_final_refused(d: _Data, finals: dict[str, OeModel | None], labels: Sequence[str],
+                         structures: Sequence[str]) -> list[Candidate] | None:
+    """The stage's candidates, each refused, when every final estimate is refused
+    whatever the folds validate (ridge: at every λ of the grid, for the same
+    reason, so that the λ the folds would choose changes nothing); else None
+    (the folds decide). Their refusals are then asked in the table's order, as
+    `_candidates_at` asks them, and the stage fails on them without a fold fitted
+    (a day at 1 s: the fold fits, scores and residues of orders 2-4 that every
+    model fails)."""
+    ridge = [m for k, m in finals.items() if k.startswith("ridge:")]
+    if ridge and (any(m is None for m in ridge) or len(
+            {d.refused(m, labels, quietly=True) for m in ridge if m is not None}) != 1):
+        return None
+    finals = {**finals, "ridge": ridge[0]} if ridge else finals
+    names = [n for n in ("arx", "shared-oe", "ridge", "per-term-oe")
+             if (n in structures or n == "arx") and finals.get(n) is not None]
+    if not all(d.refused(m, labels, quietly=True) for n in names
+               if (m := finals[n]) is not None):
+        return None
+    out = []
+    for n in names:
+        m = finals[n]
+        assert m is not None
+        detail = "λ = (every one refused)" if n == "ridge" else ""
+        out.append(Candidate(n, m, -math.inf, (), math.nan, detail, d.refused(m, labels)))
+    if not out:
+        raise ValueError("every structure gave an unstable model")
+    return out
 
 
 def _keyed(d: _Data, models: Sequence[OeModel | None]

@@ -204,3 +204,51 @@ def test_the_heldout_residue_is_made_in_place_to_the_bit() -> None:
     assert held.rms == np.sqrt(err / count) and held.displacement_rms == np.sqrt(disp / count)
     assert len(held.residuals) == len(blocks)
     assert all(np.array_equal(a, b) for a, b in zip(held.residuals, blocks, strict=True))
+
+
+class _CountingVeto:
+    """A veto that counts what it refuses (as `compd fit`'s does), and asked
+    ahead `quietly` does not."""
+
+    def __init__(self) -> None:
+        self.vetoed: list[str] = []
+
+    def quietly(self, m: OeModel) -> str | None:
+        if any(len(b) > 2 for b in m.dens) or any(len(a) > 1 for a in m.nums):
+            return f"order 2 (den {len(m.dens[0]) - 1})"
+        return None
+
+    def __call__(self, m: OeModel) -> str | None:
+        why = self.quietly(m)
+        if why is not None:
+            self.vetoed.append(why)
+        return why
+
+
+def test_a_stage_whose_every_final_is_refused_fits_no_fold(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every final estimate of orders 1-2 refused (ridge at every λ alike): the
+    stage fails without a fold fitted, with the selection, the notes and the
+    veto's count of the search that fits its folds first."""
+    veto = _CountingVeto()
+    trained: list[bool] = []
+    real = estimators._fold_models
+
+    def counted(d: Any, na: int, nb: int, train: Any, *a: Any, **kw: Any) -> Any:
+        trained.append(bool(np.all(train == d.every)))
+        return real(d, na, nb, train, *a, **kw)
+
+    monkeypatch.setattr(structures, "_fold_models", counted)
+    fast = _select(veto=veto)
+    fast_fits = list(trained)
+    monkeypatch.setattr(structures, "_every_final_refused", lambda *a: None)
+    plain_veto = _CountingVeto()
+    trained.clear()
+    plain = _select(veto=plain_veto)
+    assert fast.fallback and fast.orders == (1, 1) and fast.notes[0].startswith("failed:")
+    _same(fast, plain)
+    assert veto.vetoed == plain_veto.vetoed
+    folds = structures.DEFAULT_FOLDS
+    # the failed stage: its finals alone; the first-order stage: its finals, then its folds
+    assert fast_fits == [True, True] + [False] * folds
+    assert trained == ([True] + [False] * folds) * 2
