@@ -93,6 +93,14 @@ def _hours(time_s: FloatArray | None, s: int, e: int) -> str:
     return f"{time_s[s] / 3600.0:.1f}-{time_s[e - 1] / 3600.0:.1f} h"
 
 
+def _usable_index(use: BoolArray, s: int, e: int) -> Any:
+    """The indices of the usable rows of rows s … e-1: a range when every one is
+    (no array of a month's indices, 21 MB), else the array of them."""
+    if bool(use[s:e].all()):
+        return range(s, e)
+    return np.flatnonzero(use[s:e]) + s
+
+
 def inner_blocks(seg: Segments, usable: BoolArray | None, speed: FloatArray | None = None,
                  time_s: FloatArray | None = None) -> list[InnerBlock]:
     """The inner held-out blocks (module docstring) of the records `seg`;
@@ -109,8 +117,8 @@ def inner_blocks(seg: Segments, usable: BoolArray | None, speed: FloatArray | No
             found[kind].append(InnerBlock(name, kind, rows))
 
     for s, e in seg.bounds:
-        idx = np.flatnonzero(use[s:e]) + s
-        if idx.size < 2 * MIN_BLOCK_ROWS:
+        idx = _usable_index(use, s, e)
+        if len(idx) < 2 * MIN_BLOCK_ROWS:
             continue
         lo, hi = int(idx[0]), int(idx[-1]) + 1
         runs = _stretches(speed, lo, hi) if speed is not None else []
@@ -129,7 +137,7 @@ def inner_blocks(seg: Segments, usable: BoolArray | None, speed: FloatArray | No
                     add("cycle", f"cycle {_hours(time_s, a, nxt[1])} ({lvl:g} rpm)", a,
                         nxt[1])
             continue
-        cuts = np.linspace(0, idx.size, PARTS + 1).round().astype(int)
+        cuts = np.linspace(0, len(idx), PARTS + 1).round().astype(int)
         for k in range(1, PARTS):
             a, b = int(idx[cuts[k]]), int(idx[cuts[k + 1] - 1]) + 1
             kind = "end" if k == PARTS - 1 else "interior"
@@ -140,14 +148,18 @@ def inner_blocks(seg: Segments, usable: BoolArray | None, speed: FloatArray | No
     return out
 
 
+def _joined(parts: list[FloatArray]) -> FloatArray:
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
 def judge_rows(records: list[Any]) -> tuple[FloatArray | None, FloatArray]:
     """(the first speed column, the time) of `records` concatenated; the speed
     None when a record has none."""
     from compd.offline.channel_kind import ChannelKind, channel_kind
 
-    time_s = np.concatenate([np.asarray(r.time_s, dtype=np.float64) for r in records])
+    # one record's columns themselves, not copies (a month at 1 s: 21 MB each)
+    time_s = _joined([np.asarray(r.time_s, dtype=np.float64) for r in records])
     name = next((c for c in records[0].columns if channel_kind(c) is ChannelKind.SPEED), None)
     if name is None or any(name not in r.columns for r in records):
         return None, time_s
-    return np.concatenate([np.asarray(r.column(name), dtype=np.float64) for r in records]), \
-        time_s
+    return _joined([np.asarray(r.column(name), dtype=np.float64) for r in records]), time_s

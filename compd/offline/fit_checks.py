@@ -64,15 +64,27 @@ class CheckVeto:
                                  provenance=dict(self._provenance))
 
     def __call__(self, m: OeModel) -> str | None:
-        from compd.offline.model_description import plausibility
-
-        try:
-            flags = plausibility(self.model(m.nums, m.term_dens()))
-        except (ModelError, ValueError) as exc:  # not even a model the file could hold
-            flags = [str(exc)]
+        flags = self._flags(m)
         if not flags:
             return None
         self.vetoed.append(flags[0])
+        return self._said(flags)
+
+    def quietly(self, m: OeModel) -> str | None:
+        """The veto of `m` without counting it among `vetoed` (a selection asking ahead)."""
+        flags = self._flags(m)
+        return self._said(flags) if flags else None
+
+    def _flags(self, m: OeModel) -> list[str]:
+        from compd.offline.model_description import plausibility
+
+        try:
+            return list(plausibility(self.model(m.nums, m.term_dens())))
+        except (ModelError, ValueError) as exc:  # not even a model the file could hold
+            return [str(exc)]
+
+    @staticmethod
+    def _said(flags: list[str]) -> str:
         return VETO_PREFIX + flags[0] + (f" (and {len(flags) - 1} more)" if len(flags) > 1
                                          else "")
 

@@ -146,10 +146,12 @@ def hedge_choice(args: FitRun, y: FloatArray, seg: Segments, radius: float,
         c is chosen or (not c.rejected and math.isfinite(c.validation_fit_pct)))]
     from compd.offline.fit_judge import Member
 
-    sel_member = [Member(c.structure, tuple(us), c.model, sel.initial, c.detail) for c in cands]
+    sel_member = [Member(c.structure, tuple(us), c.model, sel.initial, c.detail, c.fold_models)
+                  for c in cands]
     if chosen not in cands:
         summary["_judge"] = {"choice": [(Member(chosen.structure, tuple(us), chosen.model,
-                                                sel.initial, chosen.detail), 1.0)],
+                                                sel.initial, chosen.detail,
+                                                chosen.fold_models), 1.0)],
                              "textbook": None}
         return terms, summary
     left_out: list[str] = []
@@ -186,7 +188,7 @@ def hedge_choice(args: FitRun, y: FloatArray, seg: Segments, radius: float,
                 continue
             labels.append(_label(c, alt_names))
             sel_member.append(Member(c.structure, tuple(alt_us), c.model, alt.initial,
-                                     c.detail))
+                                     c.detail, c.fold_models))
             errors.append(block_errors(c.heldout_residuals))
             residuals.append(c.heldout_residuals)
             members.append(member)

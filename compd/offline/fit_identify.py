@@ -163,13 +163,14 @@ def identify_terms(run: FitRun, records: list[Record], ys: list[Any],
                ) -> tuple[list[Term], list[dict[str, Any]]]:
     from models.compensation import Term
     from models.errors import ModelError
+
+    if run.request.kind == "tf":  # the fitters below load scipy.optimize: only for them
+        return _fit_tf(run, records, ys, specs, holdout_records)
     from models.greybox import GreyBox
     from models.identify.greybox_fit import fit_greybox
     from models.identify.mbotv_fit import fit_mbotv
     from models.mbotv import Mbotv
 
-    if run.request.kind == "tf":
-        return _fit_tf(run, records, ys, specs, holdout_records)
     if len(records) != 1 or holdout_records:
         raise ModelError(f"--kind {run.request.kind} fits one record; got {len(records)} (and "
                          f"{len(holdout_records)} validation record(s)); use --kind tf")

@@ -102,6 +102,11 @@ class Member:
     model: OeModel
     initial: bool = False
     detail: str = ""
+    #: the selection's own fold estimates by the key of their training rows
+    #: (`models.identify.structures.Candidate.fold_models`): a block whose
+    #: calibration is a fold's (the end block is the last forward fold's) takes
+    #: that estimate, the very one `refit` would make again
+    folds: tuple[tuple[bytes, OeModel | None], ...] = field(default=(), repr=False)
 
 
 @dataclass
@@ -129,6 +134,10 @@ class Verdict:
                 "reasons": self.reasons, "floor_um": self.floor, "kinds": self.kinds}
 
 
+#: `refit`'s marker of rows that are no fold's training rows
+_NOT_A_FOLD = object()
+
+
 def refit(y: FloatArray, seg: Segments, radius: float, usable: BoolArray | None,
           member: Member, train: BoolArray) -> FloatArray | None:
     """`member` re-estimated on the `train` rows and run over every row from
@@ -143,13 +152,19 @@ def refit(y: FloatArray, seg: Segments, radius: float, usable: BoolArray | None,
     the held-out cycle against 25.5 µm uncompensated, where the chain's
     verdict refused it)."""
     from models.identify.estimators import _fold_models, _ridge, _static_fit, arx_fit
-    from models.identify.fold_data import _Data
+    from models.identify.fold_data import _Data, rows_key
     from models.identify.fold_scores import _simulate
     from models.identify.textbook import TEXTBOOK_ORDERS
     from models.identify.validate import forced_response
 
     d = _Data(y, list(member.us), seg, radius, [], initial=member.initial, usable=usable)
     m: OeModel | None
+    if member.folds and member.structure != "textbook":
+        key = rows_key(train)
+        done = next((fm for k, fm in member.folds if k == key), _NOT_A_FOLD)
+        if done is not _NOT_A_FOLD:
+            m = done if isinstance(done, OeModel) else None
+            return None if m is None else _simulate(d, m, train, y, d.us, seg)
     if member.structure == "textbook":
         d.initial = False
         m = arx_fit(d, *TEXTBOOK_ORDERS, train)

@@ -33,14 +33,9 @@ from collections.abc import Iterable, Iterator, Sequence
 
 import numpy as np
 import numpy.typing as npt
-from scipy.signal import lfilter
 
+from models.identify.filter_kernel import filter_zi
 from models.identify.segments import Segments
-
-try:  # lfilter's own kernel: the identification calls it thousands of times per fit
-    from scipy.signal._sigtools import _linear_filter
-except ImportError:  # pragma: no cover - another scipy layout: lfilter itself
-    _linear_filter = None
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -66,24 +61,6 @@ def _pieces(seg: Segments, lo: int, hi: int) -> Iterator[tuple[int, int, bool]]:
         a, b = max(s, lo), min(e, hi)
         if a < b:
             yield a, b, a == s
-
-
-def filter_zi(b: FloatArray, a: FloatArray, x: FloatArray, zi: FloatArray
-              ) -> tuple[FloatArray, FloatArray]:
-    """``lfilter(b, a, x, zi=zi)`` for float64 1-D arrays with a[0] = 1 and zi
-    of max(len(a), len(b)) - 1 values, by the very arithmetic `lfilter` runs
-    (its recursive kernel; a FIR filter its convolution) without its checks
-    and conversions of every argument, which cost as much as the filtering on
-    a block of a few thousand rows."""
-    if _linear_filter is None or a[0] != 1.0 or zi.size != max(a.size, b.size) - 1:
-        out, zf = lfilter(b, a, x, zi=zi)
-        return np.asarray(out, dtype=np.float64), np.asarray(zf, dtype=np.float64)
-    if a.size == 1:  # lfilter's FIR path: the full convolution, zi added to its head
-        full = np.convolve(b, x)
-        full[:zi.size] += zi
-        return full[:x.size], full[x.size:]
-    out, zf = _linear_filter(b, a, x, -1, zi)
-    return out, zf
 
 
 class SegFilter:

@@ -7,7 +7,6 @@ structure asked for at once (`_fold_models`).
 
 from __future__ import annotations
 
-import hashlib
 import itertools
 from collections.abc import Iterator, Sequence
 
@@ -16,8 +15,8 @@ import numpy.typing as npt
 
 from models.identify.arx import is_stable
 from models.identify.blocks import SegFilter, SegLags, normal_sums, row_blocks, solve_blocks
-from models.identify.fold_data import _Data
-from models.identify.output_error import OeModel, fit_output_error
+from models.identify.fold_data import _Data, rows_key
+from models.identify.output_error import OeModel, output_error_model
 from models.identify.segments import Segments
 from models.identify.validate import forced_response
 
@@ -54,7 +53,7 @@ def arx_fit(d: _Data, na: int, nb: int, train: BoolArray, iterations: int = 0
     (`_Data.arx_memo`); Steiglitz–McBride starts from the memoised ARX
     estimate (its first iteration, the same least squares), and leaves it
     there for the ARX candidate."""
-    rows = hashlib.blake2b(np.packbits(train).tobytes(), digest_size=16).digest()
+    rows = rows_key(train)
     key = (na, nb, iterations, d.initial, rows)
     if key in d.arx_memo:
         return d.arx_memo[key]
@@ -166,10 +165,9 @@ def _oe(d: _Data, start: OeModel | None, train: BoolArray, per_term: bool,
         return None
     groups = [(t,) for t in range(len(d.us))] if per_term else [tuple(range(len(d.us)))]
     dens = [start.dens[0]] * len(groups)
-    m, _ = fit_output_error(d.y, d.us, start.nums, dens, groups, mask=train, segments=d.seg,
-                            radius=d.radius, max_iter=max_iter, init0=start.init or None,
-                            tol=OE_TOL, initial=d.initial)
-    return m
+    return output_error_model(d.y, d.us, start.nums, dens, groups, mask=train, segments=d.seg,
+                              radius=d.radius, max_iter=max_iter, init0=start.init or None,
+                              tol=OE_TOL, initial=d.initial)
 
 
 def _ridge(d: _Data, shared: OeModel | None, train: BoolArray, lam: float) -> OeModel | None:

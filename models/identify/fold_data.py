@@ -6,6 +6,7 @@ asked for again; `make_data` lays them out.
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -32,6 +33,12 @@ DEFAULT_FOLDS = 4
 #: MAE on the unseen 5000 rpm step), forward ones 7.8 µm; pooling both 7.1 µm
 #: but ch5 14.5 µm instead of 2.9
 DEFAULT_VALIDATION = "forward"
+
+
+def rows_key(rows: BoolArray) -> bytes:
+    """A digest of a mask of rows: equal masks, equal keys (the memo of `arx_fit`,
+    the fold models a verdict may take again: `models.identify.structures.Candidate`)."""
+    return hashlib.blake2b(np.packbits(rows).tobytes(), digest_size=16).digest()
 
 
 @dataclass
@@ -74,13 +81,16 @@ class _Data:
         """The inputs' names in messages: `names`, else "input 1", "input 2", …"""
         return list(names) if names is not None else [f"input {i + 1}" for i in range(len(self.us))]
 
-    def refused(self, m: OeModel, labels: Sequence[str]) -> str:
+    def refused(self, m: OeModel, labels: Sequence[str], quietly: bool = False) -> str:
         """Why the final estimate `m` is never chosen ("" when it may be); the
-        output span is that of the rows it was fitted on."""
+        output span is that of the rows it was fitted on. `quietly`: asked
+        ahead, the veto's own ``quietly`` when it has one (a veto that counts
+        what it refuses, `compd.offline.fit_checks.CheckVeto`, does not count it)."""
         why = implausible(m.nums, m.term_dens(), self.us, labels,
                           float(np.ptp(self.y[self.every])), self.y.size)
         if why is None and self.veto is not None:
-            why = self.veto(m)
+            veto = getattr(self.veto, "quietly", self.veto) if quietly else self.veto
+            why = veto(m)
         return why or ""
 
 

@@ -102,17 +102,23 @@ def _heldout(d: _Data, models: Sequence[OeModel | None]) -> _Heldout:
     for m, train, val in pairs:
         assert m is not None
         sim = _simulate(d, m, train, y, us, seg)
-        # the held-out rows in row order: measured, and the residue there, once
-        # (a month at 1 s holds four fifths of its rows out, 17 MB an array);
-        # each record's block of residue is its slice of it
-        y_v = y[val]
-        resid = y_v - sim[val]
+        # the residue on the held-out rows in row order, once (a month at 1 s
+        # holds four fifths of its rows out, 17 MB an array): made in place in
+        # the simulation, then taken; each record's block of residue is its
+        # slice of it
+        resid = np.subtract(y, sim, out=sim)[val]
         del sim
         err += float(np.sum(resid ** 2))
-        # each record's first row, on the held-out rows only (not a copy of every row)
-        start = np.concatenate([np.full(int(val[s:e].sum()), y[s]) for s, e in seg.bounds])
-        disp += float(np.sum((y_v - start) ** 2))
-        del y_v, start
+        # the displacement from each record's first row on the held-out rows,
+        # made in place in their copy (no array of the first rows beside it)
+        dev = y[val]
+        at = 0
+        for s, e in seg.bounds:
+            k = int(val[s:e].sum())
+            dev[at:at + k] -= y[s]
+            at += k
+        disp += float(np.sum(dev ** 2))
+        del dev
         count += int(val.sum())
         at = 0
         for s, e in seg.bounds:

@@ -239,8 +239,7 @@ class _Problem:
             jt = np.empty((p, hi - lo))
             i = 0
             for t, nb in enumerate(self.nbs):
-                w = w_filt[t](us[t], lo)
-                jt[i] = w if wb is None else w * wb
+                _weighed(w_filt[t](us[t], lo), wb, jt[i])
                 if nb > 1:
                     w_lags[t].feed(jt[i], lo)
                 for j in range(1, nb):
@@ -248,7 +247,9 @@ class _Problem:
                 i += nb
             for g, na in enumerate(self.nas):
                 v_lags[g].feed(v_filt[g](outs[g], lo), lo)
-                d_den = np.stack([-v_lags[g].shift(m) for m in range(1, na + 1)], axis=0)
+                d_den = np.empty((na, hi - lo))  # -v(k - m), m = 1 … na, a row each
+                for m in range(1, na + 1):
+                    np.negative(v_lags[g].shift(m, d_den[m - 1]), out=d_den[m - 1])
                 for m in range(na):
                     np.multiply(dpolys[g][m] @ d_den, dks[g][m] if wb is None else dks[g][m] * wb,
                                 out=jt[i])
@@ -256,17 +257,25 @@ class _Problem:
             for r, (s, e) in enumerate(seg.bounds if self.initial else ()):
                 ind = np.zeros(hi - lo)
                 ind[max(s, lo) - lo:max(min(e, hi) - lo, 0)] = 1.0
-                jt[i] = ind if wb is None else ind * wb
+                _weighed(ind, wb, jt[i])
                 i += 1
                 for t in range(len(self.us)):
-                    f = i_filt[r][t](ind, lo)
-                    jt[i] = f if wb is None else f * wb
+                    _weighed(i_filt[r][t](ind, lo), wb, jt[i])
                     i += 1
             g_blk, r_blk = jt @ jt.T, jt @ resid[lo:hi]
             jtj = g_blk if jtj is None else jtj + g_blk
             jtr = r_blk if jtr is None else jtr + r_blk
         assert jtj is not None and jtr is not None
         return jtj, jtr
+
+
+def _weighed(x: FloatArray, wb: FloatArray | None, out: FloatArray) -> None:
+    """x · wb (x itself when wb is None) written into `out`, a row of the
+    Jacobian's block: no temporary array of the block between."""
+    if wb is None:
+        out[:] = x
+    else:
+        np.multiply(x, wb, out=out)
 
 
 def _levenberg_marquardt(prob: _Problem, th0: FloatArray, mask: BoolArray, max_iter: int,
@@ -313,6 +322,31 @@ def fit_output_error(y: FloatArray, inputs: Sequence[FloatArray],
     """Refine (nums per input, dens per group) by output error over the rows
     of `mask` (default all); returns the model and its simulation over the
     whole record (initial conditions included)."""
+    prob, th, model = _refined(y, inputs, nums, dens, groups, mask, segments, radius, initial,
+                               init0, max_iter, tol)
+    return model, prob.simulate(th)
+
+
+def output_error_model(y: FloatArray, inputs: Sequence[FloatArray],
+                       nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]],
+                       groups: Sequence[Sequence[int]], *, mask: BoolArray | None = None,
+                       segments: Segments | None = None, radius: float = 1.0,
+                       initial: bool = True, init0: Sequence[float] | None = None,
+                       max_iter: int = 40, tol: float = 1e-7) -> OeModel:
+    """`fit_output_error`'s model alone: no simulation over every record made
+    after the fit (a caller that scores the model itself: the structure search,
+    its folds and the verdict's refits; one pass over the record and an array
+    of every row each)."""
+    return _refined(y, inputs, nums, dens, groups, mask, segments, radius, initial, init0,
+                    max_iter, tol)[2]
+
+
+def _refined(y: FloatArray, inputs: Sequence[FloatArray], nums: Sequence[Sequence[float]],
+             dens: Sequence[Sequence[float]], groups: Sequence[Sequence[int]],
+             mask: BoolArray | None, segments: Segments | None, radius: float, initial: bool,
+             init0: Sequence[float] | None, max_iter: int, tol: float
+             ) -> tuple[_Problem, FloatArray, OeModel]:
+    """(the problem, its refined θ, the model of θ)."""
     y = np.asarray(y, dtype=np.float64)
     us = [np.asarray(u, dtype=np.float64) for u in inputs]
     seg = segments if segments is not None else Segments.single(y.size)
@@ -337,7 +371,7 @@ def fit_output_error(y: FloatArray, inputs: Sequence[FloatArray],
                     dens=tuple(tuple(float(v) for v in b) for b in n_dens),
                     groups=tuple(tuple(g) for g in groups),
                     init=tuple(float(v) for v in init))
-    return model, prob.simulate(th)
+    return prob, th, model
 
 
 @dataclass(frozen=True)

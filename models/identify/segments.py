@@ -18,7 +18,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.signal import lfilter
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -55,10 +54,12 @@ class Segments:
     def filter(self, b: Sequence[float] | FloatArray, a: Sequence[float] | FloatArray,
                x: FloatArray) -> FloatArray:
         """`lfilter(b, a, x)` restarted from rest at every segment start."""
+        from models.identify.filter_kernel import lfilter_rest
+
         out = np.empty_like(x, dtype=np.float64)
         bb, aa = np.asarray(b, dtype=np.float64), np.asarray(a, dtype=np.float64)
         for s, e in self.bounds:
-            out[s:e] = lfilter(bb, aa, x[s:e])
+            out[s:e] = lfilter_rest(bb, aa, x[s:e])
         return out
 
     def shift(self, x: FloatArray, d: int) -> FloatArray:

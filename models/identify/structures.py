@@ -60,7 +60,13 @@ from models.identify.estimators import (
     _static_fit,
     arx_fit,
 )
-from models.identify.fold_data import DEFAULT_FOLDS, DEFAULT_VALIDATION, _Data, make_data
+from models.identify.fold_data import (
+    DEFAULT_FOLDS,
+    DEFAULT_VALIDATION,
+    _Data,
+    make_data,
+    rows_key,
+)
 from models.identify.fold_scores import _final_fit, _heldout, _Replay, _score, _simulate
 from models.identify.orders import (
     INITIAL_MARGIN_PCT,
@@ -107,6 +113,11 @@ class Candidate:
     #: what it was not calibrated on, from which `compd fit --adaptation`
     #: learns how fast that error moves
     heldout_residuals: tuple[FloatArray, ...] = field(default=(), compare=False, repr=False)
+    #: (`rows_key` of a fold's training rows, the estimate the selection's chain
+    #: made on them) per fold: a verdict that asks for the same chain on the
+    #: same rows takes it (`compd.offline.fit_judge.refit`) instead of fitting again
+    fold_models: tuple[tuple[bytes, OeModel | None], ...] = field(default=(), compare=False,
+                                                                   repr=False)
 
     @property
     def n_params(self) -> int:
@@ -205,15 +216,21 @@ def _candidates_at(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int
         if m is None:
             raise ValueError("fewer rows than parameters")
         why = d.refused(m, labels)
-        held = _heldout(d, [_static_fit(d, t) for t, _ in d.splits])
+        static = [_static_fit(d, t) for t, _ in d.splits]
+        held = _heldout(d, static)
         return ([Candidate("static", m, val, tuple(per), _final_fit(d, m), rejected=why,
                            heldout_rms=held.rms, displacement_rms=held.displacement_rms,
-                           heldout_residuals=held.residuals)], (0, 1), True)
+                           heldout_residuals=held.residuals,
+                           fold_models=_keyed(d, static))], (0, 1), True)
     na, nb, initial = choose_orders(d, na_range, nb_range)
     arx_at = arx_orders(d, na_range, nb_range)
+    # the final estimates first: the folds are fitted only when one may be chosen
+    finals = _fold_models(d, na, nb, every, structures, max_iter, arx_at)
+    hopeless = _every_final_refused(d, finals, labels, structures)
+    if hopeless is not None:
+        return hopeless, (na, nb), initial
     per_fold = [_fold_models(d, na, nb, train, structures, max_iter, arx_at, per_term=False)
                 for train, _ in d.splits]
-    finals = _fold_models(d, na, nb, every, structures, max_iter, arx_at)
     keys = list(per_fold[0])
     scores: dict[str, tuple[float, list[float]]] = {}
     for key in keys:
@@ -244,11 +261,49 @@ def _candidates_at(d: _Data, na_range: tuple[int, int], nb_range: tuple[int, int
         detail = f"λ = {best_lam.partition(':')[2]}" if name == "ridge" else ""
         why = refused[name]
         held = _heldout(d, [pf.get(name) for pf in per_fold])
+        folds = _keyed(d, [pf[name] for pf in per_fold]) if all(
+            name in pf for pf in per_fold) else ()
         cands.append(Candidate(name, m, val, tuple(per), _final_fit(d, m), detail, why,
-                               held.rms, held.displacement_rms, held.residuals))
+                               held.rms, held.displacement_rms, held.residuals, folds))
     if not cands:
         raise ValueError("every structure gave an unstable model")
     return cands, (na, nb), initial
+
+
+def _every_final_refused(d: _Data, finals: dict[str, OeModel | None], labels: Sequence[str],
+                         structures: Sequence[str]) -> list[Candidate] | None:
+    """The stage's candidates, each refused, when every final estimate is refused
+    whatever the folds validate (ridge: at every λ of the grid, for the same
+    reason, so that the λ the folds would choose changes nothing); else None
+    (the folds decide). Their refusals are then asked in the table's order, as
+    `_candidates_at` asks them, and the stage fails on them without a fold fitted
+    (a day at 1 s: the fold fits, scores and residues of orders 2-4 that every
+    model fails)."""
+    ridge = [m for k, m in finals.items() if k.startswith("ridge:")]
+    if ridge and (any(m is None for m in ridge) or len(
+            {d.refused(m, labels, quietly=True) for m in ridge if m is not None}) != 1):
+        return None
+    finals = {**finals, "ridge": ridge[0]} if ridge else finals
+    names = [n for n in ("arx", "shared-oe", "ridge", "per-term-oe")
+             if (n in structures or n == "arx") and finals.get(n) is not None]
+    if not all(d.refused(m, labels, quietly=True) for n in names
+               if (m := finals[n]) is not None):
+        return None
+    out = []
+    for n in names:
+        m = finals[n]
+        assert m is not None
+        detail = "λ = (every one refused)" if n == "ridge" else ""
+        out.append(Candidate(n, m, -math.inf, (), math.nan, detail, d.refused(m, labels)))
+    if not out:
+        raise ValueError("every structure gave an unstable model")
+    return out
+
+
+def _keyed(d: _Data, models: Sequence[OeModel | None]
+           ) -> tuple[tuple[bytes, OeModel | None], ...]:
+    """Each fold's estimate with the key of its training rows (`Candidate.fold_models`)."""
+    return tuple((rows_key(t), m) for (t, _), m in zip(d.splits, models, strict=True))
 
 
 def _choose(cands: list[Candidate], orders: tuple[int, int], margin_pct: float,

@@ -203,3 +203,19 @@ def test_no_fallback_reads_a_chosen_input_the_average_left_out(tmp_path: Path) -
                         reads={"t1_degC"})
     assert not out.models
     assert out.notes == ["no fallback without t1_degC: no term is left without it"]
+
+
+def test_the_veto_asked_quietly_says_the_same_and_counts_nothing() -> None:
+    """A selection asks ahead whether every final estimate is refused
+    (`models.identify.structures`): `CheckVeto.quietly` says what the veto
+    says without counting it among `vetoed` (whose first entry fit prints)."""
+    from compd.offline.fit_checks import CheckVeto
+    from models.identify.output_error import OeModel
+
+    veto = CheckVeto([("t1", {"t1": 1.0})], [True], [1.0], 1.0, 60.0)
+    alternating = OeModel(nums=((0.1,),), dens=((1.0, 0.6),), groups=((0,),))
+    said = veto.quietly(alternating)
+    assert said is not None and "negative real pole" in said and veto.vetoed == []
+    assert veto(alternating) == said and len(veto.vetoed) == 1
+    fine = OeModel(nums=((0.1,),), dens=((1.0, -0.9),), groups=((0,),))
+    assert veto.quietly(fine) is None and veto(fine) is None and len(veto.vetoed) == 1

@@ -136,3 +136,42 @@ def test_held_out_residues_are_slices_of_one_array_per_fold() -> None:
             assert np.array_equal(r, y[rows] - sim[rows])  # the residue, to the bit
         # one array of the fold's held-out rows, not a copy per record
         assert first.base is not None and first.base is second.base
+
+
+@pytest.mark.parametrize("structure", ["shared-oe", "ridge", "arx"])
+def test_a_block_whose_calibration_is_a_fold_takes_the_selections_estimate(
+        monkeypatch: pytest.MonkeyPatch, structure: str) -> None:
+    """The end block's calibration is the last forward fold's: the verdict takes
+    the selection's estimate there (no chain run again), the very run the
+    chain gives; on any other rows it runs the chain."""
+    y, us = _plant()
+    seg = Segments.single(y.size)
+    sel = select_structure(y, us, na_range=(1, 1), nb_range=(1, 1), segments=seg)
+    cand = next(c for c in sel.candidates if c.structure == structure)
+    assert len(cand.fold_models) == len(make_data(y, us, seg, 1.0, 4, "forward").splits)
+    member = Member(cand.structure, tuple(us), cand.model, sel.initial, cand.detail,
+                    cand.fold_models)
+    bare = Member(cand.structure, tuple(us), cand.model, sel.initial, cand.detail)
+    last_fold = make_data(y, us, seg, 1.0, 4, "forward").splits[-1][0]
+    other = np.ones(y.size, dtype=bool)
+    other[600:900] = False
+    chains: list[str] = []
+
+    def counted(name: str) -> object:
+        real = getattr(estimators, name)
+
+        def run(*a: object, **k: object) -> object:
+            chains.append(name)
+            return real(*a, **k)
+        return run
+
+    want = fit_judge.refit(y, seg, 1.0, None, bare, last_fold)
+    for name in ("_fold_models", "arx_fit"):
+        monkeypatch.setattr(estimators, name, counted(name))
+    got = fit_judge.refit(y, seg, 1.0, None, member, last_fold)
+    assert want is not None and got is not None and np.array_equal(got, want)
+    assert chains == []
+    again = fit_judge.refit(y, seg, 1.0, None, member, other)
+    assert chains  # rows of no fold: the chain runs
+    plain = fit_judge.refit(y, seg, 1.0, None, bare, other)
+    assert again is not None and plain is not None and np.array_equal(again, plain)
