@@ -62,7 +62,26 @@ def _load_kernel() -> Callable[..., Any] | None:
     return found
 
 
-_linear_filter = _load_kernel()
+def _answers_as_lfilter(kernel: Callable[..., Any] | None) -> Callable[..., Any] | None:
+    """`kernel` when it filters a known case as `lfilter` does (y[n] = x[n] + y[n-1]/2,
+    from rest and from a state); None when it raises or differs, as a scipy whose
+    private kernel changed its calling convention would: then `lfilter` runs."""
+    if kernel is None:
+        return None
+    b, a = np.array([1.0]), np.array([1.0, -0.5])
+    x = np.array([1.0, 0.0, 0.0])
+    try:
+        rest = np.asarray(kernel(b, a, x, -1), dtype=np.float64)
+        out, zf = kernel(b, a, x, -1, np.array([2.0]))
+    except Exception:  # any failure of a private function means: do not use it
+        return None
+    if (rest.tolist() == [1.0, 0.5, 0.25] and np.asarray(out).tolist() == [3.0, 1.5, 0.75]
+            and np.asarray(zf).tolist() == [0.375]):
+        return kernel
+    return None
+
+
+_linear_filter = _answers_as_lfilter(_load_kernel())
 
 
 def lfilter_rest(b: FloatArray, a: FloatArray, x: FloatArray) -> FloatArray:

@@ -252,3 +252,22 @@ def test_a_stage_whose_every_final_is_refused_fits_no_fold(
     # the failed stage: its finals alone; the first-order stage: its finals, then its folds
     assert fast_fits == [True, True] + [False] * folds
     assert trained == ([True] + [False] * folds) * 2
+
+
+def test_a_private_kernel_that_answers_otherwise_is_not_used() -> None:
+    """scipy's private kernel is taken only when it filters a known case as lfilter
+    does: one that raises, or takes other arguments, or computes otherwise (a scipy
+    that changed it) leaves lfilter itself to run."""
+    from models.identify import filter_kernel
+
+    def raises(*args: object) -> object:
+        raise TypeError("another signature")
+
+    def ignores_state(b: object, a: object, x: object, axis: int, zi: object = None) -> object:
+        return x if zi is None else (x, zi)
+
+    assert filter_kernel._answers_as_lfilter(None) is None
+    assert filter_kernel._answers_as_lfilter(raises) is None
+    assert filter_kernel._answers_as_lfilter(ignores_state) is None
+    kernel = filter_kernel._load_kernel()
+    assert filter_kernel._answers_as_lfilter(kernel) is kernel
