@@ -49,7 +49,7 @@ def _with_axes(n: int) -> list[RecordRow]:
     invalid at 20..24) on every sample but 5 and 6, Z (an offset at its position) on
     the odd ones only."""
     xs = [r.record.axes["x"] for r in _rows(max(n, 30))]
-    zs = [dataclasses.replace(r.record.axes["x"], axis="z") for r in _positional_rows(n)]
+    zs = [r.record.axes["x"]._replace(axis="z") for r in _positional_rows(n)]
     out = []
     for k, row in enumerate(_samples(n)):
         axes = {} if k in (5, 6) else {"x": xs[k]}
@@ -167,7 +167,7 @@ def _plant_with_axes(path: Path, n: int) -> Path:
     """The plant of the export round-trip test, an X axis's row on each sample but
     every tenth (`_rows`'s, reused), a Z axis's on the first half."""
     cols, xs = _plant(n), [r.record.axes["x"] for r in _rows(30)]
-    z = dataclasses.replace(xs[0], axis="z")
+    z = xs[0]._replace(axis="z")
     with Recorder(path, commit_every=100) as rec:
         for k in range(n):
             axes = {} if k % 10 == 9 else {"x": xs[k % 30]}
