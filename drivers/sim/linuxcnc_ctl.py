@@ -3,7 +3,8 @@
 Run as ``python3 -I linuxcnc_ctl.py COMMAND [ARG]`` under the system Python
 that LinuxCNC's module was built for (the test machine's side, never
 imported by compd); prints one JSON line (``linuxcnc.stat()`` as it is after
-the command) and exits 0, or prints ``{"e": message}`` and exits 1.
+the command, with the messages LinuxCNC queued on its error channel) and
+exits 0, or prints ``{"e": message}`` and exits 1.
 
 Commands: ``stat``; ``on`` (out of E-stop, machine on, manual mode, home
 every joint, wait until homed); ``off`` (machine off); ``estop``; ``run
@@ -24,9 +25,21 @@ from typing import Any
 DEADLINE_S = 60.0
 
 
+def _errors(lc: Any) -> list[str]:
+    """The operator messages and errors LinuxCNC queued since the last read (its
+    error channel is a queue: read here, they are gone for other readers)."""
+    channel, got = lc.error_channel(), []
+    for _ in range(32):
+        message = channel.poll()
+        if not message:
+            break
+        got.append(str(message[1]))
+    return got
+
+
 def _stat(lc: Any, s: Any) -> dict[str, Any]:
     s.poll()
-    return {"task_state": s.task_state, "estop": bool(s.estop),
+    return {"errors": _errors(lc), "task_state": s.task_state, "estop": bool(s.estop),
             "machine_on": s.task_state == lc.STATE_ON, "homed": list(s.homed[:s.joints]),
             "interp_state": s.interp_state, "exec_state": s.exec_state,
             "task_mode": s.task_mode, "z_mm": s.actual_position[2],

@@ -461,7 +461,11 @@ async def _moved_from(lcnc: LinuxCncSimController, x_mm: float) -> None:
     """Until X (as LinuxCNC commands it) is MOVED_MM from `x_mm`; bounded."""
     end = time.monotonic() + MOVE_DEADLINE_S
     while abs((await lcnc.settled_axes())["x_pos_mm"] - x_mm) < MOVED_MM:
-        assert time.monotonic() < end, f"X did not move {MOVED_MM} mm from {x_mm} mm"
+        if time.monotonic() > end:  # say what LinuxCNC was doing and what it said
+            stat = await lcnc.control("stat")
+            raise AssertionError(f"X did not move {MOVED_MM} mm from {x_mm} mm in "
+                                 f"{MOVE_DEADLINE_S:g} s; LinuxCNC: {stat}; its log ends: "
+                                 f"{lcnc.log_tail(800)}")
 
 
 async def test_one_gcode_program_moves_x_and_z_while_the_daemon_compensates_both(

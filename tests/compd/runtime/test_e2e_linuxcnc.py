@@ -653,3 +653,13 @@ async def test_g_code_permits_offset_changes_and_re_zeroes_by_m_code(
                       "pending_um": pending, "rezero_from_um": before,
                       "max_step_um": max(steps), "slew_step_um": STEP_UM}))
     assert inv.total_cycles > 40 and not inv.violations
+
+
+async def test_linuxcncs_own_error_reaches_the_tests_stat(
+        lcnc: LinuxCncSimController) -> None:
+    """A move LinuxCNC refuses (past X's soft limit) is told on its error channel, and
+    the test machine's ``stat`` carries that message, so a test that waits on motion can
+    say why the machine stopped instead of only that it did."""
+    stat = await lcnc.control("mdi", "G53 G0 X500")
+    assert any("limit" in e.lower() for e in stat["errors"]), stat
+    assert (await lcnc.control("stat"))["errors"] == []  # read once, then gone
