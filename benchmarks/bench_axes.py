@@ -126,7 +126,8 @@ def residuals_via_fit(train: PositionRecord, heldout: PositionRecord,
 
 
 def _dependent(r: np.ndarray) -> np.ndarray:
-    return r - r.mean(axis=1, keepdims=True)
+    centred: np.ndarray = r - r.mean(axis=1, keepdims=True)
+    return centred
 
 
 def _rms(v: np.ndarray) -> float:

@@ -222,7 +222,8 @@ def arx_fit(y: FloatArray, us: list[FloatArray], train: BoolArray
     a = np.concatenate([[1.0], theta[:ARX_NA]])
     if np.any(np.abs(np.roots(a)) >= 1.0):
         return None
-    return a, [theta[ARX_NA + k * ARX_NB:ARX_NA + (k + 1) * ARX_NB] for k in range(len(us))]
+    coef: FloatArray = np.asarray(theta, dtype=np.float64)
+    return a, [coef[ARX_NA + k * ARX_NB:ARX_NA + (k + 1) * ARX_NB] for k in range(len(us))]
 
 
 def arx_simulate(fit: tuple[FloatArray, list[FloatArray]], us: list[FloatArray]) -> FloatArray:
@@ -380,11 +381,11 @@ def print_table(cells: list[Cell], blocks: list[str], channels: list[str]) -> No
     print("|---|" + "---|" * len(MIXES))
     for ch, s in zip(channels, short, strict=True):
         mine = [c for c in cells if c.channel == ch]
-        row = []
+        mixed = []
         for k in range(len(MIXES)):
             r = [c.mixed[k] / c.base[0] for c in mine]
-            row.append(f"{geo(r):.2f} / {worst(r):.2f}")
-        print(f"| {s} | " + " | ".join(row) + " |")
+            mixed.append(f"{geo(r):.2f} / {worst(r):.2f}")
+        print(f"| {s} | " + " | ".join(mixed) + " |")
     every = [c.ratio for c in cells]
     print(f"{sum(not math.isfinite(x) for x in every)} blocks without a stable textbook "
           "model (left out of the ratios)")
