@@ -318,9 +318,12 @@ async def test_opcua_offset_node_retyped_is_transient(tmp_path: Path,
     finally:
         await sim.stop()
     log = invariants.log()
+    # the first write after the retype is refused; on a busy machine a read may time
+    # out first (that cycle writes nothing), so it is the first cycle that wrote
+    first = next(i for i in range(retype_at, len(log)) if log[i].write_ok is not None)
     failed = [i for i, c in enumerate(log) if c.write_ok is False]
-    assert failed == [retype_at], failed
-    assert log[retype_at + 1].write_ok is True and "offset" in log[retype_at + 1].written
+    assert failed == [first] and first - retype_at <= 3, (retype_at, failed)
+    assert log[first + 1].write_ok is True and "offset" in log[first + 1].written
     reasons = [f.get("reason", "") for _, e, f in rig.log.events if e == "write_failed"]
     assert len(reasons) == 1 and "BadTypeMismatch" in reasons[0] \
         and "Double" in reasons[0], reasons
