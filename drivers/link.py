@@ -43,6 +43,7 @@ from functools import partial
 from typing import Any, Generic, TypeVar
 
 from drivers.backoff import Backoff
+from drivers.deadline import deadline
 from drivers.errors import Channels, ConnectionLost, ControllerTimeout, DriverError
 from drivers.io_thread import IoThread
 
@@ -142,7 +143,7 @@ class Link(Generic[S]):
         """One connect, in its own task: bounded by `connect_timeout_s`; a failure
         (or a cancellation by `close()`) starts the backoff delay."""
         try:
-            async with asyncio.timeout(self.connect_timeout_s):
+            async with deadline(self.connect_timeout_s):
                 s = await self._open_session()
         except BaseException:
             self.backoff.failed()

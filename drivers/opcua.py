@@ -8,7 +8,7 @@ BadTypeMismatch later re-reads that DataType once: when the controller has
 re-typed the node since, the write is a transient refusal (the next one uses
 the new type); when the type is the same, a permanent one.
 
-Every call runs under `asyncio.timeout(timeout_s)` and the client's own
+Every call runs under `drivers.deadline.deadline(timeout_s)` and the client's own
 request timeout is the same. asyncua's `auto_reconnect` is NOT used (it
 blocks calls for seconds): on a connection-level failure the client is torn
 down (its supervisor, watchdog and renew tasks cancelled) and the next call
@@ -18,10 +18,8 @@ builds a new client when the backoff allows, else fails fast with
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import logging
-from collections.abc import AsyncIterator, Awaitable, Callable, Mapping, Sequence
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from functools import partial
 from typing import TypeVar
 
@@ -34,6 +32,7 @@ from asyncua.ua.uaerrors import UaError, UaStatusCodeError
 from drivers.addresses import OpcUaAddress
 from drivers.backoff import Backoff
 from drivers.base import Sample
+from drivers.deadline import deadline
 from drivers.endpoint import endpoint_of
 from drivers.errors import BadAddress, ConnectionLost, ControllerTimeout, DriverError, WriteRejected
 from drivers.link import Link, LinkedDriver
@@ -62,25 +61,6 @@ _PERMANENT_SERVICE_CODES = PERMANENT_WRITE_CODES | {_SC.BadNothingToDo}
 _CONNECTION_ERRORS = (OSError, ConnectionError, UaError, EOFError)
 
 
-
-@contextlib.asynccontextmanager
-async def _deadline(seconds: float) -> AsyncIterator[None]:
-    """`asyncio.timeout` that also turns asyncua's own cancellation into TimeoutError.
-
-    asyncua waits with `wait_for2`, which, when our deadline cancels a request
-    whose answer arrived at the same instant, raises `CancelledWithResultError`,
-    a *subclass* of CancelledError. `asyncio.timeout` converts only the exact
-    CancelledError, so without this the subclass escapes as a cancellation of
-    the caller's task (it killed the daemon's loop under load)."""
-    cm = asyncio.timeout(seconds)
-    try:
-        async with cm:
-            yield
-    except asyncio.CancelledError:
-        task = asyncio.current_task()
-        if cm.expired() and (task is None or task.cancelling() == 0):
-            raise TimeoutError from None
-        raise
 
 class OpcUaDriver(LinkedDriver):
     """Async access to one OPC UA server (see module docstring)."""
@@ -126,7 +106,7 @@ class OpcUaDriver(LinkedDriver):
         client.session_timeout = _SESSION_TIMEOUT_MS
         client.name = client.description = "compd"
         try:
-            async with _deadline(self.connect_timeout_s):
+            async with deadline(self.connect_timeout_s):
                 await apply_security(client, self.security)
                 await client.connect()
                 await self._load_output_types(client)
@@ -175,13 +155,13 @@ class OpcUaDriver(LinkedDriver):
         if not graceful:
             client.disconnect_socket()
         try:
-            async with _deadline(self.timeout_s):
+            async with deadline(self.timeout_s):
                 await client.close_session()
         except Exception:  # a dead link: CloseSession cannot be sent
             _log.debug("close_session failed during teardown", exc_info=True)
         if graceful:
             try:
-                async with _deadline(self.timeout_s):
+                async with deadline(self.timeout_s):
                     await client.close_secure_channel()
             except Exception:
                 _log.debug("close_secure_channel failed during teardown", exc_info=True)
@@ -235,7 +215,7 @@ class OpcUaDriver(LinkedDriver):
         ConnectionLost, a status that ends the session too; another refused status is
         raised as it is, for the caller to judge."""
         try:
-            async with _deadline(self.timeout_s):
+            async with deadline(self.timeout_s):
                 return await request()
         except TimeoutError:
             raise ControllerTimeout(f"{service} did not answer within {self.timeout_s} s"
@@ -329,7 +309,7 @@ class OpcUaDriver(LinkedDriver):
         ours: permanent)."""
         before = self._types.get(name)
         try:
-            async with _deadline(self.timeout_s):
+            async with deadline(self.timeout_s):
                 dv = (await client.uaclient.read_attributes(
                     [self._nodeids[name]], AttributeIds.DataType))[0]
         except (TimeoutError, UaStatusCodeError, *_CONNECTION_ERRORS) as exc:

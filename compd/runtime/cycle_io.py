@@ -23,7 +23,6 @@ counted per output the driver's error names (`DriverError.channels`).
 
 from __future__ import annotations
 
-import asyncio
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -35,6 +34,7 @@ from compd.core.cycle import WRITTEN, Cycle, CycleParams, Outcome, Plan
 from compd.core.events import Event, EventName
 from compd.runtime.sinks.base import Tick
 from drivers.base import Driver, Quality, Sample
+from drivers.deadline import deadline
 from drivers.errors import DriverError, WriteRejected
 
 if TYPE_CHECKING:
@@ -132,8 +132,9 @@ class CycleIO:
         names = self._names(cfg, params)
         limit_s = max(cfg.real_period_s, 2.0 * cfg.raw.controller.timeout_s)
         try:
-            # a timeout scope, not wait_for: no task started for every cycle's read
-            async with asyncio.timeout(limit_s):
+            # a timeout scope, not wait_for: no task started for every cycle's read;
+            # drivers.deadline: a library's cancellation at its expiry is a timeout too
+            async with deadline(limit_s):
                 got = await driver.read(names)
         except (DriverError, TimeoutError) as exc:  # anything else is a driver's bug
             if self.read_ok is not False:

@@ -23,6 +23,7 @@ from compd.runtime.driver_setup import build_driver
 from compd.runtime.sdnotify import Notifier
 from compd.sysexits import EX_SOFTWARE
 from compd.testing import RecordingDriver, SteppedClock
+from drivers.base import Sample
 from drivers.sim.modbus_server import ModbusSimController
 from tests.configs import write_config
 from tests.harness import pace, until
@@ -190,3 +191,48 @@ async def test_a_reload_beyond_a_bound_is_refused_by_name(
         assert await task == 0
     (failed,) = _named(logs, "reload_failed")
     assert failed["key"] == "adaptation.max_total_um" and "10000" in failed["reason"]
+
+
+class _Raced(asyncio.CancelledError):
+    """What asyncua's wait_for2 raises when a cancellation meets an answer that arrived
+    at the same instant (CancelledWithResultError, a CancelledError subclass)."""
+
+
+class _RacingDriver(RecordingDriver):
+    """Reads that, once `hang` is set, never answer, and end as the library ends a
+    request cancelled at the instant its answer came: with the subclass."""
+
+    hang = False
+
+    async def read(self, names: Sequence[str]) -> dict[str, Sample]:
+        if self.hang:
+            try:
+                await asyncio.Event().wait()
+            except asyncio.CancelledError:
+                raise _Raced() from None
+        return await super().read(names)
+
+
+async def test_a_read_whose_library_races_the_cycles_deadline_is_a_failed_read(
+        sim: ModbusSimController, tmp_path: Path) -> None:
+    """The cycle's own read scope expires while the library is answering: the library's
+    cancellation subclass is a timed-out read (held by the fault policy, logged once),
+    not a cancellation of the daemon's loop (under load it ended `compd run` with
+    exit 1 before its first complete cycle)."""
+    cfg = load_config(write_config(tmp_path, sim.endpoint))
+    driver = _RacingDriver(build_driver(cfg))
+    with structlog.testing.capture_logs() as logs:
+        daemon = Daemon(cfg, driver=driver, notifier=Notifier(None))
+        task = asyncio.create_task(daemon.run())
+        await until(lambda: daemon.telemetry.complete_cycles >= 3)
+        driver.hang = True
+        await until(lambda: len(_named(logs, "read_failed")) >= 1 or task.done())
+        assert not task.done(), task
+        driver.hang = False
+        done = daemon.telemetry.complete_cycles
+        await until(lambda: daemon.telemetry.complete_cycles >= done + 3)
+        daemon.request_stop()
+        assert await task == 0
+    (failed,) = _named(logs, "read_failed")
+    assert failed["type"] == "TimeoutError", failed
+    assert not _named(logs, "cycle_broken")
