@@ -226,7 +226,9 @@ class _Problem:
         (the p × N Jacobian is never built whole: its rows are filled in place
         per block, as building an N × p matrix and fancy-indexing its rows cost
         more than the filters). Nothing past the last row of `mask` is
-        filtered: those rows of J are 0, as the weight 0 made them."""
+        filtered: those rows of J are 0, as the weight 0 made them, but for a
+        numerator's lagged rows, which are lags of the weighed row (so the
+        rows up to nb - 1 past a counted one carry it, as they always have)."""
         nums, kappas, dens, _ = self.unpack(th)
         seg = self.seg
         w_filt = [SegFilter(seg, [1.0], dens[self.group_of[t]]) for t in range(len(self.us))]
@@ -250,25 +252,35 @@ class _Problem:
         jtj: FloatArray | None = None
         jtr: FloatArray | None = None
         weight, end = self._weights(mask)
-        # each block's Jacobian as wide as the block, its columns past `end` (the
-        # rows the weight 0 leaves out) zero, none of them filtered; the blocks
-        # after `end` all zero: left out of the sums
-        for (lo, full), (_, hi, us, outs, _) in zip(row_blocks(self.y.size),
-                                                     self._blocks_cached(th, end),
-                                                     strict=False):
-            wb = weight(lo, hi)  # None: every row weighs 1 (x · 1.0 is x)
-            n = hi - lo
+        # each block's Jacobian as wide as the block, nothing filtered past `end`
+        # (there the weight 0 makes every row 0) but a numerator's lagged rows,
+        # which lag the weighed row and so reach up to nb - 1 rows past it; the
+        # blocks after that all zero: left out of the sums
+        reach = min(self.y.size, end + max(self.nbs) - 1) if end else 0
+        sims = self._blocks_cached(th, end)
+        for lo, full in row_blocks(self.y.size):
+            if lo >= reach:
+                break
+            n = 0
+            if lo < end:
+                _, hi, us, outs, _ = next(sims)
+                n = hi - lo
+            wb = weight(lo, lo + n)  # None: every row weighs 1 (x · 1.0 is x)
             jt = np.empty((p, full - lo))
             jt[:, n:] = 0.0
             i = 0
             for t, nb in enumerate(self.nbs):
-                _weighed(w_filt[t](us[t], lo), wb, jt[i, :n])
+                if n:
+                    _weighed(w_filt[t](us[t], lo), wb, jt[i, :n])
                 if nb > 1:
-                    w_lags[t].feed(jt[i, :n], lo)
+                    w_lags[t].feed(jt[i], lo)
                 for j in range(1, nb):
-                    w_lags[t].shift(j, jt[i + j, :n])
+                    w_lags[t].shift(j, jt[i + j])
                 i += nb
             for g, na in enumerate(self.nas):
+                if not n:
+                    i += na
+                    continue
                 v_lags[g].feed(v_filt[g](outs[g], lo), lo)
                 d_den = np.zeros((na, full - lo))  # -v(k - m), m = 1 … na, a row each
                 for m in range(1, na + 1):
@@ -277,9 +289,9 @@ class _Problem:
                     np.multiply((dpolys[g][m] @ d_den)[:n],
                                 dks[g][m] if wb is None else dks[g][m] * wb, out=jt[i, :n])
                     i += 1
-            for r, (s, e) in enumerate(seg.bounds if self.initial else ()):
+            for r, (s, e) in enumerate(seg.bounds if self.initial and n else ()):
                 ind = np.zeros(n)
-                ind[max(s, lo) - lo:max(min(e, hi) - lo, 0)] = 1.0
+                ind[max(s, lo) - lo:max(min(e, lo + n) - lo, 0)] = 1.0
                 _weighed(ind, wb, jt[i, :n])
                 i += 1
                 for t in range(len(self.us)):

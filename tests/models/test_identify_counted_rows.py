@@ -10,6 +10,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from models.identify import output_error as oe
 from models.identify.blocks import BLOCK_ROWS, STREAM_ROWS, SegFilter, row_blocks
 from models.identify.estimators import _arx_blocks, _ridge, arx_fit
 from models.identify.fold_data import make_data
@@ -127,3 +128,41 @@ def test_a_streamed_record_keeps_its_blocks_past_the_last_row(
     assert [a.shape[0] for a, _ in got[:2]] == [STREAM_ROWS - 5, 100]
     assert all(a.shape == (0, got[0][0].shape[1]) and b.size == 0 for a, b in got[2:])
     assert max(ends) == STREAM_ROWS + 100
+
+
+def _problem(n: int, nbs: tuple[int, ...], initial: bool) -> tuple[oe._Problem, FloatArray]:
+    rng = np.random.default_rng(11)
+    us = [np.cumsum(rng.standard_normal(n)) * 0.01 for _ in nbs]
+    y = 0.4 * us[0] + 0.01 * rng.standard_normal(n)
+    seg = Segments.from_lengths([n // 3, n - n // 3])
+    prob = oe._Problem(y, us, list(nbs), [2], [tuple(range(len(nbs)))], seg, 1.0, initial)
+    th = np.concatenate([rng.uniform(-0.2, 0.2, sum(nbs)), [0.9, -0.3],
+                         rng.uniform(-1.0, 1.0, prob.n_init)])
+    return prob, th
+
+
+@pytest.mark.parametrize(("n", "cut"), [
+    (3000, 1700),  # one block, cut inside the second record
+    (BLOCK_ROWS + 10, STREAM_ROWS),  # streamed, cut at a block's end: the lags reach past it
+    (BLOCK_ROWS + 10, 2 * STREAM_ROWS - 1),  # ... one row before a block's end
+])
+@pytest.mark.parametrize("initial", [False, True])
+def test_the_residual_and_normal_equations_are_those_of_every_row_to_the_bit(
+        monkeypatch: pytest.MonkeyPatch, n: int, cut: int, initial: bool) -> None:
+    """Stopping at the mask's last row changes no bit of the residual, JᵀJ or Jᵀr
+    (each simulated over every row when the end is not looked for), a hole in
+    the mask included; a numerator's lagged Jacobian rows lag the weighed row,
+    so they reach nb - 1 rows past the last counted one, into the next block."""
+    prob, th = _problem(n, (3, 1), initial)
+    mask = np.zeros(n, dtype=bool)
+    mask[:cut] = True
+    mask[cut // 4:cut // 3] = False
+    r = prob.residual(th, mask)
+    got = prob.normal_equations(th, mask, r)
+    every, _ = _problem(n, (3, 1), initial)
+    monkeypatch.setattr(oe, "counted_end", lambda m: m.size)
+    r_all = every.residual(th, mask)
+    want = every.normal_equations(th, mask, r_all)
+    assert np.array_equal(r, r_all)
+    assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+    assert np.all(np.isfinite(got[0]))
