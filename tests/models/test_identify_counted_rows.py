@@ -10,6 +10,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from models.identify import fold_scores
 from models.identify import output_error as oe
 from models.identify.blocks import BLOCK_ROWS, STREAM_ROWS, SegFilter, row_blocks
 from models.identify.estimators import _arx_blocks, _ridge, arx_fit
@@ -166,3 +167,27 @@ def test_the_residual_and_normal_equations_are_those_of_every_row_to_the_bit(
     assert np.array_equal(r, r_all)
     assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
     assert np.all(np.isfinite(got[0]))
+
+
+@pytest.mark.parametrize("initial", [False, True])
+@pytest.mark.parametrize("n", [1500, BLOCK_ROWS + 10])
+def test_a_fold_is_simulated_to_the_end_of_its_held_out_rows_only(
+        monkeypatch: pytest.MonkeyPatch, initial: bool, n: int) -> None:
+    """A forward fold's score reads its held-out block: the model is simulated
+    (initial conditions fitted on the training rows) up to that block's end,
+    each row there the same to the bit as in the run over every row."""
+    rng = np.random.default_rng(4)
+    us = [np.cumsum(rng.standard_normal(n)) * 0.01 for _ in range(2)]
+    y = 0.3 * us[0] - 0.2 * us[1] + 0.01 * rng.standard_normal(n)
+    seg = Segments.from_lengths([n // 4, n - n // 4])
+    d = make_data(y, us, seg, 1.0, 4, "forward", blocked=False)
+    d.initial = initial
+    m = oe.OeModel(nums=((0.05, 0.01), (-0.03, 0.0)), dens=((1.0, -0.9),), groups=((0, 1),))
+    train, val = d.splits[1]
+    end = counted_end(val)
+    assert end < n
+    whole = fold_scores._simulate(d, m, train, y, us, seg)
+    ends = _filtered_ends(monkeypatch)
+    part = fold_scores._simulate(d, m, train, y, us, seg, val)
+    assert np.array_equal(part[:end], whole[:end])
+    assert max(ends) == end
