@@ -16,7 +16,7 @@ import numpy.typing as npt
 from models.identify.arx import is_stable
 from models.identify.blocks import SegFilter, SegLags, normal_sums, row_blocks, solve_blocks
 from models.identify.fold_data import _Data, rows_key
-from models.identify.output_error import OeModel, output_error_model
+from models.identify.output_error import OeModel, counted_end, output_error_model
 from models.identify.segments import Segments
 from models.identify.validate import forced_response
 
@@ -115,7 +115,9 @@ def _arx_blocks(d: _Data, y: FloatArray, na: int, nb: int, lag: int,
     """`arx_fit`'s (regressors, target) over the `rows`, block by block
     (`models.identify.blocks`): [-fy(k-1) … -fy(k-na) | fu_t(k) … fu_t(k-nb+1)
     per input | a record indicator's shifts 0 … lag per record], fy (of `y`: the
-    displacement, or `_known`'s) and fu filtered by 1/den (`den` None: unfiltered)."""
+    displacement, or `_known`'s) and fu filtered by 1/den (`den` None: unfiltered).
+    Nothing is filtered past the last of the `rows` (the filters are causal: the
+    rows before are the same to the bit); a block after it is empty."""
     seg = d.seg
     sigs = [y, *d.us]
     filters = [SegFilter(seg, [1.0], den) if den is not None else None for _ in sigs]
@@ -125,7 +127,12 @@ def _arx_blocks(d: _Data, y: FloatArray, na: int, nb: int, lag: int,
                    for _ in range(n_init)]
     ind_lags = [SegLags(seg, lag) for _ in range(n_init)]
     p = na + len(d.us) * nb + n_init * (lag + 1)
-    for lo, hi in row_blocks(y.size):
+    end = counted_end(rows)
+    for lo, full in row_blocks(y.size):
+        if lo >= end:  # no row of the fit here or after: nothing filtered
+            yield np.empty((0, p)), y[lo:lo]
+            continue
+        hi = min(full, end)
         x = np.empty((p, hi - lo))  # a regressor per row: each filled contiguously
         fy = y[lo:hi]
         for k, (sig, f, lg) in enumerate(zip(sigs, filters, lags, strict=True)):
@@ -216,7 +223,8 @@ def _ridge_blocks(d: _Data, den: Sequence[float], nb: int, train: BoolArray
     """`_ridge`'s (regressors, target) over the `train` rows, block by block:
     per input w = u/B, then w(k-j) - w(k) for j = 1 … nb-1; with the initial
     conditions, per record its indicator and the shifts 0 … nb-1 of the
-    indicator filtered by 1/B."""
+    indicator filtered by 1/B. Nothing is filtered past the last `train` row (as
+    `_arx_blocks`)."""
     seg = d.seg
     filters = [SegFilter(seg, [1.0], den) for _ in d.us]
     lags = [SegLags(seg, nb) for _ in d.us]
@@ -224,7 +232,12 @@ def _ridge_blocks(d: _Data, den: Sequence[float], nb: int, train: BoolArray
     ind_filters = [SegFilter(seg, [1.0], den) for _ in range(n_init)]
     ind_lags = [SegLags(seg, nb) for _ in range(n_init)]
     p = len(d.us) * nb + n_init * (nb + 1)
-    for lo, hi in row_blocks(d.y.size):
+    end = counted_end(train)
+    for lo, full in row_blocks(d.y.size):
+        if lo >= end:  # no row of the fit here or after: nothing filtered
+            yield np.empty((0, p)), d.y[lo:lo]
+            continue
+        hi = min(full, end)
         x = np.empty((p, hi - lo))  # a regressor per row: each filled contiguously
         col = 0
         for u, f, lg in zip(d.us, filters, lags, strict=True):

@@ -16,7 +16,7 @@ import numpy.typing as npt
 
 from models.identify.arx import fit_pct
 from models.identify.fold_data import _Data
-from models.identify.output_error import OeModel
+from models.identify.output_error import OeModel, counted_end
 from models.identify.segments import Segments
 from models.identify.validate import Pooled, forced_response, pooled_fit, with_initial
 from models.initial_state import DEFAULT_WINDOW_FRACTION
@@ -27,13 +27,17 @@ BoolArray = npt.NDArray[np.bool_]
 
 
 def _simulate(d: _Data, m: OeModel, train: BoolArray, y: FloatArray, us: Sequence[FloatArray],
-              seg: Segments) -> FloatArray:
+              seg: Segments, rows: BoolArray | None = None) -> FloatArray:
     """`m` from rest at every record's start, plus the initial conditions
-    fitted on `train` rows when they are estimated."""
-    forced = forced_response(m.nums, m.dens, m.groups, us, seg)
+    fitted on `train` rows when they are estimated. With `rows` (the rows the
+    caller reads), nothing is simulated past the last of them or of `train`
+    (a forward fold's held-out block ends before the record does): the rows
+    before are the same to the bit, those after are 0."""
+    end = None if rows is None else max(counted_end(rows), counted_end(train))
+    forced = forced_response(m.nums, m.dens, m.groups, us, seg, end)
     if not d.initial:
         return forced
-    return with_initial(y, forced, m.nums, m.dens, m.groups, seg, train)
+    return with_initial(y, forced, m.nums, m.dens, m.groups, seg, train, end)
 
 
 def _heads(seg: Segments, size: int) -> BoolArray:
@@ -66,7 +70,7 @@ def _score(d: _Data, fit_on: Callable[[BoolArray], OeModel | None]) -> tuple[flo
         m = fit_on(train)
         if m is None:
             return -math.inf, []
-        sim = _simulate(d, m, train, d.y, d.us, d.seg)
+        sim = _simulate(d, m, train, d.y, d.us, d.seg, val)
         y_v, sim_v = d.y[val], sim[val]
         del sim
         pool.add(y_v, sim_v)
@@ -101,7 +105,7 @@ def _heldout(d: _Data, models: Sequence[OeModel | None]) -> _Heldout:
     blocks: list[FloatArray] = []
     for m, train, val in pairs:
         assert m is not None
-        sim = _simulate(d, m, train, y, us, seg)
+        sim = _simulate(d, m, train, y, us, seg, val)
         # the residue on the held-out rows in row order, once (a month at 1 s
         # holds four fifths of its rows out, 17 MB an array): made in place in
         # the simulation, then taken; each record's block of residue is its

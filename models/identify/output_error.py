@@ -95,8 +95,10 @@ class _Problem:
         #: one block: `normal_equations` at the same θ reuses them (each
         #: Levenberg–Marquardt iteration linearises where the last accepted step
         #: was simulated)
-        #: the mask last weighed and its weights of every row (None: all 1)
-        self._mask: tuple[BoolArray, FloatArray | None] | None = None
+        #: the mask last weighed: whether it holds every row, its weights of
+        #: every row (None: all 1, or too long to keep) and one past its last
+        #: row (nothing after it is simulated)
+        self._mask: tuple[BoolArray, bool, FloatArray | None, int] | None = None
         self._cached: tuple[bytes, list[tuple[int, int, list[FloatArray],
                                               list[FloatArray], FloatArray]]] | None = None
 
@@ -132,14 +134,22 @@ class _Problem:
                 us[t][a:b] += block[1 + t]
         return us, level
 
-    def blocks(self, th: FloatArray) -> Iterator[tuple[int, int, list[FloatArray],
-                                                       list[FloatArray], FloatArray]]:
+    def blocks(self, th: FloatArray, end: int | None = None
+               ) -> Iterator[tuple[int, int, list[FloatArray], list[FloatArray], FloatArray]]:
         """(lo, hi, inputs, each group's output, output level) block by block
-        (`models.identify.blocks`: the filters' states carried across)."""
+        (`models.identify.blocks`: the filters' states carried across), over
+        the rows before `end` (default every row): the blocks of `row_blocks`
+        of the whole record, the last one cut at `end` and none after it. The
+        filters are causal, so a row before `end` is simulated to the same bit
+        whatever comes after it."""
         nums, _, dens, init = self.unpack(th)
         firs = [SegFilter(self.seg, a, [1.0]) for a in nums]
         iirs = [SegFilter(self.seg, [1.0], b) for b in dens]
-        for lo, hi in row_blocks(self.y.size):
+        stop = self.y.size if end is None else end
+        for lo, full in row_blocks(self.y.size):
+            if lo >= stop:
+                return
+            hi = min(full, stop)
             us, level = self.block_inputs(init, lo, hi)
             outs = []
             for g, members in enumerate(self.groups):
@@ -155,21 +165,22 @@ class _Problem:
         only then too (a longer record streams with a block's memory)."""
         return self.y.size * (len(self.us) + len(self.groups) + 1) * 8 <= CACHE_BYTES
 
-    def _blocks_cached(self, th: FloatArray) -> Iterator[tuple[int, int, list[FloatArray],
-                                                              list[FloatArray], FloatArray]]:
-        """`blocks(th)`, from the cache when θ is the one simulated last. A
-        simulation is cached up to `CACHE_BYTES` (a week at 1 s, four inputs);
-        past that each block is dropped once used, so the memory stays that
-        of a block."""
-        key = th.tobytes()
+    def _blocks_cached(self, th: FloatArray, end: int
+                       ) -> Iterator[tuple[int, int, list[FloatArray], list[FloatArray],
+                                           FloatArray]]:
+        """`blocks(th, end)`, from the cache when θ and `end` are the ones
+        simulated last. A simulation is cached up to `CACHE_BYTES` (a week at
+        1 s, four inputs); past that each block is dropped once used, so the
+        memory stays that of a block."""
+        key = th.tobytes() + end.to_bytes(8, "little")
         if self._cached is not None and self._cached[0] == key:
             yield from self._cached[1]
             return
         if not self._cacheable():
-            yield from self.blocks(th)
+            yield from self.blocks(th, end)
             return
         self._cached = None  # the last one dropped before the next is built
-        kept = list(self.blocks(th))
+        kept = list(self.blocks(th, end))
         self._cached = (key, kept)
         yield from kept
 
@@ -181,36 +192,43 @@ class _Problem:
 
     def residual(self, th: FloatArray, mask: BoolArray) -> FloatArray:
         """(y - ŷ) · weight, the weight 1 on the rows of `mask` and 0 elsewhere,
-        made block by block (neither ŷ nor the weights of every row held)."""
+        made block by block (neither ŷ nor the weights of every row held).
+        Past the last row of `mask` nothing is simulated: the residual there is
+        0, as the weight 0 made it."""
         out = np.empty(self.y.size)
-        weight = self._weights(mask)
-        for lo, hi, _, outs, level in self._blocks_cached(th):
+        weight, end = self._weights(mask)
+        for lo, hi, _, outs, level in self._blocks_cached(th, end):
             out[lo:hi] = self.y[lo:hi] - (sum(outs) + level)
             w = weight(lo, hi)
             if w is not None:
                 out[lo:hi] *= w
+        out[end:] = 0.0
         return out
 
-    def _weights(self, mask: BoolArray) -> Callable[[int, int], FloatArray | None]:
-        """The weight of rows lo … hi-1 (None: every one is 1, nothing to
-        multiply), made once per mask when it is small enough to keep."""
-        if self._mask is not None and self._mask[0] is mask:
-            whole = self._mask[1]
-            return lambda lo, hi: None if whole is None else whole[lo:hi]
-        if mask.all():
-            self._mask = (mask, None)
-            return lambda lo, hi: None
-        if self._cacheable():
-            self._mask = (mask, mask.astype(np.float64))
-            return self._weights(mask)
-        return lambda lo, hi: mask[lo:hi].astype(np.float64)
+    def _weights(self, mask: BoolArray) -> tuple[Callable[[int, int], FloatArray | None], int]:
+        """(the weight of rows lo … hi-1 (None: every one is 1, nothing to
+        multiply), one past the last row of `mask`), made once per mask (the
+        weights of every row kept when they are small enough)."""
+        if self._mask is None or self._mask[0] is not mask:
+            every = bool(mask.all())
+            whole = mask.astype(np.float64) if not every and self._cacheable() else None
+            self._mask = (mask, every, whole, counted_end(mask))
+        _, every, whole, end = self._mask
+        if every:
+            return (lambda lo, hi: None), end
+        if whole is not None:
+            return (lambda lo, hi: whole[lo:hi]), end
+        return (lambda lo, hi: mask[lo:hi].astype(np.float64)), end
 
     def normal_equations(self, th: FloatArray, mask: BoolArray, resid: FloatArray
                          ) -> tuple[FloatArray, FloatArray]:
         """(JᵀJ, Jᵀr) of J = diag(weight) · ∂ŷ/∂θ (`residual`'s weight), accumulated block by block
         (the p × N Jacobian is never built whole: its rows are filled in place
         per block, as building an N × p matrix and fancy-indexing its rows cost
-        more than the filters)."""
+        more than the filters). Nothing past the last row of `mask` is
+        filtered: those rows of J are 0, as the weight 0 made them, but for a
+        numerator's lagged rows, which are lags of the weighed row (so the
+        rows up to nb - 1 past a counted one carry it, as they always have)."""
         nums, kappas, dens, _ = self.unpack(th)
         seg = self.seg
         w_filt = [SegFilter(seg, [1.0], dens[self.group_of[t]]) for t in range(len(self.us))]
@@ -233,40 +251,66 @@ class _Problem:
         p = self.n_num + self.n_den + self.n_init
         jtj: FloatArray | None = None
         jtr: FloatArray | None = None
-        weight = self._weights(mask)
-        for lo, hi, us, outs, _ in self._blocks_cached(th):
-            wb = weight(lo, hi)  # None: every row weighs 1 (x · 1.0 is x)
-            jt = np.empty((p, hi - lo))
+        weight, end = self._weights(mask)
+        # each block's Jacobian as wide as the block, nothing filtered past `end`
+        # (there the weight 0 makes every row 0) but a numerator's lagged rows,
+        # which lag the weighed row and so reach up to nb - 1 rows past it; the
+        # blocks after that all zero: left out of the sums
+        reach = min(self.y.size, end + max(self.nbs) - 1) if end else 0
+        sims = self._blocks_cached(th, end)
+        for lo, full in row_blocks(self.y.size):
+            if lo >= reach:
+                break
+            n = 0
+            if lo < end:
+                _, hi, us, outs, _ = next(sims)
+                n = hi - lo
+            wb = weight(lo, lo + n)  # None: every row weighs 1 (x · 1.0 is x)
+            jt = np.empty((p, full - lo))
+            jt[:, n:] = 0.0
             i = 0
             for t, nb in enumerate(self.nbs):
-                _weighed(w_filt[t](us[t], lo), wb, jt[i])
+                if n:
+                    _weighed(w_filt[t](us[t], lo), wb, jt[i, :n])
                 if nb > 1:
                     w_lags[t].feed(jt[i], lo)
                 for j in range(1, nb):
                     w_lags[t].shift(j, jt[i + j])
                 i += nb
             for g, na in enumerate(self.nas):
+                if not n:
+                    i += na
+                    continue
                 v_lags[g].feed(v_filt[g](outs[g], lo), lo)
-                d_den = np.empty((na, hi - lo))  # -v(k - m), m = 1 … na, a row each
+                d_den = np.zeros((na, full - lo))  # -v(k - m), m = 1 … na, a row each
                 for m in range(1, na + 1):
-                    np.negative(v_lags[g].shift(m, d_den[m - 1]), out=d_den[m - 1])
+                    np.negative(v_lags[g].shift(m, d_den[m - 1, :n]), out=d_den[m - 1, :n])
                 for m in range(na):
-                    np.multiply(dpolys[g][m] @ d_den, dks[g][m] if wb is None else dks[g][m] * wb,
-                                out=jt[i])
+                    np.multiply((dpolys[g][m] @ d_den)[:n],
+                                dks[g][m] if wb is None else dks[g][m] * wb, out=jt[i, :n])
                     i += 1
-            for r, (s, e) in enumerate(seg.bounds if self.initial else ()):
-                ind = np.zeros(hi - lo)
-                ind[max(s, lo) - lo:max(min(e, hi) - lo, 0)] = 1.0
-                _weighed(ind, wb, jt[i])
+            for r, (s, e) in enumerate(seg.bounds if self.initial and n else ()):
+                ind = np.zeros(n)
+                ind[max(s, lo) - lo:max(min(e, lo + n) - lo, 0)] = 1.0
+                _weighed(ind, wb, jt[i, :n])
                 i += 1
                 for t in range(len(self.us)):
-                    _weighed(i_filt[r][t](ind, lo), wb, jt[i])
+                    _weighed(i_filt[r][t](ind, lo), wb, jt[i, :n])
                     i += 1
-            g_blk, r_blk = jt @ jt.T, jt @ resid[lo:hi]
+            g_blk, r_blk = jt @ jt.T, jt @ resid[lo:full]
             jtj = g_blk if jtj is None else jtj + g_blk
             jtr = r_blk if jtr is None else jtr + r_blk
-        assert jtj is not None and jtr is not None
+        if jtj is None or jtr is None:  # a mask of no row: J is 0
+            return np.zeros((p, p)), np.zeros(p)
         return jtj, jtr
+
+
+def counted_end(mask: BoolArray) -> int:
+    """One past the last row `mask` counts (0 when it counts none): a fit over
+    the rows of `mask` needs nothing simulated after it (the filters are causal)."""
+    if mask.size == 0 or not mask.any():
+        return 0
+    return int(mask.size - np.argmax(mask[::-1]))
 
 
 def _weighed(x: FloatArray, wb: FloatArray | None, out: FloatArray) -> None:

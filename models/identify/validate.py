@@ -116,14 +116,20 @@ def usable_splits(seg: Segments, k: int, scheme: str, usable: BoolArray | None
 
 def forced_response(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]],
                     groups: Sequence[Sequence[int]], inputs: Sequence[FloatArray],
-                    seg: Segments) -> FloatArray:
+                    seg: Segments, end: int | None = None) -> FloatArray:
     """Σ_g (Σ_{t∈g} A_t u_t) / B_g from rest at every record's start (block by
-    block, `models.identify.blocks`: only the sum is of every row)."""
+    block, `models.identify.blocks`: only the sum is of every row). With `end`,
+    the rows before it only (the filters are causal: the same to the bit), 0
+    after it."""
     total = np.zeros(inputs[0].size)
     firs = {t: SegFilter(seg, np.asarray(nums[t], dtype=np.float64), [1.0])
             for members in groups for t in members}
     iirs = [SegFilter(seg, [1.0], np.asarray(b, dtype=np.float64)) for b in dens]
-    for lo, hi in row_blocks(total.size):
+    stop = total.size if end is None else end
+    for lo, full in row_blocks(total.size):
+        if lo >= stop:
+            break
+        hi = min(full, stop)
         for g, members in enumerate(groups):
             v = np.zeros(hi - lo)
             for t in members:
@@ -151,31 +157,37 @@ def initial_basis(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float
 
 
 def _basis_blocks(nums: Sequence[Sequence[float]], dens: Sequence[Sequence[float]],
-                  groups: Sequence[Sequence[int]], seg: Segments
+                  groups: Sequence[Sequence[int]], seg: Segments, end: int | None = None
                   ) -> Iterator[tuple[int, int, FloatArray]]:
-    """`initial_basis`'s rows block by block (`models.identify.blocks`)."""
+    """`initial_basis`'s rows block by block (`models.identify.blocks`); with
+    `end`, the rows from it on 0 (nothing filtered there), every block still
+    handed on."""
     filters = [[SegFilter(seg, np.asarray(nums[t], dtype=np.float64),
                           np.asarray(dens[g], dtype=np.float64))
                 for g, members in enumerate(groups) for t in members] for _ in seg.bounds]
     per = 1 + sum(len(m) for m in groups)
-    for lo, hi in row_blocks(seg.total):
-        out = np.zeros((hi - lo, per * len(seg.bounds)))
-        for r, (s, e) in enumerate(seg.bounds):
+    stop = seg.total if end is None else end
+    for lo, full in row_blocks(seg.total):
+        out = np.zeros((full - lo, per * len(seg.bounds)))
+        hi = max(lo, min(full, stop))
+        for r, (s, e) in enumerate(seg.bounds if hi > lo else ()):
             ind = np.zeros(hi - lo)
             ind[max(s, lo) - lo:max(min(e, hi) - lo, 0)] = 1.0
-            out[:, r * per] = ind
+            out[:hi - lo, r * per] = ind
             for c, f in enumerate(filters[r]):
-                out[:, r * per + 1 + c] = f(ind, lo)
-        yield lo, hi, out
+                out[:hi - lo, r * per + 1 + c] = f(ind, lo)
+        yield lo, full, out
 
 
 def with_initial(y: FloatArray, forced: FloatArray, nums: Sequence[Sequence[float]],
                  dens: Sequence[Sequence[float]], groups: Sequence[Sequence[int]],
-                 seg: Segments, train: BoolArray) -> FloatArray:
+                 seg: Segments, train: BoolArray, end: int | None = None) -> FloatArray:
     """`forced` plus the initial-condition response fitted on `train` rows
     (least squares on the scaled basis; over several blocks through its
-    normal equations, the basis built block by block twice)."""
-    blocks = _basis_blocks(nums, dens, groups, seg)
+    normal equations, the basis built block by block twice). With `end` (past
+    the last `train` row), the rows before it only: the same to the bit, the
+    rows after it not made (as `forced_response` with `end`)."""
+    blocks = _basis_blocks(nums, dens, groups, seg, end)
     lo, hi, basis = next(blocks)
     if hi == seg.total:  # one block: the basis itself
         a = basis[train]
@@ -191,7 +203,7 @@ def with_initial(y: FloatArray, forced: FloatArray, nums: Sequence[Sequence[floa
     theta, *_ = np.linalg.lstsq(gram / scale[:, None] / scale[None, :], rhs / scale,
                                 rcond=1e-20)
     out = np.empty_like(forced, dtype=np.float64)
-    for lo, hi, b in _basis_blocks(nums, dens, groups, seg):
+    for lo, hi, b in _basis_blocks(nums, dens, groups, seg, end):
         out[lo:hi] = forced[lo:hi] + b @ (theta / scale)
     return out
 
