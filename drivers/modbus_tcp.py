@@ -31,7 +31,8 @@ from __future__ import annotations
 
 import asyncio
 import struct
-from typing import NamedTuple
+from collections.abc import Coroutine
+from typing import Any, NamedTuple
 
 __all__ = ["READ_HOLDING", "READ_INPUT", "WRITE_MULTIPLE", "ModbusTcpClient", "Reply"]
 
@@ -105,16 +106,17 @@ class ModbusTcpClient(asyncio.Protocol):
 
     # -- requests -------------------------------------------------------------------
 
-    async def read_registers(self, unit: int, function: int, start: int,
-                             count: int) -> Reply:
+    def read_registers(self, unit: int, function: int, start: int,
+                       count: int) -> Coroutine[Any, Any, Reply]:
         """Read `count` registers from `start` (`READ_HOLDING` or `READ_INPUT`)."""
-        return await self._request(unit, function, _READ.pack(function, start, count))
+        return self._request(unit, function, _READ.pack(function, start, count))
 
-    async def write_registers(self, unit: int, start: int, words: list[int]) -> Reply:
+    def write_registers(self, unit: int, start: int,
+                        words: list[int]) -> Coroutine[Any, Any, Reply]:
         """Write `words` (each 0..65535) from register `start` in one request."""
         n = len(words)
         pdu = _WRITE.pack(WRITE_MULTIPLE, start, n, 2 * n) + _words(n).pack(*words)
-        return await self._request(unit, WRITE_MULTIPLE, pdu)
+        return self._request(unit, WRITE_MULTIPLE, pdu)
 
     async def _request(self, unit: int, function: int, pdu: bytes) -> Reply:
         t = self._transport
