@@ -15,7 +15,9 @@ of `timeout_s`. Then:
   the timeout;
 - a frame that cannot be the answer (another transaction id, unit or
   function, a malformed length or byte count): the connection is closed and
-  the request fails with ConnectionError;
+  the request fails with ConnectionError (transaction id 0, and any unit to
+  a request for unit 0, are taken, as pymodbus's client takes them: devices
+  that answer so exist);
 - the request cancelled (its caller's deadline): the connection is closed,
   for the same reason as a timeout.
 
@@ -185,7 +187,10 @@ class ModbusTcpClient(asyncio.Protocol):
             return  # nothing asked (an answer after a cancel is never taken)
         tid, unit, function, future = pending
         got_tid, protocol, _, got_unit = _MBAP.unpack_from(frame)
-        if got_tid != tid or protocol != 0 or got_unit != unit:
+        # as pymodbus's client: a device that answers every request with transaction 0,
+        # and a gateway addressed as unit 0 that answers as another, are taken
+        if (got_tid not in (tid, 0) or protocol != 0
+                or unit not in (got_unit, 0)):
             self._protocol_error(f"answer for transaction {got_tid} unit {got_unit} "
                                  f"(protocol {protocol}) while {tid} unit {unit} is asked")
             return

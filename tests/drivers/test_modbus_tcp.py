@@ -187,3 +187,21 @@ async def test_a_cancelled_request_closes(peer_of: Callable[[Script], asyncio.Fu
     await peer.closed.wait()
     with pytest.raises(ConnectionError, match="not connected"):
         await client.read_registers(1, READ_INPUT, 0, 1)
+
+
+async def test_transaction_zero_and_unit_zero_are_taken(
+        peer_of: Callable[[Script], asyncio.Future[Peer]]) -> None:
+    """As pymodbus's client: a device that answers every request with transaction 0,
+    and a gateway that answers a request for unit 0 as another unit."""
+    def odd(frame: bytes) -> list[bytes]:
+        pdu = bytes([frame[7], 2, 0, 9])
+        return [struct.pack(">HHHB", 0, 0, len(pdu) + 1, 17) + pdu]
+
+    peer = await peer_of(odd)
+    client = await connected(peer)
+    try:
+        assert await client.read_registers(0, READ_INPUT, 0, 1) == Reply(0, (9,))
+        with pytest.raises(ConnectionError, match="unit 17"):  # unit 5 asked: not its answer
+            await client.read_registers(5, READ_INPUT, 0, 1)
+    finally:
+        client.close()
