@@ -24,9 +24,10 @@ of `timeout_s`. Then:
 Why not pymodbus's client (it serves the simulated controllers; the frames
 are the standard's): per request it ran a transaction manager (a lock, PDU
 objects, frame tracing kept for debugging, `asyncio.wait_for` with a timer of
-its own) that cost about as much CPU as the socket I/O itself, which with a
-thousand machines in one process is most of what a cycle costs
-(benchmarks/bench_driver_modbus.py, docs/operation.md).
+its own) that cost about as much CPU as the socket I/O itself; with a
+thousand machines in one process the driver was half of what a cycle cost
+(`benchmarks/bench_driver_modbus.py` prints the CPU per cycle against the
+bare pymodbus client; docs/operation.md, several machines in one process).
 """
 
 from __future__ import annotations
