@@ -1,12 +1,12 @@
-"""Modbus TCP driver (its own client, `drivers.modbus_tcp`).
+"""Modbus TCP driver (pymodbus 3.16.1 async client).
 
 Reads go out as block reads: the requested names are grouped by (unit,
 register kind) and covered by as few contiguous requests as possible
 (`drivers.modbus_codec.plan_reads`); writes of back-to-back registers go out
 as one write-multiple request.
 
-A request is sent once (a timed-out write is never sent again) and waits at
-most `timeout_s` for its answer; nothing reconnects by itself. The link is
+pymodbus's own defaults are replaced: no retries (a timed-out write is never
+sent again), a timeout of `timeout_s`, no automatic reconnect. The link is
 ours (`drivers.link.Link`, the lifecycle every driver shares): on a lost link
 or a timeout the client is dropped, calls fail fast with `ConnectionLost`
 until `Backoff` says a new attempt is due, and the next call then opens a
@@ -23,6 +23,10 @@ import asyncio
 import time
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from functools import partial
+from typing import Any
+
+from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 
 from drivers.addresses import Address, ModbusAddress
 from drivers.backoff import Backoff
@@ -37,7 +41,6 @@ from drivers.errors import (
 )
 from drivers.link import Link, LinkedDriver
 from drivers.modbus_codec import Span, decode_at, encode, plan_reads, write_spans
-from drivers.modbus_tcp import READ_HOLDING, READ_INPUT, ModbusTcpClient, Reply
 from drivers.plans import PlanCache
 
 DEFAULT_PORT = 502
@@ -55,11 +58,19 @@ def parse_endpoint(endpoint: str) -> tuple[str, int]:
     return ep.host, ep.port
 
 
-def _alive(client: ModbusTcpClient) -> bool:
-    return client.connected
+def _fail_pending(client: AsyncModbusTcpClient) -> None:
+    """On a dropped connection, fail the request in flight at once instead of
+    letting it wait out the timeout (pymodbus 3.16.1 only notices at timeout)."""
+    future = getattr(getattr(client, "ctx", None), "response_future", None)
+    if isinstance(future, asyncio.Future) and not future.done():
+        future.set_exception(ConnectionException("connection closed by the controller"))
 
 
-async def _drop(client: ModbusTcpClient, closing: bool) -> None:
+def _alive(client: AsyncModbusTcpClient) -> bool:
+    return bool(client.connected)
+
+
+async def _drop(client: AsyncModbusTcpClient, closing: bool) -> None:
     client.close()
 
 
@@ -93,13 +104,15 @@ class ModbusDriver(LinkedDriver):
                                  "are read-only)", channel=name, address=addr.describe())
         self.timeout_s = timeout_s
         self.max_gap = max_gap
-        self._link: Link[ModbusTcpClient] = Link(
+        self._link: Link[AsyncModbusTcpClient] = Link(
             f"{self.host}:{self.port}", backoff if backoff is not None else Backoff(),
-            timeout_s, open=self._open, drop=_drop, connect_errors=(OSError,), alive=_alive)
+            timeout_s, open=self._open, drop=_drop,
+            connect_errors=(OSError, ModbusException), alive=_alive)
         self._lock = asyncio.Lock()
         self._plans = PlanCache(self._build_read_plan)
         self._write_plan = PlanCache(
             lambda names: write_spans([(n, self.outputs[n]) for n in names]))
+        self._in_flight = False
 
     # -- link -------------------------------------------------------------
 
@@ -107,8 +120,20 @@ class ModbusDriver(LinkedDriver):
         async with self._lock:
             await self._link.connect()
 
-    async def _open(self) -> ModbusTcpClient:
-        return await ModbusTcpClient.open(self.host, self.port, self.timeout_s)
+    async def _open(self) -> AsyncModbusTcpClient:
+        client = AsyncModbusTcpClient(
+            self.host, port=self.port, name=f"compd-modbus-{self.host}:{self.port}",
+            timeout=self.timeout_s, retries=0, reconnect_delay=0, reconnect_delay_max=0,
+            trace_connect=lambda up: None if up or not self._in_flight else _fail_pending(client))
+        try:
+            ok = await client.connect()
+        except BaseException:
+            client.close()
+            raise
+        if not ok:
+            client.close()
+            raise ConnectionRefusedError("connect refused or timed out")
+        return client
 
     # -- read ---------------------------------------------------------------
 
@@ -134,11 +159,14 @@ class ModbusDriver(LinkedDriver):
 
     async def _read_span(self, names: Sequence[str], span: Span,
                          out: dict[str, Sample]) -> None:
-        function = READ_INPUT if span.kind == "input" else READ_HOLDING
-        response = await self._call(
-            partial(_read_request, span.unit, function, span.start, span.count), span)
-        code = response.exception_code
-        if code:
+        def request(client: AsyncModbusTcpClient) -> Any:
+            call = (client.read_input_registers if span.kind == "input"
+                    else client.read_holding_registers)
+            return call(span.start, count=span.count, device_id=span.unit)
+
+        response = await self._call(request, span)
+        if response.isError():
+            code = int(getattr(response, "exception_code", 0))
             if code in BAD_ADDRESS_READ_CODES and len(span.items) > 1:
                 # The merged span crossed a register the controller refuses:
                 # read item by item from now on, which also names the culprit.
@@ -159,7 +187,7 @@ class ModbusDriver(LinkedDriver):
             raise DriverError(f"controller answered the read with exception code {code}",
                               channel=span.names, address=span.describe())
         now_s = time.time()
-        registers = response.registers
+        registers: list[int] = response.registers
         if len(registers) < span.count:
             raise DriverError(f"short response: {len(registers)} of {span.count} registers",
                               channel=span.names, address=span.describe())
@@ -168,28 +196,31 @@ class ModbusDriver(LinkedDriver):
             out[name] = Sample(decode_at(addr, registers, addr.address - start), now_s,
                                Quality.GOOD)
 
-    def _call(self, request: Callable[[ModbusTcpClient], Awaitable[Reply]],
-              span: Span) -> Awaitable[Reply]:
-        """One request on the link (`drivers.link.Link` rules)."""
+    def _call(self, request: Callable[[AsyncModbusTcpClient], Any],
+              span: Span) -> Awaitable[Any]:
+        """One pymodbus request on the link (`drivers.link.Link` rules)."""
         return self._link.call(partial(self._exchange, request, span), "request",
                                where=span.where)
 
-    async def _exchange(self, request: Callable[[ModbusTcpClient], Awaitable[Reply]],
-                        span: Span, client: ModbusTcpClient) -> Reply:
-        """Await one request, turning its failures into ours."""
+    async def _exchange(self, request: Callable[[AsyncModbusTcpClient], Any], span: Span,
+                        client: AsyncModbusTcpClient) -> Any:
+        """Await one pymodbus request, turning its failures into ours."""
+        self._in_flight = True
         try:
             return await request(client)
-        except TimeoutError as exc:
-            # No answer within timeout_s: the link drops the client (a late answer
-            # must not be taken for the next request's; the client closed it too).
-            raise ControllerTimeout(f"no answer within {self.timeout_s} s: {exc}",
-                                    channel=span.names, address=span.describe()) from exc
-        except ConnectionError as exc:
+        except ConnectionException as exc:
             raise ConnectionLost(f"link lost: {exc}", channel=span.names,
                                  address=span.describe()) from exc
-        except OSError as exc:
+        except ModbusIOException as exc:
+            # No answer within timeout_s (retries=0). The link drops the
+            # client: a late answer must not be taken for the next request's.
+            raise ControllerTimeout(f"no answer within {self.timeout_s} s: {exc}",
+                                    channel=span.names, address=span.describe()) from exc
+        except (ModbusException, OSError) as exc:
             raise ConnectionLost(f"request failed: {exc}", channel=span.names,
                                  address=span.describe()) from exc
+        finally:
+            self._in_flight = False
 
     # -- write --------------------------------------------------------------
 
@@ -207,22 +238,13 @@ class ModbusDriver(LinkedDriver):
                 await self._write_span(span, words)
 
     async def _write_span(self, span: Span, words: list[int]) -> None:
-        response = await self._call(partial(_write_request, span.unit, span.start, words), span)
-        code = response.exception_code
-        if code:
+        response = await self._call(
+            lambda client: client.write_registers(span.start, words, device_id=span.unit), span)
+        if response.isError():
+            code = int(getattr(response, "exception_code", 0))
             name, addr = span.items[0]
             channel = span.names
             address = addr.describe() if len(span.items) == 1 else span.describe()
             raise WriteRejected(f"controller refused the write (exception code {code})",
                                 channel=channel if len(span.items) > 1 else name,
                                 address=address, permanent=code in PERMANENT_WRITE_CODES)
-
-
-def _read_request(unit: int, function: int, start: int, count: int,
-                  client: ModbusTcpClient) -> Awaitable[Reply]:
-    return client.read_registers(unit, function, start, count)
-
-
-def _write_request(unit: int, start: int, words: list[int],
-                   client: ModbusTcpClient) -> Awaitable[Reply]:
-    return client.write_registers(unit, start, words)

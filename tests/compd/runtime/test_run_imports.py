@@ -3,8 +3,7 @@
 A fresh interpreter does what `compd run` does before its loop (load the
 config, configure logging, build the driver, construct the daemon) and prints
 sorted(sys.modules): scipy and matplotlib (about 66 MB of resident memory),
-and the other protocols' libraries (asyncua, snap7), must not be there; nor
-pymodbus (the driver speaks Modbus TCP itself, `drivers.modbus_tcp`).
+and the other protocols' libraries (asyncua, snap7), must not be there.
 """
 
 from __future__ import annotations
@@ -68,8 +67,6 @@ def test_modbus_run_imports_no_scipy_matplotlib_or_other_drivers(tmp_path: Path)
     modules = set(json.loads(proc.stdout.strip().splitlines()[-1]))
     tops = {name.split(".")[0] for name in modules}
     assert "compd.runtime.daemon" in modules and "drivers.modbus" in modules
-    # the driver speaks Modbus TCP itself (drivers.modbus_tcp): pymodbus serves only
-    # the simulated controllers
-    assert "drivers.modbus_tcp" in modules
-    loaded = {"scipy", "matplotlib", "asyncua", "snap7", "pymodbus"} & tops
+    assert "pymodbus" in tops
+    loaded = {"scipy", "matplotlib", "asyncua", "snap7"} & tops
     assert not loaded, f"compd run for Modbus imported {sorted(loaded)}"
