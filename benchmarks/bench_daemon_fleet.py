@@ -79,6 +79,7 @@ from daemon_bench_common import (
     TimedDaemon,
     TimedDriver,
     config_doc,
+    count_sends,
     cpu_s,
     mean,
     percentile,
@@ -164,28 +165,11 @@ def _write_bytes() -> int:
     return 0
 
 
-def _count_sends() -> list[int]:
-    """Count the socket sends of every asyncio transport of this process (the
-    drivers' requests: one send per Modbus request or OPC UA message chunk)."""
-    from asyncio import selector_events
-
-    sent = [0]
-    cls: Any = selector_events._SelectorSocketTransport
-    write = cls.write
-
-    def counted(self: Any, data: Any) -> None:
-        sent[0] += 1
-        write(self, data)
-
-    cls.write = counted
-    return sent
-
-
 async def _worker(configs: list[str], offsets_s: list[float], seconds: int) -> dict[str, Any]:
     from compd.config.loader import load_config
     from compd.runtime.driver_setup import build_driver
 
-    sends = _count_sends()
+    sends = count_sends()
 
     daemons: list[TimedDaemon] = []
     drivers: list[TimedDriver] = []

@@ -277,6 +277,43 @@ def _timed(feed: Callable[[Any], None], into: list[float]) -> Callable[[Any], No
     return timed
 
 
+# -- process-wide counters ---------------------------------------------------------------
+
+def count_sends() -> list[int]:
+    """Count the socket sends of every asyncio transport of this process (the
+    drivers' requests: one send per Modbus request or OPC UA message chunk)."""
+    from asyncio import selector_events
+
+    sent = [0]
+    cls: Any = selector_events._SelectorSocketTransport
+    write = cls.write
+
+    def counted(self: Any, data: Any) -> None:
+        sent[0] += 1
+        write(self, data)
+
+    cls.write = counted
+    return sent
+
+
+def watch_gc_pauses() -> list[tuple[float, int, float]]:
+    """Every garbage collection of this process from now on, as (monotonic time
+    at its end, generation, seconds) appended to the list returned."""
+    import gc
+
+    pauses: list[tuple[float, int, float]] = []
+    t0 = [0.0]
+
+    def on_gc(phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            t0[0] = time.perf_counter()
+        else:
+            pauses.append((time.monotonic(), info["generation"], time.perf_counter() - t0[0]))
+
+    gc.callbacks.append(on_gc)
+    return pauses
+
+
 # -- /proc ---------------------------------------------------------------------------------
 
 def rss_mb(pid: int) -> float:

@@ -19,6 +19,13 @@ bench_daemon_fleet.py:
   processes sampled at both ends, RSS at the end), stops the pool with
   SIGTERM and reads the lateness of every cycle in the window from the dumps
   (CLOCK_MONOTONIC is one clock for every process of the machine).
+
+Each process of the pool also dumps its garbage collections (when each ended,
+its generation and length: the longest in the window and the full ones are
+printed) and its socket sends and cycles since its start (requests per cycle:
+the drivers' requests, one send each for Modbus). CPU per cycle is the pool's
+CPU seconds in the window over the machine-cycles that started in it: a step
+that overruns (a loaded machine) still shows what one cycle costs.
 """
 
 from __future__ import annotations
@@ -39,10 +46,12 @@ from daemon_bench_common import (
     TimedDaemon,
     TimedDriver,
     config_doc,
+    count_sends,
     cpu_s,
     percentile,
     rss_mb,
     stop_processes,
+    watch_gc_pauses,
     write_config,
 )
 
@@ -50,6 +59,8 @@ WARMUP_S = 3.0
 #: the longest wait for every machine's first cycle before the window opens anyway
 START_LIMIT_S = 300.0
 _timed: list[TimedDaemon] = []
+#: this process's socket sends and garbage collections (`_patch_fleet` starts both)
+_counters: dict[str, Any] = {"sends": [0], "gc": []}
 
 
 def _patch_fleet() -> None:
@@ -69,6 +80,8 @@ def _patch_fleet() -> None:
         return d
 
     fleet.machine_daemon = timed_daemon  # type: ignore[assignment]
+    _counters["sends"] = count_sends()
+    _counters["gc"] = watch_gc_pauses()
 
 
 def _dump(out: Path) -> None:
@@ -77,6 +90,8 @@ def _dump(out: Path) -> None:
         "overruns": d.loop.overruns, "cycles": d.loop.cycles,
         "incomplete": d.loop.cycles - d.telemetry.complete_cycles}
            for d in _timed}
+    doc["_process"] = {"sends": _counters["sends"][0], "gc": _counters["gc"],
+                       "cycles": sum(d.loop.cycles for d in _timed)}
     (out / f"times-{os.getpid()}.json").write_text(json.dumps(doc))
 
 
@@ -133,6 +148,13 @@ class RunDirStep:
     start_s: float  # from the pool's start to every machine started
     loadavg: float
     failed: str = ""
+    #: the pool's CPU per machine-cycle in the window (ms)
+    cpu_ms_per_cycle: float = math.nan
+    #: longest garbage collection in the window (ms, any process), full ones in it
+    gc_max_ms: float = math.nan
+    gc_gen2: int = 0
+    #: socket sends per machine-cycle over the whole run
+    requests_per_cycle: float = math.nan
 
 
 def run_step_run_dir(protocol: str, n: int, workers: int, *, seconds: int,
@@ -191,8 +213,16 @@ def run_step_run_dir(protocol: str, n: int, workers: int, *, seconds: int,
     cycles = overruns = 0
     from daemon_bench_common import CycleTimes
 
+    sends = all_cycles = 0
+    gc_window: list[tuple[int, float]] = []
     for dump in out.glob("times-*.json"):
-        for m in json.loads(dump.read_text()).values():
+        doc = json.loads(dump.read_text())
+        proc = doc.pop("_process", None)
+        if proc is not None:
+            sends += proc["sends"]
+            all_cycles += proc["cycles"]
+            gc_window.extend((g, p) for end, g, p in proc["gc"] if t0 <= end < t1)
+        for m in doc.values():
             times = CycleTimes(start=m["start"])
             late.extend(times.lateness(m["period_s"], since=t0, until=t1))
             cycles += sum(1 for s in m["start"] if t0 <= s < t1)
@@ -203,6 +233,10 @@ def run_step_run_dir(protocol: str, n: int, workers: int, *, seconds: int,
         late_max_ms=max(late, default=math.nan) * 1e3, overruns=overruns,
         cpu_pool=cpu_pool, cpu_sims=cpu_sims, rss_total_mb=sum(rss), rss_max_mb=max(rss),
         start_s=start_s, loadavg=load,
+        cpu_ms_per_cycle=cpu_pool * (t1 - t0) / max(1, cycles) * 1e3,
+        gc_max_ms=max((p for _, p in gc_window), default=0.0) * 1e3,
+        gc_gen2=sum(1 for g, _ in gc_window if g == 2),
+        requests_per_cycle=sends / max(1, all_cycles),
         failed=("" if rc == 0 else f"compd run exited {rc}") + (
             "" if started >= n else f" only {started} of {n} machines cycling"))
 
@@ -210,13 +244,18 @@ def run_step_run_dir(protocol: str, n: int, workers: int, *, seconds: int,
 def print_header() -> None:
     print(f"{'proto':7s}{'N':>6s}{'W':>3s}{'cycles':>8s}{'late50':>9s}{'late99':>9s}"
           f"{'max':>9s}{'overrun':>8s}{'cpu cmp':>8s}{'cpu sim':>8s}{'RSS sum':>8s}"
-          f"{'RSS max':>8s}{'start':>7s}{'load':>6s}\n(lateness ms over the window; cpu = "
+          f"{'RSS max':>8s}{'start':>7s}{'load':>6s}{'ms/cyc':>7s}{'gc ms':>7s}{'gc2':>4s}"
+          f"{'req':>6s}\n(lateness ms over the window; cpu = "
           "CPU s per s (parent + workers; the simulated controllers); RSS MB;\n start = s "
-          "until every machine's first cycle; overrun: every cycle since the start)")
+          "until every machine's first cycle; overrun: every cycle since the start;\n ms/cyc = "
+          "the pool's CPU ms per machine-cycle in the window; gc ms = longest collection in "
+          "the window, gc2 = full collections in it;\n req = requests (socket sends) per "
+          "machine-cycle)")
 
 
 def print_step(protocol: str, s: RunDirStep) -> None:
     print(f"{protocol:7s}{s.n:6d}{s.workers:3d}{s.cycles:8d}{s.late_p50_ms:9.2f}"
           f"{s.late_p99_ms:9.2f}{s.late_max_ms:9.2f}{s.overruns:8d}{s.cpu_pool:8.2f}"
           f"{s.cpu_sims:8.2f}{s.rss_total_mb:8.0f}{s.rss_max_mb:8.0f}{s.start_s:7.1f}"
-          f"{s.loadavg:6.1f}{'  ' + s.failed if s.failed else ''}", flush=True)
+          f"{s.loadavg:6.1f}{s.cpu_ms_per_cycle:7.3f}{s.gc_max_ms:7.1f}{s.gc_gen2:4d}"
+          f"{s.requests_per_cycle:6.2f}{'  ' + s.failed if s.failed else ''}", flush=True)

@@ -40,7 +40,7 @@ from drivers.errors import (
     WriteRejected,
 )
 from drivers.link import Link, LinkedDriver
-from drivers.modbus_codec import Span, decode, encode, plan_reads, write_spans
+from drivers.modbus_codec import Span, decode_at, encode, plan_reads, write_spans
 from drivers.plans import PlanCache
 
 DEFAULT_PORT = 502
@@ -191,10 +191,10 @@ class ModbusDriver(LinkedDriver):
         if len(registers) < span.count:
             raise DriverError(f"short response: {len(registers)} of {span.count} registers",
                               channel=span.names, address=span.describe())
+        start = span.start
         for name, addr in span.items:
-            offset = addr.address - span.start
-            value = decode(addr, registers[offset: offset + addr.count])
-            out[name] = Sample(value, now_s, Quality.GOOD)
+            out[name] = Sample(decode_at(addr, registers, addr.address - start), now_s,
+                               Quality.GOOD)
 
     def _call(self, request: Callable[[AsyncModbusTcpClient], Any],
               span: Span) -> Awaitable[Any]:

@@ -36,22 +36,32 @@ class ValueOutOfRangeError(BadAddress, ValueError):
     """A value cannot be encoded in its address's type and scale."""
 
 
+_HH = struct.Struct(">HH")
+_F32 = struct.Struct(">f")
+
+
 def decode(address: ModbusAddress, registers: Sequence[int]) -> float:
     """Engineering value of the `address.count` registers given."""
-    words = list(registers[: address.count])
-    if address.type == "uint16":
-        return words[0] * address.scale
-    if address.type == "int16":
-        raw = words[0] - 0x10000 if words[0] & 0x8000 else words[0]
-        return raw * address.scale
+    return decode_at(address, registers, 0)
+
+
+def decode_at(address: ModbusAddress, registers: Sequence[int], offset: int) -> float:
+    """Engineering value of the `address.count` registers from `registers[offset]`
+    (a read's whole span, decoded in place: no copy per value)."""
+    kind = address.type
+    hi = registers[offset]
+    if kind == "uint16":
+        return hi * address.scale
+    if kind == "int16":
+        return (hi - 0x10000 if hi & 0x8000 else hi) * address.scale
+    lo = registers[offset + 1]
     if address.word_order == "little":
-        words.reverse()
-    data = struct.pack(">HH", words[0], words[1])
-    if address.type == "float32":
-        value: float = struct.unpack(">f", data)[0]
+        hi, lo = lo, hi
+    if kind == "float32":
+        value: float = _F32.unpack(_HH.pack(hi, lo))[0]
         return value * address.scale
-    raw_int: int = struct.unpack(">i", data)[0]
-    return raw_int * address.scale
+    raw = (hi << 16) | lo
+    return (raw - 0x100000000 if raw & 0x80000000 else raw) * address.scale
 
 
 def encode(address: ModbusAddress, value: float, *, channel: str | None = None) -> list[int]:

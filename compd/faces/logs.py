@@ -182,6 +182,17 @@ def library_floors(level: str = "default") -> dict[str, int]:
     return dict.fromkeys(LIBRARY_LOG_FLOOR, levelno)
 
 
+#: the least level `configure_logging` lets through (NOTSET until it is called, as
+#: structlog's own default lets everything through); one item, set in place
+_least_level = [logging.NOTSET]
+
+
+def logs_at(levelno: int) -> bool:
+    """Whether a line at `levelno` is written (the level `configure_logging` set):
+    asked before building a line that is made every cycle and read only at debug."""
+    return levelno >= _least_level[0]
+
+
 def configure_logging(json: bool | None = None, level: str = "info", *,
                       stream: TextIO | None = None, library_level: str = "default",
                       journal: bool | None = None) -> None:
@@ -216,6 +227,7 @@ def configure_logging(json: bool | None = None, level: str = "info", *,
         renderer = structlog.dev.ConsoleRenderer(colors=False)
     if journal:
         renderer = _with_priority(renderer)
+    _least_level[0] = levelno
     structlog.configure(
         processors=[*shared, renderer],
         wrapper_class=structlog.make_filtering_bound_logger(levelno),

@@ -55,6 +55,27 @@ CONFIRMED_HELP = ("Offset the controller last confirmed holding (the cycle repor
                   "unknown (before the first confirmed write)")
 
 
+class _Last:
+    """One series (a gauge, or one labelled series of it) and the value it was last
+    set to: set only when the value changes. A set takes the series' lock and most
+    of a cycle's values stay put from one cycle to the next (a temperature read to
+    0.1 K, a channel's validity, the fault state), which in a process of a
+    thousand machines is a thousand sets a second each."""
+
+    __slots__ = ("gauge", "value")
+
+    def __init__(self, gauge: Gauge) -> None:
+        self.gauge = gauge
+        self.value: float | None = None  # None: never set
+
+    def set(self, value: float) -> None:
+        last = self.value
+        if last is not None and (value == last or (math.isnan(value) and math.isnan(last))):
+            return  # unchanged (NaN as NaN)
+        self.gauge.set(value)
+        self.value = value
+
+
 class _AxisSeries:
     """One axis's four series (value, slope, in force, fault state) and the values
     they were last set to: a series is set when its value changes (a set takes the
@@ -170,9 +191,10 @@ class Metrics(MetricsServer):
             registry=r)
         self._channel_units: dict[str, str] = {}
         #: each channel's value and validity series, resolved once per configuration
-        #: (`labels()` hashes and locks on every call: twice a channel a cycle before)
-        self._value_series: dict[str, Gauge] = {}
-        self._valid_series: dict[str, Gauge] = {}
+        #: (`labels()` hashes and locks on every call: twice a channel a cycle before),
+        #: each set when its value changes
+        self._value_series: dict[str, _Last] = {}
+        self._valid_series: dict[str, _Last] = {}
         #: axis -> its value, slope, in-force and fault-state series, looked up once,
         #: and the values they were last set to
         self._axis_series: dict[str, _AxisSeries] = {}
@@ -267,6 +289,11 @@ class Metrics(MetricsServer):
             "1 hold, 2 ramp, 3 alarm/stopped", ["axis"], registry=r)
         self._fallback: str | None = None
         self._cause: Cause | None = None
+        #: the series every cycle sets (`cycle_values`), each set when its value changes
+        self._offset = _Last(self.offset_um)
+        self._confirmed = _Last(self.confirmed_um)
+        self._fault_state = _Last(self.fault_state)
+        self._model_output = _Last(self.model_output_um)
         self._init_server()
 
     def configure(self, channels: Mapping[str, str], outputs: list[str], *, version: str,
@@ -316,25 +343,33 @@ class Metrics(MetricsServer):
         with contextlib.suppress(KeyError):
             metric.remove(*labels)
 
+    def cycle_values(self, stage_um: float, confirmed_um: float | None,
+                     fault_state: float) -> None:
+        """The cycle's offset (the output stage's), the offset the controller confirmed
+        (None: unknown) and the fault state's gauge value."""
+        self._offset.set(stage_um)
+        self._confirmed.set(math.nan if confirmed_um is None else confirmed_um)
+        self._fault_state.set(fault_state)
+
     def channel(self, name: str, value: float) -> None:
         """The last value of channel `name` (degC and K to °C; others as read)."""
         series = self._value_series.get(name)
         unit = self._channel_units.get(name, "")
         if series is None:
-            series = (self.channel_temperature.labels(channel=name) if unit in ("degC", "K")
-                      else self.channel_value.labels(channel=name, unit=unit))
-            self._value_series[name] = series
+            series = self._value_series[name] = _Last(
+                self.channel_temperature.labels(channel=name) if unit in ("degC", "K")
+                else self.channel_value.labels(channel=name, unit=unit))
         series.set(value - 273.15 if unit == "K" else value)
 
     def model_output(self, model_um: float | None,
                      validity: Mapping[str, str | None]) -> None:
         """The model's output this cycle (None: it did not step) and each channel's
         validity (name -> None when valid, else the reason)."""
-        self.model_output_um.set(math.nan if model_um is None else model_um)
+        self._model_output.set(math.nan if model_um is None else model_um)
         for name, reason in validity.items():
             series = self._valid_series.get(name)
             if series is None:
-                series = self._valid_series[name] = self.channel_valid.labels(channel=name)
+                series = self._valid_series[name] = _Last(self.channel_valid.labels(channel=name))
             series.set(1.0 if reason is None else 0.0)
 
     def adaptation(self, bias_um: float, bias_sigma_um: float, correction_um: float,

@@ -27,17 +27,42 @@ def _num(value: float | None) -> float | None:
     return v if math.isfinite(v) else None
 
 
+#: each name and text as a JSON string, encoded once (a row's keys and reasons are
+#: the same few every cycle); cleared when it grows past `_QUOTED_MAX`
+_QUOTED: dict[str, str] = {}
+_QUOTED_MAX = 4096
+
+
+def _quoted(text: str) -> str:
+    q = _QUOTED.get(text)
+    if q is None:
+        if len(_QUOTED) >= _QUOTED_MAX:
+            _QUOTED.clear()
+        q = _QUOTED[text] = json.dumps(text)
+    return q
+
+
 def _json_numbers(values: Mapping[str, float | None]) -> str:
-    return json.dumps({str(k): _num(v) for k, v in values.items()}, allow_nan=False,
-                      separators=(",", ":"))
+    """`values` as compact JSON, non-finite as null: the text `json.dumps(..., separators=
+    (",", ":"))` makes (a float's repr), without its encoder's set-up per call."""
+    isfinite = math.isfinite
+    parts = []
+    for k, v in values.items():
+        f = None if v is None else float(v)
+        parts.append(f"{_quoted(str(k))}:{'null' if f is None or not isfinite(f) else repr(f)}")
+    return "{" + ",".join(parts) + "}"
+
+
+def _json_reasons(validity: Mapping[str, str | None]) -> str:
+    """The invalid channels' reasons as compact JSON (valid channels left out)."""
+    return "{" + ",".join(f"{_quoted(str(k))}:{_quoted(str(v))}"
+                          for k, v in validity.items() if v is not None) + "}"
 
 
 def _tuple(seq: int, row: RecordRow) -> tuple[Any, ...]:
     return (seq, row.seq, float(row.mono_s), float(row.wall_s), _num(row.offset_um),
             _num(row.model_um), str(row.state), 1 if row.valid else 0,
-            _json_numbers(row.channels),
-            json.dumps({str(k): str(v) for k, v in row.validity.items() if v is not None},
-                       separators=(",", ":")),
+            _json_numbers(row.channels), _json_reasons(row.validity),
             _json_numbers(row.contributions), _num(row.attempted_um),
             1 if row.complete else 0)
 

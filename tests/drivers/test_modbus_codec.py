@@ -15,6 +15,7 @@ from drivers.modbus_codec import (
     MAX_READ_REGISTERS,
     ValueOutOfRangeError,
     decode,
+    decode_at,
     encode,
     plan_reads,
     plan_writes,
@@ -142,3 +143,19 @@ def test_plan_writes_merges_only_back_to_back_registers() -> None:
         (0, 4, ("offset", "heartbeat", "status"), [1, 2, 7, 5]),
         (10, 1, ("far",), [9]),
     ]
+
+
+@pytest.mark.parametrize("kind", ["uint16", "int16", "int32", "float32"])
+@pytest.mark.parametrize("order", ["big", "little"])
+def test_decode_at_an_offset_of_a_span_is_decode_of_its_registers(kind: str,
+                                                                  order: str) -> None:
+    """The driver decodes each value in place in its read's span (no copy per value):
+    the same value as decoding its own registers, signs and word orders included."""
+    addr = ModbusAddress(address=0, type=kind, word_order=order, scale=0.5)  # type: ignore[arg-type]
+    span = [0x1234, 0x8000, 0xFFFF, 0x0001, 0x7FFF, 0xC2F6]
+    for offset in range(len(span) - 1):
+        got, alone = decode_at(addr, span, offset), decode(addr, span[offset:offset + addr.count])
+        assert got == alone or (math.isnan(got) and math.isnan(alone))  # 0xFFFF..: a NaN
+    if kind != "float32" and (kind != "int32" or order == "big"):  # 0xFFFF, 0x0001
+        assert decode_at(addr, span, 2) == {"uint16": 32767.5, "int16": -0.5,
+                                            "int32": -32767.5}[kind]

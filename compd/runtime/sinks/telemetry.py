@@ -25,12 +25,14 @@ without it.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from compd import __version__
 from compd.faces.http_server import limits_from
+from compd.faces.logs import logs_at
 from compd.runtime.sinks.base import CycleSink, Tick
 
 if TYPE_CHECKING:
@@ -115,10 +117,7 @@ class TelemetrySink(CycleSink):
 
     def feed(self, tick: Tick) -> None:
         result, m = tick.row, self.metrics
-        m.offset_um.set(result.stage_um)
-        confirmed = result.confirmed_um
-        m.confirmed_um.set(math.nan if confirmed is None else confirmed)
-        m.fault_state.set(result.state.gauge)
+        m.cycle_values(result.stage_um, result.confirmed_um, result.state.gauge)
         m.cause(result.cause)
         m.fallback(result.snapshot.fallback_for)
         m.model_output(result.model_um, result.validity)
@@ -130,9 +129,11 @@ class TelemetrySink(CycleSink):
         for name, reason in result.validity.items():
             if reason is not None and reason != "read_failed":
                 m.read_errors.labels(channel=name).inc()
-        self._journal.log.debug("cycle", sequence=result.sequence, state=result.state,
-                                offset_um=round(result.stage_um, 4), model_um=result.model_um,
-                                shadow_um=result.shadow_um, status=result.status)
+        if logs_at(logging.DEBUG):  # not built at all at info (each cycle of each machine)
+            self._journal.log.debug("cycle", sequence=result.sequence, state=result.state,
+                                    offset_um=round(result.stage_um, 4),
+                                    model_um=result.model_um, shadow_um=result.shadow_um,
+                                    status=result.status)
         if result.in_force:  # complete (compd.core.cycle.offset_in_force): what the
             # model asks for is in force (never a held, faulted or unconfirmed offset)
             self.complete_cycles += 1
