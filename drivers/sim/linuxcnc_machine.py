@@ -193,6 +193,9 @@ class LinuxCncSimController:
                     "y_offset_um": LinuxCncGet(kind="get", hal="axis.y.eoffset", scale=1000.0),
                     "y_request_um": LinuxCncGet(kind="get", hal="axis.y.eoffset-request",
                                                 scale=1000.0),
+                    # changes at every servo period (its length in CPU cycles): a
+                    # change seen means motion has run since, and taken compd's last write
+                    "servo_mark": LinuxCncGet(kind="get", hal="motion.servo.last-period"),
                     "spindle_rpm": LinuxCncGet(kind="get", hal="spindle.0.speed-out"),
                     "heartbeat": LinuxCncPin(pin="heartbeat", net=f"{self.prefix}-heartbeat",
                                              type="s32"),
@@ -326,12 +329,22 @@ class LinuxCncSimController:
         milliseconds for a few µm); a condition, bounded by `deadline_s`."""
         assert self._plant is not None
         end = time.monotonic() + deadline_s
+        mark = await self._servo_mark()
         while True:
-            got = await self._plant.read(["offset_um", "request_um", "heartbeat", "status"])
+            got = await self._plant.read(["offset_um", "request_um", "heartbeat", "status",
+                                          "servo_mark"])
             v = {n: s.value for n, s in got.items()}
-            if abs(v["offset_um"] - v["request_um"]) < 1e-3 or time.monotonic() > end:
+            if (v["servo_mark"] != mark and abs(v["offset_um"] - v["request_um"]) < 1e-3) \
+                    or time.monotonic() > end:
                 return {n: v[n] for n in ("offset_um", "heartbeat", "status")}
             await asyncio.sleep(0.001)
+
+    async def _servo_mark(self) -> float:
+        """Motion's servo-period mark now: until it changes, motion may not yet have
+        latched what compd wrote last (its request and offset still the earlier ones,
+        equal to each other, which reads as settled on a busy machine)."""
+        assert self._plant is not None
+        return (await self._plant.read(["servo_mark"]))["servo_mark"].value
 
     async def settled_axes(self, deadline_s: float = SETTLE_DEADLINE_S) -> dict[str, float]:
         """Once motion has applied every external offset compd requested: X's, Y's
@@ -341,11 +354,13 @@ class LinuxCncSimController:
         assert self._plant is not None
         end = time.monotonic() + deadline_s
         names = ["offset_um", "request_um", "x_offset_um", "x_request_um", "y_offset_um",
-                 "y_request_um", "x_pos_mm", "y_pos_mm"]
+                 "y_request_um", "x_pos_mm", "y_pos_mm", "servo_mark"]
+        mark = await self._servo_mark()
         while True:
             v = {n: s.value for n, s in (await self._plant.read(names)).items()}
-            if (all(abs(v[f"{a}offset_um"] - v[f"{a}request_um"]) < 1e-3
-                    for a in ("", "x_", "y_")) or time.monotonic() > end):
+            if ((v["servo_mark"] != mark and all(abs(v[f"{a}offset_um"] - v[f"{a}request_um"])
+                                                < 1e-3 for a in ("", "x_", "y_")))
+                    or time.monotonic() > end):
                 return {n: v[n] for n in ("offset_um", "x_offset_um", "y_offset_um",
                                           "x_pos_mm", "y_pos_mm")}
             await asyncio.sleep(0.001)
