@@ -8,9 +8,11 @@ every offset the daemon writes (`tests.faults.daemon_run.RecordingSim`)."""
 from __future__ import annotations
 
 import asyncio
+import compileall
 import functools
 import inspect
 import os
+import re
 import shutil
 import socket
 import sys
@@ -73,6 +75,51 @@ def pytest_configure(config: pytest.Config) -> None:
     config.add_cleanup(restore)
     os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
     sys.dont_write_bytecode = False
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_setupnodes(config: pytest.Config) -> None:
+    """Before xdist's workers start, compile the project's bytecode once here.
+
+    Each worker imports every test module and the project's modules at its
+    collection, all at the same moment: with no bytecode on disk (a fresh clone,
+    or any run under PYTHONDONTWRITEBYTECODE, whose folders `pytest_configure`
+    removes at the end) every worker rewrote the asserts of all 250 test modules
+    and compiled the rest itself, none finding what another was still writing:
+    about 7 CPU-s of a worker's 11-second collection, four times a run. Written
+    here once, before the workers exist, each of them reads it."""
+    if not sys.dont_write_bytecode:
+        _warm_bytecode(config, Path(__file__).resolve().parents[1])
+
+
+#: test files and conftests: compiled by pytest's assert rewriting, not plainly
+_REWRITTEN = re.compile(r"(^|/)(test_[^/]*|conftest)\.py$")
+
+
+def _warm_bytecode(config: pytest.Config, root: Path) -> None:
+    for top in ("compd", "drivers", "models", "tests"):
+        compileall.compile_dir(root / top, quiet=2, rx=_REWRITTEN)
+    # pytest's own cache of rewritten test modules, written as its import hook
+    # writes it (the same file name, the same checks); private names, so a
+    # pytest that moved them only loses the head start
+    try:
+        from _pytest.assertion import rewrite
+
+        state = config.stash[rewrite.assertstate_key]
+    except (ImportError, AttributeError, KeyError):
+        return
+    if not any(isinstance(h, rewrite.AssertionRewritingHook) for h in sys.meta_path):
+        return  # --assert=plain: nothing is rewritten
+    for fn in sorted((root / "tests").rglob("*.py")):
+        if not _REWRITTEN.search(fn.as_posix()) or "node_modules" in fn.parts:
+            continue
+        cache_dir = rewrite.get_cache_dir(fn)
+        if not rewrite.try_makedirs(cache_dir):
+            return
+        pyc = cache_dir / (fn.name[:-3] + rewrite.PYC_TAIL)
+        if rewrite._read_pyc(fn, pyc, state.trace) is None:
+            source_hash, co = rewrite._rewrite_test(fn, config)
+            rewrite._write_pyc(state, co, source_hash, pyc)
 
 
 def _guard(fn: Callable[..., Coroutine[Any, Any, Any]]) -> Callable[..., Coroutine[Any, Any, Any]]:

@@ -12,6 +12,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 import compd
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,3 +66,26 @@ def test_a_run_that_writes_no_bytecode_compiles_once_and_leaves_the_tree_as_it_w
     assert seen["left"] == [f"models/__pycache__/__init__.{tag}.pyc",
                             f"models/__pycache__/kept.{tag}.pyc"]
     assert seen["env"] == "1"
+
+
+def test_the_controller_writes_the_bytecode_the_workers_read(
+        pytestconfig: pytest.Config, tmp_path: Path) -> None:
+    """Before xdist's workers start, the test modules' rewritten bytecode (pytest's
+    own cache file) and every other module's plain bytecode are on disk."""
+    from _pytest.assertion.rewrite import PYC_TAIL
+
+    from tests.conftest import _warm_bytecode
+
+    for top in ("compd", "drivers", "models", "tests"):
+        (tmp_path / top).mkdir()
+        (tmp_path / top / "helper.py").write_text("X = 1\n")
+    (tmp_path / "tests" / "test_x.py").write_text("def test_x() -> None:\n    assert 1 == 1\n")
+    (tmp_path / "tests" / "conftest.py").write_text("Y = 2\n")
+    _warm_bytecode(pytestconfig, tmp_path)
+    tag = sys.implementation.cache_tag
+    for top in ("compd", "drivers", "models", "tests"):
+        assert (tmp_path / top / "__pycache__" / f"helper.{tag}.pyc").is_file()
+    cache = tmp_path / "tests" / "__pycache__"
+    assert (cache / f"test_x{PYC_TAIL}").is_file() and (cache / f"conftest{PYC_TAIL}").is_file()
+    # a test module is only ever imported through the rewriting hook
+    assert not (cache / f"test_x.{tag}.pyc").exists()

@@ -1,7 +1,7 @@
 """What the daemon tests share: `sim`, the simulated Modbus controller on
 127.0.0.1 publishing a machine at rest (20 °C), `shop_record`, 48 h of the
-shop machine per seed, simulated once per session, and `recipe_plant`, the
-calibration recipe's records and the model fitted on them, once per session."""
+shop machine per seed, simulated once per run, and `recipe_plant`, the
+calibration recipe's records and the model fitted on them, once per run."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ import pytest
 
 from compd.cli import main
 from drivers.sim.modbus_server import ModbusSimController
+from tests.run_shared import made_once
 
 
 @pytest.fixture
@@ -33,18 +34,17 @@ async def sim() -> AsyncIterator[ModbusSimController]:
 def shop_record(tmp_path_factory: pytest.TempPathFactory) -> Callable[[int], Path]:
     """`shop_record(seed)`: the CSV of `compd sim --record --machine shop --hours 48
     --period-s 60 --seed SEED`, written on first use and shared by every test of
-    the session (of the xdist worker) that asks for the same seed. Read-only: a
-    test that needs a changed copy writes it into its own tmp_path."""
-    made: dict[int, Path] = {}
+    the run (every xdist worker: `tests.run_shared`) that asks for the same seed.
+    Read-only: a test that needs a changed copy writes it into its own tmp_path."""
 
     def record(seed: int) -> Path:
-        if seed not in made:
-            path = tmp_path_factory.mktemp(f"shop-seed{seed}") / "shop.csv"
+        def make(folder: Path) -> None:
+            path = folder / "shop.csv"
             assert main(["sim", "--record", str(path), "--machine", "shop", "--hours", "48",
                          "--period-s", "60", "--seed", str(seed)]) == 0
             path.chmod(stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH)
-            made[seed] = path
-        return made[seed]
+
+        return made_once(tmp_path_factory, f"shop-seed{seed}", make) / "shop.csv"
 
     return record
 
@@ -63,20 +63,25 @@ class RecipePlant:
 
 @pytest.fixture(scope="session")
 def recipe_plant(tmp_path_factory: pytest.TempPathFactory) -> RecipePlant:
-    """The calibration recipe's fit, run once per session (of the xdist worker)
-    for the tests that only read it. Read-only files."""
-    d = tmp_path_factory.mktemp("recipe")
-    constant, etve, plant = d / "constant.csv", d / "etve.csv", d / "plant.toml"
-    for argv in (["sim", "--record", str(constant), "--program", "constant", "--period-s",
-                  "60", "--seed", "2"],
-                 ["sim", "--record", str(etve), "--program", "etve", "--period-s", "60",
-                  "--seed", "1"]):
-        assert main(argv) == 0, argv
-    out = io.StringIO()
-    with contextlib.redirect_stdout(out):
-        assert main(["fit", str(constant), str(etve), "--column", "dz_um", "--term",
-                     "bearing", "--term", "motor", "--term", "column", "--term", "ambient",
-                     "-o", str(plant)]) == 0
-    for path in (constant, etve, plant):
-        path.chmod(stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH)
-    return RecipePlant(constant, etve, plant, out.getvalue())
+    """The calibration recipe's fit, run once per run (every xdist worker:
+    `tests.run_shared`) for the tests that only read it. Read-only files."""
+
+    def make(d: Path) -> None:
+        constant, etve, plant = d / "constant.csv", d / "etve.csv", d / "plant.toml"
+        for argv in (["sim", "--record", str(constant), "--program", "constant",
+                      "--period-s", "60", "--seed", "2"],
+                     ["sim", "--record", str(etve), "--program", "etve", "--period-s", "60",
+                      "--seed", "1"]):
+            assert main(argv) == 0, argv
+        out = io.StringIO()
+        with contextlib.redirect_stdout(out):
+            assert main(["fit", str(constant), str(etve), "--column", "dz_um", "--term",
+                         "bearing", "--term", "motor", "--term", "column", "--term",
+                         "ambient", "-o", str(plant)]) == 0
+        (d / "fit_out.txt").write_text(out.getvalue(), encoding="utf-8")
+        for path in (constant, etve, plant, d / "fit_out.txt"):
+            path.chmod(stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH)
+
+    d = made_once(tmp_path_factory, "recipe", make)
+    return RecipePlant(d / "constant.csv", d / "etve.csv", d / "plant.toml",
+                       (d / "fit_out.txt").read_text(encoding="utf-8"))
