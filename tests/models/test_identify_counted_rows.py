@@ -20,24 +20,12 @@ from models.identify.fold_data import make_data
 from models.identify.output_error import counted_end, output_error_model
 from models.identify.segments import Segments
 from models.identify.structures import select_structure
+from tests.models.two_term_plant import two_term_plant
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 
-def _plant(n: int = 1500) -> tuple[FloatArray, list[FloatArray]]:
-    """Two first-order terms on two heated sensors, with probe noise."""
-    rng = np.random.default_rng(5)
-    k = np.arange(n)
-    u1 = 5.0 * (1.0 - np.exp(-k / 200.0)) + 0.5 * np.sin(k / 90.0)
-    u2 = 3.0 * (1.0 - np.exp(-k / 500.0)) * (1.0 + 0.3 * np.sin(k / 150.0))
-    y = np.zeros(n)
-    x1 = x2 = 0.0
-    for i in range(n):
-        x1 = 0.97 * x1 + 0.03 * 2.0 * u1[i]
-        x2 = 0.99 * x2 + 0.01 * -1.5 * u2[i]
-        y[i] = x1 + x2
-    return y + 0.05 * rng.standard_normal(n), [u1, u2]
 
 
 def _nan_after(x: FloatArray, end: int) -> FloatArray:
@@ -75,7 +63,7 @@ def test_output_error_on_a_prefix_never_sees_the_rows_after_it(
     """NaN in every row past the mask's last one changes no bit of the estimate
     (a weight 0 times NaN is NaN: those rows were simulated before), and no
     filter runs past it."""
-    y, us = _plant()
+    y, us = two_term_plant()
     end = 600
     mask = np.zeros(y.size, dtype=bool)
     mask[:end] = True
@@ -96,7 +84,7 @@ def test_steiglitz_mcbride_and_ridge_on_a_prefix_filter_nothing_after_it(
     """A forward fold's least squares: the estimates of a record whose rows after
     the fold's last training row are NaN are those of the clean record, bit for
     bit, and no filter call reaches past that row."""
-    y, us = _plant()
+    y, us = two_term_plant()
     seg = Segments.single(y.size)
     train = np.zeros(y.size, dtype=bool)
     train[:700] = True
@@ -201,7 +189,7 @@ def test_a_structure_search_filters_within_its_budget_of_rows(
     """The rows every filter of a structure search runs over, counted on a small
     record (orders 1-2, four forward folds): 841,200, where filtering each
     fold's fits and scores through the whole record took 1,302,000."""
-    y, us = _plant()
+    y, us = two_term_plant()
     rows = [0]
     real = filter_zi
 

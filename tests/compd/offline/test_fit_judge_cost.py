@@ -20,28 +20,16 @@ from models.identify import textbook as textbook_mod
 from models.identify.segments import Segments
 from models.identify.structures import make_data, select_structure
 from models.identify.validate import Pooled, pooled_parts
+from tests.models.two_term_plant import two_term_plant
 
 FloatArray = npt.NDArray[np.float64]
 
 
-def _plant(n: int = 1500) -> tuple[FloatArray, list[FloatArray]]:
-    """Two first-order terms on two heated sensors, with probe noise."""
-    rng = np.random.default_rng(5)
-    k = np.arange(n)
-    u1 = 5.0 * (1.0 - np.exp(-k / 200.0)) + 0.5 * np.sin(k / 90.0)
-    u2 = 3.0 * (1.0 - np.exp(-k / 500.0)) * (1.0 + 0.3 * np.sin(k / 150.0))
-    y = np.zeros(n)
-    x1 = x2 = 0.0
-    for i in range(n):
-        x1 = 0.97 * x1 + 0.03 * 2.0 * u1[i]
-        x2 = 0.99 * x2 + 0.01 * -1.5 * u2[i]
-        y[i] = x1 + x2
-    return y + 0.05 * rng.standard_normal(n), [u1, u2]
 
 
 def test_a_ridge_member_is_refitted_at_its_own_penalty_alone(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    y, us = _plant()
+    y, us = two_term_plant()
     seg = Segments.single(y.size)
     sel = select_structure(y, us, na_range=(1, 1), nb_range=(1, 1), segments=seg)
     cand = next(c for c in sel.candidates if c.structure == "ridge")
@@ -77,7 +65,7 @@ def _chain(y: FloatArray, seg: Segments, member: Member, train: npt.NDArray[np.b
 
 def test_the_textbook_is_fitted_before_the_selection(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    y, us = _plant()
+    y, us = two_term_plant()
     seg = Segments.single(y.size)
     order: list[str] = []
     real_tb, real_sel = textbook_mod.textbook, structures.select_structure
@@ -102,7 +90,7 @@ def test_the_textbook_is_fitted_before_the_selection(
 
 
 def test_the_textbook_lays_no_blocked_folds() -> None:
-    y, us = _plant(400)
+    y, us = two_term_plant(400)
     seg = Segments.single(y.size)
     assert make_data(y, us, seg, 1.0, 4, "forward").blocked is not None
     assert make_data(y, us, seg, 1.0, 4, "forward", blocked=False).blocked is None
@@ -120,7 +108,7 @@ def test_held_out_rows_pooled_fold_by_fold_give_the_same_figure() -> None:
 
 
 def test_held_out_residues_are_slices_of_one_array_per_fold() -> None:
-    y, us = _plant(1200)
+    y, us = two_term_plant(1200)
     seg = Segments.from_lengths([500, 700])
     d = make_data(y, us, seg, 1.0, 4, "forward")
     d.initial = False
@@ -144,7 +132,7 @@ def test_a_block_whose_calibration_is_a_fold_takes_the_selections_estimate(
     """The end block's calibration is the last forward fold's: the verdict takes
     the selection's estimate there (no chain run again), the very run the
     chain gives; on any other rows it runs the chain."""
-    y, us = _plant()
+    y, us = two_term_plant()
     seg = Segments.single(y.size)
     sel = select_structure(y, us, na_range=(1, 1), nb_range=(1, 1), segments=seg)
     cand = next(c for c in sel.candidates if c.structure == structure)
