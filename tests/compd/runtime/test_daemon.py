@@ -185,19 +185,26 @@ async def test_second_daemon_on_the_same_state_dir_is_refused(
 
 
 def _shadow_config(tmp_path: Path, endpoint: str) -> Path:
+    """SP2 with a shadow twice its gain; time scale 1 (0.4 s requests)."""
     src = LIBRARY / "sp2.toml"
     (tmp_path / "candidate.toml").write_text(
         src.read_text().replace('name = "SP2 per-spindle"', 'name = "candidate"').replace(
             'a = ["16.0005", "-15.9975", "0"]', 'a = ["32.001", "-31.995", "0"]'))
     return write_config(tmp_path, endpoint, slew_um_s=1000.0,
-                        swap=[('file = "sp2"', 'file = "sp2"\nshadow = "candidate.toml"')])
+                        swap=[('file = "sp2"', 'file = "sp2"\nshadow = "candidate.toml"')],
+                        time_scale=1.0)
 
 
 async def test_shadow_model_is_recorded_never_written(sim: ModbusSimController,
                                                       tmp_path: Path) -> None:
+    """On a stepped clock with 0.4 s requests: the last cycle's write is compared with
+    what the controller holds, and at the sim's default scale (8 ms requests) a busy
+    machine could time that one write out."""
     cfg = load_config(_shadow_config(tmp_path, sim.endpoint))
     assert cfg.shadow is not None and cfg.shadow.name == "candidate"
-    daemon = Daemon(cfg, notifier=Notifier(None))
+    clock = SteppedClock(period_s=cfg.real_period_s)
+    pacer = asyncio.create_task(pace(clock))
+    daemon = Daemon(cfg, notifier=Notifier(None), clock=clock, sleep=clock.sleep)
     task = asyncio.create_task(daemon.run())
     await _until(lambda: daemon.telemetry.complete_cycles >= 3)
     await sim.publish({"bearing": 21.0})
@@ -205,6 +212,8 @@ async def test_shadow_model_is_recorded_never_written(sim: ModbusSimController,
                  and (daemon.loop.last_result.model_um or 0.0) > 10.0)
     daemon.request_stop()
     assert await task == 0
+    pacer.cancel()
+    await asyncio.gather(pacer, return_exceptions=True)
     r = daemon.loop.last_result
     assert r is not None and r.shadow_um is not None and r.model_um is not None
     assert r.shadow_um == pytest.approx(2 * r.model_um, rel=0.01)
