@@ -327,42 +327,34 @@ class LinuxCncSimController:
         """`hal()` once motion has applied the offset compd requested (the
         external offset planner moves at OFFSET_AV_RATIO of the axis' limits:
         milliseconds for a few µm); a condition, bounded by `deadline_s`."""
-        assert self._plant is not None
-        end = time.monotonic() + deadline_s
-        mark = await self._servo_mark()
-        while True:
-            got = await self._plant.read(["offset_um", "request_um", "heartbeat", "status",
-                                          "servo_mark"])
-            v = {n: s.value for n, s in got.items()}
-            if (v["servo_mark"] != mark and abs(v["offset_um"] - v["request_um"]) < 1e-3) \
-                    or time.monotonic() > end:
-                return {n: v[n] for n in ("offset_um", "heartbeat", "status")}
-            await asyncio.sleep(0.001)
-
-    async def _servo_mark(self) -> float:
-        """Motion's servo-period mark now: until it changes, motion may not yet have
-        latched what compd wrote last (its request and offset still the earlier ones,
-        equal to each other, which reads as settled on a busy machine)."""
-        assert self._plant is not None
-        return (await self._plant.read(["servo_mark"]))["servo_mark"].value
+        return await self._applied(("",), ("heartbeat", "status"), deadline_s)
 
     async def settled_axes(self, deadline_s: float = SETTLE_DEADLINE_S) -> dict[str, float]:
         """Once motion has applied every external offset compd requested: X's, Y's
         and Z's offsets applied (µm, ``x_offset_um``, ``y_offset_um``,
         ``offset_um``) and X's and Y's positions (mm, ``x_pos_mm``, ``y_pos_mm``); a
         condition, bounded by `deadline_s`."""
+        return await self._applied(("", "x_", "y_"), ("x_pos_mm", "y_pos_mm"), deadline_s)
+
+    async def _applied(self, axes: tuple[str, ...], also: tuple[str, ...],
+                       deadline_s: float) -> dict[str, float]:
+        """Each of `axes`' offsets (µm, ``<axis>offset_um``) and the values `also`
+        names, once motion has applied every offset compd requested on them: a servo
+        period has run since this was asked (``motion.servo.last-period`` changed;
+        before, motion may not yet have latched compd's last write, and its earlier
+        request and offset, equal to each other, read as settled on a busy machine)
+        and each offset has reached its request. Bounded by `deadline_s`."""
         assert self._plant is not None
         end = time.monotonic() + deadline_s
-        names = ["offset_um", "request_um", "x_offset_um", "x_request_um", "y_offset_um",
-                 "y_request_um", "x_pos_mm", "y_pos_mm", "servo_mark"]
-        mark = await self._servo_mark()
+        offsets = [f"{a}offset_um" for a in axes]
+        names = [*offsets, *(f"{a}request_um" for a in axes), *also, "servo_mark"]
+        mark = (await self._plant.read(["servo_mark"]))["servo_mark"].value
         while True:
             v = {n: s.value for n, s in (await self._plant.read(names)).items()}
-            if ((v["servo_mark"] != mark and all(abs(v[f"{a}offset_um"] - v[f"{a}request_um"])
-                                                < 1e-3 for a in ("", "x_", "y_")))
-                    or time.monotonic() > end):
-                return {n: v[n] for n in ("offset_um", "x_offset_um", "y_offset_um",
-                                          "x_pos_mm", "y_pos_mm")}
+            if (v["servo_mark"] != mark and all(abs(v[f"{a}offset_um"] - v[f"{a}request_um"])
+                                                < 1e-3 for a in axes)) \
+                    or time.monotonic() > end:
+                return {n: v[n] for n in (*offsets, *also)}
             await asyncio.sleep(0.001)
 
     async def outputs(self) -> dict[str, float]:
