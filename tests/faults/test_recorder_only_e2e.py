@@ -38,6 +38,12 @@ GAIN_UM_K = 3.0  # µm of growth per K of bearing above ambient
 REAL_S_PER_MACHINE_S = 20.0
 
 
+#: one read stalls this long (real s), longer than the bound on a read at a real period
+#: of 1 s (max(period, 2·0.45 s)): a loaded machine's stall, not a missing sample
+STALL_S = 1.2
+STALL_AT = 1000
+
+
 def _recorder_doc(sim: ModbusSimController, tmp_path: Path) -> dict[str, Any]:
     """A read timed out is a row without values, which `compd fit` rightly refuses
     (a missing sample is not filled in): of 2,400 reads on a loaded machine not one
@@ -79,6 +85,9 @@ async def test_recorder_only_records_what_fit_reads_and_writes_nothing(
         state["growth"] = a * state["growth"] + (1 - a) * GAIN_UM_K * (bearing - 20.0)
         await sim.publish({"bearing": bearing, "ambient": 20.0,
                            "growth_um": state["growth"]})
+        if index == STALL_AT and not state.get("stalled"):  # inside the read, once: as a
+            state["stalled"] = 1.0  # loaded machine stalls this process
+            await asyncio.sleep(STALL_S)
 
     rig = DaemonRig(sim, cfg, invariants, plant, stepped=True)
     await rig.start()
