@@ -9,7 +9,8 @@ re-typed the node since, the write is a transient refusal (the next one uses
 the new type); when the type is the same, a permanent one.
 
 Every call runs under `drivers.deadline.deadline(timeout_s)` and the client's own
-request timeout is the same. asyncua's `auto_reconnect` is NOT used (it
+request timeout is the same; a connect's handshake is bounded by `connect_timeout_s`
+as a whole (its requests too). asyncua's `auto_reconnect` is NOT used (it
 blocks calls for seconds): on a connection-level failure the client is torn
 down (its supervisor, watchdog and renew tasks cancelled) and the next call
 builds a new client when the backoff allows, else fails fast with
@@ -102,7 +103,13 @@ class OpcUaDriver(LinkedDriver):
     async def _open(self) -> Client:
         """A connected client with the output types loaded (`Link` wraps the
         failures it does not name itself)."""
-        client = Client(self.endpoint, timeout=self.timeout_s, watchdog_intervall=_WATCHDOG_S)
+        # the handshake's requests (discovery, hello, secure channel, session,
+        # activation: RSA work on both sides under security; the outputs' types)
+        # are bounded by the connect's deadline as a whole: with the request
+        # timeout on each, a server slower than a cycle's read at one of them
+        # could never be connected to
+        client = Client(self.endpoint, timeout=self.connect_timeout_s,
+                        watchdog_intervall=_WATCHDOG_S)
         client.session_timeout = _SESSION_TIMEOUT_MS
         client.name = client.description = "compd"
         try:
@@ -110,6 +117,7 @@ class OpcUaDriver(LinkedDriver):
                 await apply_security(client, self.security)
                 await client.connect()
                 await self._load_output_types(client)
+            self._request_timeout(client)
         except UaStatusCodeError as exc:
             await self._dispose(client, False)
             raise self._refused(exc) from None
@@ -118,6 +126,13 @@ class OpcUaDriver(LinkedDriver):
             await self._dispose(client, False)
             raise
         return client
+
+    def _request_timeout(self, client: Client) -> None:
+        """From now on the client's own request timeout is `timeout_s` (its socket
+        protocol's, which every later request of this client takes)."""
+        protocol = client.uaclient.protocol
+        if protocol is not None:
+            protocol.timeout = self.timeout_s
 
     def _refused(self, exc: UaStatusCodeError) -> DriverError:
         code = exc.code

@@ -8,6 +8,9 @@ condition polled, whatever the machine's load.
   began its n-th sleep (it finished a cycle), or failed with what it raised.
 - `pace(clock, goal)`: move the stepped clock to each next deadline as soon as
   the daemon sleeps, until `goal` holds after a cycle.
+- `stepped_daemon(cfg, ...)`: the real daemon run on a paced `SteppedClock`
+  (its cycles as fast as the machine allows, its requests with the config's
+  own timeout), stopped and its pacer ended on the way out.
 - `EventLog`, `Notes`: the daemon's logger and sd_notify, kept for the test.
 - `memory_daemon(cfg)`: the daemon in lockstep over an in-memory controller.
 - `modbus_sims(count)`: simulated Modbus controllers for a fleet.
@@ -72,8 +75,9 @@ if TYPE_CHECKING:
     from drivers.sim.machine import SimMachine
     from drivers.sim.modbus_server import ModbusSimController
 
-__all__ = ["DaemonEnded", "EventLog", "Fleetstep", "Lockstep", "Notes", "asleep",
-           "memory_daemon", "modbus_sims", "pace", "tail", "until", "until_output"]
+__all__ = ["DaemonEnded", "EventLog", "Fleetstep", "Lockstep", "Notes", "Paced", "asleep",
+           "memory_daemon", "modbus_sims", "pace", "stepped_daemon", "tail", "until",
+           "until_output"]
 
 
 class DaemonEnded(AssertionError):
@@ -163,6 +167,53 @@ async def pace(clock: SteppedClock, goal: Callable[[], bool] | None = None) -> N
         if goal is not None and goal():
             return
         clock.tick()
+
+
+class Paced:
+    """A daemon running on a paced `SteppedClock` (`stepped_daemon`)."""
+
+    def __init__(self, daemon: Daemon, clock: SteppedClock, task: asyncio.Task[int]) -> None:
+        self.daemon = daemon
+        self.clock = clock
+        #: the daemon's `run()`: its exit status, or what it raised
+        self.task = task
+
+    async def until(self, predicate: Callable[..., Any], what: str = "condition") -> None:
+        """`until` the predicate holds; at once `DaemonEnded` when the daemon ended."""
+        await until(predicate, what=what, task=self.task)
+
+    async def stop(self) -> int:
+        """SIGTERM: the daemon's shutdown, its cycles still paced; its exit status."""
+        self.daemon.request_stop()
+        return await self.task
+
+
+@contextlib.asynccontextmanager
+async def stepped_daemon(cfg: LoadedConfig, **daemon_args: Any) -> AsyncIterator[Paced]:
+    """The real `Daemon(cfg, **daemon_args)` (sd_notify to nowhere unless a
+    `notifier` is given) running on a `SteppedClock` of the config's real period,
+    moved to each next deadline as soon as the daemon sleeps (`pace`): cycles are
+    counted, never waited out, and each request has the config's own timeout (a
+    config at time_scale 1 gives 0.4 s, which a loaded machine meets; the sim's
+    default 8 ms it may not). On the way out a daemon the test did not stop is
+    stopped (a ramp-to-zero shutdown paced to its end) and the pacer ended:
+    nothing is left running."""
+    from compd.runtime.daemon import Daemon
+
+    clock = SteppedClock(period_s=cfg.real_period_s)
+    daemon_args.setdefault("notifier", Notifier(None))
+    daemon = Daemon(cfg, clock=clock, sleep=clock.sleep, **daemon_args)
+    pacer = asyncio.create_task(pace(clock), name="stepped-daemon-pace")
+    task = asyncio.create_task(daemon.run(), name="stepped-daemon")
+    try:
+        yield Paced(daemon, clock, task)
+    finally:
+        if not task.done():
+            daemon.request_stop()
+            await asyncio.wait({task}, timeout=120.0)
+            task.cancel()
+        pacer.cancel()
+        await asyncio.gather(task, pacer, return_exceptions=True)
 
 
 class EventLog:

@@ -28,6 +28,7 @@ from drivers.sim.drive import (
 from drivers.sim.drive_map import DriveMap, DriveMapError, load_drive_map, parse_drive_map
 from drivers.sim.programs import constant
 from drivers.sim.registry import make_sim_controller
+from tests.configs import CONNECT_TIMEOUT_S, REQUEST_TIMEOUT_S
 from tests.record_columns import read_columns as read_record
 from tests.shipped import MAPS
 
@@ -39,11 +40,17 @@ TEMPERATURES = ("bearing", "motor", "column", "table", "ambient")
 @asynccontextmanager
 async def bench(protocol: str) -> AsyncIterator[tuple[Any, DriveMap, dict[str, Any]]]:
     """A simulated controller in the bench layout, the shipped map, and the
-    driver options a client of it needs."""
+    driver options a client of it needs: a loaded test machine answers late, never
+    "not at all" (the server runs in this process, beside the two clients), so a
+    request and a connect have the lockstep runs' generous bounds, not the map's
+    0.5 s (one late answer would count as a link error)."""
     options: dict[str, Any] = {"writable_channels": True} if protocol == "opcua" else {}
     sim: Any = make_sim_controller(protocol, **options)
     await sim.start()
-    extra: dict[str, Any] = {"backoff": Backoff(initial_s=0.02, cap_s=0.1)}
+    extra: dict[str, Any] = {"backoff": Backoff(initial_s=0.02, cap_s=0.1),
+                             "timeout_s": REQUEST_TIMEOUT_S}
+    if protocol == "opcua":
+        extra["connect_timeout_s"] = CONNECT_TIMEOUT_S
     if protocol == "focas":
         extra["library_path"] = sim.library_path
     try:

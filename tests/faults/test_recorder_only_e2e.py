@@ -23,6 +23,7 @@ from compd.core.health import Cause
 from compd.offline.demo import daemon_config
 from drivers.sim.modbus_server import ModbusSimController
 from models import tomltext
+from tests.configs import CONNECT_TIMEOUT_S, REQUEST_TIMEOUT_S
 from tests.faults.daemon_rig import DaemonRig
 from tests.faults.invariants import Invariants, invariants
 
@@ -32,9 +33,26 @@ TAU_S = 120.0  # the growth's lag behind the bearing (first order, s)
 GAIN_UM_K = 3.0  # µm of growth per K of bearing above ambient
 
 
+#: real seconds per machine second (a time scale of 1/20): on the stepped clock real
+#: time is the clock's, except for the read's timeout, which may then be 10 s
+REAL_S_PER_MACHINE_S = 20.0
+
+
+#: one read stalls this long (real s), longer than the bound on a read at a real period
+#: of 1 s (max(period, 2·0.45 s)): a loaded machine's stall, not a missing sample
+STALL_S = 1.2
+STALL_AT = 1000
+
+
 def _recorder_doc(sim: ModbusSimController, tmp_path: Path) -> dict[str, Any]:
-    doc = daemon_config(sim, model="sp2", period_s=1.0, time_scale=1.0,
+    """A read timed out is a row without values, which `compd fit` rightly refuses
+    (a missing sample is not filled in): of 2,400 reads on a loaded machine not one
+    may meet its timeout by chance, so a read has 10 real seconds (at most half the
+    real period), not the 0.45 s a 1 s real period allows."""
+    doc = daemon_config(sim, model="sp2", period_s=1.0, time_scale=1.0 / REAL_S_PER_MACHINE_S,
                         state_dir=tmp_path / "state", extra_channels=("growth_um",))
+    doc["controller"]["timeout_s"] = REQUEST_TIMEOUT_S
+    doc["controller"]["connect_timeout_s"] = CONNECT_TIMEOUT_S
     del doc["model"]
     doc["output"] = {"enabled": False}
     doc["recorder"] = {"enabled": True, "path": "calib.sqlite", "commit_every": 10,
@@ -67,6 +85,9 @@ async def test_recorder_only_records_what_fit_reads_and_writes_nothing(
         state["growth"] = a * state["growth"] + (1 - a) * GAIN_UM_K * (bearing - 20.0)
         await sim.publish({"bearing": bearing, "ambient": 20.0,
                            "growth_um": state["growth"]})
+        if index == STALL_AT and not state.get("stalled"):  # inside the read, once: as a
+            state["stalled"] = 1.0  # loaded machine stalls this process
+            await asyncio.sleep(STALL_S)
 
     rig = DaemonRig(sim, cfg, invariants, plant, stepped=True)
     await rig.start()

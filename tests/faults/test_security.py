@@ -32,7 +32,7 @@ import pytest
 from drivers.sim.opcua_server import OpcUaSimController, OpcUaSimSecurity
 from drivers.sim.ports import free_tcp_port
 from models import tomltext
-from tests.configs import write_config
+from tests.configs import CONNECT_TIMEOUT_S, write_config
 from tests.faults.daemon_run import ROOT, RecordingSim, daemon_env, heartbeat, kill_and_wait
 from tests.harness import tail, until
 from tests.pki import Pki, server_and_client
@@ -74,7 +74,8 @@ def _opcua_config(sim: OpcUaSimController, pki: Pki, work: Path,
     doc: dict[str, Any] = {
         "machine": {"name": "secure", "period_s": 1.0, "time_scale": 5.0},
         "controller": {"protocol": "opcua", "endpoint": sim.endpoint, "timeout_s": 0.1,
-                       "connect_timeout_s": 3.0,
+                       # a secured handshake on a loaded machine: late, never lost
+                       "connect_timeout_s": CONNECT_TIMEOUT_S,
                        "backoff": {"initial_s": 0.05, "cap_s": 0.2},
                        "security": {"policy": "Basic256Sha256", "mode": "SignAndEncrypt",
                                     "certificate": str(pki.client_cert),

@@ -22,7 +22,7 @@ from compd.faces.telemetry import Metrics
 from compd.runtime.checkpoint import save_checkpoint
 from compd.runtime.liveness import boot_id
 from drivers.sim.ports import free_tcp_port
-from tests.harness import healthy_within
+from tests.harness import healthy_within, until
 
 
 def _health(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str]:
@@ -278,6 +278,11 @@ def test_health_imports_only_the_standard_library() -> None:
 
 
 async def test_running_daemon_is_healthy_by_both_sources(tmp_path: Path) -> None:
+    """In real time: the state dir's evidence is the checkpoint's monotonic stamp, judged
+    on this host's monotonic clock (a stepped clock's would be no evidence). Time scale
+    1, so a request has 0.4 s, which a loaded machine meets (at the sim's default 8 ms
+    a write may time out and make that instant rightly unhealthy); a checkpoint every 2
+    cycles, so that three cycles make both sources' evidence."""
     from compd.config.loader import load_config
     from compd.runtime.daemon import Daemon
     from compd.runtime.sdnotify import Notifier
@@ -288,7 +293,7 @@ async def test_running_daemon_is_healthy_by_both_sources(tmp_path: Path) -> None
     await sim.start()
     try:
         await sim.publish({"bearing": 20.0, "ambient": 20.0})
-        path = write_config(tmp_path, sim.endpoint, checkpoint_every=5)
+        path = write_config(tmp_path, sim.endpoint, checkpoint_every=2, time_scale=1.0)
         port = free_tcp_port("127.0.0.1")
         path.write_text(path.read_text() + f"metrics_port = {port}\n")
         cfg = load_config(path)
@@ -299,14 +304,11 @@ async def test_running_daemon_is_healthy_by_both_sources(tmp_path: Path) -> None
         state_args = argparse.Namespace(url=None, state_dir=cfg.state_dir, max_age_s=60.0,
                                         timeout_s=2.0)
         try:
-            for _ in range(400):
-                if daemon.telemetry.complete_cycles >= 10:
-                    break
-                await asyncio.sleep(0.01)
-            # real time, 8 ms requests: on a busy machine one write may time out and
-            # make that instant rightly unhealthy; asked again after the next cycle
             def cycles() -> int:
                 return daemon.telemetry.complete_cycles
+            await until(lambda: cycles() >= 3, task=task)
+            # a request slower than even 0.4 s makes one instant unhealthy: asked
+            # again after the next complete cycle
             assert await healthy_within(lambda: health.run(args), cycles) == 0
             assert await healthy_within(lambda: health.run(state_args), cycles) == 0
         finally:
@@ -339,11 +341,8 @@ async def test_daemon_without_a_controller_is_unhealthy_by_both_sources(
     state_args = argparse.Namespace(url=None, state_dir=cfg.state_dir, max_age_s=60.0,
                                     timeout_s=2.0)
     try:
-        for _ in range(1000):
-            if daemon.loop.cycles >= 12:
-                break
-            await asyncio.sleep(0.01)
-        assert daemon.loop.cycles >= 12 and daemon.telemetry.complete_cycles == 0
+        await until(lambda: daemon.loop.cycles >= 12, task=task)
+        assert daemon.telemetry.complete_cycles == 0
         assert (cfg.state_dir / "checkpoint.json").exists()
         assert await asyncio.to_thread(health.run, args) == 1
         assert await asyncio.to_thread(health.run, state_args) == 1

@@ -18,15 +18,13 @@ from compd.config.loader import load_config
 from compd.core.cycle import Cycle
 from compd.core.output import Status
 from compd.runtime.checkpoint import load_checkpoint
-from compd.runtime.daemon import Daemon
 from compd.runtime.driver_setup import build_driver
-from compd.runtime.sdnotify import Notifier
 from compd.sysexits import EX_SOFTWARE
-from compd.testing import RecordingDriver, SteppedClock
+from compd.testing import RecordingDriver
 from drivers.base import Sample
 from drivers.sim.modbus_server import ModbusSimController
 from tests.configs import write_config
-from tests.harness import pace, until
+from tests.harness import Paced, stepped_daemon, until
 
 ADAPTATION = """
 [adaptation]
@@ -42,11 +40,12 @@ def _named(logs: Sequence[Mapping[str, Any]], name: str) -> list[Mapping[str, An
     return [e for e in logs if e["event"] == name]
 
 
-async def _warm(sim: ModbusSimController, daemon: Daemon) -> Cycle:
-    await until(lambda: daemon.telemetry.complete_cycles >= 3)
+async def _warm(sim: ModbusSimController, run: Paced) -> Cycle:
+    daemon = run.daemon
+    await run.until(lambda: daemon.telemetry.complete_cycles >= 3)
     await sim.publish({"bearing": 21.5})  # sp2 wants ≈ +25 µm
-    await until(lambda: daemon.loop.last_result is not None
-                and daemon.loop.last_result.stage_um > 15.0)
+    await run.until(lambda: daemon.loop.last_result is not None
+                    and daemon.loop.last_result.stage_um > 15.0)
     assert daemon.running.cycle is not None
     return daemon.running.cycle
 
@@ -60,28 +59,22 @@ async def test_a_model_step_that_raises_every_cycle_is_held_then_ramped(
     daemon sleeps: the hold and the ramp are counted in cycles, not waited out."""
     cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
     driver = RecordingDriver(build_driver(cfg))
-    clock = SteppedClock(period_s=cfg.real_period_s)
-    pacer = asyncio.create_task(pace(clock))
     with structlog.testing.capture_logs() as logs:
-        daemon = Daemon(cfg, driver=driver, notifier=Notifier(None), clock=clock,
-                        sleep=clock.sleep)
-        task = asyncio.create_task(daemon.run())
-        cycle = await _warm(sim, daemon)
+        async with stepped_daemon(cfg, driver=driver) as run:
+            daemon = run.daemon
+            cycle = await _warm(sim, run)
 
-        def overflow(*_: object, **__: object) -> float:
-            raise OverflowError("(34, 'Numerical result out of range')")
+            def overflow(*_: object, **__: object) -> float:
+                raise OverflowError("(34, 'Numerical result out of range')")
 
-        monkeypatch.setattr(cycle.models, "step", overflow)
-        at = len(driver.cycles)
-        await until(lambda: daemon.loop.last_result is not None and daemon.loop.last_result.stage_um
-                    == 0.0)
-        assert not task.done()  # still cycling: heartbeat and status go on
-        beat = (await sim.outputs())["heartbeat"]
-        status = int((await sim.outputs())["status"])
-        daemon.request_stop()
-        assert await task == 0
-    pacer.cancel()
-    await asyncio.gather(pacer, return_exceptions=True)
+            monkeypatch.setattr(cycle.models, "step", overflow)
+            at = len(driver.cycles)
+            await run.until(lambda: daemon.loop.last_result is not None
+                            and daemon.loop.last_result.stage_um == 0.0)
+            assert not run.task.done()  # still cycling: heartbeat and status go on
+            beat = (await sim.outputs())["heartbeat"]
+            status = int((await sim.outputs())["status"])
+            assert await run.stop() == 0
     errors = _named(logs, "cycle_error")
     assert len(errors) == 1 and errors[0]["stage"] == "step"
     assert "OverflowError" in errors[0]["error"] and errors[0]["log_level"] == "error"
@@ -99,19 +92,21 @@ async def test_a_model_step_that_raises_every_cycle_is_held_then_ramped(
 async def test_a_cycle_that_raises_even_as_a_failed_read_ends_with_its_checkpoint(
         sim: ModbusSimController, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Nothing left to step: logged (cycle_broken, with the exception), the shutdown
-    policy ("hold": the offset stays), a checkpoint, exit 70 (systemd restarts)."""
-    cfg = load_config(write_config(tmp_path, sim.endpoint, checkpoint_every=100000))
+    policy ("hold": the offset stays), a checkpoint, exit 70 (systemd restarts).
+    On a stepped clock with 0.4 s requests: the offset the checkpoint holds is the one
+    the controller confirmed, which a write timed out on a busy machine is not."""
+    cfg = load_config(write_config(tmp_path, sim.endpoint, checkpoint_every=100000,
+                                   time_scale=1.0))
     with structlog.testing.capture_logs() as logs:
-        daemon = Daemon(cfg, notifier=Notifier(None))
-        task = asyncio.create_task(daemon.run())
-        cycle = await _warm(sim, daemon)
-        sequence = cycle.sequence
+        async with stepped_daemon(cfg) as run:
+            cycle = await _warm(sim, run)
+            sequence = cycle.sequence
 
-        def broken(*_: object, **__: object) -> object:
-            raise ValueError("math domain error")
+            def broken(*_: object, **__: object) -> object:
+                raise ValueError("math domain error")
 
-        monkeypatch.setattr(cycle.health, "decide", broken)
-        assert await asyncio.wait_for(task, 30.0) == EX_SOFTWARE
+            monkeypatch.setattr(cycle.health, "decide", broken)
+            assert await asyncio.wait_for(run.task, 30.0) == EX_SOFTWARE
     (line,) = _named(logs, "cycle_broken")
     assert "ValueError: math domain error" in line["error"] and line["exc_info"]
     (stopped,) = _named(logs, "daemon_stopped")
@@ -123,22 +118,21 @@ async def test_a_cycle_that_raises_even_as_a_failed_read_ends_with_its_checkpoin
 
 async def test_a_sink_that_raises_never_stops_the_cycle(
         sim: ModbusSimController, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    cfg = load_config(write_config(tmp_path, sim.endpoint))
+    cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
     with structlog.testing.capture_logs() as logs:
-        daemon = Daemon(cfg, notifier=Notifier(None))
-        task = asyncio.create_task(daemon.run())
-        await until(lambda: daemon.telemetry.complete_cycles >= 3)
+        async with stepped_daemon(cfg) as run:
+            daemon = run.daemon
+            await run.until(lambda: daemon.telemetry.complete_cycles >= 3)
 
-        def full(*_: object) -> None:
-            raise RuntimeError("recorder exploded")
+            def full(*_: object) -> None:
+                raise RuntimeError("recorder exploded")
 
-        monkeypatch.setattr(daemon.recorder, "feed", full)
-        done = daemon.telemetry.complete_cycles
-        await until(lambda: daemon.telemetry.complete_cycles >= done + 20)
-        monkeypatch.undo()
-        await until(lambda: daemon.telemetry.complete_cycles >= done + 25)
-        daemon.request_stop()
-        assert await task == 0
+            monkeypatch.setattr(daemon.recorder, "feed", full)
+            done = daemon.telemetry.complete_cycles
+            await run.until(lambda: daemon.telemetry.complete_cycles >= done + 20)
+            monkeypatch.undo()
+            await run.until(lambda: daemon.telemetry.complete_cycles >= done + 25)
+            assert await run.stop() == 0
     (error,) = _named(logs, "cycle_error")
     assert error["stage"] == "record" and "recorder exploded" in error["error"]
     (back,) = _named(logs, "cycle_error_recovered")
@@ -147,27 +141,26 @@ async def test_a_sink_that_raises_never_stops_the_cycle(
 
 async def test_an_exception_in_the_reload_handover_keeps_the_old_config(
         sim: ModbusSimController, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    path = write_config(tmp_path, sim.endpoint)
+    path = write_config(tmp_path, sim.endpoint, time_scale=1.0)
     cfg = load_config(path)
     with structlog.testing.capture_logs() as logs:
-        daemon = Daemon(cfg, notifier=Notifier(None))
-        task = asyncio.create_task(daemon.run())
-        await until(lambda: daemon.telemetry.complete_cycles >= 3)
+        async with stepped_daemon(cfg) as run:
+            daemon = run.daemon
+            await run.until(lambda: daemon.telemetry.complete_cycles >= 3)
 
-        def overflow(*_: object, **__: object) -> Cycle:
-            raise OverflowError("int too large to convert to float")
+            def overflow(*_: object, **__: object) -> Cycle:
+                raise OverflowError("int too large to convert to float")
 
-        monkeypatch.setattr("compd.runtime.reload.handover", overflow)
-        path.write_text(path.read_text().replace("slew_um_s = 1.0", "slew_um_s = 0.5"))
-        kept = daemon.running.cycle
-        daemon.request_reload()
-        await until(lambda: bool(_named(logs, "reload_failed")))
-        done = daemon.telemetry.complete_cycles
-        await until(lambda: daemon.telemetry.complete_cycles >= done + 5)
-        assert daemon.running.cycle is kept and daemon.running.cfg is cfg
-        assert daemon.reloader.reloads == 0
-        daemon.request_stop()
-        assert await task == 0
+            monkeypatch.setattr("compd.runtime.reload.handover", overflow)
+            path.write_text(path.read_text().replace("slew_um_s = 1.0", "slew_um_s = 0.5"))
+            kept = daemon.running.cycle
+            daemon.request_reload()
+            await run.until(lambda: bool(_named(logs, "reload_failed")))
+            done = daemon.telemetry.complete_cycles
+            await run.until(lambda: daemon.telemetry.complete_cycles >= done + 5)
+            assert daemon.running.cycle is kept and daemon.running.cfg is cfg
+            assert daemon.reloader.reloads == 0
+            assert await run.stop() == 0
     (failed,) = _named(logs, "reload_failed")
     assert "OverflowError" in failed["reason"] and failed["kept"] == cfg.config_sha256
 
@@ -175,20 +168,20 @@ async def test_an_exception_in_the_reload_handover_keeps_the_old_config(
 async def test_a_reload_beyond_a_bound_is_refused_by_name(
         sim: ModbusSimController, tmp_path: Path) -> None:
     """max_total_um = 1e308 then kill -HUP: the reload is refused, the daemon runs on."""
-    path = write_config(tmp_path, sim.endpoint)
+    path = write_config(tmp_path, sim.endpoint, time_scale=1.0)
     path.write_text(path.read_text() + ADAPTATION)
     cfg = load_config(path)
     with structlog.testing.capture_logs() as logs:
-        daemon = Daemon(cfg, notifier=Notifier(None))
-        task = asyncio.create_task(daemon.run())
-        await until(lambda: daemon.telemetry.complete_cycles >= 3)
-        path.write_text(path.read_text().replace("max_total_um = 20.0", "max_total_um = 1e308"))
-        daemon.request_reload()
-        await until(lambda: bool(_named(logs, "reload_failed")))
-        done = daemon.telemetry.complete_cycles
-        await until(lambda: daemon.telemetry.complete_cycles >= done + 5)
-        daemon.request_stop()
-        assert await task == 0
+        async with stepped_daemon(cfg) as run:
+            daemon = run.daemon
+            await run.until(lambda: daemon.telemetry.complete_cycles >= 3)
+            path.write_text(path.read_text().replace("max_total_um = 20.0",
+                                                     "max_total_um = 1e308"))
+            daemon.request_reload()
+            await run.until(lambda: bool(_named(logs, "reload_failed")))
+            done = daemon.telemetry.complete_cycles
+            await run.until(lambda: daemon.telemetry.complete_cycles >= done + 5)
+            assert await run.stop() == 0
     (failed,) = _named(logs, "reload_failed")
     assert failed["key"] == "adaptation.max_total_um" and "10000" in failed["reason"]
 
@@ -221,23 +214,17 @@ async def test_a_read_whose_library_races_the_cycles_deadline_is_a_failed_read(
     exit 1 before its first complete cycle)."""
     cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
     driver = _RacingDriver(build_driver(cfg))
-    clock = SteppedClock(period_s=cfg.real_period_s)
-    pacer = asyncio.create_task(pace(clock))
     with structlog.testing.capture_logs() as logs:
-        daemon = Daemon(cfg, driver=driver, notifier=Notifier(None), clock=clock,
-                        sleep=clock.sleep)
-        task = asyncio.create_task(daemon.run())
-        await until(lambda: daemon.telemetry.complete_cycles >= 3)
-        driver.hang = True
-        await until(lambda: len(_named(logs, "read_failed")) >= 1 or task.done())
-        assert not task.done(), task
-        driver.hang = False
-        done = daemon.telemetry.complete_cycles
-        await until(lambda: daemon.telemetry.complete_cycles >= done + 3)
-        daemon.request_stop()
-        assert await task == 0
-    pacer.cancel()
-    await asyncio.gather(pacer, return_exceptions=True)
+        async with stepped_daemon(cfg, driver=driver) as run:
+            daemon, task = run.daemon, run.task
+            await run.until(lambda: daemon.telemetry.complete_cycles >= 3)
+            driver.hang = True
+            await until(lambda: len(_named(logs, "read_failed")) >= 1 or task.done())
+            assert not task.done(), task
+            driver.hang = False
+            done = daemon.telemetry.complete_cycles
+            await run.until(lambda: daemon.telemetry.complete_cycles >= done + 3)
+            assert await run.stop() == 0
     # the hung read is the first failure (a busy machine may add a timeout of its own)
     failed = _named(logs, "read_failed")[0]
     assert failed["type"] == "TimeoutError", failed

@@ -16,10 +16,10 @@ from compd.runtime.daemon import Daemon
 from compd.runtime.driver_setup import build_driver
 from compd.runtime.recorder import read_samples
 from compd.runtime.sdnotify import Notifier
-from compd.testing import RecordingDriver, SteppedClock
+from compd.testing import RecordingDriver
 from drivers.sim.modbus_server import ModbusSimController
 from tests.configs import write_config
-from tests.harness import Notes, pace
+from tests.harness import Notes, stepped_daemon
 from tests.harness import until as _until
 from tests.shipped import LIBRARY
 
@@ -33,25 +33,19 @@ async def test_daemon_compensates_for_a_few_hundred_cycles(
     cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0,
                                    checkpoint_every=50))
     driver = RecordingDriver(build_driver(cfg))
-    clock = SteppedClock(period_s=cfg.real_period_s)
-    daemon = Daemon(cfg, driver=driver, notifier=Notifier(None), clock=clock,
-                    sleep=clock.sleep)
-    task = asyncio.create_task(daemon.run())
-    pacer = asyncio.create_task(pace(clock))
-    await _until(lambda: daemon.telemetry.complete_cycles >= 5)
-    await sim.publish({"bearing": 22.0})  # +2 K on the bearing: ≈ +32 µm at once
-    await _until(lambda: daemon.loop.cycles >= 300)
-    for _ in range(5):  # a controller restart that lost the offset; a forget that lands
-        seen = len(driver.cycles)  # between a cycle's read and its write is overwritten
-        await sim.forget_outputs()  # unseen, so forget again until a read saw it
-        target = daemon.loop.cycles + 30
-        await _until(lambda t=target: daemon.loop.cycles >= t)
-        if any(rb == 0.0 for rb, _ in driver.cycles[seen:]):
-            break
-    daemon.request_stop()
-    assert await task == 0
-    pacer.cancel()
-    await asyncio.gather(pacer, return_exceptions=True)
+    async with stepped_daemon(cfg, driver=driver) as run:
+        daemon = run.daemon
+        await run.until(lambda: daemon.telemetry.complete_cycles >= 5)
+        await sim.publish({"bearing": 22.0})  # +2 K on the bearing: ≈ +32 µm at once
+        await run.until(lambda: daemon.loop.cycles >= 300)
+        for _ in range(5):  # a controller restart that lost the offset; a forget that
+            seen = len(driver.cycles)  # lands between a cycle's read and its write is
+            await sim.forget_outputs()  # overwritten unseen: forget until a read saw it
+            target = daemon.loop.cycles + 30
+            await run.until(lambda t=target: daemon.loop.cycles >= t)
+            if any(rb == 0.0 for rb, _ in driver.cycles[seen:]):
+                break
+        assert await run.stop() == 0
 
     out = await sim.outputs()
     assert out["heartbeat"] >= 250
@@ -78,19 +72,13 @@ async def test_daemon_compensates_for_a_few_hundred_cycles(
 
 async def test_dry_run_writes_nothing(sim: ModbusSimController, tmp_path: Path) -> None:
     cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
-    clock = SteppedClock(period_s=cfg.real_period_s)
-    pacer = asyncio.create_task(pace(clock))
-    daemon = Daemon(cfg, dry_run=True, notifier=Notifier(None), clock=clock,
-                    sleep=clock.sleep)
-    task = asyncio.create_task(daemon.run())
-    await _until(lambda: daemon.telemetry.complete_cycles >= 3)
-    await sim.publish({"bearing": 21.0})
-    after = daemon.telemetry.complete_cycles + 27  # cycles that read the warmer bearing
-    await _until(lambda: daemon.telemetry.complete_cycles >= after)
-    daemon.request_stop()
-    assert await task == 0
-    pacer.cancel()
-    await asyncio.gather(pacer, return_exceptions=True)
+    async with stepped_daemon(cfg, dry_run=True) as run:
+        daemon = run.daemon
+        await run.until(lambda: daemon.telemetry.complete_cycles >= 3)
+        await sim.publish({"bearing": 21.0})
+        after = daemon.telemetry.complete_cycles + 27  # cycles that read the warmer bearing
+        await run.until(lambda: daemon.telemetry.complete_cycles >= after)
+        assert await run.stop() == 0
     assert daemon.loop.last_result is not None and daemon.loop.last_result.stage_um > 0.0
     assert await sim.outputs() == {"offset": 0.0, "heartbeat": 0.0, "status": 0.0}
     assert not (cfg.state_dir / "checkpoint.json").exists()
@@ -99,16 +87,17 @@ async def test_dry_run_writes_nothing(sim: ModbusSimController, tmp_path: Path) 
 
 async def test_permanent_rejection_stops_offset_writes_and_raises_alarm(
         sim: ModbusSimController, tmp_path: Path) -> None:
-    cfg = load_config(write_config(tmp_path, sim.endpoint))
-    daemon = Daemon(cfg, notifier=Notifier(None))
-    task = asyncio.create_task(daemon.run())
-    await _until(lambda: daemon.telemetry.complete_cycles >= 3)
-    sim.inject_exception("holding", 0, 2, count=2, on="write")  # illegal address
-    await _until(lambda: daemon.running.cycle is not None
-                 and daemon.running.cycle.health.write_stopped)
-    await _until(lambda: daemon.loop.cycles >= 20)
-    daemon.request_stop()
-    assert await task == 0
+    """On a stepped clock with 0.4 s requests: the two refusals the sim answers must
+    reach the daemon as refusals, not as timeouts of a busy machine (8 ms requests)."""
+    cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
+    async with stepped_daemon(cfg) as run:
+        daemon = run.daemon
+        await run.until(lambda: daemon.telemetry.complete_cycles >= 3)
+        sim.inject_exception("holding", 0, 2, count=2, on="write")  # illegal address
+        await run.until(lambda: daemon.running.cycle is not None
+                        and daemon.running.cycle.health.write_stopped)
+        await run.until(lambda: daemon.loop.cycles >= 20)
+        assert await run.stop() == 0
     status = int((await sim.outputs())["status"])
     assert status & Status.WRITE_STOPPED and status & Status.ALARM
 
@@ -202,18 +191,13 @@ async def test_shadow_model_is_recorded_never_written(sim: ModbusSimController,
     machine could time that one write out."""
     cfg = load_config(_shadow_config(tmp_path, sim.endpoint))
     assert cfg.shadow is not None and cfg.shadow.name == "candidate"
-    clock = SteppedClock(period_s=cfg.real_period_s)
-    pacer = asyncio.create_task(pace(clock))
-    daemon = Daemon(cfg, notifier=Notifier(None), clock=clock, sleep=clock.sleep)
-    task = asyncio.create_task(daemon.run())
-    await _until(lambda: daemon.telemetry.complete_cycles >= 3)
-    await sim.publish({"bearing": 21.0})
-    await _until(lambda: daemon.loop.last_result is not None
-                 and (daemon.loop.last_result.model_um or 0.0) > 10.0)
-    daemon.request_stop()
-    assert await task == 0
-    pacer.cancel()
-    await asyncio.gather(pacer, return_exceptions=True)
+    async with stepped_daemon(cfg) as run:
+        daemon = run.daemon
+        await run.until(lambda: daemon.telemetry.complete_cycles >= 3)
+        await sim.publish({"bearing": 21.0})
+        await run.until(lambda: daemon.loop.last_result is not None
+                        and (daemon.loop.last_result.model_um or 0.0) > 10.0)
+        assert await run.stop() == 0
     r = daemon.loop.last_result
     assert r is not None and r.shadow_um is not None and r.model_um is not None
     assert r.shadow_um == pytest.approx(2 * r.model_um, rel=0.01)
@@ -230,15 +214,10 @@ async def test_sensor_broken_from_the_start_is_up_watched_and_ramps_with_the_ala
     await sim.publish({"bearing": 900.0})
     cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
     notes = Notes()
-    clock = SteppedClock(period_s=cfg.real_period_s)
-    pacer = asyncio.create_task(pace(clock))
-    daemon = Daemon(cfg, notifier=notes, clock=clock, sleep=clock.sleep)
-    task = asyncio.create_task(daemon.run())
-    await _until(lambda: daemon.loop.cycles >= 45)
-    daemon.request_stop()
-    assert await task == 0
-    pacer.cancel()
-    await asyncio.gather(pacer, return_exceptions=True)
+    async with stepped_daemon(cfg, notifier=notes) as run:
+        daemon = run.daemon
+        await run.until(lambda: daemon.loop.cycles >= 45)
+        assert await run.stop() == 0
     assert daemon.telemetry.complete_cycles == 0
     ready = next(i for i, m in enumerate(notes.messages) if m.startswith("READY=1"))
     assert notes.messages[ready:].count("WATCHDOG=1") >= 40

@@ -4,34 +4,25 @@ restart that resumes from the checkpoint without a jump."""
 
 from __future__ import annotations
 
-import asyncio
 from pathlib import Path
 
 from compd.config.loader import load_config
 from compd.core.output import AxesStatus
 from compd.runtime.checkpoint import load_checkpoint
 from compd.runtime.daemon import Daemon
-from compd.runtime.sdnotify import Notifier
-from compd.testing import MemoryDriver, SteppedClock
+from compd.testing import MemoryDriver
 from tests.compd.axes_helpers import write_axes_config
-from tests.harness import pace, until
+from tests.harness import stepped_daemon
 
 OUTPUTS = ("offset", "heartbeat", "status", "axes_status", "x_comp_value", "x_comp_slope",
            "x_comp_reference")
 
 
 async def _run(cfg, driver: MemoryDriver, cycles: int) -> Daemon:  # type: ignore[no-untyped-def]
-    clock = SteppedClock(period_s=cfg.real_period_s)
-    daemon = Daemon(cfg, driver=driver, notifier=Notifier(None), clock=clock,
-                    sleep=clock.sleep)
-    task = asyncio.create_task(daemon.run())
-    pacer = asyncio.create_task(pace(clock))
-    await until(lambda: daemon.loop.cycles >= cycles)
-    daemon.request_stop()
-    assert await task == 0
-    pacer.cancel()
-    await asyncio.gather(pacer, return_exceptions=True)
-    return daemon
+    async with stepped_daemon(cfg, driver=driver) as run:
+        await run.until(lambda: run.daemon.loop.cycles >= cycles)
+        assert await run.stop() == 0
+    return run.daemon
 
 
 async def test_the_daemon_writes_the_axis_and_resumes_it_after_a_restart(

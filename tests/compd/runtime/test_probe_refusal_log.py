@@ -4,18 +4,18 @@ The metrics and the recorder still count every one."""
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
+from collections.abc import Sequence
 from pathlib import Path
 
 import structlog
 
 from compd.config.loader import load_config
-from compd.runtime.daemon import Daemon
-from compd.runtime.sdnotify import Notifier
+from compd.runtime.driver_setup import build_driver
+from compd.testing import RecordingDriver
+from drivers.base import Driver, Sample
 from drivers.sim.modbus_server import ModbusSimController
 from tests.configs import write_config
-from tests.harness import until
+from tests.harness import stepped_daemon
 
 ADAPTATION = """
 [adaptation]
@@ -26,38 +26,42 @@ probe_counter = { kind = "input", address = 14, type = "uint16" }
 """
 
 
+class _CounterStepper(RecordingDriver):
+    """The probe counter steps before every read: a new probe each cycle, however
+    fast or slow the cycles run."""
+
+    def __init__(self, inner: Driver, sim: ModbusSimController) -> None:
+        super().__init__(inner)
+        self.sim = sim
+        self.counter = 1
+
+    async def read(self, names: Sequence[str]) -> dict[str, Sample]:
+        self.counter = self.counter % 60000 + 1
+        await self.sim.publish({"probe_counter": self.counter})
+        return await super().read(names)
+
+
 async def test_a_counter_stepping_every_cycle_logs_once_then_a_recovery(
         sim: ModbusSimController, tmp_path: Path) -> None:
-    path = write_config(tmp_path, sim.endpoint)
+    """On a stepped clock with 0.4 s requests, the counter stepped by each read: 30
+    refusals are 30 cycles (30 s on the daemon's clock, within the minute after which
+    a summary would be due), whatever the machine's load."""
+    path = write_config(tmp_path, sim.endpoint, time_scale=1.0)
     path.write_text(path.read_text() + ADAPTATION)
     cfg = load_config(path)
     await sim.publish({"probe_value": 500.0, "probe_counter": 1})  # far beyond the gate
+    driver = _CounterStepper(build_driver(cfg), sim)
     with structlog.testing.capture_logs() as logs:
-        daemon = Daemon(cfg, notifier=Notifier(None))
-        task = asyncio.create_task(daemon.run())
-
-        async def step_the_counter() -> None:
-            n = 1
-            while True:
-                n = n % 60000 + 1
-                await sim.publish({"probe_counter": n})
-                await asyncio.sleep(0.005)
-
-        bumper = asyncio.create_task(step_the_counter())
-        try:
-            await until(lambda: daemon.running.cycle is not None
-                        and daemon.running.cycle.probes is not None
-                        and daemon.running.cycle.probes.adapter.refused >= 30)
+        async with stepped_daemon(cfg, driver=driver) as run:
+            daemon = run.daemon
+            await run.until(lambda: daemon.running.cycle is not None
+                            and daemon.running.cycle.probes is not None
+                            and daemon.running.cycle.probes.adapter.refused >= 30)
             await sim.publish({"probe_value": 0.0})  # a good one (residual ≈ 0)
-            await until(lambda: daemon.running.cycle is not None
-                        and daemon.running.cycle.probes is not None
-                        and daemon.running.cycle.probes.adapter.accepted >= 1)
-        finally:
-            bumper.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await bumper
-        daemon.request_stop()
-        assert await task == 0
+            await run.until(lambda: daemon.running.cycle is not None
+                            and daemon.running.cycle.probes is not None
+                            and daemon.running.cycle.probes.adapter.accepted >= 1)
+            assert await run.stop() == 0
     assert daemon.running.cycle is not None and daemon.running.cycle.probes is not None
     refused = daemon.running.cycle.probes.adapter.refused
     lines = [e for e in logs if e["event"].startswith("probe_refused")]

@@ -14,7 +14,6 @@ open of the directory and its checkpoint writes."""
 
 from __future__ import annotations
 
-import asyncio
 import json
 import os
 import stat
@@ -198,11 +197,11 @@ async def test_the_running_daemon_never_writes_through_a_swapped_state_dir(
         tmp_path: Path) -> None:
     """The attack on the real daemon: the swap while it runs; its
     checkpoints (every 5 cycles and at shutdown) and its records go on in the
-    directory it opened, never into the link's target."""
+    directory it opened, never into the link's target. On a stepped clock with
+    0.4 s requests: counted cycles, not a wall-time loop."""
     from compd.config.loader import load_config
-    from compd.runtime.daemon import Daemon
-    from compd.runtime.sdnotify import Notifier
     from drivers.sim.modbus_server import ModbusSimController
+    from tests.harness import stepped_daemon
 
     base = _base(tmp_path)
     state = base / "n" / "x" / "y" / "state"
@@ -211,29 +210,18 @@ async def test_the_running_daemon_never_writes_through_a_swapped_state_dir(
     await sim.start()
     try:
         await sim.publish({"bearing": 20.0, "ambient": 20.0})
-        config = write_config(tmp_path, sim.endpoint, checkpoint_every=5)
+        config = write_config(tmp_path, sim.endpoint, checkpoint_every=5, time_scale=1.0)
         config.write_text(config.read_text().replace('dir = "state"', f'dir = "{state}"'))
-        daemon = Daemon(load_config(config), notifier=Notifier(None))
-        task = asyncio.create_task(daemon.run())
-        try:
-            for _ in range(2000):
-                if daemon.telemetry.complete_cycles >= 6 or task.done():
-                    break
-                await asyncio.sleep(0.005)
-            assert daemon.telemetry.complete_cycles >= 6
+        async with stepped_daemon(load_config(config)) as run:
+            daemon = run.daemon
+            await run.until(lambda: daemon.telemetry.complete_cycles >= 6)
             stolen = _swap(state, vict)
             swapped_at = daemon.loop.cycles
-            for _ in range(2000):
-                if daemon.loop.cycles >= swapped_at + 12 or task.done():
-                    break
-                await asyncio.sleep(0.005)
-            assert daemon.loop.cycles >= swapped_at + 12
+            await run.until(lambda: daemon.loop.cycles >= swapped_at + 12)
             recorder = daemon.recorder.recorder
             assert recorder is not None and recorder.alarm
             assert "no longer names the directory" in str(recorder.last_error)
-        finally:
-            daemon.request_stop()
-            assert await task == 0
+            assert await run.stop() == 0
     finally:
         await sim.stop()
     assert (vict / "checkpoint.json").read_text() == PRECIOUS

@@ -19,7 +19,6 @@ import structlog
 from compd.config.loader import load_config
 from compd.runtime import signals
 from compd.runtime.checkpoint import load_checkpoint
-from compd.runtime.daemon import Daemon
 from compd.runtime.fleet import Fleet, load_machines
 from compd.runtime.sdnotify import Notifier
 from compd.testing import SteppedClock
@@ -27,7 +26,7 @@ from drivers.sim.modbus_server import ModbusSimController
 from tests.compd.runtime.test_run_dir import _complete, _machines_dir, sims  # noqa: F401 - the fixture
 from tests.configs import write_config
 from tests.faults.daemon_run import RecordingSim, start_daemon
-from tests.harness import Fleetstep, until, until_output
+from tests.harness import Fleetstep, stepped_daemon, until_output
 
 #: the signals whose default ends the process, and the two SIGTERM always stopped on
 STOPPING = ["SIGALRM", "SIGPWR", "SIGVTALRM", "SIGPROF", "SIGIO", "SIGXCPU", "SIGSTKFLT",
@@ -44,14 +43,15 @@ def _installed(sig: signal.Signals) -> bool:
 async def test_each_terminating_signal_stops_like_sigterm(
         sim: ModbusSimController, tmp_path: Path, name: str) -> None:
     sig = signal.Signals[name]
-    cfg = load_config(write_config(tmp_path, sim.endpoint, checkpoint_every=100000))
+    cfg = load_config(write_config(tmp_path, sim.endpoint, checkpoint_every=100000,
+                                   time_scale=1.0))
     with structlog.testing.capture_logs() as logs:
-        daemon = Daemon(cfg, notifier=Notifier(None))
-        task = asyncio.create_task(daemon.run())
-        await until(lambda: daemon.telemetry.complete_cycles >= 3)
-        assert _installed(sig), f"{name} would end compd at once"
-        os.kill(os.getpid(), sig)
-        assert await asyncio.wait_for(task, 20.0) == 0
+        async with stepped_daemon(cfg) as run:
+            daemon = run.daemon
+            await run.until(lambda: daemon.telemetry.complete_cycles >= 3)
+            assert _installed(sig), f"{name} would end compd at once"
+            os.kill(os.getpid(), sig)
+            assert await asyncio.wait_for(run.task, 20.0) == 0
     assert not _installed(sig) or signal.getsignal(sig) is signal.default_int_handler
     (got,) = [e for e in logs if e["event"] == "signal_received"]
     assert got["signal"] == name and got["action"] == "stop"
@@ -65,18 +65,17 @@ async def test_each_terminating_signal_stops_like_sigterm(
 
 
 async def test_sigxfsz_is_logged_and_ignored(sim: ModbusSimController, tmp_path: Path) -> None:
-    cfg = load_config(write_config(tmp_path, sim.endpoint))
+    cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
     with structlog.testing.capture_logs() as logs:
-        daemon = Daemon(cfg, notifier=Notifier(None))
-        task = asyncio.create_task(daemon.run())
-        await until(lambda: daemon.telemetry.complete_cycles >= 3)
-        assert _installed(signal.SIGXFSZ)
-        os.kill(os.getpid(), signal.SIGXFSZ)
-        done = daemon.telemetry.complete_cycles
-        await until(lambda: daemon.telemetry.complete_cycles >= done + 5)
-        assert not task.done()
-        daemon.request_stop()
-        assert await task == 0
+        async with stepped_daemon(cfg) as run:
+            daemon = run.daemon
+            await run.until(lambda: daemon.telemetry.complete_cycles >= 3)
+            assert _installed(signal.SIGXFSZ)
+            os.kill(os.getpid(), signal.SIGXFSZ)
+            done = daemon.telemetry.complete_cycles
+            await run.until(lambda: daemon.telemetry.complete_cycles >= done + 5)
+            assert not run.task.done()
+            assert await run.stop() == 0
     assert [e["signal"] for e in logs if e["event"] == "signal_ignored"] == ["SIGXFSZ"]
 
 
@@ -94,6 +93,10 @@ def test_the_lists_cover_every_signal_that_would_end_compd() -> None:
     assert set(signal.Signals) - handled - left - ignored_by_default - realtime == set()
 
 
+#: the real daemon's slew (µm per s, at time scale 1 a cycle's step)
+SLEW_UM_S = 8.0
+
+
 def _events(log: Path, name: str) -> list[dict[str, object]]:
     return [json.loads(ln[ln.index("{"):]) for ln in log.read_text().splitlines()
             if f'"{name}"' in ln]
@@ -103,7 +106,12 @@ def _events(log: Path, name: str) -> list[dict[str, object]]:
                                                 ("SIGPWR", "hold")])
 async def test_a_real_daemon_stops_on_it_with_its_shutdown_policy(
         rec: RecordingSim, tmp_path: Path, name: str, shutdown: str) -> None:
-    config = write_config(tmp_path, rec.sim.endpoint, shutdown=shutdown)
+    """`compd run` in real time, where a request has 0.4 s (time scale 1: a loaded
+    machine answers within it; at the sim's default 8 ms a write timed out but applied
+    leaves the controller holding an offset the checkpoint never confirmed), and a
+    slew of 8 µm/s so that the warm-up and the ramp take a few cycles."""
+    config = write_config(tmp_path, rec.sim.endpoint, shutdown=shutdown, time_scale=1.0,
+                          slew_um_s=SLEW_UM_S)
     log = tmp_path / "daemon.log"
     proc = await start_daemon(config, log)
     try:
@@ -126,7 +134,7 @@ async def test_a_real_daemon_stops_on_it_with_its_shutdown_policy(
     if shutdown == "ramp_to_zero":
         assert held == 0.0 and _events(log, "shutdown_ramp_finished")
         steps = [abs(b - a) for a, b in itertools.pairwise(rec.offsets)]
-        assert max(steps) <= 2 * 1.0 + 1e-3
+        assert max(steps) <= 2 * SLEW_UM_S + 1e-3
     else:
         assert held >= 8.0  # held where it was
 

@@ -4,21 +4,17 @@ apart from what was sent."""
 
 from __future__ import annotations
 
-import asyncio
 import sqlite3
 from pathlib import Path
 
 from compd.config.loader import load_config
 from compd.core.cycle import WRITE_FAULT_AFTER, Cycle, Outcome
 from compd.core.output import Status
-from compd.runtime.daemon import Daemon
-from compd.runtime.sdnotify import Notifier
-from compd.testing import FakeClock, SteppedClock
+from compd.testing import FakeClock
 from drivers.sim.modbus_server import ModbusSimController
 from tests.compd.core.cycle_helpers import params, run_warm, samples, sp2
 from tests.configs import write_config
-from tests.harness import pace
-from tests.harness import until as _until
+from tests.harness import stepped_daemon
 
 
 def test_repeated_write_failures_are_a_fault_until_a_write_succeeds() -> None:
@@ -68,29 +64,24 @@ async def test_daemon_records_only_confirmed_offsets_and_reports_the_write_fault
     daemon sleeps: the only write failures are the controller's refusals, not timeouts
     of a busy machine (at the sim's default scale a request has 8 ms)."""
     cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
-    clock = SteppedClock(period_s=cfg.real_period_s)
-    pacer = asyncio.create_task(pace(clock))
-    daemon = Daemon(cfg, notifier=Notifier(None), clock=clock, sleep=clock.sleep)
-    task = asyncio.create_task(daemon.run())
-    await _until(lambda: daemon.telemetry.complete_cycles >= 3)
-    await sim.publish({"bearing": 22.0})
-    sim.inject_exception("holding", 0, 6, count=4, on="write")  # busy, for a while
-    await _until(lambda: daemon.running.cycle is not None
-                 and daemon.running.cycle.health.write_fault)
-    await _until(lambda: daemon.loop.last_result is not None
-                 and daemon.loop.last_result.state == "write_fault")
-    assert daemon.loop.last_result is not None
-    assert daemon.loop.last_result.status & Status.WRITE_FAULT
-    assert daemon.metrics.fault_state._value.get() == 3  # the gauge
-    sim.clear_faults()
-    await _until(lambda: daemon.running.cycle is not None
-                 and not daemon.running.cycle.health.write_fault)
-    n = daemon.loop.cycles
-    await _until(lambda: daemon.loop.cycles >= n + 3)
-    daemon.request_stop()
-    assert await task == 0
-    pacer.cancel()
-    await asyncio.gather(pacer, return_exceptions=True)
+    async with stepped_daemon(cfg) as run:
+        daemon = run.daemon
+        await run.until(lambda: daemon.telemetry.complete_cycles >= 3)
+        await sim.publish({"bearing": 22.0})
+        sim.inject_exception("holding", 0, 6, count=4, on="write")  # busy, for a while
+        await run.until(lambda: daemon.running.cycle is not None
+                        and daemon.running.cycle.health.write_fault)
+        await run.until(lambda: daemon.loop.last_result is not None
+                        and daemon.loop.last_result.state == "write_fault")
+        assert daemon.loop.last_result is not None
+        assert daemon.loop.last_result.status & Status.WRITE_FAULT
+        assert daemon.metrics.fault_state._value.get() == 3  # the gauge
+        sim.clear_faults()
+        await run.until(lambda: daemon.running.cycle is not None
+                        and not daemon.running.cycle.health.write_fault)
+        n = daemon.loop.cycles
+        await run.until(lambda: daemon.loop.cycles >= n + 3)
+        assert await run.stop() == 0
     assert cfg.recorder_path is not None
     with sqlite3.connect(cfg.recorder_path) as db:
         rows = db.execute("SELECT offset_um, attempted_um, state FROM samples").fetchall()
