@@ -95,6 +95,9 @@ class PoolTextbook:
     #: None: no stable pair, or a fold without a stable model
     textbook: Textbook | None
     fit_pct: float = math.nan
+    #: why there is none: `compd check` warns about the best pair's model, and
+    #: about every other stable pair's ("" when a pair passed, or no check)
+    refused: str = ""
 
 
 def textbook_terms(names: list[str], pool: dict[str, FloatArray], pair: tuple[int, ...],
@@ -135,9 +138,18 @@ def pool_textbook(args: FitRun, y: FloatArray, seg: Segments, radius: float,
         return None
     d = make_data(y, [pool[n] for n in names], seg, radius, args.folds, DEFAULT_VALIDATION,
                   usable_rows(args), blocked=False)
-    tb = textbook(d, [pool[n] for n in names], textbook_veto(names, pool, check))
+    vetoes: list[str] = []
+    veto = textbook_veto(names, pool, check)
+
+    def noted(pair: tuple[int, ...], model: Any) -> str | None:
+        why = veto(pair, model) if veto is not None else None
+        if why:
+            vetoes.append(f"on {' + '.join(names[i] for i in pair)}: {why}")
+        return why
+
+    tb = textbook(d, [pool[n] for n in names], noted if veto is not None else None)
     if tb is None:
-        return PoolTextbook(names, None)
+        return PoolTextbook(names, None, refused=vetoes[0] if vetoes else "")
     sim = forced_response(tb.model.nums, tb.model.dens, tb.model.groups,
                           [pool[names[i]] for i in tb.inputs], seg)
     # every row: the arrays themselves, not copies (a month at 1 s: 21 MB each)
@@ -239,6 +251,15 @@ def hedge_choice(args: FitRun, y: FloatArray, seg: Segments, radius: float,
                 "parameters": tb.model.n_params,
                 "detail": f"ARX(2,3) on {' + '.join(pair)}, no level, from rest",
                 **({"rejected": why} if why else {})})
+        elif pre.refused:  # compd check warns about every stable pair's model
+            label = "textbook ARX(2,3)"
+            left_out.append(f"{label}, every pair (the best {pre.refused})")
+            summary["candidates"].append({
+                "structure": "textbook", "validation_fit_percent": math.nan,
+                "fit_percent": math.nan, "parameters": 10,
+                "detail": "ARX(2,3) on a pair, no level, from rest",
+                "rejected": f"compd check would warn about every pair's model (the best "
+                            f"{pre.refused})"})
         else:  # no textbook on the folds (one unstable): still one for the verdict
             from compd.offline.fit_judge import lone_textbook
 
