@@ -253,13 +253,13 @@ def hedge_choice(args: FitRun, y: FloatArray, seg: Segments, radius: float,
                 **({"rejected": why} if why else {})})
         elif pre.refused:  # compd check warns about every stable pair's model
             label = "textbook ARX(2,3)"
-            left_out.append(f"{label}, every pair (the best {pre.refused})")
+            left_out.append(f"{label}, every pair; the best pair's, {pre.refused}")
             summary["candidates"].append({
                 "structure": "textbook", "validation_fit_percent": math.nan,
-                "fit_percent": math.nan, "parameters": 10,
+                "fit_percent": math.nan, "parameters": 8,
                 "detail": "ARX(2,3) on a pair, no level, from rest",
-                "rejected": f"compd check would warn about every pair's model (the best "
-                            f"{pre.refused})"})
+                "rejected": f"compd check would warn about every pair's model; the best "
+                            f"pair's, {pre.refused}"})
         else:  # no textbook on the folds (one unstable): still one for the verdict
             from compd.offline.fit_judge import lone_textbook
 

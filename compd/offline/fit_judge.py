@@ -36,6 +36,17 @@ at a speed above all the rest, judges compd's choice twice on what it was
 chosen for and refused models that were better than none on the later rows.
 A structure forced with ``--structure`` is not replaced by the textbook: it
 is written or refused.
+
+Then the lean: compd's choice, safe, still gives way when it does not beat
+the textbook on the inner blocks (the geometric mean over the blocks of its
+MAE over the textbook's above `LEAN_RATIO`): the average of the two
+(`LEAN_TO`, `LEAN_WEIGHT` each) is written in its place, when that average
+passes the safety rule on every block, the end too, and `compd check` (the
+textbook itself is picked among the pairs `compd check` passes:
+`models.identify.textbook.pick_pair`). The textbook is small and its pair is
+picked on what follows its calibration; a choice among many inputs and
+structures that loses to it on the calibration's own interior cycles and
+cool-downs is the bet the issue's table shows does not carry over.
 """
 
 from __future__ import annotations
