@@ -97,10 +97,16 @@ def test_a_good_model_is_written_and_says_the_blocks_that_judged_it(
     assert main(["fit", str(data), "--column", "dz_um", "--term", "t1_degC", "-o", str(out),
                  "--no-fallbacks", "--json"]) == 0
     verdict = json.loads(capsys.readouterr().out)["terms"][0]["selection"]["judge"]
-    assert verdict["chosen"] == COMPD and len(verdict["blocks"]) == 6
-    # the model predicts every inner block far better than no compensation
-    for mine, none in zip(verdict["mae_um"][COMPD], verdict["mae_um"][NONE], strict=True):
-        assert mine < 0.2 * none
+    assert len(verdict["blocks"]) == 6
+    # the model predicts every inner block far better than no compensation, and
+    # so does the textbook (ARX(2,3) on t1): both at the noise, 0.02-0.03 µm.
+    # Not twice as good as the textbook, compd's choice gives way to the average
+    # of the two (`fit_judge.LEAN_RATIO`), as good on every block
+    assert verdict["chosen"] == AVERAGE
+    for k, none in enumerate(verdict["mae_um"][NONE]):
+        mine, tb, avg = (verdict["mae_um"][n][k] for n in (COMPD, TEXTBOOK, AVERAGE))
+        assert max(mine, tb, avg) < 0.03 < 0.2 * none
+        assert avg <= max(mine, tb)
 
 
 def _verdict(monkeypatch: pytest.MonkeyPatch, compd_err: list[float],
