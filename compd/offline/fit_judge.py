@@ -345,8 +345,9 @@ def decide(mae: dict[str, list[float]], blocks: list[str], floor: float, forced:
         if bad is None:
             pick = lean_to
             verdict.reasons.append(
-                f"compd's choice does not beat the textbook on the inner blocks (its MAE is "
-                f"{score:.2f}x the textbook's, geometric mean over {len(blocks)} blocks)")
+                f"compd's choice does not beat the textbook on the inner blocks by enough (its "
+                f"MAE is {score:.2f}x the textbook's, geometric mean over {len(blocks)} blocks; "
+                f"alone at most {lean_ratio:.2f}x)")
     verdict.chosen = pick
     return verdict
 

@@ -201,8 +201,9 @@ def test_a_choice_the_textbook_beats_on_the_inner_blocks_is_averaged_with_it(
     assert v.chosen == AVERAGE
     # the average's error is the mean of the two: 0.4, 0.4, 0.2 µm
     assert v.mae[AVERAGE] == pytest.approx([0.4, 0.4, 0.2])
-    assert v.reasons == ["compd's choice does not beat the textbook on the inner blocks "
-                         "(its MAE is 1.44x the textbook's, geometric mean over 3 blocks)"]
+    assert v.reasons == ["compd's choice does not beat the textbook on the inner blocks by "
+                         "enough (its MAE is 1.44x the textbook's, geometric mean over 3 "
+                         "blocks; alone at most 1.00x)"]
     assert lean_score(v.mae, v.floor) == pytest.approx(3.0 ** (1.0 / 3.0))
     # compd's choice better on two blocks of three: kept (0.69x the textbook's)
     v = _verdict(monkeypatch, [0.1, 0.1, 0.6], [0.3, 0.3, 0.2], tie=math.inf,
@@ -273,7 +274,7 @@ def test_fit_writes_the_average_where_the_textbook_wins_the_inner_blocks(
     assert "written: compd's choice" in out_kept and "fell back" not in err_kept
     avg, out_avg, err_avg = _fit_judged(monkeypatch, tmp_path, textbook_better=True)
     assert "compd fit: fell back to average of compd's choice" in err_avg
-    assert "does not beat the textbook on the inner blocks (its MAE is" in err_avg
+    assert "does not beat the textbook on the inner blocks by enough (its MAE is" in err_avg
     assert "written: average of compd's choice" in out_avg
     # the average's terms: compd's choice's at half weight beside the textbook's
     mine = {t["name"]: t for t in kept["terms"]}
