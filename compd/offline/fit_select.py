@@ -198,6 +198,17 @@ def judged(args: FitRun, y: FloatArray, seg: Segments, radius: float,
         blocks_r = tuple((1.0 - w) * a + w * b for a, b in zip(mine, blocks_r, strict=True)) \
             if len(mine) == len(blocks_r) and all(
                 a.size == b.size for a, b in zip(mine, blocks_r, strict=True)) else ()
+        count = sum(r.size for r in blocks_r)
+        rms = math.sqrt(sum(float(np.sum(r ** 2)) for r in blocks_r) / count) if count else None
+        disp = summary.get("displacement_rms_um")
+        if rms is not None and disp is not None and rms > disp:
+            # the average would be refused as worse than none on the folds' held-out
+            # rows (`worse_than_none`), where compd's choice alone passed: the choice
+            summary["judge"]["chosen"] = COMPD
+            summary["judge"]["reasons"].append(
+                f"not averaged, the average's error on the rows the folds held out (RMS "
+                f"{rms:.3g} µm) exceeds the displacement itself there (RMS {disp:.3g} µm)")
+            return terms, summary
         summary["structure"] = (f"average of compd's choice ({summary['structure']}) ×"
                                 f"{1.0 - w:.2f}, {tb['label']} ×{w:.2f}")
         out = both

@@ -223,14 +223,28 @@ def test_a_choice_the_textbook_beats_on_the_inner_blocks_is_averaged_with_it(
                     tie=math.inf, worse_ratio=1.5, lean_ratio=1.0).chosen == COMPD
 
 
-def _fit_judged(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, textbook_better: bool
-                ) -> tuple[dict[str, Any], str, str]:
+def _fit_judged(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, textbook_better: bool,
+                textbook_folds: float = 1.0) -> tuple[dict[str, Any], str, str]:
     """`compd fit` on a two-sensor record whose inner blocks the textbook (or compd's
     choice) predicts exactly and the other 0.5 µm off: (the model file's terms, the
-    fit's stdout, its stderr)."""
+    fit's stdout, its stderr). `textbook_folds` scales the textbook's residue on the
+    folds' held-out rows."""
+    import dataclasses
     import tomllib
 
-    data, out = tmp_path / "rec.csv", tmp_path / f"m{int(textbook_better)}.toml"
+    from compd.offline import fit_hedge
+
+    if textbook_folds != 1.0:
+        real_textbook = fit_hedge.textbook  # type: ignore[attr-defined]
+
+        def textbook(*a: Any, **kw: Any) -> Any:
+            tb = real_textbook(*a, **kw)
+            return None if tb is None else dataclasses.replace(
+                tb, residuals=tuple(textbook_folds * r for r in tb.residuals))
+
+        monkeypatch.setattr(fit_hedge, "textbook", textbook)
+    data = tmp_path / "rec.csv"
+    out = tmp_path / f"m{int(textbook_better)}{textbook_folds:g}.toml"
     _record(data, spoilt_stretch=None)
     rows = data.read_text().splitlines()
     rng = np.random.default_rng(5)
@@ -287,3 +301,15 @@ def test_fit_writes_the_average_where_the_textbook_wins_the_inner_blocks(
     # the textbook's: ARX(2,3), three numerator coefficients over a second order
     for name in set(both) - set(mine):
         assert len(both[name]["a"]) == 3 and len(both[name]["b"]) == 3
+
+
+def test_an_average_worse_than_none_on_the_folds_leaves_the_choice(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    # the textbook's residue on the folds' held-out rows 1000 times over: the average
+    # would be refused as worse than no compensation there, where the choice passed
+    kept, _, _ = _fit_judged(monkeypatch, tmp_path, textbook_better=False)
+    alone, out, err = _fit_judged(monkeypatch, tmp_path, textbook_better=True,
+                                  textbook_folds=1000.0)
+    assert "not averaged, the average's error on the rows the folds held out (RMS" in out
+    assert "written: compd's choice (" in out and "fell back" not in err
+    assert alone["terms"] == kept["terms"]
