@@ -73,6 +73,7 @@ import numpy.typing as npt
 from scipy.signal import lfilter
 
 from compd.cli import build_parser
+from compd.offline.fit_judge import AVERAGE, LEAN_WEIGHT, TEXTBOOK
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -285,6 +286,9 @@ class Cell:
     before: tuple[float, float] = (math.nan, math.nan)
     #: MAE of the fit's own textbook (nan: none it could write)
     fit_tb: float = math.nan
+    #: MAE of compd's choice before the verdict averaged with the fit's own
+    #: textbook (`compd.offline.fit_judge.LEAN_WEIGHT`; nan: no textbook)
+    fit_avg: float = math.nan
 
     @property
     def ratio(self) -> float:
@@ -311,9 +315,12 @@ def run(record: Path, d: dict[str, FloatArray], blocks: list[tuple[str, str, flo
             before = after if choice.before is None else figures(y[held], choice.before[held])
             fit_tb = math.nan if choice.fit_textbook is None else \
                 figures(y[held], choice.fit_textbook[held])[0]
+            fit_avg = math.nan if choice.fit_textbook is None or choice.before is None else \
+                figures(y[held], ((1 - LEAN_WEIGHT) * choice.before
+                                  + LEAN_WEIGHT * choice.fit_textbook)[held])[0]
             cell = Cell(name, out, after,
                         figures(y[held], base[held]), float(np.mean(np.abs(y[held] - y[0]))),
-                        choice, pair, mixed, before, fit_tb)
+                        choice, pair, mixed, before, fit_tb, fit_avg)
             cells.append(cell)
             print(f"{name} {out}: compd {choice.what}, stability {choice.stability:.2f}, "
                   f"{choice.seconds:.1f} s: MAE {cell.compd[0]:.2f} µm (written: "
@@ -362,7 +369,7 @@ def print_table(cells: list[Cell], blocks: list[str], channels: list[str]) -> No
     print("\nbefore / after the verdict of the inner held-out blocks (compd.offline."
           "fit_judge): ratio of MAE to the textbook's, and cells worse than no compensation")
     print("| channel | geometric mean before | after | worst before | after | "
-          "worse than none before | after | written: choice / textbook / none |")
+          "worse than none before | after | written: choice / average / textbook / none |")
     print("|---|---|---|---|---|---|---|---|")
     for ch, s in zip(channels, short, strict=True):
         mine = [c for c in cells if c.channel == ch]
@@ -370,7 +377,7 @@ def print_table(cells: list[Cell], blocks: list[str], channels: list[str]) -> No
         wb = sum(c.before[0] > c.none_mae for c in mine)
         wa = sum(c.compd[0] > c.none_mae for c in mine)
         kinds = [sum(c.choice.verdict == v for c in mine)
-                 for v in ("compd's choice", "textbook", "no model")]
+                 for v in ("compd's choice", AVERAGE, "textbook", "no model")]
         print(f"| {s} | {geo(rb):.2f} | {geo(ra):.2f} | {worst(rb):.2f} | {worst(ra):.2f} | "
               f"{wb} of {len(mine)} | {wa} of {len(mine)} | "
               f"{' / '.join(str(k) for k in kinds)} |")
@@ -398,31 +405,44 @@ def print_table(cells: list[Cell], blocks: list[str], channels: list[str]) -> No
           f"{sum(c.before[0] > c.none_mae for c in cells)} worse than no compensation")
 
 
-#: the verdict's settings judged on the whole table: (tie, worse ratio, end) of
-#: `compd.offline.fit_judge.decide`; inf tie: compd's choice unless unsafe; end:
-#: the inner end block judges only the textbook in compd's choice's place
-#: ("textbook", `compd.offline.fit_judge.FORWARD_KINDS`), every candidate
-#: ("every"), or is left out ("none")
-RULES: tuple[tuple[float, float, str], ...] = (
-    (math.inf, 1.5, "textbook"), (math.inf, 1.5, "every"), (1.05, 1.1, "every"),
-    (2.0, 1.5, "every"), (math.inf, 1.1, "textbook"), (math.inf, 1.25, "textbook"),
-    (math.inf, 2.0, "textbook"), (math.inf, 1.5, "none"))
+#: the verdict's settings judged on the whole table: (tie, worse ratio, end,
+#: lean ratio, lean to) of `compd.offline.fit_judge.decide`; inf tie: compd's
+#: choice unless unsafe; end: the inner end block judges only the textbook in
+#: compd's choice's place ("textbook", `compd.offline.fit_judge.FORWARD_KINDS`),
+#: every candidate ("every"), or is left out ("none"); lean: compd's choice
+#: gives way to the average with the textbook (or the textbook) when its
+#: geometric mean MAE over the inner blocks exceeds the textbook's by this
+#: ratio (inf: never)
+RULES: tuple[tuple[float, float, str, float, str], ...] = (
+    (math.inf, 1.5, "textbook", math.inf, AVERAGE),
+    (math.inf, 1.5, "every", math.inf, AVERAGE),
+    (math.inf, 1.1, "textbook", math.inf, AVERAGE),
+    (math.inf, 1.5, "textbook", 0.8, AVERAGE),
+    (math.inf, 1.5, "textbook", 1.0, AVERAGE),
+    (math.inf, 1.5, "textbook", 1.25, AVERAGE),
+    (math.inf, 1.5, "textbook", 1.0, TEXTBOOK),
+    (math.inf, 1.5, "textbook", 1.25, TEXTBOOK),
+    (math.inf, 1.5, "textbook", 0.0, AVERAGE),
+    (math.inf, 1.5, "textbook", 0.0, TEXTBOOK))
 
 
 def variants(cells: list[Cell], channels: list[str]) -> None:
     """The verdict again with other settings, from the MAE per inner block
     that fit said: what would have been written (compd's choice before the
     verdict, the fit's own textbook, or nothing) scored on the held-out rows."""
-    from compd.offline.fit_judge import COMPD, FORWARD_KINDS, TEXTBOOK, decide
+    from compd.offline.fit_judge import COMPD, FORWARD_KINDS, decide
 
-    print("\nthe verdict's settings (tie, worse-than-none ratio): ratio of MAE to the "
-          "textbook's, geometric mean / worst, and cells worse than no compensation")
-    print("| channel | " + " | ".join(f"{t:g}, {w:g}, end: {e}" for t, w, e in RULES) + " |")
+    print("\nthe verdict's settings (tie, worse-than-none ratio, end, lean ratio, lean to): "
+          "ratio of MAE to the textbook's, geometric mean / worst, and cells worse than no "
+          "compensation")
+    print("| channel | " + " | ".join(f"{t:g}, {w:g}, end: {e}, lean {lr:g} to "
+                                     f"{'average' if lt == AVERAGE else lt}"
+                                     for t, w, e, lr, lt in RULES) + " |")
     print("|---|" + "---|" * len(RULES))
     for ch in [*channels, "all"]:
         mine = [c for c in cells if ch in ("all", c.channel)]
         out = []
-        for tie, worse_r, ends in RULES:
+        for tie, worse_r, ends, lean_r, lean_to in RULES:
             r: list[float] = []
             bad = 0
             for c in mine:
@@ -436,11 +456,16 @@ def variants(cells: list[Cell], channels: list[str]) -> None:
                     pick = decide(table, [j["blocks"][i] for i in keep], j["floor_um"],
                                   tie=tie, worse_ratio=worse_r,
                                   kinds=[kinds[i] for i in keep],
-                                  forward=FORWARD_KINDS if ends == "textbook" else frozenset()
+                                  forward=FORWARD_KINDS if ends == "textbook" else frozenset(),
+                                  lean_ratio=lean_r, lean_to=lean_to
                                   ).chosen if keep else COMPD
+                    # an average fit refused (compd check) leaves compd's choice
+                    refused = any(r.startswith("not averaged") for r in j.get("reasons", []))
                     if pick == TEXTBOOK and math.isfinite(c.fit_tb):
                         mae = c.fit_tb
-                    elif pick not in (COMPD, TEXTBOOK):
+                    elif pick == AVERAGE and math.isfinite(c.fit_avg) and not refused:
+                        mae = c.fit_avg
+                    elif pick not in (COMPD, TEXTBOOK, AVERAGE):
                         mae = c.none_mae
                 r.append(mae / c.base[0])
                 bad += mae > c.none_mae
@@ -494,6 +519,7 @@ def main() -> None:
         Path(args.save).write_text(json.dumps([
             {"block": c.block, "channel": c.channel, "compd": c.compd, "base": c.base,
              "none_mae": c.none_mae, "before": c.before, "fit_tb": c.fit_tb,
+             "fit_avg": c.fit_avg,
              "written": c.choice.verdict, "what": c.choice.what, "judge": c.choice.judge}
             for c in cells], indent=1))
 

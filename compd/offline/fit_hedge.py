@@ -95,14 +95,41 @@ class PoolTextbook:
     #: None: no stable pair, or a fold without a stable model
     textbook: Textbook | None
     fit_pct: float = math.nan
+    #: why there is none: `compd check` warns about the best pair's model, and
+    #: about every other stable pair's ("" when a pair passed, or no check)
+    refused: str = ""
+
+
+def textbook_terms(names: list[str], pool: dict[str, FloatArray], pair: tuple[int, ...],
+                   model: Any) -> list[FitTerm]:
+    """The textbook's terms as fit writes them: one per sensor of `pair`
+    (indices into `names`), temperatures relative to their first sample."""
+    from compd.offline.fit_terms import FitTerm
+
+    return [FitTerm(names[i], {names[i]: 1.0}, pool[names[i]], num, den, True)
+            for i, num, den in zip(pair, model.nums, model.term_dens(), strict=True)]
+
+
+def textbook_veto(names: list[str], pool: dict[str, FloatArray],
+                  check: Callable[[list[FitTerm]], str | None] | None
+                  ) -> Callable[[tuple[int, ...], Any], str | None] | None:
+    """`check` on the textbook's terms (`models.identify.textbook.Veto`): its
+    pair is picked among those fit may write (None: no check, any pair)."""
+    if check is None:
+        return None
+    return lambda pair, model: check(textbook_terms(names, pool, pair, model))
 
 
 def pool_textbook(args: FitRun, y: FloatArray, seg: Segments, radius: float,
-                  pool: dict[str, FloatArray]) -> PoolTextbook | None:
-    """The textbook on the channels of `pool` the hedge may read (None: none).
-    It depends on neither the selection nor its candidates: `compd fit` fits
-    it before them, so that its arrays and the candidates' held-out residues
-    (a month at 1 s: 17 MB each) are never held at once."""
+                  pool: dict[str, FloatArray],
+                  check: Callable[[list[FitTerm]], str | None] | None = None
+                  ) -> PoolTextbook | None:
+    """The textbook on the channels of `pool` the hedge may read (None: none),
+    on the best pair whose model `check` passes (`compd fit`: `compd check`'s
+    warnings; None: any pair). It depends on neither the selection nor its
+    candidates: `compd fit` fits it before them, so that its arrays and the
+    candidates' held-out residues (a month at 1 s: 17 MB each) are never held
+    at once."""
     from compd.offline.fit_terms import usable_rows
 
     allowed = getattr(args, "hedge_channels", None)
@@ -111,9 +138,18 @@ def pool_textbook(args: FitRun, y: FloatArray, seg: Segments, radius: float,
         return None
     d = make_data(y, [pool[n] for n in names], seg, radius, args.folds, DEFAULT_VALIDATION,
                   usable_rows(args), blocked=False)
-    tb = textbook(d, [pool[n] for n in names])
+    vetoes: list[str] = []
+    veto = textbook_veto(names, pool, check)
+
+    def noted(pair: tuple[int, ...], model: Any) -> str | None:
+        why = veto(pair, model) if veto is not None else None
+        if why:
+            vetoes.append(f"on {' + '.join(names[i] for i in pair)}: {why}")
+        return why
+
+    tb = textbook(d, [pool[n] for n in names], noted if veto is not None else None)
     if tb is None:
-        return PoolTextbook(names, None)
+        return PoolTextbook(names, None, refused=vetoes[0] if vetoes else "")
     sim = forced_response(tb.model.nums, tb.model.dens, tb.model.groups,
                           [pool[names[i]] for i in tb.inputs], seg)
     # every row: the arrays themselves, not copies (a month at 1 s: 21 MB each)
@@ -192,15 +228,12 @@ def hedge_choice(args: FitRun, y: FloatArray, seg: Segments, radius: float,
             errors.append(block_errors(c.heldout_residuals))
             residuals.append(c.heldout_residuals)
             members.append(member)
-    pre = pooled if pooled is not None else pool_textbook(args, y, seg, radius, pool)
+    pre = pooled if pooled is not None else pool_textbook(args, y, seg, radius, pool, check)
     if pre is not None:
         pool_names, tb = pre.names, pre.textbook
         if tb is not None and len(tb.residuals) == len(residuals[0]):
             pair = [pool_names[i] for i in tb.inputs]
-            dens = tb.model.term_dens()
-            member = [FitTerm(pool_names[i], {pool_names[i]: 1.0}, pool[pool_names[i]],
-                              num, den, True)
-                      for i, num, den in zip(tb.inputs, tb.model.nums, dens, strict=True)]
+            member = textbook_terms(pool_names, pool, tb.inputs, tb.model)
             label = f"textbook ARX(2,3) on {' + '.join(pair)}"
             why = refused(label, member)
             if not why:
@@ -218,16 +251,25 @@ def hedge_choice(args: FitRun, y: FloatArray, seg: Segments, radius: float,
                 "parameters": tb.model.n_params,
                 "detail": f"ARX(2,3) on {' + '.join(pair)}, no level, from rest",
                 **({"rejected": why} if why else {})})
+        elif pre.refused:  # compd check warns about every stable pair's model
+            label = "textbook ARX(2,3)"
+            left_out.append(f"{label}, every pair; the best pair's, {pre.refused}")
+            summary["candidates"].append({
+                "structure": "textbook", "validation_fit_percent": math.nan,
+                "fit_percent": math.nan, "parameters": 8,
+                "detail": "ARX(2,3) on a pair, no level, from rest",
+                "rejected": f"compd check would warn about every pair's model; the best "
+                            f"pair's, {pre.refused}"})
         else:  # no textbook on the folds (one unstable): still one for the verdict
             from compd.offline.fit_judge import lone_textbook
 
             d = make_data(y, [pool[n] for n in pool_names], seg, radius, args.folds,
                           DEFAULT_VALIDATION, usable_rows(args), blocked=False)
-            lone = lone_textbook(d, [pool[n] for n in pool_names])
+            lone = lone_textbook(d, [pool[n] for n in pool_names],
+                                 textbook_veto(pool_names, pool, check))
             if lone is not None:
                 pair = [pool_names[i] for i in lone[0]]
-                member = [FitTerm(n, {n: 1.0}, pool[n], num, den, True) for n, num, den
-                          in zip(pair, lone[1].nums, lone[1].term_dens(), strict=True)]
+                member = textbook_terms(pool_names, pool, lone[0], lone[1])
                 label = f"textbook ARX(2,3) on {' + '.join(pair)}"
                 if not refused(label, member):
                     judge_tb = {"member": Member("textbook", tuple(pool[n] for n in pair),

@@ -105,7 +105,7 @@ def _fit_tf(run: FitRun, records: list[Record], ys: list[Any],
         from compd.offline.fit_select import judged, refused
 
         if holdout is None:  # the last word: inner held-out blocks of the calibration rows
-            fitted, summary = judged(run, y, seg, radius, fitted, summary)
+            fitted, summary = judged(run, y, seg, radius, fitted, summary, veto.terms)
         said = judge_line(summary)
         if said is not None:
             print(said, file=sys.stderr)

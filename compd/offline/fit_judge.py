@@ -36,6 +36,17 @@ at a speed above all the rest, judges compd's choice twice on what it was
 chosen for and refused models that were better than none on the later rows.
 A structure forced with ``--structure`` is not replaced by the textbook: it
 is written or refused.
+
+Then the lean: compd's choice, safe, still gives way when it does not beat
+the textbook on the inner blocks (the geometric mean over the blocks of its
+MAE over the textbook's above `LEAN_RATIO`): the average of the two
+(`LEAN_TO`, `LEAN_WEIGHT` each) is written in its place, when that average
+passes the safety rule on every block, the end too, and `compd check` (the
+textbook itself is picked among the pairs `compd check` passes:
+`models.identify.textbook.pick_pair`). The textbook is small and its pair is
+picked on what follows its calibration; a choice among many inputs and
+structures that loses to it on the calibration's own interior cycles and
+cool-downs is the bet the issue's table shows does not carry over.
 """
 
 from __future__ import annotations
@@ -86,8 +97,28 @@ FLOOR_SHARE = 0.02
 #: ratio is as noisy a choice as the best fold
 TIE = math.inf
 
+#: compd's choice gives way when it does not beat the textbook on the inner
+#: blocks by this much: when the geometric mean over the blocks of its MAE
+#: over the textbook's (each at least the floor) exceeds this, the average of
+#: the two (`LEAN_TO`) is written in its place, if that passes the safety rule
+#: on every block. Judged on the whole table of
+#: benchmarks/bench_real_record.py (docs/calibration.md §7; 40 cells): from
+#: 0.4 to 0.6 no cell is worse than no compensation and the worst ratio per
+#: channel is 0.79, 0.86, 2.82, 2.36, 1.90; at 0.7 and 1.0 one cell of ch5 is
+#: worse than none (ch5's worst 2.29), at 0.3 one of ch1 (an average where
+#: compd's choice alone is far better); never leaning leaves ch4 at 2.61, ch5
+#: at 2.42 and one cell worse than none. 0.5: the middle of the plateau
+LEAN_RATIO = 0.5
+#: what is written when compd's choice gives way to the textbook: AVERAGE or
+#: TEXTBOOK
+LEAN_TO = "average with the textbook"
+#: the textbook's weight in that average
+LEAN_WEIGHT = 0.5
+
 #: the candidates, in the order of preference on a tie
 COMPD, TEXTBOOK, NONE = "compd's choice", "textbook", "no model"
+#: compd's choice and the textbook averaged, (1 - `LEAN_WEIGHT`) and `LEAN_WEIGHT`
+AVERAGE = LEAN_TO
 
 
 @dataclass(frozen=True)
@@ -186,15 +217,17 @@ def refit(y: FloatArray, seg: Segments, radius: float, usable: BoolArray | None,
     return _simulate(d, m, train, y, d.us, seg)
 
 
-def lone_textbook(d: Any, candidates: Sequence[FloatArray]
+def lone_textbook(d: Any, candidates: Sequence[FloatArray],
+                  veto: Callable[[tuple[int, ...], OeModel], str | None] | None = None
                   ) -> tuple[tuple[int, ...], OeModel] | None:
     """(pair, estimate on every usable row) of the textbook ARX(2,3)
-    (`models.identify.textbook`) where its forward folds gave none: the
-    verdict re-estimates it on each calibration less a block itself."""
+    (`models.identify.textbook`, its pair one `veto` passes) where its forward
+    folds gave none: the verdict re-estimates it on each calibration less a
+    block itself."""
     from models.identify.estimators import arx_fit
     from models.identify.textbook import TEXTBOOK_ORDERS, _data, pick_pair
 
-    pair = pick_pair(d, candidates)
+    pair = pick_pair(d, candidates, veto)
     if pair is None:
         return None
     m = arx_fit(_data(d, [candidates[i] for i in pair]), *TEXTBOOK_ORDERS, d.every)
@@ -219,7 +252,7 @@ def judge(y: FloatArray, seg: Segments, radius: float, usable: BoolArray | None,
     use = np.ones(seg.total, dtype=bool) if usable is None else usable
     start = np.concatenate([np.full(e - s, y[s]) for s, e in seg.bounds])
     floor = FLOOR_SHARE * float(np.ptp(y[use]))
-    names = [COMPD, *([TEXTBOOK] if textbook is not None else []), NONE]
+    names = [COMPD, *([TEXTBOOK, AVERAGE] if textbook is not None else []), NONE]
     mae: dict[str, list[float]] = {n: [] for n in names}
     for b in blocks:
         if progress is not None:
@@ -237,22 +270,41 @@ def judge(y: FloatArray, seg: Segments, radius: float, usable: BoolArray | None,
             total = part if total is None else np.add(total, part, out=total)
             del sim, part
         mae[COMPD].append(_mae(y, total, b.rows))
-        del total
         if textbook is not None:
-            mae[TEXTBOOK].append(_mae(y, refit(y, seg, radius, usable, textbook, train),
-                                      b.rows))
+            tb = refit(y, seg, radius, usable, textbook, train)
+            mae[TEXTBOOK].append(_mae(y, tb, b.rows))
+            both = None if total is None or tb is None else \
+                (1.0 - LEAN_WEIGHT) * total + LEAN_WEIGHT * tb
+            mae[AVERAGE].append(_mae(y, both, b.rows))
+            del tb, both
+        del total
         mae[NONE].append(_mae(y, start, b.rows))
     return decide(mae, [b.name for b in blocks], floor, forced, TIE, WORSE_RATIO,
-                  [b.kind for b in blocks], FORWARD_KINDS)
+                  [b.kind for b in blocks], FORWARD_KINDS, LEAN_RATIO, LEAN_TO)
+
+
+def lean_score(mae: dict[str, list[float]], floor: float) -> float:
+    """The geometric mean over the blocks of compd's choice's MAE over the
+    textbook's, each at least `floor` (a block where either has no stable
+    estimate is left out); nan without a textbook or such a block."""
+    if TEXTBOOK not in mae:
+        return math.nan
+    logs = [math.log(max(c, floor, 1e-12) / max(t, floor, 1e-12))
+            for c, t in zip(mae[COMPD], mae[TEXTBOOK], strict=True)
+            if math.isfinite(c) and math.isfinite(t)]
+    return math.exp(sum(logs) / len(logs)) if logs else math.nan
 
 
 def decide(mae: dict[str, list[float]], blocks: list[str], floor: float, forced: bool = False,
            tie: float = TIE, worse_ratio: float = WORSE_RATIO, kinds: list[str] | None = None,
-           forward: frozenset[str] = FORWARD_KINDS) -> Verdict:
+           forward: frozenset[str] = FORWARD_KINDS, lean_ratio: float = LEAN_RATIO,
+           lean_to: str = LEAN_TO) -> Verdict:
     """The verdict from each candidate's MAE per block (module docstring);
     `floor`: the least yardstick of a block, µm; `kinds`: each block's kind
-    (None: none of `forward`), those of `forward` judging only the textbook."""
-    names = list(mae)
+    (None: none of `forward`), those of `forward` judging only the textbook;
+    `lean_ratio`, `lean_to`: when compd's choice gives way to the textbook
+    (`LEAN_RATIO`; inf: never) and to what."""
+    names = [n for n in mae if n != AVERAGE]  # the average is a way out, not a rival
     worst: dict[str, float] = {}
     for n in names:
         ratios = []
@@ -264,7 +316,9 @@ def decide(mae: dict[str, list[float]], blocks: list[str], floor: float, forced:
     kinds = list(kinds) if kinds is not None else ["interior"] * len(blocks)
     verdict = Verdict(COMPD, list(blocks), mae, worst, floor=floor, kinds=kinds)
     lead = min(worst.values())
-    order = [COMPD] if forced else [n for n in names if worst[n] <= lead * tie]
+    # an infinite tie keeps every candidate (inf × a worst of 0 would be nan)
+    order = [COMPD] if forced else [n for n in names if math.isinf(tie) or
+                                    worst[n] <= lead * tie]
     pick = order[0]
     if pick != COMPD:
         verdict.reasons.append(
@@ -283,6 +337,17 @@ def decide(mae: dict[str, list[float]], blocks: list[str], floor: float, forced:
             break
         verdict.reasons.append(f"{cand} is worse than no compensation on {bad}")
         pick = NONE
+    score = lean_score(mae, floor)
+    if pick == COMPD and not forced and lean_to in mae and score > lean_ratio:
+        every = list(range(len(blocks)))
+        bad = _worse_than_none([mae[lean_to][k] for k in every], [mae[NONE][k] for k in every],
+                               floor, blocks, worse_ratio)
+        if bad is None:
+            pick = lean_to
+            verdict.reasons.append(
+                f"compd's choice does not beat the textbook on the inner blocks by enough (its "
+                f"MAE is {score:.2f}x the textbook's, geometric mean over {len(blocks)} blocks; "
+                f"alone at most {lean_ratio:.2f}x)")
     verdict.chosen = pick
     return verdict
 
@@ -313,19 +378,21 @@ def verdict_lines(summary: dict[str, Any]) -> list[str]:
     for k, name in enumerate(v["blocks"]):
         out.append(f"    {name}: " + " / ".join(
             f"{vs[k]:.2f}" if vs[k] is not None else "-" for vs in mae.values()))
-    if v["chosen"] == COMPD:
+    if v["chosen"] == COMPD and not v["reasons"]:
         out.append("  written: compd's choice")
+    elif v["chosen"] == COMPD:
+        out.append("  written: compd's choice (" + "; ".join(v["reasons"]) + ")")
     else:
-        what = summary["structure"] if v["chosen"] == TEXTBOOK else "nothing"
+        what = summary["structure"] if v["chosen"] in (TEXTBOOK, AVERAGE) else "nothing"
         out.append(f"  written: {what} (" + "; ".join(v["reasons"]) + ")")
     return out
 
 
 def fallback_line(summary: dict[str, Any]) -> str | None:
-    """The one line on stderr when the verdict wrote the textbook instead of
-    compd's choice, else None."""
+    """The one line on stderr when the verdict wrote the textbook (or the
+    average with it) instead of compd's choice, else None."""
     v = summary.get("judge")
-    if not v or v["chosen"] != TEXTBOOK:
+    if not v or v["chosen"] not in (TEXTBOOK, AVERAGE):
         return None
     return (f"compd fit: fell back to {summary['structure']}: " + "; ".join(v["reasons"])
             + f" (judged on {', '.join(v['blocks'])})")

@@ -130,7 +130,7 @@ def select_for_fit(args: FitRun, y: FloatArray, us: list[FloatArray],
                 if r and list(inputs.values()) == [1.0]}
     # the textbook before the selection: its arrays are let go before the
     # candidates' held-out residues are made (`compd.offline.fit_hedge.pool_textbook`)
-    pooled = pool_textbook(args, y, seg, radius, pool) if holdout is None else None
+    pooled = pool_textbook(args, y, seg, radius, pool, check) if holdout is None else None
     sel = run_selection(args, y, us, seg, radius, holdout, names, veto)
     how = "held-out records" if holdout is not None else \
         f"{VALIDATION_WORDS[DEFAULT_VALIDATION]}, {args.folds} folds"
@@ -145,14 +145,19 @@ def select_for_fit(args: FitRun, y: FloatArray, us: list[FloatArray],
 
 
 def judged(args: FitRun, y: FloatArray, seg: Segments, radius: float,
-           terms: list[FitTerm], summary: dict[str, Any]) -> tuple[list[FitTerm], dict[str, Any]]:
+           terms: list[FitTerm], summary: dict[str, Any],
+           check: Callable[[list[FitTerm]], str | None] | None = None
+           ) -> tuple[list[FitTerm], dict[str, Any]]:
     """(terms, summary) after the inner held-out blocks' verdict
-    (`compd.offline.fit_judge`): compd's choice, or the textbook in its place
-    (its forward-fold residue then the summary's), or compd's choice with the
-    summary's ``judge`` saying that nothing may be written (`refused`)."""
+    (`compd.offline.fit_judge`): compd's choice, or the textbook (or the
+    average of the two) in its place (its forward-fold residue then the
+    summary's), or compd's choice with the summary's ``judge`` saying that
+    nothing may be written (`refused`). `check(terms)`: why the average must
+    not be written (`compd fit`: `compd check`'s warnings); compd's choice is
+    written then."""
     from compd.offline.fit_blocks import inner_blocks
-    from compd.offline.fit_hedge import term_orders
-    from compd.offline.fit_judge import TEXTBOOK, judge
+    from compd.offline.fit_hedge import _merge, term_orders
+    from compd.offline.fit_judge import AVERAGE, COMPD, LEAN_WEIGHT, TEXTBOOK, judge
 
     plan = summary.pop("_judge", None)
     if plan is None:
@@ -172,17 +177,51 @@ def judged(args: FitRun, y: FloatArray, seg: Segments, radius: float,
         return terms, summary
     summary["judge"] = verdict.as_dict()
     args.judge_verdict = summary["judge"]
-    if verdict.chosen != TEXTBOOK or tb is None:
+    if verdict.chosen not in (TEXTBOOK, AVERAGE) or tb is None:
         return terms, summary
     blocks_r = tb["residuals"]
+    if verdict.chosen == AVERAGE:
+        w = LEAN_WEIGHT
+        both = _merge([FitTerm(t.name, t.inputs, t.u, tuple((1.0 - w) * v for v in t.num),
+                               t.den, t.relative) for t in terms]
+                      + [FitTerm(t.name, t.inputs, t.u, tuple(w * v for v in t.num), t.den,
+                                 t.relative) for t in tb["terms"]])
+        flag = check(both) if check is not None else None
+        if flag:  # the average is a model of its own: it must pass the check too
+            summary["judge"]["chosen"] = COMPD
+            summary["judge"]["reasons"].append(
+                f"not averaged, compd check would warn about the average: {flag}")
+            return terms, summary
+        mine = summary.get("_heldout_residuals") or ()
+        # the average's residue on the folds' held-out rows is the same average of
+        # theirs; a textbook without fold estimates leaves none
+        blocks_r = tuple((1.0 - w) * a + w * b for a, b in zip(mine, blocks_r, strict=True)) \
+            if len(mine) == len(blocks_r) and all(
+                a.size == b.size for a, b in zip(mine, blocks_r, strict=True)) else ()
+        count = sum(r.size for r in blocks_r)
+        rms = math.sqrt(sum(float(np.sum(r ** 2)) for r in blocks_r) / count) if count else None
+        disp = summary.get("displacement_rms_um")
+        if rms is not None and disp is not None and rms > disp:
+            # the average would be refused as worse than none on the folds' held-out
+            # rows (`worse_than_none`), where compd's choice alone passed: the choice
+            summary["judge"]["chosen"] = COMPD
+            summary["judge"]["reasons"].append(
+                f"not averaged, the average's error on the rows the folds held out (RMS "
+                f"{rms:.3g} µm) exceeds the displacement itself there (RMS {disp:.3g} µm)")
+            return terms, summary
+        summary["structure"] = (f"average of compd's choice ({summary['structure']}) ×"
+                                f"{1.0 - w:.2f}, {tb['label']} ×{w:.2f}")
+        out = both
+    else:
+        summary["structure"] = tb["label"]
+        summary["initial_conditions"] = "rest"
+        out = list(tb["terms"])
     count = sum(r.size for r in blocks_r)
     summary["_heldout_residuals"] = blocks_r
     summary["heldout_rms_um"] = math.sqrt(sum(float(np.sum(r ** 2)) for r in blocks_r)
                                           / count) if count else None
-    summary["structure"] = tb["label"]
-    summary["orders"] = term_orders(tb["terms"])
-    summary["initial_conditions"] = "rest"
-    return list(tb["terms"]), summary
+    summary["orders"] = term_orders(out)
+    return out, summary
 
 
 def refused(summary: dict[str, Any]) -> str | None:

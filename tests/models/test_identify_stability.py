@@ -6,10 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from models.identify.output_error import OeModel
 from models.identify.segments import Segments
 from models.identify.stability import block_errors, hedge, stability
 from models.identify.structures import make_data, select_structure
-from models.identify.textbook import textbook
+from models.identify.textbook import pick_pair, textbook
 
 
 def test_block_errors_cut_each_block() -> None:
@@ -62,6 +63,33 @@ def test_the_textbook_picks_the_sensors_that_explain_the_tool() -> None:
     assert sorted(tb.inputs) == [0, 1]
     assert tb.validation_fit_pct > 90.0
     assert len(tb.residuals) == 4 and all(r.size for r in tb.residuals)
+
+
+def test_a_vetoed_pair_gives_way_to_the_next_best_one() -> None:
+    """`compd fit` may write only a textbook `compd check` passes: the pair is
+    the best one the veto lets through, in order of inner hold-out MAE."""
+    y, us = _record()
+    d = make_data(y, us, Segments.single(y.size), 1.0, 4, "forward")
+    d.initial = False
+    free = pick_pair(d, us)
+    assert free is not None and sorted(free) == [0, 1]
+    asked: list[tuple[int, ...]] = []
+
+    def veto(pair: tuple[int, ...], model: OeModel) -> str | None:
+        asked.append(pair)
+        assert len(model.nums) == 2  # the pair's estimate on every usable row
+        return "terms that cancel" if sorted(pair) == [0, 1] else None
+
+    second = pick_pair(d, us, veto)
+    assert second is not None and sorted(second) != [0, 1]
+    assert asked[0] == free and asked[-1] == second and len(asked) == 2
+    tb = textbook(d, us, veto)
+    assert tb is not None and tb.inputs == second
+    # the second pair explains less of the tool than the vetoed one
+    assert tb.validation_fit_pct < textbook(d, us).validation_fit_pct  # type: ignore[union-attr]
+    # nothing passes: no textbook
+    assert pick_pair(d, us, lambda pair, model: "no") is None
+    assert textbook(d, us, lambda pair, model: "no") is None
 
 
 def test_excluded_rows_are_never_fitted_nor_scored_but_simulated_through() -> None:
