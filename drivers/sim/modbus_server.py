@@ -51,7 +51,7 @@ from pymodbus.simulator.simcore import SimCore
 
 from drivers.addresses import Address, ModbusAddress
 from drivers.modbus_codec import decode, encode
-from drivers.sim.ports import free_tcp_port
+from drivers.sim.ports import free_tcp_port, start_on_free_port
 from drivers.sim.temp_comp import TWINCAT_SCALES, line_of
 from drivers.temp_comp import AXES, AxisCompensation, output_name
 
@@ -163,6 +163,8 @@ class ModbusSimController:
         self.input_registers = input_registers
         self.holding_registers = holding_registers
         self.host = host
+        #: the port was picked here (not named by the caller): it may be picked again
+        self._picked = not port
         self.port = port or free_tcp_port(host)
         self.endpoint = f"modbus://{host}:{self.port}"
         self.channels: dict[str, Address] = dict(CHANNELS)
@@ -197,9 +199,17 @@ class ModbusSimController:
                      [SimData(0, values=list(self._input), datatype=DataType.REGISTERS)]),
             action=self._action,
         )
-        server = ModbusTcpServer(device, address=(self.host, self.port),
-                                 trace_pdu=self._trace_pdu)
-        await server.serve_forever(background=True)
+        server: ModbusTcpServer | None = None
+
+        async def listen() -> None:
+            nonlocal server
+            server = ModbusTcpServer(device, address=(self.host, self.port),
+                                     trace_pdu=self._trace_pdu)
+            await server.serve_forever(background=True)
+
+        await start_on_free_port(listen, self._repick, picked=self._picked,
+                                 taken=_listen_failed)
+        assert server is not None
         # From here on the server's own register lists are the state.
         if not isinstance(server.context, SimCore):
             raise RuntimeError("pymodbus did not build a SimCore datastore")
@@ -207,6 +217,10 @@ class ModbusSimController:
         self._input = runtime.block["i"][2]
         self._holding = runtime.block["h"][2]
         self._server = server
+
+    def _repick(self) -> None:
+        self.port = free_tcp_port(self.host)
+        self.endpoint = f"modbus://{self.host}:{self.port}"
 
     async def stop(self) -> None:
         server, self._server = self._server, None
@@ -314,3 +328,9 @@ class ModbusSimController:
             if address < fault.address + fault.count and fault.address < address + count:
                 return ExcCodes(fault.code)
         return None
+
+
+def _listen_failed(exc: BaseException) -> bool:
+    """pymodbus's server reports a bind that failed as this RuntimeError, the
+    errno dropped: on a port picked on 127.0.0.1, the port was taken."""
+    return isinstance(exc, RuntimeError) and "could not start listen" in str(exc).lower()

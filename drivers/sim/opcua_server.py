@@ -63,7 +63,7 @@ from drivers.opcua_codec import INT_RANGES
 from drivers.opcua_space import CopiedSpaceInternalServer
 from drivers.sim import CHANNELS, OUTPUTS, PROBES
 from drivers.sim.opcua_security import POLICY_TYPES, OpcUaSimSecurity, secure, user_manager
-from drivers.sim.ports import free_tcp_port
+from drivers.sim.ports import free_tcp_port, start_on_free_port
 from drivers.sim.renamed import FORMER_NAMES, warn_former
 from drivers.sim.temp_comp import SINUMERIK_DATA, SINUMERIK_SCALES, TOOL_DATA, line_of
 from drivers.temp_comp import AXES, PARAMETERS, AxisCompensation, output_name
@@ -136,6 +136,8 @@ class OpcUaSimController:
         self.host = host
         #: channel nodes writable by clients too (a HIL bench's plant writes them)
         self.writable_channels = writable_channels
+        #: the port was picked here (not named by the caller): it may be picked again
+        self._picked = not port
         self.port = port or free_tcp_port(host)
         self.endpoint = f"opc.tcp://{host}:{self.port}"
         self.security = security
@@ -174,6 +176,13 @@ class OpcUaSimController:
     async def start(self) -> None:
         if self._server is not None:
             return
+        await start_on_free_port(self._start, self._repick, picked=self._picked)
+
+    def _repick(self) -> None:
+        self.port = free_tcp_port(self.host)
+        self.endpoint = f"opc.tcp://{self.host}:{self.port}"
+
+    async def _start(self) -> None:
         server = Server(iserver=CopiedSpaceInternalServer(
             user_manager=user_manager(self.security)))
         await server.init()

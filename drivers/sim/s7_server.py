@@ -39,7 +39,7 @@ from snap7.type import SrvArea
 
 from drivers.addresses import Address, S7Address
 from drivers.s7_codec import decode, encode
-from drivers.sim.ports import free_tcp_port
+from drivers.sim.ports import free_tcp_port, start_on_free_port
 from drivers.sim.temp_comp import SINUMERIK_SCALES, line_of
 from drivers.temp_comp import AXES, PARAMETERS, AxisCompensation, output_name
 
@@ -145,6 +145,8 @@ class S7SimController:
         if options:
             raise TypeError(f"unknown S7 sim options: {sorted(options)}")
         self.host = host
+        #: the port was picked here (not named by the caller): it may be picked again
+        self._picked = not port
         self.port = port or free_tcp_port(host)
         self.endpoint = f"s7://{host}:{self.port}"
         self.channels: dict[str, Address] = dict(CHANNELS)
@@ -180,8 +182,16 @@ class S7SimController:
         server = _Server()
         for db, buf in self._dbs.items():
             server.register_area(SrvArea.DB, db, buf)
-        server.start_to(self.host, self.port)
+
+        async def listen() -> None:
+            server.start_to(self.host, self.port)
+
+        await start_on_free_port(listen, self._repick, picked=self._picked)
         self._server = server
+
+    def _repick(self) -> None:
+        self.port = free_tcp_port(self.host)
+        self.endpoint = f"s7://{self.host}:{self.port}"
 
     async def stop(self) -> None:
         server, self._server = self._server, None
