@@ -10,7 +10,10 @@ the same spans every second, and building them was a good part of a
 request's own cost.
 
 pymodbus's own defaults are replaced: no retries (a timed-out write is never
-sent again), a timeout of `timeout_s`, no automatic reconnect. The link is
+sent again), a timeout of `timeout_s`, no automatic reconnect. The connect is
+bounded by pymodbus's timeout; each request then by `timeout_s` from its own
+start, kept by the driver's `drivers.modbus_watch.RequestWatch` (one timer per
+link instead of pymodbus's timer and futures per request). The link is
 ours (`drivers.link.Link`, the lifecycle every driver shares): on a lost link
 or a timeout the client is dropped, calls fail fast with `ConnectionLost`
 until `Backoff` says a new attempt is due, and the next call then opens a
@@ -51,6 +54,7 @@ from drivers.errors import (
 )
 from drivers.link import Link, LinkedDriver
 from drivers.modbus_codec import Span, decode_at, encode, plan_reads, write_spans
+from drivers.modbus_watch import RequestWatch, response_future, untimed
 from drivers.plans import PlanCache
 
 DEFAULT_PORT = 502
@@ -71,8 +75,8 @@ def parse_endpoint(endpoint: str) -> tuple[str, int]:
 def _fail_pending(client: AsyncModbusTcpClient) -> None:
     """On a dropped connection, fail the request in flight at once instead of
     letting it wait out the timeout (pymodbus 3.16.1 only notices at timeout)."""
-    future = getattr(getattr(client, "ctx", None), "response_future", None)
-    if isinstance(future, asyncio.Future) and not future.done():
+    future = response_future(client)
+    if future is not None and not future.done():
         future.set_exception(ConnectionException("connection closed by the controller"))
 
 
@@ -138,6 +142,7 @@ class ModbusDriver(LinkedDriver):
         self._write_plan = PlanCache(
             lambda names: write_spans([(n, self.outputs[n]) for n in names]))
         self._in_flight = False
+        self._watch = RequestWatch(timeout_s)
 
     # -- link -------------------------------------------------------------
 
@@ -158,6 +163,7 @@ class ModbusDriver(LinkedDriver):
         if not ok:
             client.close()
             raise ConnectionRefusedError("connect refused or timed out")
+        untimed(client)  # each request's deadline is self._watch's from now on
         return client
 
     # -- read ---------------------------------------------------------------
@@ -227,6 +233,7 @@ class ModbusDriver(LinkedDriver):
                         client: AsyncModbusTcpClient) -> Any:
         """Await one pymodbus request, turning its failures into ours."""
         self._in_flight = True
+        self._watch.begin(client)
         try:
             return await client.execute(False, request)
         except ConnectionException as exc:
@@ -242,6 +249,11 @@ class ModbusDriver(LinkedDriver):
                                  address=span.describe()) from exc
         finally:
             self._in_flight = False
+            self._watch.end()
+
+    async def close(self) -> None:
+        self._watch.close()
+        await super().close()
 
     # -- write --------------------------------------------------------------
 
