@@ -19,6 +19,8 @@ daemons step together on one `SteppedClock` (a 1 s period at time_scale 0.1:
 10 s of the clock a cycle, so a 4 s request timeout that a loaded PC never
 reaches: every cycle completes, whatever the load; the incomplete ones are
 counted); --cycles counts the cycles of each machine, after 5 of warm-up.
+FLEET_LOOP=uvloop runs both sides' daemons on uvloop's event loop (an
+experiment: uvloop is not a dependency of compd).
 
 Run:  .venv/bin/python benchmarks/bench_daemon_cpu.py --peer /path/to/old/checkout
       [--cycles 5000] [--rounds 4] [--modbus 1024 --cycles 30]
@@ -93,6 +95,10 @@ def _measure_fleet(cycles: int, farm: Path) -> float:
     descs = json.loads(farm.read_text())
     with tempfile.TemporaryDirectory() as tmp, open(os.devnull, "w") as devnull:
         configure_logging(json=True, level="info", stream=devnull)
+        if os.environ.get("FLEET_LOOP") == "uvloop":  # an experiment, as in bench_daemon_fleet
+            import uvloop  # type: ignore[import-not-found,unused-ignore]
+
+            return float(uvloop.run(_fleet_cycles(cycles, Path(tmp), descs)))
         return asyncio.run(_fleet_cycles(cycles, Path(tmp), descs))
 
 
