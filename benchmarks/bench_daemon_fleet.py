@@ -37,7 +37,8 @@ To find what a step's time goes to, FLEET_ABLATE=disk4,norecorder,nogc (any of
 them) runs the daemons with four disk threads (the former default), without the
 recorder, or with CPython's own collector thresholds instead of
 `compd.runtime.gcpolicy`; with --run-dir, FLEET_LOOP=uvloop runs the pool on
-uvloop's event loop (an experiment: uvloop is not a dependency of compd).
+uvloop's event loop (an experiment: uvloop is not a dependency of compd; its
+transports are not counted, so req reads 0).
 FLEET_DEBUG=1 prints each worker's figures (own time, collections per
 generation) and when its window opens (to attach a profiler) on stderr.
 
