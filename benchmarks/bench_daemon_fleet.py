@@ -34,8 +34,11 @@ the window: recorder, checkpoints, logs) and the requests per cycle (socket
 sends of the drivers' asyncio transports over the window / cycles).
 
 To find what a step's time goes to, FLEET_ABLATE=disk4,norecorder,nogc (any of
-them) runs the daemons with four disk threads (the former default), without the recorder, or with
-CPython's own collector thresholds instead of `compd.runtime.gcpolicy`;
+them) runs the daemons with four disk threads (the former default), without the
+recorder, or with CPython's own collector thresholds instead of
+`compd.runtime.gcpolicy`; with --run-dir, FLEET_LOOP=uvloop runs the pool on
+uvloop's event loop (an experiment: uvloop is not a dependency of compd; its
+transports are not counted, so req reads 0).
 FLEET_DEBUG=1 prints each worker's figures (own time, collections per
 generation) and when its window opens (to attach a profiler) on stderr.
 
@@ -470,7 +473,8 @@ def search(protocol: str, args: argparse.Namespace, work: Path) -> tuple[Step, i
 def run_dir(args: argparse.Namespace) -> None:
     """`compd run DIR --workers W` at each N of --sizes, each W of --workers in turn."""
     print(f"compd run DIR --workers W at 1 Hz on {os.cpu_count()} CPUs, {args.farms} sim "
-          f"farms, {args.seconds} s window, checkpoint every {args.checkpoint_every}")
+          f"farms, {args.seconds} s window, checkpoint every {args.checkpoint_every}, "
+          f"event loop {os.environ.get('FLEET_LOOP', 'asyncio')}")
     fleet_run_dir.print_header()
     with tempfile.TemporaryDirectory(prefix="bench-daemon-fleet-") as tmp:
         for protocol in args.protocols:

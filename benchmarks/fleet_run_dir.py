@@ -99,10 +99,25 @@ def pool_worker_main(out: str) -> int:
     from compd.runtime import worker_main
 
     _patch_fleet()
+    _event_loop()
     try:
         return worker_main.main()
     finally:
         _dump(Path(out))
+
+
+def _event_loop() -> None:
+    """FLEET_LOOP=uvloop: the pool on uvloop's event loop instead of asyncio's (an
+    experiment: uvloop is not one of compd's dependencies; install it in the venv)."""
+    import asyncio
+
+    name = os.environ.get("FLEET_LOOP", "asyncio")
+    if name == "uvloop":
+        import uvloop  # type: ignore[import-not-found,unused-ignore]
+
+        asyncio.set_event_loop_policy(uvloop.EventLoopPolicy())
+    elif name != "asyncio":
+        raise SystemExit(f"FLEET_LOOP: unknown {name!r} (known: asyncio, uvloop)")
 
 
 def pool_main(directory: str, workers: int, out: str, here: Path) -> int:
@@ -115,6 +130,7 @@ def pool_main(directory: str, workers: int, out: str, here: Path) -> int:
     configs = load_machines(Path(directory))
     configure_logging(json=True, level="info")
     _patch_fleet()
+    _event_loop()
     if workers == 1:
         rc = asyncio.run(Fleet(configs, drivers=build_drivers(configs)).run())
         _dump(Path(out))

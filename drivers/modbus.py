@@ -3,10 +3,17 @@
 Reads go out as block reads: the requested names are grouped by (unit,
 register kind) and covered by as few contiguous requests as possible
 (`drivers.modbus_codec.plan_reads`); writes of back-to-back registers go out
-as one write-multiple request.
+as one write-multiple request. A read's request object (pymodbus's PDU) is
+built once with its plan and sent again every cycle through the client's
+`execute` (which stamps a fresh transaction id on each send): a fleet reads
+the same spans every second, and building them was a good part of a
+request's own cost.
 
 pymodbus's own defaults are replaced: no retries (a timed-out write is never
-sent again), a timeout of `timeout_s`, no automatic reconnect. The link is
+sent again), a timeout of `timeout_s`, no automatic reconnect. The connect is
+bounded by pymodbus's timeout; each request then by `timeout_s` from its own
+start, kept by the driver's `drivers.modbus_watch.RequestWatch` (one timer per
+link instead of pymodbus's timer and futures per request). The link is
 ours (`drivers.link.Link`, the lifecycle every driver shares): on a lost link
 or a timeout the client is dropped, calls fail fast with `ConnectionLost`
 until `Backoff` says a new attempt is due, and the next call then opens a
@@ -21,12 +28,18 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Awaitable, Callable, Mapping, Sequence
+from collections.abc import Awaitable, Mapping, Sequence
 from functools import partial
 from typing import Any
 
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+from pymodbus.pdu import ModbusPDU
+from pymodbus.pdu.register_message import (
+    ReadHoldingRegistersRequest,
+    ReadInputRegistersRequest,
+    WriteMultipleRegistersRequest,
+)
 
 from drivers.addresses import Address, ModbusAddress
 from drivers.backoff import Backoff
@@ -41,6 +54,7 @@ from drivers.errors import (
 )
 from drivers.link import Link, LinkedDriver
 from drivers.modbus_codec import Span, decode_at, encode, plan_reads, write_spans
+from drivers.modbus_watch import RequestWatch, response_future, untimed
 from drivers.plans import PlanCache
 
 DEFAULT_PORT = 502
@@ -61,8 +75,8 @@ def parse_endpoint(endpoint: str) -> tuple[str, int]:
 def _fail_pending(client: AsyncModbusTcpClient) -> None:
     """On a dropped connection, fail the request in flight at once instead of
     letting it wait out the timeout (pymodbus 3.16.1 only notices at timeout)."""
-    future = getattr(getattr(client, "ctx", None), "response_future", None)
-    if isinstance(future, asyncio.Future) and not future.done():
+    future = response_future(client)
+    if future is not None and not future.done():
         future.set_exception(ConnectionException("connection closed by the controller"))
 
 
@@ -72,6 +86,21 @@ def _alive(client: AsyncModbusTcpClient) -> bool:
 
 async def _drop(client: AsyncModbusTcpClient, closing: bool) -> None:
     client.close()
+
+
+#: one read of a plan: its span and the request that reads it (built once)
+Read = tuple[Span, ModbusPDU]
+
+
+def read_request(span: Span) -> ModbusPDU:
+    """The request that reads `span` (sent as it is every cycle: `client.execute`
+    sets its transaction id on each send, nothing else of it changes)."""
+    cls = ReadInputRegistersRequest if span.kind == "input" else ReadHoldingRegistersRequest
+    return cls(address=span.start, count=span.count, dev_id=span.unit)
+
+
+def _reads(spans: Sequence[Span]) -> list[Read]:
+    return [(span, read_request(span)) for span in spans]
 
 
 def _check_addresses(role: str, table: Mapping[str, Address]) -> dict[str, ModbusAddress]:
@@ -113,6 +142,7 @@ class ModbusDriver(LinkedDriver):
         self._write_plan = PlanCache(
             lambda names: write_spans([(n, self.outputs[n]) for n in names]))
         self._in_flight = False
+        self._watch = RequestWatch(timeout_s)
 
     # -- link -------------------------------------------------------------
 
@@ -133,6 +163,7 @@ class ModbusDriver(LinkedDriver):
         if not ok:
             client.close()
             raise ConnectionRefusedError("connect refused or timed out")
+        untimed(client)  # each request's deadline is self._watch's from now on
         return client
 
     # -- read ---------------------------------------------------------------
@@ -144,38 +175,35 @@ class ModbusDriver(LinkedDriver):
             return self.outputs[name]
         raise BadAddress("unknown channel or output name", channel=name)
 
-    def _build_read_plan(self, names: tuple[str, ...]) -> list[Span]:
-        """The spans for this set of names (kept by `_plans`)."""
+    def _build_read_plan(self, names: tuple[str, ...]) -> list[Read]:
+        """The reads for this set of names (kept by `_plans`)."""
         items = [(name, self._lookup(name)) for name in dict.fromkeys(names)]
-        return plan_reads(items, max_gap=self.max_gap)
+        return _reads(plan_reads(items, max_gap=self.max_gap))
 
     async def read(self, names: Sequence[str]) -> dict[str, Sample]:
         plan = self._plans(names)
         out: dict[str, Sample] = {}
         async with self._lock:
-            for span in plan:
-                await self._read_span(names, span, out)
+            for one in plan:
+                await self._read_span(names, one, out)
         return out
 
-    async def _read_span(self, names: Sequence[str], span: Span,
+    async def _read_span(self, names: Sequence[str], one: Read,
                          out: dict[str, Sample]) -> None:
-        def request(client: AsyncModbusTcpClient) -> Any:
-            call = (client.read_input_registers if span.kind == "input"
-                    else client.read_holding_registers)
-            return call(span.start, count=span.count, device_id=span.unit)
-
+        span, request = one
         response = await self._call(request, span)
         if response.isError():
             code = int(getattr(response, "exception_code", 0))
             if code in BAD_ADDRESS_READ_CODES and len(span.items) > 1:
                 # The merged span crossed a register the controller refuses:
                 # read item by item from now on, which also names the culprit.
-                singles = plan_reads([span.items[0]], max_gap=0)
+                spans = plan_reads([span.items[0]], max_gap=0)
                 for item in span.items[1:]:
-                    singles += plan_reads([item], max_gap=0)
+                    spans += plan_reads([item], max_gap=0)
+                singles = _reads(spans)
                 plan = self._plans(names)
-                if span in plan:
-                    idx = plan.index(span)
+                if one in plan:
+                    idx = plan.index(one)
                     self._plans.put(names, plan[:idx] + singles + plan[idx + 1:])
                 for single in singles:
                     await self._read_span(names, single, out)
@@ -196,18 +224,18 @@ class ModbusDriver(LinkedDriver):
             out[name] = Sample(decode_at(addr, registers, addr.address - start), now_s,
                                Quality.GOOD)
 
-    def _call(self, request: Callable[[AsyncModbusTcpClient], Any],
-              span: Span) -> Awaitable[Any]:
+    def _call(self, request: ModbusPDU, span: Span) -> Awaitable[Any]:
         """One pymodbus request on the link (`drivers.link.Link` rules)."""
         return self._link.call(partial(self._exchange, request, span), "request",
                                where=span.where)
 
-    async def _exchange(self, request: Callable[[AsyncModbusTcpClient], Any], span: Span,
+    async def _exchange(self, request: ModbusPDU, span: Span,
                         client: AsyncModbusTcpClient) -> Any:
         """Await one pymodbus request, turning its failures into ours."""
         self._in_flight = True
+        self._watch.begin(client)
         try:
-            return await request(client)
+            return await client.execute(False, request)
         except ConnectionException as exc:
             raise ConnectionLost(f"link lost: {exc}", channel=span.names,
                                  address=span.describe()) from exc
@@ -221,6 +249,11 @@ class ModbusDriver(LinkedDriver):
                                  address=span.describe()) from exc
         finally:
             self._in_flight = False
+            self._watch.end()
+
+    async def close(self) -> None:
+        self._watch.close()
+        await super().close()
 
     # -- write --------------------------------------------------------------
 
@@ -239,7 +272,8 @@ class ModbusDriver(LinkedDriver):
 
     async def _write_span(self, span: Span, words: list[int]) -> None:
         response = await self._call(
-            lambda client: client.write_registers(span.start, words, device_id=span.unit), span)
+            WriteMultipleRegistersRequest(address=span.start, registers=words, dev_id=span.unit),
+            span)
         if response.isError():
             code = int(getattr(response, "exception_code", 0))
             name, addr = span.items[0]

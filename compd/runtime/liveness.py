@@ -24,13 +24,24 @@ BOOT_ID_PATH = "/proc/sys/kernel/random/boot_id"
 FUTURE_SLACK_S = 5.0
 
 
+#: the boot id read from each path (a process never outlives its boot: every
+#: checkpoint of a fleet stamps it, and reading the file was a fleet's share)
+_BOOT_IDS: dict[str, str | None] = {}
+
+
 def boot_id() -> str | None:
-    """The kernel's boot id (None where there is none, e.g. not Linux)."""
+    """The kernel's boot id (None where there is none, e.g. not Linux); read once
+    per process."""
+    path = BOOT_ID_PATH
+    if path in _BOOT_IDS:
+        return _BOOT_IDS[path]
     try:
-        with open(BOOT_ID_PATH, encoding="ascii") as f:
-            return f.read(64).strip() or None
+        with open(path, encoding="ascii") as f:
+            found = f.read(64).strip() or None
     except (OSError, UnicodeDecodeError):
-        return None
+        return None  # not kept: a read that failed once may succeed later
+    _BOOT_IDS[path] = found
+    return found
 
 
 def _finite(x: Any) -> float | None:

@@ -9,6 +9,7 @@ import time
 from collections.abc import AsyncIterator
 
 import pytest
+from pymodbus.pdu import ModbusPDU
 
 from drivers.addresses import ModbusAddress, OpcUaAddress
 from drivers.backoff import Backoff
@@ -115,6 +116,38 @@ async def test_channels_and_outputs_one_request_per_kind(sim: ModbusSimControlle
     finally:
         await driver.close()
     assert sorted(reads(sim)) == [(3, 0, 4), (3, 0, 4), (4, 0, 12), (4, 0, 12)]
+
+
+async def test_a_read_sends_the_requests_built_with_its_plan(
+        sim: ModbusSimController, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each span's request object is built once, with the plan, and sent again on
+    every read (a fresh transaction id each time); the values still come back."""
+    driver = driver_for(sim)
+    names = [*CHANNELS, "offset"]
+    sent: list[ModbusPDU] = []
+    try:
+        await driver.connect()
+        client = driver._link.session
+        assert client is not None
+        execute = client.execute
+
+        def spy(no_response_expected: bool, request: ModbusPDU) -> object:
+            sent.append(request)
+            return execute(no_response_expected, request)
+
+        monkeypatch.setattr(client, "execute", spy)
+        await driver.read(names)
+        first = [(r, r.transaction_id) for r in sent]
+        sent.clear()
+        await sim.publish({"bearing": 25.5})
+        samples = await driver.read(names)
+    finally:
+        await driver.close()
+    assert len(first) == 2 and [r for r, _ in first] == sent
+    assert all(a is b for (a, _), b in zip(first, sent, strict=True))
+    assert all(r.transaction_id != tid for r, tid in first)
+    assert samples["bearing"].value == pytest.approx(25.5)
+    assert sorted(reads(sim)) == [(3, 0, 2), (3, 0, 2), (4, 0, 12), (4, 0, 12)]
 
 
 async def test_far_apart_registers_split_and_125_cap(sim: ModbusSimController) -> None:
