@@ -114,7 +114,7 @@ class CycleIO:
         self.journal.events(plan.events)
         if any(e.name is EventName.REZERO for e in plan.events):
             self.rezeroed = True
-        outcome = await self._write(driver, plan)
+        outcome = await self._write(driver, plan, cfg)
         row = cycle.commit(outcome)
         self.journal.events(row.write_events)
         confirmed = self.dry_run or self.running.params.recorder_only or (
@@ -176,17 +176,25 @@ class CycleIO:
         self._read_names = (cfg, params, tuple(names))
         return self._read_names[2]
 
-    async def _write(self, driver: Driver, plan: Plan) -> Outcome:
-        """The plan's writes (none in a dry run), and how they went."""
+    async def _write(self, driver: Driver, plan: Plan, cfg: LoadedConfig) -> Outcome:
+        """The plan's writes (none in a dry run), and how they went. Bounded as the
+        read is, by the cycle itself and not only by the driver's own request
+        timeout: a write the driver failed to end is a transient failure at the
+        bound, never a cycle that stops (and the heartbeat with it)."""
         if self.dry_run or not plan.writes:
             return WRITTEN
+        limit_s = max(cfg.real_period_s, 2.0 * cfg.raw.controller.timeout_s)
         try:
-            await driver.write(plan.writes)
+            async with deadline(limit_s):
+                await driver.write(plan.writes)
         except DriverError as exc:
             permanent = isinstance(exc, WriteRejected) and exc.permanent
             for name in exc.channels or ("*",):
                 self.metrics.write_errors.labels(output=name).inc()
             return Outcome.failed(exc.channels, permanent=permanent, reason=str(exc))
+        except TimeoutError:  # the cycle's bound, the driver's own timeout not kept
+            self.metrics.write_errors.labels(output="*").inc()
+            return Outcome.failed(None, reason=f"no answer within the cycle's {limit_s:g} s")
         except Exception as exc:  # a driver's bug: a transient write failure
             self.metrics.write_errors.labels(output="*").inc()
             return Outcome.failed(None, reason=f"{type(exc).__name__}: {exc}")

@@ -229,3 +229,38 @@ async def test_a_read_whose_library_races_the_cycles_deadline_is_a_failed_read(
     failed = _named(logs, "read_failed")[0]
     assert failed["type"] == "TimeoutError", failed
     assert not _named(logs, "cycle_broken")
+
+
+class _HangingWriteDriver(RecordingDriver):
+    """Writes that, once `hang` is set, never end: a driver whose own request
+    timeout was not kept."""
+
+    hang = False
+
+    async def write(self, values: Mapping[str, float]) -> None:
+        if self.hang:
+            await asyncio.Event().wait()
+        await super().write(values)
+
+
+async def test_a_write_the_driver_never_ends_fails_at_the_cycles_bound(
+        sim: ModbusSimController, tmp_path: Path) -> None:
+    """The cycle bounds its write as it bounds its read, not only through the driver's
+    own timeout: a write that never ends is a failed write (counted, logged), the
+    cycles go on, and writes go through again once the driver answers."""
+    cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
+    driver = _HangingWriteDriver(build_driver(cfg))
+    with structlog.testing.capture_logs() as logs:
+        async with stepped_daemon(cfg, driver=driver) as run:
+            daemon, task = run.daemon, run.task
+            await run.until(lambda: daemon.telemetry.complete_cycles >= 3)
+            driver.hang = True
+            await until(lambda: len(_named(logs, "write_failed")) >= 1 or task.done())
+            assert not task.done(), task
+            failed_at = daemon.telemetry.complete_cycles
+            driver.hang = False
+            await run.until(lambda: daemon.telemetry.complete_cycles >= failed_at + 3)
+            assert await run.stop() == 0
+    failed = _named(logs, "write_failed")[0]
+    assert "no answer within the cycle's" in str(failed), failed
+    assert not _named(logs, "cycle_broken")
