@@ -130,7 +130,7 @@ class CycleIO:
         say)."""
         params = self.running.params
         names = self._names(cfg, params)
-        limit_s = max(cfg.real_period_s, 2.0 * cfg.raw.controller.timeout_s)
+        limit_s = _call_bound_s(cfg)
         try:
             # a timeout scope, not wait_for: no task started for every cycle's read;
             # drivers.deadline: a library's cancellation at its expiry is a timeout too
@@ -183,7 +183,7 @@ class CycleIO:
         bound, never a cycle that stops (and the heartbeat with it)."""
         if self.dry_run or not plan.writes:
             return WRITTEN
-        limit_s = max(cfg.real_period_s, 2.0 * cfg.raw.controller.timeout_s)
+        limit_s = _call_bound_s(cfg)
         try:
             async with deadline(limit_s):
                 await driver.write(plan.writes)
@@ -284,3 +284,9 @@ def _controller_off(got: Mapping[str, Sample]) -> str | None:
     if bit("homed") is False:
         return "not_homed"
     return None
+
+
+def _call_bound_s(cfg: LoadedConfig) -> float:
+    """The cycle's own bound on its whole read and its whole write, whatever the
+    driver does: the real period, or twice the request timeout when that is longer."""
+    return max(cfg.real_period_s, 2.0 * cfg.raw.controller.timeout_s)

@@ -7,14 +7,14 @@ from __future__ import annotations
 
 import asyncio
 import itertools
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping, MutableMapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import pytest
 import structlog
 
-from compd.config.loader import load_config
+from compd.config.loader import LoadedConfig, load_config
 from compd.core.cycle import Cycle
 from compd.core.output import Status
 from compd.runtime.checkpoint import load_checkpoint
@@ -186,16 +186,39 @@ async def test_a_reload_beyond_a_bound_is_refused_by_name(
     assert failed["key"] == "adaptation.max_total_um" and "10000" in failed["reason"]
 
 
+class _Hangable(RecordingDriver):
+    """A recording driver the test makes hang (`hang`), each subclass its own way."""
+
+    hang = False
+
+
+async def _hang_then_answer(cfg: LoadedConfig, driver: _Hangable,
+                            event: str) -> list[MutableMapping[str, Any]]:
+    """A stepped daemon on `driver`: 3 cycles, then the driver hangs until `event`
+    is logged (the daemon's task must still run), then it answers again and 3
+    more cycles complete before a clean stop. The captured log lines."""
+    with structlog.testing.capture_logs() as logs:
+        async with stepped_daemon(cfg, driver=driver) as run:
+            daemon, task = run.daemon, run.task
+            await run.until(lambda: daemon.telemetry.complete_cycles >= 3)
+            driver.hang = True
+            await until(lambda: len(_named(logs, event)) >= 1 or task.done())
+            assert not task.done(), task
+            driver.hang = False
+            done = daemon.telemetry.complete_cycles
+            await run.until(lambda: daemon.telemetry.complete_cycles >= done + 3)
+            assert await run.stop() == 0
+    return logs
+
+
 class _Raced(asyncio.CancelledError):
     """What asyncua's wait_for2 raises when a cancellation meets an answer that arrived
     at the same instant (CancelledWithResultError, a CancelledError subclass)."""
 
 
-class _RacingDriver(RecordingDriver):
+class _RacingDriver(_Hangable):
     """Reads that, once `hang` is set, never answer, and end as the library ends a
     request cancelled at the instant its answer came: with the subclass."""
-
-    hang = False
 
     async def read(self, names: Sequence[str]) -> dict[str, Sample]:
         if self.hang:
@@ -213,29 +236,16 @@ async def test_a_read_whose_library_races_the_cycles_deadline_is_a_failed_read(
     not a cancellation of the daemon's loop (under load it ended `compd run` with
     exit 1 before its first complete cycle)."""
     cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
-    driver = _RacingDriver(build_driver(cfg))
-    with structlog.testing.capture_logs() as logs:
-        async with stepped_daemon(cfg, driver=driver) as run:
-            daemon, task = run.daemon, run.task
-            await run.until(lambda: daemon.telemetry.complete_cycles >= 3)
-            driver.hang = True
-            await until(lambda: len(_named(logs, "read_failed")) >= 1 or task.done())
-            assert not task.done(), task
-            driver.hang = False
-            done = daemon.telemetry.complete_cycles
-            await run.until(lambda: daemon.telemetry.complete_cycles >= done + 3)
-            assert await run.stop() == 0
+    logs = await _hang_then_answer(cfg, _RacingDriver(build_driver(cfg)), "read_failed")
     # the hung read is the first failure (a busy machine may add a timeout of its own)
     failed = _named(logs, "read_failed")[0]
     assert failed["type"] == "TimeoutError", failed
     assert not _named(logs, "cycle_broken")
 
 
-class _HangingWriteDriver(RecordingDriver):
+class _HangingWriteDriver(_Hangable):
     """Writes that, once `hang` is set, never end: a driver whose own request
     timeout was not kept."""
-
-    hang = False
 
     async def write(self, values: Mapping[str, float]) -> None:
         if self.hang:
@@ -249,18 +259,7 @@ async def test_a_write_the_driver_never_ends_fails_at_the_cycles_bound(
     own timeout: a write that never ends is a failed write (counted, logged), the
     cycles go on, and writes go through again once the driver answers."""
     cfg = load_config(write_config(tmp_path, sim.endpoint, time_scale=1.0))
-    driver = _HangingWriteDriver(build_driver(cfg))
-    with structlog.testing.capture_logs() as logs:
-        async with stepped_daemon(cfg, driver=driver) as run:
-            daemon, task = run.daemon, run.task
-            await run.until(lambda: daemon.telemetry.complete_cycles >= 3)
-            driver.hang = True
-            await until(lambda: len(_named(logs, "write_failed")) >= 1 or task.done())
-            assert not task.done(), task
-            failed_at = daemon.telemetry.complete_cycles
-            driver.hang = False
-            await run.until(lambda: daemon.telemetry.complete_cycles >= failed_at + 3)
-            assert await run.stop() == 0
+    logs = await _hang_then_answer(cfg, _HangingWriteDriver(build_driver(cfg)), "write_failed")
     failed = _named(logs, "write_failed")[0]
     assert "no answer within the cycle's" in str(failed), failed
     assert not _named(logs, "cycle_broken")
